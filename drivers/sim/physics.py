@@ -1,0 +1,141 @@
+"""Kinematics of a MIMU on a single-axis table, with per-triad errors, noise and quantisation.
+
+Frames: ENU local level (x east, y north, z up); body = the cube fixture. A segment holds the
+fixture at one attitude on the table while the table runs at a constant rate (zero for a static
+dwell), reached by a constant angular acceleration over ``ramp_s`` from the previous rate.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterator, Mapping
+
+import numpy as np
+
+from drivers.chunk import SampleChunk
+from drivers.sim.noise import NoiseGenerator, TriadNoise
+
+SPECIFIC_FORCE = "specific_force"
+ANGULAR_RATE = "angular_rate"
+
+
+def lower_triangular_k(scale, misalignment) -> np.ndarray:
+    """K of paper eq. 16 from scale factors (kx, ky, kz) and angles (Δyz, Δzy, Δzx) in rad."""
+    kx, ky, kz = scale
+    dyz, dzy, dzx = misalignment
+    return np.array([[kx, 0.0, 0.0], [-dyz * ky, ky, 0.0], [dzy * kz, -dzx * kz, kz]])
+
+
+@dataclass(frozen=True)
+class TriadTruth:
+    """True errors of one triad: raw = K·(true + noise) + bias, then quantised to ``lsb``."""
+
+    kind: str
+    K: np.ndarray
+    bias: np.ndarray
+    noise: TriadNoise
+    lsb: float = 0.0
+    output_unit: str = ""
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A stretch of constant fixture attitude; the table ramps to ``table_rate`` then holds it."""
+
+    duration_s: float
+    attitude: np.ndarray  # body -> ENU at table angle zero
+    table_rate: float = 0.0  # rad/s about the table axis (ENU up), sign = direction
+    ramp_s: float = 0.0
+    label: str = ""
+
+
+@dataclass
+class MimuSimulator:
+    """Generates sample chunks much faster than real time; deterministic for a given seed."""
+
+    triads: Mapping[str, TriadTruth]
+    gravity: float  # m/s²
+    latitude_rad: float
+    earth_rate: float = 7.292115e-5  # rad/s
+    rate_hz: float = 250.0
+    lever_arm: np.ndarray = field(default_factory=lambda: np.array([0.03, 0.02, 0.01]))  # m, body
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        self._rng = np.random.default_rng(self.seed)
+        self._noise = {n: NoiseGenerator(t.noise, self.rate_hz, self._rng) for n, t in self.triads.items()}
+        self._sample = 0  # index of the next sample
+        self._angle = 0.0  # table angle, rad
+        self._rate = 0.0  # table rate, rad/s
+
+    @property
+    def time(self) -> float:
+        return self._sample / self.rate_hz
+
+    @property
+    def table_angle(self) -> float:
+        return self._angle
+
+    def run(self, segments, chunk_len: int = 25_000) -> Iterator[SampleChunk]:
+        for seg in segments:
+            yield from self.run_segment(seg, chunk_len)
+
+    def run_segment(self, seg: Segment, chunk_len: int = 25_000) -> Iterator[SampleChunk]:
+        n_total = int(round(seg.duration_s * self.rate_hz))
+        rate0, angle0, start = self._rate, self._angle, self._sample
+        ramp = max(seg.ramp_s, 0.0)
+        accel = (seg.table_rate - rate0) / ramp if ramp > 0 else 0.0
+        done = 0
+        while done < n_total:
+            n = min(chunk_len, n_total - done)
+            tau = np.arange(done, done + n) / self.rate_hz
+            in_ramp = tau < ramp
+            rate = np.where(in_ramp, rate0 + accel * tau, seg.table_rate)
+            alpha = np.where(in_ramp, accel, 0.0)
+            ramp_angle = rate0 * np.minimum(tau, ramp) + 0.5 * accel * np.minimum(tau, ramp) ** 2
+            angle = angle0 + ramp_angle + seg.table_rate * np.maximum(tau - ramp, 0.0)
+            yield self._chunk(start + done, seg.attitude, angle, rate, alpha)
+            done += n
+        t_end = n_total / self.rate_hz
+        self._angle = angle0 + rate0 * min(t_end, ramp) + 0.5 * accel * min(t_end, ramp) ** 2 \
+            + seg.table_rate * max(t_end - ramp, 0.0)
+        self._rate = seg.table_rate if t_end >= ramp else rate0 + accel * t_end
+        self._sample = start + n_total
+
+    def true_inputs(self, attitude, angle, rate, alpha) -> tuple[np.ndarray, np.ndarray]:
+        """Specific force (m/s²) and angular rate (rad/s) in body axes, (n, 3) each."""
+        c, s = np.cos(angle), np.sin(angle)
+        # C_bn(t) = Rz(angle) · attitude; rows of its transpose give ENU -> body.
+        lever_enu = attitude @ self.lever_arm
+        # Acceleration of the sensor: d²/dt² [Rz(angle) · lever_enu] (the table axis is fixed).
+        lx, ly = lever_enu[0], lever_enu[1]
+        acc = np.empty((len(angle), 3))
+        acc[:, 0] = -rate**2 * (c * lx - s * ly) + alpha * (-s * lx - c * ly)
+        acc[:, 1] = -rate**2 * (s * lx + c * ly) + alpha * (c * lx - s * ly)
+        acc[:, 2] = 0.0
+        force_enu = acc + np.array([0.0, 0.0, self.gravity])
+        omega_enu = np.empty_like(acc)
+        omega_enu[:, 0] = 0.0
+        omega_enu[:, 1] = self.earth_rate * np.cos(self.latitude_rad)
+        omega_enu[:, 2] = self.earth_rate * np.sin(self.latitude_rad) + rate
+        return _enu_to_body(force_enu, attitude, c, s), _enu_to_body(omega_enu, attitude, c, s)
+
+    def _chunk(self, first: int, attitude, angle, rate, alpha) -> SampleChunk:
+        force, omega = self.true_inputs(attitude, angle, rate, alpha)
+        t = (first + np.arange(len(angle))) / self.rate_hz
+        out = {}
+        for name, truth in self.triads.items():
+            true = force if truth.kind == SPECIFIC_FORCE else omega
+            raw = (true + self._noise[name].draw(len(t))) @ truth.K.T + truth.bias
+            if truth.lsb:
+                raw = np.round(raw / truth.lsb) * truth.lsb
+            out[name] = raw
+        return SampleChunk(t=t, triads=out)
+
+
+def _enu_to_body(v_enu: np.ndarray, attitude: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    # v_body = attitudeᵀ · Rz(angle)ᵀ · v_enu, vectorised over samples.
+    rotated = np.empty_like(v_enu)
+    rotated[:, 0] = c * v_enu[:, 0] + s * v_enu[:, 1]
+    rotated[:, 1] = -s * v_enu[:, 0] + c * v_enu[:, 1]
+    rotated[:, 2] = v_enu[:, 2]
+    return rotated @ attitude
