@@ -1,0 +1,87 @@
+"""Cramér-Rao bound on a triad's 9 parameters, with every position's orientation a nuisance.
+
+The measurement model is the full one, not the norm residuals: each average is
+K·(true input in body axes) + b with Gaussian noise of known covariance, and the body-axis
+direction of each input is unknown (2 angles per position, plus the heading of the horizontal
+Earth rate for a gyro dwell). The bound is the 9x9 block of the inverse Fisher information.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fieldcal.model import N_PARAMS, distort_with
+
+
+def _tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors perpendicular to each row of d, (n, 3) each."""
+    helper = np.where(np.abs(d[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(d, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return e1, np.cross(d, e1)
+
+
+def _perturbed(d0: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    e1, e2 = _tangent_basis(d0)
+    d = d0 + angles[:, [0]] * e1 + angles[:, [1]] * e2
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    cols = []
+    for i, h in enumerate(steps):
+        dx = np.zeros_like(x0)
+        dx[i] = h
+        cols.append((mean_fn(x0 + dx) - mean_fn(x0 - dx)) / (2 * h))
+    J = np.column_stack(cols) * steps  # derivatives per step: columns of comparable size
+    chol = np.linalg.cholesky(covariance)
+    Jw = np.linalg.solve(chol, J)
+    info_inv = np.linalg.inv(Jw.T @ Jw)
+    return info_inv[:N_PARAMS, :N_PARAMS] * np.outer(steps[:N_PARAMS], steps[:N_PARAMS])
+
+
+def _param_steps(theta: np.ndarray, reference: float) -> np.ndarray:
+    k = np.abs(theta[3:6])
+    return 1e-6 * np.r_[k * reference, k, np.ones(3)]
+
+
+def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance) -> np.ndarray:
+    """Bound for static averages K·g·d_i + b, d_i the true up direction in body axes."""
+    up_body = np.asarray(up_body, dtype=float)
+    n = len(up_body)
+
+    def mean(x):
+        d = _perturbed(up_body, x[N_PARAMS:].reshape(n, 2))
+        return distort_with(x[:N_PARAMS], gravity * d).ravel()
+
+    x0 = np.r_[theta, np.zeros(2 * n)]
+    steps = np.r_[_param_steps(theta, gravity), np.full(2 * n, 1e-6)]
+    return _bound(mean, x0, steps, covariance)
+
+
+def angular_rate_bound(theta, axis_body: np.ndarray, table_rate: np.ndarray, north_body: np.ndarray,
+                       earth_rate: float, latitude_rad: float, covariance) -> np.ndarray:
+    """Bound for per-position +ω, −ω and static averages (data order: all +, all −, all static).
+
+    axis_body: true table axis (local up) in body axes per position; north_body: true horizontal
+    direction of the Earth rate in body axes during each static dwell.
+    """
+    axis_body = np.asarray(axis_body, dtype=float)
+    n = len(axis_body)
+    rate = np.broadcast_to(np.asarray(table_rate, dtype=float), (n,))
+    vertical, horizontal = earth_rate * np.sin(latitude_rad), earth_rate * np.cos(latitude_rad)
+
+    def mean(x):
+        theta_, nuis = x[:N_PARAMS], x[N_PARAMS:].reshape(n, 3)
+        d = _perturbed(axis_body, nuis[:, :2])
+        # Heading: rotate the true north direction about d by the third nuisance angle.
+        north = north_body - np.einsum("ij,ij->i", north_body, d)[:, None] * d
+        north /= np.linalg.norm(north, axis=1, keepdims=True)
+        north = np.cos(nuis[:, [2]]) * north + np.sin(nuis[:, [2]]) * np.cross(d, north)
+        plus = distort_with(theta_, (rate + vertical)[:, None] * d)
+        minus = distort_with(theta_, (-rate + vertical)[:, None] * d)
+        static = distort_with(theta_, vertical * d + horizontal * north)
+        return np.concatenate([plus.ravel(), minus.ravel(), static.ravel()])
+
+    x0 = np.r_[theta, np.zeros(3 * n)]
+    steps = np.r_[_param_steps(theta, float(np.mean(rate))), np.full(3 * n, 1e-6)]
+    return _bound(mean, x0, steps, covariance)

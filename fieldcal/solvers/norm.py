@@ -1,0 +1,218 @@
+"""The norm method (paper eqs. 17-18) solved with Powell's method, and a least-squares cross-check.
+
+Both solvers minimise the same weighted sum of squared norm residuals. The weights come from the
+covariance of the averages, propagated through the residuals at the starting point; the search
+runs in coordinates whitened by the Jacobian there, so Powell's initial direction set is already
+conjugate and raw-count devices (b ≈ 32768, k ≈ 415 count per m/s²) need no hand-tuned start.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, stats
+
+from fieldcal.model import N_PARAMS, PARAM_NAMES, SI_UNIT, calibrate_with, k_from_params
+from fieldcal.solvers.ellipsoid import DegenerateError
+
+METHODS = ("powell", "lsq")
+# A parameter known no better than this fraction of its natural scale (|K|·reference for a bias,
+# k for a scale factor, 1 rad for an angle) means the positions do not determine it.
+_DEGENERATE_FRACTION = 0.01
+_GEOMETRY_RATIO = 1e-4
+
+
+class CalibrationError(ValueError):
+    """The averages cannot give a calibration; the message says why and what would help."""
+
+
+@dataclass(frozen=True)
+class TriadSolution:
+    name: str
+    kind: str
+    output_unit: str
+    method: str
+    theta: np.ndarray  # PARAM_NAMES order
+    covariance: np.ndarray  # 9x9
+    residuals: np.ndarray  # SI units of the reference, per residual_labels
+    residual_labels: tuple[str, ...]
+    chi2: float
+    dof: int
+    scaled_by_residuals: bool  # covariance scaled by the residual variance (no or too small input σ)
+    iterations: int
+    evaluations: int
+    condition_number: float
+
+    @property
+    def bias(self) -> np.ndarray:
+        return self.theta[:3].copy()
+
+    @property
+    def scale_factor(self) -> np.ndarray:
+        return self.theta[3:6].copy()
+
+    @property
+    def misalignment(self) -> np.ndarray:
+        return self.theta[6:9].copy()
+
+    @property
+    def K(self) -> np.ndarray:
+        return k_from_params(self.theta)
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance))
+
+    @property
+    def residual_unit(self) -> str:
+        return SI_UNIT[self.kind]
+
+    @property
+    def residual_rms(self) -> float:
+        return float(np.sqrt(np.mean(self.residuals**2)))
+
+    def calibrate(self, raw: np.ndarray) -> np.ndarray:
+        return calibrate_with(self.theta, np.asarray(raw, dtype=float))
+
+    def named(self) -> dict[str, tuple[float, float]]:
+        return {n: (float(v), float(s)) for n, v, s in zip(PARAM_NAMES, self.theta, self.sigma)}
+
+
+def _jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    f0 = fun(x)
+    cols = []
+    for i, h in enumerate(steps):
+        dx = np.zeros_like(x)
+        dx[i] = h
+        cols.append((fun(x + dx) - fun(x - dx)) / (2 * h))
+    return np.column_stack(cols) if cols else np.empty((len(f0), 0))
+
+
+def _natural_scales(problem, theta: np.ndarray) -> np.ndarray:
+    """Size of each parameter's natural unit: |K|·reference for biases, k for scales, 1 rad."""
+    k = np.abs(theta[3:6])
+    return np.r_[k * problem.reference_scale, k, np.ones(3)]
+
+
+def _forward_jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    f0 = fun(x)
+    eye = np.diag(steps)
+    return np.column_stack([(fun(x + eye[i]) - f0) / h for i, h in enumerate(steps)])
+
+
+def _residual_whitener(problem, theta0, covariance):
+    """L⁻¹ with L Lᵀ = G Σ Gᵀ, the residual covariance at the start (G = ∂r/∂u), or None."""
+    if covariance is None:
+        return None
+    u = problem.data
+    cov = np.asarray(covariance, dtype=float)
+    if cov.shape == (len(u) // 3, 3):  # per-average, per-axis 1σ
+        cov = np.diag(cov.ravel() ** 2)
+    if cov.shape != (len(u), len(u)):
+        raise ValueError(f"{problem.name}: covariance must be ({len(u)}, {len(u)}) or "
+                         f"({len(u) // 3}, 3) sigmas, got {cov.shape}")
+    steps = 1e-6 * np.maximum(np.abs(u), np.abs(theta0[3:6]).max() * problem.reference_scale)
+    # Forward differences: the residuals are smooth in u and only weights depend on G.
+    G = _forward_jacobian(lambda x: problem.residuals(theta0, x), u, steps)
+    try:
+        return np.linalg.inv(np.linalg.cholesky(G @ cov @ G.T))
+    except np.linalg.LinAlgError:
+        raise CalibrationError(f"{problem.name}: the covariance of the averages is not positive "
+                               "definite") from None
+
+
+def solve_norm(problem, covariance=None, method: str = "powell") -> TriadSolution:
+    """Solve one triad's norm equations.
+
+    ``covariance`` is that of ``problem.data`` (the averages, flattened), or an (n, 3) array of
+    each average's per-axis 1σ; without it every residual weighs the same and the uncertainty
+    comes from the residual scatter alone.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    n_resid = len(problem.residual_labels)
+    if n_resid < N_PARAMS:
+        raise CalibrationError(f"{problem.name}: {n_resid} equations for {N_PARAMS} unknowns; "
+                               f"add at least {N_PARAMS - n_resid} more positions")
+    if covariance is None and n_resid == N_PARAMS:
+        raise CalibrationError(f"{problem.name}: {N_PARAMS} equations fit exactly and leave no "
+                               "scatter to estimate the uncertainty; add a position or give σ")
+    try:
+        theta0 = problem.initial()
+    except DegenerateError as exc:
+        raise CalibrationError(f"{problem.name}: positions are degenerate: {exc}") from None
+    whitener = _residual_whitener(problem, theta0, covariance)
+    u = problem.data
+
+    def whitened(theta):
+        r = problem.residuals(theta, u)
+        return r if whitener is None else whitener @ r
+
+    natural = _natural_scales(problem, theta0)
+    # Geometry first, independent of the noise: relative residual per natural unit of each
+    # parameter. Well-spread positions give a smallest-to-largest singular value ratio near 0.2;
+    # six axis-aligned directions (the classic test) give about 1e-6.
+    J_geometry = _jacobian(lambda th: problem.residuals(th, u) / problem.reference_scale, theta0,
+                           1e-7 * natural) * natural
+    sv = np.linalg.svd(J_geometry, compute_uv=False)
+    if sv[-1] < _GEOMETRY_RATIO * sv[0]:
+        raise CalibrationError(f"{problem.name}: positions are degenerate (condition number "
+                               f"{sv[0] / sv[-1]:.3g}); {_spread_hint(problem)}")
+    J0 = _jacobian(whitened, theta0, 1e-7 * natural) * natural
+    # Search in z with theta = theta0 + natural * R⁻¹ z, where J0 = Q R: locally ‖r‖² ≈ ‖z − z*‖².
+    R = np.linalg.qr(J0, mode="r")
+    to_theta = natural[:, None] * np.linalg.inv(R)
+
+    def from_z(z):
+        return theta0 + to_theta @ z
+
+    if method == "powell":
+        res = optimize.minimize(lambda z: float(np.sum(whitened(from_z(z)) ** 2)), np.zeros(N_PARAMS),
+                                method="Powell",
+                                options={"direc": np.eye(N_PARAMS), "xtol": 1e-3, "ftol": 1e-12,
+                                         "maxfev": 5000})
+        iterations, evaluations = int(res.nit), int(res.nfev)
+    else:
+        res = optimize.least_squares(lambda z: whitened(from_z(z)), np.zeros(N_PARAMS), method="lm",
+                                     xtol=1e-12, ftol=1e-12)
+        iterations, evaluations = int(res.nfev), int(res.nfev)
+    if not res.success:
+        raise CalibrationError(f"{problem.name}: {method} did not converge ({res.message})")
+    theta = from_z(res.x)
+    r_w = whitened(theta)
+    chi2 = float(r_w @ r_w)
+    dof = n_resid - N_PARAMS
+    J = _jacobian(whitened, theta, 1e-7 * natural) * natural
+    sv = np.linalg.svd(J, compute_uv=False)
+    cov_natural = np.linalg.inv(J.T @ J)
+    scaled = whitener is None
+    if whitener is not None and dof > 0 and stats.chi2.sf(chi2, dof) < 1e-3:
+        scaled = True  # the scatter is well beyond the stated noise: trust the scatter (Birge)
+    if scaled:
+        cov_natural *= chi2 / dof
+    sigma_natural = np.sqrt(np.diag(cov_natural))
+    worst = int(np.argmax(sigma_natural))
+    if sigma_natural[worst] > _DEGENERATE_FRACTION:
+        raise CalibrationError(
+            f"{problem.name}: positions are degenerate: {PARAM_NAMES[worst]} is determined only to "
+            f"±{sigma_natural[worst]:.2g} of its scale (condition number {sv[0] / sv[-1]:.3g}); "
+            f"{_spread_hint(problem)}")
+    return TriadSolution(
+        name=problem.name, kind=problem.kind, output_unit=problem.output_unit, method=method,
+        theta=theta, covariance=cov_natural * np.outer(natural, natural),
+        residuals=problem.residuals(theta, u), residual_labels=problem.residual_labels,
+        chi2=chi2, dof=dof, scaled_by_residuals=scaled, iterations=iterations,
+        evaluations=evaluations, condition_number=float(sv[0] / sv[-1]))
+
+
+def _spread_hint(problem) -> str:
+    """Which directions the positions leave out, for the operator."""
+    dirs = problem.static if problem.kind == "angular_rate" else problem.means
+    if problem.kind == "angular_rate":
+        dirs = 0.5 * (problem.plus - problem.minus)
+    dirs = dirs - (0 if problem.kind == "angular_rate" else dirs.mean(axis=0))
+    unit = dirs / np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-300)
+    distinct = len({tuple(np.round(v, 1)) for v in unit} | {tuple(np.round(-v, 1)) for v in unit}) // 2 \
+        if len(unit) else 0
+    return (f"{len(unit)} measurements point along about {max(distinct, 0)} distinct axes; "
+            "use positions with axes between the cube faces (paper Table 2, positions 13-18)")

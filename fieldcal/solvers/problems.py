@@ -1,0 +1,186 @@
+"""Norm equations for one triad, as residual functions of the 9 parameters and the averages.
+
+Each problem flattens its averages into one vector ``u`` so that the solver can propagate their
+covariance into the residuals and weight them; the residuals are in SI units of the reference.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, calibrate_with, params_from_k
+from fieldcal.solvers.ellipsoid import fit_centred_ellipsoid, fit_offset_ellipsoid
+
+
+def _as_points(values, what: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{what}: expected an (n, 3) array, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what}: contains NaN or infinite values")
+    return arr
+
+
+@dataclass(frozen=True)
+class StaticNormProblem:
+    """A specific-force triad at rest in n orientations: |K⁻¹(u_i − b)| = g (paper eq. 17).
+
+    The residual is |a| − g rather than |a|² − g²: the same equations to first order, with the
+    residual in m/s² so that its weight is the variance of the average along the gravity direction.
+    """
+
+    means: np.ndarray
+    gravity: float
+    name: str = "accelerometer"
+    output_unit: str = "m/s^2"
+    labels: tuple[str, ...] = ()
+    kind: str = field(default=SPECIFIC_FORCE, init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "means", _as_points(self.means, f"{self.name} averages"))
+        if not self.labels:
+            object.__setattr__(self, "labels", tuple(f"static {i + 1}" for i in range(len(self.means))))
+
+    @property
+    def data(self) -> np.ndarray:
+        return self.means.ravel()
+
+    @property
+    def residual_labels(self) -> tuple[str, ...]:
+        return self.labels
+
+    @property
+    def reference_scale(self) -> float:
+        return self.gravity
+
+    def residuals(self, theta, u: np.ndarray) -> np.ndarray:
+        a = calibrate_with(theta, u.reshape(-1, 3))
+        return np.sqrt(np.einsum("ij,ij->i", a, a)) - self.gravity
+
+    def initial(self) -> np.ndarray:
+        return fit_offset_ellipsoid(self.means, self.gravity)
+
+
+@dataclass(frozen=True)
+class RateNormProblem:
+    """A gyro triad: rate steps (+ω then −ω about a vertical table axis) and static dwells.
+
+    The table axis sees the table rate plus the vertical Earth rate Ωv = Ωe·sin φ; averaged over
+    whole turns the horizontal Earth rate cancels. So with d the axis in calibrated body axes,
+    u₊ = K(ω + Ωv)d + b and u₋ = K(−ω + Ωv)d + b, and the residuals are, per rate step:
+      |K⁻¹(u₊ − u₋)/2| − ω                 (1, the norm equation of paper eq. 18, bias-free),
+      K⁻¹((u₊ + u₋)/2 − b) − Ωv·d          (3, the reversal pins the bias in every direction),
+    per step turned one way only (no partner), |K⁻¹(u − b)| − |ω_signed + Ωv|  (1),
+    and per static dwell a = K⁻¹(u_s − b), which sees Earth rate only:
+      d·a − Ωv and |a − (d·a)d| − Ωe·cos φ  (2, when the dwell is on the same table mount as a step),
+      |a| − Ωe                             (1, otherwise).
+    """
+
+    plus: np.ndarray
+    minus: np.ndarray
+    table_rate: np.ndarray  # rad/s, per step, > 0
+    static: np.ndarray
+    static_step: np.ndarray  # per static dwell: index of the rate step on the same mount, or -1
+    earth_rate: float
+    earth_rate_vertical: float
+    name: str = "gyroscope"
+    output_unit: str = "rad/s"
+    step_labels: tuple[str, ...] = ()
+    static_labels: tuple[str, ...] = ()
+    single: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    single_rate: np.ndarray = field(default_factory=lambda: np.empty(0))  # rad/s, signed
+    single_labels: tuple[str, ...] = ()
+    kind: str = field(default=ANGULAR_RATE, init=False)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "plus", _as_points(self.plus, f"{self.name} +rate averages"))
+        set_(self, "minus", _as_points(self.minus, f"{self.name} -rate averages"))
+        static = np.asarray(self.static, dtype=float).reshape(-1, 3)
+        set_(self, "static", _as_points(static, f"{self.name} static averages"))
+        m = len(self.plus)
+        if self.minus.shape != self.plus.shape:
+            raise ValueError(f"{self.name}: {m} +rate averages but {len(self.minus)} -rate averages")
+        rate = np.broadcast_to(np.asarray(self.table_rate, dtype=float), (m,)).copy()
+        if np.any(rate <= 0):
+            raise ValueError(f"{self.name}: table rates must be positive (the sign is in +/-)")
+        set_(self, "table_rate", rate)
+        pairing = np.asarray(self.static_step, dtype=int).reshape(-1)
+        if len(pairing) != len(self.static) or np.any(pairing >= m):
+            raise ValueError(f"{self.name}: static_step must give a rate step index or -1 per dwell")
+        set_(self, "static_step", pairing)
+        set_(self, "single", _as_points(np.asarray(self.single, dtype=float).reshape(-1, 3),
+                                        f"{self.name} one-way rate averages"))
+        single_rate = np.asarray(self.single_rate, dtype=float).reshape(-1)
+        if len(single_rate) != len(self.single) or np.any(single_rate == 0):
+            raise ValueError(f"{self.name}: one signed, non-zero table rate per one-way step")
+        set_(self, "single_rate", single_rate)
+        if not self.single_labels:
+            set_(self, "single_labels", tuple(f"one-way step {j + 1}" for j in range(len(single_rate))))
+        if not self.step_labels:
+            set_(self, "step_labels", tuple(f"rate step {j + 1}" for j in range(m)))
+        if not self.static_labels:
+            set_(self, "static_labels", tuple(f"static {i + 1}" for i in range(len(self.static))))
+
+    @property
+    def data(self) -> np.ndarray:
+        return np.concatenate([self.plus.ravel(), self.minus.ravel(), self.single.ravel(),
+                               self.static.ravel()])
+
+    @property
+    def reference_scale(self) -> float:
+        return float(np.mean(np.abs(np.r_[self.table_rate, self.single_rate])))
+
+    @property
+    def residual_labels(self) -> tuple[str, ...]:
+        labels = [f"{s}: |rate|" for s in self.step_labels]
+        labels += [f"{s}: bias {axis}" for s in self.step_labels for axis in "xyz"]
+        labels += [f"{s}: |rate|" for s in self.single_labels]
+        for label, step in zip(self.static_labels, self.static_step):
+            labels += [f"{label}: earth rate along axis", f"{label}: earth rate across axis"] \
+                if step >= 0 else [f"{label}: |earth rate|"]
+        return tuple(labels)
+
+    def _split(self, u: np.ndarray):
+        m, k = 3 * len(self.plus), 3 * len(self.single)
+        return (u[:m].reshape(-1, 3), u[m:2 * m].reshape(-1, 3), u[2 * m:2 * m + k].reshape(-1, 3),
+                u[2 * m + k:].reshape(-1, 3))
+
+    def residuals(self, theta, u: np.ndarray) -> np.ndarray:
+        plus, minus, single, static = self._split(u)
+        rate_vec = calibrate_with(np.r_[0.0, 0.0, 0.0, theta[3:]], 0.5 * (plus - minus))
+        rate_norm = np.sqrt(np.einsum("ij,ij->i", rate_vec, rate_vec))
+        axis = rate_vec / rate_norm[:, None]
+        bias_resid = calibrate_with(theta, 0.5 * (plus + minus)) - self.earth_rate_vertical * axis
+        one_way = calibrate_with(theta, single)
+        parts = [rate_norm - self.table_rate, bias_resid.ravel(),
+                 np.sqrt(np.einsum("ij,ij->i", one_way, one_way))
+                 - np.abs(self.single_rate + self.earth_rate_vertical)]
+        if len(static):
+            a = calibrate_with(theta, static)
+            paired = self.static_step >= 0
+            along = np.einsum("ij,ij->i", a[paired], axis[self.static_step[paired]])
+            across = a[paired] - along[:, None] * axis[self.static_step[paired]]
+            horizontal = np.sqrt(self.earth_rate**2 - self.earth_rate_vertical**2)
+            static_resid = np.empty(2 * paired.sum() + (~paired).sum())
+            # Interleave per dwell, in dwell order, to match residual_labels.
+            sizes = np.where(paired, 2, 1)
+            offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+            static_resid[offsets[paired]] = along - self.earth_rate_vertical
+            static_resid[offsets[paired] + 1] = np.linalg.norm(across, axis=1) - horizontal
+            static_resid[offsets[~paired]] = np.linalg.norm(a[~paired], axis=1) - self.earth_rate
+            parts.append(static_resid)
+        return np.concatenate(parts)
+
+    def initial(self) -> np.ndarray:
+        if len(self.plus) < 6 and len(self.single):
+            radius = np.mean(np.abs(self.single_rate + self.earth_rate_vertical))
+            return fit_offset_ellipsoid(self.single, radius)
+        half_diff = 0.5 * (self.plus - self.minus)
+        K = fit_centred_ellipsoid(half_diff, self.table_rate)
+        # (u₊ + u₋)/2 = b + Ωv·K·d and (u₊ − u₋)/2 = ω·K·d, so the bias follows without K.
+        bias = np.mean(0.5 * (self.plus + self.minus)
+                       - (self.earth_rate_vertical / self.table_rate)[:, None] * half_diff, axis=0)
+        return params_from_k(K, bias)
+

@@ -1,0 +1,86 @@
+"""Classic 12-position method (paper eqs. 4-8) on simulated Table 1 data, and agreement with the
+norm method on the same device."""
+import math
+
+import numpy as np
+import pytest
+
+from drivers.sim.device import paper_mimu
+from fieldcal.positions import load_procedure
+from fieldcal.simcal import DEFAULT_STATION, run_simulated_calibration
+from fieldcal.simrun import MINUS, PLUS, STATIC, average_covariance, plan_procedure, simulate_averages
+from fieldcal.solvers import CalibrationError, StaticNormProblem, solve_classic, solve_norm
+
+
+def classic_run(seed):
+    procedure = load_procedure("classic-12")
+    device = paper_mimu()
+    plan = plan_procedure(procedure, 250.0, np.random.default_rng(seed))
+    means, _ = simulate_averages(plan, device, DEFAULT_STATION, 250.0, seed=seed)
+    up = np.array([p.up_body for p in procedure.positions])
+    kinds = np.array([w.kind for w in plan.windows])
+    pos = np.array([w.position for w in plan.windows])
+    g, rate = DEFAULT_STATION.gravity, math.radians(procedure.rate_step.rate_deg_s)
+    vertical = DEFAULT_STATION.earth_rate_vertical
+    static = kinds == STATIC
+    spin = (kinds == PLUS) | (kinds == MINUS)
+    sign = np.where(kinds == PLUS, 1.0, -1.0)
+    windows = np.array(plan.windows, dtype=object)
+    accel = solve_classic(means["accelerometer"][static], g * up[pos[static]], "accelerometer",
+                          "specific_force", covariance=average_covariance(
+                              device["accelerometer"], list(windows[static]), 250.0))
+    gyro_inputs = (sign[spin] * rate + vertical)[:, None] * up[pos[spin]]
+    gyro = solve_classic(means["gyroscope"][spin], gyro_inputs, "gyroscope", "angular_rate",
+                         covariance=average_covariance(device["gyroscope"], list(windows[spin]), 250.0))
+    return device, means, static, accel, gyro
+
+
+@pytest.fixture(scope="module")
+def classic():
+    return [classic_run(seed) for seed in (21, 22, 23)]
+
+
+def test_classic_recovers_k_and_u0(classic):
+    for device, _, _, accel, gyro in classic:
+        for sol in (accel, gyro):
+            truth = device[sol.name]
+            sigma_k = np.sqrt(np.stack([np.diag(c)[:3] for c in sol.row_covariance]))
+            sigma_b = np.sqrt(sol.row_covariance[:, 3, 3])
+            # The table is aligned, so the full K is the true lower-triangular one: the upper
+            # triangle must come out zero within noise too.
+            assert np.all(np.abs(sol.K - truth.K) < 4.5 * sigma_k), (sol.name, (sol.K - truth.K) / sigma_k)
+            assert np.all(np.abs(sol.bias - truth.bias) < 4.5 * sigma_b), sol.name
+
+
+def test_norm_method_cannot_use_the_six_classic_directions(classic):
+    _, means, static, _, _ = classic[0]
+    with pytest.raises(CalibrationError, match="degenerate"):
+        solve_norm(StaticNormProblem(means["accelerometer"][static], DEFAULT_STATION.gravity))
+
+
+def test_norm_method_on_field_18_agrees_with_classic(classic):
+    z = []
+    for k, (_, _, _, accel, gyro) in enumerate(classic):
+        field = run_simulated_calibration(seed=40 + k)
+        for sol in (accel, gyro):
+            norm = field.solutions[sol.name]
+            z.append((norm.theta - sol.theta) / np.hypot(norm.sigma, sol.sigma))
+    z = np.array(z)
+    # Independent estimates of the same parameters: differences of order their combined 1σ.
+    assert np.sqrt(np.mean(z**2)) < 1.5, z
+    assert np.all(np.abs(z) < 4), z
+
+
+def test_residual_scatter_alone_misses_common_mode_drift(classic):
+    device, means, static, with_noise_model, _ = classic[0]
+    procedure = load_procedure("classic-12")
+    up = np.array([p.up_body for p in procedure.positions])
+    scatter_only = solve_classic(means["accelerometer"][static], DEFAULT_STATION.gravity * up,
+                                 "accelerometer", "specific_force")
+    np.testing.assert_allclose(scatter_only.bias, with_noise_model.bias)  # same estimate
+    assert np.all(scatter_only.sigma[:3] < with_noise_model.sigma[:3])  # smaller, wrongly
+
+
+def test_classic_rejects_inputs_that_do_not_span_the_axes():
+    with pytest.raises(ValueError, match="span all three axes"):
+        solve_classic(np.ones((6, 3)), np.tile([0.0, 0.0, 9.8], (6, 1)), "accelerometer", "specific_force")

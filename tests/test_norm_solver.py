@@ -1,0 +1,153 @@
+"""The norm solvers against synthetic truth: convergence from the closed-form start, failures."""
+import math
+
+import numpy as np
+import pytest
+from scipy import optimize
+from scipy.spatial.transform import Rotation
+
+from fieldcal.model import calibrate_with, distort_with, k_from_params
+from fieldcal.positions import load_procedure
+from fieldcal.solvers import CalibrationError, RateNormProblem, StaticNormProblem, solve_norm
+
+G = 9.80
+UP18 = np.array([p.up_body for p in load_procedure("field-18").positions])
+UP12 = np.array([p.up_body for p in load_procedure("classic-12").positions])
+
+
+def placed(up, rng, sigma_deg=3.0):
+    tilts = Rotation.from_rotvec(rng.normal(0, math.radians(sigma_deg), (len(up), 3)))
+    return tilts.apply(up)
+
+
+def large_errors(rng, sensitivity=1.0, zero=0.0):
+    bias = rng.uniform(-0.5, 0.5, 3) * G
+    scale = 1 + rng.uniform(-0.1, 0.1, 3)
+    mis = rng.uniform(-1, 1, 3) * math.radians(3)
+    return np.r_[zero + bias * sensitivity, scale * sensitivity, mis]
+
+
+def optimum_from_truth(problem, noise, truth):
+    """An independent optimiser started at the truth: where the weighted optimum really is.
+
+    A residual |K⁻¹(u − b)| − g moves by âᵀK⁻¹·δu for a change δu of the average, so with
+    isotropic noise its σ is noise·|K⁻ᵀâ|, â the calibrated direction.
+    """
+    K_inv = np.linalg.inv(k_from_params(truth))
+    a = calibrate_with(truth, problem.means)
+    sigma = noise * np.linalg.norm((a / np.linalg.norm(a, axis=1, keepdims=True)) @ K_inv, axis=1)
+    res = optimize.least_squares(lambda th: problem.residuals(th, problem.data) / sigma, truth,
+                                 x_scale=np.abs(truth) * 1e-4 + 1e-6, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    return res.x
+
+
+@pytest.mark.parametrize("sensitivity, zero, noise", [(1.0, 0.0, 5e-4), (415.0, 32768.0, 0.2)],
+                         ids=["si", "raw-16-bit-counts"])
+def test_powell_converges_from_closed_form_start_in_every_draw(sensitivity, zero, noise):
+    rng = np.random.default_rng(2024)
+    for draw in range(100):
+        truth = large_errors(rng, sensitivity, zero)
+        means = distort_with(truth, G * placed(UP18, rng)) + rng.normal(0, noise, (18, 3))
+        problem = StaticNormProblem(means, G, output_unit="count" if zero else "m/s^2")
+        sol = solve_norm(problem, np.full((18, 3), noise))
+        # The radial σ of a residual is about noise / k; the optimum is where a truth-started
+        # optimiser lands, and Powell must land there too, to a small fraction of 1σ.
+        optimum = optimum_from_truth(problem, noise, truth)
+        assert np.all(np.abs(sol.theta - optimum) < 1e-3 * sol.sigma), f"draw {draw}"
+        assert np.all(np.abs(sol.theta - truth) < 5 * sol.sigma), f"draw {draw}"
+
+
+def test_powell_and_least_squares_agree():
+    rng = np.random.default_rng(5)
+    truth = large_errors(rng)
+    problem = StaticNormProblem(distort_with(truth, G * placed(UP18, rng)) + rng.normal(0, 5e-4, (18, 3)), G)
+    powell = solve_norm(problem, np.full((18, 3), 5e-4), method="powell")
+    lsq = solve_norm(problem, np.full((18, 3), 5e-4), method="lsq")
+    assert np.all(np.abs(powell.theta - lsq.theta) < 1e-3 * lsq.sigma)
+    np.testing.assert_allclose(powell.sigma, lsq.sigma, rtol=1e-3)
+    assert powell.iterations >= 1 and powell.evaluations > powell.iterations
+
+
+def test_solution_reports_residual_per_position_and_unweighted_sigma():
+    rng = np.random.default_rng(6)
+    truth = large_errors(rng)
+    noise = 5e-4
+    problem = StaticNormProblem(distort_with(truth, G * placed(UP18, rng)) + rng.normal(0, noise, (18, 3)), G)
+    sol = solve_norm(problem)  # no σ given: uncertainty from the residual scatter
+    assert sol.scaled_by_residuals and len(sol.residuals) == 18 and sol.dof == 9
+    assert sol.residual_labels[0] == "static 1"
+    # The residual RMS is of the order of the noise along gravity (with 9 of 18 dof used).
+    assert 0.3 * noise < sol.residual_rms < 1.5 * noise
+    assert np.all(np.abs(sol.theta - truth) < 5 * sol.sigma)
+
+
+def test_too_few_positions_says_how_many_more():
+    rng = np.random.default_rng(1)
+    means = distort_with(large_errors(rng), G * placed(UP18[:7], rng))
+    with pytest.raises(CalibrationError, match="add at least 2 more positions"):
+        solve_norm(StaticNormProblem(means, G))
+
+
+def test_nine_positions_without_sigma_is_refused():
+    rng = np.random.default_rng(1)
+    means = distort_with(large_errors(rng), G * placed(UP18[:9], rng))
+    with pytest.raises(CalibrationError, match="no scatter"):
+        solve_norm(StaticNormProblem(means, G))
+
+
+def test_six_directions_of_the_classic_test_are_degenerate_for_the_norm_method():
+    # The 12 classic positions point gravity along only ±x, ±y, ±z: the norm equations cannot
+    # separate misalignment from the unknown orientations.
+    rng = np.random.default_rng(3)
+    truth = np.array([0.01, 0.02, 0.03, 1.0001, 1.0002, 1.0003, 2e-4, -3e-4, 4e-4])
+    means = distort_with(truth, G * UP12) + rng.normal(0, 5e-4, (12, 3))
+    with pytest.raises(CalibrationError, match="degenerate"):
+        solve_norm(StaticNormProblem(means, G), np.full((12, 3), 5e-4))
+
+
+def test_bad_inputs_are_clear_errors():
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        StaticNormProblem(np.zeros((5, 2)), G)
+    with pytest.raises(ValueError, match="NaN"):
+        StaticNormProblem(np.full((18, 3), np.nan), G)
+    problem = StaticNormProblem(distort_with(large_errors(np.random.default_rng(0)), G * UP18), G)
+    with pytest.raises(ValueError, match="method"):
+        solve_norm(problem, method="newton")
+    with pytest.raises(ValueError, match="covariance"):
+        solve_norm(problem, np.ones((4, 4)))
+
+
+def gyro_problem(rng, truth, rate=math.radians(10), noise=5e-6, n=18, static=True):
+    d = placed(UP18[:n], rng)
+    omega_e, lat = 7.292115e-5, math.radians(40)
+    vertical = omega_e * math.sin(lat)
+    plus = distort_with(truth, (rate + vertical) * d) + rng.normal(0, noise, (n, 3))
+    minus = distort_with(truth, (-rate + vertical) * d) + rng.normal(0, noise, (n, 3))
+    north = np.cross(d, rng.normal(size=(n, 3)))
+    north /= np.linalg.norm(north, axis=1, keepdims=True)
+    still = distort_with(truth, omega_e * (math.sin(lat) * d + math.cos(lat) * north)) \
+        + rng.normal(0, noise, (n, 3))
+    return RateNormProblem(plus, minus, rate, still if static else np.empty((0, 3)),
+                           np.arange(n) if static else np.empty(0, int), omega_e, vertical)
+
+
+def test_gyro_converges_with_large_errors():
+    rng = np.random.default_rng(11)
+    for draw in range(30):
+        truth = np.r_[rng.uniform(-1, 1, 3) * math.radians(5), 1 + rng.uniform(-0.1, 0.1, 3),
+                      rng.uniform(-1, 1, 3) * math.radians(3)]
+        problem = gyro_problem(rng, truth)
+        sol = solve_norm(problem, np.full((54, 3), 5e-6))
+        lsq = solve_norm(problem, np.full((54, 3), 5e-6), method="lsq")
+        # Levenberg-Marquardt stops a few thousandths of σ short; Powell's χ² is never higher.
+        assert np.all(np.abs(sol.theta - lsq.theta) < 1e-2 * sol.sigma), f"draw {draw}"
+        assert sol.chi2 <= lsq.chi2 + 1e-6, f"draw {draw}"
+        assert np.all(np.abs(sol.theta - truth) < 5 * sol.sigma), f"draw {draw}"
+
+
+def test_gyro_needs_rate_steps_about_six_axes():
+    rng = np.random.default_rng(12)
+    truth = np.array([1e-4, 2e-4, 3e-4, 1.0001, 1.0002, 1.0003, 2e-4, -3e-4, 4e-4])
+    problem = gyro_problem(rng, truth, n=5)
+    with pytest.raises(CalibrationError, match="degenerate"):
+        solve_norm(problem, np.full((15, 3), 5e-6))
