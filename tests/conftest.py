@@ -1,0 +1,64 @@
+"""Shared fixtures: a noise-free field-18 run of the simulated MIMU and its exact noise."""
+from __future__ import annotations
+
+import dataclasses
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+from drivers.sim import TriadNoise
+from drivers.sim.device import paper_mimu
+from fieldcal.assemble import build_problem
+from fieldcal.model import params_from_k
+from fieldcal.positions import load_procedure
+from fieldcal.simcal import DEFAULT_STATION
+from fieldcal.simrun import average_covariance, plan_procedure, simulate_averages
+
+
+@dataclasses.dataclass(frozen=True)
+class ExactRun:
+    """Noise-free window means and their covariance under the paper's noise, per triad."""
+
+    plan: object
+    means: dict  # name -> (n_windows, 3) noise-free
+    covariances: dict  # name -> covariance of the problem data
+    orders: dict  # name -> window order of the problem data
+    truth: dict  # name -> true parameters
+    device: dict
+    angles: np.ndarray
+
+    def problem(self, name, rng=None, **overrides):
+        """The triad's problem with averages drawn from their exact distribution."""
+        truth = self.device[name]
+        means = self.means[name].copy()
+        order = self.orders[name]
+        if rng is not None:
+            noise = np.linalg.cholesky(self.covariances[name]) @ rng.standard_normal(3 * len(order))
+            means[order] += noise.reshape(-1, 3)
+        ids = [p.id for p in load_procedure("field-18").positions]
+        problem, _ = build_problem(name, truth.kind, truth.output_unit, list(self.plan.windows),
+                                   means, DEFAULT_STATION, ids)
+        return dataclasses.replace(problem, **overrides) if overrides else problem
+
+
+@lru_cache(maxsize=4)
+def exact_run(seed: int = 7, raw_counts: bool = False) -> ExactRun:
+    noisy = paper_mimu(raw_counts=raw_counts)
+    silent = {n: dataclasses.replace(t, noise=TriadNoise(white=0.0), lsb=0.0) for n, t in noisy.items()}
+    plan = plan_procedure(load_procedure("field-18"), 250.0, np.random.default_rng(seed))
+    means, angles = simulate_averages(plan, silent, DEFAULT_STATION, 250.0, seed=seed)
+    ids = [p.id for p in load_procedure("field-18").positions]
+    covs, orders = {}, {}
+    for name, truth in noisy.items():
+        _, order = build_problem(name, truth.kind, truth.output_unit, list(plan.windows), means[name],
+                                 DEFAULT_STATION, ids)
+        orders[name] = order
+        covs[name] = average_covariance(truth, [plan.windows[i] for i in order], 250.0)
+    truth = {n: params_from_k(t.K, t.bias) for n, t in noisy.items()}
+    return ExactRun(plan, means, covs, orders, truth, noisy, angles)
+
+
+@pytest.fixture(scope="session")
+def field18():
+    return exact_run()
