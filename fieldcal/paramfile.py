@@ -1,0 +1,708 @@
+"""The versioned parameter file a calibration produces (schema ``fieldcal-parameters/1``).
+
+One YAML file per calibration: for each triad the model raw = K·true + b of ``fieldcal.model``
+(bias, scale factors, non-orthogonality angles with their 1σ, and K itself), plus provenance:
+software version, procedure, solver method, a hash of the averages that went in, the station's
+gravity, and optionally the device and whether it was simulated.
+
+Design points:
+
+* No wall-clock time anywhere: a replayed session gives the same file byte for byte.
+* Floats are written with ``repr`` (PyYAML's float representer), so ``load(save(pf)) == pf``
+  with every float bit-identical.
+* K is the authority; the named scale factors and angles are written next to it for people and
+  checked against it on load (a mismatch means a hand edit: rejected, naming the field).
+* ``load`` never shows a traceback for bad content: every problem is one line,
+  ``<file>: <dotted.field.path>: expected <what>, got <what>``.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import re
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+import yaml
+
+from fieldcal import __version__
+from fieldcal.model import KINDS, PARAM_NAMES, SI_UNIT
+
+SCHEMA = "fieldcal-parameters/1"
+SOFTWARE = "fieldcal"
+# Norm-method solvers (fieldcal.solvers.norm.METHODS) give a lower-triangular K; a file claiming
+# one of these methods with a non-zero upper triangle has been edited by hand.
+LOWER_TRIANGULAR_METHODS = ("powell", "lsq")
+# Named values must agree with K to this relative tolerance (they are written from K exactly).
+CONSISTENCY_RTOL = 1e-9
+_ANGLE_ATOL = 1e-15  # rad: lets 0.0 and a denormal-sized angle from K agree
+_MAX_CONDITION = 1e12  # K with a larger condition number is treated as singular
+
+_AXES = ("x", "y", "z")
+_ANGLES = ("delta_yz", "delta_zy", "delta_zx")
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+_HEADER = ("# fieldcal calibration parameters. Per triad: raw = K * true + bias,\n"
+           "# calibrated = inverse(K) * (raw - bias). Sigmas are 1-sigma. Do not edit by hand:\n"
+           "# the named values are checked against K when the file is loaded.\n")
+
+
+class ParameterFileError(ValueError):
+    """A parameter file that cannot be used; the message is one line naming the file and field."""
+
+    def __init__(self, message: str, path: str = "", field: str = "") -> None:
+        super().__init__(message)
+        self.path = path
+        self.field = field
+
+
+# --------------------------------------------------------------------------------------------
+# In-memory model
+
+
+def _readonly(values, shape: tuple[int, ...], what: str) -> np.ndarray:
+    arr = np.array(values, dtype=np.float64)  # always a copy
+    if arr.shape != shape:
+        raise ValueError(f"{what}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what}: expected finite numbers, got {arr.tolist()}")
+    arr.setflags(write=False)
+    return arr
+
+
+def _bits(x: float) -> bytes:
+    return np.float64(x).tobytes()
+
+
+def _misalignment_of(K: np.ndarray) -> np.ndarray:
+    return np.array([-K[1, 0] / K[1, 1], K[2, 0] / K[2, 2], -K[2, 1] / K[2, 2]])
+
+
+@dataclass(frozen=True, eq=False)
+class TriadParameters:
+    """One triad's calibration: raw = K·true + bias, so calibrated = K⁻¹(raw − bias).
+
+    ``K`` is lower-triangular for the norm method and full for the classic method (where it also
+    holds the triad's rotation relative to the table). ``sigma`` is the 1σ of the nine named
+    parameters in ``fieldcal.model.PARAM_NAMES`` order (bias, scale factor, misalignment).
+    ``residual_rms`` is in ``residual_unit``: the SI unit of the reference for the norm method,
+    the output unit for the classic method (whose residuals are in output units).
+    """
+
+    name: str
+    kind: str
+    output_unit: str
+    bias: np.ndarray  # (3,), output units
+    K: np.ndarray  # (3, 3), output units per SI unit
+    sigma: np.ndarray  # (9,), PARAM_NAMES order
+    residual_rms: float
+    method: str
+    residual_unit: str = ""  # default: SI unit of the kind
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name or not self.name.isprintable():
+            raise ValueError(f"name: expected a non-empty printable string, got {self.name!r}")
+        if self.kind not in KINDS:
+            raise ValueError(f"{self.name}.kind: expected one of {', '.join(KINDS)}, got {self.kind!r}")
+        for attr in ("output_unit", "method"):
+            value = getattr(self, attr)
+            if not isinstance(value, str) or not value:
+                raise ValueError(f"{self.name}.{attr}: expected a non-empty string, got {value!r}")
+        if not self.residual_unit:
+            object.__setattr__(self, "residual_unit", SI_UNIT[self.kind])
+        if self.residual_unit not in (SI_UNIT[self.kind], self.output_unit):
+            raise ValueError(f"{self.name}.residual_unit: expected {SI_UNIT[self.kind]!r} or "
+                             f"{self.output_unit!r}, got {self.residual_unit!r}")
+        object.__setattr__(self, "bias", _readonly(self.bias, (3,), f"{self.name}.bias"))
+        K = _readonly(self.K, (3, 3), f"{self.name}.K")
+        if np.any(np.diag(K) == 0) or not np.linalg.cond(K) < _MAX_CONDITION:
+            raise ValueError(f"{self.name}.K: expected an invertible matrix with a non-zero "
+                             f"diagonal, got {K.tolist()}")
+        if self.method in LOWER_TRIANGULAR_METHODS and np.any(np.triu(K, 1) != 0):
+            raise ValueError(f"{self.name}.K: the {self.method} method gives a lower-triangular K, "
+                             f"got {K.tolist()}")
+        object.__setattr__(self, "K", K)
+        sigma = _readonly(self.sigma, (len(PARAM_NAMES),), f"{self.name}.sigma")
+        if np.any(sigma < 0):
+            raise ValueError(f"{self.name}.sigma: expected values >= 0, got {sigma.tolist()}")
+        object.__setattr__(self, "sigma", sigma)
+        rms = float(self.residual_rms)
+        if not (math.isfinite(rms) and rms >= 0):
+            raise ValueError(f"{self.name}.residual_rms: expected a finite number >= 0, got {rms!r}")
+        object.__setattr__(self, "residual_rms", rms)
+
+    @classmethod
+    def from_solution(cls, sol) -> TriadParameters:
+        """From a norm ``TriadSolution`` or a ``ClassicSolution`` (anything with name, kind,
+        output_unit, method, K, bias, sigma, residual_rms and optionally residual_unit)."""
+        return cls(name=sol.name, kind=sol.kind, output_unit=sol.output_unit,
+                   bias=np.asarray(sol.bias, dtype=float), K=np.asarray(sol.K, dtype=float),
+                   sigma=np.asarray(sol.sigma, dtype=float), residual_rms=float(sol.residual_rms),
+                   method=sol.method, residual_unit=getattr(sol, "residual_unit", ""))
+
+    @property
+    def input_unit(self) -> str:
+        return SI_UNIT[self.kind]
+
+    @property
+    def scale_factor(self) -> np.ndarray:
+        return np.diag(self.K).copy()
+
+    @property
+    def misalignment(self) -> np.ndarray:
+        """Δyz, Δzy, Δzx (rad) from the lower triangle of K."""
+        return _misalignment_of(self.K)
+
+    @property
+    def theta(self) -> np.ndarray:
+        """The nine named parameters in PARAM_NAMES order."""
+        return np.r_[self.bias, self.scale_factor, self.misalignment]
+
+    @property
+    def bias_sigma(self) -> np.ndarray:
+        return self.sigma[0:3].copy()
+
+    @property
+    def scale_factor_sigma(self) -> np.ndarray:
+        return self.sigma[3:6].copy()
+
+    @property
+    def misalignment_sigma(self) -> np.ndarray:
+        return self.sigma[6:9].copy()
+
+    def named(self) -> dict[str, tuple[float, float]]:
+        return {n: (float(v), float(s)) for n, v, s in zip(PARAM_NAMES, self.theta, self.sigma)}
+
+    def calibrate(self, raw) -> np.ndarray:
+        """K⁻¹(raw − bias) for a (3,) or (n, 3) array of raw outputs; SI units out."""
+        v = np.asarray(raw, dtype=float) - self.bias
+        if v.shape[-1:] != (3,) or v.ndim > 2:
+            raise ValueError(f"{self.name}: expected a (3,) or (n, 3) array, got shape {np.shape(raw)}")
+        return np.linalg.solve(self.K, v.T).T
+
+    def _key(self) -> tuple:
+        return (self.name, self.kind, self.output_unit, self.method, self.residual_unit,
+                self.bias.tobytes(), self.K.tobytes(), self.sigma.tobytes(), _bits(self.residual_rms))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, TriadParameters):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a parameter file came from. No timestamps: replay must reproduce the file exactly."""
+
+    procedure: str
+    method: str
+    input_sha256: str
+    latitude_deg: float
+    height_m: float
+    gravity_m_s2: float
+    gravity_source: str
+    device_name: str | None = None
+    device_serial: str | None = None
+    simulation: bool | None = None
+    software_version: str = __version__
+
+    def __post_init__(self) -> None:
+        for attr in ("procedure", "method", "gravity_source", "software_version"):
+            value = getattr(self, attr)
+            if not isinstance(value, str) or not value:
+                raise ValueError(f"provenance.{attr}: expected a non-empty string, got {value!r}")
+        if not isinstance(self.input_sha256, str) or not _SHA256.fullmatch(self.input_sha256):
+            raise ValueError(f"provenance.input_sha256: expected 64 lowercase hex digits, "
+                             f"got {self.input_sha256!r}")
+        for attr in ("device_name", "device_serial"):
+            value = getattr(self, attr)
+            if value is not None and not isinstance(value, str):
+                raise ValueError(f"provenance.{attr}: expected a string or None, got {value!r}")
+        if self.simulation is not None and not isinstance(self.simulation, bool):
+            raise ValueError(f"provenance.simulation: expected true, false or None, got {self.simulation!r}")
+        for attr in ("latitude_deg", "height_m", "gravity_m_s2"):
+            value = getattr(self, attr)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+                    or not math.isfinite(value):
+                raise ValueError(f"provenance.{attr}: expected a finite number, got {value!r}")
+            object.__setattr__(self, attr, float(value))
+        if not -90.0 <= self.latitude_deg <= 90.0:
+            raise ValueError(f"provenance.latitude_deg: expected -90..90, got {self.latitude_deg!r}")
+        if not self.gravity_m_s2 > 0:
+            raise ValueError(f"provenance.gravity_m_s2: expected a number > 0, got {self.gravity_m_s2!r}")
+
+    @classmethod
+    def for_station(cls, station, *, procedure: str, method: str, input_sha256: str,
+                    device_name: str | None = None, device_serial: str | None = None,
+                    simulation: bool | None = None) -> Provenance:
+        """From a ``fieldcal.earth.Station`` (its gravity and where that came from)."""
+        return cls(procedure=procedure, method=method, input_sha256=input_sha256,
+                   latitude_deg=station.latitude_deg, height_m=station.height_m,
+                   gravity_m_s2=station.gravity, gravity_source=station.gravity_source,
+                   device_name=device_name, device_serial=device_serial, simulation=simulation)
+
+
+@dataclass(frozen=True)
+class ParameterFile:
+    triads: tuple[TriadParameters, ...]
+    provenance: Provenance
+
+    def __post_init__(self) -> None:
+        triads = tuple(self.triads)
+        if not triads or not all(isinstance(t, TriadParameters) for t in triads):
+            raise ValueError("triads: expected one or more TriadParameters")
+        names = [t.name for t in triads]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ValueError(f"triads: expected unique names, got {', '.join(map(repr, dupes))} twice")
+        if not isinstance(self.provenance, Provenance):
+            raise ValueError(f"provenance: expected a Provenance, got {type(self.provenance).__name__}")
+        object.__setattr__(self, "triads", triads)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.triads)
+
+    def triad(self, name: str) -> TriadParameters:
+        for t in self.triads:
+            if t.name == name:
+                return t
+        raise KeyError(f"no triad named {name!r} (have {', '.join(self.names)})")
+
+    def __getitem__(self, name: str) -> TriadParameters:
+        return self.triad(name)
+
+    @classmethod
+    def build(cls, triads: Iterable[TriadParameters], *, station, procedure: str, method: str,
+              input_sha256: str, device_name: str | None = None, device_serial: str | None = None,
+              simulation: bool | None = None) -> ParameterFile:
+        """Triads plus provenance from a ``fieldcal.earth.Station`` and the hash of the averages."""
+        return cls(triads=tuple(triads), provenance=Provenance.for_station(
+            station, procedure=procedure, method=method, input_sha256=input_sha256,
+            device_name=device_name, device_serial=device_serial, simulation=simulation))
+
+    @classmethod
+    def from_solutions(cls, solutions: Iterable, *, station, procedure: str,
+                       inputs: Sequence[np.ndarray] | None = None, input_sha256: str | None = None,
+                       method: str | None = None, device_name: str | None = None,
+                       device_serial: str | None = None,
+                       simulation: bool | None = None) -> ParameterFile:
+        """Parameters of solver solutions, with provenance from ``station`` and the averages.
+
+        Give the averages that went in as ``inputs`` (hashed with ``hash_inputs``) or their hash
+        as ``input_sha256``. ``method`` defaults to the solutions' method ("a+b" when they differ).
+        """
+        triads = tuple(TriadParameters.from_solution(s) for s in solutions)
+        if (inputs is None) == (input_sha256 is None):
+            raise ValueError("give exactly one of inputs (the averages) or input_sha256")
+        if input_sha256 is None:
+            input_sha256 = hash_inputs(*inputs)
+        if method is None:
+            method = "+".join(sorted({t.method for t in triads}))
+        return cls.build(triads, station=station, procedure=procedure, method=method,
+                         input_sha256=input_sha256, device_name=device_name,
+                         device_serial=device_serial, simulation=simulation)
+
+
+def hash_inputs(*arrays) -> str:
+    """SHA-256 (hex) of arrays' dtype, shape and C-order bytes, in order: deterministic."""
+    h = hashlib.sha256(b"fieldcal-inputs/1\0")
+    for a in arrays:
+        arr = np.ascontiguousarray(a)
+        if arr.dtype.hasobject:
+            raise TypeError("hash_inputs: object arrays have no stable bytes; pass numeric arrays")
+        header = f"{arr.dtype.str}|{','.join(map(str, arr.shape))}|{arr.nbytes}\0"
+        h.update(header.encode("ascii"))
+        h.update(arr.tobytes())
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------------------------
+# Writing
+
+
+class _FlowRow(list):
+    """A list written on one line ([a, b, c]): the rows of K."""
+
+
+class _Dumper(yaml.SafeDumper):
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+_Dumper.add_representer(
+    _FlowRow, lambda d, data: d.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=True))
+
+
+def _f(x) -> float:
+    return float(x)  # numpy scalars -> Python floats, whose repr round-trips exactly
+
+
+def _xyz(values) -> dict:
+    return {k: _f(v) for k, v in zip(_AXES, values)}
+
+
+def _triad_document(t: TriadParameters) -> dict:
+    return {
+        "kind": t.kind,
+        "output_unit": t.output_unit,
+        "input_unit": t.input_unit,
+        "bias": {**_xyz(t.bias), "unit": t.output_unit, "sigma": _xyz(t.bias_sigma)},
+        "scale_factor": {**_xyz(t.scale_factor), "unit": f"{t.output_unit} per {t.input_unit}",
+                         "sigma": _xyz(t.scale_factor_sigma)},
+        "misalignment": {**{k: _f(v) for k, v in zip(_ANGLES, t.misalignment)}, "unit": "rad",
+                         "sigma": {k: _f(v) for k, v in zip(_ANGLES, t.misalignment_sigma)}},
+        "K": [_FlowRow(_f(v) for v in row) for row in t.K],
+        "residual_rms": {"value": _f(t.residual_rms), "unit": t.residual_unit},
+        "method": t.method,
+    }
+
+
+def to_document(pf: ParameterFile) -> dict:
+    """The plain mapping that ``dump`` writes."""
+    p = pf.provenance
+    prov: dict[str, Any] = {"software": SOFTWARE, "software_version": p.software_version,
+                            "procedure": p.procedure, "method": p.method,
+                            "input_sha256": p.input_sha256}
+    if p.simulation is not None:
+        prov["simulation"] = p.simulation
+    prov["station"] = {"latitude_deg": p.latitude_deg, "height_m": p.height_m,
+                       "gravity_m_s2": p.gravity_m_s2, "gravity_source": p.gravity_source}
+    device = {k: v for k, v in (("name", p.device_name), ("serial", p.device_serial)) if v is not None}
+    if device:
+        prov["device"] = device
+    return {"schema": SCHEMA, "provenance": prov,
+            "triads": {t.name: _triad_document(t) for t in pf.triads}}
+
+
+def dump(pf: ParameterFile) -> str:
+    """The file's text: deterministic (fixed key order, repr floats, no timestamps)."""
+    body = yaml.dump(to_document(pf), Dumper=_Dumper, sort_keys=False, default_flow_style=False,
+                     allow_unicode=True, width=200)
+    return _HEADER + body
+
+
+def save(pf: ParameterFile, path: str | os.PathLike) -> Path:
+    """Write ``dump(pf)`` atomically: a temp file in the same directory, fsync, os.replace."""
+    path = Path(path)
+    data = dump(pf).encode("utf-8")
+    directory = path.parent
+    tmp = directory / f".{path.name}.{secrets.token_hex(6)}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies, unlike mkstemp
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    try:  # make the rename itself durable; not possible everywhere (e.g. Windows)
+        dir_fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return path
+    try:
+        os.fsync(dir_fd)
+    except OSError:
+        pass
+    finally:
+        os.close(dir_fd)
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """safe_load, but a key given twice in one mapping is an error instead of last-one-wins."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {key!r} appears twice in one mapping", key_node.start_mark)
+                seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+_MISSING = object()
+
+
+def _join(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else key
+
+
+def _describe(value) -> str:
+    if value is _MISSING:
+        return "nothing (the key is missing)"
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if math.isnan(value):
+            return ".nan"
+        if math.isinf(value):
+            return ".inf" if value > 0 else "-.inf"
+        return repr(value)
+    if isinstance(value, int):
+        text = repr(value)
+        return text if len(text) <= 40 else text[:37] + "..."
+    if isinstance(value, str):
+        return repr(value) if len(value) <= 60 else repr(value[:57]) + "..."
+    if isinstance(value, (list, dict)) and not value:
+        return f"an empty {'list' if isinstance(value, list) else 'mapping'}"
+    if isinstance(value, list):
+        return f"a list of {len(value)} item{'s' if len(value) != 1 else ''}"
+    if isinstance(value, dict):
+        return "a mapping"
+    return f"a {type(value).__name__}"
+
+
+class _Reader:
+    """Validating accessors that raise ParameterFileError naming the file and dotted field."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def fail(self, where: str, expected: str, got: str) -> None:
+        prefix = f"{self.path}: {where}: " if where else f"{self.path}: "
+        raise ParameterFileError(f"{prefix}expected {expected}, got {got}", self.path, where)
+
+    def mapping(self, value, where: str, required: Sequence[str], optional: Sequence[str] = (),
+                what: str = "a mapping") -> dict:
+        if not isinstance(value, dict):
+            keys = ", ".join(required or optional)
+            self.fail(where, f"{what} with keys {keys}" if keys else what, _describe(value))
+        known = (*required, *optional)
+        for key in value:
+            if key not in known:
+                self.fail(_join(where, key) if isinstance(key, str) else where,
+                          f"only the keys {', '.join(known)}", f"the unknown key {_describe(key)}")
+        return value
+
+    def number(self, m: dict, key: str, where: str, minimum: float | None = None) -> float:
+        return self.value(m.get(key, _MISSING), _join(where, key), minimum)
+
+    def value(self, value, here: str, minimum: float | None = None) -> float:
+        """A finite int or float (not a bool, not a string), as a float."""
+        expected = "a number" if minimum is None else f"a number >= {minimum:g}"
+        if isinstance(value, str):
+            try:
+                numeric = math.isfinite(float(value))
+            except ValueError:
+                numeric = False
+            hint = " (text: YAML reads quoted or dot-less numbers as strings; write e.g. 1.0e-05)" \
+                if numeric else ""
+            self.fail(here, expected, _describe(value) + hint)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(here, expected, _describe(value))
+        try:
+            x = float(value)
+        except OverflowError:
+            x = math.inf
+        if not math.isfinite(x):
+            self.fail(here, "a finite number", _describe(value))
+        if minimum is not None and x < minimum:
+            self.fail(here, expected, _describe(value))
+        return x
+
+    def string(self, m: dict, key: str, where: str, allowed: Sequence[str] | None = None,
+               optional: bool = False) -> str | None:
+        value = m.get(key, _MISSING)
+        if value is _MISSING and optional:
+            return None
+        here = _join(where, key)
+        if allowed is not None:
+            if value not in allowed or not isinstance(value, str):
+                choices = " or ".join(repr(a) for a in allowed)
+                self.fail(here, choices, _describe(value))
+        elif not isinstance(value, str) or not value:
+            self.fail(here, "a non-empty string" + (" (quote it)" if isinstance(value, (int, float)) else ""),
+                      _describe(value))
+        return value
+
+    def vector(self, m: dict, keys: Sequence[str], where: str, minimum: float | None = None) -> np.ndarray:
+        return np.array([self.number(m, k, where, minimum) for k in keys])
+
+
+def _read_triad(r: _Reader, name: str, raw, where: str) -> TriadParameters:
+    t = r.mapping(raw, where, ("kind", "output_unit", "input_unit", "bias", "scale_factor",
+                               "misalignment", "K", "residual_rms", "method"))
+    kind = r.string(t, "kind", where, allowed=KINDS)
+    output_unit = r.string(t, "output_unit", where)
+    input_unit = r.string(t, "input_unit", where, allowed=(SI_UNIT[kind],))
+
+    def block(key: str, names: Sequence[str], unit: str) -> tuple[np.ndarray, np.ndarray]:
+        here = f"{where}.{key}"
+        b = r.mapping(t.get(key, _MISSING), here, (*names, "unit", "sigma"))
+        values = r.vector(b, names, here)
+        r.string(b, "unit", here, allowed=(unit,))
+        s = r.mapping(b.get("sigma", _MISSING), f"{here}.sigma", names)
+        return values, r.vector(s, names, f"{here}.sigma", minimum=0.0)
+
+    bias, bias_sigma = block("bias", _AXES, output_unit)
+    scale, scale_sigma = block("scale_factor", _AXES, f"{output_unit} per {input_unit}")
+    angles, angle_sigma = block("misalignment", _ANGLES, "rad")
+
+    kw = f"{where}.K"
+    rows = t.get("K", _MISSING)
+    if not isinstance(rows, list) or len(rows) != 3:
+        r.fail(kw, "a list of 3 rows of 3 numbers", _describe(rows))
+    for i, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != 3:
+            r.fail(f"{kw}[{i}]", "a list of 3 numbers", _describe(row))
+    K = np.array([[r.value(v, f"{kw}[{i}][{j}]") for j, v in enumerate(row)]
+                  for i, row in enumerate(rows)])
+    method = r.string(t, "method", where)
+    if method in LOWER_TRIANGULAR_METHODS:
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            if K[i, j] != 0:
+                r.fail(f"{kw}[{i}][{j}]", f"0.0 (the {method} method gives a lower-triangular K)",
+                       _describe(rows[i][j]))
+    for i in range(3):
+        if K[i, i] == 0:
+            r.fail(f"{kw}[{i}][{i}]", "a non-zero scale factor", _describe(rows[i][i]))
+    cond = np.linalg.cond(K)
+    if not cond < _MAX_CONDITION:
+        r.fail(kw, "an invertible matrix",
+               "a singular one" if not np.isfinite(cond) else f"one with condition number {cond:.3g}")
+
+    for i, axis in enumerate(_AXES):
+        if not _close(scale[i], K[i, i], 0.0):
+            r.fail(f"{where}.scale_factor.{axis}", f"K[{i}][{i}] = {float(K[i, i])!r} (edited by hand?)",
+                   repr(float(scale[i])))
+    from_k = _misalignment_of(K)
+    cells = ("K[1][0] / K[1][1]", "K[2][0] / K[2][2]", "K[2][1] / K[2][2]")
+    for i, angle in enumerate(_ANGLES):
+        if not _close(angles[i], from_k[i], _ANGLE_ATOL):
+            r.fail(f"{where}.misalignment.{angle}",
+                   f"{float(from_k[i])!r} from {'-' if i != 1 else ''}{cells[i]} (edited by hand?)",
+                   repr(float(angles[i])))
+
+    rw = f"{where}.residual_rms"
+    res = r.mapping(t.get("residual_rms", _MISSING), rw, ("value", "unit"))
+    rms = r.number(res, "value", rw, minimum=0.0)
+    residual_unit = r.string(res, "unit", rw, allowed=tuple(dict.fromkeys((SI_UNIT[kind], output_unit))))
+    try:
+        return TriadParameters(name=name, kind=kind, output_unit=output_unit, bias=bias, K=K,
+                               sigma=np.r_[bias_sigma, scale_sigma, angle_sigma], residual_rms=rms,
+                               method=method, residual_unit=residual_unit)
+    except ValueError as exc:  # should be unreachable: everything above is checked first
+        r.fail(where, "a valid triad", str(exc).splitlines()[0])
+        raise
+
+
+def _close(a: float, b: float, atol: float) -> bool:
+    return abs(a - b) <= CONSISTENCY_RTOL * max(abs(a), abs(b)) + atol
+
+
+def from_document(doc, path: str = "<document>") -> ParameterFile:
+    """Validate a parsed document (as ``yaml.safe_load`` gives it) into a ParameterFile."""
+    r = _Reader(path)
+    if doc is None:
+        r.fail("", f"a {SCHEMA} parameter file (a YAML mapping)", "an empty file")
+    if not isinstance(doc, dict):
+        r.fail("", f"a {SCHEMA} parameter file (a YAML mapping)", _describe(doc))
+    schema = doc.get("schema", _MISSING)
+    if schema != SCHEMA:
+        newer = isinstance(schema, str) and schema.startswith("fieldcal-parameters/")
+        r.fail("schema", repr(SCHEMA) + (f" (fieldcal {__version__} reads version 1 only)" if newer else ""),
+               _describe(schema))
+    r.mapping(doc, "", ("schema", "provenance", "triads"))
+
+    pw = "provenance"
+    p = r.mapping(doc.get(pw, _MISSING), pw,
+                  ("software", "software_version", "procedure", "method", "input_sha256", "station"),
+                  ("simulation", "device"))
+    r.string(p, "software", pw, allowed=(SOFTWARE,))
+    version = r.string(p, "software_version", pw)
+    procedure = r.string(p, "procedure", pw)
+    method = r.string(p, "method", pw)
+    sha = p.get("input_sha256", _MISSING)
+    if not isinstance(sha, str) or not _SHA256.fullmatch(sha):
+        r.fail(f"{pw}.input_sha256", "64 lowercase hex digits (SHA-256)", _describe(sha))
+    simulation = p.get("simulation")
+    if simulation is not None and not isinstance(simulation, bool):
+        r.fail(f"{pw}.simulation", "true or false", _describe(simulation))
+    sw = f"{pw}.station"
+    s = r.mapping(p.get("station", _MISSING), sw,
+                  ("latitude_deg", "height_m", "gravity_m_s2", "gravity_source"))
+    latitude = r.number(s, "latitude_deg", sw)
+    if not -90.0 <= latitude <= 90.0:
+        r.fail(f"{sw}.latitude_deg", "a latitude in -90..90 degrees", _describe(s["latitude_deg"]))
+    height = r.number(s, "height_m", sw)
+    gravity = r.number(s, "gravity_m_s2", sw)
+    if not gravity > 0:
+        r.fail(f"{sw}.gravity_m_s2", "a number > 0", _describe(s["gravity_m_s2"]))
+    gravity_source = r.string(s, "gravity_source", sw)
+    device_name = device_serial = None
+    if p.get("device") is not None:
+        dw = f"{pw}.device"
+        d = r.mapping(p["device"], dw, (), ("name", "serial"))
+        device_name = r.string(d, "name", dw, optional=True)
+        device_serial = r.string(d, "serial", dw, optional=True)
+    provenance = Provenance(procedure=procedure, method=method, input_sha256=sha,
+                            latitude_deg=latitude, height_m=height, gravity_m_s2=gravity,
+                            gravity_source=gravity_source, device_name=device_name,
+                            device_serial=device_serial, simulation=simulation,
+                            software_version=version)
+
+    raw_triads = doc.get("triads", _MISSING)
+    if not isinstance(raw_triads, dict) or not raw_triads:
+        r.fail("triads", "a mapping of triad name to parameters", _describe(raw_triads))
+    triads = []
+    for name, raw in raw_triads.items():
+        if not isinstance(name, str) or not name or not name.isprintable():
+            r.fail("triads", "triad names that are non-empty strings", _describe(name))
+        triads.append(_read_triad(r, name, raw, f"triads.{name}"))
+    return ParameterFile(triads=tuple(triads), provenance=provenance)
+
+
+def loads(text: str, path: str = "<string>") -> ParameterFile:
+    """Parse and validate the text of a parameter file; ``path`` is used in messages."""
+    try:
+        doc = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 -- a SafeLoader subclass
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        what = (exc.problem or exc.context or "malformed").splitlines()[0]
+        raise ParameterFileError(f"{path}: not valid YAML ({where}{what})", path) from None
+    except Exception as exc:  # noqa: BLE001 -- e.g. a date like 2024-02-30 raises ValueError
+        detail = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise ParameterFileError(f"{path}: not valid YAML ({detail})", path) from None
+    return from_document(doc, path)
+
+
+def load(path: str | os.PathLike) -> ParameterFile:
+    """Read and validate a parameter file; any problem is a one-line ParameterFileError."""
+    name = os.fspath(path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ParameterFileError(f"{name}: cannot read parameter file ({exc.strerror or exc})", name) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ParameterFileError(f"{name}: not valid YAML (not UTF-8 text at byte {exc.start})", name) from None
+    return loads(text, name)
+
+
+__all__ = ["SCHEMA", "ParameterFile", "ParameterFileError", "Provenance", "TriadParameters",
+           "dump", "from_document", "hash_inputs", "load", "loads", "save", "to_document"]

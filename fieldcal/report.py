@@ -1,0 +1,48 @@
+"""Plain-text tables of solutions, in operator units with the unit beside every number."""
+from __future__ import annotations
+
+import numpy as np
+
+from fieldcal.model import PARAM_NAMES
+from fieldcal.units import display_scale, param_unit
+
+_ROW_NAMES = ("bias x", "bias y", "bias z", "scale x", "scale y", "scale z",
+              "Δyz", "Δzy", "Δzx")
+
+
+def _fmt(value: float, unit: str, index: int) -> str:
+    if 3 <= index < 6 and unit == "1":
+        return f"{value:.7f}"
+    return f"{value:.5g} {unit}"
+
+
+def _fmt_sigma(sigma: float, unit: str, index: int) -> str:
+    if 3 <= index < 6 and unit == "1":
+        return f"{sigma * 1e6:.3g} ppm"
+    return f"{sigma:.3g} {unit}"
+
+
+def solution_header(sol) -> str:
+    chi = f"χ²/dof {sol.chi2 / sol.dof:.2f}" if getattr(sol, "dof", 0) else ""
+    rms = sol.residual_rms * display_scale(sol.kind, {"angular_rate": "rad/s"}.get(sol.kind, "m/s^2"), 0)
+    unit = param_unit(sol.kind, "rad/s" if sol.kind == "angular_rate" else "m/s^2", 0)
+    return (f"{sol.name} ({sol.method}: {sol.iterations} iterations, {sol.evaluations} evaluations; "
+            f"residual RMS {rms:.3g} {unit}{'; ' + chi if chi else ''})")
+
+
+def solution_table(sol, truth: np.ndarray | None = None) -> str:
+    """One row per parameter: solved ± 1σ, and, when the truth is known, the error in σ."""
+    head = f"  {'parameter':<9} {'solved':>18} {'±1σ':>12}"
+    if truth is not None:
+        head += f" {'true':>18} {'error/σ':>8}"
+    lines = [head]
+    for j, _ in enumerate(PARAM_NAMES):
+        scale = display_scale(sol.kind, sol.output_unit, j)
+        unit = param_unit(sol.kind, sol.output_unit, j)
+        row = (f"  {_ROW_NAMES[j]:<9} {_fmt(sol.theta[j] * scale, unit, j):>18} "
+               f"{_fmt_sigma(sol.sigma[j] * scale, unit, j):>12}")
+        if truth is not None:
+            row += (f" {_fmt(truth[j] * scale, unit, j):>18} "
+                    f"{(sol.theta[j] - truth[j]) / sol.sigma[j]:>+8.2f}")
+        lines.append(row)
+    return "\n".join(lines)
