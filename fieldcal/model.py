@@ -8,7 +8,6 @@ K = [[kx, 0, 0], [-Δyz·ky, ky, 0], [Δzy·kz, -Δzx·kz, kz]] — the paper's 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import solve_triangular
 
 SPECIFIC_FORCE = "specific_force"
 ANGULAR_RATE = "angular_rate"
@@ -48,11 +47,3 @@ def distort_with(theta, true: np.ndarray) -> np.ndarray:
     """K·true + b for an (n, 3) array: what the triad reports for a true input."""
     return true @ k_from_params(theta).T + theta[:3]
 
-
-def invert_full(K: np.ndarray, bias, raw: np.ndarray) -> np.ndarray:
-    """K⁻¹(raw − b) for any invertible K (the classic method's full matrix)."""
-    return np.linalg.solve(K, (np.asarray(raw) - bias).T).T
-
-
-def invert_lower(K: np.ndarray, bias, raw: np.ndarray) -> np.ndarray:
-    return solve_triangular(K, (np.asarray(raw) - bias).T, lower=True).T

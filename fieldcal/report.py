@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fieldcal.model import PARAM_NAMES
+from fieldcal.model import PARAM_NAMES, SI_UNIT
 from fieldcal.units import display_scale, param_unit
 
 _ROW_NAMES = ("bias x", "bias y", "bias z", "scale x", "scale y", "scale z",
@@ -23,11 +23,11 @@ def _fmt_sigma(sigma: float, unit: str, index: int) -> str:
 
 
 def solution_header(sol) -> str:
-    chi = f"χ²/dof {sol.chi2 / sol.dof:.2f}" if getattr(sol, "dof", 0) else ""
-    rms = sol.residual_rms * display_scale(sol.kind, {"angular_rate": "rad/s"}.get(sol.kind, "m/s^2"), 0)
-    unit = param_unit(sol.kind, "rad/s" if sol.kind == "angular_rate" else "m/s^2", 0)
+    """Solver, effort and fit quality; residuals are in SI, shown like a bias of that kind."""
+    si = SI_UNIT[sol.kind]
+    rms = sol.residual_rms * display_scale(sol.kind, si, 0)
     return (f"{sol.name} ({sol.method}: {sol.iterations} iterations, {sol.evaluations} evaluations; "
-            f"residual RMS {rms:.3g} {unit}{'; ' + chi if chi else ''})")
+            f"residual RMS {rms:.3g} {param_unit(sol.kind, si, 0)}; χ²/dof {sol.chi2 / sol.dof:.2f})")
 
 
 def solution_table(sol, truth: np.ndarray | None = None) -> str:

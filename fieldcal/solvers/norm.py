@@ -7,6 +7,7 @@ conjugate and raw-count devices (b ≈ 32768, k ≈ 415 count per m/s²) need no
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -206,13 +207,11 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> TriadSolutio
 
 
 def _spread_hint(problem) -> str:
-    """Which directions the positions leave out, for the operator."""
-    dirs = problem.static if problem.kind == "angular_rate" else problem.means
-    if problem.kind == "angular_rate":
-        dirs = 0.5 * (problem.plus - problem.minus)
-    dirs = dirs - (0 if problem.kind == "angular_rate" else dirs.mean(axis=0))
-    unit = dirs / np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-300)
-    distinct = len({tuple(np.round(v, 1)) for v in unit} | {tuple(np.round(-v, 1)) for v in unit}) // 2 \
-        if len(unit) else 0
-    return (f"{len(unit)} measurements point along about {max(distinct, 0)} distinct axes; "
-            "use positions with axes between the cube faces (paper Table 2, positions 13-18)")
+    """How many distinct axes the measured directions span, for the operator."""
+    directions = problem.directions()
+    axes: list[np.ndarray] = []
+    for d in directions:  # a few dozen positions at most
+        if all(abs(d @ a) < math.cos(math.radians(10)) for a in axes):
+            axes.append(d)
+    return (f"{len(directions)} measurements point along only {len(axes)} distinct axes (10° apart); "
+            "add positions with an axis between the cube faces (paper Table 2, positions 13-18)")

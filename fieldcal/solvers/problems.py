@@ -22,6 +22,10 @@ def _as_points(values, what: str) -> np.ndarray:
     return arr
 
 
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), np.finfo(float).tiny)
+
+
 @dataclass(frozen=True)
 class StaticNormProblem:
     """A specific-force triad at rest in n orientations: |K⁻¹(u_i − b)| = g (paper eq. 17).
@@ -60,6 +64,10 @@ class StaticNormProblem:
 
     def initial(self) -> np.ndarray:
         return fit_offset_ellipsoid(self.means, self.gravity)
+
+    def directions(self) -> np.ndarray:
+        """Rough unit directions of gravity in output axes (for messages, not for solving)."""
+        return _unit_rows(self.means - self.means.mean(axis=0))
 
 
 @dataclass(frozen=True)
@@ -172,6 +180,11 @@ class RateNormProblem:
             static_resid[offsets[~paired]] = np.linalg.norm(a[~paired], axis=1) - self.earth_rate
             parts.append(static_resid)
         return np.concatenate(parts)
+
+    def directions(self) -> np.ndarray:
+        """Rough unit directions of the table axis in output axes (for messages)."""
+        one_way = self.single - (self.single.mean(axis=0) if len(self.single) else 0.0)
+        return _unit_rows(np.concatenate([0.5 * (self.plus - self.minus), one_way]))
 
     def initial(self) -> np.ndarray:
         if len(self.plus) < 6 and len(self.single):
