@@ -58,7 +58,7 @@ def main(argv=None) -> int:
         bias_z = err.mean(axis=0) / (err.std(axis=0, ddof=1) / np.sqrt(len(err)))
         kind, unit = kinds[name]
         print(f"\n{name}")
-        print(f"| parameter | unit | truth | RMS error | CRB | RMS/CRB | mean error / SE | reported σ / CRB |")
+        print("| parameter | unit | truth | RMS error | CRB | RMS/CRB | mean error / SE | reported σ / CRB |")
         print("|---|---|---|---|---|---|---|---|")
         for j, pname in enumerate(PARAM_NAMES):
             scale = display_scale(kind, unit, j)
