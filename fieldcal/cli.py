@@ -29,7 +29,7 @@ def cmd_demo(args) -> int:
     from fieldcal.simcal import run_simulated_calibration
     from fieldcal.solvers import CalibrationError
 
-    station = Station(args.latitude, args.height)
+    station = Station(args.latitude, args.height, args.gravity)
     device = paper_mimu(raw_counts=args.raw_counts)
     print(f"fieldcal {__version__} demo: procedure {args.procedure} against the simulated MIMU "
           f"(paper Tables 3-4{', raw 16-bit counts' if args.raw_counts else ''}), seed {args.seed}")
@@ -78,6 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="solver (default powell)")
     demo.add_argument("--latitude", type=float, default=40.0, help="station latitude, degrees (default 40)")
     demo.add_argument("--height", type=float, default=50.0, help="station height, m (default 50)")
+    demo.add_argument("--gravity", type=float, metavar="M_S2",
+                      help="measured local gravity, m/s² (default: WGS84 normal gravity)")
     demo.add_argument("--raw-counts", action="store_true", help="simulate a device reporting 16-bit counts")
     demo.add_argument("--params", metavar="FILE", help="also write the parameter file here")
     demo.set_defaults(func=cmd_demo)

@@ -47,3 +47,11 @@ def test_demo_parameter_file_loads_and_is_deterministic(capsys, tmp_path):
     true = np.array([[0.0, 0.0, 9.8], [3.0, -4.0, 8.0]])
     recovered = pf["accelerometer"].calibrate(true @ acc.K.T + acc.bias)
     np.testing.assert_allclose(recovered, true, atol=3e-3)  # a few σ of the bias, in m/s²
+
+
+def test_measured_gravity_overrides_the_model_and_bad_values_are_refused(capsys):
+    assert main(["demo", "--seed", "6", "--gravity", "9.80200"]) == 0
+    assert "g = 9.802000 m/s² (measured)" in capsys.readouterr().out
+    assert main(["demo", "--gravity", "98.02"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "fieldcal: gravity_m_s2: expected 9.7..9.9 m/s², got 98.02"
