@@ -1,0 +1,1 @@
+"""Wire protocols: byte streams in, sample chunks out (and, for the simulator, the reverse)."""

@@ -1,0 +1,162 @@
+"""Device ends of virtual serial links: a pseudo-terminal pair, or a TCP socket on 127.0.0.1.
+
+The station opens ``url`` with pyserial exactly as it would a real port. ``unplug()`` and
+``replug()`` simulate a pulled cable: the pty's device end is closed and a new pair created
+behind the same stable symlink (as udev's /dev/serial/by-id links behave), or the TCP
+connection is dropped and the listener keeps the same port number.
+"""
+from __future__ import annotations
+
+import os
+import select
+import socket
+import tempfile
+import threading
+import tty
+from pathlib import Path
+
+
+class PtyLink:
+    def __init__(self, link: str | os.PathLike | None = None):
+        if link is None:
+            link = Path(tempfile.mkdtemp(prefix="fieldcal-")) / "tty"
+        self.link = Path(link)
+        self._lock = threading.Lock()
+        self._master: int | None = None
+        self._slave: int | None = None
+        self.replug()
+
+    @property
+    def url(self) -> str:
+        return str(self.link)
+
+    def replug(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(master)  # no echo, no newline translation on the device side
+        tty.setraw(slave)
+        tmp = self.link.with_name(self.link.name + ".new")
+        if tmp.is_symlink() or tmp.exists():
+            tmp.unlink()
+        tmp.symlink_to(os.ttyname(slave))
+        os.replace(tmp, self.link)
+        with self._lock:
+            self._master = master
+            # Keep the slave open here too, so the device side never sees EIO before the station
+            # has opened the port.
+            self._slave = slave
+
+    def unplug(self) -> None:
+        with self._lock:
+            fds = [fd for fd in (self._master, self._slave) if fd is not None]
+            self._master = self._slave = None
+        for fd in fds:
+            os.close(fd)
+
+    def write(self, data: bytes, timeout_s: float = 1.0) -> int:
+        """Write what fits within the timeout (the station may be slow or absent); bytes written."""
+        with self._lock:
+            fd = self._master
+        if fd is None:
+            return 0
+        written = 0
+        view = memoryview(data)
+        while written < len(data):
+            try:
+                _, ready, _ = select.select([], [fd], [], timeout_s)
+                if not ready:
+                    break
+                written += os.write(fd, view[written:])
+            except OSError:
+                break
+        return written
+
+    def read(self, timeout_s: float = 0.05) -> bytes:
+        with self._lock:
+            fd = self._master
+        if fd is None:
+            return b""
+        try:
+            ready, _, _ = select.select([fd], [], [], timeout_s)
+            return os.read(fd, 4096) if ready else b""
+        except OSError:
+            return b""
+
+    def close(self) -> None:
+        self.unplug()
+        if self.link.is_symlink():
+            self.link.unlink()
+
+
+class TcpLink:
+    """Listens on 127.0.0.1; one station connection at a time."""
+
+    def __init__(self, port: int = 0):
+        self._server = socket.create_server(("127.0.0.1", port))
+        self.port = self._server.getsockname()[1]
+        self._lock = threading.Lock()
+        self._client: socket.socket | None = None
+        self._closed = False
+        self._acceptor = threading.Thread(target=self._accept_loop, daemon=True)
+        self._acceptor.start()
+
+    @property
+    def url(self) -> str:
+        return f"socket://127.0.0.1:{self.port}"
+
+    def _accept_loop(self) -> None:
+        while not self._closed:
+            try:
+                client, _ = self._server.accept()
+            except OSError:
+                return
+            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                old, self._client = self._client, client
+            if old is not None:
+                old.close()
+
+    def connected(self) -> bool:
+        return self._client is not None
+
+    def unplug(self) -> None:
+        with self._lock:
+            client, self._client = self._client, None
+        if client is not None:
+            client.close()
+
+    def replug(self) -> None:
+        """Nothing to do: the listener stays up and the station's reconnect is accepted."""
+
+    def write(self, data: bytes, timeout_s: float = 1.0) -> int:
+        with self._lock:
+            client = self._client
+        if client is None:
+            return 0
+        try:
+            client.settimeout(timeout_s)
+            client.sendall(data)
+            return len(data)
+        except OSError:
+            self.unplug()
+            return 0
+
+    def read(self, timeout_s: float = 0.05) -> bytes:
+        with self._lock:
+            client = self._client
+        if client is None:
+            return b""
+        try:
+            ready, _, _ = select.select([client], [], [], timeout_s)
+            if not ready:
+                return b""
+            data = client.recv(4096)
+            if not data:
+                self.unplug()
+            return data
+        except OSError:
+            return b""
+
+    def close(self) -> None:
+        self._closed = True
+        self.unplug()
+        self._server.close()
