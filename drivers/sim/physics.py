@@ -75,6 +75,17 @@ class MimuSimulator:
     def table_angle(self) -> float:
         return self._angle
 
+    @property
+    def table_rate(self) -> float:
+        return self._rate
+
+    def advance(self, n: int, attitude: np.ndarray, target_rate: float, max_accel: float) -> SampleChunk:
+        """The next n samples with the table driven toward ``target_rate`` (rad/s) at up to
+        ``max_accel`` (rad/s²): the step a live, commanded table takes."""
+        ramp = abs(target_rate - self._rate) / max_accel if max_accel > 0 else 0.0
+        segment = Segment(n / self.rate_hz, attitude, target_rate, ramp)
+        return next(self.run_segment(segment, chunk_len=max(n, 1)))
+
     def run(self, segments, chunk_len: int = 25_000) -> Iterator[SampleChunk]:
         for seg in segments:
             yield from self.run_segment(seg, chunk_len)
@@ -84,22 +95,23 @@ class MimuSimulator:
         rate0, angle0, start = self._rate, self._angle, self._sample
         ramp = max(seg.ramp_s, 0.0)
         accel = (seg.table_rate - rate0) / ramp if ramp > 0 else 0.0
-        done = 0
-        while done < n_total:
-            n = min(chunk_len, n_total - done)
-            tau = np.arange(done, done + n) / self.rate_hz
+
+        def table(tau):
+            """Rate, angular acceleration and angle at time tau into the segment."""
             in_ramp = tau < ramp
-            rate = np.where(in_ramp, rate0 + accel * tau, seg.table_rate)
-            alpha = np.where(in_ramp, accel, 0.0)
-            ramp_angle = rate0 * np.minimum(tau, ramp) + 0.5 * accel * np.minimum(tau, ramp) ** 2
-            angle = angle0 + ramp_angle + seg.table_rate * np.maximum(tau - ramp, 0.0)
+            ramped = np.minimum(tau, ramp)
+            angle = angle0 + rate0 * ramped + 0.5 * accel * ramped**2 \
+                + seg.table_rate * np.maximum(tau - ramp, 0.0)
+            return (np.where(in_ramp, rate0 + accel * tau, seg.table_rate),
+                    np.where(in_ramp, accel, 0.0), angle)
+
+        # The end state is known now; a caller that stops early still leaves time consistent.
+        end_rate, _, end_angle = table(np.array([n_total / self.rate_hz]))
+        self._rate, self._angle, self._sample = float(end_rate[0]), float(end_angle[0]), start + n_total
+        for done in range(0, n_total, chunk_len):
+            tau = np.arange(done, min(done + chunk_len, n_total)) / self.rate_hz
+            rate, alpha, angle = table(tau)
             yield self._chunk(start + done, seg.attitude, angle, rate, alpha)
-            done += n
-        t_end = n_total / self.rate_hz
-        self._angle = angle0 + rate0 * min(t_end, ramp) + 0.5 * accel * min(t_end, ramp) ** 2 \
-            + seg.table_rate * max(t_end - ramp, 0.0)
-        self._rate = seg.table_rate if t_end >= ramp else rate0 + accel * t_end
-        self._sample = start + n_total
 
     def true_inputs(self, attitude, angle, rate, alpha) -> tuple[np.ndarray, np.ndarray]:
         """Specific force (m/s²) and angular rate (rad/s) in body axes, (n, 3) each."""

@@ -1,0 +1,86 @@
+"""The serial reader over real ptys and TCP sockets, including a pulled cable."""
+import time
+
+import pytest
+
+from drivers.sim.ports import PtyLink, TcpLink
+from drivers.transport import PORT_LOST, PORT_OPENED, PORT_REGAINED, PortSettings, SerialReader
+
+
+def wait_for(predicate, timeout_s=5.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+class Collector:
+    def __init__(self, reader):
+        self.reader, self.data, self.stamps, self.events = reader, b"", [], []
+
+    def pump(self):
+        for t, chunk in self.reader.poll():
+            self.stamps.append(t)
+            self.data += chunk
+        self.events += self.reader.events()
+        return self
+
+    def kinds(self):
+        return [e.kind for e in self.events]
+
+
+@pytest.fixture(params=[PtyLink, TcpLink], ids=["pty", "tcp"])
+def link(request):
+    link = request.param()
+    yield link
+    link.close()
+
+
+def test_bytes_arrive_stamped_and_tapped(link):
+    tapped = []
+    with SerialReader(PortSettings(link.url), tap=lambda t, d: tapped.append(d)) as reader:
+        c = Collector(reader)
+        assert wait_for(lambda: PORT_OPENED in c.pump().kinds())
+        assert wait_for(lambda: link.write(b"abc\n" * 100) == 400 or True)
+        assert wait_for(lambda: len(c.pump().data) == 400)
+        assert c.data == b"abc\n" * 100 and b"".join(tapped) == c.data
+        assert c.stamps == sorted(c.stamps)
+        started = time.monotonic()
+        assert reader.poll() == [] and time.monotonic() - started < 0.01  # never blocks
+
+
+def test_pulled_cable_is_survived_and_the_gap_reported(link):
+    with SerialReader(PortSettings(link.url), max_backoff_s=0.05) as reader:
+        c = Collector(reader)
+        assert wait_for(lambda: PORT_OPENED in c.pump().kinds())
+        assert wait_for(lambda: link.write(b"before|") == 7)
+        assert wait_for(lambda: c.pump().data == b"before|")
+        link.unplug()
+        assert wait_for(lambda: PORT_LOST in c.pump().kinds())
+        assert reader.write(b"x") is False or not reader.connected
+        time.sleep(0.2)
+        link.replug()
+        assert wait_for(lambda: PORT_REGAINED in c.pump().kinds())
+        assert wait_for(lambda: link.write(b"after") == 5)
+        assert wait_for(lambda: c.pump().data == b"before|after")
+        regained = next(e for e in c.events if e.kind == PORT_REGAINED)
+        assert regained.gap_s >= 0.15
+
+
+def test_device_that_appears_later_is_picked_up(tmp_path):
+    path = tmp_path / "late-tty"
+    with SerialReader(PortSettings(str(path)), max_backoff_s=0.05) as reader:
+        c = Collector(reader)
+        assert wait_for(lambda: PORT_LOST in c.pump().kinds())
+        assert "cannot open" in c.events[0].message
+        link = PtyLink(path)
+        try:
+            assert wait_for(lambda: reader.connected)
+            assert wait_for(lambda: link.write(b"hi") == 2)
+            assert wait_for(lambda: c.pump().data == b"hi")
+            # One report of the failure, not one per retry.
+            assert c.kinds().count(PORT_LOST) == 1
+        finally:
+            link.close()
