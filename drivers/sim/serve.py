@@ -1,0 +1,153 @@
+"""The simulated MIMU and rate table as serial devices: real bytes on a pty or TCP port.
+
+One thread runs the physics in blocks of sample time, encodes each block in the chosen wire
+protocol and writes it to the IMU link, in real time (or ``speed`` times faster), or as fast as
+the station reads (``speed=0``: the link's buffer paces it). Another thread answers the table
+protocol; the table's commanded rate drives the simulator's table, and the simulator's table
+angle and rate are what the virtual table reports. Device timestamps tell the truth either way.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+
+from drivers.chunk import SampleChunk
+from drivers.sim.physics import MimuSimulator, TriadTruth
+from drivers.sim.ports import PtyLink, TcpLink
+
+IMU_PROTOCOLS = ("xsens", "vectornav", "delimited")
+TABLE_PROTOCOLS = ("ascii", "grbl")
+SIM_TEMPERATURE_C = 25.0
+
+
+def simulator_channel_map():
+    """The column layout the simulated delimited-text device writes."""
+    from drivers.protocols.delimited import ChannelMap
+    return ChannelMap.from_mapping({
+        "delimiter": ",", "time_column": 0, "time_scale": 1.0,
+        "triads": {"accelerometer": {"columns": [1, 2, 3], "scale": 1.0, "unit": "m/s^2"},
+                   "gyroscope": {"columns": [4, 5, 6], "scale": 1.0, "unit": "rad/s"}},
+        "temperature_column": 7}, "simulator")
+
+
+def make_encoder(protocol: str):
+    if protocol == "xsens":
+        from drivers.protocols.xsens import XsensMtData2Encoder
+        return XsensMtData2Encoder()
+    if protocol == "vectornav":
+        from drivers.protocols.vectornav import VectorNavEncoder
+        return VectorNavEncoder()
+    if protocol == "delimited":
+        from drivers.protocols.delimited import DelimitedTextEncoder
+        return DelimitedTextEncoder(simulator_channel_map())
+    raise ValueError(f"imu protocol: expected one of {', '.join(IMU_PROTOCOLS)}, got {protocol!r}")
+
+
+def make_virtual_table(protocol: str, motion):
+    from drivers.sim.tables import VirtualAsciiTable, VirtualGrblTable
+    if protocol == "ascii":
+        return VirtualAsciiTable(motion)
+    if protocol == "grbl":
+        return VirtualGrblTable(motion)
+    raise ValueError(f"table protocol: expected one of {', '.join(TABLE_PROTOCOLS)}, got {protocol!r}")
+
+
+def _as_device_sends(chunk: SampleChunk) -> SampleChunk:
+    """Add what a real unit sends and the physics does not model (a still magnetometer,
+    temperature, pressure), so every protocol's frames are complete."""
+    n = len(chunk)
+    triads = dict(chunk.triads)
+    triads.setdefault("magnetometer", np.tile([0.2, 0.0, 0.4], (n, 1)))
+    return SampleChunk(t=chunk.t, triads=triads, temperature=np.full(n, SIM_TEMPERATURE_C),
+                       extras={"pressure": np.full(n, 101.325)})
+
+
+class SimulatedDevices:
+    def __init__(self, triads: dict[str, TriadTruth], gravity: float, latitude_rad: float,
+                 imu_protocol: str = "xsens", table_protocol: str | None = "ascii",
+                 transport: str = "pty", speed: float = 1.0, seed: int = 1, rate_hz: float = 250.0,
+                 attitude: np.ndarray | None = None, block_s: float = 0.02):
+        from drivers.sim.tables import TableMotion
+        if transport not in ("pty", "tcp"):
+            raise ValueError(f"transport: expected 'pty' or 'tcp', got {transport!r}")
+        if speed < 0:
+            raise ValueError(f"speed: expected >= 0 (0 = as fast as read), got {speed}")
+        self.simulator = MimuSimulator(triads, gravity=gravity, latitude_rad=latitude_rad,
+                                       rate_hz=rate_hz, seed=seed)
+        self.encoder = make_encoder(imu_protocol)
+        self.motion = TableMotion()
+        self.table = make_virtual_table(table_protocol, self.motion) if table_protocol else None
+        link = PtyLink if transport == "pty" else TcpLink
+        self.imu_link = link()
+        self.table_link = link() if self.table else None
+        self.speed = speed
+        self.attitude = np.eye(3) if attitude is None else np.asarray(attitude, dtype=float)
+        self._block = max(1, int(round(block_s * rate_hz)))
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=self._imu_loop, name="sim imu", daemon=True)]
+        if self.table:
+            self._threads.append(threading.Thread(target=self._table_loop, name="sim table", daemon=True))
+        self.samples_sent = 0
+
+    @property
+    def imu_url(self) -> str:
+        return self.imu_link.url
+
+    @property
+    def table_url(self) -> str | None:
+        return self.table_link.url if self.table_link else None
+
+    def start(self) -> SimulatedDevices:
+        for thread in self._threads:
+            thread.start()
+        return self
+
+    def __enter__(self) -> SimulatedDevices:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def stop(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+        self.imu_link.close()
+        if self.table_link:
+            self.table_link.close()
+
+    def _imu_loop(self) -> None:
+        started = time.monotonic()
+        sim, motion = self.simulator, self.motion
+        while not self._stop.is_set():
+            with motion.lock:
+                target = 0.0 if motion.fault else motion.target_rate_deg_s
+                accel = motion.accel_deg_s2 if motion.accel_deg_s2 > 0 else math.inf
+            chunk = sim.advance(self._block, self.attitude, math.radians(target), math.radians(accel))
+            with motion.lock:
+                motion.rate_deg_s = math.degrees(sim.table_rate)
+                motion.position_deg = math.degrees(sim.table_angle)
+                motion.angle_deg = motion.position_deg % 360.0
+            data = self.encoder.encode(_as_device_sends(chunk))
+            if self.speed > 0:
+                lag = started + sim.time / self.speed - time.monotonic()
+                if lag > 0:
+                    self._stop.wait(lag)
+                # A real device does not wait for a slow host: what does not fit is lost.
+                self.imu_link.write(data, timeout_s=0.05)
+            else:
+                sent = 0
+                while sent < len(data) and not self._stop.is_set():
+                    sent += self.imu_link.write(data[sent:], timeout_s=0.1)
+            self.samples_sent += len(chunk)
+
+    def _table_loop(self) -> None:
+        while not self._stop.is_set():
+            data = self.table_link.read(timeout_s=0.05)
+            if data:
+                reply = self.table.receive(data)
+                if reply:
+                    self.table_link.write(reply, timeout_s=0.5)

@@ -1,0 +1,173 @@
+"""Station configuration: the device (port, protocol, channels, triads), the table, the station.
+
+A file is validated on load; any problem is one line naming the file and the dotted field.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.transport import PortSettings
+from fieldcal.earth import Station
+from fieldcal.model import KINDS
+from fieldcal.validation import MISSING, FieldReader, describe, read_yaml_file
+
+CONFIGS_DIR = Path(__file__).resolve().parent.parent / "configs"
+DEVICE_PROTOCOLS = ("sim", "delimited", "vectornav", "xsens")
+SIM_IMU_PROTOCOLS = ("xsens", "vectornav", "delimited")
+TABLE_PROTOCOLS = ("ascii", "grbl")
+_PARITIES = ("N", "E", "O", "M", "S")
+
+
+class ConfigError(ValueError):
+    def __init__(self, message: str, path: str = "", field: str = ""):
+        super().__init__(message)
+        self.path, self.field = path, field
+
+
+@dataclass(frozen=True)
+class TriadSpec:
+    name: str  # as the protocol names it: accelerometer, gyroscope, inclinometer, ...
+    kind: str  # specific_force or angular_rate
+    unit: str  # output unit of the device for this triad
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    imu_protocol: str  # wire protocol the simulated device speaks
+    seed: int = 1
+    speed: float = 1.0  # 1 = real time; 0 = as fast as the reader consumes
+    raw_counts: bool = False
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    name: str
+    protocol: str
+    rate_hz: float
+    triads: tuple[TriadSpec, ...]
+    port: PortSettings | None = None  # None: the simulator serves its own port
+    channels: dict | None = None  # delimited text: the channel map, validated by its parser
+    sim: SimSettings | None = None
+
+
+@dataclass(frozen=True)
+class TableConfig:
+    protocol: str
+    port: PortSettings | None  # None: the simulator's virtual table
+    max_rate_deg_s: float = 20.0
+
+
+@dataclass(frozen=True)
+class StationConfig:
+    path: str
+    device: DeviceConfig
+    station: Station
+    table: TableConfig | None = None
+
+
+def _port(r: FieldReader, raw, where: str) -> PortSettings:
+    m = r.mapping(raw, where, ("url",), ("baudrate", "bytesize", "parity", "stopbits"))
+    url = r.string(m, "url", where)
+    baud = r.number(m, "baudrate", where, 1) if "baudrate" in m else 115200
+    if baud != int(baud):
+        r.fail(f"{where}.baudrate", "a whole number", describe(m["baudrate"]))
+    bytesize = m.get("bytesize", 8)
+    if bytesize not in (5, 6, 7, 8) or isinstance(bytesize, bool):
+        r.fail(f"{where}.bytesize", "5, 6, 7 or 8", describe(bytesize))
+    parity = r.string(m, "parity", where, _PARITIES, optional=True) or "N"
+    stopbits = m.get("stopbits", 1)
+    if stopbits not in (1, 1.5, 2) or isinstance(stopbits, bool):
+        r.fail(f"{where}.stopbits", "1, 1.5 or 2", describe(stopbits))
+    return PortSettings(url=url, baudrate=int(baud), bytesize=bytesize, parity=parity, stopbits=stopbits)
+
+
+def _triads(r: FieldReader, raw, where: str) -> tuple[TriadSpec, ...]:
+    if not isinstance(raw, dict) or not raw:
+        r.fail(where, "a mapping of triad name to {kind, unit}", describe(raw))
+    specs = []
+    for name, body in raw.items():
+        here = f"{where}.{name}"
+        m = r.mapping(body, here, ("kind", "unit"))
+        specs.append(TriadSpec(str(name), r.string(m, "kind", here, KINDS), r.string(m, "unit", here)))
+    return tuple(specs)
+
+
+def _sim(r: FieldReader, raw, where: str) -> SimSettings:
+    m = r.mapping(raw if raw is not None else {}, where, (), ("imu_protocol", "seed", "speed", "raw_counts"))
+    seed = m.get("seed", 1)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        r.fail(f"{where}.seed", "a whole number >= 0", describe(seed))
+    raw_counts = m.get("raw_counts", False)
+    if not isinstance(raw_counts, bool):
+        r.fail(f"{where}.raw_counts", "true or false", describe(raw_counts))
+    protocol = r.string(m, "imu_protocol", where, SIM_IMU_PROTOCOLS, optional=True) or "xsens"
+    speed = r.number(m, "speed", where, 0) if "speed" in m else 1.0
+    return SimSettings(protocol, seed, speed, raw_counts)
+
+
+def _device(r: FieldReader, raw, where: str) -> DeviceConfig:
+    m = r.mapping(raw, where, ("name", "protocol", "rate_hz", "triads"), ("port", "channels", "sim"))
+    protocol = r.string(m, "protocol", where, DEVICE_PROTOCOLS)
+    if protocol == "sim":
+        port, sim = None, _sim(r, m.get("sim"), f"{where}.sim")
+    else:
+        if "port" not in m:
+            r.fail(f"{where}.port", "a mapping with url (and baudrate, ...)", describe(MISSING))
+        port, sim = _port(r, m["port"], f"{where}.port"), None
+    channels = m.get("channels")
+    if protocol == "delimited":
+        from drivers.protocols.delimited import ChannelMap
+        try:
+            ChannelMap.from_mapping(channels, f"{where}.channels")
+        except ValueError as exc:
+            raise ConfigError(f"{r.path}: {exc}", r.path, f"{where}.channels") from None
+    elif channels is not None:
+        r.fail(f"{where}.channels", "no channel map (only delimited text has one)", "a channel map")
+    return DeviceConfig(name=r.string(m, "name", where), protocol=protocol,
+                        rate_hz=r.number(m, "rate_hz", where, 1e-3), triads=_triads(r, m["triads"], f"{where}.triads"),
+                        port=port, channels=channels, sim=sim)
+
+
+def _table(r: FieldReader, raw, where: str, simulated: bool) -> TableConfig | None:
+    if raw is None:
+        return None
+    m = r.mapping(raw, where, ("protocol",), ("port", "max_rate_deg_s"))
+    protocol = r.string(m, "protocol", where, TABLE_PROTOCOLS)
+    port = None
+    if "port" in m:
+        port = _port(r, m["port"], f"{where}.port")
+    elif not simulated:
+        r.fail(f"{where}.port", "a mapping with url (the device is real, so the table is too)",
+               describe(MISSING))
+    max_rate = r.number(m, "max_rate_deg_s", where, 1e-3) if "max_rate_deg_s" in m else 20.0
+    return TableConfig(protocol, port, max_rate)
+
+
+def _station(r: FieldReader, raw, where: str) -> Station:
+    m = r.mapping(raw, where, ("latitude_deg",), ("height_m", "gravity_m_s2"))
+    latitude = r.number(m, "latitude_deg", where)
+    if not -90 <= latitude <= 90:
+        r.fail(f"{where}.latitude_deg", "a latitude from -90 to 90", describe(m["latitude_deg"]))
+    height = r.number(m, "height_m", where) if "height_m" in m else 0.0
+    gravity = None
+    if m.get("gravity_m_s2") is not None:
+        gravity = r.number(m, "gravity_m_s2", where)
+        if not 9.7 < gravity < 9.9:
+            r.fail(f"{where}.gravity_m_s2", "a measured gravity from 9.7 to 9.9 m/s^2", describe(gravity))
+    return Station(latitude, height, gravity)
+
+
+def load_config(name_or_path: str | os.PathLike) -> StationConfig:
+    """Load ``configs/NAME.yaml`` or a path; a bad file is a one-line ConfigError."""
+    given = Path(name_or_path)
+    candidates = [given] if given.suffix else [given, given.with_suffix(".yaml"),
+                                                CONFIGS_DIR / f"{given.name}.yaml"]
+    path = next((c for c in candidates if c.is_file()), given)
+    doc = read_yaml_file(path, ConfigError, "config")
+    r = FieldReader(str(path), ConfigError)
+    m = r.mapping(doc, "", ("device", "station"), ("table",))
+    device = _device(r, m["device"], "device")
+    return StationConfig(path=str(path), device=device, station=_station(r, m["station"], "station"),
+                         table=_table(r, m.get("table"), "table", device.protocol == "sim"))

@@ -1,0 +1,76 @@
+"""A configured device, connected: its port read in the background, its bytes parsed.
+
+For a ``sim`` device the simulator is started on a pseudo-terminal first and then read exactly
+like hardware, so the whole path (pyserial, protocol parser, counters) is the real one.
+"""
+from __future__ import annotations
+
+import math
+
+from drivers.chunk import SampleChunk
+from drivers.transport import PortEvent, PortSettings, SerialReader
+from fieldcal.config import StationConfig
+
+
+def make_parser(protocol: str, channels: dict | None = None):
+    if protocol == "xsens":
+        from drivers.protocols.xsens import XsensMtData2Parser
+        return XsensMtData2Parser()
+    if protocol == "vectornav":
+        from drivers.protocols.vectornav import VectorNavParser
+        return VectorNavParser()
+    if protocol == "delimited":
+        from drivers.protocols.delimited import ChannelMap, DelimitedTextParser
+        from drivers.sim.serve import simulator_channel_map
+        cmap = simulator_channel_map() if channels is None else ChannelMap.from_mapping(channels, "channels")
+        return DelimitedTextParser(cmap)
+    raise ValueError(f"protocol: no parser for {protocol!r}")
+
+
+class DeviceConnection:
+    """Context manager; ``read()`` never blocks and returns new chunks and port events."""
+
+    def __init__(self, config: StationConfig, tap=None):
+        self.config = config
+        device = config.device
+        self.simulated = None
+        if device.protocol == "sim":
+            from drivers.sim.device import paper_mimu
+            from drivers.sim.serve import SimulatedDevices
+            sim = device.sim
+            table = config.table.protocol if config.table else None
+            self.simulated = SimulatedDevices(
+                paper_mimu(raw_counts=sim.raw_counts), config.station.gravity,
+                math.radians(config.station.latitude_deg), imu_protocol=sim.imu_protocol,
+                table_protocol=table, speed=sim.speed, seed=sim.seed, rate_hz=device.rate_hz)
+            self.protocol = sim.imu_protocol
+            settings = PortSettings(self.simulated.imu_url)
+            self.parser = make_parser(self.protocol)
+        else:
+            self.protocol = device.protocol
+            settings = device.port
+            self.parser = make_parser(self.protocol, device.channels)
+        self.reader = SerialReader(settings, tap=tap)
+
+    def __enter__(self) -> DeviceConnection:
+        if self.simulated:
+            self.simulated.start()
+        self.reader.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.reader.close()
+        if self.simulated:
+            self.simulated.stop()
+
+    @property
+    def counters(self):
+        return self.parser.counters
+
+    def read(self) -> tuple[list[SampleChunk], list[PortEvent]]:
+        chunks = []
+        for t, data in self.reader.poll():
+            chunk = self.parser.feed(data, t)
+            if chunk is not None and len(chunk):
+                chunks.append(chunk)
+        return chunks, self.reader.events()
