@@ -69,7 +69,7 @@ class SimulatedDevices:
     def __init__(self, triads: dict[str, TriadTruth], gravity: float, latitude_rad: float,
                  imu_protocol: str = "xsens", table_protocol: str | None = "ascii",
                  transport: str = "pty", speed: float = 1.0, seed: int = 1, rate_hz: float = 250.0,
-                 attitude: np.ndarray | None = None, block_s: float = 0.02):
+                 attitude: np.ndarray | None = None, block_s: float = 0.02, on_chunk=None):
         from drivers.sim.tables import TableMotion
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport: expected 'pty' or 'tcp', got {transport!r}")
@@ -91,6 +91,7 @@ class SimulatedDevices:
         if self.table:
             self._threads.append(threading.Thread(target=self._table_loop, name="sim table", daemon=True))
         self.samples_sent = 0
+        self._on_chunk = on_chunk  # sees every chunk as encoded (tests compare against it)
 
     @property
     def imu_url(self) -> str:
@@ -131,7 +132,10 @@ class SimulatedDevices:
                 motion.rate_deg_s = math.degrees(sim.table_rate)
                 motion.position_deg = math.degrees(sim.table_angle)
                 motion.angle_deg = motion.position_deg % 360.0
-            data = self.encoder.encode(_as_device_sends(chunk))
+            sent = _as_device_sends(chunk)
+            if self._on_chunk is not None:
+                self._on_chunk(sent)
+            data = self.encoder.encode(sent)
             if self.speed > 0:
                 lag = started + sim.time / self.speed - time.monotonic()
                 if lag > 0:
@@ -139,9 +143,9 @@ class SimulatedDevices:
                 # A real device does not wait for a slow host: what does not fit is lost.
                 self.imu_link.write(data, timeout_s=0.05)
             else:
-                sent = 0
-                while sent < len(data) and not self._stop.is_set():
-                    sent += self.imu_link.write(data[sent:], timeout_s=0.1)
+                written = 0
+                while written < len(data) and not self._stop.is_set():
+                    written += self.imu_link.write(data[written:], timeout_s=0.1)
             self.samples_sent += len(chunk)
 
     def _table_loop(self) -> None:
