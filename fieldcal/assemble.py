@@ -11,7 +11,7 @@ import numpy as np
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
 from fieldcal.simrun import MINUS, PLUS, STATIC, Window
-from fieldcal.solvers import RateNormProblem, StaticNormProblem
+from fieldcal.solvers import CalibrationError, RateNormProblem, StaticNormProblem
 
 
 def window_indices(windows: list[Window], kind: str) -> list[int]:
@@ -29,6 +29,9 @@ def build_problem(name: str, kind: str, output_unit: str, windows: list[Window],
     if kind != ANGULAR_RATE:
         raise ValueError(f"{name}: unknown triad kind {kind!r}")
     plus, minus = window_indices(windows, PLUS), window_indices(windows, MINUS)
+    if not plus:
+        raise CalibrationError(f"{name}: the procedure has no rate steps, and a gyro's scale factors "
+                               "need them (Earth rate alone is too weak)")
     step_of_position = {windows[i].position: j for j, i in enumerate(plus)}
     if [windows[i].position for i in minus] != [windows[i].position for i in plus]:
         raise ValueError(f"{name}: every +rate step needs a -rate step on the same mount")
@@ -40,3 +43,19 @@ def build_problem(name: str, kind: str, output_unit: str, windows: list[Window],
         step_labels=tuple(f"position {position_ids[windows[i].position]} rate" for i in plus),
         static_labels=tuple(f"position {position_ids[windows[i].position]} static" for i in static))
     return problem, plus + minus + static
+
+
+def classic_inputs(kind: str, windows: list[Window], up_body: np.ndarray,
+                   station: Station) -> tuple[list[int], np.ndarray]:
+    """For an aligned procedure: the windows a triad uses and the true input of each (SI).
+
+    Specific force at rest is g along local up; on the table, over whole turns, a gyro sees the
+    table rate plus the vertical Earth rate about local up.
+    """
+    if kind == SPECIFIC_FORCE:
+        used = window_indices(windows, STATIC)
+        return used, station.gravity * up_body[[windows[i].position for i in used]]
+    used = [i for i, w in enumerate(windows) if w.kind in (PLUS, MINUS)]
+    rate = np.array([(w.table_rate if w.kind == PLUS else -w.table_rate) + station.earth_rate_vertical
+                     for w in (windows[i] for i in used)])
+    return used, rate[:, None] * up_body[[windows[i].position for i in used]]

@@ -33,6 +33,9 @@ class Station:
     def __post_init__(self) -> None:
         if not -90.0 <= self.latitude_deg <= 90.0:
             raise ValueError(f"latitude_deg: expected -90..90, got {self.latitude_deg}")
+        # The free-air formula is for the surface; a station is on land, below Everest.
+        if not -500.0 <= self.height_m <= 9000.0:
+            raise ValueError(f"height_m: expected -500..9000 m above the ellipsoid, got {self.height_m}")
         if self.gravity_m_s2 is not None and not 9.7 < self.gravity_m_s2 < 9.9:
             raise ValueError(f"gravity_m_s2: expected 9.7..9.9 m/s², got {self.gravity_m_s2}")
 

@@ -80,10 +80,12 @@ def _position(raw, where: str) -> Position:
     return Position(id=ident, description=str(raw.get("description", "")), attitude=attitude)
 
 
-def _number(raw: dict, key: str, where: str, minimum: float = 0.0) -> float:
+def _number(raw: dict, key: str, where: str, low: float, high: float, unit: str) -> float:
+    """A number in [low, high]; the bounds keep a typo from meaning a run of days."""
     value = raw.get(key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > minimum:
-        raise ProcedureError(f"{where}.{key}: expected a number > {minimum:g}, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+        raise ProcedureError(f"{where}.{key}: expected a number from {low:g} to {high:g} {unit}, "
+                             f"got {value!r}")
     return float(value)
 
 
@@ -111,11 +113,14 @@ def load_procedure(name_or_path: str | Path) -> Procedure:
         if not isinstance(step, dict):
             raise ProcedureError(f"{where}.rate_step: expected a mapping")
         turns = step.get("turns")
-        if not isinstance(turns, int) or turns < 1:
-            raise ProcedureError(f"{where}.rate_step.turns: expected a whole number ≥ 1, got {turns!r}")
-        rate_step = RateStep(_number(step, "rate_deg_s", f"{where}.rate_step"), turns,
-                             _number(step, "ramp_s", f"{where}.rate_step", -1e-12),
-                             _number(step, "settle_s", f"{where}.rate_step", -1e-12))
+        if isinstance(turns, bool) or not isinstance(turns, int) or not 1 <= turns <= 100:
+            raise ProcedureError(f"{where}.rate_step.turns: expected a whole number from 1 to 100, "
+                                 f"got {turns!r}")
+        here = f"{where}.rate_step"
+        # Single-axis field tables run 0.1-20 °/s (paper section 4); allow up to gyro full scale.
+        rate_step = RateStep(_number(step, "rate_deg_s", here, 0.1, 400, "°/s"), turns,
+                             _number(step, "ramp_s", here, 0, 600, "s"),
+                             _number(step, "settle_s", here, 0, 600, "s"))
     return Procedure(name=str(raw.get("name", path.stem)), title=str(raw.get("title", "")),
-                     dwell_s=_number(raw, "dwell_s", where), positions=parsed,
+                     dwell_s=_number(raw, "dwell_s", where, 1, 86400, "s"), positions=parsed,
                      rate_step=rate_step, aligned=bool(raw.get("aligned", False)))

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fieldcal.model import PARAM_NAMES, SI_UNIT
+from fieldcal.model import PARAM_NAMES
 from fieldcal.units import display_scale, param_unit
 
 _ROW_NAMES = ("bias x", "bias y", "bias z", "scale x", "scale y", "scale z",
@@ -23,11 +23,14 @@ def _fmt_sigma(sigma: float, unit: str, index: int) -> str:
 
 
 def solution_header(sol) -> str:
-    """Solver, effort and fit quality; residuals are in SI, shown like a bias of that kind."""
-    si = SI_UNIT[sol.kind]
-    rms = sol.residual_rms * display_scale(sol.kind, si, 0)
+    """Solver, effort and fit quality; residuals shown in the unit a bias of that kind uses."""
+    rms = sol.residual_rms * display_scale(sol.kind, sol.residual_unit, 0)
+    fit = f"residual RMS {rms:.3g} {param_unit(sol.kind, sol.residual_unit, 0)}"
+    if sol.method == "classic":
+        return f"{sol.name} (classic least squares over {len(sol.residuals)} averages; {fit})"
+    quality = f"χ²/dof {sol.chi2 / sol.dof:.2f}" if sol.dof else "exact fit, no χ²"
     return (f"{sol.name} ({sol.method}: {sol.iterations} iterations, {sol.evaluations} evaluations; "
-            f"residual RMS {rms:.3g} {param_unit(sol.kind, si, 0)}; χ²/dof {sol.chi2 / sol.dof:.2f})")
+            f"{fit}; {quality})")
 
 
 def solution_table(sol, truth: np.ndarray | None = None) -> str:

@@ -12,13 +12,13 @@ import numpy as np
 
 from drivers.sim import TriadTruth
 from drivers.sim.device import paper_mimu
-from fieldcal.assemble import build_problem
+from fieldcal.assemble import build_problem, classic_inputs
 from fieldcal.crb import angular_rate_bound, specific_force_bound
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import SPECIFIC_FORCE, params_from_k
 from fieldcal.positions import Procedure, load_procedure
 from fieldcal.simrun import Plan, average_covariance, plan_procedure, simulate_averages
-from fieldcal.solvers import TriadSolution, solve_norm
+from fieldcal.solvers import CalibrationError, TriadSolution, solve_classic, solve_norm
 
 DEFAULT_STATION = Station(latitude_deg=40.0, height_m=50.0)
 
@@ -29,11 +29,12 @@ class SimulatedCalibration:
     station: Station
     plan: Plan
     device: dict[str, TriadTruth]
-    solutions: dict[str, TriadSolution]
+    solutions: dict[str, object]  # TriadSolution, or ClassicSolution for an aligned procedure
     truth: dict[str, np.ndarray]  # true parameters, PARAM_NAMES order
     problems: dict[str, object]
     covariances: dict[str, np.ndarray]  # of each problem's data
     static_table_angles: np.ndarray
+    failures: dict[str, str]  # triads the procedure could not calibrate, and why
 
     def bound(self, name: str) -> np.ndarray:
         """Cramér-Rao bound (9x9) for one triad at the true parameters and orientations."""
@@ -54,20 +55,37 @@ def run_simulated_calibration(seed: int, procedure: Procedure | str = "field-18"
                               station: Station = DEFAULT_STATION, rate_hz: float = 250.0,
                               placement_sigma_deg: float = 3.0, method: str = "powell",
                               progress=None) -> SimulatedCalibration:
+    """Every triad solved (norm method; classic least squares for an aligned procedure).
+
+    A triad the procedure cannot calibrate is listed in ``failures`` with the reason.
+    """
     if isinstance(procedure, str):
         procedure = load_procedure(procedure)
     device = device or paper_mimu()
-    rng = np.random.default_rng(seed)
-    plan = plan_procedure(procedure, rate_hz, rng, placement_sigma_deg)
-    averages, angles = simulate_averages(plan, device, station, rate_hz, seed=seed, progress=progress)
+    # Independent streams, so placements and sensor noise never share random numbers.
+    placement_seed, noise_seed = np.random.SeedSequence(seed).spawn(2)
+    plan = plan_procedure(procedure, rate_hz, np.random.default_rng(placement_seed), placement_sigma_deg)
+    averages, angles = simulate_averages(plan, device, station, rate_hz, seed=noise_seed,
+                                         progress=progress)
     ids = [p.id for p in procedure.positions]
-    solutions, truths, problems, covs = {}, {}, {}, {}
+    up_body = np.array([p.up_body for p in procedure.positions])
+    windows = list(plan.windows)
+    solutions, truths, problems, covs, failures = {}, {}, {}, {}, {}
     for name, truth in device.items():
-        problem, order = build_problem(name, truth.kind, truth.output_unit, list(plan.windows),
-                                       averages[name], station, ids)
-        covs[name] = average_covariance(truth, [plan.windows[i] for i in order], rate_hz)
-        problems[name] = problem
-        solutions[name] = solve_norm(problem, covs[name], method=method)
         truths[name] = params_from_k(truth.K, truth.bias)
+        try:
+            if procedure.aligned:
+                used, inputs = classic_inputs(truth.kind, windows, up_body, station)
+                covs[name] = average_covariance(truth, [windows[i] for i in used], rate_hz)
+                solutions[name] = solve_classic(averages[name][used], inputs, name, truth.kind,
+                                                truth.output_unit, covariance=covs[name])
+                continue
+            problem, order = build_problem(name, truth.kind, truth.output_unit, windows,
+                                           averages[name], station, ids)
+            covs[name] = average_covariance(truth, [windows[i] for i in order], rate_hz)
+            problems[name] = problem
+            solutions[name] = solve_norm(problem, covs[name], method=method)
+        except CalibrationError as exc:
+            failures[name] = str(exc)
     return SimulatedCalibration(procedure, station, plan, device, solutions, truths, problems, covs,
-                                angles)
+                                angles, failures)

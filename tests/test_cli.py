@@ -1,5 +1,7 @@
 import re
 
+import pytest
+
 import numpy as np
 
 from fieldcal.cli import main
@@ -55,3 +57,67 @@ def test_measured_gravity_overrides_the_model_and_bad_values_are_refused(capsys)
     assert main(["demo", "--gravity", "98.02"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "fieldcal: gravity_m_s2: expected 9.7..9.9 m/s², got 98.02"
+
+
+def _procedure_subset(tmp_path, count: int) -> str:
+    import yaml
+
+    from fieldcal.positions import PROCEDURES_DIR
+    doc = yaml.safe_load((PROCEDURES_DIR / "field-18.yaml").read_text())
+    doc["positions"] = doc["positions"][:8] + doc["positions"][12:12 + count - 8]
+    path = tmp_path / f"first-{count}.yaml"
+    path.write_text(yaml.safe_dump(doc, allow_unicode=True))
+    return str(path)
+
+
+def test_nine_positions_solve_as_an_exact_fit(capsys, tmp_path):
+    assert main(["demo", "--procedure", _procedure_subset(tmp_path, 9)]) == 0
+    out = capsys.readouterr().out
+    assert "exact fit, no χ²" in out and "largest error" in out
+
+
+def test_procedure_that_cannot_calibrate_says_why_per_triad(capsys):
+    assert main(["demo", "--procedure", "allan"]) == 1
+    out = capsys.readouterr().out
+    assert "accelerometer: not calibrated: accelerometer: 1 equations for 9 unknowns" in out
+    assert "gyroscope: not calibrated: gyroscope: the procedure has no rate steps" in out
+
+
+def test_aligned_procedure_uses_the_classic_solver(capsys):
+    assert main(["demo", "--procedure", "classic-12", "--seed", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "accelerometer (classic least squares over 12 averages" in out
+    assert "gyroscope (classic least squares over 24 averages" in out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["demo", "--height", "1e7"], "height_m: expected -500..9000 m above the ellipsoid, got 10000000.0"),
+    (["demo", "--height", "nan"], "height_m: expected -500..9000 m above the ellipsoid, got nan"),
+    (["demo", "--latitude", "91"], "latitude_deg: expected -90..90, got 91.0"),
+])
+def test_bad_station_is_one_line_error(capsys, argv, message):
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == f"fieldcal: {message}"
+
+
+def test_negative_seed_is_refused_by_name(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["demo", "--seed", "-1"])
+    assert exit_info.value.code == 2
+    assert "argument --seed: expected a whole number >= 0, got '-1'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("dwell_s", ".inf", "dwell_s: expected a number from 1 to 86400 s, got inf"),
+    ("dwell_s", "0.001", "dwell_s: expected a number from 1 to 86400 s, got 0.001"),
+    ("rate_deg_s", "1.0e-9", "rate_step.rate_deg_s: expected a number from 0.1 to 400 °/s, got 1e-09"),
+])
+def test_procedure_numbers_are_bounded(capsys, tmp_path, field, value, message):
+    from fieldcal.positions import PROCEDURES_DIR
+    text = (PROCEDURES_DIR / "field-18.yaml").read_text()
+    text = text.replace("dwell_s: 200", f"dwell_s: {value}") if field == "dwell_s" else \
+        text.replace("rate_deg_s: 10", f"rate_deg_s: {value}")
+    path = tmp_path / "bounded.yaml"
+    path.write_text(text)
+    assert main(["demo", "--procedure", str(path)]) == 2
+    assert capsys.readouterr().err.strip() == f"fieldcal: bounded.yaml.{message}"

@@ -25,7 +25,7 @@ def bound(run, name):
 
 
 @pytest.mark.parametrize("name, draws", [("accelerometer", 150), ("gyroscope", 100)])
-def test_rms_error_is_within_ten_percent_of_the_bound(field18, name, draws):
+def test_rms_error_matches_the_bound_within_sampling_error(field18, name, draws):
     rng = np.random.default_rng(99)
     crb = np.sqrt(np.diag(bound(field18, name)))
     errors, sigmas = [], []
@@ -34,8 +34,10 @@ def test_rms_error_is_within_ten_percent_of_the_bound(field18, name, draws):
         errors.append(sol.theta - field18.truth[name])
         sigmas.append(sol.sigma)
     rms = np.sqrt(np.mean(np.square(errors), axis=0))
-    # The reported σ is the bound itself (to first order), and the realised scatter matches it;
-    # with this many draws the RMS scatters by about ±6 %, hence 1.10 + that margin.
+    # The reported σ is the bound itself (to first order), and the realised scatter matches it.
+    # With 100-150 draws an RMS scatters by about ±6-7 % (1σ), so this checks efficiency to
+    # within sampling error; the 1.10 target is checked with 200 full sample-level runs in
+    # benchmarks/accuracy.py.
     np.testing.assert_allclose(np.mean(sigmas, axis=0), crb, rtol=0.02)
     assert np.all(rms / crb < 1.16), rms / crb
     assert np.all(rms / crb > 0.84), rms / crb

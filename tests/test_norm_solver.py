@@ -151,3 +151,13 @@ def test_gyro_needs_rate_steps_about_six_axes():
     problem = gyro_problem(rng, truth, n=5)
     with pytest.raises(CalibrationError, match="degenerate"):
         solve_norm(problem, np.full((15, 3), 5e-6))
+
+
+def test_residual_scatter_alone_under_reports_the_bias_sigma(field18):
+    """Flicker bias instability moves every position's average alike; only the covariance of the
+    averages (from the noise model and the timeline) knows that, the residual scatter cannot."""
+    run = field18
+    problem = run.problem("accelerometer", np.random.default_rng(4))
+    with_model = solve_norm(problem, run.covariances["accelerometer"])
+    scatter_only = solve_norm(problem)
+    assert np.all(scatter_only.sigma[:3] < 0.7 * with_model.sigma[:3])

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fieldcal.model import PARAM_NAMES, SI_UNIT
+from fieldcal.solvers.norm import CalibrationError
 
 
 @dataclass(frozen=True)
@@ -76,7 +77,7 @@ def solve_classic(means: np.ndarray, inputs: np.ndarray, name: str, kind: str,
         raise ValueError(f"{name}: outputs {U.shape} and inputs {A.shape} must both be (n, 3)")
     design = np.column_stack([A, np.ones(len(A))])  # Āᵀ
     if len(A) <= 4 or np.linalg.matrix_rank(design) < 4:
-        raise ValueError(f"{name}: the inputs must span all three axes in both directions "
+        raise CalibrationError(f"{name}: the inputs must span all three axes in both directions "
                          f"(got {len(A)} positions, rank {np.linalg.matrix_rank(design)} of 4)")
     normal_inv = np.linalg.inv(design.T @ design)
     coef = normal_inv @ design.T @ U  # (4, 3): column i is [K_i0, K_i1, K_i2, U0_i]

@@ -22,6 +22,10 @@ def _as_points(values, what: str) -> np.ndarray:
     return arr
 
 
+# cos φ below which the horizontal Earth rate (15 °/h · cos φ) is too small to use as a norm.
+_POLAR_COS = 0.2
+
+
 def _unit_rows(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), np.finfo(float).tiny)
 
@@ -83,6 +87,8 @@ class RateNormProblem:
     and per static dwell a = K⁻¹(u_s − b), which sees Earth rate only:
       d·a − Ωv and |a − (d·a)d| − Ωe·cos φ  (2, when the dwell is on the same table mount as a step),
       |a| − Ωe                             (1, otherwise).
+    Within about 11° of a pole the horizontal Earth rate is too small for its norm to be a smooth
+    residual (|a⊥| cannot go below zero), so there the across-axis term is left out.
     """
 
     plus: np.ndarray
@@ -141,13 +147,21 @@ class RateNormProblem:
         return float(np.mean(np.abs(np.r_[self.table_rate, self.single_rate])))
 
     @property
+    def _uses_across(self) -> bool:
+        return self.earth_rate_vertical**2 < (1 - _POLAR_COS**2) * self.earth_rate**2
+
+    @property
     def residual_labels(self) -> tuple[str, ...]:
         labels = [f"{s}: |rate|" for s in self.step_labels]
         labels += [f"{s}: bias {axis}" for s in self.step_labels for axis in "xyz"]
         labels += [f"{s}: |rate|" for s in self.single_labels]
         for label, step in zip(self.static_labels, self.static_step):
-            labels += [f"{label}: earth rate along axis", f"{label}: earth rate across axis"] \
-                if step >= 0 else [f"{label}: |earth rate|"]
+            if step < 0:
+                labels.append(f"{label}: |earth rate|")
+            else:
+                labels.append(f"{label}: earth rate along axis")
+                if self._uses_across:
+                    labels.append(f"{label}: earth rate across axis")
         return tuple(labels)
 
     def _split(self, u: np.ndarray):
@@ -171,12 +185,14 @@ class RateNormProblem:
             along = np.einsum("ij,ij->i", a[paired], axis[self.static_step[paired]])
             across = a[paired] - along[:, None] * axis[self.static_step[paired]]
             horizontal = np.sqrt(self.earth_rate**2 - self.earth_rate_vertical**2)
-            static_resid = np.empty(2 * paired.sum() + (~paired).sum())
+            per_paired = 2 if self._uses_across else 1
+            sizes = np.where(paired, per_paired, 1)
+            static_resid = np.empty(sizes.sum())
             # Interleave per dwell, in dwell order, to match residual_labels.
-            sizes = np.where(paired, 2, 1)
             offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
             static_resid[offsets[paired]] = along - self.earth_rate_vertical
-            static_resid[offsets[paired] + 1] = np.linalg.norm(across, axis=1) - horizontal
+            if self._uses_across:
+                static_resid[offsets[paired] + 1] = np.linalg.norm(across, axis=1) - horizontal
             static_resid[offsets[~paired]] = np.linalg.norm(a[~paired], axis=1) - self.earth_rate
             parts.append(static_resid)
         return np.concatenate(parts)
