@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import io
+import shutil
 import time
 
 import numpy as np
@@ -29,11 +30,26 @@ def counters_line(counters) -> str:
             f"({c['missing_frames']} frames missing)")
 
 
-def _live_line(chunk, rate_hz: float, counters, units: dict[str, str]) -> str:
-    last = {name: values[-1] for name, values in sorted(chunk.triads.items())}
-    triads = "  ".join(f"{name} {' '.join(f'{v:+.5g}' for v in xyz)} {units.get(name, '')}".rstrip()
-                       for name, xyz in last.items())
-    return f"t {chunk.t[-1]:.3f} s  {triads}  {rate_hz:.0f} Hz  {counters_line(counters)}"
+_SHORT = {"accelerometer": "acc", "gyroscope": "gyro", "inclinometer": "incl", "magnetometer": "mag"}
+
+
+def _live_line(chunk, rate_hz: float, counters, units: dict[str, str], width: int) -> str:
+    """One terminal line: the configured triads' latest sample (rates in °/s) and the counters."""
+    parts = [f"t {chunk.t[-1]:.2f} s"]
+    for name, unit in units.items():
+        if name not in chunk.triads:
+            continue
+        xyz = chunk.triads[name][-1]
+        if unit == "rad/s":
+            xyz, unit = np.degrees(xyz), "°/s"
+        parts.append(f"{_SHORT.get(name, name)} {' '.join(f'{v:+7.3f}' for v in xyz)} {unit}")
+    c = counters
+    parts.append(f"{rate_hz:.0f} Hz")
+    problems = [f"{n} {what}" for n, what in ((c.discarded_bytes, "B dropped"),
+                                              (c.checksum_failures, "bad checksums"),
+                                              (c.sequence_gaps, "gaps")) if n]
+    parts.append(f"{c.frames} frames" + (": " + ", ".join(problems) if problems else " ok"))
+    return " | ".join(parts)[: width - 1]
 
 
 def run_monitor(config: StationConfig, out, err, max_samples: int | None = None,
@@ -65,8 +81,9 @@ def run_monitor(config: StationConfig, out, err, max_samples: int | None = None,
                         span = window[-1][0] - window[0][0]
                         rate = sum(n for _, n in window[1:]) / span if span > 0 else 0.0
                         if time.monotonic() - last_draw > 0.2:
-                            print("\r" + _live_line(chunk, rate, conn.counters, units), end="",
-                                  file=out, flush=True)
+                            width = shutil.get_terminal_size().columns
+                            print("\r" + _live_line(chunk, rate, conn.counters, units, width).ljust(width - 1),
+                                  end="", file=out, flush=True)
                             last_draw = time.monotonic()
                     else:
                         if header is None:
