@@ -20,6 +20,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/speed.py
+	$(BIN)/python benchmarks/parse.py
 	$(BIN)/python benchmarks/accuracy.py
 
 clean:

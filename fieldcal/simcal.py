@@ -12,13 +12,12 @@ import numpy as np
 
 from drivers.sim import TriadTruth
 from drivers.sim.device import paper_mimu
-from fieldcal.assemble import build_problem, classic_inputs
 from fieldcal.crb import angular_rate_bound, specific_force_bound
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import SPECIFIC_FORCE, params_from_k
 from fieldcal.positions import Procedure, load_procedure
-from fieldcal.simrun import Plan, average_covariance, plan_procedure, simulate_averages
-from fieldcal.solvers import CalibrationError, TriadSolution, solve_classic, solve_norm
+from fieldcal.simrun import Plan, plan_procedure, simulate_averages
+from fieldcal.solve import models_from_truth, solve_unit
 
 DEFAULT_STATION = Station(latitude_deg=40.0, height_m=50.0)
 
@@ -67,25 +66,8 @@ def run_simulated_calibration(seed: int, procedure: Procedure | str = "field-18"
     plan = plan_procedure(procedure, rate_hz, np.random.default_rng(placement_seed), placement_sigma_deg)
     averages, angles = simulate_averages(plan, device, station, rate_hz, seed=noise_seed,
                                          progress=progress)
-    ids = [p.id for p in procedure.positions]
-    up_body = np.array([p.up_body for p in procedure.positions])
-    windows = list(plan.windows)
-    solutions, truths, problems, covs, failures = {}, {}, {}, {}, {}
-    for name, truth in device.items():
-        truths[name] = params_from_k(truth.K, truth.bias)
-        try:
-            if procedure.aligned:
-                used, inputs = classic_inputs(truth.kind, windows, up_body, station)
-                covs[name] = average_covariance(truth, [windows[i] for i in used], rate_hz)
-                solutions[name] = solve_classic(averages[name][used], inputs, name, truth.kind,
-                                                truth.output_unit, covariance=covs[name])
-                continue
-            problem, order = build_problem(name, truth.kind, truth.output_unit, windows,
-                                           averages[name], station, ids)
-            covs[name] = average_covariance(truth, [windows[i] for i in order], rate_hz)
-            problems[name] = problem
-            solutions[name] = solve_norm(problem, covs[name], method=method)
-        except CalibrationError as exc:
-            failures[name] = str(exc)
-    return SimulatedCalibration(procedure, station, plan, device, solutions, truths, problems, covs,
-                                angles, failures)
+    unit = solve_unit(procedure, list(plan.windows), averages, models_from_truth(device), station,
+                      rate_hz, method)
+    truths = {name: params_from_k(t.K, t.bias) for name, t in device.items()}
+    return SimulatedCalibration(procedure, station, plan, device, unit.solutions, truths,
+                                unit.problems, unit.covariances, angles, unit.failures)

@@ -89,16 +89,3 @@ def simulate_averages(plan: Plan, device: dict[str, TriadTruth], station: Statio
         if progress:
             progress(done, len(plan.segments), segment.label)
     return {name: averager.means(name) for name in device}, np.array(static_angles)
-
-
-def average_covariance(truth: TriadTruth, windows: list[Window], rate_hz: float) -> np.ndarray:
-    """Exact covariance of the flattened window means (window-major, then axis), output units.
-
-    Each axis has the same noise, independent between axes, entering before K:
-    cov(u_w, u_v) = C[w, v] · K Kᵀ with C the one-axis window covariance.
-    """
-    C = truth.noise.window_covariance([w.start for w in windows], [w.duration for w in windows])
-    quantisation = (truth.lsb**2 / 12.0) / (np.array([w.duration for w in windows]) * rate_hz) \
-        if truth.lsb else 0.0
-    KKt = truth.K @ truth.K.T
-    return np.kron(C, KKt) + np.kron(np.diag(np.broadcast_to(quantisation, len(windows))), np.eye(3))

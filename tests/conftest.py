@@ -13,7 +13,8 @@ from fieldcal.assemble import build_problem
 from fieldcal.model import params_from_k
 from fieldcal.positions import load_procedure
 from fieldcal.simcal import DEFAULT_STATION
-from fieldcal.simrun import average_covariance, plan_procedure, simulate_averages
+from fieldcal.simrun import plan_procedure, simulate_averages
+from fieldcal.solve import average_covariance, models_from_truth
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,7 +55,8 @@ def exact_run(seed: int = 7, raw_counts: bool = False) -> ExactRun:
         _, order = build_problem(name, truth.kind, truth.output_unit, list(plan.windows), means[name],
                                  DEFAULT_STATION, ids)
         orders[name] = order
-        covs[name] = average_covariance(truth, [plan.windows[i] for i in order], 250.0)
+        covs[name] = average_covariance(models_from_truth(noisy)[name], [plan.windows[i] for i in order],
+                                        250.0)
     truth = {n: params_from_k(t.K, t.bias) for n, t in noisy.items()}
     return ExactRun(plan, means, covs, orders, truth, noisy, angles)
 

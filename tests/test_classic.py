@@ -8,7 +8,8 @@ import pytest
 from drivers.sim.device import paper_mimu
 from fieldcal.positions import load_procedure
 from fieldcal.simcal import DEFAULT_STATION, run_simulated_calibration
-from fieldcal.simrun import MINUS, PLUS, STATIC, average_covariance, plan_procedure, simulate_averages
+from fieldcal.simrun import MINUS, PLUS, STATIC, plan_procedure, simulate_averages
+from fieldcal.solve import average_covariance, models_from_truth
 from fieldcal.solvers import CalibrationError, StaticNormProblem, solve_classic, solve_norm
 
 
@@ -26,12 +27,13 @@ def classic_run(seed):
     spin = (kinds == PLUS) | (kinds == MINUS)
     sign = np.where(kinds == PLUS, 1.0, -1.0)
     windows = np.array(plan.windows, dtype=object)
+    models = models_from_truth(device)
     accel = solve_classic(means["accelerometer"][static], g * up[pos[static]], "accelerometer",
                           "specific_force", covariance=average_covariance(
-                              device["accelerometer"], list(windows[static]), 250.0))
+                              models["accelerometer"], list(windows[static]), 250.0))
     gyro_inputs = (sign[spin] * rate + vertical)[:, None] * up[pos[spin]]
     gyro = solve_classic(means["gyroscope"][spin], gyro_inputs, "gyroscope", "angular_rate",
-                         covariance=average_covariance(device["gyroscope"], list(windows[spin]), 250.0))
+                         covariance=average_covariance(models["gyroscope"], list(windows[spin]), 250.0))
     return device, means, static, accel, gyro
 
 

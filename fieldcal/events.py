@@ -1,0 +1,142 @@
+"""What the procedure engine says (events) and what a front end may tell it (actions).
+
+Events and actions are small frozen dataclasses; ``to_dict`` gives the JSON-able document the
+session log stores, and ``action_from_dict`` reads an action back for replay.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+
+@dataclass(frozen=True)
+class Event:
+    t: float  # sample time at which it happened, s
+
+    @property
+    def kind(self) -> str:
+        return _snake(type(self).__name__)
+
+    def to_dict(self) -> dict:
+        return {"event": self.kind, **asdict(self)}
+
+
+@dataclass(frozen=True)
+class StepStarted(Event):
+    step: int  # 0-based index into the procedure's positions
+    position_id: int
+    description: str
+    total_steps: int
+
+
+@dataclass(frozen=True)
+class PlaceUnit(Event):
+    """The operator should put the unit in this position, then say ready."""
+    position_id: int
+    description: str
+
+
+@dataclass(frozen=True)
+class WaitingForStillness(Event):
+    pass
+
+
+@dataclass(frozen=True)
+class Still(Event):
+    angle_to_expected_deg: float
+
+
+@dataclass(frozen=True)
+class MotionDetected(Event):
+    phase: str  # what was interrupted: "dwell", "rate", "waiting"
+    restarted: bool  # the interrupted average starts again
+
+
+@dataclass(frozen=True)
+class WrongOrientation(Event):
+    position_id: int
+    looks_like: tuple[int, ...]  # ids of the positions the unit looks like
+    angle_deg: float
+    message: str
+
+
+@dataclass(frozen=True)
+class DwellProgress(Event):
+    done_s: float
+    total_s: float
+
+
+@dataclass(frozen=True)
+class DwellComplete(Event):
+    duration_s: float
+
+
+@dataclass(frozen=True)
+class CommandTable(Event):
+    """The front end should set the table to this rate (°/s; 0 stops it)."""
+    rate_deg_s: float
+
+
+@dataclass(frozen=True)
+class RateSettled(Event):
+    rate_deg_s: float
+    window_s: float  # the whole turns that will be averaged
+
+
+@dataclass(frozen=True)
+class RateStepComplete(Event):
+    rate_deg_s: float
+
+
+@dataclass(frozen=True)
+class StepComplete(Event):
+    step: int
+    position_id: int
+
+
+@dataclass(frozen=True)
+class StepSkipped(Event):
+    step: int
+    position_id: int
+
+
+@dataclass(frozen=True)
+class ProcedureComplete(Event):
+    completed: int
+    skipped: int
+
+
+@dataclass(frozen=True)
+class Aborted(Event):
+    reason: str
+
+
+@dataclass(frozen=True)
+class Solved(Event):
+    solved: tuple[str, ...]  # triads calibrated
+    failures: dict = field(default_factory=dict)  # triad -> why not
+
+
+# Actions --------------------------------------------------------------------------------------
+
+READY, REDO, SKIP, ABORT = "ready", "redo", "skip", "abort"
+ACTIONS = (READY, REDO, SKIP, ABORT)
+
+
+@dataclass(frozen=True)
+class Action:
+    name: str  # one of ACTIONS
+
+    def __post_init__(self) -> None:
+        if self.name not in ACTIONS:
+            raise ValueError(f"action: expected one of {', '.join(ACTIONS)}, got {self.name!r}")
+
+    def to_dict(self) -> dict:
+        return {"action": self.name}
+
+
+def action_from_dict(doc: dict) -> Action:
+    return Action(doc["action"])
+
+
+def _snake(name: str) -> str:
+    return "".join(f"_{c.lower()}" if c.isupper() else c for c in name).lstrip("_")
