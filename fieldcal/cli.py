@@ -7,6 +7,7 @@ import sys
 import numpy as np
 
 from fieldcal import __version__
+from fieldcal.solve import METHODS
 
 
 def _seed(text: str) -> int:
@@ -59,9 +60,11 @@ def cmd_demo(args) -> int:
     print(f"largest error: {worst:.2f}σ")
     if args.params:
         from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs, save
+        from fieldcal.solve import resolve_method
         pf = ParameterFile.build(
             triads=tuple(TriadParameters.from_solution(s) for s in cal.solutions.values()),
-            procedure=cal.procedure.name, method=args.method, station=station,
+            procedure=cal.procedure.name, method=resolve_method(cal.procedure, args.method),
+            station=station,
             input_sha256=hash_inputs(*(p.data for p in cal.problems.values())), simulation=True)
         save(pf, args.params)
         print(f"parameter file written to {args.params}")
@@ -108,6 +111,14 @@ def cmd_sim_serve(args) -> int:
     return 0
 
 
+def _lazy(name: str):
+    """A command handler from fieldcal.sessions_cli, imported only when that command runs."""
+    def handler(args):
+        from fieldcal import sessions_cli
+        return getattr(sessions_cli, name)(args)
+    return handler
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fieldcal", description="Field calibration station for "
                                      "MIMU accelerometer, gyroscope and inclinometer triads.")
@@ -120,8 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=_seed, default=1, help="random seed (default 1)")
     demo.add_argument("--procedure", default="field-18", help="procedure name or YAML path "
                       "(default field-18)")
-    demo.add_argument("--method", choices=("powell", "lsq"), default="powell",
-                      help="solver (default powell)")
+    demo.add_argument("--method", choices=METHODS, default="auto",
+                      help="solver: auto (default) is classic for an aligned procedure, else powell")
     demo.add_argument("--latitude", type=float, default=40.0, help="station latitude, degrees (default 40)")
     demo.add_argument("--height", type=float, default=50.0, help="station height, m (default 50)")
     demo.add_argument("--gravity", type=float, metavar="M_S2",
@@ -138,6 +149,54 @@ def build_parser() -> argparse.ArgumentParser:
     monitor.add_argument("--samples", type=int, metavar="N", help="stop after N samples")
     monitor.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds")
     monitor.set_defaults(func=cmd_monitor)
+
+    run = sub.add_parser("run", help="run a procedure (headless: against the simulated device)",
+                         description="Run a calibration procedure. With --headless, an automatic "
+                         "operator moves the simulated unit through every position; the session "
+                         "(every sample, action and event) and the parameter file are written "
+                         "under --out, and the solved parameters are printed beside the truth.")
+    run.add_argument("--config", default="sim", help="station config (default: sim)")
+    run.add_argument("--procedure", default="field-18", help="procedure name or YAML path (default field-18)")
+    run.add_argument("--headless", action="store_true", help="no terminal UI: the automatic operator")
+    run.add_argument("--seed", type=_seed, help="simulation seed (default: the config's)")
+    run.add_argument("--out", default="sessions", help="where sessions go (default ./sessions)")
+    run.add_argument("--method", choices=METHODS, default="auto",
+                     help="solver: auto (default) is classic for an aligned procedure, else powell")
+    run.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
+                     help="a bump during a dwell restarts it (default) or drops only the disturbed part")
+    run.add_argument("--bump-step", type=int, metavar="N", help="the operator bumps the unit in step N")
+    run.add_argument("--wrong-step", type=int, metavar="N",
+                     help="the operator first puts the unit in a wrong position at step N")
+    run.add_argument("--skip", type=int, action="append", default=[], metavar="N",
+                     help="the operator skips step N (repeatable)")
+    run.add_argument("--quiet", action="store_true", help="only the result, no progress lines")
+    run.set_defaults(func=_lazy("cmd_run"))
+
+    resume = sub.add_parser("resume", help="continue a headless run that was killed",
+                            description="Continue a session after its last completed step; the "
+                            "result is what the uninterrupted run would have given.")
+    resume.add_argument("session", help="session directory")
+    resume.add_argument("--quiet", action="store_true")
+    resume.set_defaults(func=_lazy("cmd_resume"))
+
+    replay = sub.add_parser("replay", help="feed a captured session through a fresh engine and solver",
+                            description="Replay a session's samples and operator actions through a "
+                            "fresh engine and solver, and check that the parameter file comes out "
+                            "byte for byte the same.")
+    replay.add_argument("session", help="session directory")
+    replay.add_argument("--speed", type=float, help="times real time (default: as fast as possible)")
+    replay.add_argument("--out", metavar="FILE", help="also write the replayed parameter file here")
+    replay.add_argument("--quiet", action="store_true")
+    replay.set_defaults(func=_lazy("cmd_replay"))
+
+    solve = sub.add_parser("solve", help="re-solve a session from its averages, methods side by side",
+                           description="Re-solve a session from its stored per-step averages and "
+                           "print the methods side by side, as paper Table 5 does.")
+    solve.add_argument("session", help="session directory")
+    solve.add_argument("--method", choices=METHODS[1:], action="append",
+                       help="powell, lsq or classic (repeatable; default: powell and lsq, or "
+                       "classic for an aligned procedure)")
+    solve.set_defaults(func=_lazy("cmd_solve"))
 
     sim = sub.add_parser("sim", help="the simulated MIMU and rate table")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True, metavar="SIM_COMMAND")

@@ -49,6 +49,7 @@ class Procedure:
     positions: tuple[Position, ...]
     rate_step: RateStep | None
     aligned: bool = False
+    text: str = ""  # the YAML it was read from, for the session capture
 
 
 def _direction(word: str, where: str) -> np.ndarray:
@@ -95,12 +96,18 @@ def load_procedure(name_or_path: str | Path) -> Procedure:
     if not path.suffix:
         path = PROCEDURES_DIR / f"{name_or_path}.yaml"
     try:
-        raw = yaml.safe_load(path.read_text())
+        text = path.read_text()
     except OSError as exc:
         raise ProcedureError(f"{path}: cannot read procedure ({exc.strerror})") from None
+    return parse_procedure(text, path.name)
+
+
+def parse_procedure(text: str, where: str) -> Procedure:
+    """A procedure from its YAML text; ``where`` names it in errors."""
+    try:
+        raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ProcedureError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    where = path.name
+        raise ProcedureError(f"{where}: not valid YAML ({str(exc).splitlines()[0]})") from None
     if not isinstance(raw, dict):
         raise ProcedureError(f"{where}: expected a mapping at the top level")
     positions = raw.get("positions")
@@ -121,6 +128,6 @@ def load_procedure(name_or_path: str | Path) -> Procedure:
         rate_step = RateStep(_number(step, "rate_deg_s", here, 0.1, 400, "°/s"), turns,
                              _number(step, "ramp_s", here, 0, 600, "s"),
                              _number(step, "settle_s", here, 0, 600, "s"))
-    return Procedure(name=str(raw.get("name", path.stem)), title=str(raw.get("title", "")),
+    return Procedure(name=str(raw.get("name", Path(where).stem)), title=str(raw.get("title", "")),
                      dwell_s=_number(raw, "dwell_s", where, 1, 86400, "s"), positions=parsed,
-                     rate_step=rate_step, aligned=bool(raw.get("aligned", False)))
+                     rate_step=rate_step, aligned=bool(raw.get("aligned", False)), text=text)

@@ -52,7 +52,7 @@ class SimulatedCalibration:
 def run_simulated_calibration(seed: int, procedure: Procedure | str = "field-18",
                               device: dict[str, TriadTruth] | None = None,
                               station: Station = DEFAULT_STATION, rate_hz: float = 250.0,
-                              placement_sigma_deg: float = 3.0, method: str = "powell",
+                              placement_sigma_deg: float = 3.0, method: str = "auto",
                               progress=None) -> SimulatedCalibration:
     """Every triad solved (norm method; classic least squares for an aligned procedure).
 

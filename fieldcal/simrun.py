@@ -35,6 +35,13 @@ class Plan:
     attitudes: np.ndarray  # (n_positions, 3, 3) true body -> ENU at table angle zero
 
 
+def placed_attitude(nominal: np.ndarray, rng: np.random.Generator, sigma_deg: float) -> np.ndarray:
+    """Where a person actually puts the cube: a random heading on the table and a small tilt."""
+    tilt = Rotation.from_rotvec(rng.normal(0.0, math.radians(sigma_deg), 3))
+    heading = Rotation.from_euler("z", rng.uniform(0, 2 * math.pi))
+    return heading.as_matrix() @ nominal @ tilt.as_matrix()
+
+
 def _whole_samples(seconds: float, rate_hz: float) -> float:
     return round(seconds * rate_hz) / rate_hz
 
@@ -48,9 +55,7 @@ def plan_procedure(procedure: Procedure, rate_hz: float, rng: np.random.Generato
     for index, position in enumerate(procedure.positions):
         attitude = position.attitude
         if not procedure.aligned:
-            tilt = Rotation.from_rotvec(rng.normal(0.0, math.radians(placement_sigma_deg), 3))
-            heading = Rotation.from_euler("z", rng.uniform(0, 2 * math.pi))
-            attitude = heading.as_matrix() @ attitude @ tilt.as_matrix()
+            attitude = placed_attitude(attitude, rng, placement_sigma_deg)
         attitudes.append(attitude)
         ramp = _whole_samples(step.ramp_s, rate_hz) if step else 0.0
         settle = _whole_samples(step.settle_s if step else 1.0, rate_hz)

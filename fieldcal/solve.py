@@ -54,16 +54,32 @@ def average_covariance(model: TriadModel, windows: list[Window], rate_hz: float)
     return cov
 
 
+METHODS = ("auto", "powell", "lsq", "classic")
+
+
+def resolve_method(procedure: Procedure, method: str) -> str:
+    """"auto" is classic least squares for an aligned procedure, Powell's norm method otherwise."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    if method == "auto":
+        return "classic" if procedure.aligned else "powell"
+    return method
+
+
 def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, np.ndarray],
                models: dict[str, TriadModel], station: Station, rate_hz: float,
-               method: str = "powell") -> UnitSolution:
+               method: str = "auto") -> UnitSolution:
     """``averages[name]`` is (len(windows), 3), one row per window, for every triad in models."""
+    method = resolve_method(procedure, method)
     ids = [p.id for p in procedure.positions]
     up_body = np.array([p.up_body for p in procedure.positions])
     solutions, failures, problems, covs, inputs = {}, {}, {}, {}, {}
     for name, model in models.items():
         try:
-            if procedure.aligned:
+            if method == "classic":
+                if not procedure.aligned:
+                    raise CalibrationError(f"{name}: the classic method needs an aligned procedure "
+                                           f"(known orientations); {procedure.name} is not one")
                 used, true_inputs = classic_inputs(model.kind, windows, up_body, station)
                 covs[name] = average_covariance(model, [windows[i] for i in used], rate_hz)
                 inputs[name] = averages[name][used].ravel()

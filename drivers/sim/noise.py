@@ -98,6 +98,13 @@ class NoiseGenerator:
         self._walk = np.zeros(3)
         self._walk_sigma = noise.rate_random_walk * np.sqrt(dt)
 
+    def get_state(self) -> dict:
+        return {"processes": [x.tolist() for x in self._state], "walk": self._walk.tolist()}
+
+    def set_state(self, state: dict) -> None:
+        self._state = [np.array(x, dtype=float) for x in state["processes"]]
+        self._walk = np.array(state["walk"], dtype=float)
+
     def draw(self, n: int) -> np.ndarray:
         out = self._rng.standard_normal((n, 3)) * self._white_sigma
         for i, (pole, gain) in enumerate(zip(self._poles, self._gains)):

@@ -79,6 +79,43 @@ class MimuSimulator:
     def table_rate(self) -> float:
         return self._rate
 
+    def handle(self, n: int, start: np.ndarray, end: np.ndarray, shake: float = 0.3) -> SampleChunk:
+        """n samples of the fixture carried by hand from attitude ``start`` to ``end`` (body ->
+        ENU at table angle zero) on a stopped table: a smooth rotation (zero rate at both ends)
+        plus hand shake of about ``shake`` m/s² and a tenth as many rad/s."""
+        if self._rate != 0.0:
+            raise ValueError("the table must be stopped before the unit is moved")
+        from scipy.spatial.transform import Rotation
+        tau = np.arange(1, n + 1) / n
+        s = tau * tau * (3 - 2 * tau)  # smoothstep: starts and ends at rest
+        ds = 6 * tau * (1 - tau) * self.rate_hz / n  # d s / d t
+        rotvec = Rotation.from_matrix(start.T @ end).as_rotvec()  # in body axes
+        attitudes = (Rotation.from_matrix(start) * Rotation.from_rotvec(np.outer(s, rotvec))).as_matrix()
+        c, si = np.cos(self._angle), np.sin(self._angle)
+        table = np.array([[c, -si, 0.0], [si, c, 0.0], [0.0, 0.0, 1.0]])
+        to_body = np.einsum("ij,njk->nki", table, attitudes)  # (C_table · A)ᵀ per sample
+        enu_force = np.array([0.0, 0.0, self.gravity])
+        enu_omega = self.earth_rate * np.array([0.0, np.cos(self.latitude_rad), np.sin(self.latitude_rad)])
+        hand = self._rng.standard_normal((2, 3)) * shake
+        wobble = np.sin(2 * np.pi * 3.0 * tau * n / self.rate_hz)[:, None] * np.sin(np.pi * tau)[:, None]
+        force = np.einsum("nij,j->ni", to_body, enu_force) + wobble * hand[0]
+        omega = np.einsum("nij,j->ni", to_body, enu_omega) + ds[:, None] * rotvec + 0.1 * wobble * hand[1]
+        first = self._sample
+        self._sample += n
+        return self._sample_chunk(first, force, omega)
+
+    def get_state(self) -> dict:
+        """Everything needed to continue bit for bit (JSON-able), e.g. after a crash."""
+        return {"sample": self._sample, "angle": self._angle, "rate": self._rate,
+                "rng": self._rng.bit_generator.state,
+                "noise": {name: gen.get_state() for name, gen in self._noise.items()}}
+
+    def set_state(self, state: dict) -> None:
+        self._sample, self._angle, self._rate = int(state["sample"]), float(state["angle"]), float(state["rate"])
+        self._rng.bit_generator.state = state["rng"]
+        for name, gen in self._noise.items():
+            gen.set_state(state["noise"][name])
+
     def advance(self, n: int, attitude: np.ndarray, target_rate: float, max_accel: float) -> SampleChunk:
         """The next n samples with the table driven toward ``target_rate`` (rad/s) at up to
         ``max_accel`` (rad/s²): the step a live, commanded table takes."""
@@ -132,8 +169,10 @@ class MimuSimulator:
         return _enu_to_body(force_enu, attitude, c, s), _enu_to_body(omega_enu, attitude, c, s)
 
     def _chunk(self, first: int, attitude, angle, rate, alpha) -> SampleChunk:
-        force, omega = self.true_inputs(attitude, angle, rate, alpha)
-        t = (first + np.arange(len(angle))) / self.rate_hz
+        return self._sample_chunk(first, *self.true_inputs(attitude, angle, rate, alpha))
+
+    def _sample_chunk(self, first: int, force: np.ndarray, omega: np.ndarray) -> SampleChunk:
+        t = (first + np.arange(len(force))) / self.rate_hz
         out = {}
         for name, truth in self.triads.items():
             true = force if truth.kind == SPECIFIC_FORCE else omega

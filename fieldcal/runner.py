@@ -1,0 +1,264 @@
+"""Headless runs: the procedure engine, an automatic operator and the simulated device.
+
+The operator moves the virtual fixture to each position (a few degrees off, at a random heading,
+with hand motion on the way), says ready, and, when the script asks, bumps the unit mid-dwell,
+places it wrongly first, or skips a position. Everything is captured in the session as it
+happens; at every completed step a checkpoint of the simulator and operator lets ``resume``
+continue exactly as an uninterrupted run would have.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from drivers.sim import MimuSimulator
+from drivers.sim.device import paper_mimu
+from fieldcal import __version__
+from fieldcal import events as ev
+from fieldcal.earth import Station
+from fieldcal.engine import Engine, EngineSettings
+from fieldcal.model import params_from_k
+from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs
+from fieldcal.positions import Procedure, parse_procedure
+from fieldcal.session import SessionReader, SessionWriter
+from fieldcal.simrun import placed_attitude
+from fieldcal.solve import UnitSolution, models_from_truth, resolve_method, solve_unit
+from fieldcal.stillness import StillnessSettings
+
+TABLE_ACCEL_DEG_S2 = 20.0
+
+
+@dataclass(frozen=True)
+class OperatorScript:
+    placement_sigma_deg: float = 3.0
+    handling_s: float = 4.0
+    bump_step: int | None = None  # bump the unit halfway through this step's dwell (0-based)
+    wrong_step: int | None = None  # first put the unit in a wrong position at this step
+    skip_steps: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """All a headless run needs; stored in the session so resume and replay rebuild it."""
+
+    procedure: Procedure
+    station: Station
+    seed: int = 1
+    rate_hz: float = 250.0
+    raw_counts: bool = False
+    method: str = "auto"
+    on_motion: str = "restart"
+    script: OperatorScript = field(default_factory=OperatorScript)
+
+    def to_metadata(self) -> dict:
+        device = paper_mimu(self.raw_counts)
+        return {
+            "software": f"fieldcal {__version__}",
+            "procedure": {"name": self.procedure.name, "yaml": self.procedure.text},
+            "station": {"latitude_deg": self.station.latitude_deg, "height_m": self.station.height_m,
+                        "gravity_m_s2": self.station.gravity_m_s2},
+            "device": {"name": "simulated MIMU (paper Tables 3-4)", "raw_counts": self.raw_counts,
+                       "rate_hz": self.rate_hz},
+            "seed": self.seed, "method": self.method, "on_motion": self.on_motion,
+            "script": asdict(self.script),
+            "simulation_truth": {name: {"kind": t.kind, "K": t.K.tolist(), "bias": t.bias.tolist(),
+                                        "output_unit": t.output_unit} for name, t in device.items()},
+        }
+
+    @classmethod
+    def from_metadata(cls, meta: dict) -> RunSpec:
+        script = dict(meta["script"])
+        script["skip_steps"] = tuple(script["skip_steps"])
+        return cls(procedure=parse_procedure(meta["procedure"]["yaml"], meta["procedure"]["name"]),
+                   station=Station(**meta["station"]), seed=meta["seed"],
+                   rate_hz=meta["device"]["rate_hz"], raw_counts=meta["device"]["raw_counts"],
+                   method=meta["method"], on_motion=meta["on_motion"], script=OperatorScript(**script))
+
+    def device(self):
+        return paper_mimu(self.raw_counts)
+
+    def engine_settings(self) -> EngineSettings:
+        device = self.device()
+        acc, gyro = device["accelerometer"], device["gyroscope"]
+        sens_sf, sens_rate = np.diag(acc.K), np.diag(gyro.K)
+        return EngineSettings(
+            rate_hz=self.rate_hz, on_motion=self.on_motion,
+            stillness=StillnessSettings.from_noise(acc.noise.white, gyro.noise.white, self.rate_hz,
+                                                   acc.K, gyro.K, acc.lsb, gyro.lsb),
+            # Nominal zero and sensitivity: what a datasheet gives for a device reporting counts.
+            sf_zero=tuple(np.round(acc.bias, -2) if self.raw_counts else (0.0,) * 3),
+            sf_sensitivity=tuple(np.round(sens_sf, 0) if self.raw_counts else (1.0,) * 3),
+            rate_zero=tuple(np.round(gyro.bias, -2) if self.raw_counts else (0.0,) * 3),
+            rate_sensitivity=tuple(np.round(sens_rate, 0) if self.raw_counts else (1.0,) * 3))
+
+
+class SimulatedBench:
+    """The in-process simulator on its table, and the automatic operator's hands."""
+
+    def __init__(self, spec: RunSpec):
+        self.spec = spec
+        noise_seed, operator_seed = np.random.SeedSequence(spec.seed).spawn(2)
+        self.sim = MimuSimulator(spec.device(), gravity=spec.station.gravity,
+                                 latitude_rad=spec.station.latitude_rad, rate_hz=spec.rate_hz,
+                                 seed=noise_seed)
+        self.rng = np.random.default_rng(operator_seed)
+        self.attitude = np.eye(3)
+        self.target_deg_s = 0.0
+        self.chunk_n = int(round(spec.rate_hz))  # one-second chunks
+
+    def next_chunk(self):
+        return self.sim.advance(self.chunk_n, self.attitude, math.radians(self.target_deg_s),
+                                math.radians(TABLE_ACCEL_DEG_S2))
+
+    def move_to(self, nominal: np.ndarray) -> list:
+        """Stop-and-carry: wait for the table to stop, then carry the unit to its new place."""
+        chunks = []
+        while self.sim.table_rate != 0.0:
+            chunks.append(self.next_chunk())
+        target = nominal if self.spec.procedure.aligned else \
+            placed_attitude(nominal, self.rng, self.spec.script.placement_sigma_deg)
+        n = int(round(self.spec.script.handling_s * self.spec.rate_hz))
+        chunks.append(self.sim.handle(n, self.attitude, target))
+        self.attitude = target
+        return chunks
+
+    def bump(self) -> list:
+        """A knock on the fixture: a 0.3 s jolt that leaves it within a fraction of a degree."""
+        nudged = self.attitude @ Rotation.from_rotvec(self.rng.normal(0, math.radians(0.3), 3)).as_matrix()
+        chunk = self.sim.handle(int(round(0.3 * self.spec.rate_hz)), self.attitude, nudged, shake=3.0)
+        self.attitude = nudged
+        return [chunk]
+
+    def get_state(self) -> dict:
+        return {"sim": self.sim.get_state(), "rng": self.rng.bit_generator.state,
+                "attitude": self.attitude.tolist(), "target_deg_s": self.target_deg_s}
+
+    def set_state(self, state: dict) -> None:
+        self.sim.set_state(state["sim"])
+        self.rng.bit_generator.state = state["rng"]
+        self.attitude = np.array(state["attitude"])
+        self.target_deg_s = float(state["target_deg_s"])
+
+
+def _wrong_position(procedure: Procedure, step: int):
+    """A position whose gravity direction is far from the expected one (a plausible mix-up)."""
+    expected = procedure.positions[step].up_body
+    return max(procedure.positions, key=lambda p: -abs(float(p.up_body @ expected)) - 0.01 * p.id)
+
+
+@dataclass
+class RunResult:
+    session: Path
+    unit: UnitSolution | None
+    parameters: Path | None
+    truth: dict
+    aborted: bool = False
+
+
+def _solve(spec: RunSpec, engine: Engine) -> tuple[UnitSolution, ParameterFile | None]:
+    windows, averages = engine.windows_and_averages()
+    unit = solve_unit(spec.procedure, windows, averages, models_from_truth(spec.device()),
+                      spec.station, spec.rate_hz, spec.method)
+    if not unit.solutions:
+        return unit, None
+    pf = ParameterFile.build(
+        triads=tuple(TriadParameters.from_solution(s) for s in unit.solutions.values()),
+        procedure=spec.procedure.name, method=resolve_method(spec.procedure, spec.method),
+        station=spec.station,
+        input_sha256=hash_inputs(*unit.inputs.values()), simulation=True)
+    return unit, pf
+
+
+def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: SessionWriter,
+           events: list, report) -> bool:
+    """Run until the procedure completes or is aborted; False if aborted."""
+    script = spec.script
+    bumped = wrong_done = False
+    while True:
+        moves = []
+        for e in events:
+            session.event(e.to_dict())
+            report(e)
+            if isinstance(e, ev.CommandTable):
+                bench.target_deg_s = e.rate_deg_s
+            elif isinstance(e, ev.StepComplete):
+                session.step(engine.records[e.step])
+                session.checkpoint({"step": e.step, "bench": bench.get_state()})
+            elif isinstance(e, ev.PlaceUnit):
+                step = engine.step
+                if step in script.skip_steps:
+                    moves.append(("act", ev.Action(ev.SKIP)))
+                    continue
+                if step == script.wrong_step and not wrong_done:
+                    wrong_done = True
+                    moves.append(("move", _wrong_position(spec.procedure, step).attitude))
+                else:
+                    moves.append(("move", engine.position.attitude))
+                moves.append(("act", ev.Action(ev.READY)))
+            elif isinstance(e, ev.WrongOrientation):
+                moves.append(("move", engine.position.attitude))
+            elif isinstance(e, ev.DwellProgress):
+                if engine.step == script.bump_step and not bumped and e.done_s >= e.total_s / 2:
+                    bumped = True
+                    moves.append(("bump", None))
+            elif isinstance(e, (ev.ProcedureComplete, ev.Aborted)):
+                return isinstance(e, ev.ProcedureComplete)
+        events = []
+        for what, arg in moves:
+            if what == "act":
+                session.action(arg.to_dict())
+                events += engine.act(arg)
+                continue
+            for chunk in bench.move_to(arg) if what == "move" else bench.bump():
+                session.chunk(chunk)
+                events += engine.feed(chunk)
+        if not moves:
+            chunk = bench.next_chunk()
+            session.chunk(chunk)
+            events = engine.feed(chunk)
+
+
+def run_headless(spec: RunSpec, out: Path, report=lambda e: None) -> RunResult:
+    session = SessionWriter.create(out, spec.to_metadata())
+    engine = Engine(spec.procedure, spec.engine_settings())
+    bench = SimulatedBench(spec)
+    return _finish(spec, engine, session, _drive(spec, engine, bench, session, engine.start(), report), out)
+
+
+def resume_headless(directory: Path, report=lambda e: None) -> RunResult:
+    """Continue a killed headless run after its last completed step."""
+    reader = SessionReader(directory)
+    spec = RunSpec.from_metadata(reader.start)
+    engine = Engine(spec.procedure, spec.engine_settings())
+    skipped = [e["step"] for e in reader.events() if e.get("event") == "step_skipped"]
+    engine.restore(reader.steps(), skipped)
+    bench = SimulatedBench(spec)
+    checkpoint = reader.last_checkpoint()
+    if checkpoint is not None:
+        bench.set_state(checkpoint["bench"])
+    session = SessionWriter.append_to(directory)
+    session.resume({"completed_steps": sorted(engine.records)})
+    return _finish(spec, engine, session, _drive(spec, engine, bench, session, engine.start(), report),
+                   Path(directory))
+
+
+def _finish(spec: RunSpec, engine: Engine, session: SessionWriter, completed: bool, out: Path) -> RunResult:
+    truth = {n: params_from_k(t.K, t.bias) for n, t in spec.device().items()}
+    if not completed:
+        session.stop("aborted")
+        session.close()
+        return RunResult(Path(out), None, None, truth, aborted=True)
+    unit, pf = _solve(spec, engine)
+    solved = ev.Solved(engine.t, tuple(unit.solutions), dict(unit.failures))
+    session.event(solved.to_dict())
+    path = None
+    if pf is not None:
+        session.write_parameters(pf)
+        path = Path(out) / "parameters.yaml"
+    session.stop("completed")
+    session.close()
+    return RunResult(Path(out), unit, path, truth)

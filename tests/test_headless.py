@@ -1,0 +1,118 @@
+"""Headless field-18 runs against the in-process simulator: accuracy, operator mishaps, crash and
+resume, and byte-identical replay."""
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fieldcal.earth import Station
+from fieldcal.paramfile import dump
+from fieldcal.positions import load_procedure
+from fieldcal.replay import recorded_parameters, replay_session
+from fieldcal.runner import OperatorScript, RunSpec, run_headless
+from fieldcal.session import SessionReader
+
+STATION = Station(40.0, 50.0)
+
+
+def spec(seed, **script):
+    return RunSpec(load_procedure("field-18"), STATION, seed=seed, script=OperatorScript(**script))
+
+
+@pytest.fixture(scope="module")
+def mishap_run(tmp_path_factory):
+    """One run with a bump in step 3 and a wrong placement in step 5."""
+    events = []
+    out = tmp_path_factory.mktemp("mishap") / "session"
+    result = run_headless(spec(11, bump_step=2, wrong_step=4), out, events.append)
+    return result, events
+
+
+@pytest.mark.parametrize("seed", [21, 22, 23])
+def test_every_parameter_within_three_sigma(tmp_path, seed):
+    result = run_headless(spec(seed), tmp_path / "s")
+    assert not result.unit.failures
+    for name, sol in result.unit.solutions.items():
+        z = (sol.theta - result.truth[name]) / sol.sigma
+        assert np.all(np.abs(z) < 3.0), (name, z)
+
+
+def test_a_bump_during_a_dwell_restarts_it(mishap_run):
+    result, events = mishap_run
+    kinds = [(e.kind, getattr(e, "step", None)) for e in events]
+    bump = next(i for i, e in enumerate(events) if e.kind == "motion_detected" and e.phase == "dwell")
+    assert events[bump].restarted
+    # The dwell of that step then runs its full 200 s again after the unit is still.
+    still_again = next(e for e in events[bump:] if e.kind == "still")
+    complete = next(e for e in events[bump:] if e.kind == "dwell_complete")
+    assert complete.t - still_again.t == pytest.approx(200.0, abs=0.01)
+    assert ("step_complete", 2) in kinds and not result.unit.failures
+
+
+def test_a_wrong_position_is_caught_and_named(mishap_run):
+    _, events = mishap_run
+    wrong = [e for e in events if e.kind == "wrong_orientation"]
+    assert len(wrong) == 1
+    # Step 5 is position 5 (y-upward); the operator put it z-up, like positions 1 and 2.
+    assert wrong[0].position_id == 5 and set(wrong[0].looks_like) == {1, 2}
+    assert "position 5 expects y-upward" in wrong[0].message and "1 or 2" in wrong[0].message
+    # Once corrected, the step completes with the right orientation.
+    after = next(e for e in events if e.kind == "still" and e.t > wrong[0].t)
+    assert after.angle_to_expected_deg < 15
+
+
+def test_skipped_positions_still_solve_if_enough_remain(tmp_path):
+    result = run_headless(spec(31, skip_steps=(4, 9)), tmp_path / "s")
+    assert set(result.unit.solutions) == {"accelerometer", "gyroscope", "inclinometer"}
+    steps = SessionReader(result.session).steps()
+    assert sorted(s["step"] for s in steps) == [s for s in range(18) if s not in (4, 9)]
+
+
+def test_too_few_positions_say_how_many_more(tmp_path):
+    result = run_headless(spec(32, skip_steps=tuple(range(7, 18))), tmp_path / "s")
+    assert "add at least 2 more positions" in result.unit.failures["accelerometer"]
+
+
+def test_replay_gives_the_same_parameter_file_byte_for_byte(mishap_run):
+    result, _ = mishap_run
+    _, pf, samples = replay_session(result.session)
+    assert samples > 18 * 200 * 250
+    assert dump(pf).encode() == recorded_parameters(result.session)
+
+
+def _wait_for_steps(session_root: Path, count: int, proc, timeout_s=60.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        logs = list(session_root.glob("*/log.jsonl"))
+        if logs and logs[0].read_text(errors="replace").count('"type":"step"') >= count:
+            return logs[0].parent
+        assert proc.poll() is None, "the run ended before it could be killed"
+        time.sleep(0.02)
+    raise AssertionError("the run did not reach the steps in time")
+
+
+def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
+    argv = [sys.executable, "-m", "fieldcal.cli", "run", "--headless", "--seed", "41", "--quiet",
+            "--bump-step", "9"]
+    whole = subprocess.run(argv + ["--out", str(tmp_path / "whole")], capture_output=True, text=True,
+                           timeout=300)
+    assert whole.returncode == 0, whole.stdout + whole.stderr
+    proc = subprocess.Popen(argv + ["--out", str(tmp_path / "killed")], stdout=subprocess.DEVNULL)
+    session = _wait_for_steps(tmp_path / "killed", 7, proc)
+    time.sleep(0.15)  # mid-step, with samples of the next step partly written
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (session / "parameters.yaml").exists()
+    resumed = subprocess.run([sys.executable, "-m", "fieldcal.cli", "resume", str(session), "--quiet"],
+                             capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    uninterrupted = next((tmp_path / "whole").glob("*/parameters.yaml")).read_bytes()
+    assert (session / "parameters.yaml").read_bytes() == uninterrupted
+    # And the resumed session replays to the same file too.
+    _, pf, _ = replay_session(session)
+    assert dump(pf).encode() == uninterrupted
