@@ -1,0 +1,996 @@
+"""The on-disk session: one calibration run (and its resumptions), captured append-only.
+
+A session is a directory that the runner writes as it goes and that replay and resume read back
+(DESIGN.md principle 5). It is modelled on bluesky's document stream: typed JSON documents in
+order, with the bulk data (samples, raw bytes) in binary side files that the documents index.
+
+Layout
+======
+
+``log.jsonl``
+    The authority. One JSON object per line, ASCII, ``\\n``-terminated, compact separators, keys
+    in a fixed order, floats as ``repr`` (exact round trip; NaN/Infinity written the way Python's
+    ``json`` does). Every document starts with ``"seq"`` (0, 1, 2, ... = its line number - 1)
+    and ``"type"``:
+
+    ``start``       ``schema`` ("fieldcal-session/1"), ``metadata`` (the runner's dict: software
+                    version, device, station, procedure name and YAML text, settings, seed,
+                    simulation_truth, ...). Always line 1, and only there.
+    ``descriptor``  ``columns``: the layout of a sample stream, a list of ``{"name", "role",
+                    "dtype"}`` with role ``time`` (first, name "t"), ``triad`` ((n, 3) each),
+                    ``temperature`` (name "temperature") or ``extra``; dtype a little-endian
+                    numpy dtype string ("<f8"). Written automatically before the first chunk
+                    with a new layout.
+    ``chunk``       ``descriptor`` (its seq), ``offset``/``length`` of its record in
+                    samples.bin, ``n`` samples, ``t_first``/``t_last`` (null when n == 0),
+                    ``crc32`` of the record's payload. The chunk's seq is what ``chunk()``
+                    returns.
+    ``event``, ``action``, ``step``, ``checkpoint``
+                    ``after_chunk`` (the seq of the last chunk written before it, or null) and
+                    ``data`` (the caller's dict). Replay feeds chunks and actions in log order,
+                    so an action lands between exactly the same two chunks as in the run.
+    ``stop``        ``reason`` (completed, aborted, ...), ``data``.
+    ``resume``      a new run continuing the session: ``after_chunk``, ``repaired`` (what
+                    ``append_to`` cut from a torn tail, one line each), ``data``.
+    ``raw``         ``name``, ``t`` (host arrival time), ``offset``/``length`` in
+                    ``raw-<name>.bin``, ``crc32``.
+    ``parameters``  ``file`` (a name in the session directory), ``sha256`` of its bytes.
+
+    A run is ``start`` (or ``resume``) ... ``stop``; after a stop only ``resume``,
+    ``parameters`` and ``raw`` may follow, and after ``append_to`` the first document must be
+    ``resume``.
+
+``samples.bin``
+    Chunk records back to back from byte 0, each::
+
+        header  40 bytes, little-endian: magic b"FCS1", u32 crc32 of the payload,
+                u64 chunk seq, u64 descriptor seq, u64 n samples, u64 payload bytes
+        payload the descriptor's columns in order, each one contiguous block (t: n values,
+                a triad: n*3 values row-major, temperature/extras: n values), each block
+                zero-padded to a multiple of 8 bytes so every column is aligned
+
+    Values are stored bit for bit (NaN payloads, -0.0, inf included).
+
+``raw-<name>.bin``
+    The raw bytes of a live device, exactly as received, concatenated; each ``raw`` document
+    indexes one read.
+
+``parameters.yaml``
+    Written atomically by ``fieldcal.paramfile.save`` and noted in the log.
+
+Durability and consistency
+==========================
+
+Bulk data is written and flushed before the log line that references it, and every write is
+flushed to the OS at once, so a killed process (SIGKILL) loses at most the write in progress;
+both files are fsynced at most once per ``fsync_interval_s`` (samples and raw first, then the
+log) and always on ``stop``, ``resume``, ``sync`` and ``close``, which bounds the loss on power
+failure. The *consistent prefix* of a session is the longest run of complete log lines whose
+referenced bytes are all present. What lies beyond it (a partial last line; documents whose
+chunk or raw bytes are missing; bytes in samples.bin or raw files no document references) is
+a torn tail: ``SessionReader`` ignores it and ``SessionWriter.append_to`` cuts it, reporting
+what it cut. Anything else that is wrong (a complete line that is not a valid document, a
+sequence gap, a checksum mismatch) is corruption: a one-line ``SessionError`` naming the file
+and line.
+
+If a write breaks off inside the process (disk full, an exception mid-record), the writer
+refuses further writes (``SessionStateError``): appending after a partial line would turn a
+torn tail into corruption. ``close()`` it and continue with ``append_to``.
+
+Use
+===
+
+Runner::
+
+    w = SessionWriter.create(path, {"software": ..., "procedure": ..., "seed": ...})
+    w.chunk(chunk); w.action({...}); w.event({...}); w.step({...}); w.checkpoint({...})
+    w.write_raw("imu", t, data)          # or functools.partial(w.write_raw, "imu") as a tap
+    w.write_parameters(pf); w.stop("completed"); w.close()
+
+Resume::
+
+    r = SessionReader(path)              # r.steps(), r.last_checkpoint(), r.stopped, r.torn
+    w = SessionWriter.append_to(path)    # cuts the torn tail; w.repaired says what was cut
+    w.resume({...})                      # required before any other run document
+
+Replay::
+
+    for kind, item in SessionReader(path).replay_items():  # ("chunk", SampleChunk) | ("action", dict)
+        events = engine.feed(item) if kind == "chunk" else engine.act(item)
+
+Writer calls that write a document return its seq. ``to_plain`` defines what a data dict may
+hold: dicts with string keys, lists/tuples, str, int, float, bool, None, numpy arrays and
+scalars (converted), and nothing else (TypeError naming the key), so what is read back equals
+what was written.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import struct
+import threading
+import time
+import zlib
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+
+from drivers.chunk import SampleChunk
+
+SCHEMA = "fieldcal-session/1"
+LOG = "log.jsonl"
+SAMPLES = "samples.bin"
+PARAMETERS = "parameters.yaml"
+RAW_PREFIX, RAW_SUFFIX = "raw-", ".bin"
+RECORD_MAGIC = b"FCS1"
+RECORD_HEADER = struct.Struct("<4sIQQQQ")  # magic, crc32(payload), chunk seq, descriptor seq, n, payload bytes
+ALIGN = 8
+
+TIME, TRIAD, TEMPERATURE, EXTRA = "time", "triad", "temperature", "extra"
+ROLES = (TIME, TRIAD, TEMPERATURE, EXTRA)
+DOC_TYPES = ("start", "descriptor", "chunk", "event", "action", "step", "checkpoint", "stop",
+             "resume", "raw", "parameters")
+RUN_TYPES = ("chunk", "event", "action", "step", "checkpoint", "stop")  # need an active run
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+class SessionError(ValueError):
+    """A directory that is not a usable session; the message is one line naming file and line."""
+
+    def __init__(self, message: str, path: str = "", line: int | None = None) -> None:
+        super().__init__(message)
+        self.path = path
+        self.line = line
+
+
+class SessionStateError(RuntimeError):
+    """A writer call out of order (data after stop, data before resume, a closed writer)."""
+
+
+# --------------------------------------------------------------------------------------------
+# JSON
+
+
+def to_plain(value: Any, where: str = "data") -> Any:
+    """``value`` as plain JSON types (dict with str keys, list, str, int, float, bool, None).
+
+    numpy arrays become (nested) lists, numpy scalars Python numbers, tuples lists. Anything else
+    (and a non-string key, which JSON would silently turn into a string) is a TypeError naming
+    where it is, so what is read back is exactly what was written.
+    """
+    if value is None or value is True or value is False:
+        return value
+    if isinstance(value, str):
+        return str.__str__(value)
+    if isinstance(value, int):
+        return int(value)
+    if isinstance(value, float):
+        return float(value)
+    if isinstance(value, np.generic):
+        if isinstance(value, np.bool_):
+            return bool(value)
+        if isinstance(value, np.integer):
+            return int(value)
+        if isinstance(value, np.floating):
+            return float(value)
+    elif isinstance(value, np.ndarray):
+        if value.dtype.kind in "biuf":
+            return value.tolist()
+        if value.dtype.kind == "O":
+            return to_plain(value.tolist(), where)
+    elif isinstance(value, Mapping):
+        out = {}
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise TypeError(f"{where}: keys must be strings, got {key!r}")
+            out[str.__str__(key)] = to_plain(item, f"{where}.{key}")
+        return out
+    elif isinstance(value, (list, tuple)):
+        return [to_plain(item, f"{where}[{i}]") for i, item in enumerate(value)]
+    raise TypeError(f"{where}: a {type(value).__name__} is not JSON-able "
+                    "(use dicts with string keys, lists, strings, numbers, bools, None, numpy arrays)")
+
+
+def _dumps(doc: dict) -> bytes:
+    return (json.dumps(doc, ensure_ascii=True, separators=(",", ":"), allow_nan=True) + "\n").encode("ascii")
+
+
+def _data(value, where: str) -> dict:
+    if not isinstance(value, Mapping):
+        raise TypeError(f"{where}: expected a dict, got a {type(value).__name__}")
+    return to_plain(value, where)
+
+
+# --------------------------------------------------------------------------------------------
+# Sample records
+
+
+@dataclass(frozen=True)
+class Column:
+    name: str
+    role: str
+    dtype: np.dtype
+
+    @property
+    def width(self) -> int:
+        return 3 if self.role == TRIAD else 1
+
+    def block_bytes(self, n: int) -> int:
+        raw = n * self.width * self.dtype.itemsize
+        return -(-raw // ALIGN) * ALIGN
+
+    def to_doc(self) -> dict:
+        return {"name": self.name, "role": self.role, "dtype": self.dtype.str}
+
+
+def _payload_bytes(columns: tuple[Column, ...], n: int) -> int:
+    return sum(c.block_bytes(n) for c in columns)
+
+
+def _column_array(values, what: str, ndim: int) -> np.ndarray:
+    a = np.asarray(values)
+    if a.dtype.kind not in "biuf":
+        raise TypeError(f"chunk {what}: expected a numeric array, got dtype {a.dtype}")
+    if a.ndim != ndim:
+        raise ValueError(f"chunk {what}: expected {ndim} dimension(s), got shape {a.shape}")
+    return np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+
+
+def _chunk_columns(chunk: SampleChunk) -> list[tuple[Column, np.ndarray]]:
+    cols = [("t", TIME, _column_array(chunk.t, "t", 1))]
+    cols += [(str(name), TRIAD, _column_array(v, f"triad {name!r}", 2)) for name, v in chunk.triads.items()]
+    if chunk.temperature is not None:
+        cols.append(("temperature", TEMPERATURE, _column_array(chunk.temperature, "temperature", 1)))
+    cols += [(str(name), EXTRA, _column_array(v, f"channel {name!r}", 1)) for name, v in chunk.extras.items()]
+    return [(Column(name, role, a.dtype), a) for name, role, a in cols]
+
+
+# --------------------------------------------------------------------------------------------
+# Scanning a session directory (shared by the reader and append_to)
+
+
+@dataclass
+class _Scan:
+    directory: Path
+    docs: list[dict]
+    kept_log_bytes: int  # the log's consistent prefix, in bytes
+    log_size: int
+    samples_end: int  # end of the last kept chunk record
+    samples_size: int
+    raw_ends: dict[str, int]  # per raw stream: end of the last kept raw record
+    raw_sizes: dict[str, int]  # per raw file on disk
+    descriptors: dict[int, tuple[Column, ...]]
+    last_chunk: int | None
+    beyond: list[str] = field(default_factory=list)  # the torn tail, one line per finding
+
+    @property
+    def log_path(self) -> Path:
+        return self.directory / LOG
+
+
+def raw_path(directory: Path, name: str) -> Path:
+    return directory / f"{RAW_PREFIX}{name}{RAW_SUFFIX}"
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+class _DocChecker:
+    """Validates documents in order; every failure is one line naming the log file and line."""
+
+    def __init__(self, log_path: Path) -> None:
+        self.path = log_path
+        self.descriptors: dict[int, tuple[Column, ...]] = {}
+        self.samples_end = 0
+        self.raw_ends: dict[str, int] = {}
+        self.last_chunk: int | None = None
+
+    def fail(self, line: int, what: str):
+        raise SessionError(f"{self.path}: line {line}: {what}", str(self.path), line)
+
+    def field(self, doc: dict, key: str, kinds, line: int, what: str):
+        if key not in doc:
+            self.fail(line, f"{doc['type']} document without {key!r}")
+        value = doc[key]
+        if isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
+            self.fail(line, f"{doc['type']} document: {key!r} must be {what}, got {value!r}"[:300])
+        return value
+
+    def count(self, doc: dict, key: str, line: int) -> int:
+        value = self.field(doc, key, (int,), line, "an integer >= 0")
+        if value < 0:
+            self.fail(line, f"{doc['type']} document: {key!r} must be an integer >= 0, got {value}")
+        return value
+
+    def check(self, doc, index: int) -> None:
+        line = index + 1
+        if not isinstance(doc, dict):
+            self.fail(line, f"expected a JSON object, got {type(doc).__name__}")
+        seq = doc.get("seq")
+        if isinstance(seq, bool) or not isinstance(seq, int) or seq != index:
+            self.fail(line, f"expected seq {index}, got {seq!r}"[:200])
+        kind = doc.get("type")
+        if kind not in DOC_TYPES:
+            self.fail(line, f"unknown document type {kind!r}"[:200])
+        if (kind == "start") != (index == 0):
+            self.fail(line, "the first document must be the start document, and only the first"
+                      if index == 0 else "a second start document")
+        getattr(self, f"check_{kind}")(doc, line)
+
+    def check_start(self, doc, line):
+        if doc.get("schema") != SCHEMA:
+            self.fail(line, f"expected a start document of schema {SCHEMA!r}, got {doc.get('schema')!r}"[:200])
+        self.field(doc, "metadata", (dict,), line, "an object")
+
+    def check_descriptor(self, doc, line):
+        cols = self.field(doc, "columns", (list,), line, "a list")
+        out, seen = [], set()
+        for i, c in enumerate(cols):
+            if not (isinstance(c, dict) and set(c) == {"name", "role", "dtype"}
+                    and isinstance(c["name"], str) and c["role"] in ROLES and isinstance(c["dtype"], str)):
+                self.fail(line, f"descriptor column {i}: expected name, role and dtype, got {c!r}"[:200])
+            try:
+                dtype = np.dtype(c["dtype"])
+            except Exception:  # noqa: BLE001 -- numpy raises TypeError, ValueError, SyntaxError...
+                dtype = None
+            if dtype is None or dtype.kind not in "biuf" or dtype.str != c["dtype"] or dtype.byteorder == ">":
+                self.fail(line, f"descriptor column {i}: not a little-endian numeric dtype: {c['dtype']!r}"[:200])
+            key = (c["role"], c["name"])
+            if key in seen:
+                self.fail(line, f"descriptor column {i}: {c['name']!r} appears twice")
+            seen.add(key)
+            out.append(Column(c["name"], c["role"], dtype))
+        roles = [c.role for c in out]
+        if not out or roles[0] != TIME or roles.count(TIME) != 1 or roles.count(TEMPERATURE) > 1:
+            self.fail(line, "descriptor: expected the time column first and at most one temperature")
+        self.descriptors[doc["seq"]] = tuple(out)
+
+    def check_chunk(self, doc, line):
+        d = self.field(doc, "descriptor", (int,), line, "a descriptor's seq")
+        if d not in self.descriptors:
+            self.fail(line, f"chunk refers to descriptor {d}, which is not an earlier descriptor")
+        offset, length, n = (self.count(doc, k, line) for k in ("offset", "length", "n"))
+        self.count(doc, "crc32", line)
+        for key in ("t_first", "t_last"):
+            self.field(doc, key, (int, float, type(None)), line, "a number or null")
+        if offset != self.samples_end:
+            self.fail(line, f"chunk at byte {offset} of {SAMPLES}, expected {self.samples_end} "
+                      "(records are contiguous)")
+        expected = RECORD_HEADER.size + _payload_bytes(self.descriptors[d], n)
+        if length != expected:
+            self.fail(line, f"chunk of {n} samples has length {length}, its descriptor needs {expected}")
+        self.samples_end = offset + length
+        self.last_chunk = doc["seq"]
+
+    def check_after_chunk(self, doc, line):
+        if "after_chunk" not in doc or doc["after_chunk"] != self.last_chunk:
+            self.fail(line, f"{doc['type']} document: after_chunk {doc.get('after_chunk')!r} but the "
+                      f"last chunk before it is {self.last_chunk!r}"[:200])
+        self.field(doc, "data", (dict,), line, "an object")
+
+    check_event = check_action = check_step = check_checkpoint = check_after_chunk
+
+    def check_stop(self, doc, line):
+        self.field(doc, "reason", (str,), line, "a string")
+        self.field(doc, "data", (dict,), line, "an object")
+
+    def check_resume(self, doc, line):
+        self.check_after_chunk(doc, line)
+        repaired = self.field(doc, "repaired", (list,), line, "a list")
+        if not all(isinstance(r, str) for r in repaired):
+            self.fail(line, "resume document: 'repaired' must be a list of strings")
+
+    def check_raw(self, doc, line):
+        name = self.field(doc, "name", (str,), line, "a string")
+        if not _NAME.fullmatch(name):
+            self.fail(line, f"raw document: bad stream name {name!r}"[:200])
+        self.field(doc, "t", (int, float), line, "a number")
+        offset, length = self.count(doc, "offset", line), self.count(doc, "length", line)
+        self.count(doc, "crc32", line)
+        end = self.raw_ends.get(name, 0)
+        if offset != end:
+            self.fail(line, f"raw {name!r} at byte {offset}, expected {end} (records are contiguous)")
+        self.raw_ends[name] = offset + length
+
+    def check_parameters(self, doc, line):
+        name = self.field(doc, "file", (str,), line, "a file name")
+        if not _NAME.fullmatch(name):
+            self.fail(line, f"parameters document: bad file name {name!r}"[:200])
+        sha = self.field(doc, "sha256", (str,), line, "a SHA-256 hex digest")
+        if not _SHA256.fullmatch(sha):
+            self.fail(line, f"parameters document: bad sha256 {sha!r}"[:200])
+
+
+def _file_size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return 0
+
+
+def _scan(directory: str | os.PathLike, verb: str) -> _Scan:
+    d = Path(directory)
+    if not d.exists():
+        raise SessionError(f"{d}: no such session directory", str(d))
+    if not d.is_dir():
+        raise SessionError(f"{d}: not a directory", str(d))
+    log_path = d / LOG
+    if not log_path.is_file():
+        raise SessionError(f"{d}: not a session directory (no {LOG})", str(d))
+    try:
+        data = log_path.read_bytes()  # read the log before sizing the data files it indexes
+    except OSError as exc:
+        raise SessionError(f"{log_path}: cannot read ({exc.strerror or exc})", str(log_path)) from None
+    samples_size = _file_size(d / SAMPLES)
+    raw_sizes = {p.name[len(RAW_PREFIX):-len(RAW_SUFFIX)]: p.stat().st_size
+                 for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}"))}
+
+    complete = data.rfind(b"\n") + 1
+    checker = _DocChecker(log_path)
+    docs: list[dict] = []
+    ends: list[int] = []  # byte offset after each line
+    pos = 0
+    beyond: list[str] = []
+    if complete < len(data):
+        beyond.append(f"{LOG}: {verb} a torn last line ({_plural(len(data) - complete, 'byte')} at byte {complete})")
+    if complete == 0:
+        raise SessionError(f"{log_path}: not a session log (no complete start document: the file is "
+                           f"{'empty' if not data else 'one torn line'})", str(log_path), 1)
+    for index, raw in enumerate(data[:complete - 1].split(b"\n")):
+        try:
+            doc = json.loads(raw)
+        except ValueError as exc:  # JSONDecodeError or UnicodeDecodeError
+            detail = getattr(exc, "msg", None) or type(exc).__name__
+            if index == 0:
+                raise SessionError(f"{log_path}: line 1: not a session log (not JSON: {detail})",
+                                   str(log_path), 1) from None
+            raise SessionError(f"{log_path}: line {index + 1}: not a JSON document ({detail})",
+                               str(log_path), index + 1) from None
+        checker.check(doc, index)
+        pos += len(raw) + 1
+        docs.append(doc)
+        ends.append(pos)
+
+    # The consistent prefix: stop at the first document whose bytes are not all on disk.
+    keep = len(docs)
+    samples_end = 0
+    raw_ends: dict[str, int] = {}
+    for i, doc in enumerate(docs):
+        kind = doc["type"]
+        missing = (kind == "chunk" and not (d / SAMPLES).is_file()) or \
+            (kind == "raw" and doc["name"] not in raw_sizes)
+        if missing:  # not a torn tail: a file is gone (cutting the log back to here would lose data)
+            name = SAMPLES if kind == "chunk" else raw_path(d, doc["name"]).name
+            raise SessionError(f"{d / name}: missing, but {LOG} line {i + 1} refers to it", str(d / name), i + 1)
+        if kind == "chunk":
+            end = doc["offset"] + doc["length"]
+            if end > samples_size:
+                keep = i
+                beyond.append(f"{LOG}: {verb} {_plural(len(docs) - i, 'document')} from line {i + 1} on "
+                              f"(chunk {doc['seq']} needs {SAMPLES} up to byte {end}, the file has {samples_size})")
+                break
+            samples_end = end
+        elif kind == "raw":
+            end = doc["offset"] + doc["length"]
+            size = raw_sizes.get(doc["name"], 0)
+            if end > size:
+                keep = i
+                beyond.append(f"{LOG}: {verb} {_plural(len(docs) - i, 'document')} from line {i + 1} on "
+                              f"(raw {doc['name']!r} needs {RAW_PREFIX}{doc['name']}{RAW_SUFFIX} up to byte "
+                              f"{end}, the file has {size})")
+                break
+            raw_ends[doc["name"]] = end
+    docs = docs[:keep]
+    if samples_size > samples_end:
+        beyond.append(f"{SAMPLES}: {verb} {_plural(samples_size - samples_end, 'byte')} after the last "
+                      f"logged chunk (from byte {samples_end})")
+    for name, size in raw_sizes.items():
+        if size > raw_ends.get(name, 0):
+            beyond.append(f"{RAW_PREFIX}{name}{RAW_SUFFIX}: {verb} {_plural(size - raw_ends.get(name, 0), 'byte')} "
+                          f"after the last logged read (from byte {raw_ends.get(name, 0)})")
+    descriptors = {s: c for s, c in checker.descriptors.items() if s < keep}
+    last_chunk = next((doc["seq"] for doc in reversed(docs) if doc["type"] == "chunk"), None)
+    return _Scan(d, docs, ends[keep - 1], len(data), samples_end, samples_size, raw_ends, raw_sizes,
+                 descriptors, last_chunk, beyond)
+
+
+def _run_state(docs: list[dict]) -> tuple[bool, str | None]:
+    """(stopped, reason) of the last run: stopped when its last start/resume/stop is a stop."""
+    for doc in reversed(docs):
+        if doc["type"] == "stop":
+            return True, doc["reason"]
+        if doc["type"] in ("start", "resume"):
+            return False, None
+    return False, None
+
+
+def _read_record(fh, doc: dict, columns: tuple[Column, ...], path: Path, line: int) -> SampleChunk:
+    offset, length, n = doc["offset"], doc["length"], doc["n"]
+    where = f"{path}: chunk {doc['seq']} at byte {offset} (log line {line})"
+    fh.seek(offset)
+    buf = bytearray(length)
+    if fh.readinto(buf) != length:
+        raise SessionError(f"{where}: the file ends inside the record", str(path), line)
+    magic, crc, seq, dseq, count, payload = RECORD_HEADER.unpack_from(buf)
+    if magic != RECORD_MAGIC:
+        raise SessionError(f"{where}: bad record magic {magic!r}", str(path), line)
+    if (seq, dseq, count, payload) != (doc["seq"], doc["descriptor"], n, length - RECORD_HEADER.size):
+        raise SessionError(f"{where}: the record header (seq {seq}, descriptor {dseq}, n {count}, "
+                           f"{payload} bytes) does not match the log", str(path), line)
+    if crc != doc["crc32"] or zlib.crc32(memoryview(buf)[RECORD_HEADER.size:]) != crc:
+        raise SessionError(f"{where}: checksum mismatch (corrupt data)", str(path), line)
+    pos = RECORD_HEADER.size
+    t, triads, temperature, extras = None, {}, None, {}
+    for col in columns:
+        a = np.frombuffer(buf, dtype=col.dtype, count=n * col.width, offset=pos)
+        pos += col.block_bytes(n)
+        if col.role == TIME:
+            t = a
+        elif col.role == TRIAD:
+            triads[col.name] = a.reshape(n, 3)
+        elif col.role == TEMPERATURE:
+            temperature = a
+        else:
+            extras[col.name] = a
+    return SampleChunk(t=t, triads=triads, temperature=temperature, extras=extras)
+
+
+# --------------------------------------------------------------------------------------------
+# Writing
+
+
+class SessionWriter:
+    """Appends documents and data to a session directory; see the module docstring.
+
+    Thread-safe (``write_raw`` is meant to be a transport's tap, called on its reader thread).
+    Every method that writes a document returns that document's seq.
+    """
+
+    def __init__(self, directory: Path, log, samples, scan: _Scan | None, *, fsync_interval_s: float,
+                 clock: Callable[[], float], active: bool, repaired: list[str]) -> None:
+        self.directory = directory
+        self._log = log
+        self._samples = samples
+        self._raw: dict[str, Any] = {}
+        self._lock = threading.RLock()
+        self._clock = clock
+        self.fsync_interval_s = float(fsync_interval_s)
+        self._active = active
+        self._closed = False
+        self._failed = ""
+        self.repaired = list(repaired)  # what append_to cut; goes into the resume document
+        if scan is None:
+            self._seq, self._samples_end, self._raw_ends, self._last_chunk = 0, 0, {}, None
+            self._layouts: dict[tuple, int] = {}
+        else:
+            self._seq = len(scan.docs)
+            self._samples_end = scan.samples_end
+            self._raw_ends = dict(scan.raw_ends)
+            self._last_chunk = scan.last_chunk
+            self._layouts = {cols: seq for seq, cols in scan.descriptors.items()}
+        self._last_sync = clock()
+
+    # -- opening ------------------------------------------------------------------------------
+
+    @classmethod
+    def create(cls, directory: str | os.PathLike, start_metadata: Mapping, *, fsync_interval_s: float = 1.0,
+               clock: Callable[[], float] = time.monotonic) -> SessionWriter:
+        """A new session in ``directory`` (created; refused if it exists and is not empty)."""
+        _check_interval(fsync_interval_s)
+        d = Path(directory)
+        metadata = _data(start_metadata, "start_metadata")
+        if d.exists():
+            if not d.is_dir():
+                raise SessionError(f"{d}: exists and is not a directory", str(d))
+            if any(d.iterdir()):
+                raise SessionError(f"{d}: already exists and is not empty (a new session needs a new "
+                                   "directory; to continue this one, resume it)", str(d))
+        d.mkdir(parents=True, exist_ok=True)
+        log = open(d / LOG, "xb")  # noqa: SIM115 -- held open by the writer until close()
+        try:
+            samples = open(d / SAMPLES, "xb")  # noqa: SIM115
+        except BaseException:
+            log.close()
+            raise
+        writer = cls(d, log, samples, None, fsync_interval_s=fsync_interval_s, clock=clock,
+                     active=True, repaired=[])
+        writer._write({"seq": 0, "type": "start", "schema": SCHEMA, "metadata": metadata})
+        writer.sync()
+        _fsync_directory(d)
+        return writer
+
+    @classmethod
+    def append_to(cls, directory: str | os.PathLike, *, fsync_interval_s: float = 1.0,
+                  clock: Callable[[], float] = time.monotonic) -> SessionWriter:
+        """Reopen a session to continue it: cut any torn tail, then the caller must ``resume()``.
+
+        What was cut is in ``writer.repaired`` (one line each) and goes into the resume document.
+        """
+        _check_interval(fsync_interval_s)
+        scan = _scan(directory, "cut")
+        d = scan.directory
+        if scan.last_chunk is not None:  # do not build on a damaged last record
+            last = next(doc for doc in reversed(scan.docs) if doc["type"] == "chunk")
+            with open(d / SAMPLES, "rb") as fh:
+                _read_record(fh, last, scan.descriptors[last["descriptor"]], d / SAMPLES, last["seq"] + 1)
+        _truncate(d / LOG, scan.kept_log_bytes)
+        _truncate(d / SAMPLES, scan.samples_end)
+        for name in scan.raw_sizes:
+            _truncate(raw_path(d, name), scan.raw_ends.get(name, 0))
+        log = open(d / LOG, "ab")  # noqa: SIM115 -- held open by the writer until close()
+        samples = open(d / SAMPLES, "ab")  # noqa: SIM115
+        writer = cls(d, log, samples, scan, fsync_interval_s=fsync_interval_s, clock=clock,
+                     active=False, repaired=scan.beyond)
+        for name in scan.raw_ends:
+            writer._raw[name] = open(raw_path(d, name), "ab")  # noqa: SIM115
+        return writer
+
+    # -- state --------------------------------------------------------------------------------
+
+    @property
+    def next_seq(self) -> int:
+        return self._seq
+
+    @property
+    def last_chunk(self) -> int | None:
+        return self._last_chunk
+
+    @property
+    def active(self) -> bool:
+        """True between start/resume and stop."""
+        return self._active
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _require(self, kind: str) -> None:
+        if self._closed:
+            raise SessionStateError(f"{self.directory}: the session writer is closed")
+        if self._failed:
+            raise SessionStateError(f"{self.directory}: an earlier write failed ({self._failed}); close() "
+                                    "and continue with append_to(), which cuts any partial record")
+        if kind == "resume" and self._active:
+            raise SessionStateError(f"{self.directory}: cannot resume: the run is still active")
+        if kind in RUN_TYPES and not self._active:
+            raise SessionStateError(f"{self.directory}: cannot write {kind!r}: no active run "
+                                    "(after stop() or append_to(), call resume() first)")
+
+    @contextmanager
+    def _writing(self, kind: str):
+        """Hold the lock, check the state, and mark the writer failed if a write breaks off: after
+        a partial line or record, appending more would turn a torn tail into corruption."""
+        with self._lock:
+            self._require(kind)
+            try:
+                yield
+            except BaseException as exc:
+                self._failed = (str(exc).splitlines() or [""])[0][:200] or type(exc).__name__
+                raise
+
+    def _write(self, doc: dict) -> int:
+        self._log.write(_dumps(doc))
+        self._log.flush()
+        self._seq += 1
+        return doc["seq"]
+
+    def _doc(self, kind: str, data: Mapping | None, **fields) -> int:
+        payload = _data({} if data is None else data, kind)
+        with self._writing(kind):
+            if kind in ("event", "action", "step", "checkpoint"):
+                fields = {"after_chunk": self._last_chunk}
+            seq = self._write({"seq": self._seq, "type": kind, **fields, "data": payload})
+            self._maybe_sync()
+            return seq
+
+    # -- documents ----------------------------------------------------------------------------
+
+    def chunk(self, chunk: SampleChunk) -> int:
+        """Append a chunk of samples (bit for bit); returns its seq."""
+        cols = _chunk_columns(chunk)
+        with self._writing("chunk"):
+            n = len(cols[0][1])
+            layout = tuple(c for c, _ in cols)
+            dseq = self._layouts.get(layout)
+            if dseq is None:
+                dseq = self._write({"seq": self._seq, "type": "descriptor",
+                                    "columns": [c.to_doc() for c in layout]})
+                self._layouts[layout] = dseq
+            seq = self._seq
+            blocks: list = []
+            crc = 0
+            for col, a in cols:
+                b = a.reshape(-1).view(np.uint8)
+                pad = col.block_bytes(n) - b.nbytes
+                blocks.append(b)
+                crc = zlib.crc32(b, crc)
+                if pad:
+                    blocks.append(bytes(pad))
+                    crc = zlib.crc32(bytes(pad), crc)
+            payload = _payload_bytes(layout, n)
+            fh = self._samples
+            fh.write(RECORD_HEADER.pack(RECORD_MAGIC, crc, seq, dseq, n, payload))
+            for b in blocks:
+                fh.write(b)
+            fh.flush()
+            offset = self._samples_end
+            length = RECORD_HEADER.size + payload
+            self._samples_end += length
+            t = cols[0][1]
+            self._write({"seq": seq, "type": "chunk", "descriptor": dseq, "offset": offset, "length": length,
+                         "n": n, "t_first": t[0].item() if n else None, "t_last": t[-1].item() if n else None,
+                         "crc32": crc})
+            self._last_chunk = seq
+            self._maybe_sync()
+            return seq
+
+    def event(self, data: Mapping) -> int:
+        """An engine event (any JSON-able dict)."""
+        return self._doc("event", data)
+
+    def action(self, data: Mapping) -> int:
+        """An operator action, recorded after the last chunk so replay interleaves it exactly."""
+        return self._doc("action", data)
+
+    def step(self, data: Mapping) -> int:
+        """A completed step: its averages and metadata."""
+        return self._doc("step", data)
+
+    def checkpoint(self, data: Mapping) -> int:
+        """State the runner needs to resume from here (e.g. the simulator's RNG state)."""
+        return self._doc("checkpoint", data)
+
+    def stop(self, reason: str, data: Mapping | None = None) -> int:
+        """End the run (completed, aborted, ...); synced to disk at once."""
+        if not isinstance(reason, str) or not reason:
+            raise ValueError(f"stop reason: expected a non-empty string, got {reason!r}")
+        with self._lock:
+            seq = self._doc("stop", data, reason=reason)
+            self._active = False
+            self.sync()
+            return seq
+
+    def resume(self, data: Mapping | None = None) -> int:
+        """Start a new run continuing this session (after ``append_to``, or after ``stop``)."""
+        payload = _data({} if data is None else data, "resume")
+        with self._writing("resume"):
+            seq = self._write({"seq": self._seq, "type": "resume", "after_chunk": self._last_chunk,
+                               "repaired": list(self.repaired), "data": payload})
+            self.repaired = []
+            self._active = True
+            self.sync()
+            return seq
+
+    def write_raw(self, name: str, t: float, data: bytes) -> int:
+        """Raw bytes from a live device with their host arrival time, into ``raw-<name>.bin``.
+
+        Fits a transport tap: ``functools.partial(writer.write_raw, "imu")``.
+        """
+        if not isinstance(name, str) or not _NAME.fullmatch(name):
+            raise ValueError(f"raw stream name: expected letters, digits, '_', '.', '-' (at most 64), got {name!r}")
+        t = to_plain(t, "t")
+        if isinstance(t, bool) or not isinstance(t, (int, float)):
+            raise TypeError(f"raw t: expected a number, got {t!r}")
+        view = memoryview(data).cast("B")
+        with self._writing("raw"):
+            fh = self._raw.get(name)
+            if fh is None:
+                fh = self._raw[name] = open(raw_path(self.directory, name), "ab")  # noqa: SIM115
+            offset = self._raw_ends.get(name, 0)
+            fh.write(view)
+            fh.flush()
+            self._raw_ends[name] = offset + view.nbytes
+            seq = self._write({"seq": self._seq, "type": "raw", "name": name, "t": t, "offset": offset,
+                               "length": view.nbytes, "crc32": zlib.crc32(view)})
+            self._maybe_sync()
+            return seq
+
+    def write_parameters(self, pf, filename: str = PARAMETERS) -> int:
+        """Save a ParameterFile into the session (atomically) and note it with its SHA-256."""
+        from fieldcal.paramfile import save
+
+        if not isinstance(filename, str) or not _NAME.fullmatch(filename) or filename in (LOG, SAMPLES) \
+                or filename.startswith(RAW_PREFIX):
+            raise ValueError(f"parameter file name: expected a plain file name, got {filename!r}")
+        with self._lock:
+            self._require("parameters")
+            path = save(pf, self.directory / filename)  # atomic: a failure leaves the log as it was
+            sha = hashlib.sha256(path.read_bytes()).hexdigest()
+            with self._writing("parameters"):
+                seq = self._write({"seq": self._seq, "type": "parameters", "file": filename, "sha256": sha})
+                self._maybe_sync()
+                return seq
+
+    # -- durability ---------------------------------------------------------------------------
+
+    def _maybe_sync(self) -> None:
+        if self._clock() - self._last_sync >= self.fsync_interval_s:
+            self.sync()
+
+    def sync(self) -> None:
+        """fsync the data files, then the log (also done every ``fsync_interval_s`` and on stop,
+        resume and close; a runner that may go quiet for long can call it on its own tick)."""
+        if self._closed:
+            return
+        with self._writing("sync"):
+            for fh in (self._samples, *self._raw.values(), self._log):
+                fh.flush()
+                os.fsync(fh.fileno())
+            self._last_sync = self._clock()
+
+    def close(self) -> None:
+        """Sync and close. The run stays unstopped unless ``stop`` was called (resumable)."""
+        with self._lock:
+            if self._closed:
+                return
+            try:
+                if not self._failed:
+                    self.sync()
+            finally:
+                self._closed = True
+                for fh in (self._samples, *self._raw.values(), self._log):
+                    fh.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _check_interval(seconds) -> None:
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds >= 0:
+        raise ValueError(f"fsync_interval_s: expected a number >= 0, got {seconds!r}")
+
+
+def _truncate(path: Path, size: int) -> None:
+    if _file_size(path) > size:
+        with open(path, "r+b") as fh:
+            fh.truncate(size)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+
+def _fsync_directory(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+
+
+class SessionReader:
+    """A snapshot of a session's consistent prefix, taken when constructed.
+
+    Safe on a session that is being written or whose writer was killed: a torn tail is ignored
+    (listed in ``torn``). Chunks are verified against their log entries as they are read.
+    """
+
+    def __init__(self, directory: str | os.PathLike) -> None:
+        self._scan = _scan(directory, "ignored")
+        self.directory = self._scan.directory
+        self.torn: list[str] = list(self._scan.beyond)
+        self.stopped, self.stop_reason = _run_state(self._scan.docs)
+
+    @property
+    def start_document(self) -> dict:
+        return self._scan.docs[0]
+
+    @property
+    def start(self) -> dict:
+        """The runner's start metadata."""
+        return self._scan.docs[0]["metadata"]
+
+    def documents(self, *types: str) -> Iterator[dict]:
+        """All documents in order (or only those of ``types``). Do not mutate them."""
+        for t in types:
+            if t not in DOC_TYPES:
+                raise ValueError(f"unknown document type {t!r} (known: {', '.join(DOC_TYPES)})")
+        for doc in self._scan.docs:
+            if not types or doc["type"] in types:
+                yield doc
+
+    def _data_of(self, kind: str) -> list[dict]:
+        return [doc["data"] for doc in self.documents(kind)]
+
+    def events(self) -> list[dict]:
+        return self._data_of("event")
+
+    def actions(self) -> list[dict]:
+        return self._data_of("action")
+
+    def steps(self) -> list[dict]:
+        return self._data_of("step")
+
+    def last_checkpoint(self) -> dict | None:
+        """The data of the last checkpoint (its document, with after_chunk, via documents())."""
+        found = self._data_of("checkpoint")
+        return found[-1] if found else None
+
+    @property
+    def n_chunks(self) -> int:
+        return sum(1 for _ in self.documents("chunk"))
+
+    @property
+    def n_samples(self) -> int:
+        return sum(doc["n"] for doc in self.documents("chunk"))
+
+    def chunks(self) -> Iterator[SampleChunk]:
+        """The sample chunks in order, each verified against its log entry."""
+        for _, chunk in self.replay_items(("chunk",)):
+            yield chunk
+
+    def replay_items(self, types: Iterable[str] = ("chunk", "action")) -> Iterator[tuple[str, Any]]:
+        """(type, item) in recorded order: a SampleChunk for "chunk", the data dict otherwise.
+
+        The default, chunks and actions, is what re-feeding a fresh engine needs to reproduce the
+        run; add "resume" or "checkpoint" to see where runs were continued.
+        """
+        types = tuple(types)
+        for t in types:
+            if t not in DOC_TYPES:
+                raise ValueError(f"unknown document type {t!r} (known: {', '.join(DOC_TYPES)})")
+        path = self.directory / SAMPLES
+        fh = open(path, "rb") if "chunk" in types else None  # noqa: SIM115 -- closed in finally
+        try:
+            for doc in self._scan.docs:
+                kind = doc["type"]
+                if kind not in types:
+                    continue
+                if kind == "chunk":
+                    yield kind, _read_record(fh, doc, self._scan.descriptors[doc["descriptor"]], path, doc["seq"] + 1)
+                else:
+                    yield kind, doc.get("data", doc)
+        finally:
+            if fh is not None:
+                fh.close()
+
+    @property
+    def raw_names(self) -> list[str]:
+        return sorted(self._scan.raw_ends)
+
+    def raw(self, name: str) -> Iterator[tuple[float, bytes]]:
+        """(host arrival time, bytes) of each logged read of raw stream ``name``, verified."""
+        docs = [doc for doc in self.documents("raw") if doc["name"] == name]
+        if not docs:
+            return
+        path = raw_path(self.directory, name)
+        with open(path, "rb") as fh:
+            for doc in docs:
+                fh.seek(doc["offset"])
+                data = fh.read(doc["length"])
+                if len(data) != doc["length"] or zlib.crc32(data) != doc["crc32"]:
+                    raise SessionError(f"{path}: read at byte {doc['offset']} (log line {doc['seq'] + 1}): "
+                                       "checksum mismatch (corrupt data)", str(path), doc["seq"] + 1)
+                yield doc["t"], data
+
+    @property
+    def parameters_path(self) -> Path | None:
+        """The parameter file last noted in the log, if it is there."""
+        docs = list(self.documents("parameters"))
+        if not docs:
+            return None
+        path = self.directory / docs[-1]["file"]
+        return path if path.is_file() else None
+
+    @property
+    def parameters_sha256(self) -> str | None:
+        docs = list(self.documents("parameters"))
+        return docs[-1]["sha256"] if docs else None

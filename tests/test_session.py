@@ -1,0 +1,752 @@
+"""The on-disk session: exact round trips, torn tails, SIGKILL, determinism, one-line errors."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.chunk import SampleChunk
+from fieldcal import session as session_module
+from fieldcal.earth import Station
+from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs, load
+from fieldcal.session import LOG, SAMPLES, SessionError, SessionReader, SessionStateError, SessionWriter, to_plain
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Shared by the tests and the SIGKILL child process: chunk i is a function of (seed, i) only.
+CHUNK_LIB = '''
+import numpy as np
+from drivers.chunk import SampleChunk
+
+def make_chunk(seed, i, n=250):
+    rng = np.random.default_rng([seed, i])
+    t = (i * n + np.arange(n)) / 250.0
+    triads = {name: rng.standard_normal((n, 3)) for name in ("accelerometer", "gyroscope", "inclinometer")}
+    triads["gyroscope"][rng.integers(n), rng.integers(3)] = np.nan
+    return SampleChunk(t=t, triads=triads, temperature=20.0 + rng.standard_normal(n))
+'''
+_ns: dict = {}
+exec(CHUNK_LIB, _ns)  # noqa: S102 -- the same source runs in the SIGKILL child
+make_chunk = _ns["make_chunk"]
+
+
+# --------------------------------------------------------------------------------------------
+# Helpers
+
+
+def _bits(a: np.ndarray) -> tuple[str, tuple, bytes]:
+    a = np.asarray(a)
+    le = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+    return np.dtype(le.dtype).str, le.shape, le.tobytes()
+
+
+def assert_identical(got: SampleChunk, want: SampleChunk) -> None:
+    assert _bits(got.t) == _bits(want.t)
+    assert list(got.triads) == list(want.triads)
+    for name in want.triads:
+        assert _bits(got.triads[name]) == _bits(want.triads[name]), name
+    assert (got.temperature is None) == (want.temperature is None)
+    if want.temperature is not None:
+        assert _bits(got.temperature) == _bits(want.temperature)
+    assert list(got.extras) == list(want.extras)
+    for name in want.extras:
+        assert _bits(got.extras[name]) == _bits(want.extras[name]), name
+
+
+def assert_all_identical(got, want) -> None:
+    got, want = list(got), list(want)
+    assert len(got) == len(want)
+    for g, w in zip(got, want):
+        assert_identical(g, w)
+
+
+def small_chunk(i: int, n: int = 4) -> SampleChunk:
+    rng = np.random.default_rng(i)
+    return SampleChunk(t=i * 10.0 + np.arange(n) * 0.004, triads={"accelerometer": rng.standard_normal((n, 3))})
+
+
+def write_basic(directory: Path, n_chunks: int = 4, last: str = "chunk") -> list:
+    """Small chunks with actions/events after the even ones; the last line is a chunk or an event."""
+    w = SessionWriter.create(directory, {"procedure": "field-18", "seed": 3})
+    chunks = []
+    for i in range(n_chunks):
+        c = small_chunk(i)
+        w.chunk(c)
+        chunks.append(c)
+        if i % 2 == 0:
+            w.action({"kind": "confirm", "i": i})
+            w.event({"kind": "still", "i": i})
+    if last == "event":
+        w.event({"kind": "final"})
+    w.close()
+    return chunks
+
+
+def lines_of(path: Path) -> list[bytes]:
+    return path.read_bytes().splitlines(keepends=True)
+
+
+@pytest.fixture
+def no_fsync(monkeypatch):
+    """For tests of logic that open and close hundreds of sessions: durability is tested apart."""
+    monkeypatch.setattr(os, "fsync", lambda fd: None)
+
+
+def one_line(exc: BaseException) -> str:
+    text = str(exc)
+    assert "\n" not in text and text
+    return text
+
+
+def continue_session(directory: Path, extra: SampleChunk) -> SessionWriter:
+    w = SessionWriter.append_to(directory)
+    w.resume({"by": "test"})
+    w.chunk(extra)
+    w.stop("completed")
+    w.close()
+    return w
+
+
+# --------------------------------------------------------------------------------------------
+# Round trips
+
+
+def test_chunks_round_trip_bit_for_bit(tmp_path):
+    rng = np.random.default_rng(1)
+    n = 7
+    special = np.array([np.nan, -np.nan, np.inf, -np.inf, -0.0, 5e-324, 1.7976931348623157e308])
+    payload_nan = np.frombuffer(np.array([0x7FF0_0000_DEAD_BEEF], dtype="<u8").tobytes(), dtype="<f8")
+    acc = rng.standard_normal((n, 3))
+    acc[:, 0] = special
+    acc[0, 1] = payload_nan[0]
+    chunks = [
+        SampleChunk(t=np.arange(n) * 0.004, triads={"accelerometer": acc, "gyroscope": rng.standard_normal((n, 3))},
+                    temperature=np.full(n, np.nan)),
+        SampleChunk(t=np.arange(n) * 0.004 + 1, triads={"accelerometer": rng.standard_normal((n, 3)),
+                                                        "gyroscope": rng.standard_normal((n, 3))},
+                    temperature=rng.standard_normal(n)),
+        # other layouts: no temperature, integer extras, float32 and big-endian triads, n == 0
+        SampleChunk(t=np.arange(3.0), triads={"magnetometer": rng.standard_normal((3, 3)).astype(np.float32)},
+                    extras={"counter": np.array([1, 2, 2**40], dtype=np.int64),
+                            "flags": np.array([0, 255, 7], dtype=np.uint8)}),
+        SampleChunk(t=np.arange(2.0), triads={"accelerometer": rng.standard_normal((2, 3)).astype(">f8")}),
+        SampleChunk(t=np.zeros(0), triads={"accelerometer": np.zeros((0, 3))}),
+        SampleChunk(t=np.arange(n) * 0.004 + 2, triads={"accelerometer": rng.standard_normal((n, 3)),
+                                                        "gyroscope": rng.standard_normal((n, 3))},
+                    temperature=rng.standard_normal(n)),
+    ]
+    with SessionWriter.create(tmp_path / "s", {"device": "IMU-7"}) as w:
+        seqs = [w.chunk(c) for c in chunks]
+        w.stop("completed")
+    r = SessionReader(tmp_path / "s")
+    assert_all_identical(r.chunks(), chunks)
+    got = list(r.chunks())
+    assert got[0].triads["accelerometer"][0, 1].view("<u8") == 0x7FF0_0000_DEAD_BEEF
+    assert np.signbit(got[0].triads["accelerometer"][4, 0])
+    assert got[2].extras["counter"].dtype == np.int64 and got[3].triads["accelerometer"].dtype == np.float64
+    got[0].t[0] = 99.0  # chunks read back are ordinary writable arrays
+    # one descriptor per distinct layout, written just before its first chunk
+    docs = list(r.documents())
+    assert [d["type"] for d in docs] == ["start", "descriptor", "chunk", "chunk", "descriptor", "chunk",
+                                         "descriptor", "chunk", "chunk", "chunk", "stop"]
+    assert docs[9]["descriptor"] == docs[1]["seq"]
+    assert seqs == [d["seq"] for d in docs if d["type"] == "chunk"]
+    assert [d["seq"] for d in docs] == list(range(len(docs)))
+    cols = docs[4]["columns"]
+    assert cols == [{"name": "t", "role": "time", "dtype": "<f8"},
+                    {"name": "magnetometer", "role": "triad", "dtype": "<f4"},
+                    {"name": "counter", "role": "extra", "dtype": "<i8"},
+                    {"name": "flags", "role": "extra", "dtype": "|u1"}]
+    chunk_doc = docs[2]
+    assert chunk_doc["t_first"] == 0.0 and chunk_doc["t_last"] == (n - 1) * 0.004 and chunk_doc["n"] == n
+    assert docs[8]["t_first"] is None and docs[8]["n"] == 0
+    assert r.stopped and r.stop_reason == "completed"
+    assert r.n_chunks == len(chunks) and r.n_samples == sum(len(c) for c in chunks)
+    assert r.torn == []
+
+
+def test_documents_actions_and_their_interleaving(tmp_path):
+    w = SessionWriter.create(tmp_path / "s", {"procedure": "field-18", "procedure_yaml": "name: x\nsteps: []\n",
+                                              "seed": 42, "simulation_truth": {"K": np.eye(3)}})
+    expected = []
+    for i in range(6):
+        c = small_chunk(i)
+        w.chunk(c)
+        expected.append(("chunk", c))
+        if i in (0, 3):
+            a = {"kind": "start_rotation", "rate": np.float64(0.1), "dirs": (1, -1), "i": np.int32(i)}
+            w.action(a)
+            expected.append(("action", {"kind": "start_rotation", "rate": 0.1, "dirs": [1, -1], "i": i}))
+        if i == 3:
+            w.action({"kind": "skip"})
+            expected.append(("action", {"kind": "skip"}))
+        w.event({"kind": "progress", "i": i, "fraction": i / 6})
+    w.step({"position": 7, "mean": np.array([0.1, -0.0, 9.81]), "n": 250, "bad": float("nan")})
+    w.checkpoint({"rng": np.random.default_rng(5).bit_generator.state})
+    w.checkpoint({"rng": np.random.default_rng(6).bit_generator.state, "step": 8})
+    w.stop("aborted", {"why": "operator"})
+    w.close()
+
+    r = SessionReader(tmp_path / "s")
+    assert r.start["seed"] == 42 and r.start["simulation_truth"] == {"K": np.eye(3).tolist()}
+    assert r.start["procedure_yaml"] == "name: x\nsteps: []\n"
+    got = list(r.replay_items())
+    assert [k for k, _ in got] == [k for k, _ in expected]
+    for (kind, item), (_, want) in zip(got, expected):
+        if kind == "chunk":
+            assert_identical(item, want)
+        else:
+            assert item == want
+    assert [e["i"] for e in r.events()] == list(range(6))
+    [step] = r.steps()
+    assert step["mean"] == [0.1, -0.0, 9.81] and np.signbit(step["mean"][1]) and np.isnan(step["bad"])
+    assert r.last_checkpoint() == {"rng": np.random.default_rng(6).bit_generator.state, "step": 8}
+    rng = np.random.default_rng()
+    rng.bit_generator.state = r.last_checkpoint()["rng"]  # a checkpointed RNG state restores exactly
+    assert rng.random() == np.random.default_rng(6).random()
+    assert r.stopped and r.stop_reason == "aborted"
+    # actions record the chunk they came after
+    actions = list(r.documents("action"))
+    chunk_seqs = [d["seq"] for d in r.documents("chunk")]
+    assert [a["after_chunk"] for a in actions] == [chunk_seqs[0], chunk_seqs[3], chunk_seqs[3]]
+    # with markers: resume/checkpoint documents can be included in the stream
+    assert [k for k, _ in r.replay_items(("checkpoint",))] == ["checkpoint", "checkpoint"]
+
+
+def test_json_values_become_plain_and_unsupported_ones_are_refused(tmp_path):
+    value = {"a": (1, 2.5, np.float32(0.1)), "b": np.arange(3, dtype=np.int16), "c": np.bool_(True),
+             "big": 2**100, "text": "µ-rate °/h\n", "inf": float("-inf"), "nested": [{"x": None}]}
+    plain = to_plain(value)
+    assert plain == {"a": [1, 2.5, float(np.float32(0.1))], "b": [0, 1, 2], "c": True, "big": 2**100,
+                     "text": "µ-rate °/h\n", "inf": float("-inf"), "nested": [{"x": None}]}
+    w = SessionWriter.create(tmp_path / "s", {})
+    w.event(value)
+    for bad, where in (({1: "x"}, "keys must be strings"), ({"p": Path("x")}, "event.p"),
+                       ({"z": 1j}, "event.z")):
+        with pytest.raises(TypeError, match=where):
+            w.event(bad)
+    with pytest.raises(TypeError, match="expected a dict"):
+        w.step([1, 2])
+    w.close()
+    log = (tmp_path / "s" / LOG).read_bytes()
+    assert log.isascii()
+    [event] = SessionReader(tmp_path / "s").events()
+    assert event == plain  # the refused calls wrote nothing
+
+
+def test_raw_bytes_with_arrival_times_from_another_thread(tmp_path):
+    w = SessionWriter.create(tmp_path / "s", {})
+    reads = {"imu": [(0.001 * i, bytes([i % 256]) * (i % 7 + 1)) for i in range(300)],
+             "table": [(0.01 * i, f"OK {i}\r\n".encode()) for i in range(100)]}
+
+    def tap(name):
+        for t, data in reads[name]:
+            w.write_raw(name, t, data)
+
+    threads = [threading.Thread(target=tap, args=(name,)) for name in reads]
+    for th in threads:
+        th.start()
+    chunks = []
+    for i in range(30):
+        chunks.append(small_chunk(i))
+        w.chunk(chunks[-1])
+    for th in threads:
+        th.join()
+    w.stop("completed")
+    w.close()
+    r = SessionReader(tmp_path / "s")
+    assert r.raw_names == ["imu", "table"]
+    for name, want in reads.items():
+        assert list(r.raw(name)) == want
+        assert (tmp_path / "s" / f"raw-{name}.bin").read_bytes() == b"".join(d for _, d in want)
+    assert_all_identical(r.chunks(), chunks)
+    with pytest.raises(ValueError, match="raw stream name"):
+        SessionWriter.create(tmp_path / "t", {}).write_raw("../x", 0.0, b"")
+
+
+def _parameter_file() -> ParameterFile:
+    triad = TriadParameters(name="accelerometer", kind="specific_force", output_unit="m/s^2",
+                            bias=np.array([0.01, -0.02, 0.03]), K=np.eye(3) * 1.001, sigma=np.full(9, 1e-4),
+                            residual_rms=1e-3, method="powell")
+    return ParameterFile.build([triad], station=Station(latitude_deg=48.15, height_m=520.0),
+                               procedure="field-18", method="powell", input_sha256=hash_inputs(np.zeros(3)))
+
+
+def test_parameters_are_saved_into_the_session_and_noted(tmp_path):
+    pf = _parameter_file()
+    w = SessionWriter.create(tmp_path / "s", {})
+    w.chunk(small_chunk(0))
+    w.write_parameters(pf)
+    w.stop("completed")
+    w.write_parameters(pf)  # e.g. solved again afterwards: allowed after stop
+    w.close()
+    r = SessionReader(tmp_path / "s")
+    assert r.parameters_path == tmp_path / "s" / "parameters.yaml"
+    loaded = load(r.parameters_path)
+    assert np.array_equal(loaded.triad("accelerometer").K, pf.triad("accelerometer").K)
+    import hashlib
+    assert r.parameters_sha256 == hashlib.sha256(r.parameters_path.read_bytes()).hexdigest()
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["log.jsonl", "parameters.yaml", "samples.bin"]
+
+
+# --------------------------------------------------------------------------------------------
+# Torn tails and resume
+
+
+def _cut_copy(src: Path, dst: Path, log_size: int | None = None, samples_size: int | None = None) -> Path:
+    dst.mkdir()
+    for p in src.iterdir():
+        data = p.read_bytes()
+        if p.name == LOG and log_size is not None:
+            data = data[:log_size]
+        if p.name == SAMPLES and samples_size is not None:
+            data = data[:samples_size]
+        (dst / p.name).write_bytes(data)
+    return dst
+
+
+def test_a_torn_last_log_line_at_every_byte(tmp_path, no_fsync):
+    base = tmp_path / "base"
+    chunks = write_basic(base)
+    full_docs = list(SessionReader(base).documents())
+    lines = lines_of(base / LOG)
+    assert full_docs[-1]["type"] == "chunk"
+    start_of_last = sum(len(x) for x in lines[:-1])
+    extra = small_chunk(99)
+    for cut in range(start_of_last, start_of_last + len(lines[-1])):
+        d = _cut_copy(base, tmp_path / f"c{cut}", log_size=cut)
+        r = SessionReader(d)
+        assert list(r.documents()) == full_docs[:-1]
+        assert_all_identical(r.chunks(), chunks[:-1])
+        assert not r.stopped
+        # the last chunk's samples are orphans now: a torn line (if any) and those bytes are reported
+        assert any(SAMPLES in t for t in r.torn)
+        assert (cut > start_of_last) == any("torn last line" in t for t in r.torn)
+        w = continue_session(d, extra)
+        r2 = SessionReader(d)
+        docs = list(r2.documents())
+        assert docs[:len(full_docs) - 1] == full_docs[:-1]
+        assert [x["type"] for x in docs[len(full_docs) - 1:]] == ["resume", "chunk", "stop"]
+        assert docs[len(full_docs) - 1]["repaired"] and not w.repaired
+        assert_all_identical(r2.chunks(), chunks[:-1] + [extra])
+        assert r2.torn == [] and r2.stopped
+
+
+def test_a_torn_samples_record_at_every_byte(tmp_path, no_fsync):
+    base = tmp_path / "base"
+    chunks = write_basic(base, last="event")
+    full_docs = list(SessionReader(base).documents())
+    last_chunk = [i for i, doc in enumerate(full_docs) if doc["type"] == "chunk"][-1]
+    record = full_docs[last_chunk]
+    extra = small_chunk(99)
+    for cut in range(record["offset"], record["offset"] + record["length"]):
+        d = _cut_copy(base, tmp_path / f"c{cut}", samples_size=cut)
+        r = SessionReader(d)
+        # the chunk whose bytes are missing and everything logged after it are beyond the prefix
+        assert list(r.documents()) == full_docs[:last_chunk]
+        assert_all_identical(r.chunks(), chunks[:-1])
+        assert any("from line" in t for t in r.torn)
+        continue_session(d, extra)
+        r2 = SessionReader(d)
+        docs = list(r2.documents())
+        assert docs[:last_chunk] == full_docs[:last_chunk]
+        assert [x["type"] for x in docs[last_chunk:]] == ["resume", "chunk", "stop"]
+        assert (d / SAMPLES).stat().st_size == record["offset"] + record["length"]  # the new one, same size
+        assert_all_identical(r2.chunks(), chunks[:-1] + [extra])
+
+
+def test_random_truncations_give_a_consistent_prefix_and_resume_cleanly(tmp_path, no_fsync):
+    base = tmp_path / "base"
+    w = SessionWriter.create(base, {"seed": 1})
+    chunks = []
+    for i in range(40):
+        chunks.append(small_chunk(i, n=1 + i % 5))
+        w.chunk(chunks[-1])
+        w.write_raw("imu", float(i), bytes(range(i % 9)))
+        if i % 3 == 0:
+            w.action({"i": i})
+        if i % 10 == 9:
+            w.step({"i": i})
+    w.stop("completed")
+    w.close()
+    full_docs = list(SessionReader(base).documents())
+    log_size = (base / LOG).stat().st_size
+    samples_size = (base / SAMPLES).stat().st_size
+    raw_size = (base / "raw-imu.bin").stat().st_size
+    first_line = len(lines_of(base / LOG)[0])
+    rng = np.random.default_rng(2024)
+    for trial in range(60):
+        d = _cut_copy(base, tmp_path / f"t{trial}", log_size=int(rng.integers(first_line, log_size + 1)),
+                      samples_size=int(rng.integers(0, samples_size + 1)))
+        if trial % 2:
+            (d / "raw-imu.bin").write_bytes((base / "raw-imu.bin").read_bytes()[:int(rng.integers(0, raw_size + 1))])
+        r = SessionReader(d)
+        docs = list(r.documents())
+        k = len(docs)
+        assert docs == full_docs[:k]
+        n_chunks = sum(doc["type"] == "chunk" for doc in docs)
+        assert_all_identical(r.chunks(), chunks[:n_chunks])
+        raws = list(r.raw("imu"))
+        assert raws == [(doc["t"], bytes(range(int(doc["t"]) % 9))) for doc in docs if doc["type"] == "raw"]
+        extra = small_chunk(100 + trial)
+        continue_session(d, extra)
+        r2 = SessionReader(d)
+        docs2 = list(r2.documents())
+        assert docs2[:k] == full_docs[:k]
+        assert [x["type"] for x in docs2[k:]] == ["resume", "chunk", "stop"]
+        assert_all_identical(r2.chunks(), chunks[:n_chunks] + [extra])
+        assert r2.torn == []
+
+
+def test_append_to_reports_and_cuts_orphan_bytes(tmp_path):
+    d = tmp_path / "s"
+    write_basic(d)
+    with open(d / SAMPLES, "ab") as fh:
+        fh.write(b"FCS1" + b"\x00" * 21)
+    with open(d / LOG, "ab") as fh:
+        fh.write(b'{"seq":99,"ty')
+    r = SessionReader(d)
+    assert len(r.torn) == 2
+    assert "log.jsonl: ignored a torn last line (13 bytes at byte" in r.torn[0]
+    assert "samples.bin: ignored 25 bytes after the last logged chunk" in r.torn[1]
+    w = SessionWriter.append_to(d)
+    assert [x.replace("cut", "ignored") for x in w.repaired] == r.torn
+    w.resume({})
+    w.close()
+    resume = list(SessionReader(d).documents("resume"))[-1]
+    assert resume["repaired"] == [x.replace("ignored", "cut") for x in r.torn]
+
+
+def test_resume_after_a_completed_stop_and_run_state_rules(tmp_path):
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w.chunk(small_chunk(0))
+    w.stop("aborted")
+    with pytest.raises(SessionStateError, match="resume"):
+        w.chunk(small_chunk(1))
+    with pytest.raises(SessionStateError):
+        w.stop("again")
+    w.resume({"operator": "continue"})
+    with pytest.raises(SessionStateError, match="still active"):
+        w.resume({})
+    w.chunk(small_chunk(1))
+    w.close()
+    with pytest.raises(SessionStateError, match="closed"):
+        w.event({})
+    r = SessionReader(d)
+    assert not r.stopped and r.stop_reason is None  # the last run was not stopped: resumable
+    w = SessionWriter.append_to(d)
+    assert not w.active and w.last_chunk == list(r.documents("chunk"))[-1]["seq"]
+    with pytest.raises(SessionStateError, match="resume"):
+        w.event({"x": 1})
+    w.write_raw("imu", 1.0, b"ok")  # raw capture and parameters need no active run
+    w.resume({})
+    w.event({"x": 1})
+    w.stop("completed")
+    w.close()
+    r = SessionReader(d)
+    assert [doc["type"] for doc in r.documents()] == ["start", "descriptor", "chunk", "stop", "resume", "chunk",
+                                                      "raw", "resume", "event", "stop"]
+    assert r.stopped and r.stop_reason == "completed"
+
+
+# --------------------------------------------------------------------------------------------
+# SIGKILL
+
+
+CHILD = CHUNK_LIB + '''
+import sys, time
+from fieldcal.session import SessionWriter
+w = SessionWriter.create(sys.argv[1], {"seed": 11}, fsync_interval_s=0.2)
+i = 0
+while True:
+    w.chunk(make_chunk(11, i))
+    if i % 5 == 4:
+        w.action({"i": i})
+    print(i, flush=True)
+    i += 1
+    time.sleep(0.001)
+'''
+
+
+def test_sigkill_loses_at_most_the_write_in_progress(tmp_path):
+    d = tmp_path / "s"
+    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(d)], stdout=subprocess.PIPE, cwd=ROOT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        printed = []
+        started = None
+        for line in proc.stdout:
+            printed.append(int(line))
+            started = started or time.monotonic()
+            if time.monotonic() - started > 1.0:
+                break
+        os.kill(proc.pid, signal.SIGKILL)
+        rest, _ = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    printed += [int(x) for x in rest.split()]
+    assert proc.returncode == -signal.SIGKILL
+    assert len(printed) >= 50, "the child wrote too little to test anything"
+    r = SessionReader(d)
+    got = list(r.chunks())
+    # every chunk whose write returned was flushed to the OS: nothing printed is lost
+    assert len(printed) <= len(got) <= len(printed) + 1
+    assert_all_identical(got, [make_chunk(11, i) for i in range(len(got))])
+    assert [a["i"] for a in r.actions()] == [i for i in range(len(got)) if i % 5 == 4][:len(r.actions())]
+    assert not r.stopped
+    # and the session continues
+    extra = make_chunk(11, 10**6)
+    continue_session(d, extra)
+    assert_all_identical(SessionReader(d).chunks(), got + [extra])
+
+
+# --------------------------------------------------------------------------------------------
+# Durability cadence and determinism
+
+
+def test_fsync_at_most_once_per_interval_and_always_on_stop_and_close(tmp_path, monkeypatch):
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(session_module.os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+    now = [100.0]
+    w = SessionWriter.create(tmp_path / "s", {}, fsync_interval_s=1.0, clock=lambda: now[0])
+    files = {w._log.fileno(), w._samples.fileno()}
+    synced.clear()
+    for t in (100.1, 100.5, 100.99):
+        now[0] = t
+        w.chunk(small_chunk(0))
+        w.event({})
+    assert synced == []
+    now[0] = 101.0
+    w.chunk(small_chunk(1))
+    assert set(synced) == files and len(synced) == 2
+    assert synced[-1] == w._log.fileno()  # data first, then the log that indexes it
+    synced.clear()
+    now[0] = 101.5
+    w.chunk(small_chunk(2))
+    assert synced == []
+    w.stop("completed")
+    assert len(synced) == 2
+    synced.clear()
+    w.close()
+    assert len(synced) == 2
+
+
+def _scripted_session(directory: Path) -> None:
+    w = SessionWriter.create(directory, {"software": "fieldcal 0.1.0", "seed": 5, "settings": {"rate_hz": 250.0}})
+    for i in range(6):
+        w.chunk(make_chunk(5, i, n=50))
+        w.write_raw("imu", i * 0.2, bytes(range(i, i + 10)))
+        if i == 2:
+            w.action({"kind": "confirm_position", "position": 3})
+        w.event({"kind": "progress", "t": i * 0.2})
+    w.step({"position": 3, "mean": np.array([0.1, 0.2, 9.8])})
+    w.checkpoint({"rng": np.random.default_rng(5).bit_generator.state})
+    w.write_parameters(_parameter_file())
+    w.stop("completed")
+    w.close()
+
+
+def test_the_same_calls_give_byte_identical_files(tmp_path):
+    _scripted_session(tmp_path / "a")
+    _scripted_session(tmp_path / "b")
+    names = sorted(p.name for p in (tmp_path / "a").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "b").iterdir())
+    assert names == ["log.jsonl", "parameters.yaml", "raw-imu.bin", "samples.bin"]
+    for name in names:
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+    first = json.loads(lines_of(tmp_path / "a" / LOG)[0])
+    assert list(first) == ["seq", "type", "schema", "metadata"]
+
+
+# --------------------------------------------------------------------------------------------
+# One-line errors
+
+
+def test_create_refuses_an_existing_non_empty_directory(tmp_path):
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "notes.txt").write_text("x")
+    with pytest.raises(SessionError) as exc:
+        SessionWriter.create(tmp_path / "s", {})
+    assert one_line(exc.value).startswith(f"{tmp_path / 's'}: already exists and is not empty")
+    (tmp_path / "empty").mkdir()
+    SessionWriter.create(tmp_path / "empty", {}).close()  # an empty directory is fine
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(SessionError, match="not a directory"):
+        SessionWriter.create(tmp_path / "file", {})
+
+
+def test_not_a_session_is_a_one_line_error(tmp_path):
+    (tmp_path / "plain").mkdir()
+    (tmp_path / "plain" / "x.txt").write_text("x")
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "emptylog").mkdir()
+    (tmp_path / "emptylog" / LOG).write_bytes(b"")
+    (tmp_path / "text").mkdir()
+    (tmp_path / "text" / LOG).write_bytes(b"hello world\n")
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / LOG).write_bytes(b'{"seq":0,"type":"start","schema":"other/9","metadata":{}}\n')
+    cases = {"missing": "no such session directory", "plain": "not a session directory (no log.jsonl)",
+             "file": "not a directory", "emptylog": "no complete start document",
+             "text": "line 1: not a session log", "other": "line 1: expected a start document of schema"}
+    for name, message in cases.items():
+        for opener in (SessionReader, SessionWriter.append_to):
+            with pytest.raises(SessionError) as exc:
+                opener(tmp_path / name)
+            assert message in one_line(exc.value), name
+            assert str(tmp_path / name) in str(exc.value)
+
+
+def test_a_missing_data_file_is_an_error_not_a_torn_tail(tmp_path):
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w.chunk(small_chunk(0))
+    w.write_raw("imu", 0.5, b"abc")
+    w.close()
+    (d / "raw-imu.bin").unlink()
+    with pytest.raises(SessionError, match=r"raw-imu.bin: missing, but log.jsonl line 4 refers to it"):
+        SessionWriter.append_to(d)
+    (d / SAMPLES).unlink()
+    for opener in (SessionReader, SessionWriter.append_to):
+        with pytest.raises(SessionError) as exc:
+            opener(d)
+        assert one_line(exc.value) == f"{d / SAMPLES}: missing, but log.jsonl line 3 refers to it"
+    assert len(lines_of(d / LOG)) == 4  # nothing was cut
+
+
+def test_garbage_in_the_middle_of_the_log_names_the_line(tmp_path):
+    base = tmp_path / "base"
+    write_basic(base)
+    lines = lines_of(base / LOG)
+
+    def broken(name, new_lines):
+        d = _cut_copy(base, tmp_path / name)
+        (d / LOG).write_bytes(b"".join(new_lines))
+        return d
+
+    cases = {
+        "garbage": (lines[:3] + [b"\x00\x00garbage\n"] + lines[4:], "log.jsonl: line 4: not a JSON document"),
+        "gap": (lines[:3] + lines[4:], "log.jsonl: line 4: expected seq 3, got 4"),
+        "last": (lines + [b"{not json}\n"], f"log.jsonl: line {len(lines) + 1}: not a JSON document"),
+        "type": (lines[:2] + [lines[2].replace(b'"type":"chunk"', b'"type":"blob"')] + lines[3:],
+                 "log.jsonl: line 3: unknown document type 'blob'"),
+        "offset": (lines[:2] + [lines[2].replace(b'"offset":0', b'"offset":8')] + lines[3:],
+                   "line 3: chunk at byte 8 of samples.bin, expected 0"),
+        "array": (lines[:3] + [b"[1, 2]\n"] + lines[4:], "line 4: expected a JSON object"),
+    }
+    for name, (new_lines, message) in cases.items():
+        d = broken(name, new_lines)
+        for opener in (SessionReader, SessionWriter.append_to):
+            with pytest.raises(SessionError) as exc:
+                opener(d)
+            assert message in one_line(exc.value), name
+            assert exc.value.line == int(message.split("line ")[1].split(":")[0])
+
+
+def test_corrupt_samples_are_detected_with_file_and_line(tmp_path):
+    base = tmp_path / "base"
+    chunks = write_basic(base)
+    docs = list(SessionReader(base).documents("chunk"))
+    d = _cut_copy(base, tmp_path / "flip")
+    data = bytearray((d / SAMPLES).read_bytes())
+    data[docs[2]["offset"] + 60] ^= 0x01
+    (d / SAMPLES).write_bytes(bytes(data))
+    r = SessionReader(d)
+    it = r.chunks()
+    assert_all_identical([next(it), next(it)], chunks[:2])
+    with pytest.raises(SessionError) as exc:
+        next(it)
+    text = one_line(exc.value)
+    assert f"samples.bin: chunk {docs[2]['seq']} at byte {docs[2]['offset']} (log line {docs[2]['seq'] + 1})" in text
+    assert "checksum mismatch" in text
+    # a damaged last record is not something to build on either
+    d = _cut_copy(base, tmp_path / "last")
+    data = bytearray((d / SAMPLES).read_bytes())
+    data[docs[-1]["offset"]] ^= 0xFF
+    (d / SAMPLES).write_bytes(bytes(data))
+    with pytest.raises(SessionError, match="bad record magic"):
+        SessionWriter.append_to(d)
+
+
+# --------------------------------------------------------------------------------------------
+# Speed
+
+
+def test_an_hour_at_250_hz_writes_and_reads_in_well_under_two_seconds(tmp_path):
+    n, per = 900_000, 1000
+    rng = np.random.default_rng(0)
+    t = np.arange(n) / 250.0
+    triads = {name: rng.standard_normal((n, 3)) for name in ("accelerometer", "gyroscope", "inclinometer")}
+    temperature = rng.standard_normal(n)
+    chunks = [SampleChunk(t=t[i:i + per], triads={k: v[i:i + per] for k, v in triads.items()},
+                          temperature=temperature[i:i + per]) for i in range(0, n, per)]
+    t0 = time.perf_counter()
+    with SessionWriter.create(tmp_path / "s", {}) as w:
+        for c in chunks:
+            w.chunk(c)
+        w.stop("completed")
+    t1 = time.perf_counter()
+    total = sum(len(c) for c in SessionReader(tmp_path / "s").chunks())
+    t2 = time.perf_counter()
+    assert total == n
+    assert t1 - t0 < 2.0 and t2 - t1 < 2.0, (t1 - t0, t2 - t1)
+
+
+def test_a_write_that_breaks_off_stops_the_writer_and_append_to_cuts_the_partial_record(tmp_path):
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    chunks = [small_chunk(0), small_chunk(1)]
+    for c in chunks:
+        w.chunk(c)
+    real = w._samples
+
+    class DiskFull:
+        def __init__(self):
+            self.calls = 0
+
+        def write(self, b):
+            self.calls += 1
+            if self.calls == 2:  # the header went out, the first column does not
+                raise OSError(28, "No space left on device")
+            return real.write(b)
+
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+    w._samples = DiskFull()
+    with pytest.raises(OSError, match="No space"):
+        w.chunk(small_chunk(2))
+    w._samples = real
+    with pytest.raises(SessionStateError) as exc:
+        w.event({"after": "failure"})
+    assert "an earlier write failed (" in one_line(exc.value) and "append_to" in str(exc.value)
+    w.close()
+    r = SessionReader(d)
+    assert_all_identical(r.chunks(), chunks)
+    assert any("samples.bin: ignored 40 bytes" in t for t in r.torn)
+    continue_session(d, small_chunk(3))
+    assert_all_identical(SessionReader(d).chunks(), chunks + [small_chunk(3)])
+
+
+def test_misuse_that_writes_nothing_does_not_break_the_writer(tmp_path):
+    w = SessionWriter.create(tmp_path / "s", {})
+    with pytest.raises(SessionStateError, match="still active"):
+        w.resume({})
+    with pytest.raises(AttributeError):
+        w.write_parameters(object())
+    with pytest.raises(TypeError, match="numeric"):
+        w.chunk(SampleChunk(t=np.array(["a"]), triads={}))
+    w.chunk(small_chunk(0))
+    w.close()
+    assert SessionReader(tmp_path / "s").n_chunks == 1
