@@ -169,6 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the operator first puts the unit in a wrong position at step N")
     run.add_argument("--skip", type=int, action="append", default=[], metavar="N",
                      help="the operator skips step N (repeatable)")
+    run.add_argument("--serial", action="store_true",
+                     help="reach the simulated device only through bytes on a pty (Xsens frames, "
+                     "ASCII table), as hardware would be; slower, and cannot be resumed")
     run.add_argument("--quiet", action="store_true", help="only the result, no progress lines")
     run.set_defaults(func=_lazy("cmd_run"))
 

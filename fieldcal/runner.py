@@ -114,6 +114,12 @@ class SimulatedBench:
         return self.sim.advance(self.chunk_n, self.attitude, math.radians(self.target_deg_s),
                                 math.radians(TABLE_ACCEL_DEG_S2))
 
+    def command_table(self, rate_deg_s: float) -> None:
+        self.target_deg_s = rate_deg_s
+
+    def close(self) -> None:
+        pass
+
     def move_to(self, nominal: np.ndarray) -> list:
         """Stop-and-carry: wait for the table to stop, then carry the unit to its new place."""
         chunks = []
@@ -161,8 +167,8 @@ class RunResult:
 
 def _solve(spec: RunSpec, engine: Engine) -> tuple[UnitSolution, ParameterFile | None]:
     windows, averages = engine.windows_and_averages()
-    unit = solve_unit(spec.procedure, windows, averages, models_from_truth(spec.device()),
-                      spec.station, spec.rate_hz, spec.method)
+    models = {n: m for n, m in models_from_truth(spec.device()).items() if n in averages}
+    unit = solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, spec.method)
     if not unit.solutions:
         return unit, None
     pf = ParameterFile.build(
@@ -184,7 +190,7 @@ def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: Sessio
             session.event(e.to_dict())
             report(e)
             if isinstance(e, ev.CommandTable):
-                bench.target_deg_s = e.rate_deg_s
+                bench.command_table(e.rate_deg_s)
             elif isinstance(e, ev.StepComplete):
                 session.step(engine.records[e.step])
                 session.checkpoint({"step": e.step, "bench": bench.get_state()})
@@ -222,11 +228,22 @@ def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: Sessio
             events = engine.feed(chunk)
 
 
-def run_headless(spec: RunSpec, out: Path, report=lambda e: None) -> RunResult:
-    session = SessionWriter.create(out, spec.to_metadata())
+def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool = False) -> RunResult:
+    """``serial``: reach the simulated device only through bytes on a pty, as hardware would be."""
+    metadata = spec.to_metadata()
+    metadata["device"]["link"] = "pty" if serial else "in-process"
+    session = SessionWriter.create(out, metadata)
     engine = Engine(spec.procedure, spec.engine_settings())
-    bench = SimulatedBench(spec)
-    return _finish(spec, engine, session, _drive(spec, engine, bench, session, engine.start(), report), out)
+    if serial:
+        from fieldcal.serialbench import SerialBench
+        bench = SerialBench(spec)
+    else:
+        bench = SimulatedBench(spec)
+    try:
+        completed = _drive(spec, engine, bench, session, engine.start(), report)
+    finally:
+        bench.close()
+    return _finish(spec, engine, session, completed, out)
 
 
 def resume_headless(directory: Path, report=lambda e: None) -> RunResult:
@@ -248,6 +265,8 @@ def resume_headless(directory: Path, report=lambda e: None) -> RunResult:
 
 def _finish(spec: RunSpec, engine: Engine, session: SessionWriter, completed: bool, out: Path) -> RunResult:
     truth = {n: params_from_k(t.K, t.bias) for n, t in spec.device().items()}
+    if engine.records:
+        truth = {n: v for n, v in truth.items() if n in engine.windows_and_averages()[1]}
     if not completed:
         session.stop("aborted")
         session.close()

@@ -61,7 +61,7 @@ def cmd_run(args) -> int:
     directory = Path(args.out) / f"{procedure.name}-seed{seed}-{stamp}"
     print(f"headless {procedure.name} against {config.device.name}, seed {seed}; session {directory}",
           flush=True)
-    result = run_headless(spec, directory, printer(sys.stdout, args.quiet))
+    result = run_headless(spec, directory, printer(sys.stdout, args.quiet), serial=args.serial)
     return _print_result(result, sys.stdout)
 
 
@@ -71,6 +71,9 @@ def cmd_resume(args) -> int:
     from fieldcal.session import SessionReader
 
     reader = SessionReader(args.session)
+    if reader.start.get("device", {}).get("link") == "pty":
+        raise ValueError(f"{args.session}: a run through a serial device cannot be resumed (the "
+                         "device cannot be rewound); replay it, or run again")
     if reader.stopped:
         raise ValueError(f"{args.session}: this session already ended ({reader.stop_reason}); "
                          "nothing to resume")

@@ -116,3 +116,15 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
     # And the resumed session replays to the same file too.
     _, pf, _ = replay_session(session)
     assert dump(pf).encode() == uninterrupted
+
+
+def test_the_same_run_through_a_serial_device_on_a_pty(tmp_path):
+    """Xsens frames on a pty read through pyserial and our parser; the table by its ASCII driver."""
+    result = run_headless(spec(51), tmp_path / "s", serial=True)
+    assert not result.unit.failures and set(result.unit.solutions) == {"accelerometer", "gyroscope"}
+    for name, sol in result.unit.solutions.items():
+        z = (sol.theta - result.truth[name]) / sol.sigma
+        assert np.all(np.abs(z) < 3.0), (name, z)
+    # Replay of a serial run works like any other: the capture is the whole truth.
+    _, pf, _ = replay_session(result.session)
+    assert dump(pf).encode() == recorded_parameters(result.session)

@@ -9,8 +9,10 @@ angle and rate are what the virtual table reports. Device timestamps tell the tr
 from __future__ import annotations
 
 import math
+import queue
 import threading
 import time
+from concurrent.futures import Future
 
 import numpy as np
 
@@ -85,6 +87,9 @@ class SimulatedDevices:
         self.table_link = link() if self.table else None
         self.speed = speed
         self.attitude = np.eye(3) if attitude is None else np.asarray(attitude, dtype=float)
+        # Real time: small blocks, like a device's steady trickle. Faster: blocks grow with speed,
+        # so the simulator's per-block overhead does not cap the rate (as fast as read: 0.5 s).
+        block_s = 0.5 if speed == 0 else min(0.5, block_s * max(1.0, speed))
         self._block = max(1, int(round(block_s * rate_hz)))
         self._stop = threading.Event()
         self._threads = [threading.Thread(target=self._imu_loop, name="sim imu", daemon=True)]
@@ -92,6 +97,14 @@ class SimulatedDevices:
             self._threads.append(threading.Thread(target=self._table_loop, name="sim table", daemon=True))
         self.samples_sent = 0
         self._on_chunk = on_chunk  # sees every chunk as encoded (tests compare against it)
+        self._moves: queue.SimpleQueue = queue.SimpleQueue()
+
+    def carry(self, attitude: np.ndarray, seconds: float, shake: float = 0.3) -> Future:
+        """Carry the fixture to a new attitude (after the table has stopped); the future gives
+        the sample time of the motion's last sample."""
+        done: Future = Future()
+        self._moves.put((np.asarray(attitude, dtype=float), seconds, shake, done))
+        return done
 
     @property
     def imu_url(self) -> str:
@@ -123,11 +136,20 @@ class SimulatedDevices:
     def _imu_loop(self) -> None:
         started = time.monotonic()
         sim, motion = self.simulator, self.motion
+        pending = None
         while not self._stop.is_set():
+            if pending is None and not self._moves.empty():
+                pending = self._moves.get()
             with motion.lock:
                 target = 0.0 if motion.fault else motion.target_rate_deg_s
                 accel = motion.accel_deg_s2 if motion.accel_deg_s2 > 0 else math.inf
-            chunk = sim.advance(self._block, self.attitude, math.radians(target), math.radians(accel))
+            if pending is not None and sim.table_rate == 0.0:
+                attitude, seconds, shake, done = pending
+                chunk = sim.handle(max(1, int(round(seconds * sim.rate_hz))), self.attitude, attitude, shake)
+                self.attitude, pending = attitude, None
+                done.set_result(float(chunk.t[-1]))
+            else:
+                chunk = sim.advance(self._block, self.attitude, math.radians(target), math.radians(accel))
             with motion.lock:
                 motion.rate_deg_s = math.degrees(sim.table_rate)
                 motion.position_deg = math.degrees(sim.table_angle)
