@@ -201,6 +201,18 @@ def build_parser() -> argparse.ArgumentParser:
                        "classic for an aligned procedure)")
     solve.set_defaults(func=_lazy("cmd_solve"))
 
+    allan = sub.add_parser("allan", help="Allan noise terms, recommended dwell and a plot from a still record",
+                           description="Allan deviation (paper eq. 3) of a still record: a session "
+                           "(its longest static dwell) or a text file of rows 't, x, y, z' (s, SI). "
+                           "Prints the IEEE 952 noise terms per axis and the recommended dwell, and "
+                           "writes a log-log plot per triad.")
+    allan.add_argument("source", help="session directory or text file")
+    allan.add_argument("--kind", choices=("specific_force", "angular_rate"), default="angular_rate",
+                       help="what a text file holds (default angular_rate)")
+    allan.add_argument("--triad", action="append", help="only this triad of a session (repeatable)")
+    allan.add_argument("--plot-dir", help="where the PNGs go (default: beside the source)")
+    allan.set_defaults(func=lambda args: __import__("fieldcal.allan_cli", fromlist=["cmd_allan"]).cmd_allan(args))
+
     sim = sub.add_parser("sim", help="the simulated MIMU and rate table")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True, metavar="SIM_COMMAND")
     serve = sim_sub.add_parser("serve", help="serve the simulated devices on virtual serial ports",
