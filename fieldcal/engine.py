@@ -120,8 +120,9 @@ class Engine:
         if self.phase in (DONE, ABORTED):
             return []
         if action.name == ev.ABORT:
+            stop = self._stop_table()  # before the phase changes: it decides whether to stop
             self.phase = ABORTED
-            return self._stop_table() + [ev.Aborted(self.t, "operator")]
+            return stop + [ev.Aborted(self.t, "operator")]
         if action.name == ev.REDO:
             return self._stop_table() + self._enter_step(self.step)
         if action.name == ev.SKIP:

@@ -1,0 +1,114 @@
+"""The engine as a state machine, on the simulator: discard mode, redo, abort, rate direction."""
+import numpy as np
+import pytest
+
+from fieldcal import events as ev
+from fieldcal.earth import Station
+from fieldcal.engine import Engine
+from fieldcal.positions import parse_procedure
+from fieldcal.runner import RunSpec, SimulatedBench
+
+SHORT = """name: short
+dwell_s: 20
+rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}
+positions:
+  - {id: 1, description: "z-upward", axes: {x: south, y: east, z: up}}
+  - {id: 2, description: "y-upward", axes: {x: east, y: up, z: south}}
+"""
+
+
+class Harness:
+    def __init__(self, seed=1, on_motion="restart"):
+        self.spec = RunSpec(parse_procedure(SHORT, "short.yaml"), Station(40.0, 50.0), seed=seed,
+                            on_motion=on_motion)
+        self.bench = SimulatedBench(self.spec)
+        self.engine = Engine(self.spec.procedure, self.spec.engine_settings())
+        self.events = list(self.engine.start())
+
+    def feed(self, chunks):
+        for chunk in chunks:
+            out = self.engine.feed(chunk)
+            self.events += out
+            for e in out:
+                if isinstance(e, ev.CommandTable):
+                    self.bench.command_table(e.rate_deg_s)
+
+    def act(self, name):
+        self.events += self.engine.act(ev.Action(name))
+
+    def place(self):
+        self.feed(self.bench.move_to(self.engine.position.attitude))
+        self.act(ev.READY)
+
+    def run_until(self, kind, limit_s=400):
+        start = len(self.events)
+        for _ in range(int(limit_s)):
+            if any(e.kind == kind for e in self.events[start:]):
+                return next(e for e in self.events[start:] if e.kind == kind)
+            self.feed([self.bench.next_chunk()])
+        raise AssertionError(f"no {kind} within {limit_s} s")
+
+
+def test_discard_mode_keeps_the_undisturbed_part_of_the_dwell():
+    durations = {}
+    for mode in ("restart", "discard"):
+        h = Harness(on_motion=mode)
+        h.place()
+        still = h.run_until("still")
+        while h.engine._average.n < 10 * 250:  # halfway through the 20 s dwell
+            h.feed([h.bench.next_chunk()])
+        before = len(h.events)
+        h.feed(h.bench.bump())
+        motion = next(e for e in h.events[before:] if e.kind == "motion_detected")
+        assert motion.restarted is (mode == "restart")
+        durations[mode] = h.run_until("dwell_complete").t - still.t
+    # Restarting needs a fresh 20 s after the bump; discarding keeps the ~9 s before it.
+    assert durations["restart"] - durations["discard"] == pytest.approx(9.0, abs=1.5)
+
+
+def test_redo_throws_away_the_step_and_asks_again():
+    h = Harness()
+    h.place()
+    h.run_until("still")
+    h.act(ev.REDO)
+    assert [e.kind for e in h.events[-2:]] == ["step_started", "place_unit"]
+    assert h.engine.step == 0 and not h.engine.records
+    h.place()
+    h.run_until("step_complete")
+    assert 0 in h.engine.records
+
+
+def test_abort_stops_the_table_and_the_engine():
+    h = Harness()
+    h.place()
+    h.run_until("command_table")  # dwell done, table told to turn
+    h.act(ev.ABORT)
+    assert [e.kind for e in h.events[-2:]] == ["command_table", "aborted"]
+    assert h.events[-2].rate_deg_s == 0.0
+    assert h.engine.feed(h.bench.next_chunk()) == [] and h.engine.act(ev.Action(ev.READY)) == []
+
+
+def test_a_steady_turn_the_wrong_way_never_counts_as_settled():
+    h = Harness()
+    h.place()
+    h.run_until("rate_step_complete")  # +10 °/s done; the engine now commands -10 °/s
+    assert h.events[-1].kind == "command_table" and h.events[-1].rate_deg_s == -10.0
+    h.bench.command_table(+10.0)  # a miswired table keeps turning +10 °/s
+    for _ in range(60):
+        h.feed([h.bench.next_chunk()])
+        h.bench.command_table(+10.0)
+    assert not any(e.kind == "rate_settled" and e.rate_deg_s < 0 for e in h.events)
+
+
+def test_a_whole_short_procedure_gives_one_record_per_step_with_the_windows():
+    h = Harness()
+    for _ in range(2):
+        h.place()
+        h.run_until("step_complete")
+    assert h.events[-1].kind == "procedure_complete"
+    windows, averages = h.engine.windows_and_averages()
+    assert [w.kind for w in windows] == ["static", "plus", "minus"] * 2
+    assert [w.duration for w in windows] == [20.0, 36.0, 36.0] * 2
+    # The static averages point along local up in body axes: z, then y.
+    acc = averages["accelerometer"][[0, 3]]
+    assert np.argmax(np.abs(acc[0])) == 2 and np.argmax(np.abs(acc[1])) == 1
