@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/fieldcal demo --seed 1
+	$(BIN)/fieldcal run --config configs/sim.yaml --procedure field-18 --headless --seed 1
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
