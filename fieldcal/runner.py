@@ -236,7 +236,7 @@ def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool =
     engine = Engine(spec.procedure, spec.engine_settings())
     if serial:
         from fieldcal.serialbench import SerialBench
-        bench = SerialBench(spec)
+        bench = SerialBench(spec, tap=lambda t, data: session.write_raw("imu", t, data))
     else:
         bench = SimulatedBench(spec)
     try:

@@ -24,7 +24,8 @@ _READ_TIMEOUT_S = 30.0
 
 
 class SerialBench:
-    def __init__(self, spec):
+    def __init__(self, spec, tap=None):
+        """``tap(t, data)`` receives every byte read from the IMU port (the session's raw capture)."""
         self.spec = spec
         noise_seed, operator_seed = np.random.SeedSequence(spec.seed).spawn(2)
         self.rng = np.random.default_rng(operator_seed)
@@ -32,7 +33,7 @@ class SerialBench:
                                         imu_protocol="xsens", table_protocol="ascii", speed=0,
                                         seed=noise_seed, rate_hz=spec.rate_hz)
         self.parser = make_parser("xsens")
-        self.reader = SerialReader(PortSettings(self.devices.imu_url)).start()
+        self.reader = SerialReader(PortSettings(self.devices.imu_url), tap=tap).start()
         time.sleep(0.05)  # the port is open (and flushed) before the device starts talking
         self.devices.start()
         self.table = open_table("ascii", self.devices.table_url, timeout_s=2.0)

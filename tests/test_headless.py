@@ -125,6 +125,15 @@ def test_the_same_run_through_a_serial_device_on_a_pty(tmp_path):
     for name, sol in result.unit.solutions.items():
         z = (sol.theta - result.truth[name]) / sol.sigma
         assert np.all(np.abs(z) < 3.0), (name, z)
+    # The bytes the port delivered are captured too: they parse cleanly to at least the captured
+    # samples (the port is read until it closes, a little after the engine's last chunk).
+    reader = SessionReader(result.session)
+    from fieldcal.devices import make_parser
+    parser, parsed = make_parser("xsens"), 0
+    for t, data in reader.raw("imu"):
+        chunk = parser.feed(data, t)
+        parsed += len(chunk) if chunk is not None else 0
+    assert parsed >= reader.n_samples and parser.counters.discarded_bytes == 0
     # Replay of a serial run works like any other: the capture is the whole truth.
     _, pf, _ = replay_session(result.session)
     assert dump(pf).encode() == recorded_parameters(result.session)
