@@ -56,6 +56,15 @@ class _Backoff:
         self.current = 0.0
 
 
+def _drain(q: queue.SimpleQueue) -> list:
+    out = []
+    while True:
+        try:
+            out.append(q.get_nowait())
+        except queue.Empty:
+            return out
+
+
 class SerialReader:
     """Reads one port on a daemon thread; ``poll()``, ``events()`` and ``write()`` never block long."""
 
@@ -91,20 +100,10 @@ class SerialReader:
 
     def poll(self) -> list[tuple[float, bytes]]:
         """Everything read since the last call: (arrival time, bytes) in arrival order."""
-        out = []
-        while True:
-            try:
-                out.append(self._data.get_nowait())
-            except queue.Empty:
-                return out
+        return _drain(self._data)
 
     def events(self) -> list[PortEvent]:
-        out = []
-        while True:
-            try:
-                out.append(self._events.get_nowait())
-            except queue.Empty:
-                return out
+        return _drain(self._events)
 
     def write(self, data: bytes) -> bool:
         """Send bytes if the port is up; False (nothing sent) while it is down."""

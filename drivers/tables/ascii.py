@@ -12,6 +12,7 @@ from drivers.tables.base import (
     DEFAULT_SETTLE_TIMEOUT_S,
     DEFAULT_TOLERANCE_DEG_S,
     LinePort,
+    PortOwner,
     TableError,
     TableState,
     format_number,
@@ -28,7 +29,7 @@ _ID = re.compile(r"ID\s+(\S+)\s+(\S+)")
 _LIMITS = re.compile(rf"LIMITS\s+({_NUMBER})\s+({_NUMBER})")
 
 
-class AsciiRateTable:
+class AsciiRateTable(PortOwner):
     """A rate table on the fieldcal ASCII protocol, over an injected pyserial-like port.
 
     ``timeout_s`` bounds the wait for each reply (the device answers within 50 ms);
@@ -122,12 +123,3 @@ class AsciiRateTable:
                      timeout_s: float = DEFAULT_SETTLE_TIMEOUT_S) -> TableState:
         return wait_until_settled(self.query, rate_deg_s, tolerance_deg_s, timeout_s,
                                   self.poll_interval_s)
-
-    def close(self) -> None:
-        self._io.port.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()

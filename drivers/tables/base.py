@@ -212,3 +212,18 @@ def wait_until_settled(query: Callable[[], TableState], rate_deg_s: float,
                                f" not settled within {timeout_s:g} s; last state {state}")
         if poll_interval_s > 0:
             sleep(poll_interval_s)
+
+
+class PortOwner:
+    """Closing and context management for a driver that owns its port through ``self._io``."""
+
+    _io: "LinePort"
+
+    def close(self) -> None:
+        self._io.port.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

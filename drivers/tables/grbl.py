@@ -51,6 +51,7 @@ from drivers.tables.base import (
     DEFAULT_SETTLE_TIMEOUT_S,
     DEFAULT_TOLERANCE_DEG_S,
     LinePort,
+    PortOwner,
     TableError,
     TableState,
     TableTimeout,
@@ -141,7 +142,7 @@ def parse_status_report(line: str) -> StatusReport:
     return StatusReport(state, sub or None, first("MPos"), first("WPos"), first("WCO"), feed, line)
 
 
-class GrblRateTable:
+class GrblRateTable(PortOwner):
     """A GRBL v1.1 controller turning a rotary table on X (1 mm = 1 degree), see module doc.
 
     ``timeout_s`` bounds each reply; ``max_rate_deg_s`` is the largest rate accepted (keep it
@@ -368,12 +369,3 @@ class GrblRateTable:
             if line.startswith("<") or line == "ok" or _ERROR.fullmatch(line):
                 continue
             raise self._garbled("soft reset (0x18)", line)
-
-    def close(self) -> None:
-        self._io.port.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
