@@ -36,6 +36,10 @@ class EngineSettings:
     on_motion: str = "restart"  # or "discard": drop only the disturbed stretch of a dwell
     check_s: float = 0.5  # still time averaged for the orientation check
     rate_tolerance: float = 0.03  # |measured rate| within this fraction of the commanded one
+    # A still unit whose gyro reads more than this fraction of the procedure's table rate is on a
+    # turning table (left running), not at rest. A fixed threshold cannot serve: cheap MEMS
+    # biases reach a few °/s while field tables turn as slowly as 0.1 °/s.
+    turning_fraction: float = 0.5
     progress_every_s: float = 10.0
     # For devices reporting counts: nominal zero and sensitivity (output units per SI unit).
     sf_zero: tuple = (0.0, 0.0, 0.0)
@@ -99,6 +103,8 @@ class Engine:
         self._sign = 0.0
         self._next_progress = 0.0
         self._check: list[np.ndarray] = []
+        self._check_rate: list[np.ndarray] = []
+        self._turning_reported = False
         self._up = np.array([0.0, 0.0, 1.0])
 
     # --- public -------------------------------------------------------------------------------
@@ -115,6 +121,8 @@ class Engine:
         """Resume: take completed steps from a capture; ``start()`` then begins the next one."""
         self.records = {int(r["step"]): r for r in records}
         self.skipped = set(int(s) for s in skipped)
+        ends = [w["start"] + w["duration"] for r in records for w in r["windows"]]
+        self.t = max(ends, default=0.0)
 
     def act(self, action: ev.Action) -> list[ev.Event]:
         if self.phase in (DONE, ABORTED):
@@ -164,6 +172,7 @@ class Engine:
         j = self._still_until(still, i, len(chunk))
         take = min(j, i + need)
         self._check.append(chunk.triads[self.settings.specific_force][i:take])
+        self._check_rate.append(chunk.triads[self.settings.angular_rate][i:take])
         if take == i + need:
             return self._judge_orientation(chunk, take, out)
         if j < len(chunk):  # moved before the check was done
@@ -172,6 +181,16 @@ class Engine:
 
     def _judge_orientation(self, chunk, i, out) -> int:
         s = self.settings
+        rate = (np.concatenate(self._check_rate).mean(axis=0) - np.array(s.rate_zero)) / np.array(s.rate_sensitivity)
+        turning = math.degrees(float(np.linalg.norm(rate)))
+        step = self.procedure.rate_step
+        if step is not None and turning > s.turning_fraction * step.rate_deg_s:
+            if not self._turning_reported:
+                out.append(ev.TableTurning(float(chunk.t[i - 1]), turning))
+                self._turning_reported = True
+            self.phase = SETTLING  # look again; the dwell waits for the table to stop
+            return i
+        self._turning_reported = False
         mean = np.concatenate(self._check).mean(axis=0)
         direction = gravity_direction(mean, zero=np.array(s.sf_zero), sensitivity=np.array(s.sf_sensitivity))
         check = check_orientation(direction, self.position, self.procedure.positions, s.tolerance_deg)

@@ -60,6 +60,12 @@ class WrongOrientation(Event):
 
 
 @dataclass(frozen=True)
+class TableTurning(Event):
+    """Still, but turning: the table must stop before a static dwell."""
+    rate_deg_s: float
+
+
+@dataclass(frozen=True)
 class DwellProgress(Event):
     done_s: float
     total_s: float

@@ -15,6 +15,8 @@ def describe(e: ev.Event) -> str | None:
     if isinstance(e, ev.MotionDetected):
         what = {"dwell": "the dwell", "rate": "the rate step", "waiting": "the orientation check"}[e.phase]
         return f"  motion during {what}: {'restarting it' if e.restarted else 'dropping the disturbed part'}"
+    if isinstance(e, ev.TableTurning):
+        return f"  the table is turning ({e.rate_deg_s:.2f} °/s): stop it before the dwell"
     if isinstance(e, ev.DwellComplete):
         return f"  dwell complete ({e.duration_s:.0f} s)"
     if isinstance(e, ev.RateSettled):

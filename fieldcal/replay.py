@@ -43,11 +43,13 @@ def replay_session(directory: str | Path, speed: float | None = None,
             out = engine.feed(item)
         elif kind == "action":
             out = engine.act(ev.action_from_dict(item))
-        else:  # a resumed run restarted its engine from the completed steps
-            records, skipped = list(engine.records.values()), sorted(engine.skipped)
+        else:  # a resumed run restarted its engine from the steps it had on record
+            keep = set(item["completed_steps"])
+            records = [r for step, r in engine.records.items() if step in keep]
             engine = Engine(spec.procedure, settings)
-            engine.restore(records, skipped)
+            engine.restore(records, item["skipped"])
             out = engine.start()
+            started, first_t = time.monotonic(), None  # sample time starts over from the checkpoint
         for e in out:
             report(e)
     unit, pf = _solve(spec, engine)

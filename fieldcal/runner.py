@@ -192,8 +192,10 @@ def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: Sessio
             if isinstance(e, ev.CommandTable):
                 bench.command_table(e.rate_deg_s)
             elif isinstance(e, ev.StepComplete):
-                session.step(engine.records[e.step])
-                session.checkpoint({"step": e.step, "bench": bench.get_state()})
+                # One document, so a crash cannot separate a step's averages from the state
+                # that resuming after it needs.
+                session.step({**engine.records[e.step], "skipped": sorted(engine.skipped),
+                              "bench": bench.get_state()})
             elif isinstance(e, ev.PlaceUnit):
                 step = engine.step
                 if step in script.skip_steps:
@@ -251,14 +253,16 @@ def resume_headless(directory: Path, report=lambda e: None) -> RunResult:
     reader = SessionReader(directory)
     spec = RunSpec.from_metadata(reader.start)
     engine = Engine(spec.procedure, spec.engine_settings())
-    skipped = [e["step"] for e in reader.events() if e.get("event") == "step_skipped"]
-    engine.restore(reader.steps(), skipped)
     bench = SimulatedBench(spec)
-    checkpoint = reader.last_checkpoint()
-    if checkpoint is not None:
-        bench.set_state(checkpoint["bench"])
+    steps = reader.steps()
+    # Everything up to the last completed step; what came after it (a partial step, a skip) is
+    # done again, exactly as the uninterrupted run did it.
+    skipped = steps[-1]["skipped"] if steps else []
+    engine.restore(steps, skipped)
+    if steps:
+        bench.set_state(steps[-1]["bench"])
     session = SessionWriter.append_to(directory)
-    session.resume({"completed_steps": sorted(engine.records)})
+    session.resume({"completed_steps": sorted(engine.records), "skipped": list(skipped)})
     return _finish(spec, engine, session, _drive(spec, engine, bench, session, engine.start(), report),
                    Path(directory))
 

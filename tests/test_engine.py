@@ -112,3 +112,16 @@ def test_a_whole_short_procedure_gives_one_record_per_step_with_the_windows():
     # The static averages point along local up in body axes: z, then y.
     acc = averages["accelerometer"][[0, 3]]
     assert np.argmax(np.abs(acc[0])) == 2 and np.argmax(np.abs(acc[1])) == 1
+
+
+def test_no_static_dwell_on_a_turning_table():
+    h = Harness()
+    h.bench.command_table(10.0)  # a table nobody stopped, at the procedure's rate
+    h.act(ev.READY)
+    for _ in range(30):
+        h.feed([h.bench.next_chunk()])
+    turning = [e for e in h.events if e.kind == "table_turning"]
+    assert len(turning) == 1 and turning[0].rate_deg_s == pytest.approx(10.0, abs=0.1)
+    assert not any(e.kind in ("still", "dwell_complete") for e in h.events)
+    h.bench.command_table(0.0)  # stopped: the dwell can start
+    h.run_until("still")

@@ -137,3 +137,39 @@ def test_the_same_run_through_a_serial_device_on_a_pty(tmp_path):
     # Replay of a serial run works like any other: the capture is the whole truth.
     _, pf, _ = replay_session(result.session)
     assert dump(pf).encode() == recorded_parameters(result.session)
+
+
+def _cut_before_step_record(session: Path, nth: int) -> None:
+    """Simulate a crash after the chunk that completed a step was logged but before the step's
+    record was: cut the log at the start of the nth step document (0-based)."""
+    log = session / "log.jsonl"
+    data = log.read_bytes()
+    offset, seen = 0, -1
+    for line in data.splitlines(keepends=True):
+        if b'"type":"step"' in line:
+            seen += 1
+            if seen == nth:
+                break
+        offset += len(line)
+    assert seen == nth, "not enough steps to cut at"
+    log.write_bytes(data[:offset])
+    (session / "parameters.yaml").unlink(missing_ok=True)
+
+
+def test_resume_at_awkward_crash_points_twice_still_matches(tmp_path):
+    import shutil
+
+    from fieldcal.runner import resume_headless
+
+    whole = run_headless(spec(61, bump_step=6, skip_steps=(9,)), tmp_path / "whole")
+    expected = whole.parameters.read_bytes()
+    crashed = tmp_path / "crashed"
+    shutil.copytree(whole.session, crashed)
+    _cut_before_step_record(crashed, 3)
+    first = resume_headless(crashed)
+    assert first.parameters.read_bytes() == expected
+    _cut_before_step_record(crashed, 12)  # counting the records written before and after the resume
+    second = resume_headless(crashed)
+    assert second.parameters.read_bytes() == expected
+    _, pf, _ = replay_session(crashed)
+    assert dump(pf).encode() == expected
