@@ -17,6 +17,7 @@ from typing import Callable
 import serial
 
 PORT_LOST, PORT_OPENED, PORT_REGAINED, PORT_CLOSED = "lost", "opened", "regained", "closed"
+TAP_FAILED = "tap failed"  # the raw-byte capture raised: reported once, reading goes on
 
 
 @dataclass(frozen=True)
@@ -177,4 +178,8 @@ class SerialReader:
                 self.bytes_read += len(data)
                 self._data.put((t, data))
                 if self._tap is not None:
-                    self._tap(t, data)
+                    try:
+                        self._tap(t, data)
+                    except Exception as exc:  # noqa: BLE001 -- e.g. disk full in the capture
+                        self._tap = None
+                        self._events.put(PortEvent(TAP_FAILED, t, f"raw capture stopped: {exc}"))

@@ -43,13 +43,28 @@ def _session_records(directory: Path) -> tuple[dict[str, np.ndarray], dict[str, 
 
     reader = SessionReader(directory)
     spec = RunSpec.from_metadata(reader.start)
-    windows = [w for s in reader.steps() for w in s["windows"] if w["kind"] == "static"]
-    if not windows:
+    # After a resume, sample time starts over from the last checkpoint, so the samples of a
+    # dwell are those of the run segment (between resumes) that recorded its step.
+    segment, best = 0, None
+    for kind, item in reader.replay_items(("resume", "step")):
+        if kind == "resume":
+            segment += 1
+            continue
+        for w in item["windows"]:
+            if w["kind"] == "static" and (best is None or w["duration"] > best[1]["duration"]):
+                best = (segment, w)
+    if best is None:
         raise ValueError(f"{directory}: no completed static dwell to analyse")
-    longest = max(windows, key=lambda w: w["duration"])  # one uninterrupted record
-    lo, hi = longest["start"], longest["start"] + longest["duration"]
+    wanted, window = best
+    lo, hi = window["start"], window["start"] + window["duration"]
     parts: dict[str, list[np.ndarray]] = {}
-    for chunk in reader.chunks():
+    segment = 0
+    for kind, chunk in reader.replay_items(("chunk", "resume")):
+        if kind == "resume":
+            segment += 1
+            continue
+        if segment != wanted:
+            continue
         keep = (chunk.t >= lo) & (chunk.t < hi)
         if keep.any():
             for name, values in chunk.triads.items():
@@ -79,6 +94,8 @@ def _text_record(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str
 def cmd_allan(args) -> int:
     source = Path(args.source)
     if source.is_dir():
+        from fieldcal.sessions_cli import warn_if_torn
+        warn_if_torn(source)
         records, kinds, rate = _session_records(source)
         plot_dir = source
     elif source.is_file():
@@ -99,7 +116,9 @@ def cmd_allan(args) -> int:
         note = "" if floor_seen else "; the deviation still falls at the record's end, so a longer record may recommend more"
         print(f"  recommended dwell: {dwell:.0f} s (where the fitted deviation is within "
               f"{100 * (NEAR_MINIMUM - 1):.0f} % of its lowest{note})")
-        path = Path(args.plot_dir or plot_dir) / f"allan-{name}.png"
+        folder = Path(args.plot_dir or plot_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"allan-{name}.png"
         plot_allan(taus, adev, terms, path, title=f"{name}: Allan deviation", kind=kind)
         print(f"  plot: {path}")
     return 0

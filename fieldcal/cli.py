@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 import numpy as np
@@ -15,6 +16,18 @@ def _seed(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
     return value
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            value = -1
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+        return value
+    return parse
 
 
 def _progress_printer(stream):
@@ -146,8 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "samples (CSV when piped, a live line on a terminal) and the parser's "
                              "counters, until Ctrl-C.")
     monitor.add_argument("--config", required=True, help="station config: a name in configs/ or a path")
-    monitor.add_argument("--samples", type=int, metavar="N", help="stop after N samples")
-    monitor.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds")
+    monitor.add_argument("--samples", type=_positive(int), metavar="N", help="stop after N samples")
+    monitor.add_argument("--seconds", type=_positive(float), metavar="S", help="stop after S seconds")
     monitor.set_defaults(func=cmd_monitor)
 
     run = sub.add_parser("run", help="run a procedure (headless: against the simulated device)",
@@ -244,6 +257,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("fieldcal: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into head: not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":

@@ -22,6 +22,8 @@ from fieldcal.positions import Procedure
 from fieldcal.simrun import MINUS, PLUS, STATIC, Window
 from fieldcal.stillness import StillnessDetector, StillnessSettings, check_orientation, gravity_direction
 
+MIN_WINDOW_SAMPLES = 10  # fewer, and the window's spread says little about stillness
+
 PLACE, SETTLING, CHECKING, WRONG, DWELL, RATE_WAIT, RATE_AVERAGE, DONE, ABORTED = (
     "place", "settling", "checking", "wrong", "dwell", "rate_wait", "rate_average", "done", "aborted")
 
@@ -48,6 +50,11 @@ class EngineSettings:
     rate_sensitivity: tuple = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
+        window = round(self.stillness.window_s * self.rate_hz)
+        if window < MIN_WINDOW_SAMPLES:
+            raise ValueError(f"rate_hz: {self.rate_hz:g} Hz gives {window} samples per "
+                             f"{self.stillness.window_s:g} s stillness window; at least "
+                             f"{MIN_WINDOW_SAMPLES} are needed to tell still from moving")
         if self.on_motion not in ("restart", "discard"):
             raise ValueError(f"on_motion: expected 'restart' or 'discard', got {self.on_motion!r}")
 

@@ -35,8 +35,14 @@ def describe(e: ev.Event) -> str | None:
 
 
 def printer(stream, quiet: bool = False):
+    """Print each event's line; if the reader goes away (``| head``), stop printing, not the run."""
+    state = {"quiet": quiet}
+
     def report(e: ev.Event) -> None:
         text = describe(e)
-        if text is not None and not quiet:
-            print(f"[{e.t:7.1f} s] {text}", file=stream, flush=True)
+        if text is not None and not state["quiet"]:
+            try:
+                print(f"[{e.t:7.1f} s] {text}", file=stream, flush=True)
+            except BrokenPipeError:
+                state["quiet"] = True
     return report

@@ -184,11 +184,19 @@ def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: Sessio
     """Run until the procedure completes or is aborted; False if aborted."""
     script = spec.script
     bumped = wrong_done = False
+    # A step normally takes its dwell, its rate steps and the handling; ten times that with no
+    # step completed means the run cannot make progress (say the unit never settles).
+    step = spec.procedure.rate_step
+    per_step = spec.procedure.dwell_s + script.handling_s + (
+        2 * (step.turns * 360.0 / step.rate_deg_s + step.ramp_s + step.settle_s) if step else 0.0)
+    deadline = engine.t + 10 * per_step
     while True:
         moves = []
         for e in events:
             session.event(e.to_dict())
             report(e)
+            if isinstance(e, (ev.StepComplete, ev.StepSkipped)):
+                deadline = e.t + 10 * per_step
             if isinstance(e, ev.CommandTable):
                 bench.command_table(e.rate_deg_s)
             elif isinstance(e, ev.StepComplete):
@@ -228,14 +236,18 @@ def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: Sessio
             chunk = bench.next_chunk()
             session.chunk(chunk)
             events = engine.feed(chunk)
+            if chunk.t[-1] > deadline:
+                events += engine.act(ev.Action(ev.ABORT))
+                report(ev.Aborted(float(chunk.t[-1]), f"no step completed in {10 * per_step:.0f} s of "
+                                  f"samples (phase {engine.phase}): the run cannot make progress"))
 
 
 def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool = False) -> RunResult:
     """``serial``: reach the simulated device only through bytes on a pty, as hardware would be."""
+    engine = Engine(spec.procedure, spec.engine_settings())  # bad settings fail before any file
     metadata = spec.to_metadata()
     metadata["device"]["link"] = "pty" if serial else "in-process"
     session = SessionWriter.create(out, metadata)
-    engine = Engine(spec.procedure, spec.engine_settings())
     if serial:
         from fieldcal.serialbench import SerialBench
         bench = SerialBench(spec, tap=lambda t, data: session.write_raw("imu", t, data))

@@ -29,6 +29,16 @@ def _print_result(result, out) -> int:
     return 0 if result.unit.solutions and not result.unit.failures else 1
 
 
+def warn_if_torn(directory) -> bool:
+    """Say what of a capture could not be read (a crash's torn tail); True if anything."""
+    from fieldcal.session import SessionReader
+
+    torn = SessionReader(directory).torn
+    for line in torn:
+        print(f"warning: {directory}: {line}", file=sys.stderr)
+    return bool(torn)
+
+
 def cmd_run(args) -> int:
     from fieldcal.config import load_config
     from fieldcal.positions import load_procedure
@@ -78,6 +88,7 @@ def cmd_resume(args) -> int:
         raise ValueError(f"{args.session}: this session already ended ({reader.stop_reason}); "
                          "nothing to resume")
     done = len(reader.steps())
+    warn_if_torn(args.session)  # what resuming will cut away
     print(f"resuming {args.session} after {done} completed step{'s' if done != 1 else ''}", flush=True)
     return _print_result(resume_headless(Path(args.session), printer(sys.stdout, args.quiet)), sys.stdout)
 
@@ -87,6 +98,7 @@ def cmd_replay(args) -> int:
     from fieldcal.progress import printer
     from fieldcal.replay import recorded_parameters, replay_session
 
+    torn = warn_if_torn(args.session)
     unit, pf, samples = replay_session(args.session, args.speed, printer(sys.stdout, args.quiet))
     print(f"replayed {samples} samples")
     if pf is None:
@@ -98,7 +110,7 @@ def cmd_replay(args) -> int:
     recorded = recorded_parameters(args.session)
     if recorded is None:
         print("the session has no parameter file to compare with (it did not finish)")
-        return 0
+        return 1 if torn else 0
     same = dump(pf).encode() == recorded
     print("parameter file identical to the recorded one, byte for byte" if same
           else "parameter file DIFFERS from the recorded one")
@@ -110,6 +122,9 @@ def cmd_solve(args) -> int:
     from fieldcal.runner import RunSpec
     from fieldcal.session import SessionReader
 
+    warn_if_torn(args.session)
+    if not SessionReader(args.session).steps():
+        raise ValueError(f"{args.session}: no completed steps to solve from")
     methods = args.method
     if not methods:
         aligned = RunSpec.from_metadata(SessionReader(args.session).start).procedure.aligned

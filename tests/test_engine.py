@@ -125,3 +125,33 @@ def test_no_static_dwell_on_a_turning_table():
     assert not any(e.kind in ("still", "dwell_complete") for e in h.events)
     h.bench.command_table(0.0)  # stopped: the dwell can start
     h.run_until("still")
+
+
+def test_a_run_that_cannot_progress_is_aborted_not_endless(tmp_path):
+    import dataclasses
+
+    from fieldcal.runner import run_headless
+    from fieldcal.stillness import StillnessSettings
+
+    class NeverStill(RunSpec):
+        def engine_settings(self):
+            settings = super().engine_settings()
+            s = settings.stillness
+            strict = StillnessSettings(specific_force_sigma=s.specific_force_sigma, rate_sigma=s.rate_sigma,
+                                       enter_factor=0.01, leave_factor=0.02)
+            return dataclasses.replace(settings, stillness=strict)
+
+    spec = NeverStill(parse_procedure(SHORT, "short.yaml"), Station(40.0, 50.0))
+    reasons = []
+    result = run_headless(spec, tmp_path / "s", lambda e: reasons.append(getattr(e, "reason", "")))
+    assert result.aborted
+    assert any("cannot make progress" in r for r in reasons)
+
+
+def test_too_low_a_sample_rate_is_refused_before_any_file(tmp_path):
+    from fieldcal.runner import run_headless
+
+    spec = RunSpec(parse_procedure(SHORT, "short.yaml"), Station(40.0, 50.0), rate_hz=2.0)
+    with pytest.raises(ValueError, match="rate_hz: 2 Hz gives 2 samples"):
+        run_headless(spec, tmp_path / "s")
+    assert not (tmp_path / "s").exists()

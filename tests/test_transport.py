@@ -84,3 +84,23 @@ def test_device_that_appears_later_is_picked_up(tmp_path):
             assert c.kinds().count(PORT_LOST) == 1
         finally:
             link.close()
+
+
+def test_a_failing_raw_capture_is_reported_and_reading_goes_on():
+    from drivers.transport import TAP_FAILED
+
+    def full_disk(t, data):
+        raise OSError(28, "No space left on device")
+
+    link = PtyLink()
+    try:
+        with SerialReader(PortSettings(link.url), tap=full_disk) as reader:
+            c = Collector(reader)
+            assert wait_for(lambda: PORT_OPENED in c.pump().kinds())
+            assert wait_for(lambda: link.write(b"first") == 5)
+            assert wait_for(lambda: TAP_FAILED in c.pump().kinds())
+            assert wait_for(lambda: link.write(b"second") == 6)
+            assert wait_for(lambda: c.pump().data == b"firstsecond")
+            assert c.kinds().count(TAP_FAILED) == 1 and "No space left" in c.events[-1].message
+    finally:
+        link.close()

@@ -18,6 +18,7 @@ from pathlib import Path
 
 class PtyLink:
     def __init__(self, link: str | os.PathLike | None = None):
+        self._own_dir = link is None  # a temporary directory of ours, removed on close
         if link is None:
             link = Path(tempfile.mkdtemp(prefix="fieldcal-")) / "tty"
         self.link = Path(link)
@@ -85,6 +86,11 @@ class PtyLink:
         self.unplug()
         if self.link.is_symlink():
             self.link.unlink()
+        if self._own_dir:
+            try:
+                self.link.parent.rmdir()
+            except OSError:
+                pass
 
 
 class TcpLink:

@@ -167,7 +167,10 @@ class SimulatedDevices:
             else:
                 written = 0
                 while written < len(data) and not self._stop.is_set():
-                    written += self.imu_link.write(data[written:], timeout_s=0.1)
+                    sent = self.imu_link.write(data[written:], timeout_s=0.1)
+                    written += sent
+                    if not sent:  # unplugged: wait for the cable rather than spin
+                        self._stop.wait(0.05)
             self.samples_sent += len(chunk)
 
     def _table_loop(self) -> None:
