@@ -244,6 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--height", type=float, default=50.0, help="m (default 50)")
     serve.add_argument("--raw-counts", action="store_true", help="the unit reports 16-bit counts")
     serve.set_defaults(func=cmd_sim_serve)
+
+    from fieldcal.tui.command import add_tui_parser
+    add_tui_parser(sub)
     return parser
 
 

@@ -47,7 +47,8 @@ def cmd_run(args) -> int:
 
     config = load_config(args.config)
     if not args.headless:
-        raise ValueError("run: only --headless runs exist yet (the operator's terminal UI comes next)")
+        raise ValueError("run: without --headless there is no operator; use fieldcal tui for the "
+                         "terminal UI, or add --headless for the automatic operator")
     if config.device.protocol != "sim":
         raise ValueError(f"run --headless: {config.path} is a real device; a headless run needs the "
                          "simulated one, whose fixture the automatic operator can move")

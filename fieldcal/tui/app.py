@@ -1,0 +1,151 @@
+"""The operator's terminal UI: the same procedure engine as headless runs, against the simulated
+bench at a chosen speed, or over a captured session (replay).
+
+The sample source (``fieldcal.tui.source``) runs in a thread worker that alone calls the
+engine, the bench and the session writer; it posts batched events and telemetry here at most
+ten times a second, and the keys go back to it as commands on a queue.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import ClassVar
+
+from textual.app import App
+from textual.binding import Binding, BindingType
+
+from fieldcal import events as ev
+from fieldcal.tui.help_screen import HelpScreen
+from fieldcal.tui.messages import RunFinished, RunItems, RunTelemetry
+from fieldcal.tui.procedure_screen import ProcedureScreen
+from fieldcal.tui.readings import Telemetry
+from fieldcal.tui.results_screen import ResultsScreen
+from fieldcal.tui.source import Outcome, ReplaySource, SimSource, Source
+from fieldcal.tui.view import RunView
+
+
+def _speed_words(speed: float) -> str:
+    return "as fast as possible" if speed <= 0 else f"{speed:g}× real time"
+
+
+class FieldcalApp(App[int]):
+    """``FieldcalApp(spec, speed, session_dir)`` runs the simulated bench;
+    ``FieldcalApp(None, speed, replay=SESSION)`` replays a capture."""
+
+    CSS_PATH = "app.tcss"
+    TITLE = "fieldcal"
+    ENABLE_COMMAND_PALETTE = False
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("question_mark", "help", "help"),
+        Binding("q", "quit", "quit"),
+    ]
+
+    def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
+                 replay: Path | None = None, clock=time.monotonic) -> None:
+        super().__init__()
+        self.speed = float(speed)
+        if replay is not None:
+            self.source: Source = ReplaySource(Path(replay), self, self.speed, clock)
+            title = f"fieldcal · replay of {Path(replay).name} · {_speed_words(speed)}"
+        else:
+            if spec is None:
+                raise ValueError("FieldcalApp: give a RunSpec, or a session to replay")
+            self.source = SimSource(spec, self, self.speed, session_dir, clock)
+            title = (f"fieldcal · {spec.procedure.name} · simulated MIMU, seed {spec.seed} · "
+                     f"{_speed_words(speed)}")
+        self.spec = self.source.spec
+        self.mode = self.source.mode
+        settings = self.source.settings
+        self.view = RunView(self.spec.procedure, tolerance_deg=settings.tolerance_deg,
+                            enter_factor=settings.stillness.enter_factor,
+                            leave_factor=settings.stillness.leave_factor)
+        self.procedure_screen = ProcedureScreen(self.view, title, self.mode)
+        self.outcome: Outcome | None = None
+        self.events: list[ev.Event] = []  # every engine event shown, in order (for tests)
+        self.telemetry: Telemetry | None = None
+
+    def on_mount(self) -> None:
+        self.push_screen(self.procedure_screen)  # (a default screen would not load its CSS_PATH)
+        self.run_worker(self._run_source, thread=True, name="sample source", exit_on_error=False)
+
+    def _run_source(self) -> None:
+        from textual.worker import get_current_worker
+
+        worker = get_current_worker()
+        self.source.run(cancelled=lambda: worker.is_cancelled)
+
+    # --- the source's Sink (called on the worker thread) -----------------------------------
+
+    def update(self, items: tuple, telemetry: Telemetry) -> None:
+        if items:
+            self.post_message(RunItems(items))
+        self.post_message(RunTelemetry(telemetry))
+
+    def finished(self, outcome: Outcome) -> None:
+        self.post_message(RunFinished(outcome))
+
+    # --- messages (UI thread) ---------------------------------------------------------------
+
+    def on_run_items(self, message: RunItems) -> None:
+        self.events.extend(i for i in message.items if isinstance(i, ev.Event))
+        self.procedure_screen.add_items(message.items)
+
+    def on_run_telemetry(self, message: RunTelemetry) -> None:
+        self.telemetry = message.telemetry
+        self.procedure_screen.set_telemetry(message.telemetry)
+
+    def on_run_finished(self, message: RunFinished) -> None:
+        self.outcome = message.outcome
+        self.procedure_screen.finished(message.outcome.status)
+        self.show_results()
+
+    # --- actions ------------------------------------------------------------------------------
+
+    def send_command(self, name: str) -> None:
+        if self.outcome is None:
+            self.source.send(name)
+
+    def show_results(self) -> None:
+        if self.outcome is not None and not isinstance(self.screen, ResultsScreen):
+            self.push_screen(ResultsScreen(self.outcome))
+
+    def action_help(self) -> None:
+        if not isinstance(self.screen, HelpScreen):
+            self.push_screen(HelpScreen(replay=self.mode == "replay"))
+
+    async def action_quit(self) -> None:
+        self.source.stop()
+        self.exit(self.return_code_for(self.outcome))
+
+    @staticmethod
+    def return_code_for(outcome: Outcome | None) -> int:
+        if outcome is None or outcome.status != "completed":
+            return 1
+        return 0 if outcome.solved and not outcome.unit.failures and outcome.identical is not False else 1
+
+
+def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None) -> int:
+    """Run the terminal UI until the operator quits; the exit status (0: calibrated).
+
+    ``spec``: the run (procedure, station, seed, ...) against the simulated bench; ignored with
+    ``replay`` (the session says what it was). ``speed``: sample time per wall time, 0 = as fast
+    as possible. ``session_dir``: where to capture the session (None: no capture).
+    ``replay``: a session directory to replay through the same screens.
+    """
+    if replay is None and session_dir is not None and Path(session_dir).exists() \
+            and any(Path(session_dir).iterdir()):
+        raise ValueError(f"{session_dir}: already exists and is not empty (a new session needs a "
+                         "new directory)")
+    app = FieldcalApp(spec, speed, session_dir, replay)
+    code = app.run()
+    app.source.stop()
+    app.source.done.wait(10.0)  # the session is closed by the worker thread
+    outcome = app.source.outcome
+    if outcome is not None:
+        if outcome.session is not None:
+            print(f"session: {outcome.session}")
+        if outcome.parameters is not None:
+            print(f"parameter file: {outcome.parameters}")
+        if outcome.message:
+            print(outcome.message)
+    return 1 if code is None else code

@@ -1,0 +1,74 @@
+"""``fieldcal tui``: the operator's terminal UI against the simulated bench, or a replay.
+
+Kept free of Textual imports so that building the CLI parser stays fast.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+from pathlib import Path
+
+from fieldcal.solve import METHODS
+
+
+def _speed(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 (0 = as fast as possible), got {text!r}")
+    return value
+
+
+def add_tui_parser(sub) -> argparse.ArgumentParser:
+    """Add the ``tui`` subcommand to the CLI's subparsers."""
+    tui = sub.add_parser("tui", help="the operator's terminal UI (simulated bench, or replay a session)",
+                         description="Run a procedure in the operator's terminal UI against the "
+                         "simulated bench (r: the unit is in place, d: redo, s: skip, a: abort, "
+                         "b: bump, ?: help), capturing a session under --out; or replay a captured "
+                         "session through the same screens with --replay.")
+    tui.add_argument("--config", default="sim", help="station config (default: sim)")
+    tui.add_argument("--procedure", default="field-18", help="procedure name or YAML path (default field-18)")
+    tui.add_argument("--seed", type=int, help="simulation seed (default: the config's)")
+    tui.add_argument("--speed", type=_speed,
+                     help="sample time per wall time: 1 = real time, 0 = as fast as possible "
+                     "(default: the config's sim speed for a run, 10 for a replay)")
+    tui.add_argument("--out", default="sessions", help="where sessions go (default ./sessions)")
+    tui.add_argument("--no-capture", action="store_true", help="do not write a session")
+    tui.add_argument("--method", choices=METHODS, default="auto",
+                     help="solver: auto (default) is classic for an aligned procedure, else powell")
+    tui.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
+                     help="a bump during a dwell restarts it (default) or drops only the disturbed part")
+    tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
+    tui.set_defaults(func=cmd_tui)
+    return tui
+
+
+def cmd_tui(args) -> int:
+    from fieldcal.tui import run_tui
+
+    if args.replay is not None:
+        if not Path(args.replay, "log.jsonl").is_file():
+            raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
+        return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay))
+    from fieldcal.config import load_config
+    from fieldcal.positions import load_procedure
+    from fieldcal.runner import RunSpec
+
+    config = load_config(args.config)
+    if config.device.protocol != "sim":
+        raise ValueError(f"tui: {config.path} is a real device; this first version of the terminal "
+                         "UI drives the simulated bench only (or --replay a session)")
+    if args.seed is not None and args.seed < 0:
+        raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
+    procedure = load_procedure(args.procedure)
+    seed = config.device.sim.seed if args.seed is None else args.seed
+    spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
+                   raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion)
+    directory = None
+    if not args.no_capture:
+        stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+        directory = Path(args.out) / f"{procedure.name}-tui-seed{seed}-{stamp}"
+    speed = config.device.sim.speed if args.speed is None else args.speed
+    return run_tui(spec, speed, directory, None)

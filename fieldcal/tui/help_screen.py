@@ -1,0 +1,45 @@
+"""The key help, over whatever screen is showing."""
+from __future__ import annotations
+
+from typing import ClassVar
+
+from textual.app import ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Static
+
+SIM_KEYS = """\
+r   ready: the unit is in place (the simulator carries it there); after a
+    wrong placement, the simulator corrects it
+d   redo this step from the placement
+s   skip this position (the solve uses the others)
+a   abort: stop the run, the session is kept
+b   bump the fixture (simulator): a dwell in progress restarts
+w   place the unit in a wrong position on purpose (simulator)
+v   the results, once the run has ended; Esc there comes back here
+?   this help          q   quit (an unfinished session can be resumed)"""
+
+REPLAY_KEYS = """\
+A replay applies the operator actions recorded in the session, at the
+recorded samples; the operator keys are ignored.
+
+v   the results, once the replay has ended; Esc there comes back here
+?   this help          q   quit"""
+
+
+class HelpScreen(ModalScreen):
+    CSS_PATH = "help.tcss"
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,question_mark,q", "dismiss", "close", show=False)]
+
+    def __init__(self, replay: bool) -> None:
+        super().__init__()
+        self.replay = replay
+
+    def compose(self) -> ComposeResult:
+        with Vertical(id="help"):
+            yield Static(REPLAY_KEYS if self.replay else SIM_KEYS)
+            yield Static("Esc, ? or q closes this", id="help-close")
+
+    def action_dismiss(self) -> None:
+        self.dismiss()

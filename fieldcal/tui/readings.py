@@ -1,0 +1,71 @@
+"""Live readings for the operator, computed from the most recent samples (no Textual here).
+
+The source keeps the last stillness window of the specific-force and angular-rate triads and,
+once per UI update (not per chunk), turns it into operator units: mean specific force in mg,
+mean rate in °/s, the angle between measured gravity and the expected up of the current
+position, and a quietness figure: the largest per-axis (window std)/(expected σ), the same
+ratio the stillness detector compares with its enter/leave factors.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fieldcal.engine import EngineSettings
+from fieldcal.stillness import angle_between, gravity_direction
+from fieldcal.units import STANDARD_GRAVITY
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """A snapshot of the run for the screen, taken on the engine's thread."""
+
+    t: float  # sample time of the last sample fed, s
+    step: int  # the engine's current step (0-based; == number of positions when done)
+    phase: str  # the engine's phase (fieldcal.engine PLACE, SETTLING, ...)
+    waiting: bool  # the source waits for the operator (sim paused)
+    samples: int  # samples fed so far
+    accel_mg: tuple[float, float, float] | None = None
+    gyro_deg_s: tuple[float, float, float] | None = None
+    angle_deg: float | None = None  # measured gravity vs the current position's expected up
+    quiet: float | None = None  # max per-axis (window std)/(expected σ); None until a window exists
+
+
+class RecentSamples:
+    """The last stillness window of the two triads the engine watches."""
+
+    def __init__(self, settings: EngineSettings):
+        self.settings = settings
+        self.n = max(2, round(settings.stillness.window_s * settings.rate_hz))
+        self._sf = np.empty((0, 3))
+        self._rate = np.empty((0, 3))
+        self._sigma = np.concatenate([np.asarray(settings.stillness.specific_force_sigma, float),
+                                      np.asarray(settings.stillness.rate_sigma, float)])
+
+    def add(self, chunk) -> None:
+        s = self.settings
+        if s.specific_force not in chunk.triads or s.angular_rate not in chunk.triads:
+            return
+        self._sf = np.concatenate([self._sf, np.asarray(chunk.triads[s.specific_force], float)[-self.n:]])[-self.n:]
+        self._rate = np.concatenate([self._rate, np.asarray(chunk.triads[s.angular_rate], float)[-self.n:]])[-self.n:]
+
+    def readings(self, expected_up: np.ndarray | None) -> dict:
+        """accel_mg, gyro_deg_s, angle_deg and quiet, as far as the samples allow."""
+        if len(self._sf) == 0:
+            return {}
+        s = self.settings
+        sf = (self._sf.mean(axis=0) - np.array(s.sf_zero)) / np.array(s.sf_sensitivity)  # m/s²
+        rate = (self._rate.mean(axis=0) - np.array(s.rate_zero)) / np.array(s.rate_sensitivity)  # rad/s
+        out = {"accel_mg": tuple(float(v) for v in sf / STANDARD_GRAVITY * 1e3),
+               "gyro_deg_s": tuple(float(math.degrees(v)) for v in rate)}
+        if expected_up is not None and np.all(np.isfinite(sf)) and np.linalg.norm(sf) > 0:
+            direction = gravity_direction(self._sf.mean(axis=0), zero=np.array(s.sf_zero),
+                                          sensitivity=np.array(s.sf_sensitivity))
+            out["angle_deg"] = float(angle_between(direction, expected_up))
+        if len(self._sf) >= self.n:
+            std = np.concatenate([self._sf.std(axis=0, ddof=1), self._rate.std(axis=0, ddof=1)])
+            quiet = float(np.max(std / self._sigma))
+            out["quiet"] = quiet if math.isfinite(quiet) else None
+        return out

@@ -1,0 +1,194 @@
+"""What the procedure screen shows, folded from engine events and telemetry (no Textual here).
+
+``RunView.apply(item)`` takes an engine event or a source ``Note`` and returns the log line for
+it, if any; ``RunView.telemetry`` is the latest snapshot. The dwell and turn-averaging progress
+move with sample time between the engine's 10 s progress events: a bar anchored at the event
+that started (or re-synchronised) it, advanced by the telemetry's sample time.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from fieldcal import engine as en
+from fieldcal import events as ev
+from fieldcal.positions import Procedure
+from fieldcal.progress import describe
+from fieldcal.tui.readings import Telemetry
+from fieldcal.tui.source import Note
+
+TODO, ACTIVE, DONE, SKIPPED, WRONG = "todo", "active", "done", "skipped", "wrong"
+
+
+@dataclass
+class Progress:
+    """An average that accumulates while still: total, done at an anchor, running or not."""
+
+    total: float = 0.0
+    base: float = 0.0
+    anchor: float | None = None  # sample time from which it runs; None when not running
+    complete: bool = False
+
+    def done(self, t: float) -> float:
+        if self.complete:
+            return self.total
+        if self.anchor is None:
+            return self.base
+        return max(0.0, min(self.total, self.base + t - self.anchor))
+
+    def start(self, t: float, total: float | None = None, keep: bool = False) -> None:
+        if total is not None:
+            self.total = total
+        self.base = self.base if keep else 0.0
+        self.anchor, self.complete = t, False
+
+    def sync(self, t: float, done: float) -> None:
+        self.base, self.anchor = done, t
+
+    def interrupt(self, t: float, restart: bool) -> None:
+        self.base = 0.0 if restart else self.done(t)
+        self.anchor = None
+
+    def finish(self) -> None:
+        self.complete, self.anchor = True, None
+
+
+@dataclass
+class RunView:
+    procedure: Procedure
+    tolerance_deg: float = 15.0
+    enter_factor: float = 2.0
+    leave_factor: float = 3.0
+    tiles: list[str] = field(default_factory=list)
+    step: int = 0
+    telemetry: Telemetry | None = None
+    dwell: Progress = field(default_factory=Progress)
+    turns: Progress = field(default_factory=Progress)
+    table_rate: float = 0.0  # commanded, °/s
+    table_state: str = "stopped"  # stopped, ramping, steady, disturbed, stopping
+    wrong: str | None = None  # the engine's message while the unit is misplaced
+    restarts: int = 0  # dwells restarted by motion in this step
+    restarts_total: int = 0
+    finished: str | None = None  # outcome status once the run has ended
+    last_t: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.tiles:
+            self.tiles = [TODO] * len(self.procedure.positions)
+        self.dwell.total = self.procedure.dwell_s
+
+    @property
+    def total_steps(self) -> int:
+        return len(self.procedure.positions)
+
+    @property
+    def t(self) -> float:
+        return self.telemetry.t if self.telemetry is not None else self.last_t
+
+    @property
+    def phase(self) -> str:
+        return self.telemetry.phase if self.telemetry is not None else en.PLACE
+
+    @property
+    def position(self):
+        return self.procedure.positions[min(self.step, self.total_steps - 1)]
+
+    def apply(self, item) -> str | None:
+        """Fold one event or note in; the log line for it (None if it has none)."""
+        self.last_t = max(self.last_t, item.t)
+        if isinstance(item, Note):
+            return f"[{item.t:7.1f} s] {item.text}"
+        self._fold(item)
+        text = describe(item)
+        if text is None:
+            return None
+        return f"[{item.t:7.1f} s] {text}"
+
+    def _fold(self, e: ev.Event) -> None:
+        if isinstance(e, ev.StepStarted):
+            self.step = e.step
+            if self.tiles[e.step] != SKIPPED:
+                self.tiles[e.step] = ACTIVE
+            self.dwell, self.turns = Progress(total=self.procedure.dwell_s), Progress()
+            self.wrong, self.restarts = None, 0
+            if not self.table_rate:
+                self.table_state = "stopped"
+        elif isinstance(e, ev.WrongOrientation):
+            self.wrong = e.message
+            self.tiles[self.step] = WRONG
+        elif isinstance(e, ev.Still):
+            self.wrong = None
+            self.tiles[self.step] = ACTIVE
+            self.dwell.start(e.t, keep=self.dwell.base > 0)
+        elif isinstance(e, ev.DwellProgress):
+            self.dwell.sync(e.t, e.done_s)
+        elif isinstance(e, ev.MotionDetected):
+            if e.phase == "dwell":
+                self.dwell.interrupt(e.t, e.restarted)
+                self.restarts += e.restarted
+                self.restarts_total += e.restarted
+            elif e.phase == "rate":
+                self.turns.interrupt(e.t, True)
+                self.table_state = "disturbed"
+        elif isinstance(e, ev.DwellComplete):
+            self.dwell.finish()
+        elif isinstance(e, ev.CommandTable):
+            self.table_rate = e.rate_deg_s
+            self.table_state = "ramping" if e.rate_deg_s else "stopping"
+            if e.rate_deg_s:
+                self.turns = Progress()
+        elif isinstance(e, ev.RateSettled):
+            self.table_state = "steady"
+            self.turns.start(e.t, e.window_s)
+        elif isinstance(e, ev.RateStepComplete):
+            self.turns.finish()
+        elif isinstance(e, ev.StepComplete):
+            self.tiles[e.step] = DONE
+        elif isinstance(e, ev.StepSkipped):
+            self.tiles[e.step] = SKIPPED
+        elif isinstance(e, ev.ProcedureComplete):
+            self.step = self.total_steps
+        elif isinstance(e, ev.Aborted) and self.step < self.total_steps \
+                and self.tiles[self.step] in (ACTIVE, WRONG):
+            self.tiles[self.step] = SKIPPED
+
+    def set_telemetry(self, telemetry: Telemetry) -> None:
+        self.telemetry = telemetry
+
+    # --- text for the screen -------------------------------------------------------------
+
+    def step_text(self) -> str:
+        if self.step >= self.total_steps:
+            return f"all {self.total_steps} steps done"
+        p = self.position
+        return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {p.description}"
+
+    def banner(self, sim: bool) -> tuple[str, str]:
+        """(instruction for the operator, style class)."""
+        if self.finished is not None:
+            return {"completed": ("Procedure complete: see the results (v)", "ok"),
+                    "aborted": ("Aborted: the session is kept", "bad"),
+                    "error": ("Stopped by an error: see the log", "bad"),
+                    "incomplete": ("The capture ends here", "warn"),
+                    "stopped": ("Stopped", "warn")}.get(self.finished, (self.finished, "warn"))
+        phase = self.phase
+        if phase == en.PLACE:
+            how = "press r and the simulator places it" if sim else "then press r"
+            return f"Place the unit in position {self.position.id}: {how}", "act"
+        if phase == en.WRONG:
+            fix = "press r to have the simulator correct it" if sim else "correct it"
+            return f"WRONG POSITION (see the log): {fix}", "bad"
+        if phase == en.SETTLING:
+            return "Hands off: waiting for the unit to be still", "wait"
+        if phase == en.CHECKING:
+            return "Still: checking the orientation", "wait"
+        if phase == en.DWELL:
+            return "Dwelling: keep the unit still", "run"
+        if phase == en.RATE_WAIT:
+            return f"Table turning to {self.table_rate:+.1f} °/s: waiting until steady", "run"
+        if phase == en.RATE_AVERAGE:
+            return f"Averaging whole turns at {self.table_rate:+.1f} °/s", "run"
+        if phase == en.DONE:
+            return "Procedure complete: solving", "ok"
+        if phase == en.ABORTED:
+            return "Aborted: the session is kept", "bad"
+        return phase, "wait"

@@ -1,0 +1,207 @@
+"""The operator's terminal UI, driven with Textual's Pilot: the same engine as the headless runs
+(same seed and keys: the same parameter file), a bump restarting the dwell, replay through the
+same screens, and snapshots of the procedure and results screens at 80x24."""
+from __future__ import annotations
+
+import asyncio
+import functools
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fieldcal import events as ev
+from fieldcal.earth import Station
+from fieldcal.positions import load_procedure, parse_procedure
+from fieldcal.replay import replay_matches
+from fieldcal.runner import RunSpec, run_headless
+from fieldcal.session import SessionReader
+from fieldcal.tui import FieldcalApp
+from fieldcal.tui.procedure_screen import ProcedureScreen
+from fieldcal.tui.results_screen import ResultsScreen
+
+try:
+    import pytest_textual_snapshot  # noqa: F401
+    HAVE_SNAPSHOTS = True
+except ImportError:  # pragma: no cover
+    HAVE_SNAPSHOTS = False
+
+STATION = Station(40.0, 50.0)
+TWO_POSITIONS = """\
+name: two
+title: two positions, 20 s dwells
+dwell_s: 20
+positions:
+  - {id: 1, description: "z-upward, x-south, y-east", axes: {x: south, y: east, z: up}}
+  - {id: 2, description: "z-upward, x-north, y-west", axes: {x: north, y: west, z: up}}
+"""
+TWO_WITH_TURNS = TWO_POSITIONS + "rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}\n"
+
+
+def two_positions(tmp_path: Path, text: str = TWO_POSITIONS):
+    path = tmp_path / "two.yaml"
+    path.write_text(text)
+    return parse_procedure(path.read_text(), path.name)
+
+
+def field18_short():
+    """field-18 with 20 s dwells: everything solves, in about 2 s of simulation."""
+    return parse_procedure(load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 20"),
+                           "field-18-short.yaml")
+
+
+def run_async(test):
+    """Run an async test body with asyncio (no pytest-asyncio needed)."""
+    @functools.wraps(test)
+    def wrapper(*args, **kwargs):
+        return asyncio.run(test(*args, **kwargs))
+    return wrapper
+
+
+async def until(pilot, predicate, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "the UI did not get there in time"
+        await pilot.pause(0.01)
+
+
+def waiting_at(app: FieldcalApp, step: int) -> bool:
+    t = app.telemetry
+    return t is not None and t.waiting and t.step == step and app.outcome is None
+
+
+async def press_ready_through(pilot, app: FieldcalApp) -> None:
+    """Press r at every PlaceUnit until the run ends on the results screen."""
+    for step in range(len(app.spec.procedure.positions)):
+        await until(pilot, lambda step=step: waiting_at(app, step))
+        await pilot.press("r")
+    await until(pilot, lambda: app.outcome is not None and isinstance(app.screen, ResultsScreen))
+
+
+@pytest.fixture(scope="module")
+def headless_field18(tmp_path_factory):
+    spec = RunSpec(field18_short(), STATION, seed=5)
+    return spec, run_headless(spec, tmp_path_factory.mktemp("headless") / "session")
+
+
+@run_async
+async def test_a_run_equals_the_headless_run_of_the_same_seed(tmp_path, headless_field18):
+    spec, headless = headless_field18
+    app = FieldcalApp(spec, speed=0, session_dir=tmp_path / "session")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await press_ready_through(pilot, app)
+        outcome = app.outcome
+    assert outcome.status == "completed" and not outcome.unit.failures
+    assert set(outcome.unit.solutions) == set(headless.unit.solutions)
+    for name, sol in outcome.unit.solutions.items():
+        assert np.array_equal(sol.theta, headless.unit.solutions[name].theta), name
+        assert np.array_equal(sol.sigma, headless.unit.solutions[name].sigma), name
+    assert outcome.parameters.read_bytes() == headless.parameters.read_bytes()
+    assert replay_matches(outcome.session)
+    assert [e.kind for e in app.events] == \
+        [e["event"] for e in SessionReader(headless.session).events()]
+    assert FieldcalApp.return_code_for(outcome) == 0
+
+
+@run_async
+async def test_a_bump_restarts_the_dwell_and_the_run_ends_on_the_results(tmp_path):
+    spec = RunSpec(two_positions(tmp_path), STATION, seed=3)
+    # 20× real time: a 20 s dwell lasts a second, time enough to bump it in the middle.
+    app = FieldcalApp(spec, speed=20, session_dir=tmp_path / "session")
+    async with app.run_test(size=(80, 24)) as pilot:
+        screen = app.screen
+        assert isinstance(screen, ProcedureScreen)
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("r")
+        await until(pilot, lambda: any(isinstance(e, ev.Still) for e in app.events))
+        assert not any(isinstance(e, ev.DwellComplete) for e in app.events)
+        await pilot.press("b")
+        await until(pilot, lambda: any(isinstance(e, ev.MotionDetected) for e in app.events))
+        await until(pilot, lambda: screen.view.dwell.anchor is not None and screen.view.restarts == 1)
+        assert screen.view.dwell.done(screen.view.t) < 10.0  # the bar went back to the start
+        await until(pilot, lambda: waiting_at(app, 1))
+        await pilot.press("r")
+        await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
+        outcome = app.outcome
+        assert screen.view.restarts_total == 1
+        assert screen.view.tiles == ["done", "done"]
+    events = app.events
+    bump = next(i for i, e in enumerate(events) if isinstance(e, ev.MotionDetected))
+    assert events[bump].phase == "dwell" and events[bump].restarted
+    still_again = next(e for e in events[bump:] if isinstance(e, ev.Still))
+    complete = next(e for e in events[bump:] if isinstance(e, ev.DwellComplete))
+    assert complete.t - still_again.t == pytest.approx(20.0, abs=0.01)  # a whole dwell again
+    # Two positions cannot calibrate anything: the same verdicts as the headless run.
+    headless = run_headless(spec, tmp_path / "headless")
+    assert outcome.status == "completed" and not outcome.unit.solutions
+    assert outcome.unit.failures == headless.unit.failures
+    # The session has the bump's samples and replays to the same events.
+    reader = SessionReader(outcome.session)
+    assert reader.stop_reason == "completed"
+    assert [a["action"] for a in reader.actions()] == ["ready", "ready"]
+
+
+@run_async
+async def test_replay_runs_through_the_same_screens_and_ignores_keys(headless_field18):
+    _, headless = headless_field18
+    app = FieldcalApp(None, speed=0, replay=headless.session)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await pilot.press("a", "s", "d", "r", "b")  # ignored: the recorded actions apply
+        await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
+        outcome = app.outcome
+        assert app.screen.query_one("#where").render().plain.count("byte for byte") == 1
+    assert outcome.status == "completed" and outcome.identical is True
+    for name, sol in outcome.unit.solutions.items():
+        assert np.array_equal(sol.theta, headless.unit.solutions[name].theta)
+    assert [e.kind for e in app.events] == [e["event"] for e in SessionReader(headless.session).events()]
+
+
+@run_async
+async def test_abort_keeps_the_session(tmp_path):
+    spec = RunSpec(two_positions(tmp_path), STATION, seed=4)
+    app = FieldcalApp(spec, speed=0, session_dir=tmp_path / "session")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("s")
+        await until(pilot, lambda: waiting_at(app, 1))
+        await pilot.press("a")
+        await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
+        await pilot.press("escape")  # back to the run: its tiles say what happened
+        assert isinstance(app.screen, ProcedureScreen)
+        assert app.screen.view.tiles == ["skipped", "skipped"]
+        await pilot.press("r")  # a finished run takes no more actions
+        await pilot.press("v")  # and shows its results again
+        assert isinstance(app.screen, ResultsScreen)
+    assert app.outcome.status == "aborted"
+    reader = SessionReader(tmp_path / "session")
+    assert reader.stop_reason == "aborted"
+    assert [a["action"] for a in reader.actions()] == ["skip", "abort"]
+
+
+@pytest.mark.skipif(not HAVE_SNAPSHOTS, reason="pytest-textual-snapshot is not installed")
+def test_snapshot_procedure_screen(snap_compare, tmp_path):
+    spec = RunSpec(two_positions(tmp_path, TWO_WITH_TURNS), STATION, seed=3)
+    app = FieldcalApp(spec, speed=0, session_dir=None)
+
+    async def second_step(pilot):
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(app, 1))
+
+    assert snap_compare(app, terminal_size=(80, 24), run_before=second_step)
+
+
+@pytest.mark.skipif(not HAVE_SNAPSHOTS, reason="pytest-textual-snapshot is not installed")
+def test_snapshot_results_screen(snap_compare, headless_field18, tmp_path, monkeypatch):
+    import shutil
+
+    _, headless = headless_field18
+    shutil.copytree(headless.session, tmp_path / "session")
+    monkeypatch.chdir(tmp_path)  # so that the paths shown do not depend on the temporary directory
+    app = FieldcalApp(None, speed=0, replay=Path("session"))
+
+    async def results(pilot):
+        await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
+
+    assert snap_compare(app, terminal_size=(80, 24), run_before=results)

@@ -1,0 +1,89 @@
+"""The terminal UI's pure parts: the orientation drawing, the progress bookkeeping, pacing, and the
+source driven without Textual."""
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from fieldcal import events as ev
+from fieldcal.earth import Station
+from fieldcal.positions import load_procedure, parse_procedure
+from fieldcal.runner import RunSpec
+from fieldcal.tui.bars import bar, signed_bar
+from fieldcal.tui.cube import top_view
+from fieldcal.tui.source import READY, Pacer, SimSource
+from fieldcal.tui.view import RunView
+
+
+def test_the_top_view_draws_the_papers_positions():
+    positions = load_procedure("field-18").positions
+    one = "\n".join(top_view(positions[0]))  # z-upward, x-south, y-east
+    assert "⊙z" in one and "↓x" in one and "y→" in one
+    thirteen = "\n".join(top_view(positions[12]))  # y-east, z north-up 45°, x south-up 45°
+    assert "↑z⊙" in thirteen and "↓x⊙" in thirteen and "y→" in thirteen
+    assert all(len(line) <= 22 for p in positions for line in top_view(p))
+
+
+def test_bars_fill_in_eighths_and_centre_signed_values():
+    assert bar(0.5, 4).plain == "██░░"
+    assert bar(0.25, 2).plain == "▌░" and bar(1 / 16, 2).plain == "▏░"
+    assert bar(2.0, 3).plain == "███"
+    assert signed_bar(-1.0, 1.0, 4).plain == "██│  "
+    assert signed_bar(0.5, 1.0, 4).plain == "  │█ "
+
+
+def test_the_dwell_bar_restarts_on_motion_and_moves_with_sample_time():
+    view = RunView(load_procedure("field-18"))
+    for e in (ev.StepStarted(0.0, 0, 1, "z-upward", 18), ev.Still(5.0, 3.0), ev.DwellProgress(15.0, 10.0, 200.0)):
+        view.apply(e)
+    assert view.dwell.done(20.0) == pytest.approx(15.0)
+    view.apply(ev.MotionDetected(21.0, "dwell", True))
+    assert view.dwell.done(30.0) == 0.0 and view.restarts == 1
+    view.apply(ev.Still(22.0, 3.1))
+    assert view.dwell.done(32.0) == pytest.approx(10.0)
+    view.apply(ev.StepComplete(300.0, 0, 1))
+    view.apply(ev.StepStarted(300.0, 1, 2, "z-upward", 18))
+    assert view.tiles[:3] == ["done", "active", "todo"] and view.restarts == 0 and view.restarts_total == 1
+
+
+def test_the_pacer_holds_sample_time_to_speed_times_wall_time():
+    now = iter(itertools.count(0.0, 0.0))  # a clock that never moves
+    pacer = Pacer(10.0, clock=lambda: next(now))
+    assert pacer.delay(0.0, 1.0) == pytest.approx(0.1)
+    assert pacer.delay(1.0, 5.0) == pytest.approx(0.5)
+    pacer.hold()  # after waiting for the operator, pacing starts again from there
+    assert pacer.delay(100.0, 101.0) == pytest.approx(0.1)
+    assert Pacer(0.0).delay(0.0, 1e6) == 0.0
+    with pytest.raises(ValueError):
+        Pacer(-1.0)
+
+
+class Operator:
+    """A sink that presses ready whenever the source waits for it."""
+
+    def __init__(self):
+        self.items, self.telemetry, self.outcome, self.source = [], [], None, None
+
+    def update(self, items, telemetry):
+        self.items.extend(items)
+        self.telemetry.append(telemetry)
+        if telemetry.waiting:
+            self.source.send(READY)
+
+    def finished(self, outcome):
+        self.outcome = outcome
+
+
+def test_the_sim_source_waits_for_the_operator_and_runs_without_a_ui():
+    text = load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 5")
+    procedure = parse_procedure(text, "x.yaml")
+    sink = Operator()
+    source = sink.source = SimSource(RunSpec(procedure, Station(40.0, 50.0), seed=2), sink, speed=0,
+                                     session_dir=None)
+    outcome = source.run()
+    assert outcome is sink.outcome and outcome.status == "completed" and outcome.session is None
+    assert outcome.parameters is None and set(outcome.unit.solutions) == {"accelerometer", "gyroscope",
+                                                                           "inclinometer"}
+    assert sum(isinstance(i, ev.StepComplete) for i in sink.items) == 18
+    assert sink.telemetry[-1].accel_mg is not None and sink.telemetry[-1].quiet is not None
