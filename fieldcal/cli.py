@@ -124,6 +124,19 @@ def cmd_sim_serve(args) -> int:
     return 0
 
 
+def add_run_options(parser: argparse.ArgumentParser) -> None:
+    """Options shared by everything that runs a procedure (run, tui)."""
+    parser.add_argument("--config", default="sim", help="station config (default: sim)")
+    parser.add_argument("--procedure", default="field-18",
+                        help="procedure name or YAML path (default field-18)")
+    parser.add_argument("--seed", type=_seed, help="simulation seed (default: the config's)")
+    parser.add_argument("--out", default="sessions", help="where sessions go (default ./sessions)")
+    parser.add_argument("--method", choices=METHODS, default="auto",
+                        help="solver: auto (default) is classic for an aligned procedure, else powell")
+    parser.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
+                        help="a bump during a dwell restarts it (default) or drops only the disturbed part")
+
+
 def _lazy(name: str):
     """A command handler from fieldcal.sessions_cli, imported only when that command runs."""
     def handler(args):
@@ -168,15 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "operator moves the simulated unit through every position; the session "
                          "(every sample, action and event) and the parameter file are written "
                          "under --out, and the solved parameters are printed beside the truth.")
-    run.add_argument("--config", default="sim", help="station config (default: sim)")
-    run.add_argument("--procedure", default="field-18", help="procedure name or YAML path (default field-18)")
+    add_run_options(run)
     run.add_argument("--headless", action="store_true", help="no terminal UI: the automatic operator")
-    run.add_argument("--seed", type=_seed, help="simulation seed (default: the config's)")
-    run.add_argument("--out", default="sessions", help="where sessions go (default ./sessions)")
-    run.add_argument("--method", choices=METHODS, default="auto",
-                     help="solver: auto (default) is classic for an aligned procedure, else powell")
-    run.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
-                     help="a bump during a dwell restarts it (default) or drops only the disturbed part")
     run.add_argument("--bump-step", type=int, metavar="N", help="the operator bumps the unit in step N")
     run.add_argument("--wrong-step", type=int, metavar="N",
                      help="the operator first puts the unit in a wrong position at step N")

@@ -8,7 +8,6 @@ import argparse
 import datetime
 from pathlib import Path
 
-from fieldcal.solve import METHODS
 
 
 def _speed(text: str) -> float:
@@ -28,18 +27,12 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
                          "simulated bench (r: the unit is in place, d: redo, s: skip, a: abort, "
                          "b: bump, ?: help), capturing a session under --out; or replay a captured "
                          "session through the same screens with --replay.")
-    tui.add_argument("--config", default="sim", help="station config (default: sim)")
-    tui.add_argument("--procedure", default="field-18", help="procedure name or YAML path (default field-18)")
-    tui.add_argument("--seed", type=int, help="simulation seed (default: the config's)")
+    from fieldcal.cli import add_run_options  # here: fieldcal.cli imports this module
+    add_run_options(tui)
     tui.add_argument("--speed", type=_speed,
                      help="sample time per wall time: 1 = real time, 0 = as fast as possible "
                      "(default: the config's sim speed for a run, 10 for a replay)")
-    tui.add_argument("--out", default="sessions", help="where sessions go (default ./sessions)")
     tui.add_argument("--no-capture", action="store_true", help="do not write a session")
-    tui.add_argument("--method", choices=METHODS, default="auto",
-                     help="solver: auto (default) is classic for an aligned procedure, else powell")
-    tui.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
-                     help="a bump during a dwell restarts it (default) or drops only the disturbed part")
     tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
     tui.set_defaults(func=cmd_tui)
     return tui
