@@ -1,0 +1,47 @@
+"""Calibration from a plain continuous recording (no procedure, no operator prompts).
+
+A recording is the unit set down by hand in a dozen or more poses and turned between them.
+``importer`` turns text files into a :class:`Recording` (and a session), ``detect`` finds the
+static poses, ``fieldcal.solvers.rotation`` calibrates the gyroscope from the rotations between
+poses, and ``calibrate`` ties them together for ``fieldcal calibrate``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One continuous record of a unit, on one time base.
+
+    ``t``: (n,) seconds, strictly increasing. ``triads[name]``: (n, 3) in that triad's output
+    unit ``units[name]`` ("count" for raw integers), of kind ``kinds[name]`` (``specific_force``
+    or ``angular_rate``, see ``fieldcal.model``). ``sources``: the files it came from.
+    ``malformed``: file -> (count, first few 1-based line numbers) of lines not used.
+    """
+
+    t: np.ndarray
+    triads: dict[str, np.ndarray]
+    kinds: dict[str, str]
+    units: dict[str, str]
+    sources: tuple[str, ...] = ()
+    malformed: dict[str, tuple[int, tuple[int, ...]]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        for name, values in self.triads.items():
+            if values.shape != (n, 3):
+                raise ValueError(f"recording: triad {name} has shape {values.shape}, expected ({n}, 3)")
+            if name not in self.kinds or name not in self.units:
+                raise ValueError(f"recording: triad {name} has no kind or unit")
+
+    @property
+    def rate_hz(self) -> float:
+        """The median sample rate."""
+        return float(1.0 / np.median(np.diff(self.t))) if len(self.t) > 1 else 0.0
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
