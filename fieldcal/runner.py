@@ -39,6 +39,9 @@ class OperatorScript:
     bump_step: int | None = None  # bump the unit halfway through this step's dwell (0-based)
     wrong_step: int | None = None  # first put the unit in a wrong position at this step
     skip_steps: tuple[int, ...] = ()
+    # Bump after the first chunk that ends at or after each of these sample times (s): how a
+    # headless run repeats the bumps an operator gave in the terminal UI.
+    bump_at_s: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,7 @@ class RunSpec:
     def from_metadata(cls, meta: dict) -> RunSpec:
         script = dict(meta["script"])
         script["skip_steps"] = tuple(script["skip_steps"])
+        script["bump_at_s"] = tuple(script.get("bump_at_s", ()))  # absent before bump_at_s existed
         return cls(procedure=parse_procedure(meta["procedure"]["yaml"], meta["procedure"]["name"]),
                    station=Station(**meta["station"]), seed=meta["seed"],
                    rate_hz=meta["device"]["rate_hz"], raw_counts=meta["device"]["raw_counts"],
@@ -184,6 +188,8 @@ def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: Sessio
     """Run until the procedure completes or is aborted; False if aborted."""
     script = spec.script
     bumped = wrong_done = False
+    bumps_due = sorted(t for t in script.bump_at_s if t > engine.t)
+    bump_now = False
     # A step normally takes its dwell, its rate steps and the handling; ten times that with no
     # step completed means the run cannot make progress (say the unit never settles).
     step = spec.procedure.rate_step
@@ -223,6 +229,9 @@ def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: Sessio
                     moves.append(("bump", None))
             elif isinstance(e, (ev.ProcedureComplete, ev.Aborted)):
                 return isinstance(e, ev.ProcedureComplete)
+        if bump_now:
+            moves.append(("bump", None))
+            bump_now = False
         events = []
         for what, arg in moves:
             if what == "act":
@@ -236,6 +245,9 @@ def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: Sessio
             chunk = bench.next_chunk()
             session.chunk(chunk)
             events = engine.feed(chunk)
+            if bumps_due and engine.t >= bumps_due[0]:
+                bumps_due.pop(0)
+                bump_now = True  # after this chunk's events, as the terminal UI does a key
             if chunk.t[-1] > deadline:
                 events += engine.act(ev.Action(ev.ABORT))
                 report(ev.Aborted(float(chunk.t[-1]), f"no step completed in {10 * per_step:.0f} s of "

@@ -15,7 +15,7 @@ from fieldcal import events as ev
 from fieldcal.earth import Station
 from fieldcal.positions import load_procedure, parse_procedure
 from fieldcal.replay import replay_matches
-from fieldcal.runner import RunSpec, run_headless
+from fieldcal.runner import OperatorScript, RunSpec, run_headless
 from fieldcal.session import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.tui.procedure_screen import ProcedureScreen
@@ -102,6 +102,72 @@ async def test_a_run_equals_the_headless_run_of_the_same_seed(tmp_path, headless
     assert [e.kind for e in app.events] == \
         [e["event"] for e in SessionReader(headless.session).events()]
     assert FieldcalApp.return_code_for(outcome) == 0
+
+
+class VirtualClock:
+    """Wall time for the UI's pacer that moves only when the test says: the run stands still
+    between advances, so a key lands exactly where the test means it to."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+async def run_until(pilot, clock: VirtualClock, predicate, step_s: float, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "the UI did not get there in time"
+        clock.now += step_s
+        await pilot.pause(0.01)
+
+
+@run_async
+async def test_a_field18_run_with_a_wrong_position_and_a_bump_equals_the_headless_run(tmp_path):
+    """The whole of field-18 through the keys, at 10x virtual real time (one-second chunks, as
+    headless): position 4 first placed wrongly, position 8 bumped mid-dwell. A headless run of
+    the same seed whose operator does the same gives the same parameter file."""
+    spec = RunSpec(field18_short(), STATION, seed=6)
+    clock = VirtualClock()
+    app = FieldcalApp(spec, speed=10, session_dir=tmp_path / "session", clock=clock)
+    wrong_step, bump_step = 3, 7
+    async with app.run_test(size=(80, 24)) as pilot:
+        screen = app.screen
+        for step in range(len(spec.procedure.positions)):
+            await run_until(pilot, clock, lambda step=step: waiting_at(app, step), step_s=1e3)
+            if step == wrong_step:
+                await pilot.press("w")
+                await run_until(pilot, clock, lambda: any(isinstance(e, ev.WrongOrientation)
+                                                          for e in app.events), step_s=1e3)
+                await until(pilot, lambda step=step: waiting_at(app, step))
+                assert screen.view.tiles[step] == "wrong"
+            await pilot.press("r")
+            if step == bump_step:
+                def half_dwelt():
+                    return any(isinstance(e, ev.DwellProgress) and e.done_s >= e.total_s / 2
+                               for e in app.events[-5:])
+                await run_until(pilot, clock, half_dwelt, step_s=0.05)
+                await pilot.press("b")
+                await run_until(pilot, clock, lambda: screen.view.restarts == 1, step_s=0.05)
+        await run_until(pilot, clock, lambda: isinstance(app.screen, ResultsScreen), step_s=1e3)
+        outcome = app.outcome
+        assert app.screen.query_one("#headline").render().plain.startswith("Calibration complete")
+        assert screen.view.tiles == ["done"] * len(spec.procedure.positions)
+    assert outcome.status == "completed" and not outcome.unit.failures
+    assert len(app.source.bump_times) == 1
+    kinds = [e.kind for e in app.events]
+    assert kinds.count("wrong_orientation") == 1
+    motion = [e for e in app.events if isinstance(e, ev.MotionDetected)]
+    assert len(motion) == 1 and motion[0].phase == "dwell" and motion[0].restarted
+
+    script = OperatorScript(wrong_step=wrong_step, bump_at_s=tuple(app.source.bump_times))
+    headless = run_headless(RunSpec(spec.procedure, STATION, seed=6, script=script), tmp_path / "headless")
+    assert kinds == [e["event"] for e in SessionReader(headless.session).events()]
+    for name, sol in outcome.unit.solutions.items():
+        assert np.array_equal(sol.theta, headless.unit.solutions[name].theta), name
+    assert outcome.parameters.read_bytes() == headless.parameters.read_bytes()
+    assert replay_matches(outcome.session)
 
 
 @run_async

@@ -257,6 +257,7 @@ class SimSource(Source):
         self.session_dir = Path(session_dir) if session_dir is not None else None
         self.session = None
         self.bench = SimulatedBench(spec)
+        self.bump_times: list[float] = []  # sample time of each bump (OperatorScript.bump_at_s)
         if speed > 0:  # chunks of about FLUSH_S wall time, so the display moves smoothly
             self.bench.chunk_n = max(1, min(self.bench.chunk_n, round(spec.rate_hz * FLUSH_S * speed)))
 
@@ -331,6 +332,7 @@ class SimSource(Source):
             self._act(command)
         elif command == BUMP:
             self._note("operator: bump! (the simulator knocks the fixture)")
+            self.bump_times.append(e.t)
             self._feed(self.bench.bump())
 
     def _handle(self, events) -> None:
