@@ -49,3 +49,19 @@ def solution_table(sol, truth: np.ndarray | None = None) -> str:
                     f"{(sol.theta[j] - truth[j]) / sol.sigma[j]:>+8.2f}")
         lines.append(row)
     return "\n".join(lines)
+
+
+def comparison_table(sol, previous) -> str:
+    """Each parameter against a previous calibration (``TriadParameters``) of the same triad:
+    the previous value ± 1σ, the change, and the change in units of the combined σ."""
+    lines = [f"  {'parameter':<9} {'previous':>18} {'±1σ':>12} {'change':>14} {'change/σ':>9}"]
+    for j, _ in enumerate(PARAM_NAMES):
+        scale = display_scale(sol.kind, sol.output_unit, j)
+        unit = param_unit(sol.kind, sol.output_unit, j)
+        change = sol.theta[j] - previous.theta[j]
+        combined = float(np.hypot(sol.sigma[j], previous.sigma[j]))
+        in_sigma = f"{change / combined:>+9.2f}" if combined > 0 else f"{'-':>9}"
+        lines.append(f"  {_ROW_NAMES[j]:<9} {_fmt(previous.theta[j] * scale, unit, j):>18} "
+                     f"{_fmt_sigma(previous.sigma[j] * scale, unit, j):>12} "
+                     f"{_fmt_sigma(change * scale, unit, j):>14} {in_sigma}")
+    return "\n".join(lines)

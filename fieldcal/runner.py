@@ -30,6 +30,7 @@ from fieldcal.solve import UnitSolution, models_from_truth, resolve_method, solv
 from fieldcal.stillness import StillnessSettings
 
 TABLE_ACCEL_DEG_S2 = 20.0
+SIM_DEVICE_NAME = "simulated MIMU (paper Tables 3-4)"
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,7 @@ class RunSpec:
             "procedure": {"name": self.procedure.name, "yaml": self.procedure.text},
             "station": {"latitude_deg": self.station.latitude_deg, "height_m": self.station.height_m,
                         "gravity_m_s2": self.station.gravity_m_s2},
-            "device": {"name": "simulated MIMU (paper Tables 3-4)", "raw_counts": self.raw_counts,
+            "device": {"name": SIM_DEVICE_NAME, "raw_counts": self.raw_counts,
                        "rate_hz": self.rate_hz},
             "seed": self.seed, "method": self.method, "on_motion": self.on_motion,
             "script": asdict(self.script),
@@ -179,7 +180,7 @@ def _solve(spec: RunSpec, engine: Engine) -> tuple[UnitSolution, ParameterFile |
         triads=tuple(TriadParameters.from_solution(s) for s in unit.solutions.values()),
         procedure=spec.procedure.name, method=resolve_method(spec.procedure, spec.method),
         station=spec.station,
-        input_sha256=hash_inputs(*unit.inputs.values()), simulation=True)
+        input_sha256=hash_inputs(*unit.inputs.values()), device_name=SIM_DEVICE_NAME, simulation=True)
     return unit, pf
 
 

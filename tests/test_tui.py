@@ -271,3 +271,30 @@ def test_snapshot_results_screen(snap_compare, headless_field18, tmp_path, monke
         await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
 
     assert snap_compare(app, terminal_size=(80, 24), run_before=results)
+
+
+@run_async
+async def test_the_results_show_the_previous_calibration_of_the_same_unit(tmp_path, headless_field18):
+    """A second run beside an earlier session shows each parameter against the earlier file."""
+    from fieldcal.paramfile import load
+
+    spec, headless = headless_field18
+    sessions = tmp_path / "sessions"
+    earlier = sessions / "earlier"
+    earlier.mkdir(parents=True)
+    (earlier / "parameters.yaml").write_bytes(headless.parameters.read_bytes())
+    (sessions / "damaged").mkdir()
+    (sessions / "damaged" / "parameters.yaml").write_text("schema: nonsense\n")
+    app = FieldcalApp(RunSpec(spec.procedure, STATION, seed=7), speed=0, session_dir=sessions / "today")
+    async with app.run_test(size=(100, 40)) as pilot:
+        await press_ready_through(pilot, app)
+        text = "\n".join(w.render().plain if hasattr(w.render(), "plain") else str(w.render())
+                         for w in app.screen.query(".previous-head, .table"))
+    previous = app.outcome.previous
+    assert previous is not None and previous.path == earlier / "parameters.yaml"
+    old = load(earlier / "parameters.yaml")["accelerometer"]
+    new = app.outcome.unit.solutions["accelerometer"]
+    assert str(earlier / "parameters.yaml") in text
+    # The change column is the difference of the two files' values (bias x, in mg).
+    change_mg = (new.theta[0] - old.theta[0]) / 9.80665e-3
+    assert f"{change_mg:.3g} mg" in text

@@ -12,7 +12,7 @@ from textual.containers import VerticalScroll
 from textual.screen import Screen
 from textual.widgets import Footer, Static
 
-from fieldcal.report import solution_header, solution_table
+from fieldcal.report import comparison_table, solution_header, solution_table
 from fieldcal.tui.residuals import residual_bars
 from fieldcal.tui.source import Outcome
 
@@ -76,6 +76,11 @@ class ResultsScreen(Screen):
                 yield Static(solution_header(sol), classes="triad-head")
                 yield Static(Text(solution_table(sol, truth)), classes="table")
                 yield Static(residual_bars(sol), classes="residuals")
+                previous = out.previous
+                if previous is not None and name in previous.parameters.names:
+                    yield Static(f"  beside the previous calibration of this unit, {previous.path}:",
+                                 classes="previous-head")
+                    yield Static(Text(comparison_table(sol, previous.parameters[name])), classes="table")
                 if truth is not None:
                     worst = max(worst, float(np.max(np.abs(sol.theta - truth) / sol.sigma)))
             for name, why in (unit.failures.items() if unit is not None else ()):

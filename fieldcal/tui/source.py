@@ -65,6 +65,7 @@ class Outcome:
     completed: int = 0
     skipped: int = 0
     message: str = ""
+    previous: object | None = None  # fieldcal.history.PreviousCalibration of the same unit
 
     @property
     def solved(self) -> bool:
@@ -378,7 +379,22 @@ class SimSource(Source):
             self.session.close()
         self.outcome = Outcome("completed", self.spec.procedure, unit=unit, truth=truth,
                                session=self.session_dir, parameters=path,
-                               completed=done.completed, skipped=done.skipped)
+                               completed=done.completed, skipped=done.skipped,
+                               previous=self._previous())
+
+    def _previous(self):
+        """The unit's last calibration among the sessions beside this one."""
+        from fieldcal.history import previous_calibration
+        from fieldcal.runner import SIM_DEVICE_NAME
+
+        if self.session_dir is None:
+            return None
+        found, unreadable = previous_calibration(self.session_dir.parent, SIM_DEVICE_NAME, None,
+                                                 exclude=self.session_dir)
+        if unreadable:
+            self._note(f"{unreadable} unreadable parameter file(s) under {self.session_dir.parent} "
+                       "passed over when looking for the previous calibration")
+        return found
 
     def _stopped(self) -> Outcome:
         out = super()._stopped()
