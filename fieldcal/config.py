@@ -8,6 +8,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivers.sim.noise import TriadNoise
 from drivers.transport import PortSettings
 from fieldcal.earth import Station
 from fieldcal.model import KINDS
@@ -31,6 +32,14 @@ class TriadSpec:
     name: str  # as the protocol names it: accelerometer, gyroscope, inclinometer, ...
     kind: str  # specific_force or angular_rate
     unit: str  # output unit of the device for this triad
+    # What the station knows before calibrating (a real device needs it for a procedure): the
+    # noise (SI: white as VRW/ARW in unit·√s, bias instability in unit, e.g. from `fieldcal
+    # allan`), the nominal zero (output units) and sensitivity (output units per SI unit), and
+    # the output's quantisation step.
+    noise: TriadNoise | None = None
+    zero: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sensitivity: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    lsb: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -50,6 +59,7 @@ class DeviceConfig:
     port: PortSettings | None = None  # None: the simulator serves its own port
     channels: dict | None = None  # delimited text: the channel map, validated by its parser
     sim: SimSettings | None = None
+    serial: str | None = None  # the unit's serial number: its calibrations are compared by it
 
 
 @dataclass(frozen=True)
@@ -89,9 +99,29 @@ def _triads(r: FieldReader, raw, where: str) -> tuple[TriadSpec, ...]:
     specs = []
     for name, body in raw.items():
         here = f"{where}.{name}"
-        m = r.mapping(body, here, ("kind", "unit"))
-        specs.append(TriadSpec(str(name), r.string(m, "kind", here, KINDS), r.string(m, "unit", here)))
+        m = r.mapping(body, here, ("kind", "unit"), ("noise", "zero", "sensitivity", "lsb"))
+        noise = None
+        if "noise" in m:
+            n = r.mapping(m["noise"], f"{here}.noise", ("white",), ("bias_instability",))
+            noise = TriadNoise(white=r.number(n, "white", f"{here}.noise", 1e-12),
+                               bias_instability=r.number(n, "bias_instability", f"{here}.noise", 0)
+                               if "bias_instability" in n else 0.0)
+        specs.append(TriadSpec(str(name), r.string(m, "kind", here, KINDS), r.string(m, "unit", here),
+                               noise=noise, zero=_three(r, m, "zero", here, 0.0, None),
+                               sensitivity=_three(r, m, "sensitivity", here, 1.0, 1e-12),
+                               lsb=r.number(m, "lsb", here, 0) if "lsb" in m else 0.0))
     return tuple(specs)
+
+
+def _three(r: FieldReader, m: dict, key: str, where: str, default: float, minimum) -> tuple:
+    """A number for all three axes, or a list of three."""
+    value = m.get(key, default)
+    here = f"{where}.{key}"
+    if isinstance(value, list):
+        if len(value) != 3:
+            r.fail(here, "a number or a list of three numbers", describe(value))
+        return tuple(r.value(v, f"{here}[{i}]", minimum) for i, v in enumerate(value))
+    return (r.value(value, here, minimum),) * 3
 
 
 def _sim(r: FieldReader, raw, where: str) -> SimSettings:
@@ -108,7 +138,7 @@ def _sim(r: FieldReader, raw, where: str) -> SimSettings:
 
 
 def _device(r: FieldReader, raw, where: str) -> DeviceConfig:
-    m = r.mapping(raw, where, ("name", "protocol", "rate_hz", "triads"), ("port", "channels", "sim"))
+    m = r.mapping(raw, where, ("name", "protocol", "rate_hz", "triads"), ("port", "channels", "sim", "serial"))
     protocol = r.string(m, "protocol", where, DEVICE_PROTOCOLS)
     if protocol == "sim":
         port, sim = None, _sim(r, m.get("sim"), f"{where}.sim")
@@ -125,7 +155,12 @@ def _device(r: FieldReader, raw, where: str) -> DeviceConfig:
             raise ConfigError(f"{r.path}: {exc}", r.path, f"{where}.channels") from None
     elif channels is not None:
         r.fail(f"{where}.channels", "no channel map (only delimited text has one)", "a channel map")
-    return DeviceConfig(name=r.string(m, "name", where), protocol=protocol,
+    serial = m.get("serial")
+    if serial is not None:
+        if isinstance(serial, bool) or not isinstance(serial, (str, int)) or not str(serial).strip():
+            r.fail(f"{where}.serial", "the unit's serial number (text)", describe(serial))
+        serial = str(serial)
+    return DeviceConfig(name=r.string(m, "name", where), protocol=protocol, serial=serial,
                         rate_hz=r.number(m, "rate_hz", where, 1e-3), triads=_triads(r, m["triads"], f"{where}.triads"),
                         port=port, channels=channels, sim=sim)
 
