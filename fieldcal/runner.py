@@ -21,12 +21,13 @@ from fieldcal import __version__
 from fieldcal import events as ev
 from fieldcal.earth import Station
 from fieldcal.engine import Engine, EngineSettings
+from fieldcal.livedevice import ANGULAR_RATE_TRIAD, SPECIFIC_FORCE_TRIAD, LiveDevice
 from fieldcal.model import params_from_k
 from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs
 from fieldcal.positions import Procedure, parse_procedure
 from fieldcal.session import SessionReader, SessionWriter
 from fieldcal.simrun import placed_attitude
-from fieldcal.solve import UnitSolution, models_from_truth, resolve_method, solve_unit
+from fieldcal.solve import TriadModel, UnitSolution, models_from_truth, resolve_method, solve_unit
 from fieldcal.stillness import StillnessSettings
 
 TABLE_ACCEL_DEG_S2 = 20.0
@@ -57,8 +58,16 @@ class RunSpec:
     method: str = "auto"
     on_motion: str = "restart"
     script: OperatorScript = field(default_factory=OperatorScript)
+    live: LiveDevice | None = None  # a real device on a port; None: the simulated MIMU
 
     def to_metadata(self) -> dict:
+        if self.live is not None:
+            return {"software": f"fieldcal {__version__}",
+                    "procedure": {"name": self.procedure.name, "yaml": self.procedure.text},
+                    "station": {"latitude_deg": self.station.latitude_deg, "height_m": self.station.height_m,
+                                "gravity_m_s2": self.station.gravity_m_s2},
+                    "device": {**self.live.to_metadata(), "rate_hz": self.rate_hz, "raw_counts": False},
+                    "method": self.method, "on_motion": self.on_motion}
         device = paper_mimu(self.raw_counts)
         return {
             "software": f"fieldcal {__version__}",
@@ -75,18 +84,44 @@ class RunSpec:
 
     @classmethod
     def from_metadata(cls, meta: dict) -> RunSpec:
+        common = {"procedure": parse_procedure(meta["procedure"]["yaml"], meta["procedure"]["name"]),
+                  "station": Station(**meta["station"]), "rate_hz": meta["device"]["rate_hz"],
+                  "method": meta["method"], "on_motion": meta["on_motion"]}
+        if "triads" in meta["device"]:
+            return cls(**common, live=LiveDevice.from_metadata(meta["device"]))
         script = dict(meta["script"])
         script["skip_steps"] = tuple(script["skip_steps"])
         script["bump_at_s"] = tuple(script.get("bump_at_s", ()))  # absent before bump_at_s existed
-        return cls(procedure=parse_procedure(meta["procedure"]["yaml"], meta["procedure"]["name"]),
-                   station=Station(**meta["station"]), seed=meta["seed"],
-                   rate_hz=meta["device"]["rate_hz"], raw_counts=meta["device"]["raw_counts"],
-                   method=meta["method"], on_motion=meta["on_motion"], script=OperatorScript(**script))
+        return cls(**common, seed=meta["seed"], raw_counts=meta["device"]["raw_counts"],
+                   script=OperatorScript(**script))
 
     def device(self):
+        """The simulated device's truth."""
+        if self.live is not None:
+            raise ValueError(f"{self.live.name} is a real device: it has no simulation truth")
         return paper_mimu(self.raw_counts)
 
+    @property
+    def device_name(self) -> str:
+        return SIM_DEVICE_NAME if self.live is None else self.live.name
+
+    @property
+    def device_serial(self) -> str | None:
+        return None if self.live is None else self.live.serial
+
+    def models(self) -> dict[str, TriadModel]:
+        """What the station knows of each triad before calibrating it."""
+        return models_from_truth(self.device()) if self.live is None else dict(self.live.models)
+
+    def truth(self) -> dict[str, np.ndarray]:
+        """The true parameters per triad (simulation), or nothing (a real device)."""
+        if self.live is not None:
+            return {}
+        return {n: params_from_k(t.K, t.bias) for n, t in self.device().items()}
+
     def engine_settings(self) -> EngineSettings:
+        if self.live is not None:
+            return self._live_engine_settings()
         device = self.device()
         acc, gyro = device["accelerometer"], device["gyroscope"]
         sens_sf, sens_rate = np.diag(acc.K), np.diag(gyro.K)
@@ -99,6 +134,16 @@ class RunSpec:
             sf_sensitivity=tuple(np.round(sens_sf, 0) if self.raw_counts else (1.0,) * 3),
             rate_zero=tuple(np.round(gyro.bias, -2) if self.raw_counts else (0.0,) * 3),
             rate_sensitivity=tuple(np.round(sens_rate, 0) if self.raw_counts else (1.0,) * 3))
+
+    def _live_engine_settings(self) -> EngineSettings:
+        live = self.live
+        acc, gyro = live.models[SPECIFIC_FORCE_TRIAD], live.models[ANGULAR_RATE_TRIAD]
+        return EngineSettings(
+            rate_hz=self.rate_hz, on_motion=self.on_motion,
+            stillness=StillnessSettings.from_noise(acc.noise.white, gyro.noise.white, self.rate_hz,
+                                                   acc.sensitivity, gyro.sensitivity, acc.lsb, gyro.lsb),
+            sf_zero=live.zeros[SPECIFIC_FORCE_TRIAD], sf_sensitivity=tuple(np.diag(acc.sensitivity)),
+            rate_zero=live.zeros[ANGULAR_RATE_TRIAD], rate_sensitivity=tuple(np.diag(gyro.sensitivity)))
 
 
 class SimulatedBench:
@@ -172,7 +217,7 @@ class RunResult:
 
 def _solve(spec: RunSpec, engine: Engine) -> tuple[UnitSolution, ParameterFile | None]:
     windows, averages = engine.windows_and_averages()
-    models = {n: m for n, m in models_from_truth(spec.device()).items() if n in averages}
+    models = {n: m for n, m in spec.models().items() if n in averages}
     unit = solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, spec.method)
     if not unit.solutions:
         return unit, None
@@ -180,7 +225,8 @@ def _solve(spec: RunSpec, engine: Engine) -> tuple[UnitSolution, ParameterFile |
         triads=tuple(TriadParameters.from_solution(s) for s in unit.solutions.values()),
         procedure=spec.procedure.name, method=resolve_method(spec.procedure, spec.method),
         station=spec.station,
-        input_sha256=hash_inputs(*unit.inputs.values()), device_name=SIM_DEVICE_NAME, simulation=True)
+        input_sha256=hash_inputs(*unit.inputs.values()), device_name=spec.device_name,
+        device_serial=spec.device_serial, simulation=spec.live is None)
     return unit, pf
 
 
@@ -293,7 +339,7 @@ def resume_headless(directory: Path, report=lambda e: None) -> RunResult:
 
 
 def _finish(spec: RunSpec, engine: Engine, session: SessionWriter, completed: bool, out: Path) -> RunResult:
-    truth = {n: params_from_k(t.K, t.bias) for n, t in spec.device().items()}
+    truth = spec.truth()
     if engine.records:
         truth = {n: v for n, v in truth.items() if n in engine.windows_and_averages()[1]}
     if not completed:

@@ -41,12 +41,18 @@ class FieldcalApp(App[int]):
     ]
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
-                 replay: Path | None = None, clock=time.monotonic) -> None:
+                 replay: Path | None = None, clock=time.monotonic, config=None) -> None:
+        """``config``: the station config of a real device (``spec.live``), for its ports."""
         super().__init__()
         self.speed = float(speed)
         if replay is not None:
             self.source: Source = ReplaySource(Path(replay), self, self.speed, clock)
             title = f"fieldcal · replay of {Path(replay).name} · {_speed_words(speed)}"
+        elif spec is not None and spec.live is not None:
+            from fieldcal.tui.live_source import LiveSource
+
+            self.source = LiveSource(spec, config, self, session_dir, clock)
+            title = f"fieldcal · {spec.procedure.name} · {spec.live.name} on {spec.live.url}"
         else:
             if spec is None:
                 raise ValueError("FieldcalApp: give a RunSpec, or a session to replay")
@@ -111,7 +117,7 @@ class FieldcalApp(App[int]):
 
     def action_help(self) -> None:
         if not isinstance(self.screen, HelpScreen):
-            self.push_screen(HelpScreen(replay=self.mode == "replay"))
+            self.push_screen(HelpScreen(self.mode))
 
     async def action_quit(self) -> None:
         self.source.stop()
@@ -124,7 +130,7 @@ class FieldcalApp(App[int]):
         return 0 if outcome.solved and not outcome.unit.failures and outcome.identical is not False else 1
 
 
-def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None) -> int:
+def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None, config=None) -> int:
     """Run the terminal UI until the operator quits; the exit status (0: calibrated).
 
     ``spec``: the run (procedure, station, seed, ...) against the simulated bench; ignored with
@@ -136,7 +142,7 @@ def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None) -
             and any(Path(session_dir).iterdir()):
         raise ValueError(f"{session_dir}: already exists and is not empty (a new session needs a "
                          "new directory)")
-    app = FieldcalApp(spec, speed, session_dir, replay)
+    app = FieldcalApp(spec, speed, session_dir, replay, config=config)
     code = app.run()
     app.source.stop()
     app.source.done.wait(10.0)  # the session is closed by the worker thread

@@ -50,18 +50,39 @@ def cmd_tui(args) -> int:
     from fieldcal.runner import RunSpec
 
     config = load_config(args.config)
+    procedure = load_procedure(args.procedure)
     if config.device.protocol != "sim":
-        raise ValueError(f"tui: {config.path} is a real device; this first version of the terminal "
-                         "UI drives the simulated bench only (or --replay a session)")
+        return run_tui(live_spec(config, procedure, args), 0.0, _session_dir(args, procedure.name, "live"),
+                       None, config=config)
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
-    procedure = load_procedure(args.procedure)
     seed = config.device.sim.seed if args.seed is None else args.seed
     spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                    raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion)
-    directory = None
-    if not args.no_capture:
-        stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-        directory = Path(args.out) / f"{procedure.name}-tui-seed{seed}-{stamp}"
     speed = config.device.sim.speed if args.speed is None else args.speed
-    return run_tui(spec, speed, directory, None)
+    return run_tui(spec, speed, _session_dir(args, procedure.name, f"seed{seed}"), None)
+
+
+def _session_dir(args, procedure_name: str, what: str) -> Path | None:
+    if args.no_capture:
+        return None
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path(args.out) / f"{procedure_name}-tui-{what}-{stamp}"
+
+
+def live_spec(config, procedure, args):
+    """The run of a real device: its model from the config; refused before any port is opened
+    when the config cannot carry the procedure out."""
+    from fieldcal.livedevice import LiveDevice
+    from fieldcal.runner import RunSpec
+
+    step = procedure.rate_step
+    if step is not None:
+        if config.table is None:
+            raise ValueError(f"{config.path}: no table, and procedure {procedure.name} has rate steps "
+                             f"at {step.rate_deg_s:g} °/s (add a table: section, or choose a static procedure)")
+        if step.rate_deg_s > config.table.max_rate_deg_s:
+            raise ValueError(f"procedure {procedure.name} turns the table at {step.rate_deg_s:g} °/s, above "
+                             f"{config.path}'s table.max_rate_deg_s of {config.table.max_rate_deg_s:g} °/s")
+    return RunSpec(procedure, config.station, rate_hz=config.device.rate_hz, method=args.method,
+                   on_motion=args.on_motion, live=LiveDevice.from_config(config))

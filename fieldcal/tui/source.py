@@ -30,7 +30,6 @@ from typing import Protocol
 
 from fieldcal import events as ev
 from fieldcal.engine import ABORTED, DONE, PLACE, WRONG, Engine
-from fieldcal.model import params_from_k
 from fieldcal.positions import Procedure
 from fieldcal.tui.readings import RecentSamples, Telemetry
 
@@ -231,7 +230,7 @@ class Source:
         self._samples += len(chunk)
 
     def _truth(self) -> dict:
-        truth = {n: params_from_k(t.K, t.bias) for n, t in self.spec.device().items()}
+        truth = self.spec.truth()
         if self.engine.records:
             names = self.engine.windows_and_averages()[1]
             truth = {n: v for n, v in truth.items() if n in names}
@@ -251,15 +250,15 @@ class SimSource(Source):
     mode = "sim"
 
     def __init__(self, spec, sink: Sink, speed: float, session_dir: Path | None,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, bench=None):
         from fieldcal.runner import SimulatedBench
 
         super().__init__(spec, sink, speed, clock)
         self.session_dir = Path(session_dir) if session_dir is not None else None
         self.session = None
-        self.bench = SimulatedBench(spec)
+        self.bench = SimulatedBench(spec) if bench is None else bench
         self.bump_times: list[float] = []  # sample time of each bump (OperatorScript.bump_at_s)
-        if speed > 0:  # chunks of about FLUSH_S wall time, so the display moves smoothly
+        if speed > 0 and bench is None:  # chunks of about FLUSH_S wall time, so the display moves smoothly
             self.bench.chunk_n = max(1, min(self.bench.chunk_n, round(spec.rate_hz * FLUSH_S * speed)))
 
     def _run(self) -> None:
@@ -385,12 +384,11 @@ class SimSource(Source):
     def _previous(self):
         """The unit's last calibration among the sessions beside this one."""
         from fieldcal.history import previous_calibration
-        from fieldcal.runner import SIM_DEVICE_NAME
 
         if self.session_dir is None:
             return None
-        found, unreadable = previous_calibration(self.session_dir.parent, SIM_DEVICE_NAME, None,
-                                                 exclude=self.session_dir)
+        found, unreadable = previous_calibration(self.session_dir.parent, self.spec.device_name,
+                                                 self.spec.device_serial, exclude=self.session_dir)
         if unreadable:
             self._note(f"{unreadable} unreadable parameter file(s) under {self.session_dir.parent} "
                        "passed over when looking for the previous calibration")

@@ -1,0 +1,111 @@
+"""The terminal UI against a real device: here the simulator served on pseudo-terminals in the
+Xsens protocol with an ASCII rate table, read through pyserial and the parser exactly as
+hardware would be. The test's hands carry the fixture; the UI reads, commands the table,
+captures the session, and the capture replays to the same result."""
+from __future__ import annotations
+
+import math
+import types
+
+import numpy as np
+import pytest
+
+from drivers.sim.device import PAPER_NOISE, paper_mimu
+from drivers.sim.serve import SimulatedDevices
+from fieldcal import events as ev
+from fieldcal.config import ConfigError, load_config
+from fieldcal.earth import Station
+from fieldcal.replay import replay_session
+from fieldcal.runner import RunSpec
+from fieldcal.session import SessionReader
+from fieldcal.tui import FieldcalApp
+from fieldcal.tui.command import live_spec
+from fieldcal.tui.results_screen import ResultsScreen
+from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, run_async, two_positions, until, waiting_at
+
+STATION = Station(40.0, 50.0)
+OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart")
+
+
+def live_config(tmp_path, devices: SimulatedDevices, noise: bool = True):
+    acc, gyro = PAPER_NOISE["accelerometer"], PAPER_NOISE["gyroscope"]
+    noise_acc = f", noise: {{white: {acc.white!r}, bias_instability: {acc.bias_instability!r}}}" if noise else ""
+    noise_gyro = f", noise: {{white: {gyro.white!r}, bias_instability: {gyro.bias_instability!r}}}"
+    path = tmp_path / "bench.yaml"
+    path.write_text(f"""\
+device:
+  name: bench MTi
+  serial: SN-42
+  protocol: xsens
+  rate_hz: 250
+  port: {{url: {devices.imu_url}}}
+  triads:
+    accelerometer: {{kind: specific_force, unit: m/s^2{noise_acc}}}
+    gyroscope: {{kind: angular_rate, unit: rad/s{noise_gyro}}}
+table:
+  protocol: ascii
+  port: {{url: {devices.table_url}}}
+station: {{latitude_deg: 40.0, height_m: 50.0}}
+""")
+    return load_config(path)
+
+
+@pytest.fixture
+def devices():
+    served = SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol="xsens",
+                              table_protocol="ascii", speed=0, seed=3, rate_hz=250)
+    served.start()
+    yield served
+    served.stop()
+
+
+@run_async
+async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp_path, devices):
+    config = live_config(tmp_path, devices)
+    procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+    spec = live_spec(config, procedure, OPTIONS)
+    app = FieldcalApp(spec, 0, tmp_path / "session", config=config)
+    async with app.run_test(size=(80, 24)) as pilot:
+        for step, position in enumerate(procedure.positions):
+            await until(pilot, lambda step=step: waiting_at(app, step))
+            devices.carry(position.attitude, 2.0).result(timeout=10)  # the operator's hands
+            await pilot.press("b")  # a simulator key: refused on a real device
+            await pilot.press("r")
+        await until(pilot, lambda: isinstance(app.screen, ResultsScreen), timeout_s=60)
+        outcome = app.outcome
+    assert outcome.status == "completed" and outcome.completed == 2
+    assert outcome.truth == {}  # a real device: no truth to compare with
+    kinds = [e.kind for e in app.events]
+    assert kinds.count("step_complete") == 2 and "motion_detected" not in kinds
+    commands = [e.rate_deg_s for e in app.events if isinstance(e, ev.CommandTable)]
+    assert sorted(commands[:2]) == [-10.0, 10.0] and commands[2] == 0.0
+    # The table really turned: half the difference of the two directions' gyro means (free of
+    # the gyro bias) has the table's rate as its norm.
+    reader = SessionReader(tmp_path / "session")
+    for step in reader.steps():
+        turns = {w["rate_deg_s"]: np.array(w["means"]["gyroscope"]) for w in step["windows"]
+                 if w["rate_deg_s"]}
+        assert sorted(turns) == [-10.0, 10.0]
+        measured = math.degrees(float(np.linalg.norm(turns[10.0] - turns[-10.0]) / 2))
+        assert measured == pytest.approx(10.0, rel=1e-3)
+    assert reader.start["device"]["serial"] == "SN-42" and "simulation_truth" not in reader.start
+    assert sum(1 for _ in reader.raw("imu")) > 0  # the bytes, as read
+    # Replayed without the device or its config: the same events, the same verdicts.
+    replayed = []
+    unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
+    assert [e.kind for e in replayed] == kinds[:len(replayed)] and len(replayed) >= len(kinds) - 1
+    assert unit.failures == outcome.unit.failures and samples > 0
+
+
+def test_a_live_run_needs_the_noise_and_a_table(tmp_path, devices):
+    with pytest.raises(ConfigError, match=r"device\.triads\.accelerometer\.noise"):
+        live_spec(live_config(tmp_path, devices, noise=False), two_positions(tmp_path), OPTIONS)
+    config = live_config(tmp_path, devices)
+    no_table = type(config)(config.path, config.device, config.station, None)
+    with pytest.raises(ValueError, match="no table, and procedure two has rate steps"):
+        live_spec(no_table, two_positions(tmp_path, TWO_WITH_TURNS), OPTIONS)
+    assert live_spec(no_table, two_positions(tmp_path, TWO_POSITIONS), OPTIONS).live.serial == "SN-42"
+    spec = live_spec(config, two_positions(tmp_path), OPTIONS)
+    again = RunSpec.from_metadata(spec.to_metadata())  # what a replay rebuilds the run from
+    assert again.to_metadata() == spec.to_metadata() and again.engine_settings() == spec.engine_settings()
+    assert again.models()["gyroscope"].noise == PAPER_NOISE["gyroscope"]
