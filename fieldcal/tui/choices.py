@@ -1,0 +1,204 @@
+"""What the operator chose on the setup screen, remembered between runs, and turned into a run.
+
+No Textual here: ``SetupChoice`` is plain data, ``load_last_choice`` / ``save_last_choice`` keep the
+last one in ``$XDG_CONFIG_HOME/fieldcal/last-setup.yaml`` (default ``~/.config/fieldcal/``), and
+``resolve_choice`` loads the config and procedure it names, every problem a one-line ValueError.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from fieldcal.config import CONFIGS_DIR, StationConfig, load_config
+from fieldcal.earth import Station
+from fieldcal.positions import PROCEDURES_DIR, Procedure, load_procedure
+
+LAST_SETUP_NAME = "last-setup.yaml"
+LATITUDE_RANGE = (-90.0, 90.0)
+HEIGHT_RANGE = (-500.0, 9000.0)  # what fieldcal.earth.Station accepts
+_FIELDS = ("config", "port", "procedure", "latitude_deg", "height_m")
+
+
+@dataclass(frozen=True)
+class SetupChoice:
+    """A run as the operator picked it.
+
+    ``config``: a config name (``configs/NAME.yaml``) or a path. ``port``: a pyserial URL that
+    overrides the config's device port, None to keep the config's (always None for the
+    simulator). ``procedure``: a procedure name (``procedures/NAME.yaml``) or a path.
+    """
+
+    config: str
+    port: str | None
+    procedure: str
+    latitude_deg: float
+    height_m: float
+
+
+def last_choice_path() -> Path:
+    """``$XDG_CONFIG_HOME/fieldcal/last-setup.yaml``; ``~/.config`` when the variable is unset,
+    empty or relative (as the XDG base-directory specification says)."""
+    base = os.environ.get("XDG_CONFIG_HOME", "")
+    root = Path(base) if base and os.path.isabs(base) else Path.home() / ".config"
+    return root / "fieldcal" / LAST_SETUP_NAME
+
+
+def _number(value) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _choice_from(raw) -> SetupChoice | None:
+    """A SetupChoice from a parsed mapping, or None if anything is missing or of the wrong kind."""
+    if not isinstance(raw, dict) or any(k not in raw for k in _FIELDS):
+        return None
+    config, port, procedure = raw["config"], raw["port"], raw["procedure"]
+    if not isinstance(config, str) or not config.strip():
+        return None
+    if not isinstance(procedure, str) or not procedure.strip():
+        return None
+    if port is not None and (not isinstance(port, str) or not port.strip()):
+        return None
+    latitude, height = _number(raw["latitude_deg"]), _number(raw["height_m"])
+    if latitude is None or height is None:
+        return None
+    if not LATITUDE_RANGE[0] <= latitude <= LATITUDE_RANGE[1] or not HEIGHT_RANGE[0] <= height <= HEIGHT_RANGE[1]:
+        return None
+    return SetupChoice(config, port, procedure, latitude, height)
+
+
+def load_last_choice(path: str | os.PathLike | None = None) -> SetupChoice | None:
+    """The remembered choice, or None when there is none or the file is damaged or unreadable
+    (a remembered choice is a convenience: it never stops the station from starting)."""
+    path = Path(path) if path is not None else last_choice_path()
+    try:
+        text = path.read_text(encoding="utf-8")
+        raw = yaml.safe_load(text)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
+        return None
+    return _choice_from(raw)
+
+
+def save_last_choice(choice: SetupChoice, path: str | os.PathLike | None = None) -> Path:
+    """Write the choice atomically (a temporary file beside it, then os.replace); the path.
+    Raises OSError if it cannot be written."""
+    path = Path(path) if path is not None else last_choice_path()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = {"config": choice.config, "port": choice.port, "procedure": choice.procedure,
+            "latitude_deg": float(choice.latitude_deg), "height_m": float(choice.height_m)}
+    text = ("# the last setup chosen in `fieldcal tui`; delete this file to forget it\n"
+            + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
+    fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(temp, path)
+    except BaseException:
+        try:
+            os.unlink(temp)
+        except OSError:
+            pass
+        raise
+    return path
+
+
+def available_configs() -> list[str]:
+    """Names of the configs shipped in ``configs/`` (sorted)."""
+    return sorted(p.stem for p in CONFIGS_DIR.glob("*.yaml") if p.is_file())
+
+
+def available_procedures() -> list[str]:
+    """Names of the procedures shipped in ``procedures/`` (sorted)."""
+    return sorted(p.stem for p in PROCEDURES_DIR.glob("*.yaml") if p.is_file())
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def _looks_like_name(text: str) -> bool:
+    return not Path(text).suffix and "/" not in text and os.sep not in text
+
+
+def load_choice_config(config: str) -> StationConfig:
+    """The config a choice names; a one-line ValueError otherwise."""
+    name = config.strip()
+    if not name:
+        raise ValueError("config: choose a config or give the path of one")
+    if _looks_like_name(name) and not Path(name).is_file() and not Path(name + ".yaml").is_file() \
+            and not (CONFIGS_DIR / f"{name}.yaml").is_file():
+        known = ", ".join(available_configs()) or "none"
+        raise ValueError(f"config: no config named {name!r} (in {CONFIGS_DIR.name}/: {known})")
+    try:
+        return load_config(name)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"config: {_one_line(exc)}") from None
+
+
+def load_choice_procedure(procedure: str) -> Procedure:
+    """The procedure a choice names; a one-line ValueError otherwise."""
+    name = procedure.strip()
+    if not name:
+        raise ValueError("procedure: choose a procedure or give the path of one")
+    if _looks_like_name(name) and not (PROCEDURES_DIR / f"{name}.yaml").is_file():
+        known = ", ".join(available_procedures()) or "none"
+        raise ValueError(f"procedure: no procedure named {name!r} (in {PROCEDURES_DIR.name}/: {known})")
+    try:
+        return load_procedure(name)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"procedure: {_one_line(exc)}") from None
+
+
+def _shown(value) -> str:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return f"{value:g}" if math.isfinite(value) else str(value)
+    return repr(value)
+
+
+def check_station(latitude_deg: float, height_m: float) -> None:
+    """Latitude and height in the ranges Station accepts; a one-line ValueError naming the field."""
+    lo, hi = LATITUDE_RANGE
+    if isinstance(latitude_deg, bool) or not isinstance(latitude_deg, (int, float)) \
+            or not lo <= latitude_deg <= hi:
+        raise ValueError(f"latitude: expected {lo:g} to {hi:g}°, got {_shown(latitude_deg)}")
+    lo, hi = HEIGHT_RANGE
+    if isinstance(height_m, bool) or not isinstance(height_m, (int, float)) or not lo <= height_m <= hi:
+        raise ValueError(f"height: expected {lo:g} to {hi:g} m above the ellipsoid, got {_shown(height_m)}")
+
+
+def resolve_choice(choice: SetupChoice) -> tuple[StationConfig, Procedure]:
+    """The config (with the port override and the chosen station) and the procedure of a choice.
+
+    Raises ValueError with a one-line message naming the field: an unknown or invalid config or
+    procedure, a latitude outside -90..90°, a height outside -500..9000 m, a port given for the
+    simulator or a port that is not one line. A measured gravity in the config
+    (``station.gravity_m_s2``) is kept.
+    """
+    check_station(choice.latitude_deg, choice.height_m)
+    config = load_choice_config(choice.config)
+    procedure = load_choice_procedure(choice.procedure)
+    device = config.device
+    if choice.port is not None:
+        port = choice.port.strip()
+        if device.port is None:
+            raise ValueError(f"port: {device.name} is simulated ({config.path}): it has no port to "
+                             f"override, got {choice.port!r}")
+        if not port or any(c.isspace() for c in port):
+            raise ValueError(f"port: expected a pyserial URL such as /dev/ttyUSB0 or "
+                             f"socket://host:4001, got {choice.port!r}")
+        device = dataclasses.replace(device, port=dataclasses.replace(device.port, url=port))
+    try:
+        station = Station(float(choice.latitude_deg), float(choice.height_m), config.station.gravity_m_s2)
+    except ValueError as exc:  # pragma: no cover - check_station has the same bounds
+        raise ValueError(f"station: {_one_line(exc)}") from None
+    return dataclasses.replace(config, device=device, station=station), procedure
