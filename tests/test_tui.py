@@ -298,3 +298,36 @@ async def test_the_results_show_the_previous_calibration_of_the_same_unit(tmp_pa
     # The change column is the difference of the two files' values (bias x, in mg).
     change_mg = (new.theta[0] - old.theta[0]) / 9.80665e-3
     assert f"{change_mg:.3g} mg" in text
+
+
+@run_async
+async def test_the_setup_screen_starts_the_run_it_was_given(tmp_path, monkeypatch):
+    """`fieldcal tui` opens on the setup screen; the choice (station included) builds the run,
+    and a run that cannot be built sends the operator back to the setup with the reason."""
+    from fieldcal.tui.choices import SetupChoice
+    from fieldcal.tui.setup_screen import SetupScreen
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
+    asked = []
+
+    def make_run(config, procedure):
+        asked.append((config, procedure))
+        if len(asked) == 1:
+            raise ValueError("the table is not answering (say)")
+        return RunSpec(two_positions(tmp_path), config.station, seed=2), tmp_path / "session", 0
+
+    initial = SetupChoice("sim", None, "field-18", 45.5, 120.0)
+    app = FieldcalApp(setup=(initial, make_run))
+    async with app.run_test(size=(80, 24)) as pilot:
+        assert isinstance(app.screen, SetupScreen)
+        await pilot.press("ctrl+s")
+        await until(pilot, lambda: isinstance(app.screen, SetupScreen) and len(asked) == 1
+                    and "not answering" in str(app.screen.query_one("#error").render()))
+        await pilot.press("ctrl+s")
+        await until(pilot, lambda: isinstance(app.screen, ProcedureScreen))
+        config, procedure = asked[-1]
+        assert procedure.name == "field-18"
+        assert (config.station.latitude_deg, config.station.height_m) == (45.5, 120.0)
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("q")
+    assert app.spec.station.latitude_deg == 45.5

@@ -41,13 +41,30 @@ class FieldcalApp(App[int]):
     ]
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
-                 replay: Path | None = None, clock=time.monotonic, config=None) -> None:
-        """``config``: the station config of a real device (``spec.live``), for its ports."""
+                 replay: Path | None = None, clock=time.monotonic, config=None, setup=None) -> None:
+        """``config``: the station config of a real device (``spec.live``), for its ports.
+
+        ``setup``: instead of a run, ``(initial, make_run)``: the setup screen opens with the
+        ``SetupChoice`` ``initial`` (or none), and the operator's choice, resolved to a config and
+        a procedure, goes to ``make_run(config, procedure) -> (spec, session_dir, speed)``, whose
+        ValueError goes back to the setup screen.
+        """
         super().__init__()
         self.speed = float(speed)
+        self.clock = clock
+        self.source: Source | None = None
+        self.outcome: Outcome | None = None
+        self.events: list[ev.Event] = []  # every engine event shown, in order (for tests)
+        self.telemetry: Telemetry | None = None
+        self.setup = setup
+        if setup is None:
+            self._prepare(spec, session_dir, replay, config)
+
+    def _prepare(self, spec, session_dir: Path | None, replay: Path | None, config) -> None:
+        clock = self.clock
         if replay is not None:
-            self.source: Source = ReplaySource(Path(replay), self, self.speed, clock)
-            title = f"fieldcal · replay of {Path(replay).name} · {_speed_words(speed)}"
+            self.source = ReplaySource(Path(replay), self, self.speed, clock)
+            title = f"fieldcal · replay of {Path(replay).name} · {_speed_words(self.speed)}"
         elif spec is not None and spec.live is not None:
             from fieldcal.tui.live_source import LiveSource
 
@@ -58,7 +75,7 @@ class FieldcalApp(App[int]):
                 raise ValueError("FieldcalApp: give a RunSpec, or a session to replay")
             self.source = SimSource(spec, self, self.speed, session_dir, clock)
             title = (f"fieldcal · {spec.procedure.name} · simulated MIMU, seed {spec.seed} · "
-                     f"{_speed_words(speed)}")
+                     f"{_speed_words(self.speed)}")
         self.spec = self.source.spec
         self.mode = self.source.mode
         settings = self.source.settings
@@ -66,13 +83,38 @@ class FieldcalApp(App[int]):
                             enter_factor=settings.stillness.enter_factor,
                             leave_factor=settings.stillness.leave_factor)
         self.procedure_screen = ProcedureScreen(self.view, title, self.mode)
-        self.outcome: Outcome | None = None
-        self.events: list[ev.Event] = []  # every engine event shown, in order (for tests)
-        self.telemetry: Telemetry | None = None
 
     def on_mount(self) -> None:
+        if self.source is None:
+            self._ask_setup(self.setup[0])
+        else:
+            self._begin()
+
+    def _begin(self) -> None:
         self.push_screen(self.procedure_screen)  # (a default screen would not load its CSS_PATH)
         self.run_worker(self._run_source, thread=True, name="sample source", exit_on_error=False)
+
+    def _ask_setup(self, initial, error: str = "") -> None:
+        from fieldcal.tui.setup_screen import SetupScreen
+
+        screen = SetupScreen(initial)
+        self.push_screen(screen, callback=lambda choice: self._chosen(screen, choice))
+        if error:
+            self.call_after_refresh(screen.set_error, error)
+
+    def _chosen(self, screen, choice) -> None:
+        if choice is None:
+            self.exit(1)
+            return
+        config, procedure = screen.resolved
+        try:
+            spec, session_dir, speed = self.setup[1](config, procedure)
+            self.speed = float(speed)
+            self._prepare(spec, session_dir, None, config)
+        except ValueError as exc:
+            self._ask_setup(choice, str(exc).splitlines()[0])
+            return
+        self._begin()
 
     def _run_source(self) -> None:
         from textual.worker import get_current_worker
@@ -108,7 +150,7 @@ class FieldcalApp(App[int]):
     # --- actions ------------------------------------------------------------------------------
 
     def send_command(self, name: str) -> None:
-        if self.outcome is None:
+        if self.outcome is None and self.source is not None:
             self.source.send(name)
 
     def show_results(self) -> None:
@@ -120,7 +162,8 @@ class FieldcalApp(App[int]):
             self.push_screen(HelpScreen(self.mode))
 
     async def action_quit(self) -> None:
-        self.source.stop()
+        if self.source is not None:
+            self.source.stop()
         self.exit(self.return_code_for(self.outcome))
 
     @staticmethod
@@ -130,20 +173,24 @@ class FieldcalApp(App[int]):
         return 0 if outcome.solved and not outcome.unit.failures and outcome.identical is not False else 1
 
 
-def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None, config=None) -> int:
+def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None, config=None,
+            setup=None) -> int:
     """Run the terminal UI until the operator quits; the exit status (0: calibrated).
 
-    ``spec``: the run (procedure, station, seed, ...) against the simulated bench; ignored with
-    ``replay`` (the session says what it was). ``speed``: sample time per wall time, 0 = as fast
-    as possible. ``session_dir``: where to capture the session (None: no capture).
-    ``replay``: a session directory to replay through the same screens.
+    ``spec``: the run (procedure, station, seed, ...), simulated or on a real device (with its
+    ``config``); ignored with ``replay`` (the session says what it was). ``speed``: sample time
+    per wall time, 0 = as fast as possible. ``session_dir``: where to capture the session (None:
+    no capture). ``replay``: a session directory to replay through the same screens.
+    ``setup``: open the setup screen first (see ``FieldcalApp``).
     """
     if replay is None and session_dir is not None and Path(session_dir).exists() \
             and any(Path(session_dir).iterdir()):
         raise ValueError(f"{session_dir}: already exists and is not empty (a new session needs a "
                          "new directory)")
-    app = FieldcalApp(spec, speed, session_dir, replay, config=config)
+    app = FieldcalApp(spec, speed, session_dir, replay, config=config, setup=setup)
     code = app.run()
+    if app.source is None:  # quit on the setup screen
+        return 1
     app.source.stop()
     app.source.done.wait(10.0)  # the session is closed by the worker thread
     outcome = app.source.outcome

@@ -22,15 +22,23 @@ def _speed(text: str) -> float:
 
 def add_tui_parser(sub) -> argparse.ArgumentParser:
     """Add the ``tui`` subcommand to the CLI's subparsers."""
-    tui = sub.add_parser("tui", help="the operator's terminal UI (simulated bench, or replay a session)",
-                         description="Run a procedure in the operator's terminal UI against the "
-                         "simulated bench (r: the unit is in place, d: redo, s: skip, a: abort, "
-                         "b: bump, ?: help), capturing a session under --out; or replay a captured "
-                         "session through the same screens with --replay.")
+    tui = sub.add_parser(
+        "tui", help="the operator's terminal UI: set up and run a calibration, or replay a session",
+        description="The operator's terminal UI. It opens on the setup screen (device config, port, "
+        "procedure, station; the last choice is remembered, --config/--procedure override it), then "
+        "runs the procedure on that device, capturing a session under --out. --sim skips the setup "
+        "and runs the simulated bench at once; --replay shows a captured session through the same "
+        "screens. Keys: r the unit is in place, d redo, s skip, a abort, ? help (b bump and w wrong "
+        "position on the simulator).")
     from fieldcal.cli import add_run_options  # here: fieldcal.cli imports this module
     add_run_options(tui)
+    tui.set_defaults(config=None, procedure=None)  # given or not: given ones override the setup's
+    tui.add_argument("--sim", action="store_true",
+                     help="no setup screen: run the simulated bench (config sim unless --config) now")
+    tui.add_argument("--go", action="store_true",
+                     help="no setup screen: run --config and --procedure now")
     tui.add_argument("--speed", type=_speed,
-                     help="sample time per wall time: 1 = real time, 0 = as fast as possible "
+                     help="simulator: sample time per wall time, 1 = real time, 0 = as fast as possible "
                      "(default: the config's sim speed for a run, 10 for a replay)")
     tui.add_argument("--no-capture", action="store_true", help="do not write a session")
     tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
@@ -45,22 +53,58 @@ def cmd_tui(args) -> int:
         if not Path(args.replay, "log.jsonl").is_file():
             raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
         return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay))
-    from fieldcal.config import load_config
-    from fieldcal.positions import load_procedure
-    from fieldcal.runner import RunSpec
-
-    config = load_config(args.config)
-    procedure = load_procedure(args.procedure)
-    if config.device.protocol != "sim":
-        return run_tui(live_spec(config, procedure, args), 0.0, _session_dir(args, procedure.name, "live"),
-                       None, config=config)
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
+
+    def make_run(config, procedure):
+        if config.device.protocol != "sim":
+            return live_spec(config, procedure, args), _session_dir(args, procedure.name, "live"), 0.0
+        return sim_run(config, procedure, args)
+
+    if args.sim or args.go:
+        from fieldcal.config import load_config
+        from fieldcal.positions import load_procedure
+
+        config = load_config(args.config or "sim")
+        procedure = load_procedure(args.procedure or "field-18")
+        spec, session_dir, speed = make_run(config, procedure)
+        return run_tui(spec, speed, session_dir, None, config=config)
+    return run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+
+
+def _initial_choice(args):
+    """The remembered choice, with the config and procedure given on the command line."""
+    from dataclasses import replace
+
+    from fieldcal.tui.choices import SetupChoice, load_last_choice
+
+    choice = load_last_choice()
+    if choice is None:
+        if args.config is None and args.procedure is None:
+            return None
+        from fieldcal.config import load_config
+        config = load_config(args.config or "sim")
+        choice = SetupChoice(args.config or "sim", None, args.procedure or "field-18",
+                             config.station.latitude_deg, config.station.height_m)
+    elif args.config is not None:
+        from fieldcal.config import load_config
+        config = load_config(args.config)
+        choice = replace(choice, config=args.config, port=None, latitude_deg=config.station.latitude_deg,
+                         height_m=config.station.height_m)
+    if args.procedure is not None:
+        choice = replace(choice, procedure=args.procedure)
+    return choice
+
+
+def sim_run(config, procedure, args):
+    """The simulated bench's run: (spec, session directory, speed)."""
+    from fieldcal.runner import RunSpec
+
     seed = config.device.sim.seed if args.seed is None else args.seed
     spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                    raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion)
     speed = config.device.sim.speed if args.speed is None else args.speed
-    return run_tui(spec, speed, _session_dir(args, procedure.name, f"seed{seed}"), None)
+    return spec, _session_dir(args, procedure.name, f"seed{seed}"), speed
 
 
 def _session_dir(args, procedure_name: str, what: str) -> Path | None:
