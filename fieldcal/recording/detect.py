@@ -1,0 +1,324 @@
+"""Static poses of a hand-held recording, from the accelerometer alone (imu_tk's detector).
+
+Tedaldi et al. (ICRA 2014): a sample is static when the norm of the per-axis variance of the
+accelerometer over a centred window is below ``multiple`` times its level over the initial rest.
+The threshold multiple is not known in advance; :func:`pose_candidates` gives the poses for each
+of ``settings.multiples`` and the caller keeps the one whose accelerometer calibration fits best,
+as imu_tk does. Pure numpy: no I/O, no clock; sample index / rate is the time.
+
+API (``acc``: (n, 3) accelerometer samples in any unit, ``rate_hz``: sample rate):
+
+* :class:`DetectorSettings`, :class:`DetectionError` (a ValueError, one line: what and what to do).
+* ``noise_level(acc, rate_hz, settings) -> NoiseLevel``: per-axis variance and imu_tk's base level
+  over the initial rest, which must be still (refused if bumped or drifting) and followed by data.
+* ``static_intervals(acc, rate_hz, noise, multiple, settings) -> (m, 2)``: [start, stop) sample
+  indices, the initial rest first. The long window finds the static runs; each edge is then placed
+  by a short window (``edge_window_s``) on the deviation from the run's own mean, which sees the
+  start of a motion far sooner than the long window's variance does, and backed off by ``guard_s``
+  so that no moving sample is kept: a few still samples lost cost little, a turn cut short spoils
+  the gyro calibration that integrates between poses.
+* ``find_poses(acc, rate_hz, settings, multiple, noise=None, zero=None, sensitivity=None) -> Poses``
+  and ``pose_candidates(...) -> list[Poses]`` (one per multiple).
+* ``up_directions(means, zero=None, sensitivity=None)``: gravity direction per pose in body axes.
+  With ``zero`` (output at zero input, e.g. 32768 counts) it is (mean - zero) / sensitivity; without
+  it, the centre of the sphere fitted to the pose means (|m - c| = r, linear least squares) is the
+  zero, so raw counts need no nominal values; when the means cannot fix a sphere (fewer than four,
+  or all in a plane) the midpoint of each axis's range is used, which is right only for an axis
+  seen both up and down (a refused recording then, in any case).
+* ``check_spread(up, min_poses, cover_deg=60) -> SpreadReport`` and ``require_poses(poses,
+  settings)`` (raises with the report's message when not ok).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fieldcal.stillness import sliding_std
+
+
+class DetectionError(ValueError):
+    """A recording the detector cannot use; the message says what and what to do."""
+
+
+@dataclass(frozen=True)
+class DetectorSettings:
+    """``init_rest_s``: the still start that sets the noise level (required). ``window_s``: the
+    variance window. ``min_static_s``: shorter static stretches are not poses. ``multiples``:
+    thresholds tried by :func:`pose_candidates`. ``min_separation_deg``: a pose this close to an
+    earlier distinct one is a duplicate. ``min_poses``: distinct poses needed (9 unknowns per
+    triad). ``cover_deg``: every axis must be seen within this of up and of down.
+    ``edge_window_s``, ``edge_sigmas``, ``guard_s``: edge placement (see module doc).
+    ``rest_spike_ratio`` / ``rest_drift_ratio``: the initial rest is refused when a window's
+    variance exceeds the median window's that many times (a bump), or so does the variance over
+    the whole rest (a slow tilt, settling).
+    ``min_design``: smallest singular value per √pose of the norm method's regressors."""
+
+    init_rest_s: float = 30.0
+    window_s: float = 1.0
+    min_static_s: float = 2.0
+    multiples: tuple[float, ...] = (2, 3, 4, 5, 6, 8, 10, 13, 16, 20)
+    min_separation_deg: float = 10.0
+    min_poses: int = 9
+    cover_deg: float = 60.0
+    edge_window_s: float = 0.1
+    edge_sigmas: float = 6.0
+    guard_s: float = 0.05
+    rest_spike_ratio: float = 10.0
+    rest_drift_ratio: float = 3.0
+    min_design: float = 0.02
+
+
+@dataclass(frozen=True)
+class NoiseLevel:
+    """Over the initial rest: accelerometer per-axis variance (input units²), ``base`` = its norm
+    (imu_tk), and the gyroscope's per-axis variance when one was given."""
+
+    variance: np.ndarray
+    base: float
+    gyro_variance: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Poses:
+    """Static intervals (m, 2) [start, stop), mean accelerometer (m, 3), unit up (m, 3) in body
+    axes, ``distinct`` (m,) (False: a duplicate, still a rotation endpoint), and the multiple."""
+
+    intervals: np.ndarray
+    means: np.ndarray
+    up: np.ndarray
+    distinct: np.ndarray
+    multiple: float
+
+    @property
+    def count(self) -> int:
+        return int(self.distinct.sum())
+
+
+@dataclass(frozen=True)
+class SpreadReport:
+    count: int
+    ok: bool
+    missing: list[str]
+    design: float
+    message: str
+
+
+def _samples(seconds: float, rate_hz: float) -> int:
+    return max(1, round(seconds * rate_hz))
+
+
+def _half_window(rate_hz: float, settings: DetectorSettings) -> int:
+    return max(1, _samples(settings.window_s, rate_hz) // 2)
+
+
+def window_statistic(acc: np.ndarray, rate_hz: float, settings: DetectorSettings) -> np.ndarray:
+    """(n,) norm of the per-axis variance over the centred window of 2·half + 1 samples; near the
+    ends, the nearest full window's value."""
+    half = _half_window(rate_hz, settings)
+    var = sliding_std(acc, 2 * half + 1, ddof=0) ** 2
+    stat = np.linalg.norm(var, axis=1)
+    return np.pad(stat, (half, len(acc) - len(stat) - half), mode="edge")
+
+
+def noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
+                gyro: np.ndarray | None = None) -> NoiseLevel:
+    acc = np.asarray(acc, dtype=float)
+    rest_n = _samples(settings.init_rest_s, rate_hz)
+    window = 2 * _half_window(rate_hz, settings) + 1
+    if len(acc) < rest_n + window:
+        raise DetectionError(
+            f"recording is {len(acc) / rate_hz:.1f} s long, but it must start with {settings.init_rest_s:g} s "
+            f"of rest followed by the poses: record the unit still for {settings.init_rest_s:g} s first")
+    rest = acc[:rest_n]
+    variance = rest.var(axis=0)
+    base = float(np.linalg.norm(variance))
+    if not (math.isfinite(base) and base > 0):
+        raise DetectionError("accelerometer shows no noise at all over the initial rest: check that "
+                             "the file holds live samples")
+    # The median window is the noise level whatever happened: a bump raises a few windows far
+    # above it, a slow tilt or settling raises the variance over the whole rest.
+    windows = np.linalg.norm(sliding_std(rest, window, ddof=0) ** 2, axis=1)
+    typical = float(np.median(windows))
+    peak = int(np.argmax(windows))
+    if windows[peak] > settings.rest_spike_ratio * typical:
+        raise DetectionError(
+            f"the initial {settings.init_rest_s:g} s rest is not still (at {(peak + window / 2) / rate_hz:.1f} s "
+            f"the accelerometer variance is {windows[peak] / typical:.0f}x its typical level): keep the unit "
+            f"still at the start, or lower init_rest_s")
+    if base > settings.rest_drift_ratio * typical:
+        raise DetectionError(
+            f"the initial {settings.init_rest_s:g} s rest drifts (accelerometer variance over it is "
+            f"{base / typical:.1f}x that of {settings.window_s:g} s windows): set the unit down firmly and "
+            f"let it settle before recording")
+    gyro_variance = None
+    if gyro is not None:
+        gyro_variance = np.asarray(gyro[:rest_n], dtype=float).var(axis=0)
+        if not np.all(gyro_variance > 0):
+            raise DetectionError("gyroscope shows no noise on some axis over the initial rest: check "
+                                 "that the file holds live samples")
+    return NoiseLevel(variance=variance, base=base, gyro_variance=gyro_variance)
+
+
+def _runs(mask: np.ndarray) -> np.ndarray:
+    """(k, 2) [start, stop) of the runs of True."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return edges.reshape(-1, 2)
+
+
+def _first_loud(z2: np.ndarray, k: int, threshold: float) -> int:
+    """Index of the first k-sample window of z2 whose mean exceeds threshold (len - k + 1 if none)."""
+    if len(z2) < k:
+        return len(z2) - k + 1
+    c = np.cumsum(np.r_[0.0, z2])
+    loud = (c[k:] - c[:-k]) / k > threshold
+    return int(np.argmax(loud)) if loud.any() else len(loud)
+
+
+def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multiple: float,
+                     settings: DetectorSettings, gyro: np.ndarray | None = None) -> np.ndarray:
+    acc = np.asarray(acc, dtype=float)
+    n = len(acc)
+    # Edges watch the gyroscope too when given: a turn about the vertical, or the cubic onset of a
+    # tilt, shows in the rate long before it shows in the accelerometer.
+    data, variance = acc, noise.variance
+    if gyro is not None:
+        if noise.gyro_variance is None:
+            raise ValueError("static_intervals: gyro given but noise_level was measured without it")
+        data = np.hstack([acc, np.asarray(gyro, dtype=float)])
+        variance = np.r_[noise.variance, noise.gyro_variance]
+    half = _half_window(rate_hz, settings)
+    rest_n = _samples(settings.init_rest_s, rate_hz)
+    quiet = window_statistic(acc, rate_hz, settings) < multiple * noise.base
+    quiet[: rest_n - half] = True  # noise_level has checked the initial rest: always a pose
+    min_n = _samples(settings.min_static_s, rate_hz)
+    runs = _runs(quiet)
+    runs = runs[(runs[:, 0] == 0) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)]
+
+    k = _samples(settings.edge_window_s, rate_hz)
+    guard = round(settings.guard_s * rate_hz)
+    dof = data.shape[1]
+    threshold = dof + settings.edge_sigmas * math.sqrt(2.0 * dof / k)  # mean of dof·k χ²(1) / k
+    inv_var = 1.0 / np.maximum(variance, 1e-300)
+    out = []
+    for a, b in runs:
+        # Every centre in [a, b) has a quiet window: the run itself is still. Its middle gives
+        # the pose's mean; the edges are searched from half a window inside it outward.
+        q = min(half // 2, (b - a) // 4)
+        mean = data[a + q: b - q].mean(axis=0)
+        lo, hi = max(0, a - half - k), min(n, b + half + k)
+        z2 = ((data[lo:hi] - mean) ** 2) @ inv_var
+        inner_stop, inner_start = max(a, b - half), min(b, a + half)
+        loud = _first_loud(z2[inner_stop - lo:], k, threshold)
+        stop = inner_stop + loud - guard if b < n else n
+        loud = _first_loud(z2[: inner_start - lo][::-1], k, threshold)
+        start = inner_start - loud + guard if a > 0 else 0
+        out.append((start, min(stop, n)))
+    out = np.array(out, dtype=int).reshape(-1, 2)
+    if len(out) > 1:
+        out[1:, 0] = np.maximum(out[1:, 0], out[:-1, 1])  # neighbours never share samples
+    keep = (out[:, 1] - out[:, 0] >= min_n) | (out[:, 0] == 0)
+    return out[keep]
+
+
+def up_directions(means: np.ndarray, zero=None, sensitivity=None) -> np.ndarray:
+    """(m, 3) unit gravity direction (up) in body axes from pose means; see module doc."""
+    means = np.asarray(means, dtype=float)
+    scale = np.ones(3) if sensitivity is None else np.broadcast_to(np.asarray(sensitivity, float), (3,))
+    if zero is not None:
+        v = (means - zero) / scale
+    else:
+        v = means / scale
+        centre = 0.5 * (v.max(axis=0) + v.min(axis=0)) if len(v) else np.zeros(3)
+        if len(v) >= 4:
+            # |v - c|² = r²  <=>  |v|² = 2 v·c + (r² - |c|²): linear in (c, r² - |c|²).
+            ref = v.mean(axis=0)
+            spread = np.sqrt(((v - ref) ** 2).sum(axis=1).mean()) or 1.0
+            u = (v - ref) / spread
+            design = np.column_stack([2 * u, np.ones(len(u))])
+            if np.linalg.cond(design) < 1e6:
+                sol = np.linalg.lstsq(design, (u * u).sum(axis=1), rcond=None)[0]
+                if sol[3] + sol[:3] @ sol[:3] > 0:
+                    centre = ref + spread * sol[:3]
+        v = v - centre
+    norm = np.linalg.norm(v, axis=1, keepdims=True)
+    return v / np.where(norm > 0, norm, 1.0)
+
+
+def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
+    """(m,) bool: False for a pose within ``min_separation_deg`` of an earlier distinct one."""
+    cos_min = math.cos(math.radians(min_separation_deg))
+    distinct = np.zeros(len(up), dtype=bool)
+    for i in range(len(up)):  # a loop over poses, not samples
+        distinct[i] = not np.any(up[distinct] @ up[i] > cos_min)
+    return distinct
+
+
+def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, multiple: float,
+               noise: NoiseLevel | None = None, zero=None, sensitivity=None,
+               gyro: np.ndarray | None = None) -> Poses:
+    acc = np.asarray(acc, dtype=float)
+    noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
+    intervals = static_intervals(acc, rate_hz, noise, multiple, settings, gyro)
+    cums = np.cumsum(np.r_[np.zeros((1, 3)), acc - acc[0]], axis=0)  # offset removed for precision
+    means = acc[0] + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / (intervals[:, 1:] - intervals[:, :1])
+    up = up_directions(means, zero, sensitivity)
+    return Poses(intervals=intervals, means=means, up=up,
+                 distinct=distinct_poses(up, settings.min_separation_deg), multiple=float(multiple))
+
+
+def pose_candidates(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
+                    zero=None, sensitivity=None, gyro: np.ndarray | None = None) -> list[Poses]:
+    """The poses for each of ``settings.multiples``, the noise level measured once."""
+    acc = np.asarray(acc, dtype=float)
+    noise = noise_level(acc, rate_hz, settings, gyro)
+    return [find_poses(acc, rate_hz, settings, m, noise, zero, sensitivity, gyro) for m in settings.multiples]
+
+
+_AXES = np.vstack([np.eye(3), -np.eye(3)])
+_AXIS_NAMES = ["x up", "y up", "z up", "x down", "y down", "z down"]
+
+
+def norm_design(up: np.ndarray) -> float:
+    """Smallest singular value per √pose of the norm method's regressors at these directions.
+
+    (Kᵀ⁻¹-weighted) |m - b|² = g² is linear in [x², y², z², xy, xz, yz, x, y, z, 1]; on unit
+    vectors x² + y² + z² = 1, so z² is dropped and the nine left must be independent."""
+    if len(up) < 9:
+        return 0.0
+    x, y, z = up.T
+    regressors = np.column_stack([x * x, y * y, x * y, x * z, y * z, x, y, z, np.ones(len(up))])
+    return float(np.linalg.svd(regressors, compute_uv=False)[-1] / math.sqrt(len(up)))
+
+
+def check_spread(up: np.ndarray, min_poses: int, cover_deg: float = 60.0,
+                 min_design: float = DetectorSettings.min_design) -> SpreadReport:
+    """Is this set of distinct up vectors enough for the accelerometer's norm calibration?"""
+    up = np.asarray(up, dtype=float).reshape(-1, 3)
+    count = len(up)
+    covered = (up @ _AXES.T).max(axis=0) >= math.cos(math.radians(cover_deg)) if count else np.zeros(6, bool)
+    missing = [name for name, c in zip(_AXIS_NAMES, covered) if not c]
+    design = norm_design(up)
+    where = f"add poses with {', '.join(missing)} (within {cover_deg:g}° of vertical)"
+    if count < min_poses:
+        hint = where if missing else "add poses tilted between the axes (a cube corner up)"
+        message = f"only {count} distinct poses (need at least {min_poses}): {hint}"
+    elif missing:
+        message = f"{count} distinct poses, but none with {', '.join(missing)}: {where}"
+    elif design < min_design:
+        message = (f"{count} distinct poses, but too alike for the norm method (design {design:.2g} < "
+                   f"{min_design:g}): add poses with two or three axes tilted (a cube corner up)")
+    else:
+        message = f"{count} distinct poses, well spread"
+    ok = count >= min_poses and not missing and design >= min_design
+    return SpreadReport(count=count, ok=ok, missing=missing, design=design, message=message)
+
+
+def require_poses(poses: Poses, settings: DetectorSettings) -> SpreadReport:
+    """The spread report of the distinct poses; DetectionError with its message when not ok."""
+    report = check_spread(poses.up[poses.distinct], settings.min_poses, settings.cover_deg,
+                          settings.min_design)
+    if not report.ok:
+        raise DetectionError(report.message)
+    return report
