@@ -1,0 +1,180 @@
+"""Import maps: which file holds which triad in which columns, in what units, on what clock.
+
+An import map is a YAML file (``configs/recordings/NAME.yaml``, or any path)::
+
+    description: free text (optional)
+    files:                              # one entry per input file, in the order they are given
+      - name: accelerometer file        # optional, for messages (default "file 1", ...)
+        delimiter: null                 # one character, or null / "whitespace" for runs of blanks
+                                        #   (default ",")
+        comment: "#"                    # prefix of lines to skip (default "#"; null for none)
+        time: {column: 0, unit: s}      # 0-based column; unit s, ms, us or ns, or instead
+                                        #   scale: seconds per text unit (e.g. 1.0e-4)
+        triads:
+          accelerometer: {columns: [1, 2, 3], kind: specific_force, unit: count}
+          # optional scale: the value kept is text value * scale, in the unit named
+
+Every problem is one line naming the file and the dotted field, as a :class:`ImportMapError`.
+The parsing itself is ``drivers.protocols.delimited``: each entry becomes a ChannelMap.
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.protocols.delimited import ChannelMap
+from fieldcal.config import CONFIGS_DIR
+from fieldcal.model import ANGULAR_RATE, KINDS, SPECIFIC_FORCE
+from fieldcal.validation import MISSING, FieldReader, describe, join, read_yaml_file
+
+RECORDINGS_DIR = CONFIGS_DIR / "recordings"
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+# Units that clearly belong to one kind: naming one for the other kind is a mistake in the map.
+# Anything else ("count", "LSB", "mV", ...) is accepted as the device's own unit.
+_UNITS_OF = {SPECIFIC_FORCE: {"m/s^2", "m/s2", "m/s²", "g", "mg", "ug"},
+             ANGULAR_RATE: {"rad/s", "mrad/s", "deg/s", "°/s", "dps", "mdeg/s", "deg/h", "°/h"}}
+_EXAMPLES = {SPECIFIC_FORCE: "m/s^2, g, mg", ANGULAR_RATE: "rad/s, deg/s"}
+_TRIAD_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
+
+
+class ImportMapError(ValueError):
+    def __init__(self, message: str, path: str = "", field: str = ""):
+        super().__init__(message)
+        self.path, self.field = path, field
+
+
+@dataclass(frozen=True)
+class FileSpec:
+    """One input file: its name for messages, how to parse it, and its triads' kinds and units."""
+
+    name: str
+    channel_map: ChannelMap
+    kinds: dict[str, str]
+    units: dict[str, str]
+
+
+@dataclass(frozen=True)
+class ImportMap:
+    path: str  # where it was read from (for messages)
+    text: str  # the YAML as written, kept in the session for provenance
+    files: tuple[FileSpec, ...]
+    description: str = ""
+
+    @property
+    def file_names(self) -> tuple[str, ...]:
+        return tuple(f.name for f in self.files)
+
+
+def resolve_map_path(name_or_path: str | os.PathLike) -> Path:
+    """A path as given, or a bare name found as NAME.yaml or in configs/recordings/ (as
+    ``fieldcal.config.load_config`` resolves station configs)."""
+    given = Path(name_or_path)
+    candidates = [given] if given.suffix else [given, given.with_suffix(".yaml"),
+                                                RECORDINGS_DIR / f"{given.name}.yaml"]
+    found = next((c for c in candidates if c.is_file()), None)
+    if found is None:
+        known = sorted(p.stem for p in RECORDINGS_DIR.glob("*.yaml"))
+        where = "" if given.suffix else f", nor {RECORDINGS_DIR / (given.name + '.yaml')}"
+        raise ImportMapError(f"{given}: no such import map (not a file{where}; the maps in "
+                             f"configs/recordings: {', '.join(known) or 'none'})", str(given))
+    return found
+
+
+def load_import_map(name_or_path: str | os.PathLike) -> ImportMap:
+    """Read and validate an import map; any problem is a one-line ImportMapError."""
+    path = resolve_map_path(name_or_path)
+    doc = read_yaml_file(path, ImportMapError, "import map")
+    return parse_import_map(doc, str(path), path.read_text(encoding="utf-8"))
+
+
+def parse_import_map(doc, path: str, text: str = "") -> ImportMap:
+    """Validate an already-loaded YAML document (``path`` only names it in messages)."""
+    r = FieldReader(path, ImportMapError)
+    m = _mapping(r, doc, "", ("files",), ("description",))
+    description = r.string(m, "description", "", optional=True) or ""
+    files_in = m["files"]
+    if not isinstance(files_in, list) or not files_in:
+        r.fail("files", "a list of files (one entry per input file)", describe(files_in))
+    files: list[FileSpec] = []
+    owner: dict[str, str] = {}  # triad name -> the file entry that defines it
+    for i, entry in enumerate(files_in):
+        spec = _file(r, entry, f"files[{i}]", i)
+        for name in spec.kinds:
+            if name in owner:
+                r.fail(f"files[{i}].triads.{name}", f"a triad name not used by another file "
+                       f"(already in {owner[name]})", describe(name))
+            owner[name] = f"files[{i}]"
+        files.append(spec)
+    names = [f.name for f in files]
+    for i, name in enumerate(names):
+        if name in names[:i]:
+            r.fail(f"files[{i}].name", "a name not used by another file", describe(name))
+    return ImportMap(path=path, text=text, files=tuple(files), description=description)
+
+
+def _mapping(r: FieldReader, value, where: str, required, optional=()) -> dict:
+    """FieldReader.mapping, and every required key present."""
+    m = r.mapping(value, where, required, optional)
+    for key in required:
+        if key not in m:
+            r.fail(join(where, key), "a value (the key is required)", describe(MISSING))
+    return m
+
+
+def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
+    m = _mapping(r, entry, where, ("time", "triads"), ("name", "delimiter", "comment"))
+    name = r.string(m, "name", where, optional=True) or f"file {index + 1}"
+    time_column, time_scale = _time(r, m["time"], join(where, "time"))
+
+    triads_in = m["triads"]
+    if not isinstance(triads_in, dict) or not triads_in:
+        r.fail(join(where, "triads"), "a mapping of triad name -> {columns, kind, unit, scale}",
+               describe(triads_in))
+    kinds, units, columns = {}, {}, {}
+    for tname, body in triads_in.items():
+        here = f"{where}.triads.{tname}"
+        if not isinstance(tname, str) or not _TRIAD_NAME.fullmatch(tname):
+            r.fail(join(where, "triads"), "triad names of ASCII letters, digits and _ "
+                   "(starting with a letter)", describe(tname))
+        t = _mapping(r, body, here, ("columns", "kind", "unit"), ("scale",))
+        kinds[tname] = r.string(t, "kind", here, KINDS)
+        units[tname] = r.string(t, "unit", here)
+        other = next(k for k in KINDS if k != kinds[tname])
+        if units[tname] in _UNITS_OF[other]:
+            r.fail(join(here, "unit"), f"a unit of {kinds[tname].replace('_', ' ')} "
+                   f"(e.g. {_EXAMPLES[kinds[tname]]}, count)",
+                   f"{describe(units[tname])}, a unit of {other.replace('_', ' ')}")
+        columns[tname] = {"columns": t["columns"], "unit": units[tname]}
+        if "scale" in t:
+            columns[tname]["scale"] = t["scale"]
+        cols = t["columns"] if isinstance(t["columns"], list) else []
+        clash = [k for k, c in enumerate(cols) if type(c) is int and c == time_column]
+        if clash:  # checked here: ChannelMap would name the time column "time_column"
+            r.fail(f"{here}.columns[{clash[0]}]", f"a column not used elsewhere (also "
+                   f"{where}.time.column)", describe(time_column))
+
+    channels = {"delimiter": m.get("delimiter", ","), "comment": m.get("comment", "#"),
+                "time_column": time_column, "time_scale": time_scale, "triads": columns}
+    try:  # delimiter, comment, columns and scales are checked by the parser's own validation
+        channel_map = ChannelMap.from_mapping(channels, where)
+    except ValueError as exc:
+        raise ImportMapError(f"{r.path}: {exc}", r.path, where) from None
+    return FileSpec(name=name, channel_map=channel_map, kinds=kinds, units=units)
+
+
+def _time(r: FieldReader, raw, where: str) -> tuple[int, float]:
+    m = _mapping(r, raw, where, ("column",), ("unit", "scale"))
+    column = m["column"]
+    if isinstance(column, bool) or not isinstance(column, int) or column < 0:
+        r.fail(join(where, "column"), "a column number (0-based integer >= 0)", describe(column))
+    if ("unit" in m) == ("scale" in m):  # exactly one: a guessed time unit is a silent 1000x
+        r.fail(where, "either unit (s, ms, us, ns) or scale (seconds per text unit), not "
+               f"{'both' if 'unit' in m else 'neither'}", "a mapping with keys " + ", ".join(m))
+    if "unit" in m:
+        return column, TIME_UNITS[r.string(m, "unit", where, tuple(TIME_UNITS))]
+    scale = r.number(m, "scale", where)
+    if scale <= 0:
+        r.fail(join(where, "scale"), "a number > 0 (seconds per text unit)", describe(m["scale"]))
+    return column, scale

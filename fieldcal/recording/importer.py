@@ -1,0 +1,261 @@
+"""Text recordings -> :class:`Recording`: one file per import-map entry, on one time base.
+
+Each file is parsed in one vectorised pass by ``drivers.protocols.delimited`` (its ChannelMap
+is built from the map entry). On top of the parser this module decides what a *recording*
+needs that a live stream does not:
+
+- Lines that do not parse are malformed: counted, and their 1-based line numbers reported,
+  never used. The parser calls a line with no number in any mapped field a "header" line; only
+  those before the first sample are taken as a header, later ones (binary junk, a stray text
+  line) are malformed too. A file with more than 1 % malformed lines imports with a warning;
+  a file with fewer than two valid samples is an error.
+- Time must increase strictly: a repeated or backwards timestamp is an error naming the file
+  and line (dropping samples silently would hide a logger fault). Gaps longer than five median
+  sample periods are reported.
+- Several files are put on the first file's timestamps, restricted to the time all files
+  cover; a file on exactly those timestamps is copied bit for bit, any other is interpolated
+  linearly (np.interp per axis). An overlap shorter than half the shortest file is an error:
+  the files are not from one run, or not on one clock.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from drivers.protocols.delimited import DelimitedTextParser
+from fieldcal.recording import Recording
+from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
+
+FIRST_FEW = 10  # malformed line numbers kept per file
+MALFORMED_WARNING = 0.01  # fraction of a file's data lines
+GAP_PERIODS = 5.0  # a step in time longer than this many median periods is a gap
+MIN_OVERLAP = 0.5  # of the shortest file's duration
+_CONTROL = re.compile("[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")  # all but tab and CR
+
+
+class RecordingImportError(ValueError):
+    def __init__(self, message: str, path: str = "", line: int | None = None):
+        super().__init__(message)
+        self.path, self.line = path, line
+
+
+@dataclass(frozen=True)
+class FileReport:
+    path: str
+    name: str  # the map entry's name
+    sha256: str  # of the bytes parsed
+    lines: int
+    samples: int
+    header_lines: int  # skipped before the first sample
+    malformed: int
+    malformed_lines: tuple[int, ...]  # the first FIRST_FEW, 1-based
+    rate_hz: float  # median
+    t_first: float
+    t_last: float
+    gaps: int  # steps longer than GAP_PERIODS median periods
+    largest_gap_s: float  # largest step in time (a gap if gaps > 0)
+    largest_gap_line: int  # the line after that step
+
+    @property
+    def malformed_fraction(self) -> float:
+        return self.malformed / max(self.samples + self.malformed, 1)
+
+
+@dataclass(frozen=True)
+class ImportReport:
+    map_path: str
+    map_text: str
+    files: tuple[FileReport, ...]
+    alignment: tuple[str, ...]  # what was done to put the files on one time base
+    warnings: tuple[str, ...]
+
+
+@dataclass
+class _Parsed:
+    spec: FileSpec
+    report: FileReport
+    t: np.ndarray
+    triads: dict[str, np.ndarray]
+
+
+def import_recording(paths, import_map: ImportMap | str | os.PathLike) -> Recording:
+    """The recording in ``paths`` (one per map entry, in order); see the module docstring."""
+    return import_with_report(paths, import_map)[0]
+
+
+def import_with_report(paths, import_map: ImportMap | str | os.PathLike) -> tuple[Recording, ImportReport]:
+    """As import_recording, with what was found and done (for the summary and the session)."""
+    im = import_map if isinstance(import_map, ImportMap) else load_import_map(import_map)
+    paths = [os.fspath(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
+    if len(paths) != len(im.files):
+        n = len(im.files)
+        raise RecordingImportError(f"{Path(im.path).name} expects {n} file{'s' * (n != 1)} "
+                                   f"({', '.join(im.file_names)}), got {len(paths)}")
+    resolved = [os.path.realpath(p) for p in paths]
+    for i, p in enumerate(resolved):
+        if p in resolved[:i]:
+            raise RecordingImportError(f"{paths[i]}: given twice (for {im.files[resolved.index(p)].name} "
+                                       f"and {im.files[i].name})", paths[i])
+    parsed = [_read(path, spec) for path, spec in zip(paths, im.files)]
+    t, triads, alignment = _align(parsed)
+    warnings = tuple(
+        f"{p.report.path}: {p.report.malformed} of {p.report.samples + p.report.malformed} data lines "
+        f"({100 * p.report.malformed_fraction:.1f} %) are malformed and were not used: check the file "
+        "and the map (delimiter, columns)" for p in parsed if p.report.malformed_fraction > MALFORMED_WARNING)
+    kinds = {name: kind for p in parsed for name, kind in p.spec.kinds.items()}
+    units = {name: unit for p in parsed for name, unit in p.spec.units.items()}
+    recording = Recording(t=t, triads=triads, kinds=kinds, units=units, sources=tuple(paths),
+                          malformed={p.report.path: (p.report.malformed, p.report.malformed_lines)
+                                     for p in parsed})
+    report = ImportReport(map_path=im.path, map_text=im.text, files=tuple(p.report for p in parsed),
+                          alignment=tuple(alignment), warnings=warnings)
+    return recording, report
+
+
+def _read(path: str, spec: FileSpec) -> _Parsed:
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None
+    sha256 = hashlib.sha256(data).hexdigest()
+    if data and not data.endswith(b"\n"):
+        data += b"\n"  # the parser holds back an unterminated last line; it is a whole line here
+    a = np.frombuffer(data, dtype=np.uint8)
+    ends = np.flatnonzero(a == 10)
+    starts = np.concatenate([[0], ends[:-1] + 1]).astype(np.int64)
+    cm = spec.channel_map
+    parser = DelimitedTextParser(cm, keep_malformed=max(len(ends), 1))  # keep every line number
+    chunk = parser.feed(data, 0.0)
+    n = 0 if chunk is None else len(chunk)
+
+    # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
+    # not header lines, in order (the parser returns values, not where they came from).
+    candidates = _content_lines(a, starts, ends, cm.comment)
+    malformed = np.array(sorted(parser.malformed_line_numbers), dtype=np.int64)
+    rest = np.setdiff1d(candidates, malformed, assume_unique=True)
+    if len(rest) != n + parser.header_lines:  # cannot happen unless the parser's rules change
+        raise RuntimeError(f"{path}: line accounting disagrees with the parser "
+                           f"({len(rest)} lines for {n} samples and {parser.header_lines} headers)")
+    headers = _header_lines(data, starts, ends, rest, parser.header_lines, cm)
+    lines = np.setdiff1d(rest, headers, assume_unique=True)
+    first = lines[0] if n else np.iinfo(np.int64).max
+    leading = headers[headers < first]
+    # A header is text before the first sample; after it (or binary junk) the line is malformed.
+    # The loop runs over the leading header lines only, usually one.
+    text = np.array([_is_text(data[starts[k - 1]:ends[k - 1]]) for k in leading.tolist()], dtype=bool)
+    malformed = np.union1d(malformed, np.concatenate([headers[headers > first], leading[~text]]))
+    header_count = int(np.count_nonzero(text))
+    if n < 2:
+        what = "no valid sample" if n == 0 else f"only one valid sample (line {lines[0]})"
+        raise RecordingImportError(
+            f"{path}: {what} for {spec.name} in {len(ends)} lines ({len(malformed)} malformed, "
+            f"{header_count} header lines); check the map (delimiter, columns, time)", path)
+
+    t = chunk.t
+    dt = np.diff(t)
+    back = np.flatnonzero(dt <= 0)
+    if len(back):
+        i = int(back[0]) + 1
+        raise RecordingImportError(
+            f"{path}: line {lines[i]}: time {t[i]:.9g} s is not after {t[i - 1]:.9g} s (line "
+            f"{lines[i - 1]}); time must increase strictly ({len(back)} such line"
+            f"{'s' * (len(back) != 1)} in the file)", path, int(lines[i]))
+    period = float(np.median(dt))
+    widest = int(np.argmax(dt))
+    report = FileReport(
+        path=path, name=spec.name, sha256=sha256, lines=len(ends), samples=n,
+        header_lines=header_count, malformed=len(malformed),
+        malformed_lines=tuple(int(x) for x in malformed[:FIRST_FEW]), rate_hz=1.0 / period,
+        t_first=float(t[0]), t_last=float(t[-1]),
+        gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
+        largest_gap_line=int(lines[widest + 1]))
+    return _Parsed(spec, report, t, dict(chunk.triads))
+
+
+def _is_text(line: bytes) -> bool:
+    """UTF-8 without control characters (tab and CR allowed): a plausible header line."""
+    try:
+        decoded = line.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return _CONTROL.search(decoded) is None
+
+
+def _content_lines(a: np.ndarray, starts: np.ndarray, ends: np.ndarray, comment: str | None) -> np.ndarray:
+    """1-based numbers of the lines that are neither blank nor comments (the parser's rules)."""
+    solid = np.flatnonzero(~((a == 32) | (a == 9) | (a == 13) | (a == 10)))
+    if len(solid) == 0:
+        return np.zeros(0, dtype=np.int64)
+    j = np.searchsorted(solid, starts)
+    first = solid[np.minimum(j, len(solid) - 1)]
+    content = (j < len(solid)) & (first < ends)
+    if comment is not None:
+        prefix = np.frombuffer(comment.encode("ascii"), dtype=np.uint8)
+        idx = np.minimum(first[:, None] + np.arange(len(prefix)), len(a) - 1)
+        content &= ~((first + len(prefix) <= ends) & (a[idx] == prefix).all(axis=1))
+    return np.flatnonzero(content).astype(np.int64) + 1
+
+
+def _header_lines(data: bytes, starts, ends, lines: np.ndarray, count: int, cm) -> np.ndarray:
+    """Which of ``lines`` (sorted 1-based numbers) the parser calls headers, ``count`` of them.
+
+    Usually they lead the file and one check confirms it; otherwise halve the set until each
+    part is all header or none (parses of ever smaller parts: about one whole-file parse per
+    stray line of text after the data)."""
+
+    def headers_in(part: np.ndarray) -> int:
+        # The bytes from the part's first line to its last: the lines between that are not in
+        # ``lines`` are blank, comments or malformed, never headers, so they change no count.
+        parser = DelimitedTextParser(cm)
+        parser.feed(data[starts[part[0] - 1]:ends[part[-1] - 1] + 1], 0.0)
+        return parser.header_lines
+
+    def split(part: np.ndarray, k: int) -> list[np.ndarray]:
+        if k == 0 or k == len(part):
+            return [part] if k else []
+        half = len(part) // 2
+        left = headers_in(part[:half])
+        return split(part[:half], left) + split(part[half:], k - left)
+
+    if count == 0:
+        return np.zeros(0, dtype=np.int64)
+    if headers_in(lines[:count]) == count:
+        return lines[:count]
+    return np.concatenate(split(lines, count))
+
+
+def _align(parsed: list[_Parsed]) -> tuple[np.ndarray, dict[str, np.ndarray], list[str]]:
+    """One time base: the first file's timestamps within the overlap of all files."""
+    base = parsed[0]
+    if len(parsed) == 1:
+        return base.t, dict(base.triads), []
+    lo = max(float(p.t[0]) for p in parsed)
+    hi = min(float(p.t[-1]) for p in parsed)
+    keep = (base.t >= lo) & (base.t <= hi)
+    shortest = min(float(p.t[-1] - p.t[0]) for p in parsed)
+    if hi - lo < MIN_OVERLAP * shortest or np.count_nonzero(keep) < 2:
+        spans = "; ".join(f"{p.report.name} {p.t[0]:.6g} .. {p.t[-1]:.6g} s" for p in parsed)
+        raise RecordingImportError(
+            f"the files overlap in time for only {max(hi - lo, 0.0):.6g} s ({spans}); are they from "
+            "one run, on one clock, with the right time unit in the map?")
+    t = base.t[keep]
+    dropped = len(base.t) - len(t)
+    notes = [f"time base: {base.report.name}"
+             + (f", {dropped} sample{'s' * (dropped != 1)} outside the other files' time dropped" if dropped else "")]
+    triads = {name: v[keep] for name, v in base.triads.items()}
+    for p in parsed[1:]:
+        inside = (p.t >= lo) & (p.t <= hi)
+        if np.array_equal(p.t[inside], t):
+            triads.update({name: v[inside] for name, v in p.triads.items()})
+            notes.append(f"{p.report.name}: same timestamps, values used as they are")
+        else:
+            for name, v in p.triads.items():
+                triads[name] = np.column_stack([np.interp(t, p.t, v[:, k]) for k in range(3)])
+            notes.append(f"{p.report.name}: other timestamps ({p.report.rate_hz:.6g} Hz), "
+                         "interpolated linearly onto the time base")
+    return t, triads, notes
