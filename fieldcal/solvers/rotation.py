@@ -1,0 +1,412 @@
+"""Gyro calibration from the rotations between static poses, no turntable (imu_tk, Tedaldi 2014).
+
+The unit rests in a dozen or more poses and is turned by hand between them. Integrating the
+candidate-calibrated gyro across each motion must carry the first pose's gravity-up direction
+(accelerometer frame) onto the next pose's. The model is raw = K·ω + b with ω in the calibrated
+accelerometer frame and K = diag(k)·(I + M) full: three scale factors k (output units per rad/s)
+and six small angles m_ij = M[i, j] (gyro axis i leaning toward accelerometer axis j), so the
+gyro-to-accelerometer rotation is estimated too. Calibrated rate = K⁻¹(raw − b).
+
+- ``integrate(omega, t, spans) -> (m, 4)``: quaternions (scipy's scalar-last order) of C, the
+  rotation from the body at t[i1] to the body at t[i0] for each inclusive span [i0, i1]:
+  v_start = C · v_end for a vector fixed in the world. Each step is the exact exponential of
+  φ = ∫ω + h²/12 · ω_j × ω_{j+1}: the integral from the cubic Hermite rule (trapezoid minus
+  h²/12 times the change of dω/dt, which comes from a three-point stencil on the samples), the
+  cross product the two-sample coning correction, exact to O(h⁵) for a smooth rate. Global
+  error O(h⁴). The steps of all spans are padded into one (m, L) array and composed by a
+  pairwise (tree) reduction: log2(L) vectorised quaternion products, no loop over samples.
+- ``solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, ...) -> RotationSolution``.
+  Residuals, 2 per motion in rad: Cᵀ·up_start − up_end in a tangent basis (a, b) at up_end.
+  theta is [bias (3, only when estimated)], scale_x..z, m_xy, m_xz, m_yx, m_yz, m_zx, m_zy;
+  ``covariance`` is theta's, same order. The noise model whitens the residuals: up_sigma (rad, a
+  scalar, (m,) or (m, 2) for [start, end]: each pose direction's 1σ per tangent component),
+  rate_noise (angle random walk, rad/√s: adds rate_noise²·duration), and bias_sigma (output
+  units, scalar or (3,)): with the bias fixed at b0 its error is common to every motion and is
+  propagated as a full covariance G·Σb·Gᵀ (G = ∂r/∂b, i.e. marginalised); with the bias
+  estimated it is a prior b0 ± bias_sigma. A pose shared by consecutive motions (the same up
+  vector passed as one motion's end and the next one's start) correlates their residuals; the
+  whitening includes it. Without up_sigma and rate_noise the covariance is scaled by the
+  residual variance (``scaled_by_residuals``), as it is when χ² is implausible (Birge).
+
+The search runs in coordinates whitened by the Jacobian at K0, b0 (as in norm.py), so raw counts
+(k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Not modelled: Earth rate (≤ 2e-4 rad over a
+3 s motion: below consumer MEMS noise, not below a tactical gyro's; a caller that knows the
+latitude can pass its horizontal part as ``motion_variance``) and bias drift.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy import optimize, stats
+from scipy.spatial.transform import Rotation
+
+from fieldcal.solvers.norm import CalibrationError
+
+BIAS_NAMES = ("bias_x", "bias_y", "bias_z")
+SCALE_NAMES = ("scale_x", "scale_y", "scale_z")
+MISALIGNMENT_NAMES = ("m_xy", "m_xz", "m_yx", "m_yz", "m_zx", "m_zy")
+_OFF = (np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1]))
+METHODS = ("lsq", "powell")
+_MOTION_MARGIN = 2  # motions beyond ceil(n_params / 2): some scatter to judge the fit by
+_GEOMETRY_RATIO = 1e-3  # smallest / largest singular value of the Jacobian in natural units
+_DEGENERATE_FRACTION = 0.01  # σ above this fraction of a parameter's natural unit: undetermined
+
+
+def _cross(a, b):
+    # Faster than np.cross on many short vectors.
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def _qmul(p, q):
+    """Hamilton product, scalar last: the rotation matrix of p·q is R(p)·R(q)."""
+    pv, pw, qv, qw = p[..., :3], p[..., 3:], q[..., :3], q[..., 3:]
+    return np.concatenate([pw * qv + qw * pv + _cross(pv, qv),
+                           pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)], axis=-1)
+
+
+# p·q = (p ⊗ q).ravel() @ _PRODUCT: one outer product and one matrix product per pass.
+_PRODUCT = np.array([[_qmul(a, b) for b in np.eye(4)] for a in np.eye(4)]).reshape(16, 4)
+
+
+def _compose(q):
+    """(m, L, 4) -> (m, 4): q[:, 0]·q[:, 1]·…·q[:, L-1] by pairwise products, log2(L) passes."""
+    while q.shape[1] > 1:
+        if q.shape[1] % 2:
+            q = np.concatenate([q, np.broadcast_to([0.0, 0.0, 0.0, 1.0], (len(q), 1, 4))], axis=1)
+        p, r = q[:, 0::2], q[:, 1::2]
+        q = (p[..., :, None] * r[..., None, :]).reshape(*p.shape[:-1], 16) @ _PRODUCT
+    q = q[:, 0]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _rotate_back(q, v):
+    """Cᵀ·v for each row (C the rotation of quaternion q)."""
+    qv, qw = -q[:, :3], q[:, 3:]
+    t = 2.0 * _cross(qv, v)
+    return v + qw * t + _cross(qv, t)
+
+
+def _rate_slope(values, t, idx):
+    """dω/dt at samples idx from the quadratic through three neighbours (one-sided at the ends)."""
+    c = np.clip(idx, 1, len(t) - 2)
+    tm, t0, tp, x = t[c - 1], t[c], t[c + 1], t[idx]
+    wm = (2 * x - t0 - tp) / ((tm - t0) * (tm - tp))
+    w0 = (2 * x - tm - tp) / ((t0 - tm) * (t0 - tp))
+    wp = (2 * x - tm - t0) / ((tp - tm) * (tp - t0))
+    return wm[..., None] * values[c - 1] + w0[..., None] * values[c] + wp[..., None] * values[c + 1]
+
+
+class _Steps:
+    """The steps of some spans, padded to (m, L). The increments are linear in the rate, so for
+    ω = A·(v − δb) (A = K⁻¹) each evaluation is one product of per-step sums of v, made once:
+    ∫ω = A·(∫v − h·δb) and ω_j × ω_{j+1} = det(A)·Kᵀ·(v_j × v_{j+1} + (v_{j+1} − v_j) × δb)."""
+
+    def __init__(self, values, t, spans):
+        values, t = np.asarray(values, dtype=float), np.asarray(t, dtype=float)
+        spans = np.asarray(spans, dtype=int).reshape(-1, 2)
+        n = len(t)
+        if values.shape != (n, 3) or n < 3:
+            raise ValueError(f"rates must be (n, 3) with n >= 3 matching t, got {values.shape}")
+        i0, i1 = spans[:, 0], spans[:, 1]
+        if len(spans) == 0 or np.any(i0 < 0) or np.any(i1 >= n) or np.any(i1 <= i0):
+            raise ValueError(f"spans must be [i0, i1] with 0 <= i0 < i1 < {n}")
+        lengths = i1 - i0
+        k = np.arange(lengths.max())
+        valid = k < lengths[:, None]
+        j = np.where(valid, i0[:, None] + k, i0[:, None]).ravel()  # padding: any real step
+        h = np.where(valid, t[j + 1].reshape(valid.shape) - t[j].reshape(valid.shape), 0.0)
+        if np.any(h[valid] <= 0):
+            raise ValueError("t must increase within every span")
+        h = h.reshape(-1, 1)  # zero for padding: a zero increment, the identity rotation
+        w = h * h / 12.0
+        v0, v1 = values[j], values[j + 1]
+        # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
+        slope_change = _rate_slope(values, t, j + 1) - _rate_slope(values, t, j)
+        integral = h / 2 * (v0 + v1) - w * slope_change
+        self.terms = np.hstack([integral, w * _cross(v0, v1), w * (v1 - v0), h])  # (m·L, 10)
+        self.shape = valid.shape
+        self.duration = t[i1] - t[i0]
+
+    def quaternions(self, K_inv, delta_b):
+        A = np.asarray(K_inv, dtype=float)
+        coning = np.linalg.det(A) * np.linalg.inv(A)  # det(A)·K, applied to row vectors
+        bias_cross = np.array([[0.0, -delta_b[2], delta_b[1]], [delta_b[2], 0.0, -delta_b[0]],
+                               [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
+        phi = self.terms @ np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]])
+        angle = np.sqrt(np.einsum("ij,ij->i", phi, phi))[:, None]
+        half = 0.5 * angle
+        # sin(θ/2)/θ → 1/2 at θ = 0 (the padding).
+        s = np.divide(np.sin(half), angle, out=np.full_like(angle, 0.5), where=angle > 0)
+        return _compose(np.hstack([s * phi, np.cos(half)]).reshape(*self.shape, 4))
+
+
+def integrate(omega, t, spans) -> np.ndarray:
+    """(m, 4) quaternions of C (v_start = C·v_end) over each inclusive span of calibrated rates."""
+    return _Steps(omega, t, spans).quaternions(np.eye(3), np.zeros(3))
+
+
+def k_matrix(scale, misalignment) -> np.ndarray:
+    """K = diag(k)·(I + M), M holding m_xy, m_xz, m_yx, m_yz, m_zx, m_zy off the diagonal."""
+    M = np.zeros((3, 3))
+    M[_OFF] = misalignment
+    return np.asarray(scale, dtype=float)[:, None] * (np.eye(3) + M)
+
+
+@dataclass(frozen=True)
+class RotationSolution:
+    name: str
+    output_unit: str
+    method: str
+    theta: np.ndarray  # param_names order: [bias (if estimated)], scale (3), misalignment (6)
+    covariance: np.ndarray  # of theta
+    param_names: tuple[str, ...]
+    bias: np.ndarray  # (3,) estimated, or b0 when fixed
+    bias_estimated: bool
+    residuals: np.ndarray  # rad, 2 per motion, per residual_labels
+    residual_labels: tuple[str, ...]
+    extra_residuals: np.ndarray  # whitened: the bias prior, then extra_residuals(...)
+    chi2: float
+    dof: int
+    scaled_by_residuals: bool
+    iterations: int  # Powell's iterations; for lsq MINPACK's function count (as in norm.py)
+    evaluations: int  # residual evaluations by the search
+    condition_number: float
+
+    @property
+    def scale_factor(self) -> np.ndarray:
+        return self.theta[-9:-6].copy()
+
+    @property
+    def misalignment(self) -> np.ndarray:
+        return self.theta[-6:].copy()
+
+    @property
+    def K(self) -> np.ndarray:
+        return k_matrix(self.scale_factor, self.misalignment)
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance))
+
+    def calibrate(self, raw) -> np.ndarray:
+        return (np.asarray(raw, dtype=float) - self.bias) @ np.linalg.inv(self.K).T
+
+    def named(self) -> dict[str, tuple[float, float]]:
+        return {n: (float(v), float(s))
+                for n, v, s in zip(self.param_names, self.theta, self.sigma, strict=True)}
+
+
+def _tangent_bases(up):
+    """(m, 3, 2): two orthonormal columns perpendicular to each unit vector."""
+    helper = np.eye(3)[np.argmin(np.abs(up), axis=1)]
+    a = _cross(up, helper)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    return np.stack([a, _cross(up, a)], axis=2)
+
+
+def _chained_up_covariance(E, C, up_covariance):
+    """Residual covariance from a full covariance of the chained poses' up vectors: motion i
+    joins pose i to pose i+1, so r_i moves by E_iᵀ·C_iᵀ·δup_i − E_iᵀ·δup_{i+1}."""
+    m = len(E)
+    A = np.zeros((2 * m, 3 * (m + 1)))
+    for i in range(m):  # m is a few dozen: a loop over motions, not samples
+        A[2 * i:2 * i + 2, 3 * i:3 * i + 3] = E[i].T @ C[i].T
+        A[2 * i:2 * i + 2, 3 * i + 3:3 * i + 6] = -E[i].T
+    return A @ up_covariance @ A.T
+
+
+def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_variance=None):
+    """(2m, 2m) covariance of the rotation residuals from the direction and rate noise.
+
+    A direction error δ at the start pose reaches the residual as E_endᵀ·Cᵀ·δ, one at the end
+    as −E_endᵀ·δ; both are isotropic in the tangent plane. A pose shared by motions i and i+1
+    correlates them by −σ²·E_iᵀ·C_{i+1}·E_{i+1}."""
+    m = len(E)
+    cov = np.zeros((2 * m, 2 * m))
+    if up_sigma is not None:
+        s = np.asarray(up_sigma, dtype=float)
+        s = np.broadcast_to(s[:, None] if s.ndim == 1 else s, (m, 2))
+        cov += np.kron(np.diag(s[:, 0] ** 2 + s[:, 1] ** 2), np.eye(2))
+        for i in np.flatnonzero(shared):
+            block = -s[i, 1] * s[i + 1, 0] * E[i].T @ C[i + 1] @ E[i + 1]
+            cov[2 * i:2 * i + 2, 2 * i + 2:2 * i + 4] = block
+            cov[2 * i + 2:2 * i + 4, 2 * i:2 * i + 2] = block.T
+    if rate_noise is not None:  # angle random walk, independent between motions
+        cov += np.kron(np.diag(rate_noise**2 * duration), np.eye(2))
+    if motion_variance is not None:  # e.g. the horizontal Earth rate, heading unknown
+        cov += np.kron(np.diag(np.broadcast_to(np.asarray(motion_variance, float), (m,))), np.eye(2))
+    return cov
+
+
+def _jacobian(fun, x, steps):
+    """Central differences, one column per parameter."""
+    return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h)
+                            for e, h in zip(np.diag(steps), steps, strict=True)])
+
+
+def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bias=False,
+                         bias_sigma=None, up_sigma=None, rate_noise=None, motion_variance=None,
+                         up_covariance=None,
+                         extra_residuals: Callable | None = None, method="lsq", name="gyro",
+                         output_unit="") -> RotationSolution:
+    """Solve K (and b) from the motions between static poses; see the module docstring.
+
+    t (n,), raw (n, 3) gyro output; spans (m, 2) inclusive sample indices of each motion (last
+    sample of pose i .. first of pose i+1); up_start, up_end (m, 3) gravity-up in the
+    accelerometer frame at its two poses. K0: nominal scalar, (3,) or dominant-diagonal 3×3;
+    b0: the fixed bias (the initial-rest mean), or the start when ``estimate_bias``.
+    ``motion_variance`` (rad², scalar or (m,)): more variance per tangent component of each
+    motion's residual, independent between motions (an unmodelled rotation such as the
+    horizontal Earth rate at an unknown heading). ``up_covariance`` ((3(m+1), 3(m+1))): instead
+    of ``up_sigma``, the full covariance of the up vectors of poses 0..m when motion i joins pose
+    i to pose i+1 (a chain): errors shared by all poses (the accelerometer calibration's) as well
+    as each pose's own.
+    ``extra_residuals(K_inv, bias)`` returns whitened residuals appended to the rotations' (e.g.
+    turntable rate norms). method: "lsq" (least_squares, Levenberg-Marquardt) or "powell".
+    Raises CalibrationError for too few motions (ceil(n_params / 2) + 2, fewer with extra
+    equations) or motions that leave a parameter undetermined.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    K0 = np.diag(np.broadcast_to(np.asarray(K0, dtype=float), 3)) if np.ndim(K0) < 2 else \
+        np.asarray(K0, dtype=float)
+    k0 = np.diag(K0).copy()
+    if K0.shape != (3, 3) or np.any(np.abs(k0) <= np.abs(K0 - np.diag(k0)).sum(axis=1)):
+        raise ValueError("K0 must be a 3x3 matrix with a dominant diagonal (map the axes first)")
+    b0 = np.broadcast_to(np.asarray(b0, dtype=float), 3).copy()
+    spans = np.asarray(spans, dtype=int).reshape(-1, 2)
+    m = len(spans)
+    up_s, up_e = (np.asarray(u, dtype=float).reshape(m, 3) for u in (up_start, up_end))
+    up_s, up_e = (u / np.linalg.norm(u, axis=1, keepdims=True) for u in (up_s, up_e))
+    shared = np.all(up_e[:-1] == up_s[1:], axis=1)  # consecutive motions around one pose
+    given = up_sigma is not None or rate_noise is not None or motion_variance is not None \
+        or up_covariance is not None
+    if up_covariance is not None and (up_sigma is not None or np.shape(up_covariance) != (3 * m + 3,) * 2):
+        raise ValueError(f"up_covariance: expected a ({3 * m + 3}, {3 * m + 3}) matrix for {m} chained "
+                         "motions, and no up_sigma with it")
+    if not given and (bias_sigma is not None or extra_residuals is not None):
+        raise ValueError("bias_sigma and extra_residuals need up_sigma or rate_noise: the "
+                         "rotation residuals must be whitened too")
+    prior = estimate_bias and bias_sigma is not None
+    sigma_b = np.broadcast_to(np.asarray(bias_sigma if bias_sigma is not None else 1.0, float), 3)
+
+    nb = 3 if estimate_bias else 0
+    names = (BIAS_NAMES if estimate_bias else ()) + SCALE_NAMES + MISALIGNMENT_NAMES
+    M0 = K0 / k0[:, None] - np.eye(3)
+    theta0 = np.r_[b0[:nb], k0, M0[_OFF]]
+    p = len(theta0)
+
+    def unpack(theta):
+        bias = theta[:3] if estimate_bias else b0
+        return bias, np.linalg.inv(k_matrix(theta[nb:nb + 3], theta[nb + 3:]))
+
+    def rotation_residuals(theta, bias=None):
+        b, K_inv = unpack(theta)
+        q = steps.quaternions(K_inv, (b if bias is None else bias) - b0)
+        return np.einsum("mi,mik->mk", _rotate_back(q, up_s) - up_e, E).ravel()
+
+    def side_residuals(theta):
+        b, K_inv = unpack(theta)
+        parts = [(b - b0) / sigma_b] if prior else []
+        if extra_residuals is not None:
+            parts.append(np.atleast_1d(np.asarray(extra_residuals(K_inv, b.copy()), dtype=float)))
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    n_side = len(side_residuals(theta0))
+    need = max(2, math.ceil((p - n_side) / 2) + _MOTION_MARGIN)
+    if m < need:
+        raise CalibrationError(f"{name}: {m} motions between poses, need at least {need}: "
+                               "add more poses")
+    # The motion samples only, offset by b0 so that raw counts keep their precision.
+    steps = _Steps(np.asarray(raw, dtype=float) - b0, t, spans)
+    E = _tangent_bases(up_e)
+
+    # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
+    natural = np.r_[np.abs(k0)[:nb] / steps.duration.mean(), np.abs(k0), np.ones(6)]
+    fd_steps = 1e-7 * natural
+    J_rot = _jacobian(rotation_residuals, theta0, fd_steps) * natural
+    sv, V = np.linalg.svd(J_rot, full_matrices=False)[1:]
+    weak = sv < _GEOMETRY_RATIO * sv[0]
+    if np.any(weak):
+        loose = [names[i] for i in np.unique(np.argmax(np.abs(V[weak]), axis=1))]
+        raise CalibrationError(
+            f"{name}: the motions do not span enough rotation axes: {', '.join(loose)} barely "
+            f"change the rotations (condition number {sv[0] / max(sv[-1], 1e-300):.3g}); "
+            "turn the unit about other axes")
+
+    whiten = None
+    if given:
+        C = Rotation.from_quat(steps.quaternions(unpack(theta0)[1], 0 * b0)).as_matrix()
+        cov = _residual_covariance(E, C, shared, up_sigma, rate_noise, steps.duration, motion_variance)
+        if up_covariance is not None:
+            cov += _chained_up_covariance(E, C, np.asarray(up_covariance, dtype=float))
+        if bias_sigma is not None and not estimate_bias:  # fixed bias: marginalise its error
+            G = _jacobian(lambda b: rotation_residuals(theta0, b), b0, 1e-6 * np.abs(k0))
+            cov += G @ np.diag(sigma_b**2) @ G.T
+        try:
+            whiten = np.linalg.inv(np.linalg.cholesky(cov))
+        except np.linalg.LinAlgError:
+            raise CalibrationError(f"{name}: the residual covariance is not positive "
+                                   "definite") from None
+
+    count = [0]
+
+    def whitened(theta):
+        count[0] += 1
+        r = rotation_residuals(theta)
+        return np.r_[r if whiten is None else whiten @ r, side_residuals(theta)]
+
+    J_side = _jacobian(side_residuals, theta0, fd_steps) * natural
+    J0 = np.vstack([J_rot if whiten is None else whiten @ J_rot, J_side])
+    # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
+    to_theta = natural[:, None] * np.linalg.inv(np.linalg.qr(J0, mode="r"))
+    if method == "powell":
+        res = optimize.minimize(lambda z: float(np.sum(whitened(theta0 + to_theta @ z) ** 2)),
+                                np.zeros(p), method="Powell",
+                                options={"direc": np.eye(p), "xtol": 1e-4, "ftol": 1e-13,
+                                         "maxfev": 20000})
+        iterations = int(res.nit)
+    else:
+        res = optimize.least_squares(lambda z: whitened(theta0 + to_theta @ z), np.zeros(p),
+                                     method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        iterations = int(res.nfev)
+    evaluations = count[0]
+    if not res.success:
+        raise CalibrationError(f"{name}: {method} did not converge ({res.message})")
+    theta = theta0 + to_theta @ res.x
+    r_w = whitened(theta)
+    chi2, dof = float(r_w @ r_w), len(r_w) - p
+    J = _jacobian(whitened, theta, fd_steps) * natural
+    sv = np.linalg.svd(J, compute_uv=False)
+    try:
+        cov_natural = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        raise CalibrationError(f"{name}: the motions do not determine the parameters") from None
+    scaled = not given or (dof > 0 and stats.chi2.sf(chi2, dof) < 1e-3)
+    if scaled:
+        if dof <= 0:
+            raise CalibrationError(f"{name}: no scatter left to estimate the uncertainty; "
+                                   "add poses or give up_sigma/rate_noise")
+        cov_natural *= chi2 / dof
+    sigma_natural = np.sqrt(np.diag(cov_natural))
+    worst = int(np.argmax(sigma_natural))
+    if sigma_natural[worst] > _DEGENERATE_FRACTION:
+        raise CalibrationError(f"{name}: the motions do not span enough rotation axes: "
+                               f"{names[worst]} is determined only to ±{sigma_natural[worst]:.2g} "
+                               "of its scale; turn the unit about other axes")
+    bias = unpack(theta)[0].copy()
+    pose = np.cumsum(np.r_[0, ~shared]) + np.arange(m)  # poses numbered from 0, shared or not
+    labels = tuple(f"motion {a + 1}→{a + 2} {c}" for a in pose for c in "ab")
+    return RotationSolution(
+        name=name, output_unit=output_unit, method=method, theta=theta,
+        covariance=cov_natural * np.outer(natural, natural), param_names=names, bias=bias,
+        bias_estimated=bool(estimate_bias), residuals=rotation_residuals(theta),
+        residual_labels=labels, extra_residuals=side_residuals(theta), chi2=chi2, dof=dof,
+        scaled_by_residuals=bool(scaled), iterations=iterations, evaluations=evaluations,
+        condition_number=float(sv[0] / sv[-1]))
+

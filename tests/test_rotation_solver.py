@@ -1,0 +1,332 @@
+"""Gyro calibration from the rotations between static poses, against an analytic hand-held motion.
+
+The generator is independent of the solver: between rest poses the attitude is
+A_i · exp(s1(τ) v1) · exp(s2(τ) v2) with overlapping septic smoothstep profiles, so the axis
+of rotation swings during the motion (non-commuting), and its body rate is analytic:
+for R = A·B1·B2, ω_body = B2ᵀ·ṡ1·v1 + ṡ2·v2.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fieldcal.solvers import CalibrationError
+from fieldcal.solvers.rotation import integrate, k_matrix, solve_gyro_rotations
+
+FS = 100.0
+DEG = math.pi / 180
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def smoothstep(x):
+    """Septic 0 → 1 and its derivative: rate, acceleration and jerk start and end at zero, as a
+    hand's do (a quintic's jerk jumps, which limits any integrator to third order)."""
+    x = np.clip(x, 0.0, 1.0)
+    return x**4 * (35 - 84 * x + 70 * x * x - 20 * x**3), 140 * x**3 * (1 - x) ** 3
+
+
+@dataclass(frozen=True)
+class Turn:
+    """One motion: from pose A, exp(s1 v1)·exp(s2 v2) over [start, start + T] seconds."""
+    start: float
+    T: float
+    v1: np.ndarray
+    v2: np.ndarray
+
+    def profiles(self, t):
+        tau = np.asarray(t, dtype=float) - self.start
+        s1, d1 = smoothstep(tau / (0.65 * self.T))
+        s2, d2 = smoothstep((tau - 0.35 * self.T) / (0.65 * self.T))
+        return s1, d1 / (0.65 * self.T), s2, d2 / (0.65 * self.T)
+
+    def rate(self, t):
+        s1, d1, s2, d2 = self.profiles(t)
+        return Rotation.from_rotvec(s2[:, None] * self.v2).inv().apply(d1[:, None] * self.v1) \
+            + d2[:, None] * self.v2
+
+    def relative(self, t):
+        s1, _, s2, _ = self.profiles(np.atleast_1d(t))
+        return Rotation.from_rotvec(s1[0] * self.v1) * Rotation.from_rotvec(s2[0] * self.v2)
+
+
+@dataclass(frozen=True)
+class Recording:
+    t: np.ndarray
+    omega: np.ndarray  # (n, 3) true body rate, rad/s
+    spans: np.ndarray  # (m, 2) inclusive motion spans: last rest sample .. first rest sample
+    poses: Rotation  # m + 1 rest attitudes, body to world
+    turns: tuple
+
+    def attitude(self, i):
+        """Attitude at sample i, which lies in (or at the ends of) some motion's span."""
+        k = int(np.searchsorted(self.spans[:, 1], i))
+        return self.poses[k] * self.turns[k].relative(self.t[i])
+
+    def up(self):
+        """Gravity-up in the body frame at each pose."""
+        return self.poses.inv().apply(UP)
+
+
+@lru_cache(maxsize=None)
+def hand_recording(seed, n_poses=20, rest=1.0, axis=None, jitter=0.0):
+    """Rest poses joined by two-axis turns of 1.5-2.5 rad each in 2-3.5 s (peaks near 200 °/s).
+
+    ``axis`` forces every turn about one body axis (a degenerate recording); ``jitter`` (s)
+    moves each timestamp uniformly within ±jitter, as host receive times do."""
+    rng = np.random.default_rng(seed)
+    poses = [Rotation.random(random_state=rng) if axis is None else Rotation.identity()]
+    rest_n = int(rest * FS)
+    spans, turns = [], []
+    start = rest_n - 1  # index of the last rest sample before the motion
+    for _ in range(n_poses - 1):
+        n_move = int(rng.uniform(2.0, 3.5) * FS)
+        vs = []
+        for _ in range(2):
+            direction = rng.normal(size=3) if axis is None else np.eye(3)[axis]
+            angle = rng.uniform(1.5, 2.5) * rng.choice([-1, 1])
+            vs.append(direction / np.linalg.norm(direction) * angle)
+        turns.append(Turn(start / FS, n_move / FS, *vs))
+        spans.append((start, start + n_move))
+        poses.append(poses[-1] * Rotation.from_rotvec(vs[0]) * Rotation.from_rotvec(vs[1]))
+        start += n_move + rest_n - 1
+    n = start + rest_n
+    t = np.arange(n) / FS + rng.uniform(-jitter, jitter, n)
+    omega = np.zeros((n, 3))
+    for (i0, i1), turn in zip(spans, turns, strict=True):
+        omega[i0:i1 + 1] = turn.rate(t[i0:i1 + 1])
+    return Recording(t, omega, np.array(spans), Rotation.concatenate(poses), tuple(turns))
+
+
+def test_generator_is_what_it_claims():
+    rec = hand_recording(1)
+    peak = np.max(np.linalg.norm(rec.omega, axis=1)) / DEG
+    assert 150 < peak < 300
+    up = rec.up()
+    # Poses spread over the sphere: the mean up vector is short, every octant-ish direction seen.
+    assert np.linalg.norm(up.mean(axis=0)) < 0.5
+    # Spans run from rest to rest.
+    assert np.abs(rec.omega[rec.spans.ravel()]).max() < 1e-12
+
+
+def product(rotvecs):
+    """exp(r_1)·exp(r_2)·…, one step at a time."""
+    r = Rotation.identity()
+    for step in Rotation.from_rotvec(rotvecs):
+        r = r * step
+    return r
+
+
+def naive_product(omega, t, span):
+    """First order: the product of exp(ω_j·h) over the steps."""
+    i0, i1 = span
+    return product(np.diff(t[i0:i1 + 1])[:, None] * omega[i0:i1])
+
+
+def trapezoid_product(omega, t, span):
+    """Second order without coning: the product of exp(h·(ω_j + ω_j+1)/2) over the steps."""
+    i0, i1 = span
+    return product(np.diff(t[i0:i1 + 1])[:, None] * (omega[i0:i1] + omega[i0 + 1:i1 + 1]) / 2)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 2e-3], ids=["uniform", "jittered-2ms"])
+def test_integrator_matches_the_analytic_attitude_far_better_than_simpler_rules(jitter):
+    rec = hand_recording(2, jitter=jitter)
+    mid = [(i0, (i0 + i1) // 2 + 7) for i0, i1 in rec.spans[:6]]  # ends mid-motion, full rate
+    spans = np.r_[rec.spans, mid]
+    q = Rotation.from_quat(integrate(rec.omega, rec.t, spans))
+    truths = [rec.attitude(i0).inv() * rec.attitude(i1) for i0, i1 in spans]
+    errors = np.array([(q[k].inv() * truth).magnitude() for k, truth in enumerate(truths)])
+    assert errors.max() < 1e-6, errors.max()  # peaks near 200 °/s sampled at 100 Hz
+    # The threshold means something: first order (exp(ω_j·h) products) misses by millirad when
+    # a span ends in motion, and the trapezoid without the coning term by 10⁻⁵ rest to rest.
+    m = len(rec.spans)
+    for k in (m, m + 1):
+        first = (naive_product(rec.omega, rec.t, spans[k]).inv() * truths[k]).magnitude()
+        assert first > 1e-3 > 1000 * errors[k]
+    for k in (0, 1, 2):
+        second = (trapezoid_product(rec.omega, rec.t, spans[k]).inv() * truths[k]).magnitude()
+        assert second > 30 * errors[k], (second, errors[k])
+    # A span that is the whole array, starting and ending in motion: one-sided rate slopes.
+    i0, i1 = rec.spans[4]
+    cut = slice(i0 + 50, i1 - 30)
+    q = integrate(rec.omega[cut], rec.t[cut], [(0, i1 - 31 - i0 - 50)])
+    truth = rec.attitude(i0 + 50).inv() * rec.attitude(i1 - 31)
+    assert (Rotation.from_quat(q[0]).inv() * truth).magnitude() < 1e-6
+
+
+# Consumer grade (0.01 °/s/√Hz) in SI; tactical (0.15 °/√h) in 16-bit counts, quantised.
+GRADES = {"si": dict(counts=False, arw=0.01 * DEG),
+          "counts": dict(counts=True, arw=0.15 * DEG / 60)}
+UP_SIGMA = 1e-4  # rad per tangent component: a few seconds of accelerometer average
+REST_S = 10.0  # the initial rest whose mean is the fixed bias
+
+
+def true_gyro(rng, counts):
+    """K = diag(k)(I + M) and b of a gyro, and the nominal K0 a datasheet would give."""
+    nominal = 1877.0 if counts else 1.0
+    k = nominal * (1 + rng.uniform(-0.02, 0.02, 3))
+    M = rng.uniform(-0.015, 0.015, 6)
+    b = (32768.0 + rng.uniform(-60, 60, 3)) if counts else rng.uniform(-0.02, 0.02, 3)
+    return k, M, b, nominal
+
+
+def observe(rec, rng, counts, arw, noise=True):
+    """Raw gyro output, the measured up directions, the initial-rest bias and the σ of each."""
+    k, M, b, nominal = true_gyro(rng, counts)
+    K = k_matrix(k, M)
+    omega = rec.omega + (rng.normal(0, arw * math.sqrt(FS), rec.omega.shape) if noise else 0)
+    raw = omega @ K.T + b
+    rate_noise = arw
+    if counts and noise:
+        raw = np.round(raw)
+        rate_noise = math.sqrt(arw**2 + 1 / 12 / nominal**2 / FS)  # quantisation, white
+    up = rec.up()
+    if noise:
+        up = Rotation.from_rotvec(rng.normal(0, UP_SIGMA, up.shape)).apply(up)
+    b0 = b + K @ rng.normal(0, rate_noise / math.sqrt(REST_S), 3) if noise else b
+    sigmas = dict(up_sigma=UP_SIGMA, rate_noise=rate_noise,
+                  bias_sigma=nominal * rate_noise / math.sqrt(REST_S))
+    return dict(raw=raw, up=up, b0=b0, nominal=nominal, sigmas=sigmas, k=k, M=M, b=b)
+
+
+def solve(rec, obs, sigmas=True, **kw):
+    kw = {"b0": obs["b0"], **(obs["sigmas"] if sigmas else {}), **kw}
+    return solve_gyro_rotations(rec.t, obs["raw"], rec.spans, obs["up"][:-1], obs["up"][1:],
+                                K0=obs["nominal"], **kw)
+
+
+@pytest.mark.parametrize("grade", GRADES)
+@pytest.mark.parametrize("estimate_bias", [False, True], ids=["bias-fixed", "bias-free"])
+def test_noise_free_recovery_is_exact(grade, estimate_bias):
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(30), GRADES[grade]["counts"], 0.0, noise=False)
+    b0 = obs["b"] + (0.01 * obs["nominal"] if estimate_bias else 0)  # a wrong start when free
+    sol = solve(rec, obs, sigmas=False, b0=b0, estimate_bias=estimate_bias)
+    assert sol.scaled_by_residuals and sol.bias_estimated == estimate_bias
+    assert np.max(np.abs(sol.scale_factor / obs["k"] - 1)) < 1e-7
+    assert np.max(np.abs(sol.misalignment - obs["M"])) < 1e-7
+    assert np.max(np.abs(sol.bias - obs["b"])) / obs["nominal"] < 1e-7
+    assert np.sqrt(np.mean(sol.residuals**2)) < 1e-7
+    # The K0 start is 2 % and 0.9° off: the solver moved, far.
+    assert np.max(np.abs(np.diag(sol.K) / obs["nominal"] - 1)) > 1e-3
+
+
+@pytest.mark.parametrize("grade", GRADES)
+def test_errors_match_the_reported_sigma_over_seeds(grade):
+    """With the bias fixed at a noisy initial-rest mean (its σ propagated) and with it free."""
+    normalised = {False: [], True: []}
+    for seed in range(5):
+        rec = hand_recording(10 + seed)
+        obs = observe(rec, np.random.default_rng(100 + seed), **GRADES[grade])
+        truth = np.r_[obs["b"], obs["k"], obs["M"]]
+        for free in (False, True):
+            sol = solve(rec, obs, estimate_bias=free)
+            # The bias prior (free) adds three equations as it adds three unknowns.
+            assert sol.dof == 2 * len(rec.spans) - 9 and not sol.scaled_by_residuals
+            z = (sol.theta - truth[(0 if free else 3):]) / sol.sigma
+            assert np.all(np.abs(z) < 3), (seed, free, dict(zip(sol.param_names, z.round(2),
+                                                                strict=True)))
+            normalised[free].append(z)
+    for free, zs in normalised.items():
+        rms = np.sqrt(np.mean(np.square(zs)))
+        assert 0.5 < rms < 1.6, (free, rms)
+
+
+def test_bias_free_solution_is_consistent():
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(7), **GRADES["counts"])
+    sol = solve(rec, obs, estimate_bias=True)  # the rest mean b0 ± bias_sigma is a prior
+    assert sol.param_names[:3] == ("bias_x", "bias_y", "bias_z")
+    assert np.array_equal(sol.bias, sol.theta[:3])
+    assert np.all(np.abs(sol.bias - obs["b"]) < 3 * sol.sigma[:3])
+    # From the rotations alone, started at mid-scale rather than the rest mean: wider, still right.
+    loose = solve(rec, obs, estimate_bias=True, bias_sigma=None, b0=32768.0)
+    assert np.all(loose.sigma[:3] > 1.2 * sol.sigma[:3])
+    assert np.all(np.abs(loose.bias - obs["b"]) < 3 * loose.sigma[:3])
+    # Calibrated rates: the motion's truth back from the raw output.
+    i0, i1 = rec.spans[0]
+    assert np.abs(sol.calibrate(obs["raw"][i0:i1]) - rec.omega[i0:i1]).max() < 0.01
+
+
+def test_labels_number_the_poses():
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(7), **GRADES["si"])
+    sol = solve(rec, obs)
+    assert sol.residual_labels[:3] == ("motion 1→2 a", "motion 1→2 b", "motion 2→3 a")
+    assert len(sol.residuals) == len(sol.residual_labels) == 2 * len(rec.spans)
+    # Drop motion 5 (a pose rejected): the chain breaks and the poses after it renumber.
+    keep = np.r_[0:4, 5:len(rec.spans)]
+    up = obs["up"]
+    sol = solve_gyro_rotations(rec.t, obs["raw"], rec.spans[keep], up[:-1][keep], up[1:][keep],
+                               K0=1.0, b0=obs["b0"], **obs["sigmas"])
+    assert sol.residual_labels[6:10] == ("motion 4→5 a", "motion 4→5 b", "motion 6→7 a",
+                                         "motion 6→7 b")
+
+
+def test_too_few_motions_is_refused():
+    rec = hand_recording(4, n_poses=6)
+    obs = observe(rec, np.random.default_rng(1), **GRADES["si"])
+    with pytest.raises(CalibrationError,
+                       match=r"5 motions between poses, need at least 7: add more poses"):
+        solve(rec, obs)
+    with pytest.raises(CalibrationError, match=r"need at least 8"):
+        solve(rec, obs, estimate_bias=True, bias_sigma=None)
+    with pytest.raises(CalibrationError, match=r"0 motions between poses"):
+        solve_gyro_rotations(rec.t, obs["raw"], np.zeros((0, 2)), np.zeros((0, 3)),
+                             np.zeros((0, 3)), K0=1.0, b0=0.0)
+
+
+@pytest.mark.parametrize("noise", [False, True], ids=["noise-free", "noisy"])
+def test_turns_about_one_axis_are_refused(noise):
+    rec = hand_recording(5, axis=0)
+    obs = observe(rec, np.random.default_rng(2), **GRADES["si"], noise=noise)
+    with pytest.raises(CalibrationError, match=r"do not span enough rotation axes: .*scale_y"):
+        solve(rec, obs, sigmas=noise)
+
+
+def test_extra_residuals_are_applied():
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(8), **GRADES["si"])
+    plain = solve(rec, obs)
+    target = obs["k"] * (1 + np.array([2e-3, -1e-3, 1.5e-3]))  # some 100σ from the rotations'
+    calls = []
+
+    def prior(K_inv, bias):
+        calls.append(bias)
+        return (np.diag(np.linalg.inv(K_inv)) - target) / 1e-7
+
+    sol = solve(rec, obs, extra_residuals=prior)
+    assert np.all(np.abs(plain.scale_factor - obs["k"]) < 3 * plain.sigma[:3])
+    assert np.all(np.abs(sol.scale_factor - target) < 1e-6)
+    assert np.all(sol.sigma[:3] < 1e-6) and len(sol.extra_residuals) == 3
+    assert sol.dof == plain.dof + 3 and sol.chi2 > plain.chi2 + 100
+    assert np.array_equal(calls[-1], obs["b0"])  # the fixed bias is what the callable sees
+
+
+def test_powell_agrees_with_least_squares():
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(9), **GRADES["counts"])
+    lsq, powell = solve(rec, obs), solve(rec, obs, method="powell")
+    assert powell.method == "powell"
+    assert np.all(np.abs(powell.theta - lsq.theta) < 0.02 * lsq.sigma)
+    assert powell.chi2 == pytest.approx(lsq.chi2, rel=1e-6)
+
+
+def test_bad_inputs_say_what_is_wrong():
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(9), **GRADES["si"])
+    unweighted = "bias_sigma and extra_residuals need up_sigma or rate_noise"
+    with pytest.raises(ValueError, match=unweighted):
+        solve(rec, obs, sigmas=False, bias_sigma=1e-3)
+    with pytest.raises(ValueError, match=unweighted):
+        solve(rec, obs, sigmas=False, extra_residuals=lambda K_inv, b: np.zeros(1))
+    with pytest.raises(ValueError, match="method"):
+        solve(rec, obs, method="newton")
+    with pytest.raises(ValueError, match="dominant diagonal"):
+        solve_gyro_rotations(rec.t, obs["raw"], rec.spans, obs["up"][:-1], obs["up"][1:],
+                             K0=np.eye(3)[[1, 0, 2]], b0=0.0)
