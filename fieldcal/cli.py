@@ -253,6 +253,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     from fieldcal.tui.command import add_tui_parser
     add_tui_parser(sub)
+    from fieldcal.recording.calibrate_cli import add_calibrate_parser
+    from fieldcal.recording.import_cli import add_import_parser
+    add_import_parser(sub)
+    add_calibrate_parser(sub)
     return parser
 
 

@@ -84,6 +84,9 @@ class RunSpec:
 
     @classmethod
     def from_metadata(cls, meta: dict) -> RunSpec:
+        if meta.get("kind") == "recording":
+            raise ValueError("this session is an imported recording, not a procedure run: "
+                             "calibrate it with `fieldcal calibrate SESSION`")
         common = {"procedure": parse_procedure(meta["procedure"]["yaml"], meta["procedure"]["name"]),
                   "station": Station(**meta["station"]), "rate_hz": meta["device"]["rate_hz"],
                   "method": meta["method"], "on_motion": meta["on_motion"]}

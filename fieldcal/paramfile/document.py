@@ -37,6 +37,9 @@ SOFTWARE = "fieldcal"
 # Norm-method solvers (fieldcal.solvers.norm.METHODS) give a lower-triangular K; a file claiming
 # one of these methods with a non-zero upper triangle has been edited by hand.
 LOWER_TRIANGULAR_METHODS = ("powell", "lsq")
+# The gyro calibrated from the rotations between a recording's poses: full K (the gyro-to-
+# accelerometer misalignment included), residuals in rad (direction misfits).
+ROTATION_METHOD = "rotation"
 # Named values must agree with K to this relative tolerance (they are written from K exactly).
 CONSISTENCY_RTOL = 1e-9
 _ANGLE_ATOL = 1e-15  # rad: lets 0.0 and a denormal-sized angle from K agree
@@ -71,6 +74,12 @@ def _readonly(values, shape: tuple[int, ...], what: str) -> np.ndarray:
         raise ValueError(f"{what}: expected finite numbers, got {arr.tolist()}")
     arr.setflags(write=False)
     return arr
+
+
+def residual_units(kind: str, output_unit: str, method: str) -> tuple[str, ...]:
+    """The units a triad's residual RMS may be in."""
+    units = (SI_UNIT[kind], output_unit) + (("rad",) if method == ROTATION_METHOD else ())
+    return tuple(dict.fromkeys(units))
 
 
 def _bits(x: float) -> bytes:
@@ -113,9 +122,10 @@ class TriadParameters:
                 raise ValueError(f"{self.name}.{attr}: expected a non-empty string, got {value!r}")
         if not self.residual_unit:
             object.__setattr__(self, "residual_unit", SI_UNIT[self.kind])
-        if self.residual_unit not in (SI_UNIT[self.kind], self.output_unit):
-            raise ValueError(f"{self.name}.residual_unit: expected {SI_UNIT[self.kind]!r} or "
-                             f"{self.output_unit!r}, got {self.residual_unit!r}")
+        allowed = residual_units(self.kind, self.output_unit, self.method)
+        if self.residual_unit not in allowed:
+            raise ValueError(f"{self.name}.residual_unit: expected {' or '.join(map(repr, allowed))}, "
+                             f"got {self.residual_unit!r}")
         object.__setattr__(self, "bias", _readonly(self.bias, (3,), f"{self.name}.bias"))
         K = _readonly(self.K, (3, 3), f"{self.name}.K")
         if np.any(np.diag(K) == 0) or not np.linalg.cond(K) < _MAX_CONDITION:

@@ -20,6 +20,7 @@ from fieldcal.paramfile.document import (
     SOFTWARE,
     ParameterFile,
     ParameterFileError,
+    residual_units,
     Provenance,
     TriadParameters,
     _misalignment_of,
@@ -88,7 +89,7 @@ def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
     rw = f"{where}.residual_rms"
     res = r.mapping(t.get("residual_rms", MISSING), rw, ("value", "unit"))
     rms = r.number(res, "value", rw, minimum=0.0)
-    residual_unit = r.string(res, "unit", rw, allowed=tuple(dict.fromkeys((SI_UNIT[kind], output_unit))))
+    residual_unit = r.string(res, "unit", rw, allowed=residual_units(kind, output_unit, method))
     try:
         return TriadParameters(name=name, kind=kind, output_unit=output_unit, bias=bias, K=K,
                                sigma=np.r_[bias_sigma, scale_sigma, angle_sigma], residual_rms=rms,

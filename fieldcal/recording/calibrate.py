@@ -1,0 +1,231 @@
+"""Calibrate a unit from a plain recording: detect the poses, solve the accelerometer (and any
+other specific-force triad) by the norm method, then the gyroscope from the rotations between
+poses, with no procedure and no operator.
+
+The threshold multiple of the pose detector is chosen as imu_tk chooses it: each multiple's
+poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
+wins. The noise comes from the device's noise model when one is given (exact covariance of the
+pose means, bias instability included), else from the initial rest: its per-axis variance
+weights each pose mean (white noise over the pose's samples), and the σ are scaled up by
+χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the initial rest's mean less the
+vertical Earth rate, which the accelerometer's up direction fixes; the horizontal Earth rate,
+whose heading a hand-held recording cannot know, widens the bias's σ and each motion's
+residual instead of biasing them. A gyro reporting raw counts needs no nominal sensitivity: a
+scan over the scale finds the one that makes the motions' rotations fit.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from fieldcal.earth import EARTH_RATE, Station
+from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, calibrate_with
+from fieldcal.recording import Recording
+from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport,
+                                       check_spread, noise_level, pose_candidates)
+from fieldcal.solvers import CalibrationError, solve_norm
+from fieldcal.solvers.norm import TriadSolution
+from fieldcal.solvers.problems import StaticNormProblem
+from fieldcal.solvers.rotation import RotationSolution, integrate, solve_gyro_rotations
+
+# Output units per rad/s of rate units a text file may use; anything else (counts) is scanned.
+RATE_UNITS = {"rad/s": 1.0, "mrad/s": 1e3, "deg/s": 180 / math.pi, "°/s": 180 / math.pi,
+              "dps": 180 / math.pi, "mdeg/s": 180e3 / math.pi}
+# Specific-force units with a known zero: gravity directions need no sphere fit.
+FORCE_UNITS = ("m/s^2", "m/s2", "g", "mg")
+_SCAN = np.geomspace(1e-3, 1e6, 121)  # candidate gyro sensitivities, output units per rad/s
+
+
+@dataclass(frozen=True)
+class RecordingSettings:
+    detector: DetectorSettings = field(default_factory=DetectorSettings)
+    method: str = "powell"  # the specific-force triads' norm solver
+    gyro_method: str = "lsq"
+    estimate_gyro_bias: bool = False  # else the initial rest's mean (less the vertical Earth rate)
+    # The device's noise per triad (SI), e.g. from its config: pose means then get their exact
+    # covariance, bias instability included. Without it, white noise measured over the rest.
+    noise: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RecordingCalibration:
+    poses: Poses
+    spread: SpreadReport
+    tried: tuple[tuple[float, int, str], ...]  # (multiple, distinct poses, χ²/dof or why not)
+    specific_force: dict[str, TriadSolution]
+    angular_rate: dict[str, RotationSolution]
+    failures: dict[str, str]
+    reference_triad: str
+    gyro_bias_sigma: dict[str, np.ndarray]  # 1σ of each gyro's bias (output units)
+
+    @property
+    def multiple(self) -> float:
+        return self.poses.multiple
+
+
+def _names(recording: Recording, kind: str) -> list[str]:
+    return [n for n, k in recording.kinds.items() if k == kind]
+
+
+def _pose_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
+    offset = values[0]  # keeps raw counts' precision in the cumulative sums
+    cums = np.cumsum(np.r_[np.zeros((1, 3)), values - offset], axis=0)
+    return offset + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+
+
+def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) -> TriadSolution:
+    problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
+                                labels=tuple(f"pose {i + 1}" for i in range(len(means))))
+    solution = solve_norm(problem, _means_covariance(intervals, t, variance, None, None, unit),
+                          method=settings.method)
+    noise = settings.noise.get(name)
+    if noise is None:
+        # White noise alone under-states the σ when the bias wanders (χ²/dof > 1 says so).
+        ratio = solution.chi2 / solution.dof if solution.dof else 1.0
+        if ratio > 1.0 and not solution.scaled_by_residuals:
+            solution = replace(solution, covariance=solution.covariance * ratio, scaled_by_residuals=True)
+        return solution
+    # Bias instability correlates the pose means; its covariance needs the scale, known now.
+    return solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
+                      method=settings.method)
+
+
+def _means_covariance(intervals, t, variance, noise, K, unit) -> np.ndarray:
+    """Covariance of the flattened pose means (output units): white noise measured over the rest,
+    or, with the device's noise model and scale K, the exact one, bias instability included."""
+    counts = np.diff(intervals, axis=1)[:, 0]
+    if noise is None:
+        return np.diag((variance[None, :] / counts[:, None]).ravel())
+    durations = counts * float(np.median(np.diff(t)))
+    cov = np.kron(noise.window_covariance(t[intervals[:, 0]], durations), K @ K.T)
+    if unit == "count":  # quantisation, one count
+        cov += np.kron(np.diag(1.0 / 12.0 / counts), np.eye(3))
+    return cov
+
+
+def _up_covariance(acc: TriadSolution, means: np.ndarray, means_cov: np.ndarray) -> np.ndarray:
+    """Covariance of every pose's unit up vector: its own mean's noise and the accelerometer
+    calibration's error, which all poses share."""
+    a = calibrate_with(acc.theta, means)
+    norm = np.linalg.norm(a, axis=1)
+    u = a / norm[:, None]
+    project = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # ∂u/∂a
+    P = len(means)
+    D = np.zeros((3 * P, 3 * P))
+    K_inv = np.linalg.inv(acc.K)
+    for i in range(P):  # poses, not samples
+        D[3 * i:3 * i + 3, 3 * i:3 * i + 3] = project[i]
+    steps = 1e-6 * np.maximum(np.abs(acc.theta), 1e-3)
+    J_theta = np.column_stack([((calibrate_with(acc.theta + h * e, means)
+                                 - calibrate_with(acc.theta - h * e, means)) / (2 * h)).ravel()
+                               for h, e in zip(steps, np.eye(len(steps)))])
+    J_means = np.kron(np.eye(P), K_inv)
+    return D @ (J_theta @ acc.covariance @ J_theta.T + J_means @ means_cov @ J_means.T) @ D.T
+
+
+def calibrate_recording(recording: Recording, station: Station,
+                        settings: RecordingSettings = RecordingSettings()) -> RecordingCalibration:
+    """Raises DetectionError (poses too few or badly spread, the rest not still) or
+    CalibrationError (the reference accelerometer cannot be solved) with a one-line message."""
+    forces, rates = _names(recording, SPECIFIC_FORCE), _names(recording, ANGULAR_RATE)
+    if not forces:
+        raise DetectionError("the recording has no specific-force triad (accelerometer): its "
+                             "poses cannot be found")
+    reference = "accelerometer" if "accelerometer" in forces else forces[0]
+    rate_hz, det = recording.rate_hz, settings.detector
+    acc = recording.triads[reference]
+    gyro = recording.triads[rates[0]] if rates else None
+    best, tried, solved = None, [], {}
+    zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
+    for poses in pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro):
+        key = poses.intervals.tobytes()
+        spread = check_spread(poses.up[poses.distinct], det.min_poses, det.cover_deg, det.min_design)
+        if not spread.ok:
+            tried.append((poses.multiple, spread.count, spread.message))
+            continue
+        if key not in solved:  # several multiples often find the same intervals
+            keep = poses.intervals[poses.distinct]
+            noise = noise_level(acc, rate_hz, det)
+            try:
+                solved[key] = _solve_static(reference, recording.units[reference], poses.means[poses.distinct],
+                                            keep, recording.t, noise.variance, station.gravity, settings)
+            except CalibrationError as exc:
+                solved[key] = str(exc)
+        sol = solved[key]
+        fit = sol if isinstance(sol, str) else f"χ²/dof {sol.chi2 / max(sol.dof, 1):.3g}"
+        tried.append((poses.multiple, spread.count, fit))
+        if not isinstance(sol, str) and (best is None or sol.chi2 / max(sol.dof, 1) < best[2]):
+            best = (poses, spread, sol.chi2 / max(sol.dof, 1), sol)
+    if best is None:
+        most = max(tried, key=lambda x: x[1])
+        raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
+                             f"{most[0]:g}× the rest noise): {most[2]}")
+    poses, spread, _, acc_solution = best
+    failures: dict[str, str] = {}
+    specific_force = {reference: acc_solution}
+    keep = poses.intervals[poses.distinct]
+    for name in forces:
+        if name == reference:
+            continue
+        values = recording.triads[name]
+        try:
+            specific_force[name] = _solve_static(
+                name, recording.units[name], _pose_means(values, keep), keep, recording.t,
+                np.var(values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1),
+                station.gravity, settings)
+        except CalibrationError as exc:
+            failures[name] = str(exc)
+    angular_rate, bias_sigma = {}, {}
+    for name in rates:
+        try:
+            angular_rate[name], bias_sigma[name] = _solve_gyro(recording, name, poses, acc_solution,
+                                                               station, settings)
+        except CalibrationError as exc:
+            failures[name] = str(exc)
+    return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures,
+                                reference, bias_sigma)
+
+
+def _rotation_misfit(gyro, t, spans, up_s, up_e, b0, k) -> float:
+    """Sum of squared direction misfits with K = k·I (for the sensitivity scan)."""
+    q = integrate((gyro - b0) / k, t, spans)
+    from scipy.spatial.transform import Rotation
+    predicted = Rotation.from_quat(q).inv().apply(up_s)
+    return float(np.sum((predicted - up_e) ** 2))
+
+
+def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolution, station: Station,
+                settings: RecordingSettings) -> tuple[RotationSolution, np.ndarray]:
+    """The solution and its bias's 1σ."""
+    t, gyro, unit = recording.t, recording.triads[name], recording.units[name]
+    iv = poses.intervals
+    spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
+    up = calibrate_with(acc.theta, poses.means)
+    up /= np.linalg.norm(up, axis=1)[:, None]
+    counts = np.diff(iv, axis=1)[:, 0]
+    acc_var = noise_level(recording.triads[acc.name], recording.rate_hz, settings.detector).variance
+    means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
+                                  recording.units[acc.name])
+    up_cov = _up_covariance(acc, poses.means, means_cov)
+    rest = slice(iv[0, 0], iv[0, 1])
+    rest_mean = gyro[rest].mean(axis=0)
+    rest_var = np.var(gyro[rest], axis=0, ddof=1)
+    k = RATE_UNITS.get(unit)
+    if k is None:  # raw counts: the scale that makes the rotations fit
+        misfit = [_rotation_misfit(gyro, t, spans, up[:-1], up[1:], rest_mean, c) for c in _SCAN]
+        k = float(_SCAN[int(np.argmin(misfit))])
+    sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
+    b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
+    # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
+    horizontal = EARTH_RATE * cos_lat
+    bias_sigma = k * np.sqrt(horizontal**2 / 2 + rest_var / k**2 / counts[0])
+    arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
+    duration = t[spans[:, 1]] - t[spans[:, 0]]
+    solution = solve_gyro_rotations(
+        t, gyro, spans, up[:-1], up[1:], K0=k, b0=b0, estimate_bias=settings.estimate_gyro_bias,
+        bias_sigma=bias_sigma, up_covariance=up_cov, rate_noise=arw,
+        motion_variance=(horizontal * duration) ** 2 / 2, method=settings.gyro_method, name=name,
+        output_unit=unit)
+    return solution, (solution.sigma[:3] if solution.bias_estimated else bias_sigma)
