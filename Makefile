@@ -22,6 +22,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/speed.py
 	$(BIN)/python benchmarks/parse.py
 	$(BIN)/python benchmarks/replay.py
+	$(BIN)/python benchmarks/recording.py
 	$(BIN)/python benchmarks/accuracy.py
 
 clean:

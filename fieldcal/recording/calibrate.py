@@ -28,14 +28,14 @@ from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, 
 from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.solvers.norm import TriadSolution
 from fieldcal.solvers.problems import StaticNormProblem
-from fieldcal.solvers.rotation import RotationSolution, integrate, solve_gyro_rotations
+from fieldcal.solvers.rotation import RotationSolution, scale_misfits, solve_gyro_rotations
 
 # Output units per rad/s of rate units a text file may use; anything else (counts) is scanned.
 RATE_UNITS = {"rad/s": 1.0, "mrad/s": 1e3, "deg/s": 180 / math.pi, "°/s": 180 / math.pi,
               "dps": 180 / math.pi, "mdeg/s": 180e3 / math.pi}
 # Specific-force units with a known zero: gravity directions need no sphere fit.
 FORCE_UNITS = ("m/s^2", "m/s2", "g", "mg")
-_SCAN = np.geomspace(1e-3, 1e6, 121)  # candidate gyro sensitivities, output units per rad/s
+_SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
 
 
 @dataclass(frozen=True)
@@ -188,14 +188,6 @@ def calibrate_recording(recording: Recording, station: Station,
                                 reference, bias_sigma)
 
 
-def _rotation_misfit(gyro, t, spans, up_s, up_e, b0, k) -> float:
-    """Sum of squared direction misfits with K = k·I (for the sensitivity scan)."""
-    q = integrate((gyro - b0) / k, t, spans)
-    from scipy.spatial.transform import Rotation
-    predicted = Rotation.from_quat(q).inv().apply(up_s)
-    return float(np.sum((predicted - up_e) ** 2))
-
-
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolution, station: Station,
                 settings: RecordingSettings) -> tuple[RotationSolution, np.ndarray]:
     """The solution and its bias's 1σ."""
@@ -214,8 +206,7 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
     rest_var = np.var(gyro[rest], axis=0, ddof=1)
     k = RATE_UNITS.get(unit)
     if k is None:  # raw counts: the scale that makes the rotations fit
-        misfit = [_rotation_misfit(gyro, t, spans, up[:-1], up[1:], rest_mean, c) for c in _SCAN]
-        k = float(_SCAN[int(np.argmin(misfit))])
+        k = float(_SCAN[int(np.argmin(scale_misfits(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)))])
     sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
     b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
     # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.

@@ -150,6 +150,18 @@ def integrate(omega, t, spans) -> np.ndarray:
     return _Steps(omega, t, spans).quaternions(np.eye(3), np.zeros(3))
 
 
+def scale_misfits(t, raw, spans, up_start, up_end, b0, scales) -> np.ndarray:
+    """Sum of squared direction misfits for K = k·I at each k of ``scales``: a scan that finds a
+    raw-count gyro's sensitivity (a start for the solve) with one set of steps for all k."""
+    steps = _Steps(np.asarray(raw, dtype=float) - b0, t, spans)
+    up_s = np.asarray(up_start, dtype=float)
+    out = np.empty(len(scales))
+    for i, k in enumerate(scales):  # a few dozen candidates, each one vectorised evaluation
+        q = steps.quaternions(np.eye(3) / k, np.zeros(3))
+        out[i] = np.sum((_rotate_back(q, up_s) - up_end) ** 2)
+    return out
+
+
 def k_matrix(scale, misalignment) -> np.ndarray:
     """K = diag(k)·(I + M), M holding m_xy, m_xz, m_yx, m_yz, m_zx, m_zy off the diagonal."""
     M = np.zeros((3, 3))
