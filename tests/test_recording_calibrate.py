@@ -109,6 +109,27 @@ def test_without_a_noise_model_the_sigma_still_cover_scale_and_misalignment():
     assert np.all(np.abs((gyro.theta - gyro_truth(sim)) / gyro.sigma) < 3.0)
 
 
+def test_turntable_turns_are_kept_out_of_the_poses_and_used_with_the_rotations():
+    """A recording with two turns on a turntable (±10 °/s for 20 s): the accelerometer sees them
+    as still, the gyro does not; at the known table rate they become rate equations."""
+    sim = simulate_handheld(4, table_turns=((3, 10.0, 20.0), (9, -10.0, 20.0)))
+    recording, station = recording_of(sim), station_of(sim)
+    without = calibrate_recording(recording, station, NOISE)
+    cal = calibrate_recording(recording, station, RecordingSettings(noise=dict(PAPER_NOISE),
+                                                                    table_rate_deg_s=10.0))
+    assert cal.table_rate_used and not without.table_rate_used
+    assert len(cal.turns) == 2
+    for (a, b), (ta, tb) in zip(cal.turns, sim.turns):
+        assert ta <= a and b <= tb and (b - a) > 0.95 * (tb - ta)  # the steady part, all of it
+    assert len(cal.poses.intervals) == len(sim.static)
+    assert np.all(cal.poses.intervals[:, 0] >= sim.static[:, 0])
+    assert np.all(cal.poses.intervals[:, 1] <= sim.static[:, 1])
+    gyro = cal.angular_rate["gyroscope"]
+    assert np.all(np.abs((gyro.theta - gyro_truth(sim)) / gyro.sigma) < 3.0)
+    assert len(gyro.extra_residuals) == 2
+    assert np.all(gyro.sigma[:3] <= without.angular_rate["gyroscope"].sigma[:3])  # more information
+
+
 @pytest.mark.parametrize("directions, raw_counts, expected", [
     (np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [0, 0, -1], [-1, 0, 0], [0, -1, 0]], float), True,
      r"only 6 distinct poses \(need at least 9\)"),

@@ -143,6 +143,47 @@ class HandMotion:
 
 
 @dataclass(frozen=True)
+class TableTurn:
+    """The unit on a turntable: about ENU up at ``rate`` (rad/s, signed), reached by a constant
+    angular acceleration over ``ramp_s``, held ``hold_s``, stopped over ``ramp_s``."""
+
+    start: np.ndarray
+    rate: float
+    ramp_s: float
+    hold_s: float
+
+    @property
+    def duration_s(self) -> float:
+        return 2 * self.ramp_s + self.hold_s
+
+    def _angle(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, a, T = self.ramp_s, self.rate / self.ramp_s, self.duration_s
+        up = np.clip(t, 0, r)
+        down = np.clip(t - r - self.hold_s, 0, r)
+        angle = 0.5 * a * up**2 + self.rate * np.clip(t - r, 0, self.hold_s) + self.rate * down - 0.5 * a * down**2
+        rate = np.where(t < r, a * t, np.where(t > T - r, a * (T - t), self.rate))
+        return angle, np.clip(rate, min(0.0, self.rate), max(0.0, self.rate))
+
+    @property
+    def end(self) -> np.ndarray:
+        angle = self._angle(np.array([self.duration_s]))[0][0]
+        return Rotation.from_rotvec([0.0, 0.0, angle]).as_matrix() @ self.start
+
+    @property
+    def steady(self) -> tuple[float, float]:
+        """Start and end (s into the turn) of the constant rate."""
+        return self.ramp_s, self.ramp_s + self.hold_s
+
+    def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """As :meth:`HandMotion.evaluate`: attitude, body rate relative to ENU, acceleration (none:
+        the sensor sits on the axis)."""
+        angle, rate = self._angle(np.asarray(t, dtype=float))
+        attitude = Rotation.from_rotvec(np.outer(angle, [0.0, 0.0, 1.0])).as_matrix() @ self.start
+        omega = np.outer(rate, self.start.T @ np.array([0.0, 0.0, 1.0]))  # the axis is fixed in body
+        return attitude, omega, np.zeros((len(angle), 3))
+
+
+@dataclass(frozen=True)
 class HandheldRecording:
     """A simulated hand-held recording and its truth.
 
@@ -165,6 +206,8 @@ class HandheldRecording:
     gravity: float
     true_rate: np.ndarray | None = None
     true_force: np.ndarray | None = None
+    turns: np.ndarray | None = None  # (k, 2) [start, stop) samples of each turntable turn's steady rate
+    turn_rates: np.ndarray | None = None  # (k,) their rates, rad/s about ENU up
 
     @property
     def triads(self) -> dict[str, np.ndarray]:
@@ -242,13 +285,18 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
                       initial_rest_s: float = 30.0, static_s=(3.0, 6.0), motion_s=(2.0, 4.0),
                       latitude_deg: float = 40.0, gravity: float = 9.80,
                       truth: dict[str, TriadTruth] | None = None,
-                      directions: np.ndarray | None = None) -> HandheldRecording:
+                      directions: np.ndarray | None = None,
+                      table_turns: tuple = ()) -> HandheldRecording:
     """A hand-held recording: initial rest (pose 0), then n_poses - 1 poses joined by hand motions.
 
     ``directions``: (n_poses, 3) body up vectors to use as they are (default: SPREAD_UP cycled
     with random 10-20° tilts); headings are random either way. ``truth`` overrides
     ``handheld_truth(raw_counts)``. Motions last ``motion_s`` unless a long turn needs more time
     to keep its peak rate under MAX_TURN_RATE. Deterministic for a given seed.
+
+    ``table_turns``: ``(pose, rate_deg_s, hold_s)`` each: after that pose's rest the unit, on a
+    turntable, turns about the vertical (2 s ramps, ``hold_s`` at the rate), then rests 4 s at its
+    new heading (a static interval of its own) before the hand takes it to the next pose.
     """
     rng = np.random.default_rng(seed)
     truth = handheld_truth(raw_counts) if truth is None else truth
@@ -264,26 +312,48 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
     gravity_enu = np.array([0.0, 0.0, gravity])
 
     static_n = np.round(np.r_[initial_rest_s, rng.uniform(*static_s, n_poses - 1)] * rate_hz).astype(int)
-    motions, forces, rates, static = [], [], [], []
+    turns_after = {int(p): (math.radians(r), h) for p, r, h in table_turns}
+    motions, forces, rates, static, held, turns, turn_rates = [], [], [], [], [], [], []
     first = 0
-    for i in range(n_poses):
-        a = attitudes[i]
-        forces.append(np.broadcast_to(a.T @ gravity_enu, (static_n[i], 3)))
-        rates.append(np.broadcast_to(a.T @ earth, (static_n[i], 3)))
-        static.append((first, first + static_n[i]))
-        first += static_n[i]
-        if i == n_poses - 1:
-            break
-        motion = _hand_motion(a, attitudes[i + 1], rng.uniform(*motion_s), rng)
+
+    def rest(a, n):
+        nonlocal first
+        forces.append(np.broadcast_to(a.T @ gravity_enu, (n, 3)))
+        rates.append(np.broadcast_to(a.T @ earth, (n, 3)))
+        static.append((first, first + n))
+        held.append(a)
+        first += n
+
+    def move(motion):
+        nonlocal first
         # The motion spans from the last static sample to the next pose's first one, exclusive:
         # every sample strictly inside is moving, however slightly.
         n_moving = max(1, round(motion.duration_s * rate_hz) - 1)
-        motion = replace(motion, duration_s=(n_moving + 1) / rate_hz)
-        att, omega, accel = motion.evaluate(np.arange(1, n_moving + 1) / rate_hz)
+        if isinstance(motion, HandMotion):
+            motion = replace(motion, duration_s=(n_moving + 1) / rate_hz)
+        tau = np.arange(1, n_moving + 1) / rate_hz
+        att, omega, accel = motion.evaluate(tau)
         forces.append(np.einsum("nji,nj->ni", att, accel + gravity_enu))
         rates.append(omega + np.einsum("nji,j->ni", att, earth))
         motions.append(motion)
+        if isinstance(motion, TableTurn):
+            b, e = motion.steady
+            inside = np.flatnonzero((tau >= b) & (tau <= e))
+            turns.append((first + inside[0], first + inside[-1] + 1))
+            turn_rates.append(motion.rate)
         first += n_moving
+        return motion.end
+
+    for i in range(n_poses):
+        a = attitudes[i]
+        rest(a, static_n[i])
+        if i in turns_after:
+            rate, hold = turns_after[i]
+            a = move(TableTurn(a, rate, 2.0, hold))
+            rest(a, round(4.0 * rate_hz))
+        if i == n_poses - 1:
+            break
+        move(_hand_motion(a, attitudes[i + 1], rng.uniform(*motion_s), rng))
     force, rate = np.concatenate(forces), np.concatenate(rates)
     t = np.arange(len(force)) / rate_hz
 
@@ -297,9 +367,10 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
             raw = np.clip(raw, 0.0, 65535.0)  # a 16-bit converter saturates
         out[name] = raw
     return HandheldRecording(t=t, accelerometer=out["accelerometer"], gyroscope=out["gyroscope"],
-                             truth=dict(truth), static=np.array(static, dtype=int), attitudes=attitudes,
+                             truth=dict(truth), static=np.array(static, dtype=int), attitudes=np.array(held),
                              motions=tuple(motions), rate_hz=float(rate_hz), latitude_deg=latitude_deg,
-                             gravity=gravity, true_rate=rate, true_force=force)
+                             gravity=gravity, true_rate=rate, true_force=force,
+                             turns=np.array(turns, dtype=int).reshape(-1, 2), turn_rates=np.array(turn_rates))
 
 
 def to_text(rec: HandheldRecording, directory) -> tuple[Path, Path]:

@@ -28,6 +28,7 @@ from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, 
 from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.solvers.norm import TriadSolution
 from fieldcal.solvers.problems import StaticNormProblem
+from fieldcal.recording.turns import rate_residuals, split_poses, turning
 from fieldcal.solvers.rotation import RotationSolution, scale_misfits, solve_gyro_rotations
 
 # Output units per rad/s of rate units a text file may use; anything else (counts) is scanned.
@@ -47,6 +48,8 @@ class RecordingSettings:
     # The device's noise per triad (SI), e.g. from its config: pose means then get their exact
     # covariance, bias instability included. Without it, white noise measured over the rest.
     noise: dict = field(default_factory=dict)
+    # Turns on a turntable at this rate (°/s) become rate-norm equations for the gyro solve.
+    table_rate_deg_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -59,6 +62,8 @@ class RecordingCalibration:
     failures: dict[str, str]
     reference_triad: str
     gyro_bias_sigma: dict[str, np.ndarray]  # 1σ of each gyro's bias (output units)
+    turns: np.ndarray  # (k, 2) [start, stop) samples of steady turntable turns found
+    table_rate_used: bool = False  # the turns went into the gyro solve as rate equations
 
     @property
     def multiple(self) -> float:
@@ -139,7 +144,12 @@ def calibrate_recording(recording: Recording, station: Station,
     gyro = recording.triads[rates[0]] if rates else None
     best, tried, solved = None, [], {}
     zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
+    if gyro is not None:  # on a turntable the accelerometer is as still as in a pose
+        turn_mask, smooth = turning(gyro, rate_hz, slice(0, round(det.init_rest_s * rate_hz)))
     for poses in pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro):
+        turns = np.zeros((0, 2), int)
+        if gyro is not None:
+            poses, turns = split_poses(poses, acc, turn_mask, smooth, rate_hz, det, zero)
         key = poses.intervals.tobytes()
         spread = check_spread(poses.up[poses.distinct], det.min_poses, det.cover_deg, det.min_design)
         if not spread.ok:
@@ -157,12 +167,12 @@ def calibrate_recording(recording: Recording, station: Station,
         fit = sol if isinstance(sol, str) else f"χ²/dof {sol.chi2 / max(sol.dof, 1):.3g}"
         tried.append((poses.multiple, spread.count, fit))
         if not isinstance(sol, str) and (best is None or sol.chi2 / max(sol.dof, 1) < best[2]):
-            best = (poses, spread, sol.chi2 / max(sol.dof, 1), sol)
+            best = (poses, spread, sol.chi2 / max(sol.dof, 1), sol, turns)
     if best is None:
         most = max(tried, key=lambda x: x[1])
         raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
                              f"{most[0]:g}× the rest noise): {most[2]}")
-    poses, spread, _, acc_solution = best
+    poses, spread, _, acc_solution, turns = best
     failures: dict[str, str] = {}
     specific_force = {reference: acc_solution}
     keep = poses.intervals[poses.distinct]
@@ -181,15 +191,16 @@ def calibrate_recording(recording: Recording, station: Station,
     for name in rates:
         try:
             angular_rate[name], bias_sigma[name] = _solve_gyro(recording, name, poses, acc_solution,
-                                                               station, settings)
+                                                               station, settings, turns)
         except CalibrationError as exc:
             failures[name] = str(exc)
+    used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures,
-                                reference, bias_sigma)
+                                reference, bias_sigma, turns, used)
 
 
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolution, station: Station,
-                settings: RecordingSettings) -> tuple[RotationSolution, np.ndarray]:
+                settings: RecordingSettings, turns: np.ndarray) -> tuple[RotationSolution, np.ndarray]:
     """The solution and its bias's 1σ."""
     t, gyro, unit = recording.t, recording.triads[name], recording.units[name]
     iv = poses.intervals
@@ -214,9 +225,13 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
     bias_sigma = k * np.sqrt(horizontal**2 / 2 + rest_var / k**2 / counts[0])
     arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
     duration = t[spans[:, 1]] - t[spans[:, 0]]
+    extra = None
+    if settings.table_rate_deg_s is not None and len(turns):
+        extra = rate_residuals(gyro, recording.triads[acc.name], acc.theta, turns, settings.table_rate_deg_s,
+                               station, b0, k, rest_var)
     solution = solve_gyro_rotations(
         t, gyro, spans, up[:-1], up[1:], K0=k, b0=b0, estimate_bias=settings.estimate_gyro_bias,
-        bias_sigma=bias_sigma, up_covariance=up_cov, rate_noise=arw,
+        bias_sigma=bias_sigma, up_covariance=up_cov, rate_noise=arw, extra_residuals=extra,
         motion_variance=(horizontal * duration) ** 2 / 2, method=settings.gyro_method, name=name,
         output_unit=unit)
     return solution, (solution.sigma[:3] if solution.bias_estimated else bias_sigma)

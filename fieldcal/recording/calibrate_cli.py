@@ -50,6 +50,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                         help="gyro bias: the initial rest's mean (default) or estimated with the rest")
     parser.add_argument("--method", choices=("powell", "lsq"), default="powell",
                         help="accelerometer solver (default powell)")
+    parser.add_argument("--table-rate", type=float, metavar="DEG_S",
+                        help="the recording has turns on a turntable at this rate (°/s, either sense): "
+                        "use them as rate equations too")
     parser.add_argument("--params", metavar="FILE", help="also write the parameter file here")
     parser.set_defaults(func=cmd_calibrate)
     return parser
@@ -100,6 +103,8 @@ def cmd_calibrate(args) -> int:
 
     config = load_config(args.config) if args.config else None
     station = _station(args, config)
+    if args.table_rate is not None and not args.table_rate > 0:
+        raise ValueError(f"--table-rate: expected a rate above 0 °/s, got {args.table_rate:g}")
     if not args.rest > 0:
         raise ValueError(f"--rest: expected a positive number of seconds, got {args.rest:g}")
     started = time.perf_counter()
@@ -108,7 +113,8 @@ def cmd_calibrate(args) -> int:
         print(line)
     noise = {t.name: t.noise for t in config.device.triads if t.noise is not None} if config else {}
     settings = RecordingSettings(detector=DetectorSettings(init_rest_s=args.rest), method=args.method,
-                                 estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise)
+                                 estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
+                                 table_rate_deg_s=args.table_rate)
     cal = calibrate_recording(recording, station, settings)
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None)
     writer = SessionWriter.append_to(directory)

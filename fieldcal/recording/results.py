@@ -94,6 +94,10 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
              f"{len(poses.intervals) - cal.spread.count} duplicate), threshold {poses.multiple:g}× the "
              f"initial rest's noise; shortest {still.min()} samples",
              "  thresholds tried: " + _tried(cal.tried)]
+    if len(cal.turns):
+        used = "rate equations for the gyro" if cal.table_rate_used else \
+            "not used (give the table's rate to use them)"
+        lines.append(f"  {len(cal.turns)} turntable turn{'s' * (len(cal.turns) != 1)} found: {used}")
     for name, sol in cal.specific_force.items():
         lines += ["", solution_header(sol), solution_table(sol, truths.get(name))]
     for name, sol in cal.angular_rate.items():

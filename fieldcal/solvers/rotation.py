@@ -351,14 +351,22 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
             f"change the rotations (condition number {sv[0] / max(sv[-1], 1e-300):.3g}); "
             "turn the unit about other axes")
 
+    # Whitening of [rotation residuals, side residuals]: the side ones come whitened, but a fixed
+    # bias's error is common to all of them, so it is marginalised over the joint vector.
     whiten = None
     if given:
         C = Rotation.from_quat(steps.quaternions(unpack(theta0)[1], 0 * b0)).as_matrix()
         cov = _residual_covariance(E, C, shared, up_sigma, rate_noise, steps.duration, motion_variance)
         if up_covariance is not None:
             cov += _chained_up_covariance(E, C, np.asarray(up_covariance, dtype=float))
-        if bias_sigma is not None and not estimate_bias:  # fixed bias: marginalise its error
-            G = _jacobian(lambda b: rotation_residuals(theta0, b), b0, 1e-6 * np.abs(k0))
+        cov = np.block([[cov, np.zeros((2 * m, n_side))], [np.zeros((n_side, 2 * m)), np.eye(n_side)]])
+        if bias_sigma is not None and not estimate_bias:
+            K_inv0 = unpack(theta0)[1]
+
+            def all_residuals(b):
+                side = extra_residuals(K_inv0, b.copy()) if extra_residuals is not None else []
+                return np.r_[rotation_residuals(theta0, b), np.atleast_1d(np.asarray(side, dtype=float))]
+            G = _jacobian(all_residuals, b0, 1e-6 * np.abs(k0))
             cov += G @ np.diag(sigma_b**2) @ G.T
         try:
             whiten = np.linalg.inv(np.linalg.cholesky(cov))
@@ -370,11 +378,12 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
 
     def whitened(theta):
         count[0] += 1
-        r = rotation_residuals(theta)
-        return np.r_[r if whiten is None else whiten @ r, side_residuals(theta)]
+        r = np.r_[rotation_residuals(theta), side_residuals(theta)]
+        return r if whiten is None else whiten @ r
 
     J_side = _jacobian(side_residuals, theta0, fd_steps) * natural
-    J0 = np.vstack([J_rot if whiten is None else whiten @ J_rot, J_side])
+    J0 = np.vstack([J_rot, J_side])
+    J0 = J0 if whiten is None else whiten @ J0
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
     to_theta = natural[:, None] * np.linalg.inv(np.linalg.qr(J0, mode="r"))
     if method == "powell":

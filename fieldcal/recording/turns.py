@@ -1,0 +1,89 @@
+"""Turntable turns inside a recording: kept out of the static poses, and, at a known table rate,
+turned into norm equations |K⁻¹(u − b)| = rate that the gyro's rotation solve takes as well.
+
+On a turntable turning about the vertical the accelerometer sees gravity as still as in a pose;
+only the gyro tells. So a stretch whose gyro mean (over half a second) leaves the initial rest's
+by far more than its noise is split out of the accelerometer's static interval; where such a
+stretch holds one rate vector (within ``STEADY_FRACTION``) for ``MIN_TURN_S``, it is a turn.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from fieldcal.earth import EARTH_RATE, Station
+from fieldcal.model import calibrate_with
+from fieldcal.recording.detect import DetectorSettings, Poses, distinct_poses, up_directions
+
+GATE_SIGMAS = 20.0  # half-second gyro mean this many of its σ from the rest's: turning
+STEADY_FRACTION = 0.02  # a turn's rate vector stays within this fraction of its median
+MIN_TURN_S = 2.0
+
+
+def _moving_mean(values: np.ndarray, n: int) -> np.ndarray:
+    """Centred mean over n samples (shorter at the ends), per column."""
+    cums = np.cumsum(np.r_[np.zeros((1, values.shape[1])), values], axis=0)
+    idx = np.arange(len(values))
+    lo, hi = np.maximum(idx - n // 2, 0), np.minimum(idx + n - n // 2, len(values))
+    return (cums[hi] - cums[lo]) / (hi - lo)[:, None]
+
+
+def turning(gyro: np.ndarray, rate_hz: float, rest: slice) -> tuple[np.ndarray, np.ndarray]:
+    """(mask of samples whose gyro says the unit turns, the half-second means)."""
+    n = max(1, round(0.5 * rate_hz))
+    rest_mean = gyro[rest].mean(axis=0)
+    sigma = float(np.sqrt(np.mean(np.var(gyro[rest], axis=0, ddof=1))))
+    smooth = _moving_mean(gyro - rest_mean, n)
+    return np.linalg.norm(smooth, axis=1) > GATE_SIGMAS * sigma / math.sqrt(n), smooth
+
+
+def _runs(mask: np.ndarray) -> np.ndarray:
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return edges.reshape(-1, 2)
+
+
+def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np.ndarray,
+                rate_hz: float, settings: DetectorSettings, zero=None) -> tuple[Poses, np.ndarray]:
+    """The poses without the turning samples (pieces shorter than min_static_s dropped) and the
+    steady turns found inside static intervals ((k, 2) [start, stop))."""
+    pieces, turns = [], []
+    min_n, min_turn = round(settings.min_static_s * rate_hz), round(MIN_TURN_S * rate_hz)
+    for a, b in poses.intervals:
+        if not turn_mask[a:b].any():
+            pieces.append((a, b))
+            continue
+        pieces += [(a + s, a + e) for s, e in _runs(~turn_mask[a:b]) if e - s >= min_n]
+        for s, e in _runs(turn_mask[a:b]):
+            rate = smooth[a + s:a + e]
+            median = np.median(rate, axis=0)
+            steady = np.linalg.norm(rate - median, axis=1) < STEADY_FRACTION * np.linalg.norm(median)
+            turns += [(a + s + i, a + s + j) for i, j in _runs(steady) if j - i >= min_turn]
+    if len(pieces) == len(poses.intervals):
+        return poses, np.zeros((0, 2), int)
+    intervals = np.array(pieces, dtype=int).reshape(-1, 2)
+    offset = acc[0]
+    cums = np.cumsum(np.r_[np.zeros((1, 3)), acc - offset], axis=0)
+    means = offset + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+    up = up_directions(means, zero)
+    return replace(poses, intervals=intervals, means=means, up=up,
+                   distinct=distinct_poses(up, settings.min_separation_deg)), np.array(turns, int).reshape(-1, 2)
+
+
+def rate_residuals(gyro: np.ndarray, acc_values: np.ndarray, acc_theta: np.ndarray, turns: np.ndarray,
+                   table_rate_deg_s: float, station: Station, b0: np.ndarray, k: float,
+                   rest_var: np.ndarray):
+    """extra_residuals(K_inv, bias) for the rotation solve: per turn, (|K⁻¹(u − b)| − ref)/σ with
+    ref the table rate plus the vertical Earth rate in the turn's sense, σ the mean's white noise."""
+    counts = np.diff(turns, axis=1)[:, 0]
+    u = np.array([gyro[a:b].mean(axis=0) for a, b in turns])  # a handful of turns
+    up = calibrate_with(acc_theta, np.array([acc_values[a:b].mean(axis=0) for a, b in turns]))
+    up /= np.linalg.norm(up, axis=1)[:, None]
+    sense = np.sign(np.einsum("ij,ij->i", up, u - b0))
+    ref = np.abs(sense * math.radians(table_rate_deg_s) + EARTH_RATE * math.sin(station.latitude_rad))
+    sigma = np.sqrt(np.mean(rest_var) / counts) / k
+
+    def residuals(K_inv, bias):
+        return (np.linalg.norm((u - bias) @ K_inv.T, axis=1) - ref) / sigma
+    return residuals
