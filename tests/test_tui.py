@@ -151,6 +151,7 @@ async def test_a_field18_run_with_a_wrong_position_and_a_bump_equals_the_headles
                 await pilot.press("b")
                 await run_until(pilot, clock, lambda: screen.view.restarts == 1, step_s=0.05)
         await run_until(pilot, clock, lambda: isinstance(app.screen, ResultsScreen), step_s=1e3)
+        await until(pilot, lambda: bool(app.screen.query("#headline")))  # composed
         outcome = app.outcome
         assert app.screen.query_one("#headline").render().plain.startswith("Calibration complete")
         assert screen.view.tiles == ["done"] * len(spec.procedure.positions)

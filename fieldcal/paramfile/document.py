@@ -21,7 +21,6 @@ import hashlib
 import math
 import os
 import re
-import secrets
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -400,31 +399,6 @@ def dump(pf: ParameterFile) -> str:
 
 def save(pf: ParameterFile, path: str | os.PathLike) -> Path:
     """Write ``dump(pf)`` atomically: a temp file in the same directory, fsync, os.replace."""
-    path = Path(path)
-    data = dump(pf).encode("utf-8")
-    directory = path.parent
-    tmp = directory / f".{path.name}.{secrets.token_hex(6)}.tmp"
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies, unlike mkstemp
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    try:  # make the rename itself durable; not possible everywhere (e.g. Windows)
-        dir_fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return path
-    try:
-        os.fsync(dir_fd)
-    except OSError:
-        pass
-    finally:
-        os.close(dir_fd)
-    return path
+    from fieldcal.atomic import write_atomically
+
+    return write_atomically(path, dump(pf).encode("utf-8"))

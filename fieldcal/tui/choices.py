@@ -9,12 +9,12 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
+from fieldcal.atomic import write_atomically
 from fieldcal.config import CONFIGS_DIR, StationConfig, load_config
 from fieldcal.earth import Station
 from fieldcal.positions import PROCEDURES_DIR, Procedure, load_procedure
@@ -96,20 +96,7 @@ def save_last_choice(choice: SetupChoice, path: str | os.PathLike | None = None)
             "latitude_deg": float(choice.latitude_deg), "height_m": float(choice.height_m)}
     text = ("# the last setup chosen in `fieldcal tui`; delete this file to forget it\n"
             + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
-    fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(temp, path)
-    except BaseException:
-        try:
-            os.unlink(temp)
-        except OSError:
-            pass
-        raise
-    return path
+    return write_atomically(path, text.encode("utf-8"))
 
 
 def available_configs() -> list[str]:
