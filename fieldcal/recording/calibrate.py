@@ -143,6 +143,7 @@ def calibrate_recording(recording: Recording, station: Station,
     acc = recording.triads[reference]
     gyro = recording.triads[rates[0]] if rates else None
     best, tried, solved = None, [], {}
+    rest_noise = noise_level(acc, rate_hz, det)  # weights every candidate's pose means
     zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
     if gyro is not None:  # on a turntable the accelerometer is as still as in a pose
         turn_mask, smooth = turning(gyro, rate_hz, slice(0, round(det.init_rest_s * rate_hz)))
@@ -157,10 +158,9 @@ def calibrate_recording(recording: Recording, station: Station,
             continue
         if key not in solved:  # several multiples often find the same intervals
             keep = poses.intervals[poses.distinct]
-            noise = noise_level(acc, rate_hz, det)
             try:
                 solved[key] = _solve_static(reference, recording.units[reference], poses.means[poses.distinct],
-                                            keep, recording.t, noise.variance, station.gravity, settings)
+                                            keep, recording.t, rest_noise.variance, station.gravity, settings)
             except CalibrationError as exc:
                 solved[key] = str(exc)
         sol = solved[key]
@@ -191,7 +191,7 @@ def calibrate_recording(recording: Recording, station: Station,
     for name in rates:
         try:
             angular_rate[name], bias_sigma[name] = _solve_gyro(recording, name, poses, acc_solution,
-                                                               station, settings, turns)
+                                                               rest_noise.variance, station, settings, turns)
         except CalibrationError as exc:
             failures[name] = str(exc)
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
@@ -199,8 +199,9 @@ def calibrate_recording(recording: Recording, station: Station,
                                 reference, bias_sigma, turns, used)
 
 
-def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolution, station: Station,
-                settings: RecordingSettings, turns: np.ndarray) -> tuple[RotationSolution, np.ndarray]:
+def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolution, acc_var: np.ndarray,
+                station: Station, settings: RecordingSettings,
+                turns: np.ndarray) -> tuple[RotationSolution, np.ndarray]:
     """The solution and its bias's 1σ."""
     t, gyro, unit = recording.t, recording.triads[name], recording.units[name]
     iv = poses.intervals
@@ -208,7 +209,6 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
     up = calibrate_with(acc.theta, poses.means)
     up /= np.linalg.norm(up, axis=1)[:, None]
     counts = np.diff(iv, axis=1)[:, 0]
-    acc_var = noise_level(recording.triads[acc.name], recording.rate_hz, settings.detector).variance
     means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
                                   recording.units[acc.name])
     up_cov = _up_covariance(acc, poses.means, means_cov)

@@ -7,6 +7,7 @@ operator says ready. Everything read is captured: chunks, raw bytes, events and 
 """
 from __future__ import annotations
 
+import queue
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -69,8 +70,6 @@ class LiveSource(SimSource):
 
     def _commands_or_sleep(self) -> None:
         """Nothing read: wait briefly for a key instead of spinning."""
-        import queue
-
         try:
             self._deferred.append(self._commands.get(timeout=min(0.02, FLUSH_S)))
         except queue.Empty:
