@@ -78,8 +78,8 @@ class LiveSource(SimSource):
     def _read(self) -> bool:
         chunks, port_events = self.bench.poll()
         for pe in port_events:
-            self._note(f"port {self.bench.url}: {pe.kind}"
-                       f"{f' after {pe.gap_s:.1f} s' if pe.gap_s else ''}{f': {pe.message}' if pe.message else ''}")
+            detail = f": {pe.message}" if pe.message and pe.message != self.bench.url else ""
+            self._note(f"port {self.bench.url}: {pe.kind}{f' after {pe.gap_s:.1f} s' if pe.gap_s else ''}{detail}")
         now = self.clock()
         if chunks:
             self._last_sample_wall, self._silent_reported = now, False
@@ -112,6 +112,12 @@ class LiveSource(SimSource):
             self._act(command)
         elif command in (BUMP, MISPLACE):
             self._note(f"({command}: the simulator's keys; this is a real device)")
+
+    def _stopped(self):
+        out = super()._stopped()
+        if self.session_dir is not None:  # a device on a port cannot be rewound to resume
+            out.message = "stopped before the end; the session is kept (a live run is not resumed: start again)"
+        return out
 
     def _handle(self, events) -> None:
         for e in events:  # one at a time: a table error must not lose the events after it
