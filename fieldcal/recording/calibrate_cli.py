@@ -29,9 +29,9 @@ NOISE_FROM_REST = ("white, measured over the initial rest; the bias instability 
 def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser = sub.add_parser(
         "calibrate", help="calibrate from a plain recording: poses found automatically, no turntable",
-        description="Find the static poses of a hand-held recording, calibrate every "
-        "accelerometer-like triad by the norm method and the gyroscope from the rotations "
-        "between poses (scale factors, all six gyro-to-accelerometer misalignment terms; the "
+        description="Find the static poses of a hand-held recording, calibrate every\n"
+        "accelerometer-like triad by the norm method and the gyroscope from the rotations\n"
+        "between poses (scale factors, all six gyro-to-accelerometer misalignment terms; the\n"
         "bias from the initial rest or estimated), and write a parameter file.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("recording", nargs="+", metavar="RECORDING",
