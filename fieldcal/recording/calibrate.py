@@ -19,12 +19,13 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport,
-                                       check_spread, noise_level, pose_candidates)
+                                       check_spread, interval_means, noise_level, pose_candidates)
 from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.solvers.norm import TriadSolution
 from fieldcal.solvers.problems import StaticNormProblem
@@ -65,19 +66,9 @@ class RecordingCalibration:
     turns: np.ndarray  # (k, 2) [start, stop) samples of steady turntable turns found
     table_rate_used: bool = False  # the turns went into the gyro solve as rate equations
 
-    @property
-    def multiple(self) -> float:
-        return self.poses.multiple
-
 
 def _names(recording: Recording, kind: str) -> list[str]:
     return [n for n, k in recording.kinds.items() if k == kind]
-
-
-def _pose_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
-    offset = values[0]  # keeps raw counts' precision in the cumulative sums
-    cums = np.cumsum(np.r_[np.zeros((1, 3)), values - offset], axis=0)
-    return offset + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
 
 
 def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) -> TriadSolution:
@@ -110,24 +101,21 @@ def _means_covariance(intervals, t, variance, noise, K, unit) -> np.ndarray:
     return cov
 
 
-def _up_covariance(acc: TriadSolution, means: np.ndarray, means_cov: np.ndarray) -> np.ndarray:
-    """Covariance of every pose's unit up vector: its own mean's noise and the accelerometer
-    calibration's error, which all poses share."""
+def _up_vectors(acc: TriadSolution, means: np.ndarray, means_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every pose's unit up vector (m, 3) and their covariance (3m, 3m): each mean's own noise
+    and the accelerometer calibration's error, which all poses share."""
     a = calibrate_with(acc.theta, means)
     norm = np.linalg.norm(a, axis=1)
     u = a / norm[:, None]
-    project = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # ∂u/∂a
+    D = block_diag(*((np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]))  # ∂u/∂a
     P = len(means)
-    D = np.zeros((3 * P, 3 * P))
     K_inv = np.linalg.inv(acc.K)
-    for i in range(P):  # poses, not samples
-        D[3 * i:3 * i + 3, 3 * i:3 * i + 3] = project[i]
     steps = 1e-6 * np.maximum(np.abs(acc.theta), 1e-3)
     J_theta = np.column_stack([((calibrate_with(acc.theta + h * e, means)
                                  - calibrate_with(acc.theta - h * e, means)) / (2 * h)).ravel()
                                for h, e in zip(steps, np.eye(len(steps)))])
     J_means = np.kron(np.eye(P), K_inv)
-    return D @ (J_theta @ acc.covariance @ J_theta.T + J_means @ means_cov @ J_means.T) @ D.T
+    return u, D @ (J_theta @ acc.covariance @ J_theta.T + J_means @ means_cov @ J_means.T) @ D.T
 
 
 def calibrate_recording(recording: Recording, station: Station,
@@ -182,7 +170,7 @@ def calibrate_recording(recording: Recording, station: Station,
         values = recording.triads[name]
         try:
             specific_force[name] = _solve_static(
-                name, recording.units[name], _pose_means(values, keep), keep, recording.t,
+                name, recording.units[name], interval_means(values, keep), keep, recording.t,
                 np.var(values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1),
                 station.gravity, settings)
         except CalibrationError as exc:
@@ -206,12 +194,10 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
     t, gyro, unit = recording.t, recording.triads[name], recording.units[name]
     iv = poses.intervals
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
-    up = calibrate_with(acc.theta, poses.means)
-    up /= np.linalg.norm(up, axis=1)[:, None]
     counts = np.diff(iv, axis=1)[:, 0]
     means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
                                   recording.units[acc.name])
-    up_cov = _up_covariance(acc, poses.means, means_cov)
+    up, up_cov = _up_vectors(acc, poses.means, means_cov)
     rest = slice(iv[0, 0], iv[0, 1])
     rest_mean = gyro[rest].mean(axis=0)
     rest_var = np.var(gyro[rest], axis=0, ddof=1)

@@ -255,14 +255,20 @@ def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     return distinct
 
 
+def interval_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
+    """Mean of ``values`` (n, 3) over each [start, stop) of ``intervals`` (m, 2), vectorised."""
+    offset = values[0]  # removed before summing: raw counts keep their precision
+    cums = np.cumsum(np.r_[np.zeros((1, values.shape[1])), values - offset], axis=0)
+    return offset + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+
+
 def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, multiple: float,
                noise: NoiseLevel | None = None, zero=None, sensitivity=None,
                gyro: np.ndarray | None = None) -> Poses:
     acc = np.asarray(acc, dtype=float)
     noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
     intervals = static_intervals(acc, rate_hz, noise, multiple, settings, gyro)
-    cums = np.cumsum(np.r_[np.zeros((1, 3)), acc - acc[0]], axis=0)  # offset removed for precision
-    means = acc[0] + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / (intervals[:, 1:] - intervals[:, :1])
+    means = interval_means(acc, intervals)
     up = up_directions(means, zero, sensitivity)
     return Poses(intervals=intervals, means=means, up=up,
                  distinct=distinct_poses(up, settings.min_separation_deg), multiple=float(multiple))

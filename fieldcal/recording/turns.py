@@ -15,7 +15,7 @@ import numpy as np
 
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
-from fieldcal.recording.detect import DetectorSettings, Poses, distinct_poses, up_directions
+from fieldcal.recording.detect import DetectorSettings, Poses, distinct_poses, interval_means, up_directions
 
 GATE_SIGMAS = 20.0  # half-second gyro mean this many of its σ from the rest's: turning
 STEADY_FRACTION = 0.02  # a turn's rate vector stays within this fraction of its median
@@ -63,9 +63,7 @@ def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np
     if len(pieces) == len(poses.intervals):
         return poses, np.zeros((0, 2), int)
     intervals = np.array(pieces, dtype=int).reshape(-1, 2)
-    offset = acc[0]
-    cums = np.cumsum(np.r_[np.zeros((1, 3)), acc - offset], axis=0)
-    means = offset + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+    means = interval_means(acc, intervals)
     up = up_directions(means, zero)
     return replace(poses, intervals=intervals, means=means, up=up,
                    distinct=distinct_poses(up, settings.min_separation_deg)), np.array(turns, int).reshape(-1, 2)
@@ -77,8 +75,8 @@ def rate_residuals(gyro: np.ndarray, acc_values: np.ndarray, acc_theta: np.ndarr
     """extra_residuals(K_inv, bias) for the rotation solve: per turn, (|K⁻¹(u − b)| − ref)/σ with
     ref the table rate plus the vertical Earth rate in the turn's sense, σ the mean's white noise."""
     counts = np.diff(turns, axis=1)[:, 0]
-    u = np.array([gyro[a:b].mean(axis=0) for a, b in turns])  # a handful of turns
-    up = calibrate_with(acc_theta, np.array([acc_values[a:b].mean(axis=0) for a, b in turns]))
+    u = interval_means(gyro, turns)
+    up = calibrate_with(acc_theta, interval_means(acc_values, turns))
     up /= np.linalg.norm(up, axis=1)[:, None]
     sense = np.sign(np.einsum("ij,ij->i", up, u - b0))
     ref = np.abs(sense * math.radians(table_rate_deg_s) + EARTH_RATE * math.sin(station.latitude_rad))
