@@ -20,7 +20,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from fieldcal.model import PARAM_NAMES
-from fieldcal.simcal import run_simulated_calibration
+from fieldcal.run.simcal import run_simulated_calibration
 from fieldcal.units import display_scale, param_unit
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from drivers.sim.device import paper_mimu
 from drivers.sim.physics import MimuSimulator, Segment
 from drivers.sim.serve import _as_device_sends, make_encoder
-from fieldcal.devices import make_parser
+from fieldcal.run.devices import make_parser
 
 
 def main(argv=None) -> int:

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from fieldcal.earth import Station
-from fieldcal.positions import parse_procedure
-from fieldcal.replay import replay_session
-from fieldcal.runner import RunSpec, run_headless
+from fieldcal.procedure.positions import parse_procedure
+from fieldcal.run.replay import replay_session
+from fieldcal.run.runner import RunSpec, run_headless
 
 ONE_HOUR = """name: still-1h
 dwell_s: 3600

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from fieldcal.simcal import run_simulated_calibration
+from fieldcal.run.simcal import run_simulated_calibration
 from fieldcal.solvers import solve_norm
 
 

@@ -9,12 +9,12 @@ import pytest
 
 from drivers.sim import TriadNoise
 from drivers.sim.device import paper_mimu
-from fieldcal.assemble import build_problem
+from fieldcal.solvers.assemble import build_problem
 from fieldcal.model import params_from_k
-from fieldcal.positions import load_procedure
-from fieldcal.simcal import DEFAULT_STATION
-from fieldcal.simrun import plan_procedure, simulate_averages
-from fieldcal.solve import average_covariance, models_from_truth
+from fieldcal.procedure.positions import load_procedure
+from fieldcal.run.simcal import DEFAULT_STATION
+from fieldcal.run.simrun import plan_procedure, simulate_averages
+from fieldcal.solvers.solve import average_covariance, models_from_truth
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,7 +6,7 @@ import pytest
 
 from drivers.sim.device import PAPER_NOISE
 from drivers.sim.noise import NoiseGenerator
-from fieldcal.cli import main
+from fieldcal.cli.main import main
 
 
 def test_text_record_gives_the_noise_it_was_made_with(tmp_path, capsys):

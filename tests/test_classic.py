@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from drivers.sim.device import paper_mimu
-from fieldcal.positions import load_procedure
-from fieldcal.simcal import DEFAULT_STATION, run_simulated_calibration
-from fieldcal.simrun import MINUS, PLUS, STATIC, plan_procedure, simulate_averages
-from fieldcal.solve import average_covariance, models_from_truth
+from fieldcal.procedure.positions import load_procedure
+from fieldcal.run.simcal import DEFAULT_STATION, run_simulated_calibration
+from fieldcal.run.simrun import MINUS, PLUS, STATIC, plan_procedure, simulate_averages
+from fieldcal.solvers.solve import average_covariance, models_from_truth
 from fieldcal.solvers import CalibrationError, StaticNormProblem, solve_classic, solve_norm
 
 

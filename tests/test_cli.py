@@ -4,7 +4,7 @@ import pytest
 
 import numpy as np
 
-from fieldcal.cli import main
+from fieldcal.cli.main import main
 
 
 def test_demo_prints_every_triad_beside_its_truth(capsys):
@@ -62,7 +62,7 @@ def test_measured_gravity_overrides_the_model_and_bad_values_are_refused(capsys)
 def _procedure_subset(tmp_path, count: int) -> str:
     import yaml
 
-    from fieldcal.positions import PROCEDURES_DIR
+    from fieldcal.procedure.positions import PROCEDURES_DIR
     doc = yaml.safe_load((PROCEDURES_DIR / "field-18.yaml").read_text())
     doc["positions"] = doc["positions"][:8] + doc["positions"][12:12 + count - 8]
     path = tmp_path / f"first-{count}.yaml"
@@ -113,7 +113,7 @@ def test_negative_seed_is_refused_by_name(capsys):
     ("rate_deg_s", "1.0e-9", "rate_step.rate_deg_s: expected a number from 0.1 to 400 °/s, got 1e-09"),
 ])
 def test_procedure_numbers_are_bounded(capsys, tmp_path, field, value, message):
-    from fieldcal.positions import PROCEDURES_DIR
+    from fieldcal.procedure.positions import PROCEDURES_DIR
     text = (PROCEDURES_DIR / "field-18.yaml").read_text()
     text = text.replace("dwell_s: 200", f"dwell_s: {value}") if field == "dwell_s" else \
         text.replace("rate_deg_s: 10", f"rate_deg_s: {value}")

@@ -8,7 +8,7 @@ import pytest
 from drivers.sim.device import paper_mimu
 from drivers.sim.serve import SimulatedDevices
 from drivers.transport import PORT_LOST, PORT_REGAINED, PortSettings, SerialReader
-from fieldcal.devices import make_parser
+from fieldcal.run.devices import make_parser
 
 LAT = math.radians(40.0)
 # Worst-case disagreement per protocol, in the values' own units: float32 for Xsens, 9

@@ -7,9 +7,9 @@ full sample-level Monte Carlo is benchmarks/accuracy.py.
 import numpy as np
 import pytest
 
-from fieldcal.crb import angular_rate_bound, specific_force_bound
+from fieldcal.solvers.crb import angular_rate_bound, specific_force_bound
 from fieldcal.earth import EARTH_RATE
-from fieldcal.simcal import DEFAULT_STATION
+from fieldcal.run.simcal import DEFAULT_STATION
 from fieldcal.solvers import solve_norm
 
 

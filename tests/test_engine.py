@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from fieldcal import events as ev
+from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
-from fieldcal.engine import Engine
-from fieldcal.positions import parse_procedure
-from fieldcal.runner import RunSpec, SimulatedBench
+from fieldcal.procedure.engine import Engine
+from fieldcal.procedure.positions import parse_procedure
+from fieldcal.run.runner import RunSpec, SimulatedBench
 
 SHORT = """name: short
 dwell_s: 20
@@ -130,8 +130,8 @@ def test_no_static_dwell_on_a_turning_table():
 def test_a_run_that_cannot_progress_is_aborted_not_endless(tmp_path):
     import dataclasses
 
-    from fieldcal.runner import run_headless
-    from fieldcal.stillness import StillnessSettings
+    from fieldcal.run.runner import run_headless
+    from fieldcal.procedure.stillness import StillnessSettings
 
     class NeverStill(RunSpec):
         def engine_settings(self):
@@ -149,7 +149,7 @@ def test_a_run_that_cannot_progress_is_aborted_not_endless(tmp_path):
 
 
 def test_too_low_a_sample_rate_is_refused_before_any_file(tmp_path):
-    from fieldcal.runner import run_headless
+    from fieldcal.run.runner import run_headless
 
     spec = RunSpec(parse_procedure(SHORT, "short.yaml"), Station(40.0, 50.0), rate_hz=2.0)
     with pytest.raises(ValueError, match="rate_hz: 2 Hz gives 2 samples"):

@@ -12,10 +12,10 @@ import pytest
 
 from fieldcal.earth import Station
 from fieldcal.paramfile import dump
-from fieldcal.positions import load_procedure
-from fieldcal.replay import recorded_parameters, replay_session
-from fieldcal.runner import OperatorScript, RunSpec, run_headless
-from fieldcal.session import SessionReader
+from fieldcal.procedure.positions import load_procedure
+from fieldcal.run.replay import recorded_parameters, replay_session
+from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
+from fieldcal.session.capture import SessionReader
 
 STATION = Station(40.0, 50.0)
 
@@ -97,7 +97,7 @@ def _wait_for_steps(session_root: Path, count: int, proc, timeout_s=60.0):
 
 
 def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
-    argv = [sys.executable, "-m", "fieldcal.cli", "run", "--headless", "--seed", "41", "--quiet",
+    argv = [sys.executable, "-m", "fieldcal.cli.main", "run", "--headless", "--seed", "41", "--quiet",
             "--bump-step", "9"]
     whole = subprocess.run(argv + ["--out", str(tmp_path / "whole")], capture_output=True, text=True,
                            timeout=300)
@@ -108,7 +108,7 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     assert not (session / "parameters.yaml").exists()
-    resumed = subprocess.run([sys.executable, "-m", "fieldcal.cli", "resume", str(session), "--quiet"],
+    resumed = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "resume", str(session), "--quiet"],
                              capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     uninterrupted = next((tmp_path / "whole").glob("*/parameters.yaml")).read_bytes()
@@ -128,7 +128,7 @@ def test_the_same_run_through_a_serial_device_on_a_pty(tmp_path):
     # The bytes the port delivered are captured too: they parse cleanly to at least the captured
     # samples (the port is read until it closes, a little after the engine's last chunk).
     reader = SessionReader(result.session)
-    from fieldcal.devices import make_parser
+    from fieldcal.run.devices import make_parser
     parser, parsed = make_parser("xsens"), 0
     for t, data in reader.raw("imu"):
         chunk = parser.feed(data, t)
@@ -159,7 +159,7 @@ def _cut_before_step_record(session: Path, nth: int) -> None:
 def test_resume_at_awkward_crash_points_twice_still_matches(tmp_path):
     import shutil
 
-    from fieldcal.runner import resume_headless
+    from fieldcal.run.runner import resume_headless
 
     whole = run_headless(spec(61, bump_step=6, skip_steps=(9,)), tmp_path / "whole")
     expected = whole.parameters.read_bytes()

@@ -17,7 +17,7 @@ import yaml
 
 from fieldcal import __version__
 from fieldcal.recording import Recording
-from fieldcal.recording.import_cli import add_import_parser, main
+from fieldcal.cli.importing import add_import_parser, main
 from fieldcal.recording.import_map import ImportMapError, load_import_map
 from fieldcal.recording.importer import (
     RecordingImportError,
@@ -29,7 +29,7 @@ from fieldcal.recording.store import (
     load_recording,
     save_recording,
 )
-from fieldcal.session import SessionError, SessionReader, SessionWriter
+from fieldcal.session.capture import SessionError, SessionReader, SessionWriter
 
 
 def triad(name, columns, kind="specific_force", unit="count", **extra):

@@ -64,7 +64,7 @@ def test_monitor_prints_what_a_separate_process_sent(protocol, tmp_path):
     gyroscope: {{kind: angular_rate, unit: rad/s}}
 station: {{latitude_deg: 40.0}}
 """)
-        monitor = subprocess.Popen([sys.executable, "-m", "fieldcal.cli", "monitor", "--config", str(config),
+        monitor = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", "monitor", "--config", str(config),
                                     "--samples", "40", "--seconds", "20"],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         for line in monitor.stderr:

@@ -7,7 +7,7 @@ from scipy import optimize
 from scipy.spatial.transform import Rotation
 
 from fieldcal.model import calibrate_with, distort_with, k_from_params
-from fieldcal.positions import load_procedure
+from fieldcal.procedure.positions import load_procedure
 from fieldcal.solvers import CalibrationError, RateNormProblem, StaticNormProblem, solve_norm
 
 G = 9.80

@@ -12,7 +12,7 @@ import pytest
 
 from drivers.sim.device import PAPER_NOISE
 from drivers.sim.handheld import simulate_handheld, to_text
-from fieldcal.cli import main
+from fieldcal.cli.main import main
 from fieldcal.earth import Station
 from fieldcal.model import params_from_k
 from fieldcal.paramfile import load
@@ -182,7 +182,7 @@ def test_fieldcal_calibrate_errors_are_one_line(tmp_path):
           str(tmp_path / "s")], "only 5 distinct poses"),
     ]
     for argv, message in cases:
-        run = subprocess.run([sys.executable, "-m", "fieldcal.cli", *argv], capture_output=True, text=True,
+        run = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", *argv], capture_output=True, text=True,
                              timeout=120)
         assert run.returncode == 2, run.stderr
         assert message in run.stderr and run.stderr.count("\n") == 1 and "Traceback" not in run.stderr

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from drivers.chunk import SampleChunk
-from fieldcal import session as session_module
+from fieldcal.session import capture as session_module
 from fieldcal.earth import Station
 from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs, load
-from fieldcal.session import LOG, SAMPLES, SessionError, SessionReader, SessionStateError, SessionWriter, to_plain
+from fieldcal.session.capture import LOG, SAMPLES, SessionError, SessionReader, SessionStateError, SessionWriter, to_plain
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -464,7 +464,7 @@ def test_resume_after_a_completed_stop_and_run_state_rules(tmp_path):
 
 CHILD = CHUNK_LIB + '''
 import sys, time
-from fieldcal.session import SessionWriter
+from fieldcal.session.capture import SessionWriter
 w = SessionWriter.create(sys.argv[1], {"seed": 11}, fsync_interval_s=0.2)
 i = 0
 while True:

@@ -15,10 +15,10 @@ from scipy.spatial.transform import Rotation
 from drivers.chunk import SampleChunk
 from drivers.sim import MimuSimulator, Segment
 from drivers.sim.device import paper_mimu
-from fieldcal import stillness
-from fieldcal.positions import load_procedure
-from fieldcal.simrun import plan_procedure
-from fieldcal.stillness import (
+from fieldcal.procedure import stillness
+from fieldcal.procedure.positions import load_procedure
+from fieldcal.run.simrun import plan_procedure
+from fieldcal.procedure.stillness import (
     StillnessDetector,
     StillnessSettings,
     angle_between,

@@ -11,15 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fieldcal import events as ev
+from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
-from fieldcal.positions import load_procedure, parse_procedure
-from fieldcal.replay import replay_matches
-from fieldcal.runner import OperatorScript, RunSpec, run_headless
-from fieldcal.session import SessionReader
+from fieldcal.procedure.positions import load_procedure, parse_procedure
+from fieldcal.run.replay import replay_matches
+from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
+from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
-from fieldcal.tui.procedure_screen import ProcedureScreen
-from fieldcal.tui.results_screen import ResultsScreen
+from fieldcal.tui.screens.procedure import ProcedureScreen
+from fieldcal.tui.screens.results import ResultsScreen
 
 try:
     import pytest_textual_snapshot  # noqa: F401
@@ -306,7 +306,7 @@ async def test_the_setup_screen_starts_the_run_it_was_given(tmp_path, monkeypatc
     """`fieldcal tui` opens on the setup screen; the choice (station included) builds the run,
     and a run that cannot be built sends the operator back to the setup with the reason."""
     from fieldcal.tui.choices import SetupChoice
-    from fieldcal.tui.setup_screen import SetupScreen
+    from fieldcal.tui.screens.setup import SetupScreen
 
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
     asked = []

@@ -12,15 +12,15 @@ import pytest
 
 from drivers.sim.device import PAPER_NOISE, paper_mimu
 from drivers.sim.serve import SimulatedDevices
-from fieldcal import events as ev
+from fieldcal.procedure import events as ev
 from fieldcal.config import ConfigError, load_config
 from fieldcal.earth import Station
-from fieldcal.replay import replay_session
-from fieldcal.runner import RunSpec
-from fieldcal.session import SessionReader
+from fieldcal.run.replay import replay_session
+from fieldcal.run.runner import RunSpec
+from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
-from fieldcal.tui.command import live_spec
-from fieldcal.tui.results_screen import ResultsScreen
+from fieldcal.cli.tui import live_spec
+from fieldcal.tui.screens.results import ResultsScreen
 from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, run_async, two_positions, until, waiting_at
 
 STATION = Station(40.0, 50.0)

@@ -6,12 +6,12 @@ import itertools
 
 import pytest
 
-from fieldcal import events as ev
+from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
-from fieldcal.positions import load_procedure, parse_procedure
-from fieldcal.runner import RunSpec
-from fieldcal.tui.bars import bar, signed_bar
-from fieldcal.tui.cube import top_view
+from fieldcal.procedure.positions import load_procedure, parse_procedure
+from fieldcal.run.runner import RunSpec
+from fieldcal.tui.widgets.bars import bar, signed_bar
+from fieldcal.tui.widgets.cube import top_view
 from fieldcal.tui.source import READY, Pacer, SimSource
 from fieldcal.tui.view import RunView
 

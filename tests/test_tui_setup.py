@@ -23,7 +23,7 @@ from fieldcal.tui.choices import (
     resolve_choice,
     save_last_choice,
 )
-from fieldcal.tui.setup_screen import SetupScreen
+from fieldcal.tui.screens.setup import SetupScreen
 
 try:
     import pytest_textual_snapshot  # noqa: F401

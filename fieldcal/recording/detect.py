@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fieldcal.stillness import sliding_std
+from fieldcal.procedure.stillness import sliding_std
 
 
 class DetectionError(ValueError):

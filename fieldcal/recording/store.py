@@ -1,6 +1,6 @@
 """A :class:`Recording` as a session directory, and back, bit for bit.
 
-The session format is ``fieldcal.session``'s; a recording session is told apart by its start
+The session format is ``fieldcal.session.capture``'s; a recording session is told apart by its start
 metadata ``"kind": "recording"``, which also holds everything needed to read it back and to
 trace it to its sources: the triads' kinds and units, the rate, each source file with its
 SHA-256 and malformed lines, and the import map's text. The samples follow as SampleChunks of
@@ -19,7 +19,7 @@ import numpy as np
 from drivers.chunk import SampleChunk
 from fieldcal import __version__
 from fieldcal.recording import Recording
-from fieldcal.session import SessionReader, SessionWriter
+from fieldcal.session.capture import SessionReader, SessionWriter
 
 KIND = "recording"
 STOP_REASON = "imported"

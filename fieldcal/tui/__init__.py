@@ -1,6 +1,6 @@
 """The operator's terminal UI (Textual): ``run_tui`` and ``FieldcalApp``.
 
-Imported lazily, so that ``fieldcal.tui.command`` (the CLI's ``tui`` subcommand) costs the CLI
+Imported lazily, so that ``fieldcal.cli.tui`` (the CLI's ``tui`` subcommand) costs the CLI
 no Textual import until the UI actually runs.
 """
 from __future__ import annotations

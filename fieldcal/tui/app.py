@@ -14,12 +14,12 @@ from typing import ClassVar
 from textual.app import App
 from textual.binding import Binding, BindingType
 
-from fieldcal import events as ev
-from fieldcal.tui.help_screen import HelpScreen
+from fieldcal.procedure import events as ev
+from fieldcal.tui.screens.help import HelpScreen
 from fieldcal.tui.messages import RunFinished, RunItems, RunTelemetry
-from fieldcal.tui.procedure_screen import ProcedureScreen
+from fieldcal.tui.screens.procedure import ProcedureScreen
 from fieldcal.tui.readings import Telemetry
-from fieldcal.tui.results_screen import ResultsScreen
+from fieldcal.tui.screens.results import ResultsScreen
 from fieldcal.tui.source import Outcome, ReplaySource, SimSource, Source
 from fieldcal.tui.view import RunView
 
@@ -95,7 +95,7 @@ class FieldcalApp(App[int]):
         self.run_worker(self._run_source, thread=True, name="sample source", exit_on_error=False)
 
     def _ask_setup(self, initial, error: str = "") -> None:
-        from fieldcal.tui.setup_screen import SetupScreen
+        from fieldcal.tui.screens.setup import SetupScreen
 
         screen = SetupScreen(initial)
         self.push_screen(screen, callback=lambda choice: self._chosen(screen, choice))

@@ -17,7 +17,7 @@ import yaml
 from fieldcal.atomic import write_atomically
 from fieldcal.config import CONFIGS_DIR, StationConfig, load_config
 from fieldcal.earth import Station
-from fieldcal.positions import PROCEDURES_DIR, Procedure, load_procedure
+from fieldcal.procedure.positions import PROCEDURES_DIR, Procedure, load_procedure
 
 LAST_SETUP_NAME = "last-setup.yaml"
 LATITUDE_RANGE = (-90.0, 90.0)

@@ -13,8 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from drivers.tables import TableError
-from fieldcal import events as ev
-from fieldcal.engine import PLACE, WRONG
+from fieldcal.procedure import events as ev
+from fieldcal.procedure.engine import PLACE, WRONG
 from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, QUIT, READY, REDO, SKIP, SimSource, Sink
 
 NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the operator is told
@@ -25,7 +25,7 @@ class LiveSource(SimSource):
 
     def __init__(self, spec, config, sink: Sink, session_dir: Path | None,
                  clock: Callable[[], float] = time.monotonic):
-        from fieldcal.livebench import LiveBench
+        from fieldcal.run.livebench import LiveBench
 
         self.config = config
         bench = LiveBench(config, tap=self._capture_raw)
@@ -41,7 +41,7 @@ class LiveSource(SimSource):
             session.write_raw("imu", t, data)
 
     def _run(self) -> None:
-        from fieldcal.session import SessionWriter
+        from fieldcal.session.capture import SessionWriter
 
         if self.session_dir is not None:
             metadata = self.spec.to_metadata()

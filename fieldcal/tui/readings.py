@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fieldcal.engine import EngineSettings
-from fieldcal.stillness import angle_between, gravity_direction
+from fieldcal.procedure.engine import EngineSettings
+from fieldcal.procedure.stillness import angle_between, gravity_direction
 from fieldcal.units import STANDARD_GRAVITY
 
 
@@ -24,7 +24,7 @@ class Telemetry:
 
     t: float  # sample time of the last sample fed, s
     step: int  # the engine's current step (0-based; == number of positions when done)
-    phase: str  # the engine's phase (fieldcal.engine PLACE, SETTLING, ...)
+    phase: str  # the engine's phase (fieldcal.procedure.engine PLACE, SETTLING, ...)
     waiting: bool  # the source waits for the operator (sim paused)
     samples: int  # samples fed so far
     accel_mg: tuple[float, float, float] | None = None

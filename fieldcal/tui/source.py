@@ -11,7 +11,7 @@ Pacing: sample time runs at ``speed`` times wall time (0: as fast as possible). 
 waits for the operator (place the unit; a wrong placement), the simulated bench does not
 advance: the simulator stands in for the operator's hands, so a run's samples depend only on the
 seed and the keys pressed, never on how long the operator took. At speed 0 the same keys give,
-sample for sample, the headless run of the same seed (``fieldcal.runner._drive``). Below speed
+sample for sample, the headless run of the same seed (``fieldcal.run.runner._drive``). Below speed
 10 the simulator makes chunks of about 0.1 s of wall time instead of 1 s so the display moves
 smoothly: the same samples' statistics, summed in a different order, so the result equals the
 headless one to rounding rather than bit for bit (the session still replays bit for bit).
@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
-from fieldcal import events as ev
-from fieldcal.engine import ABORTED, DONE, PLACE, WRONG, Engine
-from fieldcal.positions import Procedure
+from fieldcal.procedure import events as ev
+from fieldcal.procedure.engine import ABORTED, DONE, PLACE, WRONG, Engine
+from fieldcal.procedure.positions import Procedure
 from fieldcal.tui.readings import RecentSamples, Telemetry
 
 FLUSH_S = 0.1  # at most one UI update per this much wall time
@@ -55,7 +55,7 @@ class Outcome:
 
     status: str  # "completed", "aborted", "stopped" (quit), "incomplete" (capture ended), "error"
     procedure: Procedure
-    unit: object | None = None  # fieldcal.solve.UnitSolution
+    unit: object | None = None  # fieldcal.solvers.solve.UnitSolution
     truth: dict = field(default_factory=dict)  # triad -> true parameters (simulation)
     session: Path | None = None
     parameters: Path | None = None
@@ -64,7 +64,7 @@ class Outcome:
     completed: int = 0
     skipped: int = 0
     message: str = ""
-    previous: object | None = None  # fieldcal.history.PreviousCalibration of the same unit
+    previous: object | None = None  # fieldcal.session.history.PreviousCalibration of the same unit
 
     @property
     def solved(self) -> bool:
@@ -251,7 +251,7 @@ class SimSource(Source):
 
     def __init__(self, spec, sink: Sink, speed: float, session_dir: Path | None,
                  clock: Callable[[], float] = time.monotonic, bench=None):
-        from fieldcal.runner import SimulatedBench
+        from fieldcal.run.runner import SimulatedBench
 
         super().__init__(spec, sink, speed, clock)
         self.session_dir = Path(session_dir) if session_dir is not None else None
@@ -262,7 +262,7 @@ class SimSource(Source):
             self.bench.chunk_n = max(1, min(self.bench.chunk_n, round(spec.rate_hz * FLUSH_S * speed)))
 
     def _run(self) -> None:
-        from fieldcal.session import SessionWriter
+        from fieldcal.session.capture import SessionWriter
 
         if self.session_dir is not None:
             metadata = self.spec.to_metadata()
@@ -362,7 +362,7 @@ class SimSource(Source):
 
     def _conclude(self, done: ev.ProcedureComplete) -> None:
         """Solve and write the parameter file exactly as ``runner._finish`` does."""
-        from fieldcal.runner import _solve
+        from fieldcal.run.runner import _solve
 
         truth = self._truth()
         unit, pf = _solve(self.spec, self.engine)
@@ -383,7 +383,7 @@ class SimSource(Source):
 
     def _previous(self):
         """The unit's last calibration among the sessions beside this one."""
-        from fieldcal.history import previous_calibration
+        from fieldcal.session.history import previous_calibration
 
         if self.session_dir is None:
             return None
@@ -409,8 +409,8 @@ class ReplaySource(Source):
 
     def __init__(self, directory: Path, sink: Sink, speed: float,
                  clock: Callable[[], float] = time.monotonic):
-        from fieldcal.runner import RunSpec
-        from fieldcal.session import SessionReader
+        from fieldcal.run.runner import RunSpec
+        from fieldcal.session.capture import SessionReader
 
         self.directory = Path(directory)
         self.reader = SessionReader(self.directory)
@@ -455,8 +455,8 @@ class ReplaySource(Source):
 
     def _conclude(self) -> None:
         from fieldcal.paramfile import dump
-        from fieldcal.replay import recorded_parameters
-        from fieldcal.runner import _solve
+        from fieldcal.run.replay import recorded_parameters
+        from fieldcal.run.runner import _solve
 
         e = self.engine
         common = {"replay_of": self.directory, "completed": len(e.records), "skipped": len(e.skipped),

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from fieldcal import engine as en
-from fieldcal import events as ev
-from fieldcal.positions import Procedure
-from fieldcal.progress import describe
+from fieldcal.procedure import engine as en
+from fieldcal.procedure import events as ev
+from fieldcal.procedure.positions import Procedure
+from fieldcal.run.progress import describe
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.source import Note
 

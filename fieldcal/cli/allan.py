@@ -1,0 +1,124 @@
+"""``fieldcal allan``: noise terms and a recommended dwell from a still record.
+
+The record is a session (the samples of its static dwells, not the handling between them) or a
+text file of rows ``t, x, y, z`` (time in s, one triad in SI units, comma or whitespace
+separated, ``#`` comments). The dwell to recommend is the shortest averaging time whose Allan
+deviation is within 5 % of the curve's minimum: past it, longer averaging buys almost nothing.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from fieldcal.allan import allan_deviation, noise_terms, plot_allan
+from fieldcal.model import SI_UNIT
+
+NEAR_MINIMUM = 1.05
+
+
+def model_deviation(terms, taus: np.ndarray) -> np.ndarray:
+    """The IEEE 952 model through the fitted terms: white, flicker floor and rate random walk."""
+    var = terms.white**2 / taus + (0.664 * terms.bias_instability) ** 2
+    if terms.rate_random_walk is not None:
+        var = var + terms.rate_random_walk**2 * taus / 3.0
+    return np.sqrt(var)
+
+
+def recommended_dwell(taus: np.ndarray, terms: list) -> tuple[float, bool]:
+    """Shortest τ at which every axis's fitted curve is within 5 % of its lowest value over the
+    record; and whether that lowest value is a real floor (False: still falling at the end)."""
+    worst, floor_seen = 0.0, True
+    for t in terms:
+        model = model_deviation(t, taus)
+        low = int(np.argmin(model))
+        worst = max(worst, float(taus[np.argmax(model <= NEAR_MINIMUM * model[low])]))
+        floor_seen &= low < len(taus) - 1
+    return worst, floor_seen
+
+
+def _session_records(directory: Path) -> tuple[dict[str, np.ndarray], dict[str, str], float]:
+    from fieldcal.run.runner import RunSpec
+    from fieldcal.session.capture import SessionReader
+
+    reader = SessionReader(directory)
+    spec = RunSpec.from_metadata(reader.start)
+    # After a resume, sample time starts over from the last checkpoint, so the samples of a
+    # dwell are those of the run segment (between resumes) that recorded its step.
+    segment, best = 0, None
+    for kind, item in reader.replay_items(("resume", "step")):
+        if kind == "resume":
+            segment += 1
+            continue
+        for w in item["windows"]:
+            if w["kind"] == "static" and (best is None or w["duration"] > best[1]["duration"]):
+                best = (segment, w)
+    if best is None:
+        raise ValueError(f"{directory}: no completed static dwell to analyse")
+    wanted, window = best
+    lo, hi = window["start"], window["start"] + window["duration"]
+    parts: dict[str, list[np.ndarray]] = {}
+    segment = 0
+    for kind, chunk in reader.replay_items(("chunk", "resume")):
+        if kind == "resume":
+            segment += 1
+            continue
+        if segment != wanted:
+            continue
+        keep = (chunk.t >= lo) & (chunk.t < hi)
+        if keep.any():
+            for name, values in chunk.triads.items():
+                parts.setdefault(name, []).append(values[keep])
+    kinds = {n: t["kind"] for n, t in reader.start["simulation_truth"].items()}
+    return {n: np.concatenate(v) for n, v in parts.items()}, kinds, spec.rate_hz
+
+
+def _text_record(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str, str], float]:
+    text = path.read_text()
+    delimiter = "," if "," in text.split("\n", 50)[-1] or "," in text[:2000] else None
+    try:
+        table = np.loadtxt(path, delimiter=delimiter, comments="#", ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"{path}: expected rows of 4 numbers 't, x, y, z' ({str(exc).splitlines()[0]})") from None
+    if table.shape[1] != 4 or len(table) < 100:
+        raise ValueError(f"{path}: expected at least 100 rows of 4 numbers 't, x, y, z', "
+                         f"got {len(table)} rows of {table.shape[1]}")
+    dt = np.diff(table[:, 0])
+    if np.any(dt <= 0):
+        raise ValueError(f"{path}: time (first column) must increase on every row "
+                         f"(row {int(np.argmax(dt <= 0)) + 2} does not)")
+    name = "gyroscope" if kind == "angular_rate" else "accelerometer"
+    return {name: table[:, 1:]}, {name: kind}, float(1.0 / np.median(dt))
+
+
+def cmd_allan(args) -> int:
+    source = Path(args.source)
+    if source.is_dir():
+        from fieldcal.cli.sessions import warn_if_torn
+        warn_if_torn(source)
+        records, kinds, rate = _session_records(source)
+        plot_dir = source
+    elif source.is_file():
+        records, kinds, rate = _text_record(source, args.kind)
+        plot_dir = source.parent
+    else:
+        raise ValueError(f"{source}: no such session directory or file")
+    for name, samples in records.items():
+        if args.triad and name not in args.triad:
+            continue
+        kind = kinds[name]
+        taus, adev, clusters = allan_deviation(samples, rate)
+        terms = [noise_terms(taus, adev[:, i], unit=SI_UNIT[kind], n_clusters=clusters) for i in range(3)]
+        print(f"{name}: {len(samples)} samples at {rate:g} Hz ({len(samples) / rate / 3600:.2f} h)")
+        for axis, t in zip("xyz", terms):
+            print(f"  {axis}: " + ", ".join(f"{k} {v}" for k, v in t.describe(kind).items()))
+        dwell, floor_seen = recommended_dwell(taus, terms)
+        note = "" if floor_seen else "; the deviation still falls at the record's end, so a longer record may recommend more"
+        print(f"  recommended dwell: {dwell:.0f} s (where the fitted deviation is within "
+              f"{100 * (NEAR_MINIMUM - 1):.0f} % of its lowest{note})")
+        folder = Path(args.plot_dir or plot_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"allan-{name}.png"
+        plot_allan(taus, adev, terms, path, title=f"{name}: Allan deviation", kind=kind)
+        print(f"  plot: {path}")
+    return 0

@@ -1,0 +1,134 @@
+"""``fieldcal calibrate``: a recording (text files and a map, or an imported session) in, a
+parameter file out; import, pose detection and the solves in one command."""
+from __future__ import annotations
+
+import argparse
+import datetime
+import time
+from pathlib import Path
+
+_EPILOG = """\
+examples:
+  fieldcal calibrate acc.txt gyro.txt --map imu_tk --latitude 45.5 --height 120
+      imu_tk's two-file layout in raw counts: imported into a new session under ./sessions,
+      calibrated, the parameter file written into the session
+  fieldcal calibrate sessions/unit7 --config vn100
+      a session made by `fieldcal import`; the station and the noise from a device config
+
+The recording must start with the unit still for --rest seconds (30 by default): that sets the
+noise level the static poses are found with, and the gyroscope's bias. Then put the unit down
+by hand in a dozen or more poses (every axis up and down, and some corners up), still for a few
+seconds each, turning it between them."""
+
+
+NOISE_FROM_CONFIG = "the config's noise model (bias instability included)"
+NOISE_FROM_REST = ("white, measured over the initial rest; the bias instability is not known, so "
+                   "the biases' σ may be too small (give --config with the device's noise)")
+
+
+def add_calibrate_parser(sub) -> argparse.ArgumentParser:
+    parser = sub.add_parser(
+        "calibrate", help="calibrate from a plain recording: poses found automatically, no turntable",
+        description="Find the static poses of a hand-held recording, calibrate every\n"
+        "accelerometer-like triad by the norm method and the gyroscope from the rotations\n"
+        "between poses (scale factors, all six gyro-to-accelerometer misalignment terms; the\n"
+        "bias from the initial rest or estimated), and write a parameter file.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("recording", nargs="+", metavar="RECORDING",
+                        help="a session directory from `fieldcal import`, or text files (with --map)")
+    parser.add_argument("--map", metavar="MAP", help="import map for text files (see `fieldcal import`)")
+    parser.add_argument("--out", default="sessions", metavar="DIR",
+                        help="where the imported session goes (default ./sessions)")
+    parser.add_argument("--config", metavar="CONFIG",
+                        help="device config: its station, and its triads' noise (exact pose weights)")
+    parser.add_argument("--latitude", type=float, metavar="DEG", help="station latitude, °")
+    parser.add_argument("--height", type=float, metavar="M", help="station height, m (default 0)")
+    parser.add_argument("--gravity", type=float, metavar="M_S2", help="measured local gravity, m/s^2")
+    parser.add_argument("--rest", type=float, default=30.0, metavar="S",
+                        help="the still start, s (default 30)")
+    parser.add_argument("--gyro-bias", choices=("rest", "estimate"), default="rest",
+                        help="gyro bias: the initial rest's mean (default) or estimated with the rest")
+    parser.add_argument("--method", choices=("powell", "lsq"), default="powell",
+                        help="accelerometer solver (default powell)")
+    parser.add_argument("--table-rate", type=float, metavar="DEG_S",
+                        help="the recording has turns on a turntable at this rate (°/s, either sense): "
+                        "use them as rate equations too")
+    parser.add_argument("--params", metavar="FILE", help="also write the parameter file here")
+    parser.set_defaults(func=cmd_calibrate)
+    return parser
+
+
+def _station(args, config):
+    from fieldcal.earth import Station
+
+    base = config.station if config is not None else None
+    if args.latitude is None and base is None:
+        raise ValueError("calibrate: give --latitude (and --height), or --config: gravity and the "
+                         "Earth rate depend on where the recording was made")
+    latitude = args.latitude if args.latitude is not None else base.latitude_deg
+    height = args.height if args.height is not None else (base.height_m if base else 0.0)
+    gravity = args.gravity if args.gravity is not None else (base.gravity_m_s2 if base else None)
+    return Station(latitude, height, gravity)
+
+
+def _recording(args):
+    """(recording, session directory, import summary lines)."""
+    from fieldcal.recording.store import load_recording
+
+    first = Path(args.recording[0])
+    if len(args.recording) == 1 and first.is_dir():
+        if args.map is not None:
+            raise ValueError(f"calibrate: {first} is a session: --map is for text files")
+        return load_recording(first), first, []
+    if args.map is None:
+        raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
+                         "path); or give one session directory from `fieldcal import`")
+    from fieldcal.cli.importing import summary_lines
+    from fieldcal.recording.import_map import load_import_map
+    from fieldcal.recording.importer import import_with_report
+    from fieldcal.recording.store import save_recording
+
+    recording, report = import_with_report(args.recording, load_import_map(args.map))
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    directory = save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
+    return recording, directory, summary_lines(recording, report)
+
+
+def cmd_calibrate(args) -> int:
+    from fieldcal.config import load_config
+    from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
+    from fieldcal.recording.detect import DetectorSettings
+    from fieldcal.recording.results import parameter_file, summary_lines
+    from fieldcal.session.capture import SessionWriter
+
+    config = load_config(args.config) if args.config else None
+    station = _station(args, config)
+    if args.table_rate is not None and not args.table_rate > 0:
+        raise ValueError(f"--table-rate: expected a rate above 0 °/s, got {args.table_rate:g}")
+    if not args.rest > 0:
+        raise ValueError(f"--rest: expected a positive number of seconds, got {args.rest:g}")
+    started = time.perf_counter()
+    recording, directory, imported = _recording(args)
+    for line in imported:
+        print(line)
+    noise = {t.name: t.noise for t in config.device.triads if t.noise is not None} if config else {}
+    settings = RecordingSettings(detector=DetectorSettings(init_rest_s=args.rest), method=args.method,
+                                 estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
+                                 table_rate_deg_s=args.table_rate)
+    cal = calibrate_recording(recording, station, settings)
+    pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None)
+    writer = SessionWriter.append_to(directory)
+    try:
+        writer.write_parameters(pf)
+    finally:
+        writer.close()
+    print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
+          f"{station.gravity:.6f} m/s^2 ({station.gravity_source}); noise: "
+          f"{NOISE_FROM_CONFIG if noise else NOISE_FROM_REST}")
+    for line in summary_lines(cal):
+        print(line)
+    print(f"\nparameter file: {directory / 'parameters.yaml'}  ({time.perf_counter() - started:.2f} s)")
+    if args.params:
+        from fieldcal.paramfile import save
+        print(f"parameter file: {save(pf, args.params)}")
+    return 0 if not cal.failures else 1

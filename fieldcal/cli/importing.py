@@ -1,0 +1,121 @@
+"""``fieldcal import``: text recordings -> a recording session, with a short summary.
+
+``add_import_parser(sub)`` adds the command to ``fieldcal``'s subparsers; ``cmd_import`` raises
+ValueError subclasses with one-line messages, which ``fieldcal.cli.main`` prints as
+``fieldcal: <message>`` with exit status 2. ``main(argv)`` does the same on its own
+(``python -m fieldcal.cli.importing ...``).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from fieldcal.recording import Recording
+from fieldcal.recording.import_map import RECORDINGS_DIR, load_import_map
+from fieldcal.recording.importer import (
+    GAP_PERIODS,
+    ImportReport,
+    RecordingImportError,
+    import_with_report,
+)
+from fieldcal.recording.store import save_recording
+
+_EPILOG = """\
+examples:
+  fieldcal import acc.txt gyro.txt --map imu_tk --out sessions/unit7
+      two files of "timestamp x y z" lines (accelerometer, then gyroscope), raw counts
+  fieldcal import log.csv --map single-csv --out sessions/unit7
+      one CSV with time in ms, accelerometer in mg and gyroscope in deg/s
+  fieldcal import log.txt --map my-layout.yaml --out sessions/unit7
+      any layout: copy a map from configs/recordings/ and edit its columns and units
+
+The map says, per file, the delimiter, the time column and its unit, and for each triad its
+three columns, kind (specific_force or angular_rate), unit and an optional scale. Lines that
+do not parse are counted and listed by line number, never used; time must increase strictly.
+Several files are put on the first file's timestamps (the others interpolated linearly unless
+their timestamps are the same)."""
+
+
+def add_import_parser(sub) -> argparse.ArgumentParser:
+    maps = ", ".join(sorted(p.stem for p in RECORDINGS_DIR.glob("*.yaml"))) or "none yet"
+    parser = sub.add_parser(
+        "import", help="turn a recording (text files) into a session for calibration",
+        description="Read a continuous recording of a unit from delimited text files, as an\n"
+        "import map describes them, put all triads on one time base, and write it as a new\n"
+        "session directory. Prints what was read: samples, rate, duration, malformed lines\n"
+        "(with line numbers), gaps, and whether a file was interpolated.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("files", nargs="+", metavar="FILE",
+                        help="the recording's files, in the order of the map's entries")
+    parser.add_argument("--map", required=True, metavar="MAP",
+                        help=f"import map: a name in configs/recordings ({maps}) or a YAML path")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="the new session directory (must not exist, or be empty)")
+    parser.set_defaults(func=cmd_import)
+    return parser
+
+
+def cmd_import(args) -> int:
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise RecordingImportError(f"{out}: already exists and is not empty (give --out a new "
+                                   "directory)", str(out))
+    import_map = load_import_map(args.map)
+    recording, report = import_with_report(args.files, import_map)
+    try:
+        directory = save_recording(recording, out, report=report)
+    except OSError as exc:
+        raise RecordingImportError(f"{out}: cannot write the session ({exc.strerror or exc})",
+                                   str(out)) from None
+    for line in summary_lines(recording, report):
+        print(line)
+    print(f"session: {directory}")
+    return 0
+
+
+def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
+    """What was read and done, a few lines per file; warnings last, in capitals."""
+    n = len(report.files)
+    lines = [f"imported {n} file{'s' * (n != 1)} with the map {report.map_path}:"]
+    for f in report.files:
+        lines.append(f"  {f.name}: {f.path}: {f.samples} samples of {f.lines} lines, "
+                     f"{f.rate_hz:.6g} Hz, t {f.t_first:.6g} .. {f.t_last:.6g} s")
+        if f.header_lines:
+            lines.append(f"    {_count(f.header_lines, 'header line')} skipped")
+        if f.malformed:
+            first = ", ".join(map(str, f.malformed_lines))
+            more = ", ..." if f.malformed > len(f.malformed_lines) else ""
+            lines.append(f"    {_count(f.malformed, 'malformed line')} not used: {first}{more}")
+        else:
+            lines.append("    no malformed lines")
+        if f.gaps:
+            lines.append(f"    {_count(f.gaps, 'gap')} longer than {GAP_PERIODS:g} sample periods, "
+                         f"the largest {f.largest_gap_s:.6g} s before line {f.largest_gap_line}")
+    lines += [f"  {note}" for note in report.alignment]
+    triads = ", ".join(f"{name} ({recording.kinds[name]}, {recording.units[name]})"
+                       for name in recording.triads)
+    lines.append(f"recording: {len(recording.t)} samples, {recording.rate_hz:.6g} Hz, "
+                 f"{recording.duration_s:.6g} s; {triads}")
+    lines += [f"WARNING: {w}" for w in report.warnings]
+    return lines
+
+
+def _count(k: int, word: str) -> str:
+    return f"{k} {word}{'s' * (k != 1)}"
+
+
+def main(argv=None) -> int:
+    """The command on its own, reporting errors as ``fieldcal.cli.main`` does."""
+    parser = argparse.ArgumentParser(prog="fieldcal")
+    add_import_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["import", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        return args.func(args)
+    except ValueError as exc:
+        print(f"fieldcal: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

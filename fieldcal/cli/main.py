@@ -1,0 +1,279 @@
+"""The ``fieldcal`` command."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+from fieldcal import __version__
+from fieldcal.solvers.solve import METHODS
+
+
+def _seed(text: str) -> int:
+    value = int(text) if text.lstrip("-").isdigit() else -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return value
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            value = -1
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+        return value
+    return parse
+
+
+def _progress_printer(stream):
+    interactive = stream.isatty()
+
+    def progress(done: int, total: int, label: str) -> None:
+        if interactive:
+            print(f"\r  simulating segment {done}/{total} ({label})   ", end="", file=stream, flush=True)
+            if done == total:
+                print(file=stream)
+        elif done == total or done % 9 == 0:
+            print(f"  simulated segment {done}/{total}", file=stream, flush=True)
+    return progress
+
+
+def cmd_demo(args) -> int:
+    from drivers.sim.device import paper_mimu
+    from fieldcal.earth import Station
+    from fieldcal.report import solution_header, solution_table
+    from fieldcal.run.simcal import run_simulated_calibration
+
+    station = Station(args.latitude, args.height, args.gravity)
+    device = paper_mimu(raw_counts=args.raw_counts)
+    print(f"fieldcal {__version__} demo: procedure {args.procedure} against the simulated MIMU "
+          f"(paper Tables 3-4{', raw 16-bit counts' if args.raw_counts else ''}), seed {args.seed}")
+    print(f"station: latitude {station.latitude_deg:.4f}°, height {station.height_m:.0f} m, "
+          f"g = {station.gravity:.6f} m/s² ({station.gravity_source})")
+    cal = run_simulated_calibration(args.seed, args.procedure, device, station,
+                                    method=args.method, progress=_progress_printer(sys.stderr))
+    seconds = cal.plan.windows[-1].start + cal.plan.windows[-1].duration
+    print(f"simulated {seconds:.0f} s of {len(cal.plan.attitudes)} positions at 250 Hz; "
+          "solved from the window averages\n")
+    worst = 0.0
+    for name, sol in cal.solutions.items():
+        print(solution_header(sol))
+        print(solution_table(sol, cal.truth[name]))
+        print()
+        worst = max(worst, float(np.max(np.abs(sol.theta - cal.truth[name]) / sol.sigma)))
+    for name, reason in cal.failures.items():
+        print(f"{name}: not calibrated: {reason}")
+    if not cal.solutions:
+        return 1
+    print(f"largest error: {worst:.2f}σ")
+    if args.params:
+        from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs, save
+        from fieldcal.solvers.solve import resolve_method
+        pf = ParameterFile.build(
+            triads=tuple(TriadParameters.from_solution(s) for s in cal.solutions.values()),
+            procedure=cal.procedure.name, method=resolve_method(cal.procedure, args.method),
+            station=station,
+            input_sha256=hash_inputs(*(p.data for p in cal.problems.values())), simulation=True)
+        save(pf, args.params)
+        print(f"parameter file written to {args.params}")
+    return 0
+
+
+def cmd_monitor(args) -> int:
+    from fieldcal.config import load_config
+    from fieldcal.cli.monitor import run_monitor
+
+    config = load_config(args.config)
+    return run_monitor(config, sys.stdout, sys.stderr, max_samples=args.samples,
+                       max_seconds=args.seconds)
+
+
+def cmd_sim_serve(args) -> int:
+    import time
+
+    from drivers.sim.device import paper_mimu
+    from drivers.sim.serve import SimulatedDevices
+    from fieldcal.earth import Station
+    from fieldcal.procedure.positions import load_procedure
+
+    station = Station(args.latitude, args.height)
+    positions = load_procedure("field-18").positions
+    if not 1 <= args.position <= len(positions):
+        raise ValueError(f"--position: expected 1..{len(positions)} (field-18), got {args.position}")
+    devices = SimulatedDevices(
+        paper_mimu(raw_counts=args.raw_counts), station.gravity, station.latitude_rad,
+        imu_protocol=args.imu_protocol, table_protocol=args.table_protocol, transport=args.transport,
+        speed=args.speed, seed=args.seed, rate_hz=args.rate,
+        attitude=positions[args.position - 1].attitude)
+    with devices:
+        print(f"simulated MIMU ({args.imu_protocol}, {args.rate:g} Hz, field-18 position "
+              f"{args.position}): {devices.imu_url}")
+        if devices.table_url:
+            print(f"simulated rate table ({args.table_protocol}): {devices.table_url}")
+        print("serving until Ctrl-C", flush=True)
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            print(f"stopped after {devices.samples_sent} samples")
+    return 0
+
+
+def add_run_options(parser: argparse.ArgumentParser) -> None:
+    """Options shared by everything that runs a procedure (run, tui)."""
+    parser.add_argument("--config", default="sim", help="station config (default: sim)")
+    parser.add_argument("--procedure", default="field-18",
+                        help="procedure name or YAML path (default field-18)")
+    parser.add_argument("--seed", type=_seed, help="simulation seed (default: the config's)")
+    parser.add_argument("--out", default="sessions", help="where sessions go (default ./sessions)")
+    parser.add_argument("--method", choices=METHODS, default="auto",
+                        help="solver: auto (default) is classic for an aligned procedure, else powell")
+    parser.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
+                        help="a bump during a dwell restarts it (default) or drops only the disturbed part")
+
+
+def _lazy(name: str):
+    """A command handler from fieldcal.cli.sessions, imported only when that command runs."""
+    def handler(args):
+        from fieldcal.cli import sessions as sessions_cli
+        return getattr(sessions_cli, name)(args)
+    return handler
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fieldcal", description="Field calibration station for "
+                                     "MIMU accelerometer, gyroscope and inclinometer triads.")
+    parser.add_argument("--version", action="version", version=f"fieldcal {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    demo = sub.add_parser("demo", help="calibrate the simulated MIMU headless and compare with its truth",
+                          description="Run a procedure against the simulated MIMU (errors of paper "
+                          "Table 3, noise of Table 4), solve every triad with the norm method and "
+                          "print the solved parameters beside the simulator's truth.")
+    demo.add_argument("--seed", type=_seed, default=1, help="random seed (default 1)")
+    demo.add_argument("--procedure", default="field-18", help="procedure name or YAML path "
+                      "(default field-18)")
+    demo.add_argument("--method", choices=METHODS, default="auto",
+                      help="solver: auto (default) is classic for an aligned procedure, else powell")
+    demo.add_argument("--latitude", type=float, default=40.0, help="station latitude, degrees (default 40)")
+    demo.add_argument("--height", type=float, default=50.0, help="station height, m (default 50)")
+    demo.add_argument("--gravity", type=float, metavar="M_S2",
+                      help="measured local gravity, m/s² (default: WGS84 normal gravity)")
+    demo.add_argument("--raw-counts", action="store_true", help="simulate a device reporting 16-bit counts")
+    demo.add_argument("--params", metavar="FILE", help="also write the parameter file here")
+    demo.set_defaults(func=cmd_demo)
+
+    monitor = sub.add_parser("monitor", help="print decoded samples and parser counters from a device",
+                             description="Connect to the configured device and print its decoded "
+                             "samples (CSV when piped, a live line on a terminal) and the parser's "
+                             "counters, until Ctrl-C.")
+    monitor.add_argument("--config", required=True, help="station config: a name in configs/ or a path")
+    monitor.add_argument("--samples", type=_positive(int), metavar="N", help="stop after N samples")
+    monitor.add_argument("--seconds", type=_positive(float), metavar="S", help="stop after S seconds")
+    monitor.set_defaults(func=cmd_monitor)
+
+    run = sub.add_parser("run", help="run a procedure (headless: against the simulated device)",
+                         description="Run a calibration procedure. With --headless, an automatic "
+                         "operator moves the simulated unit through every position; the session "
+                         "(every sample, action and event) and the parameter file are written "
+                         "under --out, and the solved parameters are printed beside the truth.")
+    add_run_options(run)
+    run.add_argument("--headless", action="store_true", help="no terminal UI: the automatic operator")
+    run.add_argument("--bump-step", type=int, metavar="N", help="the operator bumps the unit in step N")
+    run.add_argument("--wrong-step", type=int, metavar="N",
+                     help="the operator first puts the unit in a wrong position at step N")
+    run.add_argument("--skip", type=int, action="append", default=[], metavar="N",
+                     help="the operator skips step N (repeatable)")
+    run.add_argument("--serial", action="store_true",
+                     help="reach the simulated device only through bytes on a pty (Xsens frames, "
+                     "ASCII table), as hardware would be; slower, and cannot be resumed")
+    run.add_argument("--quiet", action="store_true", help="only the result, no progress lines")
+    run.set_defaults(func=_lazy("cmd_run"))
+
+    resume = sub.add_parser("resume", help="continue a headless run that was killed",
+                            description="Continue a session after its last completed step; the "
+                            "result is what the uninterrupted run would have given.")
+    resume.add_argument("session", help="session directory")
+    resume.add_argument("--quiet", action="store_true")
+    resume.set_defaults(func=_lazy("cmd_resume"))
+
+    replay = sub.add_parser("replay", help="feed a captured session through a fresh engine and solver",
+                            description="Replay a session's samples and operator actions through a "
+                            "fresh engine and solver, and check that the parameter file comes out "
+                            "byte for byte the same.")
+    replay.add_argument("session", help="session directory")
+    replay.add_argument("--speed", type=float, help="times real time (default: as fast as possible)")
+    replay.add_argument("--out", metavar="FILE", help="also write the replayed parameter file here")
+    replay.add_argument("--quiet", action="store_true")
+    replay.set_defaults(func=_lazy("cmd_replay"))
+
+    solve = sub.add_parser("solve", help="re-solve a session from its averages, methods side by side",
+                           description="Re-solve a session from its stored per-step averages and "
+                           "print the methods side by side, as paper Table 5 does.")
+    solve.add_argument("session", help="session directory")
+    solve.add_argument("--method", choices=METHODS[1:], action="append",
+                       help="powell, lsq or classic (repeatable; default: powell and lsq, or "
+                       "classic for an aligned procedure)")
+    solve.set_defaults(func=_lazy("cmd_solve"))
+
+    allan = sub.add_parser("allan", help="Allan noise terms, recommended dwell and a plot from a still record",
+                           description="Allan deviation (paper eq. 3) of a still record: a session "
+                           "(its longest static dwell) or a text file of rows 't, x, y, z' (s, SI). "
+                           "Prints the IEEE 952 noise terms per axis and the recommended dwell, and "
+                           "writes a log-log plot per triad.")
+    allan.add_argument("source", help="session directory or text file")
+    allan.add_argument("--kind", choices=("specific_force", "angular_rate"), default="angular_rate",
+                       help="what a text file holds (default angular_rate)")
+    allan.add_argument("--triad", action="append", help="only this triad of a session (repeatable)")
+    allan.add_argument("--plot-dir", help="where the PNGs go (default: beside the source)")
+    allan.set_defaults(func=lambda args: __import__("fieldcal.cli.allan", fromlist=["cmd_allan"]).cmd_allan(args))
+
+    sim = sub.add_parser("sim", help="the simulated MIMU and rate table")
+    sim_sub = sim.add_subparsers(dest="sim_command", required=True, metavar="SIM_COMMAND")
+    serve = sim_sub.add_parser("serve", help="serve the simulated devices on virtual serial ports",
+                               description="Serve the simulated MIMU and rate table over "
+                               "pseudo-terminals (or TCP on 127.0.0.1) in real device protocols, and "
+                               "print the ports to point the station at. Runs until Ctrl-C.")
+    serve.add_argument("--imu-protocol", choices=("xsens", "vectornav", "delimited"), default="xsens")
+    serve.add_argument("--table-protocol", choices=("ascii", "grbl"), default="ascii")
+    serve.add_argument("--transport", choices=("pty", "tcp"), default="pty")
+    serve.add_argument("--speed", type=float, default=1.0,
+                       help="1 = real time (default), 10 = ten times faster, 0 = as fast as read")
+    serve.add_argument("--rate", type=float, default=250.0, help="sample rate, Hz (default 250)")
+    serve.add_argument("--position", type=int, default=1, help="field-18 position of the unit (default 1)")
+    serve.add_argument("--seed", type=_seed, default=1)
+    serve.add_argument("--latitude", type=float, default=40.0, help="degrees (default 40)")
+    serve.add_argument("--height", type=float, default=50.0, help="m (default 50)")
+    serve.add_argument("--raw-counts", action="store_true", help="the unit reports 16-bit counts")
+    serve.set_defaults(func=cmd_sim_serve)
+
+    from fieldcal.cli.tui import add_tui_parser
+    add_tui_parser(sub)
+    from fieldcal.cli.calibrate import add_calibrate_parser
+    from fieldcal.cli.importing import add_import_parser
+    add_import_parser(sub)
+    add_calibrate_parser(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except ValueError as exc:  # ConfigError, ProcedureError, ParameterFileError, bad arguments
+        print(f"fieldcal: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("fieldcal: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # output piped into head: not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,107 @@
+"""``fieldcal monitor``: is the unit wired up and sane? Decoded samples and parser counters."""
+from __future__ import annotations
+
+import io
+import shutil
+import time
+
+import numpy as np
+
+from fieldcal.config import StationConfig
+from fieldcal.run.devices import DeviceConnection
+
+
+def _columns(chunk) -> list[str]:
+    cols = ["t_s"] + [f"{name}_{axis}" for name in sorted(chunk.triads) for axis in "xyz"]
+    return cols + (["temperature_c"] if chunk.temperature is not None else [])
+
+
+def _table(chunk) -> np.ndarray:
+    parts = [chunk.t[:, None]] + [chunk.triads[name] for name in sorted(chunk.triads)]
+    if chunk.temperature is not None:
+        parts.append(chunk.temperature[:, None])
+    return np.hstack(parts)
+
+
+def counters_line(counters) -> str:
+    c = counters.as_dict()
+    return (f"frames {c['frames']}, discarded {c['discarded_bytes']} B, bad checksums "
+            f"{c['checksum_failures']}, sequence gaps {c['sequence_gaps']} "
+            f"({c['missing_frames']} frames missing)")
+
+
+_SHORT = {"accelerometer": "acc", "gyroscope": "gyro", "inclinometer": "incl", "magnetometer": "mag"}
+
+
+def _live_line(chunk, rate_hz: float, counters, units: dict[str, str], width: int) -> str:
+    """One terminal line: the configured triads' latest sample (rates in °/s) and the counters."""
+    parts = [f"t {chunk.t[-1]:.2f} s"]
+    for name, unit in units.items():
+        if name not in chunk.triads:
+            continue
+        xyz = chunk.triads[name][-1]
+        if unit == "rad/s":
+            xyz, unit = np.degrees(xyz), "°/s"
+        parts.append(f"{_SHORT.get(name, name)} {' '.join(f'{v:+7.3f}' for v in xyz)} {unit}")
+    c = counters
+    parts.append(f"{rate_hz:.0f} Hz")
+    problems = [f"{n} {what}" for n, what in ((c.discarded_bytes, "B dropped"),
+                                              (c.checksum_failures, "bad checksums"),
+                                              (c.sequence_gaps, "gaps")) if n]
+    parts.append(f"{c.frames} frames" + (": " + ", ".join(problems) if problems else " ok"))
+    return " | ".join(parts)[: width - 1]
+
+
+def run_monitor(config: StationConfig, out, err, max_samples: int | None = None,
+                max_seconds: float | None = None, live: bool | None = None) -> int:
+    """Print samples until stopped (Ctrl-C), or until ``max_samples`` / ``max_seconds``."""
+    live = out.isatty() if live is None else live
+    units = {t.name: t.unit for t in config.device.triads}
+    printed, header, last_draw = 0, None, 0.0
+    window: list[tuple[float, int]] = []  # (sample time, count) for the live rate
+    with DeviceConnection(config) as conn:
+        started = time.monotonic()
+        where = conn.simulated.imu_url if conn.simulated else config.device.port.url
+        print(f"monitoring {config.device.name} on {where} ({conn.protocol}); Ctrl-C to stop",
+              file=err, flush=True)
+        try:
+            while max_seconds is None or time.monotonic() - started < max_seconds:
+                chunks, events = conn.read()
+                for event in events:
+                    gap = f" after {event.gap_s:.2f} s" if event.gap_s else ""
+                    print(f"\nport {event.kind}{gap}: {event.message}" if live
+                          else f"port {event.kind}{gap}: {event.message}", file=err, flush=True)
+                for chunk in chunks:
+                    if max_samples is not None:
+                        chunk_rows = _table(chunk)[: max_samples - printed]
+                    else:
+                        chunk_rows = _table(chunk)
+                    if live:
+                        window = [w for w in window if w[0] > chunk.t[-1] - 2.0] + [(chunk.t[-1], len(chunk))]
+                        span = window[-1][0] - window[0][0]
+                        rate = sum(n for _, n in window[1:]) / span if span > 0 else 0.0
+                        if time.monotonic() - last_draw > 0.2:
+                            width = shutil.get_terminal_size().columns
+                            print("\r" + _live_line(chunk, rate, conn.counters, units, width).ljust(width - 1),
+                                  end="", file=out, flush=True)
+                            last_draw = time.monotonic()
+                    else:
+                        if header is None:
+                            header = _columns(chunk)
+                            print(",".join(header), file=out)
+                        buf = io.StringIO()
+                        np.savetxt(buf, chunk_rows, fmt="%.9g", delimiter=",")
+                        out.write(buf.getvalue())
+                        out.flush()
+                    printed += len(chunk_rows)
+                    if max_samples is not None and printed >= max_samples:
+                        break
+                if max_samples is not None and printed >= max_samples:
+                    break
+                time.sleep(0.01)
+        except KeyboardInterrupt:
+            pass
+        if live:
+            print(file=out)
+        print(f"{printed} samples; {counters_line(conn.counters)}", file=err, flush=True)
+    return 0

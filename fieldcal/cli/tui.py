@@ -1,0 +1,132 @@
+"""``fieldcal tui``: the operator's terminal UI against the simulated bench, or a replay.
+
+Kept free of Textual imports so that building the CLI parser stays fast.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+from pathlib import Path
+
+
+
+def _speed(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 (0 = as fast as possible), got {text!r}")
+    return value
+
+
+def add_tui_parser(sub) -> argparse.ArgumentParser:
+    """Add the ``tui`` subcommand to the CLI's subparsers."""
+    tui = sub.add_parser(
+        "tui", help="the operator's terminal UI: set up and run a calibration, or replay a session",
+        description="The operator's terminal UI. It opens on the setup screen (device config, port, "
+        "procedure, station; the last choice is remembered, --config/--procedure override it), then "
+        "runs the procedure on that device, capturing a session under --out. --sim skips the setup "
+        "and runs the simulated bench at once; --replay shows a captured session through the same "
+        "screens. Keys: r the unit is in place, d redo, s skip, a abort, ? help (b bump and w wrong "
+        "position on the simulator).")
+    from fieldcal.cli.main import add_run_options  # here: fieldcal.cli.main imports this module
+    add_run_options(tui)
+    tui.set_defaults(config=None, procedure=None)  # given or not: given ones override the setup's
+    tui.add_argument("--sim", action="store_true",
+                     help="no setup screen: run the simulated bench (config sim unless --config) now")
+    tui.add_argument("--go", action="store_true",
+                     help="no setup screen: run --config and --procedure now")
+    tui.add_argument("--speed", type=_speed,
+                     help="simulator: sample time per wall time, 1 = real time, 0 = as fast as possible "
+                     "(default: the config's sim speed for a run, 10 for a replay)")
+    tui.add_argument("--no-capture", action="store_true", help="do not write a session")
+    tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
+    tui.set_defaults(func=cmd_tui)
+    return tui
+
+
+def cmd_tui(args) -> int:
+    from fieldcal.tui import run_tui
+
+    if args.replay is not None:
+        if not Path(args.replay, "log.jsonl").is_file():
+            raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
+        return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay))
+    if args.seed is not None and args.seed < 0:
+        raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
+
+    def make_run(config, procedure):
+        if config.device.protocol != "sim":
+            return live_spec(config, procedure, args), _session_dir(args, procedure.name, "live"), 0.0
+        return sim_run(config, procedure, args)
+
+    if args.sim or args.go:
+        from fieldcal.config import load_config
+        from fieldcal.procedure.positions import load_procedure
+
+        config = load_config(args.config or "sim")
+        procedure = load_procedure(args.procedure or "field-18")
+        spec, session_dir, speed = make_run(config, procedure)
+        return run_tui(spec, speed, session_dir, None, config=config)
+    return run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+
+
+def _initial_choice(args):
+    """The remembered choice, with the config and procedure given on the command line."""
+    from dataclasses import replace
+
+    from fieldcal.tui.choices import SetupChoice, load_last_choice
+
+    choice = load_last_choice()
+    if choice is None:
+        if args.config is None and args.procedure is None:
+            return None
+        from fieldcal.config import load_config
+        config = load_config(args.config or "sim")
+        choice = SetupChoice(args.config or "sim", None, args.procedure or "field-18",
+                             config.station.latitude_deg, config.station.height_m)
+    elif args.config is not None:
+        from fieldcal.config import load_config
+        config = load_config(args.config)
+        choice = replace(choice, config=args.config, port=None, latitude_deg=config.station.latitude_deg,
+                         height_m=config.station.height_m)
+    if args.procedure is not None:
+        choice = replace(choice, procedure=args.procedure)
+    return choice
+
+
+def sim_run(config, procedure, args):
+    """The simulated bench's run: (spec, session directory, speed)."""
+    from fieldcal.run.runner import RunSpec
+
+    seed = config.device.sim.seed if args.seed is None else args.seed
+    spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
+                   raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion)
+    speed = config.device.sim.speed if args.speed is None else args.speed
+    return spec, _session_dir(args, procedure.name, f"seed{seed}"), speed
+
+
+def _session_dir(args, procedure_name: str, what: str) -> Path | None:
+    if args.no_capture:
+        return None
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path(args.out) / f"{procedure_name}-tui-{what}-{stamp}"
+
+
+def live_spec(config, procedure, args):
+    """The run of a real device: its model from the config; refused before any port is opened
+    when the config cannot carry the procedure out."""
+    from fieldcal.run.livedevice import LiveDevice
+    from fieldcal.run.runner import RunSpec
+
+    step = procedure.rate_step
+    if step is not None:
+        if config.table is None:
+            raise ValueError(f"{config.path}: no table, and procedure {procedure.name} has rate steps "
+                             f"at {step.rate_deg_s:g} °/s (add a table: section, or choose a static procedure)")
+        if step.rate_deg_s > config.table.max_rate_deg_s:
+            raise ValueError(f"procedure {procedure.name} turns the table at {step.rate_deg_s:g} °/s, above "
+                             f"{config.path}'s table.max_rate_deg_s of {config.table.max_rate_deg_s:g} °/s")
+    return RunSpec(procedure, config.station, rate_hz=config.device.rate_hz, method=args.method,
+                   on_motion=args.on_motion, live=LiveDevice.from_config(config))

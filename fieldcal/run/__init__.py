@@ -1,0 +1,1 @@
+"""Runs: the spec, benches (simulated, pty, live device), operators, replay, progress."""

@@ -1,0 +1,101 @@
+"""Solve every triad of a unit from a procedure's window averages.
+
+Shared by the simulated demo and the procedure engine: norm method (Powell by default) for field
+procedures, classic least squares for aligned ones; weights from the covariance of the averages,
+which follows from each triad's noise model and the windows' timing.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.sim.noise import TriadNoise
+from fieldcal.solvers.assemble import build_problem, classic_inputs
+from fieldcal.earth import Station
+from fieldcal.procedure.positions import Procedure
+from fieldcal.run.simrun import Window
+from fieldcal.solvers import CalibrationError, solve_classic, solve_norm
+
+
+@dataclass(frozen=True)
+class TriadModel:
+    """What the station knows of a triad before calibrating it."""
+
+    kind: str
+    output_unit: str
+    noise: TriadNoise  # SI input units
+    sensitivity: np.ndarray  # (3, 3) nominal K, output units per SI unit
+    lsb: float = 0.0  # output quantisation step
+
+
+@dataclass(frozen=True)
+class UnitSolution:
+    solutions: dict  # triad -> TriadSolution (or ClassicSolution for an aligned procedure)
+    failures: dict[str, str]  # triad -> why it could not be calibrated
+    problems: dict  # triad -> norm problem (field procedures)
+    covariances: dict[str, np.ndarray]  # triad -> covariance of the data it was solved from
+    inputs: dict[str, np.ndarray]  # triad -> the averages it was solved from, flattened
+
+
+def average_covariance(model: TriadModel, windows: list[Window], rate_hz: float) -> np.ndarray:
+    """Covariance of the flattened window means (window-major, then axis), output units.
+
+    Each axis has the same noise, independent between axes, entering before K:
+    cov(u_w, u_v) = C[w, v] · K Kᵀ with C the one-axis window covariance; quantisation adds
+    lsb²/12 per sample.
+    """
+    C = model.noise.window_covariance([w.start for w in windows], [w.duration for w in windows])
+    K = model.sensitivity
+    cov = np.kron(C, K @ K.T)
+    if model.lsb:
+        samples = np.array([w.duration for w in windows]) * rate_hz
+        cov += np.kron(np.diag(model.lsb**2 / 12.0 / samples), np.eye(3))
+    return cov
+
+
+METHODS = ("auto", "powell", "lsq", "classic")
+
+
+def resolve_method(procedure: Procedure, method: str) -> str:
+    """"auto" is classic least squares for an aligned procedure, Powell's norm method otherwise."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    if method == "auto":
+        return "classic" if procedure.aligned else "powell"
+    return method
+
+
+def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, np.ndarray],
+               models: dict[str, TriadModel], station: Station, rate_hz: float,
+               method: str = "auto") -> UnitSolution:
+    """``averages[name]`` is (len(windows), 3), one row per window, for every triad in models."""
+    method = resolve_method(procedure, method)
+    ids = [p.id for p in procedure.positions]
+    up_body = np.array([p.up_body for p in procedure.positions])
+    solutions, failures, problems, covs, inputs = {}, {}, {}, {}, {}
+    for name, model in models.items():
+        try:
+            if method == "classic":
+                if not procedure.aligned:
+                    raise CalibrationError(f"{name}: the classic method needs an aligned procedure "
+                                           f"(known orientations); {procedure.name} is not one")
+                used, true_inputs = classic_inputs(model.kind, windows, up_body, station)
+                covs[name] = average_covariance(model, [windows[i] for i in used], rate_hz)
+                inputs[name] = averages[name][used].ravel()
+                solutions[name] = solve_classic(averages[name][used], true_inputs, name, model.kind,
+                                                model.output_unit, covariance=covs[name])
+                continue
+            problem, order = build_problem(name, model.kind, model.output_unit, windows,
+                                           averages[name], station, ids)
+            covs[name] = average_covariance(model, [windows[i] for i in order], rate_hz)
+            problems[name], inputs[name] = problem, problem.data
+            solutions[name] = solve_norm(problem, covs[name], method=method)
+        except CalibrationError as exc:
+            failures[name] = str(exc)
+    return UnitSolution(solutions, failures, problems, covs, inputs)
+
+
+def models_from_truth(device) -> dict[str, TriadModel]:
+    """The station's knowledge of a simulated device: its true noise and scale."""
+    return {name: TriadModel(t.kind, t.output_unit, t.noise, t.K, t.lsb) for name, t in device.items()}

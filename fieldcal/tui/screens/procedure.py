@@ -1,0 +1,108 @@
+"""The procedure screen: tiles, step, instruction, cube, live panel and the event log."""
+from __future__ import annotations
+
+from typing import ClassVar
+
+from textual.app import ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import Horizontal
+from textual.screen import Screen
+from textual.widgets import Footer, RichLog, Static
+
+from fieldcal.tui.widgets.cube import top_view
+from fieldcal.tui.widgets.live import LivePanel
+from fieldcal.tui.readings import Telemetry
+from fieldcal.tui.widgets.tiles import PositionTiles
+from fieldcal.tui.view import RunView
+
+OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort")
+SIM_ACTIONS = ("bump", "misplace")
+
+
+class ProcedureScreen(Screen):
+    CSS_PATH = "procedure.tcss"
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("r", "command('ready')", "ready"),
+        Binding("d", "command('redo')", "redo"),
+        Binding("s", "command('skip')", "skip"),
+        Binding("a", "command('abort')", "abort"),
+        Binding("b", "command('bump')", "bump"),
+        Binding("w", "command('misplace')", "misplace", show=False),
+        Binding("v", "results", "results"),
+    ]
+
+    def __init__(self, view: RunView, title: str, mode: str) -> None:
+        super().__init__()
+        self.view = view
+        self.title_text = title
+        self.mode = mode  # "sim" or "replay"
+        self._shown_step = -1
+
+    def compose(self) -> ComposeResult:
+        yield Static(self.title_text, id="title")
+        yield PositionTiles([p.id for p in self.view.procedure.positions], id="tiles")
+        yield Static("", id="step")
+        yield Static("", id="banner")
+        with Horizontal(id="body"):
+            yield Static("", id="cube")
+            yield LivePanel(id="live")
+        yield RichLog(id="log", wrap=True, max_lines=5000, markup=False, min_width=20)
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.query_one("#live").border_title = "live"
+        self.query_one("#log").border_title = "events"
+        self.refresh_view()
+
+    # --- fed by the app ---------------------------------------------------------------------
+
+    def add_items(self, items) -> None:
+        log = self.query_one("#log", RichLog)
+        for item in items:
+            line = self.view.apply(item)
+            if line is not None:
+                log.write(line)
+        self.refresh_view()
+
+    def set_telemetry(self, telemetry: Telemetry) -> None:
+        self.view.set_telemetry(telemetry)
+        self.refresh_view()
+
+    def finished(self, status: str) -> None:
+        self.view.finished = status
+        self.refresh_view()
+        self.refresh_bindings()
+
+    def refresh_view(self) -> None:
+        view = self.view
+        self.query_one(PositionTiles).update(view.tiles)
+        self.query_one("#step", Static).update(view.step_text())
+        text, style = view.banner(sim=self.mode == "sim")
+        banner = self.query_one("#banner", Static)
+        banner.update(text)
+        banner.set_classes(style)
+        if view.step != self._shown_step and view.step < view.total_steps:
+            self._shown_step = view.step
+            cube = self.query_one("#cube", Static)
+            cube.update("\n".join(top_view(view.position)))
+            cube.border_title = f"position {view.position.id}"
+        self.query_one(LivePanel).update(view)
+
+    # --- keys -------------------------------------------------------------------------------
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if action == "results":
+            return self.view.finished is not None
+        if action != "command":
+            return True
+        if self.mode == "replay" or self.view.finished is not None:
+            return False  # a replay applies the recorded actions; a finished run takes none
+        if parameters and parameters[0] in SIM_ACTIONS:
+            return self.mode == "sim"
+        return True
+
+    def action_command(self, name: str) -> None:
+        self.app.send_command(name)
+
+    def action_results(self) -> None:
+        self.app.show_results()

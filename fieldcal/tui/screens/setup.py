@@ -1,0 +1,288 @@
+"""The setup screen: the device config, its port, the procedure and the station, before a run.
+
+``SetupScreen(initial)`` dismisses with the operator's ``SetupChoice`` (already checked by
+``resolve_choice`` and remembered with ``save_last_choice``), or with None when the operator quits
+(Esc, or q outside a text field). Start: ctrl+s anywhere, Enter in a text field, or the button.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import ClassVar
+
+from textual import on
+from textual.app import ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import Horizontal
+from textual.screen import Screen
+from textual.widgets import Button, Footer, Input, Label, Select, Static
+
+from fieldcal.config import CONFIGS_DIR, StationConfig
+from fieldcal.procedure.positions import Procedure
+from fieldcal.tui.choices import (
+    SetupChoice,
+    available_configs,
+    available_procedures,
+    load_choice_config,
+    load_choice_procedure,
+    resolve_choice,
+    save_last_choice,
+)
+
+SIMULATED = "simulated"
+DEFAULT_CONFIG = "sim"
+DEFAULT_PROCEDURE = "field-18"
+
+
+def config_summary(config: StationConfig) -> str:
+    """One line: device name, protocol, rate, and the table's protocol or "no table"."""
+    device = config.device
+    table = f"table {config.table.protocol}" if config.table is not None else "no table"
+    return f"{device.name} · {device.protocol} · {device.rate_hz:g} Hz · {table}"
+
+
+def procedure_summary(procedure: Procedure) -> str:
+    """One line: positions, dwell, and the table's rate step if any."""
+    n = len(procedure.positions)
+    text = f"{n} position{'' if n == 1 else 's'} · {procedure.dwell_s:g} s dwells"
+    step = procedure.rate_step
+    if step is not None:
+        text += f" · table ±{step.rate_deg_s:g} °/s"
+    return text
+
+
+def _format_number(value: float) -> str:
+    """The shortest text that reads back as the same float: 40, 45.5, 45.123456789."""
+    value = float(value)
+    return str(int(value)) if value.is_integer() and abs(value) < 1e15 else repr(value)
+
+
+def _config_name(config: str) -> str:
+    """A path to one of the shipped configs is shown as its name."""
+    path = Path(config)
+    if path.suffix == ".yaml":
+        try:
+            if path.resolve() == (CONFIGS_DIR / path.name).resolve():
+                return path.stem
+        except OSError:  # pragma: no cover
+            pass
+    return config
+
+
+class SetupScreen(Screen[SetupChoice | None]):
+    """Pick the device config, port, procedure and station; dismiss(SetupChoice) on Start, or
+    dismiss(None) on Esc / q."""
+
+    CSS_PATH = "setup.tcss"
+    AUTO_FOCUS = "#config"
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("ctrl+s", "start", "start", priority=True),
+        Binding("escape", "quit", "quit"),
+        Binding("q", "quit", "quit", show=False),
+    ]
+
+    def __init__(self, initial: SetupChoice | None = None,
+                 last_choice_path: str | Path | None = None) -> None:
+        """``initial``: the values to show first (the caller merges the command line and the
+        remembered choice); None: the sim config and field-18 with the config's station.
+        ``last_choice_path``: where Start remembers the choice (default: the XDG location)."""
+        super().__init__()
+        self.initial = initial
+        self.last_choice_path = last_choice_path
+        self.config: StationConfig | None = None  # the config currently chosen, if it loads
+        self.procedure: Procedure | None = None
+        self.resolved: tuple[StationConfig, Procedure] | None = None  # after a successful Start
+        self._prefilled_from: Path | None = None  # the config the port and station came from
+        self._selected_config: object = None  # the config list's value, to tell a new choice
+        self._configs = available_configs()
+        self._procedures = available_procedures()
+
+    # --- layout -------------------------------------------------------------------------------
+
+    def compose(self) -> ComposeResult:
+        initial = self.initial
+        config = _config_name(initial.config) if initial is not None else DEFAULT_CONFIG
+        config_names = list(self._configs)
+        config_path = ""
+        if config not in config_names:
+            config_path = config
+            config = DEFAULT_CONFIG
+        if config not in config_names and config_names:
+            config = config_names[0]
+        procedure = initial.procedure if initial is not None else DEFAULT_PROCEDURE
+        procedure_names = list(self._procedures)
+        if procedure not in procedure_names:
+            if initial is not None and procedure.strip():
+                procedure_names.append(procedure)  # a path: offered as it was given
+            elif procedure_names:
+                procedure = procedure_names[0]
+
+        self._selected_config = config if config_names else Select.NULL
+        yield Static("fieldcal · setup", id="title")
+        with Horizontal(classes="row"):
+            yield Label("Config", classes="label")
+            yield Select([(n, n) for n in config_names], value=config if config_names else Select.NULL,
+                         allow_blank=not config_names, id="config")
+            yield Label("or file", classes="label small")
+            yield Input(config_path, placeholder="path/to/config.yaml", id="config-path")
+        yield Static("", id="config-summary", classes="summary")
+        with Horizontal(classes="row"):
+            yield Label("Port", classes="label")
+            yield Input("", placeholder="pyserial URL, e.g. /dev/ttyUSB0", id="port")
+        with Horizontal(classes="row"):
+            yield Label("Procedure", classes="label")
+            yield Select([(n, n) for n in procedure_names],
+                         value=procedure if procedure_names else Select.NULL,
+                         allow_blank=not procedure_names, id="procedure")
+            yield Static("", id="procedure-summary", classes="summary")
+        with Horizontal(classes="row"):
+            yield Label("Latitude", classes="label")
+            yield Input("", type="number", id="latitude")
+            yield Label("°", classes="unit")
+            yield Label("Height", classes="label small")
+            yield Input("", type="number", id="height")
+            yield Label("m", classes="unit")
+        yield Static("", id="error")
+        with Horizontal(id="actions"):
+            yield Button("Start", id="start", variant="success")
+            yield Static("ctrl+s or Enter in a field: start · Esc: quit", id="hint")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        initial = self.initial
+        self._load_config()
+        if initial is not None:
+            port = self.query_one("#port", Input)
+            if initial.port and not port.disabled:
+                port.value = initial.port
+            self.query_one("#latitude", Input).value = _format_number(initial.latitude_deg)
+            self.query_one("#height", Input).value = _format_number(initial.height_m)
+        self._load_procedure()
+        self.set_error("")
+
+    # --- what is chosen -----------------------------------------------------------------------
+
+    def config_text(self) -> str:
+        """The config as chosen: the path if one is typed, else the selected name."""
+        path = self.query_one("#config-path", Input).value.strip()
+        if path:
+            name = _config_name(path)
+            if name == path and Path(path).is_file():
+                return str(Path(path).resolve())  # remembered: valid from any directory
+            return name
+        value = self.query_one("#config", Select).value
+        return "" if value is Select.NULL else str(value)
+
+    def procedure_text(self) -> str:
+        value = self.query_one("#procedure", Select).value
+        return "" if value is Select.NULL else str(value)
+
+    def _load_config(self) -> None:
+        """Load the chosen config into the summary; a newly chosen one prefills port and station."""
+        summary = self.query_one("#config-summary", Static)
+        try:
+            config = load_choice_config(self.config_text())
+        except ValueError as exc:
+            self.config = None
+            summary.update(str(exc))
+            summary.set_class(True, "bad")
+            return
+        summary.update(config_summary(config))
+        summary.set_class(False, "bad")
+        self.config = config
+        where = Path(config.path).resolve()
+        if where == self._prefilled_from:
+            return  # the same config again (or back after a half-typed path): keep the fields
+        self._prefilled_from = where
+        port = self.query_one("#port", Input)
+        if config.device.port is None:
+            port.value, port.disabled = SIMULATED, True
+        else:
+            port.disabled = False
+            port.value = config.device.port.url
+        self.query_one("#latitude", Input).value = _format_number(config.station.latitude_deg)
+        self.query_one("#height", Input).value = _format_number(config.station.height_m)
+
+    def _load_procedure(self) -> None:
+        summary = self.query_one("#procedure-summary", Static)
+        try:
+            self.procedure = load_choice_procedure(self.procedure_text())
+        except ValueError as exc:
+            self.procedure = None
+            summary.update(str(exc))
+            summary.set_class(True, "bad")
+            return
+        summary.update(procedure_summary(self.procedure))
+        summary.set_class(False, "bad")
+
+    def set_error(self, message: str) -> None:
+        error = self.query_one("#error", Static)
+        error.update(message)
+        error.display = bool(message)
+
+    def choice(self) -> SetupChoice:
+        """The choice the fields show; ValueError (naming the field) if a number does not parse."""
+        port_input = self.query_one("#port", Input)
+        port: str | None = None
+        if not port_input.disabled:
+            text = port_input.value.strip()
+            own = self.config.device.port.url if self.config is not None and self.config.device.port else None
+            port = text if text and text != own else None
+        numbers = []
+        for field, name, unit in (("latitude", "latitude", "°"), ("height", "height", "m")):
+            text = self.query_one(f"#{field}", Input).value.strip()
+            try:
+                numbers.append(float(text))
+            except ValueError:
+                raise ValueError(f"{name}: expected a number in {unit}, got {text!r}") from None
+        return SetupChoice(self.config_text(), port, self.procedure_text(), numbers[0], numbers[1])
+
+    # --- events -------------------------------------------------------------------------------
+
+    @on(Select.Changed, "#config")
+    def _config_selected(self, event: Select.Changed) -> None:
+        if event.value == self._selected_config:
+            return  # the initial selection being set up
+        self._selected_config = event.value
+        path = self.query_one("#config-path", Input)
+        if path.value:
+            path.value = ""  # choosing from the list replaces a typed path (its Changed reloads)
+        else:
+            self._load_config()
+
+    @on(Input.Changed, "#config-path")
+    def _config_path_changed(self) -> None:
+        self._load_config()
+
+    @on(Select.Changed, "#procedure")
+    def _procedure_selected(self) -> None:
+        self._load_procedure()
+
+    @on(Input.Changed)
+    def _edited(self) -> None:
+        self.set_error("")
+
+    @on(Input.Submitted)
+    def _submitted(self) -> None:
+        self.action_start()
+
+    @on(Button.Pressed, "#start")
+    def _start_pressed(self) -> None:
+        self.action_start()
+
+    # --- actions ------------------------------------------------------------------------------
+
+    def action_start(self) -> None:
+        try:
+            choice = self.choice()
+            self.resolved = resolve_choice(choice)
+        except ValueError as exc:
+            self.set_error(" ".join(str(exc).split()))
+            return
+        try:
+            save_last_choice(choice, self.last_choice_path)
+        except OSError as exc:
+            self.app.notify(f"could not remember this setup: {exc}", severity="warning")
+        self.dismiss(choice)
+
+    def action_quit(self) -> None:
+        self.dismiss(None)

@@ -1,0 +1,101 @@
+"""The live panel: readings, angle to the target, stillness, dwell and table progress."""
+from __future__ import annotations
+
+from rich.text import Text
+from textual.app import ComposeResult
+from textual.containers import Vertical
+from textual.widgets import Static
+
+from fieldcal.tui.widgets.bars import bar
+from fieldcal.tui.view import RunView
+
+ROWS = ("accel", "gyro", "target", "still", "dwell", "table", "turns")
+BAR = 16
+
+
+def _label(name: str) -> Text:
+    return Text(f"{name:<9}", style="bold")
+
+
+def _vector(values, fmt: str) -> Text:
+    text = Text()
+    for axis, v in zip("xyz", values):
+        text.append(f"{axis} ", style="grey62")
+        text.append(format(v, fmt) + " ")
+    return text
+
+
+def _progress(done: float, total: float, running: bool, complete: bool, style: str) -> Text:
+    if total <= 0:
+        return Text("—", style="grey50")
+    text = bar(done / total, BAR, style=style)
+    left = max(0.0, total - done)
+    text.append(f" {done:4.0f}/{total:.0f} s", style="bold" if running else "")
+    if complete:
+        text.append("  done", style="green")
+    elif running:
+        text.append(f"  {left:.0f} s left")
+    elif done > 0:
+        text.append("  held", style="yellow")
+    return text
+
+
+def rows(view: RunView) -> dict[str, Text]:
+    """The panel's lines for the current state (a pure function, for tests)."""
+    tel = view.telemetry
+    out = {}
+    if tel is None or tel.accel_mg is None:
+        out["accel"] = _label("accel mg") + Text("no samples yet", style="grey50")
+        out["gyro"] = _label("gyro °/s") + Text("")
+    else:
+        out["accel"] = _label("accel mg") + _vector(tel.accel_mg, "+9.1f")
+        out["gyro"] = _label("gyro °/s") + _vector(tel.gyro_deg_s, "+9.3f")
+    target = _label("target")
+    if tel is not None and tel.angle_deg is not None and view.step < view.total_steps:
+        ok = tel.angle_deg <= view.tolerance_deg
+        target.append(f"{tel.angle_deg:5.1f}°", style="bold green" if ok else "bold red")
+        target.append(f" from position {view.position.id}'s up, ")
+        target.append("ok" if ok else f"over {view.tolerance_deg:.0f}°", style="green" if ok else "red")
+    else:
+        target.append("—", style="grey50")
+    out["target"] = target
+    still = _label("still")
+    if tel is None or tel.quiet is None:
+        still.append("— (filling the window)", style="grey50")
+    else:
+        q = tel.quiet
+        state, style = (("still", "green") if q < view.enter_factor else
+                        ("moving", "red") if q > view.leave_factor else ("settling", "yellow"))
+        still.append_text(bar(q / (2 * view.leave_factor), 10, style=style))
+        still.append(f" {q:5.1f}σ ", style=style)
+        still.append(state, style=f"bold {style}")
+    out["still"] = still
+    t = view.t
+    d = view.dwell
+    dwell = _label("dwell") + _progress(d.done(t), d.total, d.anchor is not None, d.complete, "green")
+    if view.restarts:
+        dwell.append(f"  ↺{view.restarts}", style="yellow")
+    out["dwell"] = dwell
+    table = _label("table")
+    if view.table_rate:
+        table.append(f"{view.table_rate:+.1f} °/s ", style="bold")
+    else:
+        table.append("0 °/s ", style="bold")
+    table.append({"stopped": "stopped", "ramping": "ramping, waiting until steady",
+                  "steady": "steady, averaging whole turns", "disturbed": "disturbed: waiting again",
+                  "stopping": "stopping"}.get(view.table_state, view.table_state),
+                 style={"steady": "green", "disturbed": "red", "ramping": "yellow"}.get(view.table_state, ""))
+    out["table"] = table
+    tr = view.turns
+    out["turns"] = _label("turns") + _progress(tr.done(t), tr.total, tr.anchor is not None, tr.complete, "cyan")
+    return out
+
+
+class LivePanel(Vertical):
+    def compose(self) -> ComposeResult:
+        for name in ROWS:
+            yield Static("", id=f"live-{name}", classes="live-row")
+
+    def update(self, view: RunView) -> None:
+        for name, text in rows(view).items():
+            self.query_one(f"#live-{name}", Static).update(text)
