@@ -12,6 +12,12 @@ _K = 0.00193185265241  # Somigliana constant
 _E2 = 0.00669437999013  # first eccentricity squared
 _M = 0.00344978650684  # ω²a²b/GM
 EARTH_RATE = 7.292115e-5  # rad/s
+# Where a station can be: on land, below Everest (the free-air formula is for the surface), and
+# the gravity such a place has. Parameter files are held to the same bounds when read.
+HEIGHT_RANGE_M = (-500.0, 9000.0)
+GRAVITY_RANGE_M_S2 = (9.7, 9.9)
+MEASURED, NORMAL_GRAVITY = "measured", "WGS84 normal gravity"
+GRAVITY_SOURCES = (MEASURED, NORMAL_GRAVITY)
 
 
 def normal_gravity(latitude_deg: float, height_m: float = 0.0) -> float:
@@ -33,10 +39,9 @@ class Station:
     def __post_init__(self) -> None:
         if not -90.0 <= self.latitude_deg <= 90.0:
             raise ValueError(f"latitude_deg: expected -90..90, got {self.latitude_deg}")
-        # The free-air formula is for the surface; a station is on land, below Everest.
-        if not -500.0 <= self.height_m <= 9000.0:
+        if not HEIGHT_RANGE_M[0] <= self.height_m <= HEIGHT_RANGE_M[1]:
             raise ValueError(f"height_m: expected -500..9000 m above the ellipsoid, got {self.height_m}")
-        if self.gravity_m_s2 is not None and not 9.7 < self.gravity_m_s2 < 9.9:
+        if self.gravity_m_s2 is not None and not GRAVITY_RANGE_M_S2[0] < self.gravity_m_s2 < GRAVITY_RANGE_M_S2[1]:
             raise ValueError(f"gravity_m_s2: expected 9.7..9.9 m/s², got {self.gravity_m_s2}")
 
     @property
@@ -47,7 +52,7 @@ class Station:
 
     @property
     def gravity_source(self) -> str:
-        return "measured" if self.gravity_m_s2 is not None else "WGS84 normal gravity"
+        return MEASURED if self.gravity_m_s2 is not None else NORMAL_GRAVITY
 
     @property
     def latitude_rad(self) -> float:

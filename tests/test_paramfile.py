@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import fieldcal
-from fieldcal.earth import Station
+from fieldcal.earth import GRAVITY_SOURCES, Station
 from fieldcal.model import ANGULAR_RATE, PARAM_NAMES, SPECIFIC_FORCE, distort_with, k_from_params
 from fieldcal.paramfile import (SCHEMA, ParameterFile, ParameterFileError, Provenance, TriadParameters,
                                 dump, hash_inputs, load, loads, save)
@@ -158,14 +158,16 @@ def triad_parameters(draw, name: str):
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(names=st.lists(label, min_size=1, max_size=3, unique=True), data=st.data(),
-       lat=st.floats(-90, 90), height=finite, g=st.floats(min_value=1e-3, max_value=1e3),
+       lat=st.floats(-90, 90), height=st.floats(-500.0, 9000.0),
+       g=st.floats(min_value=9.7, max_value=9.9, exclude_min=True, exclude_max=True),
        device=st.one_of(st.none(), label), simulation=st.sampled_from([None, True, False]))
 def test_any_valid_parameter_file_round_trips_bit_for_bit(names, data, lat, height, g, device,
                                                           simulation):
     triads = tuple(data.draw(triad_parameters(n)) for n in names)
     prov = Provenance(procedure=data.draw(label), method="powell", input_sha256=hash_inputs(np.zeros(3)),
                       latitude_deg=lat, height_m=height, gravity_m_s2=g,
-                      gravity_source=data.draw(label), device_name=device, device_serial=device,
+                      gravity_source=data.draw(st.sampled_from(GRAVITY_SOURCES)),
+                      device_name=device, device_serial=device,
                       simulation=simulation)
     pf = ParameterFile(triads=triads, provenance=prov)
     text = dump(pf)
@@ -422,6 +424,13 @@ MUTATIONS = [
     ("latitude out of range", _set("provenance", "station", "latitude_deg", 91.0),
      "provenance.station.latitude_deg"),
     ("zero gravity", _set("provenance", "station", "gravity_m_s2", 0.0), "provenance.station.gravity_m_s2"),
+    ("gravity of a neutron star", _set("provenance", "station", "gravity_m_s2", 1e6),
+     "provenance.station.gravity_m_s2"),
+    ("station deep underground", _set("provenance", "station", "height_m", -1e9), "provenance.station.height_m"),
+    ("unknown gravity source", _set("provenance", "station", "gravity_source", "guessed"),
+     "provenance.station.gravity_source"),
+    ("unknown triad method", _set("triads", "gyroscope", "method", "voodoo"), f"{GYRO}.method"),
+    ("unknown file method", _set("provenance", "method", "powell+voodoo"), "provenance.method"),
     ("bad hash", _set("provenance", "input_sha256", "abc123"), "provenance.input_sha256"),
     ("simulation not a bool", _set("provenance", "simulation", "yes please"), "provenance.simulation"),
     ("serial as a number", _set("provenance", "device", "serial", 123), "provenance.device.serial"),
@@ -439,6 +448,35 @@ def test_a_bad_field_is_named_in_one_line(pf, tmp_path, mutate, field):
     err = _load_error(path)
     assert str(err).startswith(f"{path}: {field}: expected "), str(err)
     assert ", got " in str(err) and err.field == field
+
+
+@pytest.mark.parametrize("where, value, nearest", [
+    (("triads", "accelerometer", "method"), "powel", "powell"),
+    (("triads", "gyroscope", "method"), "clasic", "classic"),
+    (("provenance", "method"), "powell+rotaton", "rotation"),
+    (("provenance", "station", "gravity_source"), "measurd", "measured"),
+])
+def test_an_unknown_name_is_answered_with_the_nearest_valid_one(pf, tmp_path, where, value, nearest):
+    doc = yaml.safe_load(dump(pf))
+    _set(*where, value)(doc)
+    path = tmp_path / "cal.yaml"
+    _write_doc(path, doc)
+    err = str(_load_error(path))
+    assert err.startswith(f"{path}: {'.'.join(where)}: expected ") and "\n" not in err
+    assert f"{nearest!r}" in err.split(", got ")[1], err
+
+
+def test_constructors_hold_the_station_and_methods_to_the_loaders_bounds():
+    ok = dict(procedure="p", method="powell", input_sha256="0" * 64, latitude_deg=0.0, height_m=0.0,
+              gravity_m_s2=9.8, gravity_source="measured")
+    Provenance(**ok)
+    for field, bad in (("gravity_m_s2", 1e6), ("height_m", -1e9), ("method", "voodoo"),
+                       ("gravity_source", "guessed")):
+        with pytest.raises(ValueError, match=f"provenance.{field}"):
+            Provenance(**{**ok, field: bad})
+    with pytest.raises(ValueError, match="x.method.*nearest"):
+        TriadParameters(name="x", kind=SPECIFIC_FORCE, output_unit="m/s^2", bias=np.zeros(3),
+                        K=np.eye(3), sigma=np.zeros(9), residual_rms=0.0, method="voodoo")
 
 
 def test_a_number_string_gets_a_hint(pf, tmp_path):
@@ -566,6 +604,6 @@ def test_build_from_triads_and_a_station(norm_solution, classic_solution, averag
     with pytest.raises(ValueError, match="exactly one"):
         ParameterFile.from_solutions([norm_solution], station=STATION, procedure="p")
     measured = Station(latitude_deg=10.0, gravity_m_s2=9.78)
-    pf = ParameterFile.build(triads, station=measured, procedure="p", method="m", input_sha256=sha)
+    pf = ParameterFile.build(triads, station=measured, procedure="p", method="classic", input_sha256=sha)
     assert pf.provenance.gravity_source == "measured" and pf.provenance.gravity_m_s2 == 9.78
     assert "simulation" not in yaml.safe_load(dump(pf))["provenance"]

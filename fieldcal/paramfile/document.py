@@ -17,6 +17,7 @@ Design points:
 """
 from __future__ import annotations
 
+import difflib
 import hashlib
 import math
 import os
@@ -29,6 +30,7 @@ import numpy as np
 import yaml
 
 from fieldcal import __version__
+from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
 from fieldcal.model import KINDS, PARAM_NAMES, SI_UNIT
 
 SCHEMA = "fieldcal-parameters/1"
@@ -39,6 +41,8 @@ LOWER_TRIANGULAR_METHODS = ("powell", "lsq")
 # The gyro calibrated from the rotations between a recording's poses: full K (the gyro-to-
 # accelerometer misalignment included), residuals in rad (direction misfits).
 ROTATION_METHOD = "rotation"
+# Every method a triad can be calibrated by; a file's provenance names them joined by "+".
+TRIAD_METHODS = (*LOWER_TRIANGULAR_METHODS, "classic", ROTATION_METHOD)
 # Named values must agree with K to this relative tolerance (they are written from K exactly).
 CONSISTENCY_RTOL = 1e-9
 _ANGLE_ATOL = 1e-15  # rad: lets 0.0 and a denormal-sized angle from K agree
@@ -50,6 +54,16 @@ _SHA256 = re.compile(r"[0-9a-f]{64}")
 _HEADER = ("# fieldcal calibration parameters. Per triad: raw = K * true + bias,\n"
            "# calibrated = inverse(K) * (raw - bias). Sigmas are 1-sigma. Do not edit by hand:\n"
            "# the named values are checked against K when the file is loaded.\n")
+
+
+def nearest(value, allowed: Sequence[str]) -> str:
+    """The allowed name closest to ``value``, for "did you mean" in a one-line error."""
+    return difflib.get_close_matches(str(value), list(allowed), n=1, cutoff=0.0)[0]
+
+
+def unknown_methods(method: str) -> list[str]:
+    """The parts of a provenance method ("powell+rotation") that name no known method."""
+    return [m for m in method.split("+") if m not in TRIAD_METHODS]
 
 
 class ParameterFileError(ValueError):
@@ -119,6 +133,9 @@ class TriadParameters:
             value = getattr(self, attr)
             if not isinstance(value, str) or not value:
                 raise ValueError(f"{self.name}.{attr}: expected a non-empty string, got {value!r}")
+        if self.method not in TRIAD_METHODS:
+            raise ValueError(f"{self.name}.method: expected one of {', '.join(TRIAD_METHODS)}, got "
+                             f"{self.method!r} (nearest: {nearest(self.method, TRIAD_METHODS)!r})")
         if not self.residual_unit:
             object.__setattr__(self, "residual_unit", SI_UNIT[self.kind])
         allowed = residual_units(self.kind, self.output_unit, self.method)
@@ -243,8 +260,19 @@ class Provenance:
             object.__setattr__(self, attr, float(value))
         if not -90.0 <= self.latitude_deg <= 90.0:
             raise ValueError(f"provenance.latitude_deg: expected -90..90, got {self.latitude_deg!r}")
-        if not self.gravity_m_s2 > 0:
-            raise ValueError(f"provenance.gravity_m_s2: expected a number > 0, got {self.gravity_m_s2!r}")
+        if not HEIGHT_RANGE_M[0] <= self.height_m <= HEIGHT_RANGE_M[1]:
+            raise ValueError(f"provenance.height_m: expected {HEIGHT_RANGE_M[0]:g}..{HEIGHT_RANGE_M[1]:g} m, "
+                             f"got {self.height_m!r}")
+        if not GRAVITY_RANGE_M_S2[0] < self.gravity_m_s2 < GRAVITY_RANGE_M_S2[1]:
+            raise ValueError(f"provenance.gravity_m_s2: expected {GRAVITY_RANGE_M_S2[0]:g}..."
+                             f"{GRAVITY_RANGE_M_S2[1]:g} m/s^2, got {self.gravity_m_s2!r}")
+        if self.gravity_source not in GRAVITY_SOURCES:
+            raise ValueError(f"provenance.gravity_source: expected one of {', '.join(GRAVITY_SOURCES)}, "
+                             f"got {self.gravity_source!r}")
+        bad = unknown_methods(self.method)
+        if bad:
+            raise ValueError(f"provenance.method: expected {' or '.join(TRIAD_METHODS)} (joined by +), "
+                             f"got {self.method!r} (nearest to {bad[0]!r}: {nearest(bad[0], TRIAD_METHODS)!r})")
 
     @classmethod
     def for_station(cls, station, *, procedure: str, method: str, input_sha256: str,

@@ -7,6 +7,7 @@ from typing import Sequence
 import numpy as np
 
 from fieldcal import __version__
+from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
 from fieldcal.model import KINDS, SI_UNIT
 from fieldcal.paramfile.document import (
     _ANGLE_ATOL,
@@ -18,6 +19,7 @@ from fieldcal.paramfile.document import (
     LOWER_TRIANGULAR_METHODS,
     SCHEMA,
     SOFTWARE,
+    TRIAD_METHODS,
     ParameterFile,
     ParameterFileError,
     residual_units,
@@ -26,8 +28,10 @@ from fieldcal.paramfile.document import (
     _misalignment_of,
     dump,
     hash_inputs,
+    nearest,
     save,
     to_document,
+    unknown_methods,
 )
 from fieldcal.validation import MISSING, FieldReader, describe, parse_yaml, read_yaml_file
 
@@ -60,7 +64,7 @@ def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
             r.fail(f"{kw}[{i}]", "a list of 3 numbers", describe(row))
     K = np.array([[r.value(v, f"{kw}[{i}][{j}]") for j, v in enumerate(row)]
                   for i, row in enumerate(rows)])
-    method = r.string(t, "method", where)
+    method = _enum(r, t, "method", where, TRIAD_METHODS)
     if method in LOWER_TRIANGULAR_METHODS:
         for i, j in ((0, 1), (0, 2), (1, 2)):
             if K[i, j] != 0:
@@ -99,6 +103,25 @@ def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
         raise
 
 
+def _enum(r: FieldReader, m: dict, key: str, where: str, allowed: Sequence[str]) -> str:
+    """A string that must be one of ``allowed``; the error names the nearest one."""
+    value = r.string(m, key, where)
+    if value not in allowed:
+        r.fail(f"{where}.{key}", f"one of {', '.join(allowed)}",
+               f"{describe(value)} (nearest: {nearest(value, allowed)!r})")
+    return value
+
+
+def _bounded(r: FieldReader, m: dict, key: str, where: str, bounds: tuple[float, float], unit: str,
+             open_interval: bool = False) -> float:
+    """A number within ``bounds`` (closed, or open at both ends)."""
+    x = r.number(m, key, where)
+    lo, hi = bounds
+    if not (lo < x < hi if open_interval else lo <= x <= hi):
+        r.fail(f"{where}.{key}", f"a number from {lo:g} to {hi:g} {unit}", describe(m[key]))
+    return x
+
+
 def _close(a: float, b: float, atol: float) -> bool:
     return abs(a - b) <= CONSISTENCY_RTOL * max(abs(a), abs(b)) + atol
 
@@ -125,6 +148,10 @@ def from_document(doc, path: str = "<document>") -> ParameterFile:
     version = r.string(p, "software_version", pw)
     procedure = r.string(p, "procedure", pw)
     method = r.string(p, "method", pw)
+    bad = unknown_methods(method)
+    if bad:
+        r.fail(f"{pw}.method", f"{' or '.join(TRIAD_METHODS)} (joined by +)",
+               f"{describe(method)} (nearest to {bad[0]!r}: {nearest(bad[0], TRIAD_METHODS)!r})")
     sha = p.get("input_sha256", MISSING)
     if not isinstance(sha, str) or not _SHA256.fullmatch(sha):
         r.fail(f"{pw}.input_sha256", "64 lowercase hex digits (SHA-256)", describe(sha))
@@ -137,11 +164,10 @@ def from_document(doc, path: str = "<document>") -> ParameterFile:
     latitude = r.number(s, "latitude_deg", sw)
     if not -90.0 <= latitude <= 90.0:
         r.fail(f"{sw}.latitude_deg", "a latitude in -90..90 degrees", describe(s["latitude_deg"]))
-    height = r.number(s, "height_m", sw)
-    gravity = r.number(s, "gravity_m_s2", sw)
-    if not gravity > 0:
-        r.fail(f"{sw}.gravity_m_s2", "a number > 0", describe(s["gravity_m_s2"]))
-    gravity_source = r.string(s, "gravity_source", sw)
+    height = _bounded(r, s, "height_m", sw, HEIGHT_RANGE_M, "m (a station on land)")
+    gravity = _bounded(r, s, "gravity_m_s2", sw, GRAVITY_RANGE_M_S2, "m/s^2 (Earth's surface)",
+                       open_interval=True)
+    gravity_source = _enum(r, s, "gravity_source", sw, GRAVITY_SOURCES)
     device_name = device_serial = None
     if p.get("device") is not None:
         dw = f"{pw}.device"
