@@ -3,26 +3,67 @@
 Sessions live side by side under one directory (``--out``); a unit is known by the device name
 and serial its parameter files carry. A file that cannot be read is passed over (and counted):
 an old or damaged session must not stop today's results from showing.
+
+The file found is checked against the SHA-256 its session's log recorded when it was written: a
+hand-edited file still loads (its values are consistent), but it is no longer what the
+calibration produced, and the operator is told so.
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
 from fieldcal.paramfile import ParameterFile, ParameterFileError, load
-from fieldcal.session.capture import PARAMETERS
+from fieldcal.session.capture import PARAMETERS, SessionError, SessionReader
+
+VERIFIED = "verified"
+EDITED = "edited after calibration"
+UNRECORDED = "unverified"  # no session log, or the log recorded no checksum for this file
 
 
 @dataclass(frozen=True)
 class PreviousCalibration:
     path: Path
     parameters: ParameterFile
+    check: str = UNRECORDED  # VERIFIED, EDITED or UNRECORDED
+
+    @property
+    def edited(self) -> bool:
+        return self.check == EDITED
+
+    def describe(self) -> str:
+        """One line for the operator: where it is, and whether it is what was calibrated."""
+        text = f"the previous calibration of this unit, {self.path}"
+        if self.check == EDITED:
+            return text + " (EDITED AFTER CALIBRATION: its SHA-256 differs from the one its session recorded)"
+        if self.check == UNRECORDED:
+            return text + " (not verified: its session recorded no checksum for it)"
+        return text
+
+
+def recorded_check(path: Path) -> str:
+    """VERIFIED if ``path`` has the SHA-256 its session's log recorded for it, EDITED if not,
+    UNRECORDED when there is no readable log or it names no such file."""
+    try:
+        reader = SessionReader(path.parent)
+        docs = [d for d in reader.documents("parameters") if d["file"] == path.name]
+    except (SessionError, OSError):
+        return UNRECORDED
+    if not docs:
+        return UNRECORDED
+    try:
+        actual = hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return UNRECORDED
+    return VERIFIED if actual == docs[-1]["sha256"] else EDITED
 
 
 def previous_calibration(sessions: Path, device_name: str | None, device_serial: str | None,
                          exclude: Path | None = None) -> tuple[PreviousCalibration | None, int]:
     """The newest (by modification time) parameter file under ``sessions/*/`` for this device,
-    other than ``exclude``'s; and how many unreadable parameter files were passed over."""
+    other than ``exclude``'s, with its checksum verified; and how many unreadable parameter files
+    were passed over."""
     if device_name is None or not Path(sessions).is_dir():
         return None, 0
     skip = Path(exclude).resolve() if exclude is not None else None
@@ -42,4 +83,4 @@ def previous_calibration(sessions: Path, device_name: str | None, device_serial:
     if not candidates:
         return None, unreadable
     _, path, pf = max(candidates)
-    return PreviousCalibration(Path(path), pf), unreadable
+    return PreviousCalibration(Path(path), pf, recorded_check(Path(path))), unreadable

@@ -78,8 +78,7 @@ class ResultsScreen(Screen):
                 yield Static(residual_bars(sol), classes="residuals")
                 previous = out.previous
                 if previous is not None and name in previous.parameters.names:
-                    yield Static(f"  beside the previous calibration of this unit, {previous.path}:",
-                                 classes="previous-head")
+                    yield Static(f"  beside {previous.describe()}:", classes="previous-head")
                     yield Static(Text(comparison_table(sol, previous.parameters[name])), classes="table")
                 if truth is not None:
                     worst = max(worst, float(np.max(np.abs(sol.theta - truth) / sol.sigma)))
