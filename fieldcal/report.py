@@ -1,67 +1,93 @@
-"""Plain-text tables of solutions, in operator units with the unit beside every number."""
+"""Plain-text tables of calibrations, in operator units with the unit beside every number.
+
+Every table reads a ``fieldcal.calibration.Calibration``, whichever solver made it, and lists
+each of its parameters (bias, scale factor and every misalignment term) ± 1σ. Columns are as
+wide as their widest cell, so long unit strings (count/(°/s)) keep them aligned.
+"""
 from __future__ import annotations
 
 import numpy as np
 
 from fieldcal.model import PARAM_NAMES
-from fieldcal.units import display_scale, param_unit
+from fieldcal.units import BIAS, DIMENSIONLESS, group_of, operator_unit
 
-_ROW_NAMES = ("bias x", "bias y", "bias z", "scale x", "scale y", "scale z",
-              "Δyz", "Δzy", "Δzx")
-
-
-def _fmt(value: float, unit: str, index: int) -> str:
-    if 3 <= index < 6 and unit == "1":
-        return f"{value:.7f}"
-    return f"{value:.5g} {unit}"
+_ANGLE_LABELS = {"delta_yz": "Δyz", "delta_zy": "Δzy", "delta_zx": "Δzx"}
 
 
-def _fmt_sigma(sigma: float, unit: str, index: int) -> str:
-    if 3 <= index < 6 and unit == "1":
-        return f"{sigma * 1e6:.3g} ppm"
-    return f"{sigma:.3g} {unit}"
+def label(parameter: str) -> str:
+    """bias_x -> "bias x", delta_yz -> "Δyz", m_xy -> "m xy"."""
+    return _ANGLE_LABELS.get(parameter, parameter.replace("_", " "))
 
 
-def solution_header(sol) -> str:
+def value_cells(value: float, unit: str) -> list[str]:
+    """[number, unit]: a dimensionless factor (a scale factor near 1) to 7 decimals."""
+    return [f"{value:.7f}", ""] if unit == DIMENSIONLESS else [f"{value:.5g}", unit]
+
+
+def sigma_cells(sigma: float, unit: str) -> list[str]:
+    """[number, unit]: a dimensionless σ (of a scale factor near 1) in ppm."""
+    return [f"{sigma * 1e6:.3g}", "ppm"] if unit == DIMENSIONLESS else [f"{sigma:.3g}", unit]
+
+
+def aligned(rows: list[list[str]], align: str, indent: str = "  ") -> str:
+    """Rows of cells (the first the header) as columns, each as wide as its widest cell;
+    ``align`` has one "l" or "r" per column."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(align))]
+    return "\n".join(indent + " ".join(c.ljust(w) if a == "l" else c.rjust(w)
+                                       for c, w, a in zip(row, widths, align)).rstrip()
+                     for row in rows)
+
+
+def residual_text(cal) -> str:
+    factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
+    return f"residual RMS {cal.residual_rms * factor:.3g} {unit}"
+
+
+def solution_header(cal) -> str:
     """Solver, effort and fit quality; residuals shown in the unit a bias of that kind uses."""
-    rms = sol.residual_rms * display_scale(sol.kind, sol.residual_unit, 0)
-    fit = f"residual RMS {rms:.3g} {param_unit(sol.kind, sol.residual_unit, 0)}"
-    if sol.method == "classic":
-        return f"{sol.name} (classic least squares over {len(sol.residuals)} averages; {fit})"
-    quality = f"χ²/dof {sol.chi2 / sol.dof:.2f}" if sol.dof else "exact fit, no χ²"
-    return (f"{sol.name} ({sol.method}: {sol.iterations} iterations, {sol.evaluations} evaluations; "
-            f"{fit}; {quality})")
+    fit, d = residual_text(cal), cal.diagnostics
+    if d is None:
+        return f"{cal.name} ({cal.method}; {fit})"
+    if d.iterations == 0:  # closed form
+        return f"{cal.name} ({cal.method} least squares over {len(cal.residuals)} averages; {fit})"
+    quality = f"χ²/dof {d.reduced_chi2:.2f}" if d.dof else "exact fit, no χ²"
+    return (f"{cal.name} ({d.search or cal.method}: {d.iterations} iterations, {d.evaluations} "
+            f"evaluations; {fit}; {quality})")
 
 
-def solution_table(sol, truth: np.ndarray | None = None) -> str:
-    """One row per parameter: solved ± 1σ, and, when the truth is known, the error in σ."""
-    head = f"  {'parameter':<9} {'solved':>18} {'±1σ':>12}"
+def solution_table(cal, truth: np.ndarray | None = None) -> str:
+    """One row per parameter: solved ± 1σ, and, when the truth is known (a simulation's nine
+    PARAM_NAMES values), the error in σ."""
+    head = ["parameter", "solved", "", "±1σ", ""] + (["true", "", "error/σ"] if truth is not None else [])
+    rows = [head]
     if truth is not None:
-        head += f" {'true':>18} {'error/σ':>8}"
-    lines = [head]
-    for j, _ in enumerate(PARAM_NAMES):
-        scale = display_scale(sol.kind, sol.output_unit, j)
-        unit = param_unit(sol.kind, sol.output_unit, j)
-        row = (f"  {_ROW_NAMES[j]:<9} {_fmt(sol.theta[j] * scale, unit, j):>18} "
-               f"{_fmt_sigma(sol.sigma[j] * scale, unit, j):>12}")
+        true, errors = cal.theta_of(truth), cal.errors_in_sigma(truth)
+    for j, name in enumerate(cal.parameter_names):
+        factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
+        row = [label(name), *value_cells(cal.theta[j] * factor, unit), *sigma_cells(cal.sigma[j] * factor, unit)]
         if truth is not None:
-            row += (f" {_fmt(truth[j] * scale, unit, j):>18} "
-                    f"{(sol.theta[j] - truth[j]) / sol.sigma[j]:>+8.2f}")
-        lines.append(row)
-    return "\n".join(lines)
+            row += [*value_cells(true[j] * factor, unit), f"{errors[j]:+.2f}"]
+        rows.append(row)
+    return aligned(rows, "lrlrl" + ("rlr" if truth is not None else ""))
 
 
-def comparison_table(sol, previous) -> str:
-    """Each parameter against a previous calibration (``TriadParameters``) of the same triad:
-    the previous value ± 1σ, the change, and the change in units of the combined σ."""
-    lines = [f"  {'parameter':<9} {'previous':>18} {'±1σ':>12} {'change':>14} {'change/σ':>9}"]
-    for j, _ in enumerate(PARAM_NAMES):
-        scale = display_scale(sol.kind, sol.output_unit, j)
-        unit = param_unit(sol.kind, sol.output_unit, j)
-        change = sol.theta[j] - previous.theta[j]
-        combined = float(np.hypot(sol.sigma[j], previous.sigma[j]))
-        in_sigma = f"{change / combined:>+9.2f}" if combined > 0 else f"{'-':>9}"
-        lines.append(f"  {_ROW_NAMES[j]:<9} {_fmt(previous.theta[j] * scale, unit, j):>18} "
-                     f"{_fmt_sigma(previous.sigma[j] * scale, unit, j):>12} "
-                     f"{_fmt_sigma(change * scale, unit, j):>14} {in_sigma}")
-    return "\n".join(lines)
+def comparison_table(cal, previous) -> str:
+    """Each parameter of the file's nine against a previous calibration of the same triad: the
+    previous value ± 1σ, the change, and the change in units of the combined σ."""
+    rows = [["parameter", "previous", "", "±1σ", "", "change", "", "change/σ"]]
+    now, now_sigma = cal.file_theta, cal.file_sigma
+    before, before_sigma = previous.file_theta, previous.file_sigma
+    for j, name in enumerate(PARAM_NAMES):
+        factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
+        change = now[j] - before[j]
+        combined = float(np.hypot(now_sigma[j], before_sigma[j]))
+        rows.append([label(name), *value_cells(before[j] * factor, unit),
+                     *sigma_cells(before_sigma[j] * factor, unit), *sigma_cells(change * factor, unit),
+                     f"{change / combined:+.2f}" if combined > 0 else "-"])
+    return aligned(rows, "lrlrlrlr")
+
+
+def worst_error(calibrations: dict, truths: dict) -> float:
+    """The largest |solved − true| / σ over every parameter of every calibration with a truth."""
+    return max((float(np.nanmax(np.abs(cal.errors_in_sigma(truths[name]))))
+                for name, cal in calibrations.items() if truths.get(name) is not None), default=0.0)

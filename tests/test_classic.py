@@ -46,8 +46,11 @@ def test_classic_recovers_k_and_u0(classic):
     for device, _, _, accel, gyro in classic:
         for sol in (accel, gyro):
             truth = device[sol.name]
-            sigma_k = np.sqrt(np.stack([np.diag(c)[:3] for c in sol.row_covariance]))
-            sigma_b = np.sqrt(sol.row_covariance[:, 3, 3])
+            named = sol.named()
+            # σ of K_ij = k_i·m_ij from the terms' σ (K_ii: the scale factor's own).
+            sigma_k = np.array([[named[f"scale_{a}" if a == b else f"m_{a}{b}"][1] * (1 if a == b else sol.K[i, i])
+                                 for b in "xyz"] for i, a in enumerate("xyz")])
+            sigma_b = sol.sigma[:3]
             # The table is aligned, so the full K is the true lower-triangular one: the upper
             # triangle must come out zero within noise too.
             assert np.all(np.abs(sol.K - truth.K) < 4.5 * sigma_k), (sol.name, (sol.K - truth.K) / sigma_k)
@@ -66,7 +69,8 @@ def test_norm_method_on_field_18_agrees_with_classic(classic):
         field = run_simulated_calibration(seed=40 + k)
         for sol in (accel, gyro):
             norm = field.solutions[sol.name]
-            z.append((norm.theta - sol.theta) / np.hypot(norm.sigma, sol.sigma))
+            # The nine named parameters both give (the classic K's lower-triangle angles).
+            z.append((norm.file_theta - sol.file_theta) / np.hypot(norm.file_sigma, sol.file_sigma))
     z = np.array(z)
     # Independent estimates of the same parameters: differences of order their combined 1σ.
     assert np.sqrt(np.mean(z**2)) < 1.5, z

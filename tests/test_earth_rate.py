@@ -64,4 +64,4 @@ def test_two_way_steps_cancel_earth_rate_in_the_scale_factor(field18):
     with_earth, without = solve_norm(on, cov), solve_norm(off, cov)
     # Same scale factors to a small fraction of their σ; the bias misfit shows in χ² instead.
     assert np.all(np.abs(with_earth.scale_factor - without.scale_factor) < 0.05 * with_earth.sigma[3:6])
-    assert without.chi2 > 10 * with_earth.chi2
+    assert without.diagnostics.chi2 > 10 * with_earth.diagnostics.chi2

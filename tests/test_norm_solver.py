@@ -65,7 +65,8 @@ def test_powell_and_least_squares_agree():
     lsq = solve_norm(problem, np.full((18, 3), 5e-4), method="lsq")
     assert np.all(np.abs(powell.theta - lsq.theta) < 1e-3 * lsq.sigma)
     np.testing.assert_allclose(powell.sigma, lsq.sigma, rtol=1e-3)
-    assert powell.iterations >= 1 and powell.evaluations > powell.iterations
+    fit = powell.diagnostics
+    assert fit.converged and fit.iterations >= 1 and fit.evaluations > fit.iterations
 
 
 def test_solution_reports_residual_per_position_and_unweighted_sigma():
@@ -74,7 +75,7 @@ def test_solution_reports_residual_per_position_and_unweighted_sigma():
     noise = 5e-4
     problem = StaticNormProblem(distort_with(truth, G * placed(UP18, rng)) + rng.normal(0, noise, (18, 3)), G)
     sol = solve_norm(problem)  # no σ given: uncertainty from the residual scatter
-    assert sol.scaled_by_residuals and len(sol.residuals) == 18 and sol.dof == 9
+    assert sol.diagnostics.scaled_by_residuals and len(sol.residuals) == 18 and sol.diagnostics.dof == 9
     assert sol.residual_labels[0] == "static 1"
     # The residual RMS is of the order of the noise along gravity (with 9 of 18 dof used).
     assert 0.3 * noise < sol.residual_rms < 1.5 * noise
@@ -141,7 +142,7 @@ def test_gyro_converges_with_large_errors():
         lsq = solve_norm(problem, np.full((54, 3), 5e-6), method="lsq")
         # Levenberg-Marquardt stops a few thousandths of σ short; Powell's χ² is never higher.
         assert np.all(np.abs(sol.theta - lsq.theta) < 1e-2 * sol.sigma), f"draw {draw}"
-        assert sol.chi2 <= lsq.chi2 + 1e-6, f"draw {draw}"
+        assert sol.diagnostics.chi2 <= lsq.diagnostics.chi2 + 1e-6, f"draw {draw}"
         assert np.all(np.abs(sol.theta - truth) < 5 * sol.sigma), f"draw {draw}"
 
 

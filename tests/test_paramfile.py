@@ -71,7 +71,7 @@ def _bits(x) -> bytes:
 def _assert_bit_identical(a: ParameterFile, b: ParameterFile) -> None:
     assert a == b
     for ta, tb in zip(a.triads, b.triads, strict=True):
-        for attr in ("bias", "K", "sigma"):
+        for attr in ("bias", "K", "file_sigma"):  # what the file holds
             assert getattr(ta, attr).tobytes() == getattr(tb, attr).tobytes(), attr
         assert _bits(ta.residual_rms) == _bits(tb.residual_rms)
     for attr in ("latitude_deg", "height_m", "gravity_m_s2"):
@@ -201,8 +201,11 @@ def test_calibrate_inverts_distort_with_for_any_invertible_K():
         full.calibrate(np.zeros((4, 2)))
 
 
-def test_from_norm_solution_keeps_the_solution(norm_solution, averages):
-    t = TriadParameters.from_solution(norm_solution)
+def test_a_norm_calibration_is_written_and_read_back(pf, norm_solution, averages):
+    """The solver's Calibration is what the file holds: read back, it calibrates as the
+    solution does, and both recover the simulated truth."""
+    t = loads(dump(pf))["accelerometer"]
+    assert t == norm_solution and t.diagnostics is None and norm_solution.diagnostics.converged
     assert (t.name, t.kind, t.output_unit, t.method) == ("accelerometer", SPECIFIC_FORCE, "m/s^2", "powell")
     np.testing.assert_array_equal(t.K, norm_solution.K)
     np.testing.assert_array_equal(t.sigma, norm_solution.sigma)
@@ -215,15 +218,25 @@ def test_from_norm_solution_keeps_the_solution(norm_solution, averages):
     np.testing.assert_allclose(t.theta, THETA_ACC, atol=5e-4)
 
 
-def test_from_classic_solution_keeps_the_full_matrix(classic_solution, averages):
-    t = TriadParameters.from_solution(classic_solution)
+def test_a_classic_calibration_keeps_the_full_matrix(pf, classic_solution, averages):
+    t = loads(dump(pf))["gyroscope"]
+    assert t == classic_solution
     assert t.method == "classic" and t.residual_unit == "deg/s" and t.input_unit == "rad/s"
     np.testing.assert_array_equal(t.K, classic_solution.K)
-    np.testing.assert_array_equal(t.misalignment, classic_solution.misalignment)
-    np.testing.assert_array_equal(t.sigma, classic_solution.sigma)
+    # The file names the lower triangle's angles: the terms m_yx, m_zx, m_zy up to sign.
+    m = classic_solution.named()
+    np.testing.assert_allclose(t.misalignment, [-m["m_yx"][0], m["m_zx"][0], -m["m_zy"][0]], rtol=1e-12)
+    np.testing.assert_array_equal(t.sigma, classic_solution.file_sigma)
+    np.testing.assert_array_equal(t.file_sigma[6:], [m[n][1] for n in ("m_yx", "m_zx", "m_zy")])
     _, rates, gyro = averages
     np.testing.assert_allclose(t.calibrate(gyro), classic_solution.calibrate(gyro), atol=1e-15)
     np.testing.assert_allclose(t.calibrate(gyro), rates, atol=1e-4)
+    # Every term of the full K against the simulated one (upper triangle zero), within 4σ.
+    K_true = k_from_params(THETA_GYRO_DEG)
+    k_true, sigma = np.diag(K_true), classic_solution.sigma
+    assert np.all(np.abs(classic_solution.scale_factor - k_true) < 4 * sigma[3:6])
+    terms = (K_true / k_true[:, None] - np.eye(3))[~np.eye(3, dtype=bool)]
+    assert np.all(np.abs(classic_solution.misalignment - terms) < 4 * sigma[6:])
 
 
 def test_parameters_are_immutable(pf):
@@ -234,7 +247,7 @@ def test_parameters_are_immutable(pf):
 
 
 def test_constructors_reject_invalid_parameters(norm_solution):
-    t = TriadParameters.from_solution(norm_solution)
+    t = norm_solution
     prov = Provenance(procedure="p", method="powell", input_sha256="0" * 64, latitude_deg=0.0,
                       height_m=0.0, gravity_m_s2=9.8, gravity_source="measured")
     with pytest.raises(ValueError, match="unique"):
@@ -592,7 +605,7 @@ def test_a_duplicated_triad_is_rejected_not_merged(pf, tmp_path):
 
 
 def test_build_from_triads_and_a_station(norm_solution, classic_solution, averages):
-    triads = [TriadParameters.from_solution(s) for s in (norm_solution, classic_solution)]
+    triads = [norm_solution, classic_solution]
     sha = hash_inputs(averages[0], averages[2])
     pf = ParameterFile.build(triads, station=STATION, procedure="field-18", method="powell",
                              input_sha256=sha, simulation=True)

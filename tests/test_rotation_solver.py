@@ -16,7 +16,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fieldcal.solvers import CalibrationError
-from fieldcal.solvers.rotation import integrate, k_matrix, solve_gyro_rotations
+from fieldcal.model import k_from_terms
+from fieldcal.solvers.rotation import integrate, solve_gyro_rotations
 
 FS = 100.0
 DEG = math.pi / 180
@@ -178,7 +179,7 @@ def true_gyro(rng, counts):
 def observe(rec, rng, counts, arw, noise=True):
     """Raw gyro output, the measured up directions, the initial-rest bias and the σ of each."""
     k, M, b, nominal = true_gyro(rng, counts)
-    K = k_matrix(k, M)
+    K = k_from_terms(k, M)
     omega = rec.omega + (rng.normal(0, arw * math.sqrt(FS), rec.omega.shape) if noise else 0)
     raw = omega @ K.T + b
     rate_noise = arw
@@ -207,7 +208,8 @@ def test_noise_free_recovery_is_exact(grade, estimate_bias):
     obs = observe(rec, np.random.default_rng(30), GRADES[grade]["counts"], 0.0, noise=False)
     b0 = obs["b"] + (0.01 * obs["nominal"] if estimate_bias else 0)  # a wrong start when free
     sol = solve(rec, obs, sigmas=False, b0=b0, estimate_bias=estimate_bias)
-    assert sol.scaled_by_residuals and sol.bias_estimated == estimate_bias
+    assert sol.diagnostics.scaled_by_residuals and (not sol.diagnostics.held) == estimate_bias
+    assert sol.method == "rotation" and sol.parameter_names[6:] == ("m_xy", "m_xz", "m_yx", "m_yz", "m_zx", "m_zy")
     assert np.max(np.abs(sol.scale_factor / obs["k"] - 1)) < 1e-7
     assert np.max(np.abs(sol.misalignment - obs["M"])) < 1e-7
     assert np.max(np.abs(sol.bias - obs["b"])) / obs["nominal"] < 1e-7
@@ -227,9 +229,11 @@ def test_errors_match_the_reported_sigma_over_seeds(grade):
         for free in (False, True):
             sol = solve(rec, obs, estimate_bias=free)
             # The bias prior (free) adds three equations as it adds three unknowns.
-            assert sol.dof == 2 * len(rec.spans) - 9 and not sol.scaled_by_residuals
-            z = (sol.theta - truth[(0 if free else 3):]) / sol.sigma
-            assert np.all(np.abs(z) < 3), (seed, free, dict(zip(sol.param_names, z.round(2),
+            fit = sol.diagnostics
+            assert fit.dof == 2 * len(rec.spans) - 9 and not fit.scaled_by_residuals
+            # All twelve: a bias held at the rest mean has that mean's σ.
+            z = (sol.theta - truth) / sol.sigma
+            assert np.all(np.abs(z) < 3), (seed, free, dict(zip(sol.parameter_names, z.round(2),
                                                                 strict=True)))
             normalised[free].append(z)
     for free, zs in normalised.items():
@@ -241,7 +245,7 @@ def test_bias_free_solution_is_consistent():
     rec = hand_recording(3)
     obs = observe(rec, np.random.default_rng(7), **GRADES["counts"])
     sol = solve(rec, obs, estimate_bias=True)  # the rest mean b0 ± bias_sigma is a prior
-    assert sol.param_names[:3] == ("bias_x", "bias_y", "bias_z")
+    assert sol.parameter_names[:3] == ("bias_x", "bias_y", "bias_z") and not sol.diagnostics.held
     assert np.array_equal(sol.bias, sol.theta[:3])
     assert np.all(np.abs(sol.bias - obs["b"]) < 3 * sol.sigma[:3])
     # From the rotations alone, started at mid-scale rather than the rest mean: wider, still right.
@@ -301,10 +305,11 @@ def test_extra_residuals_are_applied():
         return (np.diag(np.linalg.inv(K_inv)) - target) / 1e-7
 
     sol = solve(rec, obs, extra_residuals=prior)
-    assert np.all(np.abs(plain.scale_factor - obs["k"]) < 3 * plain.sigma[:3])
+    assert np.all(np.abs(plain.scale_factor - obs["k"]) < 3 * plain.sigma[3:6])
     assert np.all(np.abs(sol.scale_factor - target) < 1e-6)
-    assert np.all(sol.sigma[:3] < 1e-6) and len(sol.extra_residuals) == 3
-    assert sol.dof == plain.dof + 3 and sol.chi2 > plain.chi2 + 100
+    fit, plain_fit = sol.diagnostics, plain.diagnostics
+    assert np.all(sol.sigma[3:6] < 1e-6) and len(fit.extra_residuals) == 3
+    assert fit.dof == plain_fit.dof + 3 and fit.chi2 > plain_fit.chi2 + 100
     assert np.array_equal(calls[-1], obs["b0"])  # the fixed bias is what the callable sees
 
 
@@ -312,9 +317,9 @@ def test_powell_agrees_with_least_squares():
     rec = hand_recording(3)
     obs = observe(rec, np.random.default_rng(9), **GRADES["counts"])
     lsq, powell = solve(rec, obs), solve(rec, obs, method="powell")
-    assert powell.method == "powell"
-    assert np.all(np.abs(powell.theta - lsq.theta) < 0.02 * lsq.sigma)
-    assert powell.chi2 == pytest.approx(lsq.chi2, rel=1e-6)
+    assert powell.diagnostics.search == "powell" and lsq.diagnostics.search == "lsq"
+    assert np.all(np.abs(powell.theta - lsq.theta) <= 0.02 * lsq.sigma)
+    assert powell.diagnostics.chi2 == pytest.approx(lsq.diagnostics.chi2, rel=1e-6)
 
 
 def test_bad_inputs_say_what_is_wrong():

@@ -72,10 +72,10 @@ def cmd_demo(args) -> int:
         return 1
     print(f"largest error: {worst:.2f}σ")
     if args.params:
-        from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs, save
+        from fieldcal.paramfile import ParameterFile, hash_inputs, save
         from fieldcal.solvers.solve import resolve_method
         pf = ParameterFile.build(
-            triads=tuple(TriadParameters.from_solution(s) for s in cal.solutions.values()),
+            triads=tuple(cal.solutions.values()),
             procedure=cal.procedure.name, method=resolve_method(cal.procedure, args.method),
             station=station,
             input_sha256=hash_inputs(*(p.data for p in cal.problems.values())), simulation=True)

@@ -5,20 +5,17 @@ import datetime
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from fieldcal.report import solution_header, solution_table
+from fieldcal.report import solution_header, solution_table, worst_error
 
 
 def _print_result(result, out) -> int:
     if result.aborted:
         print(f"session kept in {result.session}", file=out)
         return 1
-    worst = 0.0
     for name, sol in result.unit.solutions.items():
         print(f"\n{solution_header(sol)}", file=out)
         print(solution_table(sol, result.truth.get(name)), file=out)
-        worst = max(worst, float(np.max(np.abs(sol.theta - result.truth[name]) / sol.sigma)))
+    worst = worst_error(result.unit.solutions, result.truth)
     for name, why in result.unit.failures.items():
         print(f"\n{name}: not calibrated: {why}", file=out)
     if result.unit.solutions:

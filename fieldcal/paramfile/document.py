@@ -31,22 +31,21 @@ import yaml
 
 from fieldcal import __version__
 from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
-from fieldcal.model import KINDS, PARAM_NAMES, SI_UNIT
+from fieldcal.calibration import (
+    _MAX_CONDITION,
+    LOWER_TRIANGULAR_METHODS,
+    ROTATION_METHOD,
+    TRIAD_METHODS,
+    Calibration,
+    nearest,
+    residual_units,
+)
 
 SCHEMA = "fieldcal-parameters/1"
 SOFTWARE = "fieldcal"
-# Norm-method solvers (fieldcal.solvers.norm.METHODS) give a lower-triangular K; a file claiming
-# one of these methods with a non-zero upper triangle has been edited by hand.
-LOWER_TRIANGULAR_METHODS = ("powell", "lsq")
-# The gyro calibrated from the rotations between a recording's poses: full K (the gyro-to-
-# accelerometer misalignment included), residuals in rad (direction misfits).
-ROTATION_METHOD = "rotation"
-# Every method a triad can be calibrated by; a file's provenance names them joined by "+".
-TRIAD_METHODS = (*LOWER_TRIANGULAR_METHODS, "classic", ROTATION_METHOD)
 # Named values must agree with K to this relative tolerance (they are written from K exactly).
 CONSISTENCY_RTOL = 1e-9
 _ANGLE_ATOL = 1e-15  # rad: lets 0.0 and a denormal-sized angle from K agree
-_MAX_CONDITION = 1e12  # K with a larger condition number is treated as singular
 
 _AXES = ("x", "y", "z")
 _ANGLES = ("delta_yz", "delta_zy", "delta_zx")
@@ -54,11 +53,6 @@ _SHA256 = re.compile(r"[0-9a-f]{64}")
 _HEADER = ("# fieldcal calibration parameters. Per triad: raw = K * true + bias,\n"
            "# calibrated = inverse(K) * (raw - bias). Sigmas are 1-sigma. Do not edit by hand:\n"
            "# the named values are checked against K when the file is loaded.\n")
-
-
-def nearest(value, allowed: Sequence[str]) -> str:
-    """The allowed name closest to ``value``, for "did you mean" in a one-line error."""
-    return difflib.get_close_matches(str(value), list(allowed), n=1, cutoff=0.0)[0]
 
 
 def unknown_methods(method: str) -> list[str]:
@@ -79,147 +73,8 @@ class ParameterFileError(ValueError):
 # In-memory model
 
 
-def _readonly(values, shape: tuple[int, ...], what: str) -> np.ndarray:
-    arr = np.array(values, dtype=np.float64)  # always a copy
-    if arr.shape != shape:
-        raise ValueError(f"{what}: expected shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what}: expected finite numbers, got {arr.tolist()}")
-    arr.setflags(write=False)
-    return arr
-
-
-def residual_units(kind: str, output_unit: str, method: str) -> tuple[str, ...]:
-    """The units a triad's residual RMS may be in."""
-    units = (SI_UNIT[kind], output_unit) + (("rad",) if method == ROTATION_METHOD else ())
-    return tuple(dict.fromkeys(units))
-
-
-def _bits(x: float) -> bytes:
-    return np.float64(x).tobytes()
-
-
-def _misalignment_of(K: np.ndarray) -> np.ndarray:
-    return np.array([-K[1, 0] / K[1, 1], K[2, 0] / K[2, 2], -K[2, 1] / K[2, 2]])
-
-
-@dataclass(frozen=True, eq=False)
-class TriadParameters:
-    """One triad's calibration: raw = K·true + bias, so calibrated = K⁻¹(raw − bias).
-
-    ``K`` is lower-triangular for the norm method and full for the classic method (where it also
-    holds the triad's rotation relative to the table). ``sigma`` is the 1σ of the nine named
-    parameters in ``fieldcal.model.PARAM_NAMES`` order (bias, scale factor, misalignment).
-    ``residual_rms`` is in ``residual_unit``: the SI unit of the reference for the norm method,
-    the output unit for the classic method (whose residuals are in output units).
-    """
-
-    name: str
-    kind: str
-    output_unit: str
-    bias: np.ndarray  # (3,), output units
-    K: np.ndarray  # (3, 3), output units per SI unit
-    sigma: np.ndarray  # (9,), PARAM_NAMES order
-    residual_rms: float
-    method: str
-    residual_unit: str = ""  # default: SI unit of the kind
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name or not self.name.isprintable():
-            raise ValueError(f"name: expected a non-empty printable string, got {self.name!r}")
-        if self.kind not in KINDS:
-            raise ValueError(f"{self.name}.kind: expected one of {', '.join(KINDS)}, got {self.kind!r}")
-        for attr in ("output_unit", "method"):
-            value = getattr(self, attr)
-            if not isinstance(value, str) or not value:
-                raise ValueError(f"{self.name}.{attr}: expected a non-empty string, got {value!r}")
-        if self.method not in TRIAD_METHODS:
-            raise ValueError(f"{self.name}.method: expected one of {', '.join(TRIAD_METHODS)}, got "
-                             f"{self.method!r} (nearest: {nearest(self.method, TRIAD_METHODS)!r})")
-        if not self.residual_unit:
-            object.__setattr__(self, "residual_unit", SI_UNIT[self.kind])
-        allowed = residual_units(self.kind, self.output_unit, self.method)
-        if self.residual_unit not in allowed:
-            raise ValueError(f"{self.name}.residual_unit: expected {' or '.join(map(repr, allowed))}, "
-                             f"got {self.residual_unit!r}")
-        object.__setattr__(self, "bias", _readonly(self.bias, (3,), f"{self.name}.bias"))
-        K = _readonly(self.K, (3, 3), f"{self.name}.K")
-        if np.any(np.diag(K) == 0) or not np.linalg.cond(K) < _MAX_CONDITION:
-            raise ValueError(f"{self.name}.K: expected an invertible matrix with a non-zero "
-                             f"diagonal, got {K.tolist()}")
-        if self.method in LOWER_TRIANGULAR_METHODS and np.any(np.triu(K, 1) != 0):
-            raise ValueError(f"{self.name}.K: the {self.method} method gives a lower-triangular K, "
-                             f"got {K.tolist()}")
-        object.__setattr__(self, "K", K)
-        sigma = _readonly(self.sigma, (len(PARAM_NAMES),), f"{self.name}.sigma")
-        if np.any(sigma < 0):
-            raise ValueError(f"{self.name}.sigma: expected values >= 0, got {sigma.tolist()}")
-        object.__setattr__(self, "sigma", sigma)
-        rms = float(self.residual_rms)
-        if not (math.isfinite(rms) and rms >= 0):
-            raise ValueError(f"{self.name}.residual_rms: expected a finite number >= 0, got {rms!r}")
-        object.__setattr__(self, "residual_rms", rms)
-
-    @classmethod
-    def from_solution(cls, sol) -> TriadParameters:
-        """From a norm ``TriadSolution`` or a ``ClassicSolution`` (anything with name, kind,
-        output_unit, method, K, bias, sigma, residual_rms and optionally residual_unit)."""
-        return cls(name=sol.name, kind=sol.kind, output_unit=sol.output_unit,
-                   bias=np.asarray(sol.bias, dtype=float), K=np.asarray(sol.K, dtype=float),
-                   sigma=np.asarray(sol.sigma, dtype=float), residual_rms=float(sol.residual_rms),
-                   method=sol.method, residual_unit=getattr(sol, "residual_unit", ""))
-
-    @property
-    def input_unit(self) -> str:
-        return SI_UNIT[self.kind]
-
-    @property
-    def scale_factor(self) -> np.ndarray:
-        return np.diag(self.K).copy()
-
-    @property
-    def misalignment(self) -> np.ndarray:
-        """Δyz, Δzy, Δzx (rad) from the lower triangle of K."""
-        return _misalignment_of(self.K)
-
-    @property
-    def theta(self) -> np.ndarray:
-        """The nine named parameters in PARAM_NAMES order."""
-        return np.r_[self.bias, self.scale_factor, self.misalignment]
-
-    @property
-    def bias_sigma(self) -> np.ndarray:
-        return self.sigma[0:3].copy()
-
-    @property
-    def scale_factor_sigma(self) -> np.ndarray:
-        return self.sigma[3:6].copy()
-
-    @property
-    def misalignment_sigma(self) -> np.ndarray:
-        return self.sigma[6:9].copy()
-
-    def named(self) -> dict[str, tuple[float, float]]:
-        return {n: (float(v), float(s)) for n, v, s in zip(PARAM_NAMES, self.theta, self.sigma)}
-
-    def calibrate(self, raw) -> np.ndarray:
-        """K⁻¹(raw − bias) for a (3,) or (n, 3) array of raw outputs; SI units out."""
-        v = np.asarray(raw, dtype=float) - self.bias
-        if v.shape[-1:] != (3,) or v.ndim > 2:
-            raise ValueError(f"{self.name}: expected a (3,) or (n, 3) array, got shape {np.shape(raw)}")
-        return np.linalg.solve(self.K, v.T).T
-
-    def _key(self) -> tuple:
-        return (self.name, self.kind, self.output_unit, self.method, self.residual_unit,
-                self.bias.tobytes(), self.K.tobytes(), self.sigma.tobytes(), _bits(self.residual_rms))
-
-    def __eq__(self, other: object) -> bool:
-        if not isinstance(other, TriadParameters):
-            return NotImplemented
-        return self._key() == other._key()
-
-    def __hash__(self) -> int:
-        return hash(self._key())
+# A triad's parameters are a Calibration (fieldcal.calibration); the name is the file's.
+TriadParameters = Calibration
 
 
 @dataclass(frozen=True)
@@ -292,8 +147,8 @@ class ParameterFile:
 
     def __post_init__(self) -> None:
         triads = tuple(self.triads)
-        if not triads or not all(isinstance(t, TriadParameters) for t in triads):
-            raise ValueError("triads: expected one or more TriadParameters")
+        if not triads or not all(isinstance(t, Calibration) for t in triads):
+            raise ValueError("triads: expected one or more Calibrations")
         names = [t.name for t in triads]
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
@@ -335,7 +190,7 @@ class ParameterFile:
         Give the averages that went in as ``inputs`` (hashed with ``hash_inputs``) or their hash
         as ``input_sha256``. ``method`` defaults to the solutions' method ("a+b" when they differ).
         """
-        triads = tuple(TriadParameters.from_solution(s) for s in solutions)
+        triads = tuple(solutions)
         if (inputs is None) == (input_sha256 is None):
             raise ValueError("give exactly one of inputs (the averages) or input_sha256")
         if input_sha256 is None:
@@ -385,16 +240,17 @@ def _xyz(values) -> dict:
     return {k: _f(v) for k, v in zip(_AXES, values)}
 
 
-def _triad_document(t: TriadParameters) -> dict:
+def _triad_document(t: Calibration) -> dict:
+    named, sigma = t.file_theta, t.file_sigma
     return {
         "kind": t.kind,
         "output_unit": t.output_unit,
         "input_unit": t.input_unit,
-        "bias": {**_xyz(t.bias), "unit": t.output_unit, "sigma": _xyz(t.bias_sigma)},
+        "bias": {**_xyz(t.bias), "unit": t.output_unit, "sigma": _xyz(sigma[0:3])},
         "scale_factor": {**_xyz(t.scale_factor), "unit": f"{t.output_unit} per {t.input_unit}",
-                         "sigma": _xyz(t.scale_factor_sigma)},
-        "misalignment": {**{k: _f(v) for k, v in zip(_ANGLES, t.misalignment)}, "unit": "rad",
-                         "sigma": {k: _f(v) for k, v in zip(_ANGLES, t.misalignment_sigma)}},
+                         "sigma": _xyz(sigma[3:6])},
+        "misalignment": {**{k: _f(v) for k, v in zip(_ANGLES, named[6:9])}, "unit": "rad",
+                         "sigma": {k: _f(v) for k, v in zip(_ANGLES, sigma[6:9])}},
         "K": [_FlowRow(_f(v) for v in row) for row in t.K],
         "residual_rms": {"value": _f(t.residual_rms), "unit": t.residual_unit},
         "method": t.method,

@@ -8,7 +8,7 @@ import numpy as np
 
 from fieldcal import __version__
 from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
-from fieldcal.model import KINDS, SI_UNIT
+from fieldcal.model import KINDS, SI_UNIT, params_from_k
 from fieldcal.paramfile.document import (
     _ANGLE_ATOL,
     _ANGLES,
@@ -25,7 +25,6 @@ from fieldcal.paramfile.document import (
     residual_units,
     Provenance,
     TriadParameters,
-    _misalignment_of,
     dump,
     hash_inputs,
     nearest,
@@ -82,7 +81,7 @@ def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
         if not _close(scale[i], K[i, i], 0.0):
             r.fail(f"{where}.scale_factor.{axis}", f"K[{i}][{i}] = {float(K[i, i])!r} (edited by hand?)",
                    repr(float(scale[i])))
-    from_k = _misalignment_of(K)
+    from_k = params_from_k(K, np.zeros(3), full=True)[6:]
     cells = ("K[1][0] / K[1][1]", "K[2][0] / K[2][2]", "K[2][1] / K[2][2]")
     for i, angle in enumerate(_ANGLES):
         if not _close(angles[i], from_k[i], _ANGLE_ATOL):

@@ -27,10 +27,10 @@ from fieldcal.recording import Recording
 from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport,
                                        check_spread, interval_means, noise_level, pose_candidates)
 from fieldcal.solvers import CalibrationError, solve_norm
-from fieldcal.solvers.norm import TriadSolution
+from fieldcal.calibration import Calibration
 from fieldcal.solvers.problems import StaticNormProblem
 from fieldcal.recording.turns import rate_residuals, split_poses, turning
-from fieldcal.solvers.rotation import RotationSolution, scale_misfits, solve_gyro_rotations
+from fieldcal.solvers.rotation import scale_misfits, solve_gyro_rotations
 
 # Output units per rad/s of rate units a text file may use; anything else (counts) is scanned.
 RATE_UNITS = {"rad/s": 1.0, "mrad/s": 1e3, "deg/s": 180 / math.pi, "°/s": 180 / math.pi,
@@ -58,8 +58,8 @@ class RecordingCalibration:
     poses: Poses
     spread: SpreadReport
     tried: tuple[tuple[float, int, str], ...]  # (multiple, distinct poses, χ²/dof or why not)
-    specific_force: dict[str, TriadSolution]
-    angular_rate: dict[str, RotationSolution]
+    specific_force: dict[str, Calibration]
+    angular_rate: dict[str, Calibration]
     failures: dict[str, str]
     reference_triad: str
     gyro_bias_sigma: dict[str, np.ndarray]  # 1σ of each gyro's bias (output units)
@@ -71,7 +71,7 @@ def _names(recording: Recording, kind: str) -> list[str]:
     return [n for n, k in recording.kinds.items() if k == kind]
 
 
-def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) -> TriadSolution:
+def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) -> Calibration:
     problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
                                 labels=tuple(f"pose {i + 1}" for i in range(len(means))))
     solution = solve_norm(problem, _means_covariance(intervals, t, variance, None, None, unit),
@@ -79,9 +79,11 @@ def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) 
     noise = settings.noise.get(name)
     if noise is None:
         # White noise alone under-states the σ when the bias wanders (χ²/dof > 1 says so).
-        ratio = solution.chi2 / solution.dof if solution.dof else 1.0
-        if ratio > 1.0 and not solution.scaled_by_residuals:
-            solution = replace(solution, covariance=solution.covariance * ratio, scaled_by_residuals=True)
+        fit = solution.diagnostics
+        ratio = fit.reduced_chi2 or 1.0
+        if ratio > 1.0 and not fit.scaled_by_residuals:
+            solution = replace(solution, covariance=solution.covariance * ratio, sigma=None,
+                               diagnostics=replace(fit, scaled_by_residuals=True))
         return solution
     # Bias instability correlates the pose means; its covariance needs the scale, known now.
     return solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
@@ -101,7 +103,7 @@ def _means_covariance(intervals, t, variance, noise, K, unit) -> np.ndarray:
     return cov
 
 
-def _up_vectors(acc: TriadSolution, means: np.ndarray, means_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _up_vectors(acc: Calibration, means: np.ndarray, means_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Every pose's unit up vector (m, 3) and their covariance (3m, 3m): each mean's own noise
     and the accelerometer calibration's error, which all poses share."""
     a = calibrate_with(acc.theta, means)
@@ -152,10 +154,10 @@ def calibrate_recording(recording: Recording, station: Station,
             except CalibrationError as exc:
                 solved[key] = str(exc)
         sol = solved[key]
-        fit = sol if isinstance(sol, str) else f"χ²/dof {sol.chi2 / max(sol.dof, 1):.3g}"
+        fit = sol if isinstance(sol, str) else f"χ²/dof {sol.diagnostics.chi2 / max(sol.diagnostics.dof, 1):.3g}"
         tried.append((poses.multiple, spread.count, fit))
-        if not isinstance(sol, str) and (best is None or sol.chi2 / max(sol.dof, 1) < best[2]):
-            best = (poses, spread, sol.chi2 / max(sol.dof, 1), sol, turns)
+        if not isinstance(sol, str) and (best is None or sol.diagnostics.chi2 / max(sol.diagnostics.dof, 1) < best[2]):
+            best = (poses, spread, sol.diagnostics.chi2 / max(sol.diagnostics.dof, 1), sol, turns)
     if best is None:
         most = max(tried, key=lambda x: x[1])
         raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
@@ -187,9 +189,9 @@ def calibrate_recording(recording: Recording, station: Station,
                                 reference, bias_sigma, turns, used)
 
 
-def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolution, acc_var: np.ndarray,
+def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration, acc_var: np.ndarray,
                 station: Station, settings: RecordingSettings,
-                turns: np.ndarray) -> tuple[RotationSolution, np.ndarray]:
+                turns: np.ndarray) -> tuple[Calibration, np.ndarray]:
     """The solution and its bias's 1σ."""
     t, gyro, unit = recording.t, recording.triads[name], recording.units[name]
     iv = poses.intervals
@@ -220,4 +222,4 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
         bias_sigma=bias_sigma, up_covariance=up_cov, rate_noise=arw, extra_residuals=extra,
         motion_variance=(horizontal * duration) ** 2 / 2, method=settings.gyro_method, name=name,
         output_unit=unit)
-    return solution, (solution.sigma[:3] if solution.bias_estimated else bias_sigma)
+    return solution, solution.sigma[:3]  # bias_sigma when the bias was held

@@ -10,69 +10,25 @@ import math
 
 import numpy as np
 
+from fieldcal.calibration import ROTATION_METHOD
 from fieldcal.earth import Station
-from fieldcal.model import ANGULAR_RATE
-from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs
-from fieldcal.paramfile.document import ROTATION_METHOD
+from fieldcal.paramfile import ParameterFile, hash_inputs
 from fieldcal.recording import Recording
 from fieldcal.recording.calibrate import RecordingCalibration
 from fieldcal.report import solution_header, solution_table
-from fieldcal.units import display_scale, param_unit
 
 PROCEDURE = "recording"
-_LOWER = ("m_yx", "m_zx", "m_zy")
-_SIGNS = np.array([-1.0, 1.0, -1.0])  # Δyz, Δzy, Δzx from m_yx, m_zx, m_zy
-
-
-def gyro_parameters(cal: RecordingCalibration, name: str) -> TriadParameters:
-    sol = cal.angular_rate[name]
-    sigma = dict(zip(sol.param_names, sol.sigma, strict=True))
-    return TriadParameters(
-        name=name, kind=ANGULAR_RATE, output_unit=sol.output_unit, bias=sol.bias, K=sol.K,
-        sigma=np.r_[cal.gyro_bias_sigma[name], [sigma[f"scale_{a}"] for a in "xyz"],
-                    [sigma[m] for m in _LOWER]],
-        residual_rms=float(np.sqrt(np.mean(sol.residuals**2))), method=ROTATION_METHOD,
-        residual_unit="rad")
 
 
 def parameter_file(cal: RecordingCalibration, recording: Recording, station: Station,
                    device_name: str | None = None, simulation: bool | None = None) -> ParameterFile:
-    triads = [TriadParameters.from_solution(s) for s in cal.specific_force.values()]
-    triads += [gyro_parameters(cal, n) for n in cal.angular_rate]
+    triads = [*cal.specific_force.values(), *cal.angular_rate.values()]
     methods = "+".join(dict.fromkeys([s.method for s in cal.specific_force.values()]
                                      + [ROTATION_METHOD] * bool(cal.angular_rate)))
     data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]
     return ParameterFile.build(triads, station=station, procedure=PROCEDURE, method=methods,
                                input_sha256=hash_inputs(*data), device_name=device_name,
                                simulation=simulation)
-
-
-def _value(x: float, unit: str, decimals: str = ".5g") -> str:
-    return f"{x:{decimals}} {unit}" if unit != "1" else f"{x:.7f}"
-
-
-def gyro_table(cal: RecordingCalibration, name: str, truth: np.ndarray | None = None) -> str:
-    """Bias, scale factors and the six misalignment terms ± 1σ (and the truth when known:
-    [bias (3), k (3), m_xy, m_xz, m_yx, m_yz, m_zx, m_zy])."""
-    sol = cal.angular_rate[name]
-    values = np.r_[sol.bias, sol.scale_factor, sol.misalignment]
-    sigmas = np.r_[cal.gyro_bias_sigma[name], sol.sigma[-9:]]
-    labels = ["bias x", "bias y", "bias z", "scale x", "scale y", "scale z",
-              *[n.replace("m_", "m ") for n in sol.param_names[-6:]]]
-    head = f"  {'parameter':<9} {'solved':>18} {'±1σ':>12}"
-    if truth is not None:
-        head += f" {'true':>18} {'error/σ':>8}"
-    lines = [head]
-    for j, label in enumerate(labels):
-        index = min(j, 6)  # the six terms share the angle's display
-        scale = display_scale(ANGULAR_RATE, sol.output_unit, index)
-        unit = param_unit(ANGULAR_RATE, sol.output_unit, index)
-        sig = f"{sigmas[j] * 1e6:.3g} ppm" if unit == "1" else f"{sigmas[j] * scale:.3g} {unit}"
-        row = f"  {label:<9} {_value(values[j] * scale, unit):>18} {sig:>12}"
-        if truth is not None:
-            row += f" {_value(truth[j] * scale, unit):>18} {(values[j] - truth[j]) / sigmas[j]:>+8.2f}"
-        lines.append(row)
-    return "\n".join(lines)
 
 
 def _tried(tried) -> str:
@@ -101,12 +57,13 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
     for name, sol in cal.specific_force.items():
         lines += ["", solution_header(sol), solution_table(sol, truths.get(name))]
     for name, sol in cal.angular_rate.items():
-        rms = math.degrees(float(np.sqrt(np.mean(sol.residuals**2)))) * 60
-        quality = f"χ²/dof {sol.chi2 / sol.dof:.2f}" if sol.dof else "exact fit"
-        bias = "estimated" if sol.bias_estimated else "initial rest, less the vertical Earth rate"
-        lines += ["", f"{name} (rotations between {len(cal.poses.intervals)} poses, {sol.method}: "
-                  f"{sol.evaluations} evaluations; direction residual RMS {rms:.3g} arcmin; {quality}; "
-                  f"bias: {bias})", gyro_table(cal, name, truths.get(name))]
+        fit = sol.diagnostics
+        rms = math.degrees(sol.residual_rms) * 60
+        quality = f"χ²/dof {fit.reduced_chi2:.2f}" if fit.dof else "exact fit"
+        bias = "initial rest, less the vertical Earth rate" if fit.held else "estimated"
+        lines += ["", f"{name} (rotations between {len(cal.poses.intervals)} poses, {fit.search}: "
+                  f"{fit.evaluations} evaluations; direction residual RMS {rms:.3g} arcmin; {quality}; "
+                  f"bias: {bias})", solution_table(sol, truths.get(name))]
     for name, why in cal.failures.items():
         lines += ["", f"{name}: not calibrated: {why}"]
     return lines

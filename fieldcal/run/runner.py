@@ -23,7 +23,7 @@ from fieldcal.earth import Station
 from fieldcal.procedure.engine import Engine, EngineSettings
 from fieldcal.run.livedevice import ANGULAR_RATE_TRIAD, SPECIFIC_FORCE_TRIAD, LiveDevice
 from fieldcal.model import params_from_k
-from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs
+from fieldcal.paramfile import ParameterFile, hash_inputs
 from fieldcal.procedure.positions import Procedure, parse_procedure
 from fieldcal.session.capture import SessionReader, SessionWriter
 from fieldcal.run.simrun import placed_attitude
@@ -225,7 +225,7 @@ def _solve(spec: RunSpec, engine: Engine) -> tuple[UnitSolution, ParameterFile |
     if not unit.solutions:
         return unit, None
     pf = ParameterFile.build(
-        triads=tuple(TriadParameters.from_solution(s) for s in unit.solutions.values()),
+        triads=tuple(unit.solutions.values()),
         procedure=spec.procedure.name, method=resolve_method(spec.procedure, spec.method),
         station=spec.station,
         input_sha256=hash_inputs(*unit.inputs.values()), device_name=spec.device_name,

@@ -28,7 +28,7 @@ class SimulatedCalibration:
     station: Station
     plan: Plan
     device: dict[str, TriadTruth]
-    solutions: dict[str, object]  # TriadSolution, or ClassicSolution for an aligned procedure
+    solutions: dict[str, object]  # triad -> Calibration
     truth: dict[str, np.ndarray]  # true parameters, PARAM_NAMES order
     problems: dict[str, object]
     covariances: dict[str, np.ndarray]  # of each problem's data

@@ -1,7 +1,6 @@
-"""Pure solvers: per-position averages in, calibration with uncertainty out."""
-from fieldcal.solvers.classic import ClassicSolution, solve_classic
-from fieldcal.solvers.norm import CalibrationError, TriadSolution, solve_norm
+"""Pure solvers: per-position averages in, a ``fieldcal.calibration.Calibration`` out."""
+from fieldcal.solvers.classic import solve_classic
+from fieldcal.solvers.norm import CalibrationError, solve_norm
 from fieldcal.solvers.problems import RateNormProblem, StaticNormProblem
 
-__all__ = ["CalibrationError", "ClassicSolution", "RateNormProblem", "StaticNormProblem",
-           "TriadSolution", "solve_classic", "solve_norm"]
+__all__ = ["CalibrationError", "RateNormProblem", "StaticNormProblem", "solve_classic", "solve_norm"]

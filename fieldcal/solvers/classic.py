@@ -6,66 +6,37 @@ holds the rotation of the triad relative to the table, which the norm method can
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from fieldcal.model import PARAM_NAMES, SI_UNIT
+from fieldcal.calibration import CLASSIC_METHOD, Calibration, SolverDiagnostics
+from fieldcal.model import FULL_PARAM_NAMES, SI_UNIT
 from fieldcal.solvers.norm import CalibrationError
 
 
-@dataclass(frozen=True)
-class ClassicSolution:
-    name: str
-    kind: str
-    output_unit: str
-    K: np.ndarray  # 3x3, output units per SI unit
-    bias: np.ndarray  # U0, output units
-    row_covariance: np.ndarray  # (3, 4, 4): covariance of [K_i0, K_i1, K_i2, U0_i] for row i
-    residuals: np.ndarray  # (n, 3) output units
-    method: str = "classic"
+def _parameter_covariance(K: np.ndarray, row_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance and 1σ of FULL_PARAM_NAMES (bias, k, m_ij = K_ij / K_ii) from each row's
+    covariance of [K_i0, K_i1, K_i2, U0_i].
 
-    @property
-    def scale_factor(self) -> np.ndarray:
-        return np.diag(self.K).copy()
-
-    @property
-    def misalignment(self) -> np.ndarray:
-        """Δyz, Δzy, Δzx from the lower triangle, as for the norm method's K."""
-        K = self.K
-        return np.array([-K[1, 0] / K[1, 1], K[2, 0] / K[2, 2], -K[2, 1] / K[2, 2]])
-
-    @property
-    def theta(self) -> np.ndarray:
-        return np.r_[self.bias, self.scale_factor, self.misalignment]
-
-    @property
-    def sigma(self) -> np.ndarray:
-        var = self.row_covariance
-        diag_k = np.sqrt([var[i, i, i] for i in range(3)])
-        bias = np.sqrt(var[:, 3, 3])
-        K = self.K
-        mis = np.array([np.sqrt(var[1, 0, 0]) / K[1, 1], np.sqrt(var[2, 0, 0]) / K[2, 2],
-                        np.sqrt(var[2, 1, 1]) / K[2, 2]])
-        return np.r_[bias, diag_k, mis]
-
-    @property
-    def residual_unit(self) -> str:
-        return self.output_unit
-
-    @property
-    def residual_rms(self) -> float:
-        return float(np.sqrt(np.mean(self.residuals**2)))
-
-    def calibrate(self, raw: np.ndarray) -> np.ndarray:
-        return np.linalg.solve(self.K, (np.asarray(raw, dtype=float) - self.bias).T).T
-
-    def named(self) -> dict[str, tuple[float, float]]:
-        return {n: (float(v), float(s)) for n, v, s in zip(PARAM_NAMES, self.theta, self.sigma)}
+    To first order, each term m_ij from K_ij alone (its K_ii part is of relative size m, below
+    the σ's third digit). σ is computed as parameter files since version 1 hold it, so a
+    re-solved session writes the same bytes."""
+    k = np.diag(K)
+    rows, cols = np.nonzero(~np.eye(3, dtype=bool))  # m_xy, m_xz, m_yx, m_yz, m_zx, m_zy
+    # Parameters as linear functions of the 12 coefficients (row i: entries 4i..4i+3).
+    J = np.zeros((12, 12))
+    J[np.arange(3), 4 * np.arange(3) + 3] = 1.0  # bias
+    J[3 + np.arange(3), 5 * np.arange(3)] = 1.0  # scale factor K_ii
+    J[6 + np.arange(6), 4 * rows + cols] = 1.0 / k[rows]
+    blocks = np.zeros((12, 12))
+    for i in range(3):  # rows are independent: noise is independent between output axes
+        blocks[4 * i:4 * i + 4, 4 * i:4 * i + 4] = row_cov[i]
+    sigma = np.r_[np.sqrt(row_cov[:, 3, 3]), np.sqrt(row_cov[np.arange(3), np.arange(3), np.arange(3)]),
+                  np.sqrt(row_cov[rows, cols, cols]) / k[rows]]
+    return J @ blocks @ J.T, sigma
 
 
 def solve_classic(means: np.ndarray, inputs: np.ndarray, name: str, kind: str,
-                  output_unit: str | None = None, covariance=None) -> ClassicSolution:
+                  output_unit: str | None = None, covariance=None) -> Calibration:
     """Least squares K̄ = U·Āᵀ(Ā·Āᵀ)⁻¹ (eq. 7) from outputs U and known SI inputs A, both (n, 3).
 
     Without ``covariance`` (of the flattened means, position-major) the uncertainty comes from the
@@ -91,6 +62,12 @@ def solve_classic(means: np.ndarray, inputs: np.ndarray, name: str, kind: str,
             raise ValueError(f"{name}: covariance must be ({U.size}, {U.size}), got {cov.shape}")
         P = normal_inv @ design.T  # coefficients = P @ outputs, per output axis
         row_cov = np.stack([P @ cov[i::3, i::3] @ P.T for i in range(3)])
-    return ClassicSolution(name=name, kind=kind, output_unit=output_unit or SI_UNIT[kind],
-                           K=coef[:3].T.copy(), bias=coef[3].copy(), row_covariance=row_cov,
-                           residuals=residuals)
+    K = coef[:3].T.copy()
+    cov, sigma = _parameter_covariance(K, row_cov)
+    output_unit = output_unit or SI_UNIT[kind]
+    return Calibration(name=name, kind=kind, output_unit=output_unit, method=CLASSIC_METHOD, K=K,
+                       bias=coef[3].copy(), covariance=cov, sigma=sigma, residuals=residuals,
+                       parameter_names=FULL_PARAM_NAMES,
+                       residual_unit=output_unit,
+                       diagnostics=SolverDiagnostics(message="closed form (linear least squares)",
+                                                     dof=U.size - 12))

@@ -8,12 +8,12 @@ conjugate and raw-count devices (b ≈ 32768, k ≈ 415 count per m/s²) need no
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize, stats
 
-from fieldcal.model import N_PARAMS, PARAM_NAMES, SI_UNIT, calibrate_with, k_from_params
+from fieldcal.calibration import Calibration, SolverDiagnostics
+from fieldcal.model import N_PARAMS, PARAM_NAMES
 from fieldcal.solvers.ellipsoid import DegenerateError
 
 METHODS = ("powell", "lsq")
@@ -25,58 +25,6 @@ _GEOMETRY_RATIO = 1e-4
 
 class CalibrationError(ValueError):
     """The averages cannot give a calibration; the message says why and what would help."""
-
-
-@dataclass(frozen=True)
-class TriadSolution:
-    name: str
-    kind: str
-    output_unit: str
-    method: str
-    theta: np.ndarray  # PARAM_NAMES order
-    covariance: np.ndarray  # 9x9
-    residuals: np.ndarray  # SI units of the reference, per residual_labels
-    residual_labels: tuple[str, ...]
-    chi2: float
-    dof: int
-    scaled_by_residuals: bool  # covariance scaled by the residual variance (no or too small input σ)
-    iterations: int
-    evaluations: int
-    condition_number: float
-
-    @property
-    def bias(self) -> np.ndarray:
-        return self.theta[:3].copy()
-
-    @property
-    def scale_factor(self) -> np.ndarray:
-        return self.theta[3:6].copy()
-
-    @property
-    def misalignment(self) -> np.ndarray:
-        return self.theta[6:9].copy()
-
-    @property
-    def K(self) -> np.ndarray:
-        return k_from_params(self.theta)
-
-    @property
-    def sigma(self) -> np.ndarray:
-        return np.sqrt(np.diag(self.covariance))
-
-    @property
-    def residual_unit(self) -> str:
-        return SI_UNIT[self.kind]
-
-    @property
-    def residual_rms(self) -> float:
-        return float(np.sqrt(np.mean(self.residuals**2)))
-
-    def calibrate(self, raw: np.ndarray) -> np.ndarray:
-        return calibrate_with(self.theta, np.asarray(raw, dtype=float))
-
-    def named(self) -> dict[str, tuple[float, float]]:
-        return {n: (float(v), float(s)) for n, v, s in zip(PARAM_NAMES, self.theta, self.sigma)}
 
 
 def _jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -122,7 +70,7 @@ def _residual_whitener(problem, theta0, covariance):
                                "definite") from None
 
 
-def solve_norm(problem, covariance=None, method: str = "powell") -> TriadSolution:
+def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
     """Solve one triad's norm equations.
 
     ``covariance`` is that of ``problem.data`` (the averages, flattened), or an (n, 3) array of
@@ -198,12 +146,14 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> TriadSolutio
             f"{problem.name}: positions are degenerate: {PARAM_NAMES[worst]} is determined only to "
             f"±{sigma_natural[worst]:.2g} of its scale (condition number {sv[0] / sv[-1]:.3g}); "
             f"{_spread_hint(problem)}")
-    return TriadSolution(
+    return Calibration(
         name=problem.name, kind=problem.kind, output_unit=problem.output_unit, method=method,
         theta=theta, covariance=cov_natural * np.outer(natural, natural),
         residuals=problem.residuals(theta, u), residual_labels=problem.residual_labels,
-        chi2=chi2, dof=dof, scaled_by_residuals=scaled, iterations=iterations,
-        evaluations=evaluations, condition_number=float(sv[0] / sv[-1]))
+        diagnostics=SolverDiagnostics(
+            iterations=iterations, evaluations=evaluations, converged=bool(res.success),
+            message=str(res.message), search=method, chi2=chi2, dof=dof, scaled_by_residuals=scaled,
+            condition_number=float(sv[0] / sv[-1])))
 
 
 def _spread_hint(problem) -> str:

@@ -15,10 +15,12 @@ gyro-to-accelerometer rotation is estimated too. Calibrated rate = K⁻¹(raw �
   cross product the two-sample coning correction, exact to O(h⁵) for a smooth rate. Global
   error O(h⁴). The steps of all spans are padded into one (m, L) array and composed by a
   pairwise (tree) reduction: log2(L) vectorised quaternion products, no loop over samples.
-- ``solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, ...) -> RotationSolution``.
+- ``solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, ...) -> Calibration``.
   Residuals, 2 per motion in rad: Cᵀ·up_start − up_end in a tangent basis (a, b) at up_end.
-  theta is [bias (3, only when estimated)], scale_x..z, m_xy, m_xz, m_yx, m_yz, m_zx, m_zy;
-  ``covariance`` is theta's, same order. The noise model whitens the residuals: up_sigma (rad, a
+  Its theta is bias_x..z, scale_x..z, m_xy, m_xz, m_yx, m_yz, m_zx, m_zy (FULL_PARAM_NAMES),
+  ``covariance`` theta's; a bias held at b0 (``diagnostics.held``) has bias_sigma as its σ,
+  uncorrelated with the rest. The search and its covariance run over the estimated
+  parameters only. The noise model whitens the residuals: up_sigma (rad, a
   scalar, (m,) or (m, 2) for [start, end]: each pose direction's 1σ per tangent component),
   rate_noise (angle random walk, rad/√s: adds rate_noise²·duration), and bias_sigma (output
   units, scalar or (3,)): with the bias fixed at b0 its error is common to every motion and is
@@ -36,19 +38,17 @@ latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 from scipy import optimize, stats
 from scipy.spatial.transform import Rotation
 
+from fieldcal.calibration import ROTATION_METHOD, Calibration, SolverDiagnostics
+from fieldcal.model import ANGULAR_RATE, FULL_PARAM_NAMES, k_from_terms, terms_from_k
 from fieldcal.solvers.norm import CalibrationError
 
-BIAS_NAMES = ("bias_x", "bias_y", "bias_z")
-SCALE_NAMES = ("scale_x", "scale_y", "scale_z")
-MISALIGNMENT_NAMES = ("m_xy", "m_xz", "m_yx", "m_yz", "m_zx", "m_zy")
-_OFF = (np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1]))
+BIAS_NAMES = FULL_PARAM_NAMES[:3]
 METHODS = ("lsq", "powell")
 _MOTION_MARGIN = 2  # motions beyond ceil(n_params / 2): some scatter to judge the fit by
 _GEOMETRY_RATIO = 1e-3  # smallest / largest singular value of the Jacobian in natural units
@@ -162,57 +162,6 @@ def scale_misfits(t, raw, spans, up_start, up_end, b0, scales) -> np.ndarray:
     return out
 
 
-def k_matrix(scale, misalignment) -> np.ndarray:
-    """K = diag(k)·(I + M), M holding m_xy, m_xz, m_yx, m_yz, m_zx, m_zy off the diagonal."""
-    M = np.zeros((3, 3))
-    M[_OFF] = misalignment
-    return np.asarray(scale, dtype=float)[:, None] * (np.eye(3) + M)
-
-
-@dataclass(frozen=True)
-class RotationSolution:
-    name: str
-    output_unit: str
-    method: str
-    theta: np.ndarray  # param_names order: [bias (if estimated)], scale (3), misalignment (6)
-    covariance: np.ndarray  # of theta
-    param_names: tuple[str, ...]
-    bias: np.ndarray  # (3,) estimated, or b0 when fixed
-    bias_estimated: bool
-    residuals: np.ndarray  # rad, 2 per motion, per residual_labels
-    residual_labels: tuple[str, ...]
-    extra_residuals: np.ndarray  # whitened: the bias prior, then extra_residuals(...)
-    chi2: float
-    dof: int
-    scaled_by_residuals: bool
-    iterations: int  # Powell's iterations; for lsq MINPACK's function count (as in norm.py)
-    evaluations: int  # residual evaluations by the search
-    condition_number: float
-
-    @property
-    def scale_factor(self) -> np.ndarray:
-        return self.theta[-9:-6].copy()
-
-    @property
-    def misalignment(self) -> np.ndarray:
-        return self.theta[-6:].copy()
-
-    @property
-    def K(self) -> np.ndarray:
-        return k_matrix(self.scale_factor, self.misalignment)
-
-    @property
-    def sigma(self) -> np.ndarray:
-        return np.sqrt(np.diag(self.covariance))
-
-    def calibrate(self, raw) -> np.ndarray:
-        return (np.asarray(raw, dtype=float) - self.bias) @ np.linalg.inv(self.K).T
-
-    def named(self) -> dict[str, tuple[float, float]]:
-        return {n: (float(v), float(s))
-                for n, v, s in zip(self.param_names, self.theta, self.sigma, strict=True)}
-
-
 def _tangent_bases(up):
     """(m, 3, 2): two orthonormal columns perpendicular to each unit vector."""
     helper = np.eye(3)[np.argmin(np.abs(up), axis=1)]
@@ -265,7 +214,7 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
                          bias_sigma=None, up_sigma=None, rate_noise=None, motion_variance=None,
                          up_covariance=None,
                          extra_residuals: Callable | None = None, method="lsq", name="gyro",
-                         output_unit="") -> RotationSolution:
+                         output_unit="") -> Calibration:
     """Solve K (and b) from the motions between static poses; see the module docstring.
 
     t (n,), raw (n, 3) gyro output; spans (m, 2) inclusive sample indices of each motion (last
@@ -308,14 +257,13 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
     sigma_b = np.broadcast_to(np.asarray(bias_sigma if bias_sigma is not None else 1.0, float), 3)
 
     nb = 3 if estimate_bias else 0
-    names = (BIAS_NAMES if estimate_bias else ()) + SCALE_NAMES + MISALIGNMENT_NAMES
-    M0 = K0 / k0[:, None] - np.eye(3)
-    theta0 = np.r_[b0[:nb], k0, M0[_OFF]]
+    names = FULL_PARAM_NAMES if estimate_bias else FULL_PARAM_NAMES[3:]
+    theta0 = np.r_[b0[:nb], np.concatenate(terms_from_k(K0))]
     p = len(theta0)
 
     def unpack(theta):
         bias = theta[:3] if estimate_bias else b0
-        return bias, np.linalg.inv(k_matrix(theta[nb:nb + 3], theta[nb + 3:]))
+        return bias, np.linalg.inv(k_from_terms(theta[nb:nb + 3], theta[nb + 3:]))
 
     def rotation_residuals(theta, bias=None):
         b, K_inv = unpack(theta)
@@ -423,11 +371,16 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
     bias = unpack(theta)[0].copy()
     pose = np.cumsum(np.r_[0, ~shared]) + np.arange(m)  # poses numbered from 0, shared or not
     labels = tuple(f"motion {a + 1}→{a + 2} {c}" for a in pose for c in "ab")
-    return RotationSolution(
-        name=name, output_unit=output_unit, method=method, theta=theta,
-        covariance=cov_natural * np.outer(natural, natural), param_names=names, bias=bias,
-        bias_estimated=bool(estimate_bias), residuals=rotation_residuals(theta),
-        residual_labels=labels, extra_residuals=side_residuals(theta), chi2=chi2, dof=dof,
-        scaled_by_residuals=bool(scaled), iterations=iterations, evaluations=evaluations,
-        condition_number=float(sv[0] / sv[-1]))
-
+    covariance = np.zeros((len(FULL_PARAM_NAMES),) * 2)
+    covariance[3 - nb:, 3 - nb:] = cov_natural * np.outer(natural, natural)
+    if not estimate_bias:  # held at b0: its σ is the prior's, uncorrelated with the estimates
+        covariance[:3, :3] = np.diag(sigma_b**2) if bias_sigma is not None else 0.0
+    return Calibration(
+        name=name, kind=ANGULAR_RATE, output_unit=output_unit or "rad/s", method=ROTATION_METHOD,
+        theta=np.r_[bias, theta[nb:]], covariance=covariance, parameter_names=FULL_PARAM_NAMES,
+        residuals=rotation_residuals(theta), residual_unit="rad", residual_labels=labels,
+        diagnostics=SolverDiagnostics(
+            iterations=iterations, evaluations=evaluations, converged=bool(res.success),
+            message=str(res.message), search=method, chi2=chi2, dof=dof,
+            scaled_by_residuals=bool(scaled), condition_number=float(sv[0] / sv[-1]), held=() if estimate_bias else BIAS_NAMES,
+            extra_residuals=side_residuals(theta)))

@@ -31,7 +31,7 @@ class TriadModel:
 
 @dataclass(frozen=True)
 class UnitSolution:
-    solutions: dict  # triad -> TriadSolution (or ClassicSolution for an aligned procedure)
+    solutions: dict  # triad -> Calibration (norm method, or classic for an aligned procedure)
     failures: dict[str, str]  # triad -> why it could not be calibrated
     problems: dict  # triad -> norm problem (field procedures)
     covariances: dict[str, np.ndarray]  # triad -> covariance of the data it was solved from

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-import numpy as np
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
@@ -12,7 +11,7 @@ from textual.containers import VerticalScroll
 from textual.screen import Screen
 from textual.widgets import Footer, Static
 
-from fieldcal.report import comparison_table, solution_header, solution_table
+from fieldcal.report import comparison_table, solution_header, solution_table, worst_error
 from fieldcal.tui.widgets.residuals import residual_bars
 from fieldcal.tui.source import Outcome
 
@@ -69,7 +68,6 @@ class ResultsScreen(Screen):
         with VerticalScroll(id="results"):
             if out.message:
                 yield Static(out.message, classes="message")
-            worst = 0.0
             unit = out.unit
             for name, sol in (unit.solutions.items() if unit is not None else ()):
                 truth = out.truth.get(name)
@@ -80,11 +78,10 @@ class ResultsScreen(Screen):
                 if previous is not None and name in previous.parameters.names:
                     yield Static(f"  beside {previous.describe()}:", classes="previous-head")
                     yield Static(Text(comparison_table(sol, previous.parameters[name])), classes="table")
-                if truth is not None:
-                    worst = max(worst, float(np.max(np.abs(sol.theta - truth) / sol.sigma)))
             for name, why in (unit.failures.items() if unit is not None else ()):
                 yield Static(Text(f"{name}: not calibrated: {why}"), classes="failure")
             if unit is not None and unit.solutions and out.truth:
+                worst = worst_error(unit.solutions, out.truth)
                 yield Static(f"largest error against the simulation truth: {worst:.2f}σ", classes="worst")
             yield Static(where(out), id="where")
         yield Footer()

@@ -1,0 +1,236 @@
+"""One triad's calibration, whatever solved it (or read it from a file), and how the solver got there.
+
+Every solver returns a ``Calibration`` (norm method by Powell or least squares, classic least
+squares, the gyro from rotations); the parameter file writes it and reads it back; the report,
+the results screen and ``fieldcal solve`` show it. The model is raw = K·true + bias, so
+calibrated = K⁻¹(raw − bias) (``fieldcal.model``).
+
+The parameters are ``parameter_names``: the nine of ``PARAM_NAMES`` (bias, scale factor, the
+named angles of K's lower triangle) or, for a full K estimated term by term (the gyro from
+rotations), the twelve of ``FULL_PARAM_NAMES``. Their values ``theta`` and K are converted into
+each other by ``fieldcal.model`` only; a solver gives whichever it estimated.
+
+``diagnostics`` stands beside the calibration, not in it: a calibration read from a file has
+none, and iteration counts differ between processors and BLAS builds, so they belong in no
+golden output. Two calibrations are equal when the parameter files they write are equal.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from fieldcal.model import (ANGLE_TERMS, KINDS, PARAM_NAMES, SI_UNIT, k_from, k_from_params, params_from,
+                            params_from_k)
+
+# Norm-method solvers give a lower-triangular K; a file claiming one of these methods with a
+# non-zero upper triangle has been edited by hand.
+LOWER_TRIANGULAR_METHODS = ("powell", "lsq")
+CLASSIC_METHOD = "classic"
+# The gyro calibrated from the rotations between a recording's poses: full K (the gyro-to-
+# accelerometer misalignment included), residuals in rad (direction misfits).
+ROTATION_METHOD = "rotation"
+TRIAD_METHODS = (*LOWER_TRIANGULAR_METHODS, CLASSIC_METHOD, ROTATION_METHOD)
+_MAX_CONDITION = 1e12  # K with a larger condition number is treated as singular
+
+
+def nearest(value, allowed: Sequence[str]) -> str:
+    """The allowed name closest to ``value``, for "nearest: ..." in a one-line error."""
+    return difflib.get_close_matches(str(value), list(allowed), n=1, cutoff=0.0)[0]
+
+
+def residual_units(kind: str, output_unit: str, method: str) -> tuple[str, ...]:
+    """The units a triad's residuals may be in."""
+    units = (SI_UNIT[kind], output_unit) + (("rad",) if method == ROTATION_METHOD else ())
+    return tuple(dict.fromkeys(units))
+
+
+@dataclass(frozen=True)
+class SolverDiagnostics:
+    """How a solver reached a calibration: effort, convergence and fit quality."""
+
+    iterations: int = 0  # Powell's iterations; for least squares MINPACK's function count
+    evaluations: int = 0  # residual evaluations
+    converged: bool = True
+    message: str = ""
+    search: str = ""  # the optimiser: "powell" or "lsq" (Levenberg-Marquardt)
+    chi2: float | None = None  # of the whitened residuals
+    dof: int = 0
+    scaled_by_residuals: bool = False  # covariance scaled by the residual variance (Birge)
+    condition_number: float | None = None  # of the Jacobian in natural units
+    held: tuple[str, ...] = ()  # parameters held at their start (their σ a prior), not estimated
+    extra_residuals: np.ndarray | None = None  # whitened equations beyond the triad's own
+
+    @property
+    def reduced_chi2(self) -> float | None:
+        return self.chi2 / self.dof if self.chi2 is not None and self.dof else None
+
+
+def _readonly(values, shape: tuple[int, ...], what: str) -> np.ndarray:
+    arr = np.array(values, dtype=np.float64)  # always a copy
+    if arr.shape != shape:
+        raise ValueError(f"{what}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what}: expected finite numbers, got {arr.tolist()}")
+    arr.setflags(write=False)
+    return arr
+
+
+def _bits(x: float) -> bytes:
+    return np.float64(x).tobytes()
+
+
+@dataclass(frozen=True, eq=False)
+class Calibration:
+    """One triad's calibration. Give K or theta (the other follows), and the covariance of theta
+    or its σ (a parameter file keeps only σ); the residuals or their RMS."""
+
+    name: str
+    kind: str
+    output_unit: str
+    method: str
+    bias: np.ndarray | None = None  # (3,) output units; default theta[:3]
+    K: np.ndarray | None = None  # (3, 3) output units per SI unit
+    theta: np.ndarray | None = None  # parameter_names order
+    covariance: np.ndarray | None = None  # of theta
+    sigma: np.ndarray | None = None  # 1σ of theta; default from the covariance
+    residual_rms: float | None = None  # default: RMS of residuals
+    residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))  # residual_unit
+    residual_unit: str = ""  # default: SI unit of the kind
+    residual_labels: tuple[str, ...] | None = None  # one per residual; None: (n, 3) per average
+    parameter_names: tuple[str, ...] = PARAM_NAMES
+    diagnostics: SolverDiagnostics | None = None  # None when read from a file
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__  # frozen: fill the derived fields once, here
+        if not isinstance(self.name, str) or not self.name or not self.name.isprintable():
+            raise ValueError(f"name: expected a non-empty printable string, got {self.name!r}")
+        if self.kind not in KINDS:
+            raise ValueError(f"{self.name}.kind: expected one of {', '.join(KINDS)}, got {self.kind!r}")
+        for attr in ("output_unit", "method"):
+            value = getattr(self, attr)
+            if not isinstance(value, str) or not value:
+                raise ValueError(f"{self.name}.{attr}: expected a non-empty string, got {value!r}")
+        if self.method not in TRIAD_METHODS:
+            raise ValueError(f"{self.name}.method: expected one of {', '.join(TRIAD_METHODS)}, got "
+                             f"{self.method!r} (nearest: {nearest(self.method, TRIAD_METHODS)!r})")
+        if not self.residual_unit:
+            set_(self, "residual_unit", SI_UNIT[self.kind])
+        allowed = residual_units(self.kind, self.output_unit, self.method)
+        if self.residual_unit not in allowed:
+            raise ValueError(f"{self.name}.residual_unit: expected {' or '.join(map(repr, allowed))}, "
+                             f"got {self.residual_unit!r}")
+        names = tuple(self.parameter_names)
+        set_(self, "parameter_names", names)
+        p = len(names)
+        if self.theta is None and (self.K is None or self.bias is None):
+            raise ValueError(f"{self.name}: give K and the bias, or theta")
+        if self.theta is not None:
+            theta = _readonly(self.theta, (p,), f"{self.name}.theta")
+            set_(self, "theta", theta)
+            if self.bias is None:
+                set_(self, "bias", theta[:3])
+            if self.K is None:
+                set_(self, "K", k_from(theta, names))
+        set_(self, "bias", _readonly(self.bias, (3,), f"{self.name}.bias"))
+        K = _readonly(self.K, (3, 3), f"{self.name}.K")
+        if np.any(np.diag(K) == 0) or not np.linalg.cond(K) < _MAX_CONDITION:
+            raise ValueError(f"{self.name}.K: expected an invertible matrix with a non-zero "
+                             f"diagonal, got {K.tolist()}")
+        if self.method in LOWER_TRIANGULAR_METHODS and np.any(np.triu(K, 1) != 0):
+            raise ValueError(f"{self.name}.K: the {self.method} method gives a lower-triangular K, "
+                             f"got {K.tolist()}")
+        set_(self, "K", K)
+        if self.theta is None:
+            set_(self, "theta", _readonly(params_from(K, self.bias, names), (p,), f"{self.name}.theta"))
+        if self.covariance is not None:
+            cov = np.array(self.covariance, dtype=float)
+            if cov.shape != (p, p):
+                raise ValueError(f"{self.name}.covariance: expected shape {(p, p)}, got {cov.shape}")
+            cov.setflags(write=False)
+            set_(self, "covariance", cov)
+            if self.sigma is None:
+                set_(self, "sigma", np.sqrt(np.diag(cov)))
+        if self.sigma is None:
+            raise ValueError(f"{self.name}: give the covariance or sigma")
+        sigma = _readonly(self.sigma, (p,), f"{self.name}.sigma")
+        if np.any(sigma < 0):
+            raise ValueError(f"{self.name}.sigma: expected values >= 0, got {sigma.tolist()}")
+        set_(self, "sigma", sigma)
+        residuals = np.array(self.residuals, dtype=float)
+        residuals.setflags(write=False)
+        set_(self, "residuals", residuals)
+        rms = float(np.sqrt(np.mean(residuals**2))) if self.residual_rms is None and residuals.size \
+            else self.residual_rms
+        if rms is None or not (math.isfinite(float(rms)) and float(rms) >= 0):
+            raise ValueError(f"{self.name}.residual_rms: expected a finite number >= 0, got {rms!r}")
+        set_(self, "residual_rms", float(rms))
+
+    # The model ---------------------------------------------------------------------------
+
+    @property
+    def input_unit(self) -> str:
+        return SI_UNIT[self.kind]
+
+    @property
+    def scale_factor(self) -> np.ndarray:
+        return np.diag(self.K).copy()
+
+    @property
+    def misalignment(self) -> np.ndarray:
+        """The angles (PARAM_NAMES) or the six terms of M (FULL_PARAM_NAMES), rad."""
+        return self.theta[6:].copy()
+
+    def named(self) -> dict[str, tuple[float, float]]:
+        """Each parameter's (value, 1σ) by name."""
+        return {n: (float(v), float(s))
+                for n, v, s in zip(self.parameter_names, self.theta, self.sigma, strict=True)}
+
+    def theta_of(self, truth) -> np.ndarray:
+        """A simulation's truth in this calibration's parameters: given in them already, or as
+        the nine PARAM_NAMES values of a lower-triangular K."""
+        truth = np.asarray(truth, dtype=float)
+        if len(truth) == len(self.parameter_names):
+            return truth
+        return params_from(k_from_params(truth), truth[:3], self.parameter_names)
+
+    def errors_in_sigma(self, truth) -> np.ndarray:
+        """(solved − true) / σ per parameter; NaN where σ is 0 (a parameter held exactly)."""
+        sigma = np.where(self.sigma > 0, self.sigma, np.nan)
+        return (self.theta - self.theta_of(truth)) / sigma
+
+    def calibrate(self, raw) -> np.ndarray:
+        """K⁻¹(raw − bias) for a (3,) or (n, 3) array of raw outputs; SI units out."""
+        v = np.asarray(raw, dtype=float) - self.bias
+        if v.shape[-1:] != (3,) or v.ndim > 2:
+            raise ValueError(f"{self.name}: expected a (3,) or (n, 3) array, got shape {np.shape(raw)}")
+        return np.linalg.solve(self.K, v.T).T
+
+    # What the parameter file holds -------------------------------------------------------
+
+    @property
+    def file_theta(self) -> np.ndarray:
+        """The nine PARAM_NAMES values a parameter file writes, all from K (its authority)."""
+        return params_from_k(self.K, self.bias, full=True)
+
+    @property
+    def file_sigma(self) -> np.ndarray:
+        """Their 1σ: a named angle's is that of its term of M when the terms were estimated."""
+        index = {n: i for i, n in enumerate(self.parameter_names)}
+        return np.array([self.sigma[index[n] if n in index else index[ANGLE_TERMS[n]]]
+                         for n in PARAM_NAMES])
+
+    def _key(self) -> tuple:
+        return (self.name, self.kind, self.output_unit, self.method, self.residual_unit,
+                self.bias.tobytes(), self.K.tobytes(), self.file_sigma.tobytes(), _bits(self.residual_rms))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Calibration):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
