@@ -91,3 +91,26 @@ def worst_error(calibrations: dict, truths: dict) -> float:
     """The largest |solved − true| / σ over every parameter of every calibration with a truth."""
     return max((float(np.nanmax(np.abs(cal.errors_in_sigma(truths[name]))))
                 for name, cal in calibrations.items() if truths.get(name) is not None), default=0.0)
+
+
+def methods_table(calibrations: dict) -> str:
+    """One triad solved by several methods (method -> Calibration, or None where it failed),
+    every parameter of any of them ± 1σ side by side; "—" where a method has no such parameter."""
+    order: list[str] = []
+    for cal in calibrations.values():
+        order += [n for n in (cal.parameter_names if cal is not None else ()) if n not in order]
+    head = ["parameter"]
+    for method in calibrations:
+        head += [method, "", "±1σ", ""]
+    rows = [head]
+    for name in order:
+        row = [label(name)]
+        for cal in calibrations.values():
+            if cal is None or name not in cal.parameter_names:
+                row += ["—", "", "", ""]
+                continue
+            j = cal.parameter_names.index(name)
+            factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
+            row += [*value_cells(cal.theta[j] * factor, unit), *sigma_cells(cal.sigma[j] * factor, unit)]
+        rows.append(row)
+    return aligned(rows, "l" + "rlrl" * len(calibrations))

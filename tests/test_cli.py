@@ -121,3 +121,94 @@ def test_procedure_numbers_are_bounded(capsys, tmp_path, field, value, message):
     path.write_text(text)
     assert main(["demo", "--procedure", str(path)]) == 2
     assert capsys.readouterr().err.strip() == f"fieldcal: bounded.yaml.{message}"
+
+
+# ------------------------------------------------------------------------------------------------
+# fieldcal solve: every parameter ± 1σ from the log's averages, samples.bin or not
+
+
+@pytest.fixture(scope="module")
+def short_field18_session(tmp_path_factory):
+    """A headless field-18 run with 20 s dwells (everything solves in seconds of simulation)."""
+    from fieldcal.earth import Station
+    from fieldcal.procedure.positions import load_procedure, parse_procedure
+    from fieldcal.run.runner import RunSpec, run_headless
+
+    procedure = parse_procedure(load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 20"),
+                                "field-18-short.yaml")
+    spec = RunSpec(procedure, Station(40.0, 50.0), seed=5)
+    return spec, run_headless(spec, tmp_path_factory.mktemp("solve") / "session")
+
+
+# The operator's units, written out by hand (not through fieldcal.units): SI truth -> display.
+_MG_PER_M_S2 = 1e3 / 9.80665
+_DEG_H_PER_RAD_S = 180 / np.pi * 3600
+_ROW_UNITS = {"specific_force": ("mg", _MG_PER_M_S2), "angular_rate": ("°/h", _DEG_H_PER_RAD_S)}
+_LABELS = ("bias x", "bias y", "bias z", "scale x", "scale y", "scale z", "Δyz", "Δzy", "Δzx")
+
+
+def _solve_tables(out: str) -> dict[str, dict[str, list[tuple[float, str]]]]:
+    """triad -> row label -> [(number, unit)] as printed (value, σ per method)."""
+    tables, triad = {}, None
+    for line in out.splitlines():
+        head = re.match(r"^(\w+) \((powell|lsq|classic)", line)
+        if head:
+            triad = head.group(1)
+            tables.setdefault(triad, {})
+            continue
+        row = re.match(r"^  (bias [xyz]|scale [xyz]|Δ\w\w|m \w\w) (.*)$", line)
+        if row and triad:
+            tokens = row.group(2).split()
+            cells = []
+            for i, t in enumerate(tokens):
+                try:
+                    value = float(t)
+                except ValueError:
+                    continue
+                unit = tokens[i + 1] if i + 1 < len(tokens) and not re.match(r"^[-+\d.]", tokens[i + 1]) else ""
+                cells.append((value, unit))
+            tables[triad][row.group(1)] = cells
+    return tables
+
+
+def test_solve_prints_every_parameter_within_its_sigma_of_the_truth_without_samples(
+        tmp_path, capsys, short_field18_session):
+    import shutil
+
+    spec, result = short_field18_session
+    copy = tmp_path / "session"
+    shutil.copytree(result.session, copy)
+    (copy / "samples.bin").unlink()  # the averages are in the log: enough to solve
+    assert main(["solve", str(copy)]) == 0
+    out = capsys.readouterr().out
+    assert "re-solved from their averages in log.jsonl" in out
+    tables = _solve_tables(out)
+    truth, device = spec.truth(), spec.device()
+    assert set(tables) == set(truth) == {"accelerometer", "gyroscope", "inclinometer"}
+    for name, rows in tables.items():
+        assert tuple(rows) == _LABELS, name  # misalignments too, not only bias and scale
+        bias_unit, bias_factor = _ROW_UNITS[device[name].kind]
+        for j, label in enumerate(_LABELS):
+            cells = rows[label]
+            assert len(cells) == 4, (name, label, cells)  # powell value ± σ, lsq value ± σ
+            if j < 3:
+                want_unit, factor = bias_unit, bias_factor
+                assert [u for _, u in cells] == [bias_unit] * 4
+            elif j < 6:  # a dimensionless factor, its σ in ppm
+                want_unit, factor = "", 1.0
+                assert [u for _, u in cells] == ["", "ppm", "", "ppm"]
+            else:
+                want_unit, factor = "mrad", 1e3
+                assert [u for _, u in cells] == ["mrad"] * 4
+            true = truth[name][j] * factor
+            for (value, _), (sigma, _) in (cells[0:2], cells[2:4]):
+                sigma = sigma * 1e-6 if j in (3, 4, 5) else sigma
+                assert sigma > 0 and abs(value - true) < 4.5 * sigma + 1e-4 * abs(true), \
+                    (name, label, value, true, sigma, want_unit)
+
+
+def test_solve_of_a_session_without_its_log_says_so(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["solve", str(tmp_path / "empty")]) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "log.jsonl" in err

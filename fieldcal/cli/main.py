@@ -5,8 +5,6 @@ import argparse
 import os
 import sys
 
-import numpy as np
-
 from fieldcal import __version__
 from fieldcal.solvers.solve import METHODS
 
@@ -46,7 +44,7 @@ def _progress_printer(stream):
 def cmd_demo(args) -> int:
     from drivers.sim.device import paper_mimu
     from fieldcal.earth import Station
-    from fieldcal.report import solution_header, solution_table
+    from fieldcal.report import solution_header, solution_table, worst_error
     from fieldcal.run.simcal import run_simulated_calibration
 
     station = Station(args.latitude, args.height, args.gravity)
@@ -60,12 +58,11 @@ def cmd_demo(args) -> int:
     seconds = cal.plan.windows[-1].start + cal.plan.windows[-1].duration
     print(f"simulated {seconds:.0f} s of {len(cal.plan.attitudes)} positions at 250 Hz; "
           "solved from the window averages\n")
-    worst = 0.0
     for name, sol in cal.solutions.items():
         print(solution_header(sol))
         print(solution_table(sol, cal.truth[name]))
         print()
-        worst = max(worst, float(np.max(np.abs(sol.theta - cal.truth[name]) / sol.sigma)))
+    worst = worst_error(cal.solutions, cal.truth)
     for name, reason in cal.failures.items():
         print(f"{name}: not calibrated: {reason}")
     if not cal.solutions:

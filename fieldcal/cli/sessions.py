@@ -120,12 +120,14 @@ def cmd_solve(args) -> int:
     from fieldcal.run.runner import RunSpec
     from fieldcal.session.capture import SessionReader
 
-    warn_if_torn(args.session)
-    if not SessionReader(args.session).steps():
+    reader = SessionReader(args.session, log_only=True)  # the averages are in the log
+    for line in reader.torn:
+        print(f"warning: {args.session}: {line}", file=sys.stderr)
+    if not reader.steps():
         raise ValueError(f"{args.session}: no completed steps to solve from")
     methods = args.method
     if not methods:
-        aligned = RunSpec.from_metadata(SessionReader(args.session).start).procedure.aligned
+        aligned = RunSpec.from_metadata(reader.start).procedure.aligned
         methods = ["classic"] if aligned else ["powell", "lsq"]
     print(compare_methods(Path(args.session), methods))
     return 0

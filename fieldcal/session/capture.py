@@ -416,7 +416,7 @@ def _file_size(path: Path) -> int:
         return 0
 
 
-def _scan(directory: str | os.PathLike, verb: str) -> _Scan:
+def _scan(directory: str | os.PathLike, verb: str, log_only: bool = False) -> _Scan:
     d = Path(directory)
     if not d.exists():
         raise SessionError(f"{d}: no such session directory", str(d))
@@ -429,9 +429,9 @@ def _scan(directory: str | os.PathLike, verb: str) -> _Scan:
         data = log_path.read_bytes()  # read the log before sizing the data files it indexes
     except OSError as exc:
         raise SessionError(f"{log_path}: cannot read ({exc.strerror or exc})", str(log_path)) from None
-    samples_size = _file_size(d / SAMPLES)
-    raw_sizes = {p.name[len(RAW_PREFIX):-len(RAW_SUFFIX)]: p.stat().st_size
-                 for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}"))}
+    samples_size = 0 if log_only else _file_size(d / SAMPLES)
+    raw_sizes = {} if log_only else {p.name[len(RAW_PREFIX):-len(RAW_SUFFIX)]: p.stat().st_size
+                                     for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}"))}
 
     complete = data.rfind(b"\n") + 1
     checker = _DocChecker(log_path)
@@ -463,7 +463,7 @@ def _scan(directory: str | os.PathLike, verb: str) -> _Scan:
     keep = len(docs)
     samples_end = 0
     raw_ends: dict[str, int] = {}
-    for i, doc in enumerate(docs):
+    for i, doc in enumerate(() if log_only else docs):  # log_only: the data files are not needed
         kind = doc["type"]
         missing = (kind == "chunk" and not (d / SAMPLES).is_file()) or \
             (kind == "raw" and doc["name"] not in raw_sizes)
@@ -883,8 +883,10 @@ class SessionReader:
     (listed in ``torn``). Chunks are verified against their log entries as they are read.
     """
 
-    def __init__(self, directory: str | os.PathLike) -> None:
-        self._scan = _scan(directory, "ignored")
+    def __init__(self, directory: str | os.PathLike, *, log_only: bool = False) -> None:
+        """``log_only``: the log's documents alone (step averages, events, actions), neither
+        reading nor requiring samples.bin and the raw files (e.g. to re-solve without them)."""
+        self._scan = _scan(directory, "ignored", log_only)
         self.directory = self._scan.directory
         self.torn: list[str] = list(self._scan.beyond)
         self.stopped, self.stop_reason = _run_state(self._scan.docs)

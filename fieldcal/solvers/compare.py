@@ -1,44 +1,36 @@
-"""``fieldcal solve``: re-solve a session from its stored averages, methods side by side.
+"""``fieldcal solve``: re-solve a session from the step averages in its log, methods side by side.
 
-The layout follows paper Table 5: per triad and axis, bias and scale factor for each method.
+Only ``log.jsonl`` is read: the averages are there, so a session whose samples.bin is missing
+(or was never copied) can still be solved. Every parameter is shown ± 1σ in operator units, one
+column pair per method (paper Table 5 extended to the misalignments).
 """
 from __future__ import annotations
 
 from pathlib import Path
 
 from fieldcal.procedure.engine import windows_and_averages
+from fieldcal.report import methods_table, solution_header
 from fieldcal.run.runner import RunSpec
-from fieldcal.session.capture import SessionReader
+from fieldcal.session.capture import LOG, SessionReader
 from fieldcal.solvers.solve import models_from_truth, solve_unit
-from fieldcal.units import display_scale, param_unit
 
 
 def compare_methods(directory: Path, methods: list[str]) -> str:
-    reader = SessionReader(directory)
+    reader = SessionReader(directory, log_only=True)
     spec = RunSpec.from_metadata(reader.start)
-    windows, averages = windows_and_averages(reader.steps())
+    steps = reader.steps()
+    windows, averages = windows_and_averages(steps)
     if not windows:
         return f"{directory}: no completed steps to solve from"
     models = models_from_truth(spec.device())
     results = {m: solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, m)
                for m in methods}
-    width = 30
-    lines = [f"{spec.procedure.name}: {len(reader.steps())} completed steps, re-solved from their averages",
-             f"{'':20}" + "".join(f"{m:^{width}}" for m in methods),
-             f"{'triad, axis':20}" + "".join(f"{'bias':>14}{'scale factor':>16}" for _ in methods)]
-    for name, model in models.items():
-        for axis, label in enumerate("xyz"):
-            row = f"{name:13} {label:6}"
-            for m in methods:
-                sol = results[m].solutions.get(name)
-                if sol is None:
-                    row += f"{'—':>14}{'—':>16}"
-                    continue
-                scale = display_scale(model.kind, model.output_unit, axis)
-                unit = param_unit(model.kind, model.output_unit, axis)
-                row += f"{sol.theta[axis] * scale:>10.4f} {unit:<3}{sol.theta[3 + axis]:>16.7f}"
-            lines.append(row)
-    for m in methods:
-        for name, why in results[m].failures.items():
-            lines.append(f"{m}: {name}: {why}")
+    lines = [f"{spec.procedure.name}: {len(steps)} completed steps, re-solved from their averages "
+             f"in {LOG}"]
+    for name in models:
+        solved = {m: results[m].solutions.get(name) for m in methods}
+        lines += [""] + [solution_header(cal) for cal in solved.values() if cal is not None]
+        lines.append(methods_table(solved))
+        lines += [f"  {m}: not calibrated: {results[m].failures[name]}" for m in methods
+                  if name in results[m].failures]
     return "\n".join(lines)
