@@ -289,6 +289,7 @@ async def test_the_results_show_the_previous_calibration_of_the_same_unit(tmp_pa
     app = FieldcalApp(RunSpec(spec.procedure, STATION, seed=7), speed=0, session_dir=sessions / "today")
     async with app.run_test(size=(100, 40)) as pilot:
         await press_ready_through(pilot, app)
+        await until(pilot, lambda: len(app.screen.query(".previous-head")) > 0)  # composed
         text = "\n".join(w.render().plain if hasattr(w.render(), "plain") else str(w.render())
                          for w in app.screen.query(".previous-head, .table"))
     previous = app.outcome.previous
@@ -296,6 +297,7 @@ async def test_the_results_show_the_previous_calibration_of_the_same_unit(tmp_pa
     old = load(earlier / "parameters.yaml")["accelerometer"]
     new = app.outcome.unit.solutions["accelerometer"]
     assert str(earlier / "parameters.yaml") in text
+    assert "not verified" in text  # a bare file: no session log recorded its checksum
     # The change column is the difference of the two files' values (bias x, in mg).
     change_mg = (new.theta[0] - old.theta[0]) / 9.80665e-3
     assert f"{change_mg:.3g} mg" in text
