@@ -43,7 +43,7 @@ def main(argv=None) -> int:
                 sol = solve_norm(problem, cov, method=method)
                 med, q1, q3 = median_ms(lambda: solve_norm(problem, cov, method=method), args.repeats)
                 print(f"| {name} | {len(problem.residual_labels)} | {weights} | {method} | "
-                      f"{med:.1f} ms ({q1:.1f}-{q3:.1f}) | {sol.evaluations} |")
+                      f"{med:.1f} ms ({q1:.1f}-{q3:.1f}) | {sol.diagnostics.evaluations} |")
     return 0
 
 

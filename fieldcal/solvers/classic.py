@@ -13,26 +13,23 @@ from fieldcal.model import FULL_PARAM_NAMES, SI_UNIT
 from fieldcal.solvers.norm import CalibrationError
 
 
-def _parameter_covariance(K: np.ndarray, row_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Covariance and 1σ of FULL_PARAM_NAMES (bias, k, m_ij = K_ij / K_ii) from each row's
-    covariance of [K_i0, K_i1, K_i2, U0_i].
+def _parameter_covariance(K: np.ndarray, row_cov: np.ndarray,
+                          coef_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance and 1σ of FULL_PARAM_NAMES (bias, k, m_ij = K_ij / K_ii) from the coefficients'
+    covariance (row i's [K_i0, K_i1, K_i2, U0_i] at 4i..4i+3) and its diagonal blocks.
 
     To first order, each term m_ij from K_ij alone (its K_ii part is of relative size m, below
-    the σ's third digit). σ is computed as parameter files since version 1 hold it, so a
-    re-solved session writes the same bytes."""
+    the σ's third digit). σ is computed from the row blocks as parameter files since version 1
+    hold it, so a re-solved session writes the same bytes."""
     k = np.diag(K)
     rows, cols = np.nonzero(~np.eye(3, dtype=bool))  # m_xy, m_xz, m_yx, m_yz, m_zx, m_zy
-    # Parameters as linear functions of the 12 coefficients (row i: entries 4i..4i+3).
-    J = np.zeros((12, 12))
+    J = np.zeros((12, 12))  # the parameters as linear functions of the coefficients
     J[np.arange(3), 4 * np.arange(3) + 3] = 1.0  # bias
     J[3 + np.arange(3), 5 * np.arange(3)] = 1.0  # scale factor K_ii
     J[6 + np.arange(6), 4 * rows + cols] = 1.0 / k[rows]
-    blocks = np.zeros((12, 12))
-    for i in range(3):  # rows are independent: noise is independent between output axes
-        blocks[4 * i:4 * i + 4, 4 * i:4 * i + 4] = row_cov[i]
     sigma = np.r_[np.sqrt(row_cov[:, 3, 3]), np.sqrt(row_cov[np.arange(3), np.arange(3), np.arange(3)]),
                   np.sqrt(row_cov[rows, cols, cols]) / k[rows]]
-    return J @ blocks @ J.T, sigma
+    return J @ coef_cov @ J.T, sigma
 
 
 def solve_classic(means: np.ndarray, inputs: np.ndarray, name: str, kind: str,
@@ -53,17 +50,21 @@ def solve_classic(means: np.ndarray, inputs: np.ndarray, name: str, kind: str,
     normal_inv = np.linalg.inv(design.T @ design)
     coef = normal_inv @ design.T @ U  # (4, 3): column i is [K_i0, K_i1, K_i2, U0_i]
     residuals = U - design @ coef
+    # Covariance of the 12 coefficients, row i's [K_i0, K_i1, K_i2, U0_i] at 4i..4i+3; the
+    # diagonal blocks (row_cov) give σ exactly as before, the others the rows' correlation.
     if covariance is None:
         row_var = np.sum(residuals**2, axis=0) / (len(A) - 4)
         row_cov = row_var[:, None, None] * normal_inv[None]
+        coef_cov = np.kron(residuals.T @ residuals / (len(A) - 4), normal_inv)
     else:
         cov = np.asarray(covariance, dtype=float)
         if cov.shape != (U.size, U.size):
             raise ValueError(f"{name}: covariance must be ({U.size}, {U.size}), got {cov.shape}")
         P = normal_inv @ design.T  # coefficients = P @ outputs, per output axis
         row_cov = np.stack([P @ cov[i::3, i::3] @ P.T for i in range(3)])
+        coef_cov = np.block([[P @ cov[i::3, j::3] @ P.T for j in range(3)] for i in range(3)])
     K = coef[:3].T.copy()
-    cov, sigma = _parameter_covariance(K, row_cov)
+    cov, sigma = _parameter_covariance(K, row_cov, coef_cov)
     output_unit = output_unit or SI_UNIT[kind]
     return Calibration(name=name, kind=kind, output_unit=output_unit, method=CLASSIC_METHOD, K=K,
                        bias=coef[3].copy(), covariance=cov, sigma=sigma, residuals=residuals,
