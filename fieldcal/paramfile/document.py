@@ -17,7 +17,6 @@ Design points:
 """
 from __future__ import annotations
 
-import difflib
 import hashlib
 import math
 import os
@@ -31,15 +30,7 @@ import yaml
 
 from fieldcal import __version__
 from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
-from fieldcal.calibration import (
-    _MAX_CONDITION,
-    LOWER_TRIANGULAR_METHODS,
-    ROTATION_METHOD,
-    TRIAD_METHODS,
-    Calibration,
-    nearest,
-    residual_units,
-)
+from fieldcal.calibration import TRIAD_METHODS, Calibration, nearest
 
 SCHEMA = "fieldcal-parameters/1"
 SOFTWARE = "fieldcal"

@@ -9,25 +9,27 @@ import numpy as np
 from fieldcal import __version__
 from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
 from fieldcal.model import KINDS, SI_UNIT, params_from_k
+from fieldcal.calibration import (
+    _MAX_CONDITION,
+    LOWER_TRIANGULAR_METHODS,
+    TRIAD_METHODS,
+    nearest,
+    residual_units,
+)
 from fieldcal.paramfile.document import (
     _ANGLE_ATOL,
     _ANGLES,
     _AXES,
-    _MAX_CONDITION,
     _SHA256,
     CONSISTENCY_RTOL,
-    LOWER_TRIANGULAR_METHODS,
     SCHEMA,
     SOFTWARE,
-    TRIAD_METHODS,
     ParameterFile,
     ParameterFileError,
-    residual_units,
     Provenance,
     TriadParameters,
     dump,
     hash_inputs,
-    nearest,
     save,
     to_document,
     unknown_methods,
