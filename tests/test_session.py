@@ -282,9 +282,9 @@ def test_raw_bytes_with_arrival_times_from_another_thread(tmp_path):
         SessionWriter.create(tmp_path / "t", {}).write_raw("../x", 0.0, b"")
 
 
-def _parameter_file() -> ParameterFile:
+def _parameter_file(bias_x: float = 0.01) -> ParameterFile:
     triad = TriadParameters(name="accelerometer", kind="specific_force", output_unit="m/s^2",
-                            bias=np.array([0.01, -0.02, 0.03]), K=np.eye(3) * 1.001, sigma=np.full(9, 1e-4),
+                            bias=np.array([bias_x, -0.02, 0.03]), K=np.eye(3) * 1.001, sigma=np.full(9, 1e-4),
                             residual_rms=1e-3, method="powell")
     return ParameterFile.build([triad], station=Station(latitude_deg=48.15, height_m=520.0),
                                procedure="field-18", method="powell", input_sha256=hash_inputs(np.zeros(3)))
@@ -311,11 +311,7 @@ def test_parameters_are_saved_into_the_session_and_noted(tmp_path):
 
 def _other_parameter_file() -> ParameterFile:
     """Another calibration of the same unit: a different accelerometer bias."""
-    triad = TriadParameters(name="accelerometer", kind="specific_force", output_unit="m/s^2",
-                            bias=np.array([0.02, -0.02, 0.03]), K=np.eye(3) * 1.001, sigma=np.full(9, 1e-4),
-                            residual_rms=1e-3, method="powell")
-    return ParameterFile.build([triad], station=Station(latitude_deg=48.15, height_m=520.0),
-                               procedure="field-18", method="powell", input_sha256=hash_inputs(np.ones(3)))
+    return _parameter_file(bias_x=0.02)
 
 
 def test_each_calibration_of_a_session_is_kept_and_the_newest_is_current(tmp_path):

@@ -88,6 +88,8 @@ def _procedure_session(directory):
     except (KeyError, TypeError, AttributeError) as exc:
         raise ValueError(f"{reader.directory / 'log.jsonl'}: line 1: the start document's metadata is "
                          f"not a procedure run's ({type(exc).__name__}: {exc})"[:300]) from None
+    except ValueError as exc:  # a recording session, a procedure or station out of bounds
+        raise ValueError(f"{reader.directory}: {exc}") from None
     return reader, spec, checked_steps(reader, len(spec.procedure.positions))
 
 

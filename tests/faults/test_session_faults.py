@@ -300,3 +300,23 @@ def test_a_step_document_of_the_wrong_shape_is_named_by_file_and_line(session_co
         code, _, err = cli(capsys, command, session_copy)
         assert code == 2, command
         assert one_line_error(err).startswith(f"fieldcal: {session_copy / LOG}: line {i + 1}: {message}"), command
+
+
+def test_solve_on_a_session_that_is_no_procedure_run_names_it(tmp_path, capsys):
+    """Issue 16: `solve` errors came without file and line."""
+    from fieldcal.recording import Recording
+    from fieldcal.recording.store import save_recording
+
+    data = Path(__file__).resolve().parents[1] / "data" / "session-v1"  # start metadata of no run
+    code, _, err = cli(capsys, "solve", data)
+    assert code == 2
+    assert one_line_error(err).startswith(f"fieldcal: {data / LOG}: line 1: the start document's metadata is "
+                                          "not a procedure run's")
+    t = np.arange(10) / 100.0
+    recording = Recording(t=t, triads={"accelerometer": np.zeros((10, 3))}, kinds={"accelerometer": "specific_force"},
+                          units={"accelerometer": "m/s^2"}, sources=(), malformed={})
+    session = save_recording(recording, tmp_path / "rec")
+    for command in ("solve", "replay", "resume"):
+        code, _, err = cli(capsys, command, session)
+        assert code == 2
+        assert one_line_error(err).startswith(f"fieldcal: {session}: this session is an imported recording")
