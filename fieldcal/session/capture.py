@@ -685,6 +685,8 @@ class SessionWriter:
         session_lock = SessionLock.acquire(d)  # before reading: nobody may write while we repair
         try:
             scan = _scan(d, "cut")
+            if not _writable(d):  # before anything is cut or re-run
+                raise SessionError(f"{d}: cannot write to this session (no permission)", str(d))
             if scan.last_chunk is not None:  # do not build on damaged records: read every one
                 _verify_records(scan)
             repaired = []
@@ -694,8 +696,6 @@ class SessionWriter:
                 if kept_in is not None:
                     repaired += [f"{line} (kept in {kept_in.name})" for line in scan.beyond
                                  if line.startswith(f"{path.name}:")]
-            if not _writable(d):
-                raise SessionError(f"{d}: cannot write to this session (no permission)", str(d))
             log = open(d / LOG, "ab")  # noqa: SIM115 -- held open by the writer until close()
             samples = open(d / SAMPLES, "ab")  # noqa: SIM115
         except BaseException as exc:
