@@ -1030,8 +1030,10 @@ class SessionReader:
     """
 
     def __init__(self, directory: str | os.PathLike, *, log_only: bool = False) -> None:
-        """``log_only``: the log's documents alone (step averages, events, actions), neither
-        reading nor requiring samples.bin and the raw files (e.g. to re-solve without them)."""
+        """``log_only``: the log's documents alone (step averages, events, actions), not
+        requiring samples.bin and the raw files (e.g. to re-solve without them); where samples.bin
+        is there it is still checked against the log, so damage is named all the same."""
+        log_only = log_only and not (Path(directory) / SAMPLES).exists()
         self._scan = _scan(directory, "ignored", live=is_held(directory), log_only=log_only)
         self.directory = self._scan.directory
         self.torn: list[str] = list(self._scan.beyond)

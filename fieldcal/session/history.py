@@ -47,7 +47,9 @@ def recorded_check(path: Path) -> str:
     UNRECORDED when there is no readable log or it names no such file."""
     try:
         reader = SessionReader(path.parent)
-        docs = [d for d in reader.documents("parameters") if d["file"] == path.name]
+        # parameters.yaml is a copy of the newest numbered file, which the log names instead
+        docs = [d for d in reader.documents("parameters") if d["file"] == path.name
+                or path.name == PARAMETERS]
     except (SessionError, OSError):
         return UNRECORDED
     if not docs:
