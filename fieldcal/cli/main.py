@@ -260,19 +260,70 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that it unwinds like Ctrl-C (files closed)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated
+
+
+def _session_note(args, what: str) -> str:
+    """What became of the session a command was writing when it stopped, and how to go on."""
+    session = getattr(args, "session_path", None) or (
+        args.session if args.command == "resume" else None)
+    if session is None:
+        return ""
+    if getattr(args, "serial", False):
+        return f"; the session so far is in {session} (a serial run cannot be resumed: run again)"
+    return (f"; the session in {session} is consistent up to its last completed step{what}: "
+            f"continue it with: fieldcal resume {session}")
+
+
+def _os_error(exc: OSError, args) -> str:
+    """One line for a failed read or write: the file, what the system said, and for a session,
+    where it stands."""
+    import errno
+
+    where = f"{exc.filename}: " if exc.filename else ""
+    reason = exc.strerror or str(exc)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"{where}{reason}" + _session_note(args, " (free some space first)")
+    if exc.errno == errno.ENAMETOOLONG:
+        return f"{where}a name in this path is too long for the file system"
+    return f"{where}{reason}" + _session_note(args, "")
+
+
 def main(argv=None) -> int:
+    import signal
+    import threading
+
     args = build_parser().parse_args(argv)
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
+    previous = signal.SIG_DFL if previous is None else previous
     try:
+        from fieldcal.cli.paths import check_paths
+        check_paths(args)
         return args.func(args)
     except ValueError as exc:  # ConfigError, ProcedureError, ParameterFileError, bad arguments
         print(f"fieldcal: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("fieldcal: interrupted", file=sys.stderr)
-        return 130
     except BrokenPipeError:  # output piped into head: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:  # disk full, unwritable, removed under us: one line, never a traceback
+        print(f"fieldcal: {_os_error(exc, args)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"fieldcal: interrupted{_session_note(args, '')}", file=sys.stderr)
+        return 130
+    except Terminated:
+        print(f"fieldcal: terminated (SIGTERM){_session_note(args, '')}", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":
