@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
@@ -9,6 +10,8 @@ import numpy as np
 
 from fieldcal import __version__
 from fieldcal.solvers.solve import METHODS
+
+MAX_SERVE_RATE_HZ = 4000.0  # the fastest MEMS IMU output rates; above it the simulator cannot keep up
 
 
 def _seed(text: str) -> int:
@@ -18,16 +21,29 @@ def _seed(text: str) -> int:
     return value
 
 
-def _positive(kind):
+def _positive(kind, maximum: float = math.inf, unit: str = ""):
+    """An argparse type: a finite number > 0 (and <= maximum); nan and inf are refused."""
     def parse(text: str):
         try:
             value = kind(text)
         except ValueError:
             value = -1
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+        if not (math.isfinite(value) and 0 < value <= maximum):
+            top = f" and <= {maximum:g}{unit}" if math.isfinite(maximum) else ""
+            raise argparse.ArgumentTypeError(f"expected a number > 0{top}, got {text!r}")
         return value
     return parse
+
+
+def _speed(text: str) -> float:
+    """Times real time: a finite number >= 0 (0 = as fast as read)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 (0 = as fast as read), got {text!r}")
+    return value
 
 
 def _progress_printer(stream):
@@ -119,8 +135,8 @@ def cmd_sim_serve(args) -> int:
         try:
             while True:
                 time.sleep(1.0)
-        except KeyboardInterrupt:
-            print(f"stopped after {devices.samples_sent} samples")
+        except (KeyboardInterrupt, Terminated):  # the ports and their links go with the block
+            print(f"stopped after {devices.samples_sent} samples", flush=True)
     return 0
 
 
@@ -241,9 +257,10 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--imu-protocol", choices=("xsens", "vectornav", "delimited"), default="xsens")
     serve.add_argument("--table-protocol", choices=("ascii", "grbl"), default="ascii")
     serve.add_argument("--transport", choices=("pty", "tcp"), default="pty")
-    serve.add_argument("--speed", type=float, default=1.0,
+    serve.add_argument("--speed", type=_speed, default=1.0,
                        help="1 = real time (default), 10 = ten times faster, 0 = as fast as read")
-    serve.add_argument("--rate", type=float, default=250.0, help="sample rate, Hz (default 250)")
+    serve.add_argument("--rate", type=_positive(float, MAX_SERVE_RATE_HZ, " Hz"), default=250.0,
+                       help=f"sample rate, Hz (default 250, at most {MAX_SERVE_RATE_HZ:g})")
     serve.add_argument("--position", type=int, default=1, help="field-18 position of the unit (default 1)")
     serve.add_argument("--seed", type=_seed, default=1)
     serve.add_argument("--latitude", type=float, default=40.0, help="degrees (default 40)")

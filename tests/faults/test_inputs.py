@@ -188,3 +188,43 @@ def test_parameter_file_alias_bomb_is_one_line(tmp_path):
         load_parameters(path)
     assert str(info.value).startswith(f"{path}: ") and "\n" not in str(info.value)
     assert "aliases" in str(info.value)
+
+
+# ------------------------------------------------------------------------------------------------
+# fieldcal sim serve: its numbers, and no stale links after SIGTERM
+
+
+@pytest.mark.parametrize("flag, value", [("--rate", "0"), ("--rate", "nan"), ("--rate", "-5"),
+                                         ("--rate", "inf"), ("--rate", "1e9"), ("--speed", "nan"),
+                                         ("--speed", "-1"), ("--speed", "inf")])
+def test_sim_serve_numbers_are_checked(capsys, flag, value):
+    with pytest.raises(SystemExit) as info:
+        main(["sim", "serve", flag, value])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "Traceback" not in err
+    assert f"argument {flag}: expected a number" in err and repr(value) in err
+
+
+def test_sim_serve_removes_its_links_on_sigterm(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    proc = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", "sim", "serve", "--speed", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        imu = Path(proc.stdout.readline().rsplit(": ", 1)[1].strip())
+        table = Path(proc.stdout.readline().rsplit(": ", 1)[1].strip())
+        assert proc.stdout.readline().startswith("serving")
+        assert imu.is_symlink() and table.is_symlink()
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert out.startswith("stopped after ")
+    for link in (imu, table):
+        assert not os.path.lexists(link) and not link.parent.exists()
