@@ -228,3 +228,48 @@ def test_sim_serve_removes_its_links_on_sigterm(tmp_path):
     assert out.startswith("stopped after ")
     for link in (imu, table):
         assert not os.path.lexists(link) and not link.parent.exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# fieldcal monitor: a port that never opens, a device in another protocol
+
+
+def _device_config(tmp_path, url: str, protocol: str = "vectornav"):
+    path = tmp_path / "device.yaml"
+    path.write_text(f"""device:
+  name: unit under test
+  protocol: {protocol}
+  rate_hz: 250
+  port: {{url: {url}, baudrate: 115200}}
+  triads:
+    accelerometer: {{kind: specific_force, unit: m/s^2}}
+    gyroscope: {{kind: angular_rate, unit: rad/s}}
+station: {{latitude_deg: 40.0}}
+""")
+    return path
+
+
+def test_monitor_on_a_port_that_never_opens(capsys, tmp_path):
+    port = tmp_path / "ttyUSB9"
+    config = _device_config(tmp_path, str(port))
+    assert main(["monitor", "--config", str(config), "--seconds", "0.5"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "port lost" not in err and "Errno" not in err
+    said = [line for line in err.splitlines() if line.startswith("cannot open")]
+    assert said == [f"cannot open {port}: No such file or directory; retrying every 2 s (Ctrl-C to stop)"]
+    assert err.splitlines()[-1] == (f"fieldcal: no samples: {port} never opened (is the unit plugged "
+                                    f"in, and is device.port.url in {config} right?)")
+
+
+def test_monitor_of_a_device_in_another_protocol(capsys, tmp_path):
+    from drivers.sim.device import paper_mimu
+    from drivers.sim.serve import SimulatedDevices
+
+    with SimulatedDevices(paper_mimu(), 9.8, 0.7, imu_protocol="xsens", table_protocol=None) as sim:
+        config = _device_config(tmp_path, sim.imu_url, protocol="vectornav")
+        assert main(["monitor", "--config", str(config), "--seconds", "1"]) == 1
+    err = capsys.readouterr().err
+    last = err.splitlines()[-1]
+    assert "Traceback" not in err and last.startswith("fieldcal: no samples: ")
+    assert "none decoded as vectornav frames: check device.protocol and the baud rate " \
+           f"(device.port.baudrate, now 115200) in {config}" in last
