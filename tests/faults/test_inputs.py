@@ -273,3 +273,36 @@ def test_monitor_of_a_device_in_another_protocol(capsys, tmp_path):
     assert "Traceback" not in err and last.startswith("fieldcal: no samples: ")
     assert "none decoded as vectornav frames: check device.protocol and the baud rate " \
            f"(device.port.baudrate, now 115200) in {config}" in last
+
+
+# ------------------------------------------------------------------------------------------------
+# Recordings: a wild sample, a rest too short to measure the noise
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    from drivers.sim.handheld import simulate_handheld, to_text
+    return to_text(simulate_handheld(3, n_poses=5), tmp_path_factory.mktemp("recording"))
+
+
+def test_a_wild_sample_is_refused_with_its_line(capsys, tmp_path, recording):
+    """Issue 16: one 1e308 sample ended in "add poses with z down"."""
+    acc, gyro = recording
+    lines = acc.read_text().splitlines(True)
+    fields = lines[4999].split()
+    fields[2] = "1e308"
+    lines[4999] = " ".join(fields) + "\n"
+    wild = tmp_path / "acc.txt"
+    wild.write_text("".join(lines))
+    line = refused(capsys, ["calibrate", str(wild), str(gyro), "--map", "imu_tk", "--latitude", "40",
+                            "--out", str(tmp_path / "s")], names=wild)
+    assert line == (f"fieldcal: {wild}: line 5000: accelerometer reads 1e+308 count, beyond any "
+                    "sensor's range (|x| > 1e+12): fix or delete the line (1 such line in the file)")
+
+
+def test_a_rest_too_short_to_measure_is_said(capsys, tmp_path, recording):
+    """Issue 16: --rest 0.4 gave "attempt to get argmax of an empty sequence"."""
+    acc, gyro = recording
+    line = refused(capsys, ["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--latitude", "40",
+                            "--rest", "0.4", "--out", str(tmp_path / "s")], names="an initial rest")
+    assert "of 0.4 s is too short to measure the noise" in line and "(--rest)" in line
