@@ -13,6 +13,7 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import re
 from pathlib import Path
 from typing import Sequence
 
@@ -25,6 +26,8 @@ MAX_YAML_BYTES = 1 << 20
 # expanded size is capped too, because a handful of nested aliases can still expand to 10^9 nodes.
 MAX_ALIASES = 100
 MAX_EXPANDED_NODES = 100_000
+# A name that becomes part of a file name or a dotted field (a triad's name): no separators.
+IDENTIFIER = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
 
 
 class MarkedDict(dict):

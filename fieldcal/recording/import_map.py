@@ -20,14 +20,13 @@ The parsing itself is ``drivers.protocols.delimited``: each entry becomes a Chan
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.protocols.delimited import ChannelMap
 from fieldcal.config import CONFIGS_DIR
 from fieldcal.model import ANGULAR_RATE, KINDS, SPECIFIC_FORCE
-from fieldcal.validation import FieldReader, describe, join, parse_yaml, read_yaml_text
+from fieldcal.validation import IDENTIFIER, FieldReader, describe, join, parse_yaml, read_yaml_text
 
 RECORDINGS_DIR = CONFIGS_DIR / "recordings"
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -36,7 +35,6 @@ TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 _UNITS_OF = {SPECIFIC_FORCE: {"m/s^2", "m/s2", "m/s²", "g", "mg", "ug"},
              ANGULAR_RATE: {"rad/s", "mrad/s", "deg/s", "°/s", "dps", "mdeg/s", "deg/h", "°/h"}}
 _EXAMPLES = {SPECIFIC_FORCE: "m/s^2, g, mg", ANGULAR_RATE: "rad/s, deg/s"}
-_TRIAD_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
 
 
 class ImportMapError(ValueError):
@@ -126,7 +124,7 @@ def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
     kinds, units, columns = {}, {}, {}
     for tname, body in triads_in.items():
         here = f"{where}.triads.{tname}"
-        if not isinstance(tname, str) or not _TRIAD_NAME.fullmatch(tname):
+        if not isinstance(tname, str) or not IDENTIFIER.fullmatch(tname):
             r.fail(join(where, "triads"), "triad names of ASCII letters, digits and _ "
                    "(starting with a letter)", describe(tname))
         t = r.mapping(body, here, ("columns", "kind", "unit"), ("scale",))

@@ -306,3 +306,19 @@ def test_a_rest_too_short_to_measure_is_said(capsys, tmp_path, recording):
     line = refused(capsys, ["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--latitude", "40",
                             "--rest", "0.4", "--out", str(tmp_path / "s")], names="an initial rest")
     assert "of 0.4 s is too short to measure the noise" in line and "(--rest)" in line
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("  height_m: 50.0", "  height_m: -1.0e+9",
+     "station.height_m: expected a number from -500 to 9000 m above the ellipsoid, got -1000000000.0 (line 19)"),
+    ("    gyroscope: {kind", '    "../../gyro": {kind',
+     "device.triads: expected triad names of ASCII letters, digits and _ (starting with a letter), "
+     "got '../../gyro' (line 14)"),
+])
+def test_config_values_are_named_with_the_file(capsys, tmp_path, old, new, message):
+    """Issue 16: station errors named no file; a triad name is part of file names (allan plots)."""
+    assert old in CONFIG
+    path = tmp_path / "station.yaml"
+    path.write_text(CONFIG.replace(old, new, 1))
+    line = refused(capsys, ["monitor", "--config", str(path), "--samples", "1"], names=path)
+    assert line == f"fieldcal: {path}: {message}"
