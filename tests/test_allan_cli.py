@@ -59,14 +59,20 @@ def _white_record(rate, seconds, rng):
     return np.arange(n) / rate, rng.normal(0, 0.01, (n, 3))
 
 
+def _two_parts(path, first, second, pause_s, seed):
+    """A white-noise record in two parts, (rate Hz, seconds) each, the second starting pause_s
+    after the first's last sample."""
+    rng = np.random.default_rng(seed)
+    t1, x1 = _white_record(*first, rng)
+    t2, x2 = _white_record(*second, rng)
+    np.savetxt(path, np.column_stack([np.concatenate([t1, t1[-1] + pause_s + t2]), np.vstack([x1, x2])]),
+               delimiter=",", fmt="%.9g")
+    return path
+
+
 def test_a_gap_in_the_time_column_is_said_and_cut_out(tmp_path, capsys):
     """Issue 16 item 8: a 100 s gap was analysed as if the samples were contiguous."""
-    rng = np.random.default_rng(5)
-    t1, x1 = _white_record(50.0, 600, rng)
-    t2, x2 = _white_record(50.0, 300, rng)
-    path = tmp_path / "gap.csv"
-    np.savetxt(path, np.column_stack([np.concatenate([t1, t1[-1] + 100.0 + t2]), np.vstack([x1, x2])]),
-               delimiter=",", fmt="%.9g")
+    path = _two_parts(tmp_path / "gap.csv", (50.0, 600), (50.0, 300), pause_s=100.0, seed=5)
     assert main(["allan", str(path)]) == 0
     out = capsys.readouterr().out
     assert (f"{path}: the time column has a 100 s gap after row 30000 (t = 599.98 s); analysing "
@@ -75,12 +81,7 @@ def test_a_gap_in_the_time_column_is_said_and_cut_out(tmp_path, capsys):
 
 
 def test_a_rate_change_is_said_and_the_longer_part_used(tmp_path, capsys):
-    rng = np.random.default_rng(6)
-    t1, x1 = _white_record(100.0, 200, rng)
-    t2, x2 = _white_record(50.0, 400, rng)
-    path = tmp_path / "rates.csv"
-    np.savetxt(path, np.column_stack([np.concatenate([t1, t1[-1] + 0.02 + t2]), np.vstack([x1, x2])]),
-               delimiter=",", fmt="%.9g")
+    path = _two_parts(tmp_path / "rates.csv", (100.0, 200), (50.0, 400), pause_s=0.02, seed=6)
     assert main(["allan", str(path)]) == 0
     out = capsys.readouterr().out
     assert "the rate changes from 100 Hz to 50 Hz at row 20000" in out
