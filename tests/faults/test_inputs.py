@@ -322,3 +322,17 @@ def test_config_values_are_named_with_the_file(capsys, tmp_path, old, new, messa
     path.write_text(CONFIG.replace(old, new, 1))
     line = refused(capsys, ["monitor", "--config", str(path), "--samples", "1"], names=path)
     assert line == f"fieldcal: {path}: {message}"
+
+
+def test_remembered_setup_alias_bomb_is_forgotten(tmp_path):
+    """The TUI's remembered setup is a convenience: a hostile one is ignored, never expanded."""
+    from fieldcal.tui.choices import load_last_choice
+
+    path = tmp_path / "last.yaml"
+    path.write_text(alias_bomb("config"))
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    resource.setrlimit(resource.RLIMIT_AS, (2 << 30, hard))
+    try:
+        assert load_last_choice(path) is None
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
