@@ -285,10 +285,14 @@ def _raise_terminated(signum, frame):
     raise Terminated
 
 
+def _session(args):
+    """The session directory the command was writing, if any."""
+    return getattr(args, "session_path", None) or (args.session if args.command == "resume" else None)
+
+
 def _session_note(args, what: str) -> str:
     """What became of the session a command was writing when it stopped, and how to go on."""
-    session = getattr(args, "session_path", None) or (
-        args.session if args.command == "resume" else None)
+    session = _session(args)
     if session is None:
         return ""
     if getattr(args, "serial", False):
@@ -302,7 +306,9 @@ def _os_error(exc: OSError, args) -> str:
     where it stands."""
     import errno
 
-    where = f"{exc.filename}: " if exc.filename else ""
+    # a buffered write's error carries no file name: the session being written is the place
+    place = exc.filename or _session(args)
+    where = f"{place}: " if place else ""
     reason = exc.strerror or str(exc)
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         return f"{where}{reason}" + _session_note(args, " (free some space first)")

@@ -237,3 +237,27 @@ def test_a_stopped_run_says_where_its_session_is(capsys, monkeypatch, tmp_path, 
     assert signal.getsignal(signal.SIGTERM) is not None  # main() put the previous handler back
     monkeypatch.undo()
     assert main(["resume", "--quiet", str(session)]) == 1 and SessionReader(session).stopped
+
+
+@pytest.fixture
+def small_tmpfs(tmp_path):
+    """A 1 MB tmpfs (root only): a real full disk; the test grows it to free space."""
+    mount_point = tmp_path / "small"
+    mount_point.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mount_point)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    yield mount_point
+    subprocess.run(["umount", str(mount_point)], check=True)
+
+
+def test_a_really_full_disk_then_resume(capsys, quick, small_tmpfs):
+    out = small_tmpfs / "out"
+    line = one_line(capsys, ["run", "--headless", "--quiet", "--procedure", str(quick), "--out", str(out)], 1)
+    (session,) = out.iterdir()
+    assert line == (f"fieldcal: {session}: No space left on device; the session in {session} is consistent "
+                    "up to its last completed step (free some space first): continue it with: "
+                    f"fieldcal resume {session}")
+    subprocess.run(["mount", "-o", "remount,size=64m", str(small_tmpfs)], check=True)
+    assert main(["resume", "--quiet", str(session)]) == 0
+    assert SessionReader(session).stopped and (session / "parameters.yaml").is_file()
