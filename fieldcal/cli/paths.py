@@ -81,7 +81,9 @@ def writable_session(directory: str | os.PathLike) -> None:
 def check_paths(args) -> None:
     """The output paths of the parsed command line, before the command runs."""
     command = args.command
-    if command in ("run", "import", "calibrate") or (
+    # calibrate writes under --out only when it imports text files (a session is calibrated in place)
+    imports = command == "calibrate" and not all(Path(r).is_dir() for r in args.recording)
+    if command in ("run", "import") or imports or (
             command == "tui" and getattr(args, "go", False) and not getattr(args, "no_capture", False)):
         output_directory(args.out, "--out")
     if command in ("demo", "calibrate") and getattr(args, "params", None):
