@@ -322,9 +322,10 @@ def main(argv=None) -> int:
     import threading
 
     args = build_parser().parse_args(argv)
-    in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
-    previous = signal.SIG_DFL if previous is None else previous
+    # The terminal UI restores the terminal on its own way out; everything else unwinds on
+    # SIGTERM as on Ctrl-C, closing its files and saying where its session is.
+    catch_sigterm = threading.current_thread() is threading.main_thread() and args.command != "tui"
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if catch_sigterm else None
     try:
         from fieldcal.cli.paths import check_paths
         check_paths(args)
@@ -345,8 +346,8 @@ def main(argv=None) -> int:
         print(f"fieldcal: terminated (SIGTERM){_session_note(args, '')}", file=sys.stderr)
         return 128 + signal.SIGTERM
     finally:
-        if in_main_thread:
-            signal.signal(signal.SIGTERM, previous)
+        if catch_sigterm:  # None: a handler not set from Python; the default is what it did
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 if __name__ == "__main__":
