@@ -127,12 +127,12 @@ def cmd_sim_serve(args) -> int:
         speed=args.speed, seed=args.seed, rate_hz=args.rate,
         attitude=positions[args.position - 1].attitude)
     with devices:
-        print(f"simulated MIMU ({args.imu_protocol}, {args.rate:g} Hz, field-18 position "
-              f"{args.position}): {devices.imu_url}")
-        if devices.table_url:
-            print(f"simulated rate table ({args.table_protocol}): {devices.table_url}")
-        print("serving until Ctrl-C", flush=True)
-        try:
+        try:  # from the first line on: a signal right after "serving" is a normal stop too
+            print(f"simulated MIMU ({args.imu_protocol}, {args.rate:g} Hz, field-18 position "
+                  f"{args.position}): {devices.imu_url}")
+            if devices.table_url:
+                print(f"simulated rate table ({args.table_protocol}): {devices.table_url}")
+            print("serving until Ctrl-C", flush=True)
             while True:
                 time.sleep(1.0)
         except (KeyboardInterrupt, Terminated):  # the ports and their links go with the block
