@@ -222,7 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "fresh engine and solver, and check that the parameter file comes out "
                             "byte for byte the same.")
     replay.add_argument("session", help="session directory")
-    replay.add_argument("--speed", type=float, help="times real time (default: as fast as possible)")
+    replay.add_argument("--speed", type=_positive(float), help="times real time (default: as fast as possible)")
     replay.add_argument("--out", metavar="FILE", help="also write the replayed parameter file here")
     replay.add_argument("--quiet", action="store_true")
     replay.set_defaults(func=_lazy("cmd_replay"))

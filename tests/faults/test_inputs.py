@@ -336,3 +336,11 @@ def test_remembered_setup_alias_bomb_is_forgotten(tmp_path):
         assert load_last_choice(path) is None
     finally:
         resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
+def test_replay_speed_is_checked(capsys, value):
+    with pytest.raises(SystemExit) as info:
+        main(["replay", "somewhere", "--speed", value])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and f"argument --speed: expected a number > 0, got {value!r}" in err
