@@ -30,7 +30,9 @@ def test_bad_procedure_is_one_line_error(capsys, tmp_path):
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "bad.yaml: positions[0].axes" in err and "left-handed" in err
     assert main(["demo", "--procedure", "no-such-procedure"]) == 2
-    assert "cannot read procedure" in capsys.readouterr().err
+    assert capsys.readouterr().err.startswith("fieldcal: no-such-procedure: no such procedure (not a file, nor ")
+    assert main(["demo", "--procedure", str(tmp_path)]) == 2  # a directory
+    assert capsys.readouterr().err == f"fieldcal: {tmp_path}: cannot read procedure (Is a directory)\n"
 
 
 def test_demo_parameter_file_loads_and_is_deterministic(capsys, tmp_path):

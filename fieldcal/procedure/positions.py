@@ -103,8 +103,12 @@ def _position(r: FieldReader, raw, where: str) -> Position:
 def load_procedure(name_or_path: str | Path) -> Procedure:
     """Load ``procedures/NAME.yaml`` or a path; a bad file gives a one-line ProcedureError."""
     path = Path(name_or_path)
-    if not path.suffix:
-        path = PROCEDURES_DIR / f"{name_or_path}.yaml"
+    if not path.suffix and not path.exists():
+        path = PROCEDURES_DIR / f"{path.name}.yaml"
+        if not path.is_file():
+            known = ", ".join(sorted(p.stem for p in PROCEDURES_DIR.glob("*.yaml")))
+            raise ProcedureError(f"{name_or_path}: no such procedure (not a file, nor {path}; the "
+                                 f"procedures: {known})", str(name_or_path))
     return parse_procedure(read_yaml_text(path, ProcedureError, "procedure"), str(path))
 
 
