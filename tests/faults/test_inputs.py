@@ -7,6 +7,7 @@ stderr starting with ``fieldcal: <file>``, no traceback.
 """
 from __future__ import annotations
 
+import contextlib
 import resource
 
 import pytest
@@ -33,6 +34,20 @@ def refused(capsys, argv, *, names) -> str:
     assert len(lines) == 1, err
     assert lines[0].startswith(f"fieldcal: {names}"), err
     return lines[0]
+
+
+@contextlib.contextmanager
+def memory_cap(extra_bytes: int = 1 << 30):
+    """At most 1 GB more address space than now: a bomb that expanded would fail here with a
+    MemoryError instead of eating the machine."""
+    with open("/proc/self/statm") as f:
+        in_use = int(f.read().split()[0]) * resource.getpagesize()
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    resource.setrlimit(resource.RLIMIT_AS, (in_use + extra_bytes, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
 def alias_bomb(key: str) -> str:
@@ -86,13 +101,8 @@ def test_hostile_yaml_is_one_line(capsys, tmp_path, kind, hostile):
     text, command, key = KINDS[kind]
     path = tmp_path / "hostile.yaml"
     path.write_text(HOSTILE[hostile](text, key))
-    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-    # 2 GB of address space: a bomb that expanded would die here instead of eating the machine.
-    resource.setrlimit(resource.RLIMIT_AS, (2 << 30, hard))
-    try:
+    with memory_cap():
         refused(capsys, command(path, tmp_path), names=path)
-    finally:
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
 def test_alias_bomb_is_refused_before_expanding(capsys, tmp_path):
@@ -330,12 +340,8 @@ def test_remembered_setup_alias_bomb_is_forgotten(tmp_path):
 
     path = tmp_path / "last.yaml"
     path.write_text(alias_bomb("config"))
-    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-    resource.setrlimit(resource.RLIMIT_AS, (2 << 30, hard))
-    try:
+    with memory_cap():
         assert load_last_choice(path) is None
-    finally:
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
 @pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
