@@ -8,6 +8,7 @@ the gap is reported as an event, not hidden.
 """
 from __future__ import annotations
 
+import os
 import queue
 import threading
 import time
@@ -33,6 +34,15 @@ class PortSettings:
         return serial.serial_for_url(self.url, baudrate=self.baudrate, bytesize=self.bytesize,
                                      parity=self.parity, stopbits=self.stopbits,
                                      timeout=self.read_timeout_s, write_timeout=1.0)
+
+
+def open_failure(exc: Exception) -> str:
+    """Why a port did not open, once: pyserial's text repeats the errno and the path
+    ("[Errno 2] could not open port X: [Errno 2] No such file or directory: 'X'")."""
+    code = getattr(exc, "errno", None)
+    if isinstance(code, int):
+        return os.strerror(code)
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
 @dataclass(frozen=True)
@@ -96,6 +106,11 @@ class SerialReader:
         self.close()
 
     @property
+    def retry_s(self) -> float:
+        """The longest wait between attempts to open the port."""
+        return self._backoff.max_s
+
+    @property
     def connected(self) -> bool:
         return self._port is not None
 
@@ -139,7 +154,8 @@ class SerialReader:
             port = self._opener(self.settings)
         except (serial.SerialException, OSError, ValueError) as exc:
             if lost_at is None and self._backoff.current == 0:
-                self._events.put(PortEvent(PORT_LOST, self._clock(), f"cannot open {self.settings.url}: {exc}"))
+                self._events.put(PortEvent(PORT_LOST, self._clock(),
+                                           f"cannot open {self.settings.url}: {open_failure(exc)}"))
             return False
         with self._port_lock:
             self._port = port

@@ -215,3 +215,56 @@ def plot_allan(taus, adev, terms, path, title: str = "", kind: str | None = None
     # Below the axes: inside, it hides the bottom of the curve, which is what the plot is for.
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.12))
     fig.savefig(path, format="png", bbox_inches="tight")
+
+
+GAP_FACTOR = 3.0        # a step this many local sample intervals long: samples are missing
+RATE_BLOCK = 100        # samples per block for the local sample interval (a block's median)
+RATE_TOLERANCE = 0.10   # neighbouring blocks whose intervals differ by more are at another rate
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """Rows [start, stop) of a record sampled at one rate without a gap."""
+
+    start: int
+    stop: int
+    rate_hz: float
+
+    @property
+    def seconds(self) -> float:
+        return (self.stop - self.start) / self.rate_hz
+
+
+def regular_stretches(t: np.ndarray) -> tuple[list[Stretch], list[str]]:
+    """Split a strictly increasing time column at gaps and rate changes (eq. 3 assumes evenly
+    spaced samples: a gap or another rate inside a cluster makes its Allan deviation wrong).
+
+    The local sample interval is the median of each block of RATE_BLOCK intervals, so a gap does
+    not hide in it and timestamp jitter does not split the record. Returns the stretches, and one
+    phrase per break ("a 100 s gap after row 5000 (t = 50 s)", "the rate changes from 100 Hz to
+    50 Hz at row 9001"), rows 1-based as in the file's data rows.
+    """
+    t = np.asarray(t, dtype=float)
+    dt = np.diff(t)
+    if dt.size == 0:
+        return [Stretch(0, len(t), 0.0)], []
+    n_blocks = -(-dt.size // RATE_BLOCK)
+    padded = np.full(n_blocks * RATE_BLOCK, np.nan)
+    padded[: dt.size] = dt
+    local = np.nanmedian(padded.reshape(n_blocks, RATE_BLOCK), axis=1)
+    gaps = np.flatnonzero(dt > GAP_FACTOR * np.repeat(local, RATE_BLOCK)[: dt.size])
+    notes = [f"a {dt[i]:.4g} s gap after row {i + 1} (t = {t[i]:.6g} s)" for i in gaps]
+    cuts = set((gaps + 1).tolist())
+    for b in np.flatnonzero(np.abs(local[1:] / local[:-1] - 1) > RATE_TOLERANCE) + 1:
+        # the new rate starts at the first interval of its size in the two blocks around the change
+        window = dt[(b - 1) * RATE_BLOCK: (b + 1) * RATE_BLOCK]
+        row = (b - 1) * RATE_BLOCK + int(np.argmax(np.abs(window / local[b] - 1) <= RATE_TOLERANCE))
+        notes.append(f"the rate changes from {1 / local[b - 1]:.4g} Hz to {1 / local[b]:.4g} Hz "
+                     f"at row {row + 1}")
+        cuts.add(int(row))
+    bounds = [0, *sorted(c for c in cuts if 0 < c < len(t)), len(t)]
+    stretches = []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        # gap-free: the mean interval, which timestamp jitter does not bias as a median can
+        stretches.append(Stretch(lo, hi, (hi - lo - 1) / (t[hi - 1] - t[lo]) if hi - lo > 1 else 0.0))
+    return stretches, notes

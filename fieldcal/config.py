@@ -12,7 +12,7 @@ from drivers.sim.noise import TriadNoise
 from drivers.transport import PortSettings
 from fieldcal.earth import Station
 from fieldcal.model import KINDS
-from fieldcal.validation import MISSING, FieldReader, describe, read_yaml_file
+from fieldcal.validation import IDENTIFIER, MISSING, FieldReader, describe, line_of, read_yaml_file
 
 CONFIGS_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEVICE_PROTOCOLS = ("sim", "delimited", "vectornav", "xsens")
@@ -98,6 +98,9 @@ def _triads(r: FieldReader, raw, where: str) -> tuple[TriadSpec, ...]:
         r.fail(where, "a mapping of triad name to {kind, unit}", describe(raw))
     specs = []
     for name, body in raw.items():
+        if not isinstance(name, str) or not IDENTIFIER.fullmatch(name):
+            r.fail(where, "triad names of ASCII letters, digits and _ (starting with a letter)",
+                   describe(name), line_of(raw, name))
         here = f"{where}.{name}"
         m = r.mapping(body, here, ("kind", "unit"), ("noise", "zero", "sensitivity", "lsb"))
         noise = None
@@ -106,7 +109,7 @@ def _triads(r: FieldReader, raw, where: str) -> tuple[TriadSpec, ...]:
             noise = TriadNoise(white=r.number(n, "white", f"{here}.noise", 1e-12),
                                bias_instability=r.number(n, "bias_instability", f"{here}.noise", 0)
                                if "bias_instability" in n else 0.0)
-        specs.append(TriadSpec(str(name), r.string(m, "kind", here, KINDS), r.string(m, "unit", here),
+        specs.append(TriadSpec(name, r.string(m, "kind", here, KINDS), r.string(m, "unit", here),
                                noise=noise, zero=_three(r, m, "zero", here, 0.0, None),
                                sensitivity=_three(r, m, "sensitivity", here, 1.0, 1e-12),
                                lsb=r.number(m, "lsb", here, 0) if "lsb" in m else 0.0))
@@ -185,7 +188,8 @@ def _station(r: FieldReader, raw, where: str) -> Station:
     latitude = r.number(m, "latitude_deg", where)
     if not -90 <= latitude <= 90:
         r.fail(f"{where}.latitude_deg", "a latitude from -90 to 90", describe(m["latitude_deg"]))
-    height = r.number(m, "height_m", where) if "height_m" in m else 0.0
+    # the range fieldcal.earth.Station accepts, checked here so the error names the file
+    height = r.bounded(m, "height_m", where, -500, 9000, "m above the ellipsoid") if "height_m" in m else 0.0
     gravity = None
     if m.get("gravity_m_s2") is not None:
         gravity = r.number(m, "gravity_m_s2", where)

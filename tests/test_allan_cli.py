@@ -52,3 +52,64 @@ def test_bad_text_record_is_one_line(tmp_path, capsys, content, message):
     assert main(["allan", str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and message in err and "bad.csv" in err
+
+
+def _white_record(rate, seconds, rng):
+    n = int(rate * seconds)
+    return np.arange(n) / rate, rng.normal(0, 0.01, (n, 3))
+
+
+def _two_parts(path, first, second, pause_s, seed):
+    """A white-noise record in two parts, (rate Hz, seconds) each, the second starting pause_s
+    after the first's last sample."""
+    rng = np.random.default_rng(seed)
+    t1, x1 = _white_record(*first, rng)
+    t2, x2 = _white_record(*second, rng)
+    np.savetxt(path, np.column_stack([np.concatenate([t1, t1[-1] + pause_s + t2]), np.vstack([x1, x2])]),
+               delimiter=",", fmt="%.9g")
+    return path
+
+
+def test_a_gap_in_the_time_column_is_said_and_cut_out(tmp_path, capsys):
+    """Issue 16 item 8: a 100 s gap was analysed as if the samples were contiguous."""
+    path = _two_parts(tmp_path / "gap.csv", (50.0, 600), (50.0, 300), pause_s=100.0, seed=5)
+    assert main(["allan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert (f"{path}: the time column has a 100 s gap after row 30000 (t = 599.98 s); analysing "
+            "data rows 1-30000 (600 s at 50 Hz), the longest evenly sampled stretch") in out
+    assert "gyroscope: 30000 samples at 50 Hz" in out
+
+
+def test_a_rate_change_is_said_and_the_longer_part_used(tmp_path, capsys):
+    path = _two_parts(tmp_path / "rates.csv", (100.0, 200), (50.0, 400), pause_s=0.02, seed=6)
+    assert main(["allan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "the rate changes from 100 Hz to 50 Hz at row 20000" in out
+    assert "gyroscope: 20001 samples at 50 Hz" in out
+
+
+def test_timestamp_jitter_is_not_a_break(tmp_path, capsys):
+    rng = np.random.default_rng(7)
+    t, x = _white_record(100.0, 300, rng)
+    path = tmp_path / "jitter.csv"
+    np.savetxt(path, np.column_stack([t + rng.uniform(-0.002, 0.002, t.size), x]), delimiter=",", fmt="%.9g")
+    assert main(["allan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "time column" not in out and "gyroscope: 30000 samples at 100 Hz" in out
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "no data (expected at least 100 rows"),
+    (b"# only a comment\n\n", "no data (expected at least 100 rows"),
+    (bytes(range(256)), "not a text record (not UTF-8 at byte 128"),
+    (b"".join(b"%d,1,2,3\n" % i for i in range(150)) + b"150,nan,2,3\n", "data row 151 holds nan or inf"),
+])
+def test_empty_or_binary_record_is_one_line_without_warnings(tmp_path, capsys, content, message):
+    path = tmp_path / "bad.csv"
+    path.write_bytes(content)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["allan", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"fieldcal: {path}: {message}" + err.split(message, 1)[1] and err.count("\n") == 1

@@ -28,9 +28,11 @@ def test_bad_procedure_is_one_line_error(capsys, tmp_path):
     bad.write_text("name: x\ndwell_s: 200\npositions:\n  - {id: 1, axes: {x: up, y: east, z: south}}\n")
     assert main(["demo", "--procedure", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "bad.yaml.positions[0].axes" in err and "left-handed" in err
+    assert "\n" not in err and "bad.yaml: positions[0].axes" in err and "left-handed" in err
     assert main(["demo", "--procedure", "no-such-procedure"]) == 2
-    assert "cannot read procedure" in capsys.readouterr().err
+    assert capsys.readouterr().err.startswith("fieldcal: no-such-procedure: no such procedure (not a file, nor ")
+    assert main(["demo", "--procedure", str(tmp_path)]) == 2  # a directory
+    assert capsys.readouterr().err == f"fieldcal: {tmp_path}: cannot read procedure (Is a directory)\n"
 
 
 def test_demo_parameter_file_loads_and_is_deterministic(capsys, tmp_path):
@@ -108,9 +110,9 @@ def test_negative_seed_is_refused_by_name(capsys):
 
 
 @pytest.mark.parametrize("field, value, message", [
-    ("dwell_s", ".inf", "dwell_s: expected a number from 1 to 86400 s, got inf"),
-    ("dwell_s", "0.001", "dwell_s: expected a number from 1 to 86400 s, got 0.001"),
-    ("rate_deg_s", "1.0e-9", "rate_step.rate_deg_s: expected a number from 0.1 to 400 °/s, got 1e-09"),
+    ("dwell_s", ".inf", "dwell_s: expected a number from 1 to 86400 s, got .inf (line 7)"),
+    ("dwell_s", "0.001", "dwell_s: expected a number from 1 to 86400 s, got 0.001 (line 7)"),
+    ("rate_deg_s", "1.0e-9", "rate_step.rate_deg_s: expected a number from 0.1 to 400 °/s, got 1e-09 (line 8)"),
 ])
 def test_procedure_numbers_are_bounded(capsys, tmp_path, field, value, message):
     from fieldcal.procedure.positions import PROCEDURES_DIR
@@ -120,7 +122,7 @@ def test_procedure_numbers_are_bounded(capsys, tmp_path, field, value, message):
     path = tmp_path / "bounded.yaml"
     path.write_text(text)
     assert main(["demo", "--procedure", str(path)]) == 2
-    assert capsys.readouterr().err.strip() == f"fieldcal: bounded.yaml.{message}"
+    assert capsys.readouterr().err.strip() == f"fieldcal: {path}: {message}"
 
 
 # ------------------------------------------------------------------------------------------------

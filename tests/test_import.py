@@ -343,7 +343,7 @@ def mutate(path, value):
 
 
 @pytest.mark.parametrize(("path", "value", "field"), [
-    ((0, "time"), KeyError, "files[0].time: expected"),
+    ((0, "time"), KeyError, "files[0].time: missing"),
     ((0, "time", "unit"), "minutes", "files[0].time.unit: expected 's' or 'ms'"),
     ((0, "time", "scale"), 1.0e-3, "files[0].time: expected either unit"),
     ((1, "time", "column"), -1, "files[1].time.column: expected a column number"),
@@ -354,7 +354,7 @@ def mutate(path, value):
     ((1, "triads", "gyroscope", "columns"), [1, 2, 2], "files[1].triads.gyroscope.columns[2]"),
     ((1, "triads", "gyroscope", "unit"), "m/s^2", "files[1].triads.gyroscope.unit: expected a unit of angular rate"),
     ((1, "triads", "gyroscope", "scale"), "1e-3", "files[1].triads.gyroscope.scale"),
-    ((0, "triads", "accelerometer", "units"), "g", "files[0].triads.accelerometer.units: expected only the keys"),
+    ((0, "triads", "accelerometer", "units"), "g", "files[0].triads.accelerometer.units: unknown key 'units'; did you mean 'unit'?"),
     ((0, "delimiter"), ";;", "files[0].delimiter: expected one ASCII character"),
     ((1, "triads"), {"accelerometer": {"columns": [1, 2, 3], "kind": "specific_force", "unit": "g"}},
      "files[1].triads.accelerometer: expected a triad name not used by another file"),
@@ -370,7 +370,7 @@ def test_map_errors_name_the_file_and_field(tmp_path, path, value, field):
 
 @pytest.mark.parametrize(("text", "expected"), [
     ("files: []\n", "files: expected a list of files"),
-    ("file:\n  - {}\n", "file: expected only the keys files, description"),
+    ("file:\n  - {}\n", "file: unknown key 'file'; did you mean 'files'? (line 1)"),
     ("files:\n  - name: a\n    name: b\n", "not valid YAML (line 3: key 'name' appears twice"),
     ("files: [\n", "not valid YAML (line 2"),
 ])

@@ -75,8 +75,10 @@ class SimulatedDevices:
         from drivers.sim.tables import TableMotion
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport: expected 'pty' or 'tcp', got {transport!r}")
-        if speed < 0:
-            raise ValueError(f"speed: expected >= 0 (0 = as fast as read), got {speed}")
+        if not (math.isfinite(speed) and speed >= 0):
+            raise ValueError(f"speed: expected a finite number >= 0 (0 = as fast as read), got {speed}")
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"rate_hz: expected a finite number > 0, got {rate_hz}")
         self.simulator = MimuSimulator(triads, gravity=gravity, latitude_rad=latitude_rad,
                                        rate_hz=rate_hz, seed=seed)
         self.encoder = make_encoder(imu_protocol)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fieldcal.allan import allan_deviation, noise_terms, plot_allan
+from fieldcal.allan import allan_deviation, noise_terms, plot_allan, regular_stretches
 from fieldcal.model import SI_UNIT
 
 NEAR_MINIMUM = 1.05
@@ -77,21 +77,44 @@ def _session_records(directory: Path) -> tuple[dict[str, np.ndarray], dict[str, 
 
 
 def _text_record(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str, str], float]:
-    text = path.read_text()
-    delimiter = "," if "," in text.split("\n", 50)[-1] or "," in text[:2000] else None
+    import warnings
+
     try:
-        table = np.loadtxt(path, delimiter=delimiter, comments="#", ndmin=2)
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a text record (not UTF-8 at byte {exc.start}; expected rows "
+                         "'t, x, y, z')") from None
+    rows = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
+    if not rows:
+        raise ValueError(f"{path}: no data (expected at least 100 rows of 4 numbers 't, x, y, z')")
+    delimiter = "," if "," in rows[0] else None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # said below in our words, not numpy's
+            table = np.loadtxt(rows, delimiter=delimiter, ndmin=2)
     except ValueError as exc:
         raise ValueError(f"{path}: expected rows of 4 numbers 't, x, y, z' ({str(exc).splitlines()[0]})") from None
     if table.shape[1] != 4 or len(table) < 100:
         raise ValueError(f"{path}: expected at least 100 rows of 4 numbers 't, x, y, z', "
                          f"got {len(table)} rows of {table.shape[1]}")
+    if not np.all(np.isfinite(table)):
+        row = int(np.argmax(~np.all(np.isfinite(table), axis=1)))
+        raise ValueError(f"{path}: data row {row + 1} holds nan or inf; cut the record around it")
     dt = np.diff(table[:, 0])
     if np.any(dt <= 0):
         raise ValueError(f"{path}: time (first column) must increase on every row "
                          f"(row {int(np.argmax(dt <= 0)) + 2} does not)")
+    stretches, breaks = regular_stretches(table[:, 0])
+    longest = max(stretches, key=lambda s: s.seconds)
+    if breaks:
+        print(f"{path}: the time column has {'; '.join(breaks)}; analysing data rows "
+              f"{longest.start + 1}-{longest.stop} ({longest.seconds:.0f} s at {longest.rate_hz:.4g} Hz), "
+              "the longest evenly sampled stretch")
+        if longest.stop - longest.start < 100:
+            raise ValueError(f"{path}: no evenly sampled stretch of 100 rows or more (the time column "
+                             f"has {'; '.join(breaks[:3])}{'; ...' if len(breaks) > 3 else ''})")
     name = "gyroscope" if kind == "angular_rate" else "accelerometer"
-    return {name: table[:, 1:]}, {name: kind}, float(1.0 / np.median(dt))
+    return {name: table[longest.start: longest.stop, 1:]}, {name: kind}, longest.rate_hz
 
 
 def cmd_allan(args) -> int:

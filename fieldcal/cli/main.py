@@ -2,11 +2,14 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
 from fieldcal import __version__
 from fieldcal.solvers.solve import METHODS
+
+MAX_SERVE_RATE_HZ = 4000.0  # the fastest MEMS IMU output rates; above it the simulator cannot keep up
 
 
 def _seed(text: str) -> int:
@@ -16,16 +19,29 @@ def _seed(text: str) -> int:
     return value
 
 
-def _positive(kind):
+def _positive(kind, maximum: float = math.inf, unit: str = ""):
+    """An argparse type: a finite number > 0 (and <= maximum); nan and inf are refused."""
     def parse(text: str):
         try:
             value = kind(text)
         except ValueError:
             value = -1
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+        if not (math.isfinite(value) and 0 < value <= maximum):
+            top = f" and <= {maximum:g}{unit}" if math.isfinite(maximum) else ""
+            raise argparse.ArgumentTypeError(f"expected a number > 0{top}, got {text!r}")
         return value
     return parse
+
+
+def _speed(text: str) -> float:
+    """Times real time: a finite number >= 0 (0 = as fast as read)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 (0 = as fast as read), got {text!r}")
+    return value
 
 
 def _progress_printer(stream):
@@ -112,16 +128,16 @@ def cmd_sim_serve(args) -> int:
         speed=args.speed, seed=args.seed, rate_hz=args.rate,
         attitude=positions[args.position - 1].attitude)
     with devices:
-        print(f"simulated MIMU ({args.imu_protocol}, {args.rate:g} Hz, field-18 position "
-              f"{args.position}): {devices.imu_url}")
-        if devices.table_url:
-            print(f"simulated rate table ({args.table_protocol}): {devices.table_url}")
-        print("serving until Ctrl-C", flush=True)
-        try:
+        try:  # from the first line on: a signal right after "serving" is a normal stop too
+            print(f"simulated MIMU ({args.imu_protocol}, {args.rate:g} Hz, field-18 position "
+                  f"{args.position}): {devices.imu_url}")
+            if devices.table_url:
+                print(f"simulated rate table ({args.table_protocol}): {devices.table_url}")
+            print("serving until Ctrl-C", flush=True)
             while True:
                 time.sleep(1.0)
-        except KeyboardInterrupt:
-            print(f"stopped after {devices.samples_sent} samples")
+        except (KeyboardInterrupt, Terminated):  # the ports and their links go with the block
+            print(f"stopped after {devices.samples_sent} samples", flush=True)
     return 0
 
 
@@ -208,7 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "fresh engine and solver, and check that the parameter file comes out "
                             "byte for byte the same.")
     replay.add_argument("session", help="session directory")
-    replay.add_argument("--speed", type=float, help="times real time (default: as fast as possible)")
+    replay.add_argument("--speed", type=_positive(float), help="times real time (default: as fast as possible)")
     replay.add_argument("--out", metavar="FILE", help="also write the replayed parameter file here "
                         "(never inside a session)")
     replay.add_argument("--force", action="store_true", help="replace the --out file if it exists")
@@ -245,9 +261,10 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--imu-protocol", choices=("xsens", "vectornav", "delimited"), default="xsens")
     serve.add_argument("--table-protocol", choices=("ascii", "grbl"), default="ascii")
     serve.add_argument("--transport", choices=("pty", "tcp"), default="pty")
-    serve.add_argument("--speed", type=float, default=1.0,
+    serve.add_argument("--speed", type=_speed, default=1.0,
                        help="1 = real time (default), 10 = ten times faster, 0 = as fast as read")
-    serve.add_argument("--rate", type=float, default=250.0, help="sample rate, Hz (default 250)")
+    serve.add_argument("--rate", type=_positive(float, MAX_SERVE_RATE_HZ, " Hz"), default=250.0,
+                       help=f"sample rate, Hz (default 250, at most {MAX_SERVE_RATE_HZ:g})")
     serve.add_argument("--position", type=int, default=1, help="field-18 position of the unit (default 1)")
     serve.add_argument("--seed", type=_seed, default=1)
     serve.add_argument("--latitude", type=float, default=40.0, help="degrees (default 40)")
@@ -264,19 +281,77 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that it unwinds like Ctrl-C (files closed)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated
+
+
+def _session(args):
+    """The session directory the command was writing, if any."""
+    return getattr(args, "session_path", None) or (args.session if args.command == "resume" else None)
+
+
+def _session_note(args, what: str) -> str:
+    """What became of the session a command was writing when it stopped, and how to go on."""
+    session = _session(args)
+    if session is None:
+        return ""
+    if getattr(args, "serial", False):
+        return f"; the session so far is in {session} (a serial run cannot be resumed: run again)"
+    return (f"; the session in {session} is consistent up to its last completed step{what}: "
+            f"continue it with: fieldcal resume {session}")
+
+
+def _os_error(exc: OSError, args) -> str:
+    """One line for a failed read or write: the file, what the system said, and for a session,
+    where it stands."""
+    import errno
+
+    # a buffered write's error carries no file name: the session being written is the place
+    place = exc.filename or _session(args)
+    where = f"{place}: " if place else ""
+    reason = exc.strerror or str(exc)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"{where}{reason}" + _session_note(args, " (free some space first)")
+    if exc.errno == errno.ENAMETOOLONG:
+        return f"{where}a name in this path is too long for the file system"
+    return f"{where}{reason}" + _session_note(args, "")
+
+
 def main(argv=None) -> int:
+    import signal
+    import threading
+
     args = build_parser().parse_args(argv)
+    # The terminal UI restores the terminal on its own way out; everything else unwinds on
+    # SIGTERM as on Ctrl-C, closing its files and saying where its session is.
+    catch_sigterm = threading.current_thread() is threading.main_thread() and args.command != "tui"
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if catch_sigterm else None
     try:
+        from fieldcal.cli.paths import check_paths
+        check_paths(args)
         return args.func(args)
     except ValueError as exc:  # ConfigError, ProcedureError, ParameterFileError, bad arguments
         print(f"fieldcal: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("fieldcal: interrupted", file=sys.stderr)
-        return 130
     except BrokenPipeError:  # output piped into head: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:  # disk full, unwritable, removed under us: one line, never a traceback
+        print(f"fieldcal: {_os_error(exc, args)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"fieldcal: interrupted{_session_note(args, '')}", file=sys.stderr)
+        return 130
+    except Terminated:
+        print(f"fieldcal: terminated (SIGTERM){_session_note(args, '')}", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    finally:
+        if catch_sigterm:  # None: a handler not set from Python; the default is what it did
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 if __name__ == "__main__":

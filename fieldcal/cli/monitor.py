@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from drivers.transport import PORT_LOST, PORT_OPENED
 from fieldcal.config import StationConfig
 from fieldcal.run.devices import DeviceConnection
 
@@ -54,10 +55,11 @@ def _live_line(chunk, rate_hz: float, counters, units: dict[str, str], width: in
 
 def run_monitor(config: StationConfig, out, err, max_samples: int | None = None,
                 max_seconds: float | None = None, live: bool | None = None) -> int:
-    """Print samples until stopped (Ctrl-C), or until ``max_samples`` / ``max_seconds``."""
+    """Print samples until stopped (Ctrl-C), or until ``max_samples`` / ``max_seconds``; exit
+    status 1, with a hint at the port, protocol or baud rate, if no sample came."""
     live = out.isatty() if live is None else live
     units = {t.name: t.unit for t in config.device.triads}
-    printed, header, last_draw = 0, None, 0.0
+    printed, header, last_draw, opened = 0, None, 0.0, False
     window: list[tuple[float, int]] = []  # (sample time, count) for the live rate
     with DeviceConnection(config) as conn:
         started = time.monotonic()
@@ -68,9 +70,14 @@ def run_monitor(config: StationConfig, out, err, max_samples: int | None = None,
             while max_seconds is None or time.monotonic() - started < max_seconds:
                 chunks, events = conn.read()
                 for event in events:
-                    gap = f" after {event.gap_s:.2f} s" if event.gap_s else ""
-                    print(f"\nport {event.kind}{gap}: {event.message}" if live
-                          else f"port {event.kind}{gap}: {event.message}", file=err, flush=True)
+                    opened |= event.kind == PORT_OPENED
+                    if event.kind == PORT_LOST and event.message.startswith("cannot open"):
+                        line = (f"{event.message}; retrying every {conn.reader.retry_s:g} s "
+                                "(Ctrl-C to stop)")
+                    else:
+                        gap = f" after {event.gap_s:.2f} s" if event.gap_s else ""
+                        line = f"port {event.kind}{gap}: {event.message}"
+                    print(f"\n{line}" if live else line, file=err, flush=True)
                 for chunk in chunks:
                     if max_samples is not None:
                         chunk_rows = _table(chunk)[: max_samples - printed]
@@ -104,4 +111,21 @@ def run_monitor(config: StationConfig, out, err, max_samples: int | None = None,
         if live:
             print(file=out)
         print(f"{printed} samples; {counters_line(conn.counters)}", file=err, flush=True)
-    return 0
+        if printed:
+            return 0
+        print(f"fieldcal: {no_samples_hint(config, opened, conn.reader.bytes_read)}", file=err, flush=True)
+    return 1
+
+
+def no_samples_hint(config: StationConfig, opened: bool, bytes_read: int) -> str:
+    """Why a monitor saw nothing, in the config's terms: the port, the baud rate, the protocol."""
+    device = config.device
+    where = device.port.url if device.port else "the simulated device's port"
+    baud = f"device.port.baudrate, now {device.port.baudrate}" if device.port else "device.port.baudrate"
+    if not opened:
+        return f"no samples: {where} never opened (is the unit plugged in, and is device.port.url in {config.path} right?)"
+    if not bytes_read:
+        return (f"no samples: {where} opened but sent no bytes (is the unit powered and set to send? "
+                f"is the baud rate right: {baud} in {config.path}?)")
+    return (f"no samples: {bytes_read} bytes read from {where} but none decoded as {device.protocol} "
+            f"frames: check device.protocol and the baud rate ({baud}) in {config.path}")

@@ -67,6 +67,7 @@ def cmd_run(args) -> int:
                    on_motion=args.on_motion, script=script)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = Path(args.out) / f"{procedure.name}-seed{seed}-{stamp}"
+    args.session_path = directory  # for the interrupted / disk-full message (cli.main)
     print(f"headless {procedure.name} against {config.device.name}, seed {seed}; session {directory}",
           flush=True)
     result = run_headless(spec, directory, printer(sys.stdout, args.quiet), serial=args.serial)

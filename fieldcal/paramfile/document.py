@@ -13,7 +13,8 @@ Design points:
 * K is the authority; the named scale factors and angles are written next to it for people and
   checked against it on load (a mismatch means a hand edit: rejected, naming the field).
 * ``load`` never shows a traceback for bad content: every problem is one line,
-  ``<file>: <dotted.field.path>: expected <what>, got <what>``.
+  ``<file>: <dotted.field.path>: expected <what>, got <what> (line N)`` (or ``missing``, or
+  ``unknown key 'x'; did you mean 'y'?``).
 """
 from __future__ import annotations
 

@@ -7,10 +7,12 @@ A procedure file names, for each position, the local direction each body axis po
 from __future__ import annotations
 
 from dataclasses import dataclass
+import re
 from pathlib import Path
 
 import numpy as np
-import yaml
+
+from fieldcal.validation import FieldReader, describe, join, line_of, parse_yaml, read_yaml_text
 
 PROCEDURES_DIR = Path(__file__).resolve().parents[2] / "procedures"
 _WORDS = {"east": (1, 0, 0), "west": (-1, 0, 0), "north": (0, 1, 0), "south": (0, -1, 0),
@@ -19,6 +21,10 @@ _WORDS = {"east": (1, 0, 0), "west": (-1, 0, 0), "north": (0, 1, 0), "south": (0
 
 class ProcedureError(ValueError):
     """A procedure file that cannot be used; the message names the file and field."""
+
+    def __init__(self, message: str, path: str = "", field: str = ""):
+        super().__init__(message)
+        self.path, self.field = path, field
 
 
 @dataclass(frozen=True)
@@ -52,82 +58,84 @@ class Procedure:
     text: str = ""  # the YAML it was read from, for the session capture
 
 
-def _direction(word: str, where: str) -> np.ndarray:
-    parts = str(word).split("-")
+# A procedure's name becomes part of a session directory's name: a plain file name, so that
+# "../../x" cannot write outside --out and a 300-character name cannot hit the file system's limit.
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+_TEXT_LIMIT = 200  # characters of a title or description shown to the operator
+
+
+def _direction(r: FieldReader, word, where: str, line: int | None) -> np.ndarray:
+    parts = word.split("-") if isinstance(word, str) else []
     if not parts or any(p not in _WORDS for p in parts) or len(parts) > 2:
-        raise ProcedureError(f"{where}: expected a direction like 'up', 'north' or 'south-up', got {word!r}")
+        r.fail(where, "a direction like 'up', 'north' or 'south-up'", describe(word), line)
     v = np.sum([_WORDS[p] for p in parts], axis=0).astype(float)
     norm = np.linalg.norm(v)
     if norm == 0:
-        raise ProcedureError(f"{where}: {word!r} names opposite directions")
+        r.refuse(where, f"{word!r} names opposite directions", line)
     return v / norm
 
 
-def _position(raw, where: str) -> Position:
-    if not isinstance(raw, dict):
-        raise ProcedureError(f"{where}: expected a mapping with id, description, axes")
-    axes = raw.get("axes")
-    if not isinstance(axes, dict) or set(axes) != {"x", "y", "z"}:
-        raise ProcedureError(f"{where}.axes: expected a mapping with keys x, y, z")
-    cols = [_direction(axes[k], f"{where}.axes.{k}") for k in "xyz"]
+def _text(r: FieldReader, m: dict, key: str, where: str) -> str:
+    """Optional free text, checked before any conversion (a list is not a title)."""
+    if key not in m:
+        return ""
+    value = m[key]
+    if not isinstance(value, str) or len(value) > _TEXT_LIMIT:
+        r.fail(join(where, key), f"text of at most {_TEXT_LIMIT} characters", describe(value),
+               line_of(m, key))
+    return value
+
+
+def _position(r: FieldReader, raw, where: str) -> Position:
+    m = r.mapping(raw, where, ("id", "axes"), ("description",))
+    axes = r.mapping(m["axes"], join(where, "axes"), ("x", "y", "z"), line=line_of(m, "axes"))
+    cols = [_direction(r, axes[k], f"{where}.axes.{k}", line_of(axes, k)) for k in "xyz"]
     attitude = np.column_stack(cols)
     if not np.allclose(attitude.T @ attitude, np.eye(3), atol=1e-9):
-        raise ProcedureError(f"{where}.axes: the axes are not mutually perpendicular")
+        r.refuse(f"{where}.axes", "the axes are not mutually perpendicular", line_of(m, "axes"))
     if np.linalg.det(attitude) < 0:
-        raise ProcedureError(f"{where}.axes: x, y, z form a left-handed set (mirror one horizontal axis)")
-    ident = raw.get("id")
-    if not isinstance(ident, int):
-        raise ProcedureError(f"{where}.id: expected an integer, got {ident!r}")
-    return Position(id=ident, description=str(raw.get("description", "")), attitude=attitude)
-
-
-def _number(raw: dict, key: str, where: str, low: float, high: float, unit: str) -> float:
-    """A number in [low, high]; the bounds keep a typo from meaning a run of days."""
-    value = raw.get(key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-        raise ProcedureError(f"{where}.{key}: expected a number from {low:g} to {high:g} {unit}, "
-                             f"got {value!r}")
-    return float(value)
+        r.refuse(f"{where}.axes", "x, y, z form a left-handed set (mirror one horizontal axis)",
+                 line_of(m, "axes"))
+    ident = r.whole(m, "id", where, 0, 10**6)
+    return Position(id=ident, description=_text(r, m, "description", where), attitude=attitude)
 
 
 def load_procedure(name_or_path: str | Path) -> Procedure:
     """Load ``procedures/NAME.yaml`` or a path; a bad file gives a one-line ProcedureError."""
     path = Path(name_or_path)
-    if not path.suffix:
-        path = PROCEDURES_DIR / f"{name_or_path}.yaml"
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ProcedureError(f"{path}: cannot read procedure ({exc.strerror})") from None
-    return parse_procedure(text, path.name)
+    if not path.suffix and not path.exists():
+        path = PROCEDURES_DIR / f"{path.name}.yaml"
+        if not path.is_file():
+            known = ", ".join(sorted(p.stem for p in PROCEDURES_DIR.glob("*.yaml")))
+            raise ProcedureError(f"{name_or_path}: no such procedure (not a file, nor {path}; the "
+                                 f"procedures: {known})", str(name_or_path))
+    return parse_procedure(read_yaml_text(path, ProcedureError, "procedure"), str(path))
 
 
 def parse_procedure(text: str, where: str) -> Procedure:
     """A procedure from its YAML text; ``where`` names it in errors."""
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ProcedureError(f"{where}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(raw, dict):
-        raise ProcedureError(f"{where}: expected a mapping at the top level")
-    positions = raw.get("positions")
+    raw = parse_yaml(text, where, ProcedureError)
+    r = FieldReader(where, ProcedureError)
+    m = r.mapping(raw, "", ("dwell_s", "positions"), ("name", "title", "rate_step", "aligned"),
+                  what="a procedure: a mapping")
+    positions = m["positions"]
     if not isinstance(positions, list) or not positions:
-        raise ProcedureError(f"{where}.positions: expected a non-empty list")
-    parsed = tuple(_position(p, f"{where}.positions[{i}]") for i, p in enumerate(positions))
-    step = raw.get("rate_step")
+        r.fail("positions", "a non-empty list", describe(positions), line_of(m, "positions"))
+    parsed = tuple(_position(r, p, f"positions[{i}]") for i, p in enumerate(positions))
     rate_step = None
-    if step is not None:
-        if not isinstance(step, dict):
-            raise ProcedureError(f"{where}.rate_step: expected a mapping")
-        turns = step.get("turns")
-        if isinstance(turns, bool) or not isinstance(turns, int) or not 1 <= turns <= 100:
-            raise ProcedureError(f"{where}.rate_step.turns: expected a whole number from 1 to 100, "
-                                 f"got {turns!r}")
-        here = f"{where}.rate_step"
+    if m.get("rate_step") is not None:
+        step = r.mapping(m["rate_step"], "rate_step", ("rate_deg_s", "turns", "ramp_s", "settle_s"),
+                         line=line_of(m, "rate_step"))
         # Single-axis field tables run 0.1-20 °/s (paper section 4); allow up to gyro full scale.
-        rate_step = RateStep(_number(step, "rate_deg_s", here, 0.1, 400, "°/s"), turns,
-                             _number(step, "ramp_s", here, 0, 600, "s"),
-                             _number(step, "settle_s", here, 0, 600, "s"))
-    return Procedure(name=str(raw.get("name", Path(where).stem)), title=str(raw.get("title", "")),
-                     dwell_s=_number(raw, "dwell_s", where, 1, 86400, "s"), positions=parsed,
-                     rate_step=rate_step, aligned=bool(raw.get("aligned", False)), text=text)
+        rate_step = RateStep(r.bounded(step, "rate_deg_s", "rate_step", 0.1, 400, "°/s"),
+                             r.whole(step, "turns", "rate_step", 1, 100),
+                             r.bounded(step, "ramp_s", "rate_step", 0, 600, "s"),
+                             r.bounded(step, "settle_s", "rate_step", 0, 600, "s"))
+    name = r.string(m, "name", "") if "name" in m else Path(where).stem
+    if not NAME_PATTERN.fullmatch(name):
+        r.fail("name", "a plain file name: up to 64 letters, digits, '.', '_' or '-', not "
+               "starting with '.' (it names the session directory)", describe(name),
+               line_of(m, "name"))
+    return Procedure(name=name, title=_text(r, m, "title", ""),
+                     dwell_s=r.bounded(m, "dwell_s", "", 1, 86400, "s"), positions=parsed,
+                     rate_step=rate_step, aligned=r.boolean(m, "aligned", "", False), text=text)

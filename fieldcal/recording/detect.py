@@ -127,6 +127,11 @@ def noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
     acc = np.asarray(acc, dtype=float)
     rest_n = _samples(settings.init_rest_s, rate_hz)
     window = 2 * _half_window(rate_hz, settings) + 1
+    if rest_n < 3 * window:  # the noise level is the median over windows: it needs several
+        raise DetectionError(
+            f"an initial rest of {settings.init_rest_s:g} s is too short to measure the noise: it must "
+            f"hold at least 3 stillness windows of {window / rate_hz:.3g} s; give a rest of "
+            f"{3 * window / rate_hz:.3g} s or more (--rest), and record the unit still that long first")
     if len(acc) < rest_n + window:
         raise DetectionError(
             f"recording is {len(acc) / rate_hz:.1f} s long, but it must start with {settings.init_rest_s:g} s "

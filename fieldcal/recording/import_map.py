@@ -20,14 +20,13 @@ The parsing itself is ``drivers.protocols.delimited``: each entry becomes a Chan
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.protocols.delimited import ChannelMap
 from fieldcal.config import CONFIGS_DIR
 from fieldcal.model import ANGULAR_RATE, KINDS, SPECIFIC_FORCE
-from fieldcal.validation import MISSING, FieldReader, describe, join, read_yaml_file
+from fieldcal.validation import IDENTIFIER, FieldReader, describe, join, parse_yaml, read_yaml_text
 
 RECORDINGS_DIR = CONFIGS_DIR / "recordings"
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -36,7 +35,6 @@ TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 _UNITS_OF = {SPECIFIC_FORCE: {"m/s^2", "m/s2", "m/s²", "g", "mg", "ug"},
              ANGULAR_RATE: {"rad/s", "mrad/s", "deg/s", "°/s", "dps", "mdeg/s", "deg/h", "°/h"}}
 _EXAMPLES = {SPECIFIC_FORCE: "m/s^2, g, mg", ANGULAR_RATE: "rad/s, deg/s"}
-_TRIAD_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
 
 
 class ImportMapError(ValueError):
@@ -85,14 +83,14 @@ def resolve_map_path(name_or_path: str | os.PathLike) -> Path:
 def load_import_map(name_or_path: str | os.PathLike) -> ImportMap:
     """Read and validate an import map; any problem is a one-line ImportMapError."""
     path = resolve_map_path(name_or_path)
-    doc = read_yaml_file(path, ImportMapError, "import map")
-    return parse_import_map(doc, str(path), path.read_text(encoding="utf-8"))
+    text = read_yaml_text(path, ImportMapError, "import map")
+    return parse_import_map(parse_yaml(text, str(path), ImportMapError), str(path), text)
 
 
 def parse_import_map(doc, path: str, text: str = "") -> ImportMap:
     """Validate an already-loaded YAML document (``path`` only names it in messages)."""
     r = FieldReader(path, ImportMapError)
-    m = _mapping(r, doc, "", ("files",), ("description",))
+    m = r.mapping(doc, "", ("files",), ("description",))
     description = r.string(m, "description", "", optional=True) or ""
     files_in = m["files"]
     if not isinstance(files_in, list) or not files_in:
@@ -114,17 +112,8 @@ def parse_import_map(doc, path: str, text: str = "") -> ImportMap:
     return ImportMap(path=path, text=text, files=tuple(files), description=description)
 
 
-def _mapping(r: FieldReader, value, where: str, required, optional=()) -> dict:
-    """FieldReader.mapping, and every required key present."""
-    m = r.mapping(value, where, required, optional)
-    for key in required:
-        if key not in m:
-            r.fail(join(where, key), "a value (the key is required)", describe(MISSING))
-    return m
-
-
 def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
-    m = _mapping(r, entry, where, ("time", "triads"), ("name", "delimiter", "comment"))
+    m = r.mapping(entry, where, ("time", "triads"), ("name", "delimiter", "comment"))
     name = r.string(m, "name", where, optional=True) or f"file {index + 1}"
     time_column, time_scale = _time(r, m["time"], join(where, "time"))
 
@@ -135,10 +124,10 @@ def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
     kinds, units, columns = {}, {}, {}
     for tname, body in triads_in.items():
         here = f"{where}.triads.{tname}"
-        if not isinstance(tname, str) or not _TRIAD_NAME.fullmatch(tname):
+        if not isinstance(tname, str) or not IDENTIFIER.fullmatch(tname):
             r.fail(join(where, "triads"), "triad names of ASCII letters, digits and _ "
                    "(starting with a letter)", describe(tname))
-        t = _mapping(r, body, here, ("columns", "kind", "unit"), ("scale",))
+        t = r.mapping(body, here, ("columns", "kind", "unit"), ("scale",))
         kinds[tname] = r.string(t, "kind", here, KINDS)
         units[tname] = r.string(t, "unit", here)
         other = next(k for k in KINDS if k != kinds[tname])
@@ -165,7 +154,7 @@ def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
 
 
 def _time(r: FieldReader, raw, where: str) -> tuple[int, float]:
-    m = _mapping(r, raw, where, ("column",), ("unit", "scale"))
+    m = r.mapping(raw, where, ("column",), ("unit", "scale"))
     column = m["column"]
     if isinstance(column, bool) or not isinstance(column, int) or column < 0:
         r.fail(join(where, "column"), "a column number (0-based integer >= 0)", describe(column))

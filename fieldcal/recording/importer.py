@@ -33,6 +33,9 @@ from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
 
 FIRST_FEW = 10  # malformed line numbers kept per file
 MALFORMED_WARNING = 0.01  # fraction of a file's data lines
+# No IMU output reaches this in any unit (a 32-bit count is 2.1e9): a bigger value is a corrupted
+# line, and left in it would overflow the variances that find the poses.
+MAX_READING = 1e12
 GAP_PERIODS = 5.0  # a step in time longer than this many median periods is a gap
 MIN_OVERLAP = 0.5  # of the shortest file's duration
 _CONTROL = re.compile("[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")  # all but tab and CR
@@ -165,6 +168,14 @@ def _read(path: str, spec: FileSpec) -> _Parsed:
             f"{path}: line {lines[i]}: time {t[i]:.9g} s is not after {t[i - 1]:.9g} s (line "
             f"{lines[i - 1]}); time must increase strictly ({len(back)} such line"
             f"{'s' * (len(back) != 1)} in the file)", path, int(lines[i]))
+    for name, values in chunk.triads.items():
+        wild = np.flatnonzero(~(np.abs(values) <= MAX_READING).all(axis=1))
+        if len(wild):
+            i = int(wild[0])
+            raise RecordingImportError(
+                f"{path}: line {lines[i]}: {name} reads {_largest(values[i]):.6g} {spec.units[name]}, "
+                f"beyond any sensor's range (|x| > {MAX_READING:.0e}): fix or delete the line "
+                f"({len(wild)} such line{'s' * (len(wild) != 1)} in the file)", path, int(lines[i]))
     period = float(np.median(dt))
     widest = int(np.argmax(dt))
     report = FileReport(
@@ -175,6 +186,10 @@ def _read(path: str, spec: FileSpec) -> _Parsed:
         gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
         largest_gap_line=int(lines[widest + 1]))
     return _Parsed(spec, report, t, dict(chunk.triads))
+
+
+def _largest(row: np.ndarray) -> float:
+    return float(row[int(np.argmax(np.abs(row)))])
 
 
 def _is_text(line: bytes) -> bool:

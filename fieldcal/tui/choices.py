@@ -18,6 +18,7 @@ from fieldcal.atomic import write_atomically
 from fieldcal.config import CONFIGS_DIR, StationConfig, load_config
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import PROCEDURES_DIR, Procedure, load_procedure
+from fieldcal.validation import read_yaml_file
 
 LAST_SETUP_NAME = "last-setup.yaml"
 LATITUDE_RANGE = (-90.0, 90.0)
@@ -80,9 +81,8 @@ def load_last_choice(path: str | os.PathLike | None = None) -> SetupChoice | Non
     (a remembered choice is a convenience: it never stops the station from starting)."""
     path = Path(path) if path is not None else last_choice_path()
     try:
-        text = path.read_text(encoding="utf-8")
-        raw = yaml.safe_load(text)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
+        raw = read_yaml_file(path, ValueError, "remembered setup")  # the strict loader: no alias bombs
+    except ValueError:
         return None
     return _choice_from(raw)
 

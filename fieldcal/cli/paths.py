@@ -1,0 +1,98 @@
+"""Where commands write, checked before they start: one line naming the path and what is wrong,
+instead of an OSError after a run of an hour (a file given as --out, an unwritable directory,
+a name too long for the file system)."""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+
+def _existing_ancestor(path: Path) -> Path:
+    for candidate in (path, *path.parents):
+        if candidate.exists():
+            return candidate
+    return Path(".")
+
+
+def _check_names(path: Path, flag: str) -> None:
+    for part in path.parts:
+        if len(os.fsencode(part)) > 255:  # NAME_MAX of every common Linux file system
+            raise ValueError(f"{flag} {str(path)[:80]}...: a name in this path is longer than the "
+                             "file system allows (255 bytes)")
+
+
+def _probe(directory: Path, flag: str, path: Path) -> None:
+    """Create and remove a temporary file in ``directory``: os.access cannot see a read-only
+    file system, and as root it says yes to everything."""
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as exc:
+        raise ValueError(f"{flag} {path}: cannot write in {directory} ({exc.strerror or exc})") from None
+
+
+def output_directory(path: str | os.PathLike, flag: str) -> None:
+    """A directory the command will create files (or sessions) in: it, or the nearest existing
+    folder above it, must be a writable directory."""
+    p = Path(path)
+    _check_names(p, flag)
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"{flag} {p}: is a file, not a directory (name a directory)")
+    base = _existing_ancestor(p)
+    if not base.is_dir():
+        raise ValueError(f"{flag} {p}: {base} is a file, not a directory")
+    _probe(base, flag, p)
+
+
+def output_file(path: str | os.PathLike, flag: str) -> None:
+    """A file the command will write: not a directory, in an existing writable directory."""
+    p = Path(path)
+    _check_names(p, flag)
+    if p.is_dir():
+        raise ValueError(f"{flag} {p}: is a directory; name the file to write")
+    parent = p.parent
+    if not parent.exists():
+        raise ValueError(f"{flag} {p}: the directory {parent} does not exist")
+    if not parent.is_dir():
+        raise ValueError(f"{flag} {p}: {parent} is a file, not a directory")
+    _probe(parent, flag, p)
+
+
+def writable_session(directory: str | os.PathLike) -> None:
+    """A session to be continued: its folder and files must take writes, checked before a
+    resume re-runs anything."""
+    d = Path(directory)
+    if not d.is_dir():
+        return  # the session reader names what is missing
+    try:
+        with tempfile.TemporaryFile(dir=d):
+            pass
+        for name in ("log.jsonl", "samples.bin"):
+            if (d / name).exists():
+                with open(d / name, "ab"):  # opened for appending, nothing written
+                    pass
+    except OSError as exc:
+        what = exc.filename or d
+        raise ValueError(f"{d}: cannot resume: {what} cannot be written ({exc.strerror or exc}); "
+                         "nothing was re-run") from None
+
+
+def check_paths(args) -> None:
+    """The output paths of the parsed command line, before the command runs."""
+    command = args.command
+    # calibrate writes under --out only when it imports text files (a session is calibrated in place)
+    imports = command == "calibrate" and not all(Path(r).is_dir() for r in args.recording)
+    if command in ("run", "import") or imports or (
+            command == "tui" and getattr(args, "go", False) and not getattr(args, "no_capture", False)):
+        output_directory(args.out, "--out")
+    if command in ("demo", "calibrate") and getattr(args, "params", None):
+        output_file(args.params, "--params")
+    if command == "replay" and args.out:
+        output_file(args.out, "--out")
+    if command == "resume":
+        writable_session(args.session)
+    if command == "allan" and args.plot_dir:
+        output_directory(args.plot_dir, "--plot-dir")
+
+
