@@ -14,7 +14,6 @@ import select
 import threading
 import time
 import tty
-from contextlib import contextmanager
 
 import pytest
 import serial
@@ -32,89 +31,10 @@ from drivers.tables import (
     open_table,
 )
 from drivers.tables.base import format_number, wrap_angle
+from drivers.testing import FakePort, expected_protocol
 
 # =============================================================================================
 # PyMeasure-style exact byte exchanges
-
-
-class FakePort:
-    """Asserts the driver writes exactly the expected bytes, in order, and plays the replies.
-
-    ``pairs``: ``(sent, reply)`` — after the driver wrote ``sent`` (in one or several writes),
-    ``reply`` becomes readable; ``(None, unsolicited)`` — readable as soon as the exchange
-    before it completed (at once, if first). Reading past the available bytes returns what there
-    is, as pyserial does when its timeout expires.
-    """
-
-    def __init__(self, pairs):
-        self.pairs = list(pairs)
-        self.index = 0
-        self.pending = bytearray()  # written, not yet matched
-        self.rx = bytearray()
-        self.timeout = None
-        self.closed = False
-        self._queue_unsolicited()
-
-    def _queue_unsolicited(self):
-        while self.index < len(self.pairs) and self.pairs[self.index][0] is None:
-            self.rx += self.pairs[self.index][1]
-            self.index += 1
-
-    def write(self, data: bytes) -> int:
-        assert isinstance(data, (bytes, bytearray)), f"write() got {type(data).__name__}"
-        self.pending += data
-        while self.pending:
-            if self.index >= len(self.pairs):
-                raise AssertionError(f"driver wrote {bytes(self.pending)!r}; "
-                                     f"no more exchanges expected")
-            sent, reply = self.pairs[self.index]
-            n = min(len(self.pending), len(sent))
-            if self.pending[:n] != sent[:n]:
-                raise AssertionError(f"exchange {self.index}: driver wrote "
-                                     f"{bytes(self.pending)!r}, expected {sent!r}")
-            if len(self.pending) < len(sent):
-                break
-            del self.pending[:len(sent)]
-            self.rx += reply or b""
-            self.index += 1
-            self._queue_unsolicited()
-        return len(data)
-
-    def read(self, size: int = 1) -> bytes:
-        out = bytes(self.rx[:size])
-        del self.rx[:size]
-        return out
-
-    def read_until(self, expected: bytes = b"\n", size: int | None = None) -> bytes:
-        i = self.rx.find(expected)
-        n = len(self.rx) if i < 0 else i + len(expected)
-        if size is not None:
-            n = min(n, size)
-        return self.read(n)
-
-    def flush(self):
-        pass
-
-    def reset_input_buffer(self):
-        self.rx.clear()
-
-    def close(self):
-        self.closed = True
-
-    def check_done(self):
-        assert not self.pending, f"driver wrote {bytes(self.pending)!r} beyond the script"
-        assert self.index == len(self.pairs), \
-            f"exchange {self.index} never happened: {self.pairs[self.index]!r}"
-        assert not self.rx, f"driver left {bytes(self.rx)!r} unread"
-
-
-@contextmanager
-def expected_protocol(driver_factory, pairs):
-    """``with expected_protocol(Driver, [(sent, reply), (None, unsolicited)]) as drv: ...``"""
-    port = FakePort(pairs)
-    driver = driver_factory(port)
-    yield driver
-    port.check_done()
 
 
 def ascii_table(port):
@@ -825,3 +745,22 @@ def test_helpers():
         TableState(360.0, 0.0, "idle")
     with pytest.raises(ValueError):
         TableState(0.0, 0.0, "spinning")
+
+
+def test_expected_protocol_fails_on_a_wrong_write_and_on_an_unused_exchange():
+    with pytest.raises(AssertionError, match=r"driver wrote b'STATE\?\\n', expected b'ID\?\\n'"):
+        with expected_protocol(ascii_table, [(b"ID?\n", b"ID FCT-1 1.0.0\r\n")]) as t:
+            t.query()
+    with pytest.raises(AssertionError, match="exchange 0 never happened"):
+        with expected_protocol(ascii_table, [(b"ID?\n", b"ID FCT-1 1.0.0\r\n")]):
+            pass
+    with pytest.raises(AssertionError, match="left b'OK\\\\r\\\\n' unread"):
+        with expected_protocol(ascii_table, [(None, b"OK\r\n")]):
+            pass
+
+
+def test_every_table_protocol_has_a_driver_and_a_virtual_table():
+    from drivers.sim.tables import VIRTUAL_TABLES
+    from drivers.tables import PROTOCOLS
+
+    assert set(VIRTUAL_TABLES) == set(PROTOCOLS)
