@@ -21,6 +21,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/speed.py
 	$(BIN)/python benchmarks/parse.py
+	$(BIN)/python benchmarks/io.py
 	$(BIN)/python benchmarks/replay.py
 	$(BIN)/python benchmarks/recording.py
 	$(BIN)/python benchmarks/accuracy.py
