@@ -30,6 +30,7 @@ class FakePort:
         self.rx = bytearray()
         self.timeout = None
         self.closed = False
+        self.reads = 0  # read calls (read_until counts once): a timeout must not be retried
         self._queue_unsolicited()
 
     def _queue_unsolicited(self):
@@ -58,6 +59,7 @@ class FakePort:
         return len(data)
 
     def read(self, size: int = 1) -> bytes:
+        self.reads += 1
         out = bytes(self.rx[:size])
         del self.rx[:size]
         return out
