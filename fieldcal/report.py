@@ -22,15 +22,18 @@ def _fmt_sigma(sigma: float, unit: str, index: int) -> str:
     return f"{sigma:.3g} {unit}"
 
 
-def solution_header(sol) -> str:
-    """Solver, effort and fit quality; residuals shown in the unit a bias of that kind uses."""
+def solution_header(sol, effort: bool = True) -> str:
+    """Solver, effort and fit quality; residuals shown in the unit a bias of that kind uses.
+
+    ``effort=False`` leaves out the iteration and evaluation counts, which differ between
+    processors and BLAS builds (for views that must not hold numerically fragile text)."""
     rms = sol.residual_rms * display_scale(sol.kind, sol.residual_unit, 0)
     fit = f"residual RMS {rms:.3g} {param_unit(sol.kind, sol.residual_unit, 0)}"
     if sol.method == "classic":
         return f"{sol.name} (classic least squares over {len(sol.residuals)} averages; {fit})"
     quality = f"χ²/dof {sol.chi2 / sol.dof:.2f}" if sol.dof else "exact fit, no χ²"
-    return (f"{sol.name} ({sol.method}: {sol.iterations} iterations, {sol.evaluations} evaluations; "
-            f"{fit}; {quality})")
+    spent = f": {sol.iterations} iterations, {sol.evaluations} evaluations" if effort else ""
+    return f"{sol.name} ({sol.method}{spent}; {fit}; {quality})"
 
 
 def solution_table(sol, truth: np.ndarray | None = None) -> str:
