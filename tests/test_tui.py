@@ -190,22 +190,26 @@ async def test_a_field18_run_with_a_wrong_position_and_a_bump_equals_the_headles
 @run_async
 async def test_a_bump_restarts_the_dwell_and_the_run_ends_on_the_results(tmp_path):
     spec = RunSpec(two_positions(tmp_path), STATION, seed=3)
-    # 20× real time: a 20 s dwell lasts a second, time enough to bump it in the middle.
-    app = FieldcalApp(spec, speed=20, session_dir=tmp_path / "session")
+    # 20× real time on a virtual clock: the run moves only as the test advances the clock, so
+    # the bump lands mid-dwell however slow the machine is.
+    clock = VirtualClock()
+    app = FieldcalApp(spec, speed=20, session_dir=tmp_path / "session", clock=clock)
     async with app.run_test(size=(80, 24)) as pilot:
         screen = app.screen
         assert isinstance(screen, ProcedureScreen)
         await until(pilot, lambda: waiting_at(app, 0))
         await pilot.press("r")
-        await until(pilot, lambda: any(isinstance(e, ev.Still) for e in app.events))
+        await run_until(pilot, clock, lambda: any(isinstance(e, ev.Still) for e in app.events), step_s=0.05)
         assert not any(isinstance(e, ev.DwellComplete) for e in app.events)
         await pilot.press("b")
-        await until(pilot, lambda: any(isinstance(e, ev.MotionDetected) for e in app.events))
-        await until(pilot, lambda: screen.view.dwell.anchor is not None and screen.view.restarts == 1)
+        await run_until(pilot, clock, lambda: any(isinstance(e, ev.MotionDetected) for e in app.events),
+                        step_s=0.05)
+        await run_until(pilot, clock, lambda: screen.view.dwell.anchor is not None and screen.view.restarts == 1,
+                        step_s=0.05)
         assert screen.view.dwell.done(screen.view.t) < 10.0  # the bar went back to the start
-        await until(pilot, lambda: waiting_at(app, 1))
+        await run_until(pilot, clock, lambda: waiting_at(app, 1), step_s=0.5)
         await pilot.press("r")
-        await until(pilot, lambda: on_results(app))
+        await run_until(pilot, clock, lambda: on_results(app), step_s=1e3)
         outcome = app.outcome
         assert screen.view.restarts_total == 1
         assert screen.view.tiles == ["done", "done"]
