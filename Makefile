@@ -15,12 +15,14 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/fieldcal run --config configs/sim.yaml --procedure field-18 --headless --seed 1
 
+# One worker per core (pytest-xdist); `make test PYTEST_ARGS=...` adds options.
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/speed.py
 	$(BIN)/python benchmarks/parse.py
+	$(BIN)/python benchmarks/io.py
 	$(BIN)/python benchmarks/replay.py
 	$(BIN)/python benchmarks/recording.py
 	$(BIN)/python benchmarks/accuracy.py

@@ -43,16 +43,19 @@ def residual_text(cal) -> str:
     return f"residual RMS {cal.residual_rms * factor:.3g} {unit}"
 
 
-def solution_header(cal) -> str:
-    """Solver, effort and fit quality; residuals shown in the unit a bias of that kind uses."""
+def solution_header(cal, effort: bool = True) -> str:
+    """Solver, effort and fit quality; residuals shown in the unit a bias of that kind uses.
+
+    ``effort=False`` leaves out the iteration and evaluation counts, which differ between
+    processors and BLAS builds (for views that must not hold numerically fragile text)."""
     fit, d = residual_text(cal), cal.diagnostics
     if d is None:
         return f"{cal.name} ({cal.method}; {fit})"
     if d.iterations == 0:  # closed form
         return f"{cal.name} ({cal.method} least squares over {len(cal.residuals)} averages; {fit})"
     quality = f"χ²/dof {d.reduced_chi2:.2f}" if d.dof else "exact fit, no χ²"
-    return (f"{cal.name} ({d.search or cal.method}: {d.iterations} iterations, {d.evaluations} "
-            f"evaluations; {fit}; {quality})")
+    spent = f": {d.iterations} iterations, {d.evaluations} evaluations" if effort else ""
+    return f"{cal.name} ({d.search or cal.method}{spent}; {fit}; {quality})"
 
 
 def solution_table(cal, truth: np.ndarray | None = None) -> str:

@@ -78,8 +78,13 @@ def test_nine_positions_solve_as_an_exact_fit(capsys, tmp_path):
     assert "exact fit, no χ²" in out and "largest error" in out
 
 
-def test_procedure_that_cannot_calibrate_says_why_per_triad(capsys):
-    assert main(["demo", "--procedure", "allan"]) == 1
+def test_procedure_that_cannot_calibrate_says_why_per_triad(capsys, tmp_path):
+    # The shape of the shipped "allan" procedure (one position, no rate steps), with a 60 s
+    # record instead of its 6 h: the reasons depend on the shape only.
+    from fieldcal.procedure.positions import PROCEDURES_DIR
+    one_position = tmp_path / "allan-short.yaml"
+    one_position.write_text((PROCEDURES_DIR / "allan.yaml").read_text().replace("dwell_s: 21600", "dwell_s: 60"))
+    assert main(["demo", "--procedure", str(one_position)]) == 1
     out = capsys.readouterr().out
     assert "accelerometer: not calibrated: accelerometer: 1 equations for 9 unknowns" in out
     assert "gyroscope: not calibrated: gyroscope: the procedure has no rate steps" in out

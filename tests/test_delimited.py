@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import re
-import time
 
 import numpy as np
 import pytest
@@ -273,21 +272,3 @@ def test_line_soup_never_raises_and_matches_the_reference(lines, cuts):
     assert got == rows
     assert list(p.malformed_line_numbers) == bad
     assert p.counters.frames == len(rows) and p.lines == text.count(b"\n")
-
-
-def test_throughput_at_least_50000_lines_per_second():
-    cm = ChannelMap.from_mapping(CSV_MAP, "device.channels")
-    rng = np.random.default_rng(0)
-    n = 10000
-    chunk = SampleChunk(t=np.arange(n) * 0.004, triads={"accelerometer": rng.normal(size=(n, 3)),
-                                                        "gyroscope": rng.normal(size=(n, 3))},
-                        temperature=rng.normal(25, 1, n))
-    data = DelimitedTextEncoder(cm).encode(chunk)
-    best = np.inf
-    for _ in range(2):
-        p = DelimitedTextParser(cm)
-        t0 = time.perf_counter()
-        got = sum(len(c) for i in range(0, len(data), 4096) if (c := p.feed(data[i:i + 4096], 0.0)))
-        best = min(best, time.perf_counter() - t0)
-        assert got == n
-    assert n / best >= 50000

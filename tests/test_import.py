@@ -9,7 +9,6 @@ import argparse
 import hashlib
 import math
 import re
-import time
 
 import numpy as np
 import pytest
@@ -508,19 +507,14 @@ def test_cli_help_has_an_example(capsys):
 
 
 # ------------------------------------------------------------------------------------------
-# speed
+# two files on two clocks (import speed: benchmarks/io.py)
 
 
-def test_ten_minutes_at_100_hz_in_two_files_imports_fast(tmp_path):
-    n = 60_000
+def test_two_files_join_on_the_later_start(tmp_path):
+    n = 600
     rng = np.random.default_rng(5)
     t = np.arange(n) * 0.01
     files = [write_rows(tmp_path / "acc.txt", t, rng.integers(-32768, 32768, (n, 3)), time_fmt="%.4f"),
              write_rows(tmp_path / "gyro.txt", t + 0.002, rng.integers(-32768, 32768, (n, 3)), time_fmt="%.4f")]
-    best = np.inf
-    for _ in range(3):
-        start = time.perf_counter()
-        rec = import_recording(files, "imu_tk")
-        best = min(best, time.perf_counter() - start)
+    rec = import_recording(files, "imu_tk")
     assert len(rec.t) == n - 1  # the first accelerometer sample is before the gyroscope's first
-    assert best < 0.3, f"import of 2 x {n} lines took {best:.3f} s"

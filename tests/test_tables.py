@@ -12,9 +12,7 @@ import os
 import re
 import select
 import threading
-import time
 import tty
-from contextlib import contextmanager
 
 import pytest
 import serial
@@ -32,89 +30,10 @@ from drivers.tables import (
     open_table,
 )
 from drivers.tables.base import format_number, wrap_angle
+from drivers.testing import FakePort, expected_protocol
 
 # =============================================================================================
 # PyMeasure-style exact byte exchanges
-
-
-class FakePort:
-    """Asserts the driver writes exactly the expected bytes, in order, and plays the replies.
-
-    ``pairs``: ``(sent, reply)`` — after the driver wrote ``sent`` (in one or several writes),
-    ``reply`` becomes readable; ``(None, unsolicited)`` — readable as soon as the exchange
-    before it completed (at once, if first). Reading past the available bytes returns what there
-    is, as pyserial does when its timeout expires.
-    """
-
-    def __init__(self, pairs):
-        self.pairs = list(pairs)
-        self.index = 0
-        self.pending = bytearray()  # written, not yet matched
-        self.rx = bytearray()
-        self.timeout = None
-        self.closed = False
-        self._queue_unsolicited()
-
-    def _queue_unsolicited(self):
-        while self.index < len(self.pairs) and self.pairs[self.index][0] is None:
-            self.rx += self.pairs[self.index][1]
-            self.index += 1
-
-    def write(self, data: bytes) -> int:
-        assert isinstance(data, (bytes, bytearray)), f"write() got {type(data).__name__}"
-        self.pending += data
-        while self.pending:
-            if self.index >= len(self.pairs):
-                raise AssertionError(f"driver wrote {bytes(self.pending)!r}; "
-                                     f"no more exchanges expected")
-            sent, reply = self.pairs[self.index]
-            n = min(len(self.pending), len(sent))
-            if self.pending[:n] != sent[:n]:
-                raise AssertionError(f"exchange {self.index}: driver wrote "
-                                     f"{bytes(self.pending)!r}, expected {sent!r}")
-            if len(self.pending) < len(sent):
-                break
-            del self.pending[:len(sent)]
-            self.rx += reply or b""
-            self.index += 1
-            self._queue_unsolicited()
-        return len(data)
-
-    def read(self, size: int = 1) -> bytes:
-        out = bytes(self.rx[:size])
-        del self.rx[:size]
-        return out
-
-    def read_until(self, expected: bytes = b"\n", size: int | None = None) -> bytes:
-        i = self.rx.find(expected)
-        n = len(self.rx) if i < 0 else i + len(expected)
-        if size is not None:
-            n = min(n, size)
-        return self.read(n)
-
-    def flush(self):
-        pass
-
-    def reset_input_buffer(self):
-        self.rx.clear()
-
-    def close(self):
-        self.closed = True
-
-    def check_done(self):
-        assert not self.pending, f"driver wrote {bytes(self.pending)!r} beyond the script"
-        assert self.index == len(self.pairs), \
-            f"exchange {self.index} never happened: {self.pairs[self.index]!r}"
-        assert not self.rx, f"driver left {bytes(self.rx)!r} unread"
-
-
-@contextmanager
-def expected_protocol(driver_factory, pairs):
-    """``with expected_protocol(Driver, [(sent, reply), (None, unsolicited)]) as drv: ...``"""
-    port = FakePort(pairs)
-    driver = driver_factory(port)
-    yield driver
-    port.check_done()
 
 
 def ascii_table(port):
@@ -205,10 +124,9 @@ def test_ascii_garbled_reply(call, sent, reply):
 @pytest.mark.parametrize("reply", [b"", b"STATE 1.0"])
 def test_ascii_timeout_is_prompt_and_clear(reply):
     with expected_protocol(ascii_table, [(b"STATE?\n", reply)]) as t:
-        start = time.monotonic()
         with pytest.raises(TableTimeout) as info:
             t.query()
-    assert time.monotonic() - start < 0.5
+        assert t._io.port.reads == 1  # one read timeout, then the error: no retry
     text = str(info.value)
     assert "'STATE?'" in text and "within 1 s" in text
     if reply:
@@ -405,10 +323,9 @@ def test_grbl_garbled_command_reply():
                                         ("set_rate", JOG_P10)])
 def test_grbl_timeout_is_prompt_and_clear(call, sent):
     with expected_protocol(grbl_table, [(sent, b"")]) as t:
-        start = time.monotonic()
         with pytest.raises(TableTimeout) as info:
             getattr(t, call)(*((10.0,) if call == "set_rate" else ()))
-    assert time.monotonic() - start < 0.5
+        assert t._io.port.reads == 1  # one read timeout, then the error: no retry
     assert repr(sent.decode().strip()) in str(info.value) and "within 1 s" in str(info.value)
 
 
@@ -691,13 +608,15 @@ def test_drivers_track_the_virtual_motion(rates, grbl):
 
 
 class PtyTable:
-    """A virtual table behind a pty master, served by a thread that also advances time.
+    """A virtual table behind a pty master, served by a thread.
 
-    Simulated time runs ``speedup`` times faster than the wall clock.
+    Simulated time moves by ``step_s`` each time bytes arrive, not with the wall clock: the
+    table turns between two queries by exactly what the test expects, however loaded the
+    machine is.
     """
 
-    def __init__(self, table, motion: TableMotion, speedup: float = 20.0):
-        self.table, self.motion, self.speedup = table, motion, speedup
+    def __init__(self, table, motion: TableMotion, step_s: float = 0.05):
+        self.table, self.motion, self.step_s = table, motion, step_s
         self.master, self.slave = os.openpty()
         tty.setraw(self.master)
         self.path = os.ttyname(self.slave)
@@ -708,14 +627,13 @@ class PtyTable:
         self._thread.start()
 
     def _serve(self):
-        last = time.monotonic()
         try:
             while not self._stop.is_set():
-                ready, _, _ = select.select([self.master], [], [], 0.002)
-                now = time.monotonic()
-                self.motion.advance((now - last) * self.speedup)
-                last = now
-                data = os.read(self.master, 4096) if ready else b""
+                ready, _, _ = select.select([self.master], [], [], 0.01)
+                if not ready:
+                    continue
+                data = os.read(self.master, 4096)
+                self.motion.advance(self.step_s)
                 self.received += data
                 reply = self.table.receive(data)
                 if reply:
@@ -749,13 +667,11 @@ def test_ascii_driver_against_virtual_table_over_pty():
         state = table.wait_settled(10.0, timeout_s=5.0)
         assert state.status == "steady" and state.rate_deg_s == 10.0
         a1 = table.query().angle_deg
-        time.sleep(0.02)
         assert 0.0 < angle_step(a1, table.query().angle_deg) < 90.0
         table.set_rate(-10)
         assert table.query().status == "accelerating"
         assert table.wait_settled(-10.0, timeout_s=5.0).rate_deg_s == -10.0
         a1 = table.query().angle_deg
-        time.sleep(0.02)
         assert -90.0 < angle_step(a1, table.query().angle_deg) < 0.0
         with pytest.raises(TableError, match="ERR 3"):
             table.set_rate(150)
@@ -785,12 +701,10 @@ def test_grbl_driver_against_virtual_table_over_pty():
         state = table.wait_settled(10.0, timeout_s=5.0)
         assert state.status == "steady" and state.rate_deg_s == 10.0
         a1 = table.query().angle_deg
-        time.sleep(0.02)
         assert 0.0 < angle_step(a1, table.query().angle_deg) < 90.0
         table.set_rate(-10.0)  # jog cancel, '?' until Idle, jog the other way
         assert table.wait_settled(-10.0, timeout_s=5.0).rate_deg_s == -10.0
         a1 = table.query().angle_deg
-        time.sleep(0.02)
         assert -90.0 < angle_step(a1, table.query().angle_deg) < 0.0
         table.stop()
         assert table.wait_settled(0.0, timeout_s=5.0).status == "idle"
@@ -825,3 +739,22 @@ def test_helpers():
         TableState(360.0, 0.0, "idle")
     with pytest.raises(ValueError):
         TableState(0.0, 0.0, "spinning")
+
+
+def test_expected_protocol_fails_on_a_wrong_write_and_on_an_unused_exchange():
+    with pytest.raises(AssertionError, match=r"driver wrote b'STATE\?\\n', expected b'ID\?\\n'"):
+        with expected_protocol(ascii_table, [(b"ID?\n", b"ID FCT-1 1.0.0\r\n")]) as t:
+            t.query()
+    with pytest.raises(AssertionError, match="exchange 0 never happened"):
+        with expected_protocol(ascii_table, [(b"ID?\n", b"ID FCT-1 1.0.0\r\n")]):
+            pass
+    with pytest.raises(AssertionError, match="left b'OK\\\\r\\\\n' unread"):
+        with expected_protocol(ascii_table, [(None, b"OK\r\n")]):
+            pass
+
+
+def test_every_table_protocol_has_a_driver_and_a_virtual_table():
+    from drivers.sim.tables import VIRTUAL_TABLES
+    from drivers.tables import PROTOCOLS
+
+    assert set(VIRTUAL_TABLES) == set(PROTOCOLS)

@@ -20,8 +20,7 @@ from fieldcal.run.runner import RunSpec
 from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.cli.tui import live_spec
-from fieldcal.tui.screens.results import ResultsScreen
-from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, run_async, two_positions, until, waiting_at
+from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, on_results, run_async, two_positions, until, waiting_at
 
 STATION = Station(40.0, 50.0)
 OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart")
@@ -68,10 +67,10 @@ async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp
     async with app.run_test(size=(80, 24)) as pilot:
         for step, position in enumerate(procedure.positions):
             await until(pilot, lambda step=step: waiting_at(app, step))
-            devices.carry(position.attitude, 2.0).result(timeout=10)  # the operator's hands
+            devices.carry(position.attitude, 2.0).result(timeout=60)  # the operator's hands
             await pilot.press("b")  # a simulator key: refused on a real device
             await pilot.press("r")
-        await until(pilot, lambda: isinstance(app.screen, ResultsScreen), timeout_s=60)
+        await until(pilot, lambda: on_results(app))
         outcome = app.outcome
     assert outcome.status == "completed" and outcome.completed == 2
     assert outcome.truth == {}  # a real device: no truth to compare with

@@ -76,7 +76,7 @@ class Operator:
 
 
 def test_the_sim_source_waits_for_the_operator_and_runs_without_a_ui():
-    text = load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 5")
+    text = load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 5").replace("rate_deg_s: 10", "rate_deg_s: 30")
     procedure = parse_procedure(text, "x.yaml")
     sink = Operator()
     source = sink.source = SimSource(RunSpec(procedure, Station(40.0, 50.0), seed=2), sink, speed=0,

@@ -1,10 +1,7 @@
 """The setup screen of ``fieldcal tui`` (driven with Textual's Pilot) and the remembered choice."""
 from __future__ import annotations
 
-import asyncio
-import functools
 import itertools
-import time
 from pathlib import Path
 
 import pytest
@@ -24,6 +21,7 @@ from fieldcal.tui.choices import (
     save_last_choice,
 )
 from fieldcal.tui.screens.setup import SetupScreen
+from tests.test_tui import run_async, until
 
 try:
     import pytest_textual_snapshot  # noqa: F401
@@ -32,21 +30,6 @@ except ImportError:  # pragma: no cover
     HAVE_SNAPSHOTS = False
 
 SIZE = (80, 24)
-
-
-def run_async(test):
-    """Run an async test body with asyncio (no pytest-asyncio needed)."""
-    @functools.wraps(test)
-    def wrapper(*args, **kwargs):
-        return asyncio.run(test(*args, **kwargs))
-    return wrapper
-
-
-async def until(pilot, predicate, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "the UI did not get there in time"
-        await pilot.pause(0.01)
 
 
 class Host(App):

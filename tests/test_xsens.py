@@ -13,7 +13,6 @@ import math
 import struct
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -720,25 +719,7 @@ def test_soup_spliced_anywhere_yields_only_sent_or_genuinely_valid(msgs, splices
 
 
 # ---------------------------------------------------------------------------------------------
-# Speed and layering
-
-
-def test_parses_well_over_50k_typical_frames_per_second():
-    n = 20000
-    chunk = SampleChunk(t=np.arange(n) * 0.001,
-                        triads={"accelerometer": np.ones((n, 3)), "gyroscope": np.ones((n, 3))},
-                        temperature=np.full(n, 25.0))
-    data = XsensMtData2Encoder().encode(chunk)  # counter + sample time + acc + gyr + temp
-    assert len(data) == 54 * n
-    best = math.inf
-    for _ in range(3):
-        parser = XsensMtData2Parser()
-        start = time.perf_counter()
-        got = sum(len(c) for c in (parser.feed(data[i:i + 65536], 0.0)
-                                   for i in range(0, len(data), 65536)) if c is not None)
-        best = min(best, time.perf_counter() - start)
-        assert got == n
-    assert n / best > 50_000, f"{n / best:.0f} frames/s"
+# Layering (parsing speed: benchmarks/parse.py)
 
 
 def test_drivers_do_not_import_fieldcal():

@@ -94,29 +94,36 @@ class PtyLink:
 
 
 class TcpLink:
-    """Listens on 127.0.0.1; one station connection at a time."""
+    """Listens on 127.0.0.1; one station connection at a time.
+
+    ``unplug()`` is a pulled cable: the connection drops and the port refuses connections until
+    ``replug()`` listens again on the same port number (so the gap does not depend on how fast
+    the station retries).
+    """
 
     def __init__(self, port: int = 0):
-        self._server = socket.create_server(("127.0.0.1", port))
-        self.port = self._server.getsockname()[1]
         self._lock = threading.Lock()
         self._client: socket.socket | None = None
+        self._server: socket.socket | None = None
         self._closed = False
-        self._acceptor = threading.Thread(target=self._accept_loop, daemon=True)
-        self._acceptor.start()
+        self.port = port
+        self.replug()
 
     @property
     def url(self) -> str:
         return f"socket://127.0.0.1:{self.port}"
 
-    def _accept_loop(self) -> None:
+    def _accept_loop(self, server: socket.socket) -> None:
         while not self._closed:
             try:
-                client, _ = self._server.accept()
+                client, _ = server.accept()
             except OSError:
                 return
             client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             with self._lock:
+                if server is not self._server:  # unplugged meanwhile
+                    client.close()
+                    return
                 old, self._client = self._client, client
             if old is not None:
                 old.close()
@@ -124,14 +131,30 @@ class TcpLink:
     def connected(self) -> bool:
         return self._client is not None
 
-    def unplug(self) -> None:
+    def _drop_client(self) -> None:
         with self._lock:
             client, self._client = self._client, None
         if client is not None:
             client.close()
 
+    def unplug(self) -> None:
+        with self._lock:
+            server, self._server = self._server, None
+        if server is not None:
+            try:  # wakes the acceptor blocked in accept() (Linux), so the port is free at once
+                server.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            server.close()
+        self._drop_client()
+
     def replug(self) -> None:
-        """Nothing to do: the listener stays up and the station's reconnect is accepted."""
+        with self._lock:
+            if self._server is not None or self._closed:
+                return
+            self._server = server = socket.create_server(("127.0.0.1", self.port))
+            self.port = server.getsockname()[1]
+        threading.Thread(target=self._accept_loop, args=(server,), daemon=True).start()
 
     def write(self, data: bytes, timeout_s: float = 1.0) -> int:
         with self._lock:
@@ -143,7 +166,7 @@ class TcpLink:
             client.sendall(data)
             return len(data)
         except OSError:
-            self.unplug()
+            self._drop_client()
             return 0
 
     def read(self, timeout_s: float = 0.05) -> bytes:
@@ -157,7 +180,7 @@ class TcpLink:
                 return b""
             data = client.recv(4096)
             if not data:
-                self.unplug()
+                self._drop_client()
             return data
         except OSError:
             return b""
@@ -165,4 +188,3 @@ class TcpLink:
     def close(self) -> None:
         self._closed = True
         self.unplug()
-        self._server.close()

@@ -20,8 +20,6 @@ from drivers.chunk import SampleChunk
 from drivers.sim.physics import MimuSimulator, TriadTruth
 from drivers.sim.ports import PtyLink, TcpLink
 
-IMU_PROTOCOLS = ("xsens", "vectornav", "delimited")
-TABLE_PROTOCOLS = ("ascii", "grbl")
 SIM_TEMPERATURE_C = 25.0
 
 
@@ -36,25 +34,16 @@ def simulator_channel_map():
 
 
 def make_encoder(protocol: str):
-    if protocol == "xsens":
-        from drivers.protocols.xsens import XsensMtData2Encoder
-        return XsensMtData2Encoder()
-    if protocol == "vectornav":
-        from drivers.protocols.vectornav import VectorNavEncoder
-        return VectorNavEncoder()
-    if protocol == "delimited":
-        from drivers.protocols.delimited import DelimitedTextEncoder
-        return DelimitedTextEncoder(simulator_channel_map())
-    raise ValueError(f"imu protocol: expected one of {', '.join(IMU_PROTOCOLS)}, got {protocol!r}")
+    """The encoder of the simulated device's wire protocol (delimited text in its own layout)."""
+    from drivers.protocols import make_encoder as encoder_for
+    return encoder_for(protocol, simulator_channel_map() if protocol == "delimited" else None)
 
 
 def make_virtual_table(protocol: str, motion):
-    from drivers.sim.tables import VirtualAsciiTable, VirtualGrblTable
-    if protocol == "ascii":
-        return VirtualAsciiTable(motion)
-    if protocol == "grbl":
-        return VirtualGrblTable(motion)
-    raise ValueError(f"table protocol: expected one of {', '.join(TABLE_PROTOCOLS)}, got {protocol!r}")
+    from drivers.sim.tables import VIRTUAL_TABLES
+    if protocol not in VIRTUAL_TABLES:
+        raise ValueError(f"table protocol: expected one of {', '.join(VIRTUAL_TABLES)}, got {protocol!r}")
+    return VIRTUAL_TABLES[protocol](motion)
 
 
 def _as_device_sends(chunk: SampleChunk) -> SampleChunk:

@@ -482,3 +482,6 @@ class VirtualGrblTable:
             self.state.target_rate_deg_s = signed
         self._jogs.append((end, signed))
         return 0
+
+
+VIRTUAL_TABLES = {"ascii": VirtualAsciiTable, "grbl": VirtualGrblTable}  # as drivers.tables.PROTOCOLS

@@ -13,18 +13,19 @@ from fieldcal.config import StationConfig
 
 
 def make_parser(protocol: str, channels: dict | None = None):
-    if protocol == "xsens":
-        from drivers.protocols.xsens import XsensMtData2Parser
-        return XsensMtData2Parser()
-    if protocol == "vectornav":
-        from drivers.protocols.vectornav import VectorNavParser
-        return VectorNavParser()
-    if protocol == "delimited":
-        from drivers.protocols.delimited import ChannelMap, DelimitedTextParser
+    """The parser of ``protocol``; delimited text reads ``channels`` (a config's mapping) or,
+    without one, the simulated device's layout."""
+    from drivers.protocols import ChannelMap
+    from drivers.protocols import make_parser as parser_for
+
+    if protocol != "delimited":
+        return parser_for(protocol)
+    if channels is None:
         from drivers.sim.serve import simulator_channel_map
-        cmap = simulator_channel_map() if channels is None else ChannelMap.from_mapping(channels, "channels")
-        return DelimitedTextParser(cmap)
-    raise ValueError(f"protocol: no parser for {protocol!r}")
+        cmap = simulator_channel_map()
+    else:
+        cmap = ChannelMap.from_mapping(channels, "channels")
+    return parser_for(protocol, cmap)
 
 
 class DeviceConnection:

@@ -71,7 +71,7 @@ class ResultsScreen(Screen):
             unit = out.unit
             for name, sol in (unit.solutions.items() if unit is not None else ()):
                 truth = out.truth.get(name)
-                yield Static(solution_header(sol), classes="triad-head")
+                yield Static(solution_header(sol, effort=False), classes="triad-head").with_tooltip(solution_header(sol))
                 yield Static(Text(solution_table(sol, truth)), classes="table")
                 yield Static(residual_bars(sol), classes="residuals")
                 previous = out.previous
