@@ -8,6 +8,7 @@ from pathlib import Path
 
 from fieldcal.procedure.engine import windows_and_averages
 from fieldcal.run.runner import RunSpec
+from fieldcal.run.steps import completed_records
 from fieldcal.session.capture import SessionReader
 from fieldcal.solvers.solve import models_from_truth, solve_unit
 from fieldcal.units import display_scale, param_unit
@@ -16,14 +17,15 @@ from fieldcal.units import display_scale, param_unit
 def compare_methods(directory: Path, methods: list[str]) -> str:
     reader = SessionReader(directory)
     spec = RunSpec.from_metadata(reader.start)
-    windows, averages = windows_and_averages(reader.steps())
+    records = completed_records(reader)
+    windows, averages = windows_and_averages(records)
     if not windows:
         return f"{directory}: no completed steps to solve from"
     models = models_from_truth(spec.device())
     results = {m: solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, m)
                for m in methods}
     width = 30
-    lines = [f"{spec.procedure.name}: {len(reader.steps())} completed steps, re-solved from their averages",
+    lines = [f"{spec.procedure.name}: {len(records)} completed steps, re-solved from their averages",
              f"{'':20}" + "".join(f"{m:^{width}}" for m in methods),
              f"{'triad, axis':20}" + "".join(f"{'bias':>14}{'scale factor':>16}" for _ in methods)]
     for name, model in models.items():
