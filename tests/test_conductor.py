@@ -73,3 +73,115 @@ def test_an_old_tui_session_killed_between_step_and_checkpoint_is_refused_in_one
     with pytest.raises(ValueError, match="step 6: the session holds no bench state"):
         resume_headless(session)
     assert log.read_bytes() == before  # refused before anything was written
+
+
+class KeySink:
+    """The terminal UI's part without Textual: presses ready whenever the source waits, and quits
+    instead once ``quit_after`` steps are complete."""
+
+    def __init__(self, quit_after: int | None = None):
+        self.quit_after, self.done, self.items, self.source, self.outcome = quit_after, 0, [], None, None
+
+    def update(self, items, telemetry):
+        from fieldcal.procedure import events as ev
+        from fieldcal.tui.source import READY
+
+        self.items.extend(items)
+        self.done += sum(isinstance(i, ev.StepComplete) for i in items)
+        if telemetry.waiting:
+            if self.quit_after is not None and self.done >= self.quit_after:
+                self.source.stop()
+            else:
+                self.source.send(READY)
+
+    def finished(self, outcome):
+        self.outcome = outcome
+
+
+def golden_spec(seed: int) -> RunSpec:
+    return RunSpec(golden_procedure(), STATION, seed=seed, rate_hz=20.0, script=OperatorScript(handling_s=2.0))
+
+
+def test_a_tui_run_quit_half_way_resumes_headless_to_the_uninterrupted_run(tmp_path):
+    """Defect 1 of issue 10: the terminal UI and the headless run write the same step documents."""
+    from fieldcal.tui.source import SimSource
+
+    sink = KeySink(quit_after=7)
+    source = sink.source = SimSource(golden_spec(12), sink, speed=0, session_dir=tmp_path / "tui")
+    quit_ = source.run()
+    assert quit_.status == "stopped" and "fieldcal resume" in quit_.message
+    assert len(steps_on_record(SessionReader(tmp_path / "tui"))) == 7
+    resumed = resume_headless(tmp_path / "tui")
+    whole = run_headless(golden_spec(12), tmp_path / "whole")
+    assert resumed.status == "completed" and resumed.completed == 18
+    assert resumed.parameters.read_bytes() == whole.parameters.read_bytes()
+
+
+def _replay_in_the_tui(session: Path):
+    from fieldcal.tui.source import ReplaySource
+
+    sink = KeySink()
+    source = sink.source = ReplaySource(session, sink, speed=0)
+    return source.run(), sink
+
+
+def _cut_before_step_record(session: Path, nth: int) -> None:
+    """The state a kill leaves after the chunk that completed a step was logged but before the
+    step's record was: the log cut at the start of the nth step document (0-based)."""
+    log = session / "log.jsonl"
+    lines = log.read_bytes().splitlines(keepends=True)
+    steps = [i for i, line in enumerate(lines) if b'"type":"step"' in line]
+    log.write_bytes(b"".join(lines[:steps[nth]]))
+    (session / "parameters.yaml").unlink()
+
+
+def test_the_tui_replay_of_a_killed_and_resumed_session_is_identical(tmp_path):
+    """Defect 2 of issue 10: the TUI replay restarts from the steps the resumed run kept."""
+    whole = run_headless(RunSpec(golden_procedure(), STATION, seed=13, rate_hz=20.0,
+                                 script=OperatorScript(handling_s=2.0, skip_steps=(3,), bump_step=5)),
+                         tmp_path / "s")
+    expected = whole.parameters.read_bytes()
+    _cut_before_step_record(whole.session, 6)
+    assert resume_headless(whole.session).parameters.read_bytes() == expected
+    for session in (whole.session, GOLDEN / "headless-resumed"):
+        outcome, sink = _replay_in_the_tui(session)
+        assert outcome.status == "completed" and outcome.identical is True, session
+        assert dump(outcome.parameter_file).encode() == (session / "parameters.yaml").read_bytes()
+        assert any("resumed here" in getattr(i, "text", "") for i in sink.items)
+        assert any("byte for byte" in getattr(i, "text", "") for i in sink.items)
+
+
+def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_path, monkeypatch):
+    import dataclasses
+
+    from fieldcal.paramfile import load
+    from fieldcal.run import environment
+    from fieldcal.run.replay import replay
+
+    session = run_headless(golden_spec(14), tmp_path / "s").session
+    recorded_env = SessionReader(session).start["numeric_environment"]
+    assert recorded_env == environment.numeric_environment()
+    assert {"numpy", "scipy", "blas", "machine"} <= set(recorded_env)
+    outcome, _ = replay(session)
+    assert outcome.identical is True and "byte for byte" in outcome.comparison
+
+    elsewhere = {**recorded_env, "blas": "another BLAS 9.9", "machine": "aarch64"}
+    monkeypatch.setattr(environment, "numeric_environment", lambda: elsewhere)
+    outcome, _ = replay(session)
+    assert outcome.identical is True
+    assert "numeric environment differs" in outcome.comparison and "aarch64" in outcome.comparison
+    assert "within 0.001σ" in outcome.comparison
+
+    # A recorded file off by half a σ in one parameter: no tolerance hides it.
+    pf = load(session / "parameters.yaml")
+    acc = pf["accelerometer"]
+    moved = dataclasses.replace(acc, bias=acc.bias + [0.5 * acc.sigma[0], 0.0, 0.0])
+    changed = dataclasses.replace(pf, triads=tuple(moved if t.name == acc.name else t for t in pf.triads))
+    from fieldcal.paramfile import save
+    save(changed, session / "parameters.yaml")
+    outcome, _ = replay(session)
+    assert outcome.identical is False
+    assert "accelerometer bias_x off by 0.5σ" in outcome.comparison
+    monkeypatch.setattr(environment, "numeric_environment", lambda: recorded_env)
+    outcome, _ = replay(session)
+    assert outcome.identical is False and "compared byte for byte" in outcome.comparison

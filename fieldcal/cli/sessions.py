@@ -95,27 +95,26 @@ def cmd_resume(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from fieldcal.paramfile import dump, save
+    from fieldcal.paramfile import save
+    from fieldcal.run.operators import ReplayOperator
     from fieldcal.run.progress import printer
-    from fieldcal.run.replay import recorded_parameters, replay_session
+    from fieldcal.run.replay import replay_session_outcome
 
     torn = warn_if_torn(args.session)
-    unit, pf, samples = replay_session(args.session, args.speed, printer(sys.stdout, args.quiet))
+    outcome, samples = replay_session_outcome(args.session, ReplayOperator(Path(args.session), args.speed),
+                                              printer(sys.stdout, args.quiet))
     print(f"replayed {samples} samples")
-    if pf is None:
+    if outcome.parameter_file is None:
         print("nothing could be calibrated from this session")
         return 1
     if args.out:
-        save(pf, args.out)
+        save(outcome.parameter_file, args.out)
         print(f"parameter file written to {args.out}")
-    recorded = recorded_parameters(args.session)
-    if recorded is None:
+    if outcome.identical is None:
         print("the session has no parameter file to compare with (it did not finish)")
         return 1 if torn else 0
-    same = dump(pf).encode() == recorded
-    print("parameter file identical to the recorded one, byte for byte" if same
-          else "parameter file DIFFERS from the recorded one")
-    return 0 if same else 1
+    print(outcome.comparison)
+    return 0 if outcome.identical else 1
 
 
 def cmd_solve(args) -> int:

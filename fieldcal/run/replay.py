@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from fieldcal.run.conductor import Conductor, Reporter
+from fieldcal.run.environment import compare_parameters
 from fieldcal.run.operators import NoBench, ReplayOperator
 from fieldcal.run.outcome import Outcome, Status
 from fieldcal.run.runner import RunSpec
@@ -24,21 +25,38 @@ def replay_conductor(directory: str | Path, operator: ReplayOperator | None = No
     return Conductor(spec, NoBench(), operator, subscribers)
 
 
-def replay(directory: str | Path, operator: ReplayOperator | None = None, subscribers=()) -> tuple[Outcome, Conductor]:
-    """Replay to the end of the capture. A capture that ends before the procedure does is
-    solved from the steps it completed (the outcome says ``incomplete``)."""
-    conductor = replay_conductor(directory, operator, subscribers)
-    outcome = conductor.run()
-    outcome.replay_of = Path(directory)
+def finish_replay(conductor: Conductor, directory: str | Path, outcome: Outcome) -> Outcome:
+    """What a replay's outcome says beyond a run's: the capture it replayed, whether the capture
+    ended before the procedure did, and how the parameter file compares with the recorded one."""
+    reader = SessionReader(directory)
+    outcome.replay_of, outcome.session, outcome.parameters = Path(directory), None, reader.parameters_path
     if outcome.status == Status.STOPPED:
         engine = conductor.engine
         outcome.status = Status.INCOMPLETE
         outcome.message = f"the capture ends during step {engine.step + 1} of {len(engine.procedure.positions)}"
-        if engine.records:
-            outcome.unit, outcome.parameter_file = conductor.solve()
     elif outcome.status == Status.ABORTED:
         outcome.message = "the recorded run was aborted"
-    return outcome, conductor
+    recorded = recorded_parameters(directory)
+    if outcome.parameter_file is not None and recorded is not None:
+        found = compare_parameters(outcome.parameter_file, recorded, reader.start.get("numeric_environment"))
+        outcome.identical, outcome.comparison = found.identical, found.text
+    return outcome
+
+
+def replay(directory: str | Path, operator: ReplayOperator | None = None, subscribers=()) -> tuple[Outcome, Conductor]:
+    """Replay to the end of the capture."""
+    conductor = replay_conductor(directory, operator, subscribers)
+    return finish_replay(conductor, directory, conductor.run()), conductor
+
+
+def replay_session_outcome(directory: str | Path, operator: ReplayOperator | None = None,
+                           report=lambda e: None) -> tuple[Outcome, int]:
+    """Replay (``fieldcal replay``); a capture that ends early or was aborted is solved from the
+    steps it completed. The outcome and the number of samples replayed."""
+    outcome, conductor = replay(directory, operator, [Reporter(report)])
+    if outcome.unit is None:
+        outcome.unit, outcome.parameter_file = conductor.solve()
+    return outcome, conductor.samples
 
 
 def replay_session(directory: str | Path, speed: float | None = None, report=lambda e: None):
@@ -46,10 +64,8 @@ def replay_session(directory: str | Path, speed: float | None = None, report=lam
 
     ``speed``: None for as fast as possible, else that many times real (sample) time.
     """
-    outcome, conductor = replay(directory, ReplayOperator(Path(directory), speed), [Reporter(report)])
-    if outcome.unit is None:  # aborted, or nothing completed: solve what there is
-        outcome.unit, outcome.parameter_file = conductor.solve()
-    return outcome.unit, outcome.parameter_file, conductor.samples
+    outcome, samples = replay_session_outcome(directory, ReplayOperator(Path(directory), speed), report)
+    return outcome.unit, outcome.parameter_file, samples
 
 
 def recorded_parameters(directory: str | Path) -> bytes | None:
@@ -58,12 +74,9 @@ def recorded_parameters(directory: str | Path) -> bytes | None:
 
 
 def replay_matches(directory: str | Path) -> bool:
-    """Does replaying the session give its parameter file byte for byte?"""
-    from fieldcal.paramfile import dump
-
-    _, pf, _ = replay_session(directory)
-    recorded = recorded_parameters(directory)
-    return pf is not None and recorded is not None and dump(pf).encode() == recorded
+    """Does replaying the session give its parameter file (byte for byte in the same numeric
+    environment, within the stated tolerance elsewhere)?"""
+    return replay(directory)[0].identical is True
 
 
 def resolve_session(directory: str | Path):

@@ -74,6 +74,19 @@ class RunSpec:
                                         "output_unit": t.output_unit} for name, t in device.items()},
         }
 
+    def session_metadata(self, link: str | None, front_end: str | None = None) -> dict:
+        """The start metadata of a session: the spec, how the device was reached, which front
+        end ran it, and the numeric environment (a replay elsewhere compares within tolerance)."""
+        from fieldcal.run.environment import numeric_environment
+
+        metadata = self.to_metadata()
+        if link is not None:
+            metadata["device"]["link"] = link
+        if front_end is not None:
+            metadata["front_end"] = front_end
+        metadata["numeric_environment"] = numeric_environment()
+        return metadata
+
     @classmethod
     def from_metadata(cls, meta: dict) -> RunSpec:
         if meta.get("kind") == "recording":
@@ -201,9 +214,7 @@ class SimulatedBench:
 def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool = False) -> Outcome:
     """``serial``: reach the simulated device only through bytes on a pty, as hardware would be."""
     settings = spec.engine_settings()  # bad settings fail before any file
-    metadata = spec.to_metadata()
-    metadata["device"]["link"] = "pty" if serial else "in-process"
-    recorder = SessionRecorder.create(out, metadata)
+    recorder = SessionRecorder.create(out, spec.session_metadata("pty" if serial else "in-process"))
     if serial:
         from fieldcal.run.serialbench import SerialBench
         bench = SerialBench(spec, tap=recorder.raw)
