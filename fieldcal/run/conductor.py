@@ -176,28 +176,9 @@ class Conductor:
         """Until the procedure completes or is aborted, or the operator ends the run."""
         ended = False
         try:
-            if self._resume is not None:
-                self._tell("resumed", self._resume)
-            self.operator.begin(self)
-            self._publish(self.engine.start())
-            while self.outcome is None and not self._stopped:
-                moves = self.operator.next_moves(self)
-                if moves is None:
-                    break
-                if moves:
-                    for move in moves:
-                        if self.outcome is not None or self._stopped:
-                            break
-                        self._do(move)
-                else:
-                    chunks = self.bench.next_chunks()
-                    if not chunks:
-                        self.operator.idle(self)
-                    for chunk in chunks:
-                        if self.outcome is not None or not self._feed(chunk):
-                            break
-                        self.operator.after_chunk(chunk, self)
-                self._tell("tick")
+            self.start()
+            while self.step():
+                pass
             if self.outcome is None:
                 self.outcome = self._unfinished()
             ended = True
@@ -209,6 +190,35 @@ class Conductor:
                 self._tell("end", self.outcome.status if ended else Status.ERROR)
         return self.outcome
 
+    def start(self) -> None:
+        if self._resume is not None:
+            self._tell("resumed", self._resume)
+        self.operator.begin(self)
+        self._publish(self.engine.start())
+
+    def step(self) -> bool:
+        """One round: the operator's moves, or else what the bench has read. False: the run is over."""
+        if self.outcome is not None or self._stopped:
+            return False
+        moves = self.operator.next_moves(self)
+        if moves is None:
+            return False
+        if moves:
+            for move in moves:
+                if self.outcome is not None or self._stopped:
+                    break
+                self.do(move)
+        else:
+            chunks = self.bench.next_chunks()
+            if not chunks:
+                self.operator.idle(self)
+            for chunk in chunks:
+                if self.outcome is not None or not self.feed(chunk):
+                    break
+                self.operator.after_chunk(chunk, self)
+        self._tell("tick")
+        return self.outcome is None and not self._stopped
+
     def stop(self) -> None:
         """End the loop after the current move (called on the conductor's own thread)."""
         self._stopped = True
@@ -216,18 +226,18 @@ class Conductor:
     def say(self, text: str) -> None:
         self._tell("note", text)
 
-    def _do(self, move: Move) -> None:
+    def do(self, move: Move) -> None:
         if isinstance(move, Act):
             self.act(ev.Action(move.name), move.reason)
         elif isinstance(move, Feed):
-            self._feed(move.chunk)
+            self.feed(move.chunk)
         elif isinstance(move, Say):
             self.say(move.text)
         elif isinstance(move, Restart):
             self._restart(move.point)
         else:
             for chunk in self.bench.move_to(move.attitude) if isinstance(move, Place) else self.bench.bump():
-                if self.outcome is not None or not self._feed(chunk):
+                if self.outcome is not None or not self.feed(chunk):
                     return
 
     def act(self, action: ev.Action, reason: str = "") -> None:
@@ -237,7 +247,8 @@ class Conductor:
             events = [dataclasses.replace(e, reason=reason) if isinstance(e, ev.Aborted) else e for e in events]
         self._publish(events)
 
-    def _feed(self, chunk) -> bool:
+    def feed(self, chunk) -> bool:
+        """Feed one chunk (paced by the operator); False if the operator stopped the run instead."""
         if not self.operator.pace(chunk, self):
             self._stopped = True
             return False
