@@ -185,3 +185,38 @@ def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_p
     monkeypatch.setattr(environment, "numeric_environment", lambda: recorded_env)
     outcome, _ = replay(session)
     assert outcome.identical is False and "compared byte for byte" in outcome.comparison
+
+
+def test_fieldcal_resume_continues_an_old_tui_session(tmp_path):
+    import subprocess
+    import sys
+
+    session = tmp_path / "tui-quit"
+    shutil.copytree(GOLDEN / "tui-quit", session)
+    done = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "resume", str(session), "--quiet"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "resuming" in done.stdout and "after 6 completed steps" in done.stdout
+    assert "Traceback" not in done.stderr and (session / "parameters.yaml").is_file()
+
+
+def test_headless_progress_lines_reach_a_pipe_as_they_happen(tmp_path):
+    """Issue 15: piped output is not held back until the buffer fills (field-18 at 250 Hz
+    writes its first step's line seconds before the third step completes)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # as a user's shell has it
+    proc = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", "run", "--headless", "--seed", "3",
+                             "--out", str(tmp_path)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        header = proc.stdout.readline()
+        first = proc.stdout.readline()
+        logs = list(tmp_path.glob("*/log.jsonl"))
+        steps_written = logs[0].read_text().count('"type":"step"') if logs else 0
+    finally:
+        proc.kill()
+        proc.wait()
+    assert header.startswith("headless field-18") and "step 1/18" in first
+    assert steps_written < 3, "the first progress line came only after later steps were done"
