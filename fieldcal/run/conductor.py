@@ -27,7 +27,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from fieldcal.procedure import events as ev
-from fieldcal.procedure.engine import ABORTED, DONE, Engine
+from fieldcal.procedure.engine import Engine
 from fieldcal.run.outcome import Outcome, Status
 from fieldcal.run.steps import ResumePoint, StepDocument
 
@@ -219,10 +219,6 @@ class Conductor:
         self._tell("tick")
         return self.outcome is None and not self._stopped
 
-    def stop(self) -> None:
-        """End the loop after the current move (called on the conductor's own thread)."""
-        self._stopped = True
-
     def say(self, text: str) -> None:
         self._tell("note", text)
 
@@ -330,9 +326,7 @@ class Conductor:
                        completed=len(self.engine.records), skipped=len(self.engine.skipped), **kw)
 
     def _unfinished(self) -> Outcome:
-        e = self.engine
-        if e.phase == DONE or e.phase == ABORTED:  # pragma: no cover -- concluded on its event
-            raise AssertionError("a finished engine without an outcome")
+        """The operator ended the run (quit; the end of a replayed capture) before the procedure did."""
         return self._outcome(Status.STOPPED, message="stopped before the end")
 
     def _previous(self):

@@ -15,6 +15,7 @@ from pathlib import Path
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.engine import PLACE, WAITING_FOR_OPERATOR, WRONG
 from fieldcal.run.conductor import Act, Conductor, Say
+from fieldcal.run.outcome import Status
 from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, Mode, SimSource, Sink
 
 NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the operator is told
@@ -42,7 +43,15 @@ class LiveSource(SimSource):
     def _conductor(self) -> Conductor:
         conductor = super()._conductor()
         self.bench.say = conductor.say
-        self.bench.start()
+        try:
+            self.bench.start()
+        except BaseException:  # the port or the table would not open: close what did, keep the session
+            try:
+                self.bench.close()
+            finally:
+                if self.recorder is not None:
+                    self.recorder.end(Status.ERROR, conductor)
+            raise
         table = self.config.table
         conductor.say(f"reading {self.spec.device_name} on {self.bench.url} ({self.config.device.protocol}, "
                       f"{self.spec.rate_hz:g} Hz); table: "
