@@ -8,7 +8,8 @@ import pytest
 from drivers.sim.device import paper_mimu
 from fieldcal.procedure.positions import load_procedure
 from fieldcal.run.simcal import DEFAULT_STATION, run_simulated_calibration
-from fieldcal.run.simrun import MINUS, PLUS, STATIC, plan_procedure, simulate_averages
+from fieldcal.procedure.windows import MINUS, PLUS, STATIC
+from fieldcal.run.simrun import plan_procedure, simulate_averages
 from fieldcal.solvers.solve import average_covariance, models_from_truth
 from fieldcal.solvers import CalibrationError, StaticNormProblem, solve_classic, solve_norm
 

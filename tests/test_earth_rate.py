@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from fieldcal.earth import EARTH_RATE
-from fieldcal.run.simrun import PLUS
+from fieldcal.procedure.windows import PLUS
 from fieldcal.solvers import RateNormProblem, solve_norm
 
 LAT = math.radians(40.0)

@@ -1,4 +1,5 @@
-"""The engine as a state machine, on the simulator: discard mode, redo, abort, rate direction."""
+"""The engine as a state machine, on the simulator through the conductor: discard mode, redo,
+abort, rate direction."""
 import numpy as np
 import pytest
 
@@ -6,6 +7,7 @@ from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
 from fieldcal.procedure.engine import Engine
 from fieldcal.procedure.positions import parse_procedure
+from fieldcal.run.conductor import Conductor, Operator, Place, Subscriber
 from fieldcal.run.runner import RunSpec, SimulatedBench
 
 SHORT = """name: short
@@ -17,27 +19,42 @@ positions:
 """
 
 
+class EventLog(Subscriber):
+    def __init__(self):
+        self.events = []
+
+    def event(self, e, run):
+        self.events.append(e)
+
+
 class Harness:
+    """A conductor on the simulated bench, its moves made by the test one at a time."""
+
     def __init__(self, seed=1, on_motion="restart"):
         self.spec = RunSpec(parse_procedure(SHORT, "short.yaml"), Station(40.0, 50.0), seed=seed,
                             on_motion=on_motion)
         self.bench = SimulatedBench(self.spec)
-        self.engine = Engine(self.spec.procedure, self.spec.engine_settings())
-        self.events = list(self.engine.start())
+        self.log = EventLog()
+        self.conductor = Conductor(self.spec, self.bench, Operator(), [self.log])
+        self.conductor.start()
+
+    @property
+    def engine(self):
+        return self.conductor.engine
+
+    @property
+    def events(self):
+        return self.log.events
 
     def feed(self, chunks):
         for chunk in chunks:
-            out = self.engine.feed(chunk)
-            self.events += out
-            for e in out:
-                if isinstance(e, ev.CommandTable):
-                    self.bench.command_table(e.rate_deg_s)
+            self.conductor.feed(chunk)
 
     def act(self, name):
-        self.events += self.engine.act(ev.Action(name))
+        self.conductor.act(ev.Action(name))
 
     def place(self):
-        self.feed(self.bench.move_to(self.engine.position.attitude))
+        self.conductor.do(Place(self.engine.position.attitude))
         self.act(ev.READY)
 
     def run_until(self, kind, limit_s=400):
@@ -105,7 +122,7 @@ def test_a_whole_short_procedure_gives_one_record_per_step_with_the_windows():
     for _ in range(2):
         h.place()
         h.run_until("step_complete")
-    assert h.events[-1].kind == "procedure_complete"
+    assert [e.kind for e in h.events[-2:]] == ["procedure_complete", "solved"]  # concluded once
     windows, averages = h.engine.windows_and_averages()
     assert [w.kind for w in windows] == ["static", "plus", "minus"] * 2
     assert [w.duration for w in windows] == [20.0, 36.0, 36.0] * 2

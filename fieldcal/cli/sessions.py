@@ -112,39 +112,36 @@ def cmd_resume(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from fieldcal.paramfile import dump
+    from fieldcal.run.operators import ReplayOperator
     from fieldcal.run.progress import printer
-    from fieldcal.run.replay import replay_session
+    from fieldcal.run.replay import replay_session_outcome
     from fieldcal.session.output import check_output_path, save_parameter_file
 
     if args.out:  # never into a session, never over a file without --force: said before replaying
         check_output_path(args.out, force=args.force, option="--out")
     reader, _, _ = _procedure_session(args.session)
+    noted = list(reader.documents("parameters"))
+    if noted:  # the recorded parameter file must be there to compare with: said before replaying
+        path = reader.directory / noted[-1]["file"]
+        if not path.is_file():
+            raise ValueError(f"{path}: the session's parameter file (noted in log.jsonl line "
+                             f"{noted[-1]['seq'] + 1}) is missing; nothing to compare the replay with")
     torn = warn_if_torn(args.session)
-    unit, pf, samples = replay_session(args.session, args.speed, printer(sys.stdout, args.quiet))
+    outcome, samples = replay_session_outcome(args.session, ReplayOperator(Path(args.session), args.speed),
+                                              printer(sys.stdout, args.quiet))
     print(f"replayed {samples} samples")
-    if pf is None:
+    if outcome.parameter_file is None:
         print("nothing could be calibrated from this session")
         return 1
     if args.out:
-        save_parameter_file(pf, args.out, force=args.force, option="--out")
+        save_parameter_file(outcome.parameter_file, args.out, force=args.force, option="--out")
         print(f"parameter file written to {args.out}")
-    noted = list(reader.documents("parameters"))
     if not noted:
         print("the session has no parameter file to compare with ("
               + (f"its run {reader.stop_reason}" if reader.stopped else "it did not finish") + ")")
         return 1 if torn else 0
-    path = reader.directory / noted[-1]["file"]
-    try:
-        recorded = path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"{path}: the session's parameter file (noted in log.jsonl line "
-                         f"{noted[-1]['seq'] + 1}) cannot be read ({exc.strerror or exc}); nothing to "
-                         "compare the replay with") from None
-    same = dump(pf).encode() == recorded
-    print("parameter file identical to the recorded one, byte for byte" if same
-          else "parameter file DIFFERS from the recorded one")
-    return 0 if same else 1
+    print(outcome.comparison)
+    return 0 if outcome.identical else 1
 
 
 def cmd_solve(args) -> int:

@@ -13,19 +13,35 @@ so a run resumed after a crash behaves exactly like an uninterrupted one from th
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure
-from fieldcal.run.simrun import MINUS, PLUS, STATIC, Window
 from fieldcal.procedure.stillness import StillnessDetector, StillnessSettings, check_orientation, gravity_direction
+from fieldcal.procedure.windows import MINUS, PLUS, STATIC, StepRecord, Window, WindowKind, WindowRecord
 
 MIN_WINDOW_SAMPLES = 10  # fewer, and the window's spread says little about stillness
 
-PLACE, SETTLING, CHECKING, WRONG, DWELL, RATE_WAIT, RATE_AVERAGE, DONE, ABORTED = (
-    "place", "settling", "checking", "wrong", "dwell", "rate_wait", "rate_average", "done", "aborted")
+
+
+class Phase(StrEnum):
+    PLACE = "place"  # waiting for the operator to place the unit and say ready
+    SETTLING = "settling"
+    CHECKING = "checking"
+    WRONG = "wrong"  # still, in the wrong orientation: waiting for the operator to move it
+    DWELL = "dwell"
+    RATE_WAIT = "rate_wait"
+    RATE_AVERAGE = "rate_average"
+    DONE = "done"
+    ABORTED = "aborted"
+
+
+PLACE, SETTLING, CHECKING, WRONG, DWELL, RATE_WAIT, RATE_AVERAGE, DONE, ABORTED = Phase
+WAITING_FOR_OPERATOR = (PLACE, WRONG)
 
 
 @dataclass(frozen=True)
@@ -83,14 +99,13 @@ class _Average:
         return {name: (sum(b[3][name] for b in self.blocks) / n).tolist() for name in names}
 
 
-def windows_and_averages(records) -> tuple[list[Window], dict[str, np.ndarray]]:
+def windows_and_averages(records: Iterable[StepRecord]) -> tuple[list[Window], dict[str, np.ndarray]]:
     """Completed steps' windows, in step order, and the per-triad means of each window."""
     windows, rows = [], []
-    for record in sorted(records, key=lambda r: r["step"]):
-        for w in record["windows"]:
-            windows.append(Window(w["kind"], record["step"], w["start"], w["duration"],
-                                  math.radians(abs(w["rate_deg_s"]))))
-            rows.append(w["means"])
+    for record in sorted(records, key=lambda r: r.step):
+        for w in record.windows:
+            windows.append(Window(w.kind, record.step, w.start, w.duration, math.radians(abs(w.rate_deg_s))))
+            rows.append(w.means)
     names = rows[0].keys() if rows else ()
     return windows, {name: np.array([r[name] for r in rows]) for name in names}
 
@@ -99,14 +114,14 @@ class Engine:
     def __init__(self, procedure: Procedure, settings: EngineSettings):
         self.procedure = procedure
         self.settings = settings
-        self.records: dict[int, dict] = {}  # step -> completed record (JSON-able)
+        self.records: dict[int, StepRecord] = {}  # step -> completed record
         self.skipped: set[int] = set()
         self.step = 0
         self.phase = PLACE
         self.t = 0.0
         self._detector: StillnessDetector | None = None
         self._average = _Average()
-        self._windows: list[dict] = []  # this step's finished windows
+        self._windows: list[WindowRecord] = []  # this step's finished windows
         self._sign = 0.0
         self._next_progress = 0.0
         self._check: list[np.ndarray] = []
@@ -124,12 +139,11 @@ class Engine:
         """Begin at the first step not already completed or skipped (after ``restore``)."""
         return self._enter_step(self._first_open(0))
 
-    def restore(self, records: list[dict], skipped: list[int] = ()) -> None:
+    def restore(self, records: Iterable[StepRecord], skipped: Iterable[int] = ()) -> None:
         """Resume: take completed steps from a capture; ``start()`` then begins the next one."""
-        self.records = {int(r["step"]): r for r in records}
+        self.records = {r.step: r for r in records}
         self.skipped = set(int(s) for s in skipped)
-        ends = [w["start"] + w["duration"] for r in records for w in r["windows"]]
-        self.t = max(ends, default=0.0)
+        self.t = max((w.end for r in self.records.values() for w in r.windows), default=0.0)
 
     def act(self, action: ev.Action) -> list[ev.Event]:
         if self.phase in (DONE, ABORTED):
@@ -301,18 +315,16 @@ class Engine:
         moving = np.flatnonzero(~still[i:])
         return i + int(moving[0]) if len(moving) else n
 
-    def _finish_window(self, kind: str, rate_deg_s: float) -> None:
+    def _finish_window(self, kind: WindowKind, rate_deg_s: float) -> None:
         blocks = self._average.blocks
-        self._windows.append({"kind": kind, "start": blocks[0][0],
-                              "duration": self._average.n / self.settings.rate_hz,
-                              "rate_deg_s": rate_deg_s, "means": self._average.means()})
+        self._windows.append(WindowRecord(kind, blocks[0][0], self._average.n / self.settings.rate_hz,
+                                          rate_deg_s, self._average.means()))
         self._average = _Average()
         self._next_progress = 0.0
 
     def _complete_step(self, i, t, out) -> int:
         self.t = t
-        self.records[self.step] = {"step": self.step, "position_id": self.position.id,
-                                   "windows": self._windows}
+        self.records[self.step] = StepRecord(self.step, self.position.id, tuple(self._windows))
         out.append(ev.StepComplete(t, self.step, self.position.id))
         out.extend(self._enter_step(self._first_open(self.step + 1)))
         return i

@@ -1,59 +1,71 @@
 """Replay and re-solve a captured session.
 
 Replay feeds the captured chunks and operator actions, in the order they happened, through a
-fresh engine and solver; where a run was resumed after a crash, the engine is restarted from the
-steps completed so far, as the resumed run was. The parameter file comes out byte for byte the
-same as the one the run wrote.
+conductor with a fresh engine; where a run was resumed after a crash, the engine restarts from
+the steps that run kept, as the resumed run did. In the numeric environment the session was
+recorded in, the parameter file comes out byte for byte the same as the one the run wrote.
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
-from fieldcal.procedure import events as ev
-from fieldcal.procedure.engine import Engine
-from fieldcal.paramfile import ParameterFile, dump
-from fieldcal.run.runner import RunSpec, _solve
+from fieldcal.run.conductor import Conductor, Reporter
+from fieldcal.run.environment import compare_parameters
+from fieldcal.run.operators import NoBench, ReplayOperator
+from fieldcal.run.outcome import Outcome, Status
+from fieldcal.run.runner import RunSpec
 from fieldcal.session.capture import SessionReader
-from fieldcal.solvers.solve import UnitSolution
 
 
-def replay_session(directory: str | Path, speed: float | None = None,
-                   report=lambda e: None) -> tuple[UnitSolution, ParameterFile | None, int]:
+def replay_conductor(directory: str | Path, operator: ReplayOperator | None = None,
+                     subscribers=()) -> Conductor:
+    """A conductor that replays the session (``operator``: a paced one, else as fast as possible)."""
+    operator = operator if operator is not None else ReplayOperator(Path(directory))
+    spec = RunSpec.from_metadata(operator.reader.start)
+    return Conductor(spec, NoBench(), operator, subscribers)
+
+
+def finish_replay(conductor: Conductor, directory: str | Path, outcome: Outcome) -> Outcome:
+    """What a replay's outcome says beyond a run's: the capture it replayed, whether the capture
+    ended before the procedure did, and how the parameter file compares with the recorded one."""
+    reader = SessionReader(directory)
+    outcome.replay_of, outcome.session, outcome.parameters = Path(directory), None, reader.parameters_path
+    if outcome.status == Status.STOPPED:
+        engine = conductor.engine
+        outcome.status = Status.INCOMPLETE
+        outcome.message = f"the capture ends during step {engine.step + 1} of {len(engine.procedure.positions)}"
+    elif outcome.status == Status.ABORTED:
+        outcome.message = "the recorded run was aborted"
+    recorded = recorded_parameters(directory)
+    if outcome.parameter_file is not None and recorded is not None:
+        found = compare_parameters(outcome.parameter_file, recorded, reader.start.get("numeric_environment"))
+        outcome.identical, outcome.comparison = found.identical, found.text
+    return outcome
+
+
+def replay(directory: str | Path, operator: ReplayOperator | None = None, subscribers=()) -> tuple[Outcome, Conductor]:
+    """Replay to the end of the capture."""
+    conductor = replay_conductor(directory, operator, subscribers)
+    return finish_replay(conductor, directory, conductor.run()), conductor
+
+
+def replay_session_outcome(directory: str | Path, operator: ReplayOperator | None = None,
+                           report=lambda e: None) -> tuple[Outcome, int]:
+    """Replay (``fieldcal replay``); a capture that ends early or was aborted is solved from the
+    steps it completed. The outcome and the number of samples replayed."""
+    outcome, conductor = replay(directory, operator, [Reporter(report)])
+    if outcome.unit is None:
+        outcome.unit, outcome.parameter_file = conductor.solve()
+    return outcome, conductor.samples
+
+
+def replay_session(directory: str | Path, speed: float | None = None, report=lambda e: None):
     """Re-run the engine on the capture; (solution, parameter file, samples replayed).
 
     ``speed``: None for as fast as possible, else that many times real (sample) time.
     """
-    reader = SessionReader(directory)
-    spec = RunSpec.from_metadata(reader.start)
-    settings = spec.engine_settings()
-    engine = Engine(spec.procedure, settings)
-    for e in engine.start():
-        report(e)
-    started, samples = time.monotonic(), 0
-    first_t = None
-    for kind, item in reader.replay_items(("chunk", "action", "resume")):
-        if kind == "chunk":
-            if speed:
-                first_t = item.t[0] if first_t is None else first_t
-                lag = started + (item.t[-1] - first_t) / speed - time.monotonic()
-                if lag > 0:
-                    time.sleep(lag)
-            samples += len(item)
-            out = engine.feed(item)
-        elif kind == "action":
-            out = engine.act(ev.action_from_dict(item))
-        else:  # a resumed run restarted its engine from the steps it had on record
-            keep = set(item["completed_steps"])
-            records = [r for step, r in engine.records.items() if step in keep]
-            engine = Engine(spec.procedure, settings)
-            engine.restore(records, item["skipped"])
-            out = engine.start()
-            started, first_t = time.monotonic(), None  # sample time starts over from the checkpoint
-        for e in out:
-            report(e)
-    unit, pf = _solve(spec, engine)
-    return unit, pf, samples
+    outcome, samples = replay_session_outcome(directory, ReplayOperator(Path(directory), speed), report)
+    return outcome.unit, outcome.parameter_file, samples
 
 
 def recorded_parameters(directory: str | Path) -> bytes | None:
@@ -62,7 +74,16 @@ def recorded_parameters(directory: str | Path) -> bytes | None:
 
 
 def replay_matches(directory: str | Path) -> bool:
-    """Does replaying the session give its parameter file byte for byte?"""
-    _, pf, _ = replay_session(directory)
-    recorded = recorded_parameters(directory)
-    return pf is not None and recorded is not None and dump(pf).encode() == recorded
+    """Does replaying the session give its parameter file (byte for byte in the same numeric
+    environment, within the stated tolerance elsewhere)?"""
+    return replay(directory)[0].identical is True
+
+
+def resolve_session(directory: str | Path):
+    """Solve again from the step averages the session stored (no samples read); (solution, file)."""
+    from fieldcal.run.steps import completed_records
+
+    reader = SessionReader(directory)
+    conductor = Conductor(RunSpec.from_metadata(reader.start), NoBench(), None)
+    conductor.engine.restore(completed_records(reader))
+    return conductor.solve()

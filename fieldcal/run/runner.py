@@ -1,10 +1,11 @@
-"""Headless runs: the procedure engine, an automatic operator and the simulated device.
+"""Headless runs: the run spec, the simulated bench, and a conductor with the automatic operator.
 
-The operator moves the virtual fixture to each position (a few degrees off, at a random heading,
-with hand motion on the way), says ready, and, when the script asks, bumps the unit mid-dwell,
-places it wrongly first, or skips a position. Everything is captured in the session as it
-happens; at every completed step a checkpoint of the simulator and operator lets ``resume``
-continue exactly as an uninterrupted run would have.
+The operator (``fieldcal.run.operators.ScriptedOperator``) moves the virtual fixture to each
+position (a few degrees off, at a random heading, with hand motion on the way), says ready, and,
+when the script asks, bumps the unit mid-dwell, places it wrongly first, or skips a position.
+The conductor runs the loop; the session recorder captures everything as it happens, and at
+every completed step the simulator's state lets ``resume`` continue exactly as an uninterrupted
+run would have.
 """
 from __future__ import annotations
 
@@ -18,32 +19,23 @@ from scipy.spatial.transform import Rotation
 from drivers.sim import MimuSimulator
 from drivers.sim.device import paper_mimu
 from fieldcal import __version__
-from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
-from fieldcal.procedure.engine import Engine, EngineSettings
+from fieldcal.procedure.engine import EngineSettings
 from fieldcal.run.livedevice import ANGULAR_RATE_TRIAD, SPECIFIC_FORCE_TRIAD, LiveDevice
 from fieldcal.model import params_from_k
-from fieldcal.paramfile import ParameterFile, hash_inputs
 from fieldcal.procedure.positions import Procedure, parse_procedure
-from fieldcal.session.capture import SessionReader, SessionWriter
-from fieldcal.run.simrun import placed_attitude
-from fieldcal.solvers.solve import TriadModel, UnitSolution, models_from_truth, resolve_method, solve_unit
 from fieldcal.procedure.stillness import StillnessSettings
+from fieldcal.run.conductor import Conductor, Reporter
+from fieldcal.run.operators import OperatorScript, ScriptedOperator
+from fieldcal.run.outcome import Outcome
+from fieldcal.run.recorder import SessionRecorder
+from fieldcal.run.steps import steps_on_record
+from fieldcal.run.simrun import placed_attitude
+from fieldcal.session.capture import SessionReader
+from fieldcal.solvers.solve import TriadModel, models_from_truth
 
 TABLE_ACCEL_DEG_S2 = 20.0
 SIM_DEVICE_NAME = "simulated MIMU (paper Tables 3-4)"
-
-
-@dataclass(frozen=True)
-class OperatorScript:
-    placement_sigma_deg: float = 3.0
-    handling_s: float = 4.0
-    bump_step: int | None = None  # bump the unit halfway through this step's dwell (0-based)
-    wrong_step: int | None = None  # first put the unit in a wrong position at this step
-    skip_steps: tuple[int, ...] = ()
-    # Bump after the first chunk that ends at or after each of these sample times (s): how a
-    # headless run repeats the bumps an operator gave in the terminal UI.
-    bump_at_s: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -81,6 +73,19 @@ class RunSpec:
             "simulation_truth": {name: {"kind": t.kind, "K": t.K.tolist(), "bias": t.bias.tolist(),
                                         "output_unit": t.output_unit} for name, t in device.items()},
         }
+
+    def session_metadata(self, link: str | None, front_end: str | None = None) -> dict:
+        """The start metadata of a session: the spec, how the device was reached, which front
+        end ran it, and the numeric environment (a replay elsewhere compares within tolerance)."""
+        from fieldcal.run.environment import numeric_environment
+
+        metadata = self.to_metadata()
+        if link is not None:
+            metadata["device"]["link"] = link
+        if front_end is not None:
+            metadata["front_end"] = front_end
+        metadata["numeric_environment"] = numeric_environment()
+        return metadata
 
     @classmethod
     def from_metadata(cls, meta: dict) -> RunSpec:
@@ -163,6 +168,9 @@ class SimulatedBench:
         self.target_deg_s = 0.0
         self.chunk_n = int(round(spec.rate_hz))  # one-second chunks
 
+    def next_chunks(self) -> list:
+        return [self.next_chunk()]
+
     def next_chunk(self):
         return self.sim.advance(self.chunk_n, self.attitude, math.radians(self.target_deg_s),
                                 math.radians(TABLE_ACCEL_DEG_S2))
@@ -203,159 +211,31 @@ class SimulatedBench:
         self.target_deg_s = float(state["target_deg_s"])
 
 
-def _wrong_position(procedure: Procedure, step: int):
-    """A position whose gravity direction is far from the expected one (a plausible mix-up)."""
-    expected = procedure.positions[step].up_body
-    return max(procedure.positions, key=lambda p: -abs(float(p.up_body @ expected)) - 0.01 * p.id)
-
-
-@dataclass
-class RunResult:
-    session: Path
-    unit: UnitSolution | None
-    parameters: Path | None
-    truth: dict
-    aborted: bool = False
-
-
-def _solve(spec: RunSpec, engine: Engine) -> tuple[UnitSolution, ParameterFile | None]:
-    windows, averages = engine.windows_and_averages()
-    models = {n: m for n, m in spec.models().items() if n in averages}
-    unit = solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, spec.method)
-    if not unit.solutions:
-        return unit, None
-    pf = ParameterFile.build(
-        triads=tuple(unit.solutions.values()),
-        procedure=spec.procedure.name, method=resolve_method(spec.procedure, spec.method),
-        station=spec.station,
-        input_sha256=hash_inputs(*unit.inputs.values()), device_name=spec.device_name,
-        device_serial=spec.device_serial, simulation=spec.live is None)
-    return unit, pf
-
-
-def _drive(spec: RunSpec, engine: Engine, bench: SimulatedBench, session: SessionWriter,
-           events: list, report) -> bool:
-    """Run until the procedure completes or is aborted; False if aborted."""
-    script = spec.script
-    bumped = wrong_done = False
-    bumps_due = sorted(t for t in script.bump_at_s if t > engine.t)
-    bump_now = False
-    # A step normally takes its dwell, its rate steps and the handling; ten times that with no
-    # step completed means the run cannot make progress (say the unit never settles).
-    step = spec.procedure.rate_step
-    per_step = spec.procedure.dwell_s + script.handling_s + (
-        2 * (step.turns * 360.0 / step.rate_deg_s + step.ramp_s + step.settle_s) if step else 0.0)
-    deadline = engine.t + 10 * per_step
-    while True:
-        moves = []
-        for e in events:
-            session.event(e.to_dict())
-            report(e)
-            if isinstance(e, (ev.StepComplete, ev.StepSkipped)):
-                deadline = e.t + 10 * per_step
-            if isinstance(e, ev.CommandTable):
-                bench.command_table(e.rate_deg_s)
-            elif isinstance(e, ev.StepComplete):
-                # One document, so a crash cannot separate a step's averages from the state
-                # that resuming after it needs.
-                session.step({**engine.records[e.step], "skipped": sorted(engine.skipped),
-                              "bench": bench.get_state()})
-            elif isinstance(e, ev.PlaceUnit):
-                step = engine.step
-                if step in script.skip_steps:
-                    moves.append(("act", ev.Action(ev.SKIP)))
-                    continue
-                if step == script.wrong_step and not wrong_done:
-                    wrong_done = True
-                    moves.append(("move", _wrong_position(spec.procedure, step).attitude))
-                else:
-                    moves.append(("move", engine.position.attitude))
-                moves.append(("act", ev.Action(ev.READY)))
-            elif isinstance(e, ev.WrongOrientation):
-                moves.append(("move", engine.position.attitude))
-            elif isinstance(e, ev.DwellProgress):
-                if engine.step == script.bump_step and not bumped and e.done_s >= e.total_s / 2:
-                    bumped = True
-                    moves.append(("bump", None))
-            elif isinstance(e, (ev.ProcedureComplete, ev.Aborted)):
-                return isinstance(e, ev.ProcedureComplete)
-        if bump_now:
-            moves.append(("bump", None))
-            bump_now = False
-        events = []
-        for what, arg in moves:
-            if what == "act":
-                session.action(arg.to_dict())
-                events += engine.act(arg)
-                continue
-            for chunk in bench.move_to(arg) if what == "move" else bench.bump():
-                session.chunk(chunk)
-                events += engine.feed(chunk)
-        if not moves:
-            chunk = bench.next_chunk()
-            session.chunk(chunk)
-            events = engine.feed(chunk)
-            if bumps_due and engine.t >= bumps_due[0]:
-                bumps_due.pop(0)
-                bump_now = True  # after this chunk's events, as the terminal UI does a key
-            if chunk.t[-1] > deadline:
-                events += engine.act(ev.Action(ev.ABORT))
-                report(ev.Aborted(float(chunk.t[-1]), f"no step completed in {10 * per_step:.0f} s of "
-                                  f"samples (phase {engine.phase}): the run cannot make progress"))
-
-
-def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool = False) -> RunResult:
+def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool = False) -> Outcome:
     """``serial``: reach the simulated device only through bytes on a pty, as hardware would be."""
-    engine = Engine(spec.procedure, spec.engine_settings())  # bad settings fail before any file
-    metadata = spec.to_metadata()
-    metadata["device"]["link"] = "pty" if serial else "in-process"
-    session = SessionWriter.create(out, metadata)
+    settings = spec.engine_settings()  # bad settings fail before any file
+    recorder = SessionRecorder.create(out, spec.session_metadata("pty" if serial else "in-process"))
     if serial:
         from fieldcal.run.serialbench import SerialBench
-        bench = SerialBench(spec, tap=lambda t, data: session.write_raw("imu", t, data))
+        bench = SerialBench(spec, tap=recorder.raw)
     else:
         bench = SimulatedBench(spec)
-    try:
-        completed = _drive(spec, engine, bench, session, engine.start(), report)
-    finally:
-        bench.close()
-    return _finish(spec, engine, session, completed, out)
+    conductor = Conductor(spec, bench, ScriptedOperator(spec.script, spec.procedure),
+                          [recorder, Reporter(report)], session=out, settings=settings)
+    return conductor.run()
 
 
-def resume_headless(directory: Path, report=lambda e: None) -> RunResult:
-    """Continue a killed headless run after its last completed step."""
+def resume_headless(directory: Path, report=lambda e: None) -> Outcome:
+    """Continue a run (headless, or the terminal UI's simulator) after its last completed step.
+
+    Everything up to the last completed step is kept; what came after it (a partial step, a
+    skip) is done again, exactly as the uninterrupted run did it.
+    """
     reader = SessionReader(directory)
     spec = RunSpec.from_metadata(reader.start)
-    engine = Engine(spec.procedure, spec.engine_settings())
-    bench = SimulatedBench(spec)
-    steps = reader.steps()
-    # Everything up to the last completed step; what came after it (a partial step, a skip) is
-    # done again, exactly as the uninterrupted run did it.
-    skipped = steps[-1]["skipped"] if steps else []
-    engine.restore(steps, skipped)
-    if steps:
-        bench.set_state(steps[-1]["bench"])
-    session = SessionWriter.append_to(directory)
-    session.resume({"completed_steps": sorted(engine.records), "skipped": list(skipped)})
-    return _finish(spec, engine, session, _drive(spec, engine, bench, session, engine.start(), report),
-                   Path(directory))
-
-
-def _finish(spec: RunSpec, engine: Engine, session: SessionWriter, completed: bool, out: Path) -> RunResult:
-    truth = spec.truth()
-    if engine.records:
-        truth = {n: v for n, v in truth.items() if n in engine.windows_and_averages()[1]}
-    if not completed:
-        session.stop("aborted")
-        session.close()
-        return RunResult(Path(out), None, None, truth, aborted=True)
-    unit, pf = _solve(spec, engine)
-    solved = ev.Solved(engine.t, tuple(unit.solutions), dict(unit.failures))
-    session.event(solved.to_dict())
-    path = None
-    if pf is not None:
-        session.write_parameters(pf)
-        path = Path(out) / "parameters.yaml"
-    session.stop("completed")
-    session.close()
-    return RunResult(Path(out), unit, path, truth)
+    steps = steps_on_record(reader)
+    conductor = Conductor(spec, SimulatedBench(spec), ScriptedOperator(spec.script, spec.procedure),
+                          session=directory)
+    conductor.restore(steps)  # before the session is touched: refuses what cannot be continued
+    conductor.subscribers = [SessionRecorder.append_to(directory), Reporter(report)]
+    return conductor.run()

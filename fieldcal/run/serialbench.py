@@ -40,6 +40,9 @@ class SerialBench:
         self.attitude = np.eye(3)
         self._ready: deque = deque()
 
+    def next_chunks(self) -> list:
+        return [self.next_chunk()]
+
     def next_chunk(self):
         deadline = time.monotonic() + _READ_TIMEOUT_S
         while not self._ready:
@@ -78,6 +81,9 @@ class SerialBench:
 
     def get_state(self) -> dict:
         return {"serial": True}  # a device on a port cannot be rewound: no resume
+
+    def set_state(self, state: dict) -> None:
+        raise ValueError("a run through a serial device cannot be resumed (the device cannot be rewound)")
 
     def close(self) -> None:
         self.table.close()

@@ -11,6 +11,7 @@ from pathlib import Path
 from fieldcal.procedure.engine import windows_and_averages
 from fieldcal.report import methods_table, solution_header
 from fieldcal.run.runner import RunSpec
+from fieldcal.run.steps import completed_records
 from fieldcal.session.capture import LOG, SessionReader
 from fieldcal.solvers.solve import models_from_truth, solve_unit
 
@@ -18,14 +19,14 @@ from fieldcal.solvers.solve import models_from_truth, solve_unit
 def compare_methods(directory: Path, methods: list[str]) -> str:
     reader = SessionReader(directory, log_only=True)
     spec = RunSpec.from_metadata(reader.start)
-    steps = reader.steps()
-    windows, averages = windows_and_averages(steps)
+    records = completed_records(reader)  # the last record of each step (a resumed run redoes one)
+    windows, averages = windows_and_averages(records)
     if not windows:
         return f"{directory}: no completed steps to solve from"
     models = models_from_truth(spec.device())
     results = {m: solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, m)
                for m in methods}
-    lines = [f"{spec.procedure.name}: {len(steps)} completed steps, re-solved from their averages "
+    lines = [f"{spec.procedure.name}: {len(records)} completed steps, re-solved from their averages "
              f"in {LOG}"]
     for name in models:
         solved = {m: results[m].solutions.get(name) for m in methods}

@@ -14,7 +14,7 @@ from drivers.sim.noise import TriadNoise
 from fieldcal.solvers.assemble import build_problem, classic_inputs
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import Procedure
-from fieldcal.run.simrun import Window
+from fieldcal.procedure.windows import Window
 from fieldcal.solvers import CalibrationError, solve_classic, solve_norm
 
 

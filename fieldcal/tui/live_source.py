@@ -12,116 +12,80 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers.tables import TableError
 from fieldcal.procedure import events as ev
-from fieldcal.procedure.engine import PLACE, WRONG
-from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, QUIT, READY, REDO, SKIP, SimSource, Sink
+from fieldcal.procedure.engine import PLACE, WAITING_FOR_OPERATOR, WRONG
+from fieldcal.run.conductor import Act, Conductor, Say
+from fieldcal.run.outcome import Status
+from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, Mode, SimSource, Sink
 
 NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the operator is told
 
 
 class LiveSource(SimSource):
-    mode = "live"
+    mode = Mode.LIVE
 
     def __init__(self, spec, config, sink: Sink, session_dir: Path | None,
                  clock: Callable[[], float] = time.monotonic):
         from fieldcal.run.livebench import LiveBench
 
         self.config = config
-        bench = LiveBench(config, tap=self._capture_raw)
+        bench = LiveBench(config, tap=self._capture_raw, clock=clock, silence_s=NO_SAMPLES_WARN_S)
         super().__init__(spec, sink, 0.0, session_dir, clock, bench=bench)
-        self._last_sample_wall = clock()
-        self._silent_reported = False
-        self._trouble_reported = (0, 0, 0)
 
     def _capture_raw(self, t: float, data: bytes) -> None:
         """Called on the port's reader thread (the session writer is thread-safe)."""
-        session = self.session
-        if session is not None and not session.closed:
-            session.write_raw("imu", t, data)
+        if self.recorder is not None:
+            self.recorder.raw(t, data)
 
-    def _run(self) -> None:
-        from fieldcal.session.capture import SessionWriter
+    def _metadata(self) -> dict:
+        return self.spec.session_metadata(None, "tui")
 
-        if self.session_dir is not None:
-            metadata = self.spec.to_metadata()
-            metadata["front_end"] = "tui"
-            self.session = SessionWriter.create(self.session_dir, metadata)
+    def _conductor(self) -> Conductor:
+        conductor = super()._conductor()
+        self.bench.say = conductor.say
         try:
             self.bench.start()
-            table = self.config.table
-            self._note(f"reading {self.spec.device_name} on {self.bench.url} ({self.config.device.protocol}, "
-                       f"{self.spec.rate_hz:g} Hz); table: "
-                       f"{f'{table.protocol} on {table.port.url}' if table and table.port else 'none'}")
-            self._handle(self.engine.start())
-            while self.outcome is None and not self.stopping:
-                command = self._next_command(wait=False)
-                if command is not None:
-                    self._do(command)
-                    continue
-                if not self._read():
-                    self._commands_or_sleep()
-                self._waiting = self.engine.phase in (PLACE, WRONG)  # on the operator's hands
-                self._flush()
-        finally:
-            self.bench.close()
-            if self.session is not None and not self.session.closed:
-                self.session.close()
+        except BaseException:  # the port or the table would not open: close what did, keep the session
+            try:
+                self.bench.close()
+            finally:
+                if self.recorder is not None:
+                    self.recorder.end(Status.ERROR, conductor)
+            raise
+        table = self.config.table
+        conductor.say(f"reading {self.spec.device_name} on {self.bench.url} ({self.config.device.protocol}, "
+                      f"{self.spec.rate_hz:g} Hz); table: "
+                      f"{f'{table.protocol} on {table.port.url}' if table and table.port else 'none'}")
+        return conductor
 
-    def _commands_or_sleep(self) -> None:
+    def _holds_for_keys(self, run: Conductor) -> bool:
+        return False  # samples flow all the time, also while the operator places the unit
+
+    def idle(self, run: Conductor) -> None:
         """Nothing read: wait briefly for a key instead of spinning."""
         try:
             self._deferred.append(self._commands.get(timeout=min(0.02, FLUSH_S)))
         except queue.Empty:
             pass
 
-    def _read(self) -> bool:
-        chunks, port_events = self.bench.poll()
-        for pe in port_events:
-            detail = f": {pe.message}" if pe.message and pe.message != self.bench.url else ""
-            self._note(f"port {self.bench.url}: {pe.kind}{f' after {pe.gap_s:.1f} s' if pe.gap_s else ''}{detail}")
-        now = self.clock()
-        if chunks:
-            self._last_sample_wall, self._silent_reported = now, False
-        elif now - self._last_sample_wall > NO_SAMPLES_WARN_S and not self._silent_reported:
-            self._silent_reported = True
-            self._note(f"WARNING: no samples from {self.bench.url} for {NO_SAMPLES_WARN_S:g} s "
-                       "(cable, power, baud rate, or the device's output settings?)")
-        self._feed(chunks)
-        c = self.bench.counters
-        trouble = (c.discarded_bytes, c.checksum_failures, c.missing_frames)
-        if trouble != self._trouble_reported:
-            self._note(f"parser: {c.discarded_bytes} byte(s) discarded, {c.checksum_failures} checksum "
-                       f"failure(s), {c.missing_frames} frame(s) missing so far")
-            self._trouble_reported = trouble
-        return bool(chunks)
+    def tick(self, run: Conductor) -> None:
+        self._waiting = run.engine.phase in WAITING_FOR_OPERATOR  # on the operator's hands
+        super().tick(run)
 
-    def _do(self, command: str) -> None:
-        e = self.engine
-        if command == QUIT:
-            self._stop.set()
-        elif command == READY and e.phase == PLACE:
-            self._note(f"operator: ready, the unit is in position {e.position.id}")
-            self._act(ev.READY)
-        elif command == READY and e.phase == WRONG:
-            self._note(f"waiting for the unit to be still in position {e.position.id}")
-        elif command in (READY,):
-            self._note("(ready: nothing to do now)")
-        elif command in (REDO, SKIP, ABORT):
-            self._note(f"operator: {command}")
-            self._act(command)
-        elif command in (BUMP, MISPLACE):
-            self._note(f"({command}: the simulator's keys; this is a real device)")
+    def _moves(self, command: str, run: Conductor) -> list:
+        e = run.engine
+        if command == READY and e.phase == PLACE:
+            return [Say(f"operator: ready, the unit is in position {e.position.id}"), Act(ev.READY)]
+        if command == READY and e.phase == WRONG:
+            return [Say(f"waiting for the unit to be still in position {e.position.id}")]
+        if command == READY:
+            return [Say("(ready: nothing to do now)")]
+        if command in (REDO, SKIP, ABORT):
+            return [Say(f"operator: {command}"), Act(command)]
+        assert command in (BUMP, MISPLACE)
+        return [Say(f"({command}: the simulator's keys; this is a real device)")]
 
-    def _stopped(self):
-        out = super()._stopped()
+    def _stopped_message(self) -> str:
         if self.session_dir is not None:  # a device on a port cannot be rewound to resume
-            out.message = "stopped before the end; the session is kept (a live run is not resumed: start again)"
-        return out
-
-    def _handle(self, events) -> None:
-        for e in events:  # one at a time: a table error must not lose the events after it
-            try:
-                super()._handle([e])
-            except (ValueError, TableError) as exc:  # the operator decides what to do
-                self._note(f"ERROR: table: {exc}; skip this step (s) or abort (a)")
+            return "stopped before the end; the session is kept (a live run is not resumed: start again)"
+        return super()._stopped_message()

@@ -1,0 +1,147 @@
+"""Operators a conductor can take: the scripted one of headless runs, and the replay of a capture.
+
+(The terminal UI's operator, the keys, lives with the UI: ``fieldcal.tui.source``.)
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+from fieldcal.procedure import events as ev
+from fieldcal.procedure.positions import Procedure
+from fieldcal.run.conductor import Act, Bump, Conductor, Feed, Operator, Place, Restart, Say
+from fieldcal.run.pacing import Pacer
+from fieldcal.run.steps import ResumePoint
+from fieldcal.session.capture import SessionReader
+
+
+@dataclass(frozen=True)
+class OperatorScript:
+    placement_sigma_deg: float = 3.0
+    handling_s: float = 4.0
+    bump_step: int | None = None  # bump the unit halfway through this step's dwell (0-based)
+    wrong_step: int | None = None  # first put the unit in a wrong position at this step
+    skip_steps: tuple[int, ...] = ()
+    # Bump after the first chunk that ends at or after each of these sample times (s): how a
+    # headless run repeats the bumps an operator gave in the terminal UI.
+    bump_at_s: tuple[float, ...] = ()
+
+
+def wrong_position(procedure: Procedure, step: int):
+    """A position whose gravity direction is far from the expected one (a plausible mix-up)."""
+    expected = procedure.positions[step].up_body
+    return max(procedure.positions, key=lambda p: -abs(float(p.up_body @ expected)) - 0.01 * p.id)
+
+
+class ScriptedOperator(Operator):
+    """The headless operator: places the unit at each step, says ready, and makes the script's mishaps.
+
+    The moves an event calls for are made after all the events of the same chunk (or action),
+    in order; a bump at a given sample time comes after the moves of the chunk that reached it.
+    """
+
+    def __init__(self, script: OperatorScript, procedure: Procedure):
+        self.script = script
+        self.procedure = procedure
+        self.pending: deque = deque()
+        self.bumped = self.wrong_done = False
+        self.bumps_due: list[float] = []
+        # A step normally takes its dwell, its rate steps and the handling; ten times that with
+        # no step completed means the run cannot make progress (say the unit never settles).
+        rate = procedure.rate_step
+        self.patience_s = 10 * (procedure.dwell_s + script.handling_s + (
+            2 * (rate.turns * 360.0 / rate.rate_deg_s + rate.ramp_s + rate.settle_s) if rate else 0.0))
+        self.deadline = self.patience_s
+
+    def begin(self, run: Conductor) -> None:
+        t0 = run.engine.t  # after a resume, where the run continues
+        self.bumps_due = sorted(t for t in self.script.bump_at_s if t > t0)
+        self.deadline = t0 + self.patience_s
+
+    def next_moves(self, run: Conductor):
+        moves = list(self.pending)
+        self.pending.clear()
+        return moves
+
+    def observe(self, e: ev.Event, run: Conductor) -> None:
+        engine, script = run.engine, self.script
+        if isinstance(e, (ev.StepComplete, ev.StepSkipped)):
+            self.deadline = e.t + self.patience_s
+        if isinstance(e, ev.PlaceUnit):
+            step = engine.step
+            if step in script.skip_steps:
+                self.pending.append(Act(ev.SKIP))
+                return
+            if step == script.wrong_step and not self.wrong_done:
+                self.wrong_done = True
+                self.pending.append(Place(wrong_position(self.procedure, step).attitude))
+            else:
+                self.pending.append(Place(engine.position.attitude))
+            self.pending.append(Act(ev.READY))
+        elif isinstance(e, ev.WrongOrientation):
+            self.pending.append(Place(engine.position.attitude))
+        elif isinstance(e, ev.DwellProgress):
+            if engine.step == script.bump_step and not self.bumped and e.done_s >= e.total_s / 2:
+                self.bumped = True
+                self.pending.append(Bump())
+
+    def after_chunk(self, chunk, run: Conductor) -> None:
+        t = float(chunk.t[-1])
+        if t > self.deadline:  # before any move this chunk's events asked for
+            self.pending.appendleft(Act(ev.ABORT, f"no step completed in {self.patience_s:.0f} s of samples "
+                                                  f"(phase {run.engine.phase}): the run cannot make progress"))
+        elif self.bumps_due and run.engine.t >= self.bumps_due[0]:
+            self.bumps_due.pop(0)
+            self.pending.append(Bump())  # after this chunk's moves, as the terminal UI does a key
+
+
+class NoBench:
+    """A replay's bench: the samples come from the capture, and no table turns."""
+
+    def next_chunks(self) -> list:
+        return []
+
+    def command_table(self, rate_deg_s: float) -> None:
+        pass
+
+    def get_state(self) -> dict:
+        return {}
+
+    def set_state(self, state: dict) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class ReplayOperator(Operator):
+    """A captured run's chunks, actions and resume points, in the order they were recorded.
+
+    ``speed``: None or 0 for as fast as possible, else that many times sample time (the pacing
+    starts over at each resume: a resumed run's sample time continues from its last step).
+    """
+
+    def __init__(self, directory: Path, speed: float | None = None, pacer: Pacer | None = None):
+        self.reader = SessionReader(directory)
+        self.items = self.reader.replay_items(("chunk", "action", "resume"))
+        self.pacer = pacer if pacer is not None else Pacer(speed or 0.0)
+
+    def next_moves(self, run: Conductor):
+        kind, item = next(self.items, (None, None))
+        if kind is None:
+            return None  # the end of the capture
+        if kind == "chunk":
+            return [Feed(item)]
+        if kind == "action":
+            action = ev.action_from_dict(item)
+            return [Say(f"recorded action: {action.name}"), Act(action.name)]
+        self.pacer.hold()
+        return [Say("the recorded run was resumed here"), Restart(ResumePoint.from_dict(item))]
+
+    def pace(self, chunk, run: Conductor) -> bool:
+        delay = self.pacer.delay(float(chunk.t[0]), float(chunk.t[-1]))
+        if delay > 0:
+            time.sleep(delay)
+        return True

@@ -1,0 +1,42 @@
+"""How a run ended and what it produced: the one result every front end reads."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+
+from fieldcal.procedure.positions import Procedure
+
+
+class Status(StrEnum):
+    COMPLETED = "completed"
+    ABORTED = "aborted"
+    STOPPED = "stopped"  # quit before the end: the session can be resumed
+    INCOMPLETE = "incomplete"  # a replayed capture ends before the procedure does
+    ERROR = "error"
+
+
+@dataclass
+class Outcome:
+    status: Status
+    procedure: Procedure
+    unit: object | None = None  # fieldcal.solvers.solve.UnitSolution
+    truth: dict = field(default_factory=dict)  # triad -> true parameters (simulation)
+    session: Path | None = None
+    parameters: Path | None = None  # the parameter file written (or, in a replay, the recorded one)
+    parameter_file: object | None = None  # fieldcal.paramfile.ParameterFile solved in this run
+    replay_of: Path | None = None
+    identical: bool | None = None  # replay: the parameter file equals the recorded one
+    comparison: str = ""  # replay: how the parameter files were compared, and the verdict
+    completed: int = 0
+    skipped: int = 0
+    message: str = ""
+    previous: object | None = None  # fieldcal.session.history.PreviousCalibration of the same unit
+
+    @property
+    def solved(self) -> bool:
+        return self.unit is not None and bool(self.unit.solutions)
+
+    @property
+    def aborted(self) -> bool:
+        return self.status != Status.COMPLETED

@@ -1,0 +1,222 @@
+"""The one run loop: sessions written before it (tests/data/golden, format of commit 58c3726)
+still resume, replay and re-solve to the same parameter file, and the terminal UI's sessions
+resume headless."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from fieldcal.earth import Station
+from fieldcal.paramfile import dump
+from fieldcal.procedure.positions import load_procedure, parse_procedure
+from fieldcal.run.replay import replay_session, resolve_session
+from fieldcal.run.runner import OperatorScript, RunSpec, resume_headless, run_headless
+from fieldcal.run.steps import steps_on_record
+from fieldcal.session.capture import SessionReader
+
+GOLDEN = Path(__file__).parent / "data" / "golden"
+STATION = Station(40.0, 50.0)
+
+
+def golden_procedure():
+    """The shortened field-18 the golden sessions ran (their metadata holds the same YAML)."""
+    text = load_procedure("field-18").text.replace("name: field-18", "name: golden-mini") \
+        .replace("dwell_s: 200", "dwell_s: 3") \
+        .replace("rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}",
+                 "rate_step: {rate_deg_s: 60, turns: 1, ramp_s: 3, settle_s: 1}")
+    return parse_procedure(text, "golden-mini.yaml")
+
+
+def test_the_golden_procedure_is_the_one_recorded():
+    recorded = SessionReader(GOLDEN / "tui-quit").start["procedure"]["yaml"]
+    assert golden_procedure().text == recorded
+
+
+def test_an_old_resumed_headless_session_replays_and_resolves_to_its_parameter_file():
+    session = GOLDEN / "headless-resumed"
+    recorded = (session / "parameters.yaml").read_bytes()
+    _, pf, samples = replay_session(session)
+    assert dump(pf).encode() == recorded
+    assert samples == SessionReader(session).n_samples
+    _, pf = resolve_session(session)
+    assert dump(pf).encode() == recorded
+
+
+def test_old_tui_steps_read_with_their_separate_checkpoints():
+    steps = steps_on_record(SessionReader(GOLDEN / "tui-quit"))
+    assert [s.record.step for s in steps] == [0, 1, 2, 3, 4, 5]
+    assert all(s.skipped == () and s.bench is not None and "sim" in s.bench for s in steps)
+
+
+def test_an_old_tui_session_quit_half_way_resumes_to_the_uninterrupted_run(tmp_path):
+    """Defect 1 of issue 10 on a session the old terminal UI wrote (it died with KeyError 'skipped')."""
+    session = tmp_path / "tui-quit"
+    shutil.copytree(GOLDEN / "tui-quit", session)
+    resumed = resume_headless(session)
+    whole = run_headless(RunSpec(golden_procedure(), STATION, seed=8, rate_hz=20.0,
+                                 script=OperatorScript(handling_s=2.0)), tmp_path / "whole")
+    assert resumed.status == "completed" and not resumed.unit.failures
+    assert resumed.parameters.read_bytes() == whole.parameters.read_bytes()
+    # The golden copy itself is left as it was: resuming works on the copy only.
+    assert not (GOLDEN / "tui-quit" / "parameters.yaml").exists()
+
+
+def test_an_old_tui_session_killed_between_step_and_checkpoint_is_refused_in_one_line(tmp_path):
+    session = tmp_path / "s"
+    shutil.copytree(GOLDEN / "tui-quit", session)
+    log = session / "log.jsonl"
+    text = log.read_text()
+    log.write_text(text[:text.rindex('{"seq"', 0, text.rindex('"type":"checkpoint"'))])
+    before = log.read_bytes()
+    with pytest.raises(ValueError, match="step 6: the session holds no bench state"):
+        resume_headless(session)
+    assert log.read_bytes() == before  # refused before anything was written
+
+
+class KeySink:
+    """The terminal UI's part without Textual: presses ready whenever the source waits, and quits
+    instead once ``quit_after`` steps are complete."""
+
+    def __init__(self, quit_after: int | None = None):
+        self.quit_after, self.done, self.items, self.source, self.outcome = quit_after, 0, [], None, None
+
+    def update(self, items, telemetry):
+        from fieldcal.procedure import events as ev
+        from fieldcal.tui.source import READY
+
+        self.items.extend(items)
+        self.done += sum(isinstance(i, ev.StepComplete) for i in items)
+        if telemetry.waiting:
+            if self.quit_after is not None and self.done >= self.quit_after:
+                self.source.stop()
+            else:
+                self.source.send(READY)
+
+    def finished(self, outcome):
+        self.outcome = outcome
+
+
+def golden_spec(seed: int) -> RunSpec:
+    return RunSpec(golden_procedure(), STATION, seed=seed, rate_hz=20.0, script=OperatorScript(handling_s=2.0))
+
+
+def test_a_tui_run_quit_half_way_resumes_headless_to_the_uninterrupted_run(tmp_path):
+    """Defect 1 of issue 10: the terminal UI and the headless run write the same step documents."""
+    from fieldcal.tui.source import SimSource
+
+    sink = KeySink(quit_after=7)
+    source = sink.source = SimSource(golden_spec(12), sink, speed=0, session_dir=tmp_path / "tui")
+    quit_ = source.run()
+    assert quit_.status == "stopped" and "fieldcal resume" in quit_.message
+    assert len(steps_on_record(SessionReader(tmp_path / "tui"))) == 7
+    resumed = resume_headless(tmp_path / "tui")
+    whole = run_headless(golden_spec(12), tmp_path / "whole")
+    assert resumed.status == "completed" and resumed.completed == 18
+    assert resumed.parameters.read_bytes() == whole.parameters.read_bytes()
+
+
+def _replay_in_the_tui(session: Path):
+    from fieldcal.tui.source import ReplaySource
+
+    sink = KeySink()
+    source = sink.source = ReplaySource(session, sink, speed=0)
+    return source.run(), sink
+
+
+def _cut_before_step_record(session: Path, nth: int) -> None:
+    """The state a kill leaves after the chunk that completed a step was logged but before the
+    step's record was: the log cut at the start of the nth step document (0-based)."""
+    log = session / "log.jsonl"
+    lines = log.read_bytes().splitlines(keepends=True)
+    steps = [i for i, line in enumerate(lines) if b'"type":"step"' in line]
+    log.write_bytes(b"".join(lines[:steps[nth]]))
+    (session / "parameters.yaml").unlink()
+
+
+def test_the_tui_replay_of_a_killed_and_resumed_session_is_identical(tmp_path):
+    """Defect 2 of issue 10: the TUI replay restarts from the steps the resumed run kept."""
+    whole = run_headless(RunSpec(golden_procedure(), STATION, seed=13, rate_hz=20.0,
+                                 script=OperatorScript(handling_s=2.0, skip_steps=(3,), bump_step=5)),
+                         tmp_path / "s")
+    expected = whole.parameters.read_bytes()
+    _cut_before_step_record(whole.session, 6)
+    assert resume_headless(whole.session).parameters.read_bytes() == expected
+    for session in (whole.session, GOLDEN / "headless-resumed"):
+        outcome, sink = _replay_in_the_tui(session)
+        assert outcome.status == "completed" and outcome.identical is True, session
+        assert dump(outcome.parameter_file).encode() == (session / "parameters.yaml").read_bytes()
+        assert any("resumed here" in getattr(i, "text", "") for i in sink.items)
+        assert any("byte for byte" in getattr(i, "text", "") for i in sink.items)
+
+
+def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_path, monkeypatch):
+    import dataclasses
+
+    from fieldcal.paramfile import load
+    from fieldcal.run import environment
+    from fieldcal.run.replay import replay
+
+    session = run_headless(golden_spec(14), tmp_path / "s").session
+    recorded_env = SessionReader(session).start["numeric_environment"]
+    assert recorded_env == environment.numeric_environment()
+    assert {"numpy", "scipy", "blas", "machine"} <= set(recorded_env)
+    outcome, _ = replay(session)
+    assert outcome.identical is True and "byte for byte" in outcome.comparison
+
+    elsewhere = {**recorded_env, "blas": "another BLAS 9.9", "machine": "aarch64"}
+    monkeypatch.setattr(environment, "numeric_environment", lambda: elsewhere)
+    outcome, _ = replay(session)
+    assert outcome.identical is True
+    assert "numeric environment differs" in outcome.comparison and "aarch64" in outcome.comparison
+    assert "within 0.001σ" in outcome.comparison
+
+    # A recorded file off by half a σ in one parameter: no tolerance hides it.
+    pf = load(session / "parameters.yaml")
+    acc = pf["accelerometer"]
+    moved = dataclasses.replace(acc, bias=acc.bias + [0.5 * acc.sigma[0], 0.0, 0.0])
+    changed = dataclasses.replace(pf, triads=tuple(moved if t.name == acc.name else t for t in pf.triads))
+    from fieldcal.paramfile import save
+    save(changed, session / "parameters.yaml")
+    outcome, _ = replay(session)
+    assert outcome.identical is False
+    assert "accelerometer bias_x off by 0.5σ" in outcome.comparison
+    monkeypatch.setattr(environment, "numeric_environment", lambda: recorded_env)
+    outcome, _ = replay(session)
+    assert outcome.identical is False and "compared byte for byte" in outcome.comparison
+
+
+def test_fieldcal_resume_continues_an_old_tui_session(tmp_path):
+    import subprocess
+    import sys
+
+    session = tmp_path / "tui-quit"
+    shutil.copytree(GOLDEN / "tui-quit", session)
+    done = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "resume", str(session), "--quiet"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "resuming" in done.stdout and "after 6 completed steps" in done.stdout
+    assert "Traceback" not in done.stderr and (session / "parameters.yaml").is_file()
+
+
+def test_headless_progress_lines_reach_a_pipe_as_they_happen(tmp_path):
+    """Issue 15: piped output is not held back until the buffer fills (field-18 at 250 Hz
+    writes its first step's line seconds before the third step completes)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # as a user's shell has it
+    proc = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", "run", "--headless", "--seed", "3",
+                             "--out", str(tmp_path)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        header = proc.stdout.readline()
+        first = proc.stdout.readline()
+        logs = list(tmp_path.glob("*/log.jsonl"))
+        steps_written = logs[0].read_text().count('"type":"step"') if logs else 0
+    finally:
+        proc.kill()
+        proc.wait()
+    assert header.startswith("headless field-18") and "step 1/18" in first
+    assert steps_written < 3, "the first progress line came only after later steps were done"
