@@ -5,10 +5,8 @@ import argparse
 import os
 import sys
 
-import numpy as np
-
 from fieldcal import __version__
-from fieldcal.solvers.solve import METHODS
+from fieldcal.solvers.methods import METHODS
 
 
 def _seed(text: str) -> int:
@@ -44,6 +42,8 @@ def _progress_printer(stream):
 
 
 def cmd_demo(args) -> int:
+    import numpy as np
+
     from drivers.sim.device import paper_mimu
     from fieldcal.earth import Station
     from fieldcal.report import solution_header, solution_table
@@ -73,7 +73,7 @@ def cmd_demo(args) -> int:
     print(f"largest error: {worst:.2f}σ")
     if args.params:
         from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs, save
-        from fieldcal.solvers.solve import resolve_method
+        from fieldcal.solvers.methods import resolve_method
         pf = ParameterFile.build(
             triads=tuple(TriadParameters.from_solution(s) for s in cal.solutions.values()),
             procedure=cal.procedure.name, method=resolve_method(cal.procedure, args.method),

@@ -19,7 +19,7 @@ import numpy as np
 
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure
-from fieldcal.run.simrun import MINUS, PLUS, STATIC, Window
+from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window
 from fieldcal.procedure.stillness import StillnessDetector, StillnessSettings, check_orientation, gravity_direction
 
 MIN_WINDOW_SAMPLES = 10  # fewer, and the window's spread says little about stillness

@@ -15,17 +15,8 @@ from drivers.sim import MimuSimulator, Segment, TriadTruth
 from fieldcal.procedure.averaging import WindowAverager
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.procedure.positions import Procedure
+from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window  # noqa: F401  (re-exported)
 
-STATIC, PLUS, MINUS = "static", "plus", "minus"
-
-
-@dataclass(frozen=True)
-class Window:
-    kind: str  # STATIC, PLUS or MINUS
-    position: int  # index into the procedure's positions
-    start: float  # s, sample time
-    duration: float  # s
-    table_rate: float = 0.0  # rad/s, magnitude
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,24 @@
-"""Pure solvers: per-position averages in, calibration with uncertainty out."""
-from fieldcal.solvers.classic import ClassicSolution, solve_classic
-from fieldcal.solvers.norm import CalibrationError, TriadSolution, solve_norm
-from fieldcal.solvers.problems import RateNormProblem, StaticNormProblem
+"""Pure solvers: per-position averages in, calibration with uncertainty out.
 
-__all__ = ["CalibrationError", "ClassicSolution", "RateNormProblem", "StaticNormProblem",
-           "TriadSolution", "solve_classic", "solve_norm"]
+The names below load their module (and scipy.optimize) on first use, so importing a light
+submodule such as ``fieldcal.solvers.methods`` does not pay for the solvers.
+"""
+from __future__ import annotations
+
+import importlib
+
+_HOMES = {
+    "ClassicSolution": "classic", "solve_classic": "classic",
+    "CalibrationError": "norm", "TriadSolution": "norm", "solve_norm": "norm",
+    "RateNormProblem": "problems", "StaticNormProblem": "problems",
+}
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)
+    globals()[name] = value
+    return value

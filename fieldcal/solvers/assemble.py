@@ -10,7 +10,7 @@ import numpy as np
 
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
-from fieldcal.run.simrun import MINUS, PLUS, STATIC, Window
+from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window
 from fieldcal.solvers import CalibrationError, RateNormProblem, StaticNormProblem
 
 
