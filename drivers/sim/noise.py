@@ -6,7 +6,6 @@ imports without the simulator.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
 from drivers.noise import TriadNoise, flicker_bank
 
@@ -25,27 +24,45 @@ class NoiseGenerator:
         self._poles = np.exp(-dt / np.asarray(taus))
         self._gains = np.asarray(sigmas) * np.sqrt(1 - self._poles**2)
         # Start each process in its stationary distribution.
-        self._state = [rng.standard_normal(3) * s for s in sigmas]
+        self._state = np.array([rng.standard_normal(3) * s for s in sigmas]).reshape(-1, 3)
+        # Samples per block of _gauss_markov: the slowest decay over a block stays below e².
+        self._block = max(1, int(2.0 / -np.log(self._poles.min()))) if len(self._poles) else 1
         self._walk = np.zeros(3)
         self._walk_sigma = noise.rate_random_walk * np.sqrt(dt)
 
     def get_state(self) -> dict:
-        return {"processes": [x.tolist() for x in self._state], "walk": self._walk.tolist()}
+        return {"processes": self._state.tolist(), "walk": self._walk.tolist()}
 
     def set_state(self, state: dict) -> None:
-        self._state = [np.array(x, dtype=float) for x in state["processes"]]
+        self._state = np.array(state["processes"], dtype=float).reshape(-1, 3)
         self._walk = np.array(state["walk"], dtype=float)
 
     def draw(self, n: int) -> np.ndarray:
         out = self._rng.standard_normal((n, 3)) * self._white_sigma
-        for i, (pole, gain) in enumerate(zip(self._poles, self._gains)):
-            drive = self._rng.standard_normal((n, 3)) * gain
-            # x[k] = pole·x[k-1] + drive[k]; zi holds pole·x[-1].
-            x, _ = lfilter([1.0], [1.0, -pole], drive, axis=0, zi=(pole * self._state[i])[None, :])
-            self._state[i] = x[-1]
-            out += x
+        if len(self._poles):
+            # The same draws, in the same order, as one (n, 3) block per process.
+            drive = self._rng.standard_normal((len(self._poles), n, 3)) * self._gains[:, None, None]
+            out += self._gauss_markov(drive)
         if self._walk_sigma:
             walk = self._walk + np.cumsum(self._rng.standard_normal((n, 3)) * self._walk_sigma, axis=0)
             self._walk = walk[-1]
             out += walk
         return out
+
+    def _gauss_markov(self, drive: np.ndarray) -> np.ndarray:
+        """Σ over the bank of x[k] = p·x[k−1] + drive[k], carrying the state; (P, n, 3) -> (n, 3).
+
+        All processes at once, a block of samples at a time, by the closed form
+        x[k] = p^(k+1)·(x[−1] + Σ_{j≤k} p^(−j−1)·drive[j]): one cumulative sum per block instead
+        of a recursive filter per process. Blocks are short enough that p^(−k) stays below e², so
+        the rounding is that of the recursion's.
+        """
+        n = drive.shape[1]
+        total = np.zeros((n, 3))
+        for start in range(0, n, self._block):  # a few blocks per chunk
+            d = drive[:, start:start + self._block]
+            decay = self._poles[:, None] ** np.arange(1, d.shape[1] + 1)  # (P, m): p^(k+1)
+            x = decay[..., None] * (self._state[:, None, :] + np.cumsum(d / decay[..., None], axis=1))
+            self._state = x[:, -1].copy()
+            total[start:start + d.shape[1]] = x.sum(axis=0)
+        return total
