@@ -2,7 +2,11 @@
 
 Speed: a simulated 10-minute, 100 Hz hand-held recording (raw counts, imu_tk's two text files)
 is imported, its poses detected (every threshold multiple tried) and both triads solved
-(accelerometer by Powell, gyroscope from the rotations), the parameter file built. Median of 5.
+(accelerometer by Powell, gyroscope from the rotations), the parameter file built. Median of 5,
+in process; then the whole ``fieldcal calibrate`` command on the same two files as its own
+process, from start to parameter file (median CPU and wall of 3, peak RSS), and beside it the
+peers where installed: imucal (its Ferraris method needs a turntable protocol with hand-marked
+regions, so it cannot read this recording: only its import, the floor of any run, is timed).
 
 Accuracy (``--runs N``): N seeded recordings (the default 20 poses); per parameter the RMS of
 (solved - true) / reported σ, and the share of |error| beyond 3σ (0.27 % for a Gaussian).
@@ -12,12 +16,15 @@ Accuracy (``--runs N``): N seeded recordings (the default 20 poses); per paramet
 from __future__ import annotations
 
 import argparse
+import datetime
 import os
+import sys
 import platform
 import tempfile
 import time
 from pathlib import Path
 
+import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only before numpy loads)
 import numpy as np
 
 from drivers.sim.device import PAPER_NOISE
@@ -29,13 +36,16 @@ from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
 from fieldcal.recording.importer import import_with_report
 from fieldcal.recording.results import parameter_file
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from processes import BIN, run_once  # noqa: E402
+
 _OFF = (np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1]))
 GYRO_NAMES = ("scale x", "scale y", "scale z", "m xy", "m xz", "m yx", "m yz", "m zx", "m zy", "bias x",
               "bias y", "bias z")
 ACC_NAMES = ("bias x", "bias y", "bias z", "scale x", "scale y", "scale z", "Δyz", "Δzy", "Δzx")
 
 
-def speed() -> tuple[float, list[float], int, float]:
+def speed() -> tuple[float, list[float], int, float, list[str]]:
     sim = simulate_handheld(1, n_poses=34, static_s=(10.0, 20.0))
     station = Station(sim.latitude_deg, 0.0, sim.gravity)
     times = []
@@ -47,7 +57,32 @@ def speed() -> tuple[float, list[float], int, float]:
             cal = calibrate_recording(recording, station)
             parameter_file(cal, recording, station)
             times.append(time.perf_counter() - started)
-    return float(np.median(times)), times, len(cal.poses.intervals), sim.t[-1]
+        lines = processes(files, station, tmp)
+    return float(np.median(times)), times, len(cal.poses.intervals), sim.t[-1], lines
+
+
+def processes(files, station: Station, tmp: str, repeats: int = 3) -> list[str]:
+    """The command end to end as a user runs it, and the peers' floor, as table rows."""
+    argv = [str(BIN / "fieldcal"), "calibrate", *map(str, files), "--map", "imu_tk",
+            "--latitude", f"{station.latitude_deg}", "--gravity", f"{station.gravity}"]
+    runs = [run_once(argv + ["--out", os.path.join(tmp, f"out{i}")]) for i in range(repeats)]
+    if any(r.status != 0 for r in runs):
+        raise SystemExit(f"fieldcal calibrate failed (exit {runs[0].status}): {' '.join(argv)}")
+    ours = (float(np.median([r.cpu_s for r in runs])), float(np.median([r.wall_s for r in runs])),
+            max(r.peak_mib for r in runs))
+    rows = [f"| fieldcal calibrate (process start to parameter file) | {ours[0]:.2f} s | "
+            f"{ours[1]:.2f} s | {ours[2]:.0f} MiB | 1.00 |"]
+    try:
+        import imucal  # noqa: F401  (benchmark only, never a product dependency)
+    except ImportError:
+        rows.append("| imucal | not installed (pip install imucal) | | | |")
+    else:
+        peer = [run_once([sys.executable, "-c", "import imucal"]) for _ in range(repeats)]
+        cpu = float(np.median([r.cpu_s for r in peer]))
+        rows.append(f"| imucal: `import imucal` only (cannot read this recording) | {cpu:.2f} s | "
+                    f"{np.median([r.wall_s for r in peer]):.2f} s | {max(r.peak_mib for r in peer):.0f} MiB"
+                    f" | {cpu / ours[0]:.2f} (CPU) |")
+    return ["| process | CPU (median of 3) | wall | peak RSS | × fieldcal |", "|---|---|---|---|---|", *rows]
 
 
 def accuracy(runs: int) -> tuple[np.ndarray, np.ndarray]:
@@ -71,9 +106,11 @@ def main() -> int:
     parser.add_argument("--runs", type=int, default=0, help="seeded recordings for the accuracy table")
     args = parser.parse_args()
     print(f"{platform.node()}: {os.cpu_count()} cores, CPython {platform.python_version()}")
-    median, times, poses, duration = speed()
+    median, times, poses, duration, table = speed()
+    print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, load {os.getloadavg()[0]:.1f}")
     print(f"{duration / 60:.1f} min at 100 Hz, {poses} poses: import + detect + solve both triads "
           f"median {median:.2f} s of 5 ({min(times):.2f}-{max(times):.2f} s)")
+    print("\n".join(table))
     if args.runs:
         started = time.perf_counter()
         z_acc, z_gyro = accuracy(args.runs)

@@ -10,6 +10,7 @@ import os
 import platform
 import time
 
+import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only before numpy loads)
 import numpy as np
 
 from fieldcal.run.simcal import run_simulated_calibration

@@ -8,13 +8,13 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivers.sim.noise import TriadNoise
+from drivers.noise import TriadNoise
 from drivers.transport import PortSettings
 from fieldcal.earth import Station
 from fieldcal.model import KINDS
+from fieldcal.paths import CONFIGS_DIR
 from fieldcal.validation import IDENTIFIER, MISSING, FieldReader, describe, line_of, read_yaml_file
 
-CONFIGS_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEVICE_PROTOCOLS = ("sim", "delimited", "vectornav", "xsens")
 SIM_IMU_PROTOCOLS = ("xsens", "vectornav", "delimited")
 TABLE_PROTOCOLS = ("ascii", "grbl")

@@ -75,3 +75,35 @@ def test_same_seed_same_samples_other_seed_other_samples():
                                [Segment(5.0, ATTITUDE)])[1]["gyroscope"]
     np.testing.assert_array_equal(run(1), run(1))
     assert not np.array_equal(run(1), run(2))
+
+
+def test_noise_bank_is_the_recursion_on_the_same_draws_across_chunk_sizes():
+    """The bank is drawn in closed form a block at a time; it must be the recursion
+    x[k] = p·x[k−1] + drive[k] of every Gauss-Markov process on the same random numbers, whatever
+    the chunk sizes (chunks carry the state), at 250 Hz and with a chunk longer than a block."""
+    from scipy.signal import lfilter
+
+    from drivers.noise import TriadNoise, flicker_bank
+    from drivers.sim.noise import NoiseGenerator
+
+    noise, rate = TriadNoise(white=2e-3, bias_instability=4e-4), 250.0
+    sizes = [1, 300, 7, 1000, 2]
+    chunked = NoiseGenerator(noise, rate, np.random.default_rng(5))
+    chunked_out = np.concatenate([chunked.draw(n) for n in sizes])
+
+    rng = np.random.default_rng(5)
+    taus, sigmas = flicker_bank(noise.bias_instability)
+    poles = np.exp(-1 / rate / taus)
+    state = [rng.standard_normal(3) * s for s in sigmas]
+    expected = []
+    for n in sizes:
+        out = rng.standard_normal((n, 3)) * noise.white * np.sqrt(rate)
+        for i, (p, s) in enumerate(zip(poles, sigmas)):
+            drive = rng.standard_normal((n, 3)) * s * np.sqrt(1 - p**2)
+            x, _ = lfilter([1.0], [1.0, -p], drive, axis=0, zi=(p * state[i])[None, :])
+            state[i] = x[-1]
+            out += x
+        expected.append(out)
+    expected = np.concatenate(expected)
+    scale = np.std(expected)
+    np.testing.assert_allclose(chunked_out, expected, rtol=0, atol=1e-12 * scale)

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from drivers.sim.noise import TriadNoise
+from drivers.noise import TriadNoise
 from drivers.sim.physics import ANGULAR_RATE, SPECIFIC_FORCE, TriadTruth, lower_triangular_k
 
 STANDARD_GRAVITY = 9.80665  # m/s² per g, for mg

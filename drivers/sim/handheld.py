@@ -32,7 +32,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from drivers.sim.device import COUNTS_PER_M_S2, COUNTS_PER_RAD_S, COUNTS_ZERO, DEG, MG, PAPER_NOISE
-from drivers.sim.noise import NoiseGenerator, TriadNoise
+from drivers.noise import TriadNoise
+from drivers.sim.noise import NoiseGenerator
 from drivers.sim.physics import ANGULAR_RATE, SPECIFIC_FORCE, TriadTruth, lower_triangular_k
 
 EARTH_RATE = 7.292115e-5  # rad/s

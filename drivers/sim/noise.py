@@ -1,85 +1,15 @@
-"""Sensor noise: white noise, flicker bias instability, rate random walk.
+"""Drawing sensor noise for the simulator: the Gauss-Markov bank and random walks of a TriadNoise.
 
-Bias instability is flicker (1/f) noise, whose Allan deviation is flat at 0.664·B (IEEE Std 952).
-It is synthesised as a bank of first-order Gauss-Markov processes with log-spaced correlation
-times and equal variances, which sums to a 1/f spectrum between the shortest and longest
-correlation time. A bank rather than true 1/f keeps generation causal and chunkable (each process
-is an AR(1) filter with carried state) and keeps the covariance of window averages exact, which the
-Cramér-Rao bound needs.
+The model itself (``TriadNoise``, ``flicker_bank``) lives in ``drivers.noise``, which the station
+imports without the simulator.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-from scipy.signal import lfilter
 
-# Two processes per decade from 0.5 s to 5000 s: flat Allan deviation (ripple < 3 %) from about
-# 5 s to 2000 s, which covers the 200 s dwells and the session length.
-_BANK_PER_DECADE = 2
-_BANK_TAU_MIN_S = 0.5
-_BANK_TAU_MAX_S = 5000.0
+from drivers.noise import TriadNoise, flicker_bank
 
-
-def flicker_bank(bias_instability: float) -> tuple[np.ndarray, np.ndarray]:
-    """Correlation times (s) and standard deviations of the Gauss-Markov bank for a given B.
-
-    A sum of Lorentzians 2 s² τ / (1 + (2π f τ)²) with ln τ spaced by h approximates s²/(2 f h);
-    the IEEE Std 952 flicker spectrum is B² / (2π f), hence s² = h B² / π.
-    """
-    n = int(round(np.log10(_BANK_TAU_MAX_S / _BANK_TAU_MIN_S) * _BANK_PER_DECADE)) + 1
-    taus = np.geomspace(_BANK_TAU_MIN_S, _BANK_TAU_MAX_S, n)
-    h = np.log(10.0) / _BANK_PER_DECADE
-    sigmas = np.full(n, np.sqrt(h / np.pi) * bias_instability)
-    return taus, sigmas
-
-
-@dataclass(frozen=True)
-class TriadNoise:
-    """Noise of one triad, per axis, in SI input units (m/s² or rad/s).
-
-    white: random-walk coefficient (VRW or ARW) in unit/√Hz, i.e. unit·√s;
-    bias_instability: IEEE Std 952 B in unit; rate_random_walk: unit/√s.
-    """
-
-    white: float
-    bias_instability: float = 0.0
-    rate_random_walk: float = 0.0
-
-    def allan_deviation(self, tau: np.ndarray) -> np.ndarray:
-        """Exact Allan deviation of this noise model (white + bank + rate random walk)."""
-        tau = np.asarray(tau, dtype=float)
-        var = self.white**2 / tau + self.rate_random_walk**2 * tau / 3.0
-        if self.bias_instability > 0:
-            for c, s in zip(*flicker_bank(self.bias_instability)):
-                x = tau / c
-                var = var + (s**2 * c**2 / tau**2) * (2 * x - 3 + 4 * np.exp(-x) - np.exp(-2 * x))
-        return np.sqrt(var)
-
-    def window_covariance(self, starts: np.ndarray, durations: np.ndarray) -> np.ndarray:
-        """Covariance between the means of one axis over non-overlapping windows [start, start+T).
-
-        Exact for the continuous-time model (white + Gauss-Markov bank). Rate random walk has no
-        stationary covariance and is not supported here.
-        """
-        if self.rate_random_walk:
-            raise ValueError("window covariance is undefined with rate random walk")
-        a = np.asarray(starts, dtype=float)
-        T = np.asarray(durations, dtype=float)
-        cov = np.diag(self.white**2 / T)
-        if self.bias_instability > 0:
-            later = a[None, :] >= a[:, None]
-            gap = np.where(later, a[None, :] - (a[:, None] + T[:, None]),
-                           a[:, None] - (a[None, :] + T[None, :]))
-            off_diag = ~np.eye(len(a), dtype=bool)
-            if np.any(gap[off_diag] < -1e-9):
-                raise ValueError("windows overlap")
-            for c, s in zip(*flicker_bank(self.bias_instability)):
-                ramp = c * (1 - np.exp(-T / c)) / T
-                cross = s**2 * np.outer(ramp, ramp) * np.exp(-np.maximum(gap, 0) / c)
-                own = 2 * s**2 * c / T * (1 - ramp)
-                cov += np.where(off_diag, cross, np.diag(own))
-        return cov
+__all__ = ["NoiseGenerator", "TriadNoise", "flicker_bank"]
 
 
 class NoiseGenerator:
@@ -94,27 +24,52 @@ class NoiseGenerator:
         self._poles = np.exp(-dt / np.asarray(taus))
         self._gains = np.asarray(sigmas) * np.sqrt(1 - self._poles**2)
         # Start each process in its stationary distribution.
-        self._state = [rng.standard_normal(3) * s for s in sigmas]
+        self._state = np.array([rng.standard_normal(3) * s for s in sigmas]).reshape(-1, 3)
+        # Samples per block of _gauss_markov: the slowest decay over a block stays below e².
+        self._block = max(1, int(2.0 / -np.log(self._poles.min()))) if len(self._poles) else 1
+        self._power_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._walk = np.zeros(3)
         self._walk_sigma = noise.rate_random_walk * np.sqrt(dt)
 
     def get_state(self) -> dict:
-        return {"processes": [x.tolist() for x in self._state], "walk": self._walk.tolist()}
+        return {"processes": self._state.tolist(), "walk": self._walk.tolist()}
 
     def set_state(self, state: dict) -> None:
-        self._state = [np.array(x, dtype=float) for x in state["processes"]]
+        self._state = np.array(state["processes"], dtype=float).reshape(-1, 3)
         self._walk = np.array(state["walk"], dtype=float)
 
     def draw(self, n: int) -> np.ndarray:
         out = self._rng.standard_normal((n, 3)) * self._white_sigma
-        for i, (pole, gain) in enumerate(zip(self._poles, self._gains)):
-            drive = self._rng.standard_normal((n, 3)) * gain
-            # x[k] = pole·x[k-1] + drive[k]; zi holds pole·x[-1].
-            x, _ = lfilter([1.0], [1.0, -pole], drive, axis=0, zi=(pole * self._state[i])[None, :])
-            self._state[i] = x[-1]
-            out += x
+        if len(self._poles):
+            # The same draws, in the same order, as one (n, 3) block per process.
+            out += self._gauss_markov(self._rng.standard_normal((len(self._poles), n, 3)))
         if self._walk_sigma:
             walk = self._walk + np.cumsum(self._rng.standard_normal((n, 3)) * self._walk_sigma, axis=0)
             self._walk = walk[-1]
             out += walk
         return out
+
+    def _powers(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """(P, m, 1) p^(k+1) and gain·p^(−k−1) for a block of m samples (chunks repeat sizes)."""
+        if m not in self._power_cache:
+            decay = (self._poles[:, None] ** np.arange(1, m + 1))[..., None]
+            self._power_cache[m] = decay, self._gains[:, None, None] / decay
+        return self._power_cache[m]
+
+    def _gauss_markov(self, normal: np.ndarray) -> np.ndarray:
+        """Σ over the bank of x[k] = p·x[k−1] + gain·normal[k], carrying the state; (P, n, 3) -> (n, 3).
+
+        All processes at once, a block of samples at a time, by the closed form
+        x[k] = p^(k+1)·(x[−1] + Σ_{j≤k} p^(−j−1)·drive[j]): one cumulative sum per block instead
+        of a recursive filter per process. Blocks are short enough that p^(−k) stays below e², so
+        the rounding is that of the recursion's.
+        """
+        n = normal.shape[1]
+        total = np.empty((n, 3))
+        for start in range(0, n, self._block):  # a few blocks per chunk
+            d = normal[:, start:start + self._block]
+            decay, weight = self._powers(d.shape[1])
+            x = decay * (self._state[:, None, :] + np.cumsum(d * weight, axis=1))
+            self._state = x[:, -1].copy()
+            total[start:start + d.shape[1]] = x.sum(axis=0)
+        return total

@@ -12,7 +12,8 @@ from typing import Iterator, Mapping
 import numpy as np
 
 from drivers.chunk import SampleChunk
-from drivers.sim.noise import NoiseGenerator, TriadNoise
+from drivers.noise import TriadNoise
+from drivers.sim.noise import NoiseGenerator
 
 SPECIFIC_FORCE = "specific_force"
 ANGULAR_RATE = "angular_rate"

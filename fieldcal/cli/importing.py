@@ -10,16 +10,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from fieldcal.recording import Recording
-from fieldcal.recording.import_map import RECORDINGS_DIR, load_import_map
-from fieldcal.recording.importer import (
-    GAP_PERIODS,
-    ImportReport,
-    RecordingImportError,
-    import_with_report,
-)
-from fieldcal.recording.store import save_recording
+from fieldcal.paths import RECORDINGS_DIR
+
+if TYPE_CHECKING:
+    from fieldcal.recording import Recording
+    from fieldcal.recording.importer import ImportReport
 
 _EPILOG = """\
 examples:
@@ -57,6 +54,11 @@ def add_import_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_import(args) -> int:
+    # Here, not at the top: `fieldcal --help` builds this parser without numpy.
+    from fieldcal.recording.import_map import load_import_map
+    from fieldcal.recording.importer import RecordingImportError, import_with_report
+    from fieldcal.recording.store import save_recording
+
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise RecordingImportError(f"{out}: already exists and is not empty (give --out a new "
@@ -76,6 +78,8 @@ def cmd_import(args) -> int:
 
 def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
     """What was read and done, a few lines per file; warnings last, in capitals."""
+    from fieldcal.recording.importer import GAP_PERIODS
+
     n = len(report.files)
     lines = [f"imported {n} file{'s' * (n != 1)} with the map {report.map_path}:"]
     for f in report.files:

@@ -7,7 +7,7 @@ import os
 import sys
 
 from fieldcal import __version__
-from fieldcal.solvers.solve import METHODS
+from fieldcal.solvers.methods import METHODS
 
 MAX_SERVE_RATE_HZ = 4000.0  # the fastest MEMS IMU output rates; above it the simulator cannot keep up
 
@@ -58,6 +58,8 @@ def _progress_printer(stream):
 
 
 def cmd_demo(args) -> int:
+    import numpy as np
+
     from drivers.sim.device import paper_mimu
     from fieldcal.earth import Station
     from fieldcal.report import solution_header, solution_table, worst_error
@@ -90,7 +92,7 @@ def cmd_demo(args) -> int:
     if args.params:
         from fieldcal.paramfile import ParameterFile, hash_inputs
         from fieldcal.session.output import save_parameter_file
-        from fieldcal.solvers.solve import resolve_method
+        from fieldcal.solvers.methods import resolve_method
         pf = ParameterFile.build(
             triads=tuple(cal.solutions.values()),
             procedure=cal.procedure.name, method=resolve_method(cal.procedure, args.method),

@@ -80,18 +80,21 @@ class _Average:
 
     def __init__(self) -> None:
         self.blocks: list[tuple[float, float, int, dict[str, np.ndarray]]] = []
+        self._n = 0  # samples in blocks, kept as they change: n is asked at every chunk
 
     @property
     def n(self) -> int:
-        return sum(b[2] for b in self.blocks)
+        return self._n
 
     def add(self, chunk, lo: int, hi: int) -> None:
         if hi > lo:
             sums = {name: v[lo:hi].sum(axis=0) for name, v in chunk.triads.items()}
             self.blocks.append((float(chunk.t[lo]), float(chunk.t[hi - 1]), hi - lo, sums))
+            self._n += hi - lo
 
     def drop_after(self, t: float) -> None:
         self.blocks = [b for b in self.blocks if b[1] < t]
+        self._n = sum(b[2] for b in self.blocks)
 
     def means(self) -> dict[str, list[float]]:
         n = self.n

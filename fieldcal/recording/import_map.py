@@ -24,11 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.protocols.delimited import ChannelMap
-from fieldcal.config import CONFIGS_DIR
 from fieldcal.model import ANGULAR_RATE, KINDS, SPECIFIC_FORCE
+from fieldcal.paths import RECORDINGS_DIR
 from fieldcal.validation import IDENTIFIER, FieldReader, describe, join, parse_yaml, read_yaml_text
 
-RECORDINGS_DIR = CONFIGS_DIR / "recordings"
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 # Units that clearly belong to one kind: naming one for the other kind is a mistake in the map.
 # Anything else ("count", "LSB", "mV", ...) is accepted as the device's own unit.

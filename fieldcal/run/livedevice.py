@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.sim.noise import TriadNoise
+from drivers.noise import TriadNoise
 from fieldcal.config import ConfigError, StationConfig
 from fieldcal.solvers.solve import TriadModel
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize
+from scipy.special import chdtrc  # χ² survival function; scipy.stats would cost ~0.4 s to import
 
 from fieldcal.calibration import Calibration, SolverDiagnostics
 from fieldcal.model import N_PARAMS, PARAM_NAMES
@@ -21,6 +22,16 @@ METHODS = ("powell", "lsq")
 # k for a scale factor, 1 rad for an angle) means the positions do not determine it.
 _DEGENERATE_FRACTION = 0.01
 _GEOMETRY_RATIO = 1e-4
+# Powell searches in whitened coordinates z whose unit is about one standard deviation of the
+# solution, so its tolerances are fractions of σ. Each line search is bounded (scipy then runs a
+# bounded Brent search with an absolute tolerance in z, where its unbounded search tolerates a
+# fraction of the step and so spends ~30 evaluations confirming that a converged direction has
+# nothing left); the search stops when an iteration improves χ² by less than _STOP_DECREASE, the
+# square of a move of 3e-4 σ. The box is far wider than any start-to-optimum distance; a solution
+# near its edge is searched again without it.
+_LINE_TOL_SIGMA = 1e-4
+_STOP_DECREASE = 1e-7
+_BOX_SIGMA = 100.0
 
 
 class CalibrationError(ValueError):
@@ -28,13 +39,10 @@ class CalibrationError(ValueError):
 
 
 def _jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    f0 = fun(x)
-    cols = []
-    for i, h in enumerate(steps):
-        dx = np.zeros_like(x)
-        dx[i] = h
-        cols.append((fun(x + dx) - fun(x - dx)) / (2 * h))
-    return np.column_stack(cols) if cols else np.empty((len(f0), 0))
+    """Central differences; fun takes a stack of points (..., n) and returns (..., m)."""
+    shifts = np.diag(steps)
+    values = fun(np.concatenate([x + shifts, x - shifts]))
+    return ((values[:len(steps)] - values[len(steps):]) / (2 * steps)[:, None]).T
 
 
 def _natural_scales(problem, theta: np.ndarray) -> np.ndarray:
@@ -44,9 +52,9 @@ def _natural_scales(problem, theta: np.ndarray) -> np.ndarray:
 
 
 def _forward_jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    f0 = fun(x)
-    eye = np.diag(steps)
-    return np.column_stack([(fun(x + eye[i]) - f0) / h for i, h in enumerate(steps)])
+    """Forward differences; fun takes a stack of points (..., n) and returns (..., m)."""
+    values = fun(np.vstack([x, x + np.diag(steps)]))
+    return ((values[1:] - values[0]) / steps[:, None]).T
 
 
 def _residual_whitener(problem, theta0, covariance):
@@ -93,15 +101,18 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
     whitener = _residual_whitener(problem, theta0, covariance)
     u = problem.data
 
-    def whitened(theta):
-        r = problem.residuals(theta, u)
-        return r if whitener is None else whitener @ r
+    whitener_t = None if whitener is None else whitener.T
+    residuals_at = problem.residual_function(u)
+
+    def whitened(theta):  # theta (9,) or a stack (k, 9)
+        r = residuals_at(theta)
+        return r if whitener_t is None else r @ whitener_t
 
     natural = _natural_scales(problem, theta0)
     # Geometry first, independent of the noise: relative residual per natural unit of each
     # parameter. Well-spread positions give a smallest-to-largest singular value ratio near 0.2;
     # six axis-aligned directions (the classic test) give about 1e-6.
-    J_geometry = _jacobian(lambda th: problem.residuals(th, u) / problem.reference_scale, theta0,
+    J_geometry = _jacobian(lambda th: residuals_at(th) / problem.reference_scale, theta0,
                            1e-7 * natural) * natural
     sv = np.linalg.svd(J_geometry, compute_uv=False)
     if sv[-1] < _GEOMETRY_RATIO * sv[0]:
@@ -109,17 +120,16 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
                                f"{sv[0] / sv[-1]:.3g}); {_spread_hint(problem)}")
     J0 = _jacobian(whitened, theta0, 1e-7 * natural) * natural
     # Search in z with theta = theta0 + natural * R⁻¹ z, where J0 = Q R: locally ‖r‖² ≈ ‖z − z*‖².
-    R = np.linalg.qr(J0, mode="r")
+    Q, R = np.linalg.qr(J0)
     to_theta = natural[:, None] * np.linalg.inv(R)
 
     def from_z(z):
         return theta0 + to_theta @ z
 
     if method == "powell":
-        res = optimize.minimize(lambda z: float(np.sum(whitened(from_z(z)) ** 2)), np.zeros(N_PARAMS),
-                                method="Powell",
-                                options={"direc": np.eye(N_PARAMS), "xtol": 1e-3, "ftol": 1e-12,
-                                         "maxfev": 5000})
+        # Start from the Gauss-Newton step of the linearisation already at hand (Q is ∂r/∂z).
+        res = _powell(lambda z: whitened(from_z(z)), -Q.T @ whitened(theta0),
+                      per_sigma=whitener is not None, dof=n_resid - N_PARAMS)
         iterations, evaluations = int(res.nit), int(res.nfev)
     else:
         res = optimize.least_squares(lambda z: whitened(from_z(z)), np.zeros(N_PARAMS), method="lm",
@@ -135,7 +145,7 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
     sv = np.linalg.svd(J, compute_uv=False)
     cov_natural = np.linalg.inv(J.T @ J)
     scaled = whitener is None
-    if whitener is not None and dof > 0 and stats.chi2.sf(chi2, dof) < 1e-3:
+    if whitener is not None and dof > 0 and chdtrc(dof, chi2) < 1e-3:
         scaled = True  # the scatter is well beyond the stated noise: trust the scatter (Birge)
     if scaled:
         cov_natural *= chi2 / dof
@@ -154,6 +164,30 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
             iterations=iterations, evaluations=evaluations, converged=bool(res.success),
             message=str(res.message), search=method, chi2=chi2, dof=dof, scaled_by_residuals=scaled,
             condition_number=float(sv[0] / sv[-1])))
+
+
+def _powell(residuals_of_z, z_start: np.ndarray, per_sigma: bool, dof: int):
+    """Powell's method on ‖r(z)‖², tolerances in σ of the solution (see _LINE_TOL_SIGMA).
+
+    With weights (per_sigma) a unit of z is 1σ; without, the residuals keep their own unit, and σ
+    in z is the residual scatter: the directions, box and objective are scaled by it (the same
+    minimum).
+    """
+    f_start = float(np.sum(residuals_of_z(z_start) ** 2))
+    scale = 1.0 if per_sigma or dof <= 0 or f_start <= 0 else f_start / dof
+    sigma_z = math.sqrt(scale)
+
+    def chi2(z):
+        r = residuals_of_z(z)
+        return float(r @ r) / scale
+
+    options = {"direc": sigma_z * np.eye(N_PARAMS), "xtol": _LINE_TOL_SIGMA, "maxfev": 5000,
+               "ftol": _STOP_DECREASE / max(f_start / scale, 1.0)}
+    box = np.column_stack([z_start - _BOX_SIGMA * sigma_z, z_start + _BOX_SIGMA * sigma_z])
+    res = optimize.minimize(chi2, z_start, method="Powell", bounds=box, options=options)
+    if res.success and np.max(np.abs(res.x - z_start)) > 0.5 * _BOX_SIGMA * sigma_z:
+        res = optimize.minimize(chi2, res.x, method="Powell", options=options)
+    return res
 
 
 def _spread_hint(problem) -> str:

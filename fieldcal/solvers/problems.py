@@ -5,11 +5,12 @@ covariance into the residuals and weight them; the residuals are in SI units of 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, calibrate_with, params_from_k
+from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, params_from_k
 from fieldcal.solvers.ellipsoid import fit_centred_ellipsoid, fit_offset_ellipsoid
 
 
@@ -24,6 +25,30 @@ def _as_points(values, what: str) -> np.ndarray:
 
 # cos φ below which the horizontal Earth rate (15 °/h · cos φ) is too small to use as a norm.
 _POLAR_COS = 0.2
+
+
+def _inverse_affine(theta) -> tuple[np.ndarray, np.ndarray]:
+    """A = K⁻¹ and c = −K⁻¹b, so that calibrate_with(theta, raw) = raw·Aᵀ + c, for theta of shape
+    (..., 9): the solvers evaluate many parameter vectors in one call (Jacobian columns)."""
+    theta = np.asarray(theta, dtype=float)
+    inv_k = 1.0 / theta[..., 3:6]
+    dyz, dzy, dzx = theta[..., 6], theta[..., 7], theta[..., 8]
+    A = np.zeros(theta.shape[:-1] + (3, 3))
+    A[..., 0, 0], A[..., 1, 1], A[..., 2, 2] = inv_k[..., 0], inv_k[..., 1], inv_k[..., 2]
+    A[..., 1, 0] = dyz * inv_k[..., 0]
+    A[..., 2, 0] = (dzx * dyz - dzy) * inv_k[..., 0]
+    A[..., 2, 1] = dzx * inv_k[..., 1]
+    c = -(A @ theta[..., :3, None])[..., 0]
+    return A, c
+
+
+def _points(u: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """Elements start:stop of the last axis of u as (..., k, 3) points."""
+    return u[..., start:stop].reshape(u.shape[:-1] + (-1, 3))
+
+
+def _norms(v: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.einsum("...i,...i->...", v, v))
 
 
 def _unit_rows(v: np.ndarray) -> np.ndarray:
@@ -63,8 +88,19 @@ class StaticNormProblem:
         return self.gravity
 
     def residuals(self, theta, u: np.ndarray) -> np.ndarray:
-        a = calibrate_with(theta, u.reshape(-1, 3))
-        return np.sqrt(np.einsum("ij,ij->i", a, a)) - self.gravity
+        """Per position; theta (..., 9) and u (..., 3n) broadcast against each other."""
+        return self.residual_function(u)(theta)
+
+    def residual_function(self, u: np.ndarray):
+        """theta (..., 9) -> residuals for fixed averages u."""
+        u = np.asarray(u, dtype=float)
+        points = _points(u, 0, u.shape[-1])
+
+        def residuals(theta) -> np.ndarray:
+            A, c = _inverse_affine(theta)
+            return _norms(points @ np.swapaxes(A, -1, -2) + c[..., None, :]) - self.gravity
+
+        return residuals
 
     def initial(self) -> np.ndarray:
         return fit_offset_ellipsoid(self.means, self.gravity)
@@ -166,36 +202,57 @@ class RateNormProblem:
 
     def _split(self, u: np.ndarray):
         m, k = 3 * len(self.plus), 3 * len(self.single)
-        return (u[:m].reshape(-1, 3), u[m:2 * m].reshape(-1, 3), u[2 * m:2 * m + k].reshape(-1, 3),
-                u[2 * m + k:].reshape(-1, 3))
+        return (_points(u, 0, m), _points(u, m, 2 * m), _points(u, 2 * m, 2 * m + k),
+                _points(u, 2 * m + k, u.shape[-1]))
 
     def residuals(self, theta, u: np.ndarray) -> np.ndarray:
+        """In residual_labels order; theta (..., 9) and u (..., len(data)) broadcast."""
+        return self.residual_function(u)(theta)
+
+    def residual_function(self, u: np.ndarray):
+        """theta (..., 9) -> residuals for fixed averages u: what does not depend on theta (the
+        half sums and differences, the layout of the static terms) is worked out once, so each
+        of the solver's evaluations is one product with K⁻¹ and a few norms."""
+        u = np.asarray(u, dtype=float)
         plus, minus, single, static = self._split(u)
-        rate_vec = calibrate_with(np.r_[0.0, 0.0, 0.0, theta[3:]], 0.5 * (plus - minus))
-        rate_norm = np.sqrt(np.einsum("ij,ij->i", rate_vec, rate_vec))
-        axis = rate_vec / rate_norm[:, None]
-        bias_resid = calibrate_with(theta, 0.5 * (plus + minus)) - self.earth_rate_vertical * axis
-        one_way = calibrate_with(theta, single)
-        parts = [rate_norm - self.table_rate, bias_resid.ravel(),
-                 np.sqrt(np.einsum("ij,ij->i", one_way, one_way))
-                 - np.abs(self.single_rate + self.earth_rate_vertical)]
-        if len(static):
-            a = calibrate_with(theta, static)
-            paired = self.static_step >= 0
-            along = np.einsum("ij,ij->i", a[paired], axis[self.static_step[paired]])
-            across = a[paired] - along[:, None] * axis[self.static_step[paired]]
-            horizontal = np.sqrt(self.earth_rate**2 - self.earth_rate_vertical**2)
-            per_paired = 2 if self._uses_across else 1
-            sizes = np.where(paired, per_paired, 1)
-            static_resid = np.empty(sizes.sum())
-            # Interleave per dwell, in dwell order, to match residual_labels.
-            offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-            static_resid[offsets[paired]] = along - self.earth_rate_vertical
-            if self._uses_across:
-                static_resid[offsets[paired] + 1] = np.linalg.norm(across, axis=1) - horizontal
-            static_resid[offsets[~paired]] = np.linalg.norm(a[~paired], axis=1) - self.earth_rate
-            parts.append(static_resid)
-        return np.concatenate(parts)
+        m, k = len(self.plus), len(self.single)
+        # Rows: half differences (bias-free), half sums, one-way steps, static dwells.
+        points = np.concatenate([0.5 * (plus - minus), 0.5 * (plus + minus), single, static], axis=-2)
+        one_way_rate = np.abs(self.single_rate + self.earth_rate_vertical)
+        paired = self.static_step >= 0
+        sizes = np.where(paired, 2 if self._uses_across else 1, 1)
+        # Interleave per dwell, in dwell order, to match residual_labels.
+        first = 4 * m + k + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
+        # Integer rows of v (below) and columns of the result, so each evaluation only gathers.
+        paired_rows, lone_rows = 2 * m + k + np.flatnonzero(paired), 2 * m + k + np.flatnonzero(~paired)
+        paired_at, lone_at, mount = first[paired], first[~paired], self.static_step[paired]
+        across = self._uses_across and len(paired_rows) > 0
+        n_resid = 4 * m + k + int(sizes.sum())
+        horizontal = math.sqrt(max(self.earth_rate**2 - self.earth_rate_vertical**2, 0.0))
+        vertical, earth, rate = self.earth_rate_vertical, self.earth_rate, self.table_rate
+
+        def residuals(theta) -> np.ndarray:
+            A, c = _inverse_affine(theta)
+            v = points @ np.swapaxes(A, -1, -2)
+            v[..., m:, :] += c[..., None, :]
+            out = np.empty(v.shape[:-2] + (n_resid,))
+            rate_vec = v[..., :m, :]
+            rate_norm = _norms(rate_vec)
+            axis = rate_vec / rate_norm[..., None]
+            out[..., :m] = rate_norm - rate
+            out[..., m:4 * m] = (v[..., m:2 * m, :] - vertical * axis).reshape(out.shape[:-1] + (3 * m,))
+            out[..., 4 * m:4 * m + k] = _norms(v[..., 2 * m:2 * m + k, :]) - one_way_rate
+            if len(paired_rows):
+                a, mount_axis = v[..., paired_rows, :], axis[..., mount, :]
+                along = np.einsum("...ij,...ij->...i", a, mount_axis)
+                out[..., paired_at] = along - vertical
+                if across:
+                    out[..., paired_at + 1] = _norms(a - along[..., None] * mount_axis) - horizontal
+            if len(lone_rows):
+                out[..., lone_at] = _norms(v[..., lone_rows, :]) - earth
+            return out
+
+        return residuals
 
     def directions(self) -> np.ndarray:
         """Rough unit directions of the table axis in output axes (for messages)."""

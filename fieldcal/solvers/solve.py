@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.sim.noise import TriadNoise
+from drivers.noise import TriadNoise
+from fieldcal.solvers.methods import METHODS, resolve_method  # noqa: F401  (re-exported)
 from fieldcal.solvers.assemble import build_problem, classic_inputs
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import Procedure
@@ -52,18 +53,6 @@ def average_covariance(model: TriadModel, windows: list[Window], rate_hz: float)
         samples = np.array([w.duration for w in windows]) * rate_hz
         cov += np.kron(np.diag(model.lsb**2 / 12.0 / samples), np.eye(3))
     return cov
-
-
-METHODS = ("auto", "powell", "lsq", "classic")
-
-
-def resolve_method(procedure: Procedure, method: str) -> str:
-    """"auto" is classic least squares for an aligned procedure, Powell's norm method otherwise."""
-    if method not in METHODS:
-        raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
-    if method == "auto":
-        return "classic" if procedure.aligned else "powell"
-    return method
 
 
 def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, np.ndarray],

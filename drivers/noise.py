@@ -1,0 +1,84 @@
+"""A triad's noise model: white noise, flicker bias instability, rate random walk.
+
+Bias instability is flicker (1/f) noise, whose Allan deviation is flat at 0.664·B (IEEE Std 952).
+It is modelled as a bank of first-order Gauss-Markov processes with log-spaced correlation
+times and equal variances, which sums to a 1/f spectrum between the shortest and longest
+correlation time. A bank rather than true 1/f keeps generation causal and chunkable (the
+simulator, ``drivers.sim.noise``, draws each process as an AR(1) filter with carried state) and
+keeps the covariance of window averages exact, which the Cramér-Rao bound needs.
+
+numpy only: the station reads this model from its config and weights its solves with it, so it
+must not pull in the simulator or scipy.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Two processes per decade from 0.5 s to 5000 s: flat Allan deviation (ripple < 3 %) from about
+# 5 s to 2000 s, which covers the 200 s dwells and the session length.
+_BANK_PER_DECADE = 2
+_BANK_TAU_MIN_S = 0.5
+_BANK_TAU_MAX_S = 5000.0
+
+
+def flicker_bank(bias_instability: float) -> tuple[np.ndarray, np.ndarray]:
+    """Correlation times (s) and standard deviations of the Gauss-Markov bank for a given B.
+
+    A sum of Lorentzians 2 s² τ / (1 + (2π f τ)²) with ln τ spaced by h approximates s²/(2 f h);
+    the IEEE Std 952 flicker spectrum is B² / (2π f), hence s² = h B² / π.
+    """
+    n = int(round(np.log10(_BANK_TAU_MAX_S / _BANK_TAU_MIN_S) * _BANK_PER_DECADE)) + 1
+    taus = np.geomspace(_BANK_TAU_MIN_S, _BANK_TAU_MAX_S, n)
+    h = np.log(10.0) / _BANK_PER_DECADE
+    sigmas = np.full(n, np.sqrt(h / np.pi) * bias_instability)
+    return taus, sigmas
+
+
+@dataclass(frozen=True)
+class TriadNoise:
+    """Noise of one triad, per axis, in SI input units (m/s² or rad/s).
+
+    white: random-walk coefficient (VRW or ARW) in unit/√Hz, i.e. unit·√s;
+    bias_instability: IEEE Std 952 B in unit; rate_random_walk: unit/√s.
+    """
+
+    white: float
+    bias_instability: float = 0.0
+    rate_random_walk: float = 0.0
+
+    def allan_deviation(self, tau: np.ndarray) -> np.ndarray:
+        """Exact Allan deviation of this noise model (white + bank + rate random walk)."""
+        tau = np.asarray(tau, dtype=float)
+        var = self.white**2 / tau + self.rate_random_walk**2 * tau / 3.0
+        if self.bias_instability > 0:
+            for c, s in zip(*flicker_bank(self.bias_instability)):
+                x = tau / c
+                var = var + (s**2 * c**2 / tau**2) * (2 * x - 3 + 4 * np.exp(-x) - np.exp(-2 * x))
+        return np.sqrt(var)
+
+    def window_covariance(self, starts: np.ndarray, durations: np.ndarray) -> np.ndarray:
+        """Covariance between the means of one axis over non-overlapping windows [start, start+T).
+
+        Exact for the continuous-time model (white + Gauss-Markov bank). Rate random walk has no
+        stationary covariance and is not supported here.
+        """
+        if self.rate_random_walk:
+            raise ValueError("window covariance is undefined with rate random walk")
+        a = np.asarray(starts, dtype=float)
+        T = np.asarray(durations, dtype=float)
+        cov = np.diag(self.white**2 / T)
+        if self.bias_instability > 0:
+            later = a[None, :] >= a[:, None]
+            gap = np.where(later, a[None, :] - (a[:, None] + T[:, None]),
+                           a[:, None] - (a[None, :] + T[None, :]))
+            off_diag = ~np.eye(len(a), dtype=bool)
+            if np.any(gap[off_diag] < -1e-9):
+                raise ValueError("windows overlap")
+            for c, s in zip(*flicker_bank(self.bias_instability)):
+                ramp = c * (1 - np.exp(-T / c)) / T
+                cross = s**2 * np.outer(ramp, ramp) * np.exp(-np.maximum(gap, 0) / c)
+                own = 2 * s**2 * c / T * (1 - ramp)
+                cov += np.where(off_diag, cross, np.diag(own))
+        return cov

@@ -1,0 +1,75 @@
+"""What a command imports: the heavy packages only where the command needs them.
+
+Each case runs in a fresh interpreter (a test process has long since imported everything) and
+reports sys.modules; what is asserted is the import graph, not how long it takes.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+# Packages `fieldcal --help` must not pay for: numpy and everything built on it, the plotting and
+# TUI stacks, and the simulator.
+HEAVY = ("numpy", "scipy", "matplotlib", "allantools", "textual", "yaml", "drivers.sim",
+         "fieldcal.solvers.norm")
+
+_REPORT = """
+import json, sys
+{body}
+print("\\n" + json.dumps(sorted(sys.modules)))
+"""
+
+
+def _modules_after(body: str) -> tuple[set[str], subprocess.CompletedProcess]:
+    proc = subprocess.run([sys.executable, "-c", _REPORT.format(body=body)], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return set(json.loads(proc.stdout.strip().splitlines()[-1])), proc
+
+
+def _cli(argv: list[str]) -> tuple[set[str], str, int]:
+    body = (f"from fieldcal.cli.main import main\n"
+            f"try:\n    main({argv!r})\nexcept SystemExit as exc:\n    print('exit', exc.code)")
+    modules, proc = _modules_after(body)
+    code = int([line for line in proc.stdout.splitlines() if line.startswith("exit ")][-1].split()[1])
+    return modules, proc.stdout + proc.stderr, code
+
+
+def _heavy(modules: set[str]) -> list[str]:
+    return sorted(m for m in modules if any(m == h or m.startswith(h + ".") for h in HEAVY))
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["calibrate", "--help"], ["import", "--help"],
+                                  ["tui", "--help"], ["run", "--help"]])
+def test_help_imports_nothing_heavy(argv):
+    modules, out, code = _cli(argv)
+    assert code == 0 and "usage: fieldcal" in out
+    assert _heavy(modules) == []
+
+
+@pytest.mark.parametrize("argv", [["run", "--seed", "x"], ["no-such-command"],
+                                  ["solve", "--method", "nelder-mead", "s"]])
+def test_rejected_argument_imports_nothing_heavy(argv):
+    modules, out, code = _cli(argv)
+    assert code == 2 and "error:" in out
+    assert _heavy(modules) == []
+
+
+def test_the_engine_and_solvers_do_not_import_the_simulator():
+    """Live runs and recordings are solved without the simulator, scipy.signal or scipy.stats."""
+    modules, _ = _modules_after("import fieldcal.procedure.engine, fieldcal.solvers.solve, "
+                                "fieldcal.recording.calibrate, fieldcal.run.livedevice, fieldcal.config")
+    assert not [m for m in modules if m.startswith(("drivers.sim", "scipy.signal", "scipy.stats",
+                                                    "matplotlib", "textual", "allantools"))]
+    assert "fieldcal.solvers.norm" in modules  # the case is not vacuous: the solvers did load
+
+
+def test_the_noise_model_is_one_class():
+    """The simulator draws from the same TriadNoise the station's config builds."""
+    from drivers.noise import TriadNoise
+    from drivers.sim import TriadNoise as SimTriadNoise
+    from fieldcal.config import TriadNoise as ConfigTriadNoise
+    assert SimTriadNoise is TriadNoise and ConfigTriadNoise is TriadNoise
