@@ -1,6 +1,6 @@
 import os as _os
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # The station's linear algebra is small (at most a few hundred rows); OpenBLAS's threads only
 # contend for the cores, most of all on a shared 2-core machine, where a 108x108 triangular

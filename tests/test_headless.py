@@ -22,6 +22,8 @@ from fieldcal.run.replay import recorded_parameters, replay_session
 from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
 from fieldcal.session.capture import SessionReader
 
+from crashes import cut_before_step_record
+
 STATION = Station(40.0, 50.0)
 SHORT_TEXT = (load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 20")
               .replace("rate_deg_s: 10", "rate_deg_s: 30"))
@@ -164,27 +166,6 @@ def test_the_same_run_through_a_serial_device_on_a_pty(tmp_path):
     assert dump(pf).encode() == recorded_parameters(result.session)
 
 
-def _cut_before_step_record(session: Path, nth: int) -> None:
-    """Simulate a crash after the chunk that completed a step was logged but before the step's
-    record was: cut the log at the start of the nth step document (0-based)."""
-    log = session / "log.jsonl"
-    data = log.read_bytes()
-    offset, seen = 0, -1
-    for line in data.splitlines(keepends=True):
-        if b'"type":"step"' in line:
-            seen += 1
-            if seen == nth:
-                break
-        offset += len(line)
-    assert seen == nth, "not enough steps to cut at"
-    log.write_bytes(data[:offset])
-    # ... and samples.bin as that crash leaves it: up to the end of the last logged chunk
-    chunks = [json.loads(line) for line in data[:offset].splitlines() if b'"type":"chunk"' in line]
-    with open(session / "samples.bin", "r+b") as fh:
-        fh.truncate(chunks[-1]["offset"] + chunks[-1]["length"])
-    (session / "parameters.yaml").unlink(missing_ok=True)
-
-
 def test_resume_at_awkward_crash_points_twice_still_matches(tmp_path):
     import shutil
 
@@ -194,10 +175,10 @@ def test_resume_at_awkward_crash_points_twice_still_matches(tmp_path):
     expected = whole.parameters.read_bytes()
     crashed = tmp_path / "crashed"
     shutil.copytree(whole.session, crashed)
-    _cut_before_step_record(crashed, 3)
+    cut_before_step_record(crashed, 3)
     first = resume_headless(crashed)
     assert first.parameters.read_bytes() == expected
-    _cut_before_step_record(crashed, 12)  # counting the records written before and after the resume
+    cut_before_step_record(crashed, 12)  # counting the records written before and after the resume
     second = resume_headless(crashed)
     assert second.parameters.read_bytes() == expected
     _, pf, _ = replay_session(crashed)

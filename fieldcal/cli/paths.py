@@ -46,9 +46,13 @@ def output_directory(path: str | os.PathLike, flag: str) -> None:
 
 
 def output_file(path: str | os.PathLike, flag: str) -> None:
-    """A file the command will write: not a directory, in an existing writable directory."""
+    """A file the command will write: never inside a session, not a directory, in an existing
+    writable directory."""
+    from fieldcal.session.output import refuse_inside_session
+
     p = Path(path)
     _check_names(p, flag)
+    refuse_inside_session(p, f"{flag}'s parameter file")
     if p.is_dir():
         raise ValueError(f"{flag} {p}: is a directory; name the file to write")
     parent = p.parent

@@ -125,7 +125,7 @@ def cmd_replay(args) -> int:
         path = reader.directory / noted[-1]["file"]
         if not path.is_file():
             raise ValueError(f"{path}: the session's parameter file (noted in log.jsonl line "
-                             f"{noted[-1]['seq'] + 1}) is missing; nothing to compare the replay with")
+                             f"{noted[-1]['seq'] + 1}) cannot be read (it is missing); nothing to compare the replay with")
     torn = warn_if_torn(args.session)
     outcome, samples = replay_session_outcome(args.session, ReplayOperator(Path(args.session), args.speed),
                                               printer(sys.stdout, args.quiet))

@@ -21,8 +21,12 @@ def numeric_environment() -> dict:
     """numpy, scipy and BLAS versions, the BLAS kernel when known, the processor architecture."""
     import scipy
 
-    env = {"numpy": np.__version__, "scipy": scipy.__version__, "blas": _blas(),
-           "machine": platform.machine()}
+    from fieldcal import __version__
+
+    # fieldcal's own version too: a change in how the solvers search moves the last digits as
+    # surely as another BLAS does
+    env = {"fieldcal": __version__, "numpy": np.__version__, "scipy": scipy.__version__,
+           "blas": _blas(), "machine": platform.machine()}
     kernel = _blas_kernel()
     if kernel:
         env["blas_kernel"] = kernel

@@ -851,10 +851,16 @@ class SessionWriter:
                     self.sync()
             finally:
                 self._closed = True
-                for fh in (self._samples, *self._raw.values(), self._log):
-                    fh.close()
-                if self._session_lock is not None:
-                    self._session_lock.release()
+                try:  # closing flushes, which can fail (a full disk): the lock is released anyway
+                    for fh in (self._samples, *self._raw.values(), self._log):
+                        try:
+                            fh.close()
+                        except OSError:
+                            if not self._failed:
+                                raise
+                finally:
+                    if self._session_lock is not None:
+                        self._session_lock.release()
 
     def __enter__(self) -> Self:
         return self
