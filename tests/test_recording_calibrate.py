@@ -186,3 +186,22 @@ def test_fieldcal_calibrate_errors_are_one_line(tmp_path):
                              timeout=120)
         assert run.returncode == 2, run.stderr
         assert message in run.stderr and run.stderr.count("\n") == 1 and "Traceback" not in run.stderr
+
+
+def test_a_short_initial_rest_and_gyro_shifts_between_poses_calibrate():
+    """Real MEMS gyros read 0.02-0.17 °/s differently from pose to pose (g-sensitivity, bias
+    shifts): such poses are still, not turning, and a 3 s initial rest is no refusal."""
+    sim = simulate_handheld(5, initial_rest_s=3.0)
+    rng = np.random.default_rng(5)
+    gyro = sim.triads["gyroscope"].copy()
+    counts_per_deg_s = np.diag(sim.truth["gyroscope"].K).mean() * np.pi / 180
+    for a, b in sim.static[1:]:  # the first pose is the bias's reference
+        shift = rng.uniform(0.02, 0.17) * counts_per_deg_s * rng.choice([-1, 1], 3)
+        gyro[a:b] += shift
+    triads = dict(sim.triads, gyroscope=gyro)
+    cal = calibrate_recording(Recording(sim.t, triads, sim.kinds, sim.units), station_of(sim), NOISE)
+    assert len(cal.poses.intervals) == len(sim.static)
+    assert "quietest" in cal.noise_source
+    acc = cal.specific_force["accelerometer"]
+    truth = sim.truth["accelerometer"]
+    assert np.all(np.abs((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma) < 3.0)

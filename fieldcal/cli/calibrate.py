@@ -15,14 +15,15 @@ examples:
   fieldcal calibrate sessions/unit7 --config vn100
       a session made by `fieldcal import`; the station and the noise from a device config
 
-The recording must start with the unit still for --rest seconds (30 by default): that sets the
-noise level the static poses are found with, and the gyroscope's bias. Then put the unit down
-by hand in a dozen or more poses (every axis up and down, and some corners up), still for a few
-seconds each, turning it between them."""
+Put the unit down by hand in a dozen or more poses (every axis up and down, and some corners
+up), still for a few seconds each, turning it between them. The noise level the static poses
+are found with comes from the recording's quietest one-second windows; give --rest S when it
+starts with S seconds still to take it from there instead. The gyroscope's bias is the first
+pose's mean (less the vertical Earth rate), or estimated (--gyro-bias estimate)."""
 
 
 NOISE_FROM_CONFIG = "the config's noise model (bias instability included)"
-NOISE_FROM_REST = ("white, measured over the initial rest; the bias instability is not known, so "
+NOISE_FROM_REST = ("white, measured where the summary says; the bias instability is not known, so "
                    "the biases' σ may be too small (give --config with the device's noise)")
 
 
@@ -32,7 +33,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
         description="Find the static poses of a hand-held recording, calibrate every\n"
         "accelerometer-like triad by the norm method and the gyroscope from the rotations\n"
         "between poses (scale factors, all six gyro-to-accelerometer misalignment terms; the\n"
-        "bias from the initial rest or estimated), and write a parameter file.",
+        "bias from the first pose or estimated), and write a parameter file.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("recording", nargs="+", metavar="RECORDING",
                         help="a session directory from `fieldcal import`, or text files (with --map)")
@@ -44,10 +45,11 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("--latitude", type=float, metavar="DEG", help="station latitude, °")
     parser.add_argument("--height", type=float, metavar="M", help="station height, m (default 0)")
     parser.add_argument("--gravity", type=float, metavar="M_S2", help="measured local gravity, m/s^2")
-    parser.add_argument("--rest", type=float, default=30.0, metavar="S",
-                        help="the still start, s (default 30)")
+    parser.add_argument("--rest", type=float, metavar="S",
+                        help="the recording starts with S seconds still: the noise level from there "
+                        "(default: from the quietest windows, no rest assumed)")
     parser.add_argument("--gyro-bias", choices=("rest", "estimate"), default="rest",
-                        help="gyro bias: the initial rest's mean (default) or estimated with the rest")
+                        help="gyro bias: the first pose's mean (default) or estimated with the rest")
     parser.add_argument("--method", choices=("powell", "lsq"), default="powell",
                         help="accelerometer solver (default powell)")
     parser.add_argument("--table-rate", type=float, metavar="DEG_S",
@@ -105,7 +107,7 @@ def cmd_calibrate(args) -> int:
     station = _station(args, config)
     if args.table_rate is not None and not args.table_rate > 0:
         raise ValueError(f"--table-rate: expected a rate above 0 °/s, got {args.table_rate:g}")
-    if not args.rest > 0:
+    if args.rest is not None and not args.rest > 0:
         raise ValueError(f"--rest: expected a positive number of seconds, got {args.rest:g}")
     started = time.perf_counter()
     recording, directory, imported = _recording(args)

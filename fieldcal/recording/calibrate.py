@@ -4,10 +4,12 @@ poses, with no procedure and no operator.
 
 The threshold multiple of the pose detector is chosen as imu_tk chooses it: each multiple's
 poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
-wins. The noise comes from the device's noise model when one is given (exact covariance of the
-pose means, bias instability included), else from the initial rest: its per-axis variance
+wins. Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
+is more data, though only distinct poses count for the spread. The noise comes from the device's noise model when one is given (exact covariance of the
+pose means, bias instability included), else from the detector's noise level (the initial rest
+given by ``--rest``, or the recording's quietest windows): its per-axis variance
 weights each pose mean (white noise over the pose's samples), and the σ are scaled up by
-χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the initial rest's mean less the
+χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the first pose's mean less the
 vertical Earth rate, which the accelerometer's up direction fixes; the horizontal Earth rate,
 whose heading a hand-held recording cannot know, widens the bias's σ and each motion's
 residual instead of biasing them. A gyro reporting raw counts needs no nominal sensitivity: a
@@ -45,7 +47,7 @@ class RecordingSettings:
     detector: DetectorSettings = field(default_factory=DetectorSettings)
     method: str = "powell"  # the specific-force triads' norm solver
     gyro_method: str = "lsq"
-    estimate_gyro_bias: bool = False  # else the initial rest's mean (less the vertical Earth rate)
+    estimate_gyro_bias: bool = False  # else the first pose's mean (less the vertical Earth rate)
     # The device's noise per triad (SI), e.g. from its config: pose means then get their exact
     # covariance, bias instability included. Without it, white noise measured over the rest.
     noise: dict = field(default_factory=dict)
@@ -65,6 +67,7 @@ class RecordingCalibration:
     gyro_bias_sigma: dict[str, np.ndarray]  # 1σ of each gyro's bias (output units)
     turns: np.ndarray  # (k, 2) [start, stop) samples of steady turntable turns found
     table_rate_used: bool = False  # the turns went into the gyro solve as rate equations
+    noise_source: str = "the initial rest"  # where the detector's noise level was measured
 
 
 def _names(recording: Recording, kind: str) -> list[str]:
@@ -131,11 +134,11 @@ def calibrate_recording(recording: Recording, station: Station,
     acc = recording.triads[reference]
     gyro = recording.triads[rates[0]] if rates else None
     best, tried, solved = None, [], {}
-    rest_noise = noise_level(acc, rate_hz, det)  # weights every candidate's pose means
+    rest_noise = noise_level(acc, rate_hz, det, gyro)  # weights every candidate's pose means
     zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
     if gyro is not None:  # on a turntable the accelerometer is as still as in a pose
-        turn_mask, smooth = turning(gyro, rate_hz, slice(0, round(det.init_rest_s * rate_hz)))
-    for poses in pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro):
+        turn_mask, smooth = turning(gyro, acc, rate_hz, rest_noise, det, RATE_UNITS.get(recording.units[rates[0]]))
+    for poses in pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro, noise=rest_noise):
         turns = np.zeros((0, 2), int)
         if gyro is not None:
             poses, turns = split_poses(poses, acc, turn_mask, smooth, rate_hz, det, zero)
@@ -145,9 +148,9 @@ def calibrate_recording(recording: Recording, station: Station,
             tried.append((poses.multiple, spread.count, spread.message))
             continue
         if key not in solved:  # several multiples often find the same intervals
-            keep = poses.intervals[poses.distinct]
+            keep = poses.intervals
             try:
-                solved[key] = _solve_static(reference, recording.units[reference], poses.means[poses.distinct],
+                solved[key] = _solve_static(reference, recording.units[reference], poses.means,
                                             keep, recording.t, rest_noise.variance, station.gravity, settings)
             except CalibrationError as exc:
                 solved[key] = str(exc)
@@ -163,7 +166,7 @@ def calibrate_recording(recording: Recording, station: Station,
     poses, spread, _, acc_solution, turns = best
     failures: dict[str, str] = {}
     specific_force = {reference: acc_solution}
-    keep = poses.intervals[poses.distinct]
+    keep = poses.intervals
     for name in forces:
         if name == reference:
             continue
@@ -184,7 +187,7 @@ def calibrate_recording(recording: Recording, station: Station,
             failures[name] = str(exc)
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures,
-                                reference, bias_sigma, turns, used)
+                                reference, bias_sigma, turns, used, rest_noise.source)
 
 
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolution, acc_var: np.ndarray,

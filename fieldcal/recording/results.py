@@ -92,7 +92,7 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
     still = np.diff(poses.intervals, axis=1)[:, 0]
     lines = [f"poses: {len(poses.intervals)} static intervals ({cal.spread.message}; "
              f"{len(poses.intervals) - cal.spread.count} duplicate), threshold {poses.multiple:g}× the "
-             f"initial rest's noise; shortest {still.min()} samples",
+             f"noise of {cal.noise_source}; shortest {still.min()} samples",
              "  thresholds tried: " + _tried(cal.tried)]
     if len(cal.turns):
         used = "rate equations for the gyro" if cal.table_rate_used else \
@@ -103,7 +103,7 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
     for name, sol in cal.angular_rate.items():
         rms = math.degrees(float(np.sqrt(np.mean(sol.residuals**2)))) * 60
         quality = f"χ²/dof {sol.chi2 / sol.dof:.2f}" if sol.dof else "exact fit"
-        bias = "estimated" if sol.bias_estimated else "initial rest, less the vertical Earth rate"
+        bias = "estimated" if sol.bias_estimated else "the first pose's mean, less the vertical Earth rate"
         lines += ["", f"{name} (rotations between {len(cal.poses.intervals)} poses, {sol.method}: "
                   f"{sol.evaluations} evaluations; direction residual RMS {rms:.3g} arcmin; {quality}; "
                   f"bias: {bias})", gyro_table(cal, name, truths.get(name))]
