@@ -38,6 +38,8 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("recording", nargs="+", metavar="RECORDING",
                         help="a session directory from `fieldcal import`, or text files (with --map)")
     parser.add_argument("--map", metavar="MAP", help="import map for text files (see `fieldcal import`)")
+    parser.add_argument("--rate", type=float, metavar="HZ",
+                        help="sample rate of text files with no time column (else rate_hz in the map)")
     parser.add_argument("--out", default="sessions", metavar="DIR",
                         help="where the imported session goes (default ./sessions)")
     parser.add_argument("--config", metavar="CONFIG",
@@ -90,7 +92,7 @@ def _recording(args):
     from fieldcal.recording.importer import import_with_report
     from fieldcal.recording.store import save_recording
 
-    recording, report = import_with_report(args.recording, load_import_map(args.map))
+    recording, report = import_with_report(args.recording, load_import_map(args.map), args.rate)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
     return recording, directory, summary_lines(recording, report)
@@ -107,6 +109,8 @@ def cmd_calibrate(args) -> int:
     station = _station(args, config)
     if args.table_rate is not None and not args.table_rate > 0:
         raise ValueError(f"--table-rate: expected a rate above 0 °/s, got {args.table_rate:g}")
+    if args.rate is not None and not args.rate > 0:
+        raise ValueError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
     if args.rest is not None and not args.rest > 0:
         raise ValueError(f"--rest: expected a positive number of seconds, got {args.rest:g}")
     started = time.perf_counter()

@@ -52,6 +52,8 @@ def add_import_parser(sub) -> argparse.ArgumentParser:
                         help=f"import map: a name in configs/recordings ({maps}) or a YAML path")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="the new session directory (must not exist, or be empty)")
+    parser.add_argument("--rate", type=float, metavar="HZ",
+                        help="sample rate of files with no time column (else rate_hz in the map)")
     parser.set_defaults(func=cmd_import)
     return parser
 
@@ -62,7 +64,9 @@ def cmd_import(args) -> int:
         raise RecordingImportError(f"{out}: already exists and is not empty (give --out a new "
                                    "directory)", str(out))
     import_map = load_import_map(args.map)
-    recording, report = import_with_report(args.files, import_map)
+    if args.rate is not None and not args.rate > 0:
+        raise RecordingImportError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
+    recording, report = import_with_report(args.files, import_map, args.rate)
     try:
         directory = save_recording(recording, out, report=report)
     except OSError as exc:
@@ -86,7 +90,8 @@ def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
         if f.malformed:
             first = ", ".join(map(str, f.malformed_lines))
             more = ", ..." if f.malformed > len(f.malformed_lines) else ""
-            lines.append(f"    {_count(f.malformed, 'malformed line')} not used: {first}{more}")
+            cut = f" (line {f.lines} has no line end: cut off mid-write?)" if f.cut_off else ""
+            lines.append(f"    {_count(f.malformed, 'malformed line')} not used: {first}{more}{cut}")
         else:
             lines.append("    no malformed lines")
         if f.gaps:
