@@ -17,7 +17,7 @@ from fieldcal.earth import Station
 from fieldcal.model import params_from_k
 from fieldcal.paramfile import load
 from fieldcal.recording import Recording
-from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
+from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
 from fieldcal.recording.detect import DetectionError
 
 _OFF = (np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1]))
@@ -176,7 +176,7 @@ def test_fieldcal_calibrate_errors_are_one_line(tmp_path):
     sim = simulate_handheld(3, n_poses=5)
     acc, gyro = to_text(sim, tmp_path)
     cases = [
-        (["calibrate", str(acc), str(gyro), "--map", "imu_tk"], "give --latitude"),
+        (["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--gravity", "98"], "--gravity: expected 9.7..9.9"),
         (["calibrate", str(acc), str(gyro), "--latitude", "40"], "text files need --map"),
         (["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--latitude", "40", "--out",
           str(tmp_path / "s")], "only 5 distinct poses"),
@@ -205,3 +205,30 @@ def test_a_short_initial_rest_and_gyro_shifts_between_poses_calibrate():
     acc = cal.specific_force["accelerometer"]
     truth = sim.truth["accelerometer"]
     assert np.all(np.abs((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma) < 3.0)
+
+
+def test_gravity_alone_or_nothing_known_of_the_place():
+    """No latitude: the Earth rate is an error term (the gyro's σ widen, its errors stay within
+    them); no gravity either: g from the pose means of an SI-unit accelerometer, with a warning."""
+    sim = simulate_handheld(3)
+    known = calibrate_recording(recording_of(sim), station_of(sim), NOISE)
+    cal = calibrate_recording(recording_of(sim), UnknownPlace(gravity=sim.gravity), NOISE)
+    gyro = cal.angular_rate["gyroscope"]
+    assert np.all(np.abs((gyro.theta - gyro_truth(sim)) / gyro.sigma) < 3.0)
+    assert np.all(cal.gyro_bias_sigma["gyroscope"] > known.gyro_bias_sigma["gyroscope"])
+    acc = cal.specific_force["accelerometer"]
+    truth = sim.truth["accelerometer"]
+    assert np.all(np.abs((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma)[3:] < 3.0)
+    si = simulate_handheld(3, raw_counts=False)
+    guessed = calibrate_recording(recording_of(si), UnknownPlace(), NOISE)
+    assert abs(guessed.place.gravity / si.gravity - 1) < 0.01  # the scale errors go into it
+    assert "pose means" in guessed.place.gravity_source
+
+
+def test_fieldcal_calibrate_without_a_place_warns(tmp_path, capsys):
+    sim = simulate_handheld(3)
+    acc, gyro = to_text(sim, tmp_path)
+    code = main(["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--out", str(tmp_path / "s")])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "WARNING: where the recording was made is not known" in out and "standard gravity" in out

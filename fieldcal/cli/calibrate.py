@@ -63,12 +63,15 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
 
 
 def _station(args, config):
+    """The station; an UnknownPlace when neither --latitude nor a config says where."""
     from fieldcal.earth import Station
+    from fieldcal.recording.calibrate import UnknownPlace
 
     base = config.station if config is not None else None
     if args.latitude is None and base is None:
-        raise ValueError("calibrate: give --latitude (and --height), or --config: gravity and the "
-                         "Earth rate depend on where the recording was made")
+        if args.gravity is not None and not 9.7 < args.gravity < 9.9:
+            raise ValueError(f"--gravity: expected 9.7..9.9 m/s^2, got {args.gravity:g}")
+        return UnknownPlace(gravity=args.gravity)
     latitude = args.latitude if args.latitude is not None else base.latitude_deg
     height = args.height if args.height is not None else (base.height_m if base else 0.0)
     gravity = args.gravity if args.gravity is not None else (base.gravity_m_s2 if base else None)
@@ -100,7 +103,7 @@ def _recording(args):
 
 def cmd_calibrate(args) -> int:
     from fieldcal.config import load_config
-    from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
+    from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
     from fieldcal.recording.detect import DetectorSettings
     from fieldcal.recording.results import parameter_file, summary_lines
     from fieldcal.session.capture import SessionWriter
@@ -122,15 +125,21 @@ def cmd_calibrate(args) -> int:
                                  estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
                                  table_rate_deg_s=args.table_rate)
     cal = calibrate_recording(recording, station, settings)
+    station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None)
     writer = SessionWriter.append_to(directory)
     try:
         writer.write_parameters(pf)
     finally:
         writer.close()
-    print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
-          f"{station.gravity:.6f} m/s^2 ({station.gravity_source}); noise: "
-          f"{NOISE_FROM_CONFIG if noise else NOISE_FROM_REST}")
+    if isinstance(station, UnknownPlace):
+        print(f"WARNING: where the recording was made is not known (give --latitude, and --gravity if "
+              f"measured): g = {station.gravity:.6f} m/s^2 from {station.gravity_source}; the Earth rate "
+              "is carried as an error in the gyro's bias and rotations")
+    else:
+        print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
+              f"{station.gravity:.6f} m/s^2 ({station.gravity_source})")
+    print(f"noise: {NOISE_FROM_CONFIG if noise else NOISE_FROM_REST}")
     for line in summary_lines(cal):
         print(line)
     print(f"\nparameter file: {directory / 'parameters.yaml'}  ({time.perf_counter() - started:.2f} s)")

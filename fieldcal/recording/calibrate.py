@@ -38,8 +38,40 @@ from fieldcal.solvers.rotation import RotationSolution, scale_misfits, solve_gyr
 RATE_UNITS = {"rad/s": 1.0, "mrad/s": 1e3, "deg/s": 180 / math.pi, "°/s": 180 / math.pi,
               "dps": 180 / math.pi, "mdeg/s": 180e3 / math.pi}
 # Specific-force units with a known zero: gravity directions need no sphere fit.
-FORCE_UNITS = ("m/s^2", "m/s2", "g", "mg")
+FORCE_UNITS = ("m/s^2", "m/s2", "m/s²", "g", "mg")
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
+
+
+STANDARD_GRAVITY = 9.80665  # m/s^2 per g, by definition
+_SI_PER_FORCE_UNIT = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY, "mg": STANDARD_GRAVITY * 1e-3}
+
+
+@dataclass(frozen=True)
+class UnknownPlace:
+    """A recording whose place is not known: no latitude, so the Earth rate (7.29e-5 rad/s, its
+    direction unknown) is an error term of Ω²/3 per axis instead of a known vertical part.
+    ``gravity``: m/s^2 as given, or None: taken from the pose means (see calibrate_recording).
+    Written to a parameter file as latitude 0 with the source saying the place is unknown."""
+
+    gravity: float | None = None
+    gravity_source: str = "given (--gravity); place unknown"
+    latitude_deg: float = 0.0
+    height_m: float = 0.0
+
+    @property
+    def latitude_rad(self) -> float:
+        return 0.0
+
+
+def gravity_from_poses(means: np.ndarray, unit: str) -> tuple[float, str]:
+    """(g in m/s^2, where it came from) when nothing tells: the median norm of the pose means in
+    a unit with a known scale (its scale error goes into g, so the scale factors are relative to
+    it), else standard gravity (within ±0.3 % of any place on Earth)."""
+    factor = _SI_PER_FORCE_UNIT.get(unit)
+    if factor is None:
+        return STANDARD_GRAVITY, "standard gravity (place unknown, raw counts: scale factors relative to it)"
+    g = float(np.median(np.linalg.norm(means, axis=1))) * factor
+    return g, f"the pose means' median norm in {unit} (place unknown: scale factors relative to it)"
 
 
 @dataclass(frozen=True)
@@ -68,6 +100,7 @@ class RecordingCalibration:
     turns: np.ndarray  # (k, 2) [start, stop) samples of steady turntable turns found
     table_rate_used: bool = False  # the turns went into the gyro solve as rate equations
     noise_source: str = "the initial rest"  # where the detector's noise level was measured
+    place: Station | UnknownPlace | None = None  # the station used (gravity filled in when unknown)
 
 
 def _names(recording: Recording, kind: str) -> list[str]:
@@ -121,7 +154,7 @@ def _up_vectors(acc: TriadSolution, means: np.ndarray, means_cov: np.ndarray) ->
     return u, D @ (J_theta @ acc.covariance @ J_theta.T + J_means @ means_cov @ J_means.T) @ D.T
 
 
-def calibrate_recording(recording: Recording, station: Station,
+def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
                         settings: RecordingSettings = RecordingSettings()) -> RecordingCalibration:
     """Raises DetectionError (poses too few or badly spread, the rest not still) or
     CalibrationError (the reference accelerometer cannot be solved) with a one-line message."""
@@ -138,7 +171,12 @@ def calibrate_recording(recording: Recording, station: Station,
     zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
     if gyro is not None:  # on a turntable the accelerometer is as still as in a pose
         turn_mask, smooth = turning(gyro, acc, rate_hz, rest_noise, det, RATE_UNITS.get(recording.units[rates[0]]))
-    for poses in pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro, noise=rest_noise):
+    candidates = pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro, noise=rest_noise)
+    if isinstance(station, UnknownPlace) and station.gravity is None:
+        middle = candidates[len(candidates) // 2]
+        station = replace(station, **dict(zip(("gravity", "gravity_source"),
+                                              gravity_from_poses(middle.means, recording.units[reference]))))
+    for poses in candidates:
         turns = np.zeros((0, 2), int)
         if gyro is not None:
             poses, turns = split_poses(poses, acc, turn_mask, smooth, rate_hz, det, zero)
@@ -187,11 +225,11 @@ def calibrate_recording(recording: Recording, station: Station,
             failures[name] = str(exc)
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures,
-                                reference, bias_sigma, turns, used, rest_noise.source)
+                                reference, bias_sigma, turns, used, rest_noise.source, station)
 
 
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolution, acc_var: np.ndarray,
-                station: Station, settings: RecordingSettings,
+                station: Station | UnknownPlace, settings: RecordingSettings,
                 turns: np.ndarray) -> tuple[RotationSolution, np.ndarray]:
     """The solution and its bias's 1σ."""
     t, gyro, unit = recording.t, recording.triads[name], recording.units[name]
@@ -207,11 +245,14 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
     k = RATE_UNITS.get(unit)
     if k is None:  # raw counts: the scale that makes the rotations fit
         k = float(_SCAN[int(np.argmin(scale_misfits(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)))])
-    sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
-    b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
-    # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
-    horizontal = EARTH_RATE * cos_lat
-    bias_sigma = k * np.sqrt(horizontal**2 / 2 + rest_var / k**2 / counts[0])
+    if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
+        b0, earth_var = rest_mean, EARTH_RATE**2 / 3
+    else:
+        sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
+        b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
+        # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
+        earth_var = (EARTH_RATE * cos_lat) ** 2 / 2
+    bias_sigma = k * np.sqrt(earth_var + rest_var / k**2 / counts[0])
     arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
     duration = t[spans[:, 1]] - t[spans[:, 0]]
     extra = None
@@ -221,6 +262,6 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
     solution = solve_gyro_rotations(
         t, gyro, spans, up[:-1], up[1:], K0=k, b0=b0, estimate_bias=settings.estimate_gyro_bias,
         bias_sigma=bias_sigma, up_covariance=up_cov, rate_noise=arw, extra_residuals=extra,
-        motion_variance=(horizontal * duration) ** 2 / 2, method=settings.gyro_method, name=name,
+        motion_variance=earth_var * duration**2, method=settings.gyro_method, name=name,
         output_unit=unit)
     return solution, (solution.sigma[:3] if solution.bias_estimated else bias_sigma)
