@@ -3,14 +3,17 @@ people actually have, with its real noise, bias shifts and short or long rests."
 from __future__ import annotations
 
 import gzip
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from fieldcal.cli.main import main
 from fieldcal.earth import Station
 from fieldcal.model import calibrate_with
-from fieldcal.recording.calibrate import calibrate_recording
+from fieldcal.paramfile import load
+from fieldcal.recording.calibrate import ALIGNED_PROTOCOL, UnknownPlace, calibrate_recording
 from fieldcal.recording.detect import interval_means
 from fieldcal.recording.importer import import_recording
 
@@ -54,3 +57,60 @@ def test_imu_tk_xsens_calibrated_poses_have_the_local_gravity(xsens):
     assert np.sqrt(np.mean((norms - IMU_TK_GRAVITY) ** 2)) < 1.197e-3
     gyro = cal.angular_rate["gyroscope"]
     assert np.degrees(np.sqrt(np.mean(gyro.residuals ** 2))) < 0.5  # direction residual, °
+
+
+FERRARIS_RATE_HZ = 102.4  # imucal's examples/basic_ferraris.py
+FERRARIS_GRAVITY = 9.81  # imucal's default
+
+
+def parameters_of(M: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """fieldcal's nine numbers for output = M·input + bias: bias, diag(M), the lower triangle's angles."""
+    return np.r_[bias, np.diag(M), -M[1, 0] / M[1, 1], M[2, 0] / M[2, 2], -M[2, 1] / M[2, 2]]
+
+
+@pytest.fixture(scope="module")
+def ferraris(tmp_path_factory):
+    (path,) = unpacked(tmp_path_factory.mktemp("ferraris"), "imucal_ferraris_session.csv.gz")
+    recording = import_recording([path], "imucal", rate_hz=FERRARIS_RATE_HZ)
+    return path, recording, calibrate_recording(recording, UnknownPlace(gravity=FERRARIS_GRAVITY))
+
+
+def test_imucal_ferraris_session_takes_the_aligned_solution(ferraris):
+    _, recording, cal = ferraris
+    assert cal.protocol == ALIGNED_PROTOCOL and cal.spread.count == 6 and not cal.failures
+    assert len(cal.angular_rate["gyroscope"].residuals) == 3  # one full turn about each axis
+    # imucal's own annotation of the session: every static section we use lies inside one of
+    # its static sections or in the stretches it left unannotated between the turns.
+    sections = json.loads((REAL / "imucal_ferraris_session_list.json").read_text())
+    for name in ("x_rot", "y_rot", "z_rot"):
+        turn = sections[name]
+        assert not np.any((cal.poses.intervals[:, 0] < turn["end"]) & (cal.poses.intervals[:, 1] > turn["start"]))
+
+
+def test_imucal_ferraris_session_agrees_with_imucal_within_2_sigma(ferraris):
+    """imucal itself (Ferraris's equations on its hand-annotated sections) on the same file."""
+    imucal = pytest.importorskip("imucal")
+    pd = pytest.importorskip("pandas")
+    path, _, cal = ferraris
+    data = pd.read_csv(path, header=0, index_col=0)
+    sections = pd.read_json(REAL / "imucal_ferraris_session_list.json").T
+    regions = imucal.ferraris_regions_from_section_list(data, sections)
+    info = imucal.FerrarisCalibration(grav=FERRARIS_GRAVITY).compute(
+        regions, sampling_rate_hz=FERRARIS_RATE_HZ, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+    acc, gyro = cal.specific_force["accelerometer"], cal.angular_rate["gyroscope"]
+    theirs_acc = parameters_of(info.K_a @ info.R_a, info.b_a)
+    # imucal's gyro matrix is per deg/s of input; fieldcal's per rad/s.
+    theirs_gyro = parameters_of(info.K_g @ info.R_g * 180 / np.pi, info.b_g)
+    assert np.all(np.abs((acc.theta - theirs_acc) / acc.sigma) < 2.0), (acc.theta, theirs_acc, acc.sigma)
+    assert np.all(np.abs((gyro.theta - theirs_gyro) / gyro.sigma) < 2.0), (gyro.theta, theirs_gyro, gyro.sigma)
+
+
+def test_fieldcal_calibrate_says_which_solution_it_chose(ferraris, tmp_path, capsys):
+    path, _, _ = ferraris
+    code = main(["calibrate", str(path), "--map", "imucal", "--rate", str(FERRARIS_RATE_HZ), "--gravity",
+                 str(FERRARIS_GRAVITY), "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "protocol: Ferraris: six axis-aligned poses and full turns" in out
+    pf = load(next(tmp_path.iterdir()) / "parameters.yaml")
+    np.testing.assert_allclose(pf["gyroscope"].K, ferraris[2].angular_rate["gyroscope"].K)

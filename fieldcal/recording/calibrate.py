@@ -29,6 +29,7 @@ from fieldcal.recording import Recording
 from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport,
                                        check_spread, interval_means, noise_level, pose_candidates)
 from fieldcal.solvers import CalibrationError, solve_norm
+from fieldcal.solvers.classic import ClassicSolution
 from fieldcal.solvers.norm import TriadSolution
 from fieldcal.solvers.problems import StaticNormProblem
 from fieldcal.recording.turns import rate_residuals, split_poses, turning
@@ -74,6 +75,11 @@ def gravity_from_poses(means: np.ndarray, unit: str) -> tuple[float, str]:
     return g, f"the pose means' median norm in {unit} (place unknown: scale factors relative to it)"
 
 
+NORM_PROTOCOL = "hand-held poses: the norm method for the accelerometer, the rotations for the gyro"
+ALIGNED_PROTOCOL = ("Ferraris: six axis-aligned poses and full turns; the aligned six-position solution for "
+                    "the accelerometer (the norm method needs 9 poses), the turns' ±2π integrals for the gyro")
+
+
 @dataclass(frozen=True)
 class RecordingSettings:
     detector: DetectorSettings = field(default_factory=DetectorSettings)
@@ -92,8 +98,8 @@ class RecordingCalibration:
     poses: Poses
     spread: SpreadReport
     tried: tuple[tuple[float, int, str], ...]  # (multiple, distinct poses, χ²/dof or why not)
-    specific_force: dict[str, TriadSolution]
-    angular_rate: dict[str, RotationSolution]
+    specific_force: dict[str, TriadSolution | ClassicSolution]
+    angular_rate: dict[str, RotationSolution | ClassicSolution]  # Classic: the Ferraris turns
     failures: dict[str, str]
     reference_triad: str
     gyro_bias_sigma: dict[str, np.ndarray]  # 1σ of each gyro's bias (output units)
@@ -101,6 +107,7 @@ class RecordingCalibration:
     table_rate_used: bool = False  # the turns went into the gyro solve as rate equations
     noise_source: str = "the initial rest"  # where the detector's noise level was measured
     place: Station | UnknownPlace | None = None  # the station used (gravity filled in when unknown)
+    protocol: str = NORM_PROTOCOL  # which solution was chosen, and why
 
 
 def _names(recording: Recording, kind: str) -> list[str]:
@@ -198,9 +205,12 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
         if not isinstance(sol, str) and (best is None or sol.chi2 / max(sol.dof, 1) < best[2]):
             best = (poses, spread, sol.chi2 / max(sol.dof, 1), sol, turns)
     if best is None:
+        aligned = _aligned_protocol(recording, station, candidates, reference, forces, rates, rest_noise, tried)
+        if aligned is not None:
+            return aligned
         most = max(tried, key=lambda x: x[1])
         raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
-                             f"{most[0]:g}× the rest noise): {most[2]}")
+                             f"{most[0]:g}× the noise level): {most[2]}")
     poses, spread, _, acc_solution, turns = best
     failures: dict[str, str] = {}
     specific_force = {reference: acc_solution}
@@ -265,3 +275,43 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
         motion_variance=earth_var * duration**2, method=settings.gyro_method, name=name,
         output_unit=unit)
     return solution, (solution.sigma[:3] if solution.bias_estimated else bias_sigma)
+
+
+def _aligned_protocol(recording, station, candidates, reference, forces, rates, noise,
+                      tried) -> RecordingCalibration | None:
+    """The Ferraris protocol's solution when some threshold's poses are the six aligned ones
+    (see ``fieldcal.recording.ferraris``); None when none is."""
+    from fieldcal.recording import ferraris
+
+    found = [(p, axes) for p in candidates if (axes := ferraris.aligned_axes(p.up)) is not None]
+    if not found:
+        return None
+    poses, axes = max(found, key=lambda pa: len(pa[0].intervals))  # the most intervals: more data
+    failures: dict[str, str] = {}
+    specific_force, angular_rate, bias_sigma = {}, {}, {}
+    for name in forces:
+        try:
+            specific_force[name] = ferraris.solve_aligned_accelerometer(
+                name, recording.units[name], interval_means(recording.triads[name], poses.intervals), axes,
+                station.gravity)
+        except CalibrationError as exc:
+            if name == reference:
+                raise
+            failures[name] = str(exc)
+    acc = specific_force[reference]
+    up = ferraris.up_vectors(acc, interval_means(recording.triads[reference], poses.intervals))
+    latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
+    for name in rates:
+        gyro = recording.triads[name]
+        turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]))
+        try:
+            angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
+                                                           poses.intervals, axes, turns, latitude,
+                                                           up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))))
+            bias_sigma[name] = angular_rate[name].sigma[:3]
+        except DetectionError as exc:
+            failures[name] = str(exc)
+    spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
+                          message="6 distinct poses, each along an axis (Ferraris)")
+    return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
+                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station, ALIGNED_PROTOCOL)

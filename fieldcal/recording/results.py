@@ -17,6 +17,8 @@ from fieldcal.paramfile.document import ROTATION_METHOD
 from fieldcal.recording import Recording
 from fieldcal.recording.calibrate import RecordingCalibration
 from fieldcal.report import solution_header, solution_table
+from fieldcal.solvers.classic import ClassicSolution
+from fieldcal.solvers.rotation import RotationSolution
 from fieldcal.units import display_scale, param_unit
 
 PROCEDURE = "recording"
@@ -26,6 +28,8 @@ _SIGNS = np.array([-1.0, 1.0, -1.0])  # Δyz, Δzy, Δzx from m_yx, m_zx, m_zy
 
 def gyro_parameters(cal: RecordingCalibration, name: str) -> TriadParameters:
     sol = cal.angular_rate[name]
+    if isinstance(sol, ClassicSolution):  # the Ferraris turns
+        return TriadParameters.from_solution(sol)
     sigma = dict(zip(sol.param_names, sol.sigma, strict=True))
     return TriadParameters(
         name=name, kind=ANGULAR_RATE, output_unit=sol.output_unit, bias=sol.bias, K=sol.K,
@@ -40,7 +44,8 @@ def parameter_file(cal: RecordingCalibration, recording: Recording, station: Sta
     triads = [TriadParameters.from_solution(s) for s in cal.specific_force.values()]
     triads += [gyro_parameters(cal, n) for n in cal.angular_rate]
     methods = "+".join(dict.fromkeys([s.method for s in cal.specific_force.values()]
-                                     + [ROTATION_METHOD] * bool(cal.angular_rate)))
+                                     + [ROTATION_METHOD if isinstance(s, RotationSolution) else s.method
+                                        for s in cal.angular_rate.values()]))
     data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]
     return ParameterFile.build(triads, station=station, procedure=PROCEDURE, method=methods,
                                input_sha256=hash_inputs(*data), device_name=device_name,
@@ -90,7 +95,8 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
     """Poses found, and per triad the fit and every parameter ± 1σ."""
     poses, truths = cal.poses, truths or {}
     still = np.diff(poses.intervals, axis=1)[:, 0]
-    lines = [f"poses: {len(poses.intervals)} static intervals ({cal.spread.message}; "
+    lines = [f"protocol: {cal.protocol}",
+             f"poses: {len(poses.intervals)} static intervals ({cal.spread.message}; "
              f"{len(poses.intervals) - cal.spread.count} duplicate), threshold {poses.multiple:g}× the "
              f"noise of {cal.noise_source}; shortest {still.min()} samples",
              "  thresholds tried: " + _tried(cal.tried)]
@@ -101,6 +107,11 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
     for name, sol in cal.specific_force.items():
         lines += ["", solution_header(sol), solution_table(sol, truths.get(name))]
     for name, sol in cal.angular_rate.items():
+        if isinstance(sol, ClassicSolution):  # the Ferraris turns
+            lines += ["", f"{name} (the ±2π integrals of {len(sol.residuals)} full turns, the bias from the "
+                      "six poses; misalignment here: the lower triangle, all of K in the file)",
+                      solution_table(sol, truths.get(name))]
+            continue
         rms = math.degrees(float(np.sqrt(np.mean(sol.residuals**2)))) * 60
         quality = f"χ²/dof {sol.chi2 / sol.dof:.2f}" if sol.dof else "exact fit"
         bias = "estimated" if sol.bias_estimated else "the first pose's mean, less the vertical Earth rate"
