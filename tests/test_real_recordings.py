@@ -114,3 +114,24 @@ def test_fieldcal_calibrate_says_which_solution_it_chose(ferraris, tmp_path, cap
     assert "protocol: Ferraris: six axis-aligned poses and full turns" in out
     pf = load(next(tmp_path.iterdir()) / "parameters.yaml")
     np.testing.assert_allclose(pf["gyroscope"].K, ferraris[2].angular_rate["gyroscope"].K)
+
+
+def test_px4_ulog_imports_its_sensor_combined_topic(tmp_path, capsys):
+    """PX4's own sample log, by pyulog (lazily, in the import command only): the vehicle stands
+    still, so the specific force is gravity and the rate is near zero."""
+    pytest.importorskip("pyulog")
+    (path,) = unpacked(tmp_path, "px4_sample_log_small.ulg.gz")
+    (path.parent / "log.ulg").write_bytes(path.read_bytes())
+    assert main(["import", str(path.parent / "log.ulg"), "--out", str(tmp_path / "s")]) == 0
+    out = capsys.readouterr().out
+    assert "PX4 ULog: sensor_combined" in out and "1298 samples" in out
+    from fieldcal.recording.store import load_recording
+
+    recording = load_recording(tmp_path / "s")
+    assert recording.units == {"accelerometer": "m/s^2", "gyroscope": "rad/s"}
+    assert 195 < recording.rate_hz < 215
+    assert abs(np.median(np.linalg.norm(recording.triads["accelerometer"], axis=1)) - 9.7) < 0.3
+    assert np.abs(recording.triads["gyroscope"]).max() < 0.02  # rad/s: standing still
+    # Calibrating it is refused with what is missing, not a traceback.
+    code = main(["calibrate", str(path.parent / "log.ulg"), "--out", str(tmp_path / "c")])
+    assert code == 2 and "record the poses for longer" in capsys.readouterr().err

@@ -87,15 +87,14 @@ def _recording(args):
         if args.map is not None:
             raise ValueError(f"calibrate: {first} is a session: --map is for text files")
         return load_recording(first), first, []
-    if args.map is None:
-        raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
-                         "path); or give one session directory from `fieldcal import`")
-    from fieldcal.cli.importing import summary_lines
-    from fieldcal.recording.import_map import load_import_map
-    from fieldcal.recording.importer import import_with_report
+    from fieldcal.cli.importing import read_recording, summary_lines
+    from fieldcal.recording.logs import log_format
     from fieldcal.recording.store import save_recording
 
-    recording, report = import_with_report(args.recording, load_import_map(args.map), args.rate)
+    if args.map is None and not (len(args.recording) == 1 and log_format(first)):
+        raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
+                         "path); or give one session directory from `fieldcal import`, or a PX4 log (.ulg)")
+    recording, report = read_recording(args.recording, args.map, args.rate)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
     return recording, directory, summary_lines(recording, report)

@@ -48,8 +48,9 @@ def add_import_parser(sub) -> argparse.ArgumentParser:
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("files", nargs="+", metavar="FILE",
                         help="the recording's files, in the order of the map's entries")
-    parser.add_argument("--map", required=True, metavar="MAP",
-                        help=f"import map: a name in configs/recordings ({maps}) or a YAML path")
+    parser.add_argument("--map", metavar="MAP",
+                        help=f"import map for text files: a name in configs/recordings ({maps}) or a YAML "
+                        "path; a PX4 log (.ulg) needs none")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="the new session directory (must not exist, or be empty)")
     parser.add_argument("--rate", type=float, metavar="HZ",
@@ -63,10 +64,9 @@ def cmd_import(args) -> int:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise RecordingImportError(f"{out}: already exists and is not empty (give --out a new "
                                    "directory)", str(out))
-    import_map = load_import_map(args.map)
     if args.rate is not None and not args.rate > 0:
         raise RecordingImportError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
-    recording, report = import_with_report(args.files, import_map, args.rate)
+    recording, report = read_recording(args.files, args.map, args.rate)
     try:
         directory = save_recording(recording, out, report=report)
     except OSError as exc:
@@ -78,10 +78,23 @@ def cmd_import(args) -> int:
     return 0
 
 
+def read_recording(files, map_name, rate_hz=None) -> tuple[Recording, ImportReport]:
+    """A log by its format's reader, or text files by their import map."""
+    from fieldcal.recording.logs import import_log, log_format
+
+    if map_name is None:
+        if len(files) == 1 and log_format(files[0]) is not None:
+            return import_log(files[0])
+        raise RecordingImportError("text files need --map (a name in configs/recordings or a YAML path); "
+                                   "a PX4 log (.ulg) needs none")
+    return import_with_report(files, load_import_map(map_name), rate_hz)
+
+
 def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
     """What was read and done, a few lines per file; warnings last, in capitals."""
     n = len(report.files)
-    lines = [f"imported {n} file{'s' * (n != 1)} with the map {report.map_path}:"]
+    how = report.map_path if report.map_path.startswith("(") else f"with the map {report.map_path}"
+    lines = [f"imported {n} file{'s' * (n != 1)} {how}:"]
     for f in report.files:
         lines.append(f"  {f.name}: {f.path}: {f.samples} samples of {f.lines} lines, "
                      f"{f.rate_hz:.6g} Hz, t {f.t_first:.6g} .. {f.t_last:.6g} s")
