@@ -247,3 +247,23 @@ def test_fieldcal_calibrate_without_a_place_warns(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0, out
     assert "WARNING: where the recording was made is not known" in out and "standard gravity" in out
+
+
+FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_simulated_ferraris_session_is_within_3_sigma_of_the_truth(seed):
+    """Six faces up, a full 360° turn on a table about each axis while it is vertical (30 °/s,
+    10 s hold and 2 s ramps): the aligned solution and the turns' integrals, against the truth."""
+    sim = simulate_handheld(seed, n_poses=6, directions=FACES, raw_counts=False,
+                            table_turns=((0, 30.0, 10.0), (2, -30.0, 10.0), (4, 30.0, 10.0)))
+    cal = calibrate_recording(recording_of(sim), station_of(sim), NOISE)
+    assert cal.protocol.startswith("Ferraris") and not cal.failures
+    gyro = cal.angular_rate["gyroscope"]
+    K, bias = sim.truth["gyroscope"].K, sim.truth["gyroscope"].bias
+    truth = np.r_[bias, np.diag(K), -K[1, 0] / K[1, 1], K[2, 0] / K[2, 2], -K[2, 1] / K[2, 2]]
+    assert np.all(np.abs((gyro.theta - truth) / gyro.sigma) < 3.0)
+    acc = cal.specific_force["accelerometer"]
+    truth = sim.truth["accelerometer"]
+    assert np.all(np.abs((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma) < 3.0)

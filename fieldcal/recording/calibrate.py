@@ -183,10 +183,12 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
         middle = candidates[len(candidates) // 2]
         station = replace(station, **dict(zip(("gravity", "gravity_source"),
                                               gravity_from_poses(middle.means, recording.units[reference]))))
+    split = []  # each candidate's poses with the turning stretches taken out
     for poses in candidates:
         turns = np.zeros((0, 2), int)
         if gyro is not None:
             poses, turns = split_poses(poses, acc, turn_mask, smooth, rate_hz, det, zero)
+        split.append(poses)
         key = poses.intervals.tobytes()
         spread = check_spread(poses.up[poses.distinct], det.min_poses, det.cover_deg, det.min_design)
         if not spread.ok:
@@ -205,7 +207,8 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
         if not isinstance(sol, str) and (best is None or sol.chi2 / max(sol.dof, 1) < best[2]):
             best = (poses, spread, sol.chi2 / max(sol.dof, 1), sol, turns)
     if best is None:
-        aligned = _aligned_protocol(recording, station, candidates, reference, forces, rates, rest_noise, tried)
+        aligned = _aligned_protocol(recording, station, split, reference, forces, rates, rest_noise, tried,
+                                    settings)
         if aligned is not None:
             return aligned
         most = max(tried, key=lambda x: x[1])
@@ -278,7 +281,7 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: TriadSolutio
 
 
 def _aligned_protocol(recording, station, candidates, reference, forces, rates, noise,
-                      tried) -> RecordingCalibration | None:
+                      tried, settings) -> RecordingCalibration | None:
     """The Ferraris protocol's solution when some threshold's poses are the six aligned ones
     (see ``fieldcal.recording.ferraris``); None when none is."""
     from fieldcal.recording import ferraris
@@ -290,10 +293,17 @@ def _aligned_protocol(recording, station, candidates, reference, forces, rates, 
     failures: dict[str, str] = {}
     specific_force, angular_rate, bias_sigma = {}, {}, {}
     for name in forces:
+        values, unit = recording.triads[name], recording.units[name]
+        means = interval_means(values, poses.intervals)
+        # White noise of the detector's level (or this triad's first pose); with the device's
+        # noise model the exact covariance, bias instability included, at the nominal scale.
+        variance = noise.variance if name == reference else np.var(
+            values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
+        scale = np.eye(3) * (float(np.median(np.linalg.norm(means, axis=1))) / station.gravity)
+        covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(
-                name, recording.units[name], interval_means(recording.triads[name], poses.intervals), axes,
-                station.gravity)
+                name, unit, means, axes, station.gravity, covariance)
         except CalibrationError as exc:
             if name == reference:
                 raise

@@ -23,7 +23,7 @@ poses' gyro means, its σ their scatter (g-sensitivity and bias shifts) over √
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -61,12 +61,23 @@ def aligned_axes(up: np.ndarray) -> np.ndarray | None:
 
 
 def solve_aligned_accelerometer(name: str, unit: str, means: np.ndarray, axes: np.ndarray,
-                                gravity: float) -> ClassicSolution:
+                                gravity: float, covariance: np.ndarray) -> ClassicSolution:
     """Classic least squares on the six faces' means (a face seen twice is one placement on the
-    same face, its tilt shared, so it is averaged, not counted twice): inputs ±g. The σ come
-    from the residual scatter, which holds the placement errors as well as the noise."""
-    faces = np.array([means[axes == a].mean(axis=0) for a in range(6)])
-    return solve_classic(faces, gravity * _AXES, name, SPECIFIC_FORCE, output_unit=unit)
+    same face, its tilt shared, so it is averaged, not counted twice): inputs ±g.
+    ``covariance``: of the flattened interval means (noise); the σ are scaled up by χ²/dof when
+    the faces scatter more than that (placement errors), never down."""
+    average = np.zeros((6, len(means)))
+    for a in range(6):
+        average[a, axes == a] = 1.0 / np.count_nonzero(axes == a)
+    faces = average @ means
+    A = np.kron(average, np.eye(3))
+    face_cov = A @ covariance @ A.T
+    sol = solve_classic(faces, gravity * _AXES, name, SPECIFIC_FORCE, output_unit=unit, covariance=face_cov)
+    variances = np.diag(face_cov).reshape(6, 3)
+    ratio = float(np.sum(sol.residuals**2 / variances) / (3 * (6 - 4)))
+    if ratio > 1.0:
+        sol = replace(sol, row_covariance=sol.row_covariance * ratio)
+    return sol
 
 
 def up_vectors(acc: ClassicSolution, means: np.ndarray) -> np.ndarray:
