@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from drivers.sim.device import PAPER_NOISE
-from drivers.sim.handheld import simulate_handheld, to_text
+from drivers.sim.handheld import RealWorld, simulate_handheld, to_text
 from fieldcal.cli.main import main
 from fieldcal.earth import Station
 from fieldcal.model import params_from_k
@@ -267,3 +267,19 @@ def test_a_simulated_ferraris_session_is_within_3_sigma_of_the_truth(seed):
     acc = cal.specific_force["accelerometer"]
     truth = sim.truth["accelerometer"]
     assert np.all(np.abs((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma) < 3.0)
+
+
+@pytest.mark.parametrize("seed", [1, 3, 6])
+def test_a_real_world_recording_calibrates_within_3_sigma(seed):
+    """The real-world simulator mode: gyro g-sensitivity ~0.1 °/s/g, warm-up and temperature
+    drift of the gyro bias, timestamp jitter, dropped samples, a 3 s initial rest. Every pose is
+    found, and every parameter is within 3σ of the truth."""
+    sim = simulate_handheld(seed, initial_rest_s=3.0, real_world=RealWorld())
+    assert not np.allclose(np.diff(sim.t), np.diff(sim.t)[0])  # jittered, with gaps
+    cal = calibrate_recording(recording_of(sim), station_of(sim), NOISE)
+    assert len(cal.poses.intervals) == len(sim.static)
+    acc = cal.specific_force["accelerometer"]
+    truth = sim.truth["accelerometer"]
+    assert np.all(np.abs((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma) < 3.0)
+    gyro = cal.angular_rate["gyroscope"]
+    assert np.all(np.abs((gyro.theta - gyro_truth(sim)) / gyro.sigma) < 3.0)
