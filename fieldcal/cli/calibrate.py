@@ -14,6 +14,12 @@ examples:
       calibrated, the parameter file written into the session
   fieldcal calibrate sessions/unit7 --config vn100
       a session made by `fieldcal import`; the station and the noise from a device config
+  fieldcal calibrate session.csv --map imucal --rate 102.4 --gravity 9.81
+      an imucal Ferraris session (six faces up, a full turn about each axis): the aligned
+      six-position solution is chosen by itself; no latitude: the Earth rate is an error term
+  fieldcal calibrate flight.ulg
+      a PX4 log (pip install 'fieldcal[logs]'); neither place nor gravity known: g from the
+      poses, with a warning
 
 Put the unit down by hand in a dozen or more poses (every axis up and down, and some corners
 up), still for a few seconds each, turning it between them. The noise level the static poses

@@ -29,6 +29,10 @@ examples:
       one CSV with time in ms, accelerometer in mg and gyroscope in deg/s
   fieldcal import log.txt --map my-layout.yaml --out sessions/unit7
       any layout: copy a map from configs/recordings/ and edit its columns and units
+  fieldcal import session.csv --map imucal --rate 102.4 --out sessions/unit7
+      columns found by their header names, no time column: the rate given
+  fieldcal import flight.ulg --out sessions/unit7
+      a PX4 log: sensor_combined (pip install 'fieldcal[logs]')
 
 The map says, per file, the delimiter, the time column and its unit, and for each triad its
 three columns, kind (specific_force or angular_rate), unit and an optional scale. Lines that
