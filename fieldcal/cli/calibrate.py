@@ -15,17 +15,19 @@ examples:
   fieldcal calibrate sessions/unit7 --config vn100
       a session made by `fieldcal import`; the station and the noise from a device config
   fieldcal calibrate session.csv --map imucal --rate 102.4 --gravity 9.81
-      an imucal Ferraris session (six faces up, a full turn about each axis): the aligned
-      six-position solution is chosen by itself; no latitude: the Earth rate is an error term
+      an imucal Ferraris session (six faces up, a full turn about each
+      axis): the aligned six-position solution is chosen by itself; no
+      latitude: the Earth rate is an error term
   fieldcal calibrate flight.ulg
-      a PX4 log (pip install 'fieldcal[logs]'); neither place nor gravity known: g from the
-      poses, with a warning
+      a PX4 log (pip install 'fieldcal[logs]'); no place, no gravity:
+      g from the poses, with a warning
 
-Put the unit down by hand in a dozen or more poses (every axis up and down, and some corners
-up), still for a few seconds each, turning it between them. The noise level the static poses
-are found with comes from the recording's quietest one-second windows; give --rest S when it
-starts with S seconds still to take it from there instead. The gyroscope's bias is the first
-pose's mean (less the vertical Earth rate), or estimated (--gyro-bias estimate)."""
+Put the unit down by hand in a dozen or more poses (every axis up and down,
+and some corners up), still for a few seconds each, turning it between them.
+The noise level the static poses are found with comes from the recording's
+quietest one-second windows; give --rest S when it starts with S seconds still
+to take it from there instead. The gyroscope's bias is the first pose's mean
+(less the vertical Earth rate), or estimated (--gyro-bias estimate)."""
 
 
 NOISE_FROM_CONFIG = "the config's noise model (bias instability included)"
