@@ -44,7 +44,9 @@ def nearest(value, allowed: Sequence[str]) -> str:
 
 def residual_units(kind: str, output_unit: str, method: str) -> tuple[str, ...]:
     """The units a triad's residuals may be in."""
-    units = (SI_UNIT[kind], output_unit) + (("rad",) if method == ROTATION_METHOD else ())
+    # a gyro calibrated from integrated turns (rotations, or the Ferraris protocol's full
+    # turns) has its residuals as angles
+    units = (SI_UNIT[kind], output_unit) + (("rad",) if method == ROTATION_METHOD or kind == "angular_rate" else ())
     return tuple(dict.fromkeys(units))
 
 

@@ -12,7 +12,7 @@ from drivers.sim.handheld import (CONSUMER_NOISE, SPREAD_UP, handheld_truth, sim
 from fieldcal.recording.detect import (DetectionError, DetectorSettings, check_spread, find_poses,
                                        noise_level, pose_candidates, require_poses)
 
-SETTINGS = DetectorSettings()
+SETTINGS = DetectorSettings(init_rest_s=30.0)  # the simulator starts with 30 s still
 
 
 @cache
@@ -254,3 +254,27 @@ def test_error_messages_are_one_line():
         with pytest.raises(DetectionError) as info:
             call()
         assert "\n" not in str(info.value)
+
+
+def test_without_a_rest_the_noise_comes_from_the_quietest_windows():
+    """No initial rest assumed: the still windows anywhere give the white noise, within the
+    scatter of the rest's own estimate (a variance over n samples: ±√(2/n) relative)."""
+    rec = recording(3)
+    acc, gyro = rec.accelerometer, rec.gyroscope
+    rest = noise_level(acc, rec.rate_hz, SETTINGS, gyro)
+    quiet = noise_level(acc, rec.rate_hz, DetectorSettings(), gyro)
+    np.testing.assert_allclose(quiet.variance, rest.variance, rtol=0.12)
+    np.testing.assert_allclose(quiet.gyro_variance, rest.gyro_variance, rtol=0.12)
+    assert quiet.rest_samples == 0 and "quietest" in quiet.source
+    # Without the rest the start is no pose of its own unless it is still for min_static_s.
+    short = simulate_handheld(3, initial_rest_s=3.0)
+    poses = find_poses(short.accelerometer, short.rate_hz, DetectorSettings(), 5, gyro=short.gyroscope)
+    assert len(poses.intervals) == len(short.static)
+    assert np.all(poses.intervals[:, 0] >= short.static[:, 0])
+    assert np.all(poses.intervals[:, 1] <= short.static[:, 1])
+
+
+def test_a_too_short_recording_without_rest_names_the_option():
+    rec = recording(1, n_poses=3)
+    with pytest.raises(DetectionError, match=r"give --rest S if it starts with S seconds still"):
+        noise_level(rec.accelerometer[:2000], rec.rate_hz, DetectorSettings())

@@ -195,19 +195,19 @@ def test_malformed_lines_are_counted_with_their_line_numbers(tmp_path):
         b"   # indented comment",   # 15 comment
         b"\x00\x00\x00\x00",        # 16 NULs
         b"0.08 16 17 18\r",         # 17 sample, CRLF
-        b"0.09 19 20 21",           # 18 sample, no final newline
+        b"0.09 19 20 21",           # 18 no final newline: cut off mid-write, malformed
     ]
     data = tmp_path / "acc.txt"
     data.write_bytes(b"\n".join(lines))
     rec, report = import_with_report([data], write_map(tmp_path, [ACC]))
-    expected_bad = (1, 7, 8, 9, 10, 11, 12, 14, 16)
-    assert rec.malformed == {str(data): (9, expected_bad)}
-    assert np.array_equal(rec.t, [0.0, 0.01, 0.06, 0.08, 0.09])
+    expected_bad = (1, 7, 8, 9, 10, 11, 12, 14, 16, 18)
+    assert rec.malformed == {str(data): (10, expected_bad)}
+    assert np.array_equal(rec.t, [0.0, 0.01, 0.06, 0.08])
     assert np.array_equal(rec.triads["accelerometer"], [[1, 2, 3], [4, 5, 6], [10, 11, 12],
-                                                        [16, 17, 18], [19, 20, 21]])
+                                                        [16, 17, 18]])
     f = report.files[0]
-    assert (f.lines, f.samples, f.header_lines, f.malformed) == (18, 5, 1, 9)
-    assert report.warnings and report.warnings[0].startswith(f"{data}: 9 of 14 data lines (64.3 %)")
+    assert (f.lines, f.samples, f.header_lines, f.malformed, f.cut_off) == (18, 4, 1, 10, True)
+    assert report.warnings and report.warnings[0].startswith(f"{data}: 10 of 14 data lines (71.4 %)")
 
 
 NUMBER = re.compile(rb"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
@@ -231,9 +231,9 @@ def reference_lines(data: bytes, delimiter: str | None, comment: str | None):
         mapped = [fields[c] if c < len(fields) else None for c in range(4)]
         if all(number(f) for f in mapped):
             samples.append((no, float(mapped[0])))
-        elif not samples and not any(number(f) for f in mapped) and not CONTROL.search(line) \
+        elif not samples and not CONTROL.search(line) \
                 and line.decode("utf-8", "replace") == line.decode("utf-8", "ignore"):
-            headers += 1
+            headers += 1  # text before the data: a header or metadata line
         else:
             bad.append(no)
     return samples, bad, headers
@@ -255,8 +255,14 @@ def test_random_junk_is_classified_line_by_line_like_a_reference(tmp_path):
                  for i in range(rng.integers(2, 30))]
         data = b"\n".join(lines) + b"\n" * (rng.random() < 0.5)
         (tmp_path / "f.txt").write_bytes(data)
-        samples, bad, headers = reference_lines(data if data.endswith(b"\n") else data + b"\n",
+        last = data.rsplit(b"\n", 1)[-1].strip(b" \t\r")
+        cut_off = bool(last) and not (comment and last.startswith(comment.encode()))
+        # A last line with no line end is cut off: malformed, whatever it holds.
+        samples, bad, headers = reference_lines(data.rsplit(b"\n", 1)[0] + b"\n" if cut_off else
+                                                data if data.endswith(b"\n") else data + b"\n",
                                                 delimiter, comment)
+        if cut_off:
+            bad.append(data.count(b"\n") + 1)
         if len(samples) < 2:
             with pytest.raises(RecordingImportError, match="valid sample"):
                 import_recording([tmp_path / "f.txt"], import_map)
@@ -342,7 +348,8 @@ def mutate(path, value):
 
 
 @pytest.mark.parametrize(("path", "value", "field"), [
-    ((0, "time"), KeyError, "files[0].time: missing"),
+    ((0, "time", "column"), "", "files[0].time.column: expected a column number"),
+    ((0, "rate_hz"), 100, "files[0].rate_hz: expected no rate_hz when the file has a time column"),
     ((0, "time", "unit"), "minutes", "files[0].time.unit: expected 's' or 'ms'"),
     ((0, "time", "scale"), 1.0e-3, "files[0].time: expected either unit"),
     ((1, "time", "column"), -1, "files[1].time.column: expected a column number"),
@@ -383,7 +390,7 @@ def test_map_document_errors(tmp_path, text, expected):
 def test_shipped_maps_load_by_name_and_unknown_names_list_them():
     assert load_import_map("imu_tk").file_names == ("accelerometer file", "gyroscope file")
     assert load_import_map("single-csv").file_names == ("CSV log",)
-    with pytest.raises(ImportMapError, match=r"^imu-tk: no such import map .*imu_tk, single-csv"):
+    with pytest.raises(ImportMapError, match=r"^imu-tk: no such import map .*imu_tk, imucal, single-csv"):
         load_import_map("imu-tk")
 
 
@@ -518,3 +525,40 @@ def test_two_files_join_on_the_later_start(tmp_path):
              write_rows(tmp_path / "gyro.txt", t + 0.002, rng.integers(-32768, 32768, (n, 3)), time_fmt="%.4f")]
     rec = import_recording(files, "imu_tk")
     assert len(rec.t) == n - 1  # the first accelerometer sample is before the gyroscope's first
+
+
+def test_metadata_lines_named_columns_and_no_time_column(tmp_path):
+    """A logger's export: metadata lines, then a header naming the columns, no time column.
+    The columns are found by name wherever they are, the samples are 1 / rate apart."""
+    rng = np.random.default_rng(3)
+    acc, gyro = rng.normal(0, 1, (50, 3)), rng.normal(0, 1, (50, 3))
+    rows = "".join(f"{i},{g[0]!r},{g[1]!r},{g[2]!r},{a[0]!r},{a[1]!r},{a[2]!r}\n"
+                   for i, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())))
+    data = tmp_path / "log.csv"
+    data.write_text("Fs,100\nDevice,unit 7\nn,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n" + rows)
+    named = {"name": "log", "delimiter": ",",
+             "triads": {"accelerometer": {"columns": ["acc_x", "acc_y", "acc_z"], "kind": "specific_force",
+                                          "unit": "g", "scale": 1e-3},
+                        "gyroscope": {"columns": ["gyr_x", "gyr_y", "gyr_z"], "kind": "angular_rate",
+                                      "unit": "deg/s"}}}
+    rec, report = import_with_report([data], write_map(tmp_path, [dict(named, rate_hz=100)]))
+    np.testing.assert_array_equal(rec.triads["accelerometer"], acc * 1e-3)
+    np.testing.assert_array_equal(rec.triads["gyroscope"], gyro)
+    np.testing.assert_allclose(rec.t, np.arange(50) / 100, rtol=0, atol=1e-15)
+    assert (report.files[0].header_lines, report.files[0].malformed) == (3, 0)
+    assert rec.units == {"accelerometer": "g", "gyroscope": "deg/s"}
+    # The rate given at import overrides the map's; without either the file cannot be timed.
+    assert import_recording([data], write_map(tmp_path, [named], "bare.yaml"), rate_hz=50).rate_hz == pytest.approx(50)
+    with pytest.raises(RecordingImportError, match=r"has no time column: give its sample rate \(--rate HZ"):
+        import_recording([data], write_map(tmp_path, [named], "bare.yaml"))
+    wrong = dict(named, triads={"accelerometer": dict(named["triads"]["accelerometer"], columns=["ax", "ay", "az"])})
+    with pytest.raises(RecordingImportError, match=r"no header line names the columns ax, ay, az"):
+        import_recording([data], write_map(tmp_path, [wrong], "wrong.yaml"), rate_hz=100)
+
+
+def test_fieldcal_import_reports_a_cut_off_last_line(tmp_path, capsys):
+    data = write_rows(tmp_path / "acc.txt", [0.0, 0.01, 0.02], [[1, 2, 3]] * 3)
+    data.write_bytes(data.read_bytes() + b"0.03 1 2 3.")  # cut off mid-write
+    assert main([str(data), "--map", str(write_map(tmp_path, [ACC])), "--out", str(tmp_path / "s")]) == 0
+    out = capsys.readouterr().out
+    assert "1 malformed line not used: 4 (line 4 has no line end: cut off mid-write?)" in out

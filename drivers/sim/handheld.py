@@ -46,6 +46,27 @@ CONSUMER_NOISE = {
     "gyroscope": TriadNoise(white=0.005 * DEG, bias_instability=10.0 * DEG / 3600.0),
 }
 
+@dataclass(frozen=True)
+class RealWorld:
+    """What a real MEMS unit and logger add to the ideal recording (all off at zero).
+
+    ``g_sensitivity_deg_s_per_g``: 1σ of each entry of the gyro's g-sensitivity matrix G (the
+    rate reads G·specific force more), which shifts the still reading from pose to pose.
+    ``warm_up_deg_s`` / ``warm_up_tau_s``: a gyro bias that settles exponentially from this
+    offset after switch-on. ``temperature_ramp_k`` over the recording with
+    ``bias_tempco_deg_s_per_k`` on the gyro bias (each axis a random sign).
+    ``jitter_s``: 1σ timestamp jitter (kept increasing). ``drop_fraction``: samples lost by the
+    logger at random (the time column says so). Deterministic for the recording's seed."""
+
+    g_sensitivity_deg_s_per_g: float = 0.1
+    warm_up_deg_s: float = 0.05
+    warm_up_tau_s: float = 60.0
+    temperature_ramp_k: float = 5.0
+    bias_tempco_deg_s_per_k: float = 0.005
+    jitter_s: float = 2e-4
+    drop_fraction: float = 0.002
+
+
 _D = 1.0 / math.sqrt(3.0)
 # Default gravity directions (body up vectors): the six axes and the eight cube diagonals, ordered
 # so that consecutive poses are at most about 90° apart, the way a hand turns a unit.
@@ -287,7 +308,7 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
                       latitude_deg: float = 40.0, gravity: float = 9.80,
                       truth: dict[str, TriadTruth] | None = None,
                       directions: np.ndarray | None = None,
-                      table_turns: tuple = ()) -> HandheldRecording:
+                      table_turns: tuple = (), real_world: RealWorld | None = None) -> HandheldRecording:
     """A hand-held recording: initial rest (pose 0), then n_poses - 1 poses joined by hand motions.
 
     ``directions``: (n_poses, 3) body up vectors to use as they are (default: SPREAD_UP cycled
@@ -298,6 +319,10 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
     ``table_turns``: ``(pose, rate_deg_s, hold_s)`` each: after that pose's rest the unit, on a
     turntable, turns about the vertical (2 s ramps, ``hold_s`` at the rate), then rests 4 s at its
     new heading (a static interval of its own) before the hand takes it to the next pose.
+
+    ``real_world``: the effects of :class:`RealWorld` on top (g-sensitivity, warm-up and
+    temperature drift of the gyro bias, timestamp jitter, dropped samples); ``static`` and
+    ``turns`` then index the samples kept.
     """
     rng = np.random.default_rng(seed)
     truth = handheld_truth(raw_counts) if truth is None else truth
@@ -358,20 +383,37 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
     force, rate = np.concatenate(forces), np.concatenate(rates)
     t = np.arange(len(force)) / rate_hz
 
+    drift = np.zeros((len(t), 3))
+    if real_world is not None:  # extra gyro input, rad/s: g-sensitivity, warm-up, temperature
+        rw = real_world
+        G = rng.normal(0.0, rw.g_sensitivity_deg_s_per_g * DEG / 9.80665, (3, 3))
+        warm = rw.warm_up_deg_s * DEG * rng.choice([-1.0, 1.0], 3)
+        tempco = rw.bias_tempco_deg_s_per_k * DEG * rng.choice([-1.0, 1.0], 3)
+        drift = (force @ G.T + np.exp(-t / rw.warm_up_tau_s)[:, None] * warm
+                 + (rw.temperature_ramp_k * t / t[-1])[:, None] * tempco)
     out = {}
     for name, triad in truth.items():
-        true = force if triad.kind == SPECIFIC_FORCE else rate
+        true = force if triad.kind == SPECIFIC_FORCE else rate + drift
         raw = (true + NoiseGenerator(triad.noise, rate_hz, rng).draw(len(t))) @ triad.K.T + triad.bias
         if triad.lsb:
             raw = np.round(raw / triad.lsb) * triad.lsb
         if triad.output_unit == "count":
             raw = np.clip(raw, 0.0, 65535.0)  # a 16-bit converter saturates
         out[name] = raw
+    static = np.array(static, dtype=int)
+    turns = np.array(turns, dtype=int).reshape(-1, 2)
+    if real_world is not None:
+        keep = np.flatnonzero(rng.random(len(t)) >= real_world.drop_fraction)
+        jitter = np.clip(rng.normal(0.0, real_world.jitter_s, len(keep)), -0.4 / rate_hz, 0.4 / rate_hz)
+        t = t[keep] + jitter
+        out = {name: v[keep] for name, v in out.items()}
+        force, rate = force[keep], rate[keep]
+        static, turns = np.searchsorted(keep, static), np.searchsorted(keep, turns)  # the kept samples' indices
     return HandheldRecording(t=t, accelerometer=out["accelerometer"], gyroscope=out["gyroscope"],
-                             truth=dict(truth), static=np.array(static, dtype=int), attitudes=np.array(held),
+                             truth=dict(truth), static=static, attitudes=np.array(held),
                              motions=tuple(motions), rate_hz=float(rate_hz), latitude_deg=latitude_deg,
                              gravity=gravity, true_rate=rate, true_force=force,
-                             turns=np.array(turns, dtype=int).reshape(-1, 2), turn_rates=np.array(turn_rates))
+                             turns=turns, turn_rates=np.array(turn_rates))
 
 
 def to_text(rec: HandheldRecording, directory) -> tuple[Path, Path]:

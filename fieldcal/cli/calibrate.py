@@ -14,15 +14,24 @@ examples:
       calibrated, the parameter file written into the session
   fieldcal calibrate sessions/unit7 --config vn100
       a session made by `fieldcal import`; the station and the noise from a device config
+  fieldcal calibrate session.csv --map imucal --rate 102.4 --gravity 9.81
+      an imucal Ferraris session (six faces up, a full turn about each
+      axis): the aligned six-position solution is chosen by itself; no
+      latitude: the Earth rate is an error term
+  fieldcal calibrate flight.ulg
+      a PX4 log (pip install 'fieldcal[logs]'); no place, no gravity:
+      g from the poses, with a warning
 
-The recording must start with the unit still for --rest seconds (30 by default): that sets the
-noise level the static poses are found with, and the gyroscope's bias. Then put the unit down
-by hand in a dozen or more poses (every axis up and down, and some corners up), still for a few
-seconds each, turning it between them."""
+Put the unit down by hand in a dozen or more poses (every axis up and down,
+and some corners up), still for a few seconds each, turning it between them.
+The noise level the static poses are found with comes from the recording's
+quietest one-second windows; give --rest S when it starts with S seconds still
+to take it from there instead. The gyroscope's bias is the first pose's mean
+(less the vertical Earth rate), or estimated (--gyro-bias estimate)."""
 
 
 NOISE_FROM_CONFIG = "the config's noise model (bias instability included)"
-NOISE_FROM_REST = ("white, measured over the initial rest; the bias instability is not known, so "
+NOISE_FROM_REST = ("white, measured where the summary says; the bias instability is not known, so "
                    "the biases' σ may be too small (give --config with the device's noise)")
 
 
@@ -32,11 +41,13 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
         description="Find the static poses of a hand-held recording, calibrate every\n"
         "accelerometer-like triad by the norm method and the gyroscope from the rotations\n"
         "between poses (scale factors, all six gyro-to-accelerometer misalignment terms; the\n"
-        "bias from the initial rest or estimated), and write a parameter file.",
+        "bias from the first pose or estimated), and write a parameter file.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("recording", nargs="+", metavar="RECORDING",
                         help="a session directory from `fieldcal import`, or text files (with --map)")
     parser.add_argument("--map", metavar="MAP", help="import map for text files (see `fieldcal import`)")
+    parser.add_argument("--rate", type=float, metavar="HZ",
+                        help="sample rate of text files with no time column (else rate_hz in the map)")
     parser.add_argument("--out", default="sessions", metavar="DIR",
                         help="where the imported session goes (default ./sessions)")
     parser.add_argument("--config", metavar="CONFIG",
@@ -44,10 +55,11 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("--latitude", type=float, metavar="DEG", help="station latitude, °")
     parser.add_argument("--height", type=float, metavar="M", help="station height, m (default 0)")
     parser.add_argument("--gravity", type=float, metavar="M_S2", help="measured local gravity, m/s^2")
-    parser.add_argument("--rest", type=float, default=30.0, metavar="S",
-                        help="the still start, s (default 30)")
+    parser.add_argument("--rest", type=float, metavar="S",
+                        help="the recording starts with S seconds still: the noise level from there "
+                        "(default: from the quietest windows, no rest assumed)")
     parser.add_argument("--gyro-bias", choices=("rest", "estimate"), default="rest",
-                        help="gyro bias: the initial rest's mean (default) or estimated with the rest")
+                        help="gyro bias: the first pose's mean (default) or estimated with the rest")
     parser.add_argument("--method", choices=("powell", "lsq"), default="powell",
                         help="accelerometer solver (default powell)")
     parser.add_argument("--table-rate", type=float, metavar="DEG_S",
@@ -60,12 +72,15 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
 
 
 def _station(args, config):
+    """The station; an UnknownPlace when neither --latitude nor a config says where."""
     from fieldcal.earth import Station
+    from fieldcal.recording.calibrate import UnknownPlace
 
     base = config.station if config is not None else None
     if args.latitude is None and base is None:
-        raise ValueError("calibrate: give --latitude (and --height), or --config: gravity and the "
-                         "Earth rate depend on where the recording was made")
+        if args.gravity is not None and not 9.7 < args.gravity < 9.9:
+            raise ValueError(f"--gravity: expected 9.7..9.9 m/s^2, got {args.gravity:g}")
+        return UnknownPlace(gravity=args.gravity)
     latitude = args.latitude if args.latitude is not None else base.latitude_deg
     height = args.height if args.height is not None else (base.height_m if base else 0.0)
     gravity = args.gravity if args.gravity is not None else (base.gravity_m_s2 if base else None)
@@ -81,15 +96,14 @@ def _recording(args):
         if args.map is not None:
             raise ValueError(f"calibrate: {first} is a session: --map is for text files")
         return load_recording(first), first, []
-    if args.map is None:
-        raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
-                         "path); or give one session directory from `fieldcal import`")
-    from fieldcal.cli.importing import summary_lines
-    from fieldcal.recording.import_map import load_import_map
-    from fieldcal.recording.importer import import_with_report
+    from fieldcal.cli.importing import read_recording, summary_lines
+    from fieldcal.recording.logs import log_format
     from fieldcal.recording.store import save_recording
 
-    recording, report = import_with_report(args.recording, load_import_map(args.map))
+    if args.map is None and not (len(args.recording) == 1 and log_format(first)):
+        raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
+                         "path); or give one session directory from `fieldcal import`, or a PX4 log (.ulg)")
+    recording, report = read_recording(args.recording, args.map, args.rate)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
     return recording, directory, summary_lines(recording, report)
@@ -97,7 +111,7 @@ def _recording(args):
 
 def cmd_calibrate(args) -> int:
     from fieldcal.config import load_config
-    from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
+    from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
     from fieldcal.recording.detect import DetectorSettings
     from fieldcal.recording.results import parameter_file, summary_lines
     from fieldcal.session.capture import SessionReader, SessionWriter
@@ -106,7 +120,9 @@ def cmd_calibrate(args) -> int:
     station = _station(args, config)
     if args.table_rate is not None and not args.table_rate > 0:
         raise ValueError(f"--table-rate: expected a rate above 0 °/s, got {args.table_rate:g}")
-    if not args.rest > 0:
+    if args.rate is not None and not args.rate > 0:
+        raise ValueError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
+    if args.rest is not None and not args.rest > 0:
         raise ValueError(f"--rest: expected a positive number of seconds, got {args.rest:g}")
     if args.params:  # refused before anything is imported or written
         from fieldcal.session.output import check_output_path
@@ -120,15 +136,21 @@ def cmd_calibrate(args) -> int:
                                  estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
                                  table_rate_deg_s=args.table_rate)
     cal = calibrate_recording(recording, station, settings)
+    station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None)
     writer = SessionWriter.append_to(directory)  # refused if another fieldcal is writing it
     try:
         writer.write_parameters(pf)  # parameters-NNN.yaml: an earlier calibration is kept
     finally:
         writer.close()
-    print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
-          f"{station.gravity:.6f} m/s^2 ({station.gravity_source}); noise: "
-          f"{NOISE_FROM_CONFIG if noise else NOISE_FROM_REST}")
+    if isinstance(station, UnknownPlace):
+        print(f"WARNING: where the recording was made is not known (give --latitude, and --gravity if "
+              f"measured): g = {station.gravity:.6f} m/s^2 from {station.gravity_source}; the Earth rate "
+              "is carried as an error in the gyro's bias and rotations")
+    else:
+        print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
+              f"{station.gravity:.6f} m/s^2 ({station.gravity_source})")
+    print(f"noise: {NOISE_FROM_CONFIG if noise else NOISE_FROM_REST}")
     for line in summary_lines(cal):
         print(line)
     print(f"\nparameter file: {directory / 'parameters.yaml'} (a copy of "

@@ -26,6 +26,10 @@ examples:
       one CSV with time in ms, accelerometer in mg and gyroscope in deg/s
   fieldcal import log.txt --map my-layout.yaml --out sessions/unit7
       any layout: copy a map from configs/recordings/ and edit its columns and units
+  fieldcal import session.csv --map imucal --rate 102.4 --out sessions/unit7
+      columns found by their header names, no time column: the rate given
+  fieldcal import flight.ulg --out sessions/unit7
+      a PX4 log: sensor_combined (pip install 'fieldcal[logs]')
 
 The map says, per file, the delimiter, the time column and its unit, and for each triad its
 three columns, kind (specific_force or angular_rate), unit and an optional scale. Lines that
@@ -45,10 +49,13 @@ def add_import_parser(sub) -> argparse.ArgumentParser:
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("files", nargs="+", metavar="FILE",
                         help="the recording's files, in the order of the map's entries")
-    parser.add_argument("--map", required=True, metavar="MAP",
-                        help=f"import map: a name in configs/recordings ({maps}) or a YAML path")
+    parser.add_argument("--map", metavar="MAP",
+                        help=f"import map for text files: a name in configs/recordings ({maps}) or a YAML "
+                        "path; a PX4 log (.ulg) needs none")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="the new session directory (must not exist, or be empty)")
+    parser.add_argument("--rate", type=float, metavar="HZ",
+                        help="sample rate of files with no time column (else rate_hz in the map)")
     parser.set_defaults(func=cmd_import)
     return parser
 
@@ -63,8 +70,9 @@ def cmd_import(args) -> int:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise RecordingImportError(f"{out}: already exists and is not empty (give --out a new "
                                    "directory)", str(out))
-    import_map = load_import_map(args.map)
-    recording, report = import_with_report(args.files, import_map)
+    if args.rate is not None and not args.rate > 0:
+        raise RecordingImportError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
+    recording, report = read_recording(args.files, args.map, args.rate)
     try:
         directory = save_recording(recording, out, report=report)
     except OSError as exc:
@@ -76,12 +84,25 @@ def cmd_import(args) -> int:
     return 0
 
 
+def read_recording(files, map_name, rate_hz=None) -> tuple[Recording, ImportReport]:
+    """A log by its format's reader, or text files by their import map."""
+    from fieldcal.recording.logs import import_log, log_format
+
+    if map_name is None:
+        if len(files) == 1 and log_format(files[0]) is not None:
+            return import_log(files[0])
+        raise RecordingImportError("text files need --map (a name in configs/recordings or a YAML path); "
+                                   "a PX4 log (.ulg) needs none")
+    return import_with_report(files, load_import_map(map_name), rate_hz)
+
+
 def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
     """What was read and done, a few lines per file; warnings last, in capitals."""
     from fieldcal.recording.importer import GAP_PERIODS
 
     n = len(report.files)
-    lines = [f"imported {n} file{'s' * (n != 1)} with the map {report.map_path}:"]
+    how = report.map_path if report.map_path.startswith("(") else f"with the map {report.map_path}"
+    lines = [f"imported {n} file{'s' * (n != 1)} {how}:"]
     for f in report.files:
         lines.append(f"  {f.name}: {f.path}: {f.samples} samples of {f.lines} lines, "
                      f"{f.rate_hz:.6g} Hz, t {f.t_first:.6g} .. {f.t_last:.6g} s")
@@ -90,7 +111,8 @@ def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
         if f.malformed:
             first = ", ".join(map(str, f.malformed_lines))
             more = ", ..." if f.malformed > len(f.malformed_lines) else ""
-            lines.append(f"    {_count(f.malformed, 'malformed line')} not used: {first}{more}")
+            cut = f" (line {f.lines} has no line end: cut off mid-write?)" if f.cut_off else ""
+            lines.append(f"    {_count(f.malformed, 'malformed line')} not used: {first}{more}{cut}")
         else:
             lines.append("    no malformed lines")
         if f.gaps:

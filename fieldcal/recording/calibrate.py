@@ -4,10 +4,12 @@ poses, with no procedure and no operator.
 
 The threshold multiple of the pose detector is chosen as imu_tk chooses it: each multiple's
 poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
-wins. The noise comes from the device's noise model when one is given (exact covariance of the
-pose means, bias instability included), else from the initial rest: its per-axis variance
+wins. Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
+is more data, though only distinct poses count for the spread. The noise comes from the device's noise model when one is given (exact covariance of the
+pose means, bias instability included), else from the detector's noise level (the initial rest
+given by ``--rest``, or the recording's quietest windows): its per-axis variance
 weights each pose mean (white noise over the pose's samples), and the σ are scaled up by
-χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the initial rest's mean less the
+χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the first pose's mean less the
 vertical Earth rate, which the accelerometer's up direction fixes; the horizontal Earth rate,
 whose heading a hand-held recording cannot know, widens the bias's σ and each motion's
 residual instead of biasing them. A gyro reporting raw counts needs no nominal sensitivity: a
@@ -36,8 +38,45 @@ from fieldcal.solvers.rotation import scale_misfits, solve_gyro_rotations
 RATE_UNITS = {"rad/s": 1.0, "mrad/s": 1e3, "deg/s": 180 / math.pi, "°/s": 180 / math.pi,
               "dps": 180 / math.pi, "mdeg/s": 180e3 / math.pi}
 # Specific-force units with a known zero: gravity directions need no sphere fit.
-FORCE_UNITS = ("m/s^2", "m/s2", "g", "mg")
+FORCE_UNITS = ("m/s^2", "m/s2", "m/s²", "g", "mg")
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
+
+
+STANDARD_GRAVITY = 9.80665  # m/s^2 per g, by definition
+_SI_PER_FORCE_UNIT = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY, "mg": STANDARD_GRAVITY * 1e-3}
+
+
+@dataclass(frozen=True)
+class UnknownPlace:
+    """A recording whose place is not known: no latitude, so the Earth rate (7.29e-5 rad/s, its
+    direction unknown) is an error term of Ω²/3 per axis instead of a known vertical part.
+    ``gravity``: m/s^2 as given, or None: taken from the pose means (see calibrate_recording).
+    Written to a parameter file as latitude 0 with the source saying the place is unknown."""
+
+    gravity: float | None = None
+    gravity_source: str = "given (--gravity); place unknown"
+    latitude_deg: float = 0.0
+    height_m: float = 0.0
+
+    @property
+    def latitude_rad(self) -> float:
+        return 0.0
+
+
+def gravity_from_poses(means: np.ndarray, unit: str) -> tuple[float, str]:
+    """(g in m/s^2, where it came from) when nothing tells: the median norm of the pose means in
+    a unit with a known scale (its scale error goes into g, so the scale factors are relative to
+    it), else standard gravity (within ±0.3 % of any place on Earth)."""
+    factor = _SI_PER_FORCE_UNIT.get(unit)
+    if factor is None:
+        return STANDARD_GRAVITY, "standard gravity (place unknown, raw counts: scale factors relative to it)"
+    g = float(np.median(np.linalg.norm(means, axis=1))) * factor
+    return g, f"the pose means' median norm in {unit} (place unknown: scale factors relative to it)"
+
+
+NORM_PROTOCOL = "hand-held poses: the norm method for the accelerometer, the rotations for the gyro"
+ALIGNED_PROTOCOL = ("Ferraris: six axis-aligned poses and full turns; the aligned six-position solution for "
+                    "the accelerometer (the norm method needs 9 poses), the turns' ±2π integrals for the gyro")
 
 
 @dataclass(frozen=True)
@@ -45,7 +84,7 @@ class RecordingSettings:
     detector: DetectorSettings = field(default_factory=DetectorSettings)
     method: str = "powell"  # the specific-force triads' norm solver
     gyro_method: str = "lsq"
-    estimate_gyro_bias: bool = False  # else the initial rest's mean (less the vertical Earth rate)
+    estimate_gyro_bias: bool = False  # else the first pose's mean (less the vertical Earth rate)
     # The device's noise per triad (SI), e.g. from its config: pose means then get their exact
     # covariance, bias instability included. Without it, white noise measured over the rest.
     noise: dict = field(default_factory=dict)
@@ -59,12 +98,15 @@ class RecordingCalibration:
     spread: SpreadReport
     tried: tuple[tuple[float, int, str], ...]  # (multiple, distinct poses, χ²/dof or why not)
     specific_force: dict[str, Calibration]
-    angular_rate: dict[str, Calibration]
+    angular_rate: dict[str, Calibration]  # method classic: the Ferraris turns
     failures: dict[str, str]
     reference_triad: str
     gyro_bias_sigma: dict[str, np.ndarray]  # 1σ of each gyro's bias (output units)
     turns: np.ndarray  # (k, 2) [start, stop) samples of steady turntable turns found
     table_rate_used: bool = False  # the turns went into the gyro solve as rate equations
+    noise_source: str = "the initial rest"  # where the detector's noise level was measured
+    place: Station | UnknownPlace | None = None  # the station used (gravity filled in when unknown)
+    protocol: str = NORM_PROTOCOL  # which solution was chosen, and why
 
 
 def _names(recording: Recording, kind: str) -> list[str]:
@@ -120,7 +162,7 @@ def _up_vectors(acc: Calibration, means: np.ndarray, means_cov: np.ndarray) -> t
     return u, D @ (J_theta @ acc.covariance @ J_theta.T + J_means @ means_cov @ J_means.T) @ D.T
 
 
-def calibrate_recording(recording: Recording, station: Station,
+def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
                         settings: RecordingSettings = RecordingSettings()) -> RecordingCalibration:
     """Raises DetectionError (poses too few or badly spread, the rest not still) or
     CalibrationError (the reference accelerometer cannot be solved) with a one-line message."""
@@ -133,23 +175,30 @@ def calibrate_recording(recording: Recording, station: Station,
     acc = recording.triads[reference]
     gyro = recording.triads[rates[0]] if rates else None
     best, tried, solved = None, [], {}
-    rest_noise = noise_level(acc, rate_hz, det)  # weights every candidate's pose means
+    rest_noise = noise_level(acc, rate_hz, det, gyro)  # weights every candidate's pose means
     zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
     if gyro is not None:  # on a turntable the accelerometer is as still as in a pose
-        turn_mask, smooth = turning(gyro, rate_hz, slice(0, round(det.init_rest_s * rate_hz)))
-    for poses in pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro):
+        turn_mask, smooth = turning(gyro, acc, rate_hz, rest_noise, det, RATE_UNITS.get(recording.units[rates[0]]))
+    candidates = pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro, noise=rest_noise)
+    if isinstance(station, UnknownPlace) and station.gravity is None:
+        middle = candidates[len(candidates) // 2]
+        station = replace(station, **dict(zip(("gravity", "gravity_source"),
+                                              gravity_from_poses(middle.means, recording.units[reference]))))
+    split = []  # each candidate's poses with the turning stretches taken out
+    for poses in candidates:
         turns = np.zeros((0, 2), int)
         if gyro is not None:
             poses, turns = split_poses(poses, acc, turn_mask, smooth, rate_hz, det, zero)
+        split.append(poses)
         key = poses.intervals.tobytes()
         spread = check_spread(poses.up[poses.distinct], det.min_poses, det.cover_deg, det.min_design)
         if not spread.ok:
             tried.append((poses.multiple, spread.count, spread.message))
             continue
         if key not in solved:  # several multiples often find the same intervals
-            keep = poses.intervals[poses.distinct]
+            keep = poses.intervals
             try:
-                solved[key] = _solve_static(reference, recording.units[reference], poses.means[poses.distinct],
+                solved[key] = _solve_static(reference, recording.units[reference], poses.means,
                                             keep, recording.t, rest_noise.variance, station.gravity, settings)
             except CalibrationError as exc:
                 solved[key] = str(exc)
@@ -159,13 +208,17 @@ def calibrate_recording(recording: Recording, station: Station,
         if not isinstance(sol, str) and (best is None or sol.diagnostics.chi2 / max(sol.diagnostics.dof, 1) < best[2]):
             best = (poses, spread, sol.diagnostics.chi2 / max(sol.diagnostics.dof, 1), sol, turns)
     if best is None:
+        aligned = _aligned_protocol(recording, station, split, reference, forces, rates, rest_noise, tried,
+                                    settings)
+        if aligned is not None:
+            return aligned
         most = max(tried, key=lambda x: x[1])
         raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
-                             f"{most[0]:g}× the rest noise): {most[2]}")
+                             f"{most[0]:g}× the noise level): {most[2]}")
     poses, spread, _, acc_solution, turns = best
     failures: dict[str, str] = {}
     specific_force = {reference: acc_solution}
-    keep = poses.intervals[poses.distinct]
+    keep = poses.intervals
     for name in forces:
         if name == reference:
             continue
@@ -186,7 +239,7 @@ def calibrate_recording(recording: Recording, station: Station,
             failures[name] = str(exc)
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures,
-                                reference, bias_sigma, turns, used)
+                                reference, bias_sigma, turns, used, rest_noise.source, station)
 
 
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration, acc_var: np.ndarray,
@@ -206,11 +259,14 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
     k = RATE_UNITS.get(unit)
     if k is None:  # raw counts: the scale that makes the rotations fit
         k = float(_SCAN[int(np.argmin(scale_misfits(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)))])
-    sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
-    b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
-    # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
-    horizontal = EARTH_RATE * cos_lat
-    bias_sigma = k * np.sqrt(horizontal**2 / 2 + rest_var / k**2 / counts[0])
+    if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
+        b0, earth_var = rest_mean, EARTH_RATE**2 / 3
+    else:
+        sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
+        b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
+        # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
+        earth_var = (EARTH_RATE * cos_lat) ** 2 / 2
+    bias_sigma = k * np.sqrt(earth_var + rest_var / k**2 / counts[0])
     arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
     duration = t[spans[:, 1]] - t[spans[:, 0]]
     extra = None
@@ -220,6 +276,53 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
     solution = solve_gyro_rotations(
         t, gyro, spans, up[:-1], up[1:], K0=k, b0=b0, estimate_bias=settings.estimate_gyro_bias,
         bias_sigma=bias_sigma, up_covariance=up_cov, rate_noise=arw, extra_residuals=extra,
-        motion_variance=(horizontal * duration) ** 2 / 2, method=settings.gyro_method, name=name,
+        motion_variance=earth_var * duration**2, method=settings.gyro_method, name=name,
         output_unit=unit)
     return solution, solution.sigma[:3]  # bias_sigma when the bias was held
+
+
+def _aligned_protocol(recording, station, candidates, reference, forces, rates, noise,
+                      tried, settings) -> RecordingCalibration | None:
+    """The Ferraris protocol's solution when some threshold's poses are the six aligned ones
+    (see ``fieldcal.recording.ferraris``); None when none is."""
+    from fieldcal.recording import ferraris
+
+    found = [(p, axes) for p in candidates if (axes := ferraris.aligned_axes(p.up)) is not None]
+    if not found:
+        return None
+    poses, axes = max(found, key=lambda pa: len(pa[0].intervals))  # the most intervals: more data
+    failures: dict[str, str] = {}
+    specific_force, angular_rate, bias_sigma = {}, {}, {}
+    for name in forces:
+        values, unit = recording.triads[name], recording.units[name]
+        means = interval_means(values, poses.intervals)
+        # White noise of the detector's level (or this triad's first pose); with the device's
+        # noise model the exact covariance, bias instability included, at the nominal scale.
+        variance = noise.variance if name == reference else np.var(
+            values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
+        scale = np.eye(3) * (float(np.median(np.linalg.norm(means, axis=1))) / station.gravity)
+        covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
+        try:
+            specific_force[name] = ferraris.solve_aligned_accelerometer(
+                name, unit, means, axes, station.gravity, covariance)
+        except CalibrationError as exc:
+            if name == reference:
+                raise
+            failures[name] = str(exc)
+    acc = specific_force[reference]
+    up = ferraris.up_vectors(acc, interval_means(recording.triads[reference], poses.intervals))
+    latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
+    for name in rates:
+        gyro = recording.triads[name]
+        turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]))
+        try:
+            angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
+                                                           poses.intervals, axes, turns, latitude,
+                                                           up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))))
+            bias_sigma[name] = angular_rate[name].sigma[:3]
+        except DetectionError as exc:
+            failures[name] = str(exc)
+    spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
+                          message="6 distinct poses, each along an axis (Ferraris)")
+    return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
+                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station, ALIGNED_PROTOCOL)

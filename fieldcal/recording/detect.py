@@ -9,8 +9,13 @@ as imu_tk does. Pure numpy: no I/O, no clock; sample index / rate is the time.
 API (``acc``: (n, 3) accelerometer samples in any unit, ``rate_hz``: sample rate):
 
 * :class:`DetectorSettings`, :class:`DetectionError` (a ValueError, one line: what and what to do).
-* ``noise_level(acc, rate_hz, settings) -> NoiseLevel``: per-axis variance and imu_tk's base level
-  over the initial rest, which must be still (refused if bumped or drifting) and followed by data.
+* ``noise_level(acc, rate_hz, settings, gyro=None) -> NoiseLevel``: per-axis variance and imu_tk's
+  base level. With ``settings.init_rest_s`` (the ``--rest`` option) over that initial rest, which
+  must be still (refused if bumped or drifting) and followed by data; without it (real logs start
+  with 2-8 s of rest, or none) over the quietest windows of the whole recording: the windows
+  within twice the 10th percentile of the window statistic, i.e. every still window and no
+  moving one, whose mean variance is the white noise (each window's own mean removed, so a
+  bias that shifts between poses does not count as noise).
 * ``static_intervals(acc, rate_hz, noise, multiple, settings) -> (m, 2)``: [start, stop) sample
   indices, the initial rest first. The long window finds the static runs; each edge is then placed
   by a short window (``edge_window_s``) on the deviation from the run's own mean, which sees the
@@ -44,7 +49,8 @@ class DetectionError(ValueError):
 
 @dataclass(frozen=True)
 class DetectorSettings:
-    """``init_rest_s``: the still start that sets the noise level (required). ``window_s``: the
+    """``init_rest_s``: the still start that sets the noise level (``--rest``); None: the quietest
+    windows set it and no rest is assumed. ``window_s``: the
     variance window. ``min_static_s``: shorter static stretches are not poses. ``multiples``:
     thresholds tried by :func:`pose_candidates`. ``min_separation_deg``: a pose this close to an
     earlier distinct one is a duplicate. ``min_poses``: distinct poses needed (9 unknowns per
@@ -55,7 +61,7 @@ class DetectorSettings:
     the whole rest (a slow tilt, settling).
     ``min_design``: smallest singular value per √pose of the norm method's regressors."""
 
-    init_rest_s: float = 30.0
+    init_rest_s: float | None = None
     window_s: float = 1.0
     min_static_s: float = 2.0
     multiples: tuple[float, ...] = (2, 3, 4, 5, 6, 8, 10, 13, 16, 20)
@@ -72,12 +78,16 @@ class DetectorSettings:
 
 @dataclass(frozen=True)
 class NoiseLevel:
-    """Over the initial rest: accelerometer per-axis variance (input units²), ``base`` = its norm
-    (imu_tk), and the gyroscope's per-axis variance when one was given."""
+    """Accelerometer per-axis white-noise variance (input units²), ``base`` = its norm (imu_tk),
+    and the gyroscope's per-axis variance when one was given. ``rest_samples``: the initial rest
+    that is a pose whatever the threshold (0 without ``--rest``); ``source``: where the level was
+    measured, for the summary."""
 
     variance: np.ndarray
     base: float
     gyro_variance: np.ndarray | None = None
+    rest_samples: int = 0
+    source: str = "the initial rest"
 
 
 @dataclass(frozen=True)
@@ -122,9 +132,15 @@ def window_statistic(acc: np.ndarray, rate_hz: float, settings: DetectorSettings
     return np.pad(stat, (half, len(acc) - len(stat) - half), mode="edge")
 
 
+QUIET_PERCENTILE = 10.0  # the quietest windows: within QUIET_SPAN times this percentile
+QUIET_SPAN = 2.0
+
+
 def noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
                 gyro: np.ndarray | None = None) -> NoiseLevel:
     acc = np.asarray(acc, dtype=float)
+    if settings.init_rest_s is None:
+        return quiet_noise_level(acc, rate_hz, settings, gyro)
     rest_n = _samples(settings.init_rest_s, rate_hz)
     window = 2 * _half_window(rate_hz, settings) + 1
     if rest_n < 3 * window:  # the noise level is the median over windows: it needs several
@@ -135,7 +151,8 @@ def noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
     if len(acc) < rest_n + window:
         raise DetectionError(
             f"recording is {len(acc) / rate_hz:.1f} s long, but it must start with {settings.init_rest_s:g} s "
-            f"of rest followed by the poses: record the unit still for {settings.init_rest_s:g} s first")
+            f"of rest followed by the poses: give a shorter --rest, or none (the noise then comes from "
+            f"the quietest windows)")
     rest = acc[:rest_n]
     variance = rest.var(axis=0)
     base = float(np.linalg.norm(variance))
@@ -151,19 +168,70 @@ def noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
         raise DetectionError(
             f"the initial {settings.init_rest_s:g} s rest is not still (at {(peak + window / 2) / rate_hz:.1f} s "
             f"the accelerometer variance is {windows[peak] / typical:.0f}x its typical level): keep the unit "
-            f"still at the start, or lower init_rest_s")
+            f"still at the start, or give a shorter --rest, or none")
     if base > settings.rest_drift_ratio * typical:
         raise DetectionError(
             f"the initial {settings.init_rest_s:g} s rest drifts (accelerometer variance over it is "
             f"{base / typical:.1f}x that of {settings.window_s:g} s windows): set the unit down firmly and "
-            f"let it settle before recording")
+            f"let it settle before recording, or give a shorter --rest, or none")
     gyro_variance = None
     if gyro is not None:
         gyro_variance = np.asarray(gyro[:rest_n], dtype=float).var(axis=0)
         if not np.all(gyro_variance > 0):
             raise DetectionError("gyroscope shows no noise on some axis over the initial rest: check "
                                  "that the file holds live samples")
-    return NoiseLevel(variance=variance, base=base, gyro_variance=gyro_variance)
+    return NoiseLevel(variance=variance, base=base, gyro_variance=gyro_variance, rest_samples=rest_n,
+                      source=f"the initial {settings.init_rest_s:g} s rest")
+
+
+def window_variances(values: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis variance (k, d) and mean (k, d) of the k whole non-overlapping windows."""
+    k = len(values) // window
+    blocks = np.asarray(values[:k * window], dtype=float).reshape(k, window, -1)
+    return blocks.var(axis=1), blocks.mean(axis=1)
+
+
+def _quietest(variance: np.ndarray, among: np.ndarray) -> np.ndarray:
+    """Of the windows ``among``, those whose variance norm is within QUIET_SPAN times the
+    QUIET_PERCENTILE-th percentile."""
+    stat = np.linalg.norm(variance, axis=1)
+    if not among.any():
+        return among
+    return among & (stat <= QUIET_SPAN * np.percentile(stat[among], QUIET_PERCENTILE))
+
+
+def quiet_windows(acc: np.ndarray, rate_hz: float, settings: DetectorSettings) -> np.ndarray:
+    """(k,) bool over the non-overlapping ``window_s`` windows: the quietest, i.e. still ones."""
+    variance, _ = window_variances(acc, 2 * _half_window(rate_hz, settings) + 1)
+    return _quietest(variance, np.ones(len(variance), dtype=bool))
+
+
+def quiet_noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
+                      gyro: np.ndarray | None = None) -> NoiseLevel:
+    """The white noise of the still windows, when the recording has no known initial rest."""
+    window = 2 * _half_window(rate_hz, settings) + 1
+    min_windows = max(3, math.ceil(settings.min_static_s * rate_hz / window))
+    if len(acc) < 10 * min_windows * window:
+        raise DetectionError(
+            f"recording is {len(acc) / rate_hz:.1f} s long: too short to find its noise level from "
+            f"its quietest {settings.window_s:g} s windows; record the poses for longer, or give "
+            f"--rest S if it starts with S seconds still")
+    quiet = quiet_windows(acc, rate_hz, settings)
+    variance = window_variances(acc, window)[0][quiet].mean(axis=0) * window / (window - 1)
+    base = float(np.linalg.norm(variance))
+    if not (math.isfinite(base) and base > 0):
+        raise DetectionError("accelerometer shows no noise at all in its quietest windows: check that "
+                             "the file holds live samples")
+    gyro_variance = None
+    if gyro is not None:
+        # A turntable turns with the accelerometer still: of its quiet windows, the gyro's quietest.
+        windows = window_variances(gyro, window)[0]
+        gyro_variance = windows[_quietest(windows, quiet)].mean(axis=0) * window / (window - 1)
+        if not np.all(gyro_variance > 0):
+            raise DetectionError("gyroscope shows no noise on some axis in the quietest windows: check "
+                                 "that the file holds live samples")
+    return NoiseLevel(variance=variance, base=base, gyro_variance=gyro_variance, rest_samples=0,
+                      source=f"the quietest {settings.window_s:g} s windows ({int(quiet.sum())} of {len(quiet)})")
 
 
 def _runs(mask: np.ndarray) -> np.ndarray:
@@ -194,12 +262,12 @@ def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multipl
         data = np.hstack([acc, np.asarray(gyro, dtype=float)])
         variance = np.r_[noise.variance, noise.gyro_variance]
     half = _half_window(rate_hz, settings)
-    rest_n = _samples(settings.init_rest_s, rate_hz)
+    rest_n = noise.rest_samples
     quiet = window_statistic(acc, rate_hz, settings) < multiple * noise.base
-    quiet[: rest_n - half] = True  # noise_level has checked the initial rest: always a pose
+    quiet[: max(rest_n - half, 0)] = True  # noise_level has checked the initial rest: always a pose
     min_n = _samples(settings.min_static_s, rate_hz)
     runs = _runs(quiet)
-    runs = runs[(runs[:, 0] == 0) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)]
+    runs = runs[((runs[:, 0] == 0) & (rest_n > 0)) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)]
 
     k = _samples(settings.edge_window_s, rate_hz)
     guard = round(settings.guard_s * rate_hz)
@@ -223,7 +291,7 @@ def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multipl
     out = np.array(out, dtype=int).reshape(-1, 2)
     if len(out) > 1:
         out[1:, 0] = np.maximum(out[1:, 0], out[:-1, 1])  # neighbours never share samples
-    keep = (out[:, 1] - out[:, 0] >= min_n) | (out[:, 0] == 0)
+    keep = (out[:, 1] - out[:, 0] >= min_n) | ((out[:, 0] == 0) & (rest_n > 0))
     return out[keep]
 
 
@@ -280,10 +348,11 @@ def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, mult
 
 
 def pose_candidates(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
-                    zero=None, sensitivity=None, gyro: np.ndarray | None = None) -> list[Poses]:
-    """The poses for each of ``settings.multiples``, the noise level measured once."""
+                    zero=None, sensitivity=None, gyro: np.ndarray | None = None,
+                    noise: NoiseLevel | None = None) -> list[Poses]:
+    """The poses for each of ``settings.multiples``, the noise level measured once (or given)."""
     acc = np.asarray(acc, dtype=float)
-    noise = noise_level(acc, rate_hz, settings, gyro)
+    noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
     return [find_poses(acc, rate_hz, settings, m, noise, zero, sensitivity, gyro) for m in settings.multiples]
 
 

@@ -10,9 +10,16 @@ An import map is a YAML file (``configs/recordings/NAME.yaml``, or any path)::
         comment: "#"                    # prefix of lines to skip (default "#"; null for none)
         time: {column: 0, unit: s}      # 0-based column; unit s, ms, us or ns, or instead
                                         #   scale: seconds per text unit (e.g. 1.0e-4)
+        # or no time column at all: the samples are 1 / rate_hz apart (or `--rate` at import)
+        rate_hz: 100
         triads:
           accelerometer: {columns: [1, 2, 3], kind: specific_force, unit: count}
           # optional scale: the value kept is text value * scale, in the unit named
+
+Columns (and the time column) may be given by their names in the file's header line instead of
+numbers, e.g. ``columns: [acc_x, acc_y, acc_z]``: the header is the last text line before the
+first sample that holds them all; metadata lines above it (``Fs,100``, ``Device,...``) are
+skipped as header lines.
 
 Every problem is one line naming the file and the dotted field, as a :class:`ImportMapError`.
 The parsing itself is ``drivers.protocols.delimited``: each entry becomes a ChannelMap.
@@ -44,12 +51,42 @@ class ImportMapError(ValueError):
 
 @dataclass(frozen=True)
 class FileSpec:
-    """One input file: its name for messages, how to parse it, and its triads' kinds and units."""
+    """One input file: its name for messages, how to parse it, and its triads' kinds and units.
+
+    ``channel_map`` is None when a column is named (``names``: the names to find in the header
+    line, ``channels``: the mapping to complete with their numbers, see :meth:`resolve`).
+    ``rate_hz``: the sample rate of a file with no time column."""
 
     name: str
-    channel_map: ChannelMap
+    channel_map: ChannelMap | None
     kinds: dict[str, str]
     units: dict[str, str]
+    rate_hz: float | None = None
+    names: tuple[str, ...] = ()
+    channels: dict | None = None
+    where: str = ""  # the entry's place in the map, for messages
+
+    @property
+    def has_time(self) -> bool:
+        return (self.channels or {}).get("time_column") is not None if self.channel_map is None \
+            else self.channel_map.time_column is not None
+
+    def resolve(self, header: list[str], path: str) -> ChannelMap:
+        """The channel map with each named column replaced by its number in ``header``."""
+        if self.channel_map is not None:
+            return self.channel_map
+        index = {name: i for i, name in reversed(list(enumerate(header)))}
+
+        def number(column):
+            return index[column] if isinstance(column, str) else column
+        channels = dict(self.channels)
+        channels["time_column"] = number(channels["time_column"])
+        channels["triads"] = {t: dict(body, columns=[number(c) for c in body["columns"]])
+                              for t, body in channels["triads"].items()}
+        try:
+            return ChannelMap.from_mapping(channels, self.where)
+        except ValueError as exc:
+            raise ImportMapError(f"{path}: {exc}", path, self.where) from None
 
 
 @dataclass(frozen=True)
@@ -112,9 +149,17 @@ def parse_import_map(doc, path: str, text: str = "") -> ImportMap:
 
 
 def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
-    m = r.mapping(entry, where, ("time", "triads"), ("name", "delimiter", "comment"))
+    m = r.mapping(entry, where, ("triads",), ("name", "delimiter", "comment", "time", "rate_hz"))
     name = r.string(m, "name", where, optional=True) or f"file {index + 1}"
-    time_column, time_scale = _time(r, m["time"], join(where, "time"))
+    time_column, time_scale = (None, 1.0) if m.get("time") is None else _time(r, m["time"], join(where, "time"))
+    rate_hz = None
+    if "rate_hz" in m:
+        rate_hz = r.number(m, "rate_hz", where)
+        if not rate_hz > 0:
+            r.fail(join(where, "rate_hz"), "a sample rate > 0 (Hz)", describe(m["rate_hz"]))
+        if time_column is not None:
+            r.fail(join(where, "rate_hz"), "no rate_hz when the file has a time column (the "
+                   "timestamps give the rate)", describe(m["rate_hz"]))
 
     triads_in = m["triads"]
     if not isinstance(triads_in, dict) or not triads_in:
@@ -138,25 +183,39 @@ def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
         if "scale" in t:
             columns[tname]["scale"] = t["scale"]
         cols = t["columns"] if isinstance(t["columns"], list) else []
-        clash = [k for k, c in enumerate(cols) if type(c) is int and c == time_column]
+        clash = [k for k, c in enumerate(cols) if type(c) in (int, str) and c == time_column]
         if clash:  # checked here: ChannelMap would name the time column "time_column"
             r.fail(f"{here}.columns[{clash[0]}]", f"a column not used elsewhere (also "
                    f"{where}.time.column)", describe(time_column))
 
     channels = {"delimiter": m.get("delimiter", ","), "comment": m.get("comment", "#"),
                 "time_column": time_column, "time_scale": time_scale, "triads": columns}
+    names = tuple(c for c in [time_column] + [c for body in columns.values()
+                                             for c in (body["columns"] if isinstance(body["columns"], list) else [])]
+                  if isinstance(c, str))
+    # Named columns are numbered once the header is read; the rest is checked now, with numbers
+    # standing in for the names, by the parser's own validation.
+    stand_in = {n: 10_000 + i for i, n in enumerate(dict.fromkeys(names))}
+    trial = dict(channels, time_column=stand_in.get(time_column, time_column),
+                 triads={t: dict(b, columns=[stand_in.get(c, c) if isinstance(c, str) else c for c in b["columns"]]
+                                 if isinstance(b["columns"], list) else b["columns"]) for t, b in columns.items()})
     try:  # delimiter, comment, columns and scales are checked by the parser's own validation
-        channel_map = ChannelMap.from_mapping(channels, where)
+        channel_map = ChannelMap.from_mapping(trial, where)
     except ValueError as exc:
         raise ImportMapError(f"{r.path}: {exc}", r.path, where) from None
-    return FileSpec(name=name, channel_map=channel_map, kinds=kinds, units=units)
+    if names:
+        return FileSpec(name=name, channel_map=None, kinds=kinds, units=units, rate_hz=rate_hz,
+                        names=tuple(dict.fromkeys(names)), channels=channels, where=where)
+    return FileSpec(name=name, channel_map=channel_map, kinds=kinds, units=units, rate_hz=rate_hz, where=where)
 
 
 def _time(r: FieldReader, raw, where: str) -> tuple[int, float]:
     m = r.mapping(raw, where, ("column",), ("unit", "scale"))
     column = m["column"]
-    if isinstance(column, bool) or not isinstance(column, int) or column < 0:
-        r.fail(join(where, "column"), "a column number (0-based integer >= 0)", describe(column))
+    named = isinstance(column, str) and column.strip() != ""
+    if not named and (isinstance(column, bool) or not isinstance(column, int) or column < 0):
+        r.fail(join(where, "column"), "a column number (0-based integer >= 0) or its name in the "
+               "header line", describe(column))
     if ("unit" in m) == ("scale" in m):  # exactly one: a guessed time unit is a silent 1000x
         r.fail(where, "either unit (s, ms, us, ns) or scale (seconds per text unit), not "
                f"{'both' if 'unit' in m else 'neither'}", "a mapping with keys " + ", ".join(m))

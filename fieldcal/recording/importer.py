@@ -7,7 +7,12 @@ needs that a live stream does not:
 - Lines that do not parse are malformed: counted, and their 1-based line numbers reported,
   never used. The parser calls a line with no number in any mapped field a "header" line; only
   those before the first sample are taken as a header, later ones (binary junk, a stray text
-  line) are malformed too. A file with more than 1 % malformed lines imports with a warning;
+  line) are malformed too. Text lines before the first sample that do not parse (metadata such
+  as ``Fs,100``) are header lines as well. A last line with no line end is malformed: a log cut
+  off mid-write ends so, and its last number may be cut short.
+- Columns named in the map are found in the header line (the first text line before the data
+  that holds every name). A file with no time column gets ``t = i / rate_hz``, the rate from
+  the map or the caller (``--rate``). A file with more than 1 % malformed lines imports with a warning;
   a file with fewer than two valid samples is an error.
 - Time must increase strictly: a repeated or backwards timestamp is an error naming the file
   and line (dropping samples silently would hide a logger fault). Gaps longer than five median
@@ -32,6 +37,7 @@ from fieldcal.recording import Recording
 from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
 
 FIRST_FEW = 10  # malformed line numbers kept per file
+HEADER_SEARCH_LINES, HEADER_SEARCH_BYTES = 200, 1 << 16  # where a header line with column names may be
 MALFORMED_WARNING = 0.01  # fraction of a file's data lines
 # No IMU output reaches this in any unit (a 32-bit count is 2.1e9): a bigger value is a corrupted
 # line, and left in it would overflow the variances that find the poses.
@@ -63,6 +69,7 @@ class FileReport:
     gaps: int  # steps longer than GAP_PERIODS median periods
     largest_gap_s: float  # largest step in time (a gap if gaps > 0)
     largest_gap_line: int  # the line after that step
+    cut_off: bool = False  # the last line had no line end: malformed, not used
 
     @property
     def malformed_fraction(self) -> float:
@@ -86,12 +93,14 @@ class _Parsed:
     triads: dict[str, np.ndarray]
 
 
-def import_recording(paths, import_map: ImportMap | str | os.PathLike) -> Recording:
-    """The recording in ``paths`` (one per map entry, in order); see the module docstring."""
-    return import_with_report(paths, import_map)[0]
+def import_recording(paths, import_map: ImportMap | str | os.PathLike, rate_hz: float | None = None) -> Recording:
+    """The recording in ``paths`` (one per map entry, in order); see the module docstring.
+    ``rate_hz``: the sample rate of files with no time column (overrides the map's)."""
+    return import_with_report(paths, import_map, rate_hz)[0]
 
 
-def import_with_report(paths, import_map: ImportMap | str | os.PathLike) -> tuple[Recording, ImportReport]:
+def import_with_report(paths, import_map: ImportMap | str | os.PathLike,
+                       rate_hz: float | None = None) -> tuple[Recording, ImportReport]:
     """As import_recording, with what was found and done (for the summary and the session)."""
     im = import_map if isinstance(import_map, ImportMap) else load_import_map(import_map)
     paths = [os.fspath(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
@@ -104,7 +113,7 @@ def import_with_report(paths, import_map: ImportMap | str | os.PathLike) -> tupl
         if p in resolved[:i]:
             raise RecordingImportError(f"{paths[i]}: given twice (for {im.files[resolved.index(p)].name} "
                                        f"and {im.files[i].name})", paths[i])
-    parsed = [_read(path, spec) for path, spec in zip(paths, im.files)]
+    parsed = [_read(path, spec, rate_hz) for path, spec in zip(paths, im.files)]
     t, triads, alignment = _align(parsed)
     warnings = tuple(
         f"{p.report.path}: {p.report.malformed} of {p.report.samples + p.report.malformed} data lines "
@@ -120,18 +129,42 @@ def import_with_report(paths, import_map: ImportMap | str | os.PathLike) -> tupl
     return recording, report
 
 
-def _read(path: str, spec: FileSpec) -> _Parsed:
+def _header_fields(data: bytes, spec: FileSpec, path: str) -> list[str]:
+    """The fields of the first text line that holds every column name of ``spec``."""
+    delimiter = spec.channels["delimiter"]
+    comment = spec.channels["comment"]
+    for line in data[:HEADER_SEARCH_BYTES].decode("utf-8", "replace").splitlines()[:HEADER_SEARCH_LINES]:
+        if comment and line.lstrip().startswith(comment):
+            continue
+        fields = [f.strip() for f in (line.split() if delimiter is None else line.split(delimiter))]
+        if all(name in fields for name in spec.names):
+            return fields
+    raise RecordingImportError(
+        f"{path}: no header line names the columns {', '.join(spec.names)} of {spec.name} (in its first "
+        f"{HEADER_SEARCH_LINES} lines); check the names and the delimiter in the map, or give column numbers", path)
+
+
+def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None
     sha256 = hashlib.sha256(data).hexdigest()
-    if data and not data.endswith(b"\n"):
-        data += b"\n"  # the parser holds back an unterminated last line; it is a whole line here
+    cm = spec.resolve(_header_fields(data, spec, path), path) if spec.channel_map is None else spec.channel_map
+    rate_hz = rate_hz or spec.rate_hz
+    if cm.time_column is None and rate_hz is None:
+        raise RecordingImportError(f"{path}: {spec.name} has no time column: give its sample rate "
+                                   f"(--rate HZ, or rate_hz in the map's {spec.where or 'entry'})", path)
+    # A last line with no line end was cut off mid-write (its last number may be cut short): it
+    # is not parsed, and counts as malformed.
+    cut = data.rfind(b"\n") + 1
+    tail = data[cut:].strip(b" \t\r")
+    comment = cm.comment.encode("ascii") if cm.comment else None
+    unterminated = bool(tail) and not (comment and tail.startswith(comment))
+    data = data[:cut]
     a = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(a == 10)
     starts = np.concatenate([[0], ends[:-1] + 1]).astype(np.int64)
-    cm = spec.channel_map
     parser = DelimitedTextParser(cm, keep_malformed=max(len(ends), 1))  # keep every line number
     chunk = parser.feed(data, 0.0)
     n = 0 if chunk is None else len(chunk)
@@ -147,19 +180,22 @@ def _read(path: str, spec: FileSpec) -> _Parsed:
     headers = _header_lines(data, starts, ends, rest, parser.header_lines, cm)
     lines = np.setdiff1d(rest, headers, assume_unique=True)
     first = lines[0] if n else np.iinfo(np.int64).max
-    leading = headers[headers < first]
-    # A header is text before the first sample; after it (or binary junk) the line is malformed.
-    # The loop runs over the leading header lines only, usually one.
+    # Text lines before the first sample are the header and metadata ("Fs,100" does not parse as
+    # a sample, yet it is no fault); after it (or binary junk) a line is malformed.
+    # The loop runs over the leading lines only, usually a few.
+    leading = np.union1d(headers[headers < first], malformed[malformed < first])
     text = np.array([_is_text(data[starts[k - 1]:ends[k - 1]]) for k in leading.tolist()], dtype=bool)
-    malformed = np.union1d(malformed, np.concatenate([headers[headers > first], leading[~text]]))
+    malformed = np.union1d(malformed[malformed > first], np.concatenate([headers[headers > first], leading[~text]]))
     header_count = int(np.count_nonzero(text))
+    if unterminated:
+        malformed = np.r_[malformed, len(ends) + 1].astype(np.int64)
     if n < 2:
         what = "no valid sample" if n == 0 else f"only one valid sample (line {lines[0]})"
         raise RecordingImportError(
             f"{path}: {what} for {spec.name} in {len(ends)} lines ({len(malformed)} malformed, "
             f"{header_count} header lines); check the map (delimiter, columns, time)", path)
 
-    t = chunk.t
+    t = chunk.t if cm.time_column is not None else np.arange(n) / rate_hz
     dt = np.diff(t)
     back = np.flatnonzero(dt <= 0)
     if len(back):
@@ -179,12 +215,12 @@ def _read(path: str, spec: FileSpec) -> _Parsed:
     period = float(np.median(dt))
     widest = int(np.argmax(dt))
     report = FileReport(
-        path=path, name=spec.name, sha256=sha256, lines=len(ends), samples=n,
+        path=path, name=spec.name, sha256=sha256, lines=len(ends) + unterminated, samples=n,
         header_lines=header_count, malformed=len(malformed),
         malformed_lines=tuple(int(x) for x in malformed[:FIRST_FEW]), rate_hz=1.0 / period,
         t_first=float(t[0]), t_last=float(t[-1]),
         gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
-        largest_gap_line=int(lines[widest + 1]))
+        largest_gap_line=int(lines[widest + 1]), cut_off=unterminated)
     return _Parsed(spec, report, t, dict(chunk.triads))
 
 

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from fieldcal.calibration import ROTATION_METHOD
+from fieldcal.calibration import CLASSIC_METHOD
 from fieldcal.earth import Station
 from fieldcal.paramfile import ParameterFile, hash_inputs
 from fieldcal.recording import Recording
@@ -24,7 +24,7 @@ def parameter_file(cal: RecordingCalibration, recording: Recording, station: Sta
                    device_name: str | None = None, simulation: bool | None = None) -> ParameterFile:
     triads = [*cal.specific_force.values(), *cal.angular_rate.values()]
     methods = "+".join(dict.fromkeys([s.method for s in cal.specific_force.values()]
-                                     + [ROTATION_METHOD] * bool(cal.angular_rate)))
+                                     + [s.method for s in cal.angular_rate.values()]))
     data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]
     return ParameterFile.build(triads, station=station, procedure=PROCEDURE, method=methods,
                                input_sha256=hash_inputs(*data), device_name=device_name,
@@ -46,9 +46,10 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
     """Poses found, and per triad the fit and every parameter ± 1σ."""
     poses, truths = cal.poses, truths or {}
     still = np.diff(poses.intervals, axis=1)[:, 0]
-    lines = [f"poses: {len(poses.intervals)} static intervals ({cal.spread.message}; "
+    lines = [f"protocol: {cal.protocol}",
+             f"poses: {len(poses.intervals)} static intervals ({cal.spread.message}; "
              f"{len(poses.intervals) - cal.spread.count} duplicate), threshold {poses.multiple:g}× the "
-             f"initial rest's noise; shortest {still.min()} samples",
+             f"noise of {cal.noise_source}; shortest {still.min()} samples",
              "  thresholds tried: " + _tried(cal.tried)]
     if len(cal.turns):
         used = "rate equations for the gyro" if cal.table_rate_used else \
@@ -58,6 +59,10 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
         lines += ["", solution_header(sol), solution_table(sol, truths.get(name))]
     for name, sol in cal.angular_rate.items():
         fit = sol.diagnostics
+        if sol.method == CLASSIC_METHOD:  # the Ferraris turns
+            lines += ["", f"{name} (the ±2π integrals of {len(sol.residuals)} full turns, the bias from the "
+                      "six poses)", solution_table(sol, truths.get(name))]
+            continue
         rms = math.degrees(sol.residual_rms) * 60
         quality = f"χ²/dof {fit.reduced_chi2:.2f}" if fit.dof else "exact fit"
         bias = "initial rest, less the vertical Earth rate" if fit.held else "estimated"

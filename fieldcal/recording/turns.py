@@ -2,9 +2,19 @@
 turned into norm equations |K⁻¹(u − b)| = rate that the gyro's rotation solve takes as well.
 
 On a turntable turning about the vertical the accelerometer sees gravity as still as in a pose;
-only the gyro tells. So a stretch whose gyro mean (over half a second) leaves the initial rest's
-by far more than its noise is split out of the accelerometer's static interval; where such a
-stretch holds one rate vector (within ``STEADY_FRACTION``) for ``MIN_TURN_S``, it is a turn.
+only the gyro tells. So a stretch whose gyro mean (over half a second) leaves the still gyro's
+level by more than a real unit's still reading ever moves is split out of the accelerometer's
+static interval; where such a stretch holds one rate vector (within ``STEADY_FRACTION``) for
+``MIN_TURN_S``, it is a turn.
+
+The still level is the median over the accelerometer's quietest windows, not the initial rest's
+mean: a real MEMS gyro's still reading moves by 0.02-0.17 °/s between poses (g-sensitivity,
+bias shifts, warm-up), far beyond the white noise of a half-second mean. So a stretch is turning
+only when its rate leaves the still level by more than all of: ``GATE_SIGMAS`` σ of the mean's
+white noise, ``SHIFT_MULTIPLE`` times the typical shift of the quiet windows' means (what this
+unit's still reading does), and ``MIN_TURN_DEG_S`` in a known rate unit (slower than any turntable
+or hand turn, faster than any still reading): the angle a still pose can integrate is that of its
+noise and its bias shift, not of a turn.
 """
 from __future__ import annotations
 
@@ -15,9 +25,12 @@ import numpy as np
 
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
-from fieldcal.recording.detect import DetectorSettings, Poses, distinct_poses, interval_means, up_directions
+from fieldcal.recording.detect import (DetectorSettings, NoiseLevel, Poses, distinct_poses, interval_means,
+                                       quiet_windows, up_directions, window_variances)
 
-GATE_SIGMAS = 20.0  # half-second gyro mean this many of its σ from the rest's: turning
+GATE_SIGMAS = 20.0  # half-second gyro mean this many of its σ from the still level: turning
+SHIFT_MULTIPLE = 5.0  # ... and this many times the quiet windows' typical shift
+MIN_TURN_DEG_S = 0.5  # ... and, in a known unit, at least this rate
 STEADY_FRACTION = 0.02  # a turn's rate vector stays within this fraction of its median
 MIN_TURN_S = 2.0
 
@@ -30,13 +43,30 @@ def _moving_mean(values: np.ndarray, n: int) -> np.ndarray:
     return (cums[hi] - cums[lo]) / (hi - lo)[:, None]
 
 
-def turning(gyro: np.ndarray, rate_hz: float, rest: slice) -> tuple[np.ndarray, np.ndarray]:
-    """(mask of samples whose gyro says the unit turns, the half-second means)."""
+def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel, settings: DetectorSettings,
+            units_per_rad_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(mask of samples whose gyro says the unit turns, the half-second means less the still
+    level). ``units_per_rad_s``: the gyro's output unit per rad/s when known (not for counts)."""
     n = max(1, round(0.5 * rate_hz))
-    rest_mean = gyro[rest].mean(axis=0)
-    sigma = float(np.sqrt(np.mean(np.var(gyro[rest], axis=0, ddof=1))))
-    smooth = _moving_mean(gyro - rest_mean, n)
-    return np.linalg.norm(smooth, axis=1) > GATE_SIGMAS * sigma / math.sqrt(n), smooth
+    window = 2 * max(1, round(settings.window_s * rate_hz) // 2) + 1
+    quiet = quiet_windows(acc, rate_hz, settings)
+    means = window_variances(gyro, window)[1][quiet]
+    level = np.median(means, axis=0)
+    shift = float(np.median(np.linalg.norm(means - level, axis=1)))
+    sigma = float(np.sqrt(np.mean(noise.gyro_variance)))
+    low = max(GATE_SIGMAS * sigma / math.sqrt(n), SHIFT_MULTIPLE * shift)
+    high = max(low, math.radians(MIN_TURN_DEG_S) * units_per_rad_s) if units_per_rad_s else low
+    smooth = _moving_mean(gyro - level, n)
+    rate = np.linalg.norm(smooth, axis=1)
+    # A turn is a stretch above the high gate, and all of it, down to the low one on either side
+    # (its slow start and stop are still motion).
+    runs = _runs(rate > low)
+    mask = np.zeros(len(rate), dtype=bool)
+    if len(runs):
+        peaks = np.maximum.reduceat(rate, runs[:, 0])
+        for a, b in runs[peaks > high]:  # a loop over turns, not samples
+            mask[a:b] = True
+    return mask, smooth
 
 
 def _runs(mask: np.ndarray) -> np.ndarray:

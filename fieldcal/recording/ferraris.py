@@ -1,0 +1,164 @@
+"""The Ferraris protocol in a recording: six axis-aligned static poses and full turns.
+
+Ferraris et al. (1995), the protocol of imucal and of many labs: the unit lies on each of its six
+faces (x, y, z up and down), and turns once (or n times) through 360° about each axis while that
+axis is vertical. Six directions cannot give the norm method its nine unknowns, but aligned
+poses can: their true inputs are known, ±g along the axis that is up, so the accelerometer is the
+classic least-squares solution (``fieldcal.solvers.classic``, full K: it also holds the unit's
+rotation relative to its faces).
+
+The gyroscope comes from the turns: a turn about the vertical integrates to K·up·θ with θ = ±2πn,
+up the vertical in the accelerometer's frame, once the still reading is taken off. That still
+reading is the mean of the static intervals on either side of the turn, in the same pose: it
+holds the bias, the vertical Earth rate and the g-sensitivity at that pose, all of which stay
+constant through a turn about the vertical. Over all turns, K = W·C⁻¹ with W the integrals and
+C the up vectors times their angles (least squares when there are more than three).
+
+What a turn's 1σ holds: the white noise integrated over the turn, the still reading's own noise
+times the turn's duration, the horizontal Earth rate (its heading unknown, it does not integrate
+to zero over a turn that takes time), and the hand's error in bringing the unit back to its
+heading, ``HEADING_SIGMA_DEG``, which nothing in the data can see. The bias is the mean of the six
+poses' gyro means, its σ their scatter (g-sensitivity and bias shifts) over √6.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from fieldcal.earth import EARTH_RATE
+from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
+from fieldcal.recording.detect import DetectionError, interval_means
+from fieldcal.calibration import FULL_PARAM_NAMES, Calibration, SolverDiagnostics
+from fieldcal.solvers.classic import _parameter_covariance, solve_classic
+
+ALIGNED_DEG = 15.0  # a pose this close to an axis, up or down, is that axis's aligned pose
+SAME_POSE_DEG = 5.0  # a turn's start and end poses are this close
+MIN_TURN_FRACTION = 0.75  # of a full turn, in a known rate unit
+HEADING_SIGMA_DEG = 0.5  # 1σ of the hand's return to the same heading after a turn
+_AXES = np.vstack([np.eye(3), -np.eye(3)])
+
+
+@dataclass(frozen=True)
+class Turns:
+    """Full turns found: ``spans`` (k, 2) [start, stop) samples, ``before``/``after`` (k,) the
+    static intervals on either side, ``angles`` (k,) rad (±2πn), ``up`` (k, 3) the vertical."""
+
+    spans: np.ndarray
+    before: np.ndarray
+    after: np.ndarray
+    angles: np.ndarray
+    up: np.ndarray
+
+
+def aligned_axes(up: np.ndarray) -> np.ndarray | None:
+    """(m,) index into ±x, ±y, ±z (0..5) of each pose's axis, or None unless every pose is within
+    ALIGNED_DEG of one and all six are there."""
+    cosines = up @ _AXES.T
+    nearest = np.argmax(cosines, axis=1)
+    close = cosines[np.arange(len(up)), nearest] >= math.cos(math.radians(ALIGNED_DEG))
+    return nearest if close.all() and len(set(nearest.tolist())) == 6 else None
+
+
+def solve_aligned_accelerometer(name: str, unit: str, means: np.ndarray, axes: np.ndarray,
+                                gravity: float, covariance: np.ndarray) -> Calibration:
+    """Classic least squares on the six faces' means (a face seen twice is one placement on the
+    same face, its tilt shared, so it is averaged, not counted twice): inputs ±g.
+    ``covariance``: of the flattened interval means (noise); the σ are scaled up by χ²/dof when
+    the faces scatter more than that (placement errors), never down."""
+    average = np.zeros((6, len(means)))
+    for a in range(6):
+        average[a, axes == a] = 1.0 / np.count_nonzero(axes == a)
+    faces = average @ means
+    A = np.kron(average, np.eye(3))
+    face_cov = A @ covariance @ A.T
+    sol = solve_classic(faces, gravity * _AXES, name, SPECIFIC_FORCE, output_unit=unit, covariance=face_cov)
+    variances = np.diag(face_cov).reshape(6, 3)
+    ratio = float(np.sum(sol.residuals**2 / variances) / (3 * (6 - 4)))
+    if ratio > 1.0:
+        sol = replace(sol, covariance=sol.covariance * ratio, sigma=sol.sigma * math.sqrt(ratio))
+    return sol
+
+
+def up_vectors(acc: Calibration, means: np.ndarray) -> np.ndarray:
+    a = acc.calibrate(means)
+    return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+
+def find_turns(gyro: np.ndarray, rate_hz: float, intervals: np.ndarray, up: np.ndarray,
+               units_per_rad_s: float | None) -> Turns:
+    """The motions that leave a pose and come back to it through a full turn (or several)."""
+    still = interval_means(gyro, intervals)
+    spans = np.column_stack([intervals[:-1, 1], intervals[1:, 0]])
+    same = np.einsum("ij,ij->i", up[:-1], up[1:]) >= math.cos(math.radians(SAME_POSE_DEG))
+    cums = np.cumsum(np.r_[np.zeros((1, 3)), gyro - gyro[0]], axis=0)
+    reference = 0.5 * (still[:-1] + still[1:]) - gyro[0]
+    integral = (cums[spans[:, 1]] - cums[spans[:, 0]] - reference * np.diff(spans, axis=1)) / rate_hz
+    size = np.linalg.norm(integral, axis=1)
+    if units_per_rad_s is not None:
+        turns = np.round(size / units_per_rad_s / (2 * math.pi))
+        full = same & (turns >= 1) & (size / units_per_rad_s >= 2 * math.pi * (turns - 1 + MIN_TURN_FRACTION))
+    else:  # raw counts: the same-pose motions that turn far more than the others
+        turns = np.ones(len(size))
+        full = same & (size >= 0.5 * size[same].max()) if same.any() else same
+    k = np.flatnonzero(full)
+    vertical = 0.5 * (up[k] + up[k + 1])
+    vertical /= np.linalg.norm(vertical, axis=1, keepdims=True)
+    sense = np.sign(np.einsum("ij,ij->i", vertical, integral[k]))
+    return Turns(spans=spans[k], before=k, after=k + 1, angles=sense * 2 * math.pi * turns[k], up=vertical)
+
+
+def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, intervals: np.ndarray,
+                     axes: np.ndarray, turns: Turns, latitude_rad: float | None,
+                     up_sigma: float = 0.0) -> Calibration:
+    """``axes``: each interval's aligned axis (see aligned_axes); ``up_sigma``: 1σ (rad) of the
+    turn axes' directions, from the accelerometer's calibration."""
+    """K from the turns' integrals, the bias from the statics; see the module doc for the σ."""
+    axes_seen = np.abs(turns.up).argmax(axis=1)
+    missing = [a for i, a in enumerate("xyz") if i not in set(axes_seen.tolist())]
+    if missing:
+        raise DetectionError(f"full turns about {', '.join(missing)} missing (found {len(turns.spans)} "
+                             "turns): turn the unit once through 360° about each axis while it is vertical")
+    counts = np.diff(intervals, axis=1)[:, 0]
+    still = interval_means(gyro, intervals)
+    offset = gyro[0]
+    cums = np.cumsum(np.r_[np.zeros((1, 3)), gyro - offset], axis=0)
+    n = np.diff(turns.spans, axis=1)[:, 0]
+    w_before, w_after = counts[turns.before], counts[turns.after]
+    reference = (still[turns.before] * w_before[:, None] + still[turns.after] * w_after[:, None]) \
+        / (w_before + w_after)[:, None]
+    W = ((cums[turns.spans[:, 1]] - cums[turns.spans[:, 0]] - (reference - offset) * n[:, None]) / rate_hz).T
+    C = (turns.up * turns.angles[:, None]).T  # W = K·C
+    C_pinv = np.linalg.pinv(C)
+    K = W @ C_pinv
+    # Per turn and output axis, the variance of W's entry (output units · s)².
+    white = np.array([np.var(gyro[a:b], axis=0, ddof=1) for a, b in intervals[[0]]])[0]
+    duration = n / rate_hz
+    reference_var = white[None, :] / (w_before + w_after)[:, None]
+    horizontal = EARTH_RATE if latitude_rad is None else EARTH_RATE * abs(math.cos(latitude_rad))
+    k_scale = np.abs(np.diag(K))
+    earth = (k_scale[None, :] * horizontal * duration[:, None]) ** 2 / 2
+    heading = ((K @ turns.up.T).T * math.radians(HEADING_SIGMA_DEG)) ** 2
+    # The axis's direction error moves the integral across it, not along it.
+    across = (k_scale[None, :] * turns.angles[:, None] * up_sigma) ** 2 * (1 - turns.up**2)
+    var_W = (white[None, :] * n[:, None] / rate_hz**2 + reference_var * duration[:, None] ** 2 + earth + heading
+             + across)
+    # The six poses' gyro means: bias and the g-sensitivity, which cancels between up and down.
+    poses = np.array([still[axes == a].mean(axis=0) for a in range(6)])  # one mean per face
+    bias = poses.mean(axis=0)
+    bias_var = np.var(poses, axis=0, ddof=1) / len(poses)
+    row_cov = np.zeros((3, 4, 4))
+    for i in range(3):  # per output axis: K's row is W's row times C⁺, the columns independent
+        row_cov[i, :3, :3] = C_pinv.T @ np.diag(var_W[:, i]) @ C_pinv
+        row_cov[i, 3, 3] = bias_var[i]
+    residuals = (W - K @ C).T
+    coef_cov = np.zeros((12, 12))  # the rows are independent: their blocks on the diagonal
+    for i in range(3):
+        coef_cov[4 * i:4 * i + 4, 4 * i:4 * i + 4] = row_cov[i]
+    cov, sigma = _parameter_covariance(K, row_cov, coef_cov)
+    return Calibration(name=name, kind=ANGULAR_RATE, output_unit=unit, method="classic", K=K, bias=bias,
+                       covariance=cov, sigma=sigma, residuals=residuals / np.abs(np.diag(K)),
+                       parameter_names=FULL_PARAM_NAMES, residual_unit="rad",
+                       diagnostics=SolverDiagnostics(message="closed form (the turns' ±2π integrals)",
+                                                     dof=residuals.size - 9))

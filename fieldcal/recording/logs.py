@@ -1,0 +1,92 @@
+"""Flight-controller and robot logs -> :class:`Recording`, by the format's own reader.
+
+- PX4 ULog (``.ulg``), read by ``pyulog`` (the ``logs`` extra): the ``sensor_combined`` topic
+  (``accelerometer_m_s2``, ``gyro_rad`` on one timestamp, µs), else ``sensor_accel`` and
+  ``sensor_gyro`` (instance 0), the gyro put on the accelerometer's timestamps.
+
+The reader is imported only here, when such a file is imported: most users never need it.
+What is found is reported like a text import (an :class:`ImportReport`), with the topic in place
+of a map, so the session keeps where its samples came from.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import numpy as np
+
+from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
+from fieldcal.recording import Recording
+from fieldcal.recording.importer import GAP_PERIODS, FileReport, ImportReport, RecordingImportError
+
+LOG_SUFFIXES = {".ulg": "PX4 ULog"}
+
+
+def log_format(path: str | os.PathLike) -> str | None:
+    """The log format a file's name says it is, or None (then it is text, with a map)."""
+    return LOG_SUFFIXES.get(Path(path).suffix.lower())
+
+
+def import_log(path: str | os.PathLike) -> tuple[Recording, ImportReport]:
+    path = os.fspath(path)
+    kind = log_format(path)
+    if kind is None:
+        raise RecordingImportError(f"{path}: not a log format fieldcal reads ({', '.join(LOG_SUFFIXES)}); "
+                                   "text files need --map", path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise RecordingImportError(f"{path}: cannot read it ({exc.strerror or exc})", path) from None
+    t, acc, gyro, topic = _ulog(path)
+    return _recording(path, data, kind, topic, t, acc, gyro)
+
+
+def _ulog(path: str):
+    try:
+        from pyulog import ULog
+    except ImportError:
+        raise RecordingImportError(f"{path}: reading PX4 ULog needs pyulog: pip install 'fieldcal[logs]'",
+                                   path) from None
+    try:
+        log = ULog(path, ["sensor_combined", "sensor_accel", "sensor_gyro"])
+    except Exception as exc:  # pyulog raises bare exceptions on a damaged file
+        raise RecordingImportError(f"{path}: not a readable ULog ({exc})", path) from None
+    topics = {(d.name, d.multi_id): d.data for d in log.data_list}
+    combined = topics.get(("sensor_combined", 0))
+    if combined is not None and len(combined["timestamp"]) >= 2:
+        t = combined["timestamp"] * 1e-6
+        acc = np.column_stack([combined[f"accelerometer_m_s2[{i}]"] for i in range(3)]).astype(float)
+        gyro = np.column_stack([combined[f"gyro_rad[{i}]"] for i in range(3)]).astype(float)
+        return t, acc, gyro, "sensor_combined"
+    accel, rate = topics.get(("sensor_accel", 0)), topics.get(("sensor_gyro", 0))
+    if accel is None or rate is None or len(accel["timestamp"]) < 2:
+        raise RecordingImportError(f"{path}: no sensor_combined, nor sensor_accel and sensor_gyro samples in "
+                                   "the log: log those topics (SDLOG_PROFILE with sensor comparison or "
+                                   "high rate)", path)
+    t = accel["timestamp_sample"] * 1e-6 if "timestamp_sample" in accel else accel["timestamp"] * 1e-6
+    tg = rate["timestamp_sample"] * 1e-6 if "timestamp_sample" in rate else rate["timestamp"] * 1e-6
+    acc = np.column_stack([accel[a] for a in "xyz"]).astype(float)
+    gyro = np.column_stack([np.interp(t, tg, rate[a]) for a in "xyz"])
+    return t, acc, gyro, "sensor_accel + sensor_gyro (interpolated onto the accelerometer's time)"
+
+
+def _recording(path, data, kind, topic, t, acc, gyro) -> tuple[Recording, ImportReport]:
+    t = np.asarray(t, dtype=float)
+    keep = np.r_[True, np.diff(t) > 0]  # a repeated timestamp in a log is a re-sent sample
+    t, acc, gyro = t[keep], acc[keep], gyro[keep]
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    widest = int(np.argmax(dt))
+    report = FileReport(path=path, name=f"{kind}: {topic}", sha256=hashlib.sha256(data).hexdigest(),
+                        lines=len(keep), samples=len(t), header_lines=0, malformed=int((~keep).sum()),
+                        malformed_lines=(), rate_hz=1.0 / period, t_first=float(t[0]), t_last=float(t[-1]),
+                        gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
+                        largest_gap_line=widest + 1)
+    recording = Recording(t=t, triads={"accelerometer": acc, "gyroscope": gyro},
+                          kinds={"accelerometer": SPECIFIC_FORCE, "gyroscope": ANGULAR_RATE},
+                          units={"accelerometer": "m/s^2", "gyroscope": "rad/s"}, sources=(path,),
+                          malformed={path: (report.malformed, ())})
+    notes = (f"{kind}: topic {topic}",) + ((f"{report.malformed} repeated timestamps dropped",) if report.malformed else ())
+    return recording, ImportReport(map_path=f"({kind} reader)", map_text="", files=(report,),
+                                   alignment=notes, warnings=())
