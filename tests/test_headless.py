@@ -1,5 +1,6 @@
 """Headless field-18 runs against the in-process simulator: accuracy, operator mishaps, crash and
 resume, and byte-identical replay."""
+import json
 import os
 import signal
 import subprocess
@@ -153,6 +154,10 @@ def _cut_before_step_record(session: Path, nth: int) -> None:
         offset += len(line)
     assert seen == nth, "not enough steps to cut at"
     log.write_bytes(data[:offset])
+    # ... and samples.bin as that crash leaves it: up to the end of the last logged chunk
+    chunks = [json.loads(line) for line in data[:offset].splitlines() if b'"type":"chunk"' in line]
+    with open(session / "samples.bin", "r+b") as fh:
+        fh.truncate(chunks[-1]["offset"] + chunks[-1]["length"])
     (session / "parameters.yaml").unlink(missing_ok=True)
 
 

@@ -41,8 +41,11 @@ def _session_records(directory: Path) -> tuple[dict[str, np.ndarray], dict[str, 
     from fieldcal.run.runner import RunSpec
     from fieldcal.session.capture import SessionReader
 
+    from fieldcal.session.steps import checked_steps
+
     reader = SessionReader(directory)
     spec = RunSpec.from_metadata(reader.start)
+    checked_steps(reader, len(spec.procedure.positions))  # a step of the wrong shape: file and line
     # After a resume, sample time starts over from the last checkpoint, so the samples of a
     # dwell are those of the run segment (between resumes) that recorded its step.
     segment, best = 0, None

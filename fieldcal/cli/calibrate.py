@@ -54,6 +54,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                         help="the recording has turns on a turntable at this rate (°/s, either sense): "
                         "use them as rate equations too")
     parser.add_argument("--params", metavar="FILE", help="also write the parameter file here")
+    parser.add_argument("--force", action="store_true", help="replace the --params file if it exists")
     parser.set_defaults(func=cmd_calibrate)
     return parser
 
@@ -99,7 +100,7 @@ def cmd_calibrate(args) -> int:
     from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
     from fieldcal.recording.detect import DetectorSettings
     from fieldcal.recording.results import parameter_file, summary_lines
-    from fieldcal.session.capture import SessionWriter
+    from fieldcal.session.capture import SessionReader, SessionWriter
 
     config = load_config(args.config) if args.config else None
     station = _station(args, config)
@@ -107,6 +108,9 @@ def cmd_calibrate(args) -> int:
         raise ValueError(f"--table-rate: expected a rate above 0 °/s, got {args.table_rate:g}")
     if not args.rest > 0:
         raise ValueError(f"--rest: expected a positive number of seconds, got {args.rest:g}")
+    if args.params:  # refused before anything is imported or written
+        from fieldcal.session.output import check_output_path
+        check_output_path(args.params, force=args.force, option="--params")
     started = time.perf_counter()
     recording, directory, imported = _recording(args)
     for line in imported:
@@ -117,9 +121,9 @@ def cmd_calibrate(args) -> int:
                                  table_rate_deg_s=args.table_rate)
     cal = calibrate_recording(recording, station, settings)
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None)
-    writer = SessionWriter.append_to(directory)
+    writer = SessionWriter.append_to(directory)  # refused if another fieldcal is writing it
     try:
-        writer.write_parameters(pf)
+        writer.write_parameters(pf)  # parameters-NNN.yaml: an earlier calibration is kept
     finally:
         writer.close()
     print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
@@ -127,8 +131,9 @@ def cmd_calibrate(args) -> int:
           f"{NOISE_FROM_CONFIG if noise else NOISE_FROM_REST}")
     for line in summary_lines(cal):
         print(line)
-    print(f"\nparameter file: {directory / 'parameters.yaml'}  ({time.perf_counter() - started:.2f} s)")
+    print(f"\nparameter file: {directory / 'parameters.yaml'} (a copy of "
+          f"{SessionReader(directory).parameters_path.name})  ({time.perf_counter() - started:.2f} s)")
     if args.params:
-        from fieldcal.paramfile import save
-        print(f"parameter file: {save(pf, args.params)}")
+        from fieldcal.session.output import save_parameter_file
+        print(f"parameter file: {save_parameter_file(pf, args.params, force=args.force, option='--params')}")
     return 0 if not cal.failures else 1

@@ -48,6 +48,9 @@ def cmd_demo(args) -> int:
     from fieldcal.run.simcal import run_simulated_calibration
 
     station = Station(args.latitude, args.height, args.gravity)
+    if args.params:  # refused before the simulation, not after it
+        from fieldcal.session.output import check_output_path
+        check_output_path(args.params, force=args.force, option="--params")
     device = paper_mimu(raw_counts=args.raw_counts)
     print(f"fieldcal {__version__} demo: procedure {args.procedure} against the simulated MIMU "
           f"(paper Tables 3-4{', raw 16-bit counts' if args.raw_counts else ''}), seed {args.seed}")
@@ -69,14 +72,15 @@ def cmd_demo(args) -> int:
         return 1
     print(f"largest error: {worst:.2f}σ")
     if args.params:
-        from fieldcal.paramfile import ParameterFile, hash_inputs, save
+        from fieldcal.paramfile import ParameterFile, hash_inputs
+        from fieldcal.session.output import save_parameter_file
         from fieldcal.solvers.solve import resolve_method
         pf = ParameterFile.build(
             triads=tuple(cal.solutions.values()),
             procedure=cal.procedure.name, method=resolve_method(cal.procedure, args.method),
             station=station,
             input_sha256=hash_inputs(*(p.data for p in cal.problems.values())), simulation=True)
-        save(pf, args.params)
+        save_parameter_file(pf, args.params, force=args.force, option="--params")
         print(f"parameter file written to {args.params}")
     return 0
 
@@ -162,6 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="measured local gravity, m/s² (default: WGS84 normal gravity)")
     demo.add_argument("--raw-counts", action="store_true", help="simulate a device reporting 16-bit counts")
     demo.add_argument("--params", metavar="FILE", help="also write the parameter file here")
+    demo.add_argument("--force", action="store_true", help="replace the --params file if it exists")
     demo.set_defaults(func=cmd_demo)
 
     monitor = sub.add_parser("monitor", help="print decoded samples and parser counters from a device",
@@ -204,7 +209,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "byte for byte the same.")
     replay.add_argument("session", help="session directory")
     replay.add_argument("--speed", type=float, help="times real time (default: as fast as possible)")
-    replay.add_argument("--out", metavar="FILE", help="also write the replayed parameter file here")
+    replay.add_argument("--out", metavar="FILE", help="also write the replayed parameter file here "
+                        "(never inside a session)")
+    replay.add_argument("--force", action="store_true", help="replace the --out file if it exists")
     replay.add_argument("--quiet", action="store_true")
     replay.set_defaults(func=_lazy("cmd_replay"))
 

@@ -73,29 +73,52 @@ def cmd_run(args) -> int:
     return _print_result(result, sys.stdout)
 
 
+def _procedure_session(directory, log_only: bool = False):
+    """(reader, run spec, checked step records) of a procedure run's session; one-line errors.
+    ``log_only``: read the log's documents alone (see ``SessionReader``)."""
+    from fieldcal.run.runner import RunSpec
+    from fieldcal.session.capture import SessionReader
+    from fieldcal.session.steps import checked_steps
+
+    reader = SessionReader(directory, log_only=log_only)
+    try:
+        spec = RunSpec.from_metadata(reader.start)
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"{reader.directory / 'log.jsonl'}: line 1: the start document's metadata is "
+                         f"not a procedure run's ({type(exc).__name__}: {exc})"[:300]) from None
+    except ValueError as exc:  # a recording session, a procedure or station out of bounds
+        raise ValueError(f"{reader.directory}: {exc}") from None
+    return reader, spec, checked_steps(reader, len(spec.procedure.positions))
+
+
 def cmd_resume(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import resume_headless
-    from fieldcal.session.capture import SessionReader
 
-    reader = SessionReader(args.session)
+    reader, _, steps = _procedure_session(args.session)
     if reader.start.get("device", {}).get("link") == "pty":
         raise ValueError(f"{args.session}: a run through a serial device cannot be resumed (the "
                          "device cannot be rewound); replay it, or run again")
     if reader.stopped:
+        completed = reader.stop_reason == "completed"
         raise ValueError(f"{args.session}: this session already ended ({reader.stop_reason}); "
-                         "nothing to resume")
-    done = len(reader.steps())
+                         + ("a completed session is never resumed: replay it, or run again"
+                            if completed else "nothing to resume"))
+    done = len(steps)
     warn_if_torn(args.session)  # what resuming will cut away
     print(f"resuming {args.session} after {done} completed step{'s' if done != 1 else ''}", flush=True)
     return _print_result(resume_headless(Path(args.session), printer(sys.stdout, args.quiet)), sys.stdout)
 
 
 def cmd_replay(args) -> int:
-    from fieldcal.paramfile import dump, save
+    from fieldcal.paramfile import dump
     from fieldcal.run.progress import printer
-    from fieldcal.run.replay import recorded_parameters, replay_session
+    from fieldcal.run.replay import replay_session
+    from fieldcal.session.output import check_output_path, save_parameter_file
 
+    if args.out:  # never into a session, never over a file without --force: said before replaying
+        check_output_path(args.out, force=args.force, option="--out")
+    reader, _, _ = _procedure_session(args.session)
     torn = warn_if_torn(args.session)
     unit, pf, samples = replay_session(args.session, args.speed, printer(sys.stdout, args.quiet))
     print(f"replayed {samples} samples")
@@ -103,12 +126,20 @@ def cmd_replay(args) -> int:
         print("nothing could be calibrated from this session")
         return 1
     if args.out:
-        save(pf, args.out)
+        save_parameter_file(pf, args.out, force=args.force, option="--out")
         print(f"parameter file written to {args.out}")
-    recorded = recorded_parameters(args.session)
-    if recorded is None:
-        print("the session has no parameter file to compare with (it did not finish)")
+    noted = list(reader.documents("parameters"))
+    if not noted:
+        print("the session has no parameter file to compare with ("
+              + (f"its run {reader.stop_reason}" if reader.stopped else "it did not finish") + ")")
         return 1 if torn else 0
+    path = reader.directory / noted[-1]["file"]
+    try:
+        recorded = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{path}: the session's parameter file (noted in log.jsonl line "
+                         f"{noted[-1]['seq'] + 1}) cannot be read ({exc.strerror or exc}); nothing to "
+                         "compare the replay with") from None
     same = dump(pf).encode() == recorded
     print("parameter file identical to the recorded one, byte for byte" if same
           else "parameter file DIFFERS from the recorded one")
@@ -117,17 +148,16 @@ def cmd_replay(args) -> int:
 
 def cmd_solve(args) -> int:
     from fieldcal.solvers.compare import compare_methods
-    from fieldcal.run.runner import RunSpec
-    from fieldcal.session.capture import SessionReader
 
-    reader = SessionReader(args.session, log_only=True)  # the averages are in the log
+    # The averages are in the log: samples.bin is neither read nor required.
+    reader, spec, steps = _procedure_session(args.session, log_only=True)  # every step checked
     for line in reader.torn:
         print(f"warning: {args.session}: {line}", file=sys.stderr)
-    if not reader.steps():
+    if not steps:
         raise ValueError(f"{args.session}: no completed steps to solve from")
     methods = args.method
     if not methods:
-        aligned = RunSpec.from_metadata(reader.start).procedure.aligned
+        aligned = spec.procedure.aligned
         methods = ["classic"] if aligned else ["powell", "lsq"]
     print(compare_methods(Path(args.session), methods))
     return 0

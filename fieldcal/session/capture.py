@@ -122,11 +122,16 @@ from typing import Any, Self
 import numpy as np
 
 from drivers.chunk import SampleChunk
+from fieldcal.atomic import WouldOverwrite, write_atomically
+from fieldcal.session.lock import SessionLock, is_held
 
-SCHEMA = "fieldcal-session/1"
+SCHEMA = "fieldcal-session/2"  # 2: every log line ends with "crc" (version 1, without, still reads)
+SCHEMA_V1 = "fieldcal-session/1"
 LOG = "log.jsonl"
 SAMPLES = "samples.bin"
-PARAMETERS = "parameters.yaml"
+PARAMETERS = "parameters.yaml"  # the current parameter file: a copy of the newest numbered one
+PARAMETERS_NUMBERED = re.compile(r"parameters-(\d{3,})\.yaml")
+TORN_SUFFIX = ".torn"
 RAW_PREFIX, RAW_SUFFIX = "raw-", ".bin"
 RECORD_MAGIC = b"FCS1"
 RECORD_HEADER = struct.Struct("<4sIQQQQ")  # magic, crc32(payload), chunk seq, descriptor seq, n, payload bytes
@@ -199,7 +204,28 @@ def to_plain(value: Any, where: str = "data") -> Any:
 
 
 def _dumps(doc: dict) -> bytes:
-    return (json.dumps(doc, ensure_ascii=True, separators=(",", ":"), allow_nan=True) + "\n").encode("ascii")
+    """One log line: the document's canonical JSON with ``"crc"`` (CRC-32 of that JSON) appended
+    as its last key, so a reader checks the bytes exactly as written, without re-serialising."""
+    body = json.dumps(doc, ensure_ascii=True, separators=(",", ":"), allow_nan=True).encode("ascii")
+    return body[:-1] + b',"crc":%d}\n' % zlib.crc32(body)
+
+
+_CRC_TAIL = re.compile(rb',"crc":(\d{1,10})\}$')
+
+
+def _parse_line(raw: bytes, checked: bool | None) -> dict:
+    """A log line as a document (without its "crc"). ``checked``: True if the session's format
+    requires a checksum (version 2), None while the format is not known yet (line 1).
+    ValueError (with a one-line reason) for a line that is not a valid document."""
+    m = _CRC_TAIL.search(raw)
+    if m is None:
+        if checked:
+            raise ValueError("no checksum (\"crc\") at the end of the line")
+        return json.loads(raw)
+    body = raw[:m.start()] + b"}"
+    if zlib.crc32(body) != int(m.group(1)):
+        raise ValueError("checksum mismatch: the line was changed after it was written")
+    return json.loads(body)
 
 
 def _data(value, where: str) -> dict:
@@ -326,8 +352,9 @@ class _DocChecker:
         getattr(self, f"check_{kind}")(doc, line)
 
     def check_start(self, doc, line):
-        if doc.get("schema") != SCHEMA:
-            self.fail(line, f"expected a start document of schema {SCHEMA!r}, got {doc.get('schema')!r}"[:200])
+        if doc.get("schema") not in (SCHEMA, SCHEMA_V1):
+            self.fail(line, f"expected a start document of schema {SCHEMA!r} (or {SCHEMA_V1!r}), got "
+                      f"{doc.get('schema')!r}"[:200])
         self.field(doc, "metadata", (dict,), line, "an object")
 
     def check_descriptor(self, doc, line):
@@ -416,15 +443,15 @@ def _file_size(path: Path) -> int:
         return 0
 
 
-def _scan(directory: str | os.PathLike, verb: str, log_only: bool = False) -> _Scan:
+def _scan(directory: str | os.PathLike, verb: str, live: bool = False, log_only: bool = False) -> _Scan:
+    """Read and check the whole log; find the torn tail (at most the last write of each file, as
+    a crash leaves it) and refuse anything else as damage, naming the file and byte or line.
+
+    ``live``: a writer holds the session's lock, so bytes beyond what the log indexes are a write
+    in progress, not damage. ``log_only``: the data files are neither needed nor checked.
+    """
     d = Path(directory)
-    if not d.exists():
-        raise SessionError(f"{d}: no such session directory", str(d))
-    if not d.is_dir():
-        raise SessionError(f"{d}: not a directory", str(d))
-    log_path = d / LOG
-    if not log_path.is_file():
-        raise SessionError(f"{d}: not a session directory (no {LOG})", str(d))
+    log_path = _session_log(d)
     try:
         data = log_path.read_bytes()  # read the log before sizing the data files it indexes
     except OSError as exc:
@@ -436,70 +463,91 @@ def _scan(directory: str | os.PathLike, verb: str, log_only: bool = False) -> _S
     complete = data.rfind(b"\n") + 1
     checker = _DocChecker(log_path)
     docs: list[dict] = []
-    ends: list[int] = []  # byte offset after each line
-    pos = 0
     beyond: list[str] = []
     if complete < len(data):
         beyond.append(f"{LOG}: {verb} a torn last line ({_plural(len(data) - complete, 'byte')} at byte {complete})")
     if complete == 0:
         raise SessionError(f"{log_path}: not a session log (no complete start document: the file is "
                            f"{'empty' if not data else 'one torn line'})", str(log_path), 1)
+    checked: bool | None = None
+    pos = 0
     for index, raw in enumerate(data[:complete - 1].split(b"\n")):
         try:
-            doc = json.loads(raw)
-        except ValueError as exc:  # JSONDecodeError or UnicodeDecodeError
-            detail = getattr(exc, "msg", None) or type(exc).__name__
+            doc = _parse_line(raw, checked)
+        except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError or a checksum
+            detail = getattr(exc, "msg", None) or str(exc) or type(exc).__name__
             if index == 0:
-                raise SessionError(f"{log_path}: line 1: not a session log (not JSON: {detail})",
-                                   str(log_path), 1) from None
-            raise SessionError(f"{log_path}: line {index + 1}: not a JSON document ({detail})",
-                               str(log_path), index + 1) from None
+                raise SessionError(f"{log_path}: line 1: not a session log ({detail})", str(log_path), 1) from None
+            raise SessionError(f"{log_path}: line {index + 1} (byte {pos}): damaged: {detail}; the session "
+                               "is not repaired automatically (restore it from a copy)", str(log_path),
+                               index + 1) from None
         checker.check(doc, index)
+        if index == 0:
+            checked = doc["schema"] != SCHEMA_V1
+            if checked and not _CRC_TAIL.search(raw):
+                raise SessionError(f"{log_path}: line 1: no checksum (\"crc\"), which {SCHEMA} requires",
+                                   str(log_path), 1)
         pos += len(raw) + 1
         docs.append(doc)
-        ends.append(pos)
 
-    # The consistent prefix: stop at the first document whose bytes are not all on disk.
-    keep = len(docs)
-    samples_end = 0
-    raw_ends: dict[str, int] = {}
-    for i, doc in enumerate(() if log_only else docs):  # log_only: the data files are not needed
+    # Data the log indexes must all be there: a crash writes the data before the log line, so a
+    # log that points past the end of a file is damage (the file was cut or replaced), never a tail.
+    for i, doc in enumerate(() if log_only else docs):
         kind = doc["type"]
-        missing = (kind == "chunk" and not (d / SAMPLES).is_file()) or \
-            (kind == "raw" and doc["name"] not in raw_sizes)
-        if missing:  # not a torn tail: a file is gone (cutting the log back to here would lose data)
-            name = SAMPLES if kind == "chunk" else raw_path(d, doc["name"]).name
-            raise SessionError(f"{d / name}: missing, but {LOG} line {i + 1} refers to it", str(d / name), i + 1)
-        if kind == "chunk":
-            end = doc["offset"] + doc["length"]
-            if end > samples_size:
-                keep = i
-                beyond.append(f"{LOG}: {verb} {_plural(len(docs) - i, 'document')} from line {i + 1} on "
-                              f"(chunk {doc['seq']} needs {SAMPLES} up to byte {end}, the file has {samples_size})")
-                break
-            samples_end = end
-        elif kind == "raw":
-            end = doc["offset"] + doc["length"]
-            size = raw_sizes.get(doc["name"], 0)
-            if end > size:
-                keep = i
-                beyond.append(f"{LOG}: {verb} {_plural(len(docs) - i, 'document')} from line {i + 1} on "
-                              f"(raw {doc['name']!r} needs {RAW_PREFIX}{doc['name']}{RAW_SUFFIX} up to byte "
-                              f"{end}, the file has {size})")
-                break
-            raw_ends[doc["name"]] = end
-    docs = docs[:keep]
+        if kind not in ("chunk", "raw"):
+            continue
+        path = d / SAMPLES if kind == "chunk" else raw_path(d, doc["name"])
+        size = samples_size if kind == "chunk" else raw_sizes.get(doc["name"])
+        if kind == "chunk" and not path.is_file() or size is None:
+            raise SessionError(f"{path}: missing, but {LOG} line {i + 1} refers to it", str(path), i + 1)
+        end = doc["offset"] + doc["length"]
+        if end > size:
+            raise SessionError(f"{path}: damaged: the file ends at byte {size}, but {LOG} line {i + 1} "
+                               f"({doc['type']} {doc['seq']}) says it was written up to byte {end} (the "
+                               "file was cut short; restore it from a copy)", str(path), i + 1)
+    samples_end, raw_ends = checker.samples_end, dict(checker.raw_ends)
     if samples_size > samples_end:
-        beyond.append(f"{SAMPLES}: {verb} {_plural(samples_size - samples_end, 'byte')} after the last "
-                      f"logged chunk (from byte {samples_end})")
+        tail = samples_size - samples_end
+        if not live:
+            _check_torn_record(d / SAMPLES, samples_end, tail, len(docs))
+        beyond.append(f"{SAMPLES}: {verb} {_plural(tail, 'byte')} after the last logged chunk "
+                      f"(from byte {samples_end})")
     for name, size in raw_sizes.items():
         if size > raw_ends.get(name, 0):
             beyond.append(f"{RAW_PREFIX}{name}{RAW_SUFFIX}: {verb} {_plural(size - raw_ends.get(name, 0), 'byte')} "
                           f"after the last logged read (from byte {raw_ends.get(name, 0)})")
-    descriptors = {s: c for s, c in checker.descriptors.items() if s < keep}
-    last_chunk = next((doc["seq"] for doc in reversed(docs) if doc["type"] == "chunk"), None)
-    return _Scan(d, docs, ends[keep - 1], len(data), samples_end, samples_size, raw_ends, raw_sizes,
-                 descriptors, last_chunk, beyond)
+    return _Scan(d, docs, complete, len(data), samples_end, samples_size, raw_ends, raw_sizes,
+                 dict(checker.descriptors), checker.last_chunk, beyond)
+
+
+def _session_log(d: Path) -> Path:
+    if not d.exists():
+        raise SessionError(f"{d}: no such session directory", str(d))
+    if not d.is_dir():
+        raise SessionError(f"{d}: not a directory", str(d))
+    log_path = d / LOG
+    if not log_path.is_file():
+        raise SessionError(f"{d}: not a session directory (no {LOG})", str(d))
+    return log_path
+
+
+def _check_torn_record(path: Path, start: int, tail: int, next_seq: int) -> None:
+    """Bytes after the last logged chunk are a torn tail only if they are (a prefix of) the one
+    record a crash could have written before its log line: the next seq, no longer than itself."""
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        head = fh.read(RECORD_HEADER.size)
+    why = None
+    if not head.startswith(RECORD_MAGIC[:len(head)]):
+        why = "they do not start with a record header"
+    elif len(head) >= 16 and struct.unpack_from("<Q", head, 8)[0] != next_seq:  # the header's seq, once there
+        why = f"they hold chunk {struct.unpack_from('<Q', head, 8)[0]}, not the next one ({next_seq})"
+    elif len(head) == RECORD_HEADER.size and tail > RECORD_HEADER.size + RECORD_HEADER.unpack(head)[5]:
+        why = "they are more than one unlogged record"
+    if why:
+        raise SessionError(f"{path}: damaged: {_plural(tail, 'byte')} from byte {start} on are not indexed by "
+                           f"{LOG}, and {why} (the log was cut short or the file damaged; restore it from a "
+                           "copy)", str(path))
 
 
 def _run_state(docs: list[dict]) -> tuple[bool, str | None]:
@@ -555,8 +603,10 @@ class SessionWriter:
     """
 
     def __init__(self, directory: Path, log, samples, scan: _Scan | None, *, fsync_interval_s: float,
-                 clock: Callable[[], float], active: bool, repaired: list[str]) -> None:
+                 clock: Callable[[], float], active: bool, repaired: list[str],
+                 session_lock: SessionLock | None = None) -> None:
         self.directory = directory
+        self._session_lock = session_lock  # the OS lock that makes this the session's only writer
         self._log = log
         self._samples = samples
         self._raw: dict[str, Any] = {}
@@ -576,6 +626,8 @@ class SessionWriter:
             self._raw_ends = dict(scan.raw_ends)
             self._last_chunk = scan.last_chunk
             self._layouts = {cols: seq for seq, cols in scan.descriptors.items()}
+        self._completed_line = None if scan is None else next(
+            (doc["seq"] + 1 for doc in scan.docs if doc["type"] == "stop" and doc["reason"] == "completed"), None)
         self._last_sync = clock()
 
     # -- opening ------------------------------------------------------------------------------
@@ -593,15 +645,28 @@ class SessionWriter:
             if any(d.iterdir()):
                 raise SessionError(f"{d}: already exists and is not empty (a new session needs a new "
                                    "directory; to continue this one, resume it)", str(d))
-        d.mkdir(parents=True, exist_ok=True)
-        log = open(d / LOG, "xb")  # noqa: SIM115 -- held open by the writer until close()
         try:
+            d.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SessionError(f"{d}: cannot create the session directory ({exc.strerror or exc})", str(d)) from None
+        session_lock = SessionLock.acquire(d)  # two runs given the same directory: one is refused
+        log = samples = None
+        try:
+            if (d / LOG).exists():
+                raise SessionError(f"{d}: already a session (a new session needs a new directory; to "
+                                   "continue this one, resume it)", str(d))
+            log = open(d / LOG, "xb")  # noqa: SIM115 -- held open by the writer until close()
             samples = open(d / SAMPLES, "xb")  # noqa: SIM115
-        except BaseException:
-            log.close()
+        except BaseException as exc:
+            for fh in (log, samples):
+                if fh is not None:
+                    fh.close()
+            session_lock.release()
+            if isinstance(exc, OSError):
+                raise SessionError(f"{d}: cannot write the session ({exc.strerror or exc})", str(d)) from None
             raise
         writer = cls(d, log, samples, None, fsync_interval_s=fsync_interval_s, clock=clock,
-                     active=True, repaired=[])
+                     active=True, repaired=[], session_lock=session_lock)
         writer._write({"seq": 0, "type": "start", "schema": SCHEMA, "metadata": metadata})
         writer.sync()
         _fsync_directory(d)
@@ -615,20 +680,31 @@ class SessionWriter:
         What was cut is in ``writer.repaired`` (one line each) and goes into the resume document.
         """
         _check_interval(fsync_interval_s)
-        scan = _scan(directory, "cut")
-        d = scan.directory
-        if scan.last_chunk is not None:  # do not build on a damaged last record
-            last = next(doc for doc in reversed(scan.docs) if doc["type"] == "chunk")
-            with open(d / SAMPLES, "rb") as fh:
-                _read_record(fh, last, scan.descriptors[last["descriptor"]], d / SAMPLES, last["seq"] + 1)
-        _truncate(d / LOG, scan.kept_log_bytes)
-        _truncate(d / SAMPLES, scan.samples_end)
-        for name in scan.raw_sizes:
-            _truncate(raw_path(d, name), scan.raw_ends.get(name, 0))
-        log = open(d / LOG, "ab")  # noqa: SIM115 -- held open by the writer until close()
-        samples = open(d / SAMPLES, "ab")  # noqa: SIM115
+        d = Path(directory)
+        _session_log(d)
+        session_lock = SessionLock.acquire(d)  # before reading: nobody may write while we repair
+        try:
+            scan = _scan(d, "cut")
+            if not _writable(d):  # before anything is cut or re-run
+                raise SessionError(f"{d}: cannot write to this session (no permission)", str(d))
+            if scan.last_chunk is not None:  # do not build on damaged records: read every one
+                _verify_records(scan)
+            repaired = []
+            for path, keep in [(d / LOG, scan.kept_log_bytes), (d / SAMPLES, scan.samples_end),
+                               *((raw_path(d, name), scan.raw_ends.get(name, 0)) for name in scan.raw_sizes)]:
+                kept_in = _cut_torn(path, keep)
+                if kept_in is not None:
+                    repaired += [f"{line} (kept in {kept_in.name})" for line in scan.beyond
+                                 if line.startswith(f"{path.name}:")]
+            log = open(d / LOG, "ab")  # noqa: SIM115 -- held open by the writer until close()
+            samples = open(d / SAMPLES, "ab")  # noqa: SIM115
+        except BaseException as exc:
+            session_lock.release()
+            if isinstance(exc, OSError):
+                raise SessionError(f"{d}: cannot write to this session ({exc.strerror or exc})", str(d)) from None
+            raise
         writer = cls(d, log, samples, scan, fsync_interval_s=fsync_interval_s, clock=clock,
-                     active=False, repaired=scan.beyond)
+                     active=False, repaired=repaired, session_lock=session_lock)
         for name in scan.raw_ends:
             writer._raw[name] = open(raw_path(d, name), "ab")  # noqa: SIM115
         return writer
@@ -755,13 +831,21 @@ class SessionWriter:
         with self._lock:
             seq = self._doc("stop", data, reason=reason)
             self._active = False
+            if reason == "completed" and self._completed_line is None:
+                self._completed_line = seq + 1
             self.sync()
             return seq
 
     def resume(self, data: Mapping | None = None) -> int:
-        """Start a new run continuing this session (after ``append_to``, or after ``stop``)."""
+        """Start a new run continuing this session (after ``append_to``, or after ``stop``).
+
+        A session whose run completed is never resumed (SessionError naming its stop line)."""
         payload = _data({} if data is None else data, "resume")
         with self._writing("resume"):
+            if self._completed_line is not None:
+                raise SessionError(f"{self.directory / LOG}: line {self._completed_line}: this session "
+                                   "completed; a completed session is never resumed (replay it, or run "
+                                   "again into a new directory)", str(self.directory / LOG), self._completed_line)
             seq = self._write({"seq": self._seq, "type": "resume", "after_chunk": self._last_chunk,
                                "repaired": list(self.repaired), "data": payload})
             self.repaired = []
@@ -793,21 +877,52 @@ class SessionWriter:
             self._maybe_sync()
             return seq
 
-    def write_parameters(self, pf, filename: str = PARAMETERS) -> int:
-        """Save a ParameterFile into the session (atomically) and note it with its SHA-256."""
-        from fieldcal.paramfile import save
+    def write_parameters(self, pf, filename: str | None = None) -> int:
+        """Save a ParameterFile into the session and note it with its SHA-256.
 
-        if not isinstance(filename, str) or not _NAME.fullmatch(filename) or filename in (LOG, SAMPLES) \
-                or filename.startswith(RAW_PREFIX):
+        Every calibration is kept: by default it goes into the next free ``parameters-NNN.yaml``
+        (never over an existing file) and ``parameters.yaml`` is then replaced by a copy of it, the
+        current one. A ``filename`` writes that file instead (refused if it exists).
+        """
+        from fieldcal.paramfile import dump
+
+        if filename is not None and (not isinstance(filename, str) or not _NAME.fullmatch(filename)
+                                     or filename in (LOG, SAMPLES, PARAMETERS) or filename.startswith(RAW_PREFIX)):
             raise ValueError(f"parameter file name: expected a plain file name, got {filename!r}")
+        data = dump(pf).encode("utf-8")
         with self._lock:
             self._require("parameters")
-            path = save(pf, self.directory / filename)  # atomic: a failure leaves the log as it was
-            sha = hashlib.sha256(path.read_bytes()).hexdigest()
+            if filename is None:
+                self._keep_current_parameters()
+            name = filename or self._next_parameters_name()
+            # atomic and never over another file: a failure leaves the log as it was
+            path = write_atomically(self.directory / name, data, overwrite=False,
+                                    hint="a session's files are never overwritten")
             with self._writing("parameters"):
-                seq = self._write({"seq": self._seq, "type": "parameters", "file": filename, "sha256": sha})
+                seq = self._write({"seq": self._seq, "type": "parameters", "file": name,
+                                   "sha256": hashlib.sha256(data).hexdigest()})
                 self._maybe_sync()
-                return seq
+            if filename is None:  # the current copy; the log names the numbered file it copies
+                write_atomically(self.directory / PARAMETERS, path.read_bytes())
+            return seq
+
+    def _numbered_parameters(self) -> list[tuple[int, Path]]:
+        return sorted((int(m.group(1)), p) for p in self.directory.iterdir()
+                      if (m := PARAMETERS_NUMBERED.fullmatch(p.name)))
+
+    def _next_parameters_name(self) -> str:
+        taken = self._numbered_parameters()
+        return f"parameters-{(taken[-1][0] if taken else 0) + 1:03d}.yaml"
+
+    def _keep_current_parameters(self) -> None:
+        """A parameters.yaml that is no copy of a numbered file (a session written before files
+        were numbered) is kept under the next number before a new calibration replaces it."""
+        current = self.directory / PARAMETERS
+        if not current.is_file():
+            return
+        old = current.read_bytes()
+        if not any(p.read_bytes() == old for _, p in self._numbered_parameters()):
+            write_atomically(self.directory / self._next_parameters_name(), old, overwrite=False)
 
     # -- durability ---------------------------------------------------------------------------
 
@@ -838,6 +953,8 @@ class SessionWriter:
                 self._closed = True
                 for fh in (self._samples, *self._raw.values(), self._log):
                     fh.close()
+                if self._session_lock is not None:
+                    self._session_lock.release()
 
     def __enter__(self) -> Self:
         return self
@@ -851,12 +968,41 @@ def _check_interval(seconds) -> None:
         raise ValueError(f"fsync_interval_s: expected a number >= 0, got {seconds!r}")
 
 
-def _truncate(path: Path, size: int) -> None:
-    if _file_size(path) > size:
-        with open(path, "r+b") as fh:
-            fh.truncate(size)
-            fh.flush()
-            os.fsync(fh.fileno())
+def _cut_torn(path: Path, size: int) -> Path | None:
+    """Cut ``path`` back to ``size`` bytes, first keeping what is cut in ``<name>.torn`` (or
+    ``.torn-2``, ... : an earlier cut's copy is never overwritten). The copy's path, or None."""
+    if _file_size(path) <= size:
+        return None
+    with open(path, "rb") as fh:
+        fh.seek(size)
+        cut = fh.read()
+    for n in range(1, 1000):
+        kept = path.with_name(f"{path.name}{TORN_SUFFIX}{'' if n == 1 else f'-{n}'}")
+        try:
+            write_atomically(kept, cut, overwrite=False)
+            break
+        except WouldOverwrite:
+            continue
+    else:
+        raise SessionError(f"{path}: too many earlier {TORN_SUFFIX} copies beside it", str(path))
+    with open(path, "r+b") as fh:
+        fh.truncate(size)
+        fh.flush()
+        os.fsync(fh.fileno())
+    return kept
+
+
+def _writable(d: Path) -> bool:
+    return all(os.access(p, os.W_OK) for p in (d, d / LOG) if p.exists())
+
+
+def _verify_records(scan: _Scan) -> None:
+    """Read every chunk record back against its log line (SessionError naming the first bad one)."""
+    path = scan.directory / SAMPLES
+    with open(path, "rb") as fh:
+        for doc in scan.docs:
+            if doc["type"] == "chunk":
+                _read_record(fh, doc, scan.descriptors[doc["descriptor"]], path, doc["seq"] + 1)
 
 
 def _fsync_directory(directory: Path) -> None:
@@ -886,7 +1032,7 @@ class SessionReader:
     def __init__(self, directory: str | os.PathLike, *, log_only: bool = False) -> None:
         """``log_only``: the log's documents alone (step averages, events, actions), neither
         reading nor requiring samples.bin and the raw files (e.g. to re-solve without them)."""
-        self._scan = _scan(directory, "ignored", log_only)
+        self._scan = _scan(directory, "ignored", live=is_held(directory), log_only=log_only)
         self.directory = self._scan.directory
         self.torn: list[str] = list(self._scan.beyond)
         self.stopped, self.stop_reason = _run_state(self._scan.docs)

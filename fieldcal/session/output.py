@@ -1,0 +1,44 @@
+"""Parameter files written where the user asks (``replay --out``, ``calibrate --params``,
+``demo --params``): never inside a session, never over an existing file unless forced."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from fieldcal.session.capture import LOG, SessionError
+
+
+def refuse_inside_session(path: str | os.PathLike, what: str) -> None:
+    """A one-line SessionError if ``path`` is a session directory or a file in one: only the
+    session writer writes there (and never over a file)."""
+    p = Path(path)
+    for d in (p, p.parent):
+        if (d / LOG).is_file():
+            raise SessionError(f"{p}: {what} would be written into the session {d}, whose files "
+                               "are never overwritten nor added to by hand; give a path outside it",
+                               str(p))
+
+
+_HINT = "give --force to replace it"
+
+
+def check_output_path(path: str | os.PathLike, *, force: bool, option: str) -> None:
+    """What ``save_parameter_file`` would refuse, said before the work that leads to it."""
+    from fieldcal.atomic import WouldOverwrite
+
+    refuse_inside_session(path, f"{option}'s parameter file")
+    p = Path(path)
+    if p.is_dir():
+        raise SessionError(f"{p}: {option}: is a directory; give a file name", str(p))
+    if not force and (p.exists() or p.is_symlink()):
+        raise WouldOverwrite(p, _HINT)
+
+
+def save_parameter_file(pf, path: str | os.PathLike, *, force: bool = False, option: str = "--out") -> Path:
+    """Write ``pf`` to ``path`` atomically; refused inside a session, and over an existing file
+    unless ``force`` (the refusal names ``path`` and the --force flag)."""
+    from fieldcal.atomic import write_atomically
+    from fieldcal.paramfile import dump
+
+    check_output_path(path, force=force, option=option)
+    return write_atomically(path, dump(pf).encode("utf-8"), overwrite=force, hint=_HINT)
