@@ -335,3 +335,27 @@ def test_bad_inputs_say_what_is_wrong():
     with pytest.raises(ValueError, match="dominant diagonal"):
         solve_gyro_rotations(rec.t, obs["raw"], rec.spans, obs["up"][:-1], obs["up"][1:],
                              K0=np.eye(3)[[1, 0, 2]], b0=0.0)
+
+
+def test_the_parameter_file_holds_the_rotation_calibration():
+    """The file's named angles are the lower-triangle terms (Δyz = −m_yx, Δzy = m_zx, Δzx = −m_zy)
+    with their σ; the held bias carries the prior's σ; K (upper triangle included) is kept."""
+    from fieldcal.earth import Station
+    from fieldcal.paramfile import ParameterFile, dump, hash_inputs, loads
+
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(7), **GRADES["si"])
+    sol = solve(rec, obs, output_unit="rad/s")
+    assert sol.diagnostics.held == ("bias_x", "bias_y", "bias_z")
+    np.testing.assert_array_equal(sol.sigma[:3], np.full(3, obs["sigmas"]["bias_sigma"]))
+    pf = ParameterFile.build([sol], station=Station(48.0), procedure="recording", method="rotation",
+                             input_sha256=hash_inputs(np.zeros(3)))
+    back = loads(dump(pf))["gyro"]
+    assert back == sol and back.method == "rotation" and back.residual_unit == "rad"
+    np.testing.assert_array_equal(back.K, sol.K)
+    m = sol.named()
+    np.testing.assert_allclose(back.misalignment, [-m["m_yx"][0], m["m_zx"][0], -m["m_zy"][0]], rtol=1e-12)
+    np.testing.assert_array_equal(back.sigma[6:], [m[n][1] for n in ("m_yx", "m_zx", "m_zy")])
+    # And against the simulated truth: the file's angles are the true M's, within 4σ.
+    true_terms = np.array([-obs["M"][2], obs["M"][4], -obs["M"][5]])
+    assert np.all(np.abs(back.misalignment - true_terms) < 4 * back.sigma[6:])
