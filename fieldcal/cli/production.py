@@ -75,6 +75,29 @@ def cmd_check(args) -> int:
     return report_acceptance(load_spec(args.spec), args.params, args.previous)
 
 
+def cmd_export(args) -> int:
+    from fieldcal.atomic import write_atomically
+    from fieldcal.export import export
+    from fieldcal.export.autopilot import diagonal_parameters
+    from fieldcal.paramfile import load
+    from fieldcal.session.output import check_output_path
+
+    if args.out:
+        check_output_path(args.out, force=args.force, option="--out")
+    parameters = load(args.params)
+    text = export(parameters, args.format, accelerometer=args.accelerometer, gyroscope=args.gyroscope)
+    if args.format in ("ardupilot", "px4"):  # say what the format cannot hold, where people look
+        for loss in diagonal_parameters(parameters, args.format, args.accelerometer, args.gyroscope,
+                                        gyro_scale=False)[1]:
+            print(f"fieldcal export: {args.format}: {loss.line()}", file=sys.stderr)
+    if args.out:
+        write_atomically(args.out, text.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
+        print(f"{args.format} written to {args.out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
 def add_production_parsers(sub) -> None:
     check = sub.add_parser(
         "check", help="PASS/FAIL of a parameter file against a product spec",
@@ -86,3 +109,19 @@ def add_production_parsers(sub) -> None:
     check.add_argument("--previous", metavar="FILE", help="the unit's previous parameter file, for the "
                        "drift (default: the newest sibling session's, when PARAMS is in a session)")
     check.set_defaults(func=cmd_check)
+
+    from fieldcal.export import FORMATS  # light: no heavy imports
+    export = sub.add_parser(
+        "export", help="a parameter file for ArduPilot, PX4, imucal, firmware (C) or as JSON",
+        description="Write a parameter file in another tool's format. ardupilot and px4 hold only "
+        "offsets and diagonal scales (ArduPilot no gyro scale): what is dropped, and the worst error "
+        "it costs, is printed on stderr and written in the file's comments.")
+    export.add_argument("params", metavar="PARAMS", help="parameter file")
+    export.add_argument("--format", required=True, choices=FORMATS)
+    export.add_argument("--out", metavar="FILE", help="write here (default: standard output)")
+    export.add_argument("--force", action="store_true", help="replace the --out file if it exists")
+    export.add_argument("--accelerometer", default="accelerometer", metavar="TRIAD",
+                        help="the accelerometer triad (default accelerometer)")
+    export.add_argument("--gyroscope", default="gyroscope", metavar="TRIAD",
+                        help="the gyroscope triad (default gyroscope)")
+    export.set_defaults(func=cmd_export)
