@@ -98,6 +98,50 @@ def cmd_export(args) -> int:
     return 0
 
 
+def _apply_targets(args, plans) -> list[Path | None]:
+    """Where each input's CSV goes: stdout (None), --out as a file (one input) or a directory."""
+    from fieldcal.session.output import check_output_path
+
+    if args.out is None:
+        if len(plans) > 1:
+            raise ValueError("apply: several input files give several CSVs: give --out DIR")
+        return [None]
+    out = Path(args.out)
+    targets = [out] if len(plans) == 1 and not out.is_dir() else \
+        [out / f"{Path(p.path).stem}-calibrated.csv" for p in plans]
+    if len(plans) > 1 and not out.is_dir():
+        raise ValueError(f"apply: --out {out}: several input files need an existing directory")
+    for target in targets:
+        check_output_path(target, force=args.force, option="--out")
+    return targets
+
+
+def cmd_apply(args) -> int:
+    from fieldcal.apply import apply_file, plan
+    from fieldcal.paramfile import load
+    from fieldcal.recording.import_map import load_import_map
+
+    plans = plan(load(args.params), load_import_map(args.map), args.input)
+    targets = _apply_targets(args, plans)
+    for p, target in zip(plans, targets):
+        for name in p.skipped:
+            print(f"fieldcal apply: {p.path}: triad {name!r} is not in {args.params}: not written",
+                  file=sys.stderr)
+        if target is None:
+            n = apply_file(p, sys.stdout.buffer)
+            sys.stdout.buffer.flush()
+            continue
+        partial = target.with_name(f".{target.name}.partial")  # the CSV appears whole or not at all
+        try:
+            with open(partial, "wb") as fh:
+                n = apply_file(p, fh)
+            partial.replace(target)
+        finally:
+            partial.unlink(missing_ok=True)
+        print(f"{p.path}: {n} samples calibrated into {target}", file=sys.stderr)
+    return 0
+
+
 def add_production_parsers(sub) -> None:
     check = sub.add_parser(
         "check", help="PASS/FAIL of a parameter file against a product spec",
@@ -125,3 +169,17 @@ def add_production_parsers(sub) -> None:
     export.add_argument("--gyroscope", default="gyroscope", metavar="TRIAD",
                         help="the gyroscope triad (default gyroscope)")
     export.set_defaults(func=cmd_export)
+
+    apply = sub.add_parser(
+        "apply", help="calibrated CSV from a recording's text files",
+        description="Read a recording's text files in an import map's layout, block by block, and "
+        "write each calibrated triad K⁻¹(raw − bias) in SI units (m/s^2, rad/s) as CSV: a time "
+        "column t_s, then x, y, z per triad.")
+    apply.add_argument("params", metavar="PARAMS", help="parameter file")
+    apply.add_argument("input", nargs="+", metavar="INPUT", help="text files, one per map entry")
+    apply.add_argument("--map", required=True, metavar="MAP", help="import map: a name in "
+                       "configs/recordings or a YAML path (see fieldcal import)")
+    apply.add_argument("--out", metavar="PATH", help="the CSV (one input) or a directory for "
+                       "INPUT-calibrated.csv files (default: standard output, one input)")
+    apply.add_argument("--force", action="store_true", help="replace existing output files")
+    apply.set_defaults(func=cmd_apply)
