@@ -14,8 +14,15 @@ SPEC_HELP = (f"product spec YAML: PASS/FAIL per parameter with the reason; exit 
              f"{EXIT_FAILED_SPEC} if any fails")
 
 
+def add_registry_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--registry", metavar="PATH", help="the unit registry (SQLite; default "
+                        "$XDG_DATA_HOME/fieldcal/registry.sqlite)")
+
+
 def add_spec_option(parser: argparse.ArgumentParser) -> None:
+    """--spec and --registry, for the commands that calibrate."""
     parser.add_argument("--spec", metavar="SPEC", help=SPEC_HELP)
+    add_registry_option(parser)
 
 
 def load_spec_option(args):
@@ -40,8 +47,8 @@ def _previous_of(params: Path):
     return found
 
 
-def report_acceptance(spec, params: str | Path, previous: str | Path | None = None, out=None) -> int:
-    """Print the verdict of ``params`` against ``spec``; EXIT_FAILED_SPEC if it fails, else 0.
+def report_acceptance(spec, params: str | Path, previous: str | Path | None = None, out=None):
+    """Print the verdict of ``params`` against ``spec``; the Verdict.
     The previous calibration (for the drift) is ``previous``, or the newest sibling session's."""
     from fieldcal.acceptance import evaluate, verdict_lines
     from fieldcal.paramfile import load
@@ -60,19 +67,28 @@ def report_acceptance(spec, params: str | Path, previous: str | Path | None = No
     verdict = evaluate(spec, parameters, prev)
     for line in verdict_lines(verdict):
         print(line, file=out)
-    return 0 if verdict.passed else EXIT_FAILED_SPEC
+    return verdict
 
 
-def accept_after(spec, params, status: int) -> int:
-    """After a calibration command that exited ``status``: its verdict against the spec, if any."""
-    if spec is None or status != 0 or params is None:
+def accept_after(args, spec, params, status: int) -> int:
+    """After a calibration command that exited ``status``: its verdict against the spec, if any,
+    and the parameter file recorded in the unit registry (a failure there is a warning)."""
+    from fieldcal.registry import record_safely
+
+    if params is None or not Path(params).is_file():
         return status
-    return report_acceptance(spec, params)
+    passed = None
+    if spec is not None and status == 0:
+        passed = report_acceptance(spec, params).passed
+        status = 0 if passed else EXIT_FAILED_SPEC
+    record_safely(params, passed, args.registry, warn=lambda text: print(text, file=sys.stderr))
+    return status
 
 
 def cmd_check(args) -> int:
     from fieldcal.acceptance import load_spec
-    return report_acceptance(load_spec(args.spec), args.params, args.previous)
+    verdict = report_acceptance(load_spec(args.spec), args.params, args.previous)
+    return 0 if verdict.passed else EXIT_FAILED_SPEC
 
 
 def cmd_export(args) -> int:
@@ -142,6 +158,64 @@ def cmd_apply(args) -> int:
     return 0
 
 
+def cmd_units(args) -> int:
+    from fieldcal.registry import Registry
+    from fieldcal.report import aligned
+
+    with Registry(args.registry) as registry:
+        units = registry.units()
+    if not units:
+        print(f"no units in {registry.path} (fieldcal registry rebuild DIR indexes sessions)")
+        return 0
+    verdicts = {None: "-", 1: "PASS", 0: "FAIL"}
+    rows = [["serial", "model", "calibrations", "last", "last result"]]
+    rows += [[serial or "(none)", model or "(none)", str(n), last, verdicts[passed]]
+             for serial, model, n, last, passed in units]
+    print(aligned(rows, "llrll", indent=""))
+    return 0
+
+
+def cmd_history(args) -> int:
+    from fieldcal.acceptance import load_spec
+    from fieldcal.registry import Registry
+    from fieldcal.registry.drift import history_lines
+
+    spec = load_spec(args.spec) if args.spec else None
+    with Registry(args.registry) as registry:
+        calibrations = registry.history(args.serial)
+    if not calibrations:
+        raise ValueError(f"history: no unit with serial {args.serial!r} in {registry.path} "
+                         "(fieldcal units lists them)")
+    for line in history_lines(calibrations, spec):
+        print(line)
+    return 0
+
+
+def cmd_registry_rebuild(args) -> int:
+    from fieldcal.registry import Registry, session_parameter_files
+
+    sessions = []
+    for d in map(Path, args.directory):
+        if not d.is_dir():
+            raise ValueError(f"registry rebuild: {d}: not a directory")
+        sessions += [d] if (d / "log.jsonl").is_file() else sorted(p.parent for p in d.glob("*/log.jsonl"))
+    added = known = bad = 0
+    with Registry(args.registry) as registry:
+        for session in sessions:
+            for params in session_parameter_files(session):
+                try:
+                    if registry.record(params):
+                        added += 1
+                    else:
+                        known += 1
+                except (ValueError, OSError) as exc:  # one bad file never stops the rebuild
+                    bad += 1
+                    print(f"warning: {params}: not indexed: {str(exc).splitlines()[0]}", file=sys.stderr)
+    print(f"{registry.path}: {len(sessions)} sessions, {added} calibrations added, {known} already "
+          f"there, {bad} unreadable")
+    return 0
+
+
 def add_production_parsers(sub) -> None:
     check = sub.add_parser(
         "check", help="PASS/FAIL of a parameter file against a product spec",
@@ -183,3 +257,27 @@ def add_production_parsers(sub) -> None:
                        "INPUT-calibrated.csv files (default: standard output, one input)")
     apply.add_argument("--force", action="store_true", help="replace existing output files")
     apply.set_defaults(func=cmd_apply)
+
+    units = sub.add_parser("units", help="the units in the registry, with their last calibration",
+                           description="List every unit in the unit registry: serial, model, how "
+                           "many calibrations, the last one's time and result.")
+    add_registry_option(units)
+    units.set_defaults(func=cmd_units)
+    history = sub.add_parser(
+        "history", help="one unit's calibrations over time, with the drift of every parameter",
+        description="Every calibration of one unit, oldest first, each parameter ± 1σ in operator "
+        "units and its drift since the calibration before in σ (the two calibrations' 1σ combined); "
+        "with --spec, drift beyond the product's max_drift is flagged.")
+    history.add_argument("serial", metavar="SERIAL")
+    history.add_argument("--spec", metavar="SPEC", help="product spec: flag drift beyond its max_drift")
+    add_registry_option(history)
+    history.set_defaults(func=cmd_history)
+    registry = sub.add_parser("registry", help="the unit registry")
+    registry_sub = registry.add_subparsers(dest="registry_command", required=True, metavar="COMMAND")
+    rebuild = registry_sub.add_parser(
+        "rebuild", help="index sessions into the registry",
+        description="Index every calibration (parameters-NNN.yaml) of the sessions in each DIR (a "
+        "session, or a directory of sessions). Files already indexed are left as they are.")
+    rebuild.add_argument("directory", nargs="+", metavar="DIR")
+    add_registry_option(rebuild)
+    rebuild.set_defaults(func=cmd_registry_rebuild)

@@ -73,7 +73,7 @@ def cmd_run(args) -> int:
     print(f"headless {procedure.name} against {config.device.name}, seed {seed}; session {directory}",
           flush=True)
     result = run_headless(run_spec, directory, printer(sys.stdout, args.quiet), serial=args.serial)
-    return accept_after(spec, result.parameters, _print_result(result, sys.stdout))
+    return accept_after(args, spec, result.parameters, _print_result(result, sys.stdout))
 
 
 def _procedure_session(directory, log_only: bool = False):
