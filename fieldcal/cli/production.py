@@ -216,6 +216,34 @@ def cmd_registry_rebuild(args) -> int:
     return 0
 
 
+def cmd_certificate(args) -> int:
+    from fieldcal.acceptance import evaluate, load_spec
+    from fieldcal.atomic import write_atomically
+    from fieldcal.certificate import certificate_html
+    from fieldcal.paramfile import load
+    from fieldcal.session.capture import SessionReader
+    from fieldcal.session.history import recorded_check
+    from fieldcal.session.output import check_output_path
+
+    session = Path(args.session)
+    out = Path(args.out) if args.out else Path(f"{session.resolve().name}-certificate.html")
+    check_output_path(out, force=args.force, option="--out")
+    spec = load_spec(args.spec) if args.spec else None
+    reader = SessionReader(session)
+    params = reader.parameters_path
+    if params is None:
+        raise ValueError(f"certificate: {session}: the session has no parameter file (not calibrated)")
+    parameters = load(params)
+    verdict = None
+    if spec is not None:
+        previous = _previous_of(params)
+        verdict = evaluate(spec, parameters, previous.parameters if previous is not None else None)
+    page = certificate_html(session, params, parameters, recorded_check(params), verdict, reader.stop_reason)
+    write_atomically(out, page.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
+    print(f"certificate: {out}")
+    return 0 if verdict is None or verdict.passed else EXIT_FAILED_SPEC
+
+
 def add_production_parsers(sub) -> None:
     check = sub.add_parser(
         "check", help="PASS/FAIL of a parameter file against a product spec",
@@ -281,3 +309,14 @@ def add_production_parsers(sub) -> None:
     rebuild.add_argument("directory", nargs="+", metavar="DIR")
     add_registry_option(rebuild)
     rebuild.set_defaults(func=cmd_registry_rebuild)
+
+    certificate = sub.add_parser(
+        "certificate", help="a self-contained HTML calibration certificate for a session",
+        description="Write one HTML page (no scripts, no external files) with the unit, station, "
+        "procedure, every parameter ± 1σ (PASS/FAIL with --spec) and the parameter file's SHA-256.",
+        epilog=f"exit status: 0 written (and passed), {EXIT_FAILED_SPEC} written but a --spec check failed")
+    certificate.add_argument("session", metavar="SESSION", help="session directory")
+    certificate.add_argument("--spec", metavar="SPEC", help="product spec: PASS/FAIL per parameter")
+    certificate.add_argument("--out", metavar="FILE", help="default ./SESSION-certificate.html")
+    certificate.add_argument("--force", action="store_true", help="replace the --out file if it exists")
+    certificate.set_defaults(func=cmd_certificate)
