@@ -158,3 +158,24 @@ def test_headless_run_with_a_spec_against_the_simulated_truth(tmp_path, capsys):
     failed = [line for line in out.splitlines() if "FAIL:" in line]
     assert len(failed) == 1 and "bias z" in failed[0] and "above the maximum 2.5 mg" in failed[0]
     assert "drift since" in out  # the first run's session is this unit's previous calibration
+
+
+def test_calibrate_with_a_spec_in_the_device_unit(tmp_path, capsys):
+    """The hand-held simulation's accelerometer biases are 32778, 32762 and 32784 counts: a spec
+    capping them at 32772 count fails x and z, and a wrong unit in the spec is refused first."""
+    from drivers.sim.handheld import simulate_handheld, to_text
+
+    acc, gyro = to_text(simulate_handheld(3), tmp_path)
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("schema: fieldcal-spec/1\nproduct: handheld\ntriads:\n"
+                    "  accelerometer: {bias: {unit: count, min: 32700, max: 32772}}\n")
+    argv = ["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--latitude", "40", "--gravity", "9.80",
+            "--out", str(tmp_path / "s"), "--registry", str(tmp_path / "r.sqlite"), "--spec", str(spec)]
+    assert main(argv) == 3
+    out = capsys.readouterr().out
+    failed = sorted(line.split()[2] for line in out.splitlines() if "FAIL:" in line)
+    assert failed == ["x", "z"] and "above the maximum 32772 count" in out
+    (tmp_path / "bad.yaml").write_text("schema: fieldcal-spec/1\nproduct: p\ntriads: {a: {bias: {unit: mg, maxx: 1}}}\n")
+    argv[-1] = str(tmp_path / "bad.yaml")
+    assert main(argv) == 2  # refused before anything is imported
+    assert "nearest: 'max'" in capsys.readouterr().err and len(list((tmp_path / "s").iterdir())) == 1
