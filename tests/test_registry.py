@@ -127,3 +127,35 @@ def test_a_broken_registry_warns_and_rebuild_indexes_the_session(tmp_path, capsy
     assert main(argv) == 0
     with Registry(tmp_path / "live.sqlite") as registry:
         assert registry.db.execute("SELECT COUNT(*) FROM calibrations").fetchone()[0] == 1
+
+
+def _endless_writer(db, files, first_done):
+    with Registry(db) as registry:
+        for i, f in enumerate(files):
+            registry.record(f)
+            if i == 4:
+                first_done.set()
+
+
+def test_a_writer_killed_mid_write_leaves_no_partial_calibration(tmp_path):
+    files = [unit_file(tmp_path / f"k-{i}.yaml", f"K{i}", [i, 0.0, 0.0]) for i in range(300)]
+    db = tmp_path / "r.sqlite"
+    ctx = multiprocessing.get_context("spawn")
+    first_done = ctx.Event()
+    proc = ctx.Process(target=_endless_writer, args=(db, files, first_done))
+    proc.start()
+    assert first_done.wait(120)
+    proc.kill()  # SIGKILL, wherever it is: between or inside transactions
+    proc.join(60)
+    with Registry(db) as registry:  # opens, recovers the WAL, and can still be written
+        assert registry.db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        counts = registry.db.execute(
+            "SELECT c.id, (SELECT COUNT(*) FROM parameters p WHERE p.calibration_id = c.id), "
+            "(SELECT COUNT(*) FROM triads t WHERE t.calibration_id = c.id) FROM calibrations c").fetchall()
+        assert len(counts) >= 5  # the five it said it had recorded, at least
+        assert all((p, t) == (9, 1) for _, p, t in counts)  # each whole, none partial
+        # still writable, and the files the killed writer did not reach are recorded now
+        done = {r[0] for r in registry.db.execute("SELECT params_path FROM calibrations")}
+        missing = [f for f in files if str(f.resolve()) not in done]
+        assert all(registry.record(f) for f in missing)
+        assert registry.db.execute("SELECT COUNT(*) FROM calibrations").fetchone()[0] == len(files)
