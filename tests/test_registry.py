@@ -63,6 +63,9 @@ def test_units_and_history_with_drift_in_sigma_flagged_beyond_the_spec(tmp_path,
     out = capsys.readouterr().out
     assert "#2 drifted +3 mg > 1" in out and "(+60.0σ)" in out
     assert "1 parameter drifted beyond" in out
+    assert main(["history", "A", "--registry", str(db), "--plot", str(tmp_path / "plots")]) == 0
+    png = tmp_path / "plots" / "A-accelerometer-history.png"
+    assert f"plot: {png}" in capsys.readouterr().out and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["history", "Z", "--registry", str(db)]) == 2
 
 

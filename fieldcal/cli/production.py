@@ -188,6 +188,10 @@ def cmd_history(args) -> int:
                          "(fieldcal units lists them)")
     for line in history_lines(calibrations, spec):
         print(line)
+    if args.plot:
+        from fieldcal.registry.drift import plot_history
+        for path in plot_history(calibrations, args.serial, args.plot):
+            print(f"plot: {path}")
     return 0
 
 
@@ -298,6 +302,8 @@ def add_production_parsers(sub) -> None:
         "with --spec, drift beyond the product's max_drift is flagged.")
     history.add_argument("serial", metavar="SERIAL")
     history.add_argument("--spec", metavar="SPEC", help="product spec: flag drift beyond its max_drift")
+    history.add_argument("--plot", metavar="DIR", help="also write a PNG per triad here: each "
+                         "parameter over time with ± 1σ bars")
     add_registry_option(history)
     history.set_defaults(func=cmd_history)
     registry = sub.add_parser("registry", help="the unit registry")

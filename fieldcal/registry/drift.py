@@ -69,3 +69,37 @@ def history_lines(calibrations: list[dict], spec=None) -> list[str]:
     if spec is not None:
         lines.append(f"{flagged} parameter{'s' * (flagged != 1)} drifted beyond {spec.path}'s max_drift")
     return lines
+
+
+def plot_history(calibrations: list[dict], serial: str, directory) -> list:
+    """One PNG per triad: each parameter over the calibrations, ± 1σ bars; the paths written."""
+    from pathlib import Path
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from fieldcal.report import label
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    triads = dict.fromkeys(t for t, _ in calibrations[-1]["parameters"])
+    paths = []
+    for triad in triads:
+        names = [n for t, n in calibrations[-1]["parameters"] if t == triad]
+        fig = Figure(figsize=(7, 1.6 * len(names)))
+        FigureCanvasAgg(fig)
+        axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)
+        for ax, name in zip(axes[:, 0], names):
+            points = [(i, *c["parameters"][triad, name]) for i, c in enumerate(calibrations)
+                      if (triad, name) in c["parameters"]]
+            x, v, s, units = zip(*points)
+            ax.errorbar(x, v, yerr=s, fmt="o-", capsize=3)
+            ax.set_ylabel(f"{label(name)}\n[{units[-1]}]", fontsize=8)
+        axes[-1, 0].set_xticks(range(len(calibrations)), [c["time"][:10] for c in calibrations],
+                               rotation=30, fontsize=7)
+        fig.suptitle(f"{serial}: {triad}, ± 1σ")
+        fig.tight_layout()
+        path = directory / f"{serial}-{triad}-history.png"
+        fig.savefig(path, dpi=80)
+        paths.append(path)
+    return paths
