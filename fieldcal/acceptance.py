@@ -265,15 +265,15 @@ def verdict_lines(verdict: Verdict) -> list[str]:
     """The verdict as a table: one row per check, PASS or FAIL with the reason."""
     from fieldcal.report import aligned, label
 
-    rows = [["triad", "parameter", "value", "", "1σ", "drift", "", "result"]]
+    rows = [["triad", "parameter", "value", "", "1σ", "", "drift", "", "result"]]
     for c in verdict.checks:
         value = "" if c.value is None else _g(c.value)
         sigma = "" if c.sigma is None else _g(c.sigma)
         drift = "" if c.drift is None else _g(c.drift) + (f" ({c.drift_sigma:+.1f}σ)"
                                                            if c.drift_sigma is not None else "")
         result = "PASS" if c.passed else "FAIL: " + "; ".join(c.reasons)
-        rows.append([c.triad, label(c.parameter), value, c.unit, sigma, drift, c.unit if drift else "",
-                     result])
+        rows.append([c.triad, label(c.parameter), value, c.unit, sigma, c.unit if sigma else "", drift,
+                     c.unit if drift else "", result])
     verdict_line = (f"{verdict.product}: {'PASS' if verdict.passed else 'FAIL'} "
                     f"({len(verdict.failures)} of {len(verdict.checks)} checks failed)")
-    return [aligned(rows, "llrlrrll"), *(f"note: {n}" for n in verdict.notes), verdict_line]
+    return [aligned(rows, "llrlrlrll"), *(f"note: {n}" for n in verdict.notes), verdict_line]
