@@ -158,6 +158,14 @@ def test_headless_run_with_a_spec_against_the_simulated_truth(tmp_path, capsys):
     failed = [line for line in out.splitlines() if "FAIL:" in line]
     assert len(failed) == 1 and "bias z" in failed[0] and "above the maximum 2.5 mg" in failed[0]
     assert "drift since" in out  # the first run's session is this unit's previous calibration
+    # a spec in another unit than the unit's is refused after the run, which is still recorded
+    from fieldcal.registry import Registry
+    (tmp_path / "counts.yaml").write_text(SPEC_TEXT.replace("unit: mg", "unit: count") % "10")
+    registry = tmp_path / "r.sqlite"
+    assert main([*argv, "5", "--spec", str(tmp_path / "counts.yaml"), "--registry", str(registry)]) == 2
+    assert "expected 'mg'" in capsys.readouterr().err
+    with Registry(registry) as r:
+        assert r.db.execute("SELECT COUNT(*), MAX(passed) FROM calibrations").fetchone() == (1, None)
 
 
 def test_calibrate_with_a_spec_in_the_device_unit(tmp_path, capsys):
