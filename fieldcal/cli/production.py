@@ -1,5 +1,6 @@
-"""The production commands: ``fieldcal check`` (acceptance limits), ``export`` and ``apply``;
-and ``--spec`` for the commands that calibrate (run --headless, calibrate)."""
+"""The production commands: ``fieldcal check`` (acceptance limits), ``export``, ``apply``,
+``units``, ``history``, ``registry rebuild`` and ``certificate``; and ``--spec`` and
+``--registry`` for the commands that calibrate (run --headless, calibrate)."""
 from __future__ import annotations
 
 import argparse
@@ -39,7 +40,9 @@ def _previous_of(params: Path):
     from fieldcal.paramfile import load
     from fieldcal.session.history import previous_calibration
 
-    if not (params.parent / "log.jsonl").is_file():
+    from fieldcal.session.capture import LOG
+
+    if not (params.parent / LOG).is_file():
         return None
     p = load(params).provenance
     found, _ = previous_calibration(params.parent.parent, p.device_name, p.device_serial,
@@ -199,12 +202,13 @@ def cmd_history(args) -> int:
 
 def cmd_registry_rebuild(args) -> int:
     from fieldcal.registry import Registry, session_parameter_files
+    from fieldcal.session.capture import LOG
 
     sessions = []
     for d in map(Path, args.directory):
         if not d.is_dir():
             raise ValueError(f"registry rebuild: {d}: not a directory")
-        sessions += [d] if (d / "log.jsonl").is_file() else sorted(p.parent for p in d.glob("*/log.jsonl"))
+        sessions += [d] if (d / LOG).is_file() else sorted(p.parent for p in d.glob(f"*/{LOG}"))
     added = known = bad = 0
     with Registry(args.registry) as registry:
         for session in sessions:

@@ -172,7 +172,9 @@ def session_parameter_files(directory: Path) -> list[Path]:
 def the_calibration_file(params: Path) -> Path:
     """A session's parameters.yaml is a copy: the numbered file with the same bytes is the one
     recorded, so that a rebuild finds the same row."""
-    if params.name != "parameters.yaml" or not (params.parent / "log.jsonl").is_file():
+    from fieldcal.session.capture import LOG, PARAMETERS
+
+    if params.name != PARAMETERS or not (params.parent / LOG).is_file():
         return params
     data = params.read_bytes()
     same = [p for p in session_parameter_files(params.parent) if p != params and p.read_bytes() == data]
