@@ -100,3 +100,30 @@ def test_fixed_point_text_reads_back_to_the_rounded_values():
         format_rows([(np.array([[1e5]]), 9, 5)])
     with pytest.raises(ValueError, match="nan"):
         format_rows([(np.array([[np.nan]]), 9, 5)])
+
+
+def test_two_file_map_writes_one_csv_per_input_into_a_directory(tmp_path, capsys):
+    """imu_tk: accelerometer and gyro in separate files, in counts; each file calibrated alone."""
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
+                      K=np.diag([400.0, 410.0, 420.0]), bias=[32768.0, 32700.0, 32800.0],
+                      sigma=np.zeros(9), residual_rms=0.0)
+    gyr = Calibration(name="gyroscope", kind="angular_rate", output_unit="count", method="powell",
+                      K=np.diag([4700.0, 4650.0, 4720.0]), bias=[32768.0, 32760.0, 32790.0],
+                      sigma=np.zeros(9), residual_rms=0.0)
+    params = save(parameter_file(acc, gyr), tmp_path / "p.yaml")
+    rng = np.random.default_rng(4)
+    truth = {}
+    for name, cal in (("acc", acc), ("gyro", gyr)):
+        true = rng.normal(size=(50, 3))
+        raw = np.rint(true @ cal.K.T + cal.bias)  # whole counts, as the device gives them
+        np.savetxt(tmp_path / f"{name}.txt", np.c_[0.01 * np.arange(50), raw], fmt="%.10g")
+        truth[name] = cal.calibrate(raw)
+    argv = ["apply", str(params), str(tmp_path / "acc.txt"), str(tmp_path / "gyro.txt"), "--map", "imu_tk"]
+    assert main(argv) == 2 and "give --out DIR" in capsys.readouterr().err
+    (tmp_path / "out").mkdir()
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 0
+    for name in ("acc", "gyro"):
+        data = np.loadtxt(tmp_path / "out" / f"{name}-calibrated.csv", delimiter=",", skiprows=1)
+        np.testing.assert_allclose(data[:, 1:], truth[name], atol=1e-9)
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2  # never over a file without --force
+    assert "--force" in capsys.readouterr().err
