@@ -64,3 +64,18 @@ def exact_run(seed: int = 7, raw_counts: bool = False) -> ExactRun:
 @pytest.fixture(scope="session")
 def field18():
     return exact_run()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_data_home(tmp_path_factory):
+    """Runs record their calibrations in the unit registry under $XDG_DATA_HOME: the tests' go
+    to a temporary one (subprocesses inherit it), never the developer's."""
+    import os
+
+    before = os.environ.get("XDG_DATA_HOME")
+    os.environ["XDG_DATA_HOME"] = str(tmp_path_factory.mktemp("xdg-data"))
+    yield
+    if before is None:
+        os.environ.pop("XDG_DATA_HOME", None)
+    else:
+        os.environ["XDG_DATA_HOME"] = before

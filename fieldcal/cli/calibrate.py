@@ -67,6 +67,8 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                         "use them as rate equations too")
     parser.add_argument("--params", metavar="FILE", help="also write the parameter file here")
     parser.add_argument("--force", action="store_true", help="replace the --params file if it exists")
+    from fieldcal.cli.production import add_spec_option
+    add_spec_option(parser)
     parser.set_defaults(func=cmd_calibrate)
     return parser
 
@@ -116,7 +118,10 @@ def cmd_calibrate(args) -> int:
     from fieldcal.recording.results import parameter_file, summary_lines
     from fieldcal.session.capture import SessionReader, SessionWriter
 
+    from fieldcal.cli.production import accept_after, load_spec_option
+
     config = load_config(args.config) if args.config else None
+    spec = load_spec_option(args)
     station = _station(args, config)
     if args.table_rate is not None and not args.table_rate > 0:
         raise ValueError(f"--table-rate: expected a rate above 0 °/s, got {args.table_rate:g}")
@@ -158,4 +163,4 @@ def cmd_calibrate(args) -> int:
     if args.params:
         from fieldcal.session.output import save_parameter_file
         print(f"parameter file: {save_parameter_file(pf, args.params, force=args.force, option='--params')}")
-    return 0 if not cal.failures else 1
+    return accept_after(args, spec, directory / "parameters.yaml", 0 if not cal.failures else 1)

@@ -42,7 +42,10 @@ def cmd_run(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
 
+    from fieldcal.cli.production import accept_after, load_spec_option
+
     config = load_config(args.config)
+    spec = load_spec_option(args)
     if not args.headless:
         raise ValueError("run: without --headless there is no operator; use fieldcal tui for the "
                          "terminal UI, or add --headless for the automatic operator")
@@ -62,16 +65,16 @@ def cmd_run(args) -> int:
     script = OperatorScript(bump_step=None if args.bump_step is None else args.bump_step - 1,
                             wrong_step=None if args.wrong_step is None else args.wrong_step - 1,
                             skip_steps=tuple(s - 1 for s in args.skip))
-    spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
-                   raw_counts=config.device.sim.raw_counts, method=args.method,
-                   on_motion=args.on_motion, script=script)
+    run_spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
+                       raw_counts=config.device.sim.raw_counts, method=args.method,
+                       on_motion=args.on_motion, script=script)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = Path(args.out) / f"{procedure.name}-seed{seed}-{stamp}"
     args.session_path = directory  # for the interrupted / disk-full message (cli.main)
     print(f"headless {procedure.name} against {config.device.name}, seed {seed}; session {directory}",
           flush=True)
-    result = run_headless(spec, directory, printer(sys.stdout, args.quiet), serial=args.serial)
-    return _print_result(result, sys.stdout)
+    result = run_headless(run_spec, directory, printer(sys.stdout, args.quiet), serial=args.serial)
+    return accept_after(args, spec, result.parameters, _print_result(result, sys.stdout))
 
 
 def _procedure_session(directory, log_only: bool = False):

@@ -1,0 +1,334 @@
+"""The production commands: ``fieldcal check`` (acceptance limits), ``export``, ``apply``,
+``units``, ``history``, ``registry rebuild`` and ``certificate``; and ``--spec`` and
+``--registry`` for the commands that calibrate (run --headless, calibrate)."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+# The exit status of a calibration that finished but failed its product's acceptance limits
+# (0: passed; 1: not calibrated; 2: bad input).
+EXIT_FAILED_SPEC = 3
+
+SPEC_HELP = (f"product spec YAML: PASS/FAIL per parameter with the reason; exit status "
+             f"{EXIT_FAILED_SPEC} if any fails")
+
+
+def add_registry_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--registry", metavar="PATH", help="the unit registry (SQLite; default "
+                        "$XDG_DATA_HOME/fieldcal/registry.sqlite)")
+
+
+def add_spec_option(parser: argparse.ArgumentParser) -> None:
+    """--spec and --registry, for the commands that calibrate."""
+    parser.add_argument("--spec", metavar="SPEC", help=SPEC_HELP)
+    add_registry_option(parser)
+
+
+def load_spec_option(args):
+    """The --spec file, read before any work is done (a bad spec stops nothing half-way)."""
+    if getattr(args, "spec", None) is None:
+        return None
+    from fieldcal.acceptance import load_spec
+    return load_spec(args.spec)
+
+
+def _previous_of(params: Path):
+    """The previous calibration of the unit whose parameter file is ``params``, when that file
+    is in a session directory among its siblings; else None."""
+    from fieldcal.paramfile import load
+    from fieldcal.session.history import previous_calibration
+
+    from fieldcal.session.capture import LOG
+
+    if not (params.parent / LOG).is_file():
+        return None
+    p = load(params).provenance
+    found, _ = previous_calibration(params.parent.parent, p.device_name, p.device_serial,
+                                    exclude=params.parent)
+    return found
+
+
+def report_acceptance(spec, params: str | Path, previous: str | Path | None = None, out=None):
+    """Print the verdict of ``params`` against ``spec``; the Verdict.
+    The previous calibration (for the drift) is ``previous``, or the newest sibling session's."""
+    from fieldcal.acceptance import evaluate, verdict_lines
+    from fieldcal.paramfile import load
+
+    out = out or sys.stdout
+    params = Path(params)
+    parameters = load(params)
+    if previous is not None:
+        prev, where = load(previous), Path(previous)
+    else:
+        found = _previous_of(params)
+        prev, where = (found.parameters, found.path) if found is not None else (None, None)
+    print(f"\nacceptance against {spec.path} ({spec.product}): {params}", file=out)
+    if where is not None:
+        print(f"drift since {where}", file=out)
+    verdict = evaluate(spec, parameters, prev)
+    for line in verdict_lines(verdict):
+        print(line, file=out)
+    return verdict
+
+
+def accept_after(args, spec, params, status: int) -> int:
+    """After a calibration command that exited ``status``: its verdict against the spec, if any,
+    and the parameter file recorded in the unit registry (a failure there is a warning)."""
+    from fieldcal.registry import record_safely
+
+    if params is None or not Path(params).is_file():
+        return status
+    passed = None
+    try:
+        if spec is not None and status == 0:
+            passed = report_acceptance(spec, params).passed  # a spec that fits no triad raises
+            status = 0 if passed else EXIT_FAILED_SPEC
+    finally:  # recorded whatever the spec made of it
+        record_safely(params, passed, args.registry, warn=lambda text: print(text, file=sys.stderr))
+    return status
+
+
+def cmd_check(args) -> int:
+    from fieldcal.acceptance import load_spec
+    verdict = report_acceptance(load_spec(args.spec), args.params, args.previous)
+    return 0 if verdict.passed else EXIT_FAILED_SPEC
+
+
+def cmd_export(args) -> int:
+    from fieldcal.atomic import write_atomically
+    from fieldcal.export import export
+    from fieldcal.export.autopilot import diagonal_parameters
+    from fieldcal.paramfile import load
+    from fieldcal.session.output import check_output_path
+
+    if args.out:
+        check_output_path(args.out, force=args.force, option="--out")
+    parameters = load(args.params)
+    text = export(parameters, args.format, accelerometer=args.accelerometer, gyroscope=args.gyroscope)
+    if args.format in ("ardupilot", "px4"):  # say what the format cannot hold, where people look
+        for loss in diagonal_parameters(parameters, args.format, args.accelerometer, args.gyroscope,
+                                        gyro_scale=False)[1]:
+            print(f"fieldcal export: {args.format}: {loss.line()}", file=sys.stderr)
+    if args.out:
+        write_atomically(args.out, text.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
+        print(f"{args.format} written to {args.out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def _apply_targets(args, plans) -> list[Path | None]:
+    """Where each input's CSV goes: stdout (None), --out as a file (one input) or a directory."""
+    from fieldcal.session.output import check_output_path
+
+    if args.out is None:
+        if len(plans) > 1:
+            raise ValueError("apply: several input files give several CSVs: give --out DIR")
+        return [None]
+    out = Path(args.out)
+    targets = [out] if len(plans) == 1 and not out.is_dir() else \
+        [out / f"{Path(p.path).stem}-calibrated.csv" for p in plans]
+    if len(plans) > 1 and not out.is_dir():
+        raise ValueError(f"apply: --out {out}: several input files need an existing directory")
+    for target in targets:
+        check_output_path(target, force=args.force, option="--out")
+    return targets
+
+
+def cmd_apply(args) -> int:
+    from fieldcal.apply import apply_file, plan
+    from fieldcal.paramfile import load
+    from fieldcal.recording.import_map import load_import_map
+
+    plans = plan(load(args.params), load_import_map(args.map), args.input)
+    targets = _apply_targets(args, plans)
+    for p, target in zip(plans, targets):
+        for name in p.skipped:
+            print(f"fieldcal apply: {p.path}: triad {name!r} is not in {args.params}: not written",
+                  file=sys.stderr)
+        if target is None:
+            n = apply_file(p, sys.stdout.buffer)
+            sys.stdout.buffer.flush()
+            continue
+        partial = target.with_name(f".{target.name}.partial")  # the CSV appears whole or not at all
+        try:
+            with open(partial, "wb") as fh:
+                n = apply_file(p, fh)
+            partial.replace(target)
+        finally:
+            partial.unlink(missing_ok=True)
+        print(f"{p.path}: {n} samples calibrated into {target}", file=sys.stderr)
+    return 0
+
+
+def cmd_units(args) -> int:
+    from fieldcal.registry import Registry
+    from fieldcal.report import aligned
+
+    with Registry(args.registry) as registry:
+        units = registry.units()
+    if not units:
+        print(f"no units in {registry.path} (fieldcal registry rebuild DIR indexes sessions)")
+        return 0
+    verdicts = {None: "-", 1: "PASS", 0: "FAIL"}
+    rows = [["serial", "model", "calibrations", "last", "last result"]]
+    rows += [[serial or "(none)", model or "(none)", str(n), last, verdicts[passed]]
+             for serial, model, n, last, passed in units]
+    print(aligned(rows, "llrll", indent=""))
+    return 0
+
+
+def cmd_history(args) -> int:
+    from fieldcal.acceptance import load_spec
+    from fieldcal.registry import Registry
+    from fieldcal.registry.drift import history_lines
+
+    spec = load_spec(args.spec) if args.spec else None
+    with Registry(args.registry) as registry:
+        calibrations = registry.history(args.serial)
+    if not calibrations:
+        raise ValueError(f"history: no unit with serial {args.serial!r} in {registry.path} "
+                         "(fieldcal units lists them)")
+    for line in history_lines(calibrations, spec):
+        print(line)
+    if args.plot:
+        from fieldcal.registry.drift import plot_history
+        for path in plot_history(calibrations, args.serial, args.plot):
+            print(f"plot: {path}")
+    return 0
+
+
+def cmd_registry_rebuild(args) -> int:
+    from fieldcal.registry import Registry, session_parameter_files
+    from fieldcal.session.capture import LOG
+
+    sessions = []
+    for d in map(Path, args.directory):
+        if not d.is_dir():
+            raise ValueError(f"registry rebuild: {d}: not a directory")
+        sessions += [d] if (d / LOG).is_file() else sorted(p.parent for p in d.glob(f"*/{LOG}"))
+    added = known = bad = 0
+    with Registry(args.registry) as registry:
+        for session in sessions:
+            for params in session_parameter_files(session):
+                try:
+                    if registry.record(params):
+                        added += 1
+                    else:
+                        known += 1
+                except (ValueError, OSError) as exc:  # one bad file never stops the rebuild
+                    bad += 1
+                    print(f"warning: {params}: not indexed: {str(exc).splitlines()[0]}", file=sys.stderr)
+    print(f"{registry.path}: {len(sessions)} sessions, {added} calibrations added, {known} already "
+          f"there, {bad} unreadable")
+    return 0
+
+
+def cmd_certificate(args) -> int:
+    from fieldcal.acceptance import evaluate, load_spec
+    from fieldcal.atomic import write_atomically
+    from fieldcal.certificate import certificate_html
+    from fieldcal.paramfile import load
+    from fieldcal.session.capture import SessionReader
+    from fieldcal.session.history import recorded_check
+    from fieldcal.session.output import check_output_path
+
+    session = Path(args.session)
+    out = Path(args.out) if args.out else Path(f"{session.resolve().name}-certificate.html")
+    check_output_path(out, force=args.force, option="--out")
+    spec = load_spec(args.spec) if args.spec else None
+    reader = SessionReader(session)
+    params = reader.parameters_path
+    if params is None:
+        raise ValueError(f"certificate: {session}: the session has no parameter file (not calibrated)")
+    parameters = load(params)
+    verdict = None
+    if spec is not None:
+        previous = _previous_of(params)
+        verdict = evaluate(spec, parameters, previous.parameters if previous is not None else None)
+    page = certificate_html(session, params, parameters, recorded_check(params), verdict, reader.stop_reason)
+    write_atomically(out, page.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
+    print(f"certificate: {out}")
+    return 0 if verdict is None or verdict.passed else EXIT_FAILED_SPEC
+
+
+def add_production_parsers(sub) -> None:
+    check = sub.add_parser(
+        "check", help="PASS/FAIL of a parameter file against a product spec",
+        description="Check every parameter of a parameter file against a product spec's acceptance "
+        "limits (range, σ, residual, drift since the previous calibration), in operator units.",
+        epilog=f"exit status: 0 every check passed, {EXIT_FAILED_SPEC} a check failed, 2 bad input")
+    check.add_argument("params", metavar="PARAMS", help="parameter file")
+    check.add_argument("--spec", metavar="SPEC", required=True, help="product spec YAML")
+    check.add_argument("--previous", metavar="FILE", help="the unit's previous parameter file, for the "
+                       "drift (default: the newest sibling session's, when PARAMS is in a session)")
+    check.set_defaults(func=cmd_check)
+
+    from fieldcal.export import FORMATS  # light: no heavy imports
+    export = sub.add_parser(
+        "export", help="a parameter file for ArduPilot, PX4, imucal, firmware (C) or as JSON",
+        description="Write a parameter file in another tool's format. ardupilot and px4 hold only "
+        "offsets and diagonal scales (ArduPilot no gyro scale): what is dropped, and the worst error "
+        "it costs, is printed on stderr and written in the file's comments.")
+    export.add_argument("params", metavar="PARAMS", help="parameter file")
+    export.add_argument("--format", required=True, choices=FORMATS)
+    export.add_argument("--out", metavar="FILE", help="write here (default: standard output)")
+    export.add_argument("--force", action="store_true", help="replace the --out file if it exists")
+    export.add_argument("--accelerometer", default="accelerometer", metavar="TRIAD",
+                        help="the accelerometer triad (default accelerometer)")
+    export.add_argument("--gyroscope", default="gyroscope", metavar="TRIAD",
+                        help="the gyroscope triad (default gyroscope)")
+    export.set_defaults(func=cmd_export)
+
+    apply = sub.add_parser(
+        "apply", help="calibrated CSV from a recording's text files",
+        description="Read a recording's text files in an import map's layout, block by block, and "
+        "write each calibrated triad K⁻¹(raw − bias) in SI units (m/s^2, rad/s) as CSV: a time "
+        "column t_s, then x, y, z per triad.")
+    apply.add_argument("params", metavar="PARAMS", help="parameter file")
+    apply.add_argument("input", nargs="+", metavar="INPUT", help="text files, one per map entry")
+    apply.add_argument("--map", required=True, metavar="MAP", help="import map: a name in "
+                       "configs/recordings or a YAML path (see fieldcal import)")
+    apply.add_argument("--out", metavar="PATH", help="the CSV (one input) or a directory for "
+                       "INPUT-calibrated.csv files (default: standard output, one input)")
+    apply.add_argument("--force", action="store_true", help="replace existing output files")
+    apply.set_defaults(func=cmd_apply)
+
+    units = sub.add_parser("units", help="the units in the registry, with their last calibration",
+                           description="List every unit in the unit registry: serial, model, how "
+                           "many calibrations, the last one's time and result.")
+    add_registry_option(units)
+    units.set_defaults(func=cmd_units)
+    history = sub.add_parser(
+        "history", help="one unit's calibrations over time, with the drift of every parameter",
+        description="Every calibration of one unit, oldest first, each parameter ± 1σ in operator "
+        "units and its drift since the calibration before in σ (the two calibrations' 1σ combined); "
+        "with --spec, drift beyond the product's max_drift is flagged.")
+    history.add_argument("serial", metavar="SERIAL")
+    history.add_argument("--spec", metavar="SPEC", help="product spec: flag drift beyond its max_drift")
+    history.add_argument("--plot", metavar="DIR", help="also write a PNG per triad here: each "
+                         "parameter over time with ± 1σ bars")
+    add_registry_option(history)
+    history.set_defaults(func=cmd_history)
+    registry = sub.add_parser("registry", help="the unit registry")
+    registry_sub = registry.add_subparsers(dest="registry_command", required=True, metavar="COMMAND")
+    rebuild = registry_sub.add_parser(
+        "rebuild", help="index sessions into the registry",
+        description="Index every calibration (parameters-NNN.yaml) of the sessions in each DIR (a "
+        "session, or a directory of sessions). Files already indexed are left as they are.")
+    rebuild.add_argument("directory", nargs="+", metavar="DIR")
+    add_registry_option(rebuild)
+    rebuild.set_defaults(func=cmd_registry_rebuild)
+
+    certificate = sub.add_parser(
+        "certificate", help="a self-contained HTML calibration certificate for a session",
+        description="Write one HTML page (no scripts, no external files) with the unit, station, "
+        "procedure, every parameter ± 1σ (PASS/FAIL with --spec) and the parameter file's SHA-256.",
+        epilog=f"exit status: 0 written (and passed), {EXIT_FAILED_SPEC} written but a --spec check failed")
+    certificate.add_argument("session", metavar="SESSION", help="session directory")
+    certificate.add_argument("--spec", metavar="SPEC", help="product spec: PASS/FAIL per parameter")
+    certificate.add_argument("--out", metavar="FILE", help="default ./SESSION-certificate.html")
+    certificate.add_argument("--force", action="store_true", help="replace the --out file if it exists")
+    certificate.set_defaults(func=cmd_certificate)

@@ -1,0 +1,110 @@
+"""ArduPilot and PX4 parameters: an offset and a diagonal scale per triad, in SI units.
+
+Both apply corrected = (raw − offset) · scale per axis (ArduPilot: INS_ACCOFFS_*, INS_ACCSCAL_*,
+INS_GYROFFS_* and no gyro scale; PX4: CAL_ACC0_*OFF, CAL_ACC0_*SCALE, CAL_GYRO0_*OFF). The rest
+of K (its misalignment, and for ArduPilot's gyro its scale factors) is dropped. What that costs
+is computed, not guessed: with K_si the triad's K in SI units and A the diagonal the format keeps,
+a true input u reads A⁻¹·K_si·u instead of u, so the worst error over all directions of an input
+of size |u| is ‖A⁻¹·K_si − I‖₂·|u| (the largest singular value).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fieldcal.model import SPECIFIC_FORCE, SI_UNIT, terms_from_k
+from fieldcal.units import BIAS, SI_PER_UNIT, STANDARD_GRAVITY, operator_unit
+
+# The input size the dropped error is quoted at: 1 g, and a brisk 100 °/s.
+REFERENCE_INPUT = {SPECIFIC_FORCE: (STANDARD_GRAVITY, "at 1 g")}
+_RATE_REFERENCE = (np.deg2rad(100.0), "at 100 °/s")
+
+
+@dataclass(frozen=True)
+class Dropped:
+    """What a diagonal format cannot hold of one triad, and the worst error it costs."""
+
+    triad: str
+    what: tuple[str, ...]  # "m_xy = 0.2 mrad", "scale_x = 1.0001", ...
+    error: float  # operator units (mg, °/h), at ``reference``
+    unit: str
+    reference: str
+
+    def line(self) -> str:
+        if not self.what:
+            return f"{self.triad}: nothing dropped"
+        return (f"{self.triad}: dropped {', '.join(self.what)}; worst error {self.error:.3g} {self.unit} "
+                f"{self.reference}")
+
+
+def si_model(cal, fmt: str) -> tuple[np.ndarray, np.ndarray]:
+    """(K, bias) of a triad in SI units; one-line error if its output unit is not physical."""
+    si = SI_PER_UNIT[cal.kind].get(cal.output_unit)
+    if si is None:
+        raise ValueError(f"export {fmt}: triad {cal.name!r} reports in {cal.output_unit!r}; {fmt} takes "
+                         f"readings in {SI_UNIT[cal.kind]} (calibrate a device reporting physical units)")
+    return cal.K * si, cal.bias * si
+
+
+def dropped(cal, K_si: np.ndarray, kept_scale: np.ndarray) -> Dropped:
+    """What keeping only ``kept_scale`` (the diagonal A) of ``K_si`` drops, and its worst error."""
+    size, reference = REFERENCE_INPUT.get(cal.kind, _RATE_REFERENCE)
+    error_si = np.linalg.norm(K_si / kept_scale[:, None] - np.eye(3), ord=2) * size
+    factor, unit = operator_unit(cal.kind, SI_UNIT[cal.kind], BIAS)
+    k, terms = terms_from_k(K_si)
+    what = [f"{n} = {v * 1e3:.3g} mrad" for n, v in zip(("m_xy", "m_xz", "m_yx", "m_yz", "m_zx", "m_zy"), terms)
+            if v != 0]
+    what += [f"scale_{a} = {s:.7f}" for a, s, kept in zip("xyz", k, kept_scale) if kept != s and s != 1]
+    return Dropped(cal.name, tuple(what), float(error_si * factor), unit, reference)
+
+
+def _triad(parameters, name: str, option: str):
+    if name not in parameters.names:
+        raise ValueError(f"export: no triad named {name!r} in the parameter file (it has "
+                         f"{', '.join(parameters.names)}); name it with {option}")
+    return parameters.triad(name)
+
+
+def diagonal_parameters(parameters, fmt: str, accelerometer: str, gyroscope: str, gyro_scale: bool):
+    """([(name suffix, triad, offsets, scales or None)], [Dropped]) in SI units."""
+    rows, losses = [], []
+    for name, option, with_scale in ((accelerometer, "--accelerometer", True),
+                                     (gyroscope, "--gyroscope", gyro_scale)):
+        cal = _triad(parameters, name, option)
+        K_si, bias_si = si_model(cal, fmt)
+        kept = np.diag(K_si).copy() if with_scale else np.ones(3)
+        rows.append((cal, bias_si, 1.0 / kept if with_scale else None))
+        losses.append(dropped(cal, K_si, kept))
+    return rows, losses
+
+
+def _comments(parameters, fmt: str, losses) -> list[str]:
+    p = parameters.provenance
+    device = " ".join(x for x in (p.device_name, p.device_serial) if x) or "unnamed device"
+    return [f"# {fmt} calibration of {device} by fieldcal {p.software_version} ({p.procedure}, {p.method})",
+            f"# {fmt} keeps an offset and a diagonal scale per triad; the rest is dropped:",
+            *(f"#   {d.line()}" for d in losses)]
+
+
+def ardupilot(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
+    """A Mission Planner .parm file (NAME,VALUE), offsets in SI units, scales dimensionless."""
+    rows, losses = diagonal_parameters(parameters, "ardupilot", accelerometer, gyroscope, gyro_scale=False)
+    (_, acc_off, acc_scale), (_, gyr_off, _) = rows
+    lines = _comments(parameters, "ardupilot", losses)
+    for axis, off, scale in zip("XYZ", acc_off, acc_scale):
+        lines += [f"INS_ACCOFFS_{axis},{float(off)!r}", f"INS_ACCSCAL_{axis},{float(scale)!r}"]
+    lines += [f"INS_GYROFFS_{axis},{float(off)!r}" for axis, off in zip("XYZ", gyr_off)]
+    return "\n".join(lines) + "\n"
+
+
+def px4(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
+    """A QGroundControl parameter file (vehicle, component, name, value, type 9 = float)."""
+    rows, losses = diagonal_parameters(parameters, "px4", accelerometer, gyroscope, gyro_scale=False)
+    (_, acc_off, acc_scale), (_, gyr_off, _) = rows
+    lines = _comments(parameters, "px4", losses) + ["# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
+    values = [(f"CAL_ACC0_{a}OFF", float(o)) for a, o in zip("XYZ", acc_off)]
+    values += [(f"CAL_ACC0_{a}SCALE", float(s)) for a, s in zip("XYZ", acc_scale)]
+    values += [(f"CAL_GYRO0_{a}OFF", float(o)) for a, o in zip("XYZ", gyr_off)]
+    lines += [f"1\t1\t{name}\t{value!r}\t9" for name, value in values]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,164 @@
+"""The unit registry: calibrations indexed once each, drift between them in σ against the spec,
+two processes writing at once losing nothing, and a registry failure never failing a run."""
+import hashlib
+import multiprocessing
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fieldcal.acceptance import spec_from_document
+from fieldcal.calibration import Calibration
+from fieldcal.cli.main import main
+from fieldcal.earth import Station
+from fieldcal.model import k_from_params
+from fieldcal.paramfile import ParameterFile, save
+from fieldcal.registry import Registry
+from fieldcal.registry.drift import drifts
+from fieldcal.units import STANDARD_GRAVITY
+
+MG = STANDARD_GRAVITY * 1e-3
+QUICK = str(Path(__file__).parent / "faults" / "quick.yaml")
+
+
+def unit_file(path, serial, bias_mg, sigma_mg=0.03):
+    theta = np.r_[np.array(bias_mg) * MG, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
+    cal = Calibration(name="accelerometer", kind="specific_force", output_unit="m/s^2", method="powell",
+                      K=k_from_params(theta), bias=theta[:3],
+                      sigma=np.r_[[sigma_mg * MG] * 3, [1e-5] * 6], residual_rms=1e-4)
+    pf = ParameterFile.build((cal,), station=Station(40.0, 50.0), procedure="field-18", method="powell",
+                             input_sha256=hashlib.sha256(str((serial, bias_mg)).encode()).hexdigest(),
+                             device_name="MIMU-9", device_serial=serial)
+    return save(pf, path)
+
+
+SPEC = spec_from_document({"schema": "fieldcal-spec/1", "product": "MIMU-9", "triads": {
+    "accelerometer": {"bias": {"unit": "mg", "max_drift": 1.0}}}}, "spec.yaml")
+
+
+def test_units_and_history_with_drift_in_sigma_flagged_beyond_the_spec(tmp_path, capsys):
+    db = tmp_path / "r.sqlite"
+    with Registry(db) as registry:
+        assert registry.version == 1
+        assert registry.record(unit_file(tmp_path / "a1.yaml", "A", [2.0, 3.0, -1.0], 0.03))
+        assert registry.record(unit_file(tmp_path / "a2.yaml", "A", [5.0, 3.5, -1.0], 0.04), passed=False)
+        assert registry.record(unit_file(tmp_path / "b1.yaml", "B", [0.0, 0.0, 0.0]), passed=True)
+        assert not registry.record(tmp_path / "a1.yaml")  # indexed once
+        history = registry.history("A")
+    assert [h["path"] for h in history] == [str(tmp_path / "a1.yaml"), str(tmp_path / "a2.yaml")]
+    found = {(d.parameter, d.index): d for d in drifts(history, SPEC)}
+    x, y = found["bias_x", 1], found["bias_y", 1]
+    assert x.drift == pytest.approx(3.0) and x.in_sigma == pytest.approx(3.0 / 0.05) and x.exceeded
+    assert y.drift == pytest.approx(0.5) and not y.exceeded
+    assert not found["scale_x", 1].exceeded  # the spec sets no limit on it
+
+    assert main(["units", "--registry", str(db)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[1].split() == ["A", "MIMU-9", "2", *out[1].split()[3:4], "FAIL"]
+    assert out[2].split()[:3] == ["B", "MIMU-9", "1"] and out[2].split()[-1] == "PASS"
+    (tmp_path / "spec.yaml").write_text("schema: fieldcal-spec/1\nproduct: MIMU-9\ntriads:\n"
+                                        "  accelerometer: {bias: {unit: mg, max_drift: 1.0}}\n")
+    assert main(["history", "A", "--registry", str(db), "--spec", str(tmp_path / "spec.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "#2 drifted +3 mg > 1" in out and "(+60.0σ)" in out
+    assert "1 parameter drifted beyond" in out
+    assert main(["history", "A", "--registry", str(db), "--plot", str(tmp_path / "plots")]) == 0
+    png = tmp_path / "plots" / "A-accelerometer-history.png"
+    assert f"plot: {png}" in capsys.readouterr().out and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["history", "Z", "--registry", str(db)]) == 2
+
+
+def test_a_newer_schema_is_refused_by_name(tmp_path):
+    db = tmp_path / "r.sqlite"
+    Registry(db).close()
+    with sqlite3.connect(db) as raw:
+        raw.execute("INSERT INTO migrations VALUES (7, 'later')")
+    with pytest.raises(ValueError, match="schema version 7 is newer"):
+        Registry(db)
+
+
+def _writer(db, files, go):
+    go.wait(60)
+    with Registry(db) as registry:
+        for f in files:
+            registry.record(f)
+
+
+def test_two_processes_writing_at_once_lose_nothing(tmp_path):
+    files = [[unit_file(tmp_path / f"{w}-{i}.yaml", f"S{w}{i}", [i, w, 0.0]) for i in range(25)] for w in range(2)]
+    db = tmp_path / "r.sqlite"
+    ctx = multiprocessing.get_context("spawn")
+    go = ctx.Event()
+    procs = [ctx.Process(target=_writer, args=(db, f, go)) for f in files]
+    for p in procs:
+        p.start()
+    go.set()  # both start writing together
+    for p in procs:
+        p.join(120)
+        assert p.exitcode == 0
+    with Registry(db) as registry:
+        units = registry.units()
+        assert len(units) == 50
+        rows = registry.db.execute("SELECT COUNT(*) FROM parameters").fetchone()[0]
+        assert rows == 50 * 9
+        assert registry.db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+
+
+def test_a_broken_registry_warns_and_rebuild_indexes_the_session(tmp_path, capsys):
+    blocker = tmp_path / "not-a-directory"
+    blocker.write_text("")
+    argv = ["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path / "s"), "--seed", "8",
+            "--registry", str(blocker / "registry.sqlite")]
+    assert main(argv) == 0  # the run is complete; only the registry failed
+    err = capsys.readouterr().err
+    assert "warning: the unit registry" in err and "registry rebuild" in err
+    [session] = (tmp_path / "s").iterdir()
+    numbered = session / "parameters-001.yaml"
+    db = tmp_path / "r.sqlite"
+    assert main(["registry", "rebuild", str(tmp_path / "s"), "--registry", str(db)]) == 0
+    assert "1 calibrations added" in capsys.readouterr().out
+    assert main(["registry", "rebuild", str(session), "--registry", str(db)]) == 0
+    assert "0 calibrations added, 1 already there" in capsys.readouterr().out
+    with Registry(db) as registry:
+        [(sha, path)] = registry.db.execute("SELECT params_sha256, params_path FROM calibrations").fetchall()
+    assert path == str(numbered.resolve())
+    assert sha == hashlib.sha256(numbered.read_bytes()).hexdigest()
+    # a run with a working registry records its calibration as it finishes
+    argv[-1] = str(tmp_path / "live.sqlite")
+    argv[argv.index("8")] = "9"
+    assert main(argv) == 0
+    with Registry(tmp_path / "live.sqlite") as registry:
+        assert registry.db.execute("SELECT COUNT(*) FROM calibrations").fetchone()[0] == 1
+
+
+def _endless_writer(db, files, first_done):
+    with Registry(db) as registry:
+        for i, f in enumerate(files):
+            registry.record(f)
+            if i == 4:
+                first_done.set()
+
+
+def test_a_writer_killed_mid_write_leaves_no_partial_calibration(tmp_path):
+    files = [unit_file(tmp_path / f"k-{i}.yaml", f"K{i}", [i, 0.0, 0.0]) for i in range(300)]
+    db = tmp_path / "r.sqlite"
+    ctx = multiprocessing.get_context("spawn")
+    first_done = ctx.Event()
+    proc = ctx.Process(target=_endless_writer, args=(db, files, first_done))
+    proc.start()
+    assert first_done.wait(120)
+    proc.kill()  # SIGKILL, wherever it is: between or inside transactions
+    proc.join(60)
+    with Registry(db) as registry:  # opens, recovers the WAL, and can still be written
+        assert registry.db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        counts = registry.db.execute(
+            "SELECT c.id, (SELECT COUNT(*) FROM parameters p WHERE p.calibration_id = c.id), "
+            "(SELECT COUNT(*) FROM triads t WHERE t.calibration_id = c.id) FROM calibrations c").fetchall()
+        assert len(counts) >= 5  # the five it said it had recorded, at least
+        assert all((p, t) == (9, 1) for _, p, t in counts)  # each whole, none partial
+        # still writable, and the files the killed writer did not reach are recorded now
+        done = {r[0] for r in registry.db.execute("SELECT params_path FROM calibrations")}
+        missing = [f for f in files if str(f.resolve()) not in done]
+        assert all(registry.record(f) for f in missing)
+        assert registry.db.execute("SELECT COUNT(*) FROM calibrations").fetchone()[0] == len(files)
