@@ -257,6 +257,8 @@ def build_parser() -> argparse.ArgumentParser:
     from fieldcal.cli.importing import add_import_parser
     add_import_parser(sub)
     add_calibrate_parser(sub)
+    from fieldcal.planning.command import add_plan_parser
+    add_plan_parser(sub)
     return parser
 
 
