@@ -54,6 +54,7 @@ def planned(tmp_path_factory):
 def test_the_planned_procedure_loads_and_every_triad_solves(planned):
     procedure, _, outcome, _ = planned
     assert procedure.rate_step is not None and len(procedure.positions) >= 3
+    assert procedure.adaptive_dwell
     assert not outcome.unit.failures
     assert set(outcome.unit.solutions) == {"accelerometer", "gyroscope", "inclinometer"}
 

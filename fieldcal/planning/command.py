@@ -73,14 +73,16 @@ def parse_targets(text: str, models) -> dict[str, np.ndarray]:
 
 def procedure_yaml(plan, name: str, title: str, operator) -> str:
     design = plan.design
-    doc = {"name": name, "title": title, "dwell_s": float(design.dwell_s),
+    doc = {"name": name, "title": title, "dwell_s": float(design.dwell_s), "adaptive_dwell": True,
            "rate_step": {"rate_deg_s": float(design.rate_deg_s), "turns": int(design.turns),
                          "ramp_s": round(operator.ramp_s(design.rate_deg_s), 3),
                          "settle_s": float(operator.rate_settle_s)},
            "positions": [{"id": i, "description": c.name, "axes": dict(zip("xyz", c.axes))}
                          for i, c in enumerate(plan.positions, start=1)]}
     head = ("# Planned by `fieldcal plan`: the least operator time whose Cramér-Rao bound meets the\n"
-            "# target for every parameter. An ordinary procedure file: edit, validate and run it.\n")
+            "# target for every parameter. An ordinary procedure file: edit, validate and run it.\n"
+            "# adaptive_dwell: each dwell ends once it holds the planned information at the noise\n"
+            "# the unit shows (longer if noisier than its model, never below the minimum dwell).\n")
     return head + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True, width=100)
 
 

@@ -50,6 +50,9 @@ class Procedure:
     rate_step: RateStep | None
     aligned: bool = False
     text: str = ""  # the YAML it was read from, for the session capture
+    # End each dwell once it holds the information a dwell_s dwell holds at the expected noise
+    # (longer when the unit is noisier than its noise model says, shorter when quieter).
+    adaptive_dwell: bool = False
 
 
 def _direction(word: str, where: str) -> np.ndarray:
@@ -128,6 +131,10 @@ def parse_procedure(text: str, where: str) -> Procedure:
         rate_step = RateStep(_number(step, "rate_deg_s", here, 0.1, 400, "°/s"), turns,
                              _number(step, "ramp_s", here, 0, 600, "s"),
                              _number(step, "settle_s", here, 0, 600, "s"))
+    adaptive = raw.get("adaptive_dwell", False)
+    if not isinstance(adaptive, bool):
+        raise ProcedureError(f"{where}.adaptive_dwell: expected true or false, got {adaptive!r}")
     return Procedure(name=str(raw.get("name", Path(where).stem)), title=str(raw.get("title", "")),
                      dwell_s=_number(raw, "dwell_s", where, 1, 86400, "s"), positions=parsed,
-                     rate_step=rate_step, aligned=bool(raw.get("aligned", False)), text=text)
+                     rate_step=rate_step, aligned=bool(raw.get("aligned", False)), text=text,
+                     adaptive_dwell=adaptive)
