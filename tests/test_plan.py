@@ -118,3 +118,13 @@ def test_a_longer_dwell_does_not_loosen_the_bound():
         # Up to finite-difference noise (the rate windows move later in time, too): the dwell
         # search's bisection relies on this.
         assert np.all(long[name] <= short[name] * (1 + 1e-5))
+
+
+@pytest.mark.parametrize("target, message", [
+    ("magnetometer.bias=1", "TRIAD.GROUP"), ("accelerometer.offset=1", "TRIAD.GROUP"),
+    ("accelerometer.bias=-1", "σ > 0"), ("", "no σ given")])
+def test_a_bad_target_is_a_one_line_error(tmp_path, capsys, target, message):
+    out = tmp_path / "p.yaml"
+    assert main(["plan", "--config", "sim", "--target", target, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and not out.exists()
