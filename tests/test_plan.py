@@ -14,7 +14,9 @@ from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import load_procedure
 from fieldcal.run.conductor import Conductor, Subscriber
 from fieldcal.run.operators import ScriptedOperator
-from fieldcal.run.runner import RunSpec, SimulatedBench
+from fieldcal.paramfile import dump
+from fieldcal.run.replay import recorded_parameters, replay_session
+from fieldcal.run.runner import OperatorScript, RunSpec, SimulatedBench, run_headless
 from fieldcal.run.simcal import DEFAULT_STATION
 from fieldcal.solvers.solve import models_from_truth
 from fieldcal.solvers.crb import angular_rate_bound, specific_force_bound
@@ -128,3 +130,15 @@ def test_a_bad_target_is_a_one_line_error(tmp_path, capsys, target, message):
     assert main(["plan", "--config", "sim", "--target", target, "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1 and not out.exists()
+
+
+def test_a_planned_adaptive_run_replays_byte_for_byte(planned, tmp_path):
+    # A wrong placement first at step 2, so the replay has an operator mishap to repeat too.
+    procedure = planned[0]
+    events = []
+    result = run_headless(RunSpec(procedure, DEFAULT_STATION, seed=8, script=OperatorScript(wrong_step=1)),
+                          tmp_path / "s", events.append)
+    assert not result.unit.failures
+    assert any(e.kind == "wrong_orientation" for e in events)
+    _, pf, _ = replay_session(result.session)
+    assert dump(pf).encode() == recorded_parameters(result.session)
