@@ -19,14 +19,17 @@ positions:
 """
 
 
-def settings():
-    return EngineSettings(rate_hz=RATE_HZ, stillness=StillnessSettings(specific_force_sigma=SF_WHITE, rate_sigma=RATE_WHITE))
+def settings(on_motion="restart"):
+    return EngineSettings(rate_hz=RATE_HZ, on_motion=on_motion,
+                          stillness=StillnessSettings(specific_force_sigma=SF_WHITE, rate_sigma=RATE_WHITE))
 
 
-def dwell_length(seed, bias=(0.0, 0.0, 0.0), noise_factor=1.0, adaptive=True, seconds=200):
-    """Sample seconds the dwell took, feeding a still unit (z up) in one-second chunks."""
+def dwell_end(seed, bias=(0.0, 0.0, 0.0), noise_factor=1.0, adaptive=True, seconds=200,
+              bump_at=None, on_motion="restart"):
+    """(sample seconds averaged, sample time the dwell ended), feeding a still unit (z up) in
+    one-second chunks; ``bump_at``: a half-second knock in that second."""
     engine = Engine(parse_procedure(PROCEDURE.format(adaptive=str(adaptive).lower()), "p.yaml"),
-                    settings())
+                    settings(on_motion))
     engine.start()
     engine.act(ev.Action(ev.READY))
     rng = np.random.default_rng(seed)
@@ -35,15 +38,21 @@ def dwell_length(seed, bias=(0.0, 0.0, 0.0), noise_factor=1.0, adaptive=True, se
         t = (k * n + np.arange(n)) / RATE_HZ
         sf = np.array([0.0, 0.0, 9.8]) + np.array(bias) + noise_factor * SF_WHITE * rng.standard_normal((n, 3))
         rate = noise_factor * RATE_WHITE * rng.standard_normal((n, 3))
+        if k == bump_at:
+            sf[:n // 2] += 0.5 * np.sin(np.arange(n // 2))[:, None]
         for e in engine.feed(SampleChunk(t, {"accelerometer": sf, "gyroscope": rate})):
             if isinstance(e, ev.DwellComplete):
-                return e.duration_s
+                return e.duration_s, e.t
     raise AssertionError("the dwell never ended")
+
+
+def dwell_length(seed, **kw):
+    return dwell_end(seed, **kw)[0]
 
 
 def test_different_biases_give_identical_dwell_lengths():
     # The same noise draw on very different biases: the rule must not see the values.
-    lengths = {dwell_length(7, bias) for bias in ((0.0, 0.0, 0.0), (0.05, -0.08, 0.03), (-0.2, 0.1, 0.4))}
+    lengths = {dwell_length(7, bias=bias) for bias in ((0.0, 0.0, 0.0), (0.05, -0.08, 0.03), (-0.2, 0.1, 0.4))}
     assert len(lengths) == 1
 
 
@@ -70,3 +79,12 @@ def test_without_the_option_the_dwell_is_the_planned_one_whatever_the_noise():
 def test_the_option_must_be_a_boolean():
     with pytest.raises(ProcedureError, match="adaptive_dwell"):
         parse_procedure(PROCEDURE.format(adaptive="maybe"), "p.yaml")
+
+
+@pytest.mark.parametrize("on_motion", ["restart", "discard"])
+def test_a_bumped_dwell_ends_later_with_the_same_information(on_motion):
+    quiet_s, quiet_end = dwell_end(9, on_motion=on_motion)
+    bumped_s, bumped_end = dwell_end(9, on_motion=on_motion, bump_at=15)
+    # The knock's samples never count, nor does their spread judge the noise level.
+    assert bumped_end > quiet_end
+    assert bumped_s == pytest.approx(quiet_s, rel=0.05)
