@@ -136,7 +136,7 @@ def cmd_plan(args) -> int:
     for name, model in models.items():
         for j, pname in enumerate(PARAM_NAMES):
             scale = display_scale(model.kind, model.output_unit, j)
-            target = targets[name][j]
+            target = limits[name][j]  # the σ enforced: the target with its slack
             shown = "-" if np.isinf(target) else f"{target * scale:.3g}"
             ratio = "-" if np.isinf(target) else f"{plan.sigmas[name][j] / target:.3f}"
             print(f"| {name} | {pname} | {param_unit(model.kind, model.output_unit, j)} | {shown} | "
