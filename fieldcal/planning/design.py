@@ -21,6 +21,7 @@ from fieldcal.procedure.engine import EngineSettings
 from fieldcal.procedure.stillness import StillnessSettings
 from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window
 from fieldcal.run.operators import OperatorScript
+from fieldcal.run.runner import TABLE_ACCEL_DEG_S2
 from fieldcal.solvers.crb import angular_rate_bound, specific_force_bound
 from fieldcal.solvers.solve import TriadModel, average_covariance
 
@@ -41,7 +42,7 @@ class OperatorModel:
     place_s: float = _default(OperatorScript, "handling_s")
     settle_s: float = _default(StillnessSettings, "window_s") + _default(EngineSettings, "check_s")
     rate_settle_s: float = _default(StillnessSettings, "window_s")
-    table_accel_deg_s2: float = 20.0  # fieldcal.run.runner.TABLE_ACCEL_DEG_S2
+    table_accel_deg_s2: float = TABLE_ACCEL_DEG_S2
 
     def ramp_s(self, change_deg_s: float) -> float:
         return abs(change_deg_s) / self.table_accel_deg_s2
