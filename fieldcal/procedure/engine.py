@@ -59,6 +59,10 @@ class EngineSettings:
     # biases reach a few °/s while field tables turn as slowly as 0.1 °/s.
     turning_fraction: float = 0.5
     progress_every_s: float = 10.0
+    # Adaptive dwell (a procedure's adaptive_dwell): never shorter than this, for the stillness
+    # check to mean something, nor longer than this many planned dwells.
+    min_dwell_s: float = 5.0
+    max_dwell_factor: float = 4.0
     # For devices reporting counts: nominal zero and sensitivity (output units per SI unit).
     sf_zero: tuple = (0.0, 0.0, 0.0)
     sf_sensitivity: tuple = (1.0, 1.0, 1.0)
@@ -81,6 +85,9 @@ class _Average:
     def __init__(self) -> None:
         self.blocks: list[tuple[float, float, int, dict[str, np.ndarray]]] = []
         self._n = 0  # samples in blocks, kept as they change: n is asked at every chunk
+        # Per block: triad -> sum of squared sample-to-sample differences, and their count; the
+        # white-noise level without the mean or slow drift (for the adaptive dwell).
+        self.diffs: list[tuple[dict[str, np.ndarray], int]] = []
 
     @property
     def n(self) -> int:
@@ -91,10 +98,21 @@ class _Average:
             sums = {name: v[lo:hi].sum(axis=0) for name, v in chunk.triads.items()}
             self.blocks.append((float(chunk.t[lo]), float(chunk.t[hi - 1]), hi - lo, sums))
             self._n += hi - lo
+            self.diffs.append(({name: (np.diff(v[lo:hi], axis=0) ** 2).sum(axis=0)
+                                for name, v in chunk.triads.items()}, hi - lo - 1))
 
     def drop_after(self, t: float) -> None:
-        self.blocks = [b for b in self.blocks if b[1] < t]
+        kept = [b[1] < t for b in self.blocks]
+        self.blocks = [b for b, k in zip(self.blocks, kept) if k]
+        self.diffs = [d for d, k in zip(self.diffs, kept) if k]
         self._n = sum(b[2] for b in self.blocks)
+
+    def white_variance(self, name: str) -> np.ndarray | None:
+        """Per-axis per-sample white-noise variance of a triad so far (None: too few samples)."""
+        count = sum(d[1] for d in self.diffs)
+        if count < MIN_WINDOW_SAMPLES:
+            return None
+        return sum(d[0][name] for d in self.diffs) / (2.0 * count)
 
     def means(self) -> dict[str, list[float]]:
         n = self.n
@@ -111,6 +129,18 @@ def windows_and_averages(records: Iterable[StepRecord]) -> tuple[list[Window], d
             rows.append(w.means)
     names = rows[0].keys() if rows else ()
     return windows, {name: np.array([r[name] for r in rows]) for name in names}
+
+
+def adaptive_dwell_samples(planned: int, noise_ratio: float | None, settings: EngineSettings) -> int:
+    """Samples an adaptive dwell takes: the planned number, scaled by measured / expected noise
+    variance (the same information as planned), within [min_dwell_s, max_dwell_factor × planned].
+
+    Before the noise can be judged (``noise_ratio`` None), the planned number.
+    """
+    if noise_ratio is None:
+        return planned
+    low = round(settings.min_dwell_s * settings.rate_hz)
+    return int(min(max(math.ceil(planned * noise_ratio), low), round(settings.max_dwell_factor * planned)))
 
 
 class Engine:
@@ -240,15 +270,23 @@ class Engine:
         s = self.settings
         target = round(self.procedure.dwell_s * s.rate_hz)
         j = self._still_until(still, i, len(chunk))
-        take = min(j, i + target - self._average.n)
+        if self.procedure.adaptive_dwell:
+            # The noise level is judged on all the still samples of this chunk, then the dwell
+            # takes what that level calls for: the rule sees only time and noise, never the mean.
+            probe = _Average()
+            probe.blocks, probe.diffs = list(self._average.blocks), list(self._average.diffs)
+            probe.add(chunk, i, j)
+            target = adaptive_dwell_samples(target, self._noise_ratio(probe), s)
+        take = min(j, max(i, i + target - self._average.n))
         self._average.add(chunk, i, take)
         done_s = self._average.n / s.rate_hz
         while done_s >= self._next_progress + s.progress_every_s and self._average.n < target:
             self._next_progress += s.progress_every_s
             out.append(ev.DwellProgress(float(chunk.t[take - 1]), self._next_progress, self.procedure.dwell_s))
         if self._average.n >= target:
-            t = float(chunk.t[take - 1])
-            out.append(ev.DwellComplete(t, self.procedure.dwell_s))
+            t = float(chunk.t[take - 1]) if take > 0 else self.t  # met before this chunk's first sample
+            adaptive = self.procedure.adaptive_dwell
+            out.append(ev.DwellComplete(t, self._average.n / s.rate_hz if adaptive else self.procedure.dwell_s))
             self._finish_window(STATIC, 0.0)
             return self._after_static(take, t, out)
         if j < len(chunk):
@@ -312,6 +350,18 @@ class Engine:
         return j
 
     # --- helpers ----------------------------------------------------------------------------
+
+    def _noise_ratio(self, average: _Average) -> float | None:
+        """Measured / expected white-noise variance, the worse of the two stillness triads."""
+        s = self.settings
+        ratios = []
+        for name, sigma in ((s.specific_force, s.stillness.specific_force_sigma),
+                            (s.angular_rate, s.stillness.rate_sigma)):
+            measured = average.white_variance(name)
+            if measured is None:
+                return None
+            ratios.append(float(np.mean(measured / np.square(sigma))))
+        return max(ratios)
 
     @staticmethod
     def _still_until(still, i, n) -> int:

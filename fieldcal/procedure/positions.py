@@ -56,6 +56,9 @@ class Procedure:
     rate_step: RateStep | None
     aligned: bool = False
     text: str = ""  # the YAML it was read from, for the session capture
+    # End each dwell once it holds the information a dwell_s dwell holds at the expected noise
+    # (longer when the unit is noisier than its noise model says, shorter when quieter).
+    adaptive_dwell: bool = False
 
 
 # A procedure's name becomes part of a session directory's name: a plain file name, so that
@@ -116,7 +119,7 @@ def parse_procedure(text: str, where: str) -> Procedure:
     """A procedure from its YAML text; ``where`` names it in errors."""
     raw = parse_yaml(text, where, ProcedureError)
     r = FieldReader(where, ProcedureError)
-    m = r.mapping(raw, "", ("dwell_s", "positions"), ("name", "title", "rate_step", "aligned"),
+    m = r.mapping(raw, "", ("dwell_s", "positions"), ("name", "title", "rate_step", "aligned", "adaptive_dwell"),
                   what="a procedure: a mapping")
     positions = m["positions"]
     if not isinstance(positions, list) or not positions:
@@ -138,4 +141,5 @@ def parse_procedure(text: str, where: str) -> Procedure:
                line_of(m, "name"))
     return Procedure(name=name, title=_text(r, m, "title", ""),
                      dwell_s=r.bounded(m, "dwell_s", "", 1, 86400, "s"), positions=parsed,
-                     rate_step=rate_step, aligned=r.boolean(m, "aligned", "", False), text=text)
+                     rate_step=rate_step, aligned=r.boolean(m, "aligned", "", False), text=text,
+                     adaptive_dwell=r.boolean(m, "adaptive_dwell", "", False))

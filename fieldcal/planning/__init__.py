@@ -1,0 +1,1 @@
+"""Planning a calibration procedure from the unit's noise and the accuracy wanted (issue 13)."""

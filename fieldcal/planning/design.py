@@ -1,0 +1,114 @@
+"""A candidate procedure's timeline, operator time and exact Cramér-Rao bound.
+
+A design is a list of positions (their fixture attitudes), one static dwell per position, and a
+rate step (rate and whole turns, each way) per position. Its timeline follows the operator model:
+carry and place the unit, wait for stillness and the orientation check, dwell, then ramp the
+table to +ω, let the rate settle, average whole turns, the same at −ω, and stop the table. The
+bound is the one ``fieldcal.solvers.crb`` computes for the windows of that timeline (the noise
+of every window average correlated with every other's through the triad's bias instability),
+at the nominal parameters (no errors) and the nominal attitudes.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from fieldcal.earth import EARTH_RATE, Station
+from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, params_from_k
+from fieldcal.procedure.engine import EngineSettings
+from fieldcal.procedure.stillness import StillnessSettings
+from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window
+from fieldcal.run.operators import OperatorScript
+from fieldcal.run.runner import TABLE_ACCEL_DEG_S2
+from fieldcal.solvers.crb import angular_rate_bound, specific_force_bound
+from fieldcal.solvers.solve import TriadModel, average_covariance
+
+
+def _default(cls, name: str) -> float:
+    return next(f.default for f in dataclasses.fields(cls) if f.name == name)
+
+
+@dataclass(frozen=True)
+class OperatorModel:
+    """Seconds the procedure spends outside the averaging windows.
+
+    The defaults are the headless run's own: the scripted operator's handling time, the stillness
+    detector's window plus the engine's orientation check before a dwell, the detector's window
+    again before a rate is averaged, and the simulated table's acceleration.
+    """
+
+    place_s: float = _default(OperatorScript, "handling_s")
+    settle_s: float = _default(StillnessSettings, "window_s") + _default(EngineSettings, "check_s")
+    rate_settle_s: float = _default(StillnessSettings, "window_s")
+    table_accel_deg_s2: float = TABLE_ACCEL_DEG_S2
+
+    def ramp_s(self, change_deg_s: float) -> float:
+        return abs(change_deg_s) / self.table_accel_deg_s2
+
+
+@dataclass(frozen=True)
+class Design:
+    attitudes: tuple[np.ndarray, ...]  # body -> ENU per position
+    dwell_s: float
+    rate_deg_s: float
+    turns: int
+
+    @property
+    def turn_s(self) -> float:
+        return self.turns * 360.0 / self.rate_deg_s
+
+
+def timeline(design: Design, operator: OperatorModel) -> tuple[list[Window], float]:
+    """The averaging windows (static, +, − per position, in time order) and the total time (s)."""
+    windows, t = [], 0.0
+    rate = design.rate_deg_s
+    for index in range(len(design.attitudes)):
+        t += operator.place_s + operator.settle_s
+        windows.append(Window(STATIC, index, t, design.dwell_s))
+        t += design.dwell_s + operator.ramp_s(rate) + operator.rate_settle_s
+        windows.append(Window(PLUS, index, t, design.turn_s, np.radians(rate)))
+        t += design.turn_s + operator.ramp_s(2 * rate) + operator.rate_settle_s
+        windows.append(Window(MINUS, index, t, design.turn_s, np.radians(rate)))
+        t += design.turn_s + operator.ramp_s(rate)
+    return windows, t
+
+
+def operator_time(design: Design, operator: OperatorModel) -> float:
+    return timeline(design, operator)[1]
+
+
+def bound_sigmas(design: Design, operator: OperatorModel, models: dict[str, TriadModel],
+                 station: Station, rate_hz: float) -> dict[str, np.ndarray]:
+    """Per triad, the CRB standard deviation of its 9 parameters (solver units)."""
+    windows, _ = timeline(design, operator)
+    attitudes = np.array(design.attitudes)
+    out = {}
+    for name, model in models.items():
+        try:
+            out[name] = _triad_sigmas(model, windows, attitudes, design, station, rate_hz)
+        except np.linalg.LinAlgError:  # too few positions to tell the parameters apart
+            out[name] = np.full(9, np.inf)
+    return out
+
+
+def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, design: Design,
+                  station: Station, rate_hz: float) -> np.ndarray:
+    up_body = attitudes[:, 2, :]
+    theta = params_from_k(model.sensitivity, np.zeros(3))
+    if model.kind == SPECIFIC_FORCE:
+        cov = average_covariance(model, [w for w in windows if w.kind == STATIC], rate_hz)
+        bound = specific_force_bound(theta, up_body, station.gravity, cov)
+    elif model.kind == ANGULAR_RATE:
+        # The solver's data order: every +ω window, every −ω window, every static one.
+        ordered = [w for kind in (PLUS, MINUS, STATIC) for w in windows if w.kind == kind]
+        cov = average_covariance(model, ordered, rate_hz)
+        # Table angle zero at each static dwell: the heading is a nuisance of the bound.
+        north_body = attitudes[:, 1, :]
+        bound = angular_rate_bound(theta, up_body, np.radians(design.rate_deg_s), north_body,
+                                   EARTH_RATE, station.latitude_rad, cov)
+    else:
+        raise ValueError(f"unknown triad kind {model.kind!r}")
+    with np.errstate(invalid="ignore"):  # a negative variance: the design cannot tell it (nan)
+        return np.sqrt(np.diag(bound))

@@ -1,0 +1,165 @@
+"""The least-time procedure that meets a target σ per parameter: an optimal-design search.
+
+Candidates are attitudes the procedure format can write: one per gravity direction in body axes
+(the 6 faces and the 12 edges, 45° between two axes), plus any given procedure's own (field-18
+has every face twice, at two headings). Corners (gravity equally on three axes) need directions
+the format does not have, so they are not offered.
+
+Positions come and go in antipodal pairs (a face and its opposite, an edge and its opposite),
+which keep each axis's bias separable from its scale factor. The search starts from every pair,
+finds the shortest whole-second dwell that meets the target (the bound falls monotonically with
+the dwell), then repeatedly drops the pair whose loss the others make up best (smallest worst
+σ/target at the current dwell), lengthening the dwell as needed, and keeps the design with the
+least operator time (stopping after PATIENCE drops in a row save nothing); finally it tries more whole turns per rate step on that design. The table
+runs at its fastest rate: a faster rate gives a larger scale-factor signal in less time.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from fieldcal.earth import Station
+from fieldcal.planning.design import Design, OperatorModel, bound_sigmas, operator_time
+from fieldcal.procedure.positions import _WORDS
+from fieldcal.solvers.solve import TriadModel
+
+MIN_DWELL_S = 5.0  # a dwell needs a few stillness windows to be recognised as one
+MAX_DWELL_S = 1200.0
+MAX_TURNS = 3
+PATIENCE = 2  # pair removals in a row that save no time before the search stops dropping
+
+
+@dataclass(frozen=True)
+class Candidate:
+    name: str  # e.g. "x-up" or "x-up z-up edge"
+    axes: tuple[str, str, str]  # the words for x, y, z
+    attitude: np.ndarray
+
+
+def _words() -> dict[str, np.ndarray]:
+    single = {w: np.array(v, float) for w, v in _WORDS.items()}
+    pairs = {}
+    for a, b in itertools.combinations(_WORDS, 2):
+        v = single[a] + single[b]
+        if np.linalg.norm(v) > 0:
+            # Horizontal first, as the procedure files write them ("north-up").
+            first, second = (b, a) if a in ("up", "down") else (a, b)
+            pairs[f"{first}-{second}"] = v / np.linalg.norm(v)
+    return {**single, **pairs}
+
+
+def candidates(extra=()) -> list[Candidate]:
+    """One writable proper attitude per gravity direction (faces, then edges), then ``extra``
+    (positions of a procedure file) whose attitude differs from all before."""
+    words = _words()
+    found: dict[tuple, Candidate] = {}
+    for wx, wy, wz in itertools.product(words, repeat=3):
+        A = np.column_stack([words[wx], words[wy], words[wz]])
+        if not np.allclose(A.T @ A, np.eye(3), atol=1e-9) or np.linalg.det(A) < 0:
+            continue
+        key = tuple(np.round(A[2], 6))
+        if key not in found:
+            found[key] = Candidate(_describe(A), (wx, wy, wz), A)
+    pool = sorted(found.values(), key=lambda c: (np.count_nonzero(np.abs(c.attitude[2]) > 1e-9), c.name))
+    for position in extra:
+        if not any(np.allclose(c.attitude, position.attitude) for c in pool):
+            axes = tuple(_word_of(position.attitude[:, i], words) for i in range(3))
+            pool.append(Candidate(f"{_describe(position.attitude)} (heading of {position.description})",
+                                  axes, position.attitude))
+    return pool
+
+
+def _describe(A: np.ndarray) -> str:
+    up = A[2]
+    names = [f"{n}-{'up' if c > 0 else 'down'}" for n, c in zip("xyz", up) if abs(c) > 1e-9]
+    return names[0] if len(names) == 1 else " ".join(names) + " edge"
+
+
+def _word_of(direction: np.ndarray, words: dict[str, np.ndarray]) -> str:
+    return next(w for w, v in words.items() if np.allclose(v, direction, atol=1e-9))
+
+
+def antipodal_pairs(pool: list[Candidate]) -> list[tuple[Candidate, ...]]:
+    """The pool grouped into pairs with opposite gravity directions (a lone one stays alone)."""
+    left, pairs = list(pool), []
+    while left:
+        first = left.pop(0)
+        match = next((c for c in left if np.allclose(c.attitude[2], -first.attitude[2])), None)
+        if match is not None:
+            left.remove(match)
+        pairs.append((first,) if match is None else (first, match))
+    return pairs
+
+
+@dataclass(frozen=True)
+class Plan:
+    positions: tuple[Candidate, ...]
+    design: Design
+    seconds: float
+    sigmas: dict[str, np.ndarray]
+
+
+class Planner:
+    def __init__(self, models: dict[str, TriadModel], station: Station, rate_hz: float,
+                 operator: OperatorModel, targets: dict[str, np.ndarray], max_rate_deg_s: float):
+        self.models, self.station, self.rate_hz = models, station, rate_hz
+        self.operator, self.targets, self.rate = operator, targets, max_rate_deg_s
+
+    def sigmas(self, design: Design) -> dict[str, np.ndarray]:
+        return bound_sigmas(design, self.operator, self.models, self.station, self.rate_hz)
+
+    def worst_ratio(self, design: Design) -> float:
+        """The largest σ/target over every parameter of every triad (nan counts as infinite)."""
+        sig = self.sigmas(design)
+        ratios = np.concatenate([sig[n] / t for n, t in self.targets.items()])
+        return float(np.max(np.nan_to_num(ratios, nan=np.inf)))
+
+    def _design(self, positions, dwell: float, turns: int) -> Design:
+        return Design(tuple(p.attitude for p in positions), float(dwell), self.rate, turns)
+
+    def shortest(self, positions, turns: int, at_least: float = MIN_DWELL_S) -> Plan | None:
+        """The shortest whole-second dwell (not below ``at_least``) at which ``positions`` meet
+        the target, if any within MAX_DWELL_S."""
+        def meets(dwell):
+            return bool(positions) and self.worst_ratio(self._design(positions, dwell, turns)) <= 1.0
+        lo = max(MIN_DWELL_S, float(np.floor(at_least)))
+        if meets(lo):
+            hi = lo
+        else:
+            hi = lo
+            while not meets(hi):  # grow the bracket from below: dwells only lengthen in a search
+                if hi >= MAX_DWELL_S:
+                    return None
+                lo, hi = hi, min(MAX_DWELL_S, 2 * hi)
+        while hi - lo > 1.0:
+            mid = float(np.floor((lo + hi) / 2))
+            lo, hi = (lo, mid) if meets(mid) else (mid, hi)
+        best = self._design(positions, np.ceil(hi), turns)
+        return Plan(tuple(positions), best, operator_time(best, self.operator), self.sigmas(best))
+
+    def search(self, pool: list[Candidate]) -> Plan:
+        pairs = antipodal_pairs(pool)
+        current = self.shortest([c for pair in pairs for c in pair], 1)
+        if current is None:
+            raise ValueError("plan: no procedure from the candidate positions meets the target "
+                             f"within a {MAX_DWELL_S:g} s dwell; relax the target")
+        best, idle = current, 0
+        while len(pairs) > 1 and idle < PATIENCE:
+            def loss(i):
+                kept = [c for j, pair in enumerate(pairs) if j != i for c in pair]
+                return self.worst_ratio(self._design(kept, current.design.dwell_s, 1))
+            drop = min(range(len(pairs)), key=loss)
+            pairs = pairs[:drop] + pairs[drop + 1:]
+            current = self.shortest([c for pair in pairs for c in pair], 1, current.design.dwell_s)
+            if current is None:
+                break
+            idle = 0 if current.seconds < best.seconds else idle + 1
+            if current.seconds < best.seconds:
+                best = current
+        for turns in range(2, MAX_TURNS + 1):
+            plan = self.shortest(best.positions, turns)
+            if plan is not None and plan.seconds < best.seconds:
+                best = plan
+        return best

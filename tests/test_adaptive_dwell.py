@@ -1,0 +1,90 @@
+"""Adaptive dwell: the engine ends a dwell once it holds the planned information at the measured
+noise level. The rule sees only time and noise: the values being estimated cannot move it."""
+import numpy as np
+import pytest
+
+from drivers.chunk import SampleChunk
+from fieldcal.procedure import events as ev
+from fieldcal.procedure.engine import Engine, EngineSettings
+from fieldcal.procedure.positions import ProcedureError, parse_procedure
+from fieldcal.procedure.stillness import StillnessSettings
+
+RATE_HZ = 100.0
+SF_WHITE, RATE_WHITE = 2e-3, 1e-4  # per-sample σ, output units
+PROCEDURE = """name: adaptive
+dwell_s: 30
+adaptive_dwell: {adaptive}
+positions:
+  - {{id: 1, description: "z-upward", axes: {{x: east, y: north, z: up}}}}
+"""
+
+
+def settings(on_motion="restart"):
+    return EngineSettings(rate_hz=RATE_HZ, on_motion=on_motion,
+                          stillness=StillnessSettings(specific_force_sigma=SF_WHITE, rate_sigma=RATE_WHITE))
+
+
+def dwell_end(seed, bias=(0.0, 0.0, 0.0), noise_factor=1.0, adaptive=True, seconds=200,
+              bump_at=None, on_motion="restart"):
+    """(sample seconds averaged, sample time the dwell ended), feeding a still unit (z up) in
+    one-second chunks; ``bump_at``: a half-second knock in that second."""
+    engine = Engine(parse_procedure(PROCEDURE.format(adaptive=str(adaptive).lower()), "p.yaml"),
+                    settings(on_motion))
+    engine.start()
+    engine.act(ev.Action(ev.READY))
+    rng = np.random.default_rng(seed)
+    n = int(RATE_HZ)
+    for k in range(seconds):
+        t = (k * n + np.arange(n)) / RATE_HZ
+        sf = np.array([0.0, 0.0, 9.8]) + np.array(bias) + noise_factor * SF_WHITE * rng.standard_normal((n, 3))
+        rate = noise_factor * RATE_WHITE * rng.standard_normal((n, 3))
+        if k == bump_at:
+            sf[:n // 2] += 0.5 * np.sin(np.arange(n // 2))[:, None]
+        for e in engine.feed(SampleChunk(t, {"accelerometer": sf, "gyroscope": rate})):
+            if isinstance(e, ev.DwellComplete):
+                return e.duration_s, e.t
+    raise AssertionError("the dwell never ended")
+
+
+def dwell_length(seed, **kw):
+    return dwell_end(seed, **kw)[0]
+
+
+def test_different_biases_give_identical_dwell_lengths():
+    # The same noise draw on very different biases: the rule must not see the values.
+    lengths = {dwell_length(7, bias=bias) for bias in ((0.0, 0.0, 0.0), (0.05, -0.08, 0.03), (-0.2, 0.1, 0.4))}
+    assert len(lengths) == 1
+
+
+def test_the_expected_noise_takes_about_the_planned_dwell():
+    lengths = [dwell_length(seed) for seed in range(3)]
+    assert all(28.0 <= length <= 32.0 for length in lengths), lengths
+
+
+def test_a_noisier_unit_dwells_longer_in_proportion_to_its_variance():
+    # Noise 1.5× the expected σ: 2.25× the planned samples for the same information.
+    length = dwell_length(3, noise_factor=1.5)
+    assert length == pytest.approx(30.0 * 2.25, rel=0.05)
+
+
+def test_a_quieter_unit_stops_early_but_not_before_the_minimum():
+    assert dwell_length(4, noise_factor=0.7) == pytest.approx(30.0 * 0.49, rel=0.05)
+    assert dwell_length(5, noise_factor=0.1) == pytest.approx(settings().min_dwell_s, abs=0.02)
+
+
+def test_without_the_option_the_dwell_is_the_planned_one_whatever_the_noise():
+    assert dwell_length(6, noise_factor=1.5, adaptive=False) == 30.0
+
+
+def test_the_option_must_be_a_boolean():
+    with pytest.raises(ProcedureError, match="adaptive_dwell"):
+        parse_procedure(PROCEDURE.format(adaptive="maybe"), "p.yaml")
+
+
+@pytest.mark.parametrize("on_motion", ["restart", "discard"])
+def test_a_bumped_dwell_ends_later_with_the_same_information(on_motion):
+    quiet_s, quiet_end = dwell_end(9, on_motion=on_motion)
+    bumped_s, bumped_end = dwell_end(9, on_motion=on_motion, bump_at=15)
+    # The knock's samples never count, nor does their spread judge the noise level.
+    assert bumped_end > quiet_end
+    assert bumped_s == pytest.approx(quiet_s, rel=0.05)
