@@ -57,6 +57,7 @@ class FieldcalApp(App[int]):
         self.events: list[ev.Event] = []  # every engine event shown, in order (for tests)
         self.telemetry: Telemetry | None = None
         self.setup = setup
+        self.mode = "setup"  # until a run is prepared: the source's "sim", "live" or "replay"
         if setup is None:
             self._prepare(spec, session_dir, replay, config)
 

@@ -36,18 +36,29 @@ v   the results, once the replay has ended; Esc there comes back here
 ?   this help          q   quit"""
 
 
+SETUP_KEYS = """\
+Choose the device config (or type the path of one), the port, the procedure
+and the station, then start.
+
+Tab, shift+Tab   next, previous field
+Enter            start (in a text field)     ctrl+s   start (anywhere)
+Esc              quit                        q        quit (outside a text field)
+?                this help (outside a text field)"""
+
+
 class HelpScreen(ModalScreen):
     CSS_PATH = "help.tcss"
     BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,question_mark,q", "dismiss", "close", show=False)]
 
     def __init__(self, mode: str) -> None:
-        """``mode``: "sim", "live" or "replay" (the source's)."""
+        """``mode``: "setup", or the source's "sim", "live" or "replay"."""
         super().__init__()
         self.mode = mode
 
     def compose(self) -> ComposeResult:
         with Vertical(id="help"):
-            yield Static({"replay": REPLAY_KEYS, "live": LIVE_KEYS}.get(self.mode, SIM_KEYS))
+            yield Static({"replay": REPLAY_KEYS, "live": LIVE_KEYS, "setup": SETUP_KEYS}.get(self.mode, SIM_KEYS),
+                         id="help-text")
             yield Static("Esc, ? or q closes this", id="help-close")
 
     def action_dismiss(self) -> None:
