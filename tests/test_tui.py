@@ -230,9 +230,9 @@ async def test_abort_keeps_the_session(tmp_path):
     app = FieldcalApp(spec, speed=0, session_dir=tmp_path / "session")
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("s")
+        await pilot.press("s", "y")  # each confirmed (tests/test_tui_keys.py has the questions)
         await until(pilot, lambda: waiting_at(app, 1))
-        await pilot.press("a")
+        await pilot.press("a", "a")
         await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
         await pilot.press("escape")  # back to the run: its tiles say what happened
         assert isinstance(app.screen, ProcedureScreen)
@@ -289,6 +289,7 @@ async def test_the_results_show_the_previous_calibration_of_the_same_unit(tmp_pa
     app = FieldcalApp(RunSpec(spec.procedure, STATION, seed=7), speed=0, session_dir=sessions / "today")
     async with app.run_test(size=(100, 40)) as pilot:
         await press_ready_through(pilot, app)
+        await until(pilot, lambda: bool(app.screen.query(".previous-head")))  # composed
         text = "\n".join(w.render().plain if hasattr(w.render(), "plain") else str(w.render())
                          for w in app.screen.query(".previous-head, .table"))
     previous = app.outcome.previous
@@ -330,5 +331,6 @@ async def test_the_setup_screen_starts_the_run_it_was_given(tmp_path, monkeypatc
         assert procedure.name == "field-18"
         assert (config.station.latitude_deg, config.station.height_m) == (45.5, 120.0)
         await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("q")
+        await pilot.press("q", "y")
+        await until(pilot, lambda: not app.is_running)
     assert app.spec.station.latitude_deg == 45.5

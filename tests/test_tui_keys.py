@@ -66,3 +66,107 @@ async def test_help_on_the_setup_screen_shows_the_setup_keys(tmp_path, monkeypat
         assert "ctrl+s" in text and "start" in text
         await pilot.press("escape")
         await until(pilot, lambda: isinstance(app.screen, SetupScreen))
+
+
+def confirm_text(app) -> str:
+    bar = app.screen.query_one("#confirm")
+    return str(bar.render()) if bar.display else ""
+
+
+@run_async
+async def test_abort_asks_first_and_any_other_key_carries_on(tmp_path):
+    from fieldcal.session.capture import SessionReader
+    from fieldcal.tui.screens.results import ResultsScreen
+
+    app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=0, session_dir=tmp_path / "s")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("a")
+        assert "ABORT" in confirm_text(app)
+        await pilot.press("x")  # not a confirmation: nothing happens, the bar goes
+        assert confirm_text(app) == ""
+        await pilot.press("a")
+        await pilot.press("r")  # neither: r answers the question (no), it does not place the unit
+        assert confirm_text(app) == "" and waiting_at(app, 0)
+        await pilot.press("a", "a")
+        await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
+    assert app.outcome.status == "aborted"
+    assert [a["action"] for a in SessionReader(tmp_path / "s").actions()] == ["abort"]
+
+
+@run_async
+async def test_a_skip_is_confirmed_and_undone_and_the_run_completes_all_positions(tmp_path):
+    from fieldcal.run.replay import replay_session
+    from fieldcal.session.capture import SessionReader
+    from fieldcal.tui.screens.results import ResultsScreen
+
+    app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=0, session_dir=tmp_path / "s")
+    async with app.run_test(size=(80, 24)) as pilot:
+        view = app.screen.view
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("s")
+        assert "Skip position 1?" in confirm_text(app)
+        await pilot.press("y")
+        await until(pilot, lambda: waiting_at(app, 1))
+        assert view.tiles == ["skipped", "active", "todo"]
+        await pilot.press("u")  # nothing begun at step 2: back at once
+        await until(pilot, lambda: waiting_at(app, 0))
+        assert view.tiles == ["active", "todo", "todo"]
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(app, 1))  # then on where the skip left off
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(app, 2))
+        await pilot.press("s")
+        assert "the last one" in confirm_text(app)  # a skip here ends the run: said so
+        await pilot.press("escape")
+        await pilot.press("r")
+        await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
+    assert app.outcome.status == "completed"
+    assert (app.outcome.completed, app.outcome.skipped) == (3, 0)
+    assert view.tiles == ["done"] * 3
+    assert [a["action"] for a in SessionReader(tmp_path / "s").actions()] == \
+        ["skip", "unskip", "ready", "ready", "ready"]
+    replayed = []  # the recorded unskip replays to the same events
+    replay_session(tmp_path / "s", report=lambda e: replayed.append(e.to_dict()))
+    assert replayed == SessionReader(tmp_path / "s").events()[:len(replayed)]
+    assert [e["event"] for e in replayed].count("step_complete") == 3
+
+
+@run_async
+async def test_going_back_from_a_step_begun_asks_first(tmp_path):
+    app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=1,
+                      session_dir=None)  # real time: the dwell is still running when u comes
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("s", "s")
+        await until(pilot, lambda: waiting_at(app, 1))
+        await pilot.press("r")
+        await until(pilot, lambda: app.telemetry.phase not in ("place", "settling"))
+        await pilot.press("u")
+        assert "Back to position 1? Position 2's progress is lost." in confirm_text(app)
+        await pilot.press("u")
+        await until(pilot, lambda: waiting_at(app, 0))
+        assert app.screen.view.tiles == ["active", "todo", "todo"]
+
+
+@run_async
+async def test_quit_mid_run_asks_and_after_the_end_does_not(tmp_path):
+    app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=0, session_dir=tmp_path / "s")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("q")
+        assert "Quit mid-run?" in confirm_text(app)
+        await pilot.press("escape")
+        assert confirm_text(app) == "" and app.is_running
+        await pilot.press("q", "y")
+        await until(pilot, lambda: not app.is_running)
+    app.source.done.wait(10.0)
+    assert app.source.outcome.status == "stopped"
+
+
+def test_the_engine_goes_back_to_the_nearest_skipped_step_before():
+    from fieldcal.procedure.engine import skipped_to_return_to
+
+    assert skipped_to_return_to(set(), 3) is None
+    assert skipped_to_return_to({1, 2, 7}, 5) == 2
+    assert skipped_to_return_to({7}, 5) == 7

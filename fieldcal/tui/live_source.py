@@ -15,7 +15,7 @@ from pathlib import Path
 from drivers.tables import TableError
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.engine import PLACE, WRONG
-from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, QUIT, READY, REDO, SKIP, SimSource, Sink
+from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, QUIT, READY, REDO, SKIP, UNSKIP, SimSource, Sink
 
 NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the operator is told
 
@@ -107,7 +107,7 @@ class LiveSource(SimSource):
             self._note(f"waiting for the unit to be still in position {e.position.id}")
         elif command in (READY,):
             self._note("(ready: nothing to do now)")
-        elif command in (REDO, SKIP, ABORT):
+        elif command in (REDO, SKIP, ABORT, UNSKIP):
             self._note(f"operator: {command}")
             self._act(command)
         elif command in (BUMP, MISPLACE):

@@ -36,9 +36,9 @@ from fieldcal.tui.readings import RecentSamples, Telemetry
 FLUSH_S = 0.1  # at most one UI update per this much wall time
 
 # Operator commands (the keys); the engine's actions plus what the simulator's hands do.
-READY, REDO, SKIP, ABORT = ev.READY, ev.REDO, ev.SKIP, ev.ABORT
+READY, REDO, SKIP, ABORT, UNSKIP = ev.READY, ev.REDO, ev.SKIP, ev.ABORT, ev.UNSKIP
 BUMP, MISPLACE, QUIT = "bump", "misplace", "quit"
-COMMANDS = (READY, REDO, SKIP, ABORT, BUMP, MISPLACE, QUIT)
+COMMANDS = (READY, REDO, SKIP, ABORT, UNSKIP, BUMP, MISPLACE, QUIT)
 
 
 @dataclass(frozen=True)
@@ -327,7 +327,7 @@ class SimSource(Source):
             self._feed(self.bench.move_to(e.position.attitude))
         elif command in (READY, MISPLACE):
             self._note(f"({command}: nothing to do while {_PHASE_WORDS.get(e.phase, e.phase)})")
-        elif command in (REDO, SKIP, ABORT):
+        elif command in (REDO, SKIP, ABORT, UNSKIP):
             self._note(f"operator: {command}")
             self._act(command)
         elif command == BUMP:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from fieldcal.procedure import engine as en
+from fieldcal.procedure.engine import skipped_to_return_to
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure
 from fieldcal.run.progress import describe
@@ -106,8 +107,9 @@ class RunView:
     def _fold(self, e: ev.Event) -> None:
         if isinstance(e, ev.StepStarted):
             self.step = e.step
-            if self.tiles[e.step] != SKIPPED:
-                self.tiles[e.step] = ACTIVE
+            # A step left unfinished (going back to a skipped one) is to do again.
+            self.tiles = [TODO if s in (ACTIVE, WRONG) else s for s in self.tiles]
+            self.tiles[e.step] = ACTIVE
             self.dwell, self.turns = Progress(total=self.procedure.dwell_s), Progress()
             self.wrong, self.restarts = None, 0
             if not self.table_rate:
@@ -153,6 +155,38 @@ class RunView:
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.telemetry = telemetry
+
+    def unskip_target(self) -> int | None:
+        """The step that going back (unskip) returns to, as the engine chooses it."""
+        if self.finished is not None or self.step >= self.total_steps:
+            return None
+        return skipped_to_return_to({i for i, s in enumerate(self.tiles) if s == SKIPPED}, self.step)
+
+    def confirmation(self, action: str, running: bool = True) -> str | None:
+        """The question to ask before ``action`` ("skip", "abort", "unskip", "quit"), or None
+        when it loses nothing and needs no confirmation."""
+        if self.finished is not None or not running or self.step >= self.total_steps:
+            return None
+        pid = self.position.id
+        begun = self.phase not in (en.PLACE, en.DONE)
+        if action == "abort":
+            return "ABORT the run? It ends for good (no resume)."
+        if action == "quit":
+            return "Quit mid-run? The session is kept, unfinished."
+        if action == "skip":
+            others = [i for i, s in enumerate(self.tiles) if i != self.step and s in (TODO, ACTIVE, WRONG)]
+            if not others:
+                return f"Skip position {pid}, the last one? The run then ends."
+            return f"Skip position {pid}? (u goes back to it)"
+        if action == "unskip" and begun:
+            back = self.unskip_target()
+            back_id = self.procedure.positions[back].id if back is not None else "?"
+            return f"Back to position {back_id}? Position {pid}'s progress is lost."
+        return None
+
+    @staticmethod
+    def verb(action: str) -> str:
+        return {"unskip": "go back"}.get(action, action)
 
     # --- text for the screen -------------------------------------------------------------
 

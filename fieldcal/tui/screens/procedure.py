@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from textual import events
 from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal
@@ -15,8 +16,9 @@ from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.widgets.tiles import PositionTiles
 from fieldcal.tui.view import RunView
 
-OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort")
+OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort", "unskip")
 SIM_ACTIONS = ("bump", "misplace")
+CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u"}  # pressed again: confirmed
 
 
 class ProcedureScreen(Screen):
@@ -24,11 +26,13 @@ class ProcedureScreen(Screen):
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("r", "command('ready')", "ready"),
         Binding("d", "command('redo')", "redo"),
-        Binding("s", "command('skip')", "skip"),
-        Binding("a", "command('abort')", "abort"),
+        Binding("s", "ask('skip')", "skip"),
+        Binding("u", "ask('unskip')", "back"),
+        Binding("a", "ask('abort')", "abort"),
         Binding("b", "command('bump')", "bump"),
         Binding("w", "command('misplace')", "misplace", show=False),
         Binding("v", "results", "results"),
+        Binding("q", "ask('quit')", "quit"),
     ]
 
     def __init__(self, view: RunView, title: str, mode: str) -> None:
@@ -37,6 +41,8 @@ class ProcedureScreen(Screen):
         self.title_text = title
         self.mode = mode  # "sim" or "replay"
         self._shown_step = -1
+        self._can_go_back = False
+        self.pending: str | None = None  # the action waiting for the operator's confirmation
 
     def compose(self) -> ComposeResult:
         yield Static(self.title_text, id="title")
@@ -47,11 +53,13 @@ class ProcedureScreen(Screen):
             yield Static("", id="cube")
             yield LivePanel(id="live")
         yield RichLog(id="log", wrap=True, max_lines=5000, markup=False, min_width=20)
+        yield Static("", id="confirm")
         yield Footer()
 
     def on_mount(self) -> None:
         self.query_one("#live").border_title = "live"
         self.query_one("#log").border_title = "events"
+        self.query_one("#confirm").display = False
         self.refresh_view()
 
     # --- fed by the app ---------------------------------------------------------------------
@@ -70,6 +78,7 @@ class ProcedureScreen(Screen):
 
     def finished(self, status: str) -> None:
         self.view.finished = status
+        self._ask(None)
         self.refresh_view()
         self.refresh_bindings()
 
@@ -87,22 +96,61 @@ class ProcedureScreen(Screen):
             cube.update("\n".join(top_view(view.position)))
             cube.border_title = f"position {view.position.id}"
         self.query_one(LivePanel).update(view)
+        can_go_back = view.unskip_target() is not None
+        if can_go_back != self._can_go_back:  # the footer offers u only when it can act
+            self._can_go_back = can_go_back
+            self.refresh_bindings()
 
     # --- keys -------------------------------------------------------------------------------
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         if action == "results":
             return self.view.finished is not None
-        if action != "command":
+        if action not in ("command", "ask") or parameters == ("quit",):
             return True
         if self.mode == "replay" or self.view.finished is not None:
             return False  # a replay applies the recorded actions; a finished run takes none
         if parameters and parameters[0] in SIM_ACTIONS:
             return self.mode == "sim"
+        if parameters == ("unskip",):
+            return self.view.unskip_target() is not None
         return True
 
     def action_command(self, name: str) -> None:
         self.app.send_command(name)
+
+    async def action_ask(self, name: str) -> None:
+        """Abort, skip, quit (and going back, when it drops a step begun) wait for a confirmation:
+        one slip of a finger must not cost the run."""
+        question = self.view.confirmation(name, running=self.mode != "replay")
+        if question is None:
+            await self._do(name)
+        else:
+            key = CONFIRM_KEYS[name]
+            self._ask(name, f"{question}  {key} or y: {self.view.verb(name)} · other key: no")
+
+    def _ask(self, name: str | None, text: str = "") -> None:
+        self.pending = name
+        bar = self.query_one("#confirm", Static)
+        bar.update(text)
+        bar.display = name is not None
+
+    async def _do(self, name: str) -> None:
+        if name == "quit":
+            await self.app.action_quit()
+        else:
+            self.action_command(name)
+
+    async def on_key(self, event: events.Key) -> None:
+        """While a confirmation is asked, the next key answers it (and does nothing else)."""
+        name = self.pending
+        if name is None:
+            return
+        event.stop()
+        event.prevent_default()
+        self._ask(None)
+        if event.key in (CONFIRM_KEYS[name], "y"):
+            await self._do(name)
 
     def action_results(self) -> None:
         self.app.show_results()
