@@ -109,6 +109,8 @@ async def test_a_skip_is_confirmed_and_undone_and_the_run_completes_all_position
         await pilot.press("y")
         await until(pilot, lambda: waiting_at(app, 1))
         assert view.tiles == ["skipped", "active", "todo"]
+        await pilot.pause()
+        assert [str(t.render()) for t in app.screen.query(".tile")] == ["– 1", "▶ 2", "· 3"]
         await pilot.press("u")  # nothing begun at step 2: back at once
         await until(pilot, lambda: waiting_at(app, 0))
         assert view.tiles == ["active", "todo", "todo"]

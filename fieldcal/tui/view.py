@@ -18,6 +18,25 @@ from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.source import Note
 
 TODO, ACTIVE, DONE, SKIPPED, WRONG = "todo", "active", "done", "skipped", "wrong"
+# Each tile's state as a symbol too, for a monochrome or colour-blind operator.
+SYMBOLS = {DONE: "✓", SKIPPED: "–", ACTIVE: "▶", WRONG: "▶", TODO: "·"}
+PLACING_GUESS_S = 30.0  # an operator's placement, until the run has timed one
+
+
+def clock_text(seconds: float) -> str:
+    """Elapsed time as a clock: 4:05, 1:02:03."""
+    s = max(0, int(seconds))
+    h, m, sec = s // 3600, s // 60 % 60, s % 60
+    return f"{h}:{m:02d}:{sec:02d}" if h else f"{m}:{sec:02d}"
+
+
+def duration_words(seconds: float) -> str:
+    """A remaining time as the operator says it: 40 s, 12 min, 1 h 05 min."""
+    s = max(0.0, seconds)
+    if s < 60:
+        return f"{s:.0f} s"
+    minutes = round(s / 60)
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
 
 
 @dataclass
@@ -71,6 +90,10 @@ class RunView:
     restarts_total: int = 0
     finished: str | None = None  # outcome status once the run has ended
     last_t: float = 0.0
+    placing_s: list[float] = field(default_factory=list)  # each placement: step start to still
+    step_t0: float = 0.0  # when the current step started (sample time)
+    placed: bool = False  # the current step's unit has been found still in place
+    rates_done: int = 0  # rate steps (±) completed in the current step
 
     def __post_init__(self) -> None:
         if not self.tiles:
@@ -111,6 +134,7 @@ class RunView:
             self.tiles = [TODO if s in (ACTIVE, WRONG) else s for s in self.tiles]
             self.tiles[e.step] = ACTIVE
             self.dwell, self.turns = Progress(total=self.procedure.dwell_s), Progress()
+            self.step_t0, self.placed, self.rates_done = e.t, False, 0
             self.wrong, self.restarts = None, 0
             if not self.table_rate:
                 self.table_state = "stopped"
@@ -120,6 +144,9 @@ class RunView:
         elif isinstance(e, ev.Still):
             self.wrong = None
             self.tiles[self.step] = ACTIVE
+            if not self.placed:
+                self.placing_s.append(e.t - self.step_t0)
+                self.placed = True
             self.dwell.start(e.t, keep=self.dwell.base > 0)
         elif isinstance(e, ev.DwellProgress):
             self.dwell.sync(e.t, e.done_s)
@@ -143,6 +170,7 @@ class RunView:
             self.turns.start(e.t, e.window_s)
         elif isinstance(e, ev.RateStepComplete):
             self.turns.finish()
+            self.rates_done += 1
         elif isinstance(e, ev.StepComplete):
             self.tiles[e.step] = DONE
         elif isinstance(e, ev.StepSkipped):
@@ -155,6 +183,41 @@ class RunView:
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.telemetry = telemetry
+
+    # --- the whole job -------------------------------------------------------------------
+
+    def rate_step_s(self) -> float:
+        """One rate step (one sign): ramp, settle and the whole turns averaged."""
+        r = self.procedure.rate_step
+        return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
+
+    def remaining_s(self) -> float:
+        """Sample time the open steps still need: dwells and rate steps from the procedure,
+        less what the current step has done, and a placement each, as long as this run's
+        placements took on average (PLACING_GUESS_S until one is timed)."""
+        if self.finished is not None or self.step >= self.total_steps:
+            return 0.0
+        placing = sum(self.placing_s) / len(self.placing_s) if self.placing_s else PLACING_GUESS_S
+        per_step = self.procedure.dwell_s + 2 * self.rate_step_s() + placing
+        open_steps = sum(s in (TODO, ACTIVE, WRONG) for i, s in enumerate(self.tiles) if i != self.step)
+        t = self.t
+        if self.placed:
+            rate_left = self.rate_step_s() * (2 - self.rates_done) if self.procedure.rate_step else 0.0
+            turning = 0.0 if self.turns.complete else self.turns.done(t)  # (a finished one is counted)
+            current = self.dwell.total - self.dwell.done(t) + max(0.0, rate_left - turning)
+        else:
+            current = per_step
+        return open_steps * per_step + current
+
+    def job_text(self) -> str:
+        """Counts beside the tiles' symbols (the legend), elapsed and remaining time."""
+        n = {state: self.tiles.count(state) for state in (DONE, SKIPPED, TODO)}
+        running = self.finished is None and self.step < self.total_steps
+        legend = (f"✓{n[DONE]} done  –{n[SKIPPED]} skipped  {'▶ now  ' if running else ''}"
+                  f"·{n[TODO]} to do   ")
+        if not running:
+            return f"{legend}{clock_text(self.t)} in all"
+        return f"{legend}{clock_text(self.t)} elapsed, ≈{duration_words(self.remaining_s())} to go"
 
     def unskip_target(self) -> int | None:
         """The step that going back (unskip) returns to, as the engine chooses it."""

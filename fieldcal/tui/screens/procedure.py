@@ -47,6 +47,7 @@ class ProcedureScreen(Screen):
     def compose(self) -> ComposeResult:
         yield Static(self.title_text, id="title")
         yield PositionTiles([p.id for p in self.view.procedure.positions], id="tiles")
+        yield Static("", id="job")
         yield Static("", id="step")
         yield Static("", id="banner")
         with Horizontal(id="body"):
@@ -85,6 +86,7 @@ class ProcedureScreen(Screen):
     def refresh_view(self) -> None:
         view = self.view
         self.query_one(PositionTiles).update(view.tiles)
+        self.query_one("#job", Static).update(view.job_text())
         self.query_one("#step", Static).update(view.step_text())
         text, style = view.banner(sim=self.mode == "sim")
         banner = self.query_one("#banner", Static)
