@@ -13,6 +13,7 @@ from fieldcal.run.runner import RunSpec
 from fieldcal.tui.widgets.bars import bar, signed_bar
 from fieldcal.tui.widgets.cube import top_view
 from fieldcal.tui.source import READY, Pacer, SimSource
+from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.view import RunView
 
 
@@ -80,6 +81,35 @@ def test_the_time_to_go_counts_dwells_turns_and_this_runs_placements():
     view.apply(ev.ProcedureComplete(200.0, 1, 1))
     assert view.remaining_s() == 0.0
     assert view.job_text() == "✓1 done  –1 skipped  ·0 to do   3:20 in all"
+
+
+def test_the_banner_says_how_to_move_the_unit_in_the_operators_words():
+    """The moves between field-18's positions, read off procedures/field-18.yaml's axes."""
+    from fieldcal.tui.guidance import placement
+
+    p = {q.id: q for q in load_procedure("field-18").positions}
+    assert placement(p[1], p[2]).text == "rotate it 180° about the vertical so that x points north"
+    assert placement(p[1], p[2]).heading_only
+    assert placement(p[2], p[3]).text == "turn it over: z must point down, x north"
+    assert placement(p[4], p[5]).text == "tip it 90° over: y must point up, x east"
+    assert not placement(p[2], p[3]).heading_only
+    assert placement(p[12], p[13]).text == "tip it 135° over: y east, x south-up, z north-up"
+    quarter = parse_procedure(TWO_WITH_TURNS.replace("x: north, y: west", "x: west, y: south"), "q.yaml")
+    one, two = quarter.positions  # x from south to west: a quarter turn clockwise from above
+    assert placement(one, two).text == "rotate it 90° clockwise (seen from above) so that x points west"
+
+    view = RunView(load_procedure("field-18"))
+    for e in (ev.StepStarted(0.0, 0, 1, "z-upward", 18), ev.Still(5.0, 3.0), ev.StepComplete(30.0, 0, 1),
+              ev.StepStarted(30.0, 1, 2, "z-upward", 18)):
+        view.apply(e)
+    view.telemetry = Telemetry(30.0, 1, "place", True, 100)
+    text, _ = view.banner(sim=False)
+    assert text.startswith("Position 2: rotate it 180° about the vertical so that x points north, then press r")
+    assert "\nOnly the heading changes" in text
+    view.apply(ev.WrongOrientation(40.0, 2, (5,), 90.0, "the engine's words"))
+    view.telemetry = Telemetry(40.0, 1, "wrong", True, 200)
+    assert view.banner(sim=False)[0] == ("WRONG POSITION: it looks like position 5; tip it 90° over: "
+                                         "z must point up, x north; checked again once still")
 
 
 def test_the_pacer_holds_sample_time_to_speed_times_wall_time():

@@ -14,6 +14,7 @@ from fieldcal.procedure.engine import skipped_to_return_to
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure
 from fieldcal.run.progress import describe
+from fieldcal.tui.guidance import placement
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.source import Note
 
@@ -94,6 +95,8 @@ class RunView:
     step_t0: float = 0.0  # when the current step started (sample time)
     placed: bool = False  # the current step's unit has been found still in place
     rates_done: int = 0  # rate steps (±) completed in the current step
+    unit_at: object | None = None  # the Position the unit was last found still in
+    looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
 
     def __post_init__(self) -> None:
         if not self.tiles:
@@ -139,7 +142,7 @@ class RunView:
             if not self.table_rate:
                 self.table_state = "stopped"
         elif isinstance(e, ev.WrongOrientation):
-            self.wrong = e.message
+            self.wrong, self.looks_like = e.message, e.looks_like
             self.tiles[self.step] = WRONG
         elif isinstance(e, ev.Still):
             self.wrong = None
@@ -147,6 +150,7 @@ class RunView:
             if not self.placed:
                 self.placing_s.append(e.t - self.step_t0)
                 self.placed = True
+            self.unit_at = self.position
             self.dwell.start(e.t, keep=self.dwell.base > 0)
         elif isinstance(e, ev.DwellProgress):
             self.dwell.sync(e.t, e.done_s)
@@ -268,12 +272,21 @@ class RunView:
                     "incomplete": ("The capture ends here", "warn"),
                     "stopped": ("Stopped", "warn")}.get(self.finished, (self.finished, "warn"))
         phase = self.phase
+        p = self.position
         if phase == en.PLACE:
-            how = "press r and the simulator places it" if sim else "then press r"
-            return f"Place the unit in position {self.position.id}: {how}", "act"
+            move = placement(self.unit_at, p)
+            text = f"Position {p.id}: {move.text}" + ("; r: the simulator does it" if sim else ", then press r")
+            if move.heading_only and self.unit_at is not None:
+                text += "\nOnly the heading changes, which the check cannot see: check it by eye"
+            return text, "act"
         if phase == en.WRONG:
-            fix = "press r to have the simulator correct it" if sim else "correct it"
-            return f"WRONG POSITION (see the log): {fix}", "bad"
+            by_id = {q.id: q for q in self.procedure.positions}
+            seen = by_id.get(self.looks_like[0]) if self.looks_like else None
+            move = placement(seen, p) if seen is not None else None
+            text = (f"WRONG POSITION: it looks like position {seen.id}; {move.text}" if move else
+                    f"WRONG POSITION: position {p.id} is {p.description}")
+            how = "r: the simulator corrects it" if sim else "checked again once still"
+            return f"{text}; {how}", "bad"
         if phase == en.SETTLING:
             return "Hands off: waiting for the unit to be still", "wait"
         if phase == en.CHECKING:
