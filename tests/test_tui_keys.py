@@ -172,3 +172,22 @@ def test_the_engine_goes_back_to_the_nearest_skipped_step_before():
     assert skipped_to_return_to(set(), 3) is None
     assert skipped_to_return_to({1, 2, 7}, 5) == 2
     assert skipped_to_return_to({7}, 5) == 7
+
+
+class FrozenClock:
+    """Wall time that never moves: the pacer holds the simulator's samples back for good."""
+
+    def __call__(self) -> float:
+        return 0.0
+
+
+@run_async
+async def test_r_changes_the_banner_at_once_even_while_the_samples_take_their_time():
+    app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=1, session_dir=None,
+                      clock=FrozenClock())
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("r")
+        banner = str(app.screen.query_one("#banner").render())
+        assert banner.startswith("The simulator is carrying the unit into position 1")
+        assert "moving the unit" in app.screen.query_one("#live-still").render().plain

@@ -112,6 +112,40 @@ def test_the_banner_says_how_to_move_the_unit_in_the_operators_words():
                                          "z must point up, x north; checked again once still")
 
 
+def test_readings_that_are_not_current_say_so_and_progress_ends_with_the_run():
+    from fieldcal.tui.widgets.live import rows
+
+    view = RunView(parse_procedure(TWO_WITH_TURNS, "two.yaml"), held_while_waiting=True)
+    for e in (ev.StepStarted(0.0, 0, 1, "z-upward", 2), ev.Still(5.0, 2.0), ev.DwellComplete(25.0, 20.0),
+              ev.CommandTable(25.0, 10.0), ev.RateSettled(28.0, 10.0, 36.0)):
+        view.apply(e)
+    turning = Telemetry(30.0, 0, "rate_average", False, 6000, (0.0, 0.0, 1000.0), (0.0, 0.0, -9.9), 1.0, 1.1)
+    view.set_telemetry(turning)
+    assert rows(view)["still"].plain.endswith("steady turn")  # not "still" beside -9.9 °/s
+    for e in (ev.RateStepComplete(64.0, 10.0), ev.CommandTable(64.0, -10.0), ev.RateSettled(67.0, -10.0, 36.0),
+              ev.RateStepComplete(103.0, -10.0), ev.CommandTable(103.0, 0.0)):
+        view.apply(e)
+    assert "stopping" in rows(view)["table"].plain
+    view.apply(ev.StepComplete(103.0, 0, 1))
+    assert rows(view)["table"].plain.endswith("stopped")
+    view.apply(ev.StepStarted(103.0, 1, 2, "z-upward", 2))
+    # The simulator waits for r: its last samples (the turning table) are held, and said to be.
+    view.set_telemetry(Telemetry(103.0, 1, "place", True, 20000, (0.0, 0.0, 1000.0), (0.0, 0.0, -9.9), 1.0, 1.1))
+    lines = rows(view)
+    assert lines["still"].plain.endswith("— (the simulator waits for r)")
+    assert lines["target"].plain.endswith("—")
+    assert any(span.style == "grey50" for span in lines["gyro"].spans)
+    # Aborted mid-dwell: the dwell stops where it was and the panel says the run ended.
+    for e in (ev.WaitingForStillness(104.0), ev.Still(110.0, 2.0), ev.DwellProgress(120.0, 10.0, 20.0),
+              ev.Aborted(122.0, "operator")):
+        view.apply(e)
+    view.finished = "aborted"
+    assert view.dwell.done(500.0) == pytest.approx(12.0)
+    lines = rows(view)
+    assert lines["dwell"].plain.endswith("— (run aborted)") and lines["turns"].plain.endswith("—")
+    assert lines["still"].plain.endswith("— (the run has ended)")
+
+
 def test_the_pacer_holds_sample_time_to_speed_times_wall_time():
     now = iter(itertools.count(0.0, 0.0))  # a clock that never moves
     pacer = Pacer(10.0, clock=lambda: next(now))

@@ -82,7 +82,8 @@ class FieldcalApp(App[int]):
         settings = self.source.settings
         self.view = RunView(self.spec.procedure, tolerance_deg=settings.tolerance_deg,
                             enter_factor=settings.stillness.enter_factor,
-                            leave_factor=settings.stillness.leave_factor)
+                            leave_factor=settings.stillness.leave_factor,
+                            held_while_waiting=self.mode == "sim")
         self.procedure_screen = ProcedureScreen(self.view, title, self.mode)
 
     def on_mount(self) -> None:

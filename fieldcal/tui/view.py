@@ -95,6 +95,8 @@ class RunView:
     step_t0: float = 0.0  # when the current step started (sample time)
     placed: bool = False  # the current step's unit has been found still in place
     rates_done: int = 0  # rate steps (±) completed in the current step
+    held_while_waiting: bool = False  # the source stops sampling while it waits (the simulator)
+    carrying: bool = False  # the simulator is carrying the unit into place (r pressed)
     unit_at: object | None = None  # the Position the unit was last found still in
     looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
 
@@ -131,6 +133,11 @@ class RunView:
         return f"[{item.t:7.1f} s] {text}"
 
     def _fold(self, e: ev.Event) -> None:
+        if isinstance(e, (ev.StepStarted, ev.StepComplete, ev.StepSkipped, ev.ProcedureComplete, ev.Aborted)) \
+                and not self.table_rate:
+            self.table_state = "stopped"  # the engine stopped it before any of these
+        if isinstance(e, ev.WaitingForStillness):
+            self.carrying = False
         if isinstance(e, ev.StepStarted):
             self.step = e.step
             # A step left unfinished (going back to a skipped one) is to do again.
@@ -138,9 +145,7 @@ class RunView:
             self.tiles[e.step] = ACTIVE
             self.dwell, self.turns = Progress(total=self.procedure.dwell_s), Progress()
             self.step_t0, self.placed, self.rates_done = e.t, False, 0
-            self.wrong, self.restarts = None, 0
-            if not self.table_rate:
-                self.table_state = "stopped"
+            self.wrong, self.restarts, self.carrying = None, 0, False
         elif isinstance(e, ev.WrongOrientation):
             self.wrong, self.looks_like = e.message, e.looks_like
             self.tiles[self.step] = WRONG
@@ -181,12 +186,27 @@ class RunView:
             self.tiles[e.step] = SKIPPED
         elif isinstance(e, ev.ProcedureComplete):
             self.step = self.total_steps
-        elif isinstance(e, ev.Aborted) and self.step < self.total_steps \
-                and self.tiles[self.step] in (ACTIVE, WRONG):
-            self.tiles[self.step] = SKIPPED
+        elif isinstance(e, ev.Aborted):
+            self.dwell.interrupt(e.t, restart=False)
+            self.turns.interrupt(e.t, restart=False)
+            if self.step < self.total_steps and self.tiles[self.step] in (ACTIVE, WRONG):
+                self.tiles[self.step] = SKIPPED
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.telemetry = telemetry
+        if telemetry.phase != en.PLACE:
+            self.carrying = False
+
+    def stale_reason(self) -> str | None:
+        """Why the readings are not current, if they are not: they stay on screen, dimmed."""
+        if self.finished is not None:
+            return "the run has ended"
+        tel = self.telemetry
+        if self.carrying:
+            return "the simulator is moving the unit"
+        if self.held_while_waiting and tel is not None and tel.waiting:
+            return "the simulator waits for r"
+        return None
 
     # --- the whole job -------------------------------------------------------------------
 
@@ -273,6 +293,8 @@ class RunView:
                     "stopped": ("Stopped", "warn")}.get(self.finished, (self.finished, "warn"))
         phase = self.phase
         p = self.position
+        if phase == en.PLACE and self.carrying:
+            return f"The simulator is carrying the unit into position {p.id}: hands off", "wait"
         if phase == en.PLACE:
             move = placement(self.unit_at, p)
             text = f"Position {p.id}: {move.text}" + ("; r: the simulator does it" if sim else ", then press r")

@@ -10,6 +10,7 @@ from textual.containers import Horizontal
 from textual.screen import Screen
 from textual.widgets import Footer, RichLog, Static
 
+from fieldcal.procedure.engine import PLACE
 from fieldcal.tui.widgets.cube import top_view
 from fieldcal.tui.widgets.live import LivePanel
 from fieldcal.tui.readings import Telemetry
@@ -119,6 +120,10 @@ class ProcedureScreen(Screen):
         return True
 
     def action_command(self, name: str) -> None:
+        view = self.view
+        if name == "ready" and self.mode == "sim" and view.phase == PLACE and view.finished is None:
+            view.carrying = True  # said at once: the carrying takes seconds of samples at 1×
+            self.refresh_view()
         self.app.send_command(name)
 
     async def action_ask(self, name: str) -> None:
