@@ -21,7 +21,7 @@ from fieldcal.tui.screens.procedure import ProcedureScreen
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.screens.results import ResultsScreen
 from fieldcal.tui.source import Outcome, ReplaySource, SimSource, Source
-from fieldcal.tui.view import RunView
+from fieldcal.tui.view import DONE, SKIPPED, RunView
 
 
 def _speed_words(speed: float) -> str:
@@ -157,7 +157,11 @@ class FieldcalApp(App[int]):
 
     def show_results(self) -> None:
         if self.outcome is not None and not isinstance(self.screen, ResultsScreen):
-            self.push_screen(ResultsScreen(self.outcome))
+            tiles = zip((p.id for p in self.spec.procedure.positions), self.view.tiles)
+            skipped, not_done = [], []
+            for ident, state in tiles:
+                (skipped if state == SKIPPED else not_done if state != DONE else []).append(ident)
+            self.push_screen(ResultsScreen(self.outcome, skipped, not_done))
 
     def action_help(self) -> None:
         if not isinstance(self.screen, HelpScreen):
