@@ -21,6 +21,7 @@ from fieldcal.tui.screens.procedure import ProcedureScreen
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.screens.results import ResultsScreen
 from fieldcal.tui.source import Outcome, ReplaySource, SimSource, Source
+from fieldcal.tui.widgets.toosmall import MIN_COLUMNS, MIN_ROWS
 from fieldcal.tui.view import DONE, SKIPPED, RunView
 
 
@@ -85,6 +86,9 @@ class FieldcalApp(App[int]):
                             leave_factor=settings.stillness.leave_factor,
                             held_while_waiting=self.mode == "sim")
         self.procedure_screen = ProcedureScreen(self.view, title, self.mode)
+
+    def on_resize(self, event) -> None:
+        self.set_class(event.size.width < MIN_COLUMNS or event.size.height < MIN_ROWS, "-too-small")
 
     def on_mount(self) -> None:
         if self.source is None:

@@ -8,6 +8,7 @@ from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal
 from textual.screen import Screen
+from fieldcal.tui.widgets.toosmall import TooSmall
 from textual.widgets import Footer, RichLog, Static
 
 from fieldcal.procedure.engine import PLACE
@@ -19,6 +20,7 @@ from fieldcal.tui.view import RunView
 
 OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort", "unskip")
 SIM_ACTIONS = ("bump", "misplace")
+BIG = (110, 34)  # columns and rows from which the cube and the live bars grow
 CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u"}  # pressed again: confirmed
 
 
@@ -41,7 +43,7 @@ class ProcedureScreen(Screen):
         self.view = view
         self.title_text = title
         self.mode = mode  # "sim" or "replay"
-        self._shown_step = -1
+        self._shown_step: tuple[int, bool] | None = None  # what the cube shows: (step, big)
         self._can_go_back = False
         self.pending: str | None = None  # the action waiting for the operator's confirmation
 
@@ -57,12 +59,21 @@ class ProcedureScreen(Screen):
         yield RichLog(id="log", wrap=True, max_lines=5000, markup=False, min_width=20)
         yield Static("", id="confirm")
         yield Footer()
+        yield TooSmall()
 
     def on_mount(self) -> None:
         self.query_one("#live").border_title = "live"
         self.query_one("#log").border_title = "events"
         self.query_one("#confirm").display = False
         self.refresh_view()
+
+    def on_resize(self) -> None:
+        """A big terminal gives its room to the cube and the live bars, not only to the log."""
+        size = self.app.size
+        big = size.width >= BIG[0] and size.height >= BIG[1]
+        if big != self.has_class("big"):
+            self.set_class(big, "big")
+            self.refresh_view()
 
     # --- fed by the app ---------------------------------------------------------------------
 
@@ -93,12 +104,13 @@ class ProcedureScreen(Screen):
         banner = self.query_one("#banner", Static)
         banner.update(text)
         banner.set_classes(style)
-        if view.step != self._shown_step and view.step < view.total_steps:
-            self._shown_step = view.step
+        big = self.has_class("big")
+        if (view.step, big) != self._shown_step and view.step < view.total_steps:
+            self._shown_step = (view.step, big)
             cube = self.query_one("#cube", Static)
-            cube.update("\n".join(top_view(view.position)))
+            cube.update("\n".join(top_view(view.position, large=big)))
             cube.border_title = f"position {view.position.id}"
-        self.query_one(LivePanel).update(view)
+        self.query_one(LivePanel).update(view, bar_width=32 if big else 16)
         can_go_back = view.unskip_target() is not None
         if can_go_back != self._can_go_back:  # the footer offers u only when it can act
             self._can_go_back = can_go_back

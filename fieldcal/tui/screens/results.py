@@ -11,6 +11,7 @@ from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.screen import Screen
+from fieldcal.tui.widgets.toosmall import TooSmall
 from textual.widgets import Footer, Static
 
 from fieldcal.report import comparison_table, solution_header, solution_table
@@ -93,7 +94,7 @@ def summary(outcome: Outcome, skipped: list[int], not_done: list[int]) -> Text:
     for name, why in failures.items():
         text.append(f"{name:<{width}}  ")
         text.append("refused", style="bold yellow")
-        text.append(f"  {' '.join(str(why).split())}\n")
+        text.append(f"  {' '.join(str(why).split()).removeprefix(name + ': ')}\n")
     if outcome.status == "completed" and not solutions and not failures:
         text.append("nothing was solved\n", style="yellow")
     text.append(f"skipped: {_positions(skipped) if skipped else 'none'}", style="yellow" if skipped else "")
@@ -147,6 +148,7 @@ class ResultsScreen(Screen):
                                  classes="previous-head")
                     yield Static(Text(comparison_table(sol, previous.parameters[name])), classes="table")
         yield Footer()
+        yield TooSmall()
 
     def on_mount(self) -> None:
         self.query_one("#results").focus()

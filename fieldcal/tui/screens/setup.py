@@ -14,6 +14,7 @@ from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal
 from textual.screen import Screen
+from fieldcal.tui.widgets.toosmall import TooSmall
 from textual.widgets import Button, Footer, Input, Label, Select, Static
 
 from fieldcal.config import CONFIGS_DIR, StationConfig
@@ -146,6 +147,7 @@ class SetupScreen(Screen[SetupChoice | None]):
             yield Button("Start", id="start", variant="success")
             yield Static("ctrl+s or Enter in a field: start · Esc: quit", id="hint")
         yield Footer()
+        yield TooSmall()
 
     def on_mount(self) -> None:
         initial = self.initial

@@ -25,10 +25,10 @@ def _vector(values, fmt: str, style: str = "") -> Text:
     return text
 
 
-def _progress(done: float, total: float, running: bool, complete: bool, style: str) -> Text:
+def _progress(done: float, total: float, running: bool, complete: bool, style: str, width: int = BAR) -> Text:
     if total <= 0:
         return Text("—", style="grey50")
-    text = bar(done / total, BAR, style=style)
+    text = bar(done / total, width, style=style)
     left = max(0.0, total - done)
     text.append(f" {done:4.0f}/{total:.0f} s", style="bold" if running else "")
     if complete:
@@ -40,7 +40,7 @@ def _progress(done: float, total: float, running: bool, complete: bool, style: s
     return text
 
 
-def rows(view: RunView) -> dict[str, Text]:
+def rows(view: RunView, bar_width: int = BAR) -> dict[str, Text]:
     """The panel's lines for the current state (a pure function, for tests). Readings that are
     not current (the simulator paused, the run ended) are dimmed and say why; stillness is not
     claimed from them."""
@@ -73,7 +73,7 @@ def rows(view: RunView) -> dict[str, Text]:
         turning = view.table_state != "stopped"
         state, style = ((("steady turn" if turning else "still"), "green") if q < view.enter_factor else
                         ("moving", "red") if q > view.leave_factor else ("settling", "yellow"))
-        still.append_text(bar(q / (2 * view.leave_factor), 10, style=style))
+        still.append_text(bar(q / (2 * view.leave_factor), bar_width * 5 // 8, style=style))
         still.append(f" {q:5.1f}σ ", style=style)
         still.append(state, style=f"bold {style}")
     out["still"] = still
@@ -83,7 +83,8 @@ def rows(view: RunView) -> dict[str, Text]:
     if ended:
         dwell = _label("dwell") + Text(f"— (run {view.finished})", style="grey50")
     else:
-        dwell = _label("dwell") + _progress(d.done(t), d.total, d.anchor is not None, d.complete, "green")
+        dwell = _label("dwell") + _progress(d.done(t), d.total, d.anchor is not None, d.complete, "green",
+                                            bar_width)
     if view.restarts:
         dwell.append(f"  ↺{view.restarts}", style="yellow")
     out["dwell"] = dwell
@@ -102,7 +103,7 @@ def rows(view: RunView) -> dict[str, Text]:
         out["turns"] = _label("turns") + Text("—", style="grey50")
     else:
         out["turns"] = _label("turns") + _progress(tr.done(t), tr.total, tr.anchor is not None, tr.complete,
-                                                   "cyan")
+                                                   "cyan", bar_width)
     return out
 
 
@@ -111,6 +112,6 @@ class LivePanel(Vertical):
         for name in ROWS:
             yield Static("", id=f"live-{name}", classes="live-row")
 
-    def update(self, view: RunView) -> None:
-        for name, text in rows(view).items():
+    def update(self, view: RunView, bar_width: int = BAR) -> None:
+        for name, text in rows(view, bar_width).items():
             self.query_one(f"#live-{name}", Static).update(text)
