@@ -13,6 +13,8 @@ def too_small_text(columns: int, rows: int) -> str:
 
 
 class TooSmall(Static):
+    DEFAULT_CSS = "TooSmall { display: none; }"  # hidden also where app.tcss is not loaded
+
     def __init__(self) -> None:
         super().__init__("", id="too-small")
 
