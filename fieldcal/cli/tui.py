@@ -56,11 +56,7 @@ def cmd_tui(args) -> int:
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
 
-    def make_run(config, procedure):
-        if config.device.protocol != "sim":
-            return live_spec(config, procedure, args), _session_dir(args, procedure.name, "live"), 0.0
-        return sim_run(config, procedure, args)
-
+    make_run = run_maker(args)
     if args.sim or args.go:
         from fieldcal.config import load_config
         from fieldcal.procedure.positions import load_procedure
@@ -70,6 +66,44 @@ def cmd_tui(args) -> int:
         spec, session_dir, speed = make_run(config, procedure)
         return run_tui(spec, speed, session_dir, None, config=config)
     return run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+
+
+def run_maker(args):
+    """``make_run(config, procedure) -> (spec, session directory, speed)`` for the command line's
+    options; a live device's ports are opened (and closed) first, so that a port that cannot be
+    opened is one line on the setup screen and no session directory is made for it."""
+    def make_run(config, procedure):
+        if config.device.protocol != "sim":
+            spec = live_spec(config, procedure, args)
+            check_ports(config)
+            return spec, _session_dir(args, procedure.name, "live"), 0.0
+        return sim_run(config, procedure, args)
+    return make_run
+
+
+def check_ports(config) -> None:
+    """Open and close the IMU's and the table's ports; a one-line ValueError naming the port
+    that cannot be opened, and why."""
+    import serial
+
+    ports = [("IMU", config.device.port)]
+    if config.table is not None and config.table.port is not None:
+        ports.append(("table", config.table.port))
+    for what, port in ports:
+        try:
+            serial.serial_for_url(port.url, baudrate=port.baudrate, timeout=0).close()
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise ValueError(f"{what} port {port.url}: cannot open it: {_reason(exc)}") from None
+
+
+def _reason(exc: BaseException) -> str:
+    """pyserial's text without the port it repeats: "No such file or directory"."""
+    errno = getattr(exc, "errno", None)
+    if isinstance(errno, int):
+        import os
+        return os.strerror(errno)
+    text = " ".join(str(exc).split())
+    return text.rsplit(": ", 1)[-1] if ": " in text else text
 
 
 def _initial_choice(args):
