@@ -3,6 +3,7 @@ confirmation before the keys that lose work, skip undone, and the layout at odd 
 from __future__ import annotations
 
 import asyncio
+import re
 import functools
 import time
 
@@ -191,3 +192,22 @@ async def test_r_changes_the_banner_at_once_even_while_the_samples_take_their_ti
         banner = str(app.screen.query_one("#banner").render())
         assert banner.startswith("The simulator is carrying the unit into position 1")
         assert "moving the unit" in app.screen.query_one("#live-still").render().plain
+
+
+def test_tui_help_lists_every_key_within_80_columns(capsys, monkeypatch):
+    import pytest
+
+    from fieldcal.cli.main import main
+    from fieldcal.tui.screens.procedure import ProcedureScreen
+
+    monkeypatch.setenv("COLUMNS", "200")  # a wide terminal: the help still fits 80 columns
+    with pytest.raises(SystemExit):
+        main(["tui", "--help"])
+    text = capsys.readouterr().out
+    assert max(len(line) for line in text.splitlines()) <= 80
+    keys = {b.key for b in ProcedureScreen.BINDINGS} | {"?"}
+    assert keys == set("rdsuabwvq?")
+    for key in keys:
+        assert re.search(rf"^  {re.escape(key)} ", text, re.M), key
+    for key in ("ctrl+s", "Esc", "Tab"):
+        assert re.search(rf"^  {re.escape(key)}", text, re.M), key

@@ -20,16 +20,39 @@ def _speed(text: str) -> float:
     return value
 
 
+HELP_WIDTH = 80  # the help fits an 80-column terminal, whatever the terminal's width
+
+
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """The description is wrapped (to HELP_WIDTH), the key list in the epilog kept as written."""
+
+    def _fill_text(self, text, width, indent):
+        return argparse.HelpFormatter._fill_text(self, text, width, indent) if "\n" not in text \
+            else super()._fill_text(text, width, indent)
+
+
+def _keys_epilog(setup_keys: str, run_keys: str) -> str:
+    def indented(text: str) -> str:
+        return "\n".join("  " + line if line else "" for line in text.splitlines())
+
+    return (f"keys on the setup screen:\n{indented(setup_keys)}\n\n"
+            f"keys during a run (b and w: the simulator only; in a replay only v, ? and q):\n"
+            f"{indented(run_keys)}")
+
+
 def add_tui_parser(sub) -> argparse.ArgumentParser:
     """Add the ``tui`` subcommand to the CLI's subparsers."""
+    from fieldcal.tui.keys import SETUP_KEYS, SIM_KEYS
+
     tui = sub.add_parser(
         "tui", help="the operator's terminal UI: set up and run a calibration, or replay a session",
-        description="The operator's terminal UI. It opens on the setup screen (device config, port, "
+        description="The operator's terminal UI. It opens on the setup screen (device config, ports, "
         "procedure, station; the last choice is remembered, --config/--procedure override it), then "
         "runs the procedure on that device, capturing a session under --out. --sim skips the setup "
         "and runs the simulated bench at once; --replay shows a captured session through the same "
-        "screens. Keys: r the unit is in place, d redo, s skip, a abort, ? help (b bump and w wrong "
-        "position on the simulator).")
+        "screens. The keys are listed below.",
+        epilog=_keys_epilog(SETUP_KEYS, SIM_KEYS),
+        formatter_class=lambda prog: _HelpFormatter(prog, width=HELP_WIDTH))
     from fieldcal.cli.main import add_run_options  # here: fieldcal.cli.main imports this module
     add_run_options(tui)
     tui.set_defaults(config=None, procedure=None)  # given or not: given ones override the setup's
