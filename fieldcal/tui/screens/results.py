@@ -51,8 +51,9 @@ def where(outcome: Outcome) -> Text:
     if outcome.parameters is not None:
         text.append(f"parameter file: {outcome.parameters}", style="green")
     else:
-        text.append("parameter file: not written" +
-                    (" (nothing calibrated)" if outcome.status == "completed" else ""), style="yellow")
+        why = (" (no session)" if outcome.session is None else
+               " (nothing calibrated)" if outcome.status == "completed" and not outcome.solved else "")
+        text.append("parameter file: not written" + why, style="yellow")
     return text
 
 
