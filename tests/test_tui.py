@@ -3,14 +3,13 @@
 same screens, and snapshots of the procedure and results screens at 80x24."""
 from __future__ import annotations
 
-import asyncio
-import functools
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tui_pilot import run_async, until, waiting_at
 from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -51,24 +50,10 @@ def field18_short():
                            "field-18-short.yaml")
 
 
-def run_async(test):
-    """Run an async test body with asyncio (no pytest-asyncio needed)."""
-    @functools.wraps(test)
-    def wrapper(*args, **kwargs):
-        return asyncio.run(test(*args, **kwargs))
-    return wrapper
 
 
-async def until(pilot, predicate, timeout_s: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "the UI did not get there in time"
-        await pilot.pause(0.01)
 
 
-def waiting_at(app: FieldcalApp, step: int) -> bool:
-    t = app.telemetry
-    return t is not None and t.waiting and t.step == step and app.outcome is None
 
 
 async def press_ready_through(pilot, app: FieldcalApp) -> None:

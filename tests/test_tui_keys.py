@@ -2,11 +2,9 @@
 confirmation before the keys that lose work, skip undone, and the layout at odd terminal sizes."""
 from __future__ import annotations
 
-import asyncio
 import re
-import functools
-import time
 
+from tui_pilot import run_async, until, waiting_at
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import parse_procedure
 from fieldcal.run.runner import RunSpec
@@ -27,27 +25,14 @@ positions:
 """
 
 
-def run_async(test):
-    @functools.wraps(test)
-    def wrapper(*args, **kwargs):
-        return asyncio.run(test(*args, **kwargs))
-    return wrapper
 
 
-async def until(pilot, predicate, timeout_s: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "the UI did not get there in time"
-        await pilot.pause(0.01)
 
 
 def three_positions():
     return parse_procedure(THREE_POSITIONS, "three.yaml")
 
 
-def waiting_at(app: FieldcalApp, step: int) -> bool:
-    t = app.telemetry
-    return t is not None and t.waiting and t.step == step and app.outcome is None
 
 
 @run_async

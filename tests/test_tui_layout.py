@@ -3,13 +3,11 @@ and 120×40 (the room goes to the cube and the bars), and snapshots of the proce
 results screens at 80×24 and 120×40 in states that hold no fitted number."""
 from __future__ import annotations
 
-import asyncio
-import functools
 import re
-import time
 
 import pytest
 
+from tui_pilot import run_async, until, waiting_at
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import parse_procedure
 from fieldcal.run.runner import RunSpec
@@ -35,23 +33,10 @@ rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}
 """
 
 
-def run_async(test):
-    @functools.wraps(test)
-    def wrapper(*args, **kwargs):
-        return asyncio.run(test(*args, **kwargs))
-    return wrapper
 
 
-async def until(pilot, predicate, timeout_s: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "the UI did not get there in time"
-        await pilot.pause(0.01)
 
 
-def waiting_at(app: FieldcalApp, step: int) -> bool:
-    t = app.telemetry
-    return t is not None and t.waiting and t.step == step and app.outcome is None
 
 
 def three_app() -> FieldcalApp:

@@ -1,8 +1,6 @@
 """The setup screen of ``fieldcal tui`` (driven with Textual's Pilot) and the remembered choice."""
 from __future__ import annotations
 
-import asyncio
-import functools
 import itertools
 import time
 from pathlib import Path
@@ -13,6 +11,7 @@ from textual.app import App
 from textual.geometry import Region
 from textual.widgets import Button, Footer, Input, Select, Static
 
+from tui_pilot import run_async
 from fieldcal.config import CONFIGS_DIR, load_config
 from fieldcal.tui.choices import (
     SetupChoice,
@@ -34,12 +33,6 @@ except ImportError:  # pragma: no cover
 SIZE = (80, 24)
 
 
-def run_async(test):
-    """Run an async test body with asyncio (no pytest-asyncio needed)."""
-    @functools.wraps(test)
-    def wrapper(*args, **kwargs):
-        return asyncio.run(test(*args, **kwargs))
-    return wrapper
 
 
 async def until(pilot, predicate, timeout_s: float = 10.0) -> None:
