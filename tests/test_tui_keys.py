@@ -75,8 +75,10 @@ async def test_abort_asks_first_and_any_other_key_carries_on(tmp_path):
         await pilot.press("r")  # neither: r answers the question (no), it does not place the unit
         assert confirm_text(app) == "" and waiting_at(app, 0)
         await pilot.press("a", "a")
-        await until(pilot, lambda: isinstance(app.screen, ResultsScreen))
+        await until(pilot, lambda: isinstance(app.screen, ResultsScreen) and bool(app.screen.query("#verdicts")))
+        verdicts = str(app.screen.query_one("#verdicts").render())
     assert app.outcome.status == "aborted"
+    assert "skipped: none · not done: positions 1–3" in verdicts  # as the outcome counts them
     assert [a["action"] for a in SessionReader(tmp_path / "s").actions()] == ["abort"]
 
 

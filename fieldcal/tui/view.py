@@ -190,7 +190,7 @@ class RunView:
             self.dwell.interrupt(e.t, restart=False)
             self.turns.interrupt(e.t, restart=False)
             if self.step < self.total_steps and self.tiles[self.step] in (ACTIVE, WRONG):
-                self.tiles[self.step] = SKIPPED
+                self.tiles[self.step] = TODO  # not done (the engine did not skip it)
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.telemetry = telemetry
