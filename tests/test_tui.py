@@ -3,14 +3,13 @@
 same screens, and snapshots of the procedure and results screens at 80x24."""
 from __future__ import annotations
 
-import asyncio
-import functools
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tui_pilot import run_async, until, waiting_at
 from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -51,12 +50,6 @@ def field18_short():
     return parse_procedure(text.replace("rate_deg_s: 10", "rate_deg_s: 30"), "field-18-short.yaml")
 
 
-def run_async(test):
-    """Run an async test body with asyncio (no pytest-asyncio needed)."""
-    @functools.wraps(test)
-    def wrapper(*args, **kwargs):
-        return asyncio.run(test(*args, **kwargs))
-    return wrapper
 
 
 def on_results(app: FieldcalApp) -> bool:
@@ -64,17 +57,6 @@ def on_results(app: FieldcalApp) -> bool:
     return isinstance(app.screen, ResultsScreen) and bool(app.screen.query("#where"))
 
 
-async def until(pilot, predicate, timeout_s: float = 120.0) -> None:
-    """Let the UI run until ``predicate`` holds; the timeout only bounds a failure."""
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "the UI did not get there in time"
-        await pilot.pause(0.01)
-
-
-def waiting_at(app: FieldcalApp, step: int) -> bool:
-    t = app.telemetry
-    return t is not None and t.waiting and t.step == step and app.outcome is None
 
 
 async def press_ready_through(pilot, app: FieldcalApp) -> None:
@@ -257,13 +239,13 @@ async def test_abort_keeps_the_session(tmp_path):
     app = FieldcalApp(spec, speed=0, session_dir=tmp_path / "session")
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("s")
+        await pilot.press("s", "y")  # each confirmed (tests/test_tui_keys.py has the questions)
         await until(pilot, lambda: waiting_at(app, 1))
-        await pilot.press("a")
+        await pilot.press("a", "a")
         await until(pilot, lambda: on_results(app))
         await pilot.press("escape")  # back to the run: its tiles say what happened
         assert isinstance(app.screen, ProcedureScreen)
-        assert app.screen.view.tiles == ["skipped", "skipped"]
+        assert app.screen.view.tiles == ["skipped", "todo"]  # position 2 was not done, not skipped
         await pilot.press("r")  # a finished run takes no more actions
         await pilot.press("v")  # and shows its results again
         assert isinstance(app.screen, ResultsScreen)
@@ -359,5 +341,6 @@ async def test_the_setup_screen_starts_the_run_it_was_given(tmp_path, monkeypatc
         assert procedure.name == "field-18"
         assert (config.station.latitude_deg, config.station.height_m) == (45.5, 120.0)
         await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("q")
+        await pilot.press("q", "y")
+        await until(pilot, lambda: not app.is_running)
     assert app.spec.station.latitude_deg == 45.5

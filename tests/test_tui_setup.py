@@ -10,6 +10,7 @@ from textual.app import App
 from textual.geometry import Region
 from textual.widgets import Button, Footer, Input, Select, Static
 
+from tui_pilot import run_async, until
 from fieldcal.config import CONFIGS_DIR, load_config
 from fieldcal.tui.choices import (
     SetupChoice,
@@ -21,7 +22,6 @@ from fieldcal.tui.choices import (
     save_last_choice,
 )
 from fieldcal.tui.screens.setup import SetupScreen
-from tests.test_tui import run_async, until
 
 try:
     import pytest_textual_snapshot  # noqa: F401
@@ -199,8 +199,9 @@ async def test_start_returns_the_choice_remembers_it_and_the_next_screen_shows_i
     expected = SetupChoice("sim", None, "field-18", 45.5, 120.0)
     assert app.results == [expected]
     path = xdg / "fieldcal" / "last-setup.yaml"
-    assert yaml.safe_load(path.read_text()) == {"config": "sim", "port": None, "procedure": "field-18",
-                                                 "latitude_deg": 45.5, "height_m": 120.0}
+    assert yaml.safe_load(path.read_text()) == {"config": "sim", "port": None, "table_port": None,
+                                                 "procedure": "field-18", "latitude_deg": 45.5,
+                                                 "height_m": 120.0}
 
     again = Host(load_last_choice())
     async with again.run_test(size=SIZE) as pilot:
@@ -383,7 +384,15 @@ async def test_every_widget_fits_an_80x24_screen_even_with_an_error(xdg, tmp_pat
 
 
 @pytest.mark.skipif(not HAVE_SNAPSHOTS, reason="pytest-textual-snapshot is not installed")
-def test_snapshot_setup_screen(snap_compare):
+def test_snapshot_setup_screen(snap_compare, monkeypatch):
+    from types import SimpleNamespace
+
+    from serial.tools import list_ports
+
+    # The ports of the machine the test runs on must not show: two made-up ones instead.
+    monkeypatch.setattr(list_ports, "comports", lambda: [
+        SimpleNamespace(device="/dev/ttyUSB0", description="FT232R USB UART"),
+        SimpleNamespace(device="/dev/ttyACM0", description="Arduino Uno")])
     app = Host(SetupChoice("vn100", None, "field-18", 40.0, 50.0))
 
     async def with_an_error(pilot):
@@ -393,3 +402,68 @@ def test_snapshot_setup_screen(snap_compare):
         await until(pilot, lambda: text_of(app.setup, "#error") != "")
 
     assert snap_compare(app, terminal_size=SIZE, run_before=with_an_error)
+
+
+def test_a_table_port_override_reaches_the_config_and_old_files_without_one_still_load(xdg):
+    config, _ = resolve_choice(SetupChoice("vn100", None, "field-18", 40.0, 50.0, table_port="/dev/ttyACM7"))
+    assert config.table.port.url == "/dev/ttyACM7"
+    assert config.table.port.baudrate == load_config("vn100").table.port.baudrate
+    with pytest.raises(ValueError, match="^table port: .* simulated table"):
+        resolve_choice(SetupChoice("sim", None, "field-18", 40.0, 50.0, table_port="/dev/ttyACM7"))
+    path = last_choice_path()
+    path.parent.mkdir(parents=True)
+    path.write_text("config: vn100\nport: null\nprocedure: field-18\nlatitude_deg: 40\nheight_m: 50\n")
+    assert load_last_choice() == SetupChoice("vn100", None, "field-18", 40.0, 50.0, None)
+
+
+@run_async
+async def test_both_ports_are_shown_and_a_port_that_cannot_open_is_named_before_any_session(xdg, tmp_path):
+    """A VN-100 whose IMU port opens (a pty) and whose table port does not: one line on the
+    setup screen names the table's port and why; the output directory stays empty."""
+    import os
+
+    from fieldcal.cli.main import build_parser
+    from fieldcal.cli.tui import run_maker
+    from fieldcal.tui import FieldcalApp
+
+    leader, follower = os.openpty()
+    try:
+        imu = os.ttyname(follower)
+        out = tmp_path / "sessions"
+        args = build_parser().parse_args(["tui", "--out", str(out)])
+        missing = str(tmp_path / "no-such-table")
+        app = FieldcalApp(setup=(SetupChoice("vn100", imu, "field-18", 40.0, 50.0, table_port=missing),
+                                 run_maker(args)))
+        async with app.run_test(size=SIZE) as pilot:
+            screen = app.screen
+            assert isinstance(screen, SetupScreen)
+            assert value_of(screen, "#port") == imu and value_of(screen, "#table-port") == missing
+            assert text_of(screen, "#ports").startswith("serial ports here: ")
+            await pilot.press("ctrl+s")
+            await until(pilot, lambda: text_of(app.screen, "#error") != "")
+            assert text_of(app.screen, "#error") == \
+                f"table port {missing}: cannot open it: No such file or directory"
+            await type_into(pilot, app.screen, "#port", str(tmp_path / "no-imu"))
+            await pilot.press("enter")
+            await until(pilot, lambda: text_of(app.screen, "#error").startswith("IMU port"))
+            assert text_of(app.screen, "#error") == \
+                f"IMU port {tmp_path / 'no-imu'}: cannot open it: No such file or directory"
+        assert not out.exists() or not any(out.iterdir())  # no empty session directory
+    finally:
+        os.close(leader)
+        os.close(follower)
+
+
+def test_the_serial_ports_line_gives_usb_descriptions(monkeypatch):
+    from types import SimpleNamespace
+
+    from serial.tools import list_ports
+
+    from fieldcal.tui.screens.setup import serial_ports_text
+
+    found = [SimpleNamespace(device="/dev/ttyUSB0", description="FT232R USB UART"),
+             SimpleNamespace(device="/dev/ttyACM0", description="n/a")]
+    monkeypatch.setattr(list_ports, "comports", lambda: found)
+    assert serial_ports_text() == "serial ports here: /dev/ttyACM0, /dev/ttyUSB0 (FT232R USB UART)"
+    monkeypatch.setattr(list_ports, "comports", lambda: [])
+    assert serial_ports_text() == "serial ports here: none found"

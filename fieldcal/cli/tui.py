@@ -20,16 +20,39 @@ def _speed(text: str) -> float:
     return value
 
 
+HELP_WIDTH = 80  # the help fits an 80-column terminal, whatever the terminal's width
+
+
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """The description is wrapped (to HELP_WIDTH), the key list in the epilog kept as written."""
+
+    def _fill_text(self, text, width, indent):
+        return argparse.HelpFormatter._fill_text(self, text, width, indent) if "\n" not in text \
+            else super()._fill_text(text, width, indent)
+
+
+def _keys_epilog(setup_keys: str, run_keys: str) -> str:
+    def indented(text: str) -> str:
+        return "\n".join("  " + line if line else "" for line in text.splitlines())
+
+    return (f"keys on the setup screen:\n{indented(setup_keys)}\n\n"
+            f"keys during a run (b and w: the simulator only; in a replay only v, ? and q):\n"
+            f"{indented(run_keys)}")
+
+
 def add_tui_parser(sub) -> argparse.ArgumentParser:
     """Add the ``tui`` subcommand to the CLI's subparsers."""
+    from fieldcal.tui.keys import SETUP_KEYS, SIM_KEYS
+
     tui = sub.add_parser(
         "tui", help="the operator's terminal UI: set up and run a calibration, or replay a session",
-        description="The operator's terminal UI. It opens on the setup screen (device config, port, "
+        description="The operator's terminal UI. It opens on the setup screen (device config, ports, "
         "procedure, station; the last choice is remembered, --config/--procedure override it), then "
         "runs the procedure on that device, capturing a session under --out. --sim skips the setup "
         "and runs the simulated bench at once; --replay shows a captured session through the same "
-        "screens. Keys: r the unit is in place, d redo, s skip, a abort, ? help (b bump and w wrong "
-        "position on the simulator).")
+        "screens. The keys are listed below.",
+        epilog=_keys_epilog(SETUP_KEYS, SIM_KEYS),
+        formatter_class=lambda prog: _HelpFormatter(prog, width=HELP_WIDTH))
     from fieldcal.cli.main import add_run_options  # here: fieldcal.cli.main imports this module
     add_run_options(tui)
     tui.set_defaults(config=None, procedure=None)  # given or not: given ones override the setup's
@@ -56,11 +79,7 @@ def cmd_tui(args) -> int:
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
 
-    def make_run(config, procedure):
-        if config.device.protocol != "sim":
-            return live_spec(config, procedure, args), _session_dir(args, procedure.name, "live"), 0.0
-        return sim_run(config, procedure, args)
-
+    make_run = run_maker(args)
     if args.sim or args.go:
         from fieldcal.config import load_config
         from fieldcal.procedure.positions import load_procedure
@@ -70,6 +89,44 @@ def cmd_tui(args) -> int:
         spec, session_dir, speed = make_run(config, procedure)
         return run_tui(spec, speed, session_dir, None, config=config)
     return run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+
+
+def run_maker(args):
+    """``make_run(config, procedure) -> (spec, session directory, speed)`` for the command line's
+    options; a live device's ports are opened (and closed) first, so that a port that cannot be
+    opened is one line on the setup screen and no session directory is made for it."""
+    def make_run(config, procedure):
+        if config.device.protocol != "sim":
+            spec = live_spec(config, procedure, args)
+            check_ports(config)
+            return spec, _session_dir(args, procedure.name, "live"), 0.0
+        return sim_run(config, procedure, args)
+    return make_run
+
+
+def check_ports(config) -> None:
+    """Open and close the IMU's and the table's ports; a one-line ValueError naming the port
+    that cannot be opened, and why."""
+    import serial
+
+    ports = [("IMU", config.device.port)]
+    if config.table is not None and config.table.port is not None:
+        ports.append(("table", config.table.port))
+    for what, port in ports:
+        try:
+            serial.serial_for_url(port.url, baudrate=port.baudrate, timeout=0).close()
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise ValueError(f"{what} port {port.url}: cannot open it: {_reason(exc)}") from None
+
+
+def _reason(exc: BaseException) -> str:
+    """pyserial's text without the port it repeats: "No such file or directory"."""
+    errno = getattr(exc, "errno", None)
+    if isinstance(errno, int):
+        import os
+        return os.strerror(errno)
+    text = " ".join(str(exc).split())
+    return text.rsplit(": ", 1)[-1] if ": " in text else text
 
 
 def _initial_choice(args):

@@ -143,6 +143,15 @@ def adaptive_dwell_samples(planned: int, noise_ratio: float | None, settings: En
     return int(min(max(math.ceil(planned * noise_ratio), low), round(settings.max_dwell_factor * planned)))
 
 
+def skipped_to_return_to(skipped, step: int) -> int | None:
+    """The skipped step that "unskip" goes back to: the nearest one before ``step`` (the one
+    skipped last, as steps run in order), else the last one after it; None if none is skipped."""
+    before = [s for s in skipped if s < step]
+    if before:
+        return max(before)
+    return max(skipped) if skipped else None
+
+
 class Engine:
     def __init__(self, procedure: Procedure, settings: EngineSettings):
         self.procedure = procedure
@@ -187,6 +196,12 @@ class Engine:
             return stop + [ev.Aborted(self.t, "operator")]
         if action.name == ev.REDO:
             return self._stop_table() + self._enter_step(self.step)
+        if action.name == ev.UNSKIP:
+            back = skipped_to_return_to(self.skipped, self.step)
+            if back is None:
+                return []
+            self.skipped.discard(back)  # this step stays open: _first_open comes back to it
+            return self._stop_table() + self._enter_step(back)
         if action.name == ev.SKIP:
             self.skipped.add(self.step)
             out = self._stop_table() + [ev.StepSkipped(self.t, self.step, self.position.id)]

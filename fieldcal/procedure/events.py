@@ -125,7 +125,8 @@ class Solved(Event):
 # Actions --------------------------------------------------------------------------------------
 
 READY, REDO, SKIP, ABORT = "ready", "redo", "skip", "abort"
-ACTIONS = (READY, REDO, SKIP, ABORT)
+UNSKIP = "unskip"  # go back to a skipped position (Engine.skipped_to_return_to says which)
+ACTIONS = (READY, REDO, SKIP, ABORT, UNSKIP)
 
 
 @dataclass(frozen=True)

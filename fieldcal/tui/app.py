@@ -21,7 +21,8 @@ from fieldcal.tui.screens.procedure import ProcedureScreen
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.screens.results import ResultsScreen
 from fieldcal.tui.source import Outcome, ReplaySource, SimSource, Source
-from fieldcal.tui.view import RunView
+from fieldcal.tui.widgets.toosmall import MIN_COLUMNS, MIN_ROWS
+from fieldcal.tui.view import DONE, SKIPPED, RunView
 
 
 def _speed_words(speed: float) -> str:
@@ -57,6 +58,7 @@ class FieldcalApp(App[int]):
         self.events: list[ev.Event] = []  # every engine event shown, in order (for tests)
         self.telemetry: Telemetry | None = None
         self.setup = setup
+        self.mode = "setup"  # until a run is prepared: the source's "sim", "live" or "replay"
         if setup is None:
             self._prepare(spec, session_dir, replay, config)
 
@@ -81,8 +83,12 @@ class FieldcalApp(App[int]):
         settings = self.source.settings
         self.view = RunView(self.spec.procedure, tolerance_deg=settings.tolerance_deg,
                             enter_factor=settings.stillness.enter_factor,
-                            leave_factor=settings.stillness.leave_factor)
+                            leave_factor=settings.stillness.leave_factor,
+                            held_while_waiting=self.mode == "sim")
         self.procedure_screen = ProcedureScreen(self.view, title, self.mode)
+
+    def on_resize(self, event) -> None:
+        self.set_class(event.size.width < MIN_COLUMNS or event.size.height < MIN_ROWS, "-too-small")
 
     def on_mount(self) -> None:
         if self.source is None:
@@ -155,7 +161,11 @@ class FieldcalApp(App[int]):
 
     def show_results(self) -> None:
         if self.outcome is not None and not isinstance(self.screen, ResultsScreen):
-            self.push_screen(ResultsScreen(self.outcome))
+            tiles = zip((p.id for p in self.spec.procedure.positions), self.view.tiles)
+            skipped, not_done = [], []
+            for ident, state in tiles:
+                (skipped if state == SKIPPED else not_done if state != DONE else []).append(ident)
+            self.push_screen(ResultsScreen(self.outcome, skipped, not_done))
 
     def action_help(self) -> None:
         if not isinstance(self.screen, HelpScreen):

@@ -32,7 +32,7 @@ class SetupChoice:
 
     ``config``: a config name (``configs/NAME.yaml``) or a path. ``port``: a pyserial URL that
     overrides the config's device port, None to keep the config's (always None for the
-    simulator). ``procedure``: a procedure name (``procedures/NAME.yaml``) or a path.
+    simulator); ``table_port`` the same for the table's. ``procedure``: a procedure name (``procedures/NAME.yaml``) or a path.
     """
 
     config: str
@@ -40,6 +40,7 @@ class SetupChoice:
     procedure: str
     latitude_deg: float
     height_m: float
+    table_port: str | None = None  # overrides the config's table port, like ``port``
 
 
 def last_choice_path() -> Path:
@@ -68,12 +69,15 @@ def _choice_from(raw) -> SetupChoice | None:
         return None
     if port is not None and (not isinstance(port, str) or not port.strip()):
         return None
+    table_port = raw.get("table_port")  # absent in files written before the table had a field
+    if table_port is not None and (not isinstance(table_port, str) or not table_port.strip()):
+        return None
     latitude, height = _number(raw["latitude_deg"]), _number(raw["height_m"])
     if latitude is None or height is None:
         return None
     if not LATITUDE_RANGE[0] <= latitude <= LATITUDE_RANGE[1] or not HEIGHT_RANGE[0] <= height <= HEIGHT_RANGE[1]:
         return None
-    return SetupChoice(config, port, procedure, latitude, height)
+    return SetupChoice(config, port, procedure, latitude, height, table_port)
 
 
 def load_last_choice(path: str | os.PathLike | None = None) -> SetupChoice | None:
@@ -92,8 +96,9 @@ def save_last_choice(choice: SetupChoice, path: str | os.PathLike | None = None)
     Raises OSError if it cannot be written."""
     path = Path(path) if path is not None else last_choice_path()
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = {"config": choice.config, "port": choice.port, "procedure": choice.procedure,
-            "latitude_deg": float(choice.latitude_deg), "height_m": float(choice.height_m)}
+    data = {"config": choice.config, "port": choice.port, "table_port": choice.table_port,
+            "procedure": choice.procedure, "latitude_deg": float(choice.latitude_deg),
+            "height_m": float(choice.height_m)}
     text = ("# the last setup chosen in `fieldcal tui`; delete this file to forget it\n"
             + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
     return write_atomically(path, text.encode("utf-8"))
@@ -168,7 +173,7 @@ def resolve_choice(choice: SetupChoice) -> tuple[StationConfig, Procedure]:
 
     Raises ValueError with a one-line message naming the field: an unknown or invalid config or
     procedure, a latitude outside -90..90°, a height outside -500..9000 m, a port given for the
-    simulator or a port that is not one line. A measured gravity in the config
+    simulator (or a table port for no table) or a port that is not one line. A measured gravity in the config
     (``station.gravity_m_s2``) is kept.
     """
     check_station(choice.latitude_deg, choice.height_m)
@@ -184,8 +189,17 @@ def resolve_choice(choice: SetupChoice) -> tuple[StationConfig, Procedure]:
             raise ValueError(f"port: expected a pyserial URL such as /dev/ttyUSB0 or "
                              f"socket://host:4001, got {choice.port!r}")
         device = dataclasses.replace(device, port=dataclasses.replace(device.port, url=port))
+    table = config.table
+    if choice.table_port is not None:
+        port = choice.table_port.strip()
+        if table is None or table.port is None:
+            what = "has no table" if table is None else "has a simulated table"
+            raise ValueError(f"table port: {config.path} {what}: no port to override, got {choice.table_port!r}")
+        if not port or any(c.isspace() for c in port):
+            raise ValueError(f"table port: expected a pyserial URL such as /dev/ttyACM0, got {choice.table_port!r}")
+        table = dataclasses.replace(table, port=dataclasses.replace(table.port, url=port))
     try:
         station = Station(float(choice.latitude_deg), float(choice.height_m), config.station.gravity_m_s2)
     except ValueError as exc:  # pragma: no cover - check_station has the same bounds
         raise ValueError(f"station: {_one_line(exc)}") from None
-    return dataclasses.replace(config, device=device, station=station), procedure
+    return dataclasses.replace(config, device=device, table=table, station=station), procedure

@@ -16,7 +16,7 @@ from fieldcal.procedure import events as ev
 from fieldcal.procedure.engine import PLACE, WAITING_FOR_OPERATOR, WRONG
 from fieldcal.run.conductor import Act, Conductor, Say
 from fieldcal.run.outcome import Status
-from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, Mode, SimSource, Sink
+from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, SimSource, Sink
 
 NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the operator is told
 
@@ -80,7 +80,7 @@ class LiveSource(SimSource):
             return [Say(f"waiting for the unit to be still in position {e.position.id}")]
         if command == READY:
             return [Say("(ready: nothing to do now)")]
-        if command in (REDO, SKIP, ABORT):
+        if command in (REDO, SKIP, ABORT, UNSKIP):
             return [Say(f"operator: {command}"), Act(command)]
         assert command in (BUMP, MISPLACE)
         return [Say(f"({command}: the simulator's keys; this is a real device)")]

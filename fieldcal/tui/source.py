@@ -46,9 +46,9 @@ __all__ = ["ABORT", "BUMP", "COMMANDS", "FLUSH_S", "MISPLACE", "QUIT", "READY", 
 FLUSH_S = 0.1  # at most one UI update per this much wall time
 
 # Operator commands (the keys); the engine's actions plus what the simulator's hands do.
-READY, REDO, SKIP, ABORT = ev.READY, ev.REDO, ev.SKIP, ev.ABORT
+READY, REDO, SKIP, ABORT, UNSKIP = ev.READY, ev.REDO, ev.SKIP, ev.ABORT, ev.UNSKIP
 BUMP, MISPLACE, QUIT = "bump", "misplace", "quit"
-COMMANDS = (READY, REDO, SKIP, ABORT, BUMP, MISPLACE, QUIT)
+COMMANDS = (READY, REDO, SKIP, ABORT, UNSKIP, BUMP, MISPLACE, QUIT)
 
 
 class Mode(StrEnum):
@@ -285,7 +285,7 @@ class SimSource(Source):
                     Place(e.position.attitude)]
         if command in (READY, MISPLACE):
             return [Say(f"({command}: nothing to do while {_PHASE_WORDS.get(e.phase, e.phase)})")]
-        if command in (REDO, SKIP, ABORT):
+        if command in (REDO, SKIP, ABORT, UNSKIP):
             return [Say(f"operator: {command}"), Act(command)]
         self.bump_times.append(e.t)  # BUMP
         return [Say("operator: bump! (the simulator knocks the fixture)"), Bump()]

@@ -10,13 +10,34 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from fieldcal.procedure import engine as en
+from fieldcal.procedure.engine import skipped_to_return_to
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure
 from fieldcal.run.progress import describe
+from fieldcal.tui.guidance import placement
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.source import Note
 
 TODO, ACTIVE, DONE, SKIPPED, WRONG = "todo", "active", "done", "skipped", "wrong"
+# Each tile's state as a symbol too, for a monochrome or colour-blind operator.
+SYMBOLS = {DONE: "✓", SKIPPED: "–", ACTIVE: "▶", WRONG: "▶", TODO: "·"}
+PLACING_GUESS_S = 30.0  # an operator's placement, until the run has timed one
+
+
+def clock_text(seconds: float) -> str:
+    """Elapsed time as a clock: 4:05, 1:02:03."""
+    s = max(0, int(seconds))
+    h, m, sec = s // 3600, s // 60 % 60, s % 60
+    return f"{h}:{m:02d}:{sec:02d}" if h else f"{m}:{sec:02d}"
+
+
+def duration_words(seconds: float) -> str:
+    """A remaining time as the operator says it: 40 s, 12 min, 1 h 05 min."""
+    s = max(0.0, seconds)
+    if s < 60:
+        return f"{s:.0f} s"
+    minutes = round(s / 60)
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
 
 
 @dataclass
@@ -70,6 +91,14 @@ class RunView:
     restarts_total: int = 0
     finished: str | None = None  # outcome status once the run has ended
     last_t: float = 0.0
+    placing_s: list[float] = field(default_factory=list)  # each placement: step start to still
+    step_t0: float = 0.0  # when the current step started (sample time)
+    placed: bool = False  # the current step's unit has been found still in place
+    rates_done: int = 0  # rate steps (±) completed in the current step
+    held_while_waiting: bool = False  # the source stops sampling while it waits (the simulator)
+    carrying: bool = False  # the simulator is carrying the unit into place (r pressed)
+    unit_at: object | None = None  # the Position the unit was last found still in
+    looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
 
     def __post_init__(self) -> None:
         if not self.tiles:
@@ -104,20 +133,29 @@ class RunView:
         return f"[{item.t:7.1f} s] {text}"
 
     def _fold(self, e: ev.Event) -> None:
+        if isinstance(e, (ev.StepStarted, ev.StepComplete, ev.StepSkipped, ev.ProcedureComplete, ev.Aborted)) \
+                and not self.table_rate:
+            self.table_state = "stopped"  # the engine stopped it before any of these
+        if isinstance(e, ev.WaitingForStillness):
+            self.carrying = False
         if isinstance(e, ev.StepStarted):
             self.step = e.step
-            if self.tiles[e.step] != SKIPPED:
-                self.tiles[e.step] = ACTIVE
+            # A step left unfinished (going back to a skipped one) is to do again.
+            self.tiles = [TODO if s in (ACTIVE, WRONG) else s for s in self.tiles]
+            self.tiles[e.step] = ACTIVE
             self.dwell, self.turns = Progress(total=self.procedure.dwell_s), Progress()
-            self.wrong, self.restarts = None, 0
-            if not self.table_rate:
-                self.table_state = "stopped"
+            self.step_t0, self.placed, self.rates_done = e.t, False, 0
+            self.wrong, self.restarts, self.carrying = None, 0, False
         elif isinstance(e, ev.WrongOrientation):
-            self.wrong = e.message
+            self.wrong, self.looks_like = e.message, e.looks_like
             self.tiles[self.step] = WRONG
         elif isinstance(e, ev.Still):
             self.wrong = None
             self.tiles[self.step] = ACTIVE
+            if not self.placed:
+                self.placing_s.append(e.t - self.step_t0)
+                self.placed = True
+            self.unit_at = self.position
             self.dwell.start(e.t, keep=self.dwell.base > 0)
         elif isinstance(e, ev.DwellProgress):
             self.dwell.sync(e.t, e.done_s)
@@ -141,18 +179,101 @@ class RunView:
             self.turns.start(e.t, e.window_s)
         elif isinstance(e, ev.RateStepComplete):
             self.turns.finish()
+            self.rates_done += 1
         elif isinstance(e, ev.StepComplete):
             self.tiles[e.step] = DONE
         elif isinstance(e, ev.StepSkipped):
             self.tiles[e.step] = SKIPPED
         elif isinstance(e, ev.ProcedureComplete):
             self.step = self.total_steps
-        elif isinstance(e, ev.Aborted) and self.step < self.total_steps \
-                and self.tiles[self.step] in (ACTIVE, WRONG):
-            self.tiles[self.step] = SKIPPED
+        elif isinstance(e, ev.Aborted):
+            self.dwell.interrupt(e.t, restart=False)
+            self.turns.interrupt(e.t, restart=False)
+            if self.step < self.total_steps and self.tiles[self.step] in (ACTIVE, WRONG):
+                self.tiles[self.step] = TODO  # not done (the engine did not skip it)
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.telemetry = telemetry
+        if telemetry.phase != en.PLACE:
+            self.carrying = False
+
+    def stale_reason(self) -> str | None:
+        """Why the readings are not current, if they are not: they stay on screen, dimmed."""
+        if self.finished is not None:
+            return "the run has ended"
+        tel = self.telemetry
+        if self.carrying:
+            return "the simulator is moving the unit"
+        if self.held_while_waiting and tel is not None and tel.waiting:
+            return "the simulator waits for r"
+        return None
+
+    # --- the whole job -------------------------------------------------------------------
+
+    def rate_step_s(self) -> float:
+        """One rate step (one sign): ramp, settle and the whole turns averaged."""
+        r = self.procedure.rate_step
+        return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
+
+    def remaining_s(self) -> float:
+        """Sample time the open steps still need: dwells and rate steps from the procedure,
+        less what the current step has done, and a placement each, as long as this run's
+        placements took on average (PLACING_GUESS_S until one is timed)."""
+        if self.finished is not None or self.step >= self.total_steps:
+            return 0.0
+        placing = sum(self.placing_s) / len(self.placing_s) if self.placing_s else PLACING_GUESS_S
+        per_step = self.procedure.dwell_s + 2 * self.rate_step_s() + placing
+        open_steps = sum(s in (TODO, ACTIVE, WRONG) for i, s in enumerate(self.tiles) if i != self.step)
+        t = self.t
+        if self.placed:
+            rate_left = self.rate_step_s() * (2 - self.rates_done) if self.procedure.rate_step else 0.0
+            turning = 0.0 if self.turns.complete else self.turns.done(t)  # (a finished one is counted)
+            current = self.dwell.total - self.dwell.done(t) + max(0.0, rate_left - turning)
+        else:
+            current = per_step
+        return open_steps * per_step + current
+
+    def job_text(self) -> str:
+        """Counts beside the tiles' symbols (the legend), elapsed and remaining time."""
+        n = {state: self.tiles.count(state) for state in (DONE, SKIPPED, TODO)}
+        running = self.finished is None and self.step < self.total_steps
+        legend = (f"✓{n[DONE]} done  –{n[SKIPPED]} skipped  {'▶ now  ' if running else ''}"
+                  f"·{n[TODO]} to do   ")
+        if not running:
+            return f"{legend}{clock_text(self.t)} in all"
+        return f"{legend}{clock_text(self.t)} elapsed, ≈{duration_words(self.remaining_s())} to go"
+
+    def unskip_target(self) -> int | None:
+        """The step that going back (unskip) returns to, as the engine chooses it."""
+        if self.finished is not None or self.step >= self.total_steps:
+            return None
+        return skipped_to_return_to({i for i, s in enumerate(self.tiles) if s == SKIPPED}, self.step)
+
+    def confirmation(self, action: str, running: bool = True) -> str | None:
+        """The question to ask before ``action`` ("skip", "abort", "unskip", "quit"), or None
+        when it loses nothing and needs no confirmation."""
+        if self.finished is not None or not running or self.step >= self.total_steps:
+            return None
+        pid = self.position.id
+        begun = self.phase not in (en.PLACE, en.DONE)
+        if action == "abort":
+            return "ABORT the run? It ends for good (no resume)."
+        if action == "quit":
+            return "Quit mid-run? The session is kept, unfinished."
+        if action == "skip":
+            others = [i for i, s in enumerate(self.tiles) if i != self.step and s in (TODO, ACTIVE, WRONG)]
+            if not others:
+                return f"Skip position {pid}, the last one? The run then ends."
+            return f"Skip position {pid}? (u goes back to it)"
+        if action == "unskip" and begun:
+            back = self.unskip_target()
+            back_id = self.procedure.positions[back].id if back is not None else "?"
+            return f"Back to position {back_id}? Position {pid}'s progress is lost."
+        return None
+
+    @staticmethod
+    def verb(action: str) -> str:
+        return {"unskip": "go back"}.get(action, action)
 
     # --- text for the screen -------------------------------------------------------------
 
@@ -171,12 +292,23 @@ class RunView:
                     "incomplete": ("The capture ends here", "warn"),
                     "stopped": ("Stopped", "warn")}.get(self.finished, (self.finished, "warn"))
         phase = self.phase
+        p = self.position
+        if phase == en.PLACE and self.carrying:
+            return f"The simulator is carrying the unit into position {p.id}: hands off", "wait"
         if phase == en.PLACE:
-            how = "press r and the simulator places it" if sim else "then press r"
-            return f"Place the unit in position {self.position.id}: {how}", "act"
+            move = placement(self.unit_at, p)
+            text = f"Position {p.id}: {move.text}" + ("; r: the simulator does it" if sim else ", then press r")
+            if move.heading_only and self.unit_at is not None:
+                text += "\nOnly the heading changes, which the check cannot see: check it by eye"
+            return text, "act"
         if phase == en.WRONG:
-            fix = "press r to have the simulator correct it" if sim else "correct it"
-            return f"WRONG POSITION (see the log): {fix}", "bad"
+            by_id = {q.id: q for q in self.procedure.positions}
+            seen = by_id.get(self.looks_like[0]) if self.looks_like else None
+            move = placement(seen, p) if seen is not None else None
+            text = (f"WRONG POSITION: it looks like position {seen.id}; {move.text}" if move else
+                    f"WRONG POSITION: position {p.id} is {p.description}")
+            how = "r: the simulator corrects it" if sim else "checked again once still"
+            return f"{text}; {how}", "bad"
         if phase == en.SETTLING:
             return "Hands off: waiting for the unit to be still", "wait"
         if phase == en.CHECKING:

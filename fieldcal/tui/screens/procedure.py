@@ -3,20 +3,25 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from textual import events
 from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal
 from textual.screen import Screen
+from fieldcal.tui.widgets.toosmall import TooSmall
 from textual.widgets import Footer, RichLog, Static
 
+from fieldcal.procedure.engine import PLACE
 from fieldcal.tui.widgets.cube import top_view
 from fieldcal.tui.widgets.live import LivePanel
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.widgets.tiles import PositionTiles
 from fieldcal.tui.view import RunView
 
-OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort")
+OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort", "unskip")
 SIM_ACTIONS = ("bump", "misplace")
+BIG = (110, 34)  # columns and rows from which the cube and the live bars grow
+CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u"}  # pressed again: confirmed
 
 
 class ProcedureScreen(Screen):
@@ -24,11 +29,13 @@ class ProcedureScreen(Screen):
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("r", "command('ready')", "ready"),
         Binding("d", "command('redo')", "redo"),
-        Binding("s", "command('skip')", "skip"),
-        Binding("a", "command('abort')", "abort"),
+        Binding("s", "ask('skip')", "skip"),
+        Binding("u", "ask('unskip')", "back"),
+        Binding("a", "ask('abort')", "abort"),
         Binding("b", "command('bump')", "bump"),
         Binding("w", "command('misplace')", "misplace", show=False),
         Binding("v", "results", "results"),
+        Binding("q", "ask('quit')", "quit"),
     ]
 
     def __init__(self, view: RunView, title: str, mode: str) -> None:
@@ -36,23 +43,37 @@ class ProcedureScreen(Screen):
         self.view = view
         self.title_text = title
         self.mode = mode  # "sim" or "replay"
-        self._shown_step = -1
+        self._shown_step: tuple[int, bool] | None = None  # what the cube shows: (step, big)
+        self._can_go_back = False
+        self.pending: str | None = None  # the action waiting for the operator's confirmation
 
     def compose(self) -> ComposeResult:
         yield Static(self.title_text, id="title")
         yield PositionTiles([p.id for p in self.view.procedure.positions], id="tiles")
+        yield Static("", id="job")
         yield Static("", id="step")
         yield Static("", id="banner")
         with Horizontal(id="body"):
             yield Static("", id="cube")
             yield LivePanel(id="live")
         yield RichLog(id="log", wrap=True, max_lines=5000, markup=False, min_width=20)
+        yield Static("", id="confirm")
         yield Footer()
+        yield TooSmall()
 
     def on_mount(self) -> None:
         self.query_one("#live").border_title = "live"
         self.query_one("#log").border_title = "events"
+        self.query_one("#confirm").display = False
         self.refresh_view()
+
+    def on_resize(self) -> None:
+        """A big terminal gives its room to the cube and the live bars, not only to the log."""
+        size = self.app.size
+        big = size.width >= BIG[0] and size.height >= BIG[1]
+        if big != self.has_class("big"):
+            self.set_class(big, "big")
+            self.refresh_view()
 
     # --- fed by the app ---------------------------------------------------------------------
 
@@ -70,39 +91,85 @@ class ProcedureScreen(Screen):
 
     def finished(self, status: str) -> None:
         self.view.finished = status
+        self._ask(None)
         self.refresh_view()
         self.refresh_bindings()
 
     def refresh_view(self) -> None:
         view = self.view
         self.query_one(PositionTiles).update(view.tiles)
+        self.query_one("#job", Static).update(view.job_text())
         self.query_one("#step", Static).update(view.step_text())
         text, style = view.banner(sim=self.mode == "sim")
         banner = self.query_one("#banner", Static)
         banner.update(text)
         banner.set_classes(style)
-        if view.step != self._shown_step and view.step < view.total_steps:
-            self._shown_step = view.step
+        big = self.has_class("big")
+        if (view.step, big) != self._shown_step and view.step < view.total_steps:
+            self._shown_step = (view.step, big)
             cube = self.query_one("#cube", Static)
-            cube.update("\n".join(top_view(view.position)))
+            cube.update("\n".join(top_view(view.position, large=big)))
             cube.border_title = f"position {view.position.id}"
-        self.query_one(LivePanel).update(view)
+        self.query_one(LivePanel).update(view, bar_width=32 if big else 16)
+        can_go_back = view.unskip_target() is not None
+        if can_go_back != self._can_go_back:  # the footer offers u only when it can act
+            self._can_go_back = can_go_back
+            self.refresh_bindings()
 
     # --- keys -------------------------------------------------------------------------------
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         if action == "results":
             return self.view.finished is not None
-        if action != "command":
+        if action not in ("command", "ask") or parameters == ("quit",):
             return True
         if self.mode == "replay" or self.view.finished is not None:
             return False  # a replay applies the recorded actions; a finished run takes none
         if parameters and parameters[0] in SIM_ACTIONS:
             return self.mode == "sim"
+        if parameters == ("unskip",):
+            return self.view.unskip_target() is not None
         return True
 
     def action_command(self, name: str) -> None:
+        view = self.view
+        if name == "ready" and self.mode == "sim" and view.phase == PLACE and view.finished is None:
+            view.carrying = True  # said at once: the carrying takes seconds of samples at 1×
+            self.refresh_view()
         self.app.send_command(name)
+
+    async def action_ask(self, name: str) -> None:
+        """Abort, skip, quit (and going back, when it drops a step begun) wait for a confirmation:
+        one slip of a finger must not cost the run."""
+        question = self.view.confirmation(name, running=self.mode != "replay")
+        if question is None:
+            await self._do(name)
+        else:
+            key = CONFIRM_KEYS[name]
+            self._ask(name, f"{question}  {key} or y: {self.view.verb(name)} · other key: no")
+
+    def _ask(self, name: str | None, text: str = "") -> None:
+        self.pending = name
+        bar = self.query_one("#confirm", Static)
+        bar.update(text)
+        bar.display = name is not None
+
+    async def _do(self, name: str) -> None:
+        if name == "quit":
+            await self.app.action_quit()
+        else:
+            self.action_command(name)
+
+    async def on_key(self, event: events.Key) -> None:
+        """While a confirmation is asked, the next key answers it (and does nothing else)."""
+        name = self.pending
+        if name is None:
+            return
+        event.stop()
+        event.prevent_default()
+        self._ask(None)
+        if event.key in (CONFIRM_KEYS[name], "y"):
+            await self._do(name)
 
     def action_results(self) -> None:
         self.app.show_results()

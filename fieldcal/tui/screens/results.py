@@ -1,5 +1,6 @@
-"""The results screen: per triad the solution beside the simulation truth, the residual of every
-position, and where the session and the parameter file are."""
+"""The results screen: first the verdict per triad, the positions skipped and where the session
+and the parameter file are; then per triad the solution beside the simulation truth and the
+residual of every position."""
 from __future__ import annotations
 
 from typing import ClassVar
@@ -7,12 +8,13 @@ from typing import ClassVar
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
-from textual.containers import VerticalScroll
+from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.screen import Screen
+from fieldcal.tui.widgets.toosmall import TooSmall
 from textual.widgets import Footer, Static
 
 from fieldcal.report import comparison_table, solution_header, solution_table, worst_error
-from fieldcal.tui.widgets.residuals import residual_bars
+from fieldcal.tui.widgets.residuals import per_position, residual_bars
 from fieldcal.tui.source import Outcome
 
 
@@ -48,46 +50,111 @@ def where(outcome: Outcome) -> Text:
     if outcome.parameters is not None:
         text.append(f"parameter file: {outcome.parameters}", style="green")
     else:
-        text.append("parameter file: not written" +
-                    (" (nothing calibrated)" if outcome.status == "completed" else ""), style="yellow")
+        why = (" (no session)" if outcome.session is None else
+               " (nothing calibrated)" if outcome.status == "completed" and not outcome.solved else "")
+        text.append("parameter file: not written" + why, style="yellow")
     return text
 
 
+def position_list(ids: list[int]) -> str:
+    """1, 4, 7–9: consecutive ids as a range."""
+    runs: list[list[int]] = []
+    for i in ids:
+        if runs and i == runs[-1][-1] + 1:
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    return ", ".join(f"{r[0]}–{r[-1]}" if len(r) > 2 else ", ".join(map(str, r)) for r in runs)
+
+
+def _positions(ids: list[int]) -> str:
+    return f"position{'s' if len(ids) > 1 else ''} {position_list(ids)}"
+
+
+def summary(outcome: Outcome, skipped: list[int], not_done: list[int]) -> Text:
+    """The verdict per triad first (solved, or refused and why; its worst residual; against the
+    simulation truth, its largest error), then the positions skipped or not done."""
+    text = Text()
+    unit = outcome.unit
+    solutions = unit.solutions if unit is not None else {}
+    failures = unit.failures if unit is not None else {}
+    width = max((len(n) for n in (*solutions, *failures)), default=0)
+    for name, sol in solutions.items():
+        rows, res_unit = per_position(sol)
+        text.append(f"{name:<{width}}  ")
+        text.append("solved ", style="bold green")
+        if rows:
+            label, value, _ = max(rows, key=lambda r: abs(r[1]))
+            text.append(f" worst residual {abs(value):.2g} {res_unit} ({label})")
+        truth = outcome.truth.get(name)
+        if truth is not None:
+            worst = worst_error({name: sol}, {name: truth})
+            text.append(f" · truth within {worst:.1f}σ", style="grey62")
+        text.append("\n")
+    for name, why in failures.items():
+        text.append(f"{name:<{width}}  ")
+        text.append("refused", style="bold yellow")
+        text.append(f"  {' '.join(str(why).split()).removeprefix(name + ': ')}\n")
+    if outcome.status == "completed" and not solutions and not failures:
+        text.append("nothing was solved\n", style="yellow")
+    text.append(f"skipped: {_positions(skipped) if skipped else 'none'}", style="yellow" if skipped else "")
+    if not_done:
+        text.append(f" · not done: {_positions(not_done)}", style="yellow")
+    return text
+
+
+WIDE = 110  # columns from which each triad's residuals sit beside its table
+
+
 class ResultsScreen(Screen):
+    """The summary (verdicts, skipped positions, where the files are) stays on top; each triad's
+    parameters and residuals scroll below it, side by side on a wide terminal."""
+
     CSS_PATH = "results.tcss"
     BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "back", "back to the run")]
 
-    def __init__(self, outcome: Outcome) -> None:
+    def __init__(self, outcome: Outcome, skipped: list[int] = (), not_done: list[int] = ()) -> None:
+        """``skipped``, ``not_done``: position ids, as the run's tiles show them."""
         super().__init__()
         self.outcome = outcome
+        self.skipped, self.not_done = list(skipped), list(not_done)
+        self._wide: bool | None = None
 
     def compose(self) -> ComposeResult:
         out = self.outcome
+        self._wide = self.app.size.width >= WIDE
         text, style = headline(out)
         yield Static(text, id="headline", classes=style)
-        with VerticalScroll(id="results"):
+        with Vertical(id="summary"):
             if out.message:
                 yield Static(out.message, classes="message")
-            unit = out.unit
-            for name, sol in (unit.solutions.items() if unit is not None else ()):
+            yield Static(summary(out, self.skipped, self.not_done), id="verdicts")
+            yield Static(where(out), id="where")
+        unit = out.unit
+        solutions = unit.solutions if unit is not None else {}
+        if solutions:
+            yield Static("parameters and residuals per triad below: ↑ ↓ PgUp PgDn scroll", id="scroll-hint")
+        with VerticalScroll(id="results"):
+            for name, sol in solutions.items():
                 truth = out.truth.get(name)
                 yield Static(solution_header(sol, effort=False), classes="triad-head").with_tooltip(solution_header(sol))
-                yield Static(Text(solution_table(sol, truth)), classes="table")
-                yield Static(residual_bars(sol), classes="residuals")
+                with Horizontal(classes="triad-body wide" if self._wide else "triad-body"):
+                    yield Static(Text(solution_table(sol, truth)), classes="table")
+                    yield Static(residual_bars(sol, columns=1 if self._wide else 2,
+                                               bar_width=16 if self._wide else 10), classes="residuals")
                 previous = out.previous
                 if previous is not None and name in previous.parameters.names:
                     yield Static(f"  beside {previous.describe()}:", classes="previous-head")
                     yield Static(Text(comparison_table(sol, previous.parameters[name])), classes="table")
-            for name, why in (unit.failures.items() if unit is not None else ()):
-                yield Static(Text(f"{name}: not calibrated: {why}"), classes="failure")
-            if unit is not None and unit.solutions and out.truth:
-                worst = worst_error(unit.solutions, out.truth)
-                yield Static(f"largest error against the simulation truth: {worst:.2f}σ", classes="worst")
-            yield Static(where(out), id="where")
         yield Footer()
+        yield TooSmall()
 
     def on_mount(self) -> None:
         self.query_one("#results").focus()
+
+    def on_resize(self) -> None:
+        if self._wide is not None and (self.app.size.width >= WIDE) != self._wide:
+            self.refresh(recompose=True)
 
     def action_back(self) -> None:
         self.app.pop_screen()

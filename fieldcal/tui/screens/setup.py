@@ -1,4 +1,5 @@
-"""The setup screen: the device config, its port, the procedure and the station, before a run.
+"""The setup screen: the device config, its and the table's ports (beside the serial ports
+present), the procedure and the station, before a run.
 
 ``SetupScreen(initial)`` dismisses with the operator's ``SetupChoice`` (already checked by
 ``resolve_choice`` and remembered with ``save_last_choice``), or with None when the operator quits
@@ -14,6 +15,7 @@ from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal
 from textual.screen import Screen
+from fieldcal.tui.widgets.toosmall import TooSmall
 from textual.widgets import Button, Footer, Input, Label, Select, Static
 
 from fieldcal.config import CONFIGS_DIR, StationConfig
@@ -48,6 +50,21 @@ def procedure_summary(procedure: Procedure) -> str:
     if step is not None:
         text += f" · table ±{step.rate_deg_s:g} °/s"
     return text
+
+
+def serial_ports_text() -> str:
+    """One line: the serial ports present, with their USB descriptions (pyserial's list_ports)."""
+    from serial.tools import list_ports
+
+    try:
+        ports = sorted(list_ports.comports(), key=lambda p: p.device)
+    except OSError as exc:  # pragma: no cover - a system without the usual device directories
+        return f"serial ports: cannot list them ({exc})"
+    if not ports:
+        return "serial ports here: none found"
+    shown = [p.device if p.description in (None, "", "n/a", p.device) else f"{p.device} ({p.description})"
+             for p in ports]
+    return "serial ports here: " + ", ".join(shown)
 
 
 def _format_number(value: float) -> str:
@@ -126,8 +143,11 @@ class SetupScreen(Screen[SetupChoice | None]):
             yield Input(config_path, placeholder="path/to/config.yaml", id="config-path")
         yield Static("", id="config-summary", classes="summary")
         with Horizontal(classes="row"):
-            yield Label("Port", classes="label")
+            yield Label("IMU port", classes="label")
             yield Input("", placeholder="pyserial URL, e.g. /dev/ttyUSB0", id="port")
+            yield Label("table", classes="label small")
+            yield Input("", placeholder="e.g. /dev/ttyACM0", id="table-port")
+        yield Static(serial_ports_text(), id="ports", classes="summary")
         with Horizontal(classes="row"):
             yield Label("Procedure", classes="label")
             yield Select([(n, n) for n in procedure_names],
@@ -146,6 +166,7 @@ class SetupScreen(Screen[SetupChoice | None]):
             yield Button("Start", id="start", variant="success")
             yield Static("ctrl+s or Enter in a field: start · Esc: quit", id="hint")
         yield Footer()
+        yield TooSmall()
 
     def on_mount(self) -> None:
         initial = self.initial
@@ -154,6 +175,9 @@ class SetupScreen(Screen[SetupChoice | None]):
             port = self.query_one("#port", Input)
             if initial.port and not port.disabled:
                 port.value = initial.port
+            table = self.query_one("#table-port", Input)
+            if initial.table_port and not table.disabled:
+                table.value = initial.table_port
             self.query_one("#latitude", Input).value = _format_number(initial.latitude_deg)
             self.query_one("#height", Input).value = _format_number(initial.height_m)
         self._load_procedure()
@@ -199,6 +223,12 @@ class SetupScreen(Screen[SetupChoice | None]):
         else:
             port.disabled = False
             port.value = config.device.port.url
+        table = self.query_one("#table-port", Input)
+        if config.table is None or config.table.port is None:
+            table.value, table.disabled = "no table" if config.table is None else SIMULATED, True
+        else:
+            table.disabled = False
+            table.value = config.table.port.url
         self.query_one("#latitude", Input).value = _format_number(config.station.latitude_deg)
         self.query_one("#height", Input).value = _format_number(config.station.height_m)
 
@@ -221,12 +251,11 @@ class SetupScreen(Screen[SetupChoice | None]):
 
     def choice(self) -> SetupChoice:
         """The choice the fields show; ValueError (naming the field) if a number does not parse."""
-        port_input = self.query_one("#port", Input)
-        port: str | None = None
-        if not port_input.disabled:
-            text = port_input.value.strip()
-            own = self.config.device.port.url if self.config is not None and self.config.device.port else None
-            port = text if text and text != own else None
+        config = self.config
+        own = config.device.port.url if config is not None and config.device.port else None
+        port = self._override("#port", own)
+        table = config.table if config is not None else None
+        table_port = self._override("#table-port", table.port.url if table and table.port else None)
         numbers = []
         for field, name, unit in (("latitude", "latitude", "°"), ("height", "height", "m")):
             text = self.query_one(f"#{field}", Input).value.strip()
@@ -234,7 +263,15 @@ class SetupScreen(Screen[SetupChoice | None]):
                 numbers.append(float(text))
             except ValueError:
                 raise ValueError(f"{name}: expected a number in {unit}, got {text!r}") from None
-        return SetupChoice(self.config_text(), port, self.procedure_text(), numbers[0], numbers[1])
+        return SetupChoice(self.config_text(), port, self.procedure_text(), numbers[0], numbers[1], table_port)
+
+    def _override(self, field: str, own: str | None) -> str | None:
+        """A port field's text, if it differs from the config's own port (None: keep that)."""
+        field_input = self.query_one(field, Input)
+        if field_input.disabled:
+            return None
+        text = field_input.value.strip()
+        return text if text and text != own else None
 
     # --- events -------------------------------------------------------------------------------
 

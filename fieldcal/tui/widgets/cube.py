@@ -29,13 +29,29 @@ def _label(axis: str, v: np.ndarray) -> tuple[str, str]:
     return "W", f"←{axis}{vertical}"
 
 
-def top_view(position: Position) -> list[str]:
-    """Seven lines, 20 cells wide: the cube from above with its axes, compass and legend."""
+def top_view(position: Position, large: bool = False) -> list[str]:
+    """Seven lines, 20 cells wide (``large``: eleven lines, 32 wide): the cube from above with
+    its axes, compass and legend."""
     slots: dict[str, list[str]] = {"N": [], "S": [], "E": [], "W": [], "centre": []}
     for i, axis in enumerate(_AXES):
         slot, label = _label(axis, position.attitude[:, i])
         slots[slot].append(label)
     s = {k: ",".join(v) or "·" for k, v in slots.items()}
+    if large:
+        blank = f"  │{' ' * 25}│"
+        return [
+            f"{'N':>15}",
+            f"  ┌{'─' * 25}┐",
+            blank,
+            f"  │{s['N']:^25}│",
+            blank,
+            f"W │ {s['W']:<{_SLOT}}{s['centre']:^17}{s['E']:>{_SLOT}} │ E",
+            blank,
+            f"  │{s['S']:^25}│",
+            blank,
+            f"  └{'─' * 25}┘",
+            f"{'S':>15}     ⊙up ⊗down",
+        ]
     return [
         "        N",
         "  ┌─────────────┐",

@@ -17,18 +17,18 @@ def _label(name: str) -> Text:
     return Text(f"{name:<9}", style="bold")
 
 
-def _vector(values, fmt: str) -> Text:
+def _vector(values, fmt: str, style: str = "") -> Text:
     text = Text()
     for axis, v in zip("xyz", values):
         text.append(f"{axis} ", style="grey62")
-        text.append(format(v, fmt) + " ")
+        text.append(format(v, fmt) + " ", style=style)
     return text
 
 
-def _progress(done: float, total: float, running: bool, complete: bool, style: str) -> Text:
+def _progress(done: float, total: float, running: bool, complete: bool, style: str, width: int = BAR) -> Text:
     if total <= 0:
         return Text("—", style="grey50")
-    text = bar(done / total, BAR, style=style)
+    text = bar(done / total, width, style=style)
     left = max(0.0, total - done)
     text.append(f" {done:4.0f}/{total:.0f} s", style="bold" if running else "")
     if complete:
@@ -40,18 +40,22 @@ def _progress(done: float, total: float, running: bool, complete: bool, style: s
     return text
 
 
-def rows(view: RunView) -> dict[str, Text]:
-    """The panel's lines for the current state (a pure function, for tests)."""
+def rows(view: RunView, bar_width: int = BAR) -> dict[str, Text]:
+    """The panel's lines for the current state (a pure function, for tests). Readings that are
+    not current (the simulator paused, the run ended) are dimmed and say why; stillness is not
+    claimed from them."""
     tel = view.telemetry
+    stale = view.stale_reason()
+    dim = "grey50" if stale else ""
     out = {}
     if tel is None or tel.accel_mg is None:
         out["accel"] = _label("accel mg") + Text("no samples yet", style="grey50")
         out["gyro"] = _label("gyro °/s") + Text("")
     else:
-        out["accel"] = _label("accel mg") + _vector(tel.accel_mg, "+9.1f")
-        out["gyro"] = _label("gyro °/s") + _vector(tel.gyro_deg_s, "+9.3f")
+        out["accel"] = _label("accel mg") + _vector(tel.accel_mg, "+9.1f", dim)
+        out["gyro"] = _label("gyro °/s") + _vector(tel.gyro_deg_s, "+9.3f", dim)
     target = _label("target")
-    if tel is not None and tel.angle_deg is not None and view.step < view.total_steps:
+    if tel is not None and tel.angle_deg is not None and view.step < view.total_steps and not stale:
         ok = tel.angle_deg <= view.tolerance_deg
         target.append(f"{tel.angle_deg:5.1f}°", style="bold green" if ok else "bold red")
         target.append(f" from position {view.position.id}'s up, ")
@@ -60,19 +64,27 @@ def rows(view: RunView) -> dict[str, Text]:
         target.append("—", style="grey50")
     out["target"] = target
     still = _label("still")
-    if tel is None or tel.quiet is None:
+    if stale:
+        still.append(f"— ({stale})", style="grey50")
+    elif tel is None or tel.quiet is None:
         still.append("— (filling the window)", style="grey50")
     else:
         q = tel.quiet
-        state, style = (("still", "green") if q < view.enter_factor else
+        turning = view.table_state != "stopped"
+        state, style = ((("steady turn" if turning else "still"), "green") if q < view.enter_factor else
                         ("moving", "red") if q > view.leave_factor else ("settling", "yellow"))
-        still.append_text(bar(q / (2 * view.leave_factor), 10, style=style))
+        still.append_text(bar(q / (2 * view.leave_factor), bar_width * 5 // 8, style=style))
         still.append(f" {q:5.1f}σ ", style=style)
         still.append(state, style=f"bold {style}")
     out["still"] = still
     t = view.t
     d = view.dwell
-    dwell = _label("dwell") + _progress(d.done(t), d.total, d.anchor is not None, d.complete, "green")
+    ended = view.finished is not None and view.finished != "completed"
+    if ended:
+        dwell = _label("dwell") + Text(f"— (run {view.finished})", style="grey50")
+    else:
+        dwell = _label("dwell") + _progress(d.done(t), d.total, d.anchor is not None, d.complete, "green",
+                                            bar_width)
     if view.restarts:
         dwell.append(f"  ↺{view.restarts}", style="yellow")
     out["dwell"] = dwell
@@ -87,7 +99,11 @@ def rows(view: RunView) -> dict[str, Text]:
                  style={"steady": "green", "disturbed": "red", "ramping": "yellow"}.get(view.table_state, ""))
     out["table"] = table
     tr = view.turns
-    out["turns"] = _label("turns") + _progress(tr.done(t), tr.total, tr.anchor is not None, tr.complete, "cyan")
+    if ended:
+        out["turns"] = _label("turns") + Text("—", style="grey50")
+    else:
+        out["turns"] = _label("turns") + _progress(tr.done(t), tr.total, tr.anchor is not None, tr.complete,
+                                                   "cyan", bar_width)
     return out
 
 
@@ -96,6 +112,6 @@ class LivePanel(Vertical):
         for name in ROWS:
             yield Static("", id=f"live-{name}", classes="live-row")
 
-    def update(self, view: RunView) -> None:
-        for name, text in rows(view).items():
+    def update(self, view: RunView, bar_width: int = BAR) -> None:
+        for name, text in rows(view, bar_width).items():
             self.query_one(f"#live-{name}", Static).update(text)

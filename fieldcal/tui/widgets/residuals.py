@@ -48,7 +48,7 @@ def residual_bars(sol, columns: int = 2, bar_width: int = 10) -> Text:
         else:
             cell.append_text(bar(value / scale if scale else 0.0, bar_width, style="cyan", empty_style=""))
         cells.append(cell)
-    head = Text(f"residual per position ({unit}{', RMS of each position' + chr(39) + 's equations' if multi else ''})",
+    head = Text(f"residual, RMS per position ({unit})" if multi else f"residual per position ({unit})",
                 style="bold")
     lines = [head]
     per_column = -(-len(cells) // columns)

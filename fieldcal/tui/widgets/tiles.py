@@ -1,12 +1,13 @@
 """One tile per position, QGroundControl style: grey to do, yellow in progress, green done,
-red skipped or misplaced."""
+red skipped or misplaced; and a symbol each (✓ done, – skipped, ▶ current, · to do), so that
+the states read without colour."""
 from __future__ import annotations
 
 from textual.app import ComposeResult
 from textual.containers import Horizontal
 from textual.widgets import Static
 
-from fieldcal.tui.view import ACTIVE, DONE, SKIPPED, TODO, WRONG
+from fieldcal.tui.view import ACTIVE, DONE, SKIPPED, SYMBOLS, TODO, WRONG
 
 STATES = (TODO, ACTIVE, DONE, SKIPPED, WRONG)
 
@@ -18,11 +19,11 @@ class PositionTiles(Horizontal):
         super().__init__(**kw)
         self.ids = ids
         self._states = [TODO] * len(ids)
-        self.narrow = len(ids) > 19  # 4 cells per tile fit 19 in 78 columns; else 3
+        self.narrow = len(ids) > 19  # 4 cells per tile fit 19 in 78 columns; else 3 (no gap)
 
     def compose(self) -> ComposeResult:
         for i, ident in enumerate(self.ids):
-            tile = Static(str(ident), classes=f"tile {TODO}", id=f"tile-{i}")
+            tile = Static(self.label(i, TODO), classes=f"tile {TODO}", id=f"tile-{i}")
             if self.narrow:
                 tile.add_class("narrow")
             yield tile
@@ -33,4 +34,8 @@ class PositionTiles(Horizontal):
                 tile = self.query_one(f"#tile-{i}", Static)
                 tile.remove_class(*STATES)
                 tile.add_class(state)
+                tile.update(self.label(i, state))
         self._states = list(states)
+
+    def label(self, i: int, state: str) -> str:
+        return f"{SYMBOLS[state]}{self.ids[i]:>2}"
