@@ -86,6 +86,8 @@ def cmd_import(args) -> int:
 
 def read_recording(files, map_name, rate_hz=None) -> tuple[Recording, ImportReport]:
     """A log by its format's reader, or text files by their import map."""
+    from fieldcal.recording.import_map import load_import_map
+    from fieldcal.recording.importer import RecordingImportError, import_with_report
     from fieldcal.recording.logs import import_log, log_format
 
     if map_name is None:
