@@ -30,7 +30,8 @@ import numpy as np
 from fieldcal.earth import EARTH_RATE
 from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
 from fieldcal.recording.detect import DetectionError, interval_means
-from fieldcal.calibration import FULL_PARAM_NAMES, Calibration, SolverDiagnostics
+from fieldcal.calibration import Calibration, SolverDiagnostics
+from fieldcal.model import FULL_PARAM_NAMES
 from fieldcal.solvers.classic import _parameter_covariance, solve_classic
 
 ALIGNED_DEG = 15.0  # a pose this close to an axis, up or down, is that axis's aligned pose
