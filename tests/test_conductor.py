@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from fieldcal.earth import Station
-from fieldcal.paramfile import dump
+from fieldcal.paramfile import dump, load
 from fieldcal.procedure.positions import load_procedure, parse_procedure
 from fieldcal.run.environment import compare_parameters
 from fieldcal.run.replay import replay_session, resolve_session
@@ -64,7 +64,10 @@ def test_an_old_tui_session_quit_half_way_resumes_to_the_uninterrupted_run(tmp_p
     whole = run_headless(RunSpec(golden_procedure(), STATION, seed=8, rate_hz=20.0,
                                  script=OperatorScript(handling_s=2.0)), tmp_path / "whole")
     assert resumed.status == "completed" and not resumed.unit.failures
-    assert resumed.parameters.read_bytes() == whole.parameters.read_bytes()
+    # Its first six steps were averaged by the code of 58c3726, whose simulator noise summed in
+    # another order (issue 12 made it closed-form): equal within 1e-3σ, not to the last bit.
+    found = compare_parameters(load(resumed.parameters), whole.parameters.read_bytes(), None)
+    assert found.identical, found.text
     # The golden copy itself is left as it was: resuming works on the copy only.
     assert not (GOLDEN / "tui-quit" / "parameters.yaml").exists()
 

@@ -226,7 +226,7 @@ async def test_replay_runs_through_the_same_screens_and_ignores_keys(headless_fi
         shown = [str(h.render()) for h in heads]
     assert len(heads) == 3 and all("(powell; residual RMS" in text for text in shown), shown
     for head, (name, sol) in zip(heads, outcome.unit.solutions.items()):
-        assert f"{sol.iterations} iterations, {sol.evaluations} evaluations" in str(head.tooltip), name
+        assert f"{sol.diagnostics.iterations} iterations, {sol.diagnostics.evaluations} evaluations" in str(head.tooltip), name
     assert outcome.status == "completed" and outcome.identical is True
     for name, sol in outcome.unit.solutions.items():
         assert np.array_equal(sol.theta, headless.unit.solutions[name].theta)

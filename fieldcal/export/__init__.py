@@ -9,9 +9,14 @@ from __future__ import annotations
 
 import json
 
-from fieldcal.export.autopilot import ardupilot, px4
-from fieldcal.export.c_header import c_header
-from fieldcal.export.imucal_json import imucal_json
+# format -> (module, function): imported only when a file is exported, so that building the
+# command line (which needs only FORMATS) stays light (issue 12: no numpy for `fieldcal --help`).
+_EXPORTERS = {"ardupilot": ("fieldcal.export.autopilot", "ardupilot"),
+              "px4": ("fieldcal.export.autopilot", "px4"),
+              "imucal-json": ("fieldcal.export.imucal_json", "imucal_json"),
+              "c-header": ("fieldcal.export.c_header", "c_header"),
+              "json": (__name__, "_json")}
+FORMATS = tuple(_EXPORTERS)
 
 
 def _json(parameters, **_) -> str:
@@ -19,12 +24,15 @@ def _json(parameters, **_) -> str:
     return json.dumps(to_document(parameters), indent=2, ensure_ascii=False) + "\n"
 
 
-EXPORTERS = {"ardupilot": ardupilot, "px4": px4, "imucal-json": imucal_json, "c-header": c_header,
-             "json": _json}
-FORMATS = tuple(EXPORTERS)
+def exporter(fmt: str):
+    """The function that writes ``fmt``."""
+    import importlib
+
+    module, name = _EXPORTERS[fmt]
+    return getattr(importlib.import_module(module), name)
 
 
 def export(parameters, fmt: str, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     """The text of ``parameters`` (a ParameterFile) in ``fmt``; ValueError (one line) if the file
     cannot be expressed in it."""
-    return EXPORTERS[fmt](parameters, accelerometer=accelerometer, gyroscope=gyroscope)
+    return exporter(fmt)(parameters, accelerometer=accelerometer, gyroscope=gyroscope)

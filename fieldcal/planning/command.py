@@ -4,12 +4,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-import yaml
+if TYPE_CHECKING:
+    import numpy as np
 
-from fieldcal.model import PARAM_NAMES
-from fieldcal.units import display_scale, param_unit
+# numpy, yaml and the model are imported by the functions that use them: add_plan_parser is
+# called whenever the command line is built, and `fieldcal --help` must stay light (issue 12).
 
 GROUPS = {"bias": range(0, 3), "scale": range(3, 6), "misalignment": range(6, 9)}
 
@@ -50,6 +51,11 @@ def station_models(config):
 
 def parse_targets(text: str, models) -> dict[str, np.ndarray]:
     """``TRIAD.GROUP=σ`` pairs in operator units to per-parameter σ in solver units."""
+    import numpy as np
+
+    from fieldcal.model import PARAM_NAMES
+    from fieldcal.units import display_scale
+
     targets = {name: np.full(len(PARAM_NAMES), np.inf) for name in models}
     for item in filter(None, (s.strip() for s in text.split(","))):
         key, _, value = item.partition("=")
@@ -71,7 +77,9 @@ def parse_targets(text: str, models) -> dict[str, np.ndarray]:
     return targets
 
 
-def procedure_yaml(plan, name: str, title: str, operator) -> str:
+def procedure_yaml(plan, name: str, title: str, operator, target: str | None = None) -> str:
+    import yaml
+
     design = plan.design
     doc = {"name": name, "title": title, "dwell_s": float(design.dwell_s), "adaptive_dwell": True,
            "rate_step": {"rate_deg_s": float(design.rate_deg_s), "turns": int(design.turns),
@@ -83,14 +91,35 @@ def procedure_yaml(plan, name: str, title: str, operator) -> str:
             "# target for every parameter. An ordinary procedure file: edit, validate and run it.\n"
             "# adaptive_dwell: each dwell ends once it holds the planned information at the noise\n"
             "# the unit shows (longer if noisier than its model, never below the minimum dwell).\n")
+    if target is not None:  # in full, whether or not the title has room for it
+        head += "# target: " + " ".join(target.split()) + "\n"
     return head + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True, width=100)
 
 
+def plan_title(device: str, target: str, slack: float) -> str:
+    """The procedure's title: the device and the target, within what a procedure file allows for a
+    title (a long TRIAD.GROUP=σ list does not fit; the σ are in the table the command prints)."""
+    from fieldcal.procedure.positions import _TEXT_LIMIT
+
+    extra = f" (+{slack:.0%})" if slack else ""
+    title = f"Planned for {device}, target {target}{extra}"
+    if len(title) > _TEXT_LIMIT:
+        count = len([item for item in target.split(",") if item.strip()])
+        title = f"Planned for {device}, target: {count} σ limits{extra}"
+    if len(title) > _TEXT_LIMIT:
+        title = title[:_TEXT_LIMIT - 1] + "…"
+    return title
+
+
 def cmd_plan(args) -> int:
+    import numpy as np
+
     from fieldcal.config import load_config
+    from fieldcal.model import PARAM_NAMES
     from fieldcal.planning.design import Design, OperatorModel, bound_sigmas, operator_time
     from fieldcal.planning.search import Plan, Planner, candidates
     from fieldcal.procedure.positions import load_procedure, parse_procedure
+    from fieldcal.units import display_scale, param_unit
 
     if not args.slack >= 0:
         raise ValueError(f"--slack: expected a fraction >= 0, got {args.slack!r}")
@@ -123,8 +152,8 @@ def cmd_plan(args) -> int:
                        for p in reference.positions)
         plan = Plan(chosen, ref_design, ref_seconds, ref_sigmas)
     out = Path(args.out)
-    text = procedure_yaml(plan, out.stem, f"Planned for {config.device.name}, target {args.target}"
-                          + (f" (+{args.slack:.0%})" if args.slack else ""), operator)
+    text = procedure_yaml(plan, out.stem, plan_title(config.device.name, args.target, args.slack),
+                          operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""))
     parse_procedure(text, out.name)  # what is written loads as an ordinary procedure
     out.write_text(text)
     design = plan.design

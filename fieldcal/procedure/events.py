@@ -17,7 +17,9 @@ class Event:
         return _snake(type(self).__name__)
 
     def to_dict(self) -> dict:
-        return {"event": self.kind, **asdict(self)}
+        """The document as the session stores it (JSON shapes: a tuple is a list)."""
+        return {"event": self.kind, **{k: list(v) if isinstance(v, tuple) else v
+                                        for k, v in asdict(self).items()}}
 
 
 @dataclass(frozen=True)
