@@ -81,8 +81,15 @@ class SerialReader:
 
     def __init__(self, settings: PortSettings, tap: Callable[[float, bytes], None] | None = None,
                  opener: Callable[[PortSettings], serial.SerialBase] = PortSettings.open,
-                 clock: Callable[[], float] = time.monotonic, max_backoff_s: float = 2.0):
+                 clock: Callable[[], float] = time.monotonic, max_backoff_s: float = 2.0,
+                 max_buffered_bytes: int | None = None):
+        """``max_buffered_bytes``: stop reading while this much is read and not yet polled, so a
+        device that waits for its reader (a simulator serving as fast as it is read) cannot run
+        ahead of the station; None for a real device, which never waits (what it sends is read)."""
         self.settings = settings
+        self._max_buffered = max_buffered_bytes
+        self._buffered = 0
+        self._room = threading.Condition()
         self._tap = tap
         self._opener = opener
         self._clock = clock
@@ -116,7 +123,12 @@ class SerialReader:
 
     def poll(self) -> list[tuple[float, bytes]]:
         """Everything read since the last call: (arrival time, bytes) in arrival order."""
-        return _drain(self._data)
+        items = _drain(self._data)
+        if self._max_buffered is not None and items:
+            with self._room:
+                self._buffered -= sum(len(data) for _, data in items)
+                self._room.notify_all()
+        return items
 
     def events(self) -> list[PortEvent]:
         return _drain(self._events)
@@ -177,6 +189,10 @@ class SerialReader:
                 else:
                     self._stop.wait(self._backoff.next())
                     continue
+            if self._max_buffered is not None:
+                with self._room:  # back-pressure: the device waits while the station catches up
+                    while self._buffered >= self._max_buffered and not self._stop.is_set():
+                        self._room.wait(0.05)
             try:
                 port = self._port
                 data = port.read(max(1, getattr(port, "in_waiting", 0) or 0))
@@ -192,6 +208,9 @@ class SerialReader:
             if data:
                 t = self._clock()
                 self.bytes_read += len(data)
+                if self._max_buffered is not None:
+                    with self._room:
+                        self._buffered += len(data)
                 self._data.put((t, data))
                 if self._tap is not None:
                     try:

@@ -148,6 +148,7 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
 def test_the_same_run_through_a_serial_device_on_a_pty(tmp_path):
     """Xsens frames on a pty read through pyserial and our parser; the table by its ASCII driver."""
     result = run_headless(spec(51), tmp_path / "s", serial=True)
+    assert result.unit is not None, (result.status, result.message)
     assert not result.unit.failures and set(result.unit.solutions) == {"accelerometer", "gyroscope"}
     for name, sol in result.unit.solutions.items():
         z = (sol.theta - result.truth[name]) / sol.sigma

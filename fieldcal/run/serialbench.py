@@ -33,7 +33,10 @@ class SerialBench:
                                         imu_protocol="xsens", table_protocol="ascii", speed=0,
                                         seed=noise_seed, rate_hz=spec.rate_hz)
         self.parser = make_parser("xsens")
-        self.reader = SerialReader(PortSettings(self.devices.imu_url), tap=tap).start()
+        # The simulator serves as fast as it is read: held to about 2 s of samples ahead of the
+        # engine, so a slow (loaded) station does not leave the table's commands minutes behind.
+        self.reader = SerialReader(PortSettings(self.devices.imu_url), tap=tap,
+                                   max_buffered_bytes=int(2 * spec.rate_hz * 54)).start()
         time.sleep(0.05)  # the port is open (and flushed) before the device starts talking
         self.devices.start()
         self.table = open_table("ascii", self.devices.table_url, timeout_s=2.0)
@@ -63,9 +66,12 @@ class SerialBench:
             self.table.set_rate(rate_deg_s)
 
     def _carry(self, target: np.ndarray, seconds: float, shake: float) -> list:
-        end = self.devices.carry(target, seconds, shake).result(timeout=_READ_TIMEOUT_S)
-        self.attitude = target
+        moved = self.devices.carry(target, seconds, shake)
         chunks = []
+        while not moved.done():  # keep reading meanwhile: the device waits for its reader
+            chunks.append(self.next_chunk())
+        end = moved.result()
+        self.attitude = target
         while not chunks or chunks[-1].t[-1] < end - 0.5 / self.spec.rate_hz:
             chunks.append(self.next_chunk())
         return chunks
