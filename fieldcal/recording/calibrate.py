@@ -12,7 +12,8 @@ weights each pose mean (white noise over the pose's samples), and the σ are sca
 χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the first pose's mean less the
 vertical Earth rate, which the accelerometer's up direction fixes; the horizontal Earth rate,
 whose heading a hand-held recording cannot know, widens the bias's σ and each motion's
-residual instead of biasing them. A gyro reporting raw counts needs no nominal sensitivity: a
+residual instead of biasing them, and so does the poses' still readings' scatter beyond that and
+the noise (bias drift, g-sensitivity). A gyro reporting raw counts needs no nominal sensitivity: a
 scan over the scale finds the one that makes the motions' rotations fit.
 """
 from __future__ import annotations
@@ -51,7 +52,8 @@ class UnknownPlace:
     """A recording whose place is not known: no latitude, so the Earth rate (7.29e-5 rad/s, its
     direction unknown) is an error term of Ω²/3 per axis instead of a known vertical part.
     ``gravity``: m/s^2 as given, or None: taken from the pose means (see calibrate_recording).
-    Written to a parameter file as latitude 0 with the source saying the place is unknown."""
+    Written to a parameter file as latitude 0 with this g as a given ("measured") one: a file's
+    gravity source is one of ``fieldcal.earth.GRAVITY_SOURCES`` (see recording.results)."""
 
     gravity: float | None = None
     gravity_source: str = "given (--gravity); place unknown"
@@ -259,14 +261,23 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
     k = RATE_UNITS.get(unit)
     if k is None:  # raw counts: the scale that makes the rotations fit
         k = float(_SCAN[int(np.argmin(scale_misfits(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)))])
+    still = interval_means(gyro, iv)  # every pose's still reading: each one an estimate of the bias
     if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
         b0, earth_var = rest_mean, EARTH_RATE**2 / 3
     else:
         sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
         b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
+        still = still - k * EARTH_RATE * sin_lat * up
         # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
         earth_var = (EARTH_RATE * cos_lat) ** 2 / 2
     bias_sigma = k * np.sqrt(earth_var + rest_var / k**2 / counts[0])
+    if len(iv) > 2:
+        # The still readings scatter from pose to pose by more than the Earth rate and the noise
+        # when the bias drifts (warm-up, temperature) or the gyro is g-sensitive: the first pose's
+        # reading is then off the bias by as much, and nothing in the recording says which way.
+        expected = k**2 * earth_var + np.mean(rest_var[None, :] / counts[:, None], axis=0)
+        excess = np.maximum(np.var(still, axis=0, ddof=1) - expected, 0.0)
+        bias_sigma = np.sqrt(bias_sigma**2 + excess)
     arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
     duration = t[spans[:, 1]] - t[spans[:, 0]]
     extra = None
@@ -278,7 +289,8 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
         bias_sigma=bias_sigma, up_covariance=up_cov, rate_noise=arw, extra_residuals=extra,
         motion_variance=earth_var * duration**2, method=settings.gyro_method, name=name,
         output_unit=unit)
-    return solution, solution.sigma[:3]  # bias_sigma when the bias was held
+    # Held, the bias's σ is bias_sigma (drift and g-sensitivity included); estimated, the fit's.
+    return solution, solution.sigma[:3]
 
 
 def _aligned_protocol(recording, station, candidates, reference, forces, rates, noise,

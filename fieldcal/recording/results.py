@@ -14,19 +14,29 @@ from fieldcal.calibration import CLASSIC_METHOD
 from fieldcal.earth import Station
 from fieldcal.paramfile import ParameterFile, hash_inputs
 from fieldcal.recording import Recording
-from fieldcal.recording.calibrate import RecordingCalibration
+from fieldcal.recording.calibrate import RecordingCalibration, UnknownPlace
 from fieldcal.report import solution_header, solution_table
 
 PROCEDURE = "recording"
 
 
-def parameter_file(cal: RecordingCalibration, recording: Recording, station: Station,
+def _file_station(station: Station | UnknownPlace) -> Station:
+    """The station a parameter file records. A file's gravity source is "measured" or "WGS84
+    normal gravity" (``fieldcal.earth.GRAVITY_SOURCES``); an unknown place's g (given, from the
+    pose means or standard gravity) is not the normal gravity of latitude 0, so it is written as
+    a given value at latitude 0, height 0: "measured"."""
+    if isinstance(station, UnknownPlace):
+        return Station(station.latitude_deg, station.height_m, station.gravity)
+    return station
+
+
+def parameter_file(cal: RecordingCalibration, recording: Recording, station: Station | UnknownPlace,
                    device_name: str | None = None, simulation: bool | None = None) -> ParameterFile:
     triads = [*cal.specific_force.values(), *cal.angular_rate.values()]
     methods = "+".join(dict.fromkeys([s.method for s in cal.specific_force.values()]
                                      + [s.method for s in cal.angular_rate.values()]))
     data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]
-    return ParameterFile.build(triads, station=station, procedure=PROCEDURE, method=methods,
+    return ParameterFile.build(triads, station=_file_station(station), procedure=PROCEDURE, method=methods,
                                input_sha256=hash_inputs(*data), device_name=device_name,
                                simulation=simulation)
 
@@ -65,7 +75,8 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
             continue
         rms = math.degrees(sol.residual_rms) * 60
         quality = f"χ²/dof {fit.reduced_chi2:.2f}" if fit.dof else "exact fit"
-        bias = "initial rest, less the vertical Earth rate" if fit.held else "estimated"
+        bias = ("the first pose's mean" + ("" if isinstance(cal.place, UnknownPlace) else
+                                           ", less the vertical Earth rate")) if fit.held else "estimated"
         lines += ["", f"{name} (rotations between {len(cal.poses.intervals)} poses, {fit.search}: "
                   f"{fit.evaluations} evaluations; direction residual RMS {rms:.3g} arcmin; {quality}; "
                   f"bias: {bias})", solution_table(sol, truths.get(name))]
