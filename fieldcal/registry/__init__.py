@@ -17,6 +17,7 @@ import datetime
 import hashlib
 import os
 import sqlite3
+import time
 from pathlib import Path
 
 BUSY_TIMEOUT_S = 10.0
@@ -55,9 +56,23 @@ class Registry:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.db = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None)
         self.db.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")
-        self.db.execute("PRAGMA journal_mode = WAL")
+        self._wal(timeout_s)
         self.db.execute("PRAGMA foreign_keys = ON")
         self._migrate()
+
+    def _wal(self, timeout_s: float) -> None:
+        """Switch to WAL. The switch needs the database to itself and SQLite answers "locked" at
+        once, without its busy handler, while another station opens the same new file: wait and
+        try again, as the busy timeout would."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                self.db.execute("PRAGMA journal_mode = WAL")
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.01)
 
     def close(self) -> None:
         self.db.close()
