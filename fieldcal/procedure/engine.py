@@ -82,11 +82,13 @@ class EngineSettings:
 class _Average:
     """Sums per triad over accepted stretches, kept per stretch so a disturbed tail can go."""
 
-    def __init__(self) -> None:
+    def __init__(self, track_noise: bool = False) -> None:
         self.blocks: list[tuple[float, float, int, dict[str, np.ndarray]]] = []
         self._n = 0  # samples in blocks, kept as they change: n is asked at every chunk
         # Per block: triad -> sum of squared sample-to-sample differences, and their count; the
-        # white-noise level without the mean or slow drift (for the adaptive dwell).
+        # white-noise level without the mean or slow drift (for the adaptive dwell only: every
+        # sample passes here, so a fixed dwell does not pay for it).
+        self.track_noise = track_noise
         self.diffs: list[tuple[dict[str, np.ndarray], int]] = []
 
     @property
@@ -98,13 +100,15 @@ class _Average:
             sums = {name: v[lo:hi].sum(axis=0) for name, v in chunk.triads.items()}
             self.blocks.append((float(chunk.t[lo]), float(chunk.t[hi - 1]), hi - lo, sums))
             self._n += hi - lo
-            self.diffs.append(({name: (np.diff(v[lo:hi], axis=0) ** 2).sum(axis=0)
-                                for name, v in chunk.triads.items()}, hi - lo - 1))
+            if self.track_noise:
+                self.diffs.append(({name: (np.diff(v[lo:hi], axis=0) ** 2).sum(axis=0)
+                                    for name, v in chunk.triads.items()}, hi - lo - 1))
 
     def drop_after(self, t: float) -> None:
         kept = [b[1] < t for b in self.blocks]
         self.blocks = [b for b, k in zip(self.blocks, kept) if k]
-        self.diffs = [d for d, k in zip(self.diffs, kept) if k]
+        if self.track_noise:
+            self.diffs = [d for d, k in zip(self.diffs, kept) if k]
         self._n = sum(b[2] for b in self.blocks)
 
     def white_variance(self, name: str) -> np.ndarray | None:
@@ -162,7 +166,7 @@ class Engine:
         self.phase = PLACE
         self.t = 0.0
         self._detector: StillnessDetector | None = None
-        self._average = _Average()
+        self._average = _Average(self.procedure.adaptive_dwell)
         self._windows: list[WindowRecord] = []  # this step's finished windows
         self._sign = 0.0
         self._next_progress = 0.0
@@ -288,7 +292,7 @@ class Engine:
         if self.procedure.adaptive_dwell:
             # The noise level is judged on all the still samples of this chunk, then the dwell
             # takes what that level calls for: the rule sees only time and noise, never the mean.
-            probe = _Average()
+            probe = _Average(track_noise=True)
             probe.blocks, probe.diffs = list(self._average.blocks), list(self._average.diffs)
             probe.add(chunk, i, j)
             target = adaptive_dwell_samples(target, self._noise_ratio(probe), s)
@@ -308,7 +312,7 @@ class Engine:
             restart = s.on_motion == "restart"
             out.append(ev.MotionDetected(float(chunk.t[j]), "dwell", restart))
             if restart:
-                self._average = _Average()
+                self._average = _Average(self.procedure.adaptive_dwell)
                 self._next_progress = 0.0
             else:
                 self._average.drop_after(float(chunk.t[j]) - s.stillness.window_s)
@@ -360,7 +364,7 @@ class Engine:
             return self._complete_step(take, t, out)
         if j < len(chunk):
             out.append(ev.MotionDetected(float(chunk.t[j]), "rate", True))
-            self._average = _Average()
+            self._average = _Average(self.procedure.adaptive_dwell)
             self.phase = RATE_WAIT
         return j
 
@@ -387,7 +391,7 @@ class Engine:
         blocks = self._average.blocks
         self._windows.append(WindowRecord(kind, blocks[0][0], self._average.n / self.settings.rate_hz,
                                           rate_deg_s, self._average.means()))
-        self._average = _Average()
+        self._average = _Average(self.procedure.adaptive_dwell)
         self._next_progress = 0.0
 
     def _complete_step(self, i, t, out) -> int:
@@ -403,7 +407,7 @@ class Engine:
         return step
 
     def _enter_step(self, step: int) -> list[ev.Event]:
-        self.step, self._windows, self._average = step, [], _Average()
+        self.step, self._windows, self._average = step, [], _Average(self.procedure.adaptive_dwell)
         self._detector, self._next_progress, self._sign = None, 0.0, 0.0
         if step >= len(self.procedure.positions):
             self.phase = DONE
