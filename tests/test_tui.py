@@ -344,3 +344,60 @@ async def test_the_setup_screen_starts_the_run_it_was_given(tmp_path, monkeypatc
         await pilot.press("q", "y")
         await until(pilot, lambda: not app.is_running)
     assert app.spec.station.latitude_deg == 45.5
+
+
+def _golden_mini_spec(seed: int) -> RunSpec:
+    """tests/test_conductor.py's golden procedure: field-18 with 3 s dwells, at 20 Hz."""
+    text = load_procedure("field-18").text.replace("name: field-18", "name: golden-mini") \
+        .replace("dwell_s: 200", "dwell_s: 3") \
+        .replace("rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}",
+                 "rate_step: {rate_deg_s: 60, turns: 1, ramp_s: 3, settle_s: 1}")
+    return RunSpec(parse_procedure(text, "golden-mini.yaml"), STATION, seed=seed, rate_hz=20.0,
+                   script=OperatorScript(handling_s=2.0))
+
+
+@run_async
+async def test_a_run_quit_half_way_resumes_in_the_tui_to_the_uninterrupted_run(tmp_path):
+    """Issue 15 item 2: quit (q, y) after step 7, `tui --resume` continues after it; the parameter
+    file is byte for byte the headless uninterrupted run's of the same seed."""
+    spec = _golden_mini_spec(12)
+    session = tmp_path / "session"
+    app = FieldcalApp(spec, speed=0, session_dir=session)
+    async with app.run_test(size=(80, 24)) as pilot:
+        for step in range(7):
+            await until(pilot, lambda step=step: waiting_at(app, step))
+            await pilot.press("r")
+        await until(pilot, lambda: waiting_at(app, 7))
+        await pilot.press("q", "y")
+    app.source.done.wait(10.0)
+    assert app.source.outcome.status == "stopped"
+    assert f"fieldcal tui --resume {session}" in app.source.outcome.message
+    assert not SessionReader(session).stopped
+
+    resumed = FieldcalApp(speed=0, resume=session)
+    async with resumed.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(resumed, 7))  # after the last completed step
+        await press_ready_from(pilot, resumed, 7)
+        outcome = resumed.outcome
+    assert outcome.status == "completed" and not outcome.unit.failures
+    whole = run_headless(spec, tmp_path / "whole")
+    assert outcome.parameters.read_bytes() == whole.parameters.read_bytes()
+    assert SessionReader(session).stop_reason == "completed"
+
+
+async def press_ready_from(pilot, app: FieldcalApp, first: int) -> None:
+    for step in range(first, len(app.spec.procedure.positions)):
+        await until(pilot, lambda step=step: waiting_at(app, step))
+        await pilot.press("r")
+    await until(pilot, lambda: app.outcome is not None and on_results(app))
+
+
+def test_tui_resume_refuses_in_one_line_what_it_cannot_continue(tmp_path):
+    from fieldcal.cli.tui import resumable
+
+    with pytest.raises(ValueError, match="not a session directory"):
+        resumable(str(tmp_path))
+    done = run_headless(_golden_mini_spec(3), tmp_path / "done")
+    with pytest.raises(ValueError, match="already ended \\(completed\\); a completed session is never resumed") as e:
+        resumable(str(done.session))
+    assert "\n" not in str(e.value)

@@ -108,3 +108,34 @@ def test_a_live_run_needs_the_noise_and_a_table(tmp_path, devices):
     again = RunSpec.from_metadata(spec.to_metadata())  # what a replay rebuilds the run from
     assert again.to_metadata() == spec.to_metadata() and again.engine_settings() == spec.engine_settings()
     assert again.models()["gyroscope"].noise == PAPER_NOISE["gyroscope"]
+
+
+@run_async
+async def test_a_lost_device_is_said_at_once_the_dwell_waits_and_quitting_is_clean(tmp_path, devices):
+    """Issue 15 item 3: the serving end goes away mid-dwell."""
+    from fieldcal.tui.widgets.live import rows
+
+    config = live_config(tmp_path, devices)
+    procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+    app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
+        await pilot.press("r")
+        await until(pilot, lambda: app.telemetry.phase != "place" or app.telemetry.step > 0)
+        devices.stop()  # the device is gone (a fast simulator may be past the dwell by now)
+        await until(pilot, lambda: app.telemetry.silent_s is not None)
+        view = app.screen.view
+        t = app.telemetry.t
+        text, style = view.banner(sim=False)
+        assert text.startswith("NO SAMPLES from the device") and style == "bad"
+        assert ("dwell is paused" in text) == (app.telemetry.phase in ("dwell", "rate_wait", "rate_average"))
+        shown = rows(view)
+        assert "no samples" in shown["still"].plain and "σ" not in shown["still"].plain
+        assert "s left" not in shown["dwell"].plain  # the dwell waits
+        phase = app.telemetry.phase
+        await pilot.pause(0.3)
+        assert app.telemetry.t == t and app.telemetry.phase == phase
+        await pilot.press("q", "y")
+    app.source.done.wait(10.0)
+    assert app.source.outcome.status == "stopped"  # not an error: the ports were closed cleanly

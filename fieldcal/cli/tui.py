@@ -65,6 +65,8 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
                      "(default: the config's sim speed for a run, 10 for a replay)")
     tui.add_argument("--no-capture", action="store_true", help="do not write a session")
     tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
+    tui.add_argument("--resume", metavar="SESSION",
+                     help="continue this unfinished (quit) simulated session after its last completed step")
     tui.set_defaults(func=cmd_tui)
     return tui
 
@@ -76,6 +78,8 @@ def cmd_tui(args) -> int:
         if not Path(args.replay, "log.jsonl").is_file():
             raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
         return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay))
+    if args.resume is not None:
+        return run_tui(None, _resume_speed(args), None, None, resume=resumable(args.resume))
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
 
@@ -89,6 +93,33 @@ def cmd_tui(args) -> int:
         spec, session_dir, speed = make_run(config, procedure)
         return run_tui(spec, speed, session_dir, None, config=config)
     return run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+
+
+def resumable(session: str) -> Path:
+    """The session ``--resume`` continues; a one-line ValueError for one it cannot."""
+    from fieldcal.cli.sessions import _procedure_session
+
+    if not Path(session, "log.jsonl").is_file():
+        raise ValueError(f"--resume: {session} is not a session directory (no log.jsonl)")
+    reader, spec, _ = _procedure_session(session)
+    if reader.stopped:
+        raise ValueError(f"--resume: {session} already ended ({reader.stop_reason}); "
+                         + ("a completed session is never resumed: replay it with `fieldcal tui --replay`"
+                            if reader.stop_reason == "completed" else "nothing to resume"))
+    if spec.live is not None:
+        raise ValueError(f"--resume: {session} is a live device's session; resuming a live run is not "
+                         "supported yet (start again)")
+    if reader.start.get("device", {}).get("link") == "pty":
+        raise ValueError(f"--resume: {session} ran through a serial device, which cannot be rewound; "
+                         "replay it, or run again")
+    return Path(session)
+
+
+def _resume_speed(args) -> float:
+    if args.speed is not None:
+        return args.speed
+    from fieldcal.config import load_config
+    return load_config(args.config or "sim").device.sim.speed
 
 
 def run_maker(args):

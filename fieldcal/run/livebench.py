@@ -68,6 +68,11 @@ class LiveBench:
         return list(chunks)
 
     @property
+    def last_sample_wall(self) -> float:
+        """The wall time (``clock``) at which samples last came (or the port was opened)."""
+        return self._last_sample_wall
+
+    @property
     def counters(self):
         return self.connection.counters
 
@@ -86,11 +91,22 @@ class LiveBench:
         raise ValueError("a live run cannot be resumed (the device cannot be rewound): start again")
 
     def close(self) -> None:
+        """Stop the table and close both ports; a port already gone (unplugged, its far end
+        closed) is said in the log, never raised, so quitting after a lost device is clean."""
         try:
             if self.table is not None:
                 try:
                     self.table.stop()  # never leave a table turning behind a closed station
+                except Exception as exc:  # noqa: BLE001 -- the port is gone: say so, close the rest
+                    self.say(f"WARNING: could not stop the table ({type(exc).__name__}: {exc}); "
+                             "check that it is not turning")
                 finally:
-                    self.table.close()
+                    try:
+                        self.table.close()
+                    except Exception as exc:  # noqa: BLE001
+                        self.say(f"table port: closing it failed ({type(exc).__name__}: {exc})")
         finally:
-            self.connection.__exit__(None, None, None)
+            try:
+                self.connection.__exit__(None, None, None)
+            except Exception as exc:  # noqa: BLE001
+                self.say(f"port {self.url}: closing it failed ({type(exc).__name__}: {exc})")

@@ -42,8 +42,12 @@ class FieldcalApp(App[int]):
     ]
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
-                 replay: Path | None = None, clock=time.monotonic, config=None, setup=None) -> None:
-        """``config``: the station config of a real device (``spec.live``), for its ports.
+                 replay: Path | None = None, clock=time.monotonic, config=None, setup=None,
+                 resume: Path | None = None) -> None:
+        """``resume``: continue this unfinished simulated session after its last completed step
+        (``spec`` and ``session_dir`` are then the session's own; give neither).
+
+        ``config``: the station config of a real device (``spec.live``), for its ports.
 
         ``setup``: instead of a run, ``(initial, make_run)``: the setup screen opens with the
         ``SetupChoice`` ``initial`` (or none), and the operator's choice, resolved to a config and
@@ -60,11 +64,16 @@ class FieldcalApp(App[int]):
         self.setup = setup
         self.mode = "setup"  # until a run is prepared: the source's "sim", "live" or "replay"
         if setup is None:
-            self._prepare(spec, session_dir, replay, config)
+            self._prepare(spec, session_dir, replay, config, resume)
 
-    def _prepare(self, spec, session_dir: Path | None, replay: Path | None, config) -> None:
+    def _prepare(self, spec, session_dir: Path | None, replay: Path | None, config,
+                 resume: Path | None = None) -> None:
         clock = self.clock
-        if replay is not None:
+        if resume is not None:
+            self.source = SimSource.resuming(Path(resume), self, self.speed, clock)
+            title = (f"fieldcal · {self.source.spec.procedure.name} · resuming {Path(resume).name} · "
+                     f"simulated MIMU, seed {self.source.spec.seed} · {_speed_words(self.speed)}")
+        elif replay is not None:
             self.source = ReplaySource(Path(replay), self, self.speed, clock)
             title = f"fieldcal · replay of {Path(replay).name} · {_speed_words(self.speed)}"
         elif spec is not None and spec.live is not None:
@@ -184,20 +193,21 @@ class FieldcalApp(App[int]):
 
 
 def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None, config=None,
-            setup=None) -> int:
+            setup=None, resume: Path | None = None) -> int:
     """Run the terminal UI until the operator quits; the exit status (0: calibrated).
 
     ``spec``: the run (procedure, station, seed, ...), simulated or on a real device (with its
     ``config``); ignored with ``replay`` (the session says what it was). ``speed``: sample time
     per wall time, 0 = as fast as possible. ``session_dir``: where to capture the session (None:
     no capture). ``replay``: a session directory to replay through the same screens.
-    ``setup``: open the setup screen first (see ``FieldcalApp``).
+    ``setup``: open the setup screen first (see ``FieldcalApp``). ``resume``: continue this
+    unfinished simulated session instead (see ``FieldcalApp``).
     """
-    if replay is None and session_dir is not None and Path(session_dir).exists() \
+    if replay is None and resume is None and session_dir is not None and Path(session_dir).exists() \
             and any(Path(session_dir).iterdir()):
         raise ValueError(f"{session_dir}: already exists and is not empty (a new session needs a "
                          "new directory)")
-    app = FieldcalApp(spec, speed, session_dir, replay, config=config, setup=setup)
+    app = FieldcalApp(spec, speed, session_dir, replay, config=config, setup=setup, resume=resume)
     code = app.run()
     if app.source is None:  # quit on the setup screen
         return 1

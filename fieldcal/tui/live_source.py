@@ -18,7 +18,8 @@ from fieldcal.run.conductor import Act, Conductor, Say
 from fieldcal.run.outcome import Status
 from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, SimSource, Sink
 
-NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the operator is told
+NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the log says so
+SILENT_S = 0.5  # wall time without a sample before the readings, stillness and banner say so
 
 
 class LiveSource(SimSource):
@@ -62,11 +63,21 @@ class LiveSource(SimSource):
         return False  # samples flow all the time, also while the operator places the unit
 
     def idle(self, run: Conductor) -> None:
-        """Nothing read: wait briefly for a key instead of spinning."""
+        """Nothing read: wait briefly for a key instead of spinning; the screen still learns
+        that no samples come (``silent_s``)."""
         try:
             self._deferred.append(self._commands.get(timeout=min(0.02, FLUSH_S)))
         except queue.Empty:
             pass
+        self._flush()
+
+    def telemetry(self):
+        from dataclasses import replace
+
+        telemetry = super().telemetry()
+        silent = self.clock() - self.bench.last_sample_wall
+        return replace(telemetry, silent_s=silent) if self.conductor is not None and silent > SILENT_S \
+            else telemetry
 
     def tick(self, run: Conductor) -> None:
         self._waiting = run.engine.phase in WAITING_FOR_OPERATOR  # on the operator's hands

@@ -31,6 +31,7 @@ class Telemetry:
     gyro_deg_s: tuple[float, float, float] | None = None
     angle_deg: float | None = None  # measured gravity vs the current position's expected up
     quiet: float | None = None  # max per-axis (window std)/(expected σ); None until a window exists
+    silent_s: float | None = None  # a live device: wall time without a sample, once past SILENT_S
 
 
 class RecentSamples:

@@ -224,9 +224,14 @@ class SimSource(Source):
     mode = Mode.SIM
 
     def __init__(self, spec, sink: Sink, speed: float, session_dir: Path | None,
-                 clock: Callable[[], float] = time.monotonic, bench=None):
+                 clock: Callable[[], float] = time.monotonic, bench=None, resume: bool = False):
+        """``resume``: ``session_dir`` is an unfinished session to continue after its last
+        completed step (see ``resuming``), not a new one."""
         super().__init__(spec, sink, speed, clock)
         self.session_dir = Path(session_dir) if session_dir is not None else None
+        if resume and self.session_dir is None:
+            raise ValueError("resume: which session?")
+        self.resume = resume
         self.recorder = None
         self.bench = bench if bench is not None else self._sim_bench(spec, speed)
         self.bump_times: list[float] = []  # sample time of each bump (OperatorScript.bump_at_s)
@@ -240,12 +245,28 @@ class SimSource(Source):
             bench.chunk_n = max(1, min(bench.chunk_n, round(spec.rate_hz * FLUSH_S * speed)))
         return bench
 
+    @classmethod
+    def resuming(cls, directory: Path, sink: Sink, speed: float,
+                 clock: Callable[[], float] = time.monotonic) -> SimSource:
+        """Continue the unfinished simulated session in ``directory`` after its last completed
+        step, as ``fieldcal resume`` does headless: the run's spec is the session's, the bench's
+        state that of the last completed step, and what follows is appended to the session."""
+        from fieldcal.run.runner import RunSpec
+        from fieldcal.session.capture import SessionReader
+
+        spec = RunSpec.from_metadata(SessionReader(Path(directory)).start)
+        if spec.live is not None:
+            raise ValueError(f"{directory}: a live device's session; SimSource resumes simulated ones")
+        return cls(spec, sink, speed, directory, clock, resume=True)
+
     def _metadata(self) -> dict:
         return self.spec.session_metadata("in-process", "tui")
 
     def _conductor(self) -> Conductor:
         from fieldcal.run.recorder import SessionRecorder
 
+        if self.resume:
+            return self._resumed_conductor()
         subscribers = [self]
         if self.session_dir is not None:
             self.recorder = SessionRecorder.create(self.session_dir, self._metadata())
@@ -253,12 +274,38 @@ class SimSource(Source):
         return Conductor(self.spec, self.bench, self, subscribers, session=self.session_dir,
                          settings=self.settings)
 
+    def _resumed_conductor(self) -> Conductor:
+        """The conductor after the session's last completed step: engine and bench restored
+        before the session is touched (what cannot be continued is refused first), then the
+        recorder appends to it."""
+        from fieldcal.run.recorder import SessionRecorder
+        from fieldcal.run.steps import steps_on_record
+        from fieldcal.session.capture import SessionReader
+
+        reader = SessionReader(self.session_dir)
+        if reader.stopped:
+            raise ValueError(f"{self.session_dir}: this session already ended ({reader.stop_reason}); "
+                             "nothing to resume")
+        steps = steps_on_record(reader)
+        conductor = Conductor(self.spec, self.bench, self, [self], session=self.session_dir,
+                              settings=self.settings)
+        self.conductor = conductor  # the telemetry shows where the run stands while it restores
+        conductor.restore(steps)
+        self.recorder = SessionRecorder.append_to(self.session_dir)
+        conductor.subscribers.insert(0, self.recorder)
+        done = len(steps)
+        self._items.append(Note(conductor.engine.t, f"resuming {self.session_dir.name} after {done} completed "
+                                f"step{'s' if done != 1 else ''}: place the unit for the next step"))
+        return conductor
+
     def _session_after_error(self) -> Path | None:
         return self.session_dir if self.recorder is not None else None
 
     def _stopped_message(self) -> str:
-        return "stopped before the end; the session can be continued with `fieldcal resume`" \
-            if self.session_dir is not None else "stopped before the end"
+        if self.session_dir is None:
+            return "stopped before the end"
+        return ("stopped before the end; the session can be continued with "
+                f"`fieldcal tui --resume {self.session_dir}` (or headless: `fieldcal resume {self.session_dir}`)")
 
     def _holds_for_keys(self, run: Conductor) -> bool:
         """Wait for a key, the bench standing still? (The simulator, while the engine waits for

@@ -202,6 +202,8 @@ class RunView:
         if self.finished is not None:
             return "the run has ended"
         tel = self.telemetry
+        if tel is not None and tel.silent_s is not None:
+            return f"no samples for {tel.silent_s:.0f} s" if tel.silent_s >= 1 else "no samples"
         if self.carrying:
             return "the simulator is moving the unit"
         if self.held_while_waiting and tel is not None and tel.waiting:
@@ -293,6 +295,11 @@ class RunView:
                     "stopped": ("Stopped", "warn")}.get(self.finished, (self.finished, "warn"))
         phase = self.phase
         p = self.position
+        tel = self.telemetry
+        if tel is not None and tel.silent_s is not None:
+            paused = "; the dwell is paused" if phase in (en.DWELL, en.RATE_AVERAGE, en.RATE_WAIT) else ""
+            return (f"NO SAMPLES from the device for {tel.silent_s:.0f} s: check its cable and power"
+                    f"{paused}; the readings shown are old", "bad")
         if phase == en.PLACE and self.carrying:
             return f"The simulator is carrying the unit into position {p.id}: hands off", "wait"
         if phase == en.PLACE:

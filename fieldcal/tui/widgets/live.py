@@ -79,11 +79,12 @@ def rows(view: RunView, bar_width: int = BAR) -> dict[str, Text]:
     out["still"] = still
     t = view.t
     d = view.dwell
+    silent = tel is not None and tel.silent_s is not None  # no samples: the dwell and turns wait
     ended = view.finished is not None and view.finished != "completed"
     if ended:
         dwell = _label("dwell") + Text(f"— (run {view.finished})", style="grey50")
     else:
-        dwell = _label("dwell") + _progress(d.done(t), d.total, d.anchor is not None, d.complete, "green",
+        dwell = _label("dwell") + _progress(d.done(t), d.total, d.anchor is not None and not silent, d.complete, "green",
                                             bar_width)
     if view.restarts:
         dwell.append(f"  ↺{view.restarts}", style="yellow")
@@ -102,7 +103,7 @@ def rows(view: RunView, bar_width: int = BAR) -> dict[str, Text]:
     if ended:
         out["turns"] = _label("turns") + Text("—", style="grey50")
     else:
-        out["turns"] = _label("turns") + _progress(tr.done(t), tr.total, tr.anchor is not None, tr.complete,
+        out["turns"] = _label("turns") + _progress(tr.done(t), tr.total, tr.anchor is not None and not silent, tr.complete,
                                                    "cyan", bar_width)
     return out
 
