@@ -32,6 +32,7 @@ class LiveSource(SimSource):
         self.config = config
         bench = LiveBench(config, tap=self._capture_raw, clock=clock, silence_s=NO_SAMPLES_WARN_S)
         super().__init__(spec, sink, 0.0, session_dir, clock, bench=bench)
+        self._caught_up = False  # everything read so far has been fed (then silence is the device's)
 
     def _capture_raw(self, t: float, data: bytes) -> None:
         """Called on the port's reader thread (the session writer is thread-safe)."""
@@ -65,6 +66,7 @@ class LiveSource(SimSource):
     def idle(self, run: Conductor) -> None:
         """Nothing read: wait briefly for a key instead of spinning; the screen still learns
         that no samples come (``silent_s``)."""
+        self._caught_up = True
         try:
             self._deferred.append(self._commands.get(timeout=min(0.02, FLUSH_S)))
         except queue.Empty:
@@ -75,9 +77,16 @@ class LiveSource(SimSource):
         from dataclasses import replace
 
         telemetry = super().telemetry()
+        # Silent only once everything read has been fed: a batch that takes a while to feed (a
+        # loaded station) is not a device that stopped.
         silent = self.clock() - self.bench.last_sample_wall
-        return replace(telemetry, silent_s=silent) if self.conductor is not None and silent > SILENT_S \
+        return replace(telemetry, silent_s=silent) \
+            if self.conductor is not None and self._caught_up and silent > SILENT_S \
             else telemetry
+
+    def chunk(self, chunk, run: Conductor) -> None:
+        self._caught_up = False
+        super().chunk(chunk, run)
 
     def tick(self, run: Conductor) -> None:
         self._waiting = run.engine.phase in WAITING_FOR_OPERATOR  # on the operator's hands
