@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tui_pilot import run_async, until, waiting_at
+from tui_pilot import log_settled, run_async, until, waiting_at
 from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -264,6 +264,8 @@ def test_snapshot_procedure_screen(snap_compare, tmp_path):
         await until(pilot, lambda: waiting_at(app, 0))
         await pilot.press("r")
         await until(pilot, lambda: waiting_at(app, 1))
+        await until(pilot, lambda: log_settled(app, "step 2/2"))
+        await pilot.pause()
 
     assert snap_compare(app, terminal_size=(80, 24), run_before=second_step)
 

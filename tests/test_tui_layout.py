@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from tui_pilot import run_async, until, waiting_at
+from tui_pilot import log_settled, run_async, until, waiting_at
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import parse_procedure
 from fieldcal.run.runner import RunSpec
@@ -145,6 +145,7 @@ def procedure_state(app):
         await until(pilot, lambda: waiting_at(app, 0))
         await pilot.press("s", "y")
         await until(pilot, lambda: waiting_at(app, 1))
+        await until(pilot, lambda: log_settled(app, "step 2/3"))
         await pilot.pause()
     return run_before
 

@@ -26,3 +26,13 @@ def waiting_at(app, step: int) -> bool:
     """The run waits for the operator at ``step`` (0-based)."""
     t = app.telemetry
     return t is not None and t.waiting and t.step == step and app.outcome is None
+
+
+def log_settled(app, last: str) -> bool:
+    """The procedure screen's event log holds a line with ``last`` and is scrolled to its end
+    (the log scrolls after it is written, a frame later on a loaded machine: a snapshot waits)."""
+    logs = app.screen.query("#log")
+    if not logs:
+        return False
+    log = logs.first()
+    return any(last in line.text for line in log.lines) and log.scroll_y >= log.max_scroll_y
