@@ -98,9 +98,11 @@ def test_aligned_procedure_uses_the_classic_solver(capsys):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["demo", "--height", "1e7"], "height_m: expected -500..9000 m above the ellipsoid, got 10000000.0"),
-    (["demo", "--height", "nan"], "height_m: expected -500..9000 m above the ellipsoid, got nan"),
-    (["demo", "--latitude", "91"], "latitude_deg: expected -90..90, got 91.0"),
+    (["demo", "--height", "1e7"], "--height: expected -500..9000 m above the ellipsoid, got 10000000.0"),
+    (["demo", "--height", "nan"], "--height: expected -500..9000 m above the ellipsoid, got nan"),
+    (["demo", "--latitude", "91"], "--latitude: expected -90..90, got 91.0"),
+    (["demo", "--gravity", "3"], "--gravity: expected 9.7..9.9 m/s², got 3.0"),
+    (["sim", "serve", "--latitude", "-91"], "--latitude: expected -90..90, got -91.0"),
 ])
 def test_bad_station_is_one_line_error(capsys, argv, message):
     assert main(argv) == 2

@@ -61,11 +61,11 @@ def cmd_demo(args) -> int:
     import numpy as np
 
     from drivers.sim.device import paper_mimu
-    from fieldcal.earth import Station
+    from fieldcal.cli.station import station_from_options
     from fieldcal.report import solution_header, solution_table, worst_error
     from fieldcal.run.simcal import run_simulated_calibration
 
-    station = Station(args.latitude, args.height, args.gravity)
+    station = station_from_options(args.latitude, args.height, args.gravity)
     if args.params:  # refused before the simulation, not after it
         from fieldcal.session.output import check_output_path
         check_output_path(args.params, force=args.force, option="--params")
@@ -117,10 +117,10 @@ def cmd_sim_serve(args) -> int:
 
     from drivers.sim.device import paper_mimu
     from drivers.sim.serve import SimulatedDevices
-    from fieldcal.earth import Station
+    from fieldcal.cli.station import station_from_options
     from fieldcal.procedure.positions import load_procedure
 
-    station = Station(args.latitude, args.height)
+    station = station_from_options(args.latitude, args.height)
     positions = load_procedure("field-18").positions
     if not 1 <= args.position <= len(positions):
         raise ValueError(f"--position: expected 1..{len(positions)} (field-18), got {args.position}")
