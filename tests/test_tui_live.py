@@ -94,6 +94,11 @@ async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp
     unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
     assert [e.kind for e in replayed] == kinds[:len(replayed)] and len(replayed) >= len(kinds) - 1
     assert unit.failures == outcome.unit.failures and samples > 0
+    # `fieldcal solve` re-solves it from the log with the device's own noise models (a real
+    # device has no simulation truth to take them from).
+    from fieldcal.solvers.compare import compare_methods
+    solved = compare_methods(tmp_path / "session", ["powell", "classic"])
+    assert "2 completed steps" in solved and solved.count("not calibrated") == 2 * len(outcome.unit.failures)
 
 
 def test_a_live_run_needs_the_noise_and_a_table(tmp_path, devices):

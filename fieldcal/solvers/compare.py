@@ -13,7 +13,7 @@ from fieldcal.report import methods_table, solution_header
 from fieldcal.run.runner import RunSpec
 from fieldcal.run.steps import completed_records
 from fieldcal.session.capture import LOG, SessionReader
-from fieldcal.solvers.solve import models_from_truth, solve_unit
+from fieldcal.solvers.solve import solve_unit
 
 
 def compare_methods(directory: Path, methods: list[str]) -> str:
@@ -23,7 +23,7 @@ def compare_methods(directory: Path, methods: list[str]) -> str:
     windows, averages = windows_and_averages(records)
     if not windows:
         return f"{directory}: no completed steps to solve from"
-    models = models_from_truth(spec.device())
+    models = spec.models()  # the live device's noise models, or the simulator's
     results = {m: solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, m)
                for m in methods}
     lines = [f"{spec.procedure.name}: {len(records)} completed steps, re-solved from their averages "
