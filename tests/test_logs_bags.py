@@ -3,7 +3,6 @@ driving, from robot_localization's tests, see tests/data/real/README.md) and bag
 rosbags' own writer from imu_tk's real Xsens recording."""
 from __future__ import annotations
 
-import gzip
 from pathlib import Path
 
 import numpy as np
@@ -16,23 +15,17 @@ from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from fieldcal.cli.main import main  # noqa: E402
-from fieldcal.model import params_from  # noqa: E402
-from fieldcal.paramfile import load  # noqa: E402
-from fieldcal.recording.importer import RecordingImportError, import_recording  # noqa: E402
+from fieldcal.recording.importer import RecordingImportError  # noqa: E402
 from fieldcal.recording.logs import import_log, log_format  # noqa: E402
+from xsens_logs import assert_calibrates_as_text, one_line_error, unpacked, xsens_in_units  # noqa: E402
 
-REAL = Path(__file__).parent / "data" / "real"
 IMU = "sensor_msgs/msg/Imu"
 EPOCH_NS = 1_700_000_000 * 10**9  # the Xsens recording's t = 0 put at a 2023 epoch time
-ZERO_COUNT, GYRO_SCALE = 32768.0, 1.0 / 6258.0  # imu_tk's example: counts -> rad/s
-IMU_TK_GRAVITY = 9.81744
 
 
 @pytest.fixture(scope="module")
 def jackal(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("jackal") / "jackal.bag"
-    path.write_bytes(gzip.decompress((REAL / "robot_localization_test2.bag.gz").read_bytes()))
-    return path
+    return unpacked(tmp_path_factory.mktemp("jackal"), "robot_localization_test2.bag.gz", "jackal.bag")
 
 
 def deserialized(bag: Path, topic: str):
@@ -122,18 +115,10 @@ def write_imu_bag(path: Path, ros2: bool, topics: dict, stamps_ns=None, received
 
 @pytest.fixture(scope="module")
 def xsens(tmp_path_factory):
-    """imu_tk's Xsens recording as text (raw counts), and the same samples in physical units
-    (accelerometer scaled to about g, gyro by imu_tk's 1/6258 rad/s per count) as ROS 1 and
-    ROS 2 bags, stamped with its own timestamps."""
+    """imu_tk's Xsens recording as text (raw counts), and the same samples in m/s² and rad/s as
+    ROS 1 and ROS 2 bags, stamped with its own timestamps."""
     tmp = tmp_path_factory.mktemp("xsens")
-    paths = []
-    for name in ("imu_tk_xsens_acc.mat.gz", "imu_tk_xsens_gyro.mat.gz"):
-        paths.append(tmp / name.removesuffix(".gz"))
-        paths[-1].write_bytes(gzip.decompress((REAL / name).read_bytes()))
-    text = import_recording(paths, "imu_tk")
-    counts = text.triads["accelerometer"] - ZERO_COUNT
-    acc_scale = IMU_TK_GRAVITY / np.linalg.norm(counts[:1000].mean(axis=0))  # m/s² per count, nominal
-    accel, rate = counts * acc_scale, (text.triads["gyroscope"] - ZERO_COUNT) * GYRO_SCALE
+    paths, text, acc_scale, accel, rate = xsens_in_units(tmp)
     stamps = np.round(text.t * 1e9).astype(np.int64) + EPOCH_NS
     bags = {ros2: write_imu_bag(tmp / ("xsens_ros2" if ros2 else "xsens.bag"), ros2,
                                 {"/xsens/imu": (accel, rate)}, stamps) for ros2 in (False, True)}
@@ -141,28 +126,11 @@ def xsens(tmp_path_factory):
 
 
 def test_xsens_bag_calibrates_as_its_text_files_do(xsens, tmp_path, capsys):
-    """The bag holds the text's counts through a known affine map (raw_bag = s·(raw - 32768)), so
-    the same poses are found and its parameters are the text's through that map: K_bag = s·K,
-    bias_bag = s·(bias - 32768). The accelerometer to 1e-4 σ. The gyroscope to 1 σ: in counts
-    fieldcal scans for the scale that makes the rotations fit and weights one count of
-    quantisation, in rad/s it carries the Earth rate as an error term, so its weights differ."""
+    """The bag holds the text's counts through a known affine map: the same poses, and the
+    text's parameters through that map (the accelerometer to 1e-4 σ)."""
     paths, text, acc_scale, bags = xsens
-    place = ["--latitude", "45", "--gravity", f"{IMU_TK_GRAVITY}"]
-    assert main(["calibrate", *map(str, paths), "--map", "imu_tk", *place, "--params",
-                 str(tmp_path / "text.yaml"), "--out", str(tmp_path / "t")]) == 0
-    text_out = capsys.readouterr().out
-    assert main(["calibrate", str(bags[False]), *place, "--params", str(tmp_path / "bag.yaml"),
-                 "--out", str(tmp_path / "b")]) == 0
-    bag_out = capsys.readouterr().out
-    assert "ROS 1 bag: topic /xsens/imu" in bag_out and "51175 samples" in bag_out
-    poses = [line for line in text_out.splitlines() if "poses" in line][:1]
-    assert poses and poses[0] in bag_out
-    by_text, by_bag = load(tmp_path / "text.yaml"), load(tmp_path / "bag.yaml")
-    for name, scale, within in (("accelerometer", acc_scale, 1e-4), ("gyroscope", GYRO_SCALE, 1.0)):
-        bag = by_bag[name]
-        expected = params_from(scale * by_text[name].K, scale * (by_text[name].bias - ZERO_COUNT),
-                               bag.parameter_names)
-        assert np.all(np.abs(bag.theta - expected) < within * bag.sigma), (name, (bag.theta - expected) / bag.sigma)
+    out = assert_calibrates_as_text(bags[False], paths, acc_scale, 1e-4, tmp_path, capsys)
+    assert "ROS 1 bag: topic /xsens/imu" in out
 
 
 def test_xsens_ros2_bag_holds_what_the_ros1_bag_holds(xsens):
@@ -198,13 +166,6 @@ def test_stamps_out_of_order_are_put_in_time_order(tmp_path):
     recording, _ = import_log(bag)
     np.testing.assert_allclose(recording.t, np.arange(10) * 0.01, atol=1e-12)
     np.testing.assert_array_equal(recording.triads["accelerometer"][[3, 4]], accel[[4, 3]])
-
-
-def one_line_error(argv, capsys) -> str:
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    return err
 
 
 def test_bag_errors_are_one_line_naming_what_to_do(jackal, tmp_path, capsys):

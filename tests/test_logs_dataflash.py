@@ -3,7 +3,6 @@ older layout, IMU and IMU2 by name; see tests/data/real/README.md) and logs writ
 current layout (an instance column) from imu_tk's real Xsens recording."""
 from __future__ import annotations
 
-import gzip
 from pathlib import Path
 
 import numpy as np
@@ -13,14 +12,10 @@ pytest.importorskip("pymavlink")
 from pymavlink import DFReader  # noqa: E402
 
 from fieldcal.cli.main import main  # noqa: E402
-from fieldcal.model import params_from  # noqa: E402
-from fieldcal.paramfile import load  # noqa: E402
-from fieldcal.recording.importer import RecordingImportError, import_recording  # noqa: E402
+from fieldcal.recording.importer import RecordingImportError  # noqa: E402
 from fieldcal.recording.logs import import_log  # noqa: E402
+from xsens_logs import assert_calibrates_as_text, one_line_error, unpacked, xsens_in_units  # noqa: E402
 
-REAL = Path(__file__).parent / "data" / "real"
-ZERO_COUNT, GYRO_SCALE = 32768.0, 1.0 / 6258.0  # imu_tk's example: counts -> rad/s
-IMU_TK_GRAVITY = 9.81744
 FMT_TYPE = 128
 
 
@@ -59,9 +54,7 @@ def write_imu_log(path: Path, t_s: np.ndarray, instances: list[tuple[np.ndarray,
 
 @pytest.fixture(scope="module")
 def real_log(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("df") / "test.BIN"
-    path.write_bytes(gzip.decompress((REAL / "pymavlink_test.BIN.gz").read_bytes()))
-    return path
+    return unpacked(tmp_path_factory.mktemp("df"), "pymavlink_test.BIN.gz", "test.BIN")
 
 
 def decoded(path: Path, name: str):
@@ -94,13 +87,6 @@ def test_real_log_too_short_to_calibrate_is_refused_in_one_line(real_log, tmp_pa
     assert "record the poses for longer" in err or "distinct poses" in err
 
 
-def one_line_error(argv, capsys) -> str:
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    return err
-
-
 def test_log_errors_are_one_line(real_log, tmp_path, capsys):
     out = ["--out", str(tmp_path / "s")]
     assert "no IMU instance 2; the log has 0, 1 (choose with --imu N)" in one_line_error(
@@ -117,14 +103,7 @@ def test_log_errors_are_one_line(real_log, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def xsens(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("xsens")
-    paths = []
-    for name in ("imu_tk_xsens_acc.mat.gz", "imu_tk_xsens_gyro.mat.gz"):
-        paths.append(tmp / name.removesuffix(".gz"))
-        paths[-1].write_bytes(gzip.decompress((REAL / name).read_bytes()))
-    text = import_recording(paths, "imu_tk")
-    counts = text.triads["accelerometer"] - ZERO_COUNT
-    acc_scale = IMU_TK_GRAVITY / np.linalg.norm(counts[:1000].mean(axis=0))
-    accel, rate = counts * acc_scale, (text.triads["gyroscope"] - ZERO_COUNT) * GYRO_SCALE
+    paths, text, acc_scale, accel, rate = xsens_in_units(tmp)
     # Instance 1 is a second IMU mounted upside down about x: y and z change sign.
     flip = np.array([1.0, -1.0, -1.0])
     log = write_imu_log(tmp / "xsens.bin", text.t, [(accel, rate), (accel * flip, rate * flip)])
@@ -144,26 +123,11 @@ def test_instances_are_chosen_by_their_column(xsens):
 
 
 def test_xsens_log_calibrates_as_its_text_files_do(xsens, tmp_path, capsys):
-    """As for the ROS bag (tests/test_logs_bags.py): the log's samples are the text's counts
-    through a known affine map, so its parameters are the text's through that map; float32
-    samples and whole-microsecond times move them by far less than their σ."""
+    """As for the ROS bag: the text's poses, and its parameters through the unit map; float32
+    samples and whole-microsecond times move the accelerometer's by far less than 1e-2 σ."""
     paths, text, acc_scale, accel, rate, log = xsens
-    place = ["--latitude", "45", "--gravity", f"{IMU_TK_GRAVITY}"]
-    assert main(["calibrate", *map(str, paths), "--map", "imu_tk", *place, "--params",
-                 str(tmp_path / "text.yaml"), "--out", str(tmp_path / "t")]) == 0
-    text_out = capsys.readouterr().out
-    assert main(["calibrate", str(log), *place, "--params", str(tmp_path / "log.yaml"),
-                 "--out", str(tmp_path / "l")]) == 0
-    log_out = capsys.readouterr().out
-    assert "ArduPilot DataFlash: IMU instance 0" in log_out and "51175 samples" in log_out
-    poses = [line for line in text_out.splitlines() if "poses" in line][:1]
-    assert poses and poses[0] in log_out
-    by_text, by_log = load(tmp_path / "text.yaml"), load(tmp_path / "log.yaml")
-    for name, scale, within in (("accelerometer", acc_scale, 1e-2), ("gyroscope", GYRO_SCALE, 1.0)):
-        got = by_log[name]
-        expected = params_from(scale * by_text[name].K, scale * (by_text[name].bias - ZERO_COUNT),
-                               got.parameter_names)
-        assert np.all(np.abs(got.theta - expected) < within * got.sigma), (name, (got.theta - expected) / got.sigma)
+    out = assert_calibrates_as_text(log, paths, acc_scale, 1e-2, tmp_path, capsys)
+    assert "ArduPilot DataFlash: IMU instance 0" in out
 
 
 def test_acc_and_gyr_messages_are_read_when_there_is_no_imu(tmp_path):

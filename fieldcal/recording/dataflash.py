@@ -41,7 +41,7 @@ def read_dataflash(path: str, instance: int | None = None):
     try:
         # DFReader prints warnings about damaged messages to stdout; the report says what matters.
         with contextlib.redirect_stdout(io.StringIO()):
-            log = DFReader.DFReader_binary(path)
+            log = _indexed_reader(DFReader)(path)
     except Exception as exc:  # DFReader raises bare exceptions on files that are not DataFlash
         raise RecordingImportError(f"{path}: not a readable DataFlash log ({type(exc).__name__}: {exc})",
                                    path) from None
@@ -57,6 +57,19 @@ def read_dataflash(path: str, instance: int | None = None):
                                    f"log IMU; its messages: {', '.join(present) or 'none'}", path)
     finally:
         log.close()
+
+
+def _indexed_reader(DFReader):
+    class IndexedReader(DFReader.DFReader_binary):
+        """DFReader's index and formats, with the plain microsecond clock: the samples' times are
+        their own TimeUS here, and DFReader's search for a GPS time base parses every message of a
+        log with no GPS fix (a bench recording) one by one in Python, ~10 µs each."""
+
+        def init_clock(self):
+            self._rewind(keep_messages=True)
+            self.init_clock_usec()
+
+    return IndexedReader
 
 
 def _imu(path, log, data, instance):
