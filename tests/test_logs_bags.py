@@ -177,6 +177,7 @@ def test_bag_errors_are_one_line_naming_what_to_do(jackal, tmp_path, capsys):
     err = one_line_error(["import", str(jackal), "--imu", "1", *out], capsys)
     assert "--imu is for ArduPilot DataFlash logs" in err
 
+    assert "missing.bag: cannot read it" in one_line_error(["import", str(tmp_path / "missing.bag"), *out], capsys)
     cut = tmp_path / "cut.bag"
     cut.write_bytes(jackal.read_bytes()[:300_000])  # a copy cut off mid-write
     assert "not a readable ROS bag" in one_line_error(["import", str(cut), *out], capsys)

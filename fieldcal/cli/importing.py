@@ -48,12 +48,13 @@ def add_import_parser(sub) -> argparse.ArgumentParser:
     parser = sub.add_parser(
         "import", help="turn a recording (text files) into a session for calibration",
         description="Read a continuous recording of a unit from delimited text files, as an\n"
-        "import map describes them, put all triads on one time base, and write it as a new\n"
+        "import map describes them, or from one log (PX4 ULog, ROS 1 or 2 bag, ArduPilot\n"
+        "DataFlash), put all triads on one time base, and write it as a new\n"
         "session directory. Prints what was read: samples, rate, duration, malformed lines\n"
         "(with line numbers), gaps, and whether a file was interpolated.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("files", nargs="+", metavar="FILE",
-                        help="the recording's files, in the order of the map's entries")
+                        help="the recording's files, in the order of the map's entries; or one log")
     parser.add_argument("--map", metavar="MAP",
                         help=f"import map for text files: a name in configs/recordings ({maps}) or a YAML "
                         "path; a log (.ulg, .bag, a ROS 2 bag directory, .bin) needs none")

@@ -51,9 +51,9 @@ def import_log(path: str | os.PathLike, topic: str | None = None,
         raise RecordingImportError(f"{path}: not a log format fieldcal reads ({LOG_NAMES}); "
                                    "text files need --map", path)
     if topic is not None and kind not in (ROS1_BAG, ROS2_BAG):
-        raise RecordingImportError(f"--topic is for ROS bags; {path} is a {kind}", path)
+        raise RecordingImportError(f"--topic is for ROS bags; {path} is read as {kind}", path)
     if imu is not None and kind != DATAFLASH:
-        raise RecordingImportError(f"--imu is for ArduPilot DataFlash logs; {path} is a {kind}", path)
+        raise RecordingImportError(f"--imu is for ArduPilot DataFlash logs; {path} is read as {kind}", path)
     sha256 = _digest(path)
     if kind == ULOG:
         t, acc, gyro, topic = _ulog(path)
