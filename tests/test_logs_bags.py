@@ -157,6 +157,18 @@ def test_zero_stamps_fall_back_to_the_bags_receive_time(tmp_path):
     assert "receive time" in " ".join(report.alignment)
 
 
+def test_samples_with_nan_and_repeated_stamps_are_dropped_and_said(tmp_path):
+    """A driver with no reading publishes NaN; one that re-sends publishes a stamp twice."""
+    accel, rate = np.arange(30.0).reshape(10, 3), np.ones((10, 3))
+    accel[4, 1] = np.nan
+    stamps = EPOCH_NS + np.array([0, 1, 2, 3, 4, 5, 6, 6, 7, 8]) * 10_000_000
+    recording, report = import_log(write_imu_bag(tmp_path / "nan.bag", False, {"/imu": (accel, rate)}, stamps))
+    np.testing.assert_array_equal(recording.triads["accelerometer"], accel[[0, 1, 2, 3, 5, 6, 8, 9]])
+    np.testing.assert_allclose(recording.t, [0, 0.01, 0.02, 0.03, 0.05, 0.06, 0.07, 0.08], atol=1e-12)
+    assert report.files[0].malformed == 2
+    assert {"1 samples with NaN or infinite values dropped", "1 repeated timestamps dropped"} <= set(report.alignment)
+
+
 def test_stamps_out_of_order_are_put_in_time_order(tmp_path):
     """Messages written in receive order whose stamps are not (a late stamp): sorted by stamp."""
     accel, rate = np.arange(30.0).reshape(10, 3), -np.arange(30.0).reshape(10, 3)

@@ -114,13 +114,20 @@ def _recording(path, sha256, kind, topic, t, acc, gyro, notes=()) -> tuple[Recor
     t = np.asarray(t, dtype=float)
     if len(t) < 2:
         raise RecordingImportError(f"{path}: {kind} {topic} has {len(t)} sample(s): too few to calibrate from", path)
-    keep = np.r_[True, np.diff(t) > 0]  # a repeated timestamp in a log is a re-sent sample
+    # A driver that had no reading logs NaN: not a sample. A timestamp not after every earlier one
+    # is a re-sent (or re-ordered) sample.
+    finite = np.isfinite(t) & np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1)
+    t, acc, gyro = t[finite], acc[finite], gyro[finite]
+    if len(t) < 2:
+        raise RecordingImportError(f"{path}: {kind} {topic} has {len(t)} sample(s) with finite values: too few "
+                                   "to calibrate from", path)
+    keep = np.r_[True, t[1:] > np.maximum.accumulate(t)[:-1]]
     t, acc, gyro = t[keep], acc[keep], gyro[keep]
     dt = np.diff(t)
     period = float(np.median(dt))
     widest = int(np.argmax(dt))
     report = FileReport(path=path, name=f"{kind}: {topic}", sha256=sha256,
-                        lines=len(keep), samples=len(t), header_lines=0, malformed=int((~keep).sum()),
+                        lines=len(finite), samples=len(t), header_lines=0, malformed=len(finite) - len(t),
                         malformed_lines=(), rate_hz=1.0 / period, t_first=float(t[0]), t_last=float(t[-1]),
                         gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
                         largest_gap_line=widest + 1)
@@ -128,7 +135,8 @@ def _recording(path, sha256, kind, topic, t, acc, gyro, notes=()) -> tuple[Recor
                           kinds={"accelerometer": SPECIFIC_FORCE, "gyroscope": ANGULAR_RATE},
                           units={"accelerometer": "m/s^2", "gyroscope": "rad/s"}, sources=(path,),
                           malformed={path: (report.malformed, ())})
-    notes = (f"{kind}: {'' if kind == DATAFLASH else 'topic '}{topic}", *notes) + (
-        (f"{report.malformed} repeated timestamps dropped",) if report.malformed else ())
+    dropped = ((f"{int((~finite).sum())} samples with NaN or infinite values dropped",) if not finite.all() else ()) + (
+        (f"{int((~keep).sum())} repeated timestamps dropped",) if not keep.all() else ())
+    notes = (f"{kind}: {'' if kind == DATAFLASH else 'topic '}{topic}", *notes, *dropped)
     return recording, ImportReport(map_path=f"({kind} reader)", map_text="", files=(report,),
                                    alignment=notes, warnings=())
