@@ -213,3 +213,27 @@ def test_bag_without_an_imu_topic_lists_what_it_has(tmp_path, capsys):
     with pytest.raises(RecordingImportError, match=r"no sensor_msgs/msg/Imu topic; its topics: "
                                                    r"/chatter \(std_msgs/msg/String\)"):
         import_log(tmp_path / "chat.bag")
+
+
+@pytest.mark.parametrize("extra, refusal", [("", "too few for a standard"), ("float64[40] spare", "not laid out")])
+def test_a_bag_whose_imu_type_is_defined_otherwise_is_refused_not_misread(tmp_path, extra, refusal):
+    """A bag carries its own message definitions: one calling a different layout
+    sensor_msgs/Imu (shorter, or with more fields after the standard ones) is refused."""
+    from rosbags.typesys import get_types_from_msg
+
+    standard = get_typestore(Stores.ROS1_NOETIC)
+    typestore = get_typestore(Stores.EMPTY)
+    typestore.register({k: v for k, v in standard.fielddefs.items() if k != IMU})
+    typestore.register(get_types_from_msg("std_msgs/Header header\ngeometry_msgs/Vector3 angular_velocity\n"
+                                          f"geometry_msgs/Vector3 linear_acceleration\n{extra}\n", IMU))
+    Imu, Header = typestore.types[IMU], typestore.types["std_msgs/msg/Header"]
+    Time, Vector3 = typestore.types["builtin_interfaces/msg/Time"], typestore.types["geometry_msgs/msg/Vector3"]
+    with Writer1(tmp_path / "custom.bag") as writer:
+        connection = writer.add_connection("/imu", IMU, typestore=typestore)
+        for i in range(3):
+            msg = Imu(header=Header(seq=i, stamp=Time(sec=10 + i, nanosec=0), frame_id="imu"),
+                      angular_velocity=Vector3(x=1.0, y=2.0, z=3.0), linear_acceleration=Vector3(x=4.0, y=5.0, z=6.0),
+                      **({"spare": np.arange(40.0)} if extra else {}))
+            writer.write(connection, (10 + i) * 10**9, bytes(typestore.serialize_ros1(msg, IMU)))
+    with pytest.raises(RecordingImportError, match=refusal):
+        import_log(tmp_path / "custom.bag")

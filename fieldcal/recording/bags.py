@@ -29,6 +29,7 @@ IMU_TYPE = "sensor_msgs/msg/Imu"
 ROS2_STORAGE_SUFFIXES = (".db3", ".mcap")
 _TAIL_FLOATS = 37  # orientation 4, its covariance 9, angular velocity 3 + 9, linear acceleration 3 + 9
 _RATE, _ACCEL = slice(13, 16), slice(25, 28)  # in the tail
+NOT_STANDARD = "the bag defines the type otherwise; republish the topic as the standard message"
 
 
 def bag_root(path: str | Path) -> Path | None:
@@ -67,13 +68,13 @@ def read_bag(path: str, topic: str | None = None):
         raise
     except Exception as exc:  # rosbags raises its own errors, and OSError/KeyError on damaged files
         raise RecordingImportError(f"{path}: not a readable ROS bag ({type(exc).__name__}: {exc})", path) from None
-    stamps, rate, accel = _fields(raws, ros2=root.suffix.lower() != ".bag")
+    stamps, rate, accel = _fields(path, chosen, raws, ros2=root.suffix.lower() != ".bag")
     for i, msg in ((0, first), (-1, last)):
         expected = np.r_[_vector(msg.angular_velocity), _vector(msg.linear_acceleration)]
         if not np.array_equal(np.r_[rate[i], accel[i]], expected, equal_nan=True) or \
                 stamps[i] != msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec:
             raise RecordingImportError(f"{path}: the messages of {chosen} are not laid out as a standard "
-                                       f"{IMU_TYPE}; convert the bag with the standard message type", path)
+                                       f"{IMU_TYPE}: {NOT_STANDARD}", path)
     bag_ns = np.asarray(bag_ns, dtype=np.int64)
     if np.any(stamps == 0):
         ns, clock = bag_ns, "the bag's receive time (header.stamp is zero in some messages)"
@@ -113,11 +114,12 @@ def _vector(v) -> np.ndarray:
     return np.array([v.x, v.y, v.z], dtype=float)
 
 
-def _fields(raws: list[bytes], ros2: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fields(path: str, topic: str, raws: list[bytes], ros2: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stamps (ns), angular velocity and linear acceleration of every message, in one pass."""
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=len(raws))
     if lengths.min() < 12 + 8 * _TAIL_FLOATS:
-        raise RecordingImportError(f"a message of {lengths.min()} bytes is too short for a {IMU_TYPE}")
+        raise RecordingImportError(f"{path}: a message of {topic} has {lengths.min()} bytes, too few for a "
+                                   f"standard {IMU_TYPE}: {NOT_STANDARD}", path)
     buffer = np.frombuffer(b"".join(raws), dtype=np.uint8)
     ends = np.cumsum(lengths)
     starts = ends - lengths
