@@ -237,3 +237,23 @@ def test_a_bag_whose_imu_type_is_defined_otherwise_is_refused_not_misread(tmp_pa
             writer.write(connection, (10 + i) * 10**9, bytes(typestore.serialize_ros1(msg, IMU)))
     with pytest.raises(RecordingImportError, match=refusal):
         import_log(tmp_path / "custom.bag")
+
+
+@pytest.mark.parametrize("what", ["bag", "text"])
+def test_each_reader_is_imported_only_for_its_format(jackal, tmp_path, what):
+    """Reading a bag loads rosbags and not pymavlink; a text recording loads neither."""
+    import json
+    import subprocess
+    import sys
+
+    if what == "bag":
+        body = f"from fieldcal.recording.logs import import_log\nimport_log({str(jackal)!r})"
+    else:
+        paths = [str(unpacked(tmp_path, f"imu_tk_xsens_{triad}.mat.gz")) for triad in ("acc", "gyro")]
+        body = f"from fieldcal.cli.importing import read_recording\nread_recording({paths!r}, 'imu_tk')"
+    script = f"{body}\nimport sys, json\nprint(json.dumps(sorted(m.split('.')[0] for m in sys.modules)))"
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    loaded = set(json.loads(proc.stdout.strip().splitlines()[-1]))
+    assert "pymavlink" not in loaded and "pyulog" not in loaded
+    assert ("rosbags" in loaded) == (what == "bag")
