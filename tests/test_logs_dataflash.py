@@ -152,3 +152,18 @@ def test_acc_and_gyr_messages_are_read_when_there_is_no_imu(tmp_path):
     np.testing.assert_array_equal(recording.triads["gyroscope"], rate)
     np.testing.assert_allclose(recording.t, sample_us * 1e-6)
     assert report.files[0].name == "ArduPilot DataFlash: ACC + GYR instance 0"
+
+
+def test_old_logs_with_millisecond_time_are_read(tmp_path):
+    """Logs older than ArduPilot 3.3 stamp IMU messages with TimeMS (ms, 32-bit)."""
+    n = 20
+    rate, accel = np.full((n, 3), 0.01, dtype=np.float32), np.tile(np.float32([0.1, 0.2, -9.8]), (n, 1))
+    fields = [("TimeMS", "<u4")] + [(f"{s}{a}", "<f4") for s in ("Gyr", "Acc") for a in "XYZ"]
+    values = {"TimeMS": 5000 + np.arange(n) * 20, **{f"Gyr{a}": rate[:, k] for k, a in enumerate("XYZ")},
+              **{f"Acc{a}": accel[:, k] for k, a in enumerate("XYZ")}}
+    body = messages(129, fields, values)
+    head = fmt_message(129, "IMU", "Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ", body.dtype.itemsize - 3)
+    (tmp_path / "old.bin").write_bytes(head + body.tobytes())
+    recording, _ = import_log(tmp_path / "old.bin")
+    np.testing.assert_allclose(recording.t, 5.0 + np.arange(n) * 0.02)
+    np.testing.assert_array_equal(recording.triads["accelerometer"], accel)

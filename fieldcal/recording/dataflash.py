@@ -27,7 +27,7 @@ _NUMPY_TYPES = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "
                 "q": "<i8", "Q": "<u8", "M": "u1", "c": "<i2", "C": "<u2", "e": "<i4", "E": "<u4", "L": "<i4",
                 "g": "<f2", "n": "S4", "N": "S16", "Z": "S64", "a": "S64"}
 LEGACY_NAMES = ("IMU", "IMU2", "IMU3")
-_CHECKED = {"TimeUS", "SampleUS", "I", "AccX", "AccY", "AccZ", "GyrX", "GyrY", "GyrZ"}  # against DFReader
+_CHECKED = {"TimeUS", "TimeMS", "SampleUS", "I", "AccX", "AccY", "AccZ", "GyrX", "GyrY", "GyrZ"}  # against DFReader
 
 
 def read_dataflash(path: str, instance: int | None = None):
@@ -90,7 +90,7 @@ def _imu(path, log, data, instance):
         name = LEGACY_NAMES[instance]
         values = _messages(path, log, data, name)
         name = f"{name} (instance {instance})"
-    t = values["TimeUS"] * 1e-6
+    t = _seconds(path, values, "TimeUS")
     acc = np.column_stack([values[f"Acc{a}"] for a in "XYZ"]).astype(float)
     gyro = np.column_stack([values[f"Gyr{a}"] for a in "XYZ"]).astype(float)
     return t, acc, gyro, name, ()
@@ -108,11 +108,21 @@ def _acc_gyr(path, log, data, instance):
         raise RecordingImportError(f"{path}: the log's ACC and GYR have no instance column: only --imu 0", path)
     # SampleUS is when the sensor sampled; TimeUS when it was logged (batched, later).
     clock = "SampleUS" if "SampleUS" in acc_v.dtype.names else "TimeUS"
-    t, tg = acc_v[clock] * 1e-6, gyr_v[clock] * 1e-6
+    t, tg = _seconds(path, acc_v, clock), _seconds(path, gyr_v, clock)
     acc = np.column_stack([acc_v[f"Acc{a}"] for a in "XYZ"]).astype(float)
     gyro = np.column_stack([np.interp(t, tg, gyr_v[f"Gyr{a}"].astype(float)) for a in "XYZ"])
     return t, acc, gyro, f"ACC + GYR instance {instance}", (
         "gyroscope interpolated onto the accelerometer's time",)
+
+
+def _seconds(path: str, values: np.ndarray, column: str) -> np.ndarray:
+    """The messages' time in s: ``column`` (µs), or TimeMS (ms) in logs older than ArduPilot 3.3."""
+    if column in values.dtype.names:
+        return values[column] * 1e-6
+    if "TimeMS" in values.dtype.names:
+        return values["TimeMS"] * 1e-3
+    raise RecordingImportError(f"{path}: its IMU messages have no time column (TimeUS or TimeMS): "
+                               f"{', '.join(values.dtype.names)}", path)
 
 
 def _messages(path: str, log, data: np.ndarray, name: str) -> np.ndarray:
