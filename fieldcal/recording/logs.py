@@ -112,15 +112,13 @@ def _ulog(path: str):
 
 def _recording(path, sha256, kind, topic, t, acc, gyro, notes=()) -> tuple[Recording, ImportReport]:
     t = np.asarray(t, dtype=float)
-    if len(t) < 2:
-        raise RecordingImportError(f"{path}: {kind} {topic} has {len(t)} sample(s): too few to calibrate from", path)
     # A driver that had no reading logs NaN: not a sample. A timestamp not after every earlier one
     # is a re-sent (or re-ordered) sample.
     finite = np.isfinite(t) & np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1)
     t, acc, gyro = t[finite], acc[finite], gyro[finite]
     if len(t) < 2:
-        raise RecordingImportError(f"{path}: {kind} {topic} has {len(t)} sample(s) with finite values: too few "
-                                   "to calibrate from", path)
+        raise RecordingImportError(f"{path}: {kind} {topic} has {len(t)} sample(s) with finite values: too "
+                                   "few to calibrate from", path)
     keep = np.r_[True, t[1:] > np.maximum.accumulate(t)[:-1]]
     t, acc, gyro = t[keep], acc[keep], gyro[keep]
     dt = np.diff(t)
