@@ -21,6 +21,9 @@ examples:
   fieldcal calibrate flight.ulg
       a PX4 log (pip install 'fieldcal[logs]'); no place, no gravity:
       g from the poses, with a warning
+  fieldcal calibrate run.bag --topic /imu/data --latitude 48.1
+      a ROS 1 bag, or a ROS 2 bag's directory (sensor_msgs/Imu); an
+      ArduPilot DataFlash log (.bin) likewise, its IMU instance by --imu N
 
 Put the unit down by hand in a dozen or more poses (every axis up and down,
 and some corners up), still for a few seconds each, turning it between them.
@@ -46,6 +49,8 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("recording", nargs="+", metavar="RECORDING",
                         help="a session directory from `fieldcal import`, or text files (with --map)")
     parser.add_argument("--map", metavar="MAP", help="import map for text files (see `fieldcal import`)")
+    from fieldcal.cli.importing import add_log_options
+    add_log_options(parser)
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="sample rate of text files with no time column (else rate_hz in the map)")
     parser.add_argument("--out", default="sessions", metavar="DIR",
@@ -93,19 +98,21 @@ def _recording(args):
     """(recording, session directory, import summary lines)."""
     from fieldcal.recording.store import load_recording
 
+    from fieldcal.recording.logs import LOG_NAMES, log_format
+
     first = Path(args.recording[0])
-    if len(args.recording) == 1 and first.is_dir():
-        if args.map is not None:
-            raise ValueError(f"calibrate: {first} is a session: --map is for text files")
+    if len(args.recording) == 1 and first.is_dir() and log_format(first) is None:
+        if args.map is not None or args.topic is not None or args.imu is not None:
+            option = "--map" if args.map is not None else "--topic" if args.topic is not None else "--imu"
+            raise ValueError(f"calibrate: {first} is a session: {option} is for the files it was imported from")
         return load_recording(first), first, []
     from fieldcal.cli.importing import read_recording, summary_lines
-    from fieldcal.recording.logs import log_format
     from fieldcal.recording.store import save_recording
 
     if args.map is None and not (len(args.recording) == 1 and log_format(first)):
         raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
-                         "path); or give one session directory from `fieldcal import`, or a PX4 log (.ulg)")
-    recording, report = read_recording(args.recording, args.map, args.rate)
+                         f"path); or give one session directory from `fieldcal import`, or {LOG_NAMES}")
+    recording, report = read_recording(args.recording, args.map, args.rate, args.topic, args.imu)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
     return recording, directory, summary_lines(recording, report)

@@ -30,6 +30,11 @@ examples:
       columns found by their header names, no time column: the rate given
   fieldcal import flight.ulg --out sessions/unit7
       a PX4 log: sensor_combined (pip install 'fieldcal[logs]')
+  fieldcal import run.bag --topic /imu/data --out sessions/unit7
+      a ROS 1 bag, or a ROS 2 bag's directory: sensor_msgs/Imu in m/s^2 and rad/s,
+      time from header.stamp (--topic needed only when it has several Imu topics)
+  fieldcal import 00000042.BIN --imu 1 --out sessions/unit7
+      an ArduPilot DataFlash log: the IMU messages of instance 1 (default 0)
 
 The map says, per file, the delimiter, the time column and its unit, and for each triad its
 three columns, kind (specific_force or angular_rate), unit and an optional scale. Lines that
@@ -43,21 +48,31 @@ def add_import_parser(sub) -> argparse.ArgumentParser:
     parser = sub.add_parser(
         "import", help="turn a recording (text files) into a session for calibration",
         description="Read a continuous recording of a unit from delimited text files, as an\n"
-        "import map describes them, put all triads on one time base, and write it as a new\n"
+        "import map describes them, or from one log (PX4 ULog, ROS 1 or 2 bag, ArduPilot\n"
+        "DataFlash), put all triads on one time base, and write it as a new\n"
         "session directory. Prints what was read: samples, rate, duration, malformed lines\n"
         "(with line numbers), gaps, and whether a file was interpolated.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("files", nargs="+", metavar="FILE",
-                        help="the recording's files, in the order of the map's entries")
+                        help="the recording's files, in the order of the map's entries; or one log")
     parser.add_argument("--map", metavar="MAP",
                         help=f"import map for text files: a name in configs/recordings ({maps}) or a YAML "
-                        "path; a PX4 log (.ulg) needs none")
+                        "path; a log (.ulg, .bag, a ROS 2 bag directory, .bin) needs none")
+    add_log_options(parser)
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="the new session directory (must not exist, or be empty)")
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="sample rate of files with no time column (else rate_hz in the map)")
     parser.set_defaults(func=cmd_import)
     return parser
+
+
+def add_log_options(parser) -> None:
+    """The options that choose what is read from a log (import and calibrate)."""
+    parser.add_argument("--topic", metavar="TOPIC",
+                        help="a ROS bag's sensor_msgs/Imu topic (default: its only one)")
+    parser.add_argument("--imu", type=int, metavar="N",
+                        help="an ArduPilot DataFlash log's IMU instance (default 0)")
 
 
 def cmd_import(args) -> int:
@@ -72,7 +87,7 @@ def cmd_import(args) -> int:
                                    "directory)", str(out))
     if args.rate is not None and not args.rate > 0:
         raise RecordingImportError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
-    recording, report = read_recording(args.files, args.map, args.rate)
+    recording, report = read_recording(args.files, args.map, args.rate, args.topic, args.imu)
     try:
         directory = save_recording(recording, out, report=report)
     except OSError as exc:
@@ -84,17 +99,20 @@ def cmd_import(args) -> int:
     return 0
 
 
-def read_recording(files, map_name, rate_hz=None) -> tuple[Recording, ImportReport]:
+def read_recording(files, map_name, rate_hz=None, topic=None, imu=None) -> tuple[Recording, ImportReport]:
     """A log by its format's reader, or text files by their import map."""
     from fieldcal.recording.import_map import load_import_map
     from fieldcal.recording.importer import RecordingImportError, import_with_report
-    from fieldcal.recording.logs import import_log, log_format
+    from fieldcal.recording.logs import LOG_NAMES, import_log, log_format
 
     if map_name is None:
         if len(files) == 1 and log_format(files[0]) is not None:
-            return import_log(files[0])
+            return import_log(files[0], topic, imu)
         raise RecordingImportError("text files need --map (a name in configs/recordings or a YAML path); "
-                                   "a PX4 log (.ulg) needs none")
+                                   f"{LOG_NAMES} needs none")
+    if topic is not None or imu is not None:
+        raise RecordingImportError(f"--{'topic' if topic is not None else 'imu'} is for logs; text files are "
+                                   "read by their map")
     return import_with_report(files, load_import_map(map_name), rate_hz)
 
 

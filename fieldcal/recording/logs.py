@@ -3,8 +3,12 @@
 - PX4 ULog (``.ulg``), read by ``pyulog`` (the ``logs`` extra): the ``sensor_combined`` topic
   (``accelerometer_m_s2``, ``gyro_rad`` on one timestamp, µs), else ``sensor_accel`` and
   ``sensor_gyro`` (instance 0), the gyro put on the accelerometer's timestamps.
+- ROS 1 bags (``.bag``) and ROS 2 bags (a directory with ``metadata.yaml``) of
+  ``sensor_msgs/Imu``, read by ``rosbags``: see :mod:`fieldcal.recording.bags` (``--topic``).
+- ArduPilot DataFlash logs (``.bin``), read by ``pymavlink``: see
+  :mod:`fieldcal.recording.dataflash` (``--imu N``).
 
-The reader is imported only here, when such a file is imported: most users never need it.
+Each reader is imported only here, when such a file is imported: most users never need it.
 What is found is reported like a text import (an :class:`ImportReport`), with the topic in place
 of a map, so the session keeps where its samples came from.
 """
@@ -20,26 +24,61 @@ from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
 from fieldcal.recording import Recording
 from fieldcal.recording.importer import GAP_PERIODS, FileReport, ImportReport, RecordingImportError
 
-LOG_SUFFIXES = {".ulg": "PX4 ULog"}
+ULOG, ROS1_BAG, ROS2_BAG, DATAFLASH = "PX4 ULog", "ROS 1 bag", "ROS 2 bag", "ArduPilot DataFlash"
+LOG_SUFFIXES = {".ulg": ULOG, ".bag": ROS1_BAG, ".bin": DATAFLASH}
+LOG_NAMES = ("a PX4 log (.ulg), a ROS 1 bag (.bag), a ROS 2 bag (its directory) or an ArduPilot "
+             "DataFlash log (.bin)")
 
 
 def log_format(path: str | os.PathLike) -> str | None:
-    """The log format a file's name says it is, or None (then it is text, with a map)."""
+    """The log format a file's name (or a ROS 2 bag's directory) says it is, or None (then it is
+    text, with a map)."""
+    from fieldcal.recording.bags import bag_root
+
+    root = bag_root(path)
+    if root is not None:
+        return ROS1_BAG if root.suffix.lower() == ".bag" else ROS2_BAG
     return LOG_SUFFIXES.get(Path(path).suffix.lower())
 
 
-def import_log(path: str | os.PathLike) -> tuple[Recording, ImportReport]:
+def import_log(path: str | os.PathLike, topic: str | None = None,
+               imu: int | None = None) -> tuple[Recording, ImportReport]:
+    """The recording in the log at ``path``. ``topic``: the ROS bag's Imu topic; ``imu``: the
+    DataFlash log's IMU instance (each refused for the other formats)."""
     path = os.fspath(path)
     kind = log_format(path)
     if kind is None:
-        raise RecordingImportError(f"{path}: not a log format fieldcal reads ({', '.join(LOG_SUFFIXES)}); "
+        raise RecordingImportError(f"{path}: not a log format fieldcal reads ({LOG_NAMES}); "
                                    "text files need --map", path)
+    if topic is not None and kind not in (ROS1_BAG, ROS2_BAG):
+        raise RecordingImportError(f"--topic is for ROS bags; {path} is read as {kind}", path)
+    if imu is not None and kind != DATAFLASH:
+        raise RecordingImportError(f"--imu is for ArduPilot DataFlash logs; {path} is read as {kind}", path)
+    sha256 = _digest(path)
+    if kind == ULOG:
+        t, acc, gyro, topic = _ulog(path)
+        notes = ()
+    elif kind == DATAFLASH:
+        from fieldcal.recording.dataflash import read_dataflash
+        t, acc, gyro, topic, notes = read_dataflash(path, imu)
+    else:
+        from fieldcal.recording.bags import read_bag
+        t, acc, gyro, topic, notes = read_bag(path, topic)
+    return _recording(path, sha256, kind, topic, t, acc, gyro, notes)
+
+
+def _digest(path: str) -> str:
+    """sha256 of the log's bytes (a ROS 2 bag: of its files' bytes, in name order)."""
+    digest = hashlib.sha256()
     try:
-        data = Path(path).read_bytes()
+        files = sorted(p for p in Path(path).iterdir() if p.is_file()) if Path(path).is_dir() else [Path(path)]
+        for file in files:
+            with open(file, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    digest.update(block)
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read it ({exc.strerror or exc})", path) from None
-    t, acc, gyro, topic = _ulog(path)
-    return _recording(path, data, kind, topic, t, acc, gyro)
+    return digest.hexdigest()
 
 
 def _ulog(path: str):
@@ -71,15 +110,22 @@ def _ulog(path: str):
     return t, acc, gyro, "sensor_accel + sensor_gyro (interpolated onto the accelerometer's time)"
 
 
-def _recording(path, data, kind, topic, t, acc, gyro) -> tuple[Recording, ImportReport]:
+def _recording(path, sha256, kind, topic, t, acc, gyro, notes=()) -> tuple[Recording, ImportReport]:
     t = np.asarray(t, dtype=float)
-    keep = np.r_[True, np.diff(t) > 0]  # a repeated timestamp in a log is a re-sent sample
+    # A driver that had no reading logs NaN: not a sample. A timestamp not after every earlier one
+    # is a re-sent (or re-ordered) sample.
+    finite = np.isfinite(t) & np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1)
+    t, acc, gyro = t[finite], acc[finite], gyro[finite]
+    if len(t) < 2:
+        raise RecordingImportError(f"{path}: {kind} {topic} has {len(t)} sample(s) with finite values: too "
+                                   "few to calibrate from", path)
+    keep = np.r_[True, t[1:] > np.maximum.accumulate(t)[:-1]]
     t, acc, gyro = t[keep], acc[keep], gyro[keep]
     dt = np.diff(t)
     period = float(np.median(dt))
     widest = int(np.argmax(dt))
-    report = FileReport(path=path, name=f"{kind}: {topic}", sha256=hashlib.sha256(data).hexdigest(),
-                        lines=len(keep), samples=len(t), header_lines=0, malformed=int((~keep).sum()),
+    report = FileReport(path=path, name=f"{kind}: {topic}", sha256=sha256,
+                        lines=len(finite), samples=len(t), header_lines=0, malformed=len(finite) - len(t),
                         malformed_lines=(), rate_hz=1.0 / period, t_first=float(t[0]), t_last=float(t[-1]),
                         gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
                         largest_gap_line=widest + 1)
@@ -87,6 +133,8 @@ def _recording(path, data, kind, topic, t, acc, gyro) -> tuple[Recording, Import
                           kinds={"accelerometer": SPECIFIC_FORCE, "gyroscope": ANGULAR_RATE},
                           units={"accelerometer": "m/s^2", "gyroscope": "rad/s"}, sources=(path,),
                           malformed={path: (report.malformed, ())})
-    notes = (f"{kind}: topic {topic}",) + ((f"{report.malformed} repeated timestamps dropped",) if report.malformed else ())
+    dropped = ((f"{int((~finite).sum())} samples with NaN or infinite values dropped",) if not finite.all() else ()) + (
+        (f"{int((~keep).sum())} repeated timestamps dropped",) if not keep.all() else ())
+    notes = (f"{kind}: {'' if kind == DATAFLASH else 'topic '}{topic}", *notes, *dropped)
     return recording, ImportReport(map_path=f"({kind} reader)", map_text="", files=(report,),
                                    alignment=notes, warnings=())

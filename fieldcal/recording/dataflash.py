@@ -1,0 +1,144 @@
+"""ArduPilot DataFlash logs (``.bin``) -> time, specific force (m/s²), rate (rad/s).
+
+Indexed by ``pymavlink``'s ``DFReader`` (the ``logs`` extra), imported only when such a log is
+given. The IMU's samples are the ``IMU`` messages (``TimeUS``, ``AccX/Y/Z`` m/s², ``GyrX/Y/Z``
+rad/s) of one instance, ``--imu N`` (default 0): in logs since ArduPilot 3.7 or so by their
+instance column ``I``, in older logs by name (``IMU`` is instance 0, ``IMU2`` 1, ``IMU3`` 2).
+A log with no ``IMU`` messages but with the ``ACC`` and ``GYR`` pair (the fast-sampling logs)
+is read from those, the gyro put on the accelerometer's time.
+
+DFReader indexes where each message starts and knows every message's binary layout from the
+log's own FMT messages; the samples are then read from the file in one numpy pass over those
+offsets instead of one Python object per message (a flight log holds millions). The first
+sample is also decoded by DFReader itself and must agree.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+
+import numpy as np
+
+from fieldcal.recording.importer import RecordingImportError
+
+_HEADER_BYTES = 3  # 0xA3 0x95 and the message type
+# DataFlash format characters of the fields read here (all fixed-size, little-endian).
+_NUMPY_TYPES = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "f": "<f4", "d": "<f8",
+                "q": "<i8", "Q": "<u8", "M": "u1", "c": "<i2", "C": "<u2", "e": "<i4", "E": "<u4", "L": "<i4",
+                "g": "<f2", "n": "S4", "N": "S16", "Z": "S64", "a": "S64"}
+LEGACY_NAMES = ("IMU", "IMU2", "IMU3")
+_CHECKED = {"TimeUS", "TimeMS", "SampleUS", "I", "AccX", "AccY", "AccZ", "GyrX", "GyrY", "GyrZ"}  # against DFReader
+
+
+def read_dataflash(path: str, instance: int | None = None):
+    """(t s, accelerometer m/s², gyroscope rad/s, what was read, notes) from the log at ``path``."""
+    try:
+        from pymavlink import DFReader
+    except ImportError:
+        raise RecordingImportError(f"{path}: reading ArduPilot logs needs pymavlink: pip install "
+                                   "'fieldcal[logs]'", path) from None
+    instance = 0 if instance is None else instance
+    try:
+        # DFReader prints warnings about damaged messages to stdout; the report says what matters.
+        with contextlib.redirect_stdout(io.StringIO()):
+            log = _indexed_reader(DFReader)(path)
+    except Exception as exc:  # DFReader raises bare exceptions on files that are not DataFlash
+        raise RecordingImportError(f"{path}: not a readable DataFlash log ({type(exc).__name__}: {exc})",
+                                   path) from None
+    try:
+        # Our own map of the file: a numpy view of DFReader's would keep it from closing its map.
+        data = np.memmap(path, dtype=np.uint8, mode="r")
+        if "IMU" in log.name_to_id and log.counts[log.name_to_id["IMU"]]:
+            return _imu(path, log, data, instance)
+        if all(n in log.name_to_id and log.counts[log.name_to_id[n]] for n in ("ACC", "GYR")):
+            return _acc_gyr(path, log, data, instance)
+        present = sorted(n for n, i in log.name_to_id.items() if log.counts[i])
+        raise RecordingImportError(f"{path}: no IMU messages (nor ACC and GYR) in the log: set LOG_BITMASK to "
+                                   f"log IMU; its messages: {', '.join(present) or 'none'}", path)
+    finally:
+        log.close()
+
+
+def _indexed_reader(DFReader):
+    class IndexedReader(DFReader.DFReader_binary):
+        """DFReader's index and formats, with the plain microsecond clock: the samples' times are
+        their own TimeUS here, and DFReader's search for a GPS time base parses every message of a
+        log with no GPS fix (a bench recording) one by one in Python, ~10 µs each."""
+
+        def init_clock(self):
+            self._rewind(keep_messages=True)
+            self.init_clock_usec()
+
+    return IndexedReader
+
+
+def _imu(path, log, data, instance):
+    columns = log.formats[log.name_to_id["IMU"]].columns
+    if "I" in columns:  # one message name, an instance column
+        values = _messages(path, log, data, "IMU")
+        instances = np.unique(values["I"]).tolist()
+        if instance not in instances:
+            raise RecordingImportError(f"{path}: no IMU instance {instance}; the log has "
+                                       f"{', '.join(map(str, instances))} (choose with --imu N)", path)
+        values = values[values["I"] == instance]
+        name = f"IMU instance {instance}"
+    else:
+        present = [i for i, n in enumerate(LEGACY_NAMES) if n in log.name_to_id and log.counts[log.name_to_id[n]]]
+        if instance not in present:
+            raise RecordingImportError(f"{path}: no IMU instance {instance}; the log has "
+                                       f"{', '.join(map(str, present))} (choose with --imu N)", path)
+        name = LEGACY_NAMES[instance]
+        values = _messages(path, log, data, name)
+        name = f"{name} (instance {instance})"
+    t = _seconds(path, values, "TimeUS")
+    acc = np.column_stack([values[f"Acc{a}"] for a in "XYZ"]).astype(float)
+    gyro = np.column_stack([values[f"Gyr{a}"] for a in "XYZ"]).astype(float)
+    return t, acc, gyro, name, ()
+
+
+def _acc_gyr(path, log, data, instance):
+    acc_v, gyr_v = _messages(path, log, data, "ACC"), _messages(path, log, data, "GYR")
+    if "I" in acc_v.dtype.names:
+        have = sorted(set(np.unique(acc_v["I"]).tolist()) & set(np.unique(gyr_v["I"]).tolist()))
+        if instance not in have:
+            raise RecordingImportError(f"{path}: no ACC and GYR instance {instance}; the log has "
+                                       f"{', '.join(map(str, have)) or 'none'} (choose with --imu N)", path)
+        acc_v, gyr_v = acc_v[acc_v["I"] == instance], gyr_v[gyr_v["I"] == instance]
+    elif instance != 0:
+        raise RecordingImportError(f"{path}: the log's ACC and GYR have no instance column: only --imu 0", path)
+    # SampleUS is when the sensor sampled; TimeUS when it was logged (batched, later).
+    clock = "SampleUS" if "SampleUS" in acc_v.dtype.names else "TimeUS"
+    t, tg = _seconds(path, acc_v, clock), _seconds(path, gyr_v, clock)
+    acc = np.column_stack([acc_v[f"Acc{a}"] for a in "XYZ"]).astype(float)
+    gyro = np.column_stack([np.interp(t, tg, gyr_v[f"Gyr{a}"].astype(float)) for a in "XYZ"])
+    return t, acc, gyro, f"ACC + GYR instance {instance}", (
+        "gyroscope interpolated onto the accelerometer's time",)
+
+
+def _seconds(path: str, values: np.ndarray, column: str) -> np.ndarray:
+    """The messages' time in s: ``column`` (µs), or TimeMS (ms) in logs older than ArduPilot 3.3."""
+    if column in values.dtype.names:
+        return values[column] * 1e-6
+    if "TimeMS" in values.dtype.names:
+        return values["TimeMS"] * 1e-3
+    raise RecordingImportError(f"{path}: its IMU messages have no time column (TimeUS or TimeMS): "
+                               f"{', '.join(values.dtype.names)}", path)
+
+
+def _messages(path: str, log, data: np.ndarray, name: str) -> np.ndarray:
+    """Every ``name`` message of the log as a structured array with its own column names."""
+    fmt = log.formats[log.name_to_id[name]]
+    dtype = np.dtype([(column, _NUMPY_TYPES[code]) for column, code in zip(fmt.columns, fmt.msg_fmts)])
+    offsets = np.asarray(log.offsets[log.name_to_id[name]], dtype=np.int64) + _HEADER_BYTES
+    offsets = offsets[offsets + dtype.itemsize <= len(data)]  # a message cut off at the end of the log
+    # Rows of the file's bytes at those offsets (a view of every window, then one copy of the rows).
+    values = np.lib.stride_tricks.sliding_window_view(data, dtype.itemsize)[offsets].copy().view(dtype)[:, 0]
+    if len(values):
+        with contextlib.redirect_stdout(io.StringIO()):
+            log.rewind()
+            first = log.recv_match(type=name)
+        checked = [c for c in fmt.columns if c in _CHECKED]
+        if first is None or any(float(getattr(first, c)) != float(values[0][c]) for c in checked):
+            raise RecordingImportError(f"{path}: its {name} messages are not laid out as the log's FMT says; "
+                                       "the log is damaged", path)
+    return values
