@@ -16,8 +16,18 @@ SPEC_HELP = (f"product spec YAML: PASS/FAIL per parameter with the reason; exit 
 
 
 def add_registry_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--registry", metavar="PATH", help="the unit registry (SQLite; default "
-                        "$XDG_DATA_HOME/fieldcal/registry.sqlite)")
+    parser.add_argument("--registry", metavar="PATH|URL", help="the unit registry: an SQLite file "
+                        "(default $XDG_DATA_HOME/fieldcal/registry.sqlite) or a PostgreSQL server, "
+                        "postgresql://USER@HOST[:PORT]/DB (password from PGPASSWORD, ~/.pgpass or a "
+                        "service file, never from this option; ?sslmode=require for TLS)")
+    parser.add_argument("--registry-require-tls", action="store_true",
+                        help="refuse a PostgreSQL registry connection without TLS (as sslmode=require)")
+
+
+def open_registry(args):
+    """The registry the command's options name (``Registry``; a context manager)."""
+    from fieldcal.registry import Registry
+    return Registry(args.registry, require_tls=args.registry_require_tls)
 
 
 def add_spec_option(parser: argparse.ArgumentParser) -> None:
@@ -73,11 +83,9 @@ def report_acceptance(spec, params: str | Path, previous: str | Path | None = No
     return verdict
 
 
-def accept_after(args, spec, params, status: int) -> int:
+def accept_after(args, spec, params, status: int, source: str = "run") -> int:
     """After a calibration command that exited ``status``: its verdict against the spec, if any,
     and the parameter file recorded in the unit registry (a failure there is a warning)."""
-    from fieldcal.registry import record_safely
-
     if params is None or not Path(params).is_file():
         return status
     passed = None
@@ -86,8 +94,16 @@ def accept_after(args, spec, params, status: int) -> int:
             passed = report_acceptance(spec, params).passed  # a spec that fits no triad raises
             status = 0 if passed else EXIT_FAILED_SPEC
     finally:  # recorded whatever the spec made of it
-        record_safely(params, passed, args.registry, warn=lambda text: print(text, file=sys.stderr))
+        record_in_registry(args, params, passed, source)
     return status
+
+
+def record_in_registry(args, params, passed: bool | None, source: str) -> bool:
+    """Record a parameter file in the --registry; a failure is a warning on stderr."""
+    from fieldcal.registry import record_safely
+
+    return record_safely(params, passed, args.registry, warn=lambda text: print(text, file=sys.stderr),
+                         source=source, require_tls=args.registry_require_tls)
 
 
 def cmd_check(args) -> int:
@@ -164,13 +180,12 @@ def cmd_apply(args) -> int:
 
 
 def cmd_units(args) -> int:
-    from fieldcal.registry import Registry
     from fieldcal.report import aligned
 
-    with Registry(args.registry) as registry:
+    with open_registry(args) as registry:
         units = registry.units()
     if not units:
-        print(f"no units in {registry.path} (fieldcal registry rebuild DIR indexes sessions)")
+        print(f"no units in {registry.where} (fieldcal registry rebuild DIR indexes sessions)")
         return 0
     verdicts = {None: "-", 1: "PASS", 0: "FAIL"}
     rows = [["serial", "model", "calibrations", "last", "last result"]]
@@ -182,14 +197,13 @@ def cmd_units(args) -> int:
 
 def cmd_history(args) -> int:
     from fieldcal.acceptance import load_spec
-    from fieldcal.registry import Registry
     from fieldcal.registry.drift import history_lines
 
     spec = load_spec(args.spec) if args.spec else None
-    with Registry(args.registry) as registry:
+    with open_registry(args) as registry:
         calibrations = registry.history(args.serial)
     if not calibrations:
-        raise ValueError(f"history: no unit with serial {args.serial!r} in {registry.path} "
+        raise ValueError(f"history: no unit with serial {args.serial!r} in {registry.where} "
                          "(fieldcal units lists them)")
     for line in history_lines(calibrations, spec):
         print(line)
@@ -201,7 +215,7 @@ def cmd_history(args) -> int:
 
 
 def cmd_registry_rebuild(args) -> int:
-    from fieldcal.registry import Registry, session_parameter_files
+    from fieldcal.registry import session_parameter_files
     from fieldcal.session.capture import LOG
 
     sessions = []
@@ -210,7 +224,7 @@ def cmd_registry_rebuild(args) -> int:
             raise ValueError(f"registry rebuild: {d}: not a directory")
         sessions += [d] if (d / LOG).is_file() else sorted(p.parent for p in d.glob(f"*/{LOG}"))
     added = known = bad = 0
-    with Registry(args.registry) as registry:
+    with open_registry(args) as registry:
         for session in sessions:
             for params in session_parameter_files(session):
                 try:
@@ -221,7 +235,7 @@ def cmd_registry_rebuild(args) -> int:
                 except (ValueError, OSError) as exc:  # one bad file never stops the rebuild
                     bad += 1
                     print(f"warning: {params}: not indexed: {str(exc).splitlines()[0]}", file=sys.stderr)
-    print(f"{registry.path}: {len(sessions)} sessions, {added} calibrations added, {known} already "
+    print(f"{registry.where}: {len(sessions)} sessions, {added} calibrations added, {known} already "
           f"there, {bad} unreadable")
     return 0
 
