@@ -44,7 +44,7 @@ def load_spec_option(args):
     return load_spec(args.spec)
 
 
-def _previous_of(params: Path):
+def previous_calibration_of(params: Path):
     """The previous calibration of the unit whose parameter file is ``params``, when that file
     is in a session directory among its siblings; else None."""
     from fieldcal.paramfile import load
@@ -72,7 +72,7 @@ def report_acceptance(spec, params: str | Path, previous: str | Path | None = No
     if previous is not None:
         prev, where = load(previous), Path(previous)
     else:
-        found = _previous_of(params)
+        found = previous_calibration_of(params)
         prev, where = (found.parameters, found.path) if found is not None else (None, None)
     print(f"\nacceptance against {spec.path} ({spec.product}): {params}", file=out)
     if where is not None:
@@ -214,15 +214,22 @@ def cmd_history(args) -> int:
     return 0
 
 
-def cmd_registry_rebuild(args) -> int:
-    from fieldcal.registry import session_parameter_files
+def find_sessions(directories, command: str) -> list[Path]:
+    """The sessions in each directory: itself if it is one, else the sessions directly in it."""
     from fieldcal.session.capture import LOG
 
     sessions = []
-    for d in map(Path, args.directory):
+    for d in map(Path, directories):
         if not d.is_dir():
-            raise ValueError(f"registry rebuild: {d}: not a directory")
+            raise ValueError(f"{command}: {d}: not a directory")
         sessions += [d] if (d / LOG).is_file() else sorted(p.parent for p in d.glob(f"*/{LOG}"))
+    return sessions
+
+
+def cmd_registry_rebuild(args) -> int:
+    from fieldcal.registry import session_parameter_files
+
+    sessions = find_sessions(args.directory, "registry rebuild")
     added = known = bad = 0
     with open_registry(args) as registry:
         for session in sessions:
@@ -260,7 +267,7 @@ def cmd_certificate(args) -> int:
     parameters = load(params)
     verdict = None
     if spec is not None:
-        previous = _previous_of(params)
+        previous = previous_calibration_of(params)
         verdict = evaluate(spec, parameters, previous.parameters if previous is not None else None)
     page = certificate_html(session, params, parameters, recorded_check(params), verdict, reader.stop_reason)
     write_atomically(out, page.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
@@ -335,6 +342,9 @@ def add_production_parsers(sub) -> None:
     rebuild.add_argument("directory", nargs="+", metavar="DIR")
     add_registry_option(rebuild)
     rebuild.set_defaults(func=cmd_registry_rebuild)
+
+    from fieldcal.cli.resolve import add_resolve_parser
+    add_resolve_parser(sub)
 
     certificate = sub.add_parser(
         "certificate", help="a self-contained HTML calibration certificate for a session",
