@@ -97,6 +97,12 @@ def test_a_newer_schema_is_refused_by_name(tmp_path):
         Registry(db)
 
 
+def test_a_file_that_is_no_registry_is_one_line(tmp_path, capsys):
+    (tmp_path / "notes.txt").write_text("not a database, but a file given by mistake\n" * 100)
+    assert main(["units", "--registry", str(tmp_path / "notes.txt")]) == 2
+    assert capsys.readouterr().err == f"fieldcal: registry {tmp_path / 'notes.txt'}: file is not a database\n"
+
+
 def _writer(db, files, go):
     go.wait(60)
     with Registry(db) as registry:  # the first to open an empty registry migrates it

@@ -102,3 +102,18 @@ def test_tls_required_refuses_a_server_without_it(postgres_server, database, tmp
         Registry(url)
     with pytest.raises(RegistryError, match="for a PostgreSQL server"):
         Registry(str(tmp_path / "r.sqlite"), require_tls=True)
+
+
+def test_a_server_lost_mid_use_is_one_line_not_a_traceback(postgres_server, database, tmp_path):
+    import psycopg
+
+    with Registry(postgres_server.url(database)) as registry:
+        pid = registry.db.info.backend_pid
+        with psycopg.connect(postgres_server.url("postgres"), autocommit=True) as admin:
+            admin.execute("SELECT pg_terminate_backend(%s)", (pid,))  # what a server restart does
+        with pytest.raises(RegistryError) as lost:
+            registry.record(unit_file(tmp_path / "a.yaml", "A", [1.0, 0.0, 0.0]))
+    assert str(lost.value).startswith(f"registry {postgres_server.url(database)}: terminating connection")
+    assert "\n" not in str(lost.value)
+    with Registry(postgres_server.url(database)) as registry:  # nothing half-written
+        assert registry.units() == []

@@ -76,9 +76,13 @@ class SqliteBackend:
         self.where = str(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         self.db = sqlite3.connect(path, timeout=timeout_s, isolation_level=None)
-        self.db.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")
-        self._wal(timeout_s)
-        self.db.execute("PRAGMA foreign_keys = ON")
+        try:
+            self.db.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")
+            self._wal(timeout_s)
+            self.db.execute("PRAGMA foreign_keys = ON")
+        except sqlite3.Error as exc:  # not a database, unreadable
+            self.db.close()
+            raise RegistryError(f"registry {self.where}: {exc}") from None
 
     def _wal(self, timeout_s: float) -> None:
         """Switch to WAL. The switch needs the database to itself and SQLite answers "locked" at
@@ -95,17 +99,20 @@ class SqliteBackend:
                 time.sleep(0.01)
 
     def execute(self, sql: str, params=()):
-        return self.db.execute(sql, params)
+        try:
+            return self.db.execute(sql, params)
+        except sqlite3.Error as exc:  # locked past the timeout, disk full, not a database
+            raise RegistryError(f"registry {self.where}: {exc}") from None
 
     def begin(self, migrating: bool = False) -> None:
         # IMMEDIATE: the write lock now, so two stations never both read then both write
-        self.db.execute("BEGIN IMMEDIATE")
+        self.execute("BEGIN IMMEDIATE")
 
     def commit(self) -> None:
-        self.db.execute("COMMIT")
+        self.execute("COMMIT")
 
     def rollback(self) -> None:
-        self.db.execute("ROLLBACK")
+        self.execute("ROLLBACK")
 
     def close(self) -> None:
         self.db.close()
@@ -143,21 +150,26 @@ class PostgresBackend:
             lines = [line.strip() for line in _scrub(str(exc), secret).splitlines() if line.strip()]
             raise RegistryError(f"registry {self.where}: cannot connect: {' '.join(lines)[:300]}") from None
         self.tls = self.db.info.pgconn.ssl_in_use
+        self._secret = secret
 
     def execute(self, sql: str, params=()):
-        return self.db.execute(sql.replace("?", "%s"), params)
+        try:
+            return self.db.execute(sql.replace("?", "%s"), params)
+        except self._errors as exc:  # the server gone, a statement refused: one line
+            text = " ".join(line.strip() for line in _scrub(str(exc), self._secret).splitlines())
+            raise RegistryError(f"registry {self.where}: {text[:300]}") from None
 
     def begin(self, migrating: bool = False) -> None:
-        self.db.execute("BEGIN")
+        self.execute("BEGIN")
         if migrating:  # one station migrates; the others wait here, then find it done
-            self.db.execute("SELECT pg_advisory_xact_lock(%s)", (_MIGRATION_LOCK,))
+            self.execute("SELECT pg_advisory_xact_lock(?)", (_MIGRATION_LOCK,))
 
     def commit(self) -> None:
-        self.db.execute("COMMIT")
+        self.execute("COMMIT")
 
     def rollback(self) -> None:
         if not self.db.closed:
-            self.db.execute("ROLLBACK")
+            self.execute("ROLLBACK")
 
     def close(self) -> None:
         self.db.close()
