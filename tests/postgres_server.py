@@ -52,9 +52,21 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def self_signed_certificate(directory: Path, name: str) -> tuple[Path, Path]:
+    """(certificate, key) for 127.0.0.1, made with openssl; it is its own CA."""
+    crt, key = directory / f"{name}.crt", directory / f"{name}.key"
+    subprocess.run(["openssl", "req", "-new", "-x509", "-days", "2", "-nodes", "-subj", "/CN=127.0.0.1",
+                    "-addext", "subjectAltName=IP:127.0.0.1", "-keyout", str(key), "-out", str(crt)],
+                   check=True, capture_output=True, timeout=60)
+    key.chmod(0o600)
+    return crt, key
+
+
 class PostgresServer:
-    def __init__(self, bindir: Path) -> None:
+    def __init__(self, bindir: Path, tls: bool = False) -> None:
         self.bindir = bindir
+        self.tls = tls
+        self.certificate = None
         self.root = Path(tempfile.mkdtemp(prefix="fieldcal-pg-"))
         self.data = self.root / "data"
         self.password = secrets.token_hex(16)
@@ -88,6 +100,11 @@ class PostgresServer:
             # fsync off: the tests kill clients, never this server; it goes with its directory
             conf.write(f"\nlisten_addresses = '127.0.0.1'\nunix_socket_directories = '{self.root}'\n"
                        "fsync = off\nmax_connections = 40\nshared_buffers = 16MB\n")
+            if self.tls:
+                self.certificate, key = self_signed_certificate(self.root, "server")
+                if self.run_as:
+                    shutil.chown(key, self.run_as)
+                conf.write(f"ssl = on\nssl_cert_file = '{self.certificate}'\nssl_key_file = '{key}'\n")
         for attempt in range(5):  # another worker may take the free port first: try another
             self.port = _free_port()
             try:
@@ -124,8 +141,7 @@ class PostgresServer:
         return name
 
 
-@pytest.fixture(scope="session")
-def postgres_server():
+def _started(tls: bool = False):
     try:
         import psycopg  # noqa: F401
     except ImportError:
@@ -134,11 +150,28 @@ def postgres_server():
     if bindir is None:
         unavailable("no PostgreSQL server binaries (initdb, pg_ctl): apt-get install postgresql, "
                     "or run .ci/run, to run the PostgreSQL registry tests")
-    server = PostgresServer(bindir)
+    if tls and shutil.which("openssl") is None:
+        unavailable("no openssl to make the TLS server's certificate")
+    server = PostgresServer(bindir, tls)
     try:
         server.start()
     except BaseException:
         server.stop()
         raise
+    return server
+
+
+@pytest.fixture(scope="session")
+def postgres_server():
+    """A server without TLS (a test shows TLS-required connections refuse it)."""
+    server = _started()
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def postgres_tls_server():
+    """A server offering TLS with a self-signed certificate for 127.0.0.1 (``.certificate``)."""
+    server = _started(tls=True)
     yield server
     server.stop()

@@ -6,7 +6,7 @@ import pytest
 from fieldcal.cli.main import main
 from fieldcal.registry import Registry, record_safely
 from fieldcal.registry.backends import RegistryError, redact
-from postgres_server import postgres_server  # noqa: F401 -- the fixture
+from postgres_server import postgres_server, postgres_tls_server  # noqa: F401 -- the fixtures
 from test_registry import QUICK, unit_file
 
 
@@ -117,3 +117,21 @@ def test_a_server_lost_mid_use_is_one_line_not_a_traceback(postgres_server, data
     assert "\n" not in str(lost.value)
     with Registry(postgres_server.url(database)) as registry:  # nothing half-written
         assert registry.units() == []
+
+
+def test_tls_required_connects_to_a_server_with_tls_and_checks_its_certificate(postgres_tls_server, tmp_path,
+                                                                                monkeypatch):
+    from postgres_server import self_signed_certificate
+
+    server = postgres_tls_server
+    monkeypatch.setenv("PGPASSWORD", server.password)
+    monkeypatch.delenv("PGSSLMODE", raising=False)
+    url = server.tcp_url(server.new_database())
+    with Registry(url, require_tls=True) as registry:
+        assert registry.backend.tls is True
+        assert registry.record(unit_file(tmp_path / "a.yaml", "A", [1.0, 0.0, 0.0]))
+    with Registry(f"{url}?sslmode=verify-full&sslrootcert={server.certificate}", require_tls=True) as registry:
+        assert registry.backend.tls is True and [u[0] for u in registry.units()] == ["A"]
+    other_ca, _ = self_signed_certificate(tmp_path, "impostor")  # a certificate from another CA
+    with pytest.raises(RegistryError, match="certificate verify failed"):
+        Registry(f"{url}?sslmode=verify-full&sslrootcert={other_ca}")
