@@ -1,5 +1,5 @@
 """The production workflow end to end: sessions re-solved in a parallel batch (a bad one reported
-and skipped), replays recorded, and a small simulated production line (units with serials, some
+and skipped), replays and resumed runs recorded, and a small simulated production line (units with serials, some
 out of spec, one drifting) in the registry, listed by ``units`` and flagged by ``history``."""
 import shutil
 from pathlib import Path
@@ -85,6 +85,20 @@ def test_a_replay_is_recorded(pristine_session, tmp_path, capsys):
     # the replay's own file, and the session's calibration it confirmed
     assert rows == [(str((tmp_path / "re.yaml").resolve()), "replay"),
                     (str((session / "parameters-001.yaml").resolve()), "run")]
+
+
+def test_a_resumed_run_is_recorded(pristine_session, tmp_path, capsys):
+    from crashes import cut_before_step_record
+
+    session = _copy(pristine_session, tmp_path / "s")
+    cut_before_step_record(session, 12)  # killed before step 13's record: resumed from there
+    db = str(tmp_path / "r.sqlite")
+    assert main(["resume", str(session), "--quiet", "--registry", db]) == 0
+    capsys.readouterr()
+    assert (session / "parameters-001.yaml").read_bytes() == (pristine_session / "parameters-001.yaml").read_bytes()
+    with Registry(db) as registry:
+        assert registry.query("SELECT params_path, source FROM calibrations") == \
+            [(str((session / "parameters-001.yaml").resolve()), "run")]
 
 
 def test_a_small_production_line_in_the_registry(tmp_path, capsys):

@@ -111,7 +111,9 @@ def cmd_resume(args) -> int:
     done = len(steps)
     warn_if_torn(args.session)  # what resuming will cut away
     print(f"resuming {args.session} after {done} completed step{'s' if done != 1 else ''}", flush=True)
-    return _print_result(resume_headless(Path(args.session), printer(sys.stdout, args.quiet)), sys.stdout)
+    from fieldcal.cli.production import accept_after
+    result = resume_headless(Path(args.session), printer(sys.stdout, args.quiet))
+    return accept_after(args, None, result.parameters, _print_result(result, sys.stdout))
 
 
 def cmd_replay(args) -> int:
