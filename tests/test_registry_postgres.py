@@ -28,9 +28,9 @@ def database(postgres_server):
     return postgres_server.new_database()
 
 
-def test_the_password_comes_from_libpq_pgpassword_pgpass_or_the_url(postgres_server, database, tmp_path,
+def test_credentials_come_from_libpq_pgpassword_pgpass_service_file_or_the_url(postgres_server, database, tmp_path,
                                                                    monkeypatch):
-    for name in ("PGPASSWORD", "PGPASSFILE", "PGSERVICE", "PGSSLMODE"):
+    for name in ("PGPASSWORD", "PGPASSFILE", "PGSERVICE", "PGSERVICEFILE", "PGSSLMODE"):
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("PGPASSFILE", str(tmp_path / "none"))  # never the developer's ~/.pgpass
     url = postgres_server.tcp_url(database)
@@ -49,6 +49,16 @@ def test_the_password_comes_from_libpq_pgpassword_pgpass_or_the_url(postgres_ser
     monkeypatch.setenv("PGPASSFILE", str(pgpass))
     with Registry(url) as registry:
         assert [u[0] for u in registry.units()] == ["A"]
+
+    # a service file names the server and the database; the password from .pgpass: the URL is bare
+    services = tmp_path / "pg_service.conf"
+    services.write_text(f"[line]\nhost=127.0.0.1\nport={postgres_server.port}\ndbname={database}\n"
+                        "user=fieldcal\n")
+    monkeypatch.setenv("PGSERVICEFILE", str(services))
+    monkeypatch.setenv("PGSERVICE", "line")
+    with Registry("postgresql://") as registry:
+        assert [u[0] for u in registry.units()] == ["A"]
+    monkeypatch.delenv("PGSERVICE")
     monkeypatch.setenv("PGPASSFILE", str(tmp_path / "none"))
 
     with_password = postgres_server.tcp_url(database, postgres_server.password)
