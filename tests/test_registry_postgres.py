@@ -17,6 +17,8 @@ from test_registry import QUICK, unit_file
      "postgresql://line@db/cal?password=***&sslmode=verify-full"),
     ("postgresql://db?sslmode=require&password=pw", "postgresql://db?sslmode=require&password=***"),
     ("postgresql://line@db/cal?service=line1", "postgresql://line@db/cal?service=line1"),
+    ("postgresql://line:p@ss/w?rd@db:5432/cal", "postgresql://line:***@db:5432/cal"),  # unescaped
+    ("postgresql://", "postgresql://"),
     ("/data/registry.sqlite", "/data/registry.sqlite"),
 ])
 def test_a_password_in_the_url_is_redacted_wherever_printed(url, printed):

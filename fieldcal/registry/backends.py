@@ -37,20 +37,22 @@ def is_postgres(location) -> bool:
 
 def redact(location) -> str:
     """The registry location as it may be printed: a password in a postgresql:// URL (in
-    ``user:PASSWORD@`` or ``?password=``) replaced by ``***``; a file path as it is."""
+    ``user:PASSWORD@`` or ``?password=``) replaced by ``***``; a file path as it is.
+
+    The user information ends at the URL's last "@", so a password holding "@", "/" or "?"
+    unescaped is hidden whole (an "@" in a query value may hide more than the password: never
+    less)."""
     text = str(location)
     if not is_postgres(text):
         return text
     scheme, rest = text.split("://", 1)
-    authority, sep, tail = rest.partition("/") if "/" in rest else (rest, "", "")
-    if "?" in authority:  # postgresql://host?password=... (no path)
-        authority, _, query = authority.partition("?")
-        tail, sep = f"?{query}", ""
-    user, at, hosts = authority.rpartition("@")
-    if at and ":" in user:
-        user = f"{user.split(':', 1)[0]}:{HIDDEN}"
-    tail = re.sub(r"(^|[?&])(password=)[^&#]*", rf"\g<1>\g<2>{HIDDEN}", tail)
-    return f"{scheme}://{user}{at}{hosts}{sep}{tail}"
+    userinfo, at, after = rest.rpartition("@")
+    if at and ":" in userinfo:
+        userinfo = f"{userinfo.split(':', 1)[0]}:{HIDDEN}"
+    rest = f"{userinfo}{at}{after}"
+    main, question, query = rest.partition("?")
+    query = re.sub(r"(^|&)(password=)[^&#]*", rf"\g<1>\g<2>{HIDDEN}", query)
+    return f"{scheme}://{main}{question}{query}"
 
 
 def url_password(location: str) -> str | None:
