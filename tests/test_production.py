@@ -1,6 +1,7 @@
 """The production workflow end to end: sessions re-solved in a parallel batch (a bad one reported
-and skipped), replays and resumed runs recorded, and a small simulated production line (units with serials, some
-out of spec, one drifting) in the registry, listed by ``units`` and flagged by ``history``."""
+and skipped), replays and resumed runs recorded, and a small simulated production line (units
+with serials, some out of spec, one drifting) in the registry, listed by ``units`` and flagged by
+``history``."""
 import shutil
 from pathlib import Path
 
@@ -95,7 +96,8 @@ def test_a_resumed_run_is_recorded(pristine_session, tmp_path, capsys):
     db = str(tmp_path / "r.sqlite")
     assert main(["resume", str(session), "--quiet", "--registry", db]) == 0
     capsys.readouterr()
-    assert (session / "parameters-001.yaml").read_bytes() == (pristine_session / "parameters-001.yaml").read_bytes()
+    recorded = (pristine_session / "parameters-001.yaml").read_bytes()
+    assert (session / "parameters-001.yaml").read_bytes() == recorded  # what the run would have made
     with Registry(db) as registry:
         assert registry.query("SELECT params_path, source FROM calibrations") == \
             [(str((session / "parameters-001.yaml").resolve()), "run")]
@@ -125,7 +127,8 @@ def test_a_small_production_line_in_the_registry(tmp_path, capsys):
     assert main(["units", "--registry", db]) == 0
     rows = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
     assert [(r[0], r[-3], r[-1]) for r in rows] == [
-        (b.serial, "2" if b.drifting else "1", "FAIL" if b.out_of_spec or b.drifting else "PASS") for b in builds]
+        (b.serial, "2" if b.drifting else "1", "FAIL" if b.out_of_spec or b.drifting else "PASS")
+        for b in builds]
     assert main(["history", drifting.serial, "--registry", db, "--spec", str(SPEC)]) == 0
     history = capsys.readouterr().out
     [flagged] = [line for line in history.splitlines() if "drifted" in line and "bias x" in line]

@@ -30,8 +30,8 @@ def database(postgres_server):
     return postgres_server.new_database()
 
 
-def test_credentials_come_from_libpq_pgpassword_pgpass_service_file_or_the_url(postgres_server, database, tmp_path,
-                                                                   monkeypatch):
+def test_credentials_come_from_libpq_pgpassword_pgpass_service_file_or_the_url(
+        postgres_server, database, tmp_path, monkeypatch):
     for name in ("PGPASSWORD", "PGPASSFILE", "PGSERVICE", "PGSERVICEFILE", "PGSSLMODE"):
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("PGPASSFILE", str(tmp_path / "none"))  # never the developer's ~/.pgpass

@@ -75,7 +75,7 @@ def _results(sessions: list[str], method: str | None, jobs: int):
 
 
 def cmd_resolve(args) -> int:
-    from fieldcal.cli.production import find_sessions, load_spec_option, record_in_registry
+    from fieldcal.cli.production import EXIT_FAILED_SPEC, find_sessions, load_spec_option, record_in_registry
 
     spec = load_spec_option(args)
     sessions = [str(s) for s in find_sessions(args.directory, "resolve")]
@@ -99,7 +99,6 @@ def cmd_resolve(args) -> int:
           + (f", {spec_failed} failed {spec.path}" if spec is not None else ""), flush=True)
     if failed:
         return EXIT_SOME_FAILED
-    from fieldcal.cli.production import EXIT_FAILED_SPEC
     return EXIT_FAILED_SPEC if spec_failed else 0
 
 
