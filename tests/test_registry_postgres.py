@@ -1,6 +1,8 @@
 """A registry on a PostgreSQL server: credentials only through libpq's own mechanisms (a password
 in the URL is accepted but never printed, never written into a session), and TLS required when
 asked for (a server without TLS is refused). Against the server tests/postgres_server.py starts."""
+import hashlib
+
 import pytest
 
 from fieldcal.cli.main import main
@@ -147,3 +149,20 @@ def test_tls_required_connects_to_a_server_with_tls_and_checks_its_certificate(p
     other_ca, _ = self_signed_certificate(tmp_path, "impostor")  # a certificate from another CA
     with pytest.raises(RegistryError, match="certificate verify failed"):
         Registry(f"{url}?sslmode=verify-full&sslrootcert={other_ca}")
+
+
+def test_a_station_holding_the_lock_makes_another_give_up_after_its_timeout(postgres_server, database,
+                                                                            tmp_path):
+    params = unit_file(tmp_path / "a.yaml", "A", [1.0, 0.0, 0.0])
+    with Registry(postgres_server.url(database)) as stuck:
+        stuck.backend.begin()  # a station stopped (not killed) inside its transaction
+        stuck.backend.execute(
+            "INSERT INTO calibrations (serial, model, station, procedure, method, time, params_sha256, "
+            "params_path, passed) SELECT 'A', 'm', 's', 'p', 'powell', 't', ?, ?, NULL",
+            (hashlib.sha256(params.read_bytes()).hexdigest(), str(params.resolve())))
+        with Registry(postgres_server.url(database), timeout_s=0.5) as other:
+            with pytest.raises(RegistryError, match="lock timeout"):
+                other.record(params)  # waits for the same key, then gives up: never hangs
+        stuck.backend.rollback()
+    with Registry(postgres_server.url(database)) as registry:
+        assert registry.record(params) and registry.query("SELECT COUNT(*) FROM parameters")[0][0] == 9

@@ -153,6 +153,12 @@ class PostgresBackend:
             raise RegistryError(f"registry {self.where}: cannot connect: {' '.join(lines)[:300]}") from None
         self.tls = self.db.info.pgconn.ssl_in_use
         self._secret = secret
+        # As SQLite's busy timeout: a station waits this long for another's lock, then gives up
+        # (a warning; the session is complete); and a station stuck inside a transaction has it
+        # ended by the server instead of holding its locks for ever.
+        milliseconds = max(1, round(timeout_s * 1000))
+        self.execute(f"SET lock_timeout = {milliseconds}")
+        self.execute(f"SET idle_in_transaction_session_timeout = {6 * milliseconds}")
 
     def execute(self, sql: str, params=()):
         try:
