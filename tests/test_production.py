@@ -1,7 +1,7 @@
 """The production workflow end to end: sessions re-solved in a parallel batch (a bad one reported
-and skipped), replays and resumed runs recorded, and a small simulated production line (units
-with serials, some out of spec, one drifting) in the registry, listed by ``units`` and flagged by
-``history``."""
+and skipped), replays, resumed runs and terminal-UI sessions recorded, and a small simulated
+production line (units with serials, some out of spec, one drifting) in the registry, listed by
+``units`` and flagged by ``history``."""
 import shutil
 from pathlib import Path
 
@@ -101,6 +101,22 @@ def test_a_resumed_run_is_recorded(pristine_session, tmp_path, capsys):
     with Registry(db) as registry:
         assert registry.query("SELECT params_path, source FROM calibrations") == \
             [(str((session / "parameters-001.yaml").resolve()), "run")]
+
+
+def test_the_terminal_ui_records_its_sessions_calibrations_when_it_closes(pristine_session, tmp_path):
+    from argparse import Namespace
+
+    from crashes import cut_before_step_record
+    from fieldcal.cli.tui import record_sessions
+
+    calibrated = _copy(pristine_session, tmp_path / "calibrated")
+    quit_early = _copy(pristine_session, tmp_path / "quit")
+    cut_before_step_record(quit_early, 3)  # the operator quit after three steps: no calibration
+    db = str(tmp_path / "r.sqlite")
+    record_sessions(Namespace(registry=db, registry_require_tls=False), [calibrated, quit_early, None])
+    with Registry(db) as registry:
+        assert registry.query("SELECT params_path, source FROM calibrations") == \
+            [(str((calibrated / "parameters-001.yaml").resolve()), "run")]
 
 
 def test_a_small_production_line_in_the_registry(tmp_path, capsys):
