@@ -1,6 +1,7 @@
 """The production commands: ``fieldcal check`` (acceptance limits), ``export``, ``apply``,
-``units``, ``history``, ``registry rebuild`` and ``certificate``; and ``--spec`` and
-``--registry`` for the commands that calibrate (run --headless, calibrate)."""
+``units``, ``history``, ``registry rebuild`` and ``certificate`` (``resolve`` is in cli.resolve);
+``--spec`` for the commands that calibrate, and ``--registry`` (an SQLite file or a PostgreSQL
+URL) for every command that records or reads calibrations."""
 from __future__ import annotations
 
 import argparse
