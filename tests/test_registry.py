@@ -1,5 +1,7 @@
 """The unit registry: calibrations indexed once each, drift between them in σ against the spec,
-two processes writing at once losing nothing, and a registry failure never failing a run."""
+several processes writing at once losing nothing, a writer killed mid-write leaving no partial
+row, and a registry failure never failing a run; on SQLite and on a real PostgreSQL server
+(tests/postgres_server.py starts one; without its binaries those variants are skipped)."""
 import hashlib
 import multiprocessing
 import sqlite3
@@ -14,9 +16,11 @@ from fieldcal.cli.main import main
 from fieldcal.earth import Station
 from fieldcal.model import k_from_params
 from fieldcal.paramfile import ParameterFile, save
-from fieldcal.registry import Registry
+from fieldcal.registry import SCHEMA_VERSION, Registry
 from fieldcal.registry.drift import drifts
 from fieldcal.units import STANDARD_GRAVITY
+
+from postgres_server import postgres_server  # noqa: F401 -- the fixture
 
 MG = STANDARD_GRAVITY * 1e-3
 QUICK = str(Path(__file__).parent / "faults" / "quick.yaml")
@@ -37,16 +41,31 @@ SPEC = spec_from_document({"schema": "fieldcal-spec/1", "product": "MIMU-9", "tr
     "accelerometer": {"bias": {"unit": "mg", "max_drift": 1.0}}}}, "spec.yaml")
 
 
-def test_units_and_history_with_drift_in_sigma_flagged_beyond_the_spec(tmp_path, capsys):
-    db = tmp_path / "r.sqlite"
+@pytest.fixture(params=["sqlite", "postgresql"])
+def registry_at(request, tmp_path) -> str:
+    """A new, empty registry's location: an SQLite file, or a new database on the test server."""
+    if request.param == "sqlite":
+        return str(tmp_path / "r.sqlite")
+    server = request.getfixturevalue("postgres_server")
+    return server.url(server.new_database())
+
+
+def test_units_and_history_with_drift_in_sigma_flagged_beyond_the_spec(tmp_path, capsys, registry_at):
+    db = registry_at
     with Registry(db) as registry:
-        assert registry.version == 1
+        assert registry.version == SCHEMA_VERSION
         assert registry.record(unit_file(tmp_path / "a1.yaml", "A", [2.0, 3.0, -1.0], 0.03))
         assert registry.record(unit_file(tmp_path / "a2.yaml", "A", [5.0, 3.5, -1.0], 0.04), passed=False)
         assert registry.record(unit_file(tmp_path / "b1.yaml", "B", [0.0, 0.0, 0.0]), passed=True)
         assert not registry.record(tmp_path / "a1.yaml")  # indexed once
         history = registry.history("A")
     assert [h["path"] for h in history] == [str(tmp_path / "a1.yaml"), str(tmp_path / "a2.yaml")]
+    # in the file's order, with the file's values in operator units (mg; scale factors as 1)
+    assert list(history[0]["parameters"])[:4] == [("accelerometer", n) for n in
+                                                  ("bias_x", "bias_y", "bias_z", "scale_x")]
+    value, sigma, unit = history[1]["parameters"]["accelerometer", "bias_x"]
+    assert (value, sigma, unit) == (pytest.approx(5.0), pytest.approx(0.04), "mg")
+    assert [h["passed"] for h in history] == [None, 0]
     found = {(d.parameter, d.index): d for d in drifts(history, SPEC)}
     x, y = found["bias_x", 1], found["bias_y", 1]
     assert x.drift == pytest.approx(3.0) and x.in_sigma == pytest.approx(3.0 / 0.05) and x.exceeded
@@ -78,33 +97,105 @@ def test_a_newer_schema_is_refused_by_name(tmp_path):
         Registry(db)
 
 
+def test_a_file_that_is_no_registry_is_one_line(tmp_path, capsys):
+    (tmp_path / "notes.txt").write_text("not a database, but a file given by mistake\n" * 100)
+    assert main(["units", "--registry", str(tmp_path / "notes.txt")]) == 2
+    assert capsys.readouterr().err == f"fieldcal: registry {tmp_path / 'notes.txt'}: file is not a database\n"
+
+
 def _writer(db, files, go):
     go.wait(60)
-    with Registry(db) as registry:
+    with Registry(db) as registry:  # the first to open an empty registry migrates it
         for f in files:
             registry.record(f)
 
 
-def test_two_processes_writing_at_once_lose_nothing(tmp_path):
-    files = [[unit_file(tmp_path / f"{w}-{i}.yaml", f"S{w}{i}", [i, w, 0.0]) for i in range(25)] for w in range(2)]
-    db = tmp_path / "r.sqlite"
+def _calibration_rows(registry) -> dict[str, tuple]:
+    """{parameter file: (its bias_x in mg, parameter rows, triad rows)} of every calibration."""
+    return {path: (bias_x, n_params, n_triads) for path, bias_x, n_params, n_triads in registry.query(
+        "SELECT c.params_path, (SELECT value FROM parameters p WHERE p.calibration_id = c.id AND "
+        "p.name = 'bias_x'), (SELECT COUNT(*) FROM parameters p WHERE p.calibration_id = c.id), "
+        "(SELECT COUNT(*) FROM triads t WHERE t.calibration_id = c.id) FROM calibrations c")}
+
+
+def test_processes_writing_at_once_lose_nothing(tmp_path, registry_at):
+    shared = [unit_file(tmp_path / f"shared-{i}.yaml", f"X{i}", [i, -1.0, 0.0]) for i in range(5)]
+    files = [[unit_file(tmp_path / f"{w}-{i}.yaml", f"S{w}-{i}", [i, w, 0.0]) for i in range(15)] + shared
+             for w in range(4)]  # every writer also records the same five files: each kept once
     ctx = multiprocessing.get_context("spawn")
     go = ctx.Event()
-    procs = [ctx.Process(target=_writer, args=(db, f, go)) for f in files]
+    procs = [ctx.Process(target=_writer, args=(registry_at, f, go)) for f in files]
     for p in procs:
         p.start()
-    go.set()  # both start writing together
+    go.set()  # all open the empty registry, migrate it and write together
     for p in procs:
         p.join(120)
         assert p.exitcode == 0
+    with Registry(registry_at) as registry:
+        assert len(registry.units()) == 4 * 15 + 5
+        rows = _calibration_rows(registry)
+        assert registry.query("SELECT version FROM migrations ORDER BY version") == \
+            [(v,) for v in range(1, SCHEMA_VERSION + 1)]  # migrated once, by one of them
+        if registry.backend.kind == "sqlite":
+            assert registry.query("PRAGMA integrity_check")[0][0] == "ok"
+    expected = {str(f.resolve()): (pytest.approx(float(i)), 9, 1) for w in range(4)
+                for i, f in enumerate(files[w][:15])}
+    expected |= {str(f.resolve()): (pytest.approx(float(i)), 9, 1) for i, f in enumerate(shared)}
+    assert rows == expected
+
+
+def _endless_writer(db, files, first_done):
     with Registry(db) as registry:
-        units = registry.units()
-        assert len(units) == 50
-        rows = registry.db.execute("SELECT COUNT(*) FROM parameters").fetchone()[0]
-        assert rows == 50 * 9
-        assert registry.db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        for i, f in enumerate(files):
+            registry.record(f)
+            if i == 4:
+                first_done.set()
 
 
+def test_a_writer_killed_mid_write_leaves_no_partial_calibration(tmp_path, registry_at):
+    files = [unit_file(tmp_path / f"k-{i}.yaml", f"K{i}", [i, 0.0, 0.0]) for i in range(300)]
+    ctx = multiprocessing.get_context("spawn")
+    first_done = ctx.Event()
+    proc = ctx.Process(target=_endless_writer, args=(registry_at, files, first_done))
+    proc.start()
+    assert first_done.wait(120)
+    proc.kill()  # SIGKILL, wherever it is: between or inside transactions
+    proc.join(60)
+    with Registry(registry_at) as registry:  # opens (SQLite: recovers the WAL) and can be written
+        if registry.backend.kind == "sqlite":
+            assert registry.query("PRAGMA integrity_check")[0][0] == "ok"
+        rows = _calibration_rows(registry)
+        assert len(rows) >= 5  # the five it said it had recorded, at least
+        index = {str(f.resolve()): i for i, f in enumerate(files)}
+        # each whole and right, none partial
+        assert rows == {path: (pytest.approx(float(index[path])), 9, 1) for path in rows}
+        # still writable, and the files the killed writer did not reach are recorded now
+        missing = [f for f in files if str(f.resolve()) not in rows]
+        assert all(registry.record(f) for f in missing)
+        assert registry.query("SELECT COUNT(*) FROM calibrations")[0][0] == len(files)
+
+
+def test_an_older_registry_is_migrated_keeping_its_calibrations(tmp_path, registry_at, monkeypatch):
+    import fieldcal.registry as registry_module
+
+    old = unit_file(tmp_path / "old.yaml", "OLD", [1.0, 2.0, 3.0])
+    with monkeypatch.context() as m:  # a registry made by the fieldcal of schema version 1
+        m.setattr(registry_module, "_MIGRATIONS", registry_module._MIGRATIONS[:1])
+        m.setattr(registry_module, "SCHEMA_VERSION", 1)
+        with Registry(registry_at) as registry:
+            assert registry.version == 1
+            registry.backend.begin()
+            registry.backend.execute(  # what version 1 wrote (no source, no position)
+                "INSERT INTO calibrations (serial, model, station, procedure, method, time, params_sha256, "
+                "params_path, passed) VALUES ('OLD', 'MIMU-9', 's', 'field-18', 'powell', "
+                "'2026-01-01T00:00:00+00:00', 'abc', 'old.yaml', 1)")
+            registry.backend.commit()
+    with Registry(registry_at) as registry:
+        assert registry.version == SCHEMA_VERSION
+        [(source, passed)] = registry.query("SELECT source, passed FROM calibrations")
+        assert (source, passed) == ("", 1)
+        assert registry.record(old, source="replay")
+        assert [h["source"] for h in registry.history("OLD")] == ["", "replay"]
 def test_a_broken_registry_warns_and_rebuild_indexes_the_session(tmp_path, capsys):
     blocker = tmp_path / "not-a-directory"
     blocker.write_text("")
@@ -130,35 +221,3 @@ def test_a_broken_registry_warns_and_rebuild_indexes_the_session(tmp_path, capsy
     assert main(argv) == 0
     with Registry(tmp_path / "live.sqlite") as registry:
         assert registry.db.execute("SELECT COUNT(*) FROM calibrations").fetchone()[0] == 1
-
-
-def _endless_writer(db, files, first_done):
-    with Registry(db) as registry:
-        for i, f in enumerate(files):
-            registry.record(f)
-            if i == 4:
-                first_done.set()
-
-
-def test_a_writer_killed_mid_write_leaves_no_partial_calibration(tmp_path):
-    files = [unit_file(tmp_path / f"k-{i}.yaml", f"K{i}", [i, 0.0, 0.0]) for i in range(300)]
-    db = tmp_path / "r.sqlite"
-    ctx = multiprocessing.get_context("spawn")
-    first_done = ctx.Event()
-    proc = ctx.Process(target=_endless_writer, args=(db, files, first_done))
-    proc.start()
-    assert first_done.wait(120)
-    proc.kill()  # SIGKILL, wherever it is: between or inside transactions
-    proc.join(60)
-    with Registry(db) as registry:  # opens, recovers the WAL, and can still be written
-        assert registry.db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
-        counts = registry.db.execute(
-            "SELECT c.id, (SELECT COUNT(*) FROM parameters p WHERE p.calibration_id = c.id), "
-            "(SELECT COUNT(*) FROM triads t WHERE t.calibration_id = c.id) FROM calibrations c").fetchall()
-        assert len(counts) >= 5  # the five it said it had recorded, at least
-        assert all((p, t) == (9, 1) for _, p, t in counts)  # each whole, none partial
-        # still writable, and the files the killed writer did not reach are recorded now
-        done = {r[0] for r in registry.db.execute("SELECT params_path FROM calibrations")}
-        missing = [f for f in files if str(f.resolve()) not in done]
-        assert all(registry.record(f) for f in missing)
-        assert registry.db.execute("SELECT COUNT(*) FROM calibrations").fetchone()[0] == len(files)

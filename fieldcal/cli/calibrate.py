@@ -170,4 +170,5 @@ def cmd_calibrate(args) -> int:
     if args.params:
         from fieldcal.session.output import save_parameter_file
         print(f"parameter file: {save_parameter_file(pf, args.params, force=args.force, option='--params')}")
-    return accept_after(args, spec, directory / "parameters.yaml", 0 if not cal.failures else 1)
+    return accept_after(args, spec, directory / "parameters.yaml", 0 if not cal.failures else 1,
+                        source="calibrate")

@@ -1,6 +1,7 @@
 """The production commands: ``fieldcal check`` (acceptance limits), ``export``, ``apply``,
-``units``, ``history``, ``registry rebuild`` and ``certificate``; and ``--spec`` and
-``--registry`` for the commands that calibrate (run --headless, calibrate)."""
+``units``, ``history``, ``registry rebuild`` and ``certificate`` (``resolve`` is in cli.resolve);
+``--spec`` for the commands that calibrate, and ``--registry`` (an SQLite file or a PostgreSQL
+URL) for every command that records or reads calibrations."""
 from __future__ import annotations
 
 import argparse
@@ -16,8 +17,18 @@ SPEC_HELP = (f"product spec YAML: PASS/FAIL per parameter with the reason; exit 
 
 
 def add_registry_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--registry", metavar="PATH", help="the unit registry (SQLite; default "
-                        "$XDG_DATA_HOME/fieldcal/registry.sqlite)")
+    parser.add_argument("--registry", metavar="PATH|URL", help="the unit registry: an SQLite file "
+                        "(default $XDG_DATA_HOME/fieldcal/registry.sqlite) or a PostgreSQL server, "
+                        "postgresql://USER@HOST[:PORT]/DB (password from PGPASSWORD, ~/.pgpass or a "
+                        "service file, never from this option; ?sslmode=require for TLS)")
+    parser.add_argument("--registry-require-tls", action="store_true",
+                        help="refuse a PostgreSQL registry connection without TLS (as sslmode=require)")
+
+
+def open_registry(args):
+    """The registry the command's options name (``Registry``; a context manager)."""
+    from fieldcal.registry import Registry
+    return Registry(args.registry, require_tls=args.registry_require_tls)
 
 
 def add_spec_option(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +45,7 @@ def load_spec_option(args):
     return load_spec(args.spec)
 
 
-def _previous_of(params: Path):
+def previous_calibration_of(params: Path):
     """The previous calibration of the unit whose parameter file is ``params``, when that file
     is in a session directory among its siblings; else None."""
     from fieldcal.paramfile import load
@@ -62,7 +73,7 @@ def report_acceptance(spec, params: str | Path, previous: str | Path | None = No
     if previous is not None:
         prev, where = load(previous), Path(previous)
     else:
-        found = _previous_of(params)
+        found = previous_calibration_of(params)
         prev, where = (found.parameters, found.path) if found is not None else (None, None)
     print(f"\nacceptance against {spec.path} ({spec.product}): {params}", file=out)
     if where is not None:
@@ -73,11 +84,9 @@ def report_acceptance(spec, params: str | Path, previous: str | Path | None = No
     return verdict
 
 
-def accept_after(args, spec, params, status: int) -> int:
+def accept_after(args, spec, params, status: int, source: str = "run") -> int:
     """After a calibration command that exited ``status``: its verdict against the spec, if any,
     and the parameter file recorded in the unit registry (a failure there is a warning)."""
-    from fieldcal.registry import record_safely
-
     if params is None or not Path(params).is_file():
         return status
     passed = None
@@ -86,8 +95,16 @@ def accept_after(args, spec, params, status: int) -> int:
             passed = report_acceptance(spec, params).passed  # a spec that fits no triad raises
             status = 0 if passed else EXIT_FAILED_SPEC
     finally:  # recorded whatever the spec made of it
-        record_safely(params, passed, args.registry, warn=lambda text: print(text, file=sys.stderr))
+        record_in_registry(args, params, passed, source)
     return status
+
+
+def record_in_registry(args, params, passed: bool | None, source: str) -> bool:
+    """Record a parameter file in the --registry; a failure is a warning on stderr."""
+    from fieldcal.registry import record_safely
+
+    return record_safely(params, passed, args.registry, warn=lambda text: print(text, file=sys.stderr),
+                         source=source, require_tls=args.registry_require_tls)
 
 
 def cmd_check(args) -> int:
@@ -164,13 +181,12 @@ def cmd_apply(args) -> int:
 
 
 def cmd_units(args) -> int:
-    from fieldcal.registry import Registry
     from fieldcal.report import aligned
 
-    with Registry(args.registry) as registry:
+    with open_registry(args) as registry:
         units = registry.units()
     if not units:
-        print(f"no units in {registry.path} (fieldcal registry rebuild DIR indexes sessions)")
+        print(f"no units in {registry.where} (fieldcal registry rebuild DIR indexes sessions)")
         return 0
     verdicts = {None: "-", 1: "PASS", 0: "FAIL"}
     rows = [["serial", "model", "calibrations", "last", "last result"]]
@@ -182,14 +198,13 @@ def cmd_units(args) -> int:
 
 def cmd_history(args) -> int:
     from fieldcal.acceptance import load_spec
-    from fieldcal.registry import Registry
     from fieldcal.registry.drift import history_lines
 
     spec = load_spec(args.spec) if args.spec else None
-    with Registry(args.registry) as registry:
+    with open_registry(args) as registry:
         calibrations = registry.history(args.serial)
     if not calibrations:
-        raise ValueError(f"history: no unit with serial {args.serial!r} in {registry.path} "
+        raise ValueError(f"history: no unit with serial {args.serial!r} in {registry.where} "
                          "(fieldcal units lists them)")
     for line in history_lines(calibrations, spec):
         print(line)
@@ -200,17 +215,24 @@ def cmd_history(args) -> int:
     return 0
 
 
-def cmd_registry_rebuild(args) -> int:
-    from fieldcal.registry import Registry, session_parameter_files
+def find_sessions(directories, command: str) -> list[Path]:
+    """The sessions in each directory: itself if it is one, else the sessions directly in it."""
     from fieldcal.session.capture import LOG
 
     sessions = []
-    for d in map(Path, args.directory):
+    for d in map(Path, directories):
         if not d.is_dir():
-            raise ValueError(f"registry rebuild: {d}: not a directory")
+            raise ValueError(f"{command}: {d}: not a directory")
         sessions += [d] if (d / LOG).is_file() else sorted(p.parent for p in d.glob(f"*/{LOG}"))
+    return sessions
+
+
+def cmd_registry_rebuild(args) -> int:
+    from fieldcal.registry import session_parameter_files
+
+    sessions = find_sessions(args.directory, "registry rebuild")
     added = known = bad = 0
-    with Registry(args.registry) as registry:
+    with open_registry(args) as registry:
         for session in sessions:
             for params in session_parameter_files(session):
                 try:
@@ -221,7 +243,7 @@ def cmd_registry_rebuild(args) -> int:
                 except (ValueError, OSError) as exc:  # one bad file never stops the rebuild
                     bad += 1
                     print(f"warning: {params}: not indexed: {str(exc).splitlines()[0]}", file=sys.stderr)
-    print(f"{registry.path}: {len(sessions)} sessions, {added} calibrations added, {known} already "
+    print(f"{registry.where}: {len(sessions)} sessions, {added} calibrations added, {known} already "
           f"there, {bad} unreadable")
     return 0
 
@@ -246,7 +268,7 @@ def cmd_certificate(args) -> int:
     parameters = load(params)
     verdict = None
     if spec is not None:
-        previous = _previous_of(params)
+        previous = previous_calibration_of(params)
         verdict = evaluate(spec, parameters, previous.parameters if previous is not None else None)
     page = certificate_html(session, params, parameters, recorded_check(params), verdict, reader.stop_reason)
     write_atomically(out, page.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
@@ -321,6 +343,9 @@ def add_production_parsers(sub) -> None:
     rebuild.add_argument("directory", nargs="+", metavar="DIR")
     add_registry_option(rebuild)
     rebuild.set_defaults(func=cmd_registry_rebuild)
+
+    from fieldcal.cli.resolve import add_resolve_parser
+    add_resolve_parser(sub)
 
     certificate = sub.add_parser(
         "certificate", help="a self-contained HTML calibration certificate for a session",

@@ -111,7 +111,9 @@ def cmd_resume(args) -> int:
     done = len(steps)
     warn_if_torn(args.session)  # what resuming will cut away
     print(f"resuming {args.session} after {done} completed step{'s' if done != 1 else ''}", flush=True)
-    return _print_result(resume_headless(Path(args.session), printer(sys.stdout, args.quiet)), sys.stdout)
+    from fieldcal.cli.production import accept_after
+    result = resume_headless(Path(args.session), printer(sys.stdout, args.quiet))
+    return accept_after(args, None, result.parameters, _print_result(result, sys.stdout))
 
 
 def cmd_replay(args) -> int:
@@ -136,14 +138,18 @@ def cmd_replay(args) -> int:
     if outcome.parameter_file is None:
         print("nothing could be calibrated from this session")
         return 1
+    from fieldcal.cli.production import record_in_registry
     if args.out:
         save_parameter_file(outcome.parameter_file, args.out, force=args.force, option="--out")
         print(f"parameter file written to {args.out}")
+        record_in_registry(args, args.out, None, "replay")  # a calibration of the unit: indexed
     if not noted:
         print("the session has no parameter file to compare with ("
               + (f"its run {reader.stop_reason}" if reader.stopped else "it did not finish") + ")")
         return 1 if torn else 0
     print(outcome.comparison)
+    if outcome.identical:  # the session's own calibration, confirmed: indexed if it was not yet
+        record_in_registry(args, reader.directory / noted[-1]["file"], None, "run")
     return 0 if outcome.identical else 1
 
 

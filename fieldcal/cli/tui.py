@@ -67,6 +67,8 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
     tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
     tui.add_argument("--resume", metavar="SESSION",
                      help="continue this unfinished (quit) simulated session after its last completed step")
+    from fieldcal.cli.production import add_registry_option
+    add_registry_option(tui)  # where the calibrations are recorded when the UI closes
     tui.set_defaults(func=cmd_tui)
     return tui
 
@@ -79,11 +81,15 @@ def cmd_tui(args) -> int:
             raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
         return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay))
     if args.resume is not None:
-        return run_tui(None, _resume_speed(args), None, None, resume=resumable(args.resume))
+        session = resumable(args.resume)
+        status = run_tui(None, _resume_speed(args), None, None, resume=session)
+        record_sessions(args, [session])
+        return status
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
 
-    make_run = run_maker(args)
+    sessions: list[Path | None] = []
+    make_run = _remembering(run_maker(args), sessions)
     if args.sim or args.go:
         from fieldcal.config import load_config
         from fieldcal.procedure.positions import load_procedure
@@ -91,8 +97,37 @@ def cmd_tui(args) -> int:
         config = load_config(args.config or "sim")
         procedure = load_procedure(args.procedure or "field-18")
         spec, session_dir, speed = make_run(config, procedure)
-        return run_tui(spec, speed, session_dir, None, config=config)
-    return run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+        status = run_tui(spec, speed, session_dir, None, config=config)
+    else:
+        status = run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+    record_sessions(args, sessions)
+    return status
+
+
+def _remembering(make_run, sessions: list):
+    """``make_run`` that also notes each session directory it hands out."""
+    def remembering(config, procedure):
+        made = make_run(config, procedure)
+        sessions.append(made[1])
+        return made
+    return remembering
+
+
+def record_sessions(args, sessions) -> None:
+    """The calibrations the UI's sessions ended with, recorded in the registry once the terminal
+    is back (a failure there is a warning; a session quit before calibrating has none)."""
+    from fieldcal.cli.production import record_in_registry
+    from fieldcal.session.capture import SessionReader
+
+    for session in sessions:
+        if session is None or not Path(session, "log.jsonl").is_file():
+            continue  # --no-capture, or never started
+        try:
+            params = SessionReader(session, log_only=True).parameters_path
+        except (ValueError, OSError):  # damaged: the UI has said what became of it
+            continue
+        if params is not None:
+            record_in_registry(args, params, None, "run")
 
 
 def resumable(session: str) -> Path:

@@ -1,31 +1,36 @@
-"""The unit registry: every calibration of every unit, in SQLite, indexed from the sessions.
+"""The unit registry: every calibration of every unit, in SQLite or PostgreSQL, indexed from
+the sessions.
 
 The session directory stays the source of truth; the registry is an index of it that
 ``fieldcal registry rebuild`` can always re-create. So writing it must never endanger or stop
 a calibration: ``record_safely`` turns any failure into a warning.
 
-One row per parameter file (serial, model, station, procedure, method, the file's time, SHA-256
-and path, pass/fail when a spec was applied), one per triad (its residual), one per parameter
-(value and 1σ in operator units, with the unit). A file is recorded once: recording it again
-(a rebuild) changes nothing. SQLite in WAL mode with a busy timeout, each record one
-``BEGIN IMMEDIATE`` transaction, so concurrent stations wait for each other instead of failing
-or losing a row; the schema is versioned in a ``migrations`` table.
+One row per parameter file (serial, model, station, procedure, method, what made it, the file's
+time, SHA-256 and path, pass/fail when a spec was applied), one per triad (its residual), one per
+parameter (value and 1σ in operator units, with the unit). A file is recorded once: recording it
+again (a rebuild) changes nothing. Each record is one transaction, so a station killed mid-write
+leaves nothing half-written, and concurrent stations wait for each other instead of failing or
+losing a row (SQLite: WAL, BEGIN IMMEDIATE, a busy timeout; PostgreSQL: the unique key with
+INSERT ... ON CONFLICT). The schema is versioned in a ``migrations`` table, the same migrations
+for both backends (``backends`` holds the few words that differ).
 """
 from __future__ import annotations
 
 import datetime
 import hashlib
 import os
-import sqlite3
-import time
 from pathlib import Path
 
+from fieldcal.registry.backends import RegistryError, open_backend, redact
+
 BUSY_TIMEOUT_S = 10.0
+# Each migration: statements separated by ";", with {id} and {float} the backend's words; a
+# statement prefixed "sqlite:" runs on SQLite only.
 _MIGRATIONS = (
     # version 1
     """
     CREATE TABLE calibrations (
-        id INTEGER PRIMARY KEY,
+        id {id},
         serial TEXT NOT NULL, model TEXT NOT NULL, station TEXT NOT NULL,
         procedure TEXT NOT NULL, method TEXT NOT NULL, time TEXT NOT NULL,
         params_sha256 TEXT NOT NULL, params_path TEXT NOT NULL, passed INTEGER,
@@ -34,15 +39,25 @@ _MIGRATIONS = (
     CREATE TABLE triads (
         calibration_id INTEGER NOT NULL REFERENCES calibrations (id) ON DELETE CASCADE,
         triad TEXT NOT NULL, kind TEXT NOT NULL, output_unit TEXT NOT NULL,
-        residual_rms REAL NOT NULL, residual_unit TEXT NOT NULL,
+        residual_rms {float} NOT NULL, residual_unit TEXT NOT NULL,
         PRIMARY KEY (calibration_id, triad));
     CREATE TABLE parameters (
         calibration_id INTEGER NOT NULL REFERENCES calibrations (id) ON DELETE CASCADE,
-        triad TEXT NOT NULL, name TEXT NOT NULL, value REAL NOT NULL, sigma REAL NOT NULL,
+        triad TEXT NOT NULL, name TEXT NOT NULL, value {float} NOT NULL, sigma {float} NOT NULL,
         unit TEXT NOT NULL, PRIMARY KEY (calibration_id, triad, name));
     """,
+    # version 2: what made each calibration (run, replay, calibrate, resolve; "" when rebuilt
+    # from a session), and each parameter's place in its file, for listing them in file order
+    # (a PostgreSQL table has no rowid to order by)
+    """
+    ALTER TABLE calibrations ADD COLUMN source TEXT NOT NULL DEFAULT '';
+    ALTER TABLE parameters ADD COLUMN position INTEGER NOT NULL DEFAULT 0;
+    sqlite: UPDATE parameters SET position = rowid
+    """,
 )
+SCHEMA_VERSION = len(_MIGRATIONS)
 UNKNOWN = ""  # a serial or model the parameter file does not give
+SOURCES = ("", "run", "replay", "calibrate", "resolve")
 
 
 def default_path() -> Path:
@@ -50,32 +65,39 @@ def default_path() -> Path:
     return Path(base) / "fieldcal" / "registry.sqlite"
 
 
-class Registry:
-    def __init__(self, path: str | os.PathLike | None = None, timeout_s: float = BUSY_TIMEOUT_S) -> None:
-        self.path = Path(path) if path is not None else default_path()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.db = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None)
-        self.db.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")
-        self._wal(timeout_s)
-        self.db.execute("PRAGMA foreign_keys = ON")
-        self._migrate()
+def _statements(script: str, backend) -> list[str]:
+    out = []
+    for statement in filter(str.strip, script.format(**backend.types).split(";")):
+        only, sep, body = statement.strip().partition(": ")
+        if sep and only in ("sqlite", "postgresql"):
+            if only == backend.kind:
+                out.append(body)
+        else:
+            out.append(statement)
+    return out
 
-    def _wal(self, timeout_s: float) -> None:
-        """Switch to WAL. The switch needs the database to itself and SQLite answers "locked" at
-        once, without its busy handler, while another station opens the same new file: wait and
-        try again, as the busy timeout would."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                self.db.execute("PRAGMA journal_mode = WAL")
-                return
-            except sqlite3.OperationalError as exc:
-                if "locked" not in str(exc) or time.monotonic() > deadline:
-                    raise
-                time.sleep(0.01)
+
+class Registry:
+    """The registry at ``location``: an SQLite file path, or a ``postgresql://`` URL (default:
+    the SQLite file under the data directory). ``require_tls``: a PostgreSQL connection without
+    TLS is refused."""
+
+    def __init__(self, location: str | os.PathLike | None = None, timeout_s: float = BUSY_TIMEOUT_S,
+                 require_tls: bool = False) -> None:
+        location = default_path() if location is None else location
+        self.backend = open_backend(location if isinstance(location, str) else Path(location),
+                                    timeout_s, require_tls)
+        self.path = getattr(self.backend, "path", None)  # the SQLite file; None on a server
+        self.where = self.backend.where  # printable: a password in a URL is hidden
+        self.db = self.backend.db
+        try:
+            self._migrate()
+        except BaseException:
+            self.backend.close()
+            raise
 
     def close(self) -> None:
-        self.db.close()
+        self.backend.close()
 
     def __enter__(self) -> Registry:
         return self
@@ -83,87 +105,105 @@ class Registry:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def query(self, sql: str, params=()) -> list[tuple]:
+        """Rows of a read-only statement (``?`` placeholders, on either backend)."""
+        return self.backend.execute(sql, params).fetchall()
+
     @property
     def version(self) -> int:
-        return self.db.execute("SELECT COALESCE(MAX(version), 0) FROM migrations").fetchone()[0]
+        return self.query("SELECT COALESCE(MAX(version), 0) FROM migrations")[0][0]
+
+    def _transaction(self, work, migrating: bool = False):
+        self.backend.begin(migrating)
+        try:
+            result = work()
+        except BaseException:
+            try:
+                self.backend.rollback()
+            except Exception:  # noqa: BLE001 -- a lost connection: the server rolls back itself
+                pass
+            raise
+        self.backend.commit()
+        return result
 
     def _migrate(self) -> None:
-        self.db.execute("BEGIN IMMEDIATE")  # one station migrates; the others wait, then see it done
-        try:
-            self.db.execute("CREATE TABLE IF NOT EXISTS migrations (version INTEGER PRIMARY KEY, "
-                            "applied TEXT NOT NULL)")
+        def migrate():  # one station migrates; the others wait, then find it done
+            self.backend.execute("CREATE TABLE IF NOT EXISTS migrations (version INTEGER PRIMARY KEY, "
+                                 "applied TEXT NOT NULL)")
             have = self.version
-            if have > len(_MIGRATIONS):
-                raise ValueError(f"{self.path}: registry schema version {have} is newer than this "
-                                 f"fieldcal's ({len(_MIGRATIONS)}); upgrade fieldcal")
+            if have > SCHEMA_VERSION:
+                raise RegistryError(f"{self.where}: registry schema version {have} is newer than this "
+                                    f"fieldcal's ({SCHEMA_VERSION}); upgrade fieldcal")
             for version, script in enumerate(_MIGRATIONS[have:], start=have + 1):
-                for statement in filter(str.strip, script.split(";")):
-                    self.db.execute(statement)
-                self.db.execute("INSERT INTO migrations VALUES (?, ?)", (version, _now()))
-            self.db.execute("COMMIT")
-        except BaseException:
-            self.db.execute("ROLLBACK")
-            raise
+                for statement in _statements(script, self.backend):
+                    self.backend.execute(statement)
+                self.backend.execute("INSERT INTO migrations VALUES (?, ?)", (version, _now()))
+        self._transaction(migrate, migrating=True)
 
-    def record(self, params: str | os.PathLike, passed: bool | None = None) -> bool:
+    def record(self, params: str | os.PathLike, passed: bool | None = None, source: str = "") -> bool:
         """Index one parameter file; False if it was already there (same path and SHA-256)."""
         from fieldcal.acceptance import operator_values
         from fieldcal.paramfile import load
 
+        if source not in SOURCES:
+            raise ValueError(f"registry: source {source!r}: expected one of {', '.join(map(repr, SOURCES))}")
         path = Path(params).resolve()
         data = path.read_bytes()
         pf = load(path)
         p = pf.provenance
         stamp = datetime.datetime.fromtimestamp(path.stat().st_mtime, datetime.timezone.utc)
+        sha = hashlib.sha256(data).hexdigest()
         row = (p.device_serial or UNKNOWN, p.device_name or UNKNOWN,
                f"{p.latitude_deg:.4f}°, {p.height_m:g} m, g {p.gravity_m_s2:.5f} m/s^2",
                p.procedure, p.method, stamp.isoformat(timespec="seconds"),
-               hashlib.sha256(data).hexdigest(), str(path), None if passed is None else int(passed))
-        self.db.execute("BEGIN IMMEDIATE")
-        try:
-            cursor = self.db.execute(
-                "INSERT OR IGNORE INTO calibrations (serial, model, station, procedure, method, time, "
-                "params_sha256, params_path, passed) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", row)
-            if cursor.rowcount == 0:
+               sha, str(path), None if passed is None else int(passed), source)
+        triads = [(cal, *operator_values(cal)) for cal in pf.triads]
+
+        def write() -> bool:
+            inserted = self.backend.execute(
+                "INSERT INTO calibrations (serial, model, station, procedure, method, time, params_sha256, "
+                "params_path, passed, source) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+                "ON CONFLICT (params_path, params_sha256) DO NOTHING RETURNING id", row).fetchone()
+            if inserted is None:  # indexed already
                 if passed is not None:  # a verdict given later (fieldcal check) is kept
-                    self.db.execute("UPDATE calibrations SET passed = ? WHERE params_path = ? AND "
-                                    "params_sha256 = ?", (int(passed), row[7], row[6]))
-                self.db.execute("COMMIT")
+                    self.backend.execute("UPDATE calibrations SET passed = ? WHERE params_path = ? AND "
+                                         "params_sha256 = ?", (int(passed), str(path), sha))
                 return False
-            cid = cursor.lastrowid
-            for cal in pf.triads:
-                self.db.execute("INSERT INTO triads VALUES (?, ?, ?, ?, ?, ?)",
-                                (cid, cal.name, cal.kind, cal.output_unit, cal.residual_rms, cal.residual_unit))
-                values, sigmas, units = operator_values(cal)
-                self.db.executemany("INSERT INTO parameters VALUES (?, ?, ?, ?, ?, ?)",
-                                    [(cid, cal.name, n, float(v), float(s), u) for n, v, s, u
-                                     in zip(cal.parameter_names, values, sigmas, units)])
-            self.db.execute("COMMIT")
+            cid = inserted[0]
+            position = 0
+            for cal, values, sigmas, units in triads:
+                self.backend.execute("INSERT INTO triads VALUES (?, ?, ?, ?, ?, ?)",
+                                     (cid, cal.name, cal.kind, cal.output_unit, cal.residual_rms,
+                                      cal.residual_unit))
+                for n, v, s, u in zip(cal.parameter_names, values, sigmas, units):
+                    self.backend.execute("INSERT INTO parameters (calibration_id, triad, name, value, "
+                                         "sigma, unit, position) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                                         (cid, cal.name, n, float(v), float(s), u, position))
+                    position += 1
             return True
-        except BaseException:
-            self.db.execute("ROLLBACK")
-            raise
+        return self._transaction(write)
 
     def units(self) -> list[tuple]:
         """(serial, model, calibrations, last time, last pass/fail) per unit."""
-        return self.db.execute(
+        return [tuple(r) for r in self.query(
             "SELECT serial, model, COUNT(*), MAX(time), (SELECT passed FROM calibrations d WHERE "
             "d.serial = c.serial AND d.model = c.model ORDER BY time DESC, id DESC LIMIT 1) "
-            "FROM calibrations c GROUP BY serial, model ORDER BY serial, model").fetchall()
+            "FROM calibrations c GROUP BY serial, model ORDER BY serial, model")]
 
     def history(self, serial: str) -> list[dict]:
         """The unit's calibrations, oldest first: each a dict with its row and its parameters
         {(triad, name): (value, σ, unit)}."""
-        rows = self.db.execute(
-            "SELECT id, model, station, procedure, method, time, params_sha256, params_path, passed "
-            "FROM calibrations WHERE serial = ? ORDER BY time, id", (serial,)).fetchall()
-        keys = ("id", "model", "station", "procedure", "method", "time", "sha256", "path", "passed")
+        rows = self.query(
+            "SELECT id, model, station, procedure, method, time, params_sha256, params_path, passed, "
+            "source FROM calibrations WHERE serial = ? ORDER BY time, id", (serial,))
+        keys = ("id", "model", "station", "procedure", "method", "time", "sha256", "path", "passed",
+                "source")
         out = []
         for r in rows:
             entry = dict(zip(keys, r))
-            entry["parameters"] = {(t, n): (v, s, u) for t, n, v, s, u in self.db.execute(
+            entry["parameters"] = {(t, n): (v, s, u) for t, n, v, s, u in self.query(
                 "SELECT triad, name, value, sigma, unit FROM parameters WHERE calibration_id = ? "
-                "ORDER BY rowid", (r[0],))}
+                "ORDER BY position", (r[0],))}
             out.append(entry)
         return out
 
@@ -196,15 +236,19 @@ def the_calibration_file(params: Path) -> Path:
     return same[-1] if same else params
 
 
-def record_safely(params, passed: bool | None, registry_path=None, warn=print) -> bool:
-    """Record ``params`` in the registry; any failure is a warning, never an exception: the
-    session is already complete and is the source of truth."""
+def record_safely(params, passed: bool | None, registry=None, warn=print, source: str = "",
+                  require_tls: bool = False) -> bool:
+    """Record ``params`` in the registry at ``registry`` (see ``Registry``); any failure is a
+    warning, never an exception: the session is already complete and is the source of truth."""
     try:
-        with Registry(registry_path) as registry:
-            registry.record(the_calibration_file(Path(params)), passed)
+        with Registry(registry, require_tls=require_tls) as db:
+            db.record(the_calibration_file(Path(params)), passed, source)
         return True
     except Exception as exc:  # noqa: BLE001 -- the registry must never fail a calibration
-        warn(f"warning: the unit registry ({registry_path or default_path()}) was not updated: "
-             f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''} -- the session is "
-             "complete; `fieldcal registry rebuild` will index it")
+        where = redact(registry if registry is not None else default_path())
+        text = str(exc).splitlines()[0] if str(exc) else ""
+        if isinstance(exc, RegistryError) and text.startswith(f"registry {where}: "):
+            text = text[len(f"registry {where}: "):]
+        warn(f"warning: the unit registry ({where}) was not updated: {type(exc).__name__}: {text} "
+             "-- the session is complete; `fieldcal registry rebuild` will index it")
         return False

@@ -43,8 +43,9 @@ def history_lines(calibrations: list[dict], spec=None) -> list[str]:
     from fieldcal.report import aligned, label
 
     verdicts = {None: "no spec applied", 1: "PASS", 0: "FAIL"}
-    lines = [f"#{i + 1} {c['time']} {c['procedure']} {c['method']} ({verdicts[c['passed']]}): {c['path']}"
-             for i, c in enumerate(calibrations)]
+    lines = [f"#{i + 1} {c['time']} {c['procedure']} {c['method']}"
+             f"{' [' + c['source'] + ']' if c.get('source') else ''} "
+             f"({verdicts[c['passed']]}): {c['path']}" for i, c in enumerate(calibrations)]
     found = {(d.triad, d.parameter, d.index): d for d in drifts(calibrations, spec)}
     keys = list(calibrations[-1]["parameters"])
     header = ["triad", "parameter", "unit"] + [f"#{i + 1}" for i in range(len(calibrations))] + ["flag"]

@@ -79,11 +79,15 @@ def replay_matches(directory: str | Path) -> bool:
     return replay(directory)[0].identical is True
 
 
-def resolve_session(directory: str | Path):
-    """Solve again from the step averages the session stored (no samples read); (solution, file)."""
+def resolve_session(directory: str | Path, method: str | None = None):
+    """Solve again from the step averages the session stored (no samples read); (solution, file).
+    ``method``: another solver than the session's."""
+    from dataclasses import replace
+
     from fieldcal.run.steps import completed_records
 
     reader = SessionReader(directory)
-    conductor = Conductor(RunSpec.from_metadata(reader.start), NoBench(), None)
+    spec = RunSpec.from_metadata(reader.start)
+    conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), None)
     conductor.engine.restore(completed_records(reader))
     return conductor.solve()

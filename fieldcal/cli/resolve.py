@@ -1,0 +1,146 @@
+"""``fieldcal resolve DIR... -j N``: re-solve many sessions from their stored step averages, in
+parallel processes, each new calibration written into its session and recorded in the registry.
+
+A session the re-solve cannot handle (not a procedure run, no completed steps, damaged, locked
+by a running station) is reported in one line and skipped; the batch always goes on, and the
+exit status says whether any failed. A re-solve giving the bytes of the session's current
+parameter file writes nothing (it is already there). Only the parent process writes the
+registry, one record per session as it finishes, so the workers never contend for it.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+EXIT_SOME_FAILED = 1
+
+
+@dataclass(frozen=True)
+class Resolved:
+    session: str
+    params: str | None  # the parameter file the re-solve gave (new or the same); None: failed
+    line: str  # what became of the session, one line
+
+
+def resolve_one(session: str, method: str | None) -> Resolved:
+    """Re-solve one session; never raises (a worker's exception would be the batch's)."""
+    try:
+        return _resolve(Path(session), method)
+    except (ValueError, OSError) as exc:  # SessionError, ProcedureError, a file that went away
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    except Exception as exc:  # noqa: BLE001 -- one session's surprise must not stop the batch
+        reason = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+    return Resolved(session, None, f"FAILED {session}: {reason[:300]}")
+
+
+def _resolve(session: Path, method: str | None) -> Resolved:
+    from fieldcal.paramfile import dump
+    from fieldcal.run.replay import resolve_session
+    from fieldcal.session.capture import SessionReader, SessionWriter
+
+    unit, pf = resolve_session(session, method)
+    if pf is None:
+        why = "; ".join(f"{n}: {r}" for n, r in unit.failures.items()) or "no completed steps"
+        return Resolved(str(session), None, f"FAILED {session}: nothing could be calibrated ({why})")
+    current = SessionReader(session, log_only=True).parameters_path
+    if current is not None and Path(current).read_bytes() == dump(pf).encode("utf-8"):
+        return Resolved(str(session), str(current), f"unchanged {session}: {Path(current).name} "
+                        f"({pf.provenance.method})")
+    writer = SessionWriter.append_to(session)  # refused while a station is writing the session
+    try:
+        writer.write_parameters(pf)  # the next parameters-NNN.yaml: earlier ones are kept
+    finally:
+        writer.close()
+    written = SessionReader(session, log_only=True).parameters_path
+    failed = f"; not calibrated: {', '.join(unit.failures)}" if unit.failures else ""
+    return Resolved(str(session), str(written), f"re-solved {session}: {Path(written).name} "
+                    f"({pf.provenance.method}, {len(unit.solutions)} triads{failed})")
+
+
+def _results(sessions: list[str], method: str | None, jobs: int):
+    """Each session's Resolved, as they finish (in order with one job)."""
+    if jobs == 1 or len(sessions) == 1:
+        yield from (resolve_one(s, method) for s in sessions)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # spawn: workers start clean (no copy of a parent's threads or open registry connection)
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(resolve_one, s, method) for s in sessions]
+        for future in as_completed(futures):
+            yield future.result()
+
+
+def cmd_resolve(args) -> int:
+    from fieldcal.cli.production import EXIT_FAILED_SPEC, find_sessions, load_spec_option, record_in_registry
+
+    spec = load_spec_option(args)
+    sessions = [str(s) for s in find_sessions(args.directory, "resolve")]
+    if not sessions:
+        raise ValueError(f"resolve: no sessions (directories with a log.jsonl) in {' '.join(args.directory)}")
+    jobs = min(args.jobs, len(sessions))
+    print(f"re-solving {len(sessions)} session{'s' * (len(sessions) != 1)} in {jobs} "
+          f"process{'es' * (jobs != 1)}", flush=True)
+    failed = spec_failed = 0
+    for done, result in enumerate(_results(sessions, args.method, jobs), start=1):
+        passed = None
+        if result.params is not None and spec is not None:
+            passed, verdict_text = _verdict(spec, result.params)
+            spec_failed += not passed
+            result = Resolved(result.session, result.params, f"{result.line} {verdict_text}")
+        failed += result.params is None
+        print(f"[{done}/{len(sessions)}] {result.line}", flush=True)
+        if result.params is not None:
+            record_in_registry(args, result.params, passed, "resolve")
+    print(f"{len(sessions) - failed} re-solved, {failed} failed"
+          + (f", {spec_failed} failed {spec.path}" if spec is not None else ""), flush=True)
+    if failed:
+        return EXIT_SOME_FAILED
+    return EXIT_FAILED_SPEC if spec_failed else 0
+
+
+def _verdict(spec, params: str) -> tuple[bool, str]:
+    """(passed, "PASS" or "FAIL: first reason (+n more)") against the spec, drift included."""
+    from fieldcal.acceptance import evaluate
+    from fieldcal.cli.production import previous_calibration_of
+    from fieldcal.paramfile import load
+
+    previous = previous_calibration_of(Path(params))
+    verdict = evaluate(spec, load(params), previous.parameters if previous is not None else None)
+    if verdict.passed:
+        return True, "PASS"
+    first, more = verdict.failures[0], len(verdict.failures) - 1
+    return False, (f"FAIL: {first.triad} {first.parameter} {first.reasons[0]}"
+                   + (f" (+{more} more)" if more else ""))
+
+
+def _jobs(text: str) -> int:
+    value = int(text) if text.isdigit() else 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number of processes >= 1, got {text!r}")
+    return value
+
+
+def add_resolve_parser(sub) -> None:
+    from fieldcal.cli.production import add_spec_option
+    from fieldcal.solvers.methods import METHODS
+
+    parser = sub.add_parser(
+        "resolve", help="re-solve many sessions in parallel, writing and registering the results",
+        description="Re-solve every session in each DIR (a session, or a directory of sessions) from "
+        "the step averages in its log, in N processes. A result that differs from the session's "
+        "current parameter file goes into its next parameters-NNN.yaml (earlier files are kept); "
+        "every result is recorded in the unit registry. A session that cannot be re-solved is "
+        "reported in one line and skipped.",
+        epilog=f"exit status: 0 all re-solved, {EXIT_SOME_FAILED} some could not be, 3 all re-solved "
+        "but some failed --spec, 2 bad arguments")
+    parser.add_argument("directory", nargs="+", metavar="DIR")
+    parser.add_argument("-j", "--jobs", type=_jobs, default=1, metavar="N",
+                        help="processes re-solving at once (default 1)")
+    parser.add_argument("--method", choices=METHODS[1:], help="solve with this method instead of "
+                        "each session's own")
+    add_spec_option(parser)
+    parser.set_defaults(func=cmd_resolve)

@@ -1,0 +1,192 @@
+"""Where the registry lives: an SQLite file (one station), or a PostgreSQL server that every
+station of a line points at (``--registry postgresql://user@host/db``). Both are plain DB-API
+connections behind the same four operations, so the registry's SQL and migrations are written
+once: statements use ``?`` placeholders and two type names that differ (``{id}``, ``{float}``).
+
+Credentials are libpq's business: a password comes from PGPASSWORD, ~/.pgpass (PGPASSFILE) or a
+service file (PGSERVICE), never from fieldcal's own files. A password written into the URL is
+accepted but redacted wherever the location is printed (``redact``), and a connection error's
+text is scrubbed of it too. TLS: libpq's ``sslmode`` from the URL (``?sslmode=require``) or
+PGSSLMODE is honoured; ``require_tls`` makes a connection without TLS fail.
+"""
+from __future__ import annotations
+
+import os
+import re
+import sqlite3
+import time
+from pathlib import Path
+from urllib.parse import unquote, urlsplit
+
+POSTGRES_SCHEMES = ("postgresql", "postgres")
+# sslmode values that refuse a connection without TLS (libpq's own words)
+TLS_MODES = ("require", "verify-ca", "verify-full")
+# one key for the advisory lock under which a station migrates a PostgreSQL registry
+_MIGRATION_LOCK = 0x6669656C6463616C  # "fieldcal"
+HIDDEN = "***"
+
+
+class RegistryError(ValueError):
+    """The registry cannot be opened or written (one line, never holding a password)."""
+
+
+def is_postgres(location) -> bool:
+    return isinstance(location, str) and location.split("://", 1)[0].lower() in POSTGRES_SCHEMES \
+        and "://" in location
+
+
+def redact(location) -> str:
+    """The registry location as it may be printed: a password in a postgresql:// URL (in
+    ``user:PASSWORD@`` or ``?password=``) replaced by ``***``; a file path as it is.
+
+    The user information ends at the URL's last "@", so a password holding "@", "/" or "?"
+    unescaped is hidden whole (an "@" in a query value may hide more than the password: never
+    less)."""
+    text = str(location)
+    if not is_postgres(text):
+        return text
+    scheme, rest = text.split("://", 1)
+    userinfo, at, after = rest.rpartition("@")
+    if at and ":" in userinfo:
+        userinfo = f"{userinfo.split(':', 1)[0]}:{HIDDEN}"
+    rest = f"{userinfo}{at}{after}"
+    main, question, query = rest.partition("?")
+    query = re.sub(r"(^|&)(password=)[^&#]*", rf"\g<1>\g<2>{HIDDEN}", query)
+    return f"{scheme}://{main}{question}{query}"
+
+
+def url_password(location: str) -> str | None:
+    """The password written in a postgresql:// URL, if any (to scrub it from error texts)."""
+    parts = urlsplit(location)
+    if parts.password:
+        return unquote(parts.password)
+    found = re.search(r"(?:^|&)password=([^&#]*)", parts.query)
+    return unquote(found.group(1)) if found else None
+
+
+def _scrub(text: str, secret: str | None) -> str:
+    return text.replace(secret, HIDDEN) if secret else text
+
+
+class SqliteBackend:
+    """One SQLite file in WAL mode; writers wait for each other up to the busy timeout."""
+    kind = "sqlite"
+    types = {"id": "INTEGER PRIMARY KEY", "float": "REAL"}
+
+    def __init__(self, path: Path, timeout_s: float) -> None:
+        self.path = path
+        self.where = str(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.db = sqlite3.connect(path, timeout=timeout_s, isolation_level=None)
+        try:
+            self.db.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")
+            self._wal(timeout_s)
+            self.db.execute("PRAGMA foreign_keys = ON")
+        except sqlite3.Error as exc:  # not a database, unreadable
+            self.db.close()
+            raise RegistryError(f"registry {self.where}: {exc}") from None
+
+    def _wal(self, timeout_s: float) -> None:
+        """Switch to WAL. The switch needs the database to itself and SQLite answers "locked" at
+        once, without its busy handler, while another station opens the same new file: wait and
+        try again, as the busy timeout would."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                self.db.execute("PRAGMA journal_mode = WAL")
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.01)
+
+    def execute(self, sql: str, params=()):
+        try:
+            return self.db.execute(sql, params)
+        except sqlite3.Error as exc:  # locked past the timeout, disk full, not a database
+            raise RegistryError(f"registry {self.where}: {exc}") from None
+
+    def begin(self, migrating: bool = False) -> None:
+        # IMMEDIATE: the write lock now, so two stations never both read then both write
+        self.execute("BEGIN IMMEDIATE")
+
+    def commit(self) -> None:
+        self.execute("COMMIT")
+
+    def rollback(self) -> None:
+        self.execute("ROLLBACK")
+
+    def close(self) -> None:
+        self.db.close()
+
+
+class PostgresBackend:
+    """A PostgreSQL server through psycopg 3 (libpq): explicit transactions, READ COMMITTED;
+    concurrent stations are serialised by the unique key (INSERT ... ON CONFLICT) and, while
+    migrating, by an advisory lock."""
+    kind = "postgresql"
+    types = {"id": "BIGINT GENERATED BY DEFAULT AS IDENTITY PRIMARY KEY", "float": "DOUBLE PRECISION"}
+
+    def __init__(self, url: str, timeout_s: float, require_tls: bool = False) -> None:
+        self.where = redact(url)
+        secret = url_password(url)
+        try:
+            import psycopg
+            from psycopg.conninfo import conninfo_to_dict
+        except ImportError:
+            raise RegistryError(f"registry {self.where}: PostgreSQL needs psycopg: "
+                                "pip install 'fieldcal[postgres]'") from None
+        self._errors = psycopg.Error
+        options = {"connect_timeout": max(1, round(timeout_s)), "application_name": "fieldcal"}
+        try:
+            given = conninfo_to_dict(url)
+        except psycopg.Error as exc:
+            raise RegistryError(f"registry {self.where}: not a PostgreSQL URL: "
+                                f"{_scrub(str(exc), secret).splitlines()[0]}") from None
+        mode = given.get("sslmode") or os.environ.get("PGSSLMODE")
+        if require_tls and mode not in TLS_MODES:
+            options["sslmode"] = "require"  # a stricter mode the user gave (verify-*) is kept
+        try:
+            self.db = psycopg.connect(url, autocommit=True, **options)
+        except psycopg.Error as exc:
+            lines = [line.strip() for line in _scrub(str(exc), secret).splitlines() if line.strip()]
+            raise RegistryError(f"registry {self.where}: cannot connect: {' '.join(lines)[:300]}") from None
+        self.tls = self.db.info.pgconn.ssl_in_use
+        self._secret = secret
+        # As SQLite's busy timeout: a station waits this long for another's lock, then gives up
+        # (a warning; the session is complete); and a station stuck inside a transaction has it
+        # ended by the server instead of holding its locks for ever.
+        milliseconds = max(1, round(timeout_s * 1000))
+        self.execute(f"SET lock_timeout = {milliseconds}")
+        self.execute(f"SET idle_in_transaction_session_timeout = {6 * milliseconds}")
+
+    def execute(self, sql: str, params=()):
+        try:
+            return self.db.execute(sql.replace("?", "%s"), params)
+        except self._errors as exc:  # the server gone, a statement refused: one line
+            text = " ".join(line.strip() for line in _scrub(str(exc), self._secret).splitlines())
+            raise RegistryError(f"registry {self.where}: {text[:300]}") from None
+
+    def begin(self, migrating: bool = False) -> None:
+        self.execute("BEGIN")
+        if migrating:  # one station migrates; the others wait here, then find it done
+            self.execute("SELECT pg_advisory_xact_lock(?)", (_MIGRATION_LOCK,))
+
+    def commit(self) -> None:
+        self.execute("COMMIT")
+
+    def rollback(self) -> None:
+        if not self.db.closed:
+            self.execute("ROLLBACK")
+
+    def close(self) -> None:
+        self.db.close()
+
+
+def open_backend(location, timeout_s: float, require_tls: bool = False):
+    if is_postgres(location):
+        return PostgresBackend(location, timeout_s, require_tls)
+    if require_tls:
+        raise RegistryError(f"registry {location}: --registry-require-tls is for a PostgreSQL server "
+                            "(postgresql://...); an SQLite file has no connection to protect")
+    return SqliteBackend(Path(location), timeout_s)

@@ -1,0 +1,155 @@
+"""The production workflow end to end: sessions re-solved in a parallel batch (a bad one reported
+and skipped), replays, resumed runs and terminal-UI sessions recorded, and a small simulated
+production line (units with serials, some out of spec, one drifting) in the registry, listed by
+``units`` and flagged by ``history``."""
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.sim.device import paper_mimu
+from fieldcal.acceptance import load_spec
+from fieldcal.cli.main import main
+from fieldcal.model import params_from_k
+from fieldcal.paramfile import load
+from fieldcal.procedure.positions import load_procedure
+from fieldcal.registry import Registry
+from fieldcal.registry.simulated_line import DRIFT_MG, OUT_OF_SPEC_BIAS_MG, plan_line, run_line
+from test_registry import QUICK
+
+SPEC = Path(__file__).parents[1] / "configs" / "specs" / "paper-mimu.yaml"
+
+
+@pytest.fixture(scope="module")
+def pristine_session(tmp_path_factory):
+    """One completed headless run (the simulated MIMU, the quick procedure), recorded nowhere."""
+    out = tmp_path_factory.mktemp("runs")
+    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(out), "--seed", "5",
+                 "--registry", str(out / "unused.sqlite")]) == 0
+    [session] = [p for p in out.iterdir() if p.is_dir()]
+    return session
+
+
+def _copy(session: Path, where: Path) -> Path:
+    shutil.copytree(session, where, ignore=shutil.ignore_patterns("lock"))
+    return where
+
+
+def test_resolve_batch_writes_records_and_skips_a_bad_session(pristine_session, tmp_path, capsys):
+    batch = tmp_path / "batch"
+    a, b = _copy(pristine_session, batch / "a"), _copy(pristine_session, batch / "b")
+    (batch / "bad").mkdir()
+    (batch / "bad" / "log.jsonl").write_text('{"seq": 0, "type": "start"\n')  # torn first line
+    original = (a / "parameters-001.yaml").read_bytes()
+    db = str(tmp_path / "r.sqlite")
+
+    status = main(["resolve", str(batch), "-j", "2", "--method", "lsq", "--registry", db])
+    out = capsys.readouterr().out.splitlines()
+    assert status == 1  # one session failed; the others were re-solved all the same
+    assert out[0] == "re-solving 3 sessions in 2 processes"
+    progress = sorted(line.split("] ", 1)[1] for line in out[1:4])
+    assert [line.split()[0] for line in out[1:4]] == ["[1/3]", "[2/3]", "[3/3]"]
+    assert progress[0].startswith(f"FAILED {batch / 'bad'}: ")
+    assert progress[1:] == [f"re-solved {s}: parameters-002.yaml (lsq, 3 triads)" for s in (a, b)]
+    assert out[4] == "2 re-solved, 1 failed"
+    assert (a / "parameters-001.yaml").read_bytes() == original  # kept
+    assert (a / "parameters.yaml").read_bytes() == (a / "parameters-002.yaml").read_bytes()
+
+    resolved = load(a / "parameters-002.yaml")
+    assert resolved.provenance.method == "lsq"
+    truth = {n: params_from_k(t.K, t.bias) for n, t in paper_mimu().items()}
+    for cal in resolved.triads:  # the re-solve is a calibration: the simulator's truth within 5σ
+        assert np.all(np.abs(cal.theta - truth[cal.name]) < 5 * cal.sigma), cal.name
+    with Registry(db) as registry:
+        rows = registry.query("SELECT params_path, method, source FROM calibrations ORDER BY params_path")
+    assert rows == [(str((s / "parameters-002.yaml").resolve()), "lsq", "resolve") for s in (a, b)]
+
+    # the same re-solve again: the session has that file already, nothing is written
+    assert main(["resolve", str(a), "--method", "lsq", "--registry", db]) == 0
+    assert f"unchanged {a}: parameters-002.yaml (lsq)" in capsys.readouterr().out
+    assert not (a / "parameters-003.yaml").exists()
+    # with the spec: the verdict on each line, recorded with the row
+    assert main(["resolve", str(b), "--spec", str(SPEC), "--registry", db]) == 0
+    assert capsys.readouterr().out.splitlines()[1].endswith(" PASS")
+    with Registry(db) as registry:
+        assert registry.history("")[-1]["passed"] == 1
+
+
+def test_a_replay_is_recorded(pristine_session, tmp_path, capsys):
+    session = _copy(pristine_session, tmp_path / "s")
+    db = str(tmp_path / "r.sqlite")
+    assert main(["replay", str(session), "--quiet", "--registry", db, "--out", str(tmp_path / "re.yaml")]) == 0
+    capsys.readouterr()
+    with Registry(db) as registry:
+        rows = registry.query("SELECT params_path, source FROM calibrations ORDER BY source")
+    # the replay's own file, and the session's calibration it confirmed
+    assert rows == [(str((tmp_path / "re.yaml").resolve()), "replay"),
+                    (str((session / "parameters-001.yaml").resolve()), "run")]
+
+
+def test_a_resumed_run_is_recorded(pristine_session, tmp_path, capsys):
+    from crashes import cut_before_step_record
+
+    session = _copy(pristine_session, tmp_path / "s")
+    cut_before_step_record(session, 12)  # killed before step 13's record: resumed from there
+    db = str(tmp_path / "r.sqlite")
+    assert main(["resume", str(session), "--quiet", "--registry", db]) == 0
+    capsys.readouterr()
+    recorded = (pristine_session / "parameters-001.yaml").read_bytes()
+    assert (session / "parameters-001.yaml").read_bytes() == recorded  # what the run would have made
+    with Registry(db) as registry:
+        assert registry.query("SELECT params_path, source FROM calibrations") == \
+            [(str((session / "parameters-001.yaml").resolve()), "run")]
+
+
+def test_the_terminal_ui_records_its_sessions_calibrations_when_it_closes(pristine_session, tmp_path):
+    from argparse import Namespace
+
+    from crashes import cut_before_step_record
+    from fieldcal.cli.tui import record_sessions
+
+    calibrated = _copy(pristine_session, tmp_path / "calibrated")
+    quit_early = _copy(pristine_session, tmp_path / "quit")
+    cut_before_step_record(quit_early, 3)  # the operator quit after three steps: no calibration
+    db = str(tmp_path / "r.sqlite")
+    record_sessions(Namespace(registry=db, registry_require_tls=False), [calibrated, quit_early, None])
+    with Registry(db) as registry:
+        assert registry.query("SELECT params_path, source FROM calibrations") == \
+            [(str((calibrated / "parameters-001.yaml").resolve()), "run")]
+
+
+def test_a_small_production_line_in_the_registry(tmp_path, capsys):
+    builds = plan_line(6, out_of_spec=2, seed=3)
+    assert [b.serial for b in builds] == [f"FC-000{i}" for i in range(1, 7)]
+    [drifting] = [b for b in builds if b.drifting]
+    out_of_spec = {b.serial for b in builds if b.out_of_spec}
+    assert len(out_of_spec) == 2 and drifting.serial not in out_of_spec
+    db = str(tmp_path / "line.sqlite")
+    done = run_line(tmp_path / "line", db, load_spec(SPEC), builds, load_procedure(QUICK), rate_hz=50.0, seed=3)
+
+    assert len(done) == 7  # six units, the drifting one twice
+    verdicts = {(c.serial, c.params.name): c for c in done}
+    for b in builds:
+        first = verdicts[b.serial, "calibration-1.yaml"]
+        assert first.passed == (not b.out_of_spec), (b.serial, first.reasons)
+        if b.out_of_spec:  # the built-in fault, found through calibration and noise
+            assert [r.split(":")[0] for r in first.reasons] == ["accelerometer bias_x"]
+            value = load(first.params).triads[0].bias[0] / (9.80665e-3)
+            assert value == pytest.approx(OUT_OF_SPEC_BIAS_MG, abs=0.5)
+    second = verdicts[drifting.serial, "calibration-2.yaml"]
+    assert not second.passed and len(second.reasons) == 1 and "drifted" in second.reasons[0]
+
+    assert main(["units", "--registry", db]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
+    assert [(r[0], r[-3], r[-1]) for r in rows] == [
+        (b.serial, "2" if b.drifting else "1", "FAIL" if b.out_of_spec or b.drifting else "PASS")
+        for b in builds]
+    assert main(["history", drifting.serial, "--registry", db, "--spec", str(SPEC)]) == 0
+    history = capsys.readouterr().out
+    [flagged] = [line for line in history.splitlines() if "drifted" in line and "bias x" in line]
+    assert flagged.split()[:2] == ["accelerometer", "bias"] and "> 1" in flagged
+    drift = float(flagged.split("drifted ")[1].split()[0])
+    assert drift == pytest.approx(DRIFT_MG, abs=0.5)  # the simulated drift, recovered
+    assert "1 parameter drifted beyond" in history
+    assert history.splitlines()[1].startswith("#2 2026-07-04T") and " [run] (FAIL): " in history  # 180 days on
