@@ -14,7 +14,8 @@ from fieldcal.tui.widgets.toosmall import TooSmall
 from textual.widgets import Footer, Static
 
 from fieldcal.report import comparison_table, solution_header, solution_table, worst_error
-from fieldcal.tui.widgets.residuals import per_position, residual_bars
+from fieldcal.residuals import per_position, position_list, positions_phrase  # noqa: F401 (position_list: for tests)
+from fieldcal.tui.widgets.residuals import residual_bars
 from fieldcal.tui.source import Outcome
 
 
@@ -56,21 +57,6 @@ def where(outcome: Outcome) -> Text:
     return text
 
 
-def position_list(ids: list[int]) -> str:
-    """1, 4, 7–9: consecutive ids as a range."""
-    runs: list[list[int]] = []
-    for i in ids:
-        if runs and i == runs[-1][-1] + 1:
-            runs[-1].append(i)
-        else:
-            runs.append([i])
-    return ", ".join(f"{r[0]}–{r[-1]}" if len(r) > 2 else ", ".join(map(str, r)) for r in runs)
-
-
-def _positions(ids: list[int]) -> str:
-    return f"position{'s' if len(ids) > 1 else ''} {position_list(ids)}"
-
-
 def summary(outcome: Outcome, skipped: list[int], not_done: list[int]) -> Text:
     """The verdict per triad first (solved, or refused and why; its worst residual; against the
     simulation truth, its largest error), then the positions skipped or not done."""
@@ -97,9 +83,9 @@ def summary(outcome: Outcome, skipped: list[int], not_done: list[int]) -> Text:
         text.append(f"  {' '.join(str(why).split()).removeprefix(name + ': ')}\n")
     if outcome.status == "completed" and not solutions and not failures:
         text.append("nothing was solved\n", style="yellow")
-    text.append(f"skipped: {_positions(skipped) if skipped else 'none'}", style="yellow" if skipped else "")
+    text.append(f"skipped: {positions_phrase(skipped) if skipped else 'none'}", style="yellow" if skipped else "")
     if not_done:
-        text.append(f" · not done: {_positions(not_done)}", style="yellow")
+        text.append(f" · not done: {positions_phrase(not_done)}", style="yellow")
     return text
 
 
