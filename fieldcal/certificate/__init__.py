@@ -26,7 +26,7 @@ td.num{text-align:right;font-family:"DejaVu Sans Mono",monospace;white-space:now
 .verdict{display:inline-block;border:2px solid;padding:.05em .5em;margin-left:.4em}
 code{word-break:break-all;font-size:9pt}section.triad{break-inside:avoid}
 figure{margin:.3em 0;break-inside:avoid}figure svg{display:block;max-width:100%;height:auto}
-figcaption,.values,.note{font-size:8.5pt;color:#333}.values span{white-space:nowrap}
+figcaption,.note{font-size:8.5pt;color:#333}.values span{white-space:nowrap}
 img.allan{max-width:100%;max-height:120mm;display:block;margin:.3em auto}"""
 
 
@@ -57,20 +57,21 @@ def _temperature(evidence) -> str:
     return f"{t.low:.1f} to {t.high:.1f} °C (mean {t.mean:.1f} °C) reported by the device"
 
 
-def _residual_figure(cal, res, limit) -> str:
+def _residual_figure(cal, res, limit, skipped) -> str:
     from fieldcal.certificate.plots import residual_svg
     from fieldcal.units import BIAS, operator_unit
 
     factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
     rms = cal.residual_rms * factor if unit == res.unit else None
-    values = " · ".join(f"<span data-position='{escape(label)}' data-value='{v!r}'>{escape(label)} "
-                        f"{v:+.3g}</span>" if res.signed else
-                        f"<span data-position='{escape(label)}' data-value='{v!r}'>{escape(label)} {v:.3g}</span>"
+    values = " · ".join(f"<span data-position='{escape(label)}' data-value='{v!r}'>"
+                        f"{escape(label.removeprefix('pos '))}: {v:+.3g}</span>" if res.signed else
+                        f"<span data-position='{escape(label)}' data-value='{v!r}'>"
+                        f"{escape(label.removeprefix('pos '))}: {v:.3g}</span>"
                         for label, v in zip(res.labels, map(float, res.values)))
     what = "residual" if res.signed else "RMS of the residuals"
     return (f"<figure class='residuals' data-triad='{escape(cal.name)}' data-unit='{escape(res.unit)}'>"
-            f"{residual_svg(res, rms, limit)}<figcaption>{escape(cal.name)}: {what} per position, "
-            f"{escape(res.unit)}</figcaption><p class='values'>{values}</p></figure>")
+            f"{residual_svg(res, rms, limit, skipped)}<figcaption>{escape(cal.name)}, {what} per position "
+            f"({escape(res.unit)}): <span class='values'>{values}</span></figcaption></figure>")
 
 
 def certificate_html(session: Path, params: Path, parameters, check: str, verdict=None,
@@ -124,7 +125,7 @@ def certificate_html(session: Path, params: Path, parameters, check: str, verdic
             ts = next((t for t in spec.triads if t.name == cal.name), None) if spec is not None else None
             limit = ts.max_residual[0] if ts is not None and ts.max_residual is not None \
                 and ts.max_residual[1] == res.unit else None
-            section.append(_residual_figure(cal, res, limit))
+            section.append(_residual_figure(cal, res, limit, evidence.skipped))
         body.append("".join(section) + "</section>")
     if evidence is not None and evidence.residual_note:
         body.append(f"<p class='note'>{escape(evidence.residual_note)}.</p>")
