@@ -210,3 +210,23 @@ def test_certificate_in_a_real_headless_chromium(tmp_path, session):
 
     pixels = np.asarray(Image.open(png).convert("L"))
     assert (pixels < 128).mean() > 0.01  # text and plots on it, not a blank page
+
+
+def test_certificate_of_an_imported_recording(tmp_path):
+    """A recording calibrated with `fieldcal calibrate` has no procedure positions: its page holds
+    every parameter and says where the residual of each pose is shown instead."""
+    from drivers.sim.handheld import simulate_handheld, to_text
+
+    acc, gyro = to_text(simulate_handheld(3), tmp_path)
+    assert main(["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--latitude", "40", "--gravity",
+                 "9.80", "--out", str(tmp_path / "s"), "--registry", str(tmp_path / "r.sqlite")]) == 0
+    [directory] = (tmp_path / "s").iterdir()
+    out = tmp_path / "cert.html"
+    assert main(["certificate", str(directory), "--out", str(out), "--no-pdf"]) == 0
+    text = out.read_text(encoding="utf-8")
+    page = Page(text)
+    assert_self_contained(page)
+    pf = load(directory / "parameters-001.yaml")
+    assert {a["data-triad"] for a, _ in page.tables[1:]} == set(pf.names) and not page.residuals
+    assert "an imported recording: no procedure positions to re-solve" in text
+    assert "Positions" not in dict(page.tables[0][1])

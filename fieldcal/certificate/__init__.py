@@ -94,7 +94,9 @@ def certificate_html(session: Path, params: Path, parameters, check: str, verdic
              ("Station", f"latitude {p.latitude_deg:.5f}°, height {p.height_m:g} m"),
              ("Local gravity", f"{p.gravity_m_s2:.6f} m/s² ({p.gravity_source})")]
     if evidence is not None:
-        facts += [("Temperature", _temperature(evidence)), ("Positions", _positions(evidence))]
+        facts.append(("Temperature", _temperature(evidence)))
+        if evidence.completed is not None:
+            facts.append(("Positions", _positions(evidence)))
     facts += [("Procedure, method", f"{p.procedure}, {p.method}"),
               ("Software", f"fieldcal {p.software_version}"),
               ("Parameter file", f"{params.name}, SHA-256 {sha} ({check})")]

@@ -37,7 +37,7 @@ class Evidence:
     residual_note: str = ""  # how the residuals were obtained, or why there are none
     temperature: Temperature | None = None
     skipped: tuple[int, ...] = ()  # position ids
-    completed: int = 0
+    completed: int | None = None  # steps done; None: not a procedure run
     allan: tuple[Path, ...] = ()  # PNGs, one per triad
 
 
@@ -80,18 +80,21 @@ def replayed_residuals(directory: Path) -> tuple[dict[str, PositionResiduals], s
     return found, note
 
 
-def gather(directory: Path, residuals: bool = True) -> Evidence:
-    """Everything the certificate takes from the session directory."""
+def gather(directory: Path) -> Evidence:
+    """Everything the certificate takes from the session directory. An imported recording (no
+    procedure) has no positions to re-solve: its certificate says so."""
+    from fieldcal.run.runner import RunSpec
     from fieldcal.session.capture import SessionReader
 
-    from fieldcal.run.runner import RunSpec
-
     reader = SessionReader(directory)
+    allan = tuple(sorted(Path(directory).glob("allan-*.png")))
+    if reader.start.get("kind") == "recording":
+        return Evidence({}, "an imported recording: no procedure positions to re-solve (`fieldcal calibrate "
+                        "SESSION` shows each pose's residual)", session_temperature(reader), allan=allan)
     positions = RunSpec.from_metadata(reader.start).procedure.positions
     steps = reader.steps()  # each says which steps were skipped before it
     done = {s["step"] for s in steps}
     skipped = sorted({i for s in steps for i in s.get("skipped", ())} - done)
-    found, note = replayed_residuals(directory) if residuals else ({}, "")
-    allan = tuple(sorted(Path(directory).glob("allan-*.png")))
+    found, note = replayed_residuals(directory)
     return Evidence(found, note, session_temperature(reader), tuple(positions[i].id for i in skipped),
                     len(done), allan)
