@@ -141,6 +141,7 @@ def test_certificate_plots_each_positions_residual_and_says_the_temperature(tmp_
     facts = dict(page.tables[0][1])
     assert facts["Temperature"] == "not reported by the device"  # the in-process simulator
     assert facts["Positions"] == "18 done, none skipped"
+    assert facts["Residuals"] == "residuals from re-solving the session, which reproduces this parameter file"
 
 
 def test_certificate_of_a_serial_run_with_a_skip_and_an_allan_plot(tmp_path, serial_session, capsys,
@@ -168,6 +169,10 @@ def test_certificate_of_a_serial_run_with_a_skip_and_an_allan_plot(tmp_path, ser
     assert facts["Positions"] == "17 done, skipped: position 5"
     residuals_against_the_file(page, params)
     assert "pos 5" not in [label for label, _ in page.residuals["accelerometer"][1]]
+    triads = {a["data-triad"]: rows for a, rows in page.tables[1:]}
+    assert {row[4] for row in triads["accelerometer"][1:]} == {"– not in the spec"}  # not PASS
+    assert {row[4] for row in triads["gyroscope"][1:]} == {"PASS"}  # no limit on its parameters
+    assert facts["Note"] == "not in the spec, not checked: accelerometer"
     assert f"FAIL: RMS {gyro.residual_rms * factor:.6g} {unit} above the maximum" in text
     # the Allan plot `fieldcal allan` wrote into the session, embedded byte for byte
     images = [a for tag, a in page.attrs if tag == "img"]
@@ -228,5 +233,5 @@ def test_certificate_of_an_imported_recording(tmp_path):
     assert_self_contained(page)
     pf = load(directory / "parameters-001.yaml")
     assert {a["data-triad"] for a, _ in page.tables[1:]} == set(pf.names) and not page.residuals
-    assert "an imported recording: no procedure positions to re-solve" in text
+    assert dict(page.tables[0][1])["Residuals"].startswith("an imported recording: no procedure positions")
     assert "Positions" not in dict(page.tables[0][1])

@@ -37,8 +37,14 @@ def _row(cells, header=False, classes=None) -> str:
                             for x, c in zip(cells, classes)) + "</tr>"
 
 
+NOT_CHECKED = "– not in the spec"
+
+
 def _result(check) -> str:
-    return "PASS" if check is None or check.passed else "FAIL: " + "; ".join(check.reasons)
+    """PASS, FAIL with the reasons, or (no check: a triad the spec does not name) not checked."""
+    if check is None:
+        return NOT_CHECKED
+    return "PASS" if check.passed else "FAIL: " + "; ".join(check.reasons)
 
 
 def _positions(evidence) -> str:
@@ -102,6 +108,9 @@ def certificate_html(session: Path, params: Path, parameters, check: str, verdic
               ("Parameter file", f"{params.name}, SHA-256 {sha} ({check})")]
     if verdict is not None:
         facts.append(("Acceptance", f"{result} against {verdict.product}"))
+        facts += [("Note", n) for n in verdict.notes]
+    if evidence is not None and evidence.residual_note:
+        facts.append(("Residuals", evidence.residual_note))
     head = "<h1>Calibration certificate" + (f"<span class='verdict {result}'>{result}</span>" if result else "") + "</h1>"
     body = [head, "<table id='facts'>" + "".join(_row(f) for f in facts) + "</table>"]
     missing = [c for c in (verdict.checks if verdict else ()) if c.parameter == "triad"]
@@ -111,8 +120,9 @@ def certificate_html(session: Path, params: Path, parameters, check: str, verdic
         rows = [_row(["parameter", "value", "±1σ", "unit"] + (["result"] if verdict else []), header=True)]
         for name, v, s, u in zip(cal.parameter_names, values, sigmas, units):
             cell = [] if verdict is None else [_result(checks.get((cal.name, name)))]
+            styles = [c[:4] if c != NOT_CHECKED else "" for c in cell]  # the PASS or FAIL class
             rows.append(_row([label(name), f"{v:.7g}", f"{s:.3g}", u] + cell,
-                             classes=["", "num", "num", ""] + [c[:4] for c in cell]))
+                             classes=["", "num", "num", ""] + styles))
         factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
         residual_check = checks.get((cal.name, "residual"))
         verdict_text = "" if residual_check is None else \
@@ -129,15 +139,12 @@ def certificate_html(session: Path, params: Path, parameters, check: str, verdic
                 and ts.max_residual[1] == res.unit else None
             section.append(_residual_figure(cal, res, limit, evidence.skipped))
         body.append("".join(section) + "</section>")
-    if evidence is not None and evidence.residual_note:
-        body.append(f"<p class='note'>{escape(evidence.residual_note)}.</p>")
     if evidence is not None and evidence.allan:
         body.append("<section class='allan'><h2>Allan deviation (measured in this session with "
                     "fieldcal allan)</h2>")
         body += [f"<img class='allan' alt='{escape(path.stem)}' src='{png_data_uri(path)}'>"
                  for path in evidence.allan]
         body.append("</section>")
-    body += [f"<p class='note'>note: {escape(n)}</p>" for n in (verdict.notes if verdict else ())]
     return ("<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>"
             f"<title>Calibration certificate {escape(p.device_serial or session.name)}</title>"
             f"<style>{_STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-WIDTH_IN, HEIGHT_IN = 7.0, 2.1  # fits an A4 page's text width at 100 %
+WIDTH_IN, HEIGHT_IN = 7.0, 1.8  # an A4 page's text width; two triads' tables and plots a page
 
 
 def residual_svg(res, rms: float | None = None, limit: float | None = None, skipped=()) -> str:
