@@ -169,3 +169,58 @@ def test_snapshot_results_with_a_spec(snap_compare, classic12_session, tmp_path,
         await pilot.pause()
 
     assert snap_compare(app, terminal_size=size, run_before=results)
+
+
+@run_async
+async def test_a_refused_triad_fails_its_spec_once_and_a_triad_never_made_is_named():
+    """No rate steps: the gyroscope is refused, the accelerometer solved. The refused triad the
+    spec names is FAIL on its own line (not twice); a triad the unit does not have is named with
+    the triads the file holds; nothing solved at all is said as such."""
+    text = load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 2")
+    static = parse_procedure("\n".join(line for line in text.splitlines() if "rate_step" not in line),
+                             "static.yaml")
+    spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "p", "triads": {
+        "accelerometer": {"bias": {"unit": "mg", "min": -50, "max": 50}},
+        "gyroscope": {"bias": {"unit": "°/h", "max": 1000}},
+        "magnetometer": {"max_residual": {"unit": "uT", "value": 1}}}}, "p.yaml")
+    app = FieldcalApp(RunSpec(static, STATION, seed=3), speed=0, session_dir=None, product_spec=spec)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await finish(pilot, app)
+        summary = rendered(app, "#verdicts")
+        await pilot.press("q")
+    unit = app.outcome.unit
+    assert set(unit.failures) == {"gyroscope"} and "accelerometer" in unit.solutions
+    assert re.search(r"^accelerometer +✓ PASS +worst residual", summary, re.M)
+    assert len(re.findall(r"^gyroscope ", summary, re.M)) == 1
+    assert re.search(r"^gyroscope +✗ FAIL +refused", summary, re.M)
+    held = ", ".join(app.outcome.parameter_file.names)
+    assert re.search(rf"^magnetometer +✗ FAIL +not in the parameter file \(it has {held}\)", summary, re.M)
+    assert app.return_value == 1  # not everything calibrated: the run's own status comes first
+
+
+@run_async
+async def test_nothing_calibrated_is_not_checked_against_the_spec():
+    two = parse_procedure(
+        "name: two\ntitle: two\ndwell_s: 20\npositions:\n"
+        "  - {id: 1, description: up, axes: {x: south, y: east, z: up}}\n"
+        "  - {id: 2, description: up, axes: {x: north, y: west, z: up}}\n", "two.yaml")
+    spec = spec_from_document(SPEC, "spec.yaml")
+    app = FieldcalApp(RunSpec(two, STATION, seed=3), speed=0, session_dir=None, product_spec=spec)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await finish(pilot, app)
+        summary = rendered(app, "#verdicts")
+        await pilot.press("q")
+    assert app.outcome.parameter_file is None and not app.outcome.unit.solutions
+    assert "acceptance not checked: nothing was calibrated" in summary
+    assert app.return_value == 1
+
+
+def test_tui_refuses_a_bad_spec_before_anything_runs(tmp_path, capsys):
+    from fieldcal.cli.main import main
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("schema: fieldcal-spec/1\nproduct: p\ntriads: {accelerometer: {bias: {unit: mg, maxx: 1}}}\n")
+    assert main(["tui", "--sim", "--spec", str(bad), "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "nearest: 'max'" in err
+    assert not (tmp_path / "s").exists()

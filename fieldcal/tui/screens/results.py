@@ -167,8 +167,8 @@ def summary(outcome: Outcome, skipped: list[int], not_done: list[int], verdict=N
     if outcome.status == "completed" and not solutions and not failures:
         text.append("nothing was solved\n", style="yellow")
     if verdict is not None:
-        for c in verdict.checks:
-            if c.parameter == "triad":  # a triad the spec names and the run did not calibrate
+        for c in verdict.checks:  # a triad the spec names that the run neither solved nor refused
+            if c.parameter == "triad" and c.triad not in solutions and c.triad not in failures:
                 text.append(f"{c.triad:<{width}}  ")
                 text.append(FAIL_MARK, style="bold red")
                 text.append(f"  {'; '.join(c.reasons)}\n")
