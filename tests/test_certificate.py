@@ -235,3 +235,19 @@ def test_certificate_of_an_imported_recording(tmp_path):
     assert {a["data-triad"] for a, _ in page.tables[1:]} == set(pf.names) and not page.residuals
     assert dict(page.tables[0][1])["Residuals"].startswith("an imported recording: no procedure positions")
     assert "Positions" not in dict(page.tables[0][1])
+
+
+def test_a_browser_that_fails_leaves_the_page_and_no_pdf(tmp_path, session, capsys, monkeypatch):
+    """A Chromium that exits with an error: a one-line warning naming it, the HTML page written,
+    no PDF and no partial file left."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    fake = bin_dir / "chromium"
+    fake.write_text("#!/bin/sh\necho 'ERROR: cannot open display' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", str(bin_dir))
+    out = tmp_path / "cert.html"
+    assert main(["certificate", str(session), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"no PDF: {fake} exited with status 1: ERROR: cannot open display" in err
+    assert out.is_file() and sorted(p.name for p in tmp_path.iterdir()) == ["bin", "cert.html"]
