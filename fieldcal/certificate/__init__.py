@@ -69,10 +69,9 @@ def _residual_figure(cal, res, limit, skipped) -> str:
 
     factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
     rms = cal.residual_rms * factor if unit == res.unit else None
+    shown = "{:+.3g}" if res.signed else "{:.3g}"
     values = " · ".join(f"<span data-position='{escape(label)}' data-value='{v!r}'>"
-                        f"{escape(label.removeprefix('pos '))}: {v:+.3g}</span>" if res.signed else
-                        f"<span data-position='{escape(label)}' data-value='{v!r}'>"
-                        f"{escape(label.removeprefix('pos '))}: {v:.3g}</span>"
+                        f"{escape(label.removeprefix('pos '))}: {shown.format(v)}</span>"
                         for label, v in zip(res.labels, map(float, res.values)))
     what = "residual" if res.signed else "RMS of the residuals"
     return (f"<figure class='residuals' data-triad='{escape(cal.name)}' data-unit='{escape(res.unit)}'>"
@@ -80,15 +79,44 @@ def _residual_figure(cal, res, limit, skipped) -> str:
             f"({escape(res.unit)}): <span class='values'>{values}</span></figcaption></figure>")
 
 
+def _triad_section(cal, checks: dict, with_results: bool, evidence, spec) -> str:
+    """One triad: its parameters ± 1σ (with PASS/FAIL), its residual RMS (with its verdict) and
+    the plot of each position's residual."""
+    from fieldcal.acceptance import operator_values
+    from fieldcal.report import label
+    from fieldcal.units import BIAS, operator_unit
+
+    values, sigmas, units = operator_values(cal)
+    rows = [_row(["parameter", "value", "±1σ", "unit"] + (["result"] if with_results else []), header=True)]
+    for name, v, s, u in zip(cal.parameter_names, values, sigmas, units):
+        cell = [_result(checks.get((cal.name, name)))] if with_results else []
+        styles = [c[:4] if c != NOT_CHECKED else "" for c in cell]  # the PASS or FAIL class
+        rows.append(_row([label(name), f"{v:.7g}", f"{s:.3g}", u] + cell,
+                         classes=["", "num", "num", ""] + styles))
+    factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
+    residual_check = checks.get((cal.name, "residual"))
+    verdict_text = "" if residual_check is None else \
+        f" <span class='{_result(residual_check)[:4]}'>{escape(_result(residual_check))}</span>"
+    section = [f"<section class='triad'><h2>{escape(cal.name)} ({escape(cal.kind.replace('_', ' '))}, "
+               f"output in {escape(cal.output_unit)})</h2>",
+               f"<table class='triad' data-triad='{escape(cal.name)}'>{''.join(rows)}</table>",
+               f"<p class='rms'>residual RMS {cal.residual_rms * factor:.3g} {escape(unit)} "
+               f"({escape(cal.method)}){verdict_text}</p>"]
+    res = evidence.residuals.get(cal.name) if evidence is not None else None
+    if res is not None:
+        ts = next((t for t in spec.triads if t.name == cal.name), None) if spec is not None else None
+        limit = ts.max_residual[0] if ts is not None and ts.max_residual is not None \
+            and ts.max_residual[1] == res.unit else None
+        section.append(_residual_figure(cal, res, limit, evidence.skipped))
+    return "".join(section) + "</section>"
+
+
 def certificate_html(session: Path, params: Path, parameters, check: str, verdict=None,
                      stop_reason: str | None = None, evidence=None, spec=None) -> str:
     """The page. ``check`` is what ``fieldcal.session.history.recorded_check`` says of ``params``;
     ``verdict`` an ``acceptance.Verdict`` (of ``spec``, a ``ProductSpec``) or None; ``evidence``
     what ``evidence.gather`` read from the session (None: the parameter file alone)."""
-    from fieldcal.acceptance import operator_values
     from fieldcal.certificate.plots import png_data_uri
-    from fieldcal.report import label
-    from fieldcal.units import BIAS, operator_unit
 
     p = parameters.provenance
     sha = hashlib.sha256(params.read_bytes()).hexdigest()
@@ -111,34 +139,12 @@ def certificate_html(session: Path, params: Path, parameters, check: str, verdic
         facts += [("Note", n) for n in verdict.notes]
     if evidence is not None and evidence.residual_note:
         facts.append(("Residuals", evidence.residual_note))
-    head = "<h1>Calibration certificate" + (f"<span class='verdict {result}'>{result}</span>" if result else "") + "</h1>"
+    badge = f"<span class='verdict {result}'>{result}</span>" if result else ""
+    head = f"<h1>Calibration certificate{badge}</h1>"
     body = [head, "<table id='facts'>" + "".join(_row(f) for f in facts) + "</table>"]
     missing = [c for c in (verdict.checks if verdict else ()) if c.parameter == "triad"]
     body += [f"<p class='FAIL'>{escape(c.triad)}: FAIL: {escape('; '.join(c.reasons))}</p>" for c in missing]
-    for cal in parameters.triads:
-        values, sigmas, units = operator_values(cal)
-        rows = [_row(["parameter", "value", "±1σ", "unit"] + (["result"] if verdict else []), header=True)]
-        for name, v, s, u in zip(cal.parameter_names, values, sigmas, units):
-            cell = [] if verdict is None else [_result(checks.get((cal.name, name)))]
-            styles = [c[:4] if c != NOT_CHECKED else "" for c in cell]  # the PASS or FAIL class
-            rows.append(_row([label(name), f"{v:.7g}", f"{s:.3g}", u] + cell,
-                             classes=["", "num", "num", ""] + styles))
-        factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
-        residual_check = checks.get((cal.name, "residual"))
-        verdict_text = "" if residual_check is None else \
-            f" <span class='{_result(residual_check)[:4]}'>{escape(_result(residual_check))}</span>"
-        section = [f"<section class='triad'><h2>{escape(cal.name)} ({escape(cal.kind.replace('_', ' '))}, "
-                   f"output in {escape(cal.output_unit)})</h2>",
-                   f"<table class='triad' data-triad='{escape(cal.name)}'>{''.join(rows)}</table>",
-                   f"<p class='rms'>residual RMS {cal.residual_rms * factor:.3g} {escape(unit)} "
-                   f"({escape(cal.method)}){verdict_text}</p>"]
-        res = evidence.residuals.get(cal.name) if evidence is not None else None
-        if res is not None:
-            ts = next((t for t in spec.triads if t.name == cal.name), None) if spec is not None else None
-            limit = ts.max_residual[0] if ts is not None and ts.max_residual is not None \
-                and ts.max_residual[1] == res.unit else None
-            section.append(_residual_figure(cal, res, limit, evidence.skipped))
-        body.append("".join(section) + "</section>")
+    body += [_triad_section(cal, checks, verdict is not None, evidence, spec) for cal in parameters.triads]
     if evidence is not None and evidence.allan:
         body.append("<section class='allan'><h2>Allan deviation (measured in this session with "
                     "fieldcal allan)</h2>")

@@ -64,7 +64,8 @@ def replayed_residuals(directory: Path) -> tuple[dict[str, PositionResiduals], s
     try:
         outcome, _ = replay_session_outcome(directory)
     except (ValueError, OSError) as exc:
-        return {}, f"residuals per position not available: re-solving the session failed ({str(exc).splitlines()[0]})"
+        why = str(exc).splitlines()[0]
+        return {}, f"residuals per position not available: re-solving the session failed ({why})"
     if outcome.unit is None or not outcome.unit.solutions:
         return {}, "residuals per position not available: re-solving the session solved no triad"
     found = {}

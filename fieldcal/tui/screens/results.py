@@ -15,7 +15,7 @@ from fieldcal.tui.widgets.toosmall import TooSmall
 from textual.widgets import Footer, Static
 
 from fieldcal.report import comparison_table, solution_header, solution_table, worst_error
-from fieldcal.residuals import per_position, position_list, positions_phrase  # noqa: F401 (position_list: for tests)
+from fieldcal.residuals import per_position, position_list, positions_phrase  # noqa: F401 (tests' import)
 from fieldcal.tui.widgets.residuals import residual_bars
 from fieldcal.tui.source import Outcome
 
@@ -223,8 +223,8 @@ class ResultsScreen(Screen):
                 yield Static(solution_header(sol, effort=False), classes="triad-head").with_tooltip(solution_header(sol))
                 with Horizontal(classes="triad-body wide" if self._wide else "triad-body"):
                     table = solution_table(sol, truth)
-                    yield Static(Text(table) if self.verdict is None else verdict_column(table, sol, self.verdict),
-                                 classes="table")
+                    shown = Text(table) if self.verdict is None else verdict_column(table, sol, self.verdict)
+                    yield Static(shown, classes="table")
                     yield Static(residual_bars(sol, columns=1 if self._wide else 2,
                                                bar_width=16 if self._wide else 10), classes="residuals")
                 previous = out.previous
