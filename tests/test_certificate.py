@@ -251,3 +251,27 @@ def test_a_browser_that_fails_leaves_the_page_and_no_pdf(tmp_path, session, caps
     err = capsys.readouterr().err
     assert f"no PDF: {fake} exited with status 1: ERROR: cannot open display" in err
     assert out.is_file() and sorted(p.name for p in tmp_path.iterdir()) == ["bin", "cert.html"]
+
+
+def test_certificate_checks_the_drift_since_the_units_previous_calibration(tmp_path, session):
+    """A second calibration of the unit beside the first: the page names the earlier file and
+    fails every bias whose change between the two files exceeds the spec's max_drift."""
+    import shutil
+
+    shutil.copytree(session, tmp_path / "earlier")
+    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path),
+                 "--seed", "13", "--registry", str(tmp_path / "r.sqlite")]) == 0
+    [today] = [d for d in tmp_path.iterdir() if d.name.startswith("quick-")]
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("schema: fieldcal-spec/1\nproduct: paper MIMU\ntriads:\n"
+                    "  accelerometer: {bias: {unit: mg, max_drift: 0.001}}\n")
+    out = tmp_path / "cert.html"
+    assert main(["certificate", str(today), "--spec", str(spec), "--out", str(out), "--no-pdf"]) == 3
+    page = Page(out.read_text(encoding="utf-8"))
+    assert dict(page.tables[0][1])["Drift since"] == f"{tmp_path / 'earlier' / 'parameters.yaml'} (verified)"
+    before = load(tmp_path / "earlier" / "parameters-001.yaml")["accelerometer"]
+    now = load(today / "parameters-001.yaml")["accelerometer"]
+    rows = {row[0]: row[4] for row in {a["data-triad"]: r for a, r in page.tables[1:]}["accelerometer"][1:]}
+    for axis, drift in zip("xyz", (now.bias - before.bias) / 9.80665e-3):
+        assert rows[f"bias {axis}"] == (f"FAIL: drifted {drift:.6g} mg since the previous calibration, "
+                                        "more than 0.001 mg")

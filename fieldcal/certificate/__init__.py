@@ -112,10 +112,11 @@ def _triad_section(cal, checks: dict, with_results: bool, evidence, spec) -> str
 
 
 def certificate_html(session: Path, params: Path, parameters, check: str, verdict=None,
-                     stop_reason: str | None = None, evidence=None, spec=None) -> str:
+                     stop_reason: str | None = None, evidence=None, spec=None, previous=None) -> str:
     """The page. ``check`` is what ``fieldcal.session.history.recorded_check`` says of ``params``;
     ``verdict`` an ``acceptance.Verdict`` (of ``spec``, a ``ProductSpec``) or None; ``evidence``
-    what ``evidence.gather`` read from the session (None: the parameter file alone)."""
+    what ``evidence.gather`` read from the session (None: the parameter file alone); ``previous``
+    the unit's previous calibration the drift was taken against (``PreviousCalibration``)."""
     from fieldcal.certificate.plots import png_data_uri
 
     p = parameters.provenance
@@ -136,6 +137,8 @@ def certificate_html(session: Path, params: Path, parameters, check: str, verdic
               ("Parameter file", f"{params.name}, SHA-256 {sha} ({check})")]
     if verdict is not None:
         facts.append(("Acceptance", f"{result} against {verdict.product}"))
+        if previous is not None:
+            facts.append(("Drift since", f"{previous.path} ({previous.check})"))
         facts += [("Note", n) for n in verdict.notes]
     if evidence is not None and evidence.residual_note:
         facts.append(("Residuals", evidence.residual_note))

@@ -248,12 +248,12 @@ def cmd_certificate(args) -> int:
     if params is None:
         raise ValueError(f"certificate: {session}: the session has no parameter file (not calibrated)")
     parameters = load(params)
-    verdict = None
+    verdict = previous = None
     if spec is not None:
         previous = _previous_of(params)
         verdict = evaluate(spec, parameters, previous.parameters if previous is not None else None)
     page = certificate_html(session, params, parameters, recorded_check(params), verdict,
-                            reader.stop_reason, gather(session), spec)
+                            reader.stop_reason, gather(session), spec, previous)
     write_atomically(out, page.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
     print(f"certificate: {out}")
     if not args.no_pdf:
