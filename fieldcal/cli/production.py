@@ -252,6 +252,7 @@ def cmd_certificate(args) -> int:
     from fieldcal.acceptance import evaluate, load_spec
     from fieldcal.atomic import write_atomically
     from fieldcal.certificate import certificate_html
+    from fieldcal.certificate.evidence import gather
     from fieldcal.paramfile import load
     from fieldcal.session.capture import SessionReader
     from fieldcal.session.history import recorded_check
@@ -259,21 +260,45 @@ def cmd_certificate(args) -> int:
 
     session = Path(args.session)
     out = Path(args.out) if args.out else Path(f"{session.resolve().name}-certificate.html")
+    pdf = out.with_suffix(".pdf")
     check_output_path(out, force=args.force, option="--out")
+    if not args.no_pdf:
+        check_output_path(pdf, force=args.force, option="--out (its PDF)")
     spec = load_spec(args.spec) if args.spec else None
     reader = SessionReader(session)
     params = reader.parameters_path
     if params is None:
         raise ValueError(f"certificate: {session}: the session has no parameter file (not calibrated)")
     parameters = load(params)
-    verdict = None
+    verdict = previous = None
     if spec is not None:
         previous = previous_calibration_of(params)
         verdict = evaluate(spec, parameters, previous.parameters if previous is not None else None)
-    page = certificate_html(session, params, parameters, recorded_check(params), verdict, reader.stop_reason)
+    page = certificate_html(session, params, parameters, recorded_check(params), verdict,
+                            reader.stop_reason, gather(session), spec, previous)
     write_atomically(out, page.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
     print(f"certificate: {out}")
+    if not args.no_pdf:
+        _certificate_pdf(out, pdf)
     return 0 if verdict is None or verdict.passed else EXIT_FAILED_SPEC
+
+
+def _certificate_pdf(page: Path, pdf: Path) -> None:
+    """The PDF beside the page where a headless Chromium is installed; one line either way (a
+    failed print is a warning: the HTML page is the certificate)."""
+    from fieldcal.certificate.render import find_browser, print_pdf
+
+    browser = find_browser()
+    if browser is None:
+        print("certificate: no PDF: no Chromium found on PATH (apt-get install chromium); the HTML "
+              "page is the certificate")
+        return
+    try:
+        print_pdf(page, pdf, browser)
+    except ValueError as exc:
+        print(f"warning: certificate: no PDF: {exc}", file=sys.stderr)
+        return
+    print(f"certificate PDF: {pdf}")
 
 
 def add_production_parsers(sub) -> None:
@@ -350,10 +375,16 @@ def add_production_parsers(sub) -> None:
     certificate = sub.add_parser(
         "certificate", help="a self-contained HTML calibration certificate for a session",
         description="Write one HTML page (no scripts, no external files) with the unit, station, "
-        "procedure, every parameter ± 1σ (PASS/FAIL with --spec) and the parameter file's SHA-256.",
+        "temperature, procedure, every parameter ± 1σ (PASS/FAIL with --spec), each triad's residual "
+        "per position (from re-solving the session), the Allan plots `fieldcal allan SESSION` left in "
+        "the session and the parameter file's SHA-256; and its PDF beside it where a headless "
+        "Chromium is installed.",
         epilog=f"exit status: 0 written (and passed), {EXIT_FAILED_SPEC} written but a --spec check failed")
     certificate.add_argument("session", metavar="SESSION", help="session directory")
     certificate.add_argument("--spec", metavar="SPEC", help="product spec: PASS/FAIL per parameter")
     certificate.add_argument("--out", metavar="FILE", help="default ./SESSION-certificate.html")
-    certificate.add_argument("--force", action="store_true", help="replace the --out file if it exists")
+    certificate.add_argument("--force", action="store_true", help="replace the --out file (and its PDF) "
+                             "if it exists")
+    certificate.add_argument("--no-pdf", action="store_true", help="only the HTML page, even where "
+                             "Chromium is installed")
     certificate.set_defaults(func=cmd_certificate)

@@ -65,6 +65,9 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
                      "(default: the config's sim speed for a run, 10 for a replay)")
     tui.add_argument("--no-capture", action="store_true", help="do not write a session")
     tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
+    from fieldcal.cli.production import EXIT_FAILED_SPEC
+    tui.add_argument("--spec", metavar="SPEC", help="product spec YAML: the results say PASS/FAIL per "
+                     f"parameter with the reason; exit status {EXIT_FAILED_SPEC} if any fails")
     tui.add_argument("--resume", metavar="SESSION",
                      help="continue this unfinished (quit) simulated session after its last completed step")
     from fieldcal.cli.production import add_registry_option
@@ -74,15 +77,17 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_tui(args) -> int:
+    from fieldcal.cli.production import load_spec_option
     from fieldcal.tui import run_tui
 
+    accept = {"product_spec": load_spec_option(args)}  # a bad spec stops it before any run
     if args.replay is not None:
         if not Path(args.replay, "log.jsonl").is_file():
             raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
-        return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay))
+        return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay), **accept)
     if args.resume is not None:
         session = resumable(args.resume)
-        status = run_tui(None, _resume_speed(args), None, None, resume=session)
+        status = run_tui(None, _resume_speed(args), None, None, resume=session, **accept)
         record_sessions(args, [session])
         return status
     if args.seed is not None and args.seed < 0:
@@ -97,9 +102,9 @@ def cmd_tui(args) -> int:
         config = load_config(args.config or "sim")
         procedure = load_procedure(args.procedure or "field-18")
         spec, session_dir, speed = make_run(config, procedure)
-        status = run_tui(spec, speed, session_dir, None, config=config)
+        status = run_tui(spec, speed, session_dir, None, config=config, **accept)
     else:
-        status = run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+        status = run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run), **accept)
     record_sessions(args, sessions)
     return status
 

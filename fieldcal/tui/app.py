@@ -43,8 +43,11 @@ class FieldcalApp(App[int]):
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
                  replay: Path | None = None, clock=time.monotonic, config=None, setup=None,
-                 resume: Path | None = None) -> None:
-        """``resume``: continue this unfinished simulated session after its last completed step
+                 resume: Path | None = None, product_spec=None) -> None:
+        """``product_spec``: an ``acceptance.ProductSpec``: the results say PASS/FAIL against it,
+        and the exit status is 3 (as the headless run's) when a check fails.
+
+        ``resume``: continue this unfinished simulated session after its last completed step
         (``spec`` and ``session_dir`` are then the session's own; give neither).
 
         ``config``: the station config of a real device (``spec.live``), for its ports.
@@ -63,6 +66,8 @@ class FieldcalApp(App[int]):
         self.telemetry: Telemetry | None = None
         self.setup = setup
         self.mode = "setup"  # until a run is prepared: the source's "sim", "live" or "replay"
+        self.product_spec = product_spec
+        self.verdict = None  # the results' acceptance.Verdict, when a product spec was given
         if setup is None:
             self._prepare(spec, session_dir, replay, config, resume)
 
@@ -174,7 +179,9 @@ class FieldcalApp(App[int]):
             skipped, not_done = [], []
             for ident, state in tiles:
                 (skipped if state == SKIPPED else not_done if state != DONE else []).append(ident)
-            self.push_screen(ResultsScreen(self.outcome, skipped, not_done))
+            results = ResultsScreen(self.outcome, skipped, not_done, self.product_spec)
+            self.verdict = results.verdict
+            self.push_screen(results)
 
     def action_help(self) -> None:
         if not isinstance(self.screen, HelpScreen):
@@ -183,7 +190,11 @@ class FieldcalApp(App[int]):
     async def action_quit(self) -> None:
         if self.source is not None:
             self.source.stop()
-        self.exit(self.return_code_for(self.outcome))
+        code = self.return_code_for(self.outcome)
+        if code == 0 and self.verdict is not None and not self.verdict.passed:
+            from fieldcal.cli.production import EXIT_FAILED_SPEC
+            code = EXIT_FAILED_SPEC
+        self.exit(code)
 
     @staticmethod
     def return_code_for(outcome: Outcome | None) -> int:
@@ -193,7 +204,7 @@ class FieldcalApp(App[int]):
 
 
 def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None, config=None,
-            setup=None, resume: Path | None = None) -> int:
+            setup=None, resume: Path | None = None, product_spec=None) -> int:
     """Run the terminal UI until the operator quits; the exit status (0: calibrated).
 
     ``spec``: the run (procedure, station, seed, ...), simulated or on a real device (with its
@@ -201,13 +212,15 @@ def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None, c
     per wall time, 0 = as fast as possible. ``session_dir``: where to capture the session (None:
     no capture). ``replay``: a session directory to replay through the same screens.
     ``setup``: open the setup screen first (see ``FieldcalApp``). ``resume``: continue this
-    unfinished simulated session instead (see ``FieldcalApp``).
+    unfinished simulated session instead (see ``FieldcalApp``). ``product_spec``: PASS/FAIL
+    against it on the results screen; exit status 3 when a check fails.
     """
     if replay is None and resume is None and session_dir is not None and Path(session_dir).exists() \
             and any(Path(session_dir).iterdir()):
         raise ValueError(f"{session_dir}: already exists and is not empty (a new session needs a "
                          "new directory)")
-    app = FieldcalApp(spec, speed, session_dir, replay, config=config, setup=setup, resume=resume)
+    app = FieldcalApp(spec, speed, session_dir, replay, config=config, setup=setup, resume=resume,
+                      product_spec=product_spec)
     code = app.run()
     if app.source is None:  # quit on the setup screen
         return 1

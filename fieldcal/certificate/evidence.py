@@ -1,0 +1,101 @@
+"""What a certificate shows beyond the parameter file, read from the session: each position's
+residual (by re-solving the capture, as ``fieldcal replay`` does), the temperature the device
+reported, the positions skipped, and the Allan plots ``fieldcal allan SESSION`` left there."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PositionResiduals:
+    """One triad's residual per position, in the operator's ``unit``: signed where a position
+    gives one equation, else the RMS of its equations (``signed`` False)."""
+
+    triad: str
+    unit: str
+    labels: tuple[str, ...]
+    values: np.ndarray
+    signed: bool
+
+
+@dataclass(frozen=True)
+class Temperature:
+    """What the device reported over the session, °C."""
+
+    low: float
+    high: float
+    mean: float
+    samples: int
+
+
+@dataclass(frozen=True)
+class Evidence:
+    residuals: dict[str, PositionResiduals] = field(default_factory=dict)
+    residual_note: str = ""  # how the residuals were obtained, or why there are none
+    temperature: Temperature | None = None
+    skipped: tuple[int, ...] = ()  # position ids
+    completed: int | None = None  # steps done; None: not a procedure run
+    allan: tuple[Path, ...] = ()  # PNGs, one per triad
+
+
+def session_temperature(reader) -> Temperature | None:
+    """Range and mean of the temperature column, None when the device reports none."""
+    low, high, total, n = np.inf, -np.inf, 0.0, 0
+    for chunk in reader.chunks():
+        t = chunk.temperature
+        if t is None or not t.size:
+            continue
+        t = t[np.isfinite(t)]
+        if t.size:
+            low, high = min(low, float(t.min())), max(high, float(t.max()))
+            total, n = total + float(t.sum()), n + t.size
+    return Temperature(low, high, total / n, n) if n else None
+
+
+def replayed_residuals(directory: Path) -> tuple[dict[str, PositionResiduals], str]:
+    """Each solved triad's residual per position from re-solving the session; and a note that
+    says whether that re-solve reproduces the session's parameter file."""
+    from fieldcal.residuals import per_position
+    from fieldcal.run.replay import replay_session_outcome
+
+    try:
+        outcome, _ = replay_session_outcome(directory)
+    except (ValueError, OSError) as exc:
+        why = str(exc).splitlines()[0]
+        return {}, f"residuals per position not available: re-solving the session failed ({why})"
+    if outcome.unit is None or not outcome.unit.solutions:
+        return {}, "residuals per position not available: re-solving the session solved no triad"
+    found = {}
+    for name, sol in outcome.unit.solutions.items():
+        rows, unit = per_position(sol)
+        found[name] = PositionResiduals(name, unit, tuple(r[0] for r in rows),
+                                        np.array([r[1] for r in rows]), all(r[2] for r in rows))
+    if outcome.identical is True:
+        note = "residuals from re-solving the session, which reproduces this parameter file"
+    else:
+        note = ("residuals from re-solving the session; NOTE: " + (outcome.comparison or
+                "the re-solve could not be compared with the parameter file"))
+    return found, note
+
+
+def gather(directory: Path) -> Evidence:
+    """Everything the certificate takes from the session directory. An imported recording (no
+    procedure) has no positions to re-solve: its certificate says so."""
+    from fieldcal.run.runner import RunSpec
+    from fieldcal.session.capture import SessionReader
+
+    reader = SessionReader(directory)
+    allan = tuple(sorted(Path(directory).glob("allan-*.png")))
+    if reader.start.get("kind") == "recording":
+        return Evidence({}, "an imported recording: no procedure positions to re-solve (`fieldcal calibrate "
+                        "SESSION` shows each pose's residual)", session_temperature(reader), allan=allan)
+    positions = RunSpec.from_metadata(reader.start).procedure.positions
+    steps = reader.steps()  # each says which steps were skipped before it
+    done = {s["step"] for s in steps}
+    skipped = sorted({i for s in steps for i in s.get("skipped", ())} - done)
+    found, note = replayed_residuals(directory)
+    return Evidence(found, note, session_temperature(reader), tuple(positions[i].id for i in skipped),
+                    len(done), allan)

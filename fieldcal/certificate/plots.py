@@ -1,0 +1,67 @@
+"""The certificate's figures, made with matplotlib (imported here only, when a certificate is
+written): each triad's residual per position as an inline SVG, and PNGs as data: URIs, so the
+page needs no other file."""
+from __future__ import annotations
+
+import base64
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+
+WIDTH_IN, HEIGHT_IN = 7.0, 1.8  # an A4 page's text width; two triads' tables and plots a page
+
+
+def residual_svg(res, rms: float | None = None, limit: float | None = None, skipped=()) -> str:
+    """``res`` (an ``evidence.PositionResiduals``) as bars, one per position, with the ``skipped``
+    position ids in their place marked "skipped"; dashed lines at the triad's RMS residual and,
+    when a product spec gives one, dotted at its maximum RMS residual."""
+    import matplotlib
+    from matplotlib.backends.backend_svg import FigureCanvasSVG
+    from matplotlib.figure import Figure
+
+    with matplotlib.rc_context({"svg.fonttype": "none", "svg.hashsalt": "fieldcal-certificate",
+                                "font.size": 8, "axes.titlesize": 8}):
+        fig = Figure(figsize=(WIDTH_IN, HEIGHT_IN))
+        FigureCanvasSVG(fig)
+        ax = fig.add_subplot()
+        names = [label.removeprefix("pos ") for label in res.labels]
+        if skipped and all(n.isdigit() for n in names):  # positions in procedure order, gaps kept
+            names = sorted({*names, *map(str, skipped)}, key=int)
+        x = np.arange(len(names))
+        at = {n: i for i, n in enumerate(names)}
+        ax.bar([at[n.removeprefix("pos ")] for n in res.labels], res.values, color="#4a6fa5", width=0.7)
+        for n in map(str, skipped):
+            if n in at:
+                ax.text(at[n], 0.02, "skipped", rotation=90, ha="center", va="bottom", fontsize=7,
+                        color="#666", transform=ax.get_xaxis_transform())
+        ax.set_xticks(x, names)
+        ax.set_xlim(-0.6, len(x) - 0.4)
+        if res.signed:
+            ax.axhline(0.0, color="black", lw=0.6)
+        for value, style, text in ((rms, "--", "RMS"), (limit, ":", "spec maximum RMS")):
+            if value is None:
+                continue
+            for v in ((value, -value) if res.signed else (value,)):
+                ax.axhline(v, color="#444" if style == "--" else "#a00", ls=style, lw=0.9)
+            ax.plot([], [], color="#444" if style == "--" else "#a00", ls=style, lw=0.9,
+                    label=f"{text} {value:.3g} {res.unit}")
+        if rms is not None or limit is not None:
+            # above the axes, right: inside, it would hide the bars it explains
+            ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, fontsize=7, frameon=False,
+                      borderaxespad=0.1)
+        ax.set_xlabel("position" if res.labels and res.labels[0].startswith("pos") else "average")
+        ax.set_ylabel(f"{'residual' if res.signed else 'RMS residual'} ({res.unit})")
+        ax.grid(True, axis="y", alpha=0.3)
+        fig.tight_layout(pad=0.3)
+        out = io.StringIO()
+        fig.savefig(out, format="svg", metadata={"Date": None, "Creator": "fieldcal"})
+    text = out.getvalue()
+    svg = text[text.index("<svg"):]  # no XML prolog nor DOCTYPE inside an HTML page
+    # scale with the page: the viewBox stays, the fixed size in pt goes
+    return re.sub(r'<svg([^>]*?) width="[^"]*" height="[^"]*"', r'<svg\1 width="100%"', svg, count=1)
+
+
+def png_data_uri(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(Path(path).read_bytes()).decode("ascii")
