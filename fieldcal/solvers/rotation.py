@@ -65,25 +65,32 @@ def _cross(a, b):
 
 
 def _qmul(p, q):
-    """Hamilton product, scalar last: the rotation matrix of p·q is R(p)·R(q)."""
-    pv, pw, qv, qw = p[..., :3], p[..., 3:], q[..., :3], q[..., 3:]
-    return np.concatenate([pw * qv + qw * pv + _cross(pv, qv),
-                           pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)], axis=-1)
+    """Hamilton product of quaternions stored component-first, (4, ...) [x, y, z, w] (scalar
+    last): the rotation matrix of p·q is R(p)·R(q)."""
+    px, py, pz, pw = p
+    qx, qy, qz, qw = q
+    return np.stack([pw * qx + qw * px + py * qz - pz * qy,
+                     pw * qy + qw * py + pz * qx - px * qz,
+                     pw * qz + qw * pz + px * qy - py * qx,
+                     pw * qw - px * qx - py * qy - pz * qz])
 
 
-# p·q = (p ⊗ q).ravel() @ _PRODUCT: one outer product and one matrix product per pass.
-_PRODUCT = np.array([[_qmul(a, b) for b in np.eye(4)] for a in np.eye(4)]).reshape(16, 4)
+def _bit_reversed(n: int) -> np.ndarray:
+    """The bit-reversal permutation of range(n), n a power of two."""
+    bits = n.bit_length() - 1
+    i = np.arange(n)
+    return sum(((i >> b) & 1) << (bits - 1 - b) for b in range(bits)) if bits else i
 
 
 def _compose(q):
-    """(m, L, 4) -> (m, 4): q[:, 0]·q[:, 1]·…·q[:, L-1] by pairwise products, log2(L) passes."""
-    while q.shape[1] > 1:
-        if q.shape[1] % 2:
-            q = np.concatenate([q, np.broadcast_to([0.0, 0.0, 0.0, 1.0], (len(q), 1, 4))], axis=1)
-        p, r = q[:, 0::2], q[:, 1::2]
-        q = (p[..., :, None] * r[..., None, :]).reshape(*p.shape[:-1], 16) @ _PRODUCT
-    q = q[:, 0]
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    """(4, g, P) -> (4, g): the product of each group's P quaternions in time order, stored in
+    bit-reversed order (P a power of two), so that each of the log2(P) passes multiplies the first
+    half by the second: element i of the first half is always the step just before element i of
+    the second (contiguous halves, no strided pairs)."""
+    while q.shape[-1] > 1:
+        half = q.shape[-1] // 2
+        q = _qmul(q[..., :half], q[..., half:])
+    return q[..., 0]
 
 
 def _rotate_back(q, v):
@@ -93,58 +100,90 @@ def _rotate_back(q, v):
     return v + qw * t + _cross(qv, t)
 
 
-def _rate_slope(values, t, idx):
-    """dω/dt at samples idx from the quadratic through three neighbours (one-sided at the ends)."""
+def _rate_slope(window, t, idx, j):
+    """dω/dt at samples idx from the quadratic through three neighbours (one-sided at the ends);
+    window[:, r] holds sample j - 1 + r of the rates."""
     c = np.clip(idx, 1, len(t) - 2)
     tm, t0, tp, x = t[c - 1], t[c], t[c + 1], t[idx]
     wm = (2 * x - t0 - tp) / ((tm - t0) * (tm - tp))
     w0 = (2 * x - tm - tp) / ((t0 - tm) * (t0 - tp))
     wp = (2 * x - tm - t0) / ((tp - tm) * (tp - t0))
-    return wm[..., None] * values[c - 1] + w0[..., None] * values[c] + wp[..., None] * values[c + 1]
+    r = c - j  # c - 1 - (j - 1): the window column of sample c - 1
+    rows = np.arange(len(window))
+    return (wm[:, None] * window[rows, r] + w0[:, None] * window[rows, r + 1]
+            + wp[:, None] * window[rows, r + 2])
+
+
+_BLOCK = 64  # steps composed per block: a span is padded to whole blocks, not to the longest span
 
 
 class _Steps:
-    """The steps of some spans, padded to (m, L). The increments are linear in the rate, so for
-    ω = A·(v − δb) (A = K⁻¹) each evaluation is one product of per-step sums of v, made once:
-    ∫ω = A·(∫v − h·δb) and ω_j × ω_{j+1} = det(A)·Kᵀ·(v_j × v_{j+1} + (v_{j+1} − v_j) × δb)."""
+    """The steps of some spans, each span padded with identity steps to whole blocks of _BLOCK.
+    A span's blocks are composed first (all blocks of all spans at once), then each span's
+    blocks. The increments are linear in the rate, so for ω = A·(v − δb) (A = K⁻¹) each
+    evaluation is one product of per-step sums of v, made once:
+    ∫ω = A·(∫v − h·δb) and ω_j × ω_{j+1} = det(A)·Kᵀ·(v_j × v_{j+1} + (v_{j+1} − v_j) × δb).
+    ``offset`` is taken off the rates where they are read (raw counts keep their precision and
+    the samples are not copied)."""
 
-    def __init__(self, values, t, spans):
-        values, t = np.asarray(values, dtype=float), np.asarray(t, dtype=float)
+    def __init__(self, values, t, spans, offset=None):
+        t = np.asarray(t, dtype=float)
         spans = np.asarray(spans, dtype=int).reshape(-1, 2)
         n = len(t)
-        if values.shape != (n, 3) or n < 3:
-            raise ValueError(f"rates must be (n, 3) with n >= 3 matching t, got {values.shape}")
+        if np.shape(values) != (n, 3) or n < 3:
+            raise ValueError(f"rates must be (n, 3) with n >= 3 matching t, got {np.shape(values)}")
         i0, i1 = spans[:, 0], spans[:, 1]
         if len(spans) == 0 or np.any(i0 < 0) or np.any(i1 >= n) or np.any(i1 <= i0):
             raise ValueError(f"spans must be [i0, i1] with 0 <= i0 < i1 < {n}")
         lengths = i1 - i0
-        k = np.arange(lengths.max())
-        valid = k < lengths[:, None]
-        j = np.where(valid, i0[:, None] + k, i0[:, None]).ravel()  # padding: any real step
-        h = np.where(valid, t[j + 1].reshape(valid.shape) - t[j].reshape(valid.shape), 0.0)
+        blocks = -(-lengths // _BLOCK)
+        padded = blocks * _BLOCK
+        owner = np.repeat(np.arange(len(spans)), padded)
+        k = np.arange(padded.sum()) - np.repeat(np.cumsum(padded) - padded, padded)
+        # Within each block the steps are stored in bit-reversed order (see _compose).
+        k = (k.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)]).ravel()
+        owner = owner.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].ravel()
+        valid = k < lengths[owner]
+        j = np.where(valid, i0[owner] + k, i0[owner])  # padding: any real step
+        h = np.where(valid, t[j + 1] - t[j], 0.0)
         if np.any(h[valid] <= 0):
             raise ValueError("t must increase within every span")
-        h = h.reshape(-1, 1)  # zero for padding: a zero increment, the identity rotation
+        # The samples a step reads: j - 1 .. j + 2 (the slopes' stencils), offset taken off.
+        rows = np.clip(j[:, None] + np.arange(-1, 3), 0, n - 1)
+        window = np.asarray(values, dtype=float)[rows]
+        if offset is not None:
+            window -= offset
+        h = h[:, None]  # zero for padding: a zero increment, the identity rotation
         w = h * h / 12.0
-        v0, v1 = values[j], values[j + 1]
+        v0, v1 = window[:, 1], window[:, 2]
         # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
-        slope_change = _rate_slope(values, t, j + 1) - _rate_slope(values, t, j)
+        slope_change = _rate_slope(window, t, j + 1, j) - _rate_slope(window, t, j, j)
         integral = h / 2 * (v0 + v1) - w * slope_change
-        self.terms = np.hstack([integral, w * _cross(v0, v1), w * (v1 - v0), h])  # (m·L, 10)
-        self.shape = valid.shape
+        self.terms = np.hstack([integral, w * _cross(v0, v1), w * (v1 - v0), h]).T.copy()  # (10, steps)
+        # Each span's blocks, padded to a power of two with an identity block, bit-reversed.
+        size = 1 << int(blocks.max() - 1).bit_length()
+        first = np.cumsum(blocks) - blocks
+        slot = np.arange(size)
+        gather = np.where(slot < blocks[:, None], first[:, None] + slot, blocks.sum())
+        self.gather = gather[:, _bit_reversed(size)]
         self.duration = t[i1] - t[i0]
 
     def quaternions(self, K_inv, delta_b):
+        """(m, 4) quaternions of each span's rotation, scalar last."""
         A = np.asarray(K_inv, dtype=float)
         coning = np.linalg.det(A) * np.linalg.inv(A)  # det(A)·K, applied to row vectors
         bias_cross = np.array([[0.0, -delta_b[2], delta_b[1]], [delta_b[2], 0.0, -delta_b[0]],
                                [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
-        phi = self.terms @ np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]])
-        angle = np.sqrt(np.einsum("ij,ij->i", phi, phi))[:, None]
+        phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ self.terms
+        angle = np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
         half = 0.5 * angle
         # sin(θ/2)/θ → 1/2 at θ = 0 (the padding).
         s = np.divide(np.sin(half), angle, out=np.full_like(angle, 0.5), where=angle > 0)
-        return _compose(np.hstack([s * phi, np.cos(half)]).reshape(*self.shape, 4))
+        q = np.concatenate([s * phi, np.cos(half)[None]]).reshape(4, -1, _BLOCK)
+        q = _compose(q)  # (4, blocks)
+        q = np.concatenate([q, [[0.0], [0.0], [0.0], [1.0]]], axis=1)[:, self.gather]
+        q = _compose(q)  # (4, m)
+        return (q / np.sqrt(np.sum(q * q, axis=0))).T
 
 
 def integrate(omega, t, spans) -> np.ndarray:
@@ -155,7 +194,7 @@ def integrate(omega, t, spans) -> np.ndarray:
 def scale_misfits(t, raw, spans, up_start, up_end, b0, scales) -> np.ndarray:
     """Sum of squared direction misfits for K = k·I at each k of ``scales``: a scan that finds a
     raw-count gyro's sensitivity (a start for the solve) with one set of steps for all k."""
-    steps = _Steps(np.asarray(raw, dtype=float) - b0, t, spans)
+    steps = _Steps(raw, t, spans, offset=b0)
     up_s = np.asarray(up_start, dtype=float)
     out = np.empty(len(scales))
     for i, k in enumerate(scales):  # a few dozen candidates, each one vectorised evaluation
@@ -289,7 +328,7 @@ class _Residuals:
         self.sigma_b = np.broadcast_to(np.asarray(bias_sigma if bias_sigma is not None else 1.0, float), 3)
         self.motions = motions
         # The motion samples only, offset by b0 so that raw counts keep their precision.
-        self.steps = _Steps(np.asarray(motions.raw, dtype=float) - start.b0, motions.t, motions.spans)
+        self.steps = _Steps(motions.raw, motions.t, motions.spans, offset=start.b0)
         self.E = _tangent_bases(motions.up_end)
 
     def unpack(self, theta):
