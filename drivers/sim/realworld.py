@@ -12,10 +12,11 @@ so a test switches on the one it is about. The effects, in the order they act:
 * logger: timestamp jitter, dropped samples, and a log that starts late (no initial rest: the
   first samples are part of the first hand motion).
 
-The truth a calibration is judged against, when a parameter varies in time: the bias the unit
-has once warmed up, at the recording's mean temperature (the ramp is centred on it) and the
-random walk's mean over the recording; the scale factors at that mean temperature. Nothing here
-changes what ``TriadTruth`` says except the turn-on bias, which is part of the truth.
+The truth a calibration is judged against, when a parameter varies in time, is its mean over
+the recording: the warm-up, the temperature ramp and the random walk are centred on it (a
+recording shorter than the warm-up cannot tell the settled bias from the warm one; what it can
+tell is the bias it had, and how much that moved). Nothing here changes what ``TriadTruth``
+says except the turn-on bias, which is part of the truth.
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ class RealWorld:
 
     ``g_sensitivity_deg_s_per_g``: 1σ of each entry of the gyro's g-sensitivity matrix G.
     ``warm_up_deg_s`` / ``warm_up_tau_s``: a gyro bias offset that decays exponentially after
-    switch-on. ``temperature_ramp_k``: the temperature change over the recording (centred on its
+    switch-on (centred on its mean over the recording, see the module doc). ``temperature_ramp_k``: the temperature change over the recording (centred on its
     mean), acting through ``bias_tempco_deg_s_per_k`` (gyro bias), ``acc_bias_tempco_mg_per_k``
     and ``scale_tempco_ppm_per_k`` (both triads), each axis a random sign.
     ``bias_random_walk_deg_s_per_sqrt_s``: gyro bias random walk (rate random walk).
@@ -129,7 +130,8 @@ def sensor_effects(t: np.ndarray, force: np.ndarray, rw: RealWorld, legacy: np.r
     tempco = rw.bias_tempco_deg_s_per_k * DEG * legacy.choice([-1.0, 1.0], 3)
     span = max(t[-1] - t[0], 1e-9)
     ramp = (rw.temperature_ramp_k * ((t - t[0]) / span - 0.5))[:, None]  # K from the mean temperature
-    gyro = force @ G.T + np.exp(-(t - t[0]) / rw.warm_up_tau_s)[:, None] * warm + ramp * tempco
+    settle = np.exp(-(t - t[0]) / rw.warm_up_tau_s)
+    gyro = force @ G.T + (settle - settle.mean())[:, None] * warm + ramp * tempco
     acc = np.zeros_like(force)
     scale = {}
     if rw.bias_random_walk_deg_s_per_sqrt_s:

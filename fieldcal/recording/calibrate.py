@@ -9,11 +9,12 @@ is more data, though only distinct poses count for the spread. The noise comes f
 pose means, bias instability included), else from the detector's noise level (the initial rest
 given by ``--rest``, or the recording's quietest windows): its per-axis variance
 weights each pose mean (white noise over the pose's samples), and the σ are scaled up by
-χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the first pose's mean less the
-vertical Earth rate, which the accelerometer's up direction fixes; the horizontal Earth rate,
-whose heading a hand-held recording cannot know, widens the bias's σ and each motion's
-residual instead of biasing them, and so does the poses' still readings' scatter beyond that and
-the noise (bias drift, g-sensitivity). A gyro reporting raw counts needs no nominal sensitivity: a
+χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the mean of
+every pose's still reading less the vertical Earth rate, which the accelerometer's up direction
+fixes; its σ comes from those readings' scatter (the horizontal Earth rate at an unknown heading,
+g-sensitivity, warm-up and other drift), counted over fewer poses when neighbours move together
+(``drift.still_bias``). The horizontal Earth rate also widens each motion's residual, and a
+motion during which the gyro clipped at its range is left out. A gyro reporting raw counts needs no nominal sensitivity: a
 scan over the scale finds the one that makes the motions' rotations fit.
 """
 from __future__ import annotations
@@ -29,6 +30,7 @@ from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
 from fieldcal.recording.detect import DetectionError, DetectorSettings, Poses, SpreadReport, interval_means
+from fieldcal.recording.drift import saturated_spans, still_bias
 from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.calibration import Calibration
 from fieldcal.solvers.problems import StaticNormProblem
@@ -81,7 +83,7 @@ class RecordingSettings:
     detector: DetectorSettings = field(default_factory=DetectorSettings)
     method: str = "powell"  # the specific-force triads' norm solver
     gyro_method: str = "lsq"
-    estimate_gyro_bias: bool = False  # else the first pose's mean (less the vertical Earth rate)
+    estimate_gyro_bias: bool = False  # else the poses' mean (less the vertical Earth rate)
     # The device's noise per triad (SI), e.g. from its config: pose means then get their exact
     # covariance, bias instability included. Without it, white noise measured over the rest.
     noise: dict = field(default_factory=dict)
@@ -104,6 +106,7 @@ class RecordingCalibration:
     noise_source: str = "the initial rest"  # where the detector's noise level was measured
     place: Station | UnknownPlace | None = None  # the station used (gravity filled in when unknown)
     protocol: str = NORM_PROTOCOL  # which solution was chosen, and why
+    notes: tuple[str, ...] = ()  # what the solve did about the data, for the summary (e.g. clipped motions)
 
 
 def _reduced_chi2(solution: Calibration) -> float:
@@ -116,17 +119,18 @@ def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) 
     solution = solve_norm(problem, _means_covariance(intervals, t, variance, None, None, unit),
                           method=settings.method)
     noise = settings.noise.get(name)
-    if noise is None:
-        # White noise alone under-states the σ when the bias wanders (χ²/dof > 1 says so).
-        fit = solution.diagnostics
-        ratio = fit.reduced_chi2 or 1.0
-        if ratio > 1.0 and not fit.scaled_by_residuals:
-            solution = replace(solution, covariance=solution.covariance * ratio, sigma=None,
-                               diagnostics=replace(fit, scaled_by_residuals=True))
-        return solution
-    # Bias instability correlates the pose means; its covariance needs the scale, known now.
-    return solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
-                      method=settings.method)
+    if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
+        solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
+                              method=settings.method)
+    # The noise alone under-states the σ when the poses scatter more than it says (the bias
+    # wanders, the temperature moves the scale, a hand trembles: χ²/dof > 1 says so), with a
+    # noise model as without one: the σ are scaled up by χ²/dof, never down.
+    fit = solution.diagnostics
+    ratio = fit.reduced_chi2 or 1.0
+    if ratio > 1.0 and not fit.scaled_by_residuals:
+        solution = replace(solution, covariance=solution.covariance * ratio, sigma=None,
+                           diagnostics=replace(fit, scaled_by_residuals=True))
+    return solution
 
 
 def _means_covariance(intervals, t, variance, noise, K, unit) -> np.ndarray:
@@ -239,24 +243,26 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
         except CalibrationError as exc:
             failures[name] = str(exc)
     turns = choice.best.turns
-    angular_rate, bias_sigma = {}, {}
+    angular_rate, bias_sigma, notes = {}, {}, []
     for name in detection.rates:
         try:
-            angular_rate[name], bias_sigma[name] = _solve_gyro(recording, name, poses, acc_solution,
-                                                               detection.noise.variance, station, settings, turns)
+            angular_rate[name], bias_sigma[name], note = _solve_gyro(
+                recording, name, poses, acc_solution, detection.noise.variance, station, settings, turns)
+            notes += [note] if note else []
         except CalibrationError as exc:
             failures[name] = str(exc)
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
     return RecordingCalibration(poses, choice.best.spread, choice.tried, specific_force, angular_rate, failures,
-                                reference, bias_sigma, turns, used, detection.noise.source, station)
+                                reference, bias_sigma, turns, used, detection.noise.source, station,
+                                notes=tuple(notes))
 
 
 @dataclass(frozen=True)
 class GyroPrior:
     """What the still poses say about a gyro before its rotation solve: ``scale`` (output units
-    per rad/s, the unit's or scanned for counts), ``bias`` (the first pose's mean less the
-    vertical Earth rate) and its 1σ ``bias_sigma`` (horizontal Earth rate, noise and the poses'
-    scatter beyond them), ``earth_variance`` (rad²/s² per axis the unknown heading leaves),
+    per rad/s, the unit's or scanned for counts), ``bias`` (the mean of every pose's still
+    reading less the vertical Earth rate, see ``drift.still_bias``) and its 1σ ``bias_sigma``
+    (from the readings' scatter, drift counted), ``earth_variance`` (rad²/s² per axis the unknown heading leaves),
     ``rate_noise`` (angle random walk, rad/√s) and ``rest_variance`` (output units², per axis)."""
 
     scale: float
@@ -268,7 +274,9 @@ class GyroPrior:
 
 
 def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, spans: np.ndarray,
-               station: Station | UnknownPlace) -> GyroPrior:
+               station: Station | UnknownPlace, noise=None) -> GyroPrior:
+    """``noise``: the gyro's TriadNoise from a device config, if any: its bias instability moves
+    every pose's reading alike, which their scatter cannot show, so it widens the bias's σ."""
     t, gyro, iv = recording.t, recording.triads[name], poses.intervals
     counts = np.diff(iv, axis=1)[:, 0]
     rest = slice(iv[0, 0], iv[0, 1])
@@ -279,21 +287,22 @@ def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, sp
         k = float(_SCAN[int(np.argmin(scale_misfits(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)))])
     still = interval_means(gyro, iv)  # every pose's still reading: each one an estimate of the bias
     if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
-        b0, earth_var = rest_mean, EARTH_RATE**2 / 3
+        earth_var = EARTH_RATE**2 / 3
     else:
         sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
-        b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
-        still = still - k * EARTH_RATE * sin_lat * up
+        still = still - k * EARTH_RATE * sin_lat * up  # each pose sees the vertical Earth rate
         # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
         earth_var = (EARTH_RATE * cos_lat) ** 2 / 2
-    bias_sigma = k * np.sqrt(earth_var + rest_var / k**2 / counts[0])
-    if len(iv) > 2:
-        # The still readings scatter from pose to pose by more than the Earth rate and the noise
-        # when the bias drifts (warm-up, temperature) or the gyro is g-sensitive: the first pose's
-        # reading is then off the bias by as much, and nothing in the recording says which way.
-        expected = k**2 * earth_var + np.mean(rest_var[None, :] / counts[:, None], axis=0)
-        excess = np.maximum(np.var(still, axis=0, ddof=1) - expected, 0.0)
-        bias_sigma = np.sqrt(bias_sigma**2 + excess)
+    # A real gyro's still reading moves between poses (g-sensitivity, warm-up, temperature, bias
+    # random walk): the mean over the poses, its σ from their scatter (see drift.still_bias); never
+    # below what the Earth rate and the white noise alone leave in a mean over independent poses.
+    white = np.mean(rest_var[None, :] / counts[:, None], axis=0) / len(iv)
+    times = 0.5 * (t[iv[:, 0]] + t[iv[:, 1] - 1])
+    b0, bias_sigma = still_bias(still, k**2 * earth_var / len(iv) + white, up, times, 0.5 * (t[0] + t[-1]))
+    if noise is not None and noise.bias_instability:
+        weights = np.full(len(iv), 1.0 / len(iv))
+        model = weights @ noise.window_covariance(t[iv[:, 0]], counts / recording.rate_hz) @ weights
+        bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(k**2 * model - white, 0.0))
     arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
     return GyroPrior(k, b0, bias_sigma, earth_var, arw, rest_var)
 
@@ -301,26 +310,34 @@ def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, sp
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration, acc_var: np.ndarray,
                 station: Station, settings: RecordingSettings,
                 turns: np.ndarray) -> tuple[Calibration, np.ndarray]:
-    """The solution and its bias's 1σ."""
+    """The solution, its bias's 1σ, and a note for the summary (or "")."""
     t, iv = recording.t, poses.intervals
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
     means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
                                   recording.units[acc.name])
     up, up_cov = _up_vectors(acc, poses.means, means_cov)
-    prior = gyro_prior(recording, name, poses, up, spans, station)
+    prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name))
     gyro = recording.triads[name]
     extra = None
     if settings.table_rate_deg_s is not None and len(turns):
         extra = rate_residuals(gyro, recording.triads[acc.name], acc.theta, turns, settings.table_rate_deg_s,
                                station, prior.bias, prior.scale, prior.rest_variance)
     duration = t[spans[:, 1]] - t[spans[:, 0]]
+    # A motion during which the gyro sat at the end of its range integrates to a wrong rotation:
+    # its residual gets a variance of a whole turn, so it weighs nothing (the chain of poses and
+    # their covariance stay as they are).
+    clipped = saturated_spans(gyro, spans + [0, 1])
+    note = ""
+    if clipped.any():
+        note = (f"{name}: {int(clipped.sum())} of {len(spans)} motions left out of the solve: the gyro sat at "
+                "the end of its range (turn more slowly, or set a wider range)")
     noise = RotationNoise(bias_sigma=prior.bias_sigma, up_covariance=up_cov, rate_noise=prior.rate_noise,
-                          motion_variance=prior.earth_variance * duration**2)
+                          motion_variance=prior.earth_variance * duration**2 + np.where(clipped, (2 * math.pi) ** 2, 0.0))
     solution = solve_rotations(Motions.of(t, gyro, spans, up[:-1], up[1:]),
                                RotationStart.of(prior.scale, prior.bias, settings.estimate_gyro_bias),
                                noise, extra, settings.gyro_method, name, recording.units[name])
     # Held, the bias's σ is bias_sigma (drift and g-sensitivity included); estimated, the fit's.
-    return solution, solution.sigma[:3]
+    return solution, solution.sigma[:3], note
 
 
 def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
@@ -357,11 +374,13 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
     for name in detection.rates:
         gyro = recording.triads[name]
-        turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]))
+        turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]),
+                                    t=recording.t)
         try:
             angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
                                                            poses.intervals, axes, turns, latitude,
-                                                           up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))))
+                                                           up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))),
+                                                           t=recording.t)
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)

@@ -3,10 +3,11 @@
 * :func:`still_bias`: the gyro bias from every pose's still reading rather than the first one's.
   A real MEMS gyro's still reading moves from pose to pose (g-sensitivity, warm-up, temperature,
   bias random walk); the first pose's reading carries all of that at its worst (warm-up is
-  largest at the start), the mean over the poses averages the orientation-dependent part out and
-  the time-dependent part down. Its σ comes from the readings' own scatter, over an effective
-  number of poses that shrinks when consecutive readings move together (a drift, not noise),
-  and widened for a σ estimated from few readings (Student's t variance).
+  largest at the start). Fitted over all poses as bias + g-sensitivity·up + a linear drift, the
+  orientation's share comes out and the drift is centred on the recording's mean time. Its σ
+  comes from the fit's own residuals, over an effective number of poses that shrinks when
+  consecutive residuals move together (a drift the line does not follow), and widened for a σ
+  estimated from few readings (Student's t variance).
 * :func:`saturated_spans`: the motions during which the gyro sat at the end of its range. A
   clipped rate integrates to the wrong rotation; such a motion is left out of the gyro solve.
 
@@ -29,23 +30,41 @@ def effective_count(residuals: np.ndarray) -> np.ndarray:
     return np.maximum(m * (1 - rho) / (1 + rho), 1.0)
 
 
-def still_bias(still: np.ndarray, floor_variance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+MIN_POSES_FOR_MODEL = 10  # poses needed to fit the g-sensitivity and a drift beside the bias
+
+
+def still_bias(still: np.ndarray, floor_variance: np.ndarray, up: np.ndarray | None = None,
+               times: np.ndarray | None = None, centre: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(bias (3,), its 1σ (3,)) from the poses' still readings ``still`` (m, 3) in time order,
     the Earth rate's known part already taken off. ``floor_variance`` (3,): the variance the
-    mean has whatever the scatter says (the white noise's and the unknown Earth rate's share).
+    bias has whatever the scatter says (the white noise's and the unknown Earth rate's share).
 
-    The σ² is the readings' variance over their effective count, times ν/(ν − 2) for ν = count − 1
-    degrees of freedom when ν > 2 (a σ estimated from ν readings is itself uncertain: Student's
-    t); with three readings or fewer the variance itself."""
+    With ``up`` (m, 3, each pose's up vector) and ``times`` (m,, s) and enough poses, each axis's
+    readings are fitted as bias + g-sensitivity·up + drift·(t − ``centre``): the bias is the
+    reading at the recording's middle (default: the poses' mean time), the bias it had on
+    average, with the orientation's share taken out; else it is the readings' mean. Its σ² is the fit's residual variance times the bias's
+    row of (XᵀX)⁻¹, over an effective count that shrinks when neighbouring residuals move
+    together (a drift the line does not follow), times ν/(ν − 2) for a variance estimated from
+    ν degrees of freedom (Student's t); with too few readings the residual variance itself."""
     m = len(still)
-    bias = still.mean(axis=0)
-    residuals = still - bias
-    variance = np.var(still, axis=0, ddof=1) if m > 1 else np.zeros(3)
+    if up is not None and times is not None and m >= MIN_POSES_FOR_MODEL:
+        span = max(float(np.ptp(times)), 1e-9)
+        middle = times.mean() if centre is None else centre
+        X = np.column_stack([np.ones(m), up, (times - middle) / span])
+    else:
+        X = np.ones((m, 1))
+    coef, *_ = np.linalg.lstsq(X, still, rcond=None)
+    residuals = still - X @ coef
+    p = X.shape[1]
+    if m <= p:
+        return coef[0], np.sqrt(np.maximum(np.var(still, axis=0), floor_variance))
+    variance = np.sum(residuals**2, axis=0) / (m - p)
+    leverage = float(np.linalg.inv(X.T @ X)[0, 0])  # 1/m for the plain mean
     count = effective_count(residuals) if m > 2 else np.ones(3)
-    nu = count - 1
-    student = np.where(nu > 2, nu / np.maximum(nu - 2, 1e-9), 1.0)
-    scatter = np.where(count > 3, variance / count * student, variance)
-    return bias, np.sqrt(np.maximum(scatter, floor_variance))
+    nu = count * (m - p) / m
+    student = np.where(nu > 2, nu / np.maximum(nu - 2, 1e-9), 3.0)
+    scatter = variance * leverage * (m / count) * student
+    return coef[0], np.sqrt(np.maximum(scatter, floor_variance))
 
 
 def rail_samples(values: np.ndarray) -> np.ndarray:
