@@ -91,7 +91,8 @@ def draw_scenario(rng: np.random.Generator, only: tuple[str, ...] | None = None)
     if kind == "Ferraris":
         sign = rng.choice([-1.0, 1.0], 3)
         kwargs.update(n_poses=6, directions=FACES, initial_rest_s=max(kwargs["initial_rest_s"], 4.0),
-                      table_turns=tuple((p, s * rate, 360.0 / rate - 2.0)  # 360°: 2 s ramps, the rest held
+                      # A full turn (2 s ramps, the rest held), stopped by hand within ~0.5° of 360°.
+                      table_turns=tuple((p, s * rate, (360.0 + rng.normal(0.0, 0.5)) / rate - 2.0)
                                         for p, s, rate in zip((0, 2, 4), sign, rng.uniform(20.0, 60.0, 3))))
     elif kind == "sparse":
         kwargs["n_poses"] = int(rng.integers(5, 9))

@@ -360,7 +360,9 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         # noise model the exact covariance, bias instability included, at the nominal scale.
         variance = noise.variance if name == reference else np.var(
             values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
-        scale = np.eye(3) * (float(np.median(np.linalg.norm(means, axis=1))) / station.gravity)
+        # The nominal scale, from the faces' spread (±g on each axis): raw counts have an offset
+        # that the means' norm would count as scale.
+        scale = np.diag(np.ptp(means, axis=0) / (2 * station.gravity))
         covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(

@@ -69,12 +69,17 @@ def still_bias(still: np.ndarray, floor_variance: np.ndarray, up: np.ndarray | N
 
 def rail_samples(values: np.ndarray) -> np.ndarray:
     """(n,) bool: samples where some axis sits at its largest or smallest value of the whole
-    recording for MIN_RAIL_RUN or more samples in a row (a clipped converter holds one code)."""
+    recording for MIN_RAIL_RUN or more samples in a row (a clipped converter holds one code),
+    that value far from the axis's median (a quarter of its range or more: a still reading that
+    happens to be the lowest is not a rail)."""
     values = np.asarray(values, dtype=float)
     out = np.zeros(len(values), dtype=bool)
+    median, spread = np.median(values, axis=0), np.ptp(values, axis=0)
     for extreme in (values.max(axis=0), values.min(axis=0)):
         at = values == extreme[None, :]
-        for axis in range(values.shape[1]):  # three axes, not samples
+        for axis in np.flatnonzero(np.abs(extreme - median) >= 0.25 * spread):  # three axes at most
+            if spread[axis] == 0:
+                continue
             edges = np.flatnonzero(np.diff(np.r_[0, at[:, axis].astype(np.int8), 0]))
             for start, stop in edges.reshape(-1, 2):
                 if stop - start >= MIN_RAIL_RUN:
