@@ -390,22 +390,84 @@ def _whitening(model: _Residuals, noise: RotationNoise, n_side: int, name: str) 
         raise CalibrationError(f"{name}: the residual covariance is not positive definite") from None
 
 
-def _search(whitened, theta0, to_theta, method):
-    """(theta, scipy's result, iterations) of the search in whitened coordinates z."""
-    from scipy import optimize  # only a solve pays for it
+_STEP_TOL = 1e-6  # a search step below this many σ (of the parameters) ends it
+_MAX_ITERATIONS = 100
+_FD_STEP_Z = 1e-5
+_FAR = 1.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
 
+
+def _broyden_gauss_newton(fun, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
+    """Minimise ‖fun(z)‖² from z = 0, where fun's Jacobian at 0 is Q (orthonormal columns, so z
+    is in σ units): Gauss–Newton steps on a Jacobian kept current by Broyden's rank-one updates
+    (no evaluations of its own), made afresh by forward differences when a step, halved up to
+    ten times, does not lower the cost. (z, iterations) once a step is below _STEP_TOL σ."""
+    z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
+    cost = float(r @ r)
+    for iteration in range(1, _MAX_ITERATIONS + 1):
+        dz = -np.linalg.lstsq(J, r, rcond=None)[0]
+        r_old = r
+        for _ in range(11):
+            r_new = fun(z + dz)
+            if float(r_new @ r_new) <= cost:
+                break
+            dz = dz / 2
+        else:
+            if fresh:  # no step along the true gradient lowers the cost: at the optimum
+                return z, iteration
+            J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
+            fresh = True
+            continue
+        z, r, cost, fresh = z + dz, r_new, float(r_new @ r_new), False
+        if np.linalg.norm(dz) < _STEP_TOL:
+            return z, iteration
+        if np.linalg.norm(dz) > _FAR:  # far from the optimum: the curvature has changed much
+            J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
+            fresh = True
+        else:
+            J = J + np.outer(r - r_old - J @ dz, dz) / float(dz @ dz)
+    return z, _MAX_ITERATIONS
+
+
+def _search(whitened, theta0, to_theta, Q, method):
+    """(theta, converged, message, iterations) of the search in whitened coordinates z."""
     p = len(theta0)
     if method == "powell":
+        from scipy import optimize  # only this search pays for it
+
         res = optimize.minimize(lambda z: float(np.sum(whitened(theta0 + to_theta @ z) ** 2)),
                                 np.zeros(p), method="Powell",
                                 options={"direc": np.eye(p), "xtol": 1e-4, "ftol": 1e-13,
                                          "maxfev": 20000})
-        iterations = int(res.nit)
-    else:
-        res = optimize.least_squares(lambda z: whitened(theta0 + to_theta @ z), np.zeros(p),
-                                     method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
-        iterations = int(res.nfev)
-    return theta0 + to_theta @ res.x, res, iterations
+        return theta0 + to_theta @ res.x, bool(res.success), str(res.message), int(res.nit)
+    z, iterations = _broyden_gauss_newton(lambda z: whitened(theta0 + to_theta @ z), p, Q)
+    converged = iterations < _MAX_ITERATIONS
+    message = (f"Gauss-Newton (Broyden): steps below {_STEP_TOL:g} sigma after {iterations} iterations"
+               if converged else f"Gauss-Newton (Broyden): no convergence in {iterations} iterations")
+    return theta0 + to_theta @ z, converged, message, iterations
+
+
+_POLISH_DONE = 1e-3  # σ: after a central-difference step this short, the next is below _STEP_TOL
+
+
+def _polish(whitened, theta, natural, fd_steps):
+    """(theta, the whitened residuals and their Jacobian in natural units): Gauss–Newton steps on
+    central-difference Jacobians (the covariance's), so that the optimum does not depend on the
+    search's approximate Jacobian. From within _POLISH_DONE σ, one step converges quadratically
+    to far below _STEP_TOL; the Jacobian returned is that of the point it started from."""
+    r = whitened(theta)
+    for _ in range(5):
+        J = _jacobian(whitened, theta, fd_steps) * natural
+        d = -np.linalg.lstsq(J, r, rcond=None)[0]
+        size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
+        if size < _STEP_TOL:
+            break
+        r_new = whitened(theta + natural * d)
+        if float(r_new @ r_new) > float(r @ r):
+            break
+        theta, r = theta + natural * d, r_new
+        if size < _POLISH_DONE:
+            break
+    return theta, r, J
 
 
 def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise = RotationNoise(),
@@ -450,14 +512,14 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     J0 = np.vstack([J_rot, J_side])
     J0 = J0 if whiten is None else whiten @ J0
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
-    to_theta = natural[:, None] * np.linalg.inv(np.linalg.qr(J0, mode="r"))
-    theta, res, iterations = _search(whitened, theta0, to_theta, method)
+    Q, R = np.linalg.qr(J0)
+    to_theta = natural[:, None] * np.linalg.inv(R)
+    theta, converged, message, iterations = _search(whitened, theta0, to_theta, Q, method)
+    if not converged:
+        raise CalibrationError(f"{name}: {method} did not converge ({message})")
+    theta, r_w, J = _polish(whitened, theta, natural, fd_steps)
     evaluations = count[0]
-    if not res.success:
-        raise CalibrationError(f"{name}: {method} did not converge ({res.message})")
-    r_w = whitened(theta)
     chi2, dof = float(r_w @ r_w), len(r_w) - p
-    J = _jacobian(whitened, theta, fd_steps) * natural
     sv = np.linalg.svd(J, compute_uv=False)
     try:
         cov_natural = np.linalg.inv(J.T @ J)
@@ -487,8 +549,8 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
         theta=np.r_[bias, theta[nb:]], covariance=covariance, parameter_names=FULL_PARAM_NAMES,
         residuals=model.rotations(theta), residual_unit="rad", residual_labels=labels,
         diagnostics=SolverDiagnostics(
-            iterations=iterations, evaluations=evaluations, converged=bool(res.success),
-            message=str(res.message), search=method, chi2=chi2, dof=dof,
+            iterations=iterations, evaluations=evaluations, converged=converged,
+            message=message, search=method, chi2=chi2, dof=dof,
             scaled_by_residuals=bool(scaled), condition_number=float(sv[0] / sv[-1]),
             held=() if start.estimate_bias else BIAS_NAMES, extra_residuals=model.side(theta)))
 
@@ -511,7 +573,9 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
     i to pose i+1 (a chain): errors shared by all poses (the accelerometer calibration's) as well
     as each pose's own.
     ``extra_residuals(K_inv, bias)`` returns whitened residuals appended to the rotations' (e.g.
-    turntable rate norms). method: "lsq" (least_squares, Levenberg-Marquardt) or "powell".
+    turntable rate norms). method: "lsq" (Gauss–Newton in the whitened coordinates, its Jacobian
+    updated by Broyden's rule and made afresh after long steps) or "powell" (scipy's); either
+    ends with Gauss–Newton steps on the covariance's central-difference Jacobian.
     Raises CalibrationError for too few motions (ceil(n_params / 2) + 2, fewer with extra
     equations) or motions that leave a parameter undetermined.
     """
