@@ -168,18 +168,23 @@ class _Steps:
         self.gather = gather[:, _bit_reversed(size)]
         self.duration = t[i1] - t[i0]
 
-    def quaternions(self, K_inv, delta_b):
-        """(m, 4) quaternions of each span's rotation, scalar last."""
+    def quaternions(self, K_inv, delta_b, group: int = 1):
+        """(m, 4) quaternions of each span's rotation, scalar last. ``group`` (a power of two up
+        to _BLOCK): so many consecutive steps taken as one, their increments summed (a coarse
+        integration that leaves out the coning between them: for a scan, not a solve)."""
         A = np.asarray(K_inv, dtype=float)
         coning = np.linalg.det(A) * np.linalg.inv(A)  # det(A)·K, applied to row vectors
         bias_cross = np.array([[0.0, -delta_b[2], delta_b[1]], [delta_b[2], 0.0, -delta_b[0]],
                                [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
-        phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ self.terms
+        terms = self.terms
+        if group > 1:  # storage index = bit-reversed time: a group's steps differ in its high bits
+            terms = terms.reshape(len(terms), -1, group, _BLOCK // group).sum(axis=2).reshape(len(terms), -1)
+        phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ terms
         angle = np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
         half = 0.5 * angle
         # sin(θ/2)/θ → 1/2 at θ = 0 (the padding).
         s = np.divide(np.sin(half), angle, out=np.full_like(angle, 0.5), where=angle > 0)
-        q = np.concatenate([s * phi, np.cos(half)[None]]).reshape(4, -1, _BLOCK)
+        q = np.concatenate([s * phi, np.cos(half)[None]]).reshape(4, -1, _BLOCK // group)
         q = _compose(q)  # (4, blocks)
         q = np.concatenate([q, [[0.0], [0.0], [0.0], [1.0]]], axis=1)[:, self.gather]
         q = _compose(q)  # (4, m)
@@ -191,16 +196,24 @@ def integrate(omega, t, spans) -> np.ndarray:
     return _Steps(omega, t, spans).quaternions(np.eye(3), np.zeros(3))
 
 
-def scale_misfits(t, raw, spans, up_start, up_end, b0, scales) -> np.ndarray:
-    """Sum of squared direction misfits for K = k·I at each k of ``scales``: a scan that finds a
-    raw-count gyro's sensitivity (a start for the solve) with one set of steps for all k."""
+_SCAN_GROUP = 8  # steps taken as one by the coarse scan (0.08 s at 100 Hz)
+
+
+def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
+    """The k of ``scales`` (sorted, a few dozen) whose K = k·I best carries every motion's start
+    direction onto its end (least sum of squared misfits): a raw-count gyro's sensitivity, the
+    start of its solve. All k by a coarse integration, then the best and its two neighbours by
+    the exact one."""
     steps = _Steps(raw, t, spans, offset=b0)
-    up_s = np.asarray(up_start, dtype=float)
-    out = np.empty(len(scales))
-    for i, k in enumerate(scales):  # a few dozen candidates, each one vectorised evaluation
-        q = steps.quaternions(np.eye(3) / k, np.zeros(3))
-        out[i] = np.sum((_rotate_back(q, up_s) - up_end) ** 2)
-    return out
+    up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
+
+    def misfit(k, group):
+        q = steps.quaternions(np.eye(3) / k, np.zeros(3), group)
+        return np.sum((_rotate_back(q, up_s) - up_e) ** 2)
+
+    coarse = int(np.argmin([misfit(k, _SCAN_GROUP) for k in scales]))  # a loop over candidates
+    near = scales[max(coarse - 1, 0):coarse + 2]
+    return float(near[int(np.argmin([misfit(k, 1) for k in near]))])
 
 
 def _tangent_bases(up):
