@@ -258,8 +258,11 @@ def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_va
     return cov
 
 
-def _jacobian(fun, x, steps):
-    """Central differences, one column per parameter."""
+def _jacobian(fun, x, steps, central=True):
+    """Central (else forward) differences, one column per parameter."""
+    if not central:
+        f0 = fun(x)
+        return np.column_stack([(fun(x + e) - f0) / h for e, h in zip(np.diag(steps), steps, strict=True)])
     return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h)
                             for e, h in zip(np.diag(steps), steps, strict=True)])
 
@@ -364,9 +367,10 @@ class _Residuals:
 
 
 def _check_geometry(model: _Residuals, natural, fd_steps, name) -> np.ndarray:
-    """The rotation residuals' Jacobian at the start (natural units); CalibrationError when the
-    motions leave some parameter (nearly) without effect."""
-    J_rot = _jacobian(model.rotations, model.theta0, fd_steps) * natural
+    """The rotation residuals' Jacobian at the start (natural units; forward differences: it
+    scales the search, the covariance has its own); CalibrationError when the motions leave some
+    parameter (nearly) without effect."""
+    J_rot = _jacobian(model.rotations, model.theta0, fd_steps, central=False) * natural
     sv, V = np.linalg.svd(J_rot, full_matrices=False)[1:]
     weak = sv < _GEOMETRY_RATIO * sv[0]
     if np.any(weak):
@@ -403,23 +407,26 @@ def _whitening(model: _Residuals, noise: RotationNoise, n_side: int, name: str) 
         raise CalibrationError(f"{name}: the residual covariance is not positive definite") from None
 
 
-_STEP_TOL = 1e-6  # a search step below this many σ (of the parameters) ends it
+_STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the solve
+_SEARCH_TOL = 1e-4  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
 _MAX_ITERATIONS = 100
-_FD_STEP_Z = 1e-5
+_FD_STEP_Z = 1e-5  # σ: forward-difference step of a fresh Jacobian in the search coordinates
 _FAR = 1.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
 
 
 def _broyden_gauss_newton(fun, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
     """Minimise ‖fun(z)‖² from z = 0, where fun's Jacobian at 0 is Q (orthonormal columns, so z
-    is in σ units): Gauss–Newton steps on a Jacobian kept current by Broyden's rank-one updates
-    (no evaluations of its own), made afresh by forward differences when a step, halved up to
-    ten times, does not lower the cost. (z, iterations) once a step is below _STEP_TOL σ."""
+    is in σ units): Gauss–Newton steps on a Jacobian made afresh by forward differences after a
+    step longer than _FAR σ and otherwise kept current by Broyden's rank-one updates (no
+    evaluations of their own), each step halved until it lowers the cost. (z, iterations) once
+    a step is below _SEARCH_TOL σ: the polish takes it from there."""
     z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
     cost = float(r @ r)
     for iteration in range(1, _MAX_ITERATIONS + 1):
         dz = -np.linalg.lstsq(J, r, rcond=None)[0]
-        r_old = r
-        for _ in range(11):
+        if np.linalg.norm(dz) < _SEARCH_TOL:
+            return z, iteration
+        for _ in range(8):
             r_new = fun(z + dz)
             if float(r_new @ r_new) <= cost:
                 break
@@ -430,9 +437,8 @@ def _broyden_gauss_newton(fun, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
             J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
             fresh = True
             continue
+        r_old = r
         z, r, cost, fresh = z + dz, r_new, float(r_new @ r_new), False
-        if np.linalg.norm(dz) < _STEP_TOL:
-            return z, iteration
         if np.linalg.norm(dz) > _FAR:  # far from the optimum: the curvature has changed much
             J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
             fresh = True
@@ -454,7 +460,7 @@ def _search(whitened, theta0, to_theta, Q, method):
         return theta0 + to_theta @ res.x, bool(res.success), str(res.message), int(res.nit)
     z, iterations = _broyden_gauss_newton(lambda z: whitened(theta0 + to_theta @ z), p, Q)
     converged = iterations < _MAX_ITERATIONS
-    message = (f"Gauss-Newton (Broyden): steps below {_STEP_TOL:g} sigma after {iterations} iterations"
+    message = (f"Gauss-Newton (Broyden): steps below {_SEARCH_TOL:g} sigma after {iterations} iterations"
                if converged else f"Gauss-Newton (Broyden): no convergence in {iterations} iterations")
     return theta0 + to_theta @ z, converged, message, iterations
 
