@@ -44,7 +44,7 @@ MALFORMED_WARNING = 0.01  # fraction of a file's data lines
 MAX_READING = 1e12
 GAP_PERIODS = 5.0  # a step in time longer than this many median periods is a gap
 MIN_OVERLAP = 0.5  # of the shortest file's duration
-FEED_BYTES = 1 << 20  # text parsed at once
+FEED_BYTES = 1 << 18  # text parsed at once
 _CONTROL = re.compile("[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")  # all but tab and CR
 
 
@@ -162,17 +162,11 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     tail = data[cut:].strip(b" \t\r")
     comment = cm.comment.encode("ascii") if cm.comment else None
     unterminated = bool(tail) and not (comment and tail.startswith(comment))
-    data = data[:cut]
-    a = np.frombuffer(data, dtype=np.uint8)
-    ends = np.flatnonzero(a == 10)
-    starts = np.concatenate([[0], ends[:-1] + 1]).astype(np.int64)
-    parser = DelimitedTextParser(cm, keep_malformed=max(len(ends), 1))  # keep every line number
-    t, triads = _parse_pieces(parser, data, ends)
-    n = len(t)
-
+    parser = DelimitedTextParser(cm, keep_malformed=max(data.count(b"\n", 0, cut), 1))  # every line number
     # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
     # not header lines, in order (the parser returns values, not where they came from).
-    candidates = _content_lines(a, starts, ends, cm.comment)
+    t, triads, candidates, starts, ends = _parse_pieces(parser, data, cut, cm.comment)
+    n = len(t)
     malformed = np.array(sorted(parser.malformed_line_numbers), dtype=np.int64)
     rest = np.setdiff1d(candidates, malformed, assume_unique=True)
     if len(rest) != n + parser.header_lines:  # cannot happen unless the parser's rules change
@@ -225,19 +219,29 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     return _Parsed(spec, report, t, triads)
 
 
-def _parse_pieces(parser: DelimitedTextParser, data: bytes, ends: np.ndarray) -> tuple[np.ndarray, dict]:
-    """(t, triads) of ``data`` (whole lines), fed to the parser in pieces of about FEED_BYTES
-    cut at line ends: the parser's temporaries are some ten times what it is fed at once, and a
-    piece of whole lines parses as it would within the file."""
-    last = np.searchsorted(ends, np.arange(FEED_BYTES, len(data), FEED_BYTES)) - 1  # line end before
-    bounds = np.unique(np.r_[0, ends[last[last >= 0]] + 1, len(data)]).tolist()
-    chunks = [c for a, b in zip(bounds[:-1], bounds[1:]) if (c := parser.feed(data[a:b], 0.0)) is not None]
+def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: str | None):
+    """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, and the
+    [start, end) bytes of every line) of data[:cut] (whole lines), fed to the parser and scanned
+    in pieces of about FEED_BYTES cut at line ends: the temporaries are some ten times the bytes
+    seen at once, and a piece of whole lines parses as it would within the file."""
+    chunks, content, starts, ends = [], [], [], []
+    lo, lines = 0, 0
+    while lo < cut:  # a loop over pieces, a dozen per MiB
+        hi = data.rfind(b"\n", lo, min(lo + FEED_BYTES, cut)) + 1 or data.find(b"\n", lo, cut) + 1
+        a = np.frombuffer(data, dtype=np.uint8, count=hi - lo, offset=lo)
+        end = np.flatnonzero(a == 10)
+        start = np.r_[0, end[:-1] + 1]
+        if (chunk := parser.feed(data[lo:hi], 0.0)) is not None:
+            chunks.append(chunk)
+        content.append(lines + _content_lines(a, start, end, comment))
+        starts.append(start + lo)
+        ends.append(end + lo)
+        lo, lines = hi, lines + len(end)
+    joined = [np.concatenate(x) if x else np.zeros(0, dtype=np.int64) for x in (content, starts, ends)]
     if not chunks:
-        return np.zeros(0), {}
-    if len(chunks) == 1:
-        return chunks[0].t, dict(chunks[0].triads)
+        return np.zeros(0), {}, *joined
     return (np.concatenate([c.t for c in chunks]),
-            {name: np.concatenate([c.triads[name] for c in chunks]) for name in chunks[0].triads})
+            {name: np.concatenate([c.triads[name] for c in chunks]) for name in chunks[0].triads}, *joined)
 
 
 def _largest(row: np.ndarray) -> float:
