@@ -167,6 +167,15 @@ class _Steps:
         gather = np.where(slot < blocks[:, None], first[:, None] + slot, blocks.sum())
         self.gather = gather[:, _bit_reversed(size)]
         self.duration = t[i1] - t[i0]
+        self._groups: dict[int, np.ndarray] = {}
+
+    def _grouped(self, group: int) -> np.ndarray:
+        """The terms of ``group`` consecutive steps summed (made once): the storage index is the
+        bit-reversed time, so a group's steps are those that differ only in its high bits."""
+        if group not in self._groups:
+            c = len(self.terms)
+            self._groups[group] = self.terms.reshape(c, -1, group, _BLOCK // group).sum(axis=2).reshape(c, -1)
+        return self._groups[group]
 
     def quaternions(self, K_inv, delta_b, group: int = 1):
         """(m, 4) quaternions of each span's rotation, scalar last. ``group`` (a power of two up
@@ -176,9 +185,7 @@ class _Steps:
         coning = np.linalg.det(A) * np.linalg.inv(A)  # det(A)·K, applied to row vectors
         bias_cross = np.array([[0.0, -delta_b[2], delta_b[1]], [delta_b[2], 0.0, -delta_b[0]],
                                [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
-        terms = self.terms
-        if group > 1:  # storage index = bit-reversed time: a group's steps differ in its high bits
-            terms = terms.reshape(len(terms), -1, group, _BLOCK // group).sum(axis=2).reshape(len(terms), -1)
+        terms = self.terms if group == 1 else self._grouped(group)
         phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ terms
         angle = np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
         half = 0.5 * angle
@@ -408,10 +415,10 @@ def _whitening(model: _Residuals, noise: RotationNoise, n_side: int, name: str) 
 
 
 _STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the solve
-_SEARCH_TOL = 1e-4  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
+_SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
 _MAX_ITERATIONS = 100
 _FD_STEP_Z = 1e-5  # σ: forward-difference step of a fresh Jacobian in the search coordinates
-_FAR = 1.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
+_FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
 
 
 def _broyden_gauss_newton(fun, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
@@ -465,27 +472,33 @@ def _search(whitened, theta0, to_theta, Q, method):
     return theta0 + to_theta @ z, converged, message, iterations
 
 
-_POLISH_DONE = 1e-3  # σ: after a central-difference step this short, the next is below _STEP_TOL
+_POLISH_DONE = 0.1  # σ: after a longer polishing step the Jacobian is made afresh
 
 
 def _polish(whitened, theta, natural, fd_steps):
     """(theta, the whitened residuals and their Jacobian in natural units): Gauss–Newton steps on
     central-difference Jacobians (the covariance's), so that the optimum does not depend on the
-    search's approximate Jacobian. From within _POLISH_DONE σ, one step converges quadratically
-    to far below _STEP_TOL; the Jacobian returned is that of the point it started from."""
+    search's approximate Jacobian, until a step is below _STEP_TOL σ. The Jacobian is made afresh
+    after a step longer than _POLISH_DONE σ (or one that fails); shorter ones reuse it (chord
+    steps, one evaluation each). The Jacobian returned is the last one made."""
     r = whitened(theta)
-    for _ in range(5):
-        J = _jacobian(whitened, theta, fd_steps) * natural
+    J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+    for _ in range(20):
         d = -np.linalg.lstsq(J, r, rcond=None)[0]
         size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
         if size < _STEP_TOL:
             break
         r_new = whitened(theta + natural * d)
         if float(r_new @ r_new) > float(r @ r):
-            break
+            if fresh:
+                break
+            J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+            continue
         theta, r = theta + natural * d, r_new
-        if size < _POLISH_DONE:
-            break
+        if size > _POLISH_DONE:
+            J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+        else:
+            fresh = False
     return theta, r, J
 
 
