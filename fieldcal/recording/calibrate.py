@@ -35,7 +35,7 @@ from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.calibration import Calibration
 from fieldcal.solvers.problems import StaticNormProblem
 from fieldcal.recording.turns import rate_residuals
-from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, scale_misfits, solve_rotations
+from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, scan_scale, solve_rotations
 
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
 
@@ -284,7 +284,7 @@ def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, sp
     rest_var = np.var(gyro[rest], axis=0, ddof=1)
     k = RATE_UNITS.get(recording.units[name])
     if k is None:  # raw counts: the scale that makes the rotations fit
-        k = float(_SCAN[int(np.argmin(scale_misfits(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)))])
+        k = scan_scale(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)
     still = interval_means(gyro, iv)  # every pose's still reading: each one an estimate of the bias
     if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
         earth_var = EARTH_RATE**2 / 3

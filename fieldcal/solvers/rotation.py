@@ -167,19 +167,31 @@ class _Steps:
         gather = np.where(slot < blocks[:, None], first[:, None] + slot, blocks.sum())
         self.gather = gather[:, _bit_reversed(size)]
         self.duration = t[i1] - t[i0]
+        self._groups: dict[int, np.ndarray] = {}
 
-    def quaternions(self, K_inv, delta_b):
-        """(m, 4) quaternions of each span's rotation, scalar last."""
+    def _grouped(self, group: int) -> np.ndarray:
+        """The terms of ``group`` consecutive steps summed (made once): the storage index is the
+        bit-reversed time, so a group's steps are those that differ only in its high bits."""
+        if group not in self._groups:
+            c = len(self.terms)
+            self._groups[group] = self.terms.reshape(c, -1, group, _BLOCK // group).sum(axis=2).reshape(c, -1)
+        return self._groups[group]
+
+    def quaternions(self, K_inv, delta_b, group: int = 1):
+        """(m, 4) quaternions of each span's rotation, scalar last. ``group`` (a power of two up
+        to _BLOCK): so many consecutive steps taken as one, their increments summed (a coarse
+        integration that leaves out the coning between them: for a scan, not a solve)."""
         A = np.asarray(K_inv, dtype=float)
         coning = np.linalg.det(A) * np.linalg.inv(A)  # det(A)·K, applied to row vectors
         bias_cross = np.array([[0.0, -delta_b[2], delta_b[1]], [delta_b[2], 0.0, -delta_b[0]],
                                [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
-        phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ self.terms
+        terms = self.terms if group == 1 else self._grouped(group)
+        phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ terms
         angle = np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
         half = 0.5 * angle
         # sin(θ/2)/θ → 1/2 at θ = 0 (the padding).
         s = np.divide(np.sin(half), angle, out=np.full_like(angle, 0.5), where=angle > 0)
-        q = np.concatenate([s * phi, np.cos(half)[None]]).reshape(4, -1, _BLOCK)
+        q = np.concatenate([s * phi, np.cos(half)[None]]).reshape(4, -1, _BLOCK // group)
         q = _compose(q)  # (4, blocks)
         q = np.concatenate([q, [[0.0], [0.0], [0.0], [1.0]]], axis=1)[:, self.gather]
         q = _compose(q)  # (4, m)
@@ -191,16 +203,24 @@ def integrate(omega, t, spans) -> np.ndarray:
     return _Steps(omega, t, spans).quaternions(np.eye(3), np.zeros(3))
 
 
-def scale_misfits(t, raw, spans, up_start, up_end, b0, scales) -> np.ndarray:
-    """Sum of squared direction misfits for K = k·I at each k of ``scales``: a scan that finds a
-    raw-count gyro's sensitivity (a start for the solve) with one set of steps for all k."""
+_SCAN_GROUP = 8  # steps taken as one by the coarse scan (0.08 s at 100 Hz)
+
+
+def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
+    """The k of ``scales`` (sorted, a few dozen) whose K = k·I best carries every motion's start
+    direction onto its end (least sum of squared misfits): a raw-count gyro's sensitivity, the
+    start of its solve. All k by a coarse integration, then the best and its two neighbours by
+    the exact one."""
     steps = _Steps(raw, t, spans, offset=b0)
-    up_s = np.asarray(up_start, dtype=float)
-    out = np.empty(len(scales))
-    for i, k in enumerate(scales):  # a few dozen candidates, each one vectorised evaluation
-        q = steps.quaternions(np.eye(3) / k, np.zeros(3))
-        out[i] = np.sum((_rotate_back(q, up_s) - up_end) ** 2)
-    return out
+    up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
+
+    def misfit(k, group):
+        q = steps.quaternions(np.eye(3) / k, np.zeros(3), group)
+        return np.sum((_rotate_back(q, up_s) - up_e) ** 2)
+
+    coarse = int(np.argmin([misfit(k, _SCAN_GROUP) for k in scales]))  # a loop over candidates
+    near = scales[max(coarse - 1, 0):coarse + 2]
+    return float(near[int(np.argmin([misfit(k, 1) for k in near]))])
 
 
 def _tangent_bases(up):
@@ -245,8 +265,11 @@ def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_va
     return cov
 
 
-def _jacobian(fun, x, steps):
-    """Central differences, one column per parameter."""
+def _jacobian(fun, x, steps, central=True):
+    """Central (else forward) differences, one column per parameter."""
+    if not central:
+        f0 = fun(x)
+        return np.column_stack([(fun(x + e) - f0) / h for e, h in zip(np.diag(steps), steps, strict=True)])
     return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h)
                             for e, h in zip(np.diag(steps), steps, strict=True)])
 
@@ -351,9 +374,10 @@ class _Residuals:
 
 
 def _check_geometry(model: _Residuals, natural, fd_steps, name) -> np.ndarray:
-    """The rotation residuals' Jacobian at the start (natural units); CalibrationError when the
-    motions leave some parameter (nearly) without effect."""
-    J_rot = _jacobian(model.rotations, model.theta0, fd_steps) * natural
+    """The rotation residuals' Jacobian at the start (natural units; forward differences: it
+    scales the search, the covariance has its own); CalibrationError when the motions leave some
+    parameter (nearly) without effect."""
+    J_rot = _jacobian(model.rotations, model.theta0, fd_steps, central=False) * natural
     sv, V = np.linalg.svd(J_rot, full_matrices=False)[1:]
     weak = sv < _GEOMETRY_RATIO * sv[0]
     if np.any(weak):
@@ -390,22 +414,92 @@ def _whitening(model: _Residuals, noise: RotationNoise, n_side: int, name: str) 
         raise CalibrationError(f"{name}: the residual covariance is not positive definite") from None
 
 
-def _search(whitened, theta0, to_theta, method):
-    """(theta, scipy's result, iterations) of the search in whitened coordinates z."""
-    from scipy import optimize  # only a solve pays for it
+_STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the solve
+_SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
+_MAX_ITERATIONS = 100
+_FD_STEP_Z = 1e-5  # σ: forward-difference step of a fresh Jacobian in the search coordinates
+_FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
 
+
+def _broyden_gauss_newton(fun, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
+    """Minimise ‖fun(z)‖² from z = 0, where fun's Jacobian at 0 is Q (orthonormal columns, so z
+    is in σ units): Gauss–Newton steps on a Jacobian made afresh by forward differences after a
+    step longer than _FAR σ and otherwise kept current by Broyden's rank-one updates (no
+    evaluations of their own), each step halved until it lowers the cost. (z, iterations) once
+    a step is below _SEARCH_TOL σ: the polish takes it from there."""
+    z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
+    cost = float(r @ r)
+    for iteration in range(1, _MAX_ITERATIONS + 1):
+        dz = -np.linalg.lstsq(J, r, rcond=None)[0]
+        if np.linalg.norm(dz) < _SEARCH_TOL:
+            return z, iteration
+        for _ in range(8):
+            r_new = fun(z + dz)
+            if float(r_new @ r_new) <= cost:
+                break
+            dz = dz / 2
+        else:
+            if fresh:  # no step along the true gradient lowers the cost: at the optimum
+                return z, iteration
+            J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
+            fresh = True
+            continue
+        r_old = r
+        z, r, cost, fresh = z + dz, r_new, float(r_new @ r_new), False
+        if np.linalg.norm(dz) > _FAR:  # far from the optimum: the curvature has changed much
+            J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
+            fresh = True
+        else:
+            J = J + np.outer(r - r_old - J @ dz, dz) / float(dz @ dz)
+    return z, _MAX_ITERATIONS
+
+
+def _search(whitened, theta0, to_theta, Q, method):
+    """(theta, converged, message, iterations) of the search in whitened coordinates z."""
     p = len(theta0)
     if method == "powell":
+        from scipy import optimize  # only this search pays for it
+
         res = optimize.minimize(lambda z: float(np.sum(whitened(theta0 + to_theta @ z) ** 2)),
                                 np.zeros(p), method="Powell",
                                 options={"direc": np.eye(p), "xtol": 1e-4, "ftol": 1e-13,
                                          "maxfev": 20000})
-        iterations = int(res.nit)
-    else:
-        res = optimize.least_squares(lambda z: whitened(theta0 + to_theta @ z), np.zeros(p),
-                                     method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
-        iterations = int(res.nfev)
-    return theta0 + to_theta @ res.x, res, iterations
+        return theta0 + to_theta @ res.x, bool(res.success), str(res.message), int(res.nit)
+    z, iterations = _broyden_gauss_newton(lambda z: whitened(theta0 + to_theta @ z), p, Q)
+    converged = iterations < _MAX_ITERATIONS
+    message = (f"Gauss-Newton (Broyden): steps below {_SEARCH_TOL:g} sigma after {iterations} iterations"
+               if converged else f"Gauss-Newton (Broyden): no convergence in {iterations} iterations")
+    return theta0 + to_theta @ z, converged, message, iterations
+
+
+_POLISH_DONE = 0.1  # σ: after a longer polishing step the Jacobian is made afresh
+
+
+def _polish(whitened, theta, natural, fd_steps):
+    """(theta, the whitened residuals and their Jacobian in natural units): Gauss–Newton steps on
+    central-difference Jacobians (the covariance's), so that the optimum does not depend on the
+    search's approximate Jacobian, until a step is below _STEP_TOL σ. The Jacobian is made afresh
+    after a step longer than _POLISH_DONE σ (or one that fails); shorter ones reuse it (chord
+    steps, one evaluation each). The Jacobian returned is the last one made."""
+    r = whitened(theta)
+    J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+    for _ in range(20):
+        d = -np.linalg.lstsq(J, r, rcond=None)[0]
+        size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
+        if size < _STEP_TOL:
+            break
+        r_new = whitened(theta + natural * d)
+        if float(r_new @ r_new) > float(r @ r):
+            if fresh:
+                break
+            J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+            continue
+        theta, r = theta + natural * d, r_new
+        if size > _POLISH_DONE:
+            J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+        else:
+            fresh = False
+    return theta, r, J
 
 
 def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise = RotationNoise(),
@@ -450,14 +544,14 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     J0 = np.vstack([J_rot, J_side])
     J0 = J0 if whiten is None else whiten @ J0
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
-    to_theta = natural[:, None] * np.linalg.inv(np.linalg.qr(J0, mode="r"))
-    theta, res, iterations = _search(whitened, theta0, to_theta, method)
+    Q, R = np.linalg.qr(J0)
+    to_theta = natural[:, None] * np.linalg.inv(R)
+    theta, converged, message, iterations = _search(whitened, theta0, to_theta, Q, method)
+    if not converged:
+        raise CalibrationError(f"{name}: {method} did not converge ({message})")
+    theta, r_w, J = _polish(whitened, theta, natural, fd_steps)
     evaluations = count[0]
-    if not res.success:
-        raise CalibrationError(f"{name}: {method} did not converge ({res.message})")
-    r_w = whitened(theta)
     chi2, dof = float(r_w @ r_w), len(r_w) - p
-    J = _jacobian(whitened, theta, fd_steps) * natural
     sv = np.linalg.svd(J, compute_uv=False)
     try:
         cov_natural = np.linalg.inv(J.T @ J)
@@ -487,8 +581,8 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
         theta=np.r_[bias, theta[nb:]], covariance=covariance, parameter_names=FULL_PARAM_NAMES,
         residuals=model.rotations(theta), residual_unit="rad", residual_labels=labels,
         diagnostics=SolverDiagnostics(
-            iterations=iterations, evaluations=evaluations, converged=bool(res.success),
-            message=str(res.message), search=method, chi2=chi2, dof=dof,
+            iterations=iterations, evaluations=evaluations, converged=converged,
+            message=message, search=method, chi2=chi2, dof=dof,
             scaled_by_residuals=bool(scaled), condition_number=float(sv[0] / sv[-1]),
             held=() if start.estimate_bias else BIAS_NAMES, extra_residuals=model.side(theta)))
 
@@ -511,7 +605,9 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
     i to pose i+1 (a chain): errors shared by all poses (the accelerometer calibration's) as well
     as each pose's own.
     ``extra_residuals(K_inv, bias)`` returns whitened residuals appended to the rotations' (e.g.
-    turntable rate norms). method: "lsq" (least_squares, Levenberg-Marquardt) or "powell".
+    turntable rate norms). method: "lsq" (Gauss–Newton in the whitened coordinates, its Jacobian
+    updated by Broyden's rule and made afresh after long steps) or "powell" (scipy's); either
+    ends with Gauss–Newton steps on the covariance's central-difference Jacobian.
     Raises CalibrationError for too few motions (ceil(n_params / 2) + 2, fewer with extra
     equations) or motions that leave a parameter undetermined.
     """
