@@ -34,7 +34,7 @@ from fieldcal.earth import Station
 from fieldcal.model import params_from_k
 from fieldcal.recording import Recording
 from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
-from fieldcal.recording.detect import check_spread
+from fieldcal.recording.detect import DetectorSettings, check_spread, distinct_poses
 from fieldcal.solvers import CalibrationError
 
 FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
@@ -109,15 +109,7 @@ def has_needed_poses(kind: str, sim) -> bool:
     least 9 distinct well-spread ups (the norm method)."""
     if kind == "Ferraris":
         return len(sim.static) >= 9 and len(sim.turns) == 3
-    return check_spread(_distinct(sim.up), 9).ok
-
-
-def _distinct(up: np.ndarray) -> np.ndarray:
-    keep: list[np.ndarray] = []
-    for u in up:  # poses, not samples
-        if all(u @ k < np.cos(np.radians(10.0)) for k in keep):
-            keep.append(u)
-    return np.array(keep).reshape(-1, 3)
+    return check_spread(sim.up[distinct_poses(sim.up, DetectorSettings().min_separation_deg)], 9).ok
 
 
 def z_scores(cal, sim) -> dict[str, tuple[tuple[str, ...], np.ndarray]]:

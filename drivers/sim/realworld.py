@@ -26,9 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from drivers.sim.device import DEG, MG
-
-STANDARD_GRAVITY = 9.80665
+from drivers.sim.device import DEG, MG, STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)
