@@ -37,6 +37,7 @@ MODES = {
     "no initial rest": (dict(late_start=True), {}),
     "short initial rest": ({}, dict(initial_rest_s=2.5)),
     "Ferraris with drops, SI": (dict(jitter_s=1e-3, drop_fraction=0.01), dict(FERRARIS, raw_counts=False)),
+    "Ferraris with warm-up": (dict(warm_up_deg_s=0.1, warm_up_tau_s=60.0), dict(FERRARIS, raw_counts=False)),
     "Ferraris with drops, counts": (dict(jitter_s=1e-3, drop_fraction=0.01, g_sensitivity_deg_s_per_g=0.1),
                                     dict(FERRARIS, raw_counts=True)),
 }

@@ -139,8 +139,14 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     still = interval_means(gyro, intervals)
     n = np.diff(turns.spans, axis=1)[:, 0]
     w_before, w_after = counts[turns.before], counts[turns.after]
-    reference = (still[turns.before] * w_before[:, None] + still[turns.after] * w_after[:, None]) \
-        / (w_before + w_after)[:, None]
+    # The still reading through the turn: the line from the pose before to the pose after, each
+    # at its middle, taken at the turn's middle (a bias that drifts, warm-up or temperature,
+    # moves during the turn as it does between the poses); its weight on each side, α.
+    times = np.arange(len(gyro)) / rate_hz if t is None else t
+    middle = 0.5 * (times[intervals[:, 0]] + times[intervals[:, 1] - 1])
+    turn_middle = 0.5 * (times[turns.spans[:, 0]] + times[turns.spans[:, 1] - 1])
+    alpha = np.clip((turn_middle - middle[turns.before]) / (middle[turns.after] - middle[turns.before]), 0.0, 1.0)
+    reference = still[turns.before] * (1 - alpha)[:, None] + still[turns.after] * alpha[:, None]
     W, duration = integrals(gyro, rate_hz, turns.spans, reference, t)
     W = W.T
     C = (turns.up * turns.angles[:, None]).T  # W = K·C
@@ -148,7 +154,7 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     K = W @ C_pinv
     # Per turn and output axis, the variance of W's entry (output units · s)².
     white = np.array([np.var(gyro[a:b], axis=0, ddof=1) for a, b in intervals[[0]]])[0]
-    reference_var = white[None, :] / (w_before + w_after)[:, None]
+    reference_var = white[None, :] * ((1 - alpha) ** 2 / w_before + alpha**2 / w_after)[:, None]
     horizontal = EARTH_RATE if latitude_rad is None else EARTH_RATE * abs(math.cos(latitude_rad))
     k_scale = np.abs(np.diag(K))
     earth = (k_scale[None, :] * horizontal * duration[:, None]) ** 2 / 2
