@@ -13,7 +13,7 @@ from fieldcal.model import params_from_k
 from fieldcal.recording import Recording
 from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
 from fieldcal.recording.detect import DetectionError
-from fieldcal.recording.drift import effective_count, rail_samples, saturated_spans, still_bias
+from fieldcal.recording.drift import effective_count, rail_samples, regular_times, saturated_spans, still_bias
 from fieldcal.recording.results import summary_lines
 
 OFF = RealWorld(g_sensitivity_deg_s_per_g=0.0, warm_up_deg_s=0.0, temperature_ramp_k=0.0,
@@ -158,3 +158,15 @@ def test_effective_count_is_smaller_for_a_trend_than_for_noise():
     trend = np.linspace(-1, 1, 200)[:, None]
     assert effective_count(noise)[0] > 150
     assert effective_count(trend)[0] < 10
+
+
+def test_regular_times_take_out_jitter_and_keep_gaps_and_clock_rate():
+    rng = np.random.default_rng(2)
+    index = np.delete(np.arange(1000), [10, 11, 500])  # three dropped samples
+    grid = 3.0 + index * 0.01 * (1 + 50e-6)  # a clock 50 ppm fast
+    jittered = grid + rng.uniform(-0.002, 0.002, len(grid))
+    # The grid's line is fitted through the jitter: right to ~jitter/√n, twenty times better here.
+    assert np.max(np.abs(regular_times(jittered, 100.0) - grid)) < 1e-4
+    assert np.max(np.abs(jittered - grid)) > 1.9e-3
+    uneven = np.cumsum(rng.uniform(0.005, 0.015, 1000))  # no grid at all: kept as they are
+    np.testing.assert_array_equal(regular_times(uneven, 100.0), uneven)

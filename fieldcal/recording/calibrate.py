@@ -30,7 +30,7 @@ from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
 from fieldcal.recording.detect import DetectionError, DetectorSettings, Poses, SpreadReport, interval_means
-from fieldcal.recording.drift import saturated_spans, still_bias
+from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
 from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.calibration import Calibration
 from fieldcal.solvers.problems import StaticNormProblem
@@ -271,6 +271,7 @@ class GyroPrior:
     earth_variance: float
     rate_noise: float
     rest_variance: np.ndarray
+    wander_variance: float = 0.0  # rad²/s² per axis: how far the bias moves from pose to pose beyond the noise
 
 
 def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, spans: np.ndarray,
@@ -299,19 +300,27 @@ def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, sp
     white = np.mean(rest_var[None, :] / counts[:, None], axis=0) / len(iv)
     times = 0.5 * (t[iv[:, 0]] + t[iv[:, 1] - 1])
     b0, bias_sigma = still_bias(still, k**2 * earth_var / len(iv) + white, up, times, 0.5 * (t[0] + t[-1]))
+    # What the model leaves of the readings' scatter beyond the noise and the Earth rate: the bias
+    # wanders (random walk, warm-up's curve) and a motion between poses integrates that too.
+    X, _, residuals = still_fit(still, up, times, 0.5 * (t[0] + t[-1]))
+    wander = 0.0
+    if len(iv) > X.shape[1]:
+        spread = np.sum(residuals**2, axis=0) / (len(iv) - X.shape[1])
+        noise_floor = k**2 * earth_var + np.mean(rest_var[None, :] / counts[:, None], axis=0)
+        wander = float(np.mean(np.maximum(spread - noise_floor, 0.0))) / k**2
     if noise is not None and noise.bias_instability:
         weights = np.full(len(iv), 1.0 / len(iv))
         model = weights @ noise.window_covariance(t[iv[:, 0]], counts / recording.rate_hz) @ weights
         bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(k**2 * model - white, 0.0))
     arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
-    return GyroPrior(k, b0, bias_sigma, earth_var, arw, rest_var)
+    return GyroPrior(k, b0, bias_sigma, earth_var, arw, rest_var, wander)
 
 
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration, acc_var: np.ndarray,
                 station: Station, settings: RecordingSettings,
                 turns: np.ndarray) -> tuple[Calibration, np.ndarray]:
     """The solution, its bias's 1σ, and a note for the summary (or "")."""
-    t, iv = recording.t, poses.intervals
+    t, iv = regular_times(recording.t, recording.rate_hz), poses.intervals
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
     means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
                                   recording.units[acc.name])
@@ -332,7 +341,8 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
         note = (f"{name}: {int(clipped.sum())} of {len(spans)} motions left out of the solve: the gyro sat at "
                 "the end of its range (turn more slowly, or set a wider range)")
     noise = RotationNoise(bias_sigma=prior.bias_sigma, up_covariance=up_cov, rate_noise=prior.rate_noise,
-                          motion_variance=prior.earth_variance * duration**2 + np.where(clipped, (2 * math.pi) ** 2, 0.0))
+                          motion_variance=(prior.earth_variance + prior.wander_variance) * duration**2
+                          + np.where(clipped, (2 * math.pi) ** 2, 0.0))
     solution = solve_rotations(Motions.of(t, gyro, spans, up[:-1], up[1:]),
                                RotationStart.of(prior.scale, prior.bias, settings.estimate_gyro_bias),
                                noise, extra, settings.gyro_method, name, recording.units[name])
@@ -376,13 +386,14 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
     for name in detection.rates:
         gyro = recording.triads[name]
+        t = regular_times(recording.t, recording.rate_hz)
         turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]),
-                                    t=recording.t)
+                                    t=t)
         try:
             angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
                                                            poses.intervals, axes, turns, latitude,
                                                            up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))),
-                                                           t=recording.t)
+                                                           t=t)
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)

@@ -47,14 +47,7 @@ def still_bias(still: np.ndarray, floor_variance: np.ndarray, up: np.ndarray | N
     together (a drift the line does not follow), times ν/(ν − 2) for a variance estimated from
     ν degrees of freedom (Student's t); with too few readings the residual variance itself."""
     m = len(still)
-    if up is not None and times is not None and m >= MIN_POSES_FOR_MODEL:
-        span = max(float(np.ptp(times)), 1e-9)
-        middle = times.mean() if centre is None else centre
-        X = np.column_stack([np.ones(m), up, (times - middle) / span])
-    else:
-        X = np.ones((m, 1))
-    coef, *_ = np.linalg.lstsq(X, still, rcond=None)
-    residuals = still - X @ coef
+    X, coef, residuals = still_fit(still, up, times, centre)
     p = X.shape[1]
     if m <= p:
         return coef[0], np.sqrt(np.maximum(np.var(still, axis=0), floor_variance))
@@ -65,6 +58,21 @@ def still_bias(still: np.ndarray, floor_variance: np.ndarray, up: np.ndarray | N
     student = np.where(nu > 2, nu / np.maximum(nu - 2, 1e-9), 3.0)
     scatter = variance * leverage * (m / count) * student
     return coef[0], np.sqrt(np.maximum(scatter, floor_variance))
+
+
+def still_fit(still: np.ndarray, up: np.ndarray | None = None, times: np.ndarray | None = None,
+              centre: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The model of :func:`still_bias` (design X, coefficients, residuals (m, 3)): the bias alone,
+    or with enough poses and their ``up`` and ``times`` also the g-sensitivity and a drift."""
+    m = len(still)
+    if up is not None and times is not None and m >= MIN_POSES_FOR_MODEL:
+        span = max(float(np.ptp(times)), 1e-9)
+        middle = times.mean() if centre is None else centre
+        X = np.column_stack([np.ones(m), up, (times - middle) / span])
+    else:
+        X = np.ones((m, 1))
+    coef, *_ = np.linalg.lstsq(X, still, rcond=None)
+    return X, coef, still - X @ coef
 
 
 def rail_samples(values: np.ndarray) -> np.ndarray:
@@ -92,3 +100,24 @@ def saturated_spans(values: np.ndarray, spans: np.ndarray) -> np.ndarray:
     rails = np.cumsum(np.r_[0, rail_samples(values).astype(int)])
     spans = np.asarray(spans, dtype=int).reshape(-1, 2)
     return rails[spans[:, 1]] - rails[spans[:, 0]] > 0
+
+
+def regular_times(t: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Timestamps with a logger's jitter taken out: each sample put on the nearest point of a
+    regular grid (a line through the timestamps, so a clock's own rate error stays), dropped
+    samples leaving their gaps. A converter samples on its own clock; the jitter is when the
+    logger wrote the time down, and integrating a rate over it (2 ms at 100 Hz is a fifth of a
+    step) adds rotation errors the gyro never made. Timestamps whose residual from the grid
+    exceeds a quarter step are not jitter of a regular grid: the timestamps are kept as they are."""
+    t = np.asarray(t, dtype=float)
+    if len(t) < 3:
+        return t
+    step = 1.0 / rate_hz
+    index = np.round((t - t[0]) / step)
+    for _ in range(2):  # the grid's line, refitted once the indices are known
+        slope, offset = np.polyfit(index, t, 1)
+        index = np.round((t - offset) / slope)
+    grid = offset + slope * index
+    if np.any(np.diff(index) <= 0) or np.max(np.abs(t - grid)) > 0.25 * slope:
+        return t
+    return grid
