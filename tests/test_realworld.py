@@ -19,9 +19,8 @@ from fieldcal.recording.results import summary_lines
 OFF = RealWorld(g_sensitivity_deg_s_per_g=0.0, warm_up_deg_s=0.0, temperature_ramp_k=0.0,
                 bias_tempco_deg_s_per_k=0.0, jitter_s=0.0, drop_fraction=0.0)
 FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
-# 360° each (2 s ramps). In raw counts the turning detector needs the still windows to be the
-# larger part of the quiet ones (it cannot know a turn's rate): statics of 6-10 s here.
-FERRARIS = dict(n_poses=6, directions=FACES, initial_rest_s=5.0, static_s=(6.0, 10.0),
+# 360° each (2 s ramps); the turns take more of the quiet time than the poses.
+FERRARIS = dict(n_poses=6, directions=FACES, initial_rest_s=5.0,
                 table_turns=((0, 30.0, 10.0), (2, -40.0, 7.0), (4, 45.0, 6.0)))
 
 MODES = {

@@ -361,6 +361,11 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         return None
     poses, axes = max(found, key=lambda pa: len(pa[0].intervals))  # the most intervals: more data
     reference, noise = detection.reference, detection.noise
+    if detection.rates and noise.gyro_variance is not None:  # a turn's slow start kept in a pose
+        trimmed = ferraris.trim_turning_edges(recording.triads[detection.rates[0]], poses.intervals,
+                                              noise.gyro_variance, recording.rate_hz)
+        means = interval_means(recording.triads[reference], trimmed)
+        poses = replace(poses, intervals=trimmed, means=means)
     failures: dict[str, str] = {}
     specific_force, angular_rate, bias_sigma = {}, {}, {}
     for name in detection.forces:

@@ -103,6 +103,36 @@ def integrals(gyro: np.ndarray, rate_hz: float, spans: np.ndarray, reference: np
     return cums[spans[:, 1]] - cums[spans[:, 0]] - (reference - gyro[0]) * duration[:, None], duration
 
 
+EDGE_SIGMAS = 8.0  # a pose's end whose 0.1 s gyro mean is this many σ from the pose's median: turning
+MAX_TRIM = 0.4  # of a pose: more is not a turn's slow start but a pose that is not still
+
+
+def trim_turning_edges(gyro: np.ndarray, intervals: np.ndarray, variance: np.ndarray,
+                       rate_hz: float) -> np.ndarray:
+    """The static intervals without the ends where the gyro already turns. A turntable's slow
+    start is invisible to the accelerometer, and in raw counts the turning detector cannot tell a
+    slow turn's rate from a still shift; inside an aligned pose the still reading is one value,
+    so a 0.1 s mean more than EDGE_SIGMAS σ of that mean from the pose's median, at either end,
+    is the turn: it is cut off (at most MAX_TRIM of the pose)."""
+    k = max(1, round(0.1 * rate_hz))
+    sigma = np.sqrt(np.asarray(variance, dtype=float) / k)
+    out = np.array(intervals, dtype=int).copy()
+    for i, (a, b) in enumerate(intervals):  # a loop over poses, not samples
+        values = np.asarray(gyro[a:b], dtype=float)
+        if len(values) < 4 * k:
+            continue
+        cums = np.cumsum(np.r_[np.zeros((1, 3)), values], axis=0)
+        means = (cums[k:] - cums[:-k]) / k  # the 0.1 s mean starting at each sample
+        away = np.any(np.abs(means - np.median(values, axis=0)) > EDGE_SIGMAS * sigma, axis=1)
+        still = np.flatnonzero(~away)
+        if not len(still):
+            continue
+        start, stop = a + still[0], a + still[-1] + k
+        if (start - a) + (b - stop) <= MAX_TRIM * (b - a):
+            out[i] = (start, stop)
+    return out
+
+
 def find_turns(gyro: np.ndarray, rate_hz: float, intervals: np.ndarray, up: np.ndarray,
                units_per_rad_s: float | None, t: np.ndarray | None = None) -> Turns:
     """The motions that leave a pose and come back to it through a full turn (or several)."""
