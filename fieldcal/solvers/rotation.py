@@ -66,13 +66,28 @@ def _cross(a, b):
 
 def _qmul(p, q):
     """Hamilton product of quaternions stored component-first, (4, ...) [x, y, z, w] (scalar
-    last): the rotation matrix of p·q is R(p)·R(q)."""
+    last): the rotation matrix of p·q is R(p)·R(q). Summed in place, term by term."""
     px, py, pz, pw = p
     qx, qy, qz, qw = q
-    return np.stack([pw * qx + qw * px + py * qz - pz * qy,
-                     pw * qy + qw * py + pz * qx - px * qz,
-                     pw * qz + qw * pz + px * qy - py * qx,
-                     pw * qw - px * qx - py * qy - pz * qz])
+    out = np.empty(p.shape)
+    x, y, z, w = out
+    np.multiply(pw, qx, out=x)
+    x += qw * px
+    x += py * qz
+    x -= pz * qy
+    np.multiply(pw, qy, out=y)
+    y += qw * py
+    y += pz * qx
+    y -= px * qz
+    np.multiply(pw, qz, out=z)
+    z += qw * pz
+    z += px * qy
+    z -= py * qx
+    np.multiply(pw, qw, out=w)
+    w -= px * qx
+    w -= py * qy
+    w -= pz * qz
+    return out
 
 
 def _bit_reversed(n: int) -> np.ndarray:
@@ -189,9 +204,11 @@ class _Steps:
         phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ terms
         angle = np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
         half = 0.5 * angle
-        # sin(θ/2)/θ → 1/2 at θ = 0 (the padding).
-        s = np.divide(np.sin(half), angle, out=np.full_like(angle, 0.5), where=angle > 0)
-        q = np.concatenate([s * phi, np.cos(half)[None]]).reshape(4, -1, _BLOCK // group)
+        q = np.empty((4, angle.size))
+        # sin(θ/2)/θ times φ; at θ = 0 (the padding) φ = 0 and any finite factor gives 0.
+        np.multiply(phi, np.sin(half) / np.maximum(angle, 1e-300), out=q[:3])
+        np.cos(half, out=q[3])
+        q = q.reshape(4, -1, _BLOCK // group)
         q = _compose(q)  # (4, blocks)
         q = np.concatenate([q, [[0.0], [0.0], [0.0], [1.0]]], axis=1)[:, self.gather]
         q = _compose(q)  # (4, m)
