@@ -263,6 +263,8 @@ class _EdgeSignals:
     stat: np.ndarray
     data: np.ndarray
     inv_var: np.ndarray
+    data_means: PrefixMeans
+    acc_means: PrefixMeans
 
     @classmethod
     def of(cls, acc, rate_hz, noise: NoiseLevel, settings: DetectorSettings, gyro=None) -> "_EdgeSignals":
@@ -275,7 +277,8 @@ class _EdgeSignals:
                 raise ValueError("static_intervals: gyro given but noise_level was measured without it")
             data = np.hstack([acc, np.asarray(gyro, dtype=float)])
             variance = np.r_[noise.variance, noise.gyro_variance]
-        return cls(window_statistic(acc, rate_hz, settings), data, 1.0 / np.maximum(variance, 1e-300))
+        return cls(window_statistic(acc, rate_hz, settings), data, 1.0 / np.maximum(variance, 1e-300),
+                   PrefixMeans(data), PrefixMeans(acc))
 
 
 def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multiple: float,
@@ -304,8 +307,7 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
     # Every centre in [a, b) has a quiet window: the run itself is still. Its middle gives the
     # pose's mean; the edges are searched from half a window inside it outward.
     q = np.minimum(half // 2, (b - a) // 4)
-    means = np.array([data[s:e].mean(axis=0) for s, e in zip((a + q).tolist(), (b - q).tolist())]
-                     ).reshape(-1, dof)  # a loop over poses, not samples
+    means = signals.data_means(np.column_stack([a + q, b - q]))
     lo, hi = np.maximum(0, a - half - k), np.minimum(n, b + half + k)
     inner_stop, inner_start = np.maximum(a, b - half), np.minimum(b, a + half)
     stop = np.where(b < n, inner_stop + _first_loud(data, inv_var, means, inner_stop, hi - inner_stop, 1, k,
@@ -352,11 +354,23 @@ def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     return distinct
 
 
+class PrefixMeans:
+    """Means of ``values`` (n, d) over any [start, stop) rows, from one cumulative sum made once
+    (the first row taken off before summing: raw counts keep their precision)."""
+
+    def __init__(self, values: np.ndarray):
+        values = np.asarray(values, dtype=float)
+        self.offset = values[0]
+        self.cums = np.cumsum(np.r_[np.zeros((1, values.shape[1])), values - self.offset], axis=0)
+
+    def __call__(self, intervals: np.ndarray) -> np.ndarray:
+        intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
+        return self.offset + (self.cums[intervals[:, 1]] - self.cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+
+
 def interval_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     """Mean of ``values`` (n, 3) over each [start, stop) of ``intervals`` (m, 2), vectorised."""
-    offset = values[0]  # removed before summing: raw counts keep their precision
-    cums = np.cumsum(np.r_[np.zeros((1, values.shape[1])), values - offset], axis=0)
-    return offset + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+    return PrefixMeans(values)(intervals)
 
 
 def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, multiple: float,
@@ -370,7 +384,7 @@ def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, mult
 
 def _poses(signals: _EdgeSignals, acc, rate_hz, settings, multiple, noise, zero, sensitivity) -> Poses:
     intervals = _static_intervals(signals, rate_hz, noise, multiple, settings)
-    means = interval_means(acc, intervals)
+    means = signals.acc_means(intervals)
     up = up_directions(means, zero, sensitivity)
     return Poses(intervals=intervals, means=means, up=up,
                  distinct=distinct_poses(up, settings.min_separation_deg), multiple=float(multiple))
