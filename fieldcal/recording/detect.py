@@ -216,8 +216,9 @@ def quiet_noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSetting
             f"recording is {len(acc) / rate_hz:.1f} s long: too short to find its noise level from "
             f"its quietest {settings.window_s:g} s windows; record the poses for longer, or give "
             f"--rest S if it starts with S seconds still")
-    quiet = quiet_windows(acc, rate_hz, settings)
-    variance = window_variances(acc, window)[0][quiet].mean(axis=0) * window / (window - 1)
+    windows = window_variances(acc, window)[0]
+    quiet = _quietest(windows, np.ones(len(windows), dtype=bool))  # as quiet_windows, computed once
+    variance = windows[quiet].mean(axis=0) * window / (window - 1)
     base = float(np.linalg.norm(variance))
     if not (math.isfinite(base) and base > 0):
         raise DetectionError("accelerometer shows no noise at all in its quietest windows: check that "
