@@ -216,8 +216,9 @@ def quiet_noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSetting
             f"recording is {len(acc) / rate_hz:.1f} s long: too short to find its noise level from "
             f"its quietest {settings.window_s:g} s windows; record the poses for longer, or give "
             f"--rest S if it starts with S seconds still")
-    quiet = quiet_windows(acc, rate_hz, settings)
-    variance = window_variances(acc, window)[0][quiet].mean(axis=0) * window / (window - 1)
+    windows = window_variances(acc, window)[0]
+    quiet = _quietest(windows, np.ones(len(windows), dtype=bool))  # as quiet_windows, computed once
+    variance = windows[quiet].mean(axis=0) * window / (window - 1)
     base = float(np.linalg.norm(variance))
     if not (math.isfinite(base) and base > 0):
         raise DetectionError("accelerometer shows no noise at all in its quietest windows: check that "
@@ -240,15 +241,17 @@ def _runs(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2)
 
 
-def _first_loud(data: np.ndarray, inv_var: np.ndarray, means: np.ndarray, first: np.ndarray,
+def _first_loud(columns: tuple[np.ndarray, ...], inv_var: np.ndarray, means: np.ndarray, first: np.ndarray,
                 length: np.ndarray, step: int, k: int, threshold: float) -> np.ndarray:
     """Per run r, how many samples from ``first[r]`` (going by ``step``, ±1, over ``length[r]``
     samples) the first k-sample window starts whose mean z² = Σ (x − mean_r)²/σ² exceeds
-    threshold (length - k + 1 if none). All runs at once: only the samples near each edge are read."""
+    threshold (length - k + 1 if none); x the columns side by side. All runs at once: only the
+    samples near each edge are read."""
     width = int(max(length.max(initial=0), k))
     j = np.arange(width)
-    idx = np.clip(first[:, None] + step * j, 0, len(data) - 1)
-    z2 = ((data[idx] - means[:, None, :]) ** 2) @ inv_var  # (runs, width)
+    idx = np.clip(first[:, None] + step * j, 0, len(columns[0]) - 1)
+    near = np.concatenate([c[idx] for c in columns], axis=-1)  # (runs, width, columns)
+    z2 = ((near - means[:, None, :]) ** 2) @ inv_var  # (runs, width)
     c = np.cumsum(np.concatenate([np.zeros((len(first), 1)), z2], axis=1), axis=1)
     loud = ((c[:, k:] - c[:, :-k]) / k > threshold) & (j[None, :width - k + 1] <= (length - k)[:, None])
     return np.where(loud.any(axis=1), np.argmax(loud, axis=1), length - k + 1)
@@ -257,11 +260,13 @@ def _first_loud(data: np.ndarray, inv_var: np.ndarray, means: np.ndarray, first:
 @dataclass(frozen=True)
 class _EdgeSignals:
     """What every threshold's interval search reads, made once for all of them: the window
-    statistic (n,), the columns whose deviation places the edges (accelerometer, and gyroscope
-    when given) and their inverse noise variances."""
+    statistic (n,), the triads whose deviation places the edges (accelerometer, and gyroscope
+    when given; not copied side by side), their means over any rows, and their inverse noise
+    variances."""
 
     stat: np.ndarray
-    data: np.ndarray
+    columns: tuple[np.ndarray, ...]
+    means: tuple[PrefixMeans, ...]
     inv_var: np.ndarray
 
     @classmethod
@@ -269,13 +274,17 @@ class _EdgeSignals:
         acc = np.asarray(acc, dtype=float)
         # Edges watch the gyroscope too when given: a turn about the vertical, or the cubic onset of a
         # tilt, shows in the rate long before it shows in the accelerometer.
-        data, variance = acc, noise.variance
+        columns, variance = (acc,), noise.variance
         if gyro is not None:
             if noise.gyro_variance is None:
                 raise ValueError("static_intervals: gyro given but noise_level was measured without it")
-            data = np.hstack([acc, np.asarray(gyro, dtype=float)])
+            columns = (acc, np.asarray(gyro, dtype=float))
             variance = np.r_[noise.variance, noise.gyro_variance]
-        return cls(window_statistic(acc, rate_hz, settings), data, 1.0 / np.maximum(variance, 1e-300))
+        return cls(window_statistic(acc, rate_hz, settings), columns, tuple(PrefixMeans(c) for c in columns),
+                   1.0 / np.maximum(variance, 1e-300))
+
+    def means_over(self, intervals: np.ndarray) -> np.ndarray:
+        return np.hstack([m(intervals) for m in self.means])
 
 
 def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multiple: float,
@@ -286,8 +295,8 @@ def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multipl
 
 def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, multiple: float,
                       settings: DetectorSettings) -> np.ndarray:
-    data, inv_var = signals.data, signals.inv_var
-    n = len(data)
+    columns, inv_var = signals.columns, signals.inv_var
+    n = len(columns[0])
     half = _half_window(rate_hz, settings)
     rest_n = noise.rest_samples
     quiet = signals.stat < multiple * noise.base
@@ -298,19 +307,18 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
 
     k = _samples(settings.edge_window_s, rate_hz)
     guard = round(settings.guard_s * rate_hz)
-    dof = data.shape[1]
+    dof = len(inv_var)
     threshold = dof + settings.edge_sigmas * math.sqrt(2.0 * dof / k)  # mean of dof·k χ²(1) / k
     a, b = runs[:, 0], runs[:, 1]
     # Every centre in [a, b) has a quiet window: the run itself is still. Its middle gives the
     # pose's mean; the edges are searched from half a window inside it outward.
     q = np.minimum(half // 2, (b - a) // 4)
-    means = np.array([data[s:e].mean(axis=0) for s, e in zip((a + q).tolist(), (b - q).tolist())]
-                     ).reshape(-1, dof)  # a loop over poses, not samples
+    means = signals.means_over(np.column_stack([a + q, b - q]))
     lo, hi = np.maximum(0, a - half - k), np.minimum(n, b + half + k)
     inner_stop, inner_start = np.maximum(a, b - half), np.minimum(b, a + half)
-    stop = np.where(b < n, inner_stop + _first_loud(data, inv_var, means, inner_stop, hi - inner_stop, 1, k,
+    stop = np.where(b < n, inner_stop + _first_loud(columns, inv_var, means, inner_stop, hi - inner_stop, 1, k,
                                                     threshold) - guard, n)
-    start = np.where(a > 0, inner_start - _first_loud(data, inv_var, means, inner_start - 1, inner_start - lo, -1,
+    start = np.where(a > 0, inner_start - _first_loud(columns, inv_var, means, inner_start - 1, inner_start - lo, -1,
                                                       k, threshold) + guard, 0)
     out = np.column_stack([start, np.minimum(stop, n)])
     if len(out) > 1:
@@ -352,11 +360,24 @@ def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     return distinct
 
 
+class PrefixMeans:
+    """Means of ``values`` (n, d) over any [start, stop) rows, from one cumulative sum made once
+    (the first row taken off before summing: raw counts keep their precision)."""
+
+    def __init__(self, values: np.ndarray):
+        values = np.asarray(values, dtype=float)
+        self.offset = values[0]
+        self.cums = np.zeros((len(values) + 1, values.shape[1]))
+        np.cumsum(values - self.offset, axis=0, out=self.cums[1:])
+
+    def __call__(self, intervals: np.ndarray) -> np.ndarray:
+        intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
+        return self.offset + (self.cums[intervals[:, 1]] - self.cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+
+
 def interval_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     """Mean of ``values`` (n, 3) over each [start, stop) of ``intervals`` (m, 2), vectorised."""
-    offset = values[0]  # removed before summing: raw counts keep their precision
-    cums = np.cumsum(np.r_[np.zeros((1, values.shape[1])), values - offset], axis=0)
-    return offset + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+    return PrefixMeans(values)(intervals)
 
 
 def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, multiple: float,
@@ -370,7 +391,7 @@ def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, mult
 
 def _poses(signals: _EdgeSignals, acc, rate_hz, settings, multiple, noise, zero, sensitivity) -> Poses:
     intervals = _static_intervals(signals, rate_hz, noise, multiple, settings)
-    means = interval_means(acc, intervals)
+    means = signals.means[0](intervals)
     up = up_directions(means, zero, sensitivity)
     return Poses(intervals=intervals, means=means, up=up,
                  distinct=distinct_poses(up, settings.min_separation_deg), multiple=float(multiple))

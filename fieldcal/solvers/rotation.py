@@ -66,13 +66,28 @@ def _cross(a, b):
 
 def _qmul(p, q):
     """Hamilton product of quaternions stored component-first, (4, ...) [x, y, z, w] (scalar
-    last): the rotation matrix of p·q is R(p)·R(q)."""
+    last): the rotation matrix of p·q is R(p)·R(q). Summed in place, term by term."""
     px, py, pz, pw = p
     qx, qy, qz, qw = q
-    return np.stack([pw * qx + qw * px + py * qz - pz * qy,
-                     pw * qy + qw * py + pz * qx - px * qz,
-                     pw * qz + qw * pz + px * qy - py * qx,
-                     pw * qw - px * qx - py * qy - pz * qz])
+    out = np.empty(p.shape)
+    x, y, z, w = out
+    np.multiply(pw, qx, out=x)
+    x += qw * px
+    x += py * qz
+    x -= pz * qy
+    np.multiply(pw, qy, out=y)
+    y += qw * py
+    y += pz * qx
+    y -= px * qz
+    np.multiply(pw, qz, out=z)
+    z += qw * pz
+    z += px * qy
+    z -= py * qx
+    np.multiply(pw, qw, out=w)
+    w -= px * qx
+    w -= py * qy
+    w -= pz * qz
+    return out
 
 
 def _bit_reversed(n: int) -> np.ndarray:
@@ -95,7 +110,7 @@ def _compose(q):
 
 def _rotate_back(q, v):
     """Cᵀ·v for each row (C the rotation of quaternion q)."""
-    qv, qw = -q[:, :3], q[:, 3:]
+    qv, qw = -q[..., :3], q[..., 3:]
     t = 2.0 * _cross(qv, v)
     return v + qw * t + _cross(qv, t)
 
@@ -187,15 +202,22 @@ class _Steps:
                                [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
         terms = self.terms if group == 1 else self._grouped(group)
         phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ terms
-        angle = np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+        return self.compose(phi, group)
+
+    def compose(self, phi, group: int = 1):
+        """(..., m, 4) quaternions of each span's rotation from its steps' rotation vectors phi
+        (..., 3, steps), each step the exact exponential of its phi (see ``quaternions``)."""
+        angle = np.sqrt(phi[..., 0, :] ** 2 + phi[..., 1, :] ** 2 + phi[..., 2, :] ** 2)
         half = 0.5 * angle
-        # sin(θ/2)/θ → 1/2 at θ = 0 (the padding).
-        s = np.divide(np.sin(half), angle, out=np.full_like(angle, 0.5), where=angle > 0)
-        q = np.concatenate([s * phi, np.cos(half)[None]]).reshape(4, -1, _BLOCK // group)
-        q = _compose(q)  # (4, blocks)
-        q = np.concatenate([q, [[0.0], [0.0], [0.0], [1.0]]], axis=1)[:, self.gather]
-        q = _compose(q)  # (4, m)
-        return (q / np.sqrt(np.sum(q * q, axis=0))).T
+        q = np.empty((4,) + angle.shape)
+        # sin(θ/2)/θ times φ; at θ = 0 (the padding) φ = 0 and any finite factor gives 0.
+        np.multiply(np.moveaxis(phi, -2, 0), np.sin(half) / np.maximum(angle, 1e-300), out=q[:3])
+        np.cos(half, out=q[3])
+        q = _compose(q.reshape(q.shape[:-1] + (-1, _BLOCK // group)))  # (4, ..., blocks)
+        identity = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]).reshape((4,) + (1,) * (q.ndim - 1)),
+                                   q.shape[:-1] + (1,))
+        q = _compose(np.concatenate([q, identity], axis=-1)[..., self.gather])  # (4, ..., m)
+        return np.moveaxis(q / np.sqrt(np.sum(q * q, axis=0)), 0, -1)
 
 
 def integrate(omega, t, spans) -> np.ndarray:
@@ -204,6 +226,7 @@ def integrate(omega, t, spans) -> np.ndarray:
 
 
 _SCAN_GROUP = 8  # steps taken as one by the coarse scan (0.08 s at 100 Hz)
+_SCAN_BATCH = 16  # candidate scales integrated at once (their temporaries: a few MiB)
 
 
 def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
@@ -218,8 +241,15 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
         q = steps.quaternions(np.eye(3) / k, np.zeros(3), group)
         return np.sum((_rotate_back(q, up_s) - up_e) ** 2)
 
-    coarse = int(np.argmin([misfit(k, _SCAN_GROUP) for k in scales]))  # a loop over candidates
-    near = scales[max(coarse - 1, 0):coarse + 2]
+    # K⁻¹ = I/k, no bias change: a step's phi is ∫v/k + coning/k², for a batch of k at once.
+    terms = steps._grouped(_SCAN_GROUP)
+    coarse = []
+    for k in np.array_split(np.asarray(scales, dtype=float), -(-len(scales) // _SCAN_BATCH)):
+        q = steps.compose(terms[None, 0:3] / k[:, None, None] + terms[None, 3:6] / k[:, None, None] ** 2,
+                          _SCAN_GROUP)
+        coarse.append(np.sum((_rotate_back(q, up_s) - up_e) ** 2, axis=(1, 2)))
+    best = int(np.argmin(np.concatenate(coarse)))
+    near = scales[max(best - 1, 0):best + 2]
     return float(near[int(np.argmin([misfit(k, 1) for k in near]))])
 
 
