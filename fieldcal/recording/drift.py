@@ -118,6 +118,7 @@ def regular_times(t: np.ndarray, rate_hz: float) -> np.ndarray:
         slope, offset = np.polyfit(index, t, 1)
         index = np.round((t - offset) / slope)
     grid = offset + slope * index
-    if np.any(np.diff(index) <= 0) or np.max(np.abs(t - grid)) > 0.25 * slope:
-        return t
+    off_grid = np.max(np.abs(t - grid))
+    if np.any(np.diff(index) <= 0) or off_grid > 0.25 * slope or off_grid < 1e-3 * slope:
+        return t  # not a jittered grid, or already a regular one (kept to the last bit)
     return grid
