@@ -18,6 +18,7 @@ from fieldcal import __version__
 from fieldcal.recording import Recording
 from fieldcal.cli.importing import add_import_parser, main
 from fieldcal.recording.import_map import ImportMapError, load_import_map
+from fieldcal.recording import importer
 from fieldcal.recording.importer import (
     RecordingImportError,
     import_recording,
@@ -271,6 +272,14 @@ def test_random_junk_is_classified_line_by_line_like_a_reference(tmp_path):
         f = report.files[0]
         assert np.array_equal(rec.t, [t for _, t in samples]), data
         assert (f.malformed, f.malformed_lines, f.header_lines) == (len(bad), tuple(bad[:10]), headers), data
+
+
+def test_files_parsed_in_pieces_are_classified_as_whole(tmp_path, monkeypatch):
+    """A file bigger than FEED_BYTES is fed to the parser in pieces of whole lines: with pieces
+    of 16 bytes (one line or two each) every line is still classified like the reference."""
+    monkeypatch.setattr(importer, "FEED_BYTES", 16)
+    test_random_junk_is_classified_line_by_line_like_a_reference(tmp_path)
+    test_malformed_lines_are_counted_with_their_line_numbers(tmp_path)
 
 
 def test_only_the_first_few_malformed_line_numbers_are_kept_but_all_are_counted(tmp_path):

@@ -35,6 +35,8 @@ from drivers.sim.device import COUNTS_PER_M_S2, COUNTS_PER_RAD_S, COUNTS_ZERO, D
 from drivers.noise import TriadNoise
 from drivers.sim.noise import NoiseGenerator
 from drivers.sim.physics import ANGULAR_RATE, SPECIFIC_FORCE, TriadTruth, lower_triangular_k
+from drivers.sim import realworld as _rw
+from drivers.sim.realworld import RealWorld
 
 EARTH_RATE = 7.292115e-5  # rad/s
 MAX_TURN_RATE = 220.0 * DEG  # peak rate of one turn; a long turn is slowed down to this
@@ -45,27 +47,6 @@ CONSUMER_NOISE = {
     "accelerometer": TriadNoise(white=400e-6 * 9.80665, bias_instability=0.1 * MG),
     "gyroscope": TriadNoise(white=0.005 * DEG, bias_instability=10.0 * DEG / 3600.0),
 }
-
-@dataclass(frozen=True)
-class RealWorld:
-    """What a real MEMS unit and logger add to the ideal recording (all off at zero).
-
-    ``g_sensitivity_deg_s_per_g``: 1σ of each entry of the gyro's g-sensitivity matrix G (the
-    rate reads G·specific force more), which shifts the still reading from pose to pose.
-    ``warm_up_deg_s`` / ``warm_up_tau_s``: a gyro bias that settles exponentially from this
-    offset after switch-on. ``temperature_ramp_k`` over the recording with
-    ``bias_tempco_deg_s_per_k`` on the gyro bias (each axis a random sign).
-    ``jitter_s``: 1σ timestamp jitter (kept increasing). ``drop_fraction``: samples lost by the
-    logger at random (the time column says so). Deterministic for the recording's seed."""
-
-    g_sensitivity_deg_s_per_g: float = 0.1
-    warm_up_deg_s: float = 0.05
-    warm_up_tau_s: float = 60.0
-    temperature_ramp_k: float = 5.0
-    bias_tempco_deg_s_per_k: float = 0.005
-    jitter_s: float = 2e-4
-    drop_fraction: float = 0.002
-
 
 _D = 1.0 / math.sqrt(3.0)
 # Default gravity directions (body up vectors): the six axes and the eight cube diagonals, ordered
@@ -342,10 +323,20 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
     motions, forces, rates, static, held, turns, turn_rates = [], [], [], [], [], [], []
     first = 0
 
+    # The real world's own draws come from a stream of their own: a recording with none of its
+    # new effects is the same as before they existed.
+    extra = np.random.default_rng([seed, 11])
+    rw = real_world
+
     def rest(a, n):
         nonlocal first
-        forces.append(np.broadcast_to(a.T @ gravity_enu, (n, 3)))
-        rates.append(np.broadcast_to(a.T @ earth, (n, 3)))
+        if rw is not None and rw.pose_tremor_deg_s and extra.random() < rw.pose_tremor_share:
+            force_n, rate_n = _rw.tremor(a, n, rate_hz, rw.pose_tremor_deg_s * DEG, gravity_enu, earth, extra)
+            forces.append(force_n)
+            rates.append(rate_n)
+        else:
+            forces.append(np.broadcast_to(a.T @ gravity_enu, (n, 3)))
+            rates.append(np.broadcast_to(a.T @ earth, (n, 3)))
         static.append((first, first + n))
         held.append(a)
         first += n
@@ -383,18 +374,19 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
     force, rate = np.concatenate(forces), np.concatenate(rates)
     t = np.arange(len(force)) / rate_hz
 
-    drift = np.zeros((len(t), 3))
-    if real_world is not None:  # extra gyro input, rad/s: g-sensitivity, warm-up, temperature
-        rw = real_world
-        G = rng.normal(0.0, rw.g_sensitivity_deg_s_per_g * DEG / 9.80665, (3, 3))
-        warm = rw.warm_up_deg_s * DEG * rng.choice([-1.0, 1.0], 3)
-        tempco = rw.bias_tempco_deg_s_per_k * DEG * rng.choice([-1.0, 1.0], 3)
-        drift = (force @ G.T + np.exp(-t / rw.warm_up_tau_s)[:, None] * warm
-                 + (rw.temperature_ramp_k * t / t[-1])[:, None] * tempco)
+    effects = None
+    if rw is not None:
+        truth = _rw.turn_on(truth, rw, extra)
+        effects = _rw.sensor_effects(t, force, rw, rng, extra)
     out = {}
     for name, triad in truth.items():
-        true = force if triad.kind == SPECIFIC_FORCE else rate + drift
+        true = force if triad.kind == SPECIFIC_FORCE else rate
+        if effects is not None:
+            true = true * effects.scale.get(name, 1.0) + effects.offset.get(name, 0.0)
         raw = (true + NoiseGenerator(triad.noise, rate_hz, rng).draw(len(t))) @ triad.K.T + triad.bias
+        if effects is not None and triad.kind == ANGULAR_RATE:
+            counts = triad.output_unit == "count"
+            raw = _rw.saturate(raw, rw, COUNTS_ZERO if counts else 0.0, float(np.mean(np.diag(triad.K))))
         if triad.lsb:
             raw = np.round(raw / triad.lsb) * triad.lsb
         if triad.output_unit == "count":
@@ -402,15 +394,21 @@ def simulate_handheld(seed: int, *, n_poses: int = 20, rate_hz: float = 100.0, r
         out[name] = raw
     static = np.array(static, dtype=int)
     turns = np.array(turns, dtype=int).reshape(-1, 2)
-    if real_world is not None:
-        keep = np.flatnonzero(rng.random(len(t)) >= real_world.drop_fraction)
-        jitter = np.clip(rng.normal(0.0, real_world.jitter_s, len(keep)), -0.4 / rate_hz, 0.4 / rate_hz)
+    held = np.array(held)
+    if rw is not None:
+        start = _rw.first_kept(static, rw, extra)
+        keep, jitter = _rw.logged(len(t), rate_hz, rw, start, extra, rng)
         t = t[keep] + jitter
         out = {name: v[keep] for name, v in out.items()}
         force, rate = force[keep], rate[keep]
+        whole = static[:, 0] >= start  # a late start loses the initial rest
+        static, held = static[whole], held[whole]
+        motions = motions[int((~whole).sum()):]  # and the motion it was cut in
+        turn_rates = np.asarray(turn_rates)[turns[:, 0] >= start]
+        turns = turns[turns[:, 0] >= start]
         static, turns = np.searchsorted(keep, static), np.searchsorted(keep, turns)  # the kept samples' indices
     return HandheldRecording(t=t, accelerometer=out["accelerometer"], gyroscope=out["gyroscope"],
-                             truth=dict(truth), static=static, attitudes=np.array(held),
+                             truth=dict(truth), static=static, attitudes=held,
                              motions=tuple(motions), rate_hz=float(rate_hz), latitude_deg=latitude_deg,
                              gravity=gravity, true_rate=rate, true_force=force,
                              turns=turns, turn_rates=np.array(turn_rates))

@@ -29,7 +29,7 @@ Put the unit down by hand in a dozen or more poses (every axis up and down,
 and some corners up), still for a few seconds each, turning it between them.
 The noise level the static poses are found with comes from the recording's
 quietest one-second windows; give --rest S when it starts with S seconds still
-to take it from there instead. The gyroscope's bias is the first pose's mean
+to take it from there instead. The gyroscope's bias is the poses' mean
 (less the vertical Earth rate), or estimated (--gyro-bias estimate)."""
 
 
@@ -64,7 +64,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                         help="the recording starts with S seconds still: the noise level from there "
                         "(default: from the quietest windows, no rest assumed)")
     parser.add_argument("--gyro-bias", choices=("rest", "estimate"), default="rest",
-                        help="gyro bias: the first pose's mean (default) or estimated with the rest")
+                        help="gyro bias: the poses' mean (default) or estimated with the rest")
     parser.add_argument("--method", choices=("powell", "lsq"), default="powell",
                         help="accelerometer solver (default powell)")
     parser.add_argument("--table-rate", type=float, metavar="DEG_S",

@@ -122,7 +122,7 @@ def sliding_std(values, n: int, ddof: int = 1) -> np.ndarray:
     against a reference sample that always lies inside the window, so a large offset (raw counts
     around mid-scale, gravity on one axis) costs no precision: the error scales with the spread
     inside the window, not with the offset nor the length of the input. Long inputs are worked in
-    pieces of about 64k rows so that the temporaries stay small.
+    pieces of about 16k rows so that the temporaries stay small.
     """
     x = np.asarray(values, dtype=float)
     if x.ndim == 1:
@@ -140,7 +140,7 @@ def sliding_std(values, n: int, ddof: int = 1) -> np.ndarray:
     return np.sqrt(out, out=out)
 
 
-_PIECE_ROWS = 1 << 16
+_PIECE_ROWS = 1 << 14
 
 
 def _window_var(x: np.ndarray, n: int, ddof: int) -> np.ndarray:

@@ -1,9 +1,13 @@
 """Calibration from a plain continuous recording (no procedure, no operator prompts).
 
 A recording is the unit set down by hand in a dozen or more poses and turned between them.
-``importer`` turns text files into a :class:`Recording` (and a session), ``detect`` finds the
-static poses, ``fieldcal.solvers.rotation`` calibrates the gyroscope from the rotations between
-poses, and ``calibrate`` ties them together for ``fieldcal calibrate``.
+The pipeline, each stage a function whose typed result the next one takes: ``importer`` turns
+text files into a :class:`Recording` (and a session); ``candidates.detect_candidates`` finds
+every threshold's static poses (``detect``) with the turns split out (``turns``): a
+``Detection``; ``calibrate.choose_poses`` keeps the best accelerometer fit (a ``PoseChoice``);
+``calibrate.solve_triads`` solves each triad (the gyroscope from the rotations between poses,
+``fieldcal.solvers.rotation``) into a ``RecordingCalibration``; ``results.parameter_file`` writes
+it. ``calibrate.calibrate_recording`` runs them for ``fieldcal calibrate``.
 """
 from __future__ import annotations
 

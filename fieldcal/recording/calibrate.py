@@ -9,11 +9,12 @@ is more data, though only distinct poses count for the spread. The noise comes f
 pose means, bias instability included), else from the detector's noise level (the initial rest
 given by ``--rest``, or the recording's quietest windows): its per-axis variance
 weights each pose mean (white noise over the pose's samples), and the σ are scaled up by
-χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the first pose's mean less the
-vertical Earth rate, which the accelerometer's up direction fixes; the horizontal Earth rate,
-whose heading a hand-held recording cannot know, widens the bias's σ and each motion's
-residual instead of biasing them, and so does the poses' still readings' scatter beyond that and
-the noise (bias drift, g-sensitivity). A gyro reporting raw counts needs no nominal sensitivity: a
+χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the mean of
+every pose's still reading less the vertical Earth rate, which the accelerometer's up direction
+fixes; its σ comes from those readings' scatter (the horizontal Earth rate at an unknown heading,
+g-sensitivity, warm-up and other drift), counted over fewer poses when neighbours move together
+(``drift.still_bias``). The horizontal Earth rate also widens each motion's residual, and a
+motion during which the gyro clipped at its range is left out. A gyro reporting raw counts needs no nominal sensitivity: a
 scan over the scale finds the one that makes the motions' rotations fit.
 """
 from __future__ import annotations
@@ -27,19 +28,15 @@ from scipy.linalg import block_diag
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, calibrate_with
 from fieldcal.recording import Recording
-from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport,
-                                       check_spread, interval_means, noise_level, pose_candidates)
+from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
+from fieldcal.recording.detect import DetectionError, DetectorSettings, Poses, SpreadReport, interval_means
+from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
 from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.calibration import Calibration
 from fieldcal.solvers.problems import StaticNormProblem
-from fieldcal.recording.turns import rate_residuals, split_poses, turning
-from fieldcal.solvers.rotation import scale_misfits, solve_gyro_rotations
+from fieldcal.recording.turns import rate_residuals
+from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, scan_scale, solve_rotations
 
-# Output units per rad/s of rate units a text file may use; anything else (counts) is scanned.
-RATE_UNITS = {"rad/s": 1.0, "mrad/s": 1e3, "deg/s": 180 / math.pi, "°/s": 180 / math.pi,
-              "dps": 180 / math.pi, "mdeg/s": 180e3 / math.pi}
-# Specific-force units with a known zero: gravity directions need no sphere fit.
-FORCE_UNITS = ("m/s^2", "m/s2", "m/s²", "g", "mg")
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
 
 
@@ -86,7 +83,7 @@ class RecordingSettings:
     detector: DetectorSettings = field(default_factory=DetectorSettings)
     method: str = "powell"  # the specific-force triads' norm solver
     gyro_method: str = "lsq"
-    estimate_gyro_bias: bool = False  # else the first pose's mean (less the vertical Earth rate)
+    estimate_gyro_bias: bool = False  # else the poses' mean (less the vertical Earth rate)
     # The device's noise per triad (SI), e.g. from its config: pose means then get their exact
     # covariance, bias instability included. Without it, white noise measured over the rest.
     noise: dict = field(default_factory=dict)
@@ -109,10 +106,11 @@ class RecordingCalibration:
     noise_source: str = "the initial rest"  # where the detector's noise level was measured
     place: Station | UnknownPlace | None = None  # the station used (gravity filled in when unknown)
     protocol: str = NORM_PROTOCOL  # which solution was chosen, and why
+    notes: tuple[str, ...] = ()  # what the solve did about the data, for the summary (e.g. clipped motions)
 
 
-def _names(recording: Recording, kind: str) -> list[str]:
-    return [n for n, k in recording.kinds.items() if k == kind]
+def _reduced_chi2(solution: Calibration) -> float:
+    return solution.diagnostics.chi2 / max(solution.diagnostics.dof, 1)
 
 
 def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) -> Calibration:
@@ -121,17 +119,18 @@ def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) 
     solution = solve_norm(problem, _means_covariance(intervals, t, variance, None, None, unit),
                           method=settings.method)
     noise = settings.noise.get(name)
-    if noise is None:
-        # White noise alone under-states the σ when the bias wanders (χ²/dof > 1 says so).
-        fit = solution.diagnostics
-        ratio = fit.reduced_chi2 or 1.0
-        if ratio > 1.0 and not fit.scaled_by_residuals:
-            solution = replace(solution, covariance=solution.covariance * ratio, sigma=None,
-                               diagnostics=replace(fit, scaled_by_residuals=True))
-        return solution
-    # Bias instability correlates the pose means; its covariance needs the scale, known now.
-    return solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
-                      method=settings.method)
+    if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
+        solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
+                              method=settings.method)
+    # The noise alone under-states the σ when the poses scatter more than it says (the bias
+    # wanders, the temperature moves the scale, a hand trembles: χ²/dof > 1 says so), with a
+    # noise model as without one: the σ are scaled up by χ²/dof, never down.
+    fit = solution.diagnostics
+    ratio = fit.reduced_chi2 or 1.0
+    if ratio > 1.0 and not fit.scaled_by_residuals:
+        solution = replace(solution, covariance=solution.covariance * ratio, sigma=None,
+                           diagnostics=replace(fit, scaled_by_residuals=True))
+    return solution
 
 
 def _means_covariance(intervals, t, variance, noise, K, unit) -> np.ndarray:
@@ -166,153 +165,219 @@ def _up_vectors(acc: Calibration, means: np.ndarray, means_cov: np.ndarray) -> t
 
 def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
                         settings: RecordingSettings = RecordingSettings()) -> RecordingCalibration:
-    """Raises DetectionError (poses too few or badly spread, the rest not still) or
+    """The pipeline: detect every threshold's candidate poses, choose the poses by the
+    accelerometer's fit (or, failing that, the Ferraris protocol's six aligned ones), solve each
+    triad. Raises DetectionError (poses too few or badly spread, the rest not still) or
     CalibrationError (the reference accelerometer cannot be solved) with a one-line message."""
-    forces, rates = _names(recording, SPECIFIC_FORCE), _names(recording, ANGULAR_RATE)
-    if not forces:
-        raise DetectionError("the recording has no specific-force triad (accelerometer): its "
-                             "poses cannot be found")
-    reference = "accelerometer" if "accelerometer" in forces else forces[0]
-    rate_hz, det = recording.rate_hz, settings.detector
-    acc = recording.triads[reference]
-    gyro = recording.triads[rates[0]] if rates else None
+    detection = detect_candidates(recording, settings.detector)
+    station = place_gravity(station, detection, recording.units[detection.reference])
+    choice = choose_poses(recording, detection, station, settings)
+    if choice.best is None:
+        aligned = _aligned_protocol(recording, station, detection, choice.tried, settings)
+        if aligned is not None:
+            return aligned
+        most = max(choice.tried, key=lambda x: x[1])
+        raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
+                             f"{most[0]:g}× the noise level): {most[2]}")
+    return solve_triads(recording, detection, choice, station, settings)
+
+
+def place_gravity(station: Station | UnknownPlace, detection: Detection, unit: str) -> Station | UnknownPlace:
+    """The station, an unknown place's g filled in from the middle threshold's pose means."""
+    if not (isinstance(station, UnknownPlace) and station.gravity is None):
+        return station
+    middle = detection.candidates[len(detection.candidates) // 2].found
+    return replace(station, **dict(zip(("gravity", "gravity_source"), gravity_from_poses(middle.means, unit))))
+
+
+@dataclass(frozen=True)
+class PoseChoice:
+    """The poses stage's outcome: every multiple's (multiple, distinct poses, χ²/dof or why not),
+    and the best-fitting candidate with its reference accelerometer solution (None: none fits)."""
+
+    tried: tuple[tuple[float, int, str], ...]
+    best: Candidate | None = None
+    reference_solution: Calibration | None = None
+
+
+def choose_poses(recording: Recording, detection: Detection, station: Station | UnknownPlace,
+                 settings: RecordingSettings) -> PoseChoice:
+    """The candidate whose reference accelerometer fits best (smallest χ²/dof), as imu_tk chooses."""
+    reference = detection.reference
     best, tried, solved = None, [], {}
-    rest_noise = noise_level(acc, rate_hz, det, gyro)  # weights every candidate's pose means
-    zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
-    if gyro is not None:  # on a turntable the accelerometer is as still as in a pose
-        turn_mask, smooth = turning(gyro, acc, rate_hz, rest_noise, det, RATE_UNITS.get(recording.units[rates[0]]))
-    candidates = pose_candidates(acc, rate_hz, det, zero=zero, gyro=gyro, noise=rest_noise)
-    if isinstance(station, UnknownPlace) and station.gravity is None:
-        middle = candidates[len(candidates) // 2]
-        station = replace(station, **dict(zip(("gravity", "gravity_source"),
-                                              gravity_from_poses(middle.means, recording.units[reference]))))
-    split = []  # each candidate's poses with the turning stretches taken out
-    for poses in candidates:
-        turns = np.zeros((0, 2), int)
-        if gyro is not None:
-            poses, turns = split_poses(poses, acc, turn_mask, smooth, rate_hz, det, zero)
-        split.append(poses)
-        key = poses.intervals.tobytes()
-        spread = check_spread(poses.up[poses.distinct], det.min_poses, det.cover_deg, det.min_design)
+    for candidate in detection.candidates:
+        poses, spread = candidate.poses, candidate.spread
         if not spread.ok:
             tried.append((poses.multiple, spread.count, spread.message))
             continue
+        key = poses.intervals.tobytes()
         if key not in solved:  # several multiples often find the same intervals
-            keep = poses.intervals
             try:
-                solved[key] = _solve_static(reference, recording.units[reference], poses.means,
-                                            keep, recording.t, rest_noise.variance, station.gravity, settings)
+                solved[key] = _solve_static(reference, recording.units[reference], poses.means, poses.intervals,
+                                            recording.t, detection.noise.variance, station.gravity, settings)
             except CalibrationError as exc:
                 solved[key] = str(exc)
         sol = solved[key]
-        fit = sol if isinstance(sol, str) else f"χ²/dof {sol.diagnostics.chi2 / max(sol.diagnostics.dof, 1):.3g}"
-        tried.append((poses.multiple, spread.count, fit))
-        if not isinstance(sol, str) and (best is None or sol.diagnostics.chi2 / max(sol.diagnostics.dof, 1) < best[2]):
-            best = (poses, spread, sol.diagnostics.chi2 / max(sol.diagnostics.dof, 1), sol, turns)
-    if best is None:
-        aligned = _aligned_protocol(recording, station, split, reference, forces, rates, rest_noise, tried,
-                                    settings)
-        if aligned is not None:
-            return aligned
-        most = max(tried, key=lambda x: x[1])
-        raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
-                             f"{most[0]:g}× the noise level): {most[2]}")
-    poses, spread, _, acc_solution, turns = best
+        tried.append((poses.multiple, spread.count, sol if isinstance(sol, str) else f"χ²/dof {_reduced_chi2(sol):.3g}"))
+        if not isinstance(sol, str) and (best is None or _reduced_chi2(sol) < _reduced_chi2(best[1])):
+            best = (candidate, sol)
+    return PoseChoice(tuple(tried), *(best or ()))
+
+
+def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
+                 station: Station | UnknownPlace, settings: RecordingSettings) -> RecordingCalibration:
+    """Every other specific-force triad on the chosen poses, then each gyro from the rotations
+    between them; a triad that cannot be solved is a failure, not an error."""
+    poses, reference, acc_solution = choice.best.poses, detection.reference, choice.reference_solution
     failures: dict[str, str] = {}
     specific_force = {reference: acc_solution}
     keep = poses.intervals
-    for name in forces:
+    for name in detection.forces:
         if name == reference:
             continue
         values = recording.triads[name]
         try:
             specific_force[name] = _solve_static(
                 name, recording.units[name], interval_means(values, keep), keep, recording.t,
-                np.var(values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1),
-                station.gravity, settings)
+                np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1), station.gravity, settings)
         except CalibrationError as exc:
             failures[name] = str(exc)
-    angular_rate, bias_sigma = {}, {}
-    for name in rates:
+    turns = choice.best.turns
+    angular_rate, bias_sigma, notes = {}, {}, []
+    for name in detection.rates:
         try:
-            angular_rate[name], bias_sigma[name] = _solve_gyro(recording, name, poses, acc_solution,
-                                                               rest_noise.variance, station, settings, turns)
+            angular_rate[name], bias_sigma[name], note = _solve_gyro(
+                recording, name, poses, acc_solution, detection.noise.variance, station, settings, turns)
+            notes += [note] if note else []
         except CalibrationError as exc:
             failures[name] = str(exc)
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
-    return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures,
-                                reference, bias_sigma, turns, used, rest_noise.source, station)
+    return RecordingCalibration(poses, choice.best.spread, choice.tried, specific_force, angular_rate, failures,
+                                reference, bias_sigma, turns, used, detection.noise.source, station,
+                                notes=tuple(notes))
+
+
+@dataclass(frozen=True)
+class GyroPrior:
+    """What the still poses say about a gyro before its rotation solve: ``scale`` (output units
+    per rad/s, the unit's or scanned for counts), ``bias`` (the mean of every pose's still
+    reading less the vertical Earth rate, see ``drift.still_bias``) and its 1σ ``bias_sigma``
+    (from the readings' scatter, drift counted), ``earth_variance`` (rad²/s² per axis the unknown heading leaves),
+    ``rate_noise`` (angle random walk, rad/√s) and ``rest_variance`` (output units², per axis)."""
+
+    scale: float
+    bias: np.ndarray
+    bias_sigma: np.ndarray
+    earth_variance: float
+    rate_noise: float
+    rest_variance: np.ndarray
+    wander_variance: float = 0.0  # rad²/s² per axis: how far the bias moves from pose to pose beyond the noise
+
+
+def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, spans: np.ndarray,
+               station: Station | UnknownPlace, noise=None) -> GyroPrior:
+    """``noise``: the gyro's TriadNoise from a device config, if any: its bias instability moves
+    every pose's reading alike, which their scatter cannot show, so it widens the bias's σ."""
+    t, gyro, iv = recording.t, recording.triads[name], poses.intervals
+    counts = np.diff(iv, axis=1)[:, 0]
+    rest = slice(iv[0, 0], iv[0, 1])
+    rest_mean = gyro[rest].mean(axis=0)
+    rest_var = np.var(gyro[rest], axis=0, ddof=1)
+    k = RATE_UNITS.get(recording.units[name])
+    if k is None:  # raw counts: the scale that makes the rotations fit
+        k = scan_scale(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)
+    still = interval_means(gyro, iv)  # every pose's still reading: each one an estimate of the bias
+    if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
+        earth_var = EARTH_RATE**2 / 3
+    else:
+        sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
+        still = still - k * EARTH_RATE * sin_lat * up  # each pose sees the vertical Earth rate
+        # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
+        earth_var = (EARTH_RATE * cos_lat) ** 2 / 2
+    # A real gyro's still reading moves between poses (g-sensitivity, warm-up, temperature, bias
+    # random walk): the mean over the poses, its σ from their scatter (see drift.still_bias); never
+    # below what the Earth rate and the white noise alone leave in a mean over independent poses.
+    white = np.mean(rest_var[None, :] / counts[:, None], axis=0) / len(iv)
+    times = 0.5 * (t[iv[:, 0]] + t[iv[:, 1] - 1])
+    b0, bias_sigma = still_bias(still, k**2 * earth_var / len(iv) + white, up, times, 0.5 * (t[0] + t[-1]))
+    # What the model leaves of the readings' scatter beyond the noise and the Earth rate: the bias
+    # wanders (random walk, warm-up's curve) and a motion between poses integrates that too.
+    X, _, residuals = still_fit(still, up, times, 0.5 * (t[0] + t[-1]))
+    wander = 0.0
+    if len(iv) > X.shape[1]:
+        spread = np.sum(residuals**2, axis=0) / (len(iv) - X.shape[1])
+        noise_floor = k**2 * earth_var + np.mean(rest_var[None, :] / counts[:, None], axis=0)
+        wander = float(np.mean(np.maximum(spread - noise_floor, 0.0))) / k**2
+    if noise is not None and noise.bias_instability:
+        weights = np.full(len(iv), 1.0 / len(iv))
+        model = weights @ noise.window_covariance(t[iv[:, 0]], counts / recording.rate_hz) @ weights
+        bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(k**2 * model - white, 0.0))
+    arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
+    return GyroPrior(k, b0, bias_sigma, earth_var, arw, rest_var, wander)
 
 
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration, acc_var: np.ndarray,
                 station: Station, settings: RecordingSettings,
                 turns: np.ndarray) -> tuple[Calibration, np.ndarray]:
-    """The solution and its bias's 1σ."""
-    t, gyro, unit = recording.t, recording.triads[name], recording.units[name]
-    iv = poses.intervals
+    """The solution, its bias's 1σ, and a note for the summary (or "")."""
+    t, iv = regular_times(recording.t, recording.rate_hz), poses.intervals
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
-    counts = np.diff(iv, axis=1)[:, 0]
     means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
                                   recording.units[acc.name])
     up, up_cov = _up_vectors(acc, poses.means, means_cov)
-    rest = slice(iv[0, 0], iv[0, 1])
-    rest_mean = gyro[rest].mean(axis=0)
-    rest_var = np.var(gyro[rest], axis=0, ddof=1)
-    k = RATE_UNITS.get(unit)
-    if k is None:  # raw counts: the scale that makes the rotations fit
-        k = float(_SCAN[int(np.argmin(scale_misfits(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)))])
-    still = interval_means(gyro, iv)  # every pose's still reading: each one an estimate of the bias
-    if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
-        b0, earth_var = rest_mean, EARTH_RATE**2 / 3
-    else:
-        sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
-        b0 = rest_mean - k * EARTH_RATE * sin_lat * up[0]  # the rest sees the vertical Earth rate
-        still = still - k * EARTH_RATE * sin_lat * up
-        # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
-        earth_var = (EARTH_RATE * cos_lat) ** 2 / 2
-    bias_sigma = k * np.sqrt(earth_var + rest_var / k**2 / counts[0])
-    if len(iv) > 2:
-        # The still readings scatter from pose to pose by more than the Earth rate and the noise
-        # when the bias drifts (warm-up, temperature) or the gyro is g-sensitive: the first pose's
-        # reading is then off the bias by as much, and nothing in the recording says which way.
-        expected = k**2 * earth_var + np.mean(rest_var[None, :] / counts[:, None], axis=0)
-        excess = np.maximum(np.var(still, axis=0, ddof=1) - expected, 0.0)
-        bias_sigma = np.sqrt(bias_sigma**2 + excess)
-    arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
-    duration = t[spans[:, 1]] - t[spans[:, 0]]
+    prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name))
+    gyro = recording.triads[name]
     extra = None
     if settings.table_rate_deg_s is not None and len(turns):
         extra = rate_residuals(gyro, recording.triads[acc.name], acc.theta, turns, settings.table_rate_deg_s,
-                               station, b0, k, rest_var)
-    solution = solve_gyro_rotations(
-        t, gyro, spans, up[:-1], up[1:], K0=k, b0=b0, estimate_bias=settings.estimate_gyro_bias,
-        bias_sigma=bias_sigma, up_covariance=up_cov, rate_noise=arw, extra_residuals=extra,
-        motion_variance=earth_var * duration**2, method=settings.gyro_method, name=name,
-        output_unit=unit)
+                               station, prior.bias, prior.scale, prior.rest_variance)
+    duration = t[spans[:, 1]] - t[spans[:, 0]]
+    # A motion during which the gyro sat at the end of its range integrates to a wrong rotation:
+    # its residual gets a variance of a whole turn, so it weighs nothing (the chain of poses and
+    # their covariance stay as they are).
+    clipped = saturated_spans(gyro, spans + [0, 1])
+    note = ""
+    if clipped.any():
+        note = (f"{name}: {int(clipped.sum())} of {len(spans)} motions left out of the solve: the gyro sat at "
+                "the end of its range (turn more slowly, or set a wider range)")
+    noise = RotationNoise(bias_sigma=prior.bias_sigma, up_covariance=up_cov, rate_noise=prior.rate_noise,
+                          motion_variance=(prior.earth_variance + prior.wander_variance) * duration**2
+                          + np.where(clipped, (2 * math.pi) ** 2, 0.0))
+    solution = solve_rotations(Motions.of(t, gyro, spans, up[:-1], up[1:]),
+                               RotationStart.of(prior.scale, prior.bias, settings.estimate_gyro_bias),
+                               noise, extra, settings.gyro_method, name, recording.units[name])
     # Held, the bias's σ is bias_sigma (drift and g-sensitivity included); estimated, the fit's.
-    return solution, solution.sigma[:3]
+    return solution, solution.sigma[:3], note
 
 
-def _aligned_protocol(recording, station, candidates, reference, forces, rates, noise,
-                      tried, settings) -> RecordingCalibration | None:
+def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
+                      tried, settings: RecordingSettings) -> RecordingCalibration | None:
     """The Ferraris protocol's solution when some threshold's poses are the six aligned ones
     (see ``fieldcal.recording.ferraris``); None when none is."""
     from fieldcal.recording import ferraris
 
-    found = [(p, axes) for p in candidates if (axes := ferraris.aligned_axes(p.up)) is not None]
+    found = [(c.poses, axes) for c in detection.candidates if (axes := ferraris.aligned_axes(c.poses.up)) is not None]
     if not found:
         return None
     poses, axes = max(found, key=lambda pa: len(pa[0].intervals))  # the most intervals: more data
+    reference, noise = detection.reference, detection.noise
+    if detection.rates and noise.gyro_variance is not None:  # a turn's slow start kept in a pose
+        trimmed = ferraris.trim_turning_edges(recording.triads[detection.rates[0]], poses.intervals,
+                                              noise.gyro_variance, recording.rate_hz)
+        means = interval_means(recording.triads[reference], trimmed)
+        poses = replace(poses, intervals=trimmed, means=means)
     failures: dict[str, str] = {}
     specific_force, angular_rate, bias_sigma = {}, {}, {}
-    for name in forces:
+    for name in detection.forces:
         values, unit = recording.triads[name], recording.units[name]
         means = interval_means(values, poses.intervals)
         # White noise of the detector's level (or this triad's first pose); with the device's
         # noise model the exact covariance, bias instability included, at the nominal scale.
         variance = noise.variance if name == reference else np.var(
             values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
-        scale = np.eye(3) * (float(np.median(np.linalg.norm(means, axis=1))) / station.gravity)
+        # The nominal scale, from the faces' spread (±g on each axis): raw counts have an offset
+        # that the means' norm would count as scale.
+        scale = np.diag(np.ptp(means, axis=0) / (2 * station.gravity))
         covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(
@@ -324,13 +389,16 @@ def _aligned_protocol(recording, station, candidates, reference, forces, rates, 
     acc = specific_force[reference]
     up = ferraris.up_vectors(acc, interval_means(recording.triads[reference], poses.intervals))
     latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
-    for name in rates:
+    for name in detection.rates:
         gyro = recording.triads[name]
-        turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]))
+        t = regular_times(recording.t, recording.rate_hz)
+        turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]),
+                                    t=t)
         try:
             angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
                                                            poses.intervals, axes, turns, latitude,
-                                                           up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))))
+                                                           up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))),
+                                                           t=t)
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)

@@ -216,8 +216,9 @@ def quiet_noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSetting
             f"recording is {len(acc) / rate_hz:.1f} s long: too short to find its noise level from "
             f"its quietest {settings.window_s:g} s windows; record the poses for longer, or give "
             f"--rest S if it starts with S seconds still")
-    quiet = quiet_windows(acc, rate_hz, settings)
-    variance = window_variances(acc, window)[0][quiet].mean(axis=0) * window / (window - 1)
+    windows = window_variances(acc, window)[0]
+    quiet = _quietest(windows, np.ones(len(windows), dtype=bool))  # as quiet_windows, computed once
+    variance = windows[quiet].mean(axis=0) * window / (window - 1)
     base = float(np.linalg.norm(variance))
     if not (math.isfinite(base) and base > 0):
         raise DetectionError("accelerometer shows no noise at all in its quietest windows: check that "
@@ -240,30 +241,65 @@ def _runs(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2)
 
 
-def _first_loud(z2: np.ndarray, k: int, threshold: float) -> int:
-    """Index of the first k-sample window of z2 whose mean exceeds threshold (len - k + 1 if none)."""
-    if len(z2) < k:
-        return len(z2) - k + 1
-    c = np.cumsum(np.r_[0.0, z2])
-    loud = (c[k:] - c[:-k]) / k > threshold
-    return int(np.argmax(loud)) if loud.any() else len(loud)
+def _first_loud(columns: tuple[np.ndarray, ...], inv_var: np.ndarray, means: np.ndarray, first: np.ndarray,
+                length: np.ndarray, step: int, k: int, threshold: float) -> np.ndarray:
+    """Per run r, how many samples from ``first[r]`` (going by ``step``, ±1, over ``length[r]``
+    samples) the first k-sample window starts whose mean z² = Σ (x − mean_r)²/σ² exceeds
+    threshold (length - k + 1 if none); x the columns side by side. All runs at once: only the
+    samples near each edge are read."""
+    width = int(max(length.max(initial=0), k))
+    j = np.arange(width)
+    idx = np.clip(first[:, None] + step * j, 0, len(columns[0]) - 1)
+    near = np.concatenate([c[idx] for c in columns], axis=-1)  # (runs, width, columns)
+    z2 = ((near - means[:, None, :]) ** 2) @ inv_var  # (runs, width)
+    c = np.cumsum(np.concatenate([np.zeros((len(first), 1)), z2], axis=1), axis=1)
+    loud = ((c[:, k:] - c[:, :-k]) / k > threshold) & (j[None, :width - k + 1] <= (length - k)[:, None])
+    return np.where(loud.any(axis=1), np.argmax(loud, axis=1), length - k + 1)
+
+
+@dataclass(frozen=True)
+class _EdgeSignals:
+    """What every threshold's interval search reads, made once for all of them: the window
+    statistic (n,), the triads whose deviation places the edges (accelerometer, and gyroscope
+    when given; not copied side by side), their means over any rows, and their inverse noise
+    variances."""
+
+    stat: np.ndarray
+    columns: tuple[np.ndarray, ...]
+    means: tuple[PrefixMeans, ...]
+    inv_var: np.ndarray
+
+    @classmethod
+    def of(cls, acc, rate_hz, noise: NoiseLevel, settings: DetectorSettings, gyro=None) -> "_EdgeSignals":
+        acc = np.asarray(acc, dtype=float)
+        # Edges watch the gyroscope too when given: a turn about the vertical, or the cubic onset of a
+        # tilt, shows in the rate long before it shows in the accelerometer.
+        columns, variance = (acc,), noise.variance
+        if gyro is not None:
+            if noise.gyro_variance is None:
+                raise ValueError("static_intervals: gyro given but noise_level was measured without it")
+            columns = (acc, np.asarray(gyro, dtype=float))
+            variance = np.r_[noise.variance, noise.gyro_variance]
+        return cls(window_statistic(acc, rate_hz, settings), columns, tuple(PrefixMeans(c) for c in columns),
+                   1.0 / np.maximum(variance, 1e-300))
+
+    def means_over(self, intervals: np.ndarray) -> np.ndarray:
+        return np.hstack([m(intervals) for m in self.means])
 
 
 def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multiple: float,
                      settings: DetectorSettings, gyro: np.ndarray | None = None) -> np.ndarray:
-    acc = np.asarray(acc, dtype=float)
-    n = len(acc)
-    # Edges watch the gyroscope too when given: a turn about the vertical, or the cubic onset of a
-    # tilt, shows in the rate long before it shows in the accelerometer.
-    data, variance = acc, noise.variance
-    if gyro is not None:
-        if noise.gyro_variance is None:
-            raise ValueError("static_intervals: gyro given but noise_level was measured without it")
-        data = np.hstack([acc, np.asarray(gyro, dtype=float)])
-        variance = np.r_[noise.variance, noise.gyro_variance]
+    return _static_intervals(_EdgeSignals.of(acc, rate_hz, noise, settings, gyro), rate_hz, noise, multiple,
+                             settings)
+
+
+def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, multiple: float,
+                      settings: DetectorSettings) -> np.ndarray:
+    columns, inv_var = signals.columns, signals.inv_var
+    n = len(columns[0])
     half = _half_window(rate_hz, settings)
     rest_n = noise.rest_samples
-    quiet = window_statistic(acc, rate_hz, settings) < multiple * noise.base
+    quiet = signals.stat < multiple * noise.base
     quiet[: max(rest_n - half, 0)] = True  # noise_level has checked the initial rest: always a pose
     min_n = _samples(settings.min_static_s, rate_hz)
     runs = _runs(quiet)
@@ -271,24 +307,20 @@ def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multipl
 
     k = _samples(settings.edge_window_s, rate_hz)
     guard = round(settings.guard_s * rate_hz)
-    dof = data.shape[1]
+    dof = len(inv_var)
     threshold = dof + settings.edge_sigmas * math.sqrt(2.0 * dof / k)  # mean of dof·k χ²(1) / k
-    inv_var = 1.0 / np.maximum(variance, 1e-300)
-    out = []
-    for a, b in runs:
-        # Every centre in [a, b) has a quiet window: the run itself is still. Its middle gives
-        # the pose's mean; the edges are searched from half a window inside it outward.
-        q = min(half // 2, (b - a) // 4)
-        mean = data[a + q: b - q].mean(axis=0)
-        lo, hi = max(0, a - half - k), min(n, b + half + k)
-        z2 = ((data[lo:hi] - mean) ** 2) @ inv_var
-        inner_stop, inner_start = max(a, b - half), min(b, a + half)
-        loud = _first_loud(z2[inner_stop - lo:], k, threshold)
-        stop = inner_stop + loud - guard if b < n else n
-        loud = _first_loud(z2[: inner_start - lo][::-1], k, threshold)
-        start = inner_start - loud + guard if a > 0 else 0
-        out.append((start, min(stop, n)))
-    out = np.array(out, dtype=int).reshape(-1, 2)
+    a, b = runs[:, 0], runs[:, 1]
+    # Every centre in [a, b) has a quiet window: the run itself is still. Its middle gives the
+    # pose's mean; the edges are searched from half a window inside it outward.
+    q = np.minimum(half // 2, (b - a) // 4)
+    means = signals.means_over(np.column_stack([a + q, b - q]))
+    lo, hi = np.maximum(0, a - half - k), np.minimum(n, b + half + k)
+    inner_stop, inner_start = np.maximum(a, b - half), np.minimum(b, a + half)
+    stop = np.where(b < n, inner_stop + _first_loud(columns, inv_var, means, inner_stop, hi - inner_stop, 1, k,
+                                                    threshold) - guard, n)
+    start = np.where(a > 0, inner_start - _first_loud(columns, inv_var, means, inner_start - 1, inner_start - lo, -1,
+                                                      k, threshold) + guard, 0)
+    out = np.column_stack([start, np.minimum(stop, n)])
     if len(out) > 1:
         out[1:, 0] = np.maximum(out[1:, 0], out[:-1, 1])  # neighbours never share samples
     keep = (out[:, 1] - out[:, 0] >= min_n) | ((out[:, 0] == 0) & (rest_n > 0))
@@ -328,11 +360,24 @@ def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     return distinct
 
 
+class PrefixMeans:
+    """Means of ``values`` (n, d) over any [start, stop) rows, from one cumulative sum made once
+    (the first row taken off before summing: raw counts keep their precision)."""
+
+    def __init__(self, values: np.ndarray):
+        values = np.asarray(values, dtype=float)
+        self.offset = values[0]
+        self.cums = np.zeros((len(values) + 1, values.shape[1]))
+        np.cumsum(values - self.offset, axis=0, out=self.cums[1:])
+
+    def __call__(self, intervals: np.ndarray) -> np.ndarray:
+        intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
+        return self.offset + (self.cums[intervals[:, 1]] - self.cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+
+
 def interval_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     """Mean of ``values`` (n, 3) over each [start, stop) of ``intervals`` (m, 2), vectorised."""
-    offset = values[0]  # removed before summing: raw counts keep their precision
-    cums = np.cumsum(np.r_[np.zeros((1, values.shape[1])), values - offset], axis=0)
-    return offset + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+    return PrefixMeans(values)(intervals)
 
 
 def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, multiple: float,
@@ -340,8 +385,13 @@ def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, mult
                gyro: np.ndarray | None = None) -> Poses:
     acc = np.asarray(acc, dtype=float)
     noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
-    intervals = static_intervals(acc, rate_hz, noise, multiple, settings, gyro)
-    means = interval_means(acc, intervals)
+    signals = _EdgeSignals.of(acc, rate_hz, noise, settings, gyro)
+    return _poses(signals, acc, rate_hz, settings, multiple, noise, zero, sensitivity)
+
+
+def _poses(signals: _EdgeSignals, acc, rate_hz, settings, multiple, noise, zero, sensitivity) -> Poses:
+    intervals = _static_intervals(signals, rate_hz, noise, multiple, settings)
+    means = signals.means[0](intervals)
     up = up_directions(means, zero, sensitivity)
     return Poses(intervals=intervals, means=means, up=up,
                  distinct=distinct_poses(up, settings.min_separation_deg), multiple=float(multiple))
@@ -350,10 +400,12 @@ def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, mult
 def pose_candidates(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
                     zero=None, sensitivity=None, gyro: np.ndarray | None = None,
                     noise: NoiseLevel | None = None) -> list[Poses]:
-    """The poses for each of ``settings.multiples``, the noise level measured once (or given)."""
+    """The poses for each of ``settings.multiples``, the noise level and the window statistic
+    measured once (the noise level may be given)."""
     acc = np.asarray(acc, dtype=float)
     noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
-    return [find_poses(acc, rate_hz, settings, m, noise, zero, sensitivity, gyro) for m in settings.multiples]
+    signals = _EdgeSignals.of(acc, rate_hz, noise, settings, gyro)
+    return [_poses(signals, acc, rate_hz, settings, m, noise, zero, sensitivity) for m in settings.multiples]
 
 
 _AXES = np.vstack([np.eye(3), -np.eye(3)])

@@ -87,15 +87,59 @@ def up_vectors(acc: Calibration, means: np.ndarray) -> np.ndarray:
     return a / np.linalg.norm(a, axis=1, keepdims=True)
 
 
+def integrals(gyro: np.ndarray, rate_hz: float, spans: np.ndarray, reference: np.ndarray,
+              t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """∫(gyro − reference) dt over each [start, stop) of ``spans`` (k, 3), and their durations
+    (k,) in s. With timestamps ``t`` each sample holds until the next one, so a logger's dropped
+    samples and jitter do not shorten a turn (at a nominal rate a 0.5 % drop is a 0.5 % scale
+    error); without, every sample lasts 1/rate_hz."""
+    if t is None:
+        dt = np.full(len(gyro), 1.0 / rate_hz)
+    else:
+        dt = np.diff(t, append=t[-1] + float(np.median(np.diff(t))))
+    cums = np.cumsum(np.r_[np.zeros((1, 3)), (gyro - gyro[0]) * dt[:, None]], axis=0)
+    times = np.r_[0.0, np.cumsum(dt)]
+    duration = times[spans[:, 1]] - times[spans[:, 0]]
+    return cums[spans[:, 1]] - cums[spans[:, 0]] - (reference - gyro[0]) * duration[:, None], duration
+
+
+EDGE_SIGMAS = 8.0  # a pose's end whose 0.1 s gyro mean is this many σ from the pose's median: turning
+MAX_TRIM = 0.4  # of a pose: more is not a turn's slow start but a pose that is not still
+
+
+def trim_turning_edges(gyro: np.ndarray, intervals: np.ndarray, variance: np.ndarray,
+                       rate_hz: float) -> np.ndarray:
+    """The static intervals without the ends where the gyro already turns. A turntable's slow
+    start is invisible to the accelerometer, and in raw counts the turning detector cannot tell a
+    slow turn's rate from a still shift; inside an aligned pose the still reading is one value,
+    so a 0.1 s mean more than EDGE_SIGMAS σ of that mean from the pose's median, at either end,
+    is the turn: it is cut off (at most MAX_TRIM of the pose)."""
+    k = max(1, round(0.1 * rate_hz))
+    sigma = np.sqrt(np.asarray(variance, dtype=float) / k)
+    out = np.array(intervals, dtype=int).copy()
+    for i, (a, b) in enumerate(intervals):  # a loop over poses, not samples
+        values = np.asarray(gyro[a:b], dtype=float)
+        if len(values) < 4 * k:
+            continue
+        cums = np.cumsum(np.r_[np.zeros((1, 3)), values], axis=0)
+        means = (cums[k:] - cums[:-k]) / k  # the 0.1 s mean starting at each sample
+        away = np.any(np.abs(means - np.median(values, axis=0)) > EDGE_SIGMAS * sigma, axis=1)
+        still = np.flatnonzero(~away)
+        if not len(still):
+            continue
+        start, stop = a + still[0], a + still[-1] + k
+        if (start - a) + (b - stop) <= MAX_TRIM * (b - a):
+            out[i] = (start, stop)
+    return out
+
+
 def find_turns(gyro: np.ndarray, rate_hz: float, intervals: np.ndarray, up: np.ndarray,
-               units_per_rad_s: float | None) -> Turns:
+               units_per_rad_s: float | None, t: np.ndarray | None = None) -> Turns:
     """The motions that leave a pose and come back to it through a full turn (or several)."""
     still = interval_means(gyro, intervals)
     spans = np.column_stack([intervals[:-1, 1], intervals[1:, 0]])
     same = np.einsum("ij,ij->i", up[:-1], up[1:]) >= math.cos(math.radians(SAME_POSE_DEG))
-    cums = np.cumsum(np.r_[np.zeros((1, 3)), gyro - gyro[0]], axis=0)
-    reference = 0.5 * (still[:-1] + still[1:]) - gyro[0]
-    integral = (cums[spans[:, 1]] - cums[spans[:, 0]] - reference * np.diff(spans, axis=1)) / rate_hz
+    integral = integrals(gyro, rate_hz, spans, 0.5 * (still[:-1] + still[1:]), t)[0]
     size = np.linalg.norm(integral, axis=1)
     if units_per_rad_s is not None:
         turns = np.round(size / units_per_rad_s / (2 * math.pi))
@@ -112,7 +156,7 @@ def find_turns(gyro: np.ndarray, rate_hz: float, intervals: np.ndarray, up: np.n
 
 def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, intervals: np.ndarray,
                      axes: np.ndarray, turns: Turns, latitude_rad: float | None,
-                     up_sigma: float = 0.0) -> Calibration:
+                     up_sigma: float = 0.0, t: np.ndarray | None = None) -> Calibration:
     """``axes``: each interval's aligned axis (see aligned_axes); ``up_sigma``: 1σ (rad) of the
     turn axes' directions, from the accelerometer's calibration."""
     """K from the turns' integrals, the bias from the statics; see the module doc for the σ."""
@@ -123,20 +167,24 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
                              "turns): turn the unit once through 360° about each axis while it is vertical")
     counts = np.diff(intervals, axis=1)[:, 0]
     still = interval_means(gyro, intervals)
-    offset = gyro[0]
-    cums = np.cumsum(np.r_[np.zeros((1, 3)), gyro - offset], axis=0)
     n = np.diff(turns.spans, axis=1)[:, 0]
     w_before, w_after = counts[turns.before], counts[turns.after]
-    reference = (still[turns.before] * w_before[:, None] + still[turns.after] * w_after[:, None]) \
-        / (w_before + w_after)[:, None]
-    W = ((cums[turns.spans[:, 1]] - cums[turns.spans[:, 0]] - (reference - offset) * n[:, None]) / rate_hz).T
+    # The still reading through the turn: the line from the pose before to the pose after, each
+    # at its middle, taken at the turn's middle (a bias that drifts, warm-up or temperature,
+    # moves during the turn as it does between the poses); its weight on each side, α.
+    times = np.arange(len(gyro)) / rate_hz if t is None else t
+    middle = 0.5 * (times[intervals[:, 0]] + times[intervals[:, 1] - 1])
+    turn_middle = 0.5 * (times[turns.spans[:, 0]] + times[turns.spans[:, 1] - 1])
+    alpha = np.clip((turn_middle - middle[turns.before]) / (middle[turns.after] - middle[turns.before]), 0.0, 1.0)
+    reference = still[turns.before] * (1 - alpha)[:, None] + still[turns.after] * alpha[:, None]
+    W, duration = integrals(gyro, rate_hz, turns.spans, reference, t)
+    W = W.T
     C = (turns.up * turns.angles[:, None]).T  # W = K·C
     C_pinv = np.linalg.pinv(C)
     K = W @ C_pinv
     # Per turn and output axis, the variance of W's entry (output units · s)².
     white = np.array([np.var(gyro[a:b], axis=0, ddof=1) for a, b in intervals[[0]]])[0]
-    duration = n / rate_hz
-    reference_var = white[None, :] / (w_before + w_after)[:, None]
+    reference_var = white[None, :] * ((1 - alpha) ** 2 / w_before + alpha**2 / w_after)[:, None]
     horizontal = EARTH_RATE if latitude_rad is None else EARTH_RATE * abs(math.cos(latitude_rad))
     k_scale = np.abs(np.diag(K))
     earth = (k_scale[None, :] * horizontal * duration[:, None]) ** 2 / 2

@@ -75,11 +75,12 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
             continue
         rms = math.degrees(sol.residual_rms) * 60
         quality = f"χ²/dof {fit.reduced_chi2:.2f}" if fit.dof else "exact fit"
-        bias = ("the first pose's mean" + ("" if isinstance(cal.place, UnknownPlace) else
-                                           ", less the vertical Earth rate")) if fit.held else "estimated"
+        bias = ("the poses' mean" + ("" if isinstance(cal.place, UnknownPlace) else
+                                     ", less the vertical Earth rate")) if fit.held else "estimated"
         lines += ["", f"{name} (rotations between {len(cal.poses.intervals)} poses, {fit.search}: "
                   f"{fit.evaluations} evaluations; direction residual RMS {rms:.3g} arcmin; {quality}; "
                   f"bias: {bias})", solution_table(sol, truths.get(name))]
+    lines += [f"  note: {note}" for note in cal.notes]
     for name, why in cal.failures.items():
         lines += ["", f"{name}: not calibrated: {why}"]
     return lines

@@ -52,7 +52,15 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     quiet = quiet_windows(acc, rate_hz, settings)
     means = window_variances(gyro, window)[1][quiet]
     level = np.median(means, axis=0)
-    shift = float(np.median(np.linalg.norm(means - level, axis=1)))
+    distance = np.linalg.norm(means - level, axis=1)
+    shift = float(np.median(distance)) if len(distance) else 0.0
+    still = distance[distance < math.radians(MIN_TURN_DEG_S) * units_per_rad_s] if units_per_rad_s else ()
+    if len(still):
+        # On a turntable the accelerometer is quiet while the table turns, so in a Ferraris
+        # session more than half of the quiet windows may be turning: in a known unit, windows
+        # beyond MIN_TURN_DEG_S are no still reading's shift and are left out; of the others the
+        # upper quartile, since a long initial rest's windows all sit at the level.
+        shift = float(np.percentile(still, 75))
     sigma = float(np.sqrt(np.mean(noise.gyro_variance)))
     low = max(GATE_SIGMAS * sigma / math.sqrt(n), SHIFT_MULTIPLE * shift)
     high = max(low, math.radians(MIN_TURN_DEG_S) * units_per_rad_s) if units_per_rad_s else low

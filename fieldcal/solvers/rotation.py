@@ -15,8 +15,9 @@ gyro-to-accelerometer rotation is estimated too. Calibrated rate = K⁻¹(raw �
   cross product the two-sample coning correction, exact to O(h⁵) for a smooth rate. Global
   error O(h⁴). The steps of all spans are padded into one (m, L) array and composed by a
   pairwise (tree) reduction: log2(L) vectorised quaternion products, no loop over samples.
-- ``solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, ...) -> Calibration``.
-  Residuals, 2 per motion in rad: Cᵀ·up_start − up_end in a tangent basis (a, b) at up_end.
+- ``solve_rotations(Motions, RotationStart, RotationNoise, ...) -> Calibration`` (the data, the
+  start and what whitens the residuals, each a typed value; ``solve_gyro_rotations(t, raw, spans,
+  up_start, up_end, *, K0, b0, ...)`` builds them from plain arrays). Residuals, 2 per motion in rad: Cᵀ·up_start − up_end in a tangent basis (a, b) at up_end.
   Its theta is bias_x..z, scale_x..z, m_xy, m_xz, m_yx, m_yz, m_zx, m_zy (FULL_PARAM_NAMES),
   ``covariance`` theta's; a bias held at b0 (``diagnostics.held``) has bias_sigma as its σ,
   uncorrelated with the rest. The search and its covariance run over the estimated
@@ -38,10 +39,10 @@ latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy import optimize
 from scipy.special import chdtrc  # χ² survival function; scipy.stats would cost ~0.4 s to import
 from scipy.spatial.transform import Rotation
 
@@ -64,86 +65,159 @@ def _cross(a, b):
 
 
 def _qmul(p, q):
-    """Hamilton product, scalar last: the rotation matrix of p·q is R(p)·R(q)."""
-    pv, pw, qv, qw = p[..., :3], p[..., 3:], q[..., :3], q[..., 3:]
-    return np.concatenate([pw * qv + qw * pv + _cross(pv, qv),
-                           pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)], axis=-1)
+    """Hamilton product of quaternions stored component-first, (4, ...) [x, y, z, w] (scalar
+    last): the rotation matrix of p·q is R(p)·R(q). Summed in place, term by term."""
+    px, py, pz, pw = p
+    qx, qy, qz, qw = q
+    out = np.empty(p.shape)
+    x, y, z, w = out
+    np.multiply(pw, qx, out=x)
+    x += qw * px
+    x += py * qz
+    x -= pz * qy
+    np.multiply(pw, qy, out=y)
+    y += qw * py
+    y += pz * qx
+    y -= px * qz
+    np.multiply(pw, qz, out=z)
+    z += qw * pz
+    z += px * qy
+    z -= py * qx
+    np.multiply(pw, qw, out=w)
+    w -= px * qx
+    w -= py * qy
+    w -= pz * qz
+    return out
 
 
-# p·q = (p ⊗ q).ravel() @ _PRODUCT: one outer product and one matrix product per pass.
-_PRODUCT = np.array([[_qmul(a, b) for b in np.eye(4)] for a in np.eye(4)]).reshape(16, 4)
+def _bit_reversed(n: int) -> np.ndarray:
+    """The bit-reversal permutation of range(n), n a power of two."""
+    bits = n.bit_length() - 1
+    i = np.arange(n)
+    return sum(((i >> b) & 1) << (bits - 1 - b) for b in range(bits)) if bits else i
 
 
 def _compose(q):
-    """(m, L, 4) -> (m, 4): q[:, 0]·q[:, 1]·…·q[:, L-1] by pairwise products, log2(L) passes."""
-    while q.shape[1] > 1:
-        if q.shape[1] % 2:
-            q = np.concatenate([q, np.broadcast_to([0.0, 0.0, 0.0, 1.0], (len(q), 1, 4))], axis=1)
-        p, r = q[:, 0::2], q[:, 1::2]
-        q = (p[..., :, None] * r[..., None, :]).reshape(*p.shape[:-1], 16) @ _PRODUCT
-    q = q[:, 0]
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    """(4, g, P) -> (4, g): the product of each group's P quaternions in time order, stored in
+    bit-reversed order (P a power of two), so that each of the log2(P) passes multiplies the first
+    half by the second: element i of the first half is always the step just before element i of
+    the second (contiguous halves, no strided pairs)."""
+    while q.shape[-1] > 1:
+        half = q.shape[-1] // 2
+        q = _qmul(q[..., :half], q[..., half:])
+    return q[..., 0]
 
 
 def _rotate_back(q, v):
     """Cᵀ·v for each row (C the rotation of quaternion q)."""
-    qv, qw = -q[:, :3], q[:, 3:]
+    qv, qw = -q[..., :3], q[..., 3:]
     t = 2.0 * _cross(qv, v)
     return v + qw * t + _cross(qv, t)
 
 
-def _rate_slope(values, t, idx):
-    """dω/dt at samples idx from the quadratic through three neighbours (one-sided at the ends)."""
+def _rate_slope(window, t, idx, j):
+    """dω/dt at samples idx from the quadratic through three neighbours (one-sided at the ends);
+    window[:, r] holds sample j - 1 + r of the rates."""
     c = np.clip(idx, 1, len(t) - 2)
     tm, t0, tp, x = t[c - 1], t[c], t[c + 1], t[idx]
     wm = (2 * x - t0 - tp) / ((tm - t0) * (tm - tp))
     w0 = (2 * x - tm - tp) / ((t0 - tm) * (t0 - tp))
     wp = (2 * x - tm - t0) / ((tp - tm) * (tp - t0))
-    return wm[..., None] * values[c - 1] + w0[..., None] * values[c] + wp[..., None] * values[c + 1]
+    r = c - j  # c - 1 - (j - 1): the window column of sample c - 1
+    rows = np.arange(len(window))
+    return (wm[:, None] * window[rows, r] + w0[:, None] * window[rows, r + 1]
+            + wp[:, None] * window[rows, r + 2])
+
+
+_BLOCK = 64  # steps composed per block: a span is padded to whole blocks, not to the longest span
 
 
 class _Steps:
-    """The steps of some spans, padded to (m, L). The increments are linear in the rate, so for
-    ω = A·(v − δb) (A = K⁻¹) each evaluation is one product of per-step sums of v, made once:
-    ∫ω = A·(∫v − h·δb) and ω_j × ω_{j+1} = det(A)·Kᵀ·(v_j × v_{j+1} + (v_{j+1} − v_j) × δb)."""
+    """The steps of some spans, each span padded with identity steps to whole blocks of _BLOCK.
+    A span's blocks are composed first (all blocks of all spans at once), then each span's
+    blocks. The increments are linear in the rate, so for ω = A·(v − δb) (A = K⁻¹) each
+    evaluation is one product of per-step sums of v, made once:
+    ∫ω = A·(∫v − h·δb) and ω_j × ω_{j+1} = det(A)·Kᵀ·(v_j × v_{j+1} + (v_{j+1} − v_j) × δb).
+    ``offset`` is taken off the rates where they are read (raw counts keep their precision and
+    the samples are not copied)."""
 
-    def __init__(self, values, t, spans):
-        values, t = np.asarray(values, dtype=float), np.asarray(t, dtype=float)
+    def __init__(self, values, t, spans, offset=None):
+        t = np.asarray(t, dtype=float)
         spans = np.asarray(spans, dtype=int).reshape(-1, 2)
         n = len(t)
-        if values.shape != (n, 3) or n < 3:
-            raise ValueError(f"rates must be (n, 3) with n >= 3 matching t, got {values.shape}")
+        if np.shape(values) != (n, 3) or n < 3:
+            raise ValueError(f"rates must be (n, 3) with n >= 3 matching t, got {np.shape(values)}")
         i0, i1 = spans[:, 0], spans[:, 1]
         if len(spans) == 0 or np.any(i0 < 0) or np.any(i1 >= n) or np.any(i1 <= i0):
             raise ValueError(f"spans must be [i0, i1] with 0 <= i0 < i1 < {n}")
         lengths = i1 - i0
-        k = np.arange(lengths.max())
-        valid = k < lengths[:, None]
-        j = np.where(valid, i0[:, None] + k, i0[:, None]).ravel()  # padding: any real step
-        h = np.where(valid, t[j + 1].reshape(valid.shape) - t[j].reshape(valid.shape), 0.0)
+        blocks = -(-lengths // _BLOCK)
+        padded = blocks * _BLOCK
+        owner = np.repeat(np.arange(len(spans)), padded)
+        k = np.arange(padded.sum()) - np.repeat(np.cumsum(padded) - padded, padded)
+        # Within each block the steps are stored in bit-reversed order (see _compose).
+        k = (k.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)]).ravel()
+        owner = owner.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].ravel()
+        valid = k < lengths[owner]
+        j = np.where(valid, i0[owner] + k, i0[owner])  # padding: any real step
+        h = np.where(valid, t[j + 1] - t[j], 0.0)
         if np.any(h[valid] <= 0):
             raise ValueError("t must increase within every span")
-        h = h.reshape(-1, 1)  # zero for padding: a zero increment, the identity rotation
+        # The samples a step reads: j - 1 .. j + 2 (the slopes' stencils), offset taken off.
+        rows = np.clip(j[:, None] + np.arange(-1, 3), 0, n - 1)
+        window = np.asarray(values, dtype=float)[rows]
+        if offset is not None:
+            window -= offset
+        h = h[:, None]  # zero for padding: a zero increment, the identity rotation
         w = h * h / 12.0
-        v0, v1 = values[j], values[j + 1]
+        v0, v1 = window[:, 1], window[:, 2]
         # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
-        slope_change = _rate_slope(values, t, j + 1) - _rate_slope(values, t, j)
+        slope_change = _rate_slope(window, t, j + 1, j) - _rate_slope(window, t, j, j)
         integral = h / 2 * (v0 + v1) - w * slope_change
-        self.terms = np.hstack([integral, w * _cross(v0, v1), w * (v1 - v0), h])  # (m·L, 10)
-        self.shape = valid.shape
+        self.terms = np.hstack([integral, w * _cross(v0, v1), w * (v1 - v0), h]).T.copy()  # (10, steps)
+        # Each span's blocks, padded to a power of two with an identity block, bit-reversed.
+        size = 1 << int(blocks.max() - 1).bit_length()
+        first = np.cumsum(blocks) - blocks
+        slot = np.arange(size)
+        gather = np.where(slot < blocks[:, None], first[:, None] + slot, blocks.sum())
+        self.gather = gather[:, _bit_reversed(size)]
         self.duration = t[i1] - t[i0]
+        self._groups: dict[int, np.ndarray] = {}
 
-    def quaternions(self, K_inv, delta_b):
+    def _grouped(self, group: int) -> np.ndarray:
+        """The terms of ``group`` consecutive steps summed (made once): the storage index is the
+        bit-reversed time, so a group's steps are those that differ only in its high bits."""
+        if group not in self._groups:
+            c = len(self.terms)
+            self._groups[group] = self.terms.reshape(c, -1, group, _BLOCK // group).sum(axis=2).reshape(c, -1)
+        return self._groups[group]
+
+    def quaternions(self, K_inv, delta_b, group: int = 1):
+        """(m, 4) quaternions of each span's rotation, scalar last. ``group`` (a power of two up
+        to _BLOCK): so many consecutive steps taken as one, their increments summed (a coarse
+        integration that leaves out the coning between them: for a scan, not a solve)."""
         A = np.asarray(K_inv, dtype=float)
         coning = np.linalg.det(A) * np.linalg.inv(A)  # det(A)·K, applied to row vectors
         bias_cross = np.array([[0.0, -delta_b[2], delta_b[1]], [delta_b[2], 0.0, -delta_b[0]],
                                [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
-        phi = self.terms @ np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]])
-        angle = np.sqrt(np.einsum("ij,ij->i", phi, phi))[:, None]
+        terms = self.terms if group == 1 else self._grouped(group)
+        phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ terms
+        return self.compose(phi, group)
+
+    def compose(self, phi, group: int = 1):
+        """(..., m, 4) quaternions of each span's rotation from its steps' rotation vectors phi
+        (..., 3, steps), each step the exact exponential of its phi (see ``quaternions``)."""
+        angle = np.sqrt(phi[..., 0, :] ** 2 + phi[..., 1, :] ** 2 + phi[..., 2, :] ** 2)
         half = 0.5 * angle
-        # sin(θ/2)/θ → 1/2 at θ = 0 (the padding).
-        s = np.divide(np.sin(half), angle, out=np.full_like(angle, 0.5), where=angle > 0)
-        return _compose(np.hstack([s * phi, np.cos(half)]).reshape(*self.shape, 4))
+        q = np.empty((4,) + angle.shape)
+        # sin(θ/2)/θ times φ; at θ = 0 (the padding) φ = 0 and any finite factor gives 0.
+        np.multiply(np.moveaxis(phi, -2, 0), np.sin(half) / np.maximum(angle, 1e-300), out=q[:3])
+        np.cos(half, out=q[3])
+        q = _compose(q.reshape(q.shape[:-1] + (-1, _BLOCK // group)))  # (4, ..., blocks)
+        identity = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]).reshape((4,) + (1,) * (q.ndim - 1)),
+                                   q.shape[:-1] + (1,))
+        q = _compose(np.concatenate([q, identity], axis=-1)[..., self.gather])  # (4, ..., m)
+        return np.moveaxis(q / np.sqrt(np.sum(q * q, axis=0)), 0, -1)
 
 
 def integrate(omega, t, spans) -> np.ndarray:
@@ -151,16 +225,32 @@ def integrate(omega, t, spans) -> np.ndarray:
     return _Steps(omega, t, spans).quaternions(np.eye(3), np.zeros(3))
 
 
-def scale_misfits(t, raw, spans, up_start, up_end, b0, scales) -> np.ndarray:
-    """Sum of squared direction misfits for K = k·I at each k of ``scales``: a scan that finds a
-    raw-count gyro's sensitivity (a start for the solve) with one set of steps for all k."""
-    steps = _Steps(np.asarray(raw, dtype=float) - b0, t, spans)
-    up_s = np.asarray(up_start, dtype=float)
-    out = np.empty(len(scales))
-    for i, k in enumerate(scales):  # a few dozen candidates, each one vectorised evaluation
-        q = steps.quaternions(np.eye(3) / k, np.zeros(3))
-        out[i] = np.sum((_rotate_back(q, up_s) - up_end) ** 2)
-    return out
+_SCAN_GROUP = 8  # steps taken as one by the coarse scan (0.08 s at 100 Hz)
+_SCAN_BATCH = 16  # candidate scales integrated at once (their temporaries: a few MiB)
+
+
+def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
+    """The k of ``scales`` (sorted, a few dozen) whose K = k·I best carries every motion's start
+    direction onto its end (least sum of squared misfits): a raw-count gyro's sensitivity, the
+    start of its solve. All k by a coarse integration, then the best and its two neighbours by
+    the exact one."""
+    steps = _Steps(raw, t, spans, offset=b0)
+    up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
+
+    def misfit(k, group):
+        q = steps.quaternions(np.eye(3) / k, np.zeros(3), group)
+        return np.sum((_rotate_back(q, up_s) - up_e) ** 2)
+
+    # K⁻¹ = I/k, no bias change: a step's phi is ∫v/k + coning/k², for a batch of k at once.
+    terms = steps._grouped(_SCAN_GROUP)
+    coarse = []
+    for k in np.array_split(np.asarray(scales, dtype=float), -(-len(scales) // _SCAN_BATCH)):
+        q = steps.compose(terms[None, 0:3] / k[:, None, None] + terms[None, 3:6] / k[:, None, None] ** 2,
+                          _SCAN_GROUP)
+        coarse.append(np.sum((_rotate_back(q, up_s) - up_e) ** 2, axis=(1, 2)))
+    best = int(np.argmin(np.concatenate(coarse)))
+    near = scales[max(best - 1, 0):best + 2]
+    return float(near[int(np.argmin([misfit(k, 1) for k in near]))])
 
 
 def _tangent_bases(up):
@@ -205,10 +295,326 @@ def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_va
     return cov
 
 
-def _jacobian(fun, x, steps):
-    """Central differences, one column per parameter."""
+def _jacobian(fun, x, steps, central=True):
+    """Central (else forward) differences, one column per parameter."""
+    if not central:
+        f0 = fun(x)
+        return np.column_stack([(fun(x + e) - f0) / h for e, h in zip(np.diag(steps), steps, strict=True)])
     return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h)
                             for e, h in zip(np.diag(steps), steps, strict=True)])
+
+
+@dataclass(frozen=True)
+class Motions:
+    """The motions between static poses, the data of a rotation solve: t (n,) s, raw (n, 3) gyro
+    output, spans (m, 2) inclusive samples of each motion (last of pose i .. first of pose i+1),
+    up_start, up_end (m, 3) unit gravity-up in the accelerometer frame at its two poses."""
+
+    t: np.ndarray
+    raw: np.ndarray
+    spans: np.ndarray
+    up_start: np.ndarray
+    up_end: np.ndarray
+
+    @classmethod
+    def of(cls, t, raw, spans, up_start, up_end) -> "Motions":
+        spans = np.asarray(spans, dtype=int).reshape(-1, 2)
+        m = len(spans)
+        up_s, up_e = (np.asarray(u, dtype=float).reshape(m, 3) for u in (up_start, up_end))
+        up_s, up_e = (u / np.linalg.norm(u, axis=1, keepdims=True) for u in (up_s, up_e))
+        return cls(t, raw, spans, up_s, up_e)
+
+    @property
+    def shared(self) -> np.ndarray:
+        """(m - 1,) bool: motions i and i+1 around one pose (the same up vector)."""
+        return np.all(self.up_end[:-1] == self.up_start[1:], axis=1)
+
+
+@dataclass(frozen=True)
+class RotationStart:
+    """Where the search starts: K0 a dominant-diagonal 3×3 (see ``start``), b0 the bias, held
+    there unless ``estimate_bias``."""
+
+    K0: np.ndarray
+    b0: np.ndarray
+    estimate_bias: bool = False
+
+    @classmethod
+    def of(cls, K0, b0, estimate_bias=False) -> "RotationStart":
+        """K0: nominal scalar, (3,) or dominant-diagonal 3×3."""
+        K0 = np.diag(np.broadcast_to(np.asarray(K0, dtype=float), 3)) if np.ndim(K0) < 2 else \
+            np.asarray(K0, dtype=float)
+        k0 = np.diag(K0)
+        if K0.shape != (3, 3) or np.any(np.abs(k0) <= np.abs(K0 - np.diag(k0)).sum(axis=1)):
+            raise ValueError("K0 must be a 3x3 matrix with a dominant diagonal (map the axes first)")
+        return cls(K0, np.broadcast_to(np.asarray(b0, dtype=float), 3).copy(), bool(estimate_bias))
+
+
+@dataclass(frozen=True)
+class RotationNoise:
+    """What whitens the residuals (see the module docstring): up_sigma or up_covariance for the
+    pose directions, rate_noise (rad/√s), motion_variance (rad²), bias_sigma (output units).
+    None of them: the covariance is scaled by the residuals' scatter."""
+
+    bias_sigma: object = None
+    up_sigma: object = None
+    rate_noise: float | None = None
+    motion_variance: object = None
+    up_covariance: np.ndarray | None = None
+
+    @property
+    def given(self) -> bool:
+        return any(x is not None for x in (self.up_sigma, self.rate_noise, self.motion_variance,
+                                           self.up_covariance))
+
+
+class _Residuals:
+    """The residuals as functions of theta (bias if estimated, scale terms, angles)."""
+
+    def __init__(self, motions: Motions, start: RotationStart, bias_sigma, extra: Callable | None):
+        self.start, self.extra = start, extra
+        self.estimate_bias = start.estimate_bias
+        self.nb = 3 if start.estimate_bias else 0
+        self.names = FULL_PARAM_NAMES if start.estimate_bias else FULL_PARAM_NAMES[3:]
+        self.theta0 = np.r_[start.b0[:self.nb], np.concatenate(terms_from_k(start.K0))]
+        self.prior = start.estimate_bias and bias_sigma is not None
+        self.sigma_b = np.broadcast_to(np.asarray(bias_sigma if bias_sigma is not None else 1.0, float), 3)
+        self.motions = motions
+        # The motion samples only, offset by b0 so that raw counts keep their precision.
+        self.steps = _Steps(motions.raw, motions.t, motions.spans, offset=start.b0)
+        self.E = _tangent_bases(motions.up_end)
+
+    def unpack(self, theta):
+        nb = self.nb
+        bias = theta[:3] if self.estimate_bias else self.start.b0
+        return bias, np.linalg.inv(k_from_terms(theta[nb:nb + 3], theta[nb + 3:]))
+
+    def rotations(self, theta, bias=None):
+        b, K_inv = self.unpack(theta)
+        q = self.steps.quaternions(K_inv, (b if bias is None else bias) - self.start.b0)
+        return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
+                         self.E).ravel()
+
+    def side(self, theta):
+        b, K_inv = self.unpack(theta)
+        parts = [(b - self.start.b0) / self.sigma_b] if self.prior else []
+        if self.extra is not None:
+            parts.append(np.atleast_1d(np.asarray(self.extra(K_inv, b.copy()), dtype=float)))
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _check_geometry(model: _Residuals, natural, fd_steps, name) -> np.ndarray:
+    """The rotation residuals' Jacobian at the start (natural units; forward differences: it
+    scales the search, the covariance has its own); CalibrationError when the motions leave some
+    parameter (nearly) without effect."""
+    J_rot = _jacobian(model.rotations, model.theta0, fd_steps, central=False) * natural
+    sv, V = np.linalg.svd(J_rot, full_matrices=False)[1:]
+    weak = sv < _GEOMETRY_RATIO * sv[0]
+    if np.any(weak):
+        loose = [model.names[i] for i in np.unique(np.argmax(np.abs(V[weak]), axis=1))]
+        raise CalibrationError(
+            f"{name}: the motions do not span enough rotation axes: {', '.join(loose)} barely "
+            f"change the rotations (condition number {sv[0] / max(sv[-1], 1e-300):.3g}); "
+            "turn the unit about other axes")
+    return J_rot
+
+
+def _whitening(model: _Residuals, noise: RotationNoise, n_side: int, name: str) -> np.ndarray | None:
+    """Whitening of [rotation residuals, side residuals]: the side ones come whitened, but a fixed
+    bias's error is common to all of them, so it is marginalised over the joint vector."""
+    if not noise.given:
+        return None
+    m, start, steps = len(model.motions.spans), model.start, model.steps
+    K_inv0 = model.unpack(model.theta0)[1]
+    C = Rotation.from_quat(steps.quaternions(K_inv0, 0 * start.b0)).as_matrix()
+    cov = _residual_covariance(model.E, C, model.motions.shared, noise.up_sigma, noise.rate_noise,
+                               steps.duration, noise.motion_variance)
+    if noise.up_covariance is not None:
+        cov += _chained_up_covariance(model.E, C, np.asarray(noise.up_covariance, dtype=float))
+    cov = np.block([[cov, np.zeros((2 * m, n_side))], [np.zeros((n_side, 2 * m)), np.eye(n_side)]])
+    if noise.bias_sigma is not None and not start.estimate_bias:
+        def all_residuals(b):
+            side = model.extra(K_inv0, b.copy()) if model.extra is not None else []
+            return np.r_[model.rotations(model.theta0, b), np.atleast_1d(np.asarray(side, dtype=float))]
+        G = _jacobian(all_residuals, start.b0, 1e-6 * np.abs(np.diag(start.K0)))
+        cov += G @ np.diag(model.sigma_b**2) @ G.T
+    try:
+        return np.linalg.inv(np.linalg.cholesky(cov))
+    except np.linalg.LinAlgError:
+        raise CalibrationError(f"{name}: the residual covariance is not positive definite") from None
+
+
+_STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the solve
+_SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
+_MAX_ITERATIONS = 100
+_FD_STEP_Z = 1e-5  # σ: forward-difference step of a fresh Jacobian in the search coordinates
+_FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
+
+
+def _broyden_gauss_newton(fun, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
+    """Minimise ‖fun(z)‖² from z = 0, where fun's Jacobian at 0 is Q (orthonormal columns, so z
+    is in σ units): Gauss–Newton steps on a Jacobian made afresh by forward differences after a
+    step longer than _FAR σ and otherwise kept current by Broyden's rank-one updates (no
+    evaluations of their own), each step halved until it lowers the cost. (z, iterations) once
+    a step is below _SEARCH_TOL σ: the polish takes it from there."""
+    z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
+    cost = float(r @ r)
+    for iteration in range(1, _MAX_ITERATIONS + 1):
+        dz = -np.linalg.lstsq(J, r, rcond=None)[0]
+        if np.linalg.norm(dz) < _SEARCH_TOL:
+            return z, iteration
+        for _ in range(8):
+            r_new = fun(z + dz)
+            if float(r_new @ r_new) <= cost:
+                break
+            dz = dz / 2
+        else:
+            if fresh:  # no step along the true gradient lowers the cost: at the optimum
+                return z, iteration
+            J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
+            fresh = True
+            continue
+        r_old = r
+        z, r, cost, fresh = z + dz, r_new, float(r_new @ r_new), False
+        if np.linalg.norm(dz) > _FAR:  # far from the optimum: the curvature has changed much
+            J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
+            fresh = True
+        else:
+            J = J + np.outer(r - r_old - J @ dz, dz) / float(dz @ dz)
+    return z, _MAX_ITERATIONS
+
+
+def _search(whitened, theta0, to_theta, Q, method):
+    """(theta, converged, message, iterations) of the search in whitened coordinates z."""
+    p = len(theta0)
+    if method == "powell":
+        from scipy import optimize  # only this search pays for it
+
+        res = optimize.minimize(lambda z: float(np.sum(whitened(theta0 + to_theta @ z) ** 2)),
+                                np.zeros(p), method="Powell",
+                                options={"direc": np.eye(p), "xtol": 1e-4, "ftol": 1e-13,
+                                         "maxfev": 20000})
+        return theta0 + to_theta @ res.x, bool(res.success), str(res.message), int(res.nit)
+    z, iterations = _broyden_gauss_newton(lambda z: whitened(theta0 + to_theta @ z), p, Q)
+    converged = iterations < _MAX_ITERATIONS
+    message = (f"Gauss-Newton (Broyden): steps below {_SEARCH_TOL:g} sigma after {iterations} iterations"
+               if converged else f"Gauss-Newton (Broyden): no convergence in {iterations} iterations")
+    return theta0 + to_theta @ z, converged, message, iterations
+
+
+_POLISH_DONE = 0.1  # σ: after a longer polishing step the Jacobian is made afresh
+
+
+def _polish(whitened, theta, natural, fd_steps):
+    """(theta, the whitened residuals and their Jacobian in natural units): Gauss–Newton steps on
+    central-difference Jacobians (the covariance's), so that the optimum does not depend on the
+    search's approximate Jacobian, until a step is below _STEP_TOL σ. The Jacobian is made afresh
+    after a step longer than _POLISH_DONE σ (or one that fails); shorter ones reuse it (chord
+    steps, one evaluation each). The Jacobian returned is the last one made."""
+    r = whitened(theta)
+    J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+    for _ in range(20):
+        d = -np.linalg.lstsq(J, r, rcond=None)[0]
+        size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
+        if size < _STEP_TOL:
+            break
+        r_new = whitened(theta + natural * d)
+        if float(r_new @ r_new) > float(r @ r):
+            if fresh:
+                break
+            J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+            continue
+        theta, r = theta + natural * d, r_new
+        if size > _POLISH_DONE:
+            J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+        else:
+            fresh = False
+    return theta, r, J
+
+
+def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise = RotationNoise(),
+                    extra_residuals: Callable | None = None, method="lsq", name="gyro",
+                    output_unit="") -> Calibration:
+    """Solve K (and b) from the motions between static poses; see the module docstring and
+    :func:`solve_gyro_rotations` for what each input means."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    m = len(motions.spans)
+    if noise.up_covariance is not None and (noise.up_sigma is not None
+                                            or np.shape(noise.up_covariance) != (3 * m + 3,) * 2):
+        raise ValueError(f"up_covariance: expected a ({3 * m + 3}, {3 * m + 3}) matrix for {m} chained "
+                         "motions, and no up_sigma with it")
+    if not noise.given and (noise.bias_sigma is not None or extra_residuals is not None):
+        raise ValueError("bias_sigma and extra_residuals need up_sigma or rate_noise: the "
+                         "rotation residuals must be whitened too")
+    p = 12 if start.estimate_bias else 9
+    n_side = 3 * bool(start.estimate_bias and noise.bias_sigma is not None)
+    if extra_residuals is not None:
+        n_side += len(np.atleast_1d(extra_residuals(np.linalg.inv(start.K0), start.b0.copy())))
+    need = max(2, math.ceil((p - n_side) / 2) + _MOTION_MARGIN)
+    if m < need:
+        raise CalibrationError(f"{name}: {m} motions between poses, need at least {need}: "
+                               "add more poses")
+    model = _Residuals(motions, start, noise.bias_sigma, extra_residuals)
+    theta0, nb, names = model.theta0, model.nb, model.names
+    k0 = np.diag(start.K0)
+    # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
+    natural = np.r_[np.abs(k0)[:nb] / model.steps.duration.mean(), np.abs(k0), np.ones(6)]
+    fd_steps = 1e-7 * natural
+    J_rot = _check_geometry(model, natural, fd_steps, name)
+    whiten = _whitening(model, noise, n_side, name)
+    count = [0]
+
+    def whitened(theta):
+        count[0] += 1
+        r = np.r_[model.rotations(theta), model.side(theta)]
+        return r if whiten is None else whiten @ r
+
+    J_side = _jacobian(model.side, theta0, fd_steps) * natural
+    J0 = np.vstack([J_rot, J_side])
+    J0 = J0 if whiten is None else whiten @ J0
+    # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
+    Q, R = np.linalg.qr(J0)
+    to_theta = natural[:, None] * np.linalg.inv(R)
+    theta, converged, message, iterations = _search(whitened, theta0, to_theta, Q, method)
+    if not converged:
+        raise CalibrationError(f"{name}: {method} did not converge ({message})")
+    theta, r_w, J = _polish(whitened, theta, natural, fd_steps)
+    evaluations = count[0]
+    chi2, dof = float(r_w @ r_w), len(r_w) - p
+    sv = np.linalg.svd(J, compute_uv=False)
+    try:
+        cov_natural = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        raise CalibrationError(f"{name}: the motions do not determine the parameters") from None
+    scaled = not noise.given or (dof > 0 and chdtrc(dof, chi2) < 1e-3)
+    if scaled:
+        if dof <= 0:
+            raise CalibrationError(f"{name}: no scatter left to estimate the uncertainty; "
+                                   "add poses or give up_sigma/rate_noise")
+        cov_natural *= chi2 / dof
+    sigma_natural = np.sqrt(np.diag(cov_natural))
+    worst = int(np.argmax(sigma_natural))
+    if sigma_natural[worst] > _DEGENERATE_FRACTION:
+        raise CalibrationError(f"{name}: the motions do not span enough rotation axes: "
+                               f"{names[worst]} is determined only to ±{sigma_natural[worst]:.2g} "
+                               "of its scale; turn the unit about other axes")
+    bias = model.unpack(theta)[0].copy()
+    pose = np.cumsum(np.r_[0, ~motions.shared]) + np.arange(m)  # poses numbered from 0, shared or not
+    labels = tuple(f"motion {a + 1}→{a + 2} {c}" for a in pose for c in "ab")
+    covariance = np.zeros((len(FULL_PARAM_NAMES),) * 2)
+    covariance[3 - nb:, 3 - nb:] = cov_natural * np.outer(natural, natural)
+    if not start.estimate_bias:  # held at b0: its σ is the prior's, uncorrelated with the estimates
+        covariance[:3, :3] = np.diag(model.sigma_b**2) if noise.bias_sigma is not None else 0.0
+    return Calibration(
+        name=name, kind=ANGULAR_RATE, output_unit=output_unit or "rad/s", method=ROTATION_METHOD,
+        theta=np.r_[bias, theta[nb:]], covariance=covariance, parameter_names=FULL_PARAM_NAMES,
+        residuals=model.rotations(theta), residual_unit="rad", residual_labels=labels,
+        diagnostics=SolverDiagnostics(
+            iterations=iterations, evaluations=evaluations, converged=converged,
+            message=message, search=method, chi2=chi2, dof=dof,
+            scaled_by_residuals=bool(scaled), condition_number=float(sv[0] / sv[-1]),
+            held=() if start.estimate_bias else BIAS_NAMES, extra_residuals=model.side(theta)))
 
 
 def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bias=False,
@@ -216,7 +622,7 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
                          up_covariance=None,
                          extra_residuals: Callable | None = None, method="lsq", name="gyro",
                          output_unit="") -> Calibration:
-    """Solve K (and b) from the motions between static poses; see the module docstring.
+    """:func:`solve_rotations` from plain arrays.
 
     t (n,), raw (n, 3) gyro output; spans (m, 2) inclusive sample indices of each motion (last
     sample of pose i .. first of pose i+1); up_start, up_end (m, 3) gravity-up in the
@@ -229,159 +635,15 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
     i to pose i+1 (a chain): errors shared by all poses (the accelerometer calibration's) as well
     as each pose's own.
     ``extra_residuals(K_inv, bias)`` returns whitened residuals appended to the rotations' (e.g.
-    turntable rate norms). method: "lsq" (least_squares, Levenberg-Marquardt) or "powell".
+    turntable rate norms). method: "lsq" (Gauss–Newton in the whitened coordinates, its Jacobian
+    updated by Broyden's rule and made afresh after long steps) or "powell" (scipy's); either
+    ends with Gauss–Newton steps on the covariance's central-difference Jacobian.
     Raises CalibrationError for too few motions (ceil(n_params / 2) + 2, fewer with extra
     equations) or motions that leave a parameter undetermined.
     """
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
-    K0 = np.diag(np.broadcast_to(np.asarray(K0, dtype=float), 3)) if np.ndim(K0) < 2 else \
-        np.asarray(K0, dtype=float)
-    k0 = np.diag(K0).copy()
-    if K0.shape != (3, 3) or np.any(np.abs(k0) <= np.abs(K0 - np.diag(k0)).sum(axis=1)):
-        raise ValueError("K0 must be a 3x3 matrix with a dominant diagonal (map the axes first)")
-    b0 = np.broadcast_to(np.asarray(b0, dtype=float), 3).copy()
-    spans = np.asarray(spans, dtype=int).reshape(-1, 2)
-    m = len(spans)
-    up_s, up_e = (np.asarray(u, dtype=float).reshape(m, 3) for u in (up_start, up_end))
-    up_s, up_e = (u / np.linalg.norm(u, axis=1, keepdims=True) for u in (up_s, up_e))
-    shared = np.all(up_e[:-1] == up_s[1:], axis=1)  # consecutive motions around one pose
-    given = up_sigma is not None or rate_noise is not None or motion_variance is not None \
-        or up_covariance is not None
-    if up_covariance is not None and (up_sigma is not None or np.shape(up_covariance) != (3 * m + 3,) * 2):
-        raise ValueError(f"up_covariance: expected a ({3 * m + 3}, {3 * m + 3}) matrix for {m} chained "
-                         "motions, and no up_sigma with it")
-    if not given and (bias_sigma is not None or extra_residuals is not None):
-        raise ValueError("bias_sigma and extra_residuals need up_sigma or rate_noise: the "
-                         "rotation residuals must be whitened too")
-    prior = estimate_bias and bias_sigma is not None
-    sigma_b = np.broadcast_to(np.asarray(bias_sigma if bias_sigma is not None else 1.0, float), 3)
-
-    nb = 3 if estimate_bias else 0
-    names = FULL_PARAM_NAMES if estimate_bias else FULL_PARAM_NAMES[3:]
-    theta0 = np.r_[b0[:nb], np.concatenate(terms_from_k(K0))]
-    p = len(theta0)
-
-    def unpack(theta):
-        bias = theta[:3] if estimate_bias else b0
-        return bias, np.linalg.inv(k_from_terms(theta[nb:nb + 3], theta[nb + 3:]))
-
-    def rotation_residuals(theta, bias=None):
-        b, K_inv = unpack(theta)
-        q = steps.quaternions(K_inv, (b if bias is None else bias) - b0)
-        return np.einsum("mi,mik->mk", _rotate_back(q, up_s) - up_e, E).ravel()
-
-    def side_residuals(theta):
-        b, K_inv = unpack(theta)
-        parts = [(b - b0) / sigma_b] if prior else []
-        if extra_residuals is not None:
-            parts.append(np.atleast_1d(np.asarray(extra_residuals(K_inv, b.copy()), dtype=float)))
-        return np.concatenate(parts) if parts else np.zeros(0)
-
-    n_side = len(side_residuals(theta0))
-    need = max(2, math.ceil((p - n_side) / 2) + _MOTION_MARGIN)
-    if m < need:
-        raise CalibrationError(f"{name}: {m} motions between poses, need at least {need}: "
-                               "add more poses")
-    # The motion samples only, offset by b0 so that raw counts keep their precision.
-    steps = _Steps(np.asarray(raw, dtype=float) - b0, t, spans)
-    E = _tangent_bases(up_e)
-
-    # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
-    natural = np.r_[np.abs(k0)[:nb] / steps.duration.mean(), np.abs(k0), np.ones(6)]
-    fd_steps = 1e-7 * natural
-    J_rot = _jacobian(rotation_residuals, theta0, fd_steps) * natural
-    sv, V = np.linalg.svd(J_rot, full_matrices=False)[1:]
-    weak = sv < _GEOMETRY_RATIO * sv[0]
-    if np.any(weak):
-        loose = [names[i] for i in np.unique(np.argmax(np.abs(V[weak]), axis=1))]
-        raise CalibrationError(
-            f"{name}: the motions do not span enough rotation axes: {', '.join(loose)} barely "
-            f"change the rotations (condition number {sv[0] / max(sv[-1], 1e-300):.3g}); "
-            "turn the unit about other axes")
-
-    # Whitening of [rotation residuals, side residuals]: the side ones come whitened, but a fixed
-    # bias's error is common to all of them, so it is marginalised over the joint vector.
-    whiten = None
-    if given:
-        C = Rotation.from_quat(steps.quaternions(unpack(theta0)[1], 0 * b0)).as_matrix()
-        cov = _residual_covariance(E, C, shared, up_sigma, rate_noise, steps.duration, motion_variance)
-        if up_covariance is not None:
-            cov += _chained_up_covariance(E, C, np.asarray(up_covariance, dtype=float))
-        cov = np.block([[cov, np.zeros((2 * m, n_side))], [np.zeros((n_side, 2 * m)), np.eye(n_side)]])
-        if bias_sigma is not None and not estimate_bias:
-            K_inv0 = unpack(theta0)[1]
-
-            def all_residuals(b):
-                side = extra_residuals(K_inv0, b.copy()) if extra_residuals is not None else []
-                return np.r_[rotation_residuals(theta0, b), np.atleast_1d(np.asarray(side, dtype=float))]
-            G = _jacobian(all_residuals, b0, 1e-6 * np.abs(k0))
-            cov += G @ np.diag(sigma_b**2) @ G.T
-        try:
-            whiten = np.linalg.inv(np.linalg.cholesky(cov))
-        except np.linalg.LinAlgError:
-            raise CalibrationError(f"{name}: the residual covariance is not positive "
-                                   "definite") from None
-
-    count = [0]
-
-    def whitened(theta):
-        count[0] += 1
-        r = np.r_[rotation_residuals(theta), side_residuals(theta)]
-        return r if whiten is None else whiten @ r
-
-    J_side = _jacobian(side_residuals, theta0, fd_steps) * natural
-    J0 = np.vstack([J_rot, J_side])
-    J0 = J0 if whiten is None else whiten @ J0
-    # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
-    to_theta = natural[:, None] * np.linalg.inv(np.linalg.qr(J0, mode="r"))
-    if method == "powell":
-        res = optimize.minimize(lambda z: float(np.sum(whitened(theta0 + to_theta @ z) ** 2)),
-                                np.zeros(p), method="Powell",
-                                options={"direc": np.eye(p), "xtol": 1e-4, "ftol": 1e-13,
-                                         "maxfev": 20000})
-        iterations = int(res.nit)
-    else:
-        res = optimize.least_squares(lambda z: whitened(theta0 + to_theta @ z), np.zeros(p),
-                                     method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
-        iterations = int(res.nfev)
-    evaluations = count[0]
-    if not res.success:
-        raise CalibrationError(f"{name}: {method} did not converge ({res.message})")
-    theta = theta0 + to_theta @ res.x
-    r_w = whitened(theta)
-    chi2, dof = float(r_w @ r_w), len(r_w) - p
-    J = _jacobian(whitened, theta, fd_steps) * natural
-    sv = np.linalg.svd(J, compute_uv=False)
-    try:
-        cov_natural = np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        raise CalibrationError(f"{name}: the motions do not determine the parameters") from None
-    scaled = not given or (dof > 0 and chdtrc(dof, chi2) < 1e-3)
-    if scaled:
-        if dof <= 0:
-            raise CalibrationError(f"{name}: no scatter left to estimate the uncertainty; "
-                                   "add poses or give up_sigma/rate_noise")
-        cov_natural *= chi2 / dof
-    sigma_natural = np.sqrt(np.diag(cov_natural))
-    worst = int(np.argmax(sigma_natural))
-    if sigma_natural[worst] > _DEGENERATE_FRACTION:
-        raise CalibrationError(f"{name}: the motions do not span enough rotation axes: "
-                               f"{names[worst]} is determined only to ±{sigma_natural[worst]:.2g} "
-                               "of its scale; turn the unit about other axes")
-    bias = unpack(theta)[0].copy()
-    pose = np.cumsum(np.r_[0, ~shared]) + np.arange(m)  # poses numbered from 0, shared or not
-    labels = tuple(f"motion {a + 1}→{a + 2} {c}" for a in pose for c in "ab")
-    covariance = np.zeros((len(FULL_PARAM_NAMES),) * 2)
-    covariance[3 - nb:, 3 - nb:] = cov_natural * np.outer(natural, natural)
-    if not estimate_bias:  # held at b0: its σ is the prior's, uncorrelated with the estimates
-        covariance[:3, :3] = np.diag(sigma_b**2) if bias_sigma is not None else 0.0
-    return Calibration(
-        name=name, kind=ANGULAR_RATE, output_unit=output_unit or "rad/s", method=ROTATION_METHOD,
-        theta=np.r_[bias, theta[nb:]], covariance=covariance, parameter_names=FULL_PARAM_NAMES,
-        residuals=rotation_residuals(theta), residual_unit="rad", residual_labels=labels,
-        diagnostics=SolverDiagnostics(
-            iterations=iterations, evaluations=evaluations, converged=bool(res.success),
-            message=str(res.message), search=method, chi2=chi2, dof=dof,
-            scaled_by_residuals=bool(scaled), condition_number=float(sv[0] / sv[-1]), held=() if estimate_bias else BIAS_NAMES,
-            extra_residuals=side_residuals(theta)))
+    start = RotationStart.of(K0, b0, estimate_bias)
+    return solve_rotations(Motions.of(t, raw, spans, up_start, up_end), start,
+                           RotationNoise(bias_sigma, up_sigma, rate_noise, motion_variance, up_covariance),
+                           extra_residuals, method, name, output_unit)

@@ -1,0 +1,118 @@
+"""fieldcal on the public real recordings in tests/data/real: the README's real-data table.
+
+Per recording: the poses found, the accelerometer's fit (RMS of |a| − g per sample and per
+interval mean, on fieldcal's own intervals, and on the intervals it shares with the peer tool
+where the peer's are published), the main parameters ± 1σ, and the source's or peer's result
+on the same data where one exists (imucal is run on its own session when installed).
+
+    python benchmarks/real_data.py
+"""
+from __future__ import annotations
+
+import datetime
+import gzip
+import json
+import tempfile
+from pathlib import Path
+
+import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only before numpy loads)
+import numpy as np
+
+from fieldcal.earth import Station
+from fieldcal.model import calibrate_with
+from fieldcal.recording.calibrate import UnknownPlace, calibrate_recording
+from fieldcal.recording.detect import interval_means
+from fieldcal.recording.importer import import_recording
+
+REAL = Path(__file__).resolve().parent.parent / "tests" / "data" / "real"
+
+
+def unpacked(tmp: Path, name: str) -> Path:
+    path = tmp / name.removesuffix(".gz")
+    path.write_bytes(gzip.decompress((REAL / name).read_bytes()))
+    return path
+
+
+def residuals(recording, acc, intervals, gravity) -> tuple[float, float]:
+    """RMS of |a| − g (m/s²) over every sample of the intervals, and over their means."""
+    raw = recording.triads["accelerometer"]
+    samples = np.concatenate([raw[a:b] for a, b in intervals])  # a loop over intervals
+    per_sample = np.linalg.norm(calibrate_with(acc.theta, samples), axis=1) - gravity
+    per_mean = np.linalg.norm(calibrate_with(acc.theta, interval_means(raw, intervals)), axis=1) - gravity
+    return float(np.sqrt(np.mean(per_sample**2))), float(np.sqrt(np.mean(per_mean**2)))
+
+
+def common(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+    """The overlaps of two sets of [start, stop) intervals."""
+    start = np.maximum(ours[:, None, 0], theirs[None, :, 0])
+    stop = np.minimum(ours[:, None, 1], theirs[None, :, 1])
+    keep = stop - start > 0
+    return np.column_stack([start[keep], stop[keep]])
+
+
+def pm(values, sigmas, fmt="{:.5g}") -> str:
+    return ", ".join(f"{fmt.format(v)} ± {s:.2g}" for v, s in zip(values, sigmas))
+
+
+def main() -> int:
+    print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC")
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        # imu_tk's Xsens recording: 100 Hz counts; where it was made is not published.
+        paths = [unpacked(tmp, f"imu_tk_xsens_{k}.mat.gz") for k in ("acc", "gyro")]
+        rec = import_recording(paths, "imu_tk")
+        g = 9.81744
+        cal = calibrate_recording(rec, Station(45.0, 0.0, g))
+        acc, gyro = cal.specific_force["accelerometer"], cal.angular_rate["gyroscope"]
+        print(f"imu_tk Xsens: {len(cal.poses.intervals)} intervals, {cal.spread.count} distinct; "
+              "RMS(|a|-g) per sample %.4g, per interval mean %.4g m/s^2" % residuals(rec, acc, cal.poses.intervals, g))
+        print(f"  acc bias (counts) {pm(acc.bias, acc.sigma[:3])}; scale (counts per m/s^2) "
+              f"{pm(np.diag(acc.K), acc.sigma[3:6])}")
+        print(f"  gyro scale (counts per rad/s) {pm(np.diag(gyro.K), gyro.sigma[3:6])}; bias (counts) "
+              f"{pm(gyro.bias, gyro.sigma[:3])}")
+
+        # imucal's Ferraris session: 102.4 Hz, m/s^2 and deg/s, imucal's own sections.
+        path = unpacked(tmp, "imucal_ferraris_session.csv.gz")
+        rec = import_recording([path], "imucal", rate_hz=102.4)
+        g = 9.81
+        cal = calibrate_recording(rec, UnknownPlace(gravity=g))
+        acc, gyro = cal.specific_force["accelerometer"], cal.angular_rate["gyroscope"]
+        sections = json.loads((REAL / "imucal_ferraris_session_list.json").read_text())
+        theirs = np.array([[sections[k]["start"], sections[k]["end"]] for k in
+                           ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")])
+        shared = common(cal.poses.intervals, theirs)
+        print(f"imucal Ferraris: {len(cal.poses.intervals)} intervals, {cal.spread.count} faces, "
+              f"{len(gyro.residuals)} turns; on the {len(shared)} intervals shared with imucal's sections: "
+              "RMS(|a|-g) per sample %.4g, per interval mean %.4g m/s^2 (fieldcal)" % residuals(rec, acc, shared, g))
+        print(f"  acc bias (m/s^2) {pm(acc.bias, acc.sigma[:3])}; scale {pm(np.diag(acc.K), acc.sigma[3:6])}")
+        print(f"  gyro bias (deg/s) {pm(gyro.bias, gyro.sigma[:3])}; scale (deg/s per rad/s) "
+              f"{pm(np.diag(gyro.K), gyro.sigma[3:6])}")
+        try:
+            import imucal
+            import pandas as pd
+        except ImportError:
+            print("  imucal: not installed (pip install imucal)")
+        else:
+            data = pd.read_csv(path, header=0, index_col=0)
+            regions = imucal.ferraris_regions_from_section_list(
+                data, pd.read_json(REAL / "imucal_ferraris_session_list.json").T)
+            info = imucal.FerrarisCalibration(grav=g).compute(
+                regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+            M = info.K_a @ info.R_a
+            theirs_res = []
+            for a, b in shared:
+                v = rec.triads["accelerometer"][a:b]
+                a_cal = np.linalg.solve(M, (v - info.b_a).T).T
+                theirs_res.append(np.linalg.norm(a_cal, axis=1) - g)
+            per_sample = float(np.sqrt(np.mean(np.concatenate(theirs_res) ** 2)))
+            means = interval_means(rec.triads["accelerometer"], shared)
+            per_mean = float(np.sqrt(np.mean((np.linalg.norm(np.linalg.solve(M, (means - info.b_a).T), axis=0) - g) ** 2)))
+            print(f"  imucal on the same intervals: RMS(|a|-g) per sample {per_sample:.4g}, per interval mean "
+                  f"{per_mean:.4g} m/s^2; acc bias {np.round(info.b_a, 5).tolist()}, scale "
+                  f"{np.round(np.diag(M), 5).tolist()}; gyro bias {np.round(info.b_g, 4).tolist()} deg/s, "
+                  f"scale {np.round(np.diag(info.K_g @ info.R_g) * 180 / np.pi, 4).tolist()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,171 @@
+"""The real-world simulator mode (drivers/sim/realworld.py), one failure mode of issue 11 at a
+time: each recording is either calibrated with every parameter within 3σ of the simulator's
+truth, or refused with a reason that names what is missing. Also the recording path's helpers
+for real gyros (fieldcal/recording/drift.py) on hand-worked examples."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.sim.handheld import RealWorld, simulate_handheld
+from fieldcal.earth import Station
+from fieldcal.model import params_from_k
+from fieldcal.recording import Recording
+from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
+from fieldcal.recording.detect import DetectionError
+from fieldcal.recording.drift import effective_count, rail_samples, regular_times, saturated_spans, still_bias
+from fieldcal.recording.results import summary_lines
+
+OFF = RealWorld(g_sensitivity_deg_s_per_g=0.0, warm_up_deg_s=0.0, temperature_ramp_k=0.0,
+                bias_tempco_deg_s_per_k=0.0, jitter_s=0.0, drop_fraction=0.0)
+FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+# 360° each (2 s ramps); the turns take more of the quiet time than the poses.
+FERRARIS = dict(n_poses=6, directions=FACES, initial_rest_s=5.0,
+                table_turns=((0, 30.0, 10.0), (2, -40.0, 7.0), (4, 45.0, 6.0)))
+
+MODES = {
+    "g-sensitivity": (dict(g_sensitivity_deg_s_per_g=0.15), {}),
+    "warm-up": (dict(warm_up_deg_s=0.1, warm_up_tau_s=60.0), {}),
+    "temperature": (dict(temperature_ramp_k=5.0, bias_tempco_deg_s_per_k=0.01, acc_bias_tempco_mg_per_k=0.2,
+                         scale_tempco_ppm_per_k=150.0), {}),
+    "bias random walk": (dict(bias_random_walk_deg_s_per_sqrt_s=1e-3), {}),
+    "turn-on bias": (dict(turn_on_bias_deg_s=0.5, turn_on_bias_mg=20.0), {}),
+    "gyro clipping": (dict(gyro_range_deg_s=125.0), {}),
+    "jitter and drops": (dict(jitter_s=2e-3, drop_fraction=0.01), {}),
+    "pose tremor": (dict(pose_tremor_deg_s=0.3, pose_tremor_share=0.5), {}),
+    "no initial rest": (dict(late_start=True), {}),
+    "short initial rest": ({}, dict(initial_rest_s=2.5)),
+    "Ferraris with drops, SI": (dict(jitter_s=1e-3, drop_fraction=0.01), dict(FERRARIS, raw_counts=False)),
+    "Ferraris with warm-up": (dict(warm_up_deg_s=0.1, warm_up_tau_s=60.0), dict(FERRARIS, raw_counts=False)),
+    "Ferraris with drops, counts": (dict(jitter_s=1e-3, drop_fraction=0.01, g_sensitivity_deg_s_per_g=0.1),
+                                    dict(FERRARIS, raw_counts=True)),
+}
+
+
+def simulate(effects: dict, seed: int = 5, **kwargs):
+    args = dict(n_poses=16)
+    args.update(kwargs)
+    return simulate_handheld(seed, real_world=RealWorld(**{**OFF.__dict__, **effects}), **args)
+
+
+def calibrate(sim):
+    # As with a device config: the triads' noise (the datasheet's) is known.
+    settings = RecordingSettings(noise={name: truth.noise for name, truth in sim.truth.items()})
+    return calibrate_recording(Recording(sim.t, sim.triads, sim.kinds, sim.units),
+                               Station(sim.latitude_deg, 0.0, sim.gravity), settings)
+
+
+def errors_in_sigma(cal, sim) -> np.ndarray:
+    """(solved − true)/σ of every parameter of both triads, in the parameter file's terms."""
+    z = []
+    for name, sol in {**cal.specific_force, **cal.angular_rate}.items():
+        truth = sim.truth[name]
+        z.append((sol.file_theta - params_from_k(truth.K, truth.bias, full=True)) / sol.file_sigma)
+    return np.concatenate(z)
+
+
+@pytest.mark.parametrize("mode", sorted(MODES))
+def test_each_failure_mode_is_calibrated_within_3_sigma_of_the_truth(mode):
+    effects, kwargs = MODES[mode]
+    sim = simulate(effects, **kwargs)
+    cal = calibrate(sim)
+    assert not cal.failures, cal.failures
+    assert set(cal.angular_rate) == {"gyroscope"}
+    assert cal.protocol.startswith("Ferraris") == mode.startswith("Ferraris")
+    z = errors_in_sigma(cal, sim)
+    assert np.all(np.abs(z) < 3.0), z
+
+
+def test_the_effects_are_in_the_data():
+    """Each effect changes what a logger writes (else the tests above would prove nothing)."""
+    plain = simulate({})
+    clipped = simulate(MODES["gyro clipping"][0])
+    assert not rail_samples(plain.gyroscope).any() and rail_samples(clipped.gyroscope).sum() >= 3
+    late = simulate(MODES["no initial rest"][0])
+    assert late.static[0, 0] > 0 and len(late.static) == len(plain.static) - 1
+    assert late.t[0] > plain.static[0, 1] / plain.rate_hz  # the log starts after the first pose
+    dropped = simulate(MODES["jitter and drops"][0])
+    assert len(dropped.t) < len(plain.t) and np.diff(dropped.t).max() > 1.5 / dropped.rate_hz
+    tremor = simulate(MODES["pose tremor"][0])
+    spread = [np.std(s.gyroscope[a:b], axis=0).max() for s in (plain, tremor) for a, b in s.static[1:2]]
+    warm = simulate(MODES["warm-up"][0])
+    first, last = (warm.gyroscope[a:b].mean(axis=0) - plain.gyroscope[a:b].mean(axis=0)
+                   for a, b in warm.static[[0, -1]])
+    assert np.all(np.abs(first) > np.abs(last))  # warmer at the start
+    turned_on = simulate(MODES["turn-on bias"][0])
+    assert not np.allclose(turned_on.truth["gyroscope"].bias, plain.truth["gyroscope"].bias)
+    assert spread[1] > 1.5 * spread[0] or any(np.std(tremor.gyroscope[a:b], axis=0).max() > 1.5 * spread[0]
+                                              for a, b in tremor.static)
+
+
+def test_clipped_motions_are_left_out_and_said():
+    sim = simulate(MODES["gyro clipping"][0])
+    cal = calibrate(sim)
+    assert cal.notes and "end of its range" in cal.notes[0]
+    assert any("end of its range" in line for line in summary_lines(cal))
+
+
+def test_too_few_poses_are_refused_naming_what_is_missing():
+    sim = simulate({}, n_poses=7)
+    with pytest.raises(DetectionError, match=r"only \d+ distinct poses \(need at least 9\): add poses"):
+        calibrate(sim)
+
+
+def test_a_ferraris_session_without_its_first_turn_names_the_missing_turn():
+    """The log starts during the turn about x: the six faces are there (x up again after the
+    turn), the accelerometer calibrates, the gyro is refused naming the turn to add."""
+    sim = simulate(dict(late_start=True), **FERRARIS)
+    cal = calibrate(sim)
+    assert cal.protocol.startswith("Ferraris") and set(cal.specific_force) == {"accelerometer"}
+    assert "full turns about x missing" in cal.failures["gyroscope"]
+    z = errors_in_sigma(cal, sim)
+    assert np.all(np.abs(z) < 3.0), z
+
+
+# The helpers, on hand-worked examples --------------------------------------------------------
+
+def test_rails_are_runs_at_the_extreme_value_not_single_peaks():
+    values = np.tile([[0.1, -0.2, 0.3]], (12, 1)) + 0.01 * np.arange(12)[:, None] % 0.03
+    values[3:7, 0] = 5.0  # four samples at the top: a rail
+    values[9, 1] = 2.0  # one peak
+    values[1:3, 2] = -1.0  # two at the bottom: a peak's flat top, not a rail
+    assert np.flatnonzero(rail_samples(values)).tolist() == [3, 4, 5, 6]
+    assert saturated_spans(values, np.array([[0, 3], [2, 5], [7, 12]])).tolist() == [False, True, False]
+    assert not rail_samples(np.ones((10, 3))).any()  # a constant axis is not clipped
+
+
+def test_still_bias_fits_g_sensitivity_and_drift_and_centres_the_drift():
+    """Readings = bias + G·up + drift·t exactly: the bias at the centre comes out to rounding,
+    whatever the orientations and the drift."""
+    rng = np.random.default_rng(3)
+    up = rng.standard_normal((14, 3))
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    times = np.sort(rng.uniform(0.0, 300.0, 14))
+    bias, G, drift = np.array([0.1, -0.2, 0.3]), rng.normal(0, 0.01, (3, 3)), np.array([1e-4, 0.0, -2e-4])
+    still = bias + up @ G.T + np.outer(times - 150.0, drift)
+    found, sigma = still_bias(still, np.full(3, 1e-12), up, times, centre=150.0)
+    np.testing.assert_allclose(found, bias, atol=1e-12)
+    assert np.all(sigma < 1e-5)
+    # Without the orientations and times it is the plain mean, its σ the spread over √m.
+    found, sigma = still_bias(still, np.zeros(3))
+    np.testing.assert_allclose(found, still.mean(axis=0))
+
+
+def test_effective_count_is_smaller_for_a_trend_than_for_noise():
+    rng = np.random.default_rng(1)
+    noise = rng.standard_normal((200, 1))
+    trend = np.linspace(-1, 1, 200)[:, None]
+    assert effective_count(noise)[0] > 150
+    assert effective_count(trend)[0] < 10
+
+
+def test_regular_times_take_out_jitter_and_keep_gaps_and_clock_rate():
+    rng = np.random.default_rng(2)
+    index = np.delete(np.arange(1000), [10, 11, 500])  # three dropped samples
+    grid = 3.0 + index * 0.01 * (1 + 50e-6)  # a clock 50 ppm fast
+    jittered = grid + rng.uniform(-0.002, 0.002, len(grid))
+    # The grid's line is fitted through the jitter: right to ~jitter/√n, twenty times better here.
+    assert np.max(np.abs(regular_times(jittered, 100.0) - grid)) < 1e-4
+    assert np.max(np.abs(jittered - grid)) > 1.9e-3
+    uneven = np.cumsum(rng.uniform(0.005, 0.015, 1000))  # no grid at all: kept as they are
+    np.testing.assert_array_equal(regular_times(uneven, 100.0), uneven)
