@@ -66,7 +66,8 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
     tui.add_argument("--no-capture", action="store_true", help="do not write a session")
     tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
     tui.add_argument("--resume", metavar="SESSION",
-                     help="continue this unfinished (quit) simulated session after its last completed step")
+                     help="continue this unfinished (quit) session after its last completed step; a live "
+                     "device's on the ports of --config (default: the setup's last config)")
     tui.set_defaults(func=cmd_tui)
     return tui
 
@@ -79,7 +80,12 @@ def cmd_tui(args) -> int:
             raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
         return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay))
     if args.resume is not None:
-        return run_tui(None, _resume_speed(args), None, None, resume=resumable(args.resume))
+        from fieldcal.tui.app import live_device_of
+
+        session = resumable(args.resume)
+        live = live_device_of(session)
+        config = resume_config(session, live, args.config) if live is not None else None
+        return run_tui(None, _resume_speed(args), None, None, config=config, resume=session)
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
 
@@ -106,13 +112,30 @@ def resumable(session: str) -> Path:
         raise ValueError(f"--resume: {session} already ended ({reader.stop_reason}); "
                          + ("a completed session is never resumed: replay it with `fieldcal tui --replay`"
                             if reader.stop_reason == "completed" else "nothing to resume"))
-    if spec.live is not None:
-        raise ValueError(f"--resume: {session} is a live device's session; resuming a live run is not "
-                         "supported yet (start again)")
     if reader.start.get("device", {}).get("link") == "pty":
         raise ValueError(f"--resume: {session} ran through a serial device, which cannot be rewound; "
                          "replay it, or run again")
     return Path(session)
+
+
+def resume_config(session: Path, live, config_name: str | None):
+    """The station config whose ports a live session is resumed on: ``--config``, else the
+    setup screen's last choice (with its ports); a one-line ValueError if neither is of the
+    session's device (``live``) or its ports cannot be opened."""
+    from fieldcal.tui.choices import load_choice_config, load_last_choice, resolve_choice
+    from fieldcal.tui.live_source import check_same_device
+
+    if config_name is not None:
+        config = load_choice_config(config_name)
+    else:
+        choice = load_last_choice()
+        if choice is None:
+            raise ValueError(f"--resume: {session} is a live device's session: give its station config "
+                             "(the ports) with --config")
+        config = resolve_choice(choice)[0]
+    check_same_device(live, config, session)
+    check_ports(config)
+    return config
 
 
 def _resume_speed(args) -> float:

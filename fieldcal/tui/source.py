@@ -41,7 +41,7 @@ from fieldcal.run.pacing import Pacer
 from fieldcal.tui.readings import RecentSamples, Telemetry
 
 __all__ = ["ABORT", "BUMP", "COMMANDS", "FLUSH_S", "MISPLACE", "QUIT", "READY", "REDO", "SKIP", "Mode",
-           "Note", "Outcome", "Pacer", "ReplaySource", "SimSource", "Sink", "Source", "wrong_position"]
+           "Note", "Outcome", "ResumeNote", "Pacer", "ReplaySource", "SimSource", "Sink", "Source", "wrong_position"]
 
 FLUSH_S = 0.1  # at most one UI update per this much wall time
 
@@ -63,6 +63,15 @@ class Note:
 
     t: float
     text: str
+
+
+@dataclass(frozen=True)
+class ResumeNote(Note):
+    """Where a resumed run goes on: a log line, and the banner's first line until the unit is
+    placed (``warn``: completed steps are measured again)."""
+
+    banner: str = ""
+    warn: bool = False
 
 
 class Sink(Protocol):
@@ -294,8 +303,9 @@ class SimSource(Source):
         self.recorder = SessionRecorder.append_to(self.session_dir)
         conductor.subscribers.insert(0, self.recorder)
         done = len(steps)
-        self._items.append(Note(conductor.engine.t, f"resuming {self.session_dir.name} after {done} completed "
-                                f"step{'s' if done != 1 else ''}: place the unit for the next step"))
+        self._items.append(ResumeNote(conductor.engine.t, f"resuming {self.session_dir.name} after {done} "
+                                      f"completed step{'s' if done != 1 else ''}: place the unit for the next step",
+                                      f"RESUMED after {done} completed step{'s' if done != 1 else ''}"))
         return conductor
 
     def _session_after_error(self) -> Path | None:

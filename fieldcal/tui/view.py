@@ -16,7 +16,7 @@ from fieldcal.procedure.positions import Procedure
 from fieldcal.run.progress import describe
 from fieldcal.tui.guidance import placement
 from fieldcal.tui.readings import Telemetry
-from fieldcal.tui.source import Note
+from fieldcal.tui.source import Note, ResumeNote
 
 TODO, ACTIVE, DONE, SKIPPED, WRONG = "todo", "active", "done", "skipped", "wrong"
 # Each tile's state as a symbol too, for a monochrome or colour-blind operator.
@@ -99,6 +99,7 @@ class RunView:
     carrying: bool = False  # the simulator is carrying the unit into place (r pressed)
     unit_at: object | None = None  # the Position the unit was last found still in
     looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
+    resumed: ResumeNote | None = None  # a resumed run, until its first unit is placed
 
     def __post_init__(self) -> None:
         if not self.tiles:
@@ -124,6 +125,8 @@ class RunView:
     def apply(self, item) -> str | None:
         """Fold one event or note in; the log line for it (None if it has none)."""
         self.last_t = max(self.last_t, item.t)
+        if isinstance(item, ResumeNote):
+            self.resumed = item
         if isinstance(item, Note):
             return f"[{item.t:7.1f} s] {item.text}"
         self._fold(item)
@@ -150,7 +153,7 @@ class RunView:
             self.wrong, self.looks_like = e.message, e.looks_like
             self.tiles[self.step] = WRONG
         elif isinstance(e, ev.Still):
-            self.wrong = None
+            self.wrong, self.resumed = None, None
             self.tiles[self.step] = ACTIVE
             if not self.placed:
                 self.placing_s.append(e.t - self.step_t0)
@@ -307,6 +310,8 @@ class RunView:
             text = f"Position {p.id}: {move.text}" + ("; r: the simulator does it" if sim else ", then press r")
             if move.heading_only and self.unit_at is not None:
                 text += "\nOnly the heading changes, which the check cannot see: check it by eye"
+            if self.resumed is not None:
+                return f"{self.resumed.banner}\n{text}", "warn" if self.resumed.warn else "act"
             return text, "act"
         if phase == en.WRONG:
             by_id = {q.id: q for q in self.procedure.positions}
