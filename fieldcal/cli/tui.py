@@ -98,23 +98,21 @@ def cmd_tui(args) -> int:
         procedure = load_procedure(args.procedure or "field-18")
         spec, session_dir, speed = make_run(config, procedure)
         return run_tui(spec, speed, session_dir, None, config=config)
-    return run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run))
+    return run_tui(None, 0.0, None, None,
+                   setup=(_initial_choice(args), make_run, Path(args.out), resume_maker(args)))
 
 
 def resumable(session: str) -> Path:
     """The session ``--resume`` continues; a one-line ValueError for one it cannot."""
     from fieldcal.cli.sessions import _procedure_session
+    from fieldcal.tui.choices import resume_refusal
 
     if not Path(session, "log.jsonl").is_file():
         raise ValueError(f"--resume: {session} is not a session directory (no log.jsonl)")
-    reader, spec, _ = _procedure_session(session)
-    if reader.stopped:
-        raise ValueError(f"--resume: {session} already ended ({reader.stop_reason}); "
-                         + ("a completed session is never resumed: replay it with `fieldcal tui --replay`"
-                            if reader.stop_reason == "completed" else "nothing to resume"))
-    if reader.start.get("device", {}).get("link") == "pty":
-        raise ValueError(f"--resume: {session} ran through a serial device, which cannot be rewound; "
-                         "replay it, or run again")
+    reader, _, _ = _procedure_session(session)
+    refusal = resume_refusal(reader)
+    if refusal is not None:
+        raise ValueError(f"--resume: {session} {refusal}")
     return Path(session)
 
 
@@ -123,7 +121,6 @@ def resume_config(session: Path, live, config_name: str | None):
     setup screen's last choice (with its ports); a one-line ValueError if neither is of the
     session's device (``live``) or its ports cannot be opened."""
     from fieldcal.tui.choices import load_choice_config, load_last_choice, resolve_choice
-    from fieldcal.tui.live_source import check_same_device
 
     if config_name is not None:
         config = load_choice_config(config_name)
@@ -133,9 +130,31 @@ def resume_config(session: Path, live, config_name: str | None):
             raise ValueError(f"--resume: {session} is a live device's session: give its station config "
                              "(the ports) with --config")
         config = resolve_choice(choice)[0]
+    return _checked_for(live, config, session)
+
+
+def _checked_for(live, config, session: Path):
+    """``config``, if it is the session's device (``live``) and its ports open."""
+    from fieldcal.tui.live_source import check_same_device
+
     check_same_device(live, config, session)
     check_ports(config)
     return config
+
+
+def resume_maker(args):
+    """``make_resume(session, config) -> (speed, config)`` for the setup screen's Resume: a
+    simulated session at the command line's speed (no config needed), a live one on the ports
+    of the setup's ``config``; a one-line ValueError for what cannot be resumed."""
+    def make_resume(session: Path, config):
+        from fieldcal.tui.app import live_device_of
+
+        resumable(str(session))
+        live = live_device_of(session)
+        if live is None:
+            return _resume_speed(args), None
+        return 0.0, _checked_for(live, config, session)
+    return make_resume
 
 
 def _resume_speed(args) -> float:

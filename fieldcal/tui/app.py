@@ -54,7 +54,10 @@ class FieldcalApp(App[int]):
         ``setup``: instead of a run, ``(initial, make_run)``: the setup screen opens with the
         ``SetupChoice`` ``initial`` (or none), and the operator's choice, resolved to a config and
         a procedure, goes to ``make_run(config, procedure) -> (spec, session_dir, speed)``, whose
-        ValueError goes back to the setup screen.
+        ValueError goes back to the setup screen. ``(initial, make_run, sessions, make_resume)``:
+        the setup screen also offers the unfinished sessions in the directory ``sessions``, and
+        one chosen goes to ``make_resume(session, config) -> (speed, config)`` (the config of a
+        live session's ports, None for a simulated one).
         """
         super().__init__()
         self.speed = float(speed)
@@ -125,7 +128,8 @@ class FieldcalApp(App[int]):
     def _ask_setup(self, initial, error: str = "") -> None:
         from fieldcal.tui.screens.setup import SetupScreen
 
-        screen = SetupScreen(initial)
+        sessions = self.setup[2] if len(self.setup) > 2 else None
+        screen = SetupScreen(initial, sessions=sessions)
         self.push_screen(screen, callback=lambda choice: self._chosen(screen, choice))
         if error:
             self.call_after_refresh(screen.set_error, error)
@@ -134,6 +138,11 @@ class FieldcalApp(App[int]):
         if choice is None:
             self.exit(1)
             return
+        from fieldcal.tui.screens.setup import ResumeChoice
+
+        if isinstance(choice, ResumeChoice):
+            self._resume_chosen(screen, choice)
+            return
         config, procedure = screen.resolved
         try:
             spec, session_dir, speed = self.setup[1](config, procedure)
@@ -141,6 +150,16 @@ class FieldcalApp(App[int]):
             self._prepare(spec, session_dir, None, config)
         except ValueError as exc:
             self._ask_setup(choice, str(exc).splitlines()[0])
+            return
+        self._begin()
+
+    def _resume_chosen(self, screen, choice) -> None:
+        try:
+            speed, config = self.setup[3](choice.session, screen.resolved[0] if choice.live else None)
+            self.speed = float(speed)
+            self._prepare(None, None, None, config, resume=choice.session)
+        except ValueError as exc:
+            self._ask_setup(self.setup[0], str(exc).splitlines()[0])
             return
         self._begin()
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import queue
 import time
+from dataclasses import replace
 from collections.abc import Callable
 from pathlib import Path
 
@@ -130,7 +131,9 @@ class LiveSource(SimSource):
         conductor.subscribers.insert(0, self.recorder)
         self.bench.say = conductor.say
         self._say_reading(conductor)
-        self._items.append(self._resume_note(steps, kept, why, conductor.engine.t))
+        note = self._resume_note(steps, kept, why, conductor.engine.t)
+        self._items.append(replace(note, done=tuple(conductor.engine.records),
+                                   skipped=tuple(conductor.engine.skipped)))
         return conductor
 
     def _kept_after(self, steps) -> tuple[list, str]:
@@ -189,8 +192,6 @@ class LiveSource(SimSource):
         self._flush()
 
     def telemetry(self):
-        from dataclasses import replace
-
         telemetry = super().telemetry()
         # Silent only once everything read has been fed: a batch that takes a while to feed (a
         # loaded station) is not a device that stopped.

@@ -67,11 +67,13 @@ class Note:
 
 @dataclass(frozen=True)
 class ResumeNote(Note):
-    """Where a resumed run goes on: a log line, and the banner's first line until the unit is
-    placed (``warn``: completed steps are measured again)."""
+    """Where a resumed run goes on: a log line, the banner's first line until the unit is placed
+    (``warn``: completed steps are measured again), and the steps kept done and skipped."""
 
     banner: str = ""
     warn: bool = False
+    done: tuple[int, ...] = ()
+    skipped: tuple[int, ...] = ()
 
 
 class Sink(Protocol):
@@ -250,9 +252,11 @@ class SimSource(Source):
         from fieldcal.run.runner import SimulatedBench
 
         bench = SimulatedBench(spec)
-        if speed > 0:  # chunks of about FLUSH_S wall time, so the display moves smoothly
-            bench.chunk_n = max(1, min(bench.chunk_n, round(spec.rate_hz * FLUSH_S * speed)))
-        return bench
+        if speed <= 0:
+            return bench
+        # Chunks of about FLUSH_S wall time, so the display moves smoothly.
+        bench.chunk_n = max(1, min(bench.chunk_n, round(spec.rate_hz * FLUSH_S * speed)))
+        return SmoothHands(bench)
 
     @classmethod
     def resuming(cls, directory: Path, sink: Sink, speed: float,
@@ -305,7 +309,8 @@ class SimSource(Source):
         done = len(steps)
         self._items.append(ResumeNote(conductor.engine.t, f"resuming {self.session_dir.name} after {done} "
                                       f"completed step{'s' if done != 1 else ''}: place the unit for the next step",
-                                      f"RESUMED after {done} completed step{'s' if done != 1 else ''}"))
+                                      f"RESUMED after {done} completed step{'s' if done != 1 else ''}",
+                                      done=tuple(conductor.engine.records), skipped=tuple(conductor.engine.skipped)))
         return conductor
 
     def _session_after_error(self) -> Path | None:
@@ -346,6 +351,38 @@ class SimSource(Source):
             return [Say(f"operator: {command}"), Act(command)]
         self.bump_times.append(e.t)  # BUMP
         return [Say("operator: bump! (the simulator knocks the fixture)"), Bump()]
+
+
+def _pieces(chunks, n: int) -> list:
+    """The same samples in chunks of at most ``n``."""
+    from drivers.chunk import SampleChunk
+
+    out = []
+    for c in chunks:
+        for i in range(0, len(c), n):
+            part = slice(i, i + n)
+            out.append(SampleChunk(c.t[part], {k: v[part] for k, v in c.triads.items()},
+                                   None if c.temperature is None else c.temperature[part],
+                                   {k: v[part] for k, v in c.extras.items()}))
+    return out
+
+
+class SmoothHands:
+    """The simulated bench, its hands' motions (the carry into place, a bump) in chunks as short
+    as its others: at 1× a carry is seconds of samples, and the readings follow it as it
+    happens instead of jumping once it is over. Everything else is the bench's own."""
+
+    def __init__(self, bench):
+        self.bench = bench
+
+    def __getattr__(self, name: str):
+        return getattr(self.bench, name)
+
+    def move_to(self, nominal) -> list:
+        return _pieces(self.bench.move_to(nominal), self.bench.chunk_n)
+
+    def bump(self) -> list:
+        return _pieces(self.bench.bump(), self.bench.chunk_n)
 
 
 class ReplaySource(Source):

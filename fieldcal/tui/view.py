@@ -96,7 +96,7 @@ class RunView:
     placed: bool = False  # the current step's unit has been found still in place
     rates_done: int = 0  # rate steps (±) completed in the current step
     held_while_waiting: bool = False  # the source stops sampling while it waits (the simulator)
-    carrying: bool = False  # the simulator is carrying the unit into place (r pressed)
+    carry_from: int | None = None  # r pressed: the simulator carries the unit, from this many samples
     unit_at: object | None = None  # the Position the unit was last found still in
     looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
     resumed: ResumeNote | None = None  # a resumed run, until its first unit is placed
@@ -127,6 +127,10 @@ class RunView:
         self.last_t = max(self.last_t, item.t)
         if isinstance(item, ResumeNote):
             self.resumed = item
+            for step in item.done:
+                self.tiles[step] = DONE
+            for step in item.skipped:
+                self.tiles[step] = SKIPPED
         if isinstance(item, Note):
             return f"[{item.t:7.1f} s] {item.text}"
         self._fold(item)
@@ -195,6 +199,15 @@ class RunView:
             if self.step < self.total_steps and self.tiles[self.step] in (ACTIVE, WRONG):
                 self.tiles[self.step] = TODO  # not done (the engine did not skip it)
 
+    @property
+    def carrying(self) -> bool:
+        """The simulator is carrying the unit into place (r pressed)."""
+        return self.carry_from is not None
+
+    @carrying.setter
+    def carrying(self, value: bool) -> None:
+        self.carry_from = (self.telemetry.samples if self.telemetry is not None else 0) if value else None
+
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.telemetry = telemetry
         if telemetry.phase != en.PLACE:
@@ -207,8 +220,8 @@ class RunView:
         tel = self.telemetry
         if tel is not None and tel.silent_s is not None:
             return f"no samples for {tel.silent_s:.0f} s" if tel.silent_s >= 1 else "no samples"
-        if self.carrying:
-            return "the simulator is moving the unit"
+        if self.carrying and tel is not None and tel.samples == self.carry_from:
+            return "the simulator is moving the unit"  # until its first samples come
         if self.held_while_waiting and tel is not None and tel.waiting:
             return "the simulator waits for r"
         return None
