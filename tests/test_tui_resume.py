@@ -1,6 +1,7 @@
-"""Issue 15 item 2 for a live device: a quit live run resumed in the terminal UI, with the device
-(the simulator serving Xsens frames on a pty) running on, or power-cycled in between; and the
-device-clock judgement itself, on hand-worked cases and on real frame bytes."""
+"""Issue 15 item 2: the setup screen offers the unfinished sessions; a quit live run resumed in
+the terminal UI, with the device (the simulator serving Xsens frames on a pty) running on, or
+power-cycled in between; and the device-clock judgement itself, on hand-worked cases and on real
+frame bytes."""
 from __future__ import annotations
 
 import numpy as np
@@ -140,8 +141,25 @@ async def _resume(tmp_path, config, world, first_step, carry):
     return app, banner, log
 
 
+def _the_config_must_be_the_sessions_device(tmp_path, config):
+    """`tui --resume` of a live session: which config gives the ports, in one line if none fits."""
+    from fieldcal.cli.tui import resume_config
+    from fieldcal.tui.app import live_device_of
+
+    session = tmp_path / "session"
+    live = live_device_of(session)
+    assert live.name == "bench MTi" and live.serial == "SN-42"
+    with pytest.raises(ValueError, match="give its station config \\(the ports\\) with --config"):
+        resume_config(session, live, None)  # (XDG_CONFIG_HOME is empty: no remembered setup)
+    with pytest.raises(ValueError, match="was recorded from bench MTi \\(serial SN-42, xsens\\); .*sim.yaml is"):
+        resume_config(session, live, "sim")
+    assert resume_config(session, live, str(config.path)).device.port.url == config.device.port.url
+
+
 @run_async
-async def test_a_live_run_resumed_on_a_device_that_ran_on_continues_after_its_last_step(tmp_path, served):
+async def test_a_live_run_resumed_on_a_device_that_ran_on_continues_after_its_last_step(tmp_path, served,
+                                                                                       monkeypatch):
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
     devices = served[0]
     world = WorldClock(devices)
     procedure = two_positions(tmp_path, SHORT)
@@ -149,6 +167,7 @@ async def test_a_live_run_resumed_on_a_device_that_ran_on_continues_after_its_la
     (first,) = SessionReader(tmp_path / "session").steps()
     clock = first["bench"]["device_clock"]
     assert clock["time_s"] > 0 and 0 <= clock["counter"] < 65536 and clock["host_utc"] > 0
+    _the_config_must_be_the_sessions_device(tmp_path, config)
 
     app, banner, log = await _resume(tmp_path, config, world, 1,
                                      lambda attitude: devices.carry(attitude, 2.0).result(timeout=60))
@@ -190,3 +209,47 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
     assert [s.record.step for s in kept] == [0, 1] and kept[0].record.to_dict() != \
         {k: v for k, v in first.items() if k not in ("skipped", "bench")}
     assert [r.step for r in completed_records(reader)] == [0, 1]
+
+
+# --- the setup screen's offer ------------------------------------------------------------------
+
+@run_async
+async def test_the_setup_screen_offers_an_unfinished_session_and_resumes_it(tmp_path, monkeypatch):
+    import types
+
+    from fieldcal.cli.tui import resume_maker
+    from fieldcal.run.runner import RunSpec, run_headless
+    from fieldcal.tui.screens.setup import SetupScreen
+    from fieldcal.tui.view import ACTIVE, DONE
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
+    sessions = tmp_path / "sessions"
+    spec = RunSpec(two_positions(tmp_path), STATION, seed=5)
+    quit_run = FieldcalApp(spec, speed=0, session_dir=sessions / "quit-after-one")
+    async with quit_run.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(quit_run, 0))
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(quit_run, 1))
+        await pilot.press("q", "y")
+    quit_run.source.done.wait(10.0)
+    run_headless(spec, sessions / "completed")  # ended: not offered
+    (sessions / "not-a-session").mkdir()
+
+    def make_run(config, procedure):  # pragma: no cover - the test resumes, it never starts
+        raise AssertionError("not started")
+
+    args = types.SimpleNamespace(speed=0.0, config=None)
+    app = FieldcalApp(setup=(None, make_run, sessions, resume_maker(args)))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: isinstance(app.screen, SetupScreen) and bool(app.screen.query("#unfinished")))
+        offered = app.screen.unfinished
+        assert [(u.path.name, u.done, u.total, u.device) for u in offered] == [("quit-after-one", 1, 2, None)]
+        assert app.screen.query_one("#unfinished").value == str(sessions / "quit-after-one")
+        await pilot.press("ctrl+r")
+        await until(pilot, lambda: waiting_at(app, 1))
+        assert app.screen.view.tiles == [DONE, ACTIVE]
+        assert str(app.screen.query_one("#banner").render()).startswith("RESUMED after 1 completed step")
+        await pilot.press("r")
+        await until(pilot, lambda: app.outcome is not None and on_results(app))
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    assert SessionReader(sessions / "quit-after-one").stop_reason == "completed"
