@@ -84,8 +84,9 @@ def cmd_tui(args) -> int:
 
         session = resumable(args.resume)
         live = live_device_of(session)
-        config = resume_config(session, live, args.config) if live is not None else None
-        return run_tui(None, _resume_speed(args), None, None, config=config, resume=session)
+        if live is None:
+            return run_tui(None, _resume_speed(args), None, None, resume=session)
+        return run_tui(None, 0.0, None, None, config=resume_config(session, live, args.config), resume=session)
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
 
@@ -161,7 +162,8 @@ def _resume_speed(args) -> float:
     if args.speed is not None:
         return args.speed
     from fieldcal.config import load_config
-    return load_config(args.config or "sim").device.sim.speed
+    sim = load_config(args.config or "sim").device.sim  # (a real device's config has none)
+    return (sim or load_config("sim").device.sim).speed
 
 
 def run_maker(args):
