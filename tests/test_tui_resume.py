@@ -156,6 +156,18 @@ def _the_config_must_be_the_sessions_device(tmp_path, config):
     assert resume_config(session, live, str(config.path)).device.port.url == config.device.port.url
 
 
+def _the_command_line_resumes_it_on_the_configs_ports(tmp_path, config, monkeypatch):
+    from fieldcal.cli.main import main
+    from fieldcal.tui import app
+
+    asked = []
+    monkeypatch.setattr(app, "run_tui", lambda *a, **kw: asked.append((a, kw)) or 0)
+    assert main(["tui", "--resume", str(tmp_path / "session"), "--config", str(config.path)]) == 0
+    (args, kw), = asked
+    assert args[1] == 0.0 and kw["resume"] == tmp_path / "session"  # a device's pace, not a speed
+    assert kw["config"].device.port.url == config.device.port.url
+
+
 @run_async
 async def test_a_live_run_resumed_on_a_device_that_ran_on_continues_after_its_last_step(tmp_path, served,
                                                                                        monkeypatch):
@@ -168,6 +180,7 @@ async def test_a_live_run_resumed_on_a_device_that_ran_on_continues_after_its_la
     clock = first["bench"]["device_clock"]
     assert clock["time_s"] > 0 and 0 <= clock["counter"] < 65536 and clock["host_utc"] > 0
     _the_config_must_be_the_sessions_device(tmp_path, config)
+    _the_command_line_resumes_it_on_the_configs_ports(tmp_path, config, monkeypatch)
 
     app, banner, log = await _resume(tmp_path, config, world, 1,
                                      lambda attitude: devices.carry(attitude, 2.0).result(timeout=60))
