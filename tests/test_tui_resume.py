@@ -12,6 +12,7 @@ from drivers.sim.device import paper_mimu
 from drivers.sim.serve import SimulatedDevices
 from fieldcal.cli.tui import live_spec
 from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart
+from fieldcal.run.replay import replay_session
 from fieldcal.run.steps import completed_records, steps_on_record
 from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
@@ -222,6 +223,11 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
     assert [s.record.step for s in kept] == [0, 1] and kept[0].record.to_dict() != \
         {k: v for k, v in first.items() if k not in ("skipped", "bench")}
     assert [r.step for r in completed_records(reader)] == [0, 1]
+    # Replayed without the devices: the recorded resume restarts the engine from no step.
+    replayed = []
+    unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
+    assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
+    assert unit.failures == app.outcome.unit.failures
 
 
 # --- the setup screen's offer ------------------------------------------------------------------
