@@ -72,19 +72,23 @@ READ_BLOCK = 65536  # the most one read takes
 
 def read_available(port: serial.SerialBase) -> bytes:
     """What the port has, in one call: waiting up to its timeout for the first byte, then all that
-    has come. pyserial's ``socket://`` says only whether anything waits (``in_waiting`` 0 or 1),
-    so its first read takes one byte; a non-blocking read of a large block then takes the rest
-    (its timeout change costs nothing: a socket has no line settings to apply)."""
+    has come with it (a frame that was arriving is one read, not its first byte and the rest).
+    pyserial's ``socket://`` says only whether anything waits (``in_waiting`` 0 or 1), so there a
+    non-blocking read of a large block takes the rest (its timeout change costs nothing: a socket
+    has no line settings to apply)."""
     waiting = getattr(port, "in_waiting", 0) or 0
     data = port.read(max(1, waiting))
-    if data and waiting <= 1 and type(port).__module__.endswith("protocol_socket"):
+    if not data or waiting > 1:
+        return data
+    if type(port).__module__.endswith("protocol_socket"):
         timeout = port.timeout
         port.timeout = 0
         try:
-            data += port.read(READ_BLOCK)
+            return data + port.read(READ_BLOCK)
         finally:
             port.timeout = timeout
-    return data
+    more = getattr(port, "in_waiting", 0) or 0  # exact on a serial port or a pty: no waiting
+    return data + port.read(more) if more else data
 
 
 def _drain(q: queue.SimpleQueue) -> list:

@@ -208,6 +208,7 @@ def resolve_choice(choice: SetupChoice) -> tuple[StationConfig, Procedure]:
 # --- unfinished sessions, to resume --------------------------------------------------------
 
 UNFINISHED_LISTED = 12  # the newest sessions looked at (each one's log is read)
+LOG_TAIL_BYTES = 65536  # where a log's stop document is looked for first
 
 
 @dataclass(frozen=True)
@@ -236,6 +237,16 @@ def resume_refusal(reader) -> str | None:
     return None
 
 
+def _ends_stopped(log: Path) -> bool:
+    """Does the log's tail hold a ``stop`` after any ``resume``? A cheap look, so that ended runs
+    (most of a sessions directory, with logs of many megabytes) are passed over unread; a stop
+    beyond the tail is found by reading the whole log."""
+    with open(log, "rb") as fh:
+        fh.seek(max(0, fh.seek(0, os.SEEK_END) - LOG_TAIL_BYTES))
+        tail = fh.read()
+    return tail.rfind(b'"type":"stop"') > tail.rfind(b'"type":"resume"')
+
+
 def unfinished_sessions(directory: str | os.PathLike) -> list[UnfinishedSession]:
     """The sessions under ``directory`` that can be resumed, newest first: not ended, not being
     written by another process, and procedure runs (of the newest ``UNFINISHED_LISTED``).
@@ -255,7 +266,7 @@ def unfinished_sessions(directory: str | os.PathLike) -> list[UnfinishedSession]
     for log in logs[:UNFINISHED_LISTED]:
         session = log.parent
         try:
-            if is_held(session):
+            if _ends_stopped(log) or is_held(session):
                 continue
             reader = SessionReader(session, log_only=True)
             if resume_refusal(reader) is not None:
