@@ -13,6 +13,7 @@ completed step is measured again; see ``_kept_after``.
 from __future__ import annotations
 
 import queue
+import threading
 import time
 from dataclasses import replace
 from collections.abc import Callable
@@ -46,6 +47,9 @@ class LiveSource(SimSource):
         super().__init__(spec, sink, 0.0, session_dir, clock, bench=bench, resume=resume)
         self._caught_up = False  # everything read so far has been fed (then silence is the device's)
         self.clock_check = None  # a resumed run: what the device's clock said (deviceclock.ClockCheck)
+        # A resumed run reads the device before it may write the session: those bytes wait here.
+        self._raw_lock = threading.Lock()
+        self._early_raw: list[tuple[float, bytes]] | None = [] if resume else None
 
     @classmethod
     def resuming(cls, directory: Path, config, sink: Sink, clock: Callable[[], float] = time.monotonic,
@@ -63,8 +67,19 @@ class LiveSource(SimSource):
 
     def _capture_raw(self, t: float, data: bytes) -> None:
         """Called on the port's reader thread (the session writer is thread-safe)."""
-        if self.recorder is not None:
-            self.recorder.raw(t, data)
+        with self._raw_lock:
+            if self.recorder is not None:
+                self.recorder.raw(t, data)
+            elif self._early_raw is not None:
+                self._early_raw.append((t, data))
+
+    def _record_to(self, recorder) -> None:
+        """From now on the session is written: first what was read before."""
+        with self._raw_lock:
+            self.recorder = recorder
+            for t, data in self._early_raw or ():
+                recorder.raw(t, data)
+            self._early_raw = None
 
     def _metadata(self) -> dict:
         return self.spec.session_metadata(None, "tui")
@@ -114,6 +129,8 @@ class LiveSource(SimSource):
                 self._items.append(Note(0.0, f"reading the device's clock in its first frames from {self.bench.url}"))
                 self._flush(force=True)
                 now = self.bench.first_clock(FIRST_FRAMES_S, lambda: self.stopping)
+                if now is None and self.stopping:
+                    raise ValueError("quit before the device's first frames came; the session is unchanged")
                 if now is None:
                     raise ValueError(f"no samples from {self.bench.url} within {FIRST_FRAMES_S:g} s, so its "
                                      "clock cannot be read: is the unit on and sending? The session is "
@@ -127,7 +144,7 @@ class LiveSource(SimSource):
                               settings=self.settings)
         self.conductor = conductor
         conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why)
-        self.recorder = SessionRecorder.append_to(self.session_dir)
+        self._record_to(SessionRecorder.append_to(self.session_dir))
         conductor.subscribers.insert(0, self.recorder)
         self.bench.say = conductor.say
         self._say_reading(conductor)
