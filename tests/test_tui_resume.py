@@ -4,6 +4,8 @@ power-cycled in between; and the device-clock judgement itself, on hand-worked c
 frame bytes."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from drivers.protocols import make_parser
 from drivers.sim.device import paper_mimu
 from drivers.sim.serve import SimulatedDevices
 from fieldcal.cli.tui import live_spec
+from fieldcal.config import load_config
 from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart
 from fieldcal.run.replay import replay_session
 from fieldcal.run.steps import completed_records, steps_on_record
@@ -78,7 +81,7 @@ def test_the_clock_is_read_from_real_frames():
     sent = SampleChunk(t=chunk.t, triads={**chunk.triads, "magnetometer": np.zeros((n, 3))},
                        temperature=chunk.temperature, extras={"pressure": np.full(n, 101.3)})
     parsed = vectornav.feed(make_encoder("vectornav").encode(sent), t_host=9.0)
-    assert len(parsed) == n and not clock_of(parsed, vectornav, 1e9).says_anything
+    assert len(parsed) == n and clock_of(parsed, vectornav, 1e9) == DeviceClock(1e9)  # the host's alone
 
 
 # --- in the terminal UI, on a device served on a pty ----------------------------------------
@@ -100,8 +103,8 @@ class WorldClock:
         return self.offset + self.devices.simulator.time
 
 
-def serve(seed: int) -> SimulatedDevices:
-    return SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol="xsens",
+def serve(seed: int, protocol: str = "xsens") -> SimulatedDevices:
+    return SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol=protocol,
                             table_protocol="ascii", speed=SPEED, seed=seed, rate_hz=250).start()
 
 
@@ -113,8 +116,15 @@ def served():
         d.stop()
 
 
-async def _first_step_then_quit(tmp_path, devices, world, procedure):
-    config = live_config(tmp_path, devices)
+def vectornav_config(tmp_path, devices):
+    """``live_config`` for a device sending VectorNav ASCII sentences (no counter, no time)."""
+    path = Path(live_config(tmp_path, devices).path)
+    path.write_text(path.read_text().replace("protocol: xsens", "protocol: vectornav"))
+    return load_config(path)
+
+
+async def _first_step_then_quit(tmp_path, devices, world, procedure, make_config=live_config):
+    config = make_config(tmp_path, devices)
     app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config,
                       wall_clock=world)
     async with app.run_test(size=(80, 24)) as pilot:
@@ -234,6 +244,28 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
     unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
     assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
     assert unit.failures == app.outcome.unit.failures
+
+
+@run_async
+async def test_a_device_whose_frames_carry_no_clock_is_taken_as_power_cycled(tmp_path):
+    """VectorNav ASCII: nothing tells a restart, so the completed step is measured again."""
+    devices = serve(5, "vectornav")
+    try:
+        world = WorldClock(devices)
+        config = await _first_step_then_quit(tmp_path, devices, world, two_positions(tmp_path, SHORT),
+                                             vectornav_config)
+        (first,) = SessionReader(tmp_path / "session").steps()
+        assert set(first["bench"]["device_clock"]) == {"host_utc"}  # the host's time alone
+        app, banner, log = await _resume(tmp_path, config, world, 0,
+                                         lambda attitude: devices.carry(attitude, 2.0).result(timeout=60))
+    finally:
+        devices.stop()
+    assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
+                             "changed; the 1 completed step is measured again")
+    assert "its frames carry no packet counter or time" in log
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
+    assert resume["completed_steps"] == [] and "may have been power-cycled" in resume["why"]
 
 
 # --- the setup screen's offer ------------------------------------------------------------------

@@ -41,10 +41,6 @@ class DeviceClock:
         return cls(float(d["host_utc"]), *(d.get(k) for k in ("time_s", "time_period_s", "counter",
                                                                "counter_modulus")))
 
-    @property
-    def says_anything(self) -> bool:
-        return self.time_s is not None or self.counter is not None
-
 
 def clock_of(chunk, parser, host_utc: float) -> DeviceClock:
     """The clock of a chunk's last sample, as far as ``parser``'s protocol tells it."""
@@ -81,7 +77,7 @@ def _behind(last: float, now: float, advance: float, slack: float, period: float
 
 def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float) -> ClockCheck:
     """Did the device restart between ``recorded`` (the last completed step) and ``now``?"""
-    if recorded is None or not recorded.says_anything:
+    if recorded is None:
         return ClockCheck(None, "the session holds no device clock for its last step")
     away = max(0.0, now.host_utc - recorded.host_utc)
     slack = SLACK_S + DRIFT * away
