@@ -256,12 +256,17 @@ def unfinished_sessions(directory: str | os.PathLike) -> list[UnfinishedSession]
     from fieldcal.session.capture import LOG, SessionReader
     from fieldcal.session.lock import is_held
 
-    root = Path(directory)
+    def modified(path: Path) -> float:
+        try:
+            return path.stat().st_mtime
+        except OSError:  # gone meanwhile
+            return -1.0
+
     try:
-        logs = [p for p in root.glob(f"*/{LOG}") if p.is_file()]
+        logs = [p for p in Path(directory).glob(f"*/{LOG}") if p.is_file()]
     except OSError:
         return []
-    logs.sort(key=lambda p: p.stat().st_mtime, reverse=True)
+    logs.sort(key=modified, reverse=True)
     found = []
     for log in logs[:UNFINISHED_LISTED]:
         session = log.parent

@@ -15,8 +15,8 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from dataclasses import replace
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from fieldcal.procedure import events as ev
