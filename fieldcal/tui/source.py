@@ -15,9 +15,9 @@ while a chunk waits to be due are kept for after it. While the engine waits for 
 in for the operator's hands, so a run's samples depend only on the seed and the keys pressed,
 never on how long the operator took. At speed 0 the same keys give, sample for sample, the
 headless run of the same seed. Below speed 10 the simulator makes chunks of about 0.1 s of wall
-time instead of 1 s so the display moves smoothly: the same samples' statistics, summed in a
-different order, so the result equals the headless one to rounding rather than bit for bit (the
-session still replays bit for bit).
+time instead of 1 s (the carry into place and a bump too) so the display moves smoothly: the
+same samples' statistics, summed in a different order, so the result equals the headless one
+to rounding rather than bit for bit (the session still replays bit for bit).
 """
 from __future__ import annotations
 
@@ -252,10 +252,10 @@ class SimSource(Source):
         from fieldcal.run.runner import SimulatedBench
 
         bench = SimulatedBench(spec)
-        if speed <= 0:
-            return bench
-        # Chunks of about FLUSH_S wall time, so the display moves smoothly.
-        bench.chunk_n = max(1, min(bench.chunk_n, round(spec.rate_hz * FLUSH_S * speed)))
+        smooth = max(1, round(spec.rate_hz * FLUSH_S * speed))
+        if speed <= 0 or smooth >= bench.chunk_n:
+            return bench  # the headless run's chunks, so the same keys give the same samples
+        bench.chunk_n = smooth  # chunks of about FLUSH_S wall time, so the display moves smoothly
         return SmoothHands(bench)
 
     @classmethod
