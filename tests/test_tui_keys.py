@@ -187,7 +187,7 @@ async def test_at_real_time_the_readings_follow_the_carry_as_it_happens():
     """Issue 15 item 9: at 1× the carry into place is 4 s of samples; they come in short chunks,
     so the live readings move during it (the old single chunk kept them frozen, then jumped)."""
     app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=1, session_dir=None)
-    carry_n = round(OperatorScript().handling_s * 250.0)  # RunSpec's default rate: 250 Hz
+    carry_n = round(OperatorScript().handling_s * app.spec.rate_hz)
     seen = []
 
     def part_way() -> bool:
