@@ -67,6 +67,30 @@ class _Backoff:
         self.current = 0.0
 
 
+READ_BLOCK = 65536  # the most one read takes
+
+
+def read_available(port: serial.SerialBase) -> bytes:
+    """What the port has, in one call: waiting up to its timeout for the first byte, then all that
+    has come with it (a frame that was arriving is one read, not its first byte and the rest).
+    pyserial's ``socket://`` says only whether anything waits (``in_waiting`` 0 or 1), so there a
+    non-blocking read of a large block takes the rest (its timeout change costs nothing: a socket
+    has no line settings to apply)."""
+    waiting = getattr(port, "in_waiting", 0) or 0
+    data = port.read(max(1, waiting))
+    if not data or waiting > 1:
+        return data
+    if type(port).__module__.endswith("protocol_socket"):
+        timeout = port.timeout
+        port.timeout = 0
+        try:
+            return data + port.read(READ_BLOCK)
+        finally:
+            port.timeout = timeout
+    more = getattr(port, "in_waiting", 0) or 0  # exact on a serial port or a pty: no waiting
+    return data + port.read(more) if more else data
+
+
 def _drain(q: queue.SimpleQueue) -> list:
     out = []
     while True:
@@ -195,7 +219,7 @@ class SerialReader:
                         self._room.wait(0.05)
             try:
                 port = self._port
-                data = port.read(max(1, getattr(port, "in_waiting", 0) or 0))
+                data = read_available(port)
             except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
                 # TypeError/AttributeError: pyserial's posix read on an fd closed under it.
                 if self._stop.is_set():

@@ -7,6 +7,7 @@ import re
 from tui_pilot import run_async, until, waiting_at
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import parse_procedure
+from fieldcal.run.operators import OperatorScript
 from fieldcal.run.runner import RunSpec
 from fieldcal.tui import FieldcalApp
 from fieldcal.tui.choices import SetupChoice
@@ -179,6 +180,29 @@ async def test_r_changes_the_banner_at_once_even_while_the_samples_take_their_ti
         banner = str(app.screen.query_one("#banner").render())
         assert banner.startswith("The simulator is carrying the unit into position 1")
         assert "moving the unit" in app.screen.query_one("#live-still").render().plain
+
+
+@run_async
+async def test_at_real_time_the_readings_follow_the_carry_as_it_happens():
+    """Issue 15 item 9: at 1× the carry into place is 4 s of samples; they come in short chunks,
+    so the live readings move during it (the old single chunk kept them frozen, then jumped)."""
+    app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=1, session_dir=None)
+    carry_n = round(OperatorScript().handling_s * app.spec.rate_hz)
+    seen = []
+
+    def part_way() -> bool:
+        view, t = app.screen.view, app.telemetry
+        if view.carrying and t.phase == "place" and 0 < t.samples - view.carry_from < carry_n:
+            seen.append(view.stale_reason())
+        return bool(seen)
+
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("r")
+        await until(pilot, part_way)
+        assert seen[0] is None  # live readings, not dimmed as old
+        assert str(app.screen.query_one("#banner").render()).startswith("The simulator is carrying")
+        await pilot.press("q", "y")
 
 
 def test_tui_help_lists_every_key_within_80_columns(capsys, monkeypatch):

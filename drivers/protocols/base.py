@@ -26,6 +26,7 @@ class ParserCounters:
 
 class StreamParser(Protocol):
     counters: ParserCounters
+    device_time: bool  # the samples' ``t`` is the device's own clock (else the host's arrival time)
 
     def feed(self, data: bytes, t_host: float) -> SampleChunk | None:
         """Consume ``data``; return the samples of every frame completed so far, or None."""

@@ -285,6 +285,11 @@ class DelimitedTextParser:
         self._comment = None if channel_map.comment is None else np.frombuffer(
             channel_map.comment.encode("ascii"), dtype=np.uint8)
 
+    @property
+    def device_time(self) -> bool:
+        """The samples' ``t`` is the device's (a time column), not host time."""
+        return self.map.time_column is not None
+
     def feed(self, data: bytes, t_host: float) -> SampleChunk | None:
         data = bytes(data)
         if not data:

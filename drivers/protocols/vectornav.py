@@ -178,6 +178,8 @@ class VectorNavParser:
         self._buf = b""
         self._pending_lf = False  # an accepted sentence ended in "\r" at the end of the last feed
 
+    device_time = False  # ASCII sentences carry no device time: ``t`` is the host's
+
     # -- the one public operation -----------------------------------------------------------
     def feed(self, data: bytes, t_host: float) -> SampleChunk | None:
         data = bytes(data)

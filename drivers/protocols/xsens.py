@@ -256,6 +256,11 @@ class XsensMtData2Parser:
         self._pc_prev: int | None = None
 
     @property
+    def device_time(self) -> bool:
+        """The samples' ``t`` is the device's SampleTimeFine (seen in the frames), not host time."""
+        return self._stf_prev is not None
+
+    @property
     def buffered(self) -> int:
         """Bytes held back for an unfinished frame (always < MAX_MESSAGE_LENGTH)."""
         return len(self._buf)

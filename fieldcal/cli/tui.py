@@ -69,7 +69,8 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
     tui.add_argument("--spec", metavar="SPEC", help="product spec YAML: the results say PASS/FAIL per "
                      f"parameter with the reason; exit status {EXIT_FAILED_SPEC} if any fails")
     tui.add_argument("--resume", metavar="SESSION",
-                     help="continue this unfinished (quit) simulated session after its last completed step")
+                     help="continue this unfinished (quit) session after its last completed step; a live "
+                     "device's on the ports of --config (default: the setup's last config)")
     from fieldcal.cli.production import add_registry_option
     add_registry_option(tui)  # where the calibrations are recorded when the UI closes
     tui.set_defaults(func=cmd_tui)
@@ -86,8 +87,15 @@ def cmd_tui(args) -> int:
             raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
         return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay), **accept)
     if args.resume is not None:
+        from fieldcal.tui.app import live_device_of
+
         session = resumable(args.resume)
-        status = run_tui(None, _resume_speed(args), None, None, resume=session, **accept)
+        live = live_device_of(session)
+        if live is None:
+            status = run_tui(None, _resume_speed(args), None, None, resume=session, **accept)
+        else:
+            status = run_tui(None, 0.0, None, None, config=resume_config(session, live, args.config),
+                             resume=session, **accept)
         record_sessions(args, [session])
         return status
     if args.seed is not None and args.seed < 0:
@@ -104,7 +112,9 @@ def cmd_tui(args) -> int:
         spec, session_dir, speed = make_run(config, procedure)
         status = run_tui(spec, speed, session_dir, None, config=config, **accept)
     else:
-        status = run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run), **accept)
+        make_resume = _remembering_resume(resume_maker(args), sessions)
+        status = run_tui(None, 0.0, None, None, setup=(_initial_choice(args), make_run, Path(args.out), make_resume),
+                         **accept)
     record_sessions(args, sessions)
     return status
 
@@ -114,6 +124,15 @@ def _remembering(make_run, sessions: list):
     def remembering(config, procedure):
         made = make_run(config, procedure)
         sessions.append(made[1])
+        return made
+    return remembering
+
+
+def _remembering_resume(make_resume, sessions: list):
+    """``make_resume`` that also notes each session the setup screen resumes."""
+    def remembering(session, config):
+        made = make_resume(session, config)
+        sessions.append(session)
         return made
     return remembering
 
@@ -138,28 +157,64 @@ def record_sessions(args, sessions) -> None:
 def resumable(session: str) -> Path:
     """The session ``--resume`` continues; a one-line ValueError for one it cannot."""
     from fieldcal.cli.sessions import _procedure_session
+    from fieldcal.tui.choices import resume_refusal
 
     if not Path(session, "log.jsonl").is_file():
         raise ValueError(f"--resume: {session} is not a session directory (no log.jsonl)")
-    reader, spec, _ = _procedure_session(session)
-    if reader.stopped:
-        raise ValueError(f"--resume: {session} already ended ({reader.stop_reason}); "
-                         + ("a completed session is never resumed: replay it with `fieldcal tui --replay`"
-                            if reader.stop_reason == "completed" else "nothing to resume"))
-    if spec.live is not None:
-        raise ValueError(f"--resume: {session} is a live device's session; resuming a live run is not "
-                         "supported yet (start again)")
-    if reader.start.get("device", {}).get("link") == "pty":
-        raise ValueError(f"--resume: {session} ran through a serial device, which cannot be rewound; "
-                         "replay it, or run again")
+    reader, _, _ = _procedure_session(session)
+    refusal = resume_refusal(reader)
+    if refusal is not None:
+        raise ValueError(f"--resume: {session} {refusal}")
     return Path(session)
+
+
+def resume_config(session: Path, live, config_name: str | None):
+    """The station config whose ports a live session is resumed on: ``--config``, else the
+    setup screen's last choice (with its ports); a one-line ValueError if neither is of the
+    session's device (``live``) or its ports cannot be opened."""
+    from fieldcal.tui.choices import load_choice_config, load_last_choice, resolve_choice
+
+    if config_name is not None:
+        config = load_choice_config(config_name)
+    else:
+        choice = load_last_choice()
+        if choice is None:
+            raise ValueError(f"--resume: {session} is a live device's session: give its station config "
+                             "(the ports) with --config")
+        config = resolve_choice(choice)[0]
+    return _checked_for(live, config, session)
+
+
+def _checked_for(live, config, session: Path):
+    """``config``, if it is the session's device (``live``) and its ports open."""
+    from fieldcal.tui.live_source import check_same_device
+
+    check_same_device(live, config, session)
+    check_ports(config)
+    return config
+
+
+def resume_maker(args):
+    """``make_resume(session, config) -> (speed, config)`` for the setup screen's Resume: a
+    simulated session at the command line's speed (no config needed), a live one on the ports
+    of the setup's ``config``; a one-line ValueError for what cannot be resumed."""
+    def make_resume(session: Path, config):
+        from fieldcal.tui.app import live_device_of
+
+        resumable(str(session))
+        live = live_device_of(session)
+        if live is None:
+            return _resume_speed(args), None
+        return 0.0, _checked_for(live, config, session)
+    return make_resume
 
 
 def _resume_speed(args) -> float:
     if args.speed is not None:
         return args.speed
     from fieldcal.config import load_config
-    return load_config(args.config or "sim").device.sim.speed
+    sim = load_config(args.config or "sim").device.sim  # (a real device's config has none)
+    return (sim or load_config("sim").device.sim).speed
 
 
 def run_maker(args):

@@ -11,6 +11,7 @@ import time
 
 from drivers.tables import TableError, open_table
 from fieldcal.config import StationConfig
+from fieldcal.run.deviceclock import DeviceClock, clock_of
 from fieldcal.run.devices import DeviceConnection
 
 
@@ -18,9 +19,11 @@ class LiveBench:
     # A table that refuses a command is the operator's to deal with (skip the step or abort).
     recoverable_errors = (ValueError, TableError)
 
-    def __init__(self, config: StationConfig, tap=None, clock=time.monotonic, silence_s: float = 3.0):
+    def __init__(self, config: StationConfig, tap=None, clock=time.monotonic, silence_s: float = 3.0,
+                 wall_clock=time.time):
         """``tap(t, data)`` receives every byte read from the IMU port (the session's raw capture);
-        ``silence_s`` of wall time without a sample is reported once."""
+        ``silence_s`` of wall time without a sample is reported once. ``wall_clock``: the host's
+        Unix time, recorded beside the device's own clock (``device_clock``)."""
         self.config = config
         self.connection = DeviceConnection(config, tap=tap)
         self.table = None
@@ -31,6 +34,11 @@ class LiveBench:
         self._last_sample_wall = clock()
         self._silent_reported = False
         self._trouble_reported = (0, 0, 0)
+        self.wall_clock = wall_clock
+        self.device_clock: DeviceClock | None = None  # the device's clock as last read
+        self.recorded_clock: DeviceClock | None = None  # set_state's: the last completed step's
+        self._pending: list = []  # chunks read by first_clock, not yet handed out
+        self._pending_events: list = []  # and the port's events meanwhile
 
     def start(self) -> LiveBench:
         self.connection.__enter__()
@@ -44,11 +52,18 @@ class LiveBench:
 
     def poll(self):
         """New sample chunks and port events; never blocks."""
-        return self.connection.read()
+        chunks, port_events = self.connection.read()
+        if self._pending_events:
+            port_events, self._pending_events = self._pending_events + list(port_events), []
+        return chunks, port_events
 
     def next_chunks(self) -> list:
         """The chunks read since last asked (never blocks), saying what the port and parser did."""
         chunks, port_events = self.poll()
+        if self._pending:
+            chunks, self._pending = self._pending + list(chunks), []
+        if chunks:
+            self.device_clock = clock_of(chunks[-1], self.connection.parser, self.wall_clock())
         for pe in port_events:
             detail = f": {pe.message}" if pe.message and pe.message != self.url else ""
             self.say(f"port {self.url}: {pe.kind}{f' after {pe.gap_s:.1f} s' if pe.gap_s else ''}{detail}")
@@ -66,6 +81,27 @@ class LiveBench:
                      f"failure(s), {c.missing_frames} frame(s) missing so far")
             self._trouble_reported = trouble
         return list(chunks)
+
+    def first_clock(self, timeout_s: float, cancelled=lambda: False, fresh_s: float = 1.0) -> DeviceClock | None:
+        """Wait (up to ``timeout_s`` of wall time) for the first frames and return the device's
+        clock in the newest of them; the chunks are kept for ``next_chunks``. None if nothing came.
+
+        The first frames read may have waited in the port's buffer since the run was quit; the
+        frames read over ``fresh_s`` after them are as new as the port delivers."""
+        deadline, fresh_until = self.clock() + timeout_s, None
+        while not cancelled():
+            now = self.clock()
+            if (fresh_until is not None and now >= fresh_until) or (fresh_until is None and now >= deadline):
+                break
+            chunks, port_events = self.connection.read()
+            self._pending_events += list(port_events)  # said by next_chunks, in the run's log
+            if chunks:
+                self._pending += list(chunks)
+                self.device_clock = clock_of(chunks[-1], self.connection.parser, self.wall_clock())
+                fresh_until = fresh_until if fresh_until is not None else now + fresh_s
+            else:
+                time.sleep(0.02)  # the port's reader thread fills its queue meanwhile
+        return self.device_clock if self._pending else None
 
     @property
     def last_sample_wall(self) -> float:
@@ -85,10 +121,16 @@ class LiveBench:
             self.table.set_rate(rate_deg_s)
 
     def get_state(self) -> dict:
-        return {"live": True}  # a device on a port cannot be rewound: no resume
+        """What a resumed run needs of a live bench: not its samples (a device cannot be rewound)
+        but its clock, to tell whether it was power-cycled meanwhile."""
+        state = {"live": True}
+        if self.device_clock is not None:
+            state["device_clock"] = self.device_clock.to_dict()
+        return state
 
     def set_state(self, state: dict) -> None:
-        raise ValueError("a live run cannot be resumed (the device cannot be rewound): start again")
+        """The last completed step's state: its device clock, for ``first_clock`` to compare."""
+        self.recorded_clock = DeviceClock.from_dict(state.get("device_clock"))
 
     def close(self) -> None:
         """Stop the table and close both ports; a port already gone (unplugged, its far end

@@ -27,21 +27,27 @@ class StepDocument:
 
 @dataclass(frozen=True)
 class ResumePoint:
-    """Where a run continued: the steps it kept (and, so, the ones it did again)."""
+    """Where a run continued: the steps it kept (and, so, the ones it did again). ``why``: why
+    completed steps were not kept (a live device power-cycled meanwhile), if any were not."""
 
     completed_steps: tuple[int, ...]
     skipped: tuple[int, ...]
+    why: str = ""
 
     def to_dict(self) -> dict:
-        return {"completed_steps": list(self.completed_steps), "skipped": list(self.skipped)}
+        doc = {"completed_steps": list(self.completed_steps), "skipped": list(self.skipped)}
+        return {**doc, "why": self.why} if self.why else doc
 
     @classmethod
     def from_dict(cls, doc: dict) -> ResumePoint:
-        return cls(tuple(int(s) for s in doc["completed_steps"]), tuple(int(s) for s in doc["skipped"]))
+        return cls(tuple(int(s) for s in doc["completed_steps"]), tuple(int(s) for s in doc["skipped"]),
+                   str(doc.get("why", "")))
 
 
 def steps_on_record(reader: SessionReader) -> list[StepDocument]:
-    """Every ``step`` document in log order, in today's shape whatever shape it was written in."""
+    """Every ``step`` document in log order that the run still counts, in today's shape whatever
+    shape it was written in: a resume that did not keep a completed step (a live device
+    power-cycled: its steps measured again) drops that step's earlier documents."""
     steps: list[StepDocument] = []
     skipped: set[int] = set()  # for old TUI steps, which did not say: the skips logged so far
     for doc in reader.documents("step", "checkpoint", "event", "resume"):
@@ -49,7 +55,9 @@ def steps_on_record(reader: SessionReader) -> list[StepDocument]:
         if doc["type"] == "event" and data.get("event") == "step_skipped":
             skipped.add(int(data["step"]))
         elif doc["type"] == "resume":
-            skipped = set(ResumePoint.from_dict(data).skipped)
+            point = ResumePoint.from_dict(data)
+            skipped = set(point.skipped)
+            steps = [s for s in steps if s.record.step in point.completed_steps]
         elif doc["type"] == "step":
             steps.append(StepDocument(StepRecord.from_dict(data),
                                       tuple(data["skipped"]) if "skipped" in data else tuple(sorted(skipped)),

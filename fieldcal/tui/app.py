@@ -43,23 +43,29 @@ class FieldcalApp(App[int]):
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
                  replay: Path | None = None, clock=time.monotonic, config=None, setup=None,
-                 resume: Path | None = None, product_spec=None) -> None:
+                 resume: Path | None = None, product_spec=None, wall_clock=time.time) -> None:
         """``product_spec``: an ``acceptance.ProductSpec``: the results say PASS/FAIL against it,
         and the exit status is 3 (as the headless run's) when a check fails.
 
-        ``resume``: continue this unfinished simulated session after its last completed step
-        (``spec`` and ``session_dir`` are then the session's own; give neither).
+        ``resume``: continue this unfinished session after its last completed step (``spec``
+        and ``session_dir`` are then the session's own; give neither); a live device's session
+        on the device of ``config``.
 
         ``config``: the station config of a real device (``spec.live``), for its ports.
+        ``wall_clock``: the host's Unix time, beside a real device's own clock (resume).
 
         ``setup``: instead of a run, ``(initial, make_run)``: the setup screen opens with the
         ``SetupChoice`` ``initial`` (or none), and the operator's choice, resolved to a config and
         a procedure, goes to ``make_run(config, procedure) -> (spec, session_dir, speed)``, whose
-        ValueError goes back to the setup screen.
+        ValueError goes back to the setup screen. ``(initial, make_run, sessions, make_resume)``:
+        the setup screen also offers the unfinished sessions in the directory ``sessions``, and
+        one chosen goes to ``make_resume(session, config) -> (speed, config)`` (the config of a
+        live session's ports, None for a simulated one).
         """
         super().__init__()
         self.speed = float(speed)
         self.clock = clock
+        self.wall_clock = wall_clock
         self.source: Source | None = None
         self.outcome: Outcome | None = None
         self.events: list[ev.Event] = []  # every engine event shown, in order (for tests)
@@ -74,7 +80,17 @@ class FieldcalApp(App[int]):
     def _prepare(self, spec, session_dir: Path | None, replay: Path | None, config,
                  resume: Path | None = None) -> None:
         clock = self.clock
-        if resume is not None:
+        if resume is not None and live_device_of(resume) is not None:
+            from fieldcal.tui.live_source import LiveSource
+
+            if config is None:
+                raise ValueError(f"{resume}: a live device's session: resuming it needs the station config "
+                                 "of that device (its ports)")
+            self.source = LiveSource.resuming(Path(resume), config, self, clock, self.wall_clock)
+            live = self.source.spec.live
+            title = (f"fieldcal · {self.source.spec.procedure.name} · resuming {Path(resume).name} · "
+                     f"{live.name} on {config.device.port.url}")
+        elif resume is not None:
             self.source = SimSource.resuming(Path(resume), self, self.speed, clock)
             title = (f"fieldcal · {self.source.spec.procedure.name} · resuming {Path(resume).name} · "
                      f"simulated MIMU, seed {self.source.spec.seed} · {_speed_words(self.speed)}")
@@ -84,7 +100,7 @@ class FieldcalApp(App[int]):
         elif spec is not None and spec.live is not None:
             from fieldcal.tui.live_source import LiveSource
 
-            self.source = LiveSource(spec, config, self, session_dir, clock)
+            self.source = LiveSource(spec, config, self, session_dir, clock, wall_clock=self.wall_clock)
             title = f"fieldcal · {spec.procedure.name} · {spec.live.name} on {spec.live.url}"
         else:
             if spec is None:
@@ -117,7 +133,8 @@ class FieldcalApp(App[int]):
     def _ask_setup(self, initial, error: str = "") -> None:
         from fieldcal.tui.screens.setup import SetupScreen
 
-        screen = SetupScreen(initial)
+        sessions = self.setup[2] if len(self.setup) > 2 else None
+        screen = SetupScreen(initial, sessions=sessions)
         self.push_screen(screen, callback=lambda choice: self._chosen(screen, choice))
         if error:
             self.call_after_refresh(screen.set_error, error)
@@ -126,6 +143,11 @@ class FieldcalApp(App[int]):
         if choice is None:
             self.exit(1)
             return
+        from fieldcal.tui.screens.setup import ResumeChoice
+
+        if isinstance(choice, ResumeChoice):
+            self._resume_chosen(screen, choice)
+            return
         config, procedure = screen.resolved
         try:
             spec, session_dir, speed = self.setup[1](config, procedure)
@@ -133,6 +155,16 @@ class FieldcalApp(App[int]):
             self._prepare(spec, session_dir, None, config)
         except ValueError as exc:
             self._ask_setup(choice, str(exc).splitlines()[0])
+            return
+        self._begin()
+
+    def _resume_chosen(self, screen, choice) -> None:
+        try:
+            speed, config = self.setup[3](choice.session, screen.resolved[0] if choice.live else None)
+            self.speed = float(speed)
+            self._prepare(None, None, None, config, resume=choice.session)
+        except ValueError as exc:
+            self._ask_setup(self.setup[0], str(exc).splitlines()[0])
             return
         self._begin()
 
@@ -201,6 +233,14 @@ class FieldcalApp(App[int]):
         if outcome is None or outcome.status != "completed":
             return 1
         return 0 if outcome.solved and not outcome.unit.failures and outcome.identical is not False else 1
+
+
+def live_device_of(directory: Path):
+    """The real device a session was recorded from (a ``LiveDevice``), None for the simulator."""
+    from fieldcal.run.runner import RunSpec
+    from fieldcal.session.capture import SessionReader
+
+    return RunSpec.from_metadata(SessionReader(Path(directory), log_only=True).start).live
 
 
 def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None, config=None,

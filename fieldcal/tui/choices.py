@@ -203,3 +203,83 @@ def resolve_choice(choice: SetupChoice) -> tuple[StationConfig, Procedure]:
     except ValueError as exc:  # pragma: no cover - check_station has the same bounds
         raise ValueError(f"station: {_one_line(exc)}") from None
     return dataclasses.replace(config, device=device, table=table, station=station), procedure
+
+
+# --- unfinished sessions, to resume --------------------------------------------------------
+
+UNFINISHED_LISTED = 12  # the newest sessions looked at (each one's log is read)
+LOG_TAIL_BYTES = 65536  # where a log's stop document is looked for first
+
+
+@dataclass(frozen=True)
+class UnfinishedSession:
+    """A session the setup screen offers to resume."""
+
+    path: Path
+    procedure: str
+    done: int  # completed steps
+    total: int  # the procedure's positions
+    device: str | None  # a real device's name; None: the simulator
+
+    @property
+    def label(self) -> str:
+        return f"{self.path.name} ({self.done}/{self.total} done)"  # the name says sim or live
+
+
+def resume_refusal(reader) -> str | None:
+    """Why a session (a ``SessionReader``) cannot be resumed, or None if it can."""
+    if reader.stopped:
+        return (f"already ended ({reader.stop_reason}); "
+                + ("a completed session is never resumed: replay it with `fieldcal tui --replay`"
+                   if reader.stop_reason == "completed" else "nothing to resume"))
+    if reader.start.get("device", {}).get("link") == "pty":
+        return "ran through a serial device, which cannot be rewound; replay it, or run again"
+    return None
+
+
+def _ends_stopped(log: Path) -> bool:
+    """Does the log's tail hold a ``stop`` after any ``resume``? A cheap look, so that ended runs
+    (most of a sessions directory, with logs of many megabytes) are passed over unread; a stop
+    beyond the tail is found by reading the whole log."""
+    with open(log, "rb") as fh:
+        fh.seek(max(0, fh.seek(0, os.SEEK_END) - LOG_TAIL_BYTES))
+        tail = fh.read()
+    return tail.rfind(b'"type":"stop"') > tail.rfind(b'"type":"resume"')
+
+
+def unfinished_sessions(directory: str | os.PathLike) -> list[UnfinishedSession]:
+    """The sessions under ``directory`` that can be resumed, newest first: not ended, not being
+    written by another process, and procedure runs (of the newest ``UNFINISHED_LISTED``).
+    A session that cannot be read is passed over: the list is an offer, not a check."""
+    from fieldcal.run.runner import RunSpec
+    from fieldcal.run.steps import steps_on_record
+    from fieldcal.session.capture import LOG, SessionReader
+    from fieldcal.session.lock import is_held
+
+    def modified(path: Path) -> float:
+        try:
+            return path.stat().st_mtime
+        except OSError:  # gone meanwhile
+            return -1.0
+
+    try:
+        logs = [p for p in Path(directory).glob(f"*/{LOG}") if p.is_file()]
+    except OSError:
+        return []
+    logs.sort(key=modified, reverse=True)
+    found = []
+    for log in logs[:UNFINISHED_LISTED]:
+        session = log.parent
+        try:
+            if _ends_stopped(log) or is_held(session):
+                continue
+            reader = SessionReader(session, log_only=True)
+            if resume_refusal(reader) is not None:
+                continue
+            spec = RunSpec.from_metadata(reader.start)
+            done = len({s.record.step for s in steps_on_record(reader)})
+        except (ValueError, KeyError, TypeError, OSError):
+            continue
+        found.append(UnfinishedSession(session, spec.procedure.name, done, len(spec.procedure.positions),
+                                       spec.live.name if spec.live is not None else None))
+    return found

@@ -42,5 +42,7 @@ procedure and the station, then start.
 
 Tab, shift+Tab  next, previous field
 ctrl+s          start (anywhere); Enter in a text field starts too
+ctrl+r          resume the unfinished session chosen (listed when there are
+                any in --out; a live one on the ports shown)
 Esc             quit; q quits too, outside a text field
 ?               this help (outside a text field)"""

@@ -4,45 +4,89 @@ read as the samples come, and the table turns on the engine's command.
 Samples flow all the time, also while the engine waits for the operator, so the readings and
 the orientation error stay live as the unit is placed; the engine ignores them until the
 operator says ready. Everything read is captured: chunks, raw bytes, events and actions.
+
+A quit run is resumed (``LiveSource.resuming``) after its last completed step, the operator
+placing the unit again for the next one. Unless the device shows, by its own clock, that it ran
+on meanwhile (``fieldcal.run.deviceclock``), it is taken as power-cycled, and then every
+completed step is measured again; see ``_kept_after``.
 """
 from __future__ import annotations
 
 import queue
+import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.engine import PLACE, WAITING_FOR_OPERATOR, WRONG
 from fieldcal.run.conductor import Act, Conductor, Say
 from fieldcal.run.outcome import Status
-from fieldcal.tui.source import ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, SimSource, Sink
+from fieldcal.tui.source import (ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, Note,
+                                 ResumeNote, SimSource, Sink)
 
 NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the log says so
 SILENT_S = 0.5  # wall time without a sample before the readings, stillness and banner say so
+FIRST_FRAMES_S = 30.0  # a resumed run waits this long for the device's first frames (its clock)
 
 
 class LiveSource(SimSource):
     mode = Mode.LIVE
 
     def __init__(self, spec, config, sink: Sink, session_dir: Path | None,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, resume: bool = False,
+                 wall_clock: Callable[[], float] = time.time):
+        """``resume``: ``session_dir`` is an unfinished live session to continue (``resuming``).
+        ``wall_clock``: the host's Unix time, against which the device's clock is judged."""
         from fieldcal.run.livebench import LiveBench
 
         self.config = config
-        bench = LiveBench(config, tap=self._capture_raw, clock=clock, silence_s=NO_SAMPLES_WARN_S)
-        super().__init__(spec, sink, 0.0, session_dir, clock, bench=bench)
+        bench = LiveBench(config, tap=self._capture_raw, clock=clock, silence_s=NO_SAMPLES_WARN_S,
+                          wall_clock=wall_clock)
+        super().__init__(spec, sink, 0.0, session_dir, clock, bench=bench, resume=resume)
         self._caught_up = False  # everything read so far has been fed (then silence is the device's)
+        self.clock_check = None  # a resumed run: what the device's clock said (deviceclock.ClockCheck)
+        # A resumed run reads the device before it may write the session: those bytes wait here.
+        self._raw_lock = threading.Lock()
+        self._early_raw: list[tuple[float, bytes]] | None = [] if resume else None
+
+    @classmethod
+    def resuming(cls, directory: Path, config, sink: Sink, clock: Callable[[], float] = time.monotonic,
+                 wall_clock: Callable[[], float] = time.time) -> LiveSource:
+        """Continue the unfinished live session in ``directory`` on the device of ``config``
+        (its ports; the device must be the session's): the run's spec is the session's."""
+        from fieldcal.run.runner import RunSpec
+        from fieldcal.session.capture import SessionReader
+
+        spec = RunSpec.from_metadata(SessionReader(Path(directory)).start)
+        if spec.live is None:
+            raise ValueError(f"{directory}: a simulated session; LiveSource resumes a live device's")
+        check_same_device(spec.live, config, directory)
+        return cls(spec, config, sink, directory, clock, resume=True, wall_clock=wall_clock)
 
     def _capture_raw(self, t: float, data: bytes) -> None:
         """Called on the port's reader thread (the session writer is thread-safe)."""
-        if self.recorder is not None:
-            self.recorder.raw(t, data)
+        with self._raw_lock:
+            if self.recorder is not None:
+                self.recorder.raw(t, data)
+            elif self._early_raw is not None:
+                self._early_raw.append((t, data))
+
+    def _record_to(self, recorder) -> None:
+        """From now on the session is written: first what was read before."""
+        with self._raw_lock:
+            self.recorder = recorder
+            for t, data in self._early_raw or ():
+                recorder.raw(t, data)
+            self._early_raw = None
 
     def _metadata(self) -> dict:
         return self.spec.session_metadata(None, "tui")
 
     def _conductor(self) -> Conductor:
+        if self.resume:
+            return self._resumed_conductor()
         conductor = super()._conductor()
         self.bench.say = conductor.say
         try:
@@ -54,11 +98,102 @@ class LiveSource(SimSource):
                 if self.recorder is not None:
                     self.recorder.end(Status.ERROR, conductor)
             raise
+        self._say_reading(conductor)
+        return conductor
+
+    def _say_reading(self, conductor: Conductor) -> None:
         table = self.config.table
         conductor.say(f"reading {self.spec.device_name} on {self.bench.url} ({self.config.device.protocol}, "
                       f"{self.spec.rate_hz:g} Hz); table: "
                       f"{f'{table.protocol} on {table.port.url}' if table and table.port else 'none'}")
+
+    def _resumed_conductor(self) -> Conductor:
+        """The conductor after the session's last completed step, or, if the device was (or may
+        have been) power-cycled since, after none of them. The ports are opened and the first
+        frames read before the session is touched: what cannot go on leaves it unchanged."""
+        from fieldcal.run.deviceclock import judge_restart
+        from fieldcal.run.recorder import SessionRecorder
+        from fieldcal.run.steps import steps_on_record
+        from fieldcal.session.capture import SessionReader
+
+        reader = SessionReader(self.session_dir)
+        if reader.stopped:
+            raise ValueError(f"{self.session_dir}: this session already ended ({reader.stop_reason}); "
+                             "nothing to resume")
+        steps = steps_on_record(reader)
+        self.bench.say = lambda text: self._items.append(Note(self._t(), text))
+        try:
+            self.bench.start()
+            if steps:
+                self.bench.set_state(steps[-1].bench or {})
+                self._items.append(Note(0.0, f"reading the device's clock in its first frames from {self.bench.url}"))
+                self._flush(force=True)
+                now = self.bench.first_clock(FIRST_FRAMES_S, lambda: self.stopping)
+                if now is None and self.stopping:
+                    raise ValueError("quit before the device's first frames came; the session is unchanged")
+                if now is None:
+                    raise ValueError(f"no samples from {self.bench.url} within {FIRST_FRAMES_S:g} s, so its "
+                                     "clock cannot be read: is the unit on and sending? The session is "
+                                     "unchanged; resume it again")
+                self.clock_check = judge_restart(self.bench.recorded_clock, now, self.spec.rate_hz)
+        except BaseException:
+            self.bench.close()
+            raise
+        kept, why = self._kept_after(steps)
+        conductor = Conductor(self.spec, self.bench, self, [self], session=self.session_dir,
+                              settings=self.settings)
+        self.conductor = conductor
+        conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why)
+        self._record_to(SessionRecorder.append_to(self.session_dir))
+        conductor.subscribers.insert(0, self.recorder)
+        self.bench.say = conductor.say
+        self._say_reading(conductor)
+        note = self._resume_note(steps, kept, why, conductor.engine.t)
+        self._items.append(replace(note, done=tuple(conductor.engine.records),
+                                   skipped=tuple(conductor.engine.skipped)))
         return conductor
+
+    def _kept_after(self, steps) -> tuple[list, str]:
+        """The completed steps the resumed run keeps, and why not all (or "").
+
+        A power cycle gives a MEMS gyro a new turn-on bias (bias repeatability, often far above
+        the Earth rate the static dwells measure). The solver fits one bias per triad to all
+        the windows (fieldcal.solvers.problems.RateNormProblem): every static dwell's average
+        (a = K⁻¹(u − b)) and every rate step's pair mean ((u₊ + u₋)/2 − b) carries it; only the
+        half-difference of a ± pair is free of it, and it is never used alone. So no gyro window
+        of a step before the power cycle can be combined with one after, and every position's
+        step has gyro windows: all completed steps are measured again (the accelerometer's
+        turn-on bias, shared the same way by its static norms, is renewed with them). The old
+        step documents stay in the session; the resume document says they are not kept.
+        A device that cannot say (no counter or time in its frames) may have been cycled: the
+        same, since a calibration mixing two biases is wrong without any sign of it.
+        """
+        check = self.clock_check
+        if not steps or (check is not None and check.power_cycled is False):
+            return list(steps), ""
+        done = len({s.record.step for s in steps})
+        what = "the unit was power-cycled" if check.power_cycled else "the unit may have been power-cycled"
+        return [], (f"{what} since the last completed step ({check.reason}); the gyro's turn-on bias may "
+                    f"have changed, so the {done} completed step{'s are' if done != 1 else ' is'} measured again")
+
+    def _resume_note(self, steps, kept, why: str, t: float) -> ResumeNote:
+        """The log line and the banner of where the resumed run goes on."""
+        done = len({s.record.step for s in steps})
+        if not steps:
+            return ResumeNote(t, f"resuming {self.session_dir.name}: no step was completed; place the unit "
+                                 "for the first step", "RESUMED: no step was completed before")
+        if kept:
+            return ResumeNote(t, f"resuming {self.session_dir.name} after {done} completed step"
+                                 f"{'s' if done != 1 else ''} ({self.clock_check.reason}): place the unit "
+                                 "again for the next step",
+                              f"RESUMED after {done} completed step{'s' if done != 1 else ''}: "
+                              "place the unit again")
+        power_cycled = self.clock_check.power_cycled
+        banner = ("POWER-CYCLED since the last step" if power_cycled
+                  else "CANNOT TELL whether the unit was power-cycled") + \
+            f": its gyro turn-on bias may have changed; the {done} completed step" \
+            f"{'s are' if done != 1 else ' is'} measured again"
+        return ResumeNote(t, f"WARNING: {why}", banner, warn=True)
 
     def _holds_for_keys(self, run: Conductor) -> bool:
         return False  # samples flow all the time, also while the operator places the unit
@@ -74,8 +209,6 @@ class LiveSource(SimSource):
         self._flush()
 
     def telemetry(self):
-        from dataclasses import replace
-
         telemetry = super().telemetry()
         # Silent only once everything read has been fed: a batch that takes a while to feed (a
         # loaded station) is not a device that stopped.
@@ -106,6 +239,19 @@ class LiveSource(SimSource):
         return [Say(f"({command}: the simulator's keys; this is a real device)")]
 
     def _stopped_message(self) -> str:
-        if self.session_dir is not None:  # a device on a port cannot be rewound to resume
-            return "stopped before the end; the session is kept (a live run is not resumed: start again)"
-        return super()._stopped_message()
+        if self.session_dir is None:
+            return "stopped before the end"
+        return ("stopped before the end; the session can be continued with "
+                f"`fieldcal tui --resume {self.session_dir} --config {self.config.path}`")
+
+
+def check_same_device(live, config, directory) -> None:
+    """A one-line ValueError unless ``config`` describes the device the session was recorded
+    from (its ports may differ: a unit plugged back in may get another one)."""
+    device = config.device
+    recorded = (live.name, live.serial, live.protocol)
+    given = (device.name, device.serial, device.protocol)
+    if recorded != given:
+        raise ValueError(f"--resume: {directory} was recorded from {live.name} (serial {live.serial}, "
+                         f"{live.protocol}); {config.path} is {device.name} (serial {device.serial}, "
+                         f"{device.protocol}): give the config of that unit")

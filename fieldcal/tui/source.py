@@ -15,9 +15,9 @@ while a chunk waits to be due are kept for after it. While the engine waits for 
 in for the operator's hands, so a run's samples depend only on the seed and the keys pressed,
 never on how long the operator took. At speed 0 the same keys give, sample for sample, the
 headless run of the same seed. Below speed 10 the simulator makes chunks of about 0.1 s of wall
-time instead of 1 s so the display moves smoothly: the same samples' statistics, summed in a
-different order, so the result equals the headless one to rounding rather than bit for bit (the
-session still replays bit for bit).
+time instead of 1 s (the carry into place and a bump too) so the display moves smoothly: the
+same samples' statistics, summed in a different order, so the result equals the headless one
+to rounding rather than bit for bit (the session still replays bit for bit).
 """
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ from fieldcal.run.pacing import Pacer
 from fieldcal.tui.readings import RecentSamples, Telemetry
 
 __all__ = ["ABORT", "BUMP", "COMMANDS", "FLUSH_S", "MISPLACE", "QUIT", "READY", "REDO", "SKIP", "Mode",
-           "Note", "Outcome", "Pacer", "ReplaySource", "SimSource", "Sink", "Source", "wrong_position"]
+           "Note", "Outcome", "ResumeNote", "Pacer", "ReplaySource", "SimSource", "Sink", "Source", "wrong_position"]
 
 FLUSH_S = 0.1  # at most one UI update per this much wall time
 
@@ -63,6 +63,17 @@ class Note:
 
     t: float
     text: str
+
+
+@dataclass(frozen=True)
+class ResumeNote(Note):
+    """Where a resumed run goes on: a log line, the banner's first line until the unit is placed
+    (``warn``: completed steps are measured again), and the steps kept done and skipped."""
+
+    banner: str = ""
+    warn: bool = False
+    done: tuple[int, ...] = ()
+    skipped: tuple[int, ...] = ()
 
 
 class Sink(Protocol):
@@ -241,9 +252,11 @@ class SimSource(Source):
         from fieldcal.run.runner import SimulatedBench
 
         bench = SimulatedBench(spec)
-        if speed > 0:  # chunks of about FLUSH_S wall time, so the display moves smoothly
-            bench.chunk_n = max(1, min(bench.chunk_n, round(spec.rate_hz * FLUSH_S * speed)))
-        return bench
+        smooth = max(1, round(spec.rate_hz * FLUSH_S * speed))
+        if speed <= 0 or smooth >= bench.chunk_n:
+            return bench  # the headless run's chunks, so the same keys give the same samples
+        bench.chunk_n = smooth  # chunks of about FLUSH_S wall time, so the display moves smoothly
+        return SmoothHands(bench)
 
     @classmethod
     def resuming(cls, directory: Path, sink: Sink, speed: float,
@@ -294,8 +307,10 @@ class SimSource(Source):
         self.recorder = SessionRecorder.append_to(self.session_dir)
         conductor.subscribers.insert(0, self.recorder)
         done = len(steps)
-        self._items.append(Note(conductor.engine.t, f"resuming {self.session_dir.name} after {done} completed "
-                                f"step{'s' if done != 1 else ''}: place the unit for the next step"))
+        self._items.append(ResumeNote(conductor.engine.t, f"resuming {self.session_dir.name} after {done} "
+                                      f"completed step{'s' if done != 1 else ''}: place the unit for the next step",
+                                      f"RESUMED after {done} completed step{'s' if done != 1 else ''}",
+                                      done=tuple(conductor.engine.records), skipped=tuple(conductor.engine.skipped)))
         return conductor
 
     def _session_after_error(self) -> Path | None:
@@ -336,6 +351,38 @@ class SimSource(Source):
             return [Say(f"operator: {command}"), Act(command)]
         self.bump_times.append(e.t)  # BUMP
         return [Say("operator: bump! (the simulator knocks the fixture)"), Bump()]
+
+
+def _pieces(chunks, n: int) -> list:
+    """The same samples in chunks of at most ``n``."""
+    from drivers.chunk import SampleChunk
+
+    out = []
+    for c in chunks:
+        for i in range(0, len(c), n):
+            part = slice(i, i + n)
+            out.append(SampleChunk(c.t[part], {k: v[part] for k, v in c.triads.items()},
+                                   None if c.temperature is None else c.temperature[part],
+                                   {k: v[part] for k, v in c.extras.items()}))
+    return out
+
+
+class SmoothHands:
+    """The simulated bench, its hands' motions (the carry into place, a bump) in chunks as short
+    as its others: at 1× a carry is seconds of samples, and the readings follow it as it
+    happens instead of jumping once it is over. Everything else is the bench's own."""
+
+    def __init__(self, bench):
+        self.bench = bench
+
+    def __getattr__(self, name: str):
+        return getattr(self.bench, name)
+
+    def move_to(self, nominal) -> list:
+        return _pieces(self.bench.move_to(nominal), self.bench.chunk_n)
+
+    def bump(self) -> list:
+        return _pieces(self.bench.bump(), self.bench.chunk_n)
 
 
 class ReplaySource(Source):

@@ -16,7 +16,7 @@ from fieldcal.procedure.positions import Procedure
 from fieldcal.run.progress import describe
 from fieldcal.tui.guidance import placement
 from fieldcal.tui.readings import Telemetry
-from fieldcal.tui.source import Note
+from fieldcal.tui.source import Note, ResumeNote
 
 TODO, ACTIVE, DONE, SKIPPED, WRONG = "todo", "active", "done", "skipped", "wrong"
 # Each tile's state as a symbol too, for a monochrome or colour-blind operator.
@@ -96,9 +96,10 @@ class RunView:
     placed: bool = False  # the current step's unit has been found still in place
     rates_done: int = 0  # rate steps (±) completed in the current step
     held_while_waiting: bool = False  # the source stops sampling while it waits (the simulator)
-    carrying: bool = False  # the simulator is carrying the unit into place (r pressed)
+    carry_from: int | None = None  # r pressed: the simulator carries the unit, from this many samples
     unit_at: object | None = None  # the Position the unit was last found still in
     looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
+    resumed: ResumeNote | None = None  # a resumed run, until its first unit is placed
 
     def __post_init__(self) -> None:
         if not self.tiles:
@@ -124,6 +125,12 @@ class RunView:
     def apply(self, item) -> str | None:
         """Fold one event or note in; the log line for it (None if it has none)."""
         self.last_t = max(self.last_t, item.t)
+        if isinstance(item, ResumeNote):
+            self.resumed = item
+            for step in item.done:
+                self.tiles[step] = DONE
+            for step in item.skipped:
+                self.tiles[step] = SKIPPED
         if isinstance(item, Note):
             return f"[{item.t:7.1f} s] {item.text}"
         self._fold(item)
@@ -150,7 +157,7 @@ class RunView:
             self.wrong, self.looks_like = e.message, e.looks_like
             self.tiles[self.step] = WRONG
         elif isinstance(e, ev.Still):
-            self.wrong = None
+            self.wrong, self.resumed = None, None
             self.tiles[self.step] = ACTIVE
             if not self.placed:
                 self.placing_s.append(e.t - self.step_t0)
@@ -192,6 +199,15 @@ class RunView:
             if self.step < self.total_steps and self.tiles[self.step] in (ACTIVE, WRONG):
                 self.tiles[self.step] = TODO  # not done (the engine did not skip it)
 
+    @property
+    def carrying(self) -> bool:
+        """The simulator is carrying the unit into place (r pressed)."""
+        return self.carry_from is not None
+
+    @carrying.setter
+    def carrying(self, value: bool) -> None:
+        self.carry_from = (self.telemetry.samples if self.telemetry is not None else 0) if value else None
+
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.telemetry = telemetry
         if telemetry.phase != en.PLACE:
@@ -204,8 +220,8 @@ class RunView:
         tel = self.telemetry
         if tel is not None and tel.silent_s is not None:
             return f"no samples for {tel.silent_s:.0f} s" if tel.silent_s >= 1 else "no samples"
-        if self.carrying:
-            return "the simulator is moving the unit"
+        if self.carrying and tel is not None and tel.samples == self.carry_from:
+            return "the simulator is moving the unit"  # until its first samples come
         if self.held_while_waiting and tel is not None and tel.waiting:
             return "the simulator waits for r"
         return None
@@ -307,6 +323,8 @@ class RunView:
             text = f"Position {p.id}: {move.text}" + ("; r: the simulator does it" if sim else ", then press r")
             if move.heading_only and self.unit_at is not None:
                 text += "\nOnly the heading changes, which the check cannot see: check it by eye"
+            if self.resumed is not None:
+                return f"{self.resumed.banner}\n{text}", "warn" if self.resumed.warn else "act"
             return text, "act"
         if phase == en.WRONG:
             by_id = {q.id: q for q in self.procedure.positions}

@@ -4,9 +4,13 @@ present), the procedure and the station, before a run.
 ``SetupScreen(initial)`` dismisses with the operator's ``SetupChoice`` (already checked by
 ``resolve_choice`` and remembered with ``save_last_choice``), or with None when the operator quits
 (Esc, or q outside a text field). Start: ctrl+s anywhere, Enter in a text field, or the button.
+
+Given a sessions directory, it also offers the unfinished sessions there: Resume dismisses with a
+``ResumeChoice`` (a live session's ports: the config chosen above, checked like Start's).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
@@ -28,6 +32,7 @@ from fieldcal.tui.choices import (
     load_choice_procedure,
     resolve_choice,
     save_last_choice,
+    unfinished_sessions,
 )
 
 SIMULATED = "simulated"
@@ -85,7 +90,15 @@ def _config_name(config: str) -> str:
     return config
 
 
-class SetupScreen(Screen[SetupChoice | None]):
+@dataclass(frozen=True)
+class ResumeChoice:
+    """The operator chose to resume this unfinished session."""
+
+    session: Path
+    live: bool  # a real device's session (its ports: the screen's ``resolved`` config)
+
+
+class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
     """Pick the device config, port, procedure and station; dismiss(SetupChoice) on Start, or
     dismiss(None) on Esc / q."""
 
@@ -93,16 +106,19 @@ class SetupScreen(Screen[SetupChoice | None]):
     AUTO_FOCUS = "#config"
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("ctrl+s", "start", "start", priority=True),
+        Binding("ctrl+r", "resume", "resume", priority=True),
         Binding("escape", "quit", "quit"),
         Binding("q", "quit", "quit", show=False),
     ]
 
     def __init__(self, initial: SetupChoice | None = None,
-                 last_choice_path: str | Path | None = None) -> None:
+                 last_choice_path: str | Path | None = None, sessions: str | Path | None = None) -> None:
         """``initial``: the values to show first (the caller merges the command line and the
         remembered choice); None: the sim config and field-18 with the config's station.
-        ``last_choice_path``: where Start remembers the choice (default: the XDG location)."""
+        ``last_choice_path``: where Start remembers the choice (default: the XDG location).
+        ``sessions``: the sessions directory, whose unfinished sessions are offered to resume."""
         super().__init__()
+        self.unfinished = unfinished_sessions(sessions) if sessions is not None else []
         self.initial = initial
         self.last_choice_path = last_choice_path
         self.config: StationConfig | None = None  # the config currently chosen, if it loads
@@ -161,6 +177,12 @@ class SetupScreen(Screen[SetupChoice | None]):
             yield Label("Height", classes="label small")
             yield Input("", type="number", id="height")
             yield Label("m", classes="unit")
+        if self.unfinished:
+            with Horizontal(classes="row"):
+                yield Label("Unfinished", classes="label")
+                yield Select([(u.label, str(u.path)) for u in self.unfinished], prompt="a session to resume",
+                             value=str(self.unfinished[0].path), id="unfinished")
+                yield Button("Resume", id="resume")
         yield Static("", id="error")
         with Horizontal(id="actions"):
             yield Button("Start", id="start", variant="success")
@@ -306,6 +328,10 @@ class SetupScreen(Screen[SetupChoice | None]):
     def _start_pressed(self) -> None:
         self.action_start()
 
+    @on(Button.Pressed, "#resume")
+    def _resume_pressed(self) -> None:
+        self.action_resume()
+
     # --- actions ------------------------------------------------------------------------------
 
     def action_start(self) -> None:
@@ -320,6 +346,24 @@ class SetupScreen(Screen[SetupChoice | None]):
         except OSError as exc:
             self.app.notify(f"could not remember this setup: {exc}", severity="warning")
         self.dismiss(choice)
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        return bool(self.unfinished) if action == "resume" else True  # offered when there is one
+
+    def action_resume(self) -> None:
+        """Resume the unfinished session chosen; a live one on the ports the fields show."""
+        value = self.query_one("#unfinished", Select).value
+        if value is Select.NULL:
+            self.set_error("resume: choose an unfinished session first")
+            return
+        session = next(u for u in self.unfinished if str(u.path) == value)
+        if session.device is not None:
+            try:
+                self.resolved = resolve_choice(self.choice())
+            except ValueError as exc:
+                self.set_error(" ".join(str(exc).split()))
+                return
+        self.dismiss(ResumeChoice(session.path, session.device is not None))
 
     def action_quit(self) -> None:
         self.dismiss(None)

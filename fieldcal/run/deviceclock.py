@@ -1,0 +1,100 @@
+"""What a live device says about its own clock, and whether it restarted while a run was away.
+
+A live run records, with each completed step, the device's clock as last read (``DeviceClock``):
+its sample time where the protocol carries one (Xsens SampleTimeFine, a delimited time column),
+its packet counter where it carries one (Xsens PacketCounter, a delimited counter column), and
+the host's wall clock then. VectorNav's ASCII sentences carry neither.
+
+When the run is resumed, the first frames' clock is compared with the recorded one
+(``judge_restart``): had the device run on, its clock would have advanced by the wall time
+between the two, within the clocks' drift. A device that was power-cycled meanwhile restarted
+its clock from zero, so it is behind that (it "went back", or advanced less than the time away).
+A clock that wraps (Xsens: SampleTimeFine after 119 h, the 16-bit counter after 65536 frames) is
+compared modulo its period; a counter that wraps too often to be sure, or no clock at all, is
+"cannot tell" (``power_cycled`` None).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+SLACK_S = 2.0  # reading latency, frames buffered in the port, the host's clock resolution
+DRIFT = 1e-3  # the device's clock against the host's, per unit time (crystals do far better)
+XSENS_TIME_PERIOD_S = 2.0**32 / 1e4  # SampleTimeFine: uint32 at 10 kHz
+XSENS_COUNTER_MODULUS = 65536  # PacketCounter: uint16
+
+
+@dataclass(frozen=True)
+class DeviceClock:
+    host_utc: float  # the host's wall clock (Unix time, s) when this clock was read
+    time_s: float | None = None  # the device's sample time, s
+    time_period_s: float | None = None  # where the device's time wraps (None: it does not)
+    counter: int | None = None  # the device's packet counter
+    counter_modulus: int | None = None  # where the counter wraps (None: it does not)
+
+    def to_dict(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if v is not None}
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> DeviceClock | None:
+        if not isinstance(d, dict) or not isinstance(d.get("host_utc"), (int, float)):
+            return None
+        return cls(float(d["host_utc"]), *(d.get(k) for k in ("time_s", "time_period_s", "counter",
+                                                               "counter_modulus")))
+
+
+def clock_of(chunk, parser, host_utc: float) -> DeviceClock:
+    """The clock of a chunk's last sample, as far as ``parser``'s protocol tells it."""
+    from drivers.protocols.delimited import DelimitedTextParser
+    from drivers.protocols.xsens import XsensMtData2Parser
+
+    time_s = float(chunk.t[-1]) if getattr(parser, "device_time", False) else None
+    period = modulus = counter = None
+    if isinstance(parser, XsensMtData2Parser):
+        period, modulus = XSENS_TIME_PERIOD_S, XSENS_COUNTER_MODULUS
+        counter = chunk.extras.get("packet_counter")
+    elif isinstance(parser, DelimitedTextParser):
+        modulus = parser.map.counter_modulus
+        counter = chunk.extras.get("counter")
+    return DeviceClock(host_utc, time_s, period if time_s is not None else None,
+                       None if counter is None else int(round(float(counter[-1]))),
+                       modulus if counter is not None else None)
+
+
+@dataclass(frozen=True)
+class ClockCheck:
+    power_cycled: bool | None  # None: cannot tell
+    reason: str  # in the operator's words, for the banner and the log
+
+
+def _behind(last: float, now: float, advance: float, slack: float, period: float | None) -> bool:
+    """Is ``now`` behind where a clock at ``last`` would be after ``advance``, beyond ``slack``?"""
+    d = now - (last + advance)
+    if period is None:
+        return d < -slack
+    d %= period
+    return min(d, period - d) > slack
+
+
+def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float) -> ClockCheck:
+    """Did the device restart between ``recorded`` (the last completed step) and ``now``?"""
+    if recorded is None:
+        return ClockCheck(None, "the session holds no device clock for its last step")
+    away = max(0.0, now.host_utc - recorded.host_utc)
+    slack = SLACK_S + DRIFT * away
+    if recorded.time_s is not None and now.time_s is not None:
+        expected = recorded.time_s + away
+        if _behind(recorded.time_s, now.time_s, away, slack, recorded.time_period_s):
+            return ClockCheck(True, f"its clock reads {now.time_s:.1f} s where running on it would "
+                                    f"read {expected:.1f} s, {away:.0f} s after the last step")
+        return ClockCheck(False, f"its clock ran on: {now.time_s:.1f} s, {away:.0f} s after the last step")
+    if recorded.counter is not None and now.counter is not None:
+        modulus = recorded.counter_modulus
+        advance, slack_counts = away * rate_hz, slack * rate_hz
+        if modulus is not None and slack_counts > modulus / 4:
+            return ClockCheck(None, f"its packet counter wraps every {modulus / rate_hz:.0f} s, too often "
+                                    f"to tell after {away:.0f} s away")
+        if _behind(recorded.counter, now.counter, advance, slack_counts, modulus):
+            return ClockCheck(True, f"its packet counter reads {now.counter} where running on it would "
+                                    f"read about {round(recorded.counter + advance) % (modulus or 2**63)}")
+        return ClockCheck(False, f"its packet counter ran on ({now.counter}, {away:.0f} s after the last step)")
+    return ClockCheck(None, "its frames carry no packet counter or time")

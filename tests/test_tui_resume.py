@@ -1,0 +1,312 @@
+"""Issue 15 item 2: the setup screen offers the unfinished sessions; a quit live run resumed in
+the terminal UI, with the device (the simulator serving Xsens frames on a pty) running on, or
+power-cycled in between; and the device-clock judgement itself, on hand-worked cases and on real
+frame bytes."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.chunk import SampleChunk
+from drivers.protocols import make_parser
+from drivers.sim.device import paper_mimu
+from drivers.sim.serve import SimulatedDevices
+from fieldcal.cli.tui import live_spec
+from fieldcal.config import load_config
+from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart
+from fieldcal.run.replay import replay_session
+from fieldcal.run.steps import completed_records, steps_on_record
+from fieldcal.session.capture import SessionReader
+from fieldcal.tui import FieldcalApp
+from tests.test_tui_live import OPTIONS, STATION, live_config
+from tests.tui_pilot import run_async, until, waiting_at
+from tests.test_tui import on_results, two_positions
+
+SHORT = """\
+name: two-short
+title: two positions, 3 s dwells
+dwell_s: 3
+positions:
+  - {id: 1, description: "z-upward, x-south, y-east", axes: {x: south, y: east, z: up}}
+  - {id: 2, description: "z-upward, x-north, y-west", axes: {x: north, y: west, z: up}}
+"""
+SPEED = 2.0  # the served device's sample time per wall time
+
+
+# --- the judgement, by hand ------------------------------------------------------------------
+
+def test_a_clock_that_ran_on_is_not_a_restart_one_that_is_behind_is():
+    last = DeviceClock(host_utc=1000.0, time_s=500.0, time_period_s=XSENS_TIME_PERIOD_S, counter=7,
+                       counter_modulus=65536)
+    ran_on = judge_restart(last, DeviceClock(1100.0, 600.5), rate_hz=100)
+    assert ran_on.power_cycled is False
+    # Restarted 30 s before: 30 s where 600 s was due.
+    restarted = judge_restart(last, DeviceClock(1100.0, 30.0), rate_hz=100)
+    assert restarted.power_cycled is True and "600.0 s" in restarted.reason
+    # A restart long ago that has run past the old reading is still behind what was due.
+    assert judge_restart(last, DeviceClock(5000.0, 3000.0), rate_hz=100).power_cycled is True
+    # SampleTimeFine wraps after 119 h: 10 s before the wrap, then 100 s later 90 s after it.
+    near_wrap = DeviceClock(0.0, XSENS_TIME_PERIOD_S - 10.0, XSENS_TIME_PERIOD_S)
+    assert judge_restart(near_wrap, DeviceClock(100.0, 90.0), rate_hz=100).power_cycled is False
+
+
+def test_a_packet_counter_is_judged_modulo_its_wrap_and_nothing_is_cannot_tell():
+    last = DeviceClock(0.0, counter=65000, counter_modulus=65536)
+    # 10 s at 100 Hz: 1000 frames on, past the wrap: 66000 mod 65536 = 464.
+    assert judge_restart(last, DeviceClock(10.0, counter=470), rate_hz=100).power_cycled is False
+    assert judge_restart(last, DeviceClock(10.0, counter=12), rate_hz=100).power_cycled is True
+    # At 1 kHz after a day away the drift allowance exceeds a quarter of the wrap: cannot tell.
+    assert judge_restart(last, DeviceClock(86400.0, counter=12), rate_hz=1000).power_cycled is None
+    assert judge_restart(DeviceClock(0.0), DeviceClock(10.0), rate_hz=100).power_cycled is None
+    assert judge_restart(None, DeviceClock(10.0, 5.0), rate_hz=100).power_cycled is None
+    assert DeviceClock.from_dict(last.to_dict()) == last
+    assert DeviceClock.from_dict(None) is None  # a step recorded before clocks were
+
+
+def test_the_clock_is_read_from_real_frames():
+    from drivers.protocols import make_encoder
+
+    n = 5
+    chunk = SampleChunk(t=123.0 + np.arange(n) / 100, triads={"accelerometer": np.zeros((n, 3)),
+                                                              "gyroscope": np.zeros((n, 3))},
+                        temperature=np.full(n, 25.0))
+    xsens = make_parser("xsens")
+    parsed = xsens.feed(make_encoder("xsens").encode(chunk), t_host=9.0)
+    clock = clock_of(parsed, xsens, host_utc=1e9)
+    assert clock.time_s == pytest.approx(123.04) and clock.counter == n - 1  # the encoder counts from 0
+    assert clock.time_period_s == XSENS_TIME_PERIOD_S and clock.counter_modulus == 65536
+    vectornav = make_parser("vectornav")
+    sent = SampleChunk(t=chunk.t, triads={**chunk.triads, "magnetometer": np.zeros((n, 3))},
+                       temperature=chunk.temperature, extras={"pressure": np.full(n, 101.3)})
+    parsed = vectornav.feed(make_encoder("vectornav").encode(sent), t_host=9.0)
+    assert len(parsed) == n and clock_of(parsed, vectornav, 1e9) == DeviceClock(1e9)  # the host's alone
+
+
+# --- in the terminal UI, on a device served on a pty ----------------------------------------
+
+class WorldClock:
+    """The simulated world's time as the host's wall clock: the served device's sample time
+    (plus what passed before it was switched on), so the host and the device agree exactly on
+    how long the run was away, whatever the load on the machine running the test."""
+
+    def __init__(self, devices: SimulatedDevices):
+        self.devices, self.offset = devices, 0.0
+
+    def switch(self, devices: SimulatedDevices) -> None:
+        """A power cycle: the new device's clock starts at zero, the world's runs on."""
+        self.offset += self.devices.simulator.time
+        self.devices = devices
+
+    def __call__(self) -> float:
+        return self.offset + self.devices.simulator.time
+
+
+def serve(seed: int, protocol: str = "xsens") -> SimulatedDevices:
+    return SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol=protocol,
+                            table_protocol="ascii", speed=SPEED, seed=seed, rate_hz=250).start()
+
+
+@pytest.fixture
+def served():
+    devices = [serve(3)]
+    yield devices
+    for d in devices:
+        d.stop()
+
+
+def vectornav_config(tmp_path, devices):
+    """``live_config`` for a device sending VectorNav ASCII sentences (no counter, no time)."""
+    path = Path(live_config(tmp_path, devices).path)
+    path.write_text(path.read_text().replace("protocol: xsens", "protocol: vectornav"))
+    return load_config(path)
+
+
+async def _first_step_then_quit(tmp_path, devices, world, procedure, make_config=live_config):
+    config = make_config(tmp_path, devices)
+    app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config,
+                      wall_clock=world)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(app, 1))
+        await pilot.press("q", "y")
+    app.source.done.wait(10.0)
+    assert app.source.outcome.status == "stopped"
+    assert f"fieldcal tui --resume {tmp_path / 'session'} --config" in app.source.outcome.message
+    return config
+
+
+async def _resume(tmp_path, config, world, first_step, carry):
+    app = FieldcalApp(speed=0, resume=tmp_path / "session", config=config, wall_clock=world)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, first_step))
+        banner = str(app.screen.query_one("#banner").render())
+        for step in range(first_step, 2):
+            await until(pilot, lambda step=step: waiting_at(app, step))
+            carry(app.spec.procedure.positions[step].attitude)
+            await pilot.press("r")
+        await until(pilot, lambda: app.outcome is not None and on_results(app))
+        log = " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
+    return app, banner, log
+
+
+def _the_config_must_be_the_sessions_device(tmp_path, config):
+    """`tui --resume` of a live session: which config gives the ports, in one line if none fits."""
+    from fieldcal.cli.tui import resume_config
+    from fieldcal.tui.app import live_device_of
+
+    session = tmp_path / "session"
+    live = live_device_of(session)
+    assert live.name == "bench MTi" and live.serial == "SN-42"
+    with pytest.raises(ValueError, match="give its station config \\(the ports\\) with --config"):
+        resume_config(session, live, None)  # (XDG_CONFIG_HOME is empty: no remembered setup)
+    with pytest.raises(ValueError, match="was recorded from bench MTi \\(serial SN-42, xsens\\); .*sim.yaml is"):
+        resume_config(session, live, "sim")
+    assert resume_config(session, live, str(config.path)).device.port.url == config.device.port.url
+
+
+def _the_command_line_resumes_it_on_the_configs_ports(tmp_path, config, monkeypatch):
+    from fieldcal.cli.main import main
+    from fieldcal.tui import app
+
+    asked = []
+    monkeypatch.setattr(app, "run_tui", lambda *a, **kw: asked.append((a, kw)) or 0)
+    assert main(["tui", "--resume", str(tmp_path / "session"), "--config", str(config.path)]) == 0
+    (args, kw), = asked
+    assert args[1] == 0.0 and kw["resume"] == tmp_path / "session"  # a device's pace, not a speed
+    assert kw["config"].device.port.url == config.device.port.url
+
+
+@run_async
+async def test_a_live_run_resumed_on_a_device_that_ran_on_continues_after_its_last_step(tmp_path, served,
+                                                                                       monkeypatch):
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
+    devices = served[0]
+    world = WorldClock(devices)
+    procedure = two_positions(tmp_path, SHORT)
+    config = await _first_step_then_quit(tmp_path, devices, world, procedure)
+    (first,) = SessionReader(tmp_path / "session").steps()
+    clock = first["bench"]["device_clock"]
+    assert clock["time_s"] > 0 and 0 <= clock["counter"] < 65536 and clock["host_utc"] > 0
+    _the_config_must_be_the_sessions_device(tmp_path, config)
+    _the_command_line_resumes_it_on_the_configs_ports(tmp_path, config, monkeypatch)
+
+    app, banner, log = await _resume(tmp_path, config, world, 1,
+                                     lambda attitude: devices.carry(attitude, 2.0).result(timeout=60))
+    assert banner.startswith("RESUMED after 1 completed step: place the unit again")
+    assert "its clock ran on" in log and "power-cycled" not in log
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    reader = SessionReader(tmp_path / "session")
+    (resume,) = [d["data"] for d in reader.documents("resume")]
+    assert resume == {"completed_steps": [0], "skipped": []}
+    assert reader.steps()[0] == first  # appended to, never rewritten
+    assert [r.step for r in completed_records(reader)] == [0, 1]
+    # Every sample fed came from bytes in the raw capture, also those read to judge the clock
+    # before the session could be written.
+    parser = make_parser("xsens")
+    parsed = sum(len(c) for _, data in reader.raw("imu") if (c := parser.feed(data, 0.0)) is not None)
+    assert parsed >= reader.n_samples > 0
+
+
+@run_async
+async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_steps_again(tmp_path, served):
+    devices = served[0]
+    world = WorldClock(devices)
+    procedure = two_positions(tmp_path, SHORT)
+    await _first_step_then_quit(tmp_path, devices, world, procedure)
+    (first,) = SessionReader(tmp_path / "session").steps()
+    devices.stop()  # switched off; switched on again, plugged into another port
+    restarted = serve(4)
+    served.append(restarted)
+    world.switch(restarted)
+    config = live_config(tmp_path, restarted)
+
+    app, banner, log = await _resume(tmp_path, config, world, 0,
+                                     lambda attitude: restarted.carry(attitude, 2.0).result(timeout=60))
+    assert banner.startswith("POWER-CYCLED since the last step: its gyro turn-on bias may have changed; "
+                             "the 1 completed step is measured again")
+    assert "WARNING: the unit was power-cycled since the last completed step (its clock reads" in log
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    reader = SessionReader(tmp_path / "session")
+    (resume,) = [d["data"] for d in reader.documents("resume")]
+    assert resume["completed_steps"] == [] and "power-cycled" in resume["why"]
+    steps = reader.steps()
+    assert len(steps) == 3 and steps[0] == first  # the first measurement is kept in the session,
+    kept = steps_on_record(reader)  # but no longer counted
+    assert [s.record.step for s in kept] == [0, 1] and kept[0].record.to_dict() != \
+        {k: v for k, v in first.items() if k not in ("skipped", "bench")}
+    assert [r.step for r in completed_records(reader)] == [0, 1]
+    # Replayed without the devices: the recorded resume restarts the engine from no step.
+    replayed = []
+    unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
+    assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
+    assert unit.failures == app.outcome.unit.failures
+
+
+@run_async
+async def test_a_device_whose_frames_carry_no_clock_is_taken_as_power_cycled(tmp_path):
+    """VectorNav ASCII: nothing tells a restart, so the completed step is measured again."""
+    devices = serve(5, "vectornav")
+    try:
+        world = WorldClock(devices)
+        config = await _first_step_then_quit(tmp_path, devices, world, two_positions(tmp_path, SHORT),
+                                             vectornav_config)
+        (first,) = SessionReader(tmp_path / "session").steps()
+        assert set(first["bench"]["device_clock"]) == {"host_utc"}  # the host's time alone
+        app, banner, log = await _resume(tmp_path, config, world, 0,
+                                         lambda attitude: devices.carry(attitude, 2.0).result(timeout=60))
+    finally:
+        devices.stop()
+    assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
+                             "changed; the 1 completed step is measured again")
+    assert "its frames carry no packet counter or time" in log
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
+    assert resume["completed_steps"] == [] and "may have been power-cycled" in resume["why"]
+
+
+# --- the setup screen's offer ------------------------------------------------------------------
+
+@run_async
+async def test_the_setup_screen_offers_an_unfinished_session_and_resumes_it(tmp_path, monkeypatch):
+    import types
+
+    from fieldcal.cli.tui import resume_maker
+    from fieldcal.run.runner import RunSpec, run_headless
+    from fieldcal.tui.screens.setup import SetupScreen
+    from fieldcal.tui.view import ACTIVE, DONE
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
+    sessions = tmp_path / "sessions"
+    spec = RunSpec(two_positions(tmp_path), STATION, seed=5)
+    quit_run = FieldcalApp(spec, speed=0, session_dir=sessions / "quit-after-one")
+    async with quit_run.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(quit_run, 0))
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(quit_run, 1))
+        await pilot.press("q", "y")
+    quit_run.source.done.wait(10.0)
+    run_headless(spec, sessions / "completed")  # ended: not offered
+    (sessions / "not-a-session").mkdir()
+
+    def make_run(config, procedure):  # pragma: no cover - the test resumes, it never starts
+        raise AssertionError("not started")
+
+    args = types.SimpleNamespace(speed=0.0, config=None)
+    app = FieldcalApp(setup=(None, make_run, sessions, resume_maker(args)))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: isinstance(app.screen, SetupScreen) and bool(app.screen.query("#unfinished")))
+        offered = app.screen.unfinished
+        assert [(u.path.name, u.done, u.total, u.device) for u in offered] == [("quit-after-one", 1, 2, None)]
+        assert app.screen.query_one("#unfinished").value == str(sessions / "quit-after-one")
+        await pilot.press("ctrl+r")
+        await until(pilot, lambda: waiting_at(app, 1))
+        assert app.screen.view.tiles == [DONE, ACTIVE]
+        assert str(app.screen.query_one("#banner").render()).startswith("RESUMED after 1 completed step")
+        await pilot.press("r")
+        await until(pilot, lambda: app.outcome is not None and on_results(app))
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    assert SessionReader(sessions / "quit-after-one").stop_reason == "completed"
