@@ -13,10 +13,14 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from drivers.noise import TriadNoise
-from drivers.sim.noise import NoiseGenerator
+from drivers.sim.noise import InnovationNoise, NoiseGenerator
 
 SPECIFIC_FORCE = "specific_force"
 ANGULAR_RATE = "angular_rate"
+# How the noise is drawn: "innovations" (one normal number per sample and axis, InnovationNoise)
+# or "bank" (one per Gauss-Markov process, NoiseGenerator: the simulator before issue 12's speed
+# work, kept so that the sessions it wrote resume as they began). The same noise in law.
+NOISE_MODELS = ("innovations", "bank")
 
 
 def lower_triangular_k(scale, misalignment) -> np.ndarray:
@@ -60,10 +64,11 @@ class MimuSimulator:
     rate_hz: float = 250.0
     lever_arm: np.ndarray = field(default_factory=lambda: np.array([0.03, 0.02, 0.01]))  # m, body
     seed: int = 0
+    noise_model: str = "innovations"  # one of NOISE_MODELS
 
     def __post_init__(self) -> None:
         self._rng = np.random.default_rng(self.seed)
-        self._noise = {n: NoiseGenerator(t.noise, self.rate_hz, self._rng) for n, t in self.triads.items()}
+        self._make_noise(self.noise_model)
         self._sample = 0  # index of the next sample
         self._angle = 0.0  # table angle, rad
         self._rate = 0.0  # table rate, rad/s
@@ -105,17 +110,36 @@ class MimuSimulator:
         self._sample += n
         return self._sample_chunk(first, force, omega)
 
+    def _make_noise(self, model: str) -> None:
+        if model not in NOISE_MODELS:
+            raise ValueError(f"noise_model: expected one of {', '.join(NOISE_MODELS)}, got {model!r}")
+        self.noise_model = model
+        if model == "bank":
+            self._noise = {n: NoiseGenerator(t.noise, self.rate_hz, self._rng) for n, t in self.triads.items()}
+        else:
+            self._noise = InnovationNoise([t.noise for t in self.triads.values()], self.rate_hz, self._rng)
+
     def get_state(self) -> dict:
         """Everything needed to continue bit for bit (JSON-able), e.g. after a crash."""
+        if self.noise_model == "bank":
+            noise = {name: gen.get_state() for name, gen in self._noise.items()}
+        else:
+            noise = self._noise.get_state()  # its "innovations" key tells the model
         return {"sample": self._sample, "angle": self._angle, "rate": self._rate,
-                "rng": self._rng.bit_generator.state,
-                "noise": {name: gen.get_state() for name, gen in self._noise.items()}}
+                "rng": self._rng.bit_generator.state, "noise": noise}
 
     def set_state(self, state: dict) -> None:
+        """Continue from ``get_state``'s dict, with the noise model it was drawn with."""
+        model = "innovations" if "innovations" in state["noise"] else "bank"
+        if model != self.noise_model:
+            self._make_noise(model)
         self._sample, self._angle, self._rate = int(state["sample"]), float(state["angle"]), float(state["rate"])
         self._rng.bit_generator.state = state["rng"]
-        for name, gen in self._noise.items():
-            gen.set_state(state["noise"][name])
+        if model == "bank":
+            for name, gen in self._noise.items():
+                gen.set_state(state["noise"][name])
+        else:
+            self._noise.set_state(state["noise"])
 
     def advance(self, n: int, attitude: np.ndarray, target_rate: float, max_accel: float) -> SampleChunk:
         """The next n samples with the table driven toward ``target_rate`` (rad/s) at up to
@@ -175,9 +199,14 @@ class MimuSimulator:
     def _sample_chunk(self, first: int, force: np.ndarray, omega: np.ndarray) -> SampleChunk:
         t = (first + np.arange(len(force))) / self.rate_hz
         out = {}
+        if self.noise_model == "innovations":
+            drawn = self._noise.draw(len(t))  # (n, triads, 3)
+            noise = {name: drawn[:, i] for i, name in enumerate(self.triads)}
+        else:
+            noise = {name: gen.draw(len(t)) for name, gen in self._noise.items()}
         for name, truth in self.triads.items():
             true = force if truth.kind == SPECIFIC_FORCE else omega
-            raw = (true + self._noise[name].draw(len(t))) @ truth.K.T + truth.bias
+            raw = (true + noise[name]) @ truth.K.T + truth.bias
             if truth.lsb:
                 raw = np.round(raw / truth.lsb) * truth.lsb
             out[name] = raw

@@ -51,6 +51,9 @@ class RunSpec:
     on_motion: str = "restart"
     script: OperatorScript = field(default_factory=OperatorScript)
     live: LiveDevice | None = None  # a real device on a port; None: the simulated MIMU
+    # How the simulator draws its noise (drivers.sim.physics.NOISE_MODELS): sessions recorded
+    # before the model was named used "bank", and resume with it.
+    sim_noise: str = "innovations"
 
     def to_metadata(self) -> dict:
         if self.live is not None:
@@ -68,7 +71,7 @@ class RunSpec:
                         "gravity_m_s2": self.station.gravity_m_s2},
             "device": {"name": SIM_DEVICE_NAME, "raw_counts": self.raw_counts,
                        "rate_hz": self.rate_hz},
-            "seed": self.seed, "method": self.method, "on_motion": self.on_motion,
+            "seed": self.seed, "sim_noise": self.sim_noise, "method": self.method, "on_motion": self.on_motion,
             "script": asdict(self.script),
             "simulation_truth": {name: {"kind": t.kind, "K": t.K.tolist(), "bias": t.bias.tolist(),
                                         "output_unit": t.output_unit} for name, t in device.items()},
@@ -100,7 +103,8 @@ class RunSpec:
         script = dict(meta["script"])
         script["skip_steps"] = tuple(script["skip_steps"])
         script["bump_at_s"] = tuple(script.get("bump_at_s", ()))  # absent before bump_at_s existed
-        return cls(**common, seed=meta["seed"], raw_counts=meta["device"]["raw_counts"],
+        return cls(**common, seed=meta["seed"], sim_noise=meta.get("sim_noise", "bank"),
+                   raw_counts=meta["device"]["raw_counts"],
                    script=OperatorScript(**script))
 
     def device(self):
@@ -162,7 +166,7 @@ class SimulatedBench:
         noise_seed, operator_seed = np.random.SeedSequence(spec.seed).spawn(2)
         self.sim = MimuSimulator(spec.device(), gravity=spec.station.gravity,
                                  latitude_rad=spec.station.latitude_rad, rate_hz=spec.rate_hz,
-                                 seed=noise_seed)
+                                 seed=noise_seed, noise_model=spec.sim_noise)
         self.rng = np.random.default_rng(operator_seed)
         self.attitude = np.eye(3)
         self.target_deg_s = 0.0
