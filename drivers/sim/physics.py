@@ -6,6 +6,7 @@ dwell), reached by a constant angular acceleration over ``ramp_s`` from the prev
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Iterator, Mapping
 
@@ -14,6 +15,7 @@ import numpy as np
 from drivers.chunk import SampleChunk
 from drivers.noise import TriadNoise
 from drivers.sim.noise import InnovationNoise, NoiseGenerator
+from drivers.sim.rotations import matrix_rotvec, rotvec_matrix
 
 SPECIFIC_FORCE = "specific_force"
 ANGULAR_RATE = "angular_rate"
@@ -69,6 +71,7 @@ class MimuSimulator:
     def __post_init__(self) -> None:
         self._rng = np.random.default_rng(self.seed)
         self._make_noise(self.noise_model)
+        self._rest_cache: tuple = (None, None)
         self._sample = 0  # index of the next sample
         self._angle = 0.0  # table angle, rad
         self._rate = 0.0  # table rate, rad/s
@@ -91,12 +94,11 @@ class MimuSimulator:
         plus hand shake of about ``shake`` m/s² and a tenth as many rad/s."""
         if self._rate != 0.0:
             raise ValueError("the table must be stopped before the unit is moved")
-        from scipy.spatial.transform import Rotation
         tau = np.arange(1, n + 1) / n
         s = tau * tau * (3 - 2 * tau)  # smoothstep: starts and ends at rest
         ds = 6 * tau * (1 - tau) * self.rate_hz / n  # d s / d t
-        rotvec = Rotation.from_matrix(start.T @ end).as_rotvec()  # in body axes
-        attitudes = (Rotation.from_matrix(start) * Rotation.from_rotvec(np.outer(s, rotvec))).as_matrix()
+        rotvec = matrix_rotvec(start.T @ end)  # in body axes
+        attitudes = start @ rotvec_matrix(np.outer(s, rotvec))
         c, si = np.cos(self._angle), np.sin(self._angle)
         table = np.array([[c, -si, 0.0], [si, c, 0.0], [0.0, 0.0, 1.0]])
         to_body = np.einsum("ij,njk->nki", table, attitudes)  # (C_table · A)ᵀ per sample
@@ -168,16 +170,35 @@ class MimuSimulator:
                     np.where(in_ramp, accel, 0.0), angle)
 
         # The end state is known now; a caller that stops early still leaves time consistent.
-        end_rate, _, end_angle = table(np.array([n_total / self.rate_hz]))
-        self._rate, self._angle, self._sample = float(end_rate[0]), float(end_angle[0]), start + n_total
+        end = n_total / self.rate_hz
+        ramped = min(end, ramp)
+        end_angle = angle0 + rate0 * ramped + 0.5 * accel * ramped**2 + seg.table_rate * max(end - ramp, 0.0)
+        end_rate = rate0 + accel * end if end < ramp else seg.table_rate
+        self._rate, self._angle, self._sample = float(end_rate), float(end_angle), start + n_total
         for done in range(0, n_total, chunk_len):
+            if seg.table_rate == 0.0 and done / self.rate_hz >= ramp:
+                # At rest (most of a run): one attitude for the whole chunk.
+                n = min(done + chunk_len, n_total) - done
+                yield self._sample_chunk(start + done, *self._at_rest(seg.attitude, end_angle), n=n)
+                continue
             tau = np.arange(done, min(done + chunk_len, n_total)) / self.rate_hz
             rate, alpha, angle = table(tau)
             yield self._chunk(start + done, seg.attitude, angle, rate, alpha)
 
-    def true_inputs(self, attitude, angle, rate, alpha) -> tuple[np.ndarray, np.ndarray]:
+    def _at_rest(self, attitude, angle: float) -> tuple[np.ndarray, np.ndarray]:
+        """``true_inputs`` of a table at rest at ``angle``: one (1, 3) row each (a dwell asks
+        the same many times over)."""
+        key = (np.asarray(attitude, dtype=float).tobytes(), angle)
+        if self._rest_cache[0] != key:
+            c, s = np.array([math.cos(angle)]), np.array([math.sin(angle)])
+            zero = np.zeros(1)
+            self._rest_cache = key, self.true_inputs(attitude, np.array([angle]), zero, zero, c=c, s=s)
+        return self._rest_cache[1]
+
+    def true_inputs(self, attitude, angle, rate, alpha, c=None, s=None) -> tuple[np.ndarray, np.ndarray]:
         """Specific force (m/s²) and angular rate (rad/s) in body axes, (n, 3) each."""
-        c, s = np.cos(angle), np.sin(angle)
+        if c is None:
+            c, s = np.cos(angle), np.sin(angle)
         # C_bn(t) = Rz(angle) · attitude; rows of its transpose give ENU -> body.
         lever_enu = attitude @ self.lever_arm
         # Acceleration of the sensor: d²/dt² [Rz(angle) · lever_enu] (the table axis is fixed).
@@ -196,8 +217,9 @@ class MimuSimulator:
     def _chunk(self, first: int, attitude, angle, rate, alpha) -> SampleChunk:
         return self._sample_chunk(first, *self.true_inputs(attitude, angle, rate, alpha))
 
-    def _sample_chunk(self, first: int, force: np.ndarray, omega: np.ndarray) -> SampleChunk:
-        t = (first + np.arange(len(force))) / self.rate_hz
+    def _sample_chunk(self, first: int, force: np.ndarray, omega: np.ndarray, n: int | None = None) -> SampleChunk:
+        """``n`` samples (default: as many as rows of force and omega; one row serves them all)."""
+        t = (first + np.arange(len(force) if n is None else n)) / self.rate_hz
         out = {}
         if self.noise_model == "innovations":
             drawn = self._noise.draw(len(t))  # (n, triads, 3)
@@ -205,8 +227,10 @@ class MimuSimulator:
         else:
             noise = {name: gen.draw(len(t)) for name, gen in self._noise.items()}
         for name, truth in self.triads.items():
-            true = force if truth.kind == SPECIFIC_FORCE else omega
-            raw = (true + noise[name]) @ truth.K.T + truth.bias
+            raw = noise[name]
+            raw += force if truth.kind == SPECIFIC_FORCE else omega
+            raw = raw @ truth.K.T
+            raw += truth.bias
             if truth.lsb:
                 raw = np.round(raw / truth.lsb) * truth.lsb
             out[name] = raw

@@ -14,10 +14,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from drivers.sim import MimuSimulator
 from drivers.sim.device import paper_mimu
+from drivers.sim.rotations import rotvec_matrix
 from fieldcal import __version__
 from fieldcal.earth import Station
 from fieldcal.procedure.engine import EngineSettings
@@ -199,7 +199,7 @@ class SimulatedBench:
 
     def bump(self) -> list:
         """A knock on the fixture: a 0.3 s jolt that leaves it within a fraction of a degree."""
-        nudged = self.attitude @ Rotation.from_rotvec(self.rng.normal(0, math.radians(0.3), 3)).as_matrix()
+        nudged = self.attitude @ rotvec_matrix(self.rng.normal(0, math.radians(0.3), 3))
         chunk = self.sim.handle(int(round(0.3 * self.spec.rate_hz)), self.attitude, nudged, shake=3.0)
         self.attitude = nudged
         return [chunk]
