@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,7 +22,6 @@ from drivers.sim.rotations import rotvec_matrix
 from fieldcal import __version__
 from fieldcal.earth import Station
 from fieldcal.procedure.engine import EngineSettings
-from fieldcal.run.livedevice import ANGULAR_RATE_TRIAD, SPECIFIC_FORCE_TRIAD, LiveDevice
 from fieldcal.model import params_from_k
 from fieldcal.procedure.positions import Procedure, parse_procedure
 from fieldcal.procedure.stillness import StillnessSettings
@@ -32,7 +32,10 @@ from fieldcal.run.recorder import SessionRecorder
 from fieldcal.run.steps import steps_on_record
 from fieldcal.run.simrun import placed_attitude
 from fieldcal.session.capture import SessionReader
-from fieldcal.solvers.solve import TriadModel, models_from_truth
+
+if TYPE_CHECKING:  # at run time they load scipy.optimize: imported where used, not at start-up
+    from fieldcal.run.livedevice import LiveDevice
+    from fieldcal.solvers.solve import TriadModel
 
 TABLE_ACCEL_DEG_S2 = 20.0
 SIM_DEVICE_NAME = "simulated MIMU (paper Tables 3-4)"
@@ -99,6 +102,7 @@ class RunSpec:
                   "station": Station(**meta["station"]), "rate_hz": meta["device"]["rate_hz"],
                   "method": meta["method"], "on_motion": meta["on_motion"]}
         if "triads" in meta["device"]:
+            from fieldcal.run.livedevice import LiveDevice
             return cls(**common, live=LiveDevice.from_metadata(meta["device"]))
         script = dict(meta["script"])
         script["skip_steps"] = tuple(script["skip_steps"])
@@ -123,6 +127,8 @@ class RunSpec:
 
     def models(self) -> dict[str, TriadModel]:
         """What the station knows of each triad before calibrating it."""
+        from fieldcal.solvers.solve import models_from_truth
+
         return models_from_truth(self.device()) if self.live is None else dict(self.live.models)
 
     def truth(self) -> dict[str, np.ndarray]:
@@ -148,6 +154,8 @@ class RunSpec:
             rate_sensitivity=tuple(np.round(sens_rate, 0) if self.raw_counts else (1.0,) * 3))
 
     def _live_engine_settings(self) -> EngineSettings:
+        from fieldcal.run.livedevice import ANGULAR_RATE_TRIAD, SPECIFIC_FORCE_TRIAD
+
         live = self.live
         acc, gyro = live.models[SPECIFIC_FORCE_TRIAD], live.models[ANGULAR_RATE_TRIAD]
         return EngineSettings(
