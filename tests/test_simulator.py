@@ -116,24 +116,44 @@ def test_innovation_noise_is_its_recursion_on_the_same_draws_across_chunk_sizes(
 
     noises = [TriadNoise(white=2e-3, bias_instability=4e-4), TriadNoise(white=1e-3),
               TriadNoise(white=5e-4, bias_instability=1e-4, rate_random_walk=1e-5)]
-    sizes = [1, 300, 7, 1000, 2, 25, 24]
+    sizes = [1, 300, 7, 1000, 2, 25, 2400, 24, 5000]
     gen = InnovationNoise(noises, 250.0, np.random.default_rng(5))
     state = gen._state.copy()
-    drawn = np.concatenate([gen.draw(n) for n in sizes])
+    drawn = np.concatenate([gen.draw(n) for n in sizes], axis=1)
 
     rng = np.random.default_rng(5)
     rng.standard_normal((3, len(gen._poles), 3))  # the initial states' draws
     expected, walk = [], np.zeros((3, 3))
-    for n in sizes:
-        e = rng.standard_normal((n, 3, 3)) * gen._sigma_e
-        steps = np.cumsum(rng.standard_normal((n, 3, 3)) * gen._walk_sigma, axis=0)
-        for k in range(n):
-            expected.append(state.sum(axis=1) + e[k] + walk + steps[k])
-            state = gen._poles[None, :, None] * state + gen._gain[:, :, None] * e[k][:, None, :]
-        walk = walk + steps[-1]
-    expected = np.array(expected)
+    for _ in range(-(-sum(sizes) // gen.BLOCK)):  # drawn a block ahead, (triads, BLOCK, 3)
+        e = rng.standard_normal((3, gen.BLOCK, 3)) * gen._sigma_e[:, :, None]
+        steps = np.cumsum(rng.standard_normal((3, gen.BLOCK, 3)) * gen._walk_sigma[:, :, None], axis=1)
+        for k in range(gen.BLOCK):
+            expected.append(state.sum(axis=1) + e[:, k] + walk + steps[:, k])
+            state = gen._poles[None, :, None] * state + gen._gain[:, :, None] * e[:, k][:, None, :]
+        walk = walk + steps[:, -1]
+    expected = np.array(expected).transpose(1, 0, 2)[:, :drawn.shape[1]]
     np.testing.assert_allclose(drawn, expected, rtol=0, atol=1e-12 * np.std(expected))
     assert not np.any(gen._gain[1])  # white noise alone: no bank to drive
+
+
+def test_innovation_noise_continues_bit_for_bit_from_its_state():
+    """A crashed run resumes from get_state: the block drawn ahead is drawn again."""
+    from drivers.sim.device import PAPER_NOISE
+    from drivers.sim.noise import InnovationNoise
+
+    rng = np.random.default_rng(7)
+    gen = InnovationNoise(list(PAPER_NOISE.values()), 250.0, rng)
+    gen.draw(3100)
+    state, rng_state = gen.get_state(), rng.bit_generator.state
+    rng.standard_normal(5)  # the simulator draws the operator's hand from the same generator
+    ahead = np.concatenate([gen.draw(n) for n in (250, 2000, 900)], axis=1)
+
+    rng2 = np.random.default_rng(0)
+    again = InnovationNoise(list(PAPER_NOISE.values()), 250.0, rng2)
+    again.set_state(state)
+    rng2.bit_generator.state = rng_state
+    rng2.standard_normal(5)
+    assert np.array_equal(np.concatenate([again.draw(n) for n in (250, 2000, 900)], axis=1), ahead)
 
 
 def test_innovation_noise_has_the_law_of_white_noise_plus_the_gauss_markov_bank():

@@ -72,6 +72,11 @@ class MimuSimulator:
         self._rng = np.random.default_rng(self.seed)
         self._make_noise(self.noise_model)
         self._rest_cache: tuple = (None, None)
+        truths = list(self.triads.values())
+        self._kinds = [t.kind for t in truths]
+        self._k_t = np.array([t.K.T for t in truths]).reshape(-1, 3, 3)
+        self._bias = np.array([t.bias for t in truths], dtype=float).reshape(-1, 1, 3)
+        self._quantised = [(i, t.lsb) for i, t in enumerate(truths) if t.lsb]
         self._sample = 0  # index of the next sample
         self._angle = 0.0  # table angle, rad
         self._rate = 0.0  # table rate, rad/s
@@ -220,12 +225,16 @@ class MimuSimulator:
     def _sample_chunk(self, first: int, force: np.ndarray, omega: np.ndarray, n: int | None = None) -> SampleChunk:
         """``n`` samples (default: as many as rows of force and omega; one row serves them all)."""
         t = (first + np.arange(len(force) if n is None else n)) / self.rate_hz
-        out = {}
         if self.noise_model == "innovations":
-            drawn = self._noise.draw(len(t))  # (n, triads, 3)
-            noise = {name: drawn[:, i] for i, name in enumerate(self.triads)}
-        else:
-            noise = {name: gen.draw(len(t)) for name, gen in self._noise.items()}
+            # All triads at once: (T, n, 3) noise, each triad's true input, K and bias stacked.
+            true = np.stack([force if kind == SPECIFIC_FORCE else omega for kind in self._kinds])
+            raw = np.matmul(self._noise.draw(len(t)) + true, self._k_t)
+            raw += self._bias
+            for i, lsb in self._quantised:
+                raw[i] = np.round(raw[i] / lsb) * lsb
+            return SampleChunk(t=t, triads=dict(zip(self.triads, raw)))
+        out = {}
+        noise = {name: gen.draw(len(t)) for name, gen in self._noise.items()}
         for name, truth in self.triads.items():
             raw = noise[name]
             raw += force if truth.kind == SPECIFIC_FORCE else omega
