@@ -170,6 +170,25 @@ def _window_var(x: np.ndarray, n: int, ddof: int) -> np.ndarray:
     return np.maximum((s2 - s1 * s1 / n) / (n - ddof), 0.0)
 
 
+def _trailing_std(x: np.ndarray, n: int) -> np.ndarray:
+    """``sliding_std(x, n)`` for the detector's steady path, where x is n − 1 carried rows and
+    then the new ones: up to n new rows at a time, every window holds row n − 1 of its piece,
+    which serves as the reference (the error scales with the spread around it, as in
+    sliding_std), so one pair of cumulative sums per piece does."""
+    out = np.empty((len(x) - n + 1, x.shape[1]))
+    for first in range(0, len(out), n):
+        piece = x[first:first + 2 * n - 1]
+        d = piece - piece[n - 1]
+        sums = np.zeros((2, len(piece) + 1, x.shape[1]))
+        np.cumsum(d, axis=0, out=sums[0, 1:])
+        np.cumsum(d * d, axis=0, out=sums[1, 1:])
+        s1, s2 = sums[:, n:] - sums[:, :-n]
+        var = (s2 - s1 * s1 / n) / (n - 1)
+        out[first:first + len(var)] = var
+    np.maximum(out, 0.0, out=out)
+    return np.sqrt(out, out=out)
+
+
 class StillnessDetector:
     """Per-sample stillness of a stream of chunks; state carried across chunks of any size.
 
@@ -268,7 +287,7 @@ class StillnessDetector:
         """``feed`` when a full unbroken window precedes the chunk and the chunk has no gap and
         no bad sample (nearly every chunk): every window is valid; the same answer, fewer steps."""
         N = self.window_samples
-        ratios = sliding_std(x, N)  # n rows: the window ending at each new sample
+        ratios = _trailing_std(x, N)  # n rows: the window ending at each new sample
         quiet = np.all(ratios < self.settings.enter_factor, axis=1)
         decisive = quiet | np.any(ratios > self.settings.leave_factor, axis=1)
         last = np.maximum.accumulate(np.where(decisive, np.arange(n), -1))
