@@ -72,6 +72,7 @@ class MimuSimulator:
         self._rng = np.random.default_rng(self.seed)
         self._make_noise(self.noise_model)
         self._rest_cache: tuple = (None, None)
+        self._stack_cache: tuple = (None, None)
         truths = list(self.triads.values())
         self._kinds = [t.kind for t in truths]
         self._k_t = np.array([t.K.T for t in truths]).reshape(-1, 3, 3)
@@ -190,6 +191,15 @@ class MimuSimulator:
             rate, alpha, angle = table(tau)
             yield self._chunk(start + done, seg.attitude, angle, rate, alpha)
 
+    def _stacked(self, force: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """(T, n, 3): each triad's true input; the rows at rest are stacked once per dwell."""
+        if self._stack_cache[0] is force:
+            return self._stack_cache[1]
+        true = np.stack([force if kind == SPECIFIC_FORCE else omega for kind in self._kinds])
+        if len(force) == 1:
+            self._stack_cache = force, true
+        return true
+
     def _at_rest(self, attitude, angle: float) -> tuple[np.ndarray, np.ndarray]:
         """``true_inputs`` of a table at rest at ``angle``: one (1, 3) row each (a dwell asks
         the same many times over)."""
@@ -227,7 +237,7 @@ class MimuSimulator:
         t = (first + np.arange(len(force) if n is None else n)) / self.rate_hz
         if self.noise_model == "innovations":
             # All triads at once: (T, n, 3) noise, each triad's true input, K and bias stacked.
-            true = np.stack([force if kind == SPECIFIC_FORCE else omega for kind in self._kinds])
+            true = self._stacked(force, omega)
             raw = np.matmul(self._noise.draw(len(t)) + true, self._k_t)
             raw += self._bias
             for i, lsb in self._quantised:

@@ -244,19 +244,22 @@ class StillnessDetector:
         N = self.window_samples
         new = np.concatenate([np.asarray(chunk.triads[name], dtype=float) for name in self.names],
                              axis=1) * self._inv_sigma
-        bad = ~np.all(np.isfinite(new), axis=1)
-        if bad.any():
-            new[bad] = 0.0  # every window holding it is invalid below; keep the sums finite
         t = np.asarray(chunk.t, dtype=float)
         dt = np.empty(n)
         dt[0] = t[0] - (t[0] if self._t_last is None else self._t_last)
         np.subtract(t[1:], t[:-1], out=dt[1:])
+        if self._run == N and 0.0 <= dt.min() and dt.max() <= self.settings.max_gap_s \
+                and math.isfinite(float(new.sum())):
+            # No gap, no bad sample (a NaN or infinity reaches the sum; an overflow of the sum
+            # merely takes the general path), a full window before: nearly every chunk.
+            return self._feed_steady(np.concatenate([self._carry, new]), t, n)
+        bad = ~np.all(np.isfinite(new), axis=1)
+        if bad.any():
+            new[bad] = 0.0  # every window holding it is invalid below; keep the sums finite
         gap = ~(dt <= self.settings.max_gap_s) | (dt < 0)  # NaN time counts as a gap
 
         x = np.concatenate([self._carry, new])
         m0 = len(self._carry)
-        if self._run == N and not gap.any() and not bad.any():
-            return self._feed_steady(x, t, n)
         idx = m0 + np.arange(n)
         # Start of the unbroken stretch each sample belongs to (in concatenation indices): a gap
         # before a sample starts a stretch at it; a bad sample starts one after it.
@@ -289,9 +292,12 @@ class StillnessDetector:
         N = self.window_samples
         ratios = _trailing_std(x, N)  # n rows: the window ending at each new sample
         quiet = np.all(ratios < self.settings.enter_factor, axis=1)
-        decisive = quiet | np.any(ratios > self.settings.leave_factor, axis=1)
-        last = np.maximum.accumulate(np.where(decisive, np.arange(n), -1))
-        out = np.where(last >= 0, quiet[np.maximum(last, 0)], self._still)
+        if quiet.all():  # still throughout (a dwell)
+            out = quiet
+        else:
+            decisive = quiet | np.any(ratios > self.settings.leave_factor, axis=1)
+            last = np.maximum.accumulate(np.where(decisive, np.arange(n), -1))
+            out = np.where(last >= 0, quiet[np.maximum(last, 0)], self._still)
         self._still = bool(out[-1])
         self._carry = x[-(N - 1):].copy()
         self._t_last = float(t[-1])
