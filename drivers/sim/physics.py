@@ -152,6 +152,9 @@ class MimuSimulator:
     def advance(self, n: int, attitude: np.ndarray, target_rate: float, max_accel: float) -> SampleChunk:
         """The next n samples with the table driven toward ``target_rate`` (rad/s) at up to
         ``max_accel`` (rad/s²): the step a live, commanded table takes."""
+        if target_rate == 0.0 and self._rate == 0.0 and n > 0:  # at rest: most of a run
+            first, self._sample, self._rate = self._sample, self._sample + n, float(target_rate)
+            return self._sample_chunk(first, *self._at_rest(attitude, self._angle), n=n)
         ramp = abs(target_rate - self._rate) / max_accel if max_accel > 0 else 0.0
         segment = Segment(n / self.rate_hz, attitude, target_rate, ramp)
         return next(self.run_segment(segment, chunk_len=max(n, 1)))

@@ -242,8 +242,14 @@ class StillnessDetector:
         if missing:
             raise ValueError(f"chunk has no triad {missing[0]!r} (has {sorted(chunk.triads)})")
         N = self.window_samples
-        new = np.concatenate([np.asarray(chunk.triads[name], dtype=float) for name in self.names],
-                             axis=1) * self._inv_sigma
+        # The carried samples, then the new ones in units of their expected σ, in one array.
+        m0 = len(self._carry)
+        x = np.empty((m0 + n, len(self._inv_sigma)))
+        x[:m0] = self._carry
+        new = x[m0:]
+        for k, name in enumerate(self.names):
+            new[:, 3 * k:3 * k + 3] = chunk.triads[name]
+        new *= self._inv_sigma
         t = np.asarray(chunk.t, dtype=float)
         dt = np.empty(n)
         dt[0] = t[0] - (t[0] if self._t_last is None else self._t_last)
@@ -252,14 +258,12 @@ class StillnessDetector:
                 and math.isfinite(float(new.sum())):
             # No gap, no bad sample (a NaN or infinity reaches the sum; an overflow of the sum
             # merely takes the general path), a full window before: nearly every chunk.
-            return self._feed_steady(np.concatenate([self._carry, new]), t, n)
+            return self._feed_steady(x, t, n)
         bad = ~np.all(np.isfinite(new), axis=1)
         if bad.any():
             new[bad] = 0.0  # every window holding it is invalid below; keep the sums finite
         gap = ~(dt <= self.settings.max_gap_s) | (dt < 0)  # NaN time counts as a gap
 
-        x = np.concatenate([self._carry, new])
-        m0 = len(self._carry)
         idx = m0 + np.arange(n)
         # Start of the unbroken stretch each sample belongs to (in concatenation indices): a gap
         # before a sample starts a stretch at it; a bad sample starts one after it.
