@@ -1,5 +1,9 @@
 """Drawing sensor noise for the simulator: the Gauss-Markov bank and random walks of a TriadNoise.
 
+``InnovationNoise`` (the simulator's default) draws it from one normal number per sample and
+axis; ``NoiseGenerator`` draws one per process, as the simulator did before (sessions recorded
+then resume with it, and the simulated hand-held recordings, drivers.sim.handheld, use it).
+
 The model itself (``TriadNoise``, ``flicker_bank``) lives in ``drivers.noise``, which the station
 imports without the simulator.
 """
@@ -108,8 +112,8 @@ class InnovationNoise:
     rational spectrum; its innovations (Kalman) form ŝ[k+1] = A ŝ[k] + K e[k], y[k] = 1ᵀŝ[k] + e[k]
     with white e of variance S has exactly the same autocovariance, hence the same distribution,
     when ŝ starts in its stationary law N(0, Σ − P) (Σ: the bank's covariance, P: the Riccati
-    solution). The bank has ten times fewer normal numbers to draw this way, which is most of a
-    simulated run's cost. The states are carried across draws of any size; the result is the
+    solution). Ten times fewer normal numbers are drawn this way, and drawing them was most of
+    a simulated run's cost. The states are carried across draws of any size; the result is the
     recursion on the same draws whatever the sizes, which the tests check.
 
     Samples are drawn BLOCK at a time; ``draw(n)`` gives the next n, (triads, n, 3).
@@ -176,7 +180,8 @@ class InnovationNoise:
             self._offset = int(state["offset"])
 
     def draw(self, n: int) -> np.ndarray:
-        """The next n samples, (triads, n, 3)."""
+        """The next n samples, (triads, n, 3): often a view of the block drawn ahead, so do not
+        write to it."""
         parts = []
         while n > 0:
             if self._block is None or self._offset == self.BLOCK:
