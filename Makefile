@@ -21,6 +21,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/startup.py
+	$(BIN)/python benchmarks/tui_start.py
 	$(BIN)/python benchmarks/speed.py
 	$(BIN)/python benchmarks/parse.py
 	$(BIN)/python benchmarks/io.py

@@ -4,7 +4,8 @@ Bias instability is flicker (1/f) noise, whose Allan deviation is flat at 0.664Â
 It is modelled as a bank of first-order Gauss-Markov processes with log-spaced correlation
 times and equal variances, which sums to a 1/f spectrum between the shortest and longest
 correlation time. A bank rather than true 1/f keeps generation causal and chunkable (the
-simulator, ``drivers.sim.noise``, draws each process as an AR(1) filter with carried state) and
+simulator, ``drivers.sim.noise``, draws the bank as AR(1) filters with carried state, or as
+their Kalman innovations form from one random number per sample) and
 keeps the covariance of window averages exact, which the CramÃ©r-Rao bound needs.
 
 numpy only: the station reads this model from its config and weights its solves with it, so it

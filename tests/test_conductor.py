@@ -61,8 +61,10 @@ def test_an_old_tui_session_quit_half_way_resumes_to_the_uninterrupted_run(tmp_p
     session = tmp_path / "tui-quit"
     shutil.copytree(GOLDEN / "tui-quit", session)
     resumed = resume_headless(session)
+    # The old session's simulator drew its noise one normal number per process ("bank"): the
+    # uninterrupted run to compare with draws it the same way.
     whole = run_headless(RunSpec(golden_procedure(), STATION, seed=8, rate_hz=20.0,
-                                 script=OperatorScript(handling_s=2.0)), tmp_path / "whole")
+                                 script=OperatorScript(handling_s=2.0), sim_noise="bank"), tmp_path / "whole")
     assert resumed.status == "completed" and not resumed.unit.failures
     # Its first six steps were averaged by the code of 58c3726, whose simulator noise summed in
     # another order (issue 12 made it closed-form): equal within 1e-3σ, not to the last bit.

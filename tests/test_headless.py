@@ -44,12 +44,14 @@ def mishap_run(tmp_path_factory):
 
 
 @pytest.mark.parametrize("seed", [21, 22, 23])
-def test_every_parameter_within_three_sigma(tmp_path, seed):
+def test_every_parameter_within_four_sigma(tmp_path, seed):
+    # 27 parameters a run: a 3σ bound would fail one run in fourteen by chance alone (it held
+    # for these seeds only by the luck of the simulator's random stream); 4σ fails one in 600.
     result = run_headless(spec(seed), tmp_path / "s")
     assert not result.unit.failures
     for name, sol in result.unit.solutions.items():
         z = (sol.theta - result.truth[name]) / sol.sigma
-        assert np.all(np.abs(z) < 3.0), (name, z)
+        assert np.all(np.abs(z) < 4.0), (name, z)
 
 
 def test_a_bump_during_a_dwell_restarts_it(mishap_run):

@@ -107,3 +107,96 @@ def test_noise_bank_is_the_recursion_on_the_same_draws_across_chunk_sizes():
     expected = np.concatenate(expected)
     scale = np.std(expected)
     np.testing.assert_allclose(chunked_out, expected, rtol=0, atol=1e-12 * scale)
+
+
+def test_innovation_noise_is_its_recursion_on_the_same_draws_across_chunk_sizes():
+    """ŝ[k+1] = p·ŝ[k] + K·e[k], y[k] = Σ ŝ[k] + e[k], sample by sample, against the sub-block
+    products the generator uses, whatever the chunk sizes (a partial sub-block, several groups)."""
+    from drivers.sim.noise import InnovationNoise
+
+    noises = [TriadNoise(white=2e-3, bias_instability=4e-4), TriadNoise(white=1e-3),
+              TriadNoise(white=5e-4, bias_instability=1e-4, rate_random_walk=1e-5)]
+    sizes = [1, 300, 7, 1000, 2, 25, 2400, 24, 5000]
+    gen = InnovationNoise(noises, 250.0, np.random.default_rng(5))
+    state = gen._state.copy()
+    drawn = np.concatenate([gen.draw(n) for n in sizes], axis=1)
+
+    rng = np.random.default_rng(5)
+    rng.standard_normal((3, len(gen._poles), 3))  # the initial states' draws
+    expected, walk = [], np.zeros((3, 3))
+    for _ in range(-(-sum(sizes) // gen.BLOCK)):  # drawn a block ahead, (triads, BLOCK, 3)
+        e = rng.standard_normal((3, gen.BLOCK, 3)) * gen._sigma_e[:, :, None]
+        steps = np.cumsum(rng.standard_normal((3, gen.BLOCK, 3)) * gen._walk_sigma[:, :, None], axis=1)
+        for k in range(gen.BLOCK):
+            expected.append(state.sum(axis=1) + e[:, k] + walk + steps[:, k])
+            state = gen._poles[None, :, None] * state + gen._gain[:, :, None] * e[:, k][:, None, :]
+        walk = walk + steps[:, -1]
+    expected = np.array(expected).transpose(1, 0, 2)[:, :drawn.shape[1]]
+    np.testing.assert_allclose(drawn, expected, rtol=0, atol=1e-12 * np.std(expected))
+    assert not np.any(gen._gain[1])  # white noise alone: no bank to drive
+
+
+def test_innovation_noise_continues_bit_for_bit_from_its_state():
+    """A crashed run resumes from get_state: the block drawn ahead is drawn again."""
+    from drivers.sim.device import PAPER_NOISE
+    from drivers.sim.noise import InnovationNoise
+
+    rng = np.random.default_rng(7)
+    gen = InnovationNoise(list(PAPER_NOISE.values()), 250.0, rng)
+    gen.draw(3100)
+    state, rng_state = gen.get_state(), rng.bit_generator.state
+    rng.standard_normal(5)  # the simulator draws the operator's hand from the same generator
+    ahead = np.concatenate([gen.draw(n) for n in (250, 2000, 900)], axis=1)
+
+    rng2 = np.random.default_rng(0)
+    again = InnovationNoise(list(PAPER_NOISE.values()), 250.0, rng2)
+    again.set_state(state)
+    rng2.bit_generator.state = rng_state
+    rng2.standard_normal(5)
+    assert np.array_equal(np.concatenate([again.draw(n) for n in (250, 2000, 900)], axis=1), ahead)
+
+
+def test_innovation_noise_has_the_law_of_white_noise_plus_the_gauss_markov_bank():
+    """Same spectrum as white + bank (so the same stationary Gaussian process), and its states
+    start in their stationary law; the paper's noise, where the bank is 1e-3 of the white noise."""
+    from drivers.noise import flicker_bank
+    from drivers.sim.device import PAPER_NOISE
+    from drivers.sim.noise import InnovationNoise
+
+    rate = 250.0
+    gen = InnovationNoise(list(PAPER_NOISE.values()), rate, np.random.default_rng(1))
+    omega = np.concatenate([[0.0], np.geomspace(1e-9, np.pi, 400)])
+    back = np.exp(-1j * omega)[:, None]  # z⁻¹ on the unit circle
+    poles = gen._poles
+    for t, noise in enumerate(PAPER_NOISE.values()):
+        taus, sigmas = flicker_bank(noise.bias_instability)
+        np.testing.assert_allclose(poles, np.exp(-1 / rate / taus))
+        gains = sigmas**2 * (1 - poles**2)
+        bank = noise.white**2 * rate + np.sum(gains / np.abs(1 - poles * back) ** 2, axis=1)
+        transfer = 1 + np.sum(gen._gain[t] * back / (1 - poles * back), axis=1)
+        innovations = gen._sigma_e[t, 0] ** 2 * np.abs(transfer) ** 2
+        np.testing.assert_allclose(innovations, bank, rtol=1e-9)
+        start = gen._start_factor[t] @ gen._start_factor[t].T
+        after = (poles[:, None] * start * poles[None, :]
+                 + np.outer(gen._gain[t], gen._gain[t]) * gen._sigma_e[t, 0] ** 2)
+        np.testing.assert_allclose(after, start, rtol=0, atol=1e-9 * np.abs(start).max())
+
+
+def test_rotations_agree_with_scipy_at_every_angle():
+    """The simulator's numpy rotations against scipy's Rotation, from 1e-9 rad to a half turn
+    (the hand carries the cube upside down between positions)."""
+    from scipy.spatial.transform import Rotation
+
+    from drivers.sim.rotations import matrix_rotvec, rotvec_matrix, z_rotation
+
+    rng = np.random.default_rng(0)
+    axes = rng.standard_normal((40, 3))
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    for angle in (1e-9, 1e-5, 1e-3, 0.1, 1.0, 3.0, math.pi - 1e-7):
+        rotvecs = axes * angle
+        matrices = rotvec_matrix(rotvecs)
+        np.testing.assert_allclose(matrices, Rotation.from_rotvec(rotvecs).as_matrix(), rtol=0, atol=1e-15)
+        for m, v in zip(matrices, rotvecs):
+            np.testing.assert_allclose(matrix_rotvec(m), v, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.abs(matrix_rotvec(np.diag([1.0, -1.0, -1.0]))), [math.pi, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(z_rotation(0.7), Rotation.from_euler("z", 0.7).as_matrix(), rtol=0, atol=1e-15)

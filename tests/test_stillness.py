@@ -412,3 +412,17 @@ def test_repeated_pose_finds_a_repeat_and_ignores_distinct_poses():
     assert repeated_pose(tilted, [[0, 0, 1]]) is None
     assert repeated_pose(tilted, [[0, 0, 1]], min_separation_deg=25) == 0
     assert repeated_pose(tilted, [[1, 0, 0], [0, -0.1, 1], [0, 0, 1]], min_separation_deg=25) == 1
+
+
+def test_the_steady_path_windows_agree_with_sliding_std():
+    """The detector's steady path (one reference per piece of new samples) against sliding_std,
+    on quiet samples around a large offset and on a turn of the unit, for any number of rows."""
+    from fieldcal.procedure.stillness import _trailing_std
+
+    rng = np.random.default_rng(2)
+    for rows in (250, 251, 499, 500, 749, 1300):
+        quiet = rng.standard_normal((rows, 6)) * 0.01 + 600.0
+        turn = quiet + np.linspace(0.0, 400.0, rows)[:, None]
+        for x in (quiet, turn):
+            expected = sliding_std(x, 250)
+            np.testing.assert_allclose(_trailing_std(x, 250), expected, rtol=1e-9, atol=1e-12 * expected.max())

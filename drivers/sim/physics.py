@@ -6,6 +6,7 @@ dwell), reached by a constant angular acceleration over ``ramp_s`` from the prev
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Iterator, Mapping
 
@@ -13,10 +14,15 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from drivers.noise import TriadNoise
-from drivers.sim.noise import NoiseGenerator
+from drivers.sim.noise import InnovationNoise, NoiseGenerator
+from drivers.sim.rotations import matrix_rotvec, rotvec_matrix
 
 SPECIFIC_FORCE = "specific_force"
 ANGULAR_RATE = "angular_rate"
+# How the noise is drawn: "innovations" (one normal number per sample and axis, InnovationNoise)
+# or "bank" (one per Gauss-Markov process, NoiseGenerator: the simulator before issue 12's speed
+# work, kept so that the sessions it wrote resume as they began). The same noise in law.
+NOISE_MODELS = ("innovations", "bank")
 
 
 def lower_triangular_k(scale, misalignment) -> np.ndarray:
@@ -60,10 +66,18 @@ class MimuSimulator:
     rate_hz: float = 250.0
     lever_arm: np.ndarray = field(default_factory=lambda: np.array([0.03, 0.02, 0.01]))  # m, body
     seed: int = 0
+    noise_model: str = "innovations"  # one of NOISE_MODELS
 
     def __post_init__(self) -> None:
         self._rng = np.random.default_rng(self.seed)
-        self._noise = {n: NoiseGenerator(t.noise, self.rate_hz, self._rng) for n, t in self.triads.items()}
+        self._make_noise(self.noise_model)
+        self._rest_cache: tuple = (None, None)
+        self._stack_cache: tuple = (None, None)
+        truths = list(self.triads.values())
+        self._kinds = [t.kind for t in truths]
+        self._k_t = np.array([t.K.T for t in truths]).reshape(-1, 3, 3)
+        self._bias = np.array([t.bias for t in truths], dtype=float).reshape(-1, 1, 3)
+        self._quantised = [(i, t.lsb) for i, t in enumerate(truths) if t.lsb]
         self._sample = 0  # index of the next sample
         self._angle = 0.0  # table angle, rad
         self._rate = 0.0  # table rate, rad/s
@@ -86,12 +100,11 @@ class MimuSimulator:
         plus hand shake of about ``shake`` m/s² and a tenth as many rad/s."""
         if self._rate != 0.0:
             raise ValueError("the table must be stopped before the unit is moved")
-        from scipy.spatial.transform import Rotation
         tau = np.arange(1, n + 1) / n
         s = tau * tau * (3 - 2 * tau)  # smoothstep: starts and ends at rest
         ds = 6 * tau * (1 - tau) * self.rate_hz / n  # d s / d t
-        rotvec = Rotation.from_matrix(start.T @ end).as_rotvec()  # in body axes
-        attitudes = (Rotation.from_matrix(start) * Rotation.from_rotvec(np.outer(s, rotvec))).as_matrix()
+        rotvec = matrix_rotvec(start.T @ end)  # in body axes
+        attitudes = start @ rotvec_matrix(np.outer(s, rotvec))
         c, si = np.cos(self._angle), np.sin(self._angle)
         table = np.array([[c, -si, 0.0], [si, c, 0.0], [0.0, 0.0, 1.0]])
         to_body = np.einsum("ij,njk->nki", table, attitudes)  # (C_table · A)ᵀ per sample
@@ -105,21 +118,43 @@ class MimuSimulator:
         self._sample += n
         return self._sample_chunk(first, force, omega)
 
+    def _make_noise(self, model: str) -> None:
+        if model not in NOISE_MODELS:
+            raise ValueError(f"noise_model: expected one of {', '.join(NOISE_MODELS)}, got {model!r}")
+        self.noise_model = model
+        if model == "bank":
+            self._noise = {n: NoiseGenerator(t.noise, self.rate_hz, self._rng) for n, t in self.triads.items()}
+        else:
+            self._noise = InnovationNoise([t.noise for t in self.triads.values()], self.rate_hz, self._rng)
+
     def get_state(self) -> dict:
         """Everything needed to continue bit for bit (JSON-able), e.g. after a crash."""
+        if self.noise_model == "bank":
+            noise = {name: gen.get_state() for name, gen in self._noise.items()}
+        else:
+            noise = self._noise.get_state()  # its "innovations" key tells the model
         return {"sample": self._sample, "angle": self._angle, "rate": self._rate,
-                "rng": self._rng.bit_generator.state,
-                "noise": {name: gen.get_state() for name, gen in self._noise.items()}}
+                "rng": self._rng.bit_generator.state, "noise": noise}
 
     def set_state(self, state: dict) -> None:
+        """Continue from ``get_state``'s dict, with the noise model it was drawn with."""
+        model = "innovations" if "innovations" in state["noise"] else "bank"
+        if model != self.noise_model:
+            self._make_noise(model)
         self._sample, self._angle, self._rate = int(state["sample"]), float(state["angle"]), float(state["rate"])
         self._rng.bit_generator.state = state["rng"]
-        for name, gen in self._noise.items():
-            gen.set_state(state["noise"][name])
+        if model == "bank":
+            for name, gen in self._noise.items():
+                gen.set_state(state["noise"][name])
+        else:
+            self._noise.set_state(state["noise"])
 
     def advance(self, n: int, attitude: np.ndarray, target_rate: float, max_accel: float) -> SampleChunk:
         """The next n samples with the table driven toward ``target_rate`` (rad/s) at up to
         ``max_accel`` (rad/s²): the step a live, commanded table takes."""
+        if target_rate == 0.0 and self._rate == 0.0 and n > 0:  # at rest: most of a run
+            first, self._sample, self._rate = self._sample, self._sample + n, float(target_rate)
+            return self._sample_chunk(first, *self._at_rest(attitude, self._angle), n=n)
         ramp = abs(target_rate - self._rate) / max_accel if max_accel > 0 else 0.0
         segment = Segment(n / self.rate_hz, attitude, target_rate, ramp)
         return next(self.run_segment(segment, chunk_len=max(n, 1)))
@@ -144,16 +179,44 @@ class MimuSimulator:
                     np.where(in_ramp, accel, 0.0), angle)
 
         # The end state is known now; a caller that stops early still leaves time consistent.
-        end_rate, _, end_angle = table(np.array([n_total / self.rate_hz]))
-        self._rate, self._angle, self._sample = float(end_rate[0]), float(end_angle[0]), start + n_total
+        end = n_total / self.rate_hz
+        ramped = min(end, ramp)
+        end_angle = angle0 + rate0 * ramped + 0.5 * accel * ramped**2 + seg.table_rate * max(end - ramp, 0.0)
+        end_rate = rate0 + accel * end if end < ramp else seg.table_rate
+        self._rate, self._angle, self._sample = float(end_rate), float(end_angle), start + n_total
         for done in range(0, n_total, chunk_len):
+            if seg.table_rate == 0.0 and done / self.rate_hz >= ramp:
+                # At rest (most of a run): one attitude for the whole chunk.
+                n = min(done + chunk_len, n_total) - done
+                yield self._sample_chunk(start + done, *self._at_rest(seg.attitude, end_angle), n=n)
+                continue
             tau = np.arange(done, min(done + chunk_len, n_total)) / self.rate_hz
             rate, alpha, angle = table(tau)
             yield self._chunk(start + done, seg.attitude, angle, rate, alpha)
 
-    def true_inputs(self, attitude, angle, rate, alpha) -> tuple[np.ndarray, np.ndarray]:
+    def _stacked(self, force: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """(T, n, 3): each triad's true input; the rows at rest are stacked once per dwell."""
+        if self._stack_cache[0] is force:
+            return self._stack_cache[1]
+        true = np.stack([force if kind == SPECIFIC_FORCE else omega for kind in self._kinds])
+        if len(force) == 1:
+            self._stack_cache = force, true
+        return true
+
+    def _at_rest(self, attitude, angle: float) -> tuple[np.ndarray, np.ndarray]:
+        """``true_inputs`` of a table at rest at ``angle``: one (1, 3) row each (a dwell asks
+        the same many times over)."""
+        key = (np.asarray(attitude, dtype=float).tobytes(), angle)
+        if self._rest_cache[0] != key:
+            c, s = np.array([math.cos(angle)]), np.array([math.sin(angle)])
+            zero = np.zeros(1)
+            self._rest_cache = key, self.true_inputs(attitude, np.array([angle]), zero, zero, c=c, s=s)
+        return self._rest_cache[1]
+
+    def true_inputs(self, attitude, angle, rate, alpha, c=None, s=None) -> tuple[np.ndarray, np.ndarray]:
         """Specific force (m/s²) and angular rate (rad/s) in body axes, (n, 3) each."""
-        c, s = np.cos(angle), np.sin(angle)
+        if c is None:
+            c, s = np.cos(angle), np.sin(angle)
         # C_bn(t) = Rz(angle) · attitude; rows of its transpose give ENU -> body.
         lever_enu = attitude @ self.lever_arm
         # Acceleration of the sensor: d²/dt² [Rz(angle) · lever_enu] (the table axis is fixed).
@@ -172,12 +235,24 @@ class MimuSimulator:
     def _chunk(self, first: int, attitude, angle, rate, alpha) -> SampleChunk:
         return self._sample_chunk(first, *self.true_inputs(attitude, angle, rate, alpha))
 
-    def _sample_chunk(self, first: int, force: np.ndarray, omega: np.ndarray) -> SampleChunk:
-        t = (first + np.arange(len(force))) / self.rate_hz
+    def _sample_chunk(self, first: int, force: np.ndarray, omega: np.ndarray, n: int | None = None) -> SampleChunk:
+        """``n`` samples (default: as many as rows of force and omega; one row serves them all)."""
+        t = (first + np.arange(len(force) if n is None else n)) / self.rate_hz
+        if self.noise_model == "innovations":
+            # All triads at once: (T, n, 3) noise, each triad's true input, K and bias stacked.
+            true = self._stacked(force, omega)
+            raw = np.matmul(self._noise.draw(len(t)) + true, self._k_t)
+            raw += self._bias
+            for i, lsb in self._quantised:
+                raw[i] = np.round(raw[i] / lsb) * lsb
+            return SampleChunk(t=t, triads=dict(zip(self.triads, raw)))
         out = {}
+        noise = {name: gen.draw(len(t)) for name, gen in self._noise.items()}
         for name, truth in self.triads.items():
-            true = force if truth.kind == SPECIFIC_FORCE else omega
-            raw = (true + self._noise[name].draw(len(t))) @ truth.K.T + truth.bias
+            raw = noise[name]
+            raw += force if truth.kind == SPECIFIC_FORCE else omega
+            raw = raw @ truth.K.T
+            raw += truth.bias
             if truth.lsb:
                 raw = np.round(raw / truth.lsb) * truth.lsb
             out[name] = raw

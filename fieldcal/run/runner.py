@@ -12,16 +12,16 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from drivers.sim import MimuSimulator
 from drivers.sim.device import paper_mimu
+from drivers.sim.rotations import rotvec_matrix
 from fieldcal import __version__
 from fieldcal.earth import Station
 from fieldcal.procedure.engine import EngineSettings
-from fieldcal.run.livedevice import ANGULAR_RATE_TRIAD, SPECIFIC_FORCE_TRIAD, LiveDevice
 from fieldcal.model import params_from_k
 from fieldcal.procedure.positions import Procedure, parse_procedure
 from fieldcal.procedure.stillness import StillnessSettings
@@ -32,7 +32,10 @@ from fieldcal.run.recorder import SessionRecorder
 from fieldcal.run.steps import steps_on_record
 from fieldcal.run.simrun import placed_attitude
 from fieldcal.session.capture import SessionReader
-from fieldcal.solvers.solve import TriadModel, models_from_truth
+
+if TYPE_CHECKING:  # at run time they load scipy.optimize: imported where used, not at start-up
+    from fieldcal.run.livedevice import LiveDevice
+    from fieldcal.solvers.solve import TriadModel
 
 TABLE_ACCEL_DEG_S2 = 20.0
 SIM_DEVICE_NAME = "simulated MIMU (paper Tables 3-4)"
@@ -51,6 +54,9 @@ class RunSpec:
     on_motion: str = "restart"
     script: OperatorScript = field(default_factory=OperatorScript)
     live: LiveDevice | None = None  # a real device on a port; None: the simulated MIMU
+    # How the simulator draws its noise (drivers.sim.physics.NOISE_MODELS): sessions recorded
+    # before the model was named used "bank", and resume with it.
+    sim_noise: str = "innovations"
 
     def to_metadata(self) -> dict:
         if self.live is not None:
@@ -68,7 +74,7 @@ class RunSpec:
                         "gravity_m_s2": self.station.gravity_m_s2},
             "device": {"name": SIM_DEVICE_NAME, "raw_counts": self.raw_counts,
                        "rate_hz": self.rate_hz},
-            "seed": self.seed, "method": self.method, "on_motion": self.on_motion,
+            "seed": self.seed, "sim_noise": self.sim_noise, "method": self.method, "on_motion": self.on_motion,
             "script": asdict(self.script),
             "simulation_truth": {name: {"kind": t.kind, "K": t.K.tolist(), "bias": t.bias.tolist(),
                                         "output_unit": t.output_unit} for name, t in device.items()},
@@ -96,11 +102,13 @@ class RunSpec:
                   "station": Station(**meta["station"]), "rate_hz": meta["device"]["rate_hz"],
                   "method": meta["method"], "on_motion": meta["on_motion"]}
         if "triads" in meta["device"]:
+            from fieldcal.run.livedevice import LiveDevice
             return cls(**common, live=LiveDevice.from_metadata(meta["device"]))
         script = dict(meta["script"])
         script["skip_steps"] = tuple(script["skip_steps"])
         script["bump_at_s"] = tuple(script.get("bump_at_s", ()))  # absent before bump_at_s existed
-        return cls(**common, seed=meta["seed"], raw_counts=meta["device"]["raw_counts"],
+        return cls(**common, seed=meta["seed"], sim_noise=meta.get("sim_noise", "bank"),
+                   raw_counts=meta["device"]["raw_counts"],
                    script=OperatorScript(**script))
 
     def device(self):
@@ -119,6 +127,8 @@ class RunSpec:
 
     def models(self) -> dict[str, TriadModel]:
         """What the station knows of each triad before calibrating it."""
+        from fieldcal.solvers.solve import models_from_truth
+
         return models_from_truth(self.device()) if self.live is None else dict(self.live.models)
 
     def truth(self) -> dict[str, np.ndarray]:
@@ -144,6 +154,8 @@ class RunSpec:
             rate_sensitivity=tuple(np.round(sens_rate, 0) if self.raw_counts else (1.0,) * 3))
 
     def _live_engine_settings(self) -> EngineSettings:
+        from fieldcal.run.livedevice import ANGULAR_RATE_TRIAD, SPECIFIC_FORCE_TRIAD
+
         live = self.live
         acc, gyro = live.models[SPECIFIC_FORCE_TRIAD], live.models[ANGULAR_RATE_TRIAD]
         return EngineSettings(
@@ -162,7 +174,7 @@ class SimulatedBench:
         noise_seed, operator_seed = np.random.SeedSequence(spec.seed).spawn(2)
         self.sim = MimuSimulator(spec.device(), gravity=spec.station.gravity,
                                  latitude_rad=spec.station.latitude_rad, rate_hz=spec.rate_hz,
-                                 seed=noise_seed)
+                                 seed=noise_seed, noise_model=spec.sim_noise)
         self.rng = np.random.default_rng(operator_seed)
         self.attitude = np.eye(3)
         self.target_deg_s = 0.0
@@ -195,7 +207,7 @@ class SimulatedBench:
 
     def bump(self) -> list:
         """A knock on the fixture: a 0.3 s jolt that leaves it within a fraction of a degree."""
-        nudged = self.attitude @ Rotation.from_rotvec(self.rng.normal(0, math.radians(0.3), 3)).as_matrix()
+        nudged = self.attitude @ rotvec_matrix(self.rng.normal(0, math.radians(0.3), 3))
         chunk = self.sim.handle(int(round(0.3 * self.spec.rate_hz)), self.attitude, nudged, shake=3.0)
         self.attitude = nudged
         return [chunk]

@@ -9,9 +9,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from drivers.sim import MimuSimulator, Segment, TriadTruth
+from drivers.sim.rotations import rotvec_matrix, z_rotation
 from fieldcal.procedure.averaging import WindowAverager
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.procedure.positions import Procedure
@@ -27,9 +27,9 @@ class Plan:
 
 def placed_attitude(nominal: np.ndarray, rng: np.random.Generator, sigma_deg: float) -> np.ndarray:
     """Where a person actually puts the cube: a random heading on the table and a small tilt."""
-    tilt = Rotation.from_rotvec(rng.normal(0.0, math.radians(sigma_deg), 3))
-    heading = Rotation.from_euler("z", rng.uniform(0, 2 * math.pi))
-    return heading.as_matrix() @ nominal @ tilt.as_matrix()
+    tilt = rotvec_matrix(rng.normal(0.0, math.radians(sigma_deg), 3))
+    heading = z_rotation(rng.uniform(0, 2 * math.pi))
+    return heading @ nominal @ tilt
 
 
 def _whole_samples(seconds: float, rate_hz: float) -> float:

@@ -682,20 +682,19 @@ class SessionWriter:
                 self._layouts[layout] = dseq
             seq = self._seq
             blocks: list = []
-            crc = 0
             for col, a in cols:
                 b = a.reshape(-1).view(np.uint8)
                 pad = col.block_bytes(n) - b.nbytes
                 blocks.append(b)
-                crc = zlib.crc32(b, crc)
                 if pad:
                     blocks.append(bytes(pad))
-                    crc = zlib.crc32(bytes(pad), crc)
+            # The blocks joined: one CRC (the CRC chained over them) and one write after the header.
+            data = b"".join(blocks)
+            crc = zlib.crc32(data)
             payload = _payload_bytes(layout, n)
             fh = self._samples
             fh.write(RECORD_HEADER.pack(RECORD_MAGIC, crc, seq, dseq, n, payload))
-            for b in blocks:
-                fh.write(b)
+            fh.write(data)
             fh.flush()
             offset = self._samples_end
             length = RECORD_HEADER.size + payload
