@@ -58,7 +58,7 @@ def test_measured_gravity_overrides_the_model_and_bad_values_are_refused(capsys)
     assert "g = 9.802000 m/s² (measured)" in capsys.readouterr().out
     assert main(["demo", "--gravity", "98.02"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == "fieldcal: gravity_m_s2: expected 9.7..9.9 m/s², got 98.02"
+    assert err == "fieldcal: --gravity: expected 9.7..9.9 m/s², got 98.02"
 
 
 def _procedure_subset(tmp_path, count: int) -> str:
