@@ -150,7 +150,8 @@ def classic12_session(tmp_path_factory):
     """classic-12, 20 s dwells: linear least squares, whose digits agree across machines far
     below what the screen shows (see tests/test_tui.py), so its results snapshot is not fragile."""
     text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 20")
-    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5)
+    # sim_noise="bank": the noise stream the snapshots were drawn with (see tests/test_tui.py).
+    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank")
     return run_headless(spec, tmp_path_factory.mktemp("classic") / "session").session
 
 
