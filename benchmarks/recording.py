@@ -42,12 +42,10 @@ ACC_NAMES = ("bias x", "bias y", "bias z", "scale x", "scale y", "scale z", "Δy
 
 def xsens_files(directory: Path) -> list[Path]:
     """imu_tk's two Xsens files, unpacked into ``directory``."""
-    out = []
-    for name in XSENS:
-        path = directory / name.removesuffix(".gz")
+    paths = [directory / name.removesuffix(".gz") for name in XSENS]
+    for name, path in zip(XSENS, paths):
         path.write_bytes(gzip.decompress((REAL / name).read_bytes()))
-        out.append(path)
-    return out
+    return paths
 
 
 def _summary(label: str, runs: list[Run]) -> tuple[str, float, float, float]:
