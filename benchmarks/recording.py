@@ -106,7 +106,7 @@ def accuracy(runs: int) -> tuple[np.ndarray, np.ndarray]:
         z_acc.append((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma)
         gyro, K = cal.angular_rate["gyroscope"], sim.truth["gyroscope"].K
         k = np.diag(K)
-        z_gyro.append(np.r_[(gyro.theta - np.r_[k, (K / k[:, None] - np.eye(3))[_OFF]]) / gyro.sigma,
+        z_gyro.append(np.r_[(gyro.theta[3:] - np.r_[k, (K / k[:, None] - np.eye(3))[_OFF]]) / gyro.sigma[3:],
                             (gyro.bias - sim.truth["gyroscope"].bias) / cal.gyro_bias_sigma["gyroscope"]])
     return np.array(z_acc), np.array(z_gyro)
 
