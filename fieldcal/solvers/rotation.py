@@ -318,6 +318,7 @@ class Motions:
 
     @classmethod
     def of(cls, t, raw, spans, up_start, up_end) -> "Motions":
+        """From plain arrays; the up vectors need not be unit length."""
         spans = np.asarray(spans, dtype=int).reshape(-1, 2)
         m = len(spans)
         up_s, up_e = (np.asarray(u, dtype=float).reshape(m, 3) for u in (up_start, up_end))
@@ -332,8 +333,8 @@ class Motions:
 
 @dataclass(frozen=True)
 class RotationStart:
-    """Where the search starts: K0 a dominant-diagonal 3×3 (see ``start``), b0 the bias, held
-    there unless ``estimate_bias``."""
+    """Where the search starts: K0 a dominant-diagonal 3×3 (``of`` takes a scalar or (3,) too),
+    b0 the bias, held there unless ``estimate_bias``."""
 
     K0: np.ndarray
     b0: np.ndarray
@@ -390,12 +391,15 @@ class _Residuals:
         return bias, np.linalg.inv(k_from_terms(theta[nb:nb + 3], theta[nb + 3:]))
 
     def rotations(self, theta, bias=None):
+        """2 per motion, rad: Cᵀ·up_start − up_end in the end pose's tangent basis (bias: instead
+        of theta's)."""
         b, K_inv = self.unpack(theta)
         q = self.steps.quaternions(K_inv, (b if bias is None else bias) - self.start.b0)
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
     def side(self, theta):
+        """The bias prior's equations (when estimated with a σ) and the extra ones, whitened."""
         b, K_inv = self.unpack(theta)
         parts = [(b - self.start.b0) / self.sigma_b] if self.prior else []
         if self.extra is not None:
