@@ -226,7 +226,7 @@ def integrate(omega, t, spans) -> np.ndarray:
 
 
 _SCAN_GROUP = 8  # steps taken as one by the coarse scan (0.08 s at 100 Hz)
-_SCAN_BATCH = 16  # candidate scales integrated at once (their temporaries: a few MiB)
+_SCAN_BATCH = 8  # candidate scales integrated at once (their temporaries: a few MiB)
 
 
 def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
