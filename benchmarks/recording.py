@@ -42,12 +42,10 @@ ACC_NAMES = ("bias x", "bias y", "bias z", "scale x", "scale y", "scale z", "Δy
 
 def xsens_files(directory: Path) -> list[Path]:
     """imu_tk's two Xsens files, unpacked into ``directory``."""
-    out = []
-    for name in XSENS:
-        path = directory / name.removesuffix(".gz")
+    paths = [directory / name.removesuffix(".gz") for name in XSENS]
+    for name, path in zip(XSENS, paths):
         path.write_bytes(gzip.decompress((REAL / name).read_bytes()))
-        out.append(path)
-    return out
+    return paths
 
 
 def _summary(label: str, runs: list[Run]) -> tuple[str, float, float, float]:
@@ -108,7 +106,7 @@ def accuracy(runs: int) -> tuple[np.ndarray, np.ndarray]:
         z_acc.append((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma)
         gyro, K = cal.angular_rate["gyroscope"], sim.truth["gyroscope"].K
         k = np.diag(K)
-        z_gyro.append(np.r_[(gyro.theta - np.r_[k, (K / k[:, None] - np.eye(3))[_OFF]]) / gyro.sigma,
+        z_gyro.append(np.r_[(gyro.theta[3:] - np.r_[k, (K / k[:, None] - np.eye(3))[_OFF]]) / gyro.sigma[3:],
                             (gyro.bias - sim.truth["gyroscope"].bias) / cal.gyro_bias_sigma["gyroscope"]])
     return np.array(z_acc), np.array(z_gyro)
 

@@ -119,7 +119,6 @@ def _recording(args):
 
 
 def cmd_calibrate(args) -> int:
-    from fieldcal.config import load_config
     from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
     from fieldcal.recording.detect import DetectorSettings
     from fieldcal.recording.results import parameter_file, summary_lines
@@ -127,7 +126,10 @@ def cmd_calibrate(args) -> int:
 
     from fieldcal.cli.production import accept_after, load_spec_option
 
-    config = load_config(args.config) if args.config else None
+    config = None
+    if args.config:  # the config module (and the drivers it names) only when one is given
+        from fieldcal.config import load_config
+        config = load_config(args.config)
     spec = load_spec_option(args)
     station = _station(args, config)
     if args.table_rate is not None and not args.table_rate > 0:

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from fieldcal.earth import EARTH_RATE, Station
-from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, calibrate_with
+from fieldcal.model import calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
 from fieldcal.recording.detect import DetectionError, DetectorSettings, Poses, SpreadReport, interval_means

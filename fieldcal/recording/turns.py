@@ -86,10 +86,14 @@ def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np
                 rate_hz: float, settings: DetectorSettings, zero=None) -> tuple[Poses, np.ndarray]:
     """The poses without the turning samples (pieces shorter than min_static_s dropped) and the
     steady turns found inside static intervals ((k, 2) [start, stop))."""
+    turning_samples = np.r_[0, np.cumsum(turn_mask)]
+    touched = turning_samples[poses.intervals[:, 1]] > turning_samples[poses.intervals[:, 0]]
+    if not touched.any():  # the usual case, no interval holds a turning sample: all at once
+        return poses, np.zeros((0, 2), int)
     pieces, turns = [], []
     min_n, min_turn = round(settings.min_static_s * rate_hz), round(MIN_TURN_S * rate_hz)
-    for a, b in poses.intervals:
-        if not turn_mask[a:b].any():
+    for (a, b), touches in zip(poses.intervals.tolist(), touched):  # a loop over poses
+        if not touches:
             pieces.append((a, b))
             continue
         pieces += [(a + s, a + e) for s, e in _runs(~turn_mask[a:b]) if e - s >= min_n]

@@ -226,7 +226,7 @@ def integrate(omega, t, spans) -> np.ndarray:
 
 
 _SCAN_GROUP = 8  # steps taken as one by the coarse scan (0.08 s at 100 Hz)
-_SCAN_BATCH = 16  # candidate scales integrated at once (their temporaries: a few MiB)
+_SCAN_BATCH = 8  # candidate scales integrated at once (their temporaries: a few MiB)
 
 
 def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
@@ -295,10 +295,10 @@ def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_va
     return cov
 
 
-def _jacobian(fun, x, steps, central=True):
-    """Central (else forward) differences, one column per parameter."""
+def _jacobian(fun, x, steps, central=True, f0=None):
+    """Central (else forward, from ``f0`` = fun(x) if known) differences, one column per parameter."""
     if not central:
-        f0 = fun(x)
+        f0 = fun(x) if f0 is None else f0
         return np.column_stack([(fun(x + e) - f0) / h for e, h in zip(np.diag(steps), steps, strict=True)])
     return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h)
                             for e, h in zip(np.diag(steps), steps, strict=True)])
@@ -318,6 +318,7 @@ class Motions:
 
     @classmethod
     def of(cls, t, raw, spans, up_start, up_end) -> "Motions":
+        """From plain arrays; the up vectors need not be unit length."""
         spans = np.asarray(spans, dtype=int).reshape(-1, 2)
         m = len(spans)
         up_s, up_e = (np.asarray(u, dtype=float).reshape(m, 3) for u in (up_start, up_end))
@@ -332,8 +333,8 @@ class Motions:
 
 @dataclass(frozen=True)
 class RotationStart:
-    """Where the search starts: K0 a dominant-diagonal 3×3 (see ``start``), b0 the bias, held
-    there unless ``estimate_bias``."""
+    """Where the search starts: K0 a dominant-diagonal 3×3 (``of`` takes a scalar or (3,) too),
+    b0 the bias, held there unless ``estimate_bias``."""
 
     K0: np.ndarray
     b0: np.ndarray
@@ -390,12 +391,15 @@ class _Residuals:
         return bias, np.linalg.inv(k_from_terms(theta[nb:nb + 3], theta[nb + 3:]))
 
     def rotations(self, theta, bias=None):
+        """2 per motion, rad: Cᵀ·up_start − up_end in the end pose's tangent basis (bias: instead
+        of theta's)."""
         b, K_inv = self.unpack(theta)
         q = self.steps.quaternions(K_inv, (b if bias is None else bias) - self.start.b0)
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
     def side(self, theta):
+        """The bias prior's equations (when estimated with a σ) and the extra ones, whitened."""
         b, K_inv = self.unpack(theta)
         parts = [(b - self.start.b0) / self.sigma_b] if self.prior else []
         if self.extra is not None:
@@ -507,12 +511,13 @@ _POLISH_DONE = 0.1  # σ: after a longer polishing step the Jacobian is made afr
 
 def _polish(whitened, theta, natural, fd_steps):
     """(theta, the whitened residuals and their Jacobian in natural units): Gauss–Newton steps on
-    central-difference Jacobians (the covariance's), so that the optimum does not depend on the
-    search's approximate Jacobian, until a step is below _STEP_TOL σ. The Jacobian is made afresh
+    forward-difference Jacobians of step 1e-7 of each parameter's natural unit (the covariance's:
+    truncation and rounding errors near 1e-7 relative), so that the optimum does not depend on
+    the search's approximate Jacobian, until a step is below _STEP_TOL σ. The Jacobian is made afresh
     after a step longer than _POLISH_DONE σ (or one that fails); shorter ones reuse it (chord
     steps, one evaluation each). The Jacobian returned is the last one made."""
     r = whitened(theta)
-    J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+    J, fresh = _jacobian(whitened, theta, fd_steps, central=False, f0=r) * natural, True
     for _ in range(20):
         d = -np.linalg.lstsq(J, r, rcond=None)[0]
         size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
@@ -522,11 +527,11 @@ def _polish(whitened, theta, natural, fd_steps):
         if float(r_new @ r_new) > float(r @ r):
             if fresh:
                 break
-            J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+            J, fresh = _jacobian(whitened, theta, fd_steps, central=False, f0=r) * natural, True
             continue
         theta, r = theta + natural * d, r_new
         if size > _POLISH_DONE:
-            J, fresh = _jacobian(whitened, theta, fd_steps) * natural, True
+            J, fresh = _jacobian(whitened, theta, fd_steps, central=False, f0=r) * natural, True
         else:
             fresh = False
     return theta, r, J
@@ -637,7 +642,7 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
     ``extra_residuals(K_inv, bias)`` returns whitened residuals appended to the rotations' (e.g.
     turntable rate norms). method: "lsq" (Gauss–Newton in the whitened coordinates, its Jacobian
     updated by Broyden's rule and made afresh after long steps) or "powell" (scipy's); either
-    ends with Gauss–Newton steps on the covariance's central-difference Jacobian.
+    ends with Gauss–Newton steps on the covariance's forward-difference Jacobian.
     Raises CalibrationError for too few motions (ceil(n_params / 2) + 2, fewer with extra
     equations) or motions that leave a parameter undetermined.
     """
