@@ -153,3 +153,34 @@ def test_a_small_production_line_in_the_registry(tmp_path, capsys):
     assert drift == pytest.approx(DRIFT_MG, abs=0.5)  # the simulated drift, recovered
     assert "1 parameter drifted beyond" in history
     assert history.splitlines()[1].startswith("#2 2026-07-04T") and " [run] (FAIL): " in history  # 180 days on
+
+
+def test_resolve_leaves_unfinished_runs_to_resume_names_each_session_once_and_survives_a_bad_spec(
+        pristine_session, tmp_path, capsys):
+    from crashes import cut_before_step_record
+
+    batch = tmp_path / "batch"
+    done, cut = _copy(pristine_session, batch / "done"), _copy(pristine_session, batch / "cut")
+    cut_before_step_record(cut, 1)  # killed after its first step: an unfinished run
+    db = str(tmp_path / "r.sqlite")
+    # the same session under three names is re-solved once; the unfinished one is not re-solved
+    status = main(["resolve", str(batch), str(done), str(tmp_path / "batch" / ".." / "batch" / "done"),
+                   "-j", "2", "--method", "lsq", "--registry", db])
+    out = capsys.readouterr().out.splitlines()
+    assert status == 1 and out[0] == "re-solving 2 sessions in 2 processes"
+    assert any(line.endswith(f"FAILED {cut}: not re-solved: its run did not finish (resume it first)")
+               for line in out)
+    assert not list(cut.glob("parameters*.yaml"))  # nothing written into the unfinished session
+    with Registry(db) as registry:
+        assert [r[0] for r in registry.query("SELECT params_path FROM calibrations")] == \
+            [str((done / "parameters-002.yaml").resolve())]
+
+    # a spec that does not fit the unit: said on the session's line, the batch still ends normally
+    bad_spec = tmp_path / "bad.yaml"
+    bad_spec.write_text(SPEC.read_text().replace("bias: {unit: mg, min: -10, max: 10, max_sigma: 0.5",
+                                                 "bias: {unit: °/h, min: -10, max: 10, max_sigma: 0.5", 1))
+    status = main(["resolve", str(done), "--method", "lsq", "--spec", str(bad_spec), "--registry", db])
+    out = capsys.readouterr().out.splitlines()
+    assert status == 3 and "SPEC ERROR: " in out[1] and out[-1].startswith("1 re-solved, 0 failed, 1 failed")
+    with Registry(db) as registry:  # recorded all the same, with no verdict
+        assert registry.history("")[-1]["passed"] is None

@@ -1,8 +1,9 @@
 """``fieldcal resolve DIR... -j N``: re-solve many sessions from their stored step averages, in
 parallel processes, each new calibration written into its session and recorded in the registry.
 
-A session the re-solve cannot handle (not a procedure run, no completed steps, damaged, locked
-by a running station) is reported in one line and skipped; the batch always goes on, and the
+A session the re-solve cannot handle (not a procedure run, a run that did not complete -- an
+unfinished one is resumed, not re-solved, and an aborted one is no calibration of the unit --,
+damaged, locked by a running station) is reported in one line and skipped; the batch always goes on, and the
 exit status says whether any failed. A re-solve giving the bytes of the session's current
 parameter file writes nothing (it is already there). Only the parent process writes the
 registry, one record per session as it finishes, so the workers never contend for it.
@@ -40,6 +41,10 @@ def _resolve(session: Path, method: str | None) -> Resolved:
     from fieldcal.run.replay import resolve_session
     from fieldcal.session.capture import SessionReader, SessionWriter
 
+    reader = SessionReader(session, log_only=True)
+    if reader.stop_reason != "completed":  # its partial solve would enter the unit's history
+        state = f"its run {reader.stop_reason}" if reader.stopped else "its run did not finish (resume it first)"
+        return Resolved(str(session), None, f"FAILED {session}: not re-solved: {state}")
     unit, pf = resolve_session(session, method)
     if pf is None:
         why = "; ".join(f"{n}: {r}" for n, r in unit.failures.items()) or "no completed steps"
@@ -69,16 +74,25 @@ def _results(sessions: list[str], method: str | None, jobs: int):
 
     # spawn: workers start clean (no copy of a parent's threads or open registry connection)
     with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(resolve_one, s, method) for s in sessions]
+        futures = {pool.submit(resolve_one, s, method): s for s in sessions}
         for future in as_completed(futures):
-            yield future.result()
+            try:
+                yield future.result()
+            except Exception as exc:  # noqa: BLE001 -- a worker killed (out of memory, a signal)
+                yield Resolved(futures[future], None, f"FAILED {futures[future]}: its worker process "
+                               f"died ({type(exc).__name__})")
 
 
 def cmd_resolve(args) -> int:
     from fieldcal.cli.production import EXIT_FAILED_SPEC, find_sessions, load_spec_option, record_in_registry
 
     spec = load_spec_option(args)
-    sessions = [str(s) for s in find_sessions(args.directory, "resolve")]
+    # each session once, however it was named (two workers on one session: one would be refused)
+    sessions, seen = [], set()
+    for session in find_sessions(args.directory, "resolve"):
+        if session.resolve() not in seen:
+            seen.add(session.resolve())
+            sessions.append(str(session))
     if not sessions:
         raise ValueError(f"resolve: no sessions (directories with a log.jsonl) in {' '.join(args.directory)}")
     jobs = min(args.jobs, len(sessions))
@@ -88,8 +102,12 @@ def cmd_resolve(args) -> int:
     for done, result in enumerate(_results(sessions, args.method, jobs), start=1):
         passed = None
         if result.params is not None and spec is not None:
-            passed, verdict_text = _verdict(spec, result.params)
-            spec_failed += not passed
+            try:
+                passed, verdict_text = _verdict(spec, result.params)
+                spec_failed += not passed
+            except ValueError as exc:  # a spec that does not fit this unit: said, not the batch's end
+                spec_failed += 1
+                verdict_text = f"SPEC ERROR: {str(exc).splitlines()[0]}"
             result = Resolved(result.session, result.params, f"{result.line} {verdict_text}")
         failed += result.params is None
         print(f"[{done}/{len(sessions)}] {result.line}", flush=True)
