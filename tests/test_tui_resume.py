@@ -53,12 +53,17 @@ def test_a_clock_that_ran_on_is_not_a_restart_one_that_is_behind_is():
 
 
 def test_a_packet_counter_is_judged_modulo_its_wrap_and_nothing_is_cannot_tell():
+    wide = DeviceClock(0.0, counter=2**32 - 500, counter_modulus=2**32)
+    # 10 s at 100 Hz: 1000 frames on, past the wrap: 500.
+    assert judge_restart(wide, DeviceClock(10.0, counter=505), rate_hz=100).power_cycled is False
+    assert judge_restart(wide, DeviceClock(10.0, counter=12), rate_hz=100).power_cycled is True
+    # A 16-bit counter at 100 Hz wraps every 655 s: a restarted unit's counter would land within
+    # the ±2 s slack by chance 0.6 % of the time, so even a count that fits cannot tell.
     last = DeviceClock(0.0, counter=65000, counter_modulus=65536)
-    # 10 s at 100 Hz: 1000 frames on, past the wrap: 66000 mod 65536 = 464.
-    assert judge_restart(last, DeviceClock(10.0, counter=470), rate_hz=100).power_cycled is False
-    assert judge_restart(last, DeviceClock(10.0, counter=12), rate_hz=100).power_cycled is True
-    # At 1 kHz after a day away the drift allowance exceeds a quarter of the wrap: cannot tell.
-    assert judge_restart(last, DeviceClock(86400.0, counter=12), rate_hz=1000).power_cycled is None
+    check = judge_restart(last, DeviceClock(10.0, counter=470), rate_hz=100)
+    assert check.power_cycled is None and "too often to tell" in check.reason
+    # A 32-bit counter at 1 kHz still tells after a day away (±88 s of slack in 49 days' wrap).
+    assert judge_restart(wide, DeviceClock(86400.0, counter=12), rate_hz=1000).power_cycled is True
     assert judge_restart(DeviceClock(0.0), DeviceClock(10.0), rate_hz=100).power_cycled is None
     assert judge_restart(None, DeviceClock(10.0, 5.0), rate_hz=100).power_cycled is None
     assert DeviceClock.from_dict(last.to_dict()) == last

@@ -75,6 +75,9 @@ def _behind(last: float, now: float, advance: float, slack: float, period: float
     return min(d, period - d) > slack
 
 
+LUCK = 1e-3  # the most chance we accept of taking a restarted device for one that ran on
+
+
 def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float) -> ClockCheck:
     """Did the device restart between ``recorded`` (the last completed step) and ``now``?"""
     if recorded is None:
@@ -82,6 +85,10 @@ def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float
     away = max(0.0, now.host_utc - recorded.host_utc)
     slack = SLACK_S + DRIFT * away
     if recorded.time_s is not None and now.time_s is not None:
+        period = recorded.time_period_s
+        if period is not None and 2 * slack / period > LUCK:
+            return ClockCheck(None, f"its clock wraps every {period:.0f} s, too often to tell after "
+                                    f"{away:.0f} s away")
         expected = recorded.time_s + away
         if _behind(recorded.time_s, now.time_s, away, slack, recorded.time_period_s):
             return ClockCheck(True, f"its clock reads {now.time_s:.1f} s where running on it would "
@@ -90,7 +97,9 @@ def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float
     if recorded.counter is not None and now.counter is not None:
         modulus = recorded.counter_modulus
         advance, slack_counts = away * rate_hz, slack * rate_hz
-        if modulus is not None and slack_counts > modulus / 4:
+        # A wrapping counter lands inside the slack by chance with probability 2·slack/modulus
+        # after a restart: above LUCK a power-cycled unit would too often pass as one that ran on.
+        if modulus is not None and 2 * slack_counts / modulus > LUCK:
             return ClockCheck(None, f"its packet counter wraps every {modulus / rate_hz:.0f} s, too often "
                                     f"to tell after {away:.0f} s away")
         if _behind(recorded.counter, now.counter, advance, slack_counts, modulus):
