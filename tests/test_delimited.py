@@ -304,3 +304,15 @@ def test_a_clean_blank_separated_block_with_one_odd_number_loses_only_that_line(
     rows, bad = reference_rows(b"\n".join(lines) + b"\n", delimiter=None)
     assert bad == [18] and list(p.malformed_line_numbers) == [18]
     assert [[t, *a] for t, a in zip(chunk.t.tolist(), chunk.triads["a"].tolist())] == rows
+
+
+@pytest.mark.parametrize("widths", [(5,), (4, 5), (5, 4, 4)])
+def test_clean_blank_separated_blocks_with_unmapped_and_uneven_columns(widths):
+    """A block of clean lines is parsed whole; lines of unequal width are not, and must agree."""
+    lines = [b" ".join(b"%d.%d" % (i, j) for j in range(widths[i % len(widths)])) for i in range(50)]
+    text = b"\r\n".join(lines) + b"\r\n"
+    p = DelimitedTextParser(BLANK_SOUP_MAP)
+    chunk = p.feed(text, 0.0)
+    rows, bad = reference_rows(text, delimiter=None)
+    assert bad == [] and p.malformed_lines == 0 and len(rows) == 50
+    assert [[t, *a] for t, a in zip(chunk.t.tolist(), chunk.triads["a"].tolist())] == rows

@@ -413,7 +413,7 @@ class DelimitedTextParser:
     def _values(self, a, spans):
         """Numbers of every span: (values (ok lines, k), ok mask over the lines)."""
         m, k = spans.shape[:2]
-        got = _parse_spans(a, spans, runs=self._delim is None)
+        got = _parse_spans(a, spans)
         if got is not None:
             return got
         # A bad line in the block.  Lines with an empty field or a byte that cannot be part of a
@@ -474,10 +474,9 @@ class DelimitedTextParser:
         self._last_counter = int(c[-1])
 
 
-def _parse_spans(a: np.ndarray, spans: np.ndarray, runs: bool = False):
+def _parse_spans(a: np.ndarray, spans: np.ndarray):
     """All fields a[lo:hi] of spans (m, k, 2) by one fromstring call: (values of the good lines,
-    good mask), or None if some field is not a plain number. ``runs``: the fields are runs of
-    non-blank bytes (a blank-separated layout), which allows the fast path below."""
+    good mask), or None if some field is not a plain number."""
     m, k = spans.shape[:2]
     if m == 0:
         return np.zeros((0, k)), np.zeros(0, dtype=bool)
@@ -485,10 +484,6 @@ def _parse_spans(a: np.ndarray, spans: np.ndarray, runs: bool = False):
     hi = spans[:, :, 1].ravel()
     if not ((hi > lo).all() and (lo[1:] > hi[:-1]).all()):
         return None
-    if runs:
-        got = _parse_runs(a[int(lo[0]):int(hi[-1])], int((hi - lo).sum()), m, k)
-        if got is not None:
-            return got
     base, top = int(lo[0]), int(hi[-1]) + 1  # work on the stretch of bytes that holds the fields
     lo, hi = lo - base, hi - base
     # every field's bytes plus the byte after it (made a ","); fields are at least one byte apart
@@ -503,27 +498,6 @@ def _parse_spans(a: np.ndarray, spans: np.ndarray, runs: bool = False):
         return None
     try:
         flat = np.fromstring(text.tobytes(), dtype=np.float64, sep=",")
-    except ValueError:
-        return None
-    if flat.size != m * k:
-        return None
-    values = flat.reshape(m, k)
-    ok = np.isfinite(values).all(axis=1)
-    return values[ok], ok
-
-
-def _parse_runs(stretch: np.ndarray, field_bytes: int, m: int, k: int):
-    """The common case of a blank-separated file, parsed where it lies (no field gathered): when
-    the stretch's only non-blank bytes are its m·k fields' (no header, comment, short or long
-    line among them) and all are number bytes, its blank-separated tokens are exactly the fields,
-    in order, and fromstring parses each as the general path would (a token it cannot read
-    whole raises). None otherwise: the general path decides."""
-    raw = stretch.tobytes()
-    solid = raw.translate(None, _BLANK_BYTES)
-    if len(solid) != field_bytes or solid.translate(None, _NUMBER_BYTES):
-        return None
-    try:
-        flat = np.fromstring(raw, dtype=np.float64, sep=" ")
     except ValueError:
         return None
     if flat.size != m * k:
