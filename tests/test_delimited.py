@@ -226,14 +226,16 @@ SOUP_MAP = ChannelMap.from_mapping({"triads": {"a": {"columns": [0, 2, 3]}}, "ti
 FIELDS = ["1", "-2.5", "+.5", "7.", "1e3", "", " 4 ", "x", "1.2.3", "nan", "1e999", "--1", "#", "12"]
 
 
-def reference_rows(text: bytes):
-    """(rows (t, ax, ay, az), malformed line numbers) by plain per-line Python."""
+def reference_rows(text: bytes, delimiter: str | None = ","):
+    """(rows (t, ax, ay, az), malformed line numbers) by plain per-line Python; delimiter None:
+    fields separated by runs of blanks."""
     rows, bad = [], []
     for no, raw in enumerate(text.split(b"\n")[:-1], start=1):
         line = raw.decode("latin-1").rstrip("\r")
         if not line.strip(" \t\r") or line.lstrip(" \t\r").startswith("#"):
             continue
-        fields = [f.strip(" \t\r") for f in line.split(",")]
+        fields = ([f.strip(" \t\r") for f in line.split(",")] if delimiter else
+                  re.split(r"[ \t\r]+", line.strip(" \t\r")))
         mapped = [fields[c] if c < len(fields) else None for c in (1, 0, 2, 3)]
         good = [f is not None and NUMBER.fullmatch(f) and np.isfinite(float(f)) for f in mapped]
         if all(good):
@@ -246,12 +248,12 @@ def reference_rows(text: bytes):
 
 
 @st.composite
-def soup_lines(draw):
+def soup_lines(draw, sep=","):
     kind = draw(st.sampled_from(["good", "good", "fields", "comment", "blank", "junk"]))
     if kind == "good":
-        return ",".join(str(draw(st.integers(-999, 999)) / 8) for _ in range(draw(st.integers(4, 6)))).encode()
+        return sep.join(str(draw(st.integers(-999, 999)) / 8) for _ in range(draw(st.integers(4, 6)))).encode()
     if kind == "fields":
-        return ",".join(draw(st.sampled_from(FIELDS)) for _ in range(draw(st.integers(1, 6)))).encode()
+        return sep.join(draw(st.sampled_from(FIELDS)) for _ in range(draw(st.integers(1, 6)))).encode()
     if kind == "comment":
         return b"  # " + draw(st.binary(max_size=10)).replace(b"\n", b"")
     if kind == "blank":
@@ -272,3 +274,45 @@ def test_line_soup_never_raises_and_matches_the_reference(lines, cuts):
     assert got == rows
     assert list(p.malformed_line_numbers) == bad
     assert p.counters.frames == len(rows) and p.lines == text.count(b"\n")
+
+
+BLANK_SOUP_MAP = dataclasses.replace(SOUP_MAP, delimiter=None)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(soup_lines(sep=" "), st.sampled_from([b"\n", b"\r\n"])), max_size=15),
+       st.integers(0, 1000))
+def test_blank_separated_soup_matches_the_reference(lines, cut):
+    """Blank-separated blocks of clean lines take a fast path (parsed where they lie): it must
+    agree with plain Python on every mix of good lines, extra columns, comments, headers and junk."""
+    text = b"".join(a + b for a, b in lines)
+    cut %= len(text) + 1
+    p = DelimitedTextParser(BLANK_SOUP_MAP, keep_malformed=1000)
+    chunks = [c for c in (p.feed(text[:cut], 0.0), p.feed(text[cut:], 0.0)) if c is not None]
+    got = [[t, *acc] for c in chunks for t, acc in zip(c.t.tolist(), c.triads["a"].tolist())]
+    rows, bad = reference_rows(text, delimiter=None)
+    assert got == rows
+    assert list(p.malformed_line_numbers) == bad
+
+
+@pytest.mark.parametrize("odd", [b"1-2", b"1..5", b"1e", b"+", b"1,5", b"0x10", b"inf"])
+def test_a_clean_blank_separated_block_with_one_odd_number_loses_only_that_line(odd):
+    lines = [b"%d  %d.5\t-%de3 1e%d" % (i, i, i, i % 5) for i in range(40)]
+    lines[17] = b"17 " + odd + b" 3 4"
+    p = DelimitedTextParser(BLANK_SOUP_MAP, keep_malformed=100)
+    chunk = p.feed(b"\n".join(lines) + b"\n", 0.0)
+    rows, bad = reference_rows(b"\n".join(lines) + b"\n", delimiter=None)
+    assert bad == [18] and list(p.malformed_line_numbers) == [18]
+    assert [[t, *a] for t, a in zip(chunk.t.tolist(), chunk.triads["a"].tolist())] == rows
+
+
+@pytest.mark.parametrize("widths", [(5,), (4, 5), (5, 4, 4)])
+def test_clean_blank_separated_blocks_with_unmapped_and_uneven_columns(widths):
+    """A block of clean lines is parsed whole; lines of unequal width are not, and must agree."""
+    lines = [b" ".join(b"%d.%d" % (i, j) for j in range(widths[i % len(widths)])) for i in range(50)]
+    text = b"\r\n".join(lines) + b"\r\n"
+    p = DelimitedTextParser(BLANK_SOUP_MAP)
+    chunk = p.feed(text, 0.0)
+    rows, bad = reference_rows(text, delimiter=None)
+    assert bad == [] and p.malformed_lines == 0 and len(rows) == 50
+    assert [[t, *a] for t, a in zip(chunk.t.tolist(), chunk.triads["a"].tolist())] == rows

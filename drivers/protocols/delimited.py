@@ -29,6 +29,8 @@ _LF, _CR, _SP, _TAB = 10, 13, 32, 9
 _NUMERIC_BYTES = b"0123456789+-.eE,"
 _NUMERIC = np.zeros(256, dtype=bool)
 _NUMERIC[np.frombuffer(_NUMERIC_BYTES, dtype=np.uint8)] = True
+_NUMBER_BYTES = _NUMERIC_BYTES.replace(b",", b"")  # the bytes of one number
+_BLANK_BYTES = b" \t\r\n"
 _NUMBER_BYTE = _NUMERIC.copy()
 _NUMBER_BYTE[44] = False  # inside one field
 
@@ -284,6 +286,10 @@ class DelimitedTextParser:
         self._delim = None if delim is None else ord(delim)
         self._comment = None if channel_map.comment is None else np.frombuffer(
             channel_map.comment.encode("ascii"), dtype=np.uint8)
+        # Blank-separated, and a comment (if any) starts with a byte no number has: a block of
+        # clean lines can be recognised as such and parsed whole (see _clean_lines).
+        self._runs_only = delim is None and (channel_map.comment is None or bool(
+            channel_map.comment.encode("ascii")[:1].translate(None, _NUMBER_BYTES)))
 
     @property
     def device_time(self) -> bool:
@@ -338,6 +344,11 @@ class DelimitedTextParser:
         run_stop = np.flatnonzero(solid[:-1] & blank[1:]) + 1  # the block ends in a blank "\n"
         if solid[0]:
             run_start = np.concatenate([[0], run_start])
+        if self._runs_only and not malformed[0]:
+            values = _clean_lines(block, ends, run_start, run_stop, self._need)
+            if values is not None:
+                self.counters.frames += nlines
+                return self._chunk(values[:, self._cols], t_host)
         first = _next_run(run_start, starts, stops)  # first non-blank byte of each line, or stop
         empty = first >= stops
         comment = np.zeros(nlines, dtype=bool)
@@ -494,6 +505,30 @@ def _parse_spans(a: np.ndarray, spans: np.ndarray):
     values = flat.reshape(m, k)
     ok = np.isfinite(values).all(axis=1)
     return values[ok], ok
+
+
+def _clean_lines(block: bytes, ends, run_start, run_stop, need: int) -> np.ndarray | None:
+    """(lines, T) numbers of a blank-separated block whose every line holds the same number T >=
+    ``need`` of fields, all plain finite numbers (no blank line, comment, header or short line):
+    the usual file, parsed whole by one fromstring call. None for any other block (the general
+    path then sorts its lines out)."""
+    nlines, runs = len(ends), len(run_start)
+    if nlines == 0 or runs % nlines or runs // nlines < need:
+        return None
+    T = runs // nlines
+    # Line i must hold runs i·T .. i·T + T - 1: its first starts after the line before ends, its
+    # last stops before its own end (runs are in order, so then no line has more or fewer).
+    if not ((run_start[T::T] > ends[:-1]).all() and (run_stop[T - 1::T] <= ends).all()):
+        return None
+    if block.translate(None, _BLANK_BYTES + _NUMBER_BYTES):
+        return None
+    try:
+        flat = np.fromstring(block, dtype=np.float64, sep=" ")
+    except ValueError:  # a field that is not one number (e.g. "1-2", "1e")
+        return None
+    if flat.size != runs or not np.isfinite(flat).all():
+        return None
+    return flat.reshape(nlines, T)
 
 
 def _bisect(a, spans, idx, values, ok) -> None:

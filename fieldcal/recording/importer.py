@@ -233,7 +233,10 @@ def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: s
         start = np.r_[0, end[:-1] + 1]
         if (chunk := parser.feed(data[lo:hi], 0.0)) is not None:
             chunks.append(chunk)
-        content.append(lines + _content_lines(a, start, end, comment))
+        if chunk is not None and len(chunk.t) == len(end):  # every line a sample: all are content
+            content.append(np.arange(lines + 1, lines + len(end) + 1, dtype=np.int64))
+        else:
+            content.append(lines + _content_lines(a, start, end, comment))
         starts.append(start + lo)
         ends.append(end + lo)
         lo, lines = hi, lines + len(end)
