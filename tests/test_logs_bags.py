@@ -169,6 +169,15 @@ def test_samples_with_nan_and_repeated_stamps_are_dropped_and_said(tmp_path):
     assert {"1 samples with NaN or infinite values dropped", "1 repeated timestamps dropped"} <= set(report.alignment)
 
 
+def test_stamps_that_never_increase_are_one_line(tmp_path, capsys):
+    """Every message with the same (non-zero) stamp: a stopped clock, said in one line."""
+    accel, rate = np.ones((20, 3)), np.zeros((20, 3))
+    bag = write_imu_bag(tmp_path / "stuck.bag", False, {"/imu": (accel, rate)},
+                        stamps_ns=np.full(20, EPOCH_NS + 5, dtype=np.int64))
+    err = one_line_error(["import", str(bag), "--out", str(tmp_path / "s")], capsys)
+    assert str(bag) in err and "timestamps never increase" in err
+
+
 def test_stamps_out_of_order_are_put_in_time_order(tmp_path):
     """Messages written in receive order whose stamps are not (a late stamp): sorted by stamp."""
     accel, rate = np.arange(30.0).reshape(10, 3), -np.arange(30.0).reshape(10, 3)

@@ -121,6 +121,9 @@ def _recording(path, sha256, kind, topic, t, acc, gyro, notes=()) -> tuple[Recor
                                    "few to calibrate from", path)
     keep = np.r_[True, t[1:] > np.maximum.accumulate(t)[:-1]]
     t, acc, gyro = t[keep], acc[keep], gyro[keep]
+    if len(t) < 2:
+        raise RecordingImportError(f"{path}: {kind} {topic}: its {len(finite)} samples' timestamps never "
+                                   "increase (all the same?): the logger's clock is not running", path)
     dt = np.diff(t)
     period = float(np.median(dt))
     widest = int(np.argmax(dt))
