@@ -221,3 +221,23 @@ def test_a_broken_registry_warns_and_rebuild_indexes_the_session(tmp_path, capsy
     assert main(argv) == 0
     with Registry(tmp_path / "live.sqlite") as registry:
         assert registry.db.execute("SELECT COUNT(*) FROM calibrations").fetchone()[0] == 1
+
+
+def test_a_registry_that_stops_answering_does_not_hold_the_station(tmp_path, monkeypatch):
+    """A server that accepts the connection and then never answers (a dropped network, a stalled
+    host): the station warns once its deadline passes and goes on; the session stays complete."""
+    import threading
+
+    from fieldcal.registry import record_safely
+
+    unit_file(tmp_path / "a.yaml", "SN-1", [1.0, 0.0, 0.0])
+    answer = threading.Event()
+    monkeypatch.setattr(Registry, "record", lambda self, *a, **k: answer.wait())  # a server that never replies
+    warnings = []
+    try:
+        assert not record_safely(tmp_path / "a.yaml", None, str(tmp_path / "r.sqlite"), warn=warnings.append,
+                                 deadline_s=0.2)
+    finally:
+        answer.set()  # lets the abandoned record end
+    [warning] = warnings
+    assert "did not answer within 0.2 s" in warning and "registry rebuild" in warning

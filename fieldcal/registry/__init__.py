@@ -236,19 +236,43 @@ def the_calibration_file(params: Path) -> Path:
     return same[-1] if same else params
 
 
+RECORD_DEADLINE_S = 60.0  # past the lock wait and a migration: a registry this slow is not answering
+
+
 def record_safely(params, passed: bool | None, registry=None, warn=print, source: str = "",
-                  require_tls: bool = False) -> bool:
+                  require_tls: bool = False, deadline_s: float = RECORD_DEADLINE_S) -> bool:
     """Record ``params`` in the registry at ``registry`` (see ``Registry``); any failure is a
-    warning, never an exception: the session is already complete and is the source of truth."""
-    try:
-        with Registry(registry, require_tls=require_tls) as db:
-            db.record(the_calibration_file(Path(params)), passed, source)
-        return True
-    except Exception as exc:  # noqa: BLE001 -- the registry must never fail a calibration
-        where = redact(registry if registry is not None else default_path())
-        text = str(exc).splitlines()[0] if str(exc) else ""
-        if isinstance(exc, RegistryError) and text.startswith(f"registry {where}: "):
-            text = text[len(f"registry {where}: "):]
-        warn(f"warning: the unit registry ({where}) was not updated: {type(exc).__name__}: {text} "
-             "-- the session is complete; `fieldcal registry rebuild` will index it")
+    warning, never an exception: the session is already complete and is the source of truth.
+
+    The record runs on a daemon thread the station waits for at most ``deadline_s``: a server that
+    stops answering after the connection was made (a dropped network, a stalled host) is beyond
+    libpq's connect timeout and the server's own timeouts, and must not hold the station."""
+    import threading
+
+    outcome: list[BaseException | None] = []
+
+    def record() -> None:
+        try:
+            with Registry(registry, require_tls=require_tls) as db:
+                db.record(the_calibration_file(Path(params)), passed, source)
+            outcome.append(None)
+        except BaseException as exc:  # noqa: BLE001 -- handed to the station's thread below
+            outcome.append(exc)
+
+    worker = threading.Thread(target=record, name="fieldcal-registry", daemon=True)
+    worker.start()
+    worker.join(deadline_s)
+    where = redact(registry if registry is not None else default_path())
+    if not outcome:
+        warn(f"warning: the unit registry ({where}) did not answer within {deadline_s:g} s and was not "
+             "updated -- the session is complete; `fieldcal registry rebuild` will index it")
         return False
+    exc = outcome[0]
+    if exc is None:
+        return True
+    text = str(exc).splitlines()[0] if str(exc) else ""
+    if isinstance(exc, RegistryError) and text.startswith(f"registry {where}: "):
+        text = text[len(f"registry {where}: "):]
+    warn(f"warning: the unit registry ({where}) was not updated: {type(exc).__name__}: {text} "
+         "-- the session is complete; `fieldcal registry rebuild` will index it")
+    return False
