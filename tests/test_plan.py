@@ -142,3 +142,37 @@ def test_a_planned_adaptive_run_replays_byte_for_byte(planned, tmp_path):
     assert any(e.kind == "wrong_orientation" for e in events)
     _, pf, _ = replay_session(result.session)
     assert dump(pf).encode() == recorded_parameters(result.session)
+
+
+def test_the_bias_floor_of_white_noise_is_the_plain_mean_and_grows_with_bias_instability():
+    from drivers.noise import TriadNoise
+    from fieldcal.planning.design import bias_floor, shortest_span
+
+    white = TriadNoise(white=1e-3)
+    # White noise: the best average is the plain mean, σ = N / √T.
+    assert bias_floor(white, 400.0) == pytest.approx(1e-3 / np.sqrt(400.0), rel=1e-9)
+    assert shortest_span(white, 1e-3 / np.sqrt(900.0)) == pytest.approx(900.0, rel=0.02)
+    flicker = TriadNoise(white=1e-3, bias_instability=2e-4)
+    # Correlated noise averages down more slowly than 1/√T, and never below its own white part.
+    assert bias_floor(flicker, 400.0) > 1e-3 / np.sqrt(400.0)
+    assert bias_floor(flicker, 1600.0) > bias_floor(flicker, 400.0) / 2
+    assert bias_floor(flicker, 1600.0) < bias_floor(flicker, 400.0)
+
+
+def test_no_design_beats_the_bias_floor_of_its_own_span():
+    """The floor is a bound: field-18's CRB for each bias is at least the floor over its time."""
+    from fieldcal.planning.design import bias_floor
+
+    models = models_from_truth(paper_mimu())
+    procedure = load_procedure("field-18")
+    step = procedure.rate_step
+    design = Design(tuple(p.attitude for p in procedure.positions), procedure.dwell_s,
+                    step.rate_deg_s, step.turns)
+    operator = OperatorModel()
+    span = operator_time(design, operator)
+    sigmas = bound_sigmas(design, operator, models, DEFAULT_STATION, 250.0)
+    for name, model in models.items():
+        floor = bias_floor(model.noise, span)
+        assert np.all(sigmas[name][:3] >= floor * 0.99), name
+    # The gyroscope's averages fill most of the run: its bias is within 10 % of the floor.
+    assert np.all(sigmas["gyroscope"][:3] <= 1.1 * bias_floor(models["gyroscope"].noise, span))

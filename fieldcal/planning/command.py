@@ -170,4 +170,35 @@ def cmd_plan(args) -> int:
             ratio = "-" if np.isinf(target) else f"{plan.sigmas[name][j] / target:.3f}"
             print(f"| {name} | {pname} | {param_unit(model.kind, model.output_unit, j)} | {shown} | "
                   f"{plan.sigmas[name][j] * scale:.3g} | {ratio} | {ref_sigmas[name][j] * scale:.3g} |")
+    print_time_and_floor(plan, ref_design, ref_seconds, operator, models, limits)
     return 0
+
+
+def bias_spans(models, limits) -> dict[str, float]:
+    """Per triad with a bias target: the shortest averaging span (s) whose bias floor meets it."""
+    import numpy as np
+
+    from fieldcal.planning.design import shortest_span
+
+    spans = {}
+    for name, model in models.items():
+        wanted = [limits[name][j] / abs(model.sensitivity[j, j]) for j in GROUPS["bias"]
+                  if np.isfinite(limits[name][j])]
+        if wanted:
+            spans[name] = shortest_span(model.noise, min(wanted))
+    return spans
+
+
+def print_time_and_floor(plan, ref_design, ref_seconds, operator, models, limits) -> None:
+    """Where the time goes, and the least time any procedure needs for the bias targets."""
+    from fieldcal.planning.design import time_breakdown
+
+    print()
+    for label, design, seconds in (("planned", plan.design, plan.seconds),
+                                   ("field-18", ref_design, ref_seconds)):
+        parts = ", ".join(f"{k} {v / 60:.1f}" for k, v in time_breakdown(design, operator).items())
+        print(f"{label}: {seconds / 60:.1f} min = {parts} min")
+    for name, span in bias_spans(models, limits).items():
+        print(f"{name}: its bias target needs averaging over at least {span / 60:.1f} min "
+              f"({span / ref_seconds:.2f}× field-18's time) whatever the positions and dwells: its "
+              "bias instability is correlated over minutes, so the run's span, not each dwell, sets it")

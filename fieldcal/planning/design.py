@@ -112,3 +112,43 @@ def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarra
         raise ValueError(f"unknown triad kind {model.kind!r}")
     with np.errstate(invalid="ignore"):  # a negative variance: the design cannot tell it (nan)
         return np.sqrt(np.diag(bound))
+
+
+def time_breakdown(design: Design, operator: OperatorModel) -> dict[str, float]:
+    """Seconds of the design's operator time spent placing and settling, dwelling, in rate steps."""
+    n = len(design.attitudes)
+    placing, dwelling = n * (operator.place_s + operator.settle_s), n * design.dwell_s
+    return {"placing": placing, "dwells": dwelling,
+            "rate steps": operator_time(design, operator) - placing - dwelling}
+
+
+FLOOR_PIECE_S = 10.0  # the weights of the floor's average are constant over pieces this long,
+FLOOR_PIECES = 300  # or over this many pieces of a longer span (a bounded solve)
+
+
+def bias_floor(noise, span_s: float) -> float:
+    """σ (input units) of the best weighted average of one axis's noise over ``span_s`` seconds.
+
+    A bias is estimated by some average of the window means whose weights add up to one, so no
+    procedure whose averaging windows all lie within ``span_s`` can estimate it better than this:
+    with bias instability (correlated over hundreds of seconds) it is the span of the run, not
+    each dwell's length, that sets the bias σ. Weights constant over FLOOR_PIECE_S pieces, at most
+    FLOOR_PIECES of them (the generalised least-squares mean of the pieces), which is within about
+    1 % of the continuous optimum for the noise models here.
+    """
+    n = min(FLOOR_PIECES, max(1, int(np.ceil(span_s / FLOOR_PIECE_S))))
+    piece = span_s / n
+    C = noise.window_covariance(np.arange(n) * piece, np.full(n, piece))
+    ones = np.ones(n)
+    return float(np.sqrt(1.0 / (ones @ np.linalg.solve(C, ones))))
+
+
+def shortest_span(noise, sigma: float, longest_s: float = 4 * 3600.0) -> float:
+    """The shortest span (s, to 1 %) whose bias floor reaches ``sigma``; inf beyond ``longest_s``."""
+    if bias_floor(noise, longest_s) > sigma:
+        return float("inf")
+    lo, hi = 1.0, longest_s
+    while hi / lo > 1.01:
+        mid = float(np.sqrt(lo * hi))
+        lo, hi = (lo, mid) if bias_floor(noise, mid) <= sigma else (mid, hi)
+    return hi
