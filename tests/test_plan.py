@@ -32,9 +32,10 @@ class Witness(Subscriber):
     """Each dwell's true attitude and table angle, which only the bench knows."""
 
     def __init__(self, bench):
-        self.bench, self.attitudes, self.angles = bench, [], []
+        self.bench, self.attitudes, self.angles, self.events = bench, [], [], []
 
     def event(self, e, run) -> None:
+        self.events.append(e)
         if isinstance(e, ev.DwellComplete):
             self.attitudes.append(self.bench.attitude.copy())
             self.angles.append(self.bench.sim.table_angle)
@@ -176,3 +177,43 @@ def test_no_design_beats_the_bias_floor_of_its_own_span():
         assert np.all(sigmas[name][:3] >= floor * 0.99), name
     # The gyroscope's averages fill most of the run: its bias is within 10 % of the floor.
     assert np.all(sigmas["gyroscope"][:3] <= 1.1 * bias_floor(models["gyroscope"].noise, span))
+
+
+def test_the_tracker_folds_the_engines_own_windows_and_its_sigma_falls_to_the_target(planned):
+    from fieldcal.planning.tracker import TargetTracker
+
+    procedure, conductor, _, witness = planned
+    assert procedure.targets  # the planner wrote them, in operator units
+    tracker = TargetTracker(procedure, models_from_truth(paper_mimu()), DEFAULT_STATION, 250.0)
+    ratios = []
+    for e in witness.events:
+        if tracker.apply(e):
+            ratios.append(max(s.ratio for s in tracker.standings()))
+    engine_windows = conductor.engine.windows_and_averages()[0]
+    folded = [w for step in sorted(tracker.completed) for w in tracker.completed[step]]
+    key = lambda w: (w.position, str(w.kind))  # noqa: E731
+    for mine, theirs in zip(sorted(folded, key=key), sorted(engine_windows, key=key), strict=True):
+        assert mine.kind == theirs.kind and mine.position == theirs.position
+        assert mine.start == pytest.approx(theirs.start, abs=0.01)
+        assert mine.duration == pytest.approx(theirs.duration, abs=0.01)
+    assert ratios[0] == np.inf and ratios[1] == np.inf  # two positions tell nothing apart
+    assert all(b <= a * (1 + 1e-9) for a, b in zip(ratios, ratios[1:]))  # information only grows
+    # At the end every targeted parameter is met (nominal attitudes: the planner's own bound).
+    final = tracker.standings()
+    assert {s.triad for s in final} == {t for t, _ in TARGETS}
+    assert all(s.sigma <= 1.05 * s.target for s in final), final
+
+
+@pytest.mark.parametrize("targets, message", [
+    ("{accelerometer: {bias_q: 0.1}}", "bias_"),  # an unknown parameter: the nearest valid name
+    ("{accelerometer: {bias_x: 0}}", "a σ > 0"),
+    ("{accelerometer: {bias_x: fast}}", "targets.accelerometer.bias_x"),
+    ("[0.1]", "a mapping of triad names"),
+])
+def test_bad_targets_in_a_procedure_are_one_line_errors(targets, message):
+    from fieldcal.procedure.positions import ProcedureError, parse_procedure
+
+    text = load_procedure("field-18").text + f"targets: {targets}\n"
+    with pytest.raises(ProcedureError) as caught:
+        parse_procedure(text, "p.yaml")
+    assert message in str(caught.value) and "\n" not in str(caught.value)

@@ -77,7 +77,25 @@ def parse_targets(text: str, models) -> dict[str, np.ndarray]:
     return targets
 
 
-def procedure_yaml(plan, name: str, title: str, operator, target: str | None = None) -> str:
+def operator_targets(models, limits) -> dict[str, dict[str, float]]:
+    """The finite σ limits per triad and parameter in operator units (4 significant digits), as a
+    planned procedure carries them for the TUI to show against the σ reached."""
+    import numpy as np
+
+    from fieldcal.model import PARAM_NAMES
+    from fieldcal.units import display_scale
+
+    out = {}
+    for name, model in models.items():
+        row = {p: float(f"{limits[name][j] * display_scale(model.kind, model.output_unit, j):.4g}")
+               for j, p in enumerate(PARAM_NAMES) if np.isfinite(limits[name][j])}
+        if row:
+            out[name] = row
+    return out
+
+
+def procedure_yaml(plan, name: str, title: str, operator, target: str | None = None,
+                   targets: dict | None = None) -> str:
     import yaml
 
     design = plan.design
@@ -87,10 +105,13 @@ def procedure_yaml(plan, name: str, title: str, operator, target: str | None = N
                          "settle_s": float(operator.rate_settle_s)},
            "positions": [{"id": i, "description": c.name, "axes": dict(zip("xyz", c.axes))}
                          for i, c in enumerate(plan.positions, start=1)]}
+    if targets:
+        doc["targets"] = targets
     head = ("# Planned by `fieldcal plan`: the least operator time whose Cramér-Rao bound meets the\n"
             "# target for every parameter. An ordinary procedure file: edit, validate and run it.\n"
             "# adaptive_dwell: each dwell ends once it holds the planned information at the noise\n"
-            "# the unit shows (longer if noisier than its model, never below the minimum dwell).\n")
+            "# the unit shows (longer if noisier than its model, never below the minimum dwell).\n"
+            "# targets: the σ each parameter must reach, in the units `fieldcal plan` prints them.\n")
     if target is not None:  # in full, whether or not the title has room for it
         head += "# target: " + " ".join(target.split()) + "\n"
     return head + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True, width=100)
@@ -153,7 +174,8 @@ def cmd_plan(args) -> int:
         plan = Plan(chosen, ref_design, ref_seconds, ref_sigmas)
     out = Path(args.out)
     text = procedure_yaml(plan, out.stem, plan_title(config.device.name, args.target, args.slack),
-                          operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""))
+                          operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""),
+                          operator_targets(models, limits))
     parse_procedure(text, out.name)  # what is written loads as an ordinary procedure
     out.write_text(text)
     design = plan.design

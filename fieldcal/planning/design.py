@@ -83,17 +83,24 @@ def bound_sigmas(design: Design, operator: OperatorModel, models: dict[str, Tria
                  station: Station, rate_hz: float) -> dict[str, np.ndarray]:
     """Per triad, the CRB standard deviation of its 9 parameters (solver units)."""
     windows, _ = timeline(design, operator)
-    attitudes = np.array(design.attitudes)
+    return window_sigmas(windows, np.array(design.attitudes), design.rate_deg_s, models, station, rate_hz)
+
+
+def window_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
+                  models: dict[str, TriadModel], station: Station, rate_hz: float) -> dict[str, np.ndarray]:
+    """Per triad, the CRB σ (solver units) of windows averaged at ``attitudes`` (one static, one
+    +ω and one −ω window per position, each window's position an index into ``attitudes``);
+    inf where the windows cannot tell the parameters apart (too few positions)."""
     out = {}
     for name, model in models.items():
         try:
-            out[name] = _triad_sigmas(model, windows, attitudes, design, station, rate_hz)
+            out[name] = _triad_sigmas(model, windows, attitudes, rate_deg_s, station, rate_hz)
         except np.linalg.LinAlgError:  # too few positions to tell the parameters apart
             out[name] = np.full(9, np.inf)
     return out
 
 
-def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, design: Design,
+def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
                   station: Station, rate_hz: float) -> np.ndarray:
     up_body = attitudes[:, 2, :]
     theta = params_from_k(model.sensitivity, np.zeros(3))
@@ -106,7 +113,7 @@ def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarra
         cov = average_covariance(model, ordered, rate_hz)
         # Table angle zero at each static dwell: the heading is a nuisance of the bound.
         north_body = attitudes[:, 1, :]
-        bound = angular_rate_bound(theta, up_body, np.radians(design.rate_deg_s), north_body,
+        bound = angular_rate_bound(theta, up_body, np.radians(rate_deg_s), north_body,
                                    EARTH_RATE, station.latitude_rad, cov)
     else:
         raise ValueError(f"unknown triad kind {model.kind!r}")
