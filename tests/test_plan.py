@@ -217,3 +217,38 @@ def test_bad_targets_in_a_procedure_are_one_line_errors(targets, message):
     with pytest.raises(ProcedureError) as caught:
         parse_procedure(text, "p.yaml")
     assert message in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_a_planned_run_in_the_tui_shows_its_sigma_against_the_targets_and_equals_the_headless_run(
+        planned, tmp_path):
+    """Pilot: the plan panel is on the procedure screen, says nothing is determined at first and
+    every target met at the end; the TUI's parameter file is the headless run's, byte for byte,
+    and its session replays to the same bytes."""
+    import asyncio
+
+    from tui_pilot import until, waiting_at
+    from fieldcal.tui import FieldcalApp
+    from fieldcal.tui.widgets.plan import PlanPanel
+
+    procedure = planned[0]
+    spec = RunSpec(procedure, DEFAULT_STATION, seed=3)
+    headless = run_headless(spec, tmp_path / "headless")
+
+    async def body():
+        app = FieldcalApp(spec, speed=0, session_dir=tmp_path / "tui")
+        async with app.run_test(size=(100, 40)) as pilot:
+            await until(pilot, lambda: waiting_at(app, 0))
+            panel = app.screen.query_one(PlanPanel)
+            first = str(panel.render())
+            for step in range(len(procedure.positions)):
+                await until(pilot, lambda step=step: waiting_at(app, step), timeout_s=120)
+                await pilot.press("r")
+            await until(pilot, lambda: app.outcome is not None, timeout_s=120)
+            return app.outcome, first, [s for s in panel.tracker.standings()]
+
+    outcome, first, final = asyncio.run(body())
+    assert "left" in first and first.count("not yet determined") == len({t for t, _ in TARGETS})
+    assert final and all(s.met or s.sigma <= 1.05 * s.target for s in final), final
+    assert outcome.parameters.read_bytes() == headless.parameters.read_bytes()
+    _, pf, _ = replay_session(outcome.session)
+    assert dump(pf).encode() == recorded_parameters(outcome.session)
