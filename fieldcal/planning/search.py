@@ -140,26 +140,31 @@ class Planner:
         return Plan(tuple(positions), best, operator_time(best, self.operator), self.sigmas(best))
 
     def search(self, pool: list[Candidate]) -> Plan:
-        pairs = antipodal_pairs(pool)
-        current = self.shortest([c for pair in pairs for c in pair], 1)
-        if current is None:
+        """The least-time design over every number of whole turns per rate step: a turn is also
+        gyroscope averaging time, so more turns can buy shorter dwells and fewer positions."""
+        plans = [self._search(pool, turns) for turns in range(1, MAX_TURNS + 1)]
+        found = [p for p in plans if p is not None]
+        if not found:
             raise ValueError("plan: no procedure from the candidate positions meets the target "
                              f"within a {MAX_DWELL_S:g} s dwell; relax the target")
+        return min(found, key=lambda p: p.seconds)
+
+    def _search(self, pool: list[Candidate], turns: int) -> Plan | None:
+        pairs = antipodal_pairs(pool)
+        current = self.shortest([c for pair in pairs for c in pair], turns)
+        if current is None:
+            return None
         best, idle = current, 0
         while len(pairs) > 1 and idle < PATIENCE:
             def loss(i):
                 kept = [c for j, pair in enumerate(pairs) if j != i for c in pair]
-                return self.worst_ratio(self._design(kept, current.design.dwell_s, 1))
+                return self.worst_ratio(self._design(kept, current.design.dwell_s, turns))
             drop = min(range(len(pairs)), key=loss)
             pairs = pairs[:drop] + pairs[drop + 1:]
-            current = self.shortest([c for pair in pairs for c in pair], 1, current.design.dwell_s)
+            current = self.shortest([c for pair in pairs for c in pair], turns, current.design.dwell_s)
             if current is None:
                 break
             idle = 0 if current.seconds < best.seconds else idle + 1
             if current.seconds < best.seconds:
                 best = current
-        for turns in range(2, MAX_TURNS + 1):
-            plan = self.shortest(best.positions, turns)
-            if plan is not None and plan.seconds < best.seconds:
-                best = plan
         return best
