@@ -3,15 +3,20 @@
 Candidates are attitudes the procedure format can write: one per gravity direction in body axes
 (the 6 faces and the 12 edges, 45° between two axes), plus any given procedure's own (field-18
 has every face twice, at two headings). Corners (gravity equally on three axes) need directions
-the format does not have, so they are not offered.
+the format does not have, so they are not offered; faces alone cannot tell the misalignments
+apart (the norm method needs gravity off the axes), edges can.
 
 Positions come and go in antipodal pairs (a face and its opposite, an edge and its opposite),
-which keep each axis's bias separable from its scale factor. The search starts from every pair,
-finds the shortest whole-second dwell that meets the target (the bound falls monotonically with
-the dwell), then repeatedly drops the pair whose loss the others make up best (smallest worst
-σ/target at the current dwell), lengthening the dwell as needed, and keeps the design with the
-least operator time (stopping after PATIENCE drops in a row save nothing); finally it tries more whole turns per rate step on that design. The table
-runs at its fastest rate: a faster rate gives a larger scale-factor signal in less time.
+which keep each axis's bias separable from its scale factor. For each number of whole turns per
+rate step (1 to MAX_TURNS), the search starts from every pair, finds the shortest whole-second
+dwell that meets the target (the bound falls monotonically with the dwell), then repeatedly drops
+the pair whose loss the others make up best (smallest worst σ/target at the current dwell),
+lengthening the dwell as needed, and keeps the design with the least operator time (stopping
+after PATIENCE drops in a row save nothing). The table runs at its fastest rate: a faster rate
+gives a larger scale-factor signal in less time. One dwell for every position, as the format
+has it: the parameters that bind (the biases) depend on the span the averages cover more than on
+the dwells, which are about a tenth of a planned run for the paper's unit, so a dwell per
+position could save at most that tenth.
 """
 from __future__ import annotations
 
