@@ -252,3 +252,26 @@ def test_a_planned_run_in_the_tui_shows_its_sigma_against_the_targets_and_equals
     assert outcome.parameters.read_bytes() == headless.parameters.read_bytes()
     _, pf, _ = replay_session(outcome.session)
     assert dump(pf).encode() == recorded_parameters(outcome.session)
+
+
+def test_the_simulators_window_means_have_the_covariance_the_bound_uses():
+    """The plan optimises the errors the runs make only if the bound's noise is the simulator's:
+    window means of drawn noise (bias instability included) are correlated across windows
+    exactly as TriadNoise.window_covariance says, not as white noise would be."""
+    from drivers.sim.device import PAPER_NOISE
+    from drivers.sim.noise import NoiseGenerator
+
+    noise, rate = PAPER_NOISE["gyroscope"], 5.0
+    starts, duration = np.array([0.0, 300.0, 900.0]), 200.0
+    cells = (starts[:, None] * rate + np.arange(int(duration * rate))).astype(int)
+    means = []
+    for seed in range(300):
+        x = NoiseGenerator(noise, rate, np.random.default_rng(seed)).draw(int(1100 * rate))
+        means.append(x[cells].mean(axis=1))  # (windows, axes)
+    means = np.concatenate(np.transpose(means, (2, 0, 1)))  # 900 independent (axis, seed) rows
+    drawn = np.cov(means.T)
+    model = noise.window_covariance(starts, np.full(3, duration))
+    assert np.diag(drawn) == pytest.approx(np.diag(model), rel=0.15)
+    corr = lambda c: c / np.sqrt(np.outer(np.diag(c), np.diag(c)))  # noqa: E731
+    assert np.abs(corr(drawn) - corr(model)).max() < 0.1
+    assert corr(model)[0, 1] > 0.2  # far from white: the bound must not treat the windows as independent
