@@ -162,7 +162,7 @@ def test_the_bias_floor_of_white_noise_is_the_plain_mean_and_grows_with_bias_ins
 
 def test_no_design_beats_the_bias_floor_of_its_own_span():
     """The floor is a bound: field-18's CRB for each bias is at least the floor over its time."""
-    from fieldcal.planning.design import bias_floor
+    from fieldcal.planning.design import bias_floor, shortest_span
 
     models = models_from_truth(paper_mimu())
     procedure = load_procedure("field-18")
@@ -175,6 +175,8 @@ def test_no_design_beats_the_bias_floor_of_its_own_span():
     for name, model in models.items():
         floor = bias_floor(model.noise, span)
         assert np.all(sigmas[name][:3] >= floor * 0.99), name
+        # And so the span the floor asks for field-18's own σ is one field-18 does not exceed.
+        assert shortest_span(model.noise, float(sigmas[name][:3].min())) <= span * 1.01, name
     # The gyroscope's averages fill most of the run: its bias is within 10 % of the floor.
     assert np.all(sigmas["gyroscope"][:3] <= 1.1 * bias_floor(models["gyroscope"].noise, span))
 
