@@ -1,21 +1,27 @@
-"""Monte Carlo of field-18 against the planned adaptive procedure, through the headless run path.
+"""Monte Carlo of field-18 against a planned adaptive procedure, through the headless run path.
 
-Every run is a headless run through the conductor (simulated bench at 250 Hz, paper Table 3
-errors and Table 4 noise, placement errors of 3° per axis, latitude 40°, the scripted operator,
-stillness detection and the engine's windows); both procedures get the same seeds. The planned
-procedure is `fieldcal plan --config sim --target field-18 --slack SLACK` (computed here unless
---procedure names a planned file). Prints per parameter the RMS error ratio planned / field-18,
-each procedure's RMS z (error / reported σ) per triad, and the operator time ratio (sample time
-at the end of the run, handling included).
+Every run is a headless run through the conductor (the in-process simulated bench, paper Table 3
+errors, 3° placement errors per axis, latitude 40°, the scripted operator, stillness detection
+and the engine's windows, adaptive dwell when the procedure asks for it); every procedure gets
+the same seeds. The noise is the paper's Table 4 (``--config sim``) or a device config's
+accelerometer and gyroscope noise (``--config vn100``, ``--config mti``; the simulated unit keeps
+its inclinometer at the paper's noise, and runs at the config's sample rate).
 
-    python benchmarks/fast.py [--runs 200] [--workers 2] [--slack 0.1] [--procedure FILE.yaml]
+    python benchmarks/fast.py                      # a few runs of each, planned here: rough
+    python benchmarks/fast.py mc --config sim --procedure field-18 --runs 200 --out f18.npz
+    python benchmarks/fast.py mc --config sim --procedure planned.yaml --runs 200 --out plan.npz
+    python benchmarks/fast.py report --reference f18.npz --planned plan.npz
 
-A few runs (the default) give rough figures; --runs 200 gives the real ones.
+``mc`` saves every run's errors, reported σ and operator time, so the two procedures (and the
+long runs) can go separately and in the background; ``report`` prints per parameter the RMS
+error ratio planned / reference, the RMS z (error / reported σ) per triad of each, and the
+operator-time ratio (simulated time at the end of the run, handling included).
 """
 from __future__ import annotations
 
 import argparse
-import os
+import dataclasses
+import datetime
 import sys
 import tempfile
 import time
@@ -33,10 +39,38 @@ from fieldcal.run.runner import RunSpec, SimulatedBench
 from fieldcal.run.simcal import DEFAULT_STATION
 from fieldcal.units import display_scale, param_unit
 
+TRIADS_FROM_CONFIG = ("accelerometer", "gyroscope")  # what a device config's noise replaces
 
-def one_run(seed: int, procedure_text: str, where: str):
+
+@dataclasses.dataclass(frozen=True)
+class NoiseSpec(RunSpec):
+    """A headless run whose simulated unit has another noise (a device config's) per triad."""
+
+    noise: tuple = ()  # (triad, TriadNoise) pairs
+
+    def device(self):
+        device = super().device()
+        for name, noise in self.noise:
+            device[name] = dataclasses.replace(device[name], noise=noise)
+        return device
+
+
+def config_noise(config_name: str) -> tuple[tuple, float]:
+    """The (triad, noise) pairs a config gives its accelerometer and gyroscope, and its rate."""
+    if config_name == "sim":
+        return (), 250.0
+    from fieldcal.config import load_config
+    from fieldcal.planning.command import station_models
+    config = load_config(config_name)
+    models = station_models(config)
+    return tuple((n, models[n].noise) for n in TRIADS_FROM_CONFIG if n in models), config.device.rate_hz
+
+
+def one_run(seed: int, procedure_text: str, where: str, config_name: str):
     """Errors, reported σ and operator time (s) of one headless run."""
-    spec = RunSpec(parse_procedure(procedure_text, where), DEFAULT_STATION, seed=seed)
+    noise, rate_hz = config_noise(config_name)
+    spec = NoiseSpec(parse_procedure(procedure_text, where), DEFAULT_STATION, seed=seed,
+                     rate_hz=rate_hz, noise=noise)
     conductor = Conductor(spec, SimulatedBench(spec), ScriptedOperator(spec.script, spec.procedure))
     outcome = conductor.run()
     truth = spec.truth()
@@ -44,49 +78,55 @@ def one_run(seed: int, procedure_text: str, where: str):
     return result, dict(outcome.unit.failures), conductor.engine.t
 
 
-def plan_text(slack: float) -> str:
-    from fieldcal.cli.main import main
-    with tempfile.TemporaryDirectory() as directory:
-        out = Path(directory) / "fast-paper.yaml"
-        if main(["plan", "--config", "sim", "--target", "field-18", "--slack", str(slack),
-                 "--out", str(out)]) != 0:
-            raise SystemExit("planning failed")
-        return out.read_text()
+def procedure_text(name_or_path: str) -> tuple[str, str]:
+    procedure = load_procedure(name_or_path)
+    return procedure.text, procedure.name
 
 
-def monte_carlo(text: str, where: str, runs: int, workers: int):
+def monte_carlo(text: str, where: str, config_name: str, runs: int, workers: int, first_seed: int = 0):
     errors, sigmas, seconds, problems = {}, {}, [], []
+    seeds = range(first_seed, first_seed + runs)
     with ProcessPoolExecutor(workers) as pool:
-        for i, (result, failures, t) in enumerate(pool.map(partial(one_run, procedure_text=text, where=where),
-                                                           range(runs)), start=1):
-            problems += [f"{where} run {i - 1}: {name} not solved: {why}" for name, why in failures.items()]
+        work = partial(one_run, procedure_text=text, where=where, config_name=config_name)
+        for i, (result, failures, t) in enumerate(pool.map(work, seeds), start=1):
+            problems += [f"{where} seed {seeds[i - 1]}: {name} not solved: {why}" for name, why in failures.items()]
             for name, (err, sig) in result.items():
                 errors.setdefault(name, []).append(err)
                 sigmas.setdefault(name, []).append(sig)
             seconds.append(t)
-            print(f"\r{where}: {i}/{runs} runs", end="", file=sys.stderr, flush=True)
+            print(f"\r{where} ({config_name}): {i}/{runs} runs", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     return ({n: np.array(v) for n, v in errors.items()}, {n: np.array(v) for n, v in sigmas.items()},
-            float(np.mean(seconds)), problems)
+            np.array(seconds), problems)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--workers", type=int, default=1)
-    parser.add_argument("--slack", type=float, default=0.1, help="the plan's allowance over field-18's σ")
-    parser.add_argument("--procedure", help="a planned procedure file (default: plan one now)")
-    args = parser.parse_args(argv)
-    started = time.perf_counter()
-    planned = Path(args.procedure).read_text() if args.procedure else plan_text(args.slack)
-    field = load_procedure("field-18").text
-    ref_err, ref_sig, ref_s, problems = monte_carlo(field, "field-18", args.runs, args.workers)
-    new_err, new_sig, new_s, more = monte_carlo(planned, "planned", args.runs, args.workers)
-    problems += more
-    print(f"\n{args.runs} seeded runs each, {time.perf_counter() - started:.0f} s; operator time: "
-          f"field-18 {ref_s / 60:.1f} min, planned {new_s / 60:.1f} min, ratio {new_s / ref_s:.3f}")
+def save(path: Path, where: str, config_name: str, errors, sigmas, seconds, problems) -> None:
+    arrays = {f"err/{n}": v for n, v in errors.items()} | {f"sig/{n}": v for n, v in sigmas.items()}
+    np.savez(path, procedure=where, config=config_name, seconds=seconds,
+             problems=np.array(problems, dtype=str), **arrays)
+
+
+def load(paths: list[str]):
+    """Saved Monte Carlos of one procedure (chunks of seeds), joined."""
+    parts = [np.load(path) for path in paths]
+    names = [k for k in parts[0].files if k.startswith(("err/", "sig/"))]
+    joined = {k: np.concatenate([p[k] for p in parts]) for k in names + ["seconds"]}
+    errors = {k[4:]: v for k, v in joined.items() if k.startswith("err/")}
+    sigmas = {k[4:]: v for k, v in joined.items() if k.startswith("sig/")}
+    return (str(parts[0]["procedure"]), str(parts[0]["config"]), errors, sigmas, joined["seconds"],
+            [line for p in parts for line in p["problems"]])
+
+
+def report(ref, new) -> None:
+    ref_where, config_name, ref_err, ref_sig, ref_s, _ = ref
+    new_where, _, new_err, new_sig, new_s, _ = new
+    runs = min(len(ref_s), len(new_s))
+    print(f"{datetime.date.today()}, noise of {config_name}: {len(ref_s)} runs of {ref_where}, "
+          f"{len(new_s)} of {new_where} (same seeds); operator time {ref_s.mean() / 60:.1f} min against "
+          f"{new_s.mean() / 60:.1f} min: ratio {new_s.mean() / ref_s.mean():.3f}")
     from drivers.sim.device import paper_mimu
     device = paper_mimu()
+    worst = 0.0
     for name in ref_err:
         if name not in new_err:
             continue
@@ -95,19 +135,88 @@ def main(argv=None) -> int:
         new_rms = np.sqrt(np.mean(new_err[name] ** 2, axis=0))
         z_ref = np.sqrt(np.mean((ref_err[name] / ref_sig[name]) ** 2))
         z_new = np.sqrt(np.mean((new_err[name] / new_sig[name]) ** 2))
-        print(f"\n{name}: RMS z (error / reported σ) field-18 {z_ref:.2f}, planned {z_new:.2f}")
-        print("| parameter | unit | field-18 RMS | planned RMS | ratio |")
+        print(f"\n{name}: RMS z (error / reported σ) {ref_where} {z_ref:.2f}, {new_where} {z_new:.2f}")
+        print(f"| parameter | unit | {ref_where} RMS | {new_where} RMS | ratio |")
         print("|---|---|---|---|---|")
         for j, pname in enumerate(PARAM_NAMES):
             scale = display_scale(kind, unit, j)
+            ratio = new_rms[j] / ref_rms[j]
+            worst = max(worst, ratio)
             print(f"| {pname} | {param_unit(kind, unit, j)} | {ref_rms[j] * scale:.3g} | "
-                  f"{new_rms[j] * scale:.3g} | {new_rms[j] / ref_rms[j]:.2f} |")
-    if args.runs < 200:
-        print(f"\n{args.runs} runs: the RMS ratios scatter by about ±{np.sqrt(1 / args.runs):.0%}; "
-              "use --runs 200 for figures to quote")
+                  f"{new_rms[j] * scale:.3g} | {ratio:.2f} |")
+    # The RMS of N errors has a relative standard error of about 1/sqrt(2N); a ratio of two
+    # (correlated through the seeds, conservatively taken as independent) about 1/sqrt(N).
+    print(f"\nworst RMS ratio {worst:.2f}; with {runs} runs a ratio scatters by about "
+          f"±{1 / np.sqrt(runs):.0%}")
+
+
+def plan_text(config_name: str, slack: float) -> str:
+    from fieldcal.cli.main import main
+    with tempfile.TemporaryDirectory() as directory:
+        out = Path(directory) / f"fast-{config_name}.yaml"
+        if main(["plan", "--config", config_name, "--target", "field-18", "--slack", str(slack),
+                 "--out", str(out)]) != 0:
+            raise SystemExit("planning failed")
+        return out.read_text()
+
+
+def cmd_mc(args) -> int:
+    text, where = procedure_text(args.procedure)
+    started = time.perf_counter()
+    errors, sigmas, seconds, problems = monte_carlo(text, where, args.config, args.runs, args.workers,
+                                                    args.first_seed)
+    save(Path(args.out), where, args.config, errors, sigmas, seconds, problems)
+    print(f"{args.runs} runs of {where} ({args.config}) in {time.perf_counter() - started:.0f} s -> {args.out}")
     for line in problems:
         print(f"FAIL: {line}")
     return 1 if problems else 0
+
+
+def cmd_report(args) -> int:
+    ref, new = load(args.reference), load(args.planned)
+    report(ref, new)
+    for line in ref[5] + new[5]:
+        print(f"FAIL: {line}")
+    return 1 if ref[5] or new[5] else 0
+
+
+def cmd_quick(args) -> int:
+    planned = Path(args.procedure).read_text() if args.procedure else plan_text(args.config, args.slack)
+    field = load_procedure("field-18").text
+    ref = monte_carlo(field, "field-18", args.config, args.runs, args.workers)
+    new = monte_carlo(planned, "planned", args.config, args.runs, args.workers)
+    report(("field-18", args.config, *ref), ("planned", args.config, *new))
+    if args.runs < 200:
+        print(f"{args.runs} runs: rough figures; the `mc` and `report` commands with --runs 200 give "
+              "the ones to quote")
+    for line in ref[3] + new[3]:
+        print(f"FAIL: {line}")
+    return 1 if ref[3] or new[3] else 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--config", default="sim", help="whose noise: sim (paper Table 4), vn100, mti")
+    parser.add_argument("--slack", type=float, default=0.1, help="the plan's allowance over field-18's σ")
+    parser.add_argument("--procedure", help="a planned procedure file (default: plan one now)")
+    parser.set_defaults(func=cmd_quick)
+    sub = parser.add_subparsers()
+    mc = sub.add_parser("mc", help="seeded runs of one procedure, saved to a .npz")
+    mc.add_argument("--config", default="sim")
+    mc.add_argument("--procedure", required=True, help="field-18 or a procedure file")
+    mc.add_argument("--runs", type=int, default=200)
+    mc.add_argument("--first-seed", type=int, default=0)
+    mc.add_argument("--workers", type=int, default=1)
+    mc.add_argument("--out", required=True)
+    mc.set_defaults(func=cmd_mc)
+    rep = sub.add_parser("report", help="compare two saved Monte Carlos")
+    rep.add_argument("--reference", nargs="+", required=True, help="the reference's .npz files")
+    rep.add_argument("--planned", nargs="+", required=True, help="the planned procedure's .npz files")
+    rep.set_defaults(func=cmd_report)
+    args = parser.parse_args(argv)
+    return args.func(args)
 
 
 if __name__ == "__main__":

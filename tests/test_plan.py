@@ -32,9 +32,10 @@ class Witness(Subscriber):
     """Each dwell's true attitude and table angle, which only the bench knows."""
 
     def __init__(self, bench):
-        self.bench, self.attitudes, self.angles = bench, [], []
+        self.bench, self.attitudes, self.angles, self.events = bench, [], [], []
 
     def event(self, e, run) -> None:
+        self.events.append(e)
         if isinstance(e, ev.DwellComplete):
             self.attitudes.append(self.bench.attitude.copy())
             self.angles.append(self.bench.sim.table_angle)
@@ -142,3 +143,137 @@ def test_a_planned_adaptive_run_replays_byte_for_byte(planned, tmp_path):
     assert any(e.kind == "wrong_orientation" for e in events)
     _, pf, _ = replay_session(result.session)
     assert dump(pf).encode() == recorded_parameters(result.session)
+
+
+def test_the_bias_floor_of_white_noise_is_the_plain_mean_and_grows_with_bias_instability():
+    from drivers.noise import TriadNoise
+    from fieldcal.planning.design import bias_floor, shortest_span
+
+    white = TriadNoise(white=1e-3)
+    # White noise: the best average is the plain mean, σ = N / √T.
+    assert bias_floor(white, 400.0) == pytest.approx(1e-3 / np.sqrt(400.0), rel=1e-9)
+    assert shortest_span(white, 1e-3 / np.sqrt(900.0)) == pytest.approx(900.0, rel=0.02)
+    flicker = TriadNoise(white=1e-3, bias_instability=2e-4)
+    # Correlated noise averages down more slowly than 1/√T, and never below its own white part.
+    assert bias_floor(flicker, 400.0) > 1e-3 / np.sqrt(400.0)
+    assert bias_floor(flicker, 1600.0) > bias_floor(flicker, 400.0) / 2
+    assert bias_floor(flicker, 1600.0) < bias_floor(flicker, 400.0)
+
+
+def test_no_design_beats_the_bias_floor_of_its_own_span():
+    """The floor is a bound: field-18's CRB for each bias is at least the floor over its time."""
+    from fieldcal.planning.design import bias_floor, shortest_span
+
+    models = models_from_truth(paper_mimu())
+    procedure = load_procedure("field-18")
+    step = procedure.rate_step
+    design = Design(tuple(p.attitude for p in procedure.positions), procedure.dwell_s,
+                    step.rate_deg_s, step.turns)
+    operator = OperatorModel()
+    span = operator_time(design, operator)
+    sigmas = bound_sigmas(design, operator, models, DEFAULT_STATION, 250.0)
+    for name, model in models.items():
+        floor = bias_floor(model.noise, span)
+        assert np.all(sigmas[name][:3] >= floor * 0.99), name
+        # And so the span the floor asks for field-18's own σ is one field-18 does not exceed.
+        assert shortest_span(model.noise, float(sigmas[name][:3].min())) <= span * 1.01, name
+    # The gyroscope's averages fill most of the run: its bias is within 10 % of the floor.
+    assert np.all(sigmas["gyroscope"][:3] <= 1.1 * bias_floor(models["gyroscope"].noise, span))
+
+
+def test_the_tracker_folds_the_engines_own_windows_and_its_sigma_falls_to_the_target(planned):
+    from fieldcal.planning.tracker import TargetTracker
+
+    procedure, conductor, _, witness = planned
+    assert procedure.targets  # the planner wrote them, in operator units
+    tracker = TargetTracker(procedure, models_from_truth(paper_mimu()), DEFAULT_STATION, 250.0)
+    ratios = []
+    for e in witness.events:
+        if tracker.apply(e):
+            ratios.append(max(s.ratio for s in tracker.standings()))
+    engine_windows = conductor.engine.windows_and_averages()[0]
+    folded = [w for step in sorted(tracker.completed) for w in tracker.completed[step]]
+    key = lambda w: (w.position, str(w.kind))  # noqa: E731
+    for mine, theirs in zip(sorted(folded, key=key), sorted(engine_windows, key=key), strict=True):
+        assert mine.kind == theirs.kind and mine.position == theirs.position
+        assert mine.start == pytest.approx(theirs.start, abs=0.01)
+        assert mine.duration == pytest.approx(theirs.duration, abs=0.01)
+    assert ratios[0] == np.inf and ratios[1] == np.inf  # two positions tell nothing apart
+    assert all(b <= a * (1 + 1e-9) for a, b in zip(ratios, ratios[1:]))  # information only grows
+    # At the end every targeted parameter is met (nominal attitudes: the planner's own bound).
+    final = tracker.standings()
+    assert {s.triad for s in final} == {t for t, _ in TARGETS}
+    assert all(s.sigma <= 1.05 * s.target for s in final), final
+
+
+@pytest.mark.parametrize("targets, message", [
+    ("{accelerometer: {bias_q: 0.1}}", "bias_"),  # an unknown parameter: the nearest valid name
+    ("{accelerometer: {bias_x: 0}}", "a σ > 0"),
+    ("{accelerometer: {bias_x: fast}}", "targets.accelerometer.bias_x"),
+    ("[0.1]", "a mapping of triad names"),
+])
+def test_bad_targets_in_a_procedure_are_one_line_errors(targets, message):
+    from fieldcal.procedure.positions import ProcedureError, parse_procedure
+
+    text = load_procedure("field-18").text + f"targets: {targets}\n"
+    with pytest.raises(ProcedureError) as caught:
+        parse_procedure(text, "p.yaml")
+    assert message in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_a_planned_run_in_the_tui_shows_its_sigma_against_the_targets_and_equals_the_headless_run(
+        planned, tmp_path):
+    """Pilot: the plan panel is on the procedure screen, says nothing is determined at first and
+    every target met at the end; the TUI's parameter file is the headless run's, byte for byte,
+    and its session replays to the same bytes."""
+    import asyncio
+
+    from tui_pilot import until, waiting_at
+    from fieldcal.tui import FieldcalApp
+    from fieldcal.tui.widgets.plan import PlanPanel
+
+    procedure = planned[0]
+    spec = RunSpec(procedure, DEFAULT_STATION, seed=3)
+    headless = run_headless(spec, tmp_path / "headless")
+
+    async def body():
+        app = FieldcalApp(spec, speed=0, session_dir=tmp_path / "tui")
+        async with app.run_test(size=(100, 40)) as pilot:
+            await until(pilot, lambda: waiting_at(app, 0))
+            panel = app.screen.query_one(PlanPanel)
+            first = str(panel.render())
+            for step in range(len(procedure.positions)):
+                await until(pilot, lambda step=step: waiting_at(app, step), timeout_s=120)
+                await pilot.press("r")
+            await until(pilot, lambda: app.outcome is not None, timeout_s=120)
+            return app.outcome, first, [s for s in panel.tracker.standings()]
+
+    outcome, first, final = asyncio.run(body())
+    assert "left" in first and first.count("not yet determined") == len({t for t, _ in TARGETS})
+    assert final and all(s.met or s.sigma <= 1.05 * s.target for s in final), final
+    assert outcome.parameters.read_bytes() == headless.parameters.read_bytes()
+    _, pf, _ = replay_session(outcome.session)
+    assert dump(pf).encode() == recorded_parameters(outcome.session)
+
+
+def test_the_simulators_window_means_have_the_covariance_the_bound_uses():
+    """The plan optimises the errors the runs make only if the bound's noise is the simulator's:
+    window means of drawn noise (bias instability included) are correlated across windows
+    exactly as TriadNoise.window_covariance says, not as white noise would be."""
+    from drivers.sim.device import PAPER_NOISE
+    from drivers.sim.noise import NoiseGenerator
+
+    noise, rate = PAPER_NOISE["gyroscope"], 5.0
+    starts, duration = np.array([0.0, 300.0, 900.0]), 200.0
+    cells = (starts[:, None] * rate + np.arange(int(duration * rate))).astype(int)
+    means = []
+    for seed in range(300):
+        x = NoiseGenerator(noise, rate, np.random.default_rng(seed)).draw(int(1100 * rate))
+        means.append(x[cells].mean(axis=1))  # (windows, axes)
+    means = np.concatenate(np.transpose(means, (2, 0, 1)))  # 900 independent (axis, seed) rows
+    drawn = np.cov(means.T)
+    model = noise.window_covariance(starts, np.full(3, duration))
+    assert np.diag(drawn) == pytest.approx(np.diag(model), rel=0.15)
+    corr = lambda c: c / np.sqrt(np.outer(np.diag(c), np.diag(c)))  # noqa: E731
+    assert np.abs(corr(drawn) - corr(model)).max() < 0.1
+    assert corr(model)[0, 1] > 0.2  # far from white: the bound must not treat the windows as independent

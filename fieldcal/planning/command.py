@@ -77,7 +77,25 @@ def parse_targets(text: str, models) -> dict[str, np.ndarray]:
     return targets
 
 
-def procedure_yaml(plan, name: str, title: str, operator, target: str | None = None) -> str:
+def operator_targets(models, limits) -> dict[str, dict[str, float]]:
+    """The finite σ limits per triad and parameter in operator units (4 significant digits), as a
+    planned procedure carries them for the TUI to show against the σ reached."""
+    import numpy as np
+
+    from fieldcal.model import PARAM_NAMES
+    from fieldcal.units import display_scale
+
+    out = {}
+    for name, model in models.items():
+        row = {p: float(f"{limits[name][j] * display_scale(model.kind, model.output_unit, j):.4g}")
+               for j, p in enumerate(PARAM_NAMES) if np.isfinite(limits[name][j])}
+        if row:
+            out[name] = row
+    return out
+
+
+def procedure_yaml(plan, name: str, title: str, operator, target: str | None = None,
+                   targets: dict | None = None) -> str:
     import yaml
 
     design = plan.design
@@ -87,10 +105,13 @@ def procedure_yaml(plan, name: str, title: str, operator, target: str | None = N
                          "settle_s": float(operator.rate_settle_s)},
            "positions": [{"id": i, "description": c.name, "axes": dict(zip("xyz", c.axes))}
                          for i, c in enumerate(plan.positions, start=1)]}
+    if targets:
+        doc["targets"] = targets
     head = ("# Planned by `fieldcal plan`: the least operator time whose Cramér-Rao bound meets the\n"
             "# target for every parameter. An ordinary procedure file: edit, validate and run it.\n"
             "# adaptive_dwell: each dwell ends once it holds the planned information at the noise\n"
-            "# the unit shows (longer if noisier than its model, never below the minimum dwell).\n")
+            "# the unit shows (longer if noisier than its model, never below the minimum dwell).\n"
+            "# targets: the σ each parameter must reach, in the units `fieldcal plan` prints them.\n")
     if target is not None:  # in full, whether or not the title has room for it
         head += "# target: " + " ".join(target.split()) + "\n"
     return head + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True, width=100)
@@ -153,7 +174,8 @@ def cmd_plan(args) -> int:
         plan = Plan(chosen, ref_design, ref_seconds, ref_sigmas)
     out = Path(args.out)
     text = procedure_yaml(plan, out.stem, plan_title(config.device.name, args.target, args.slack),
-                          operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""))
+                          operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""),
+                          operator_targets(models, limits))
     parse_procedure(text, out.name)  # what is written loads as an ordinary procedure
     out.write_text(text)
     design = plan.design
@@ -170,4 +192,35 @@ def cmd_plan(args) -> int:
             ratio = "-" if np.isinf(target) else f"{plan.sigmas[name][j] / target:.3f}"
             print(f"| {name} | {pname} | {param_unit(model.kind, model.output_unit, j)} | {shown} | "
                   f"{plan.sigmas[name][j] * scale:.3g} | {ratio} | {ref_sigmas[name][j] * scale:.3g} |")
+    print_time_and_floor(plan, ref_design, ref_seconds, operator, models, limits)
     return 0
+
+
+def bias_spans(models, limits) -> dict[str, float]:
+    """Per triad with a bias target: the shortest averaging span (s) whose bias floor meets it."""
+    import numpy as np
+
+    from fieldcal.planning.design import shortest_span
+
+    spans = {}
+    for name, model in models.items():
+        wanted = [limits[name][j] / abs(model.sensitivity[j, j]) for j in GROUPS["bias"]
+                  if np.isfinite(limits[name][j])]
+        if wanted:
+            spans[name] = shortest_span(model.noise, min(wanted))
+    return spans
+
+
+def print_time_and_floor(plan, ref_design, ref_seconds, operator, models, limits) -> None:
+    """Where the time goes, and the least time any procedure needs for the bias targets."""
+    from fieldcal.planning.design import time_breakdown
+
+    print()
+    for label, design, seconds in (("planned", plan.design, plan.seconds),
+                                   ("field-18", ref_design, ref_seconds)):
+        parts = ", ".join(f"{k} {v / 60:.1f}" for k, v in time_breakdown(design, operator).items())
+        print(f"{label}: {seconds / 60:.1f} min = {parts} min")
+    for name, span in bias_spans(models, limits).items():
+        print(f"{name}: its bias target needs averaging over at least {span / 60:.1f} min "
+              f"({span / ref_seconds:.2f}× field-18's time) whatever the positions and dwells: its "
+              "bias instability is correlated over minutes, so the run's span, not each dwell, sets it")

@@ -83,17 +83,24 @@ def bound_sigmas(design: Design, operator: OperatorModel, models: dict[str, Tria
                  station: Station, rate_hz: float) -> dict[str, np.ndarray]:
     """Per triad, the CRB standard deviation of its 9 parameters (solver units)."""
     windows, _ = timeline(design, operator)
-    attitudes = np.array(design.attitudes)
+    return window_sigmas(windows, np.array(design.attitudes), design.rate_deg_s, models, station, rate_hz)
+
+
+def window_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
+                  models: dict[str, TriadModel], station: Station, rate_hz: float) -> dict[str, np.ndarray]:
+    """Per triad, the CRB σ (solver units) of windows averaged at ``attitudes`` (one static, one
+    +ω and one −ω window per position, each window's position an index into ``attitudes``);
+    inf where the windows cannot tell the parameters apart (too few positions)."""
     out = {}
     for name, model in models.items():
         try:
-            out[name] = _triad_sigmas(model, windows, attitudes, design, station, rate_hz)
+            out[name] = _triad_sigmas(model, windows, attitudes, rate_deg_s, station, rate_hz)
         except np.linalg.LinAlgError:  # too few positions to tell the parameters apart
             out[name] = np.full(9, np.inf)
     return out
 
 
-def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, design: Design,
+def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
                   station: Station, rate_hz: float) -> np.ndarray:
     up_body = attitudes[:, 2, :]
     theta = params_from_k(model.sensitivity, np.zeros(3))
@@ -106,9 +113,49 @@ def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarra
         cov = average_covariance(model, ordered, rate_hz)
         # Table angle zero at each static dwell: the heading is a nuisance of the bound.
         north_body = attitudes[:, 1, :]
-        bound = angular_rate_bound(theta, up_body, np.radians(design.rate_deg_s), north_body,
+        bound = angular_rate_bound(theta, up_body, np.radians(rate_deg_s), north_body,
                                    EARTH_RATE, station.latitude_rad, cov)
     else:
         raise ValueError(f"unknown triad kind {model.kind!r}")
     with np.errstate(invalid="ignore"):  # a negative variance: the design cannot tell it (nan)
         return np.sqrt(np.diag(bound))
+
+
+def time_breakdown(design: Design, operator: OperatorModel) -> dict[str, float]:
+    """Seconds of the design's operator time spent placing and settling, dwelling, in rate steps."""
+    n = len(design.attitudes)
+    placing, dwelling = n * (operator.place_s + operator.settle_s), n * design.dwell_s
+    return {"placing": placing, "dwells": dwelling,
+            "rate steps": operator_time(design, operator) - placing - dwelling}
+
+
+FLOOR_PIECE_S = 10.0  # the weights of the floor's average are constant over pieces this long,
+FLOOR_PIECES = 300  # or over this many pieces of a longer span (a bounded solve)
+
+
+def bias_floor(noise, span_s: float) -> float:
+    """σ (input units) of the best weighted average of one axis's noise over ``span_s`` seconds.
+
+    A bias is estimated by some average of the window means whose weights add up to one, so no
+    procedure whose averaging windows all lie within ``span_s`` can estimate it better than this:
+    with bias instability (correlated over hundreds of seconds) it is the span of the run, not
+    each dwell's length, that sets the bias σ. Weights constant over FLOOR_PIECE_S pieces, at most
+    FLOOR_PIECES of them (the generalised least-squares mean of the pieces), which is within about
+    1 % of the continuous optimum for the noise models here.
+    """
+    n = min(FLOOR_PIECES, max(1, int(np.ceil(span_s / FLOOR_PIECE_S))))
+    piece = span_s / n
+    C = noise.window_covariance(np.arange(n) * piece, np.full(n, piece))
+    ones = np.ones(n)
+    return float(np.sqrt(1.0 / (ones @ np.linalg.solve(C, ones))))
+
+
+def shortest_span(noise, sigma: float, longest_s: float = 4 * 3600.0) -> float:
+    """The shortest span (s, to 1 %) whose bias floor reaches ``sigma``; inf beyond ``longest_s``."""
+    if bias_floor(noise, longest_s) > sigma:
+        return float("inf")
+    lo, hi = 1.0, longest_s
+    while hi / lo > 1.01:
+        mid = float(np.sqrt(lo * hi))
+        lo, hi = (lo, mid) if bias_floor(noise, mid) <= sigma else (mid, hi)
+    return hi

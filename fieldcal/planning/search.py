@@ -3,15 +3,20 @@
 Candidates are attitudes the procedure format can write: one per gravity direction in body axes
 (the 6 faces and the 12 edges, 45° between two axes), plus any given procedure's own (field-18
 has every face twice, at two headings). Corners (gravity equally on three axes) need directions
-the format does not have, so they are not offered.
+the format does not have, so they are not offered; faces alone cannot tell the misalignments
+apart (the norm method needs gravity off the axes), edges can.
 
 Positions come and go in antipodal pairs (a face and its opposite, an edge and its opposite),
-which keep each axis's bias separable from its scale factor. The search starts from every pair,
-finds the shortest whole-second dwell that meets the target (the bound falls monotonically with
-the dwell), then repeatedly drops the pair whose loss the others make up best (smallest worst
-σ/target at the current dwell), lengthening the dwell as needed, and keeps the design with the
-least operator time (stopping after PATIENCE drops in a row save nothing); finally it tries more whole turns per rate step on that design. The table
-runs at its fastest rate: a faster rate gives a larger scale-factor signal in less time.
+which keep each axis's bias separable from its scale factor. For each number of whole turns per
+rate step (1 to MAX_TURNS), the search starts from every pair, finds the shortest whole-second
+dwell that meets the target (the bound falls monotonically with the dwell), then repeatedly drops
+the pair whose loss the others make up best (smallest worst σ/target at the current dwell),
+lengthening the dwell as needed, and keeps the design with the least operator time (stopping
+after PATIENCE drops in a row save nothing). The table runs at its fastest rate: a faster rate
+gives a larger scale-factor signal in less time. One dwell for every position, as the format
+has it: the parameters that bind (the biases) depend on the span the averages cover more than on
+the dwells, which are about a tenth of a planned run for the paper's unit, so a dwell per
+position could save at most that tenth.
 """
 from __future__ import annotations
 
@@ -140,26 +145,31 @@ class Planner:
         return Plan(tuple(positions), best, operator_time(best, self.operator), self.sigmas(best))
 
     def search(self, pool: list[Candidate]) -> Plan:
-        pairs = antipodal_pairs(pool)
-        current = self.shortest([c for pair in pairs for c in pair], 1)
-        if current is None:
+        """The least-time design over every number of whole turns per rate step: a turn is also
+        gyroscope averaging time, so more turns can buy shorter dwells and fewer positions."""
+        plans = [self._search(pool, turns) for turns in range(1, MAX_TURNS + 1)]
+        found = [p for p in plans if p is not None]
+        if not found:
             raise ValueError("plan: no procedure from the candidate positions meets the target "
                              f"within a {MAX_DWELL_S:g} s dwell; relax the target")
+        return min(found, key=lambda p: p.seconds)
+
+    def _search(self, pool: list[Candidate], turns: int) -> Plan | None:
+        pairs = antipodal_pairs(pool)
+        current = self.shortest([c for pair in pairs for c in pair], turns)
+        if current is None:
+            return None
         best, idle = current, 0
         while len(pairs) > 1 and idle < PATIENCE:
             def loss(i):
                 kept = [c for j, pair in enumerate(pairs) if j != i for c in pair]
-                return self.worst_ratio(self._design(kept, current.design.dwell_s, 1))
+                return self.worst_ratio(self._design(kept, current.design.dwell_s, turns))
             drop = min(range(len(pairs)), key=loss)
             pairs = pairs[:drop] + pairs[drop + 1:]
-            current = self.shortest([c for pair in pairs for c in pair], 1, current.design.dwell_s)
+            current = self.shortest([c for pair in pairs for c in pair], turns, current.design.dwell_s)
             if current is None:
                 break
             idle = 0 if current.seconds < best.seconds else idle + 1
             if current.seconds < best.seconds:
                 best = current
-        for turns in range(2, MAX_TURNS + 1):
-            plan = self.shortest(best.positions, turns)
-            if plan is not None and plan.seconds < best.seconds:
-                best = plan
         return best

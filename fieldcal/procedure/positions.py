@@ -59,6 +59,9 @@ class Procedure:
     # End each dwell once it holds the information a dwell_s dwell holds at the expected noise
     # (longer when the unit is noisier than its noise model says, shorter when quieter).
     adaptive_dwell: bool = False
+    # A planned procedure's (``fieldcal plan``) σ per parameter, (triad, parameter, σ in the
+    # operator units `fieldcal plan` prints), shown against the σ reached while it runs.
+    targets: tuple[tuple[str, str, float], ...] = ()
 
 
 # A procedure's name becomes part of a session directory's name: a plain file name, so that
@@ -119,7 +122,8 @@ def parse_procedure(text: str, where: str) -> Procedure:
     """A procedure from its YAML text; ``where`` names it in errors."""
     raw = parse_yaml(text, where, ProcedureError)
     r = FieldReader(where, ProcedureError)
-    m = r.mapping(raw, "", ("dwell_s", "positions"), ("name", "title", "rate_step", "aligned", "adaptive_dwell"),
+    m = r.mapping(raw, "", ("dwell_s", "positions"), ("name", "title", "rate_step", "aligned", "adaptive_dwell",
+                                                        "targets"),
                   what="a procedure: a mapping")
     positions = m["positions"]
     if not isinstance(positions, list) or not positions:
@@ -142,4 +146,25 @@ def parse_procedure(text: str, where: str) -> Procedure:
     return Procedure(name=name, title=_text(r, m, "title", ""),
                      dwell_s=r.bounded(m, "dwell_s", "", 1, 86400, "s"), positions=parsed,
                      rate_step=rate_step, aligned=r.boolean(m, "aligned", "", False), text=text,
-                     adaptive_dwell=r.boolean(m, "adaptive_dwell", "", False))
+                     adaptive_dwell=r.boolean(m, "adaptive_dwell", "", False), targets=_targets(r, m))
+
+
+def _targets(r: FieldReader, m: dict) -> tuple[tuple[str, str, float], ...]:
+    """``targets: {TRIAD: {PARAMETER: σ, ...}, ...}``, every σ a number > 0."""
+    from fieldcal.model import PARAM_NAMES
+
+    if m.get("targets") is None:
+        return ()
+    raw = m["targets"]
+    if not isinstance(raw, dict) or not all(isinstance(k, str) for k in raw):
+        r.fail("targets", "a mapping of triad names to {parameter: σ}", describe(raw), line_of(m, "targets"))
+    out = []
+    for triad, body in raw.items():
+        where = join("targets", triad)
+        params = r.mapping(body, where, (), PARAM_NAMES, line=line_of(raw, triad))
+        for name, value in params.items():
+            sigma = r.value(value, join(where, name), 0.0, line_of(params, name))
+            if sigma <= 0:
+                r.fail(join(where, name), "a σ > 0", describe(value), line_of(params, name))
+            out.append((triad, name, sigma))
+    return tuple(out)

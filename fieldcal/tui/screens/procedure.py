@@ -14,6 +14,7 @@ from textual.widgets import Footer, RichLog, Static
 from fieldcal.procedure.engine import PLACE
 from fieldcal.tui.widgets.cube import top_view
 from fieldcal.tui.widgets.live import LivePanel
+from fieldcal.tui.widgets.plan import PlanPanel
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.widgets.tiles import PositionTiles
 from fieldcal.tui.view import RunView
@@ -53,6 +54,8 @@ class ProcedureScreen(Screen):
         yield Static("", id="job")
         yield Static("", id="step")
         yield Static("", id="banner")
+        if self.view.procedure.targets:  # a planned procedure: time left, σ against its targets
+            yield PlanPanel(id="plan")
         with Horizontal(id="body"):
             yield Static("", id="cube")
             yield LivePanel(id="live")
@@ -83,6 +86,8 @@ class ProcedureScreen(Screen):
             line = self.view.apply(item)
             if line is not None:
                 log.write(line)
+        for panel in self.query(PlanPanel):
+            panel.feed(items)
         self.refresh_view()
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
@@ -111,6 +116,9 @@ class ProcedureScreen(Screen):
             cube.update("\n".join(top_view(view.position, large=big)))
             cube.border_title = f"position {view.position.id}"
         self.query_one(LivePanel).update(view, bar_width=32 if big else 16)
+        running = view.finished is None and view.step < view.total_steps
+        for panel in self.query(PlanPanel):
+            panel.show(view.remaining_s() if running else None)
         can_go_back = view.unskip_target() is not None
         if can_go_back != self._can_go_back:  # the footer offers u only when it can act
             self._can_go_back = can_go_back
