@@ -27,6 +27,18 @@ def test_a_password_in_the_url_is_redacted_wherever_printed(url, printed):
     assert redact(url) == printed
 
 
+@pytest.mark.parametrize("url", ["postgresql://u:p%40ss%1@h/db", "postgresql://u@h/db?password=s%3Fcr%zz"])
+def test_a_password_libpq_cannot_parse_is_not_in_its_error(url):
+    """libpq quotes a bad token as typed (percent escapes and all), not decoded."""
+    pytest.importorskip("psycopg")
+    from fieldcal.registry.backends import PostgresBackend
+
+    with pytest.raises(RegistryError) as error:
+        PostgresBackend(url, 1)
+    assert "invalid percent-encoded token" in str(error.value)
+    assert not any(secret in str(error.value) for secret in ("p%40ss%1", "p@ss%1", "s%3Fcr%zz", "s?cr%zz"))
+
+
 @pytest.fixture
 def database(postgres_server):
     return postgres_server.new_database()

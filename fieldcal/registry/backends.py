@@ -55,17 +55,22 @@ def redact(location) -> str:
     return f"{scheme}://{main}{question}{query}"
 
 
-def url_password(location: str) -> str | None:
-    """The password written in a postgresql:// URL, if any (to scrub it from error texts)."""
-    parts = urlsplit(location)
-    if parts.password:
-        return unquote(parts.password)
-    found = re.search(r"(?:^|&)password=([^&#]*)", parts.query)
-    return unquote(found.group(1)) if found else None
+def url_password(location: str) -> tuple[str, ...]:
+    """Every form the password of a postgresql:// URL is written in (as typed, percent-decoded),
+    longest first, to scrub from error texts: libpq quotes the token as typed, others decoded."""
+    typed = []
+    userinfo = location.split("://", 1)[-1].rpartition("@")[0]
+    if ":" in userinfo:
+        typed.append(userinfo.split(":", 1)[1])
+    typed += re.findall(r"(?:[?&])password=([^&#]*)", location)
+    forms = {form for raw in typed if raw for form in (raw, unquote(raw))}
+    return tuple(sorted(forms, key=len, reverse=True))
 
 
-def _scrub(text: str, secret: str | None) -> str:
-    return text.replace(secret, HIDDEN) if secret else text
+def _scrub(text: str, secrets: tuple[str, ...]) -> str:
+    for secret in secrets:
+        text = text.replace(secret, HIDDEN)
+    return text
 
 
 class SqliteBackend:
