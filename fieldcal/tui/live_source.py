@@ -136,15 +136,17 @@ class LiveSource(SimSource):
                                      "clock cannot be read: is the unit on and sending? The session is "
                                      "unchanged; resume it again")
                 self.clock_check = judge_restart(self.bench.recorded_clock, now, self.spec.rate_hz)
+            kept, why = self._kept_after(steps)
+            conductor = Conductor(self.spec, self.bench, self, [self], session=self.session_dir,
+                                  settings=self.settings)
+            self.conductor = conductor
+            conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why)
+            # (locked by another station, read-only, damaged: the ports are closed again, so a
+            # retry from the setup screen does not open the device a second time)
+            self._record_to(SessionRecorder.append_to(self.session_dir))
         except BaseException:
             self.bench.close()
             raise
-        kept, why = self._kept_after(steps)
-        conductor = Conductor(self.spec, self.bench, self, [self], session=self.session_dir,
-                              settings=self.settings)
-        self.conductor = conductor
-        conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why)
-        self._record_to(SessionRecorder.append_to(self.session_dir))
         conductor.subscribers.insert(0, self.recorder)
         self.bench.say = conductor.say
         self._say_reading(conductor)
