@@ -28,7 +28,8 @@ def _session(directory, pf: ParameterFile, mtime_ns: int) -> None:
     w.write_parameters(pf)
     w.stop("completed")
     w.close()
-    os.utime(directory / "parameters.yaml", ns=(mtime_ns, mtime_ns))
+    for written in directory.glob("parameters*.yaml"):
+        os.utime(written, ns=(mtime_ns, mtime_ns))
 
 
 def test_the_newest_file_of_the_same_unit_is_found_and_verified(tmp_path):
@@ -43,6 +44,18 @@ def test_the_newest_file_of_the_same_unit_is_found_and_verified(tmp_path):
     assert found.parameters["accelerometer"].bias[0] == 0.02
     assert found.check == VERIFIED and not found.edited
     assert "edited" not in found.describe() and "not verified" not in found.describe()
+
+
+def test_an_old_session_re_solved_today_is_not_the_units_newest_calibration(tmp_path):
+    """`fieldcal resolve` writes parameters-002.yaml and parameters.yaml into an old session
+    now; the unit's previous calibration is still the session measured last."""
+    _session(tmp_path / "old", _parameters(0.01), 1_000_000_000)
+    _session(tmp_path / "new", _parameters(0.02), 2_000_000_000)
+    w = SessionWriter.append_to(tmp_path / "old")
+    w.write_parameters(_parameters(0.011))  # the re-solve, written with today's time
+    w.close()
+    found, _ = previous_calibration(tmp_path, "imu", "A1")
+    assert found.path == tmp_path / "new" / "parameters.yaml"
 
 
 def test_a_file_edited_after_calibration_is_said_to_be(tmp_path):

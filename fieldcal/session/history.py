@@ -61,11 +61,20 @@ def recorded_check(path: Path) -> str:
     return VERIFIED if actual == docs[-1]["sha256"] else EDITED
 
 
+def _calibrated_at(path: Path) -> int:
+    """When the session of ``path`` first calibrated (ns): its first numbered parameter file's
+    modification time. A re-solve writes a newer numbered file and ``parameters.yaml`` again, but
+    the unit was measured when the session ran, so re-solving an old session must not make it
+    the unit's newest calibration. (Sessions from before numbered files: parameters.yaml's.)"""
+    numbered = [p.stat().st_mtime_ns for p in path.parent.glob("parameters-*.yaml")]
+    return min(numbered) if numbered else path.stat().st_mtime_ns
+
+
 def previous_calibration(sessions: Path, device_name: str | None, device_serial: str | None,
                          exclude: Path | None = None) -> tuple[PreviousCalibration | None, int]:
-    """The newest (by modification time) parameter file under ``sessions/*/`` for this device,
-    other than ``exclude``'s, with its checksum verified; and how many unreadable parameter files
-    were passed over."""
+    """The parameter file under ``sessions/*/`` of this device's newest calibration, by when its
+    session first calibrated (see ``_calibrated_at``), other than ``exclude``'s,
+    with its checksum verified; and how many unreadable parameter files were passed over."""
     if device_name is None or not Path(sessions).is_dir():
         return None, 0
     skip = Path(exclude).resolve() if exclude is not None else None
@@ -75,7 +84,7 @@ def previous_calibration(sessions: Path, device_name: str | None, device_serial:
             continue
         try:
             pf = load(path)
-            stamp = path.stat().st_mtime_ns
+            stamp = _calibrated_at(path)
         except (ParameterFileError, OSError):
             unreadable += 1
             continue
