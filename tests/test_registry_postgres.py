@@ -8,7 +8,7 @@ import pytest
 from fieldcal.cli.main import main
 from fieldcal.registry import Registry, record_safely
 from fieldcal.registry.backends import RegistryError, redact
-from postgres_server import postgres_server, postgres_tls_server  # noqa: F401 -- the fixtures
+from postgres_server import SUPERUSER, postgres_server, postgres_tls_server  # noqa: F401 -- the fixtures
 from test_registry import QUICK, unit_file
 
 
@@ -178,3 +178,23 @@ def test_a_station_holding_the_lock_makes_another_give_up_after_its_timeout(post
         stuck.backend.rollback()
     with Registry(postgres_server.url(database)) as registry:
         assert registry.record(params) and registry.query("SELECT COUNT(*) FROM parameters")[0][0] == 9
+
+
+def test_a_station_role_that_may_only_read_and_write_rows_records(postgres_server, database, tmp_path):
+    """Production lines give stations a role without CREATE: once the schema is there (made by
+    an administrator, or the first station with rights), recording needs no DDL."""
+    import psycopg
+
+    with Registry(postgres_server.url(database)):
+        pass  # the administrator's first open creates the schema
+    with psycopg.connect(postgres_server.url(database), autocommit=True) as admin:
+        admin.execute("CREATE ROLE station LOGIN")
+        admin.execute("REVOKE CREATE ON SCHEMA public FROM PUBLIC")
+        admin.execute("GRANT USAGE ON SCHEMA public TO station")
+        admin.execute("GRANT SELECT, INSERT, UPDATE ON ALL TABLES IN SCHEMA public TO station")
+        admin.execute("GRANT USAGE ON ALL SEQUENCES IN SCHEMA public TO station")
+    station_url = postgres_server.url(database).replace(f"postgresql://{SUPERUSER}@", "postgresql://station@")
+    unit_file(tmp_path / "a.yaml", "SN-7", [1.0, 0.0, 0.0])
+    with Registry(station_url) as registry:
+        assert registry.record(tmp_path / "a.yaml", True, "run")
+        assert [u[0] for u in registry.query("SELECT serial FROM calibrations")] == ["SN-7"]

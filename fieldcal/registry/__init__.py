@@ -127,6 +127,15 @@ class Registry:
         return result
 
     def _migrate(self) -> None:
+        # Read first: a registry already at this version needs no DDL and no migration lock, so
+        # a station whose database role may only read and write rows (no CREATE) can record.
+        try:
+            have = self.version
+        except RegistryError:  # no migrations table yet: a new registry
+            have = 0
+        if have == SCHEMA_VERSION:
+            return
+
         def migrate():  # one station migrates; the others wait, then find it done
             self.backend.execute("CREATE TABLE IF NOT EXISTS migrations (version INTEGER PRIMARY KEY, "
                                  "applied TEXT NOT NULL)")
