@@ -252,6 +252,34 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
 
 
 @run_async
+async def test_a_session_another_station_holds_is_not_resumed_and_the_ports_are_closed_again(
+        tmp_path, served, monkeypatch):
+    """The ports open (the device's clock is read) before the session can be reopened; when it
+    cannot be (here another fieldcal holds it), the device is let go, not held open behind an
+    ERROR for a retry to open a second time. The session is unchanged."""
+    from fieldcal.run.livebench import LiveBench
+    from fieldcal.session.capture import SessionWriter
+
+    devices = served[0]
+    world = WorldClock(devices)
+    config = await _first_step_then_quit(tmp_path, devices, world, two_positions(tmp_path, SHORT))
+    closed = []
+    close = LiveBench.close
+    monkeypatch.setattr(LiveBench, "close", lambda self: (closed.append(self), close(self))[1])
+    before = (tmp_path / "session" / "log.jsonl").read_bytes()
+    holder = SessionWriter.append_to(tmp_path / "session")  # another station writing it
+    try:
+        app = FieldcalApp(speed=0, resume=tmp_path / "session", config=config, wall_clock=world)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.source.done.is_set())
+            await pilot.press("q")
+    finally:
+        holder.close()
+    assert app.source.outcome.status == "error" and closed == [app.source.bench]
+    assert (tmp_path / "session" / "log.jsonl").read_bytes() == before
+
+
+@run_async
 async def test_a_device_whose_frames_carry_no_clock_is_taken_as_power_cycled(tmp_path):
     """VectorNav ASCII: nothing tells a restart, so the completed step is measured again."""
     devices = serve(5, "vectornav")
