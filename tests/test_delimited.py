@@ -316,3 +316,18 @@ def test_clean_blank_separated_blocks_with_unmapped_and_uneven_columns(widths):
     rows, bad = reference_rows(text, delimiter=None)
     assert bad == [] and p.malformed_lines == 0 and len(rows) == 50
     assert [[t, *a] for t, a in zip(chunk.t.tolist(), chunk.triads["a"].tolist())] == rows
+
+
+@pytest.mark.parametrize("odd", [b"", b"1-2", b"1e", b"1 2", b" 5", b"nan", b"1;2"])
+def test_a_clean_comma_block_after_its_header_with_one_odd_field_loses_only_that_line(odd):
+    """A header, then comma-separated clean lines (taken whole, see _clean_delimited): an empty
+    field, a field that is not one number or a blank inside a line must cost that line alone,
+    and everything else must agree with plain Python."""
+    lines = [b"t,a_x,a_y,a_z,T"] + [b"%d,%d.5,-%de3,1e%d,25" % (i, i, i, i % 5) for i in range(40)]
+    lines[18] = b"17," + odd + b",3,4,25"
+    text = b"\n".join(lines) + b"\n"
+    p = DelimitedTextParser(SOUP_MAP, keep_malformed=100)
+    chunk = p.feed(text, 0.0)
+    rows, bad = reference_rows(text)
+    assert [[t, *a] for t, a in zip(chunk.t.tolist(), chunk.triads["a"].tolist())] == rows
+    assert list(p.malformed_line_numbers) == bad and p.header_lines == 1 and len(rows) >= 39

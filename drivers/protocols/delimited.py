@@ -290,6 +290,10 @@ class DelimitedTextParser:
         # clean lines can be recognised as such and parsed whole (see _clean_lines).
         self._runs_only = delim is None and (channel_map.comment is None or bool(
             channel_map.comment.encode("ascii")[:1].translate(None, _NUMBER_BYTES)))
+        # A one-byte delimiter that no number contains (",", ";", "\t"): the same for blocks of
+        # clean lines with no blanks at all (see _clean_delimited).
+        self._clean_delim = (None if delim is None or delim.encode("ascii") in _NUMBER_BYTES + b" \r\n"
+                             else delim.encode("ascii"))
 
     @property
     def device_time(self) -> bool:
@@ -307,6 +311,13 @@ class DelimitedTextParser:
         block = self._buf + data[: cut + 1]
         self._buf = b""
         self._hold(data[cut + 1:])
+        if self._runs_only or self._clean_delim is not None:
+            # A file's first block starts with its header: read that line alone, so the clean
+            # lines after it still take the whole-block path.
+            head = block.find(b"\n") + 1
+            if head < len(block) and not self._overlong and self._is_header(block[:head]):
+                self._block(block[:head], t_host)  # counted as the header: no mapped field is a number
+                block = block[head:]
         return self._block(block, t_host)
 
     def _hold(self, rest: bytes) -> None:
@@ -346,6 +357,11 @@ class DelimitedTextParser:
             run_start = np.concatenate([[0], run_start])
         if self._runs_only and not malformed[0]:
             values = _clean_lines(block, ends, run_start, run_stop, self._need)
+            if values is not None:
+                self.counters.frames += nlines
+                return self._chunk(values[:, self._cols], t_host)
+        if self._clean_delim is not None and not malformed[0]:
+            values = _clean_delimited(block, a, ends, self._clean_delim, self._need)
             if values is not None:
                 self.counters.frames += nlines
                 return self._chunk(values[:, self._cols], t_host)
@@ -527,6 +543,33 @@ def _clean_lines(block: bytes, ends, run_start, run_stop, need: int) -> np.ndarr
     except ValueError:  # a field that is not one number (e.g. "1-2", "1e")
         return None
     if flat.size != runs or not np.isfinite(flat).all():
+        return None
+    return flat.reshape(nlines, T)
+
+
+def _clean_delimited(block: bytes, a: np.ndarray, ends, delimiter: bytes, need: int) -> np.ndarray | None:
+    """(lines, T) numbers of a block delimited by ``delimiter`` (one byte no number has) whose
+    every line holds the same number T >= ``need`` of fields, each one plain finite number, with
+    no blank anywhere but the line ends: parsed whole by one fromstring call once the delimiters
+    are blanks. None for any other block (the general path then sorts its lines out).
+
+    No blanks inside lines makes the count exact: every line has T - 1 delimiters, so it yields T
+    numbers exactly when none of its fields is empty, and the block N·T exactly when no line has
+    one; a field that is not one number fails fromstring or the count."""
+    nlines = len(ends)
+    if nlines == 0 or block.translate(None, b"\r\n" + _NUMBER_BYTES + delimiter):
+        return None
+    cuts = np.flatnonzero(a == delimiter[0])
+    if len(cuts) % nlines or len(cuts) // nlines + 1 < need:
+        return None
+    T = len(cuts) // nlines + 1
+    if (np.bincount(np.searchsorted(ends, cuts), minlength=nlines) != T - 1).any():
+        return None
+    try:
+        flat = np.fromstring(block.replace(delimiter, b" "), dtype=np.float64, sep=" ")
+    except ValueError:  # a field that is not one number (e.g. "1-2", "1e")
+        return None
+    if flat.size != nlines * T or not np.isfinite(flat).all():
         return None
     return flat.reshape(nlines, T)
 
