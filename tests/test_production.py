@@ -184,3 +184,29 @@ def test_resolve_leaves_unfinished_runs_to_resume_names_each_session_once_and_su
     assert status == 3 and "SPEC ERROR: " in out[1] and out[-1].startswith("1 re-solved, 0 failed, 1 failed")
     with Registry(db) as registry:  # recorded all the same, with no verdict
         assert registry.history("")[-1]["passed"] is None
+
+
+def test_the_operator_is_kept_in_the_session_the_parameter_file_and_the_registry(tmp_path, capsys, monkeypatch):
+    """--operator (or $FIELDCAL_OPERATOR) names who calibrated: in the session's metadata, so a
+    replay or re-solve writes it again; in the parameter file; in the registry and `history`."""
+    out, db = tmp_path / "runs", str(tmp_path / "r.sqlite")
+    argv = ["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(out), "--seed", "6",
+            "--registry", db, "--operator", "A. Ng"]
+    assert main(argv) == 0
+    [session] = out.iterdir()
+    assert load(session / "parameters.yaml").provenance.operator == "A. Ng"
+    assert main(["replay", str(session), "--quiet", "--registry", db, "--out", str(tmp_path / "re.yaml")]) == 0
+    assert (tmp_path / "re.yaml").read_bytes() == (session / "parameters.yaml").read_bytes()
+    capsys.readouterr()
+    assert main(["history", "", "--registry", db]) == 0  # the simulated MIMU has no serial
+    assert " by A. Ng " in capsys.readouterr().out
+    with Registry(db) as registry:
+        assert {r[0] for r in registry.query("SELECT operator FROM calibrations")} == {"A. Ng"}
+
+    monkeypatch.setenv("FIELDCAL_OPERATOR", "B. Osei")  # a station's login sets it once
+    assert main(argv[:-2] + ["--out", str(tmp_path / "env")]) == 0
+    [session] = (tmp_path / "env").iterdir()
+    assert load(session / "parameters.yaml").provenance.operator == "B. Osei"
+    # a name that could not be printed on one line is refused before anything runs
+    assert main(argv[:-1] + ["A.\nNg"]) == 2
+    assert capsys.readouterr().err.startswith("fieldcal: --operator: expected a name of 1 to 100")

@@ -72,8 +72,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                         "use them as rate equations too")
     parser.add_argument("--params", metavar="FILE", help="also write the parameter file here")
     parser.add_argument("--force", action="store_true", help="replace the --params file if it exists")
-    from fieldcal.cli.production import add_spec_option
+    from fieldcal.cli.production import add_operator_option, add_spec_option
     add_spec_option(parser)
+    add_operator_option(parser)
     parser.set_defaults(func=cmd_calibrate)
     return parser
 
@@ -124,8 +125,9 @@ def cmd_calibrate(args) -> int:
     from fieldcal.recording.results import parameter_file, summary_lines
     from fieldcal.session.capture import SessionReader, SessionWriter
 
-    from fieldcal.cli.production import accept_after, load_spec_option
+    from fieldcal.cli.production import accept_after, load_spec_option, operator_option
 
+    operator = operator_option(args)  # refused before the work, not after it
     config = None
     if args.config:  # the config module (and the drivers it names) only when one is given
         from fieldcal.config import load_config
@@ -151,7 +153,8 @@ def cmd_calibrate(args) -> int:
                                  table_rate_deg_s=args.table_rate)
     cal = calibrate_recording(recording, station, settings)
     station = cal.place
-    pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None)
+    pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None,
+                        operator=operator)
     writer = SessionWriter.append_to(directory)  # refused if another fieldcal is writing it
     try:
         writer.write_parameters(pf)  # parameters-NNN.yaml: an earlier calibration is kept

@@ -280,8 +280,10 @@ def build_parser() -> argparse.ArgumentParser:
     from fieldcal.cli.importing import add_import_parser
     add_import_parser(sub)
     add_calibrate_parser(sub)
-    from fieldcal.cli.production import add_production_parsers, add_registry_option, add_spec_option
+    from fieldcal.cli.production import (add_operator_option, add_production_parsers, add_registry_option,
+                                         add_spec_option)
     add_spec_option(run)
+    add_operator_option(run)
     add_registry_option(replay)
     add_registry_option(resume)
     add_production_parsers(sub)

@@ -5,6 +5,7 @@ URL) for every command that records or reads calibrations."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -29,6 +30,24 @@ def open_registry(args):
     """The registry the command's options name (``Registry``; a context manager)."""
     from fieldcal.registry import Registry
     return Registry(args.registry, require_tls=args.registry_require_tls)
+
+
+def add_operator_option(parser: argparse.ArgumentParser) -> None:
+    """--operator, for the commands that measure a unit (a re-solve keeps the session's)."""
+    parser.add_argument("--operator", metavar="NAME", default=os.environ.get("FIELDCAL_OPERATOR"),
+                        help="who calibrates: written into the session, the parameter file and the "
+                        "registry (default $FIELDCAL_OPERATOR; none when unset)")
+
+
+def operator_option(args) -> str | None:
+    """The --operator given (or its default), checked; None when none was."""
+    from fieldcal.paramfile.document import OPERATOR_MAX, valid_operator
+
+    name = getattr(args, "operator", None)
+    if name is not None and not valid_operator(name):
+        raise ValueError(f"--operator: expected a name of 1 to {OPERATOR_MAX} printable characters "
+                         f"without blanks around it, got {name!r}"[:200])
+    return name
 
 
 def add_spec_option(parser: argparse.ArgumentParser) -> None:

@@ -42,7 +42,7 @@ def cmd_run(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
 
-    from fieldcal.cli.production import accept_after, load_spec_option
+    from fieldcal.cli.production import accept_after, load_spec_option, operator_option
 
     config = load_config(args.config)
     spec = load_spec_option(args)
@@ -67,7 +67,7 @@ def cmd_run(args) -> int:
                             skip_steps=tuple(s - 1 for s in args.skip))
     run_spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                        raw_counts=config.device.sim.raw_counts, method=args.method,
-                       on_motion=args.on_motion, script=script)
+                       on_motion=args.on_motion, script=script, operator=operator_option(args))
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = Path(args.out) / f"{procedure.name}-seed{seed}-{stamp}"
     args.session_path = directory  # for the interrupted / disk-full message (cli.main)

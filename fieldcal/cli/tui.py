@@ -71,8 +71,9 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
     tui.add_argument("--resume", metavar="SESSION",
                      help="continue this unfinished (quit) session after its last completed step; a live "
                      "device's on the ports of --config (default: the setup's last config)")
-    from fieldcal.cli.production import add_registry_option
+    from fieldcal.cli.production import add_operator_option, add_registry_option
     add_registry_option(tui)  # where the calibrations are recorded when the UI closes
+    add_operator_option(tui)
     tui.set_defaults(func=cmd_tui)
     return tui
 
@@ -281,11 +282,13 @@ def _initial_choice(args):
 
 def sim_run(config, procedure, args):
     """The simulated bench's run: (spec, session directory, speed)."""
+    from fieldcal.cli.production import operator_option
     from fieldcal.run.runner import RunSpec
 
     seed = config.device.sim.seed if args.seed is None else args.seed
     spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
-                   raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion)
+                   raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion,
+                   operator=operator_option(args))
     speed = config.device.sim.speed if args.speed is None else args.speed
     return spec, _session_dir(args, procedure.name, f"seed{seed}"), speed
 
@@ -301,6 +304,7 @@ def live_spec(config, procedure, args):
     """The run of a real device: its model from the config; refused before any port is opened
     when the config cannot carry the procedure out."""
     from fieldcal.run.livedevice import LiveDevice
+    from fieldcal.cli.production import operator_option
     from fieldcal.run.runner import RunSpec
 
     step = procedure.rate_step
@@ -312,4 +316,4 @@ def live_spec(config, procedure, args):
             raise ValueError(f"procedure {procedure.name} turns the table at {step.rate_deg_s:g} °/s, above "
                              f"{config.path}'s table.max_rate_deg_s of {config.table.max_rate_deg_s:g} °/s")
     return RunSpec(procedure, config.station, rate_hz=config.device.rate_hz, method=args.method,
-                   on_motion=args.on_motion, live=LiveDevice.from_config(config))
+                   on_motion=args.on_motion, live=LiveDevice.from_config(config), operator=operator_option(args))

@@ -69,6 +69,15 @@ class ParameterFileError(ValueError):
 TriadParameters = Calibration
 
 
+OPERATOR_MAX = 100
+
+
+def valid_operator(name) -> bool:
+    """A name or initials as typed: printable, no line breaks, not blank, not too long."""
+    return isinstance(name, str) and 0 < len(name) <= OPERATOR_MAX and name.strip() == name \
+        and name.isprintable()
+
+
 @dataclass(frozen=True)
 class Provenance:
     """Where a parameter file came from. No timestamps: replay must reproduce the file exactly."""
@@ -84,6 +93,7 @@ class Provenance:
     device_serial: str | None = None
     simulation: bool | None = None
     software_version: str = __version__
+    operator: str | None = None  # who calibrated (the station's --operator); None: not said
 
     def __post_init__(self) -> None:
         for attr in ("procedure", "method", "gravity_source", "software_version"):
@@ -97,6 +107,9 @@ class Provenance:
             value = getattr(self, attr)
             if value is not None and not isinstance(value, str):
                 raise ValueError(f"provenance.{attr}: expected a string or None, got {value!r}")
+        if self.operator is not None and not valid_operator(self.operator):
+            raise ValueError(f"provenance.operator: expected a name of 1 to {OPERATOR_MAX} printable "
+                             f"characters, got {self.operator!r}"[:200])
         if self.simulation is not None and not isinstance(self.simulation, bool):
             raise ValueError(f"provenance.simulation: expected true, false or None, got {self.simulation!r}")
         for attr in ("latitude_deg", "height_m", "gravity_m_s2"):
@@ -124,12 +137,13 @@ class Provenance:
     @classmethod
     def for_station(cls, station, *, procedure: str, method: str, input_sha256: str,
                     device_name: str | None = None, device_serial: str | None = None,
-                    simulation: bool | None = None) -> Provenance:
+                    simulation: bool | None = None, operator: str | None = None) -> Provenance:
         """From a ``fieldcal.earth.Station`` (its gravity and where that came from)."""
         return cls(procedure=procedure, method=method, input_sha256=input_sha256,
                    latitude_deg=station.latitude_deg, height_m=station.height_m,
                    gravity_m_s2=station.gravity, gravity_source=station.gravity_source,
-                   device_name=device_name, device_serial=device_serial, simulation=simulation)
+                   device_name=device_name, device_serial=device_serial, simulation=simulation,
+                   operator=operator)
 
 
 @dataclass(frozen=True)
@@ -165,11 +179,12 @@ class ParameterFile:
     @classmethod
     def build(cls, triads: Iterable[TriadParameters], *, station, procedure: str, method: str,
               input_sha256: str, device_name: str | None = None, device_serial: str | None = None,
-              simulation: bool | None = None) -> ParameterFile:
+              simulation: bool | None = None, operator: str | None = None) -> ParameterFile:
         """Triads plus provenance from a ``fieldcal.earth.Station`` and the hash of the averages."""
         return cls(triads=tuple(triads), provenance=Provenance.for_station(
             station, procedure=procedure, method=method, input_sha256=input_sha256,
-            device_name=device_name, device_serial=device_serial, simulation=simulation))
+            device_name=device_name, device_serial=device_serial, simulation=simulation,
+            operator=operator))
 
     @classmethod
     def from_solutions(cls, solutions: Iterable, *, station, procedure: str,
@@ -262,6 +277,8 @@ def to_document(pf: ParameterFile) -> dict:
     device = {k: v for k, v in (("name", p.device_name), ("serial", p.device_serial)) if v is not None}
     if device:
         prov["device"] = device
+    if p.operator is not None:
+        prov["operator"] = p.operator
     return {"schema": SCHEMA, "provenance": prov,
             "triads": {t.name: _triad_document(t) for t in pf.triads}}
 

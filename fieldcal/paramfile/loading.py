@@ -144,7 +144,7 @@ def from_document(doc, path: str = "<document>") -> ParameterFile:
     pw = "provenance"
     p = r.mapping(doc.get(pw, MISSING), pw,
                   ("software", "software_version", "procedure", "method", "input_sha256", "station"),
-                  ("simulation", "device"))
+                  ("simulation", "device", "operator"))
     r.string(p, "software", pw, allowed=(SOFTWARE,))
     version = r.string(p, "software_version", pw)
     procedure = r.string(p, "procedure", pw)
@@ -175,11 +175,12 @@ def from_document(doc, path: str = "<document>") -> ParameterFile:
         d = r.mapping(p["device"], dw, (), ("name", "serial"))
         device_name = r.string(d, "name", dw, optional=True)
         device_serial = r.string(d, "serial", dw, optional=True)
+    operator = r.string(p, "operator", pw, optional=True)
     provenance = Provenance(procedure=procedure, method=method, input_sha256=sha,
                             latitude_deg=latitude, height_m=height, gravity_m_s2=gravity,
                             gravity_source=gravity_source, device_name=device_name,
                             device_serial=device_serial, simulation=simulation,
-                            software_version=version)
+                            software_version=version, operator=operator)
 
     raw_triads = doc.get("triads", MISSING)
     if not isinstance(raw_triads, dict) or not raw_triads:

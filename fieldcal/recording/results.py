@@ -31,14 +31,15 @@ def _file_station(station: Station | UnknownPlace) -> Station:
 
 
 def parameter_file(cal: RecordingCalibration, recording: Recording, station: Station | UnknownPlace,
-                   device_name: str | None = None, simulation: bool | None = None) -> ParameterFile:
+                   device_name: str | None = None, simulation: bool | None = None,
+                   operator: str | None = None) -> ParameterFile:
     triads = [*cal.specific_force.values(), *cal.angular_rate.values()]
     methods = "+".join(dict.fromkeys([s.method for s in cal.specific_force.values()]
                                      + [s.method for s in cal.angular_rate.values()]))
     data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]
     return ParameterFile.build(triads, station=_file_station(station), procedure=PROCEDURE, method=methods,
                                input_sha256=hash_inputs(*data), device_name=device_name,
-                               simulation=simulation)
+                               simulation=simulation, operator=operator)
 
 
 def _tried(tried) -> str:

@@ -54,6 +54,10 @@ _MIGRATIONS = (
     ALTER TABLE parameters ADD COLUMN position INTEGER NOT NULL DEFAULT 0;
     sqlite: UPDATE parameters SET position = rowid
     """,
+    # version 3: who calibrated (the parameter file's provenance.operator; "" when it names none)
+    """
+    ALTER TABLE calibrations ADD COLUMN operator TEXT NOT NULL DEFAULT '';
+    """,
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 UNKNOWN = ""  # a serial or model the parameter file does not give
@@ -165,13 +169,13 @@ class Registry:
         row = (p.device_serial or UNKNOWN, p.device_name or UNKNOWN,
                f"{p.latitude_deg:.4f}°, {p.height_m:g} m, g {p.gravity_m_s2:.5f} m/s^2",
                p.procedure, p.method, stamp.isoformat(timespec="seconds"),
-               sha, str(path), None if passed is None else int(passed), source)
+               sha, str(path), None if passed is None else int(passed), source, p.operator or UNKNOWN)
         triads = [(cal, *operator_values(cal)) for cal in pf.triads]
 
         def write() -> bool:
             inserted = self.backend.execute(
                 "INSERT INTO calibrations (serial, model, station, procedure, method, time, params_sha256, "
-                "params_path, passed, source) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+                "params_path, passed, source, operator) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
                 "ON CONFLICT (params_path, params_sha256) DO NOTHING RETURNING id", row).fetchone()
             if inserted is None:  # indexed already
                 if passed is not None:  # a verdict given later (fieldcal check) is kept
@@ -204,9 +208,9 @@ class Registry:
         {(triad, name): (value, σ, unit)}."""
         rows = self.query(
             "SELECT id, model, station, procedure, method, time, params_sha256, params_path, passed, "
-            "source FROM calibrations WHERE serial = ? ORDER BY time, id", (serial,))
+            "source, operator FROM calibrations WHERE serial = ? ORDER BY time, id", (serial,))
         keys = ("id", "model", "station", "procedure", "method", "time", "sha256", "path", "passed",
-                "source")
+                "source", "operator")
         out = []
         for r in rows:
             entry = dict(zip(keys, r))

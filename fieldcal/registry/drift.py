@@ -44,7 +44,8 @@ def history_lines(calibrations: list[dict], spec=None) -> list[str]:
 
     verdicts = {None: "no spec applied", 1: "PASS", 0: "FAIL"}
     lines = [f"#{i + 1} {c['time']} {c['procedure']} {c['method']}"
-             f"{' [' + c['source'] + ']' if c.get('source') else ''} "
+             f"{' [' + c['source'] + ']' if c.get('source') else ''}"
+             f"{' by ' + c['operator'] if c.get('operator') else ''} "
              f"({verdicts[c['passed']]}): {c['path']}" for i, c in enumerate(calibrations)]
     found = {(d.triad, d.parameter, d.index): d for d in drifts(calibrations, spec)}
     keys = list(calibrations[-1]["parameters"])

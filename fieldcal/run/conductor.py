@@ -304,7 +304,8 @@ class Conductor:
             triads=tuple(unit.solutions.values()),
             procedure=spec.procedure.name, method=resolve_method(spec.procedure, spec.method),
             station=spec.station, input_sha256=hash_inputs(*unit.inputs.values()),
-            device_name=spec.device_name, device_serial=spec.device_serial, simulation=spec.live is None)
+            device_name=spec.device_name, device_serial=spec.device_serial, simulation=spec.live is None,
+            operator=spec.operator)
         return unit, pf
 
     def conclude(self, done: ev.ProcedureComplete) -> None:

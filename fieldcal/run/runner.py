@@ -57,8 +57,13 @@ class RunSpec:
     # How the simulator draws its noise (drivers.sim.physics.NOISE_MODELS): sessions recorded
     # before the model was named used "bank", and resume with it.
     sim_noise: str = "innovations"
+    operator: str | None = None  # who runs it (--operator), into the parameter file and registry
 
     def to_metadata(self) -> dict:
+        said = {"operator": self.operator} if self.operator is not None else {}  # older sessions: none
+        return {**self._metadata(), **said}
+
+    def _metadata(self) -> dict:
         if self.live is not None:
             return {"software": f"fieldcal {__version__}",
                     "procedure": {"name": self.procedure.name, "yaml": self.procedure.text},
@@ -100,7 +105,7 @@ class RunSpec:
                              "calibrate it with `fieldcal calibrate SESSION`")
         common = {"procedure": parse_procedure(meta["procedure"]["yaml"], meta["procedure"]["name"]),
                   "station": Station(**meta["station"]), "rate_hz": meta["device"]["rate_hz"],
-                  "method": meta["method"], "on_motion": meta["on_motion"]}
+                  "method": meta["method"], "on_motion": meta["on_motion"], "operator": meta.get("operator")}
         if "triads" in meta["device"]:
             from fieldcal.run.livedevice import LiveDevice
             return cls(**common, live=LiveDevice.from_metadata(meta["device"]))
