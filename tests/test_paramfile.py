@@ -452,6 +452,8 @@ MUTATIONS = [
     ("bad hash", _set("provenance", "input_sha256", "abc123"), "provenance.input_sha256"),
     ("simulation not a bool", _set("provenance", "simulation", "yes please"), "provenance.simulation"),
     ("serial as a number", _set("provenance", "device", "serial", 123), "provenance.device.serial"),
+    ("operator with a line break", _set("provenance", "operator", "A.\nNg"), "provenance.operator"),
+    ("operator blank", _set("provenance", "operator", "  "), "provenance.operator"),
     ("no triads", _set("triads", {}), "triads"),
     ("triad not a mapping", _set("triads", "gyroscope", "classic"), GYRO),
 ]

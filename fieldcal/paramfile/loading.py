@@ -22,6 +22,7 @@ from fieldcal.paramfile.document import (
     _AXES,
     _SHA256,
     CONSISTENCY_RTOL,
+    OPERATOR_MAX,
     SCHEMA,
     SOFTWARE,
     ParameterFile,
@@ -33,6 +34,7 @@ from fieldcal.paramfile.document import (
     save,
     to_document,
     unknown_methods,
+    valid_operator,
 )
 from fieldcal.validation import MISSING, FieldReader, describe, parse_yaml, read_yaml_file
 
@@ -176,6 +178,9 @@ def from_document(doc, path: str = "<document>") -> ParameterFile:
         device_name = r.string(d, "name", dw, optional=True)
         device_serial = r.string(d, "serial", dw, optional=True)
     operator = r.string(p, "operator", pw, optional=True)
+    if operator is not None and not valid_operator(operator):
+        r.fail(f"{pw}.operator", f"a name of 1 to {OPERATOR_MAX} printable characters, no blanks around it",
+               describe(operator))
     provenance = Provenance(procedure=procedure, method=method, input_sha256=sha,
                             latitude_deg=latitude, height_m=height, gravity_m_s2=gravity,
                             gravity_source=gravity_source, device_name=device_name,
