@@ -124,7 +124,10 @@ class RateNormProblem:
       d·a − Ωv and |a − (d·a)d| − Ωe·cos φ  (2, when the dwell is on the same table mount as a step),
       |a| − Ωe                             (1, otherwise).
     Within about 11° of a pole the horizontal Earth rate is too small for its norm to be a smooth
-    residual (|a⊥| cannot go below zero), so there the across-axis term is left out.
+    residual (|a⊥| cannot go below zero), so there the across-axis term is left out; so it is when
+    the dwells are too noisy to see it (``use_across`` False, set by solve.py from the noise model:
+    a norm of a vector not well above its noise is biased and its linearised weight claims
+    information the data do not hold, see across_earth_rate_usable).
     """
 
     plus: np.ndarray
@@ -141,6 +144,7 @@ class RateNormProblem:
     single: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
     single_rate: np.ndarray = field(default_factory=lambda: np.empty(0))  # rad/s, signed
     single_labels: tuple[str, ...] = ()
+    use_across: bool = True  # the across-axis Earth-rate residual of paired dwells
     kind: str = field(default=ANGULAR_RATE, init=False)
 
     def __post_init__(self) -> None:
@@ -184,7 +188,7 @@ class RateNormProblem:
 
     @property
     def _uses_across(self) -> bool:
-        return self.earth_rate_vertical**2 < (1 - _POLAR_COS**2) * self.earth_rate**2
+        return self.use_across and self.earth_rate_vertical**2 < (1 - _POLAR_COS**2) * self.earth_rate**2
 
     @property
     def residual_labels(self) -> tuple[str, ...]:
