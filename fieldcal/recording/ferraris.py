@@ -38,6 +38,11 @@ ALIGNED_DEG = 15.0  # a pose this close to an axis, up or down, is that axis's a
 SAME_POSE_DEG = 5.0  # a turn's start and end poses are this close
 MIN_TURN_FRACTION = 0.75  # of a full turn, in a known rate unit
 HEADING_SIGMA_DEG = 0.5  # 1σ of the hand's return to the same heading after a turn
+# 1σ of a scale factor's change from the session's start to its end, relative: ~100 ppm/K times
+# a 2 K warming (see the module doc). A linear drift, so an axis seen at the middle has none.
+SCALE_DRIFT_PPM = 200.0
+SCALE_DRIFT_NOTE = (f"σ of the scale factors include a {SCALE_DRIFT_PPM:.0f} ppm drift over the session "
+                    "(temperature; each axis is seen at one time only)")
 _AXES = np.vstack([np.eye(3), -np.eye(3)])
 
 
@@ -62,12 +67,36 @@ def aligned_axes(up: np.ndarray) -> np.ndarray | None:
     return nearest if close.all() and len(set(nearest.tolist())) == 6 else None
 
 
+def session_times(t: np.ndarray, intervals: np.ndarray) -> np.ndarray:
+    """(m,) each interval's middle relative to the session's middle, as a fraction of its length
+    (−½ … ½): where a linear drift over the session stands at that interval."""
+    span = max(float(t[-1] - t[0]), 1e-9)
+    middle = 0.5 * (t[intervals[:, 0]] + t[intervals[:, 1] - 1])
+    return (middle - 0.5 * (t[0] + t[-1])) / span
+
+
+def scale_drift_covariance(values: np.ndarray, offset: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Covariance (flattened, position-major) of readings ``values`` (m, 3) taken at ``times``
+    (see session_times) that a drift of each axis's scale, SCALE_DRIFT_PPM from start to end and
+    independent per axis, moves from the session's mean: each axis's output less its ``offset``
+    grows by the same fraction at all of them, in proportion to its time."""
+    shift = (np.asarray(values, dtype=float) - offset) * times[:, None]  # (m, 3) per unit drift
+    cov = np.zeros((shift.size, shift.size))
+    for j in range(3):  # per output axis: one drift for all positions
+        v = np.zeros_like(shift)
+        v[:, j] = shift[:, j]
+        cov += np.outer(v.ravel(), v.ravel())
+    return cov * (SCALE_DRIFT_PPM * 1e-6) ** 2
+
+
 def solve_aligned_accelerometer(name: str, unit: str, means: np.ndarray, axes: np.ndarray,
-                                gravity: float, covariance: np.ndarray) -> Calibration:
+                                gravity: float, covariance: np.ndarray,
+                                times: np.ndarray | None = None) -> Calibration:
     """Classic least squares on the six faces' means (a face seen twice is one placement on the
     same face, its tilt shared, so it is averaged, not counted twice): inputs ±g.
     ``covariance``: of the flattened interval means (noise); the σ are scaled up by χ²/dof when
-    the faces scatter more than that (placement errors), never down."""
+    the faces scatter more than that (placement errors), never down. ``times``: each interval's
+    place in the session (session_times), for the scale's drift (module doc); None: no drift."""
     average = np.zeros((6, len(means)))
     for a in range(6):
         average[a, axes == a] = 1.0 / np.count_nonzero(axes == a)
@@ -79,6 +108,14 @@ def solve_aligned_accelerometer(name: str, unit: str, means: np.ndarray, axes: n
     ratio = float(np.sum(sol.residuals**2 / variances) / (3 * (6 - 4)))
     if ratio > 1.0:
         sol = replace(sol, covariance=sol.covariance * ratio, sigma=sol.sigma * math.sqrt(ratio))
+    if times is not None:  # the drift hides in the scale, not in the residuals: added after χ²
+        # The same estimate (least squares does not weigh by the covariance), its σ with the
+        # drift; the offset is the faces' mean, where ±g cancels.
+        drift = A @ scale_drift_covariance(means, faces.mean(axis=0), times) @ A.T
+        with_drift = solve_classic(faces, gravity * _AXES, name, SPECIFIC_FORCE, output_unit=unit,
+                                   covariance=face_cov * max(ratio, 1.0) + drift)
+        sol = replace(sol, covariance=with_drift.covariance, sigma=with_drift.sigma,
+                      diagnostics=replace(sol.diagnostics, message=f"{sol.diagnostics.message}; {SCALE_DRIFT_NOTE}"))
     return sol
 
 
