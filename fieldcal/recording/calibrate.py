@@ -399,7 +399,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
             angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
                                                            poses.intervals, axes, turns, latitude,
                                                            up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))),
-                                                           t=t)
+                                                           t=t, noise=settings.noise.get(name))
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)

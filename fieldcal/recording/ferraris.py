@@ -193,10 +193,11 @@ def find_turns(gyro: np.ndarray, rate_hz: float, intervals: np.ndarray, up: np.n
 
 def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, intervals: np.ndarray,
                      axes: np.ndarray, turns: Turns, latitude_rad: float | None,
-                     up_sigma: float = 0.0, t: np.ndarray | None = None) -> Calibration:
-    """``axes``: each interval's aligned axis (see aligned_axes); ``up_sigma``: 1σ (rad) of the
-    turn axes' directions, from the accelerometer's calibration."""
-    """K from the turns' integrals, the bias from the statics; see the module doc for the σ."""
+                     up_sigma: float = 0.0, t: np.ndarray | None = None, noise=None) -> Calibration:
+    """K from the turns' integrals, the bias from the statics; see the module doc for the σ.
+    ``axes``: each interval's aligned axis (see aligned_axes); ``up_sigma``: 1σ (rad) of the
+    turn axes' directions, from the accelerometer's calibration; ``noise``: the device's noise
+    model of this triad (a TriadNoise, in rad/s), if known, for its bias instability."""
     axes_seen = np.abs(turns.up).argmax(axis=1)
     missing = [a for i, a in enumerate("xyz") if i not in set(axes_seen.tolist())]
     if missing:
@@ -230,13 +231,29 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     across = (k_scale[None, :] * turns.angles[:, None] * up_sigma) ** 2 * (1 - turns.up**2)
     var_W = (white[None, :] * n[:, None] / rate_hz**2 + reference_var * duration[:, None] ** 2 + earth + heading
              + across)
-    # The six poses' gyro means: bias and the g-sensitivity, which cancels between up and down.
+    # The six poses' gyro means: bias and the g-sensitivity, which cancels between up and down
+    # (_AXES: face a and a + 3 are one axis up and down). Its σ: the scatter of the three axes'
+    # up-and-down means, where the g-sensitivity is gone and the bias's moves between the poses
+    # (warm-up, temperature, random walk) are not; never below what the white noise and the
+    # horizontal Earth rate (it flips with some faces and not with others) leave, nor, with the
+    # noise model, below its bias instability, which all poses share and no scatter shows.
     poses = np.array([still[axes == a].mean(axis=0) for a in range(6)])  # one mean per face
+    pairs = 0.5 * (poses[:3] + poses[3:])
     bias = poses.mean(axis=0)
-    bias_var = np.var(poses, axis=0, ddof=1) / len(poses)
+    weights = np.array([1.0 / (6 * np.count_nonzero(axes == a)) for a in axes])  # bias = weights @ still
+    white_var = white * np.sum(weights**2 / counts)
+    floor = white_var + (k_scale * horizontal) ** 2 / 2 / 3
+    if noise is not None and getattr(noise, "bias_instability", 0.0):
+        model = weights @ noise.window_covariance(times[intervals[:, 0]], counts / rate_hz) @ weights
+        floor = floor + np.maximum(k_scale**2 * model - white_var, 0.0)
+    bias_var = np.maximum(np.var(pairs, axis=0, ddof=1) / 3, floor)
+    drift = session_times(times, turns.spans)
     row_cov = np.zeros((3, 4, 4))
     for i in range(3):  # per output axis: K's row is W's row times C⁺, the columns independent
         row_cov[i, :3, :3] = C_pinv.T @ np.diag(var_W[:, i]) @ C_pinv
+        # The scale's drift over the session (module doc): one per axis, in all turns at once.
+        shift = (drift * W[i]) @ C_pinv * SCALE_DRIFT_PPM * 1e-6
+        row_cov[i, :3, :3] += np.outer(shift, shift)
         row_cov[i, 3, 3] = bias_var[i]
     residuals = (W - K @ C).T
     coef_cov = np.zeros((12, 12))  # the rows are independent: their blocks on the diagonal
@@ -246,5 +263,5 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     return Calibration(name=name, kind=ANGULAR_RATE, output_unit=unit, method="classic", K=K, bias=bias,
                        covariance=cov, sigma=sigma, residuals=residuals / np.abs(np.diag(K)),
                        parameter_names=FULL_PARAM_NAMES, residual_unit="rad",
-                       diagnostics=SolverDiagnostics(message="closed form (the turns' ±2π integrals)",
+                       diagnostics=SolverDiagnostics(message=f"closed form (the turns' ±2π integrals); {SCALE_DRIFT_NOTE}",
                                                      dof=residuals.size - 9))
