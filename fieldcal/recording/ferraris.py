@@ -235,14 +235,17 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     # (_AXES: face a and a + 3 are one axis up and down). Its σ: the scatter of the three axes'
     # up-and-down means, where the g-sensitivity is gone and the bias's moves between the poses
     # (warm-up, temperature, random walk) are not; never below what the white noise and the
-    # horizontal Earth rate (it flips with some faces and not with others) leave, nor, with the
-    # noise model, below its bias instability, which all poses share and no scatter shows.
+    # horizontal Earth rate leave, nor, with the noise model, below its bias instability, which
+    # all poses share and no scatter shows. Turning a face over about a horizontal axis f keeps
+    # the Earth rate's component along f: each axis's up-and-down mean keeps (Ωh·f)f, f one of
+    # the two other axes, so an output axis holds it from two of the three means, each ½ of the
+    # time, with Ωh²/2 over the unknown heading: Ωh²/4 · 2 / 3² = Ωh²/18 in the mean of three.
     poses = np.array([still[axes == a].mean(axis=0) for a in range(6)])  # one mean per face
     pairs = 0.5 * (poses[:3] + poses[3:])
     bias = poses.mean(axis=0)
     weights = np.array([1.0 / (6 * np.count_nonzero(axes == a)) for a in axes])  # bias = weights @ still
     white_var = white * np.sum(weights**2 / counts)
-    floor = white_var + (k_scale * horizontal) ** 2 / 2 / 3
+    floor = white_var + (k_scale * horizontal) ** 2 / 18
     if noise is not None and getattr(noise, "bias_instability", 0.0):
         model = weights @ noise.window_covariance(times[intervals[:, 0]], counts / rate_hz) @ weights
         floor = floor + np.maximum(k_scale**2 * model - white_var, 0.0)
