@@ -381,7 +381,8 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(
-                name, unit, means, axes, station.gravity, covariance)
+                name, unit, means, axes, station.gravity, covariance,
+                times=ferraris.session_times(recording.t, poses.intervals))
         except CalibrationError as exc:
             if name == reference:
                 raise
@@ -398,7 +399,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
             angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
                                                            poses.intervals, axes, turns, latitude,
                                                            up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))),
-                                                           t=t)
+                                                           t=t, noise=settings.noise.get(name))
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)

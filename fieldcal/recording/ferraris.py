@@ -38,6 +38,11 @@ ALIGNED_DEG = 15.0  # a pose this close to an axis, up or down, is that axis's a
 SAME_POSE_DEG = 5.0  # a turn's start and end poses are this close
 MIN_TURN_FRACTION = 0.75  # of a full turn, in a known rate unit
 HEADING_SIGMA_DEG = 0.5  # 1σ of the hand's return to the same heading after a turn
+# 1σ of a scale factor's change from the session's start to its end, relative: ~100 ppm/K times
+# a 2 K warming (see the module doc). A linear drift, so an axis seen at the middle has none.
+SCALE_DRIFT_PPM = 200.0
+SCALE_DRIFT_NOTE = (f"σ of the scale factors include a {SCALE_DRIFT_PPM:.0f} ppm drift over the session "
+                    "(temperature; each axis is seen at one time only)")
 _AXES = np.vstack([np.eye(3), -np.eye(3)])
 
 
@@ -62,12 +67,36 @@ def aligned_axes(up: np.ndarray) -> np.ndarray | None:
     return nearest if close.all() and len(set(nearest.tolist())) == 6 else None
 
 
+def session_times(t: np.ndarray, intervals: np.ndarray) -> np.ndarray:
+    """(m,) each interval's middle relative to the session's middle, as a fraction of its length
+    (−½ … ½): where a linear drift over the session stands at that interval."""
+    span = max(float(t[-1] - t[0]), 1e-9)
+    middle = 0.5 * (t[intervals[:, 0]] + t[intervals[:, 1] - 1])
+    return (middle - 0.5 * (t[0] + t[-1])) / span
+
+
+def scale_drift_covariance(values: np.ndarray, offset: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Covariance (flattened, position-major) of readings ``values`` (m, 3) taken at ``times``
+    (see session_times) that a drift of each axis's scale, SCALE_DRIFT_PPM from start to end and
+    independent per axis, moves from the session's mean: each axis's output less its ``offset``
+    grows by the same fraction at all of them, in proportion to its time."""
+    shift = (np.asarray(values, dtype=float) - offset) * times[:, None]  # (m, 3) per unit drift
+    cov = np.zeros((shift.size, shift.size))
+    for j in range(3):  # per output axis: one drift for all positions
+        v = np.zeros_like(shift)
+        v[:, j] = shift[:, j]
+        cov += np.outer(v.ravel(), v.ravel())
+    return cov * (SCALE_DRIFT_PPM * 1e-6) ** 2
+
+
 def solve_aligned_accelerometer(name: str, unit: str, means: np.ndarray, axes: np.ndarray,
-                                gravity: float, covariance: np.ndarray) -> Calibration:
+                                gravity: float, covariance: np.ndarray,
+                                times: np.ndarray | None = None) -> Calibration:
     """Classic least squares on the six faces' means (a face seen twice is one placement on the
     same face, its tilt shared, so it is averaged, not counted twice): inputs ±g.
     ``covariance``: of the flattened interval means (noise); the σ are scaled up by χ²/dof when
-    the faces scatter more than that (placement errors), never down."""
+    the faces scatter more than that (placement errors), never down. ``times``: each interval's
+    place in the session (session_times), for the scale's drift (module doc); None: no drift."""
     average = np.zeros((6, len(means)))
     for a in range(6):
         average[a, axes == a] = 1.0 / np.count_nonzero(axes == a)
@@ -79,6 +108,14 @@ def solve_aligned_accelerometer(name: str, unit: str, means: np.ndarray, axes: n
     ratio = float(np.sum(sol.residuals**2 / variances) / (3 * (6 - 4)))
     if ratio > 1.0:
         sol = replace(sol, covariance=sol.covariance * ratio, sigma=sol.sigma * math.sqrt(ratio))
+    if times is not None:  # the drift hides in the scale, not in the residuals: added after χ²
+        # The same estimate (least squares does not weigh by the covariance), its σ with the
+        # drift; the offset is the faces' mean, where ±g cancels.
+        drift = A @ scale_drift_covariance(means, faces.mean(axis=0), times) @ A.T
+        with_drift = solve_classic(faces, gravity * _AXES, name, SPECIFIC_FORCE, output_unit=unit,
+                                   covariance=face_cov * max(ratio, 1.0) + drift)
+        sol = replace(sol, covariance=with_drift.covariance, sigma=with_drift.sigma,
+                      diagnostics=replace(sol.diagnostics, message=f"{sol.diagnostics.message}; {SCALE_DRIFT_NOTE}"))
     return sol
 
 
@@ -104,7 +141,9 @@ def integrals(gyro: np.ndarray, rate_hz: float, spans: np.ndarray, reference: np
 
 
 EDGE_SIGMAS = 8.0  # a pose's end whose 0.1 s gyro mean is this many σ from the pose's median: turning
-MAX_TRIM = 0.4  # of a pose: more is not a turn's slow start but a pose that is not still
+# Of a pose: more is not a turn's slow start but a pose that is not still. A turntable's 2 s ramp
+# before a 3 s pose is 40 % of it (0.4 left such a ramp in the still reading: a 21 % scale error).
+MAX_TRIM = 0.6
 
 
 def trim_turning_edges(gyro: np.ndarray, intervals: np.ndarray, variance: np.ndarray,
@@ -156,10 +195,11 @@ def find_turns(gyro: np.ndarray, rate_hz: float, intervals: np.ndarray, up: np.n
 
 def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, intervals: np.ndarray,
                      axes: np.ndarray, turns: Turns, latitude_rad: float | None,
-                     up_sigma: float = 0.0, t: np.ndarray | None = None) -> Calibration:
-    """``axes``: each interval's aligned axis (see aligned_axes); ``up_sigma``: 1σ (rad) of the
-    turn axes' directions, from the accelerometer's calibration."""
-    """K from the turns' integrals, the bias from the statics; see the module doc for the σ."""
+                     up_sigma: float = 0.0, t: np.ndarray | None = None, noise=None) -> Calibration:
+    """K from the turns' integrals, the bias from the statics; see the module doc for the σ.
+    ``axes``: each interval's aligned axis (see aligned_axes); ``up_sigma``: 1σ (rad) of the
+    turn axes' directions, from the accelerometer's calibration; ``noise``: the device's noise
+    model of this triad (a TriadNoise, in rad/s), if known, for its bias instability."""
     axes_seen = np.abs(turns.up).argmax(axis=1)
     missing = [a for i, a in enumerate("xyz") if i not in set(axes_seen.tolist())]
     if missing:
@@ -193,13 +233,32 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     across = (k_scale[None, :] * turns.angles[:, None] * up_sigma) ** 2 * (1 - turns.up**2)
     var_W = (white[None, :] * n[:, None] / rate_hz**2 + reference_var * duration[:, None] ** 2 + earth + heading
              + across)
-    # The six poses' gyro means: bias and the g-sensitivity, which cancels between up and down.
+    # The six poses' gyro means: bias and the g-sensitivity, which cancels between up and down
+    # (_AXES: face a and a + 3 are one axis up and down). Its σ: the scatter of the three axes'
+    # up-and-down means, where the g-sensitivity is gone and the bias's moves between the poses
+    # (warm-up, temperature, random walk) are not; never below what the white noise and the
+    # horizontal Earth rate leave, nor, with the noise model, below its bias instability, which
+    # all poses share and no scatter shows. Turning a face over about a horizontal axis f keeps
+    # the Earth rate's component along f: each axis's up-and-down mean keeps (Ωh·f)f, f one of
+    # the two other axes, so an output axis holds it from two of the three means, each ½ of the
+    # time, with Ωh²/2 over the unknown heading: Ωh²/4 · 2 / 3² = Ωh²/18 in the mean of three.
     poses = np.array([still[axes == a].mean(axis=0) for a in range(6)])  # one mean per face
+    pairs = 0.5 * (poses[:3] + poses[3:])
     bias = poses.mean(axis=0)
-    bias_var = np.var(poses, axis=0, ddof=1) / len(poses)
+    weights = np.array([1.0 / (6 * np.count_nonzero(axes == a)) for a in axes])  # bias = weights @ still
+    white_var = white * np.sum(weights**2 / counts)
+    floor = white_var + (k_scale * horizontal) ** 2 / 18
+    if noise is not None and getattr(noise, "bias_instability", 0.0):
+        model = weights @ noise.window_covariance(times[intervals[:, 0]], counts / rate_hz) @ weights
+        floor = floor + np.maximum(k_scale**2 * model - white_var, 0.0)
+    bias_var = np.maximum(np.var(pairs, axis=0, ddof=1) / 3, floor)
+    drift = session_times(times, turns.spans)
     row_cov = np.zeros((3, 4, 4))
     for i in range(3):  # per output axis: K's row is W's row times C⁺, the columns independent
         row_cov[i, :3, :3] = C_pinv.T @ np.diag(var_W[:, i]) @ C_pinv
+        # The scale's drift over the session (module doc): one per axis, in all turns at once.
+        shift = (drift * W[i]) @ C_pinv * SCALE_DRIFT_PPM * 1e-6
+        row_cov[i, :3, :3] += np.outer(shift, shift)
         row_cov[i, 3, 3] = bias_var[i]
     residuals = (W - K @ C).T
     coef_cov = np.zeros((12, 12))  # the rows are independent: their blocks on the diagonal
@@ -209,5 +268,5 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     return Calibration(name=name, kind=ANGULAR_RATE, output_unit=unit, method="classic", K=K, bias=bias,
                        covariance=cov, sigma=sigma, residuals=residuals / np.abs(np.diag(K)),
                        parameter_names=FULL_PARAM_NAMES, residual_unit="rad",
-                       diagnostics=SolverDiagnostics(message="closed form (the turns' ±2π integrals)",
+                       diagnostics=SolverDiagnostics(message=f"closed form (the turns' ±2π integrals); {SCALE_DRIFT_NOTE}",
                                                      dof=residuals.size - 9))
