@@ -6,6 +6,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fieldcal.earth import Station
@@ -37,17 +38,36 @@ def test_the_golden_procedure_is_the_one_recorded():
     assert golden_procedure().text == recorded
 
 
+def _shift_in_sigma(pf, recorded) -> dict[str, float]:
+    """Per triad, the largest |new - recorded| of a parameter in units of its recorded σ."""
+    return {t.name: float(np.max(np.abs(t.theta - recorded[t.name].theta) / recorded[t.name].sigma))
+            for t in pf.triads}
+
+
+# The golden sessions were solved by fieldcal 0.1.0. Since then the gyroscope's static dwells drop
+# their across-axis Earth-rate norm where it is mostly noise (solvers.solve.across_earth_rate_usable;
+# golden-mini's 3 s dwells are such), which moves its gyro bias by ~0.13σ: by design, not by
+# chance. Every other triad, and the gyroscope's remaining parameters, still reproduce.
+GYRO_SHIFT_SIGMA = 0.25
+
+
+def _as_recorded(pf, recorded) -> bool:
+    shift = _shift_in_sigma(pf, recorded)
+    return all(v < 1e-3 for name, v in shift.items() if name != "gyroscope") and shift["gyroscope"] < GYRO_SHIFT_SIGMA
+
+
 def test_an_old_resumed_headless_session_replays_and_resolves_to_its_parameter_file():
     session = GOLDEN / "headless-resumed"
-    recorded = (session / "parameters.yaml").read_bytes()
+    recorded = load(session / "parameters.yaml")
     # Recorded before sessions named their numeric environment, and before the Powell search
-    # was re-fed (issue 12): compared parameter by parameter within 1e-3 of each recorded σ.
+    # was re-fed (issue 12): compared parameter by parameter in units of each recorded σ.
     _, pf, samples = replay_session(session)
-    assert compare_parameters(pf, recorded, None).identical
+    assert _as_recorded(pf, recorded), _shift_in_sigma(pf, recorded)
     assert samples == SessionReader(session).n_samples
-    _, pf = resolve_session(session)
-    found = compare_parameters(pf, recorded, None)
-    assert found.identical and "does not record its numeric environment" in found.text
+    _, resolved = resolve_session(session)
+    assert dump(resolved) == dump(pf)  # the re-solve from the log's averages is the replay's result
+    found = compare_parameters(resolved, (session / "parameters.yaml").read_bytes(), None)
+    assert "does not record its numeric environment" in found.text
 
 
 def test_old_tui_steps_read_with_their_separate_checkpoints():
@@ -145,10 +165,13 @@ def test_the_tui_replay_of_a_killed_and_resumed_session_is_identical(tmp_path):
     cut_before_step_record(whole.session, 6)
     assert resume_headless(whole.session).parameters.read_bytes() == expected
     outcome_here, sink_here = _replay_in_the_tui(whole.session)
-    for session in (whole.session, GOLDEN / "headless-resumed"):
-        outcome, sink = _replay_in_the_tui(session)
-        assert outcome.status == "completed" and outcome.identical is True, session
-        assert any("resumed here" in getattr(i, "text", "") for i in sink.items)
+    outcome, sink = _replay_in_the_tui(whole.session)
+    assert outcome.status == "completed" and outcome.identical is True
+    assert any("resumed here" in getattr(i, "text", "") for i in sink.items)
+    golden = GOLDEN / "headless-resumed"  # solved by an older solver: see GYRO_SHIFT_SIGMA
+    outcome, sink = _replay_in_the_tui(golden)
+    assert outcome.status == "completed" and _as_recorded(outcome.parameter_file, load(golden / "parameters.yaml"))
+    assert any("resumed here" in getattr(i, "text", "") for i in sink.items)
     # the session made here, in this numeric environment, byte for byte
     assert dump(outcome_here.parameter_file).encode() == whole.parameters.read_bytes()
     assert any("byte for byte" in getattr(i, "text", "") for i in sink_here.items)
