@@ -8,15 +8,16 @@ from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal
 from textual.screen import Screen
-from fieldcal.tui.widgets.toosmall import TooSmall
-from textual.widgets import Footer, RichLog, Static
+from textual.widgets import Footer, Static
 
 from fieldcal.procedure.engine import PLACE
 from fieldcal.tui.widgets.cube import top_view
+from fieldcal.tui.widgets.eventlog import EventLog
 from fieldcal.tui.widgets.live import LivePanel
 from fieldcal.tui.widgets.plan import PlanPanel
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.widgets.tiles import PositionTiles
+from fieldcal.tui.widgets.toosmall import TooSmall
 from fieldcal.tui.view import RunView
 
 OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort", "unskip")
@@ -59,7 +60,7 @@ class ProcedureScreen(Screen):
         with Horizontal(id="body"):
             yield Static("", id="cube")
             yield LivePanel(id="live")
-        yield RichLog(id="log", wrap=True, max_lines=5000, markup=False, min_width=20)
+        yield EventLog(id="log", wrap=True, max_lines=5000, markup=False, min_width=20)
         yield Static("", id="confirm")
         yield Footer()
         yield TooSmall()
@@ -81,7 +82,7 @@ class ProcedureScreen(Screen):
     # --- fed by the app ---------------------------------------------------------------------
 
     def add_items(self, items) -> None:
-        log = self.query_one("#log", RichLog)
+        log = self.query_one("#log", EventLog)
         for item in items:
             line = self.view.apply(item)
             if line is not None:
