@@ -348,6 +348,10 @@ class DelimitedTextParser:
             self.malformed_line_numbers.append(int(line_no[0]))
         stops = ends - ((ends > starts) & (a[np.maximum(ends - 1, 0)] == _CR))  # drop CR of CRLF
 
+        if self._clean_delim is not None and not malformed[0]:  # (needs none of the blank runs below)
+            values = _clean_delimited(block, a, ends, self._clean_delim, self._need)
+            if values is not None:
+                return self._whole_block(values, t_host)
         blank = (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
         # runs of non-blank bytes: [run_start[i], run_stop[i])
         solid = ~blank
@@ -358,13 +362,7 @@ class DelimitedTextParser:
         if self._runs_only and not malformed[0]:
             values = _clean_lines(block, ends, run_start, run_stop, self._need)
             if values is not None:
-                self.counters.frames += nlines
-                return self._chunk(values[:, self._cols], t_host)
-        if self._clean_delim is not None and not malformed[0]:
-            values = _clean_delimited(block, a, ends, self._clean_delim, self._need)
-            if values is not None:
-                self.counters.frames += nlines
-                return self._chunk(values[:, self._cols], t_host)
+                return self._whole_block(values, t_host)
         first = _next_run(run_start, starts, stops)  # first non-blank byte of each line, or stop
         empty = first >= stops
         comment = np.zeros(nlines, dtype=bool)
@@ -461,6 +459,11 @@ class DelimitedTextParser:
         mapped = [fields[c] for c in self._cols.tolist() if c < len(fields)]
         return all(_numbers([f]) is None for f in mapped)
 
+    def _whole_block(self, values: np.ndarray, t_host: float) -> SampleChunk:
+        """A block of clean lines, every one a sample (``values``: its lines × fields)."""
+        self.counters.frames += len(values)
+        return self._chunk(values[:, self._cols], t_host)
+
     def _chunk(self, v: np.ndarray, t_host: float) -> SampleChunk:
         cm, slot, n = self.map, self._slot, len(v)
         t = v[:, slot["time"]] * cm.time_scale if cm.time_column is not None else np.full(n, float(t_host))
@@ -538,11 +541,17 @@ def _clean_lines(block: bytes, ends, run_start, run_stop, need: int) -> np.ndarr
         return None
     if block.translate(None, _BLANK_BYTES + _NUMBER_BYTES):
         return None
+    return _numbers_of_block(block, nlines, T)
+
+
+def _numbers_of_block(text: bytes, nlines: int, T: int) -> np.ndarray | None:
+    """(nlines, T) from blank-separated ``text`` in one fromstring call, or None unless it holds
+    exactly that many finite numbers."""
     try:
-        flat = np.fromstring(block, dtype=np.float64, sep=" ")
+        flat = np.fromstring(text, dtype=np.float64, sep=" ")
     except ValueError:  # a field that is not one number (e.g. "1-2", "1e")
         return None
-    if flat.size != runs or not np.isfinite(flat).all():
+    if flat.size != nlines * T or not np.isfinite(flat).all():
         return None
     return flat.reshape(nlines, T)
 
@@ -565,13 +574,7 @@ def _clean_delimited(block: bytes, a: np.ndarray, ends, delimiter: bytes, need: 
     T = len(cuts) // nlines + 1
     if (np.bincount(np.searchsorted(ends, cuts), minlength=nlines) != T - 1).any():
         return None
-    try:
-        flat = np.fromstring(block.replace(delimiter, b" "), dtype=np.float64, sep=" ")
-    except ValueError:  # a field that is not one number (e.g. "1-2", "1e")
-        return None
-    if flat.size != nlines * T or not np.isfinite(flat).all():
-        return None
-    return flat.reshape(nlines, T)
+    return _numbers_of_block(block.replace(delimiter, b" "), nlines, T)
 
 
 def _bisect(a, spans, idx, values, ok) -> None:
