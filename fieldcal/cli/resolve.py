@@ -49,7 +49,7 @@ def _resolve(session: Path, method: str | None) -> Resolved:
     if pf is None:
         why = "; ".join(f"{n}: {r}" for n, r in unit.failures.items()) or "no completed steps"
         return Resolved(str(session), None, f"FAILED {session}: nothing could be calibrated ({why})")
-    current = SessionReader(session, log_only=True).parameters_path
+    current = reader.parameters_path
     if current is not None and Path(current).read_bytes() == dump(pf).encode("utf-8"):
         return Resolved(str(session), str(current), f"unchanged {session}: {Path(current).name} "
                         f"({pf.provenance.method})")
