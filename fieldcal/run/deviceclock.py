@@ -78,6 +78,12 @@ def _behind(last: float, now: float, advance: float, slack: float, period: float
 LUCK = 1e-3  # the most chance we accept of taking a restarted device for one that ran on
 
 
+def _wraps_too_often(slack: float, period: float | None) -> bool:
+    """A restarted clock that wraps every ``period`` lands within ±``slack`` of where a running one
+    would be by chance 2·slack/period of the time: above LUCK it cannot tell a restart."""
+    return period is not None and 2 * slack / period > LUCK
+
+
 def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float) -> ClockCheck:
     """Did the device restart between ``recorded`` (the last completed step) and ``now``?"""
     if recorded is None:
@@ -86,7 +92,7 @@ def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float
     slack = SLACK_S + DRIFT * away
     if recorded.time_s is not None and now.time_s is not None:
         period = recorded.time_period_s
-        if period is not None and 2 * slack / period > LUCK:
+        if _wraps_too_often(slack, period):
             return ClockCheck(None, f"its clock wraps every {period:.0f} s, too often to tell after "
                                     f"{away:.0f} s away")
         expected = recorded.time_s + away
@@ -97,9 +103,7 @@ def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float
     if recorded.counter is not None and now.counter is not None:
         modulus = recorded.counter_modulus
         advance, slack_counts = away * rate_hz, slack * rate_hz
-        # A wrapping counter lands inside the slack by chance with probability 2·slack/modulus
-        # after a restart: above LUCK a power-cycled unit would too often pass as one that ran on.
-        if modulus is not None and 2 * slack_counts / modulus > LUCK:
+        if _wraps_too_often(slack_counts, modulus):
             return ClockCheck(None, f"its packet counter wraps every {modulus / rate_hz:.0f} s, too often "
                                     f"to tell after {away:.0f} s away")
         if _behind(recorded.counter, now.counter, advance, slack_counts, modulus):
