@@ -19,7 +19,6 @@ import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only 
 import numpy as np
 
 from fieldcal.earth import Station
-from fieldcal.model import calibrate_with
 from fieldcal.recording.calibrate import UnknownPlace, calibrate_recording
 from fieldcal.recording.detect import interval_means
 from fieldcal.recording.importer import import_recording
@@ -37,8 +36,10 @@ def residuals(recording, acc, intervals, gravity) -> tuple[float, float]:
     """RMS of |a| − g (m/s²) over every sample of the intervals, and over their means."""
     raw = recording.triads["accelerometer"]
     samples = np.concatenate([raw[a:b] for a, b in intervals])  # a loop over intervals
-    per_sample = np.linalg.norm(calibrate_with(acc.theta, samples), axis=1) - gravity
-    per_mean = np.linalg.norm(calibrate_with(acc.theta, interval_means(raw, intervals)), axis=1) - gravity
+    # Calibration.calibrate, not calibrate_with(theta): a full K's theta holds M's six terms, not
+    # the lower triangle's three angles that calibrate_with reads.
+    per_sample = np.linalg.norm(acc.calibrate(samples), axis=1) - gravity
+    per_mean = np.linalg.norm(acc.calibrate(interval_means(raw, intervals)), axis=1) - gravity
     return float(np.sqrt(np.mean(per_sample**2))), float(np.sqrt(np.mean(per_mean**2)))
 
 
@@ -83,7 +84,7 @@ def main() -> int:
         shared = common(cal.poses.intervals, theirs)
         print(f"imucal Ferraris: {len(cal.poses.intervals)} intervals, {cal.spread.count} faces, "
               f"{len(gyro.residuals)} turns; on the {len(shared)} intervals shared with imucal's sections: "
-              "RMS(|a|-g) per sample %.4g, per interval mean %.4g m/s^2 (fieldcal)" % residuals(rec, acc, shared, g))
+              "RMS(|a|-g) per sample %.5g, per interval mean %.4g m/s^2 (fieldcal)" % residuals(rec, acc, shared, g))
         print(f"  acc bias (m/s^2) {pm(acc.bias, acc.sigma[:3])}; scale {pm(np.diag(acc.K), acc.sigma[3:6])}")
         print(f"  gyro bias (deg/s) {pm(gyro.bias, gyro.sigma[:3])}; scale (deg/s per rad/s) "
               f"{pm(np.diag(gyro.K), gyro.sigma[3:6])}")
@@ -107,7 +108,7 @@ def main() -> int:
             per_sample = float(np.sqrt(np.mean(np.concatenate(theirs_res) ** 2)))
             means = interval_means(rec.triads["accelerometer"], shared)
             per_mean = float(np.sqrt(np.mean((np.linalg.norm(np.linalg.solve(M, (means - info.b_a).T), axis=0) - g) ** 2)))
-            print(f"  imucal on the same intervals: RMS(|a|-g) per sample {per_sample:.4g}, per interval mean "
+            print(f"  imucal on the same intervals: RMS(|a|-g) per sample {per_sample:.5g}, per interval mean "
                   f"{per_mean:.4g} m/s^2; acc bias {np.round(info.b_a, 5).tolist()}, scale "
                   f"{np.round(np.diag(M), 5).tolist()}; gyro bias {np.round(info.b_g, 4).tolist()} deg/s, "
                   f"scale {np.round(np.diag(info.K_g @ info.R_g) * 180 / np.pi, 4).tolist()}")

@@ -64,7 +64,13 @@ FERRARIS_GRAVITY = 9.81  # imucal's default
 
 
 def parameters_of(M: np.ndarray, bias: np.ndarray) -> np.ndarray:
-    """fieldcal's nine numbers for output = M·input + bias: bias, diag(M), the lower triangle's angles."""
+    """fieldcal's nine numbers for output = M·input + bias: bias, diag(M), the lower triangle's angles.
+
+    The mapping from imucal: imucal calibrates a = R⁻¹·K⁻¹·(u − b), K diagonal (scale) and R
+    (rows of unit length: the axes' directions); fieldcal's model is u = K·a + bias with a full
+    K, so fieldcal's K is imucal's K·R and its bias imucal's b. For the gyro imucal's K_g·R_g is
+    per deg/s of input, fieldcal's per rad/s: times 180/π; imucal's g-sensitivity K_ga has no
+    counterpart (fieldcal takes the still readings either side of each turn off instead)."""
     return np.r_[bias, np.diag(M), -M[1, 0] / M[1, 1], M[2, 0] / M[2, 2], -M[2, 1] / M[2, 2]]
 
 
@@ -73,6 +79,19 @@ def ferraris(tmp_path_factory):
     (path,) = unpacked(tmp_path_factory.mktemp("ferraris"), "imucal_ferraris_session.csv.gz")
     recording = import_recording([path], "imucal", rate_hz=FERRARIS_RATE_HZ)
     return path, recording, calibrate_recording(recording, UnknownPlace(gravity=FERRARIS_GRAVITY))
+
+
+@pytest.fixture(scope="module")
+def imucal_result(ferraris):
+    """imucal itself (Ferraris's equations on its hand-annotated sections) on the same file."""
+    imucal = pytest.importorskip("imucal")
+    pd = pytest.importorskip("pandas")
+    path = ferraris[0]
+    data = pd.read_csv(path, header=0, index_col=0)
+    sections = pd.read_json(REAL / "imucal_ferraris_session_list.json").T
+    regions = imucal.ferraris_regions_from_section_list(data, sections)
+    return imucal.FerrarisCalibration(grav=FERRARIS_GRAVITY).compute(
+        regions, sampling_rate_hz=FERRARIS_RATE_HZ, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
 
 
 def test_imucal_ferraris_session_takes_the_aligned_solution(ferraris):
@@ -87,25 +106,41 @@ def test_imucal_ferraris_session_takes_the_aligned_solution(ferraris):
         assert not np.any((cal.poses.intervals[:, 0] < turn["end"]) & (cal.poses.intervals[:, 1] > turn["start"]))
 
 
-def test_imucal_ferraris_session_agrees_with_imucal_within_2_sigma(ferraris):
-    """imucal itself (Ferraris's equations on its hand-annotated sections) on the same file."""
-    imucal = pytest.importorskip("imucal")
-    pd = pytest.importorskip("pandas")
-    path, _, cal = ferraris
-    data = pd.read_csv(path, header=0, index_col=0)
-    sections = pd.read_json(REAL / "imucal_ferraris_session_list.json").T
-    regions = imucal.ferraris_regions_from_section_list(data, sections)
-    info = imucal.FerrarisCalibration(grav=FERRARIS_GRAVITY).compute(
-        regions, sampling_rate_hz=FERRARIS_RATE_HZ, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+def test_imucal_ferraris_session_agrees_with_imucal_within_2_sigma(ferraris, imucal_result):
+    info, (_, _, cal) = imucal_result, ferraris
     acc, gyro = cal.specific_force["accelerometer"], cal.angular_rate["gyroscope"]
     theirs_acc = parameters_of(info.K_a @ info.R_a, info.b_a)
-    # imucal's gyro matrix is per deg/s of input; fieldcal's per rad/s.
     theirs_gyro = parameters_of(info.K_g @ info.R_g * 180 / np.pi, info.b_g)
     # fieldcal's classic K is full: its nine named parameters (file_theta) against imucal's.
     assert np.all(np.abs((acc.file_theta - theirs_acc) / acc.file_sigma) < 2.0), \
         (acc.file_theta, theirs_acc, acc.file_sigma)
     assert np.all(np.abs((gyro.file_theta - theirs_gyro) / gyro.file_sigma) < 2.0), \
         (gyro.file_theta, theirs_gyro, gyro.file_sigma)
+
+
+def test_imucal_ferraris_session_fits_the_common_intervals_at_least_as_well_as_imucal(ferraris, imucal_result):
+    """Issue 11's done-when: on the static intervals both tools use (fieldcal's poses overlapped
+    with imucal's six sections), RMS of |a| − g per sample and per interval mean no larger than
+    imucal's. It was larger (19.6e-3 against 14.8e-3 m/s² per sample): each axis's bias was the
+    mean of all six faces, four of which read the table's slope on that axis, and a face set down
+    again for its turn was averaged with its first placement."""
+    info, (_, recording, cal) = imucal_result, ferraris
+    sections = json.loads((REAL / "imucal_ferraris_session_list.json").read_text())
+    theirs = np.array([[sections[k]["start"], sections[k]["end"]] for k in ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")])
+    ours = cal.poses.intervals
+    start, stop = np.maximum(ours[:, None, 0], theirs[None, :, 0]), np.minimum(ours[:, None, 1], theirs[None, :, 1])
+    shared = np.column_stack([start[stop > start], stop[stop > start]])
+    assert len(shared) == 6  # one per face
+    raw = recording.triads["accelerometer"]
+    samples = np.concatenate([raw[a:b] for a, b in shared])
+    means = interval_means(raw, shared)
+    M = info.K_a @ info.R_a
+    acc = cal.specific_force["accelerometer"]
+    for values in (samples, means):
+        ours_rms = np.sqrt(np.mean((np.linalg.norm(acc.calibrate(values), axis=1) - FERRARIS_GRAVITY) ** 2))
+        theirs_a = np.linalg.solve(M, (values - info.b_a).T).T
+        theirs_rms = np.sqrt(np.mean((np.linalg.norm(theirs_a, axis=1) - FERRARIS_GRAVITY) ** 2))
+        assert ours_rms <= theirs_rms, (ours_rms, theirs_rms)
 
 
 def test_fieldcal_calibrate_says_which_solution_it_chose(ferraris, tmp_path, capsys):

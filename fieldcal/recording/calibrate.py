@@ -381,7 +381,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(
-                name, unit, means, axes, station.gravity, covariance,
+                name, unit, means, axes, station.gravity, covariance, np.diff(poses.intervals, axis=1)[:, 0],
                 times=ferraris.session_times(recording.t, poses.intervals))
         except CalibrationError as exc:
             if name == reference:

@@ -3,9 +3,10 @@
 Ferraris et al. (1995), the protocol of imucal and of many labs: the unit lies on each of its six
 faces (x, y, z up and down), and turns once (or n times) through 360° about each axis while that
 axis is vertical. Six directions cannot give the norm method its nine unknowns, but aligned
-poses can: their true inputs are known, ±g along the axis that is up, so the accelerometer is the
-classic least-squares solution (``fieldcal.solvers.classic``, full K: it also holds the unit's
-rotation relative to its faces).
+poses can: their true inputs are known, ±g along the axis that is up, so the accelerometer is
+Ferraris's closed form (``fieldcal.solvers.classic.solve_six_position``, full K: it also holds
+the unit's rotation relative to its faces), each axis's bias from the two faces where it is
+vertical, where a placement's tilt does not reach it at first order.
 
 The gyroscope comes from the turns: a turn about the vertical integrates to K·up·θ with θ = ±2πn,
 up the vertical in the accelerometer's frame, once the still reading is taken off. That still
@@ -32,7 +33,7 @@ from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
 from fieldcal.recording.detect import DetectionError, interval_means
 from fieldcal.calibration import Calibration, SolverDiagnostics
 from fieldcal.model import FULL_PARAM_NAMES
-from fieldcal.solvers.classic import _parameter_covariance, solve_classic
+from fieldcal.solvers.classic import SIX_FACES, _parameter_covariance, solve_six_position
 
 ALIGNED_DEG = 15.0  # a pose this close to an axis, up or down, is that axis's aligned pose
 SAME_POSE_DEG = 5.0  # a turn's start and end poses are this close
@@ -43,7 +44,7 @@ HEADING_SIGMA_DEG = 0.5  # 1σ of the hand's return to the same heading after a 
 SCALE_DRIFT_PPM = 200.0
 SCALE_DRIFT_NOTE = (f"σ of the scale factors include a {SCALE_DRIFT_PPM:.0f} ppm drift over the session "
                     "(temperature; each axis is seen at one time only)")
-_AXES = np.vstack([np.eye(3), -np.eye(3)])
+_AXES = SIX_FACES  # +x, +y, +z, −x, −y, −z
 
 
 @dataclass(frozen=True)
@@ -89,34 +90,53 @@ def scale_drift_covariance(values: np.ndarray, offset: np.ndarray, times: np.nda
     return cov * (SCALE_DRIFT_PPM * 1e-6) ** 2
 
 
+def first_placements(axes: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """(6, m) weights that average each face's first placement: the first run of consecutive
+    intervals on that face (a turn about the vertical between them keeps the placement), each
+    interval by its samples. A face set down again later is another placement, another tilt
+    and time: its mean differs by more than the noise (imucal's session: 8 mm/s² on +x), and
+    averaging two placements matches neither, so the calibrated faces' norms miss g."""
+    weights = np.zeros((6, len(axes)))
+    new_run = np.r_[True, axes[1:] != axes[:-1]]
+    run = np.cumsum(new_run) - 1  # each interval's run of consecutive same-face intervals
+    for a in range(6):  # a loop over faces
+        on_face = np.flatnonzero(axes == a)
+        chosen = on_face[run[on_face] == run[on_face[0]]]
+        weights[a, chosen] = counts[chosen] / counts[chosen].sum()
+    return weights
+
+
 def solve_aligned_accelerometer(name: str, unit: str, means: np.ndarray, axes: np.ndarray,
-                                gravity: float, covariance: np.ndarray,
+                                gravity: float, covariance: np.ndarray, counts: np.ndarray,
                                 times: np.ndarray | None = None) -> Calibration:
-    """Classic least squares on the six faces' means (a face seen twice is one placement on the
-    same face, its tilt shared, so it is averaged, not counted twice): inputs ±g.
-    ``covariance``: of the flattened interval means (noise); the σ are scaled up by χ²/dof when
-    the faces scatter more than that (placement errors), never down. ``times``: each interval's
-    place in the session (session_times), for the scale's drift (module doc); None: no drift."""
-    average = np.zeros((6, len(means)))
-    for a in range(6):
-        average[a, axes == a] = 1.0 / np.count_nonzero(axes == a)
+    """Ferraris's six-position solution (``fieldcal.solvers.classic.solve_six_position``: each
+    axis's bias from its own up and down faces, the faces' norms fitted) on each face's first
+    placement (first_placements). ``covariance``: of the flattened interval means (noise);
+    the σ are scaled up by χ²/dof when the faces scatter more than that (placement errors),
+    never down. ``counts``: each interval's samples. ``times``: each interval's place in the
+    session (session_times), for the scale's drift (module doc); None: no drift."""
+    average = first_placements(axes, counts)
     faces = average @ means
     A = np.kron(average, np.eye(3))
     face_cov = A @ covariance @ A.T
-    sol = solve_classic(faces, gravity * _AXES, name, SPECIFIC_FORCE, output_unit=unit, covariance=face_cov)
-    variances = np.diag(face_cov).reshape(6, 3)
-    ratio = float(np.sum(sol.residuals**2 / variances) / (3 * (6 - 4)))
-    if ratio > 1.0:
-        sol = replace(sol, covariance=sol.covariance * ratio, sigma=sol.sigma * math.sqrt(ratio))
+    sol, ratio = solve_six_position(faces, gravity, name, SPECIFIC_FORCE, unit, face_cov)
+    message = sol.diagnostics.message
     if times is not None:  # the drift hides in the scale, not in the residuals: added after χ²
-        # The same estimate (least squares does not weigh by the covariance), its σ with the
-        # drift; the offset is the faces' mean, where ±g cancels.
-        drift = A @ scale_drift_covariance(means, faces.mean(axis=0), times) @ A.T
-        with_drift = solve_classic(faces, gravity * _AXES, name, SPECIFIC_FORCE, output_unit=unit,
-                                   covariance=face_cov * max(ratio, 1.0) + drift)
-        sol = replace(sol, covariance=with_drift.covariance, sigma=with_drift.sigma,
-                      diagnostics=replace(sol.diagnostics, message=f"{sol.diagnostics.message}; {SCALE_DRIFT_NOTE}"))
+        # The offset is the faces' mean, where ±g cancels.
+        face_cov = face_cov * max(ratio, 1.0) + A @ scale_drift_covariance(means, faces.mean(axis=0), times) @ A.T
+        message = f"{message}; {SCALE_DRIFT_NOTE}"
+    elif ratio > 1.0:
+        face_cov = face_cov * ratio
+    if times is not None or ratio > 1.0:
+        sol = replace(sol, **_six_position_sigma(sol, faces, gravity, face_cov),
+                      diagnostics=replace(sol.diagnostics, message=message))
     return sol
+
+
+def _six_position_sigma(sol: Calibration, faces: np.ndarray, gravity: float, face_cov: np.ndarray) -> dict:
+    """The covariance and σ of ``sol``'s parameters for faces of covariance ``face_cov``."""
+    widened = solve_six_position(faces, gravity, sol.name, sol.kind, sol.output_unit, face_cov)[0]
+    return dict(covariance=widened.covariance, sigma=widened.sigma)
 
 
 def up_vectors(acc: Calibration, means: np.ndarray) -> np.ndarray:

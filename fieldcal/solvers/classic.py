@@ -72,3 +72,83 @@ def solve_classic(means: np.ndarray, inputs: np.ndarray, name: str, kind: str,
                        residual_unit=output_unit,
                        diagnostics=SolverDiagnostics(message="closed form (linear least squares)",
                                                      dof=U.size - 12))
+
+
+# The six faces of an aligned six-position run, in this order: +x, +y, +z, −x, −y, −z.
+SIX_FACES = np.vstack([np.eye(3), -np.eye(3)])
+
+
+def six_position_map(gravity: float) -> np.ndarray:
+    """(12, 18) matrix L: the coefficients (row i's [K_i0, K_i1, K_i2, U0_i] at 4i..4i+3) of
+    Ferraris's closed form as a linear function of the six faces' flattened means (face-major,
+    SIX_FACES order). Column j of K is half the difference of the faces ±j over g; output i's
+    bias is the mean of its own axis's two faces, ±i, where that axis is vertical.
+
+    Why not the mean of all six faces, the least-squares bias: on the four faces where axis i is
+    horizontal its reading holds the placement's tilt at first order (g·sin of the tilt, 4 mg
+    for a 0.23° slope of the table under the unit), along the vertical only at second order
+    (g·(1 − cos)). The norm of a calibrated face, the one thing known exactly whatever the
+    tilt, then misses g at first order; with the vertical pair it misses it at second order."""
+    L = np.zeros((12, 18))
+    for i in range(3):  # output axis
+        for j in range(3):  # K's column j: (face +j − face −j) / 2g
+            L[4 * i + j, 3 * j + i] = 0.5 / gravity
+            L[4 * i + j, 3 * (j + 3) + i] = -0.5 / gravity
+        L[4 * i + 3, [3 * i + i, 3 * (i + 3) + i]] = 0.5  # bias: (face +i + face −i) / 2
+    return L
+
+
+def fit_face_norms(K: np.ndarray, bias: np.ndarray, faces: np.ndarray, gravity: float,
+                   iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """K's diagonal and the bias moved so that each of the six faces' calibrated means has norm g
+    exactly (six equations, six unknowns; K's off-diagonal terms held), by Newton's method from
+    the closed form, which already fits them to second order in the cross terms and tilts."""
+    K, bias = K.copy(), bias.copy()
+    for _ in range(iterations):  # quadratic convergence from second-order-small misfits
+        K_inv = np.linalg.inv(K)
+        a = (faces - bias) @ K_inv.T  # (6, 3) calibrated faces
+        norm = np.linalg.norm(a, axis=1)
+        unit = a / norm[:, None]
+        d_bias = -unit @ K_inv  # ∂|a|/∂b = −uᵀK⁻¹
+        d_scale = -(unit @ K_inv) * a  # ∂|a|/∂K_ii = −(uᵀK⁻¹)_i a_i
+        step = np.linalg.solve(np.column_stack([d_bias, d_scale]), gravity - norm)
+        bias += step[:3]
+        K[np.diag_indices(3)] += step[3:]
+        if np.max(np.abs(step[3:])) < 1e-15 * np.max(np.abs(np.diag(K))):
+            break
+    return K, bias
+
+
+def solve_six_position(faces: np.ndarray, gravity: float, name: str, kind: str, output_unit: str,
+                       covariance: np.ndarray) -> tuple[Calibration, float]:
+    """Ferraris's aligned six-position solution (see six_position_map) from the six faces' means
+    (6, 3) in SIX_FACES order, refined to fit the faces' norms exactly (fit_face_norms, a change
+    of second order: the σ of the closed form hold). ``covariance`` of the flattened face means.
+    Returns the calibration, its σ from ``covariance`` alone, and χ²/dof of the faces' residuals
+    (6 dof: each output's two horizontal pairs against its vertical pair), which the caller may
+    use to widen the σ."""
+    faces = np.asarray(faces, dtype=float)
+    L = six_position_map(gravity)
+    coef = (L @ faces.ravel()).reshape(3, 4)  # row i: [K_i0, K_i1, K_i2, U0_i]
+    K, bias = fit_face_norms(coef[:, :3], coef[:, 3], faces, gravity)
+    inputs = gravity * SIX_FACES
+    residuals = faces - (inputs @ K.T + bias)
+    # χ² of the residuals' linear part, r = (I − D·L)·U, D the prediction from the coefficients.
+    design = np.column_stack([inputs, np.ones(6)])
+    D = np.zeros((18, 12))
+    for i in range(3):
+        D[i::3, 4 * i:4 * i + 4] = design
+    R = np.eye(18) - D @ L
+    r = R @ faces.ravel()
+    chi2 = float(r @ np.linalg.pinv(R @ covariance @ R.T, rcond=1e-10, hermitian=True) @ r)
+    dof = 18 - 12
+    coef_cov = L @ covariance @ L.T
+    row_cov = np.stack([coef_cov[4 * i:4 * i + 4, 4 * i:4 * i + 4] for i in range(3)])
+    cov, sigma = _parameter_covariance(K, row_cov, coef_cov)
+    sol = Calibration(name=name, kind=kind, output_unit=output_unit, method=CLASSIC_METHOD, K=K, bias=bias,
+                      covariance=cov, sigma=sigma, residuals=residuals, parameter_names=FULL_PARAM_NAMES,
+                      residual_unit=output_unit,
+                      diagnostics=SolverDiagnostics(
+                          message="closed form (Ferraris: each axis's bias from its own up and down faces), "
+                                  "the faces' norms fitted", chi2=chi2, dof=dof))
+    return sol, chi2 / dof
