@@ -49,9 +49,11 @@ class Scenario:
     effects: tuple[str, ...]  # what is switched on, for the verbose listing
 
 
-def draw_scenario(rng: np.random.Generator, only: tuple[str, ...] | None = None) -> Scenario:
+def draw_scenario(rng: np.random.Generator, only: tuple[str, ...] | None = None,
+                  protocol: str | None = None) -> Scenario:
     """One recording's protocol and real-world mix, each effect on with probability ½ (``only``:
-    the effects allowed, by any part of their field names; the others stay off)."""
+    the effects allowed, by any part of their field names; the others stay off; ``protocol``:
+    every recording of this kind, e.g. "Ferraris", instead of the mix)."""
     on = lambda: rng.random() < 0.5  # noqa: E731
     fx = {}
     if on():
@@ -88,6 +90,7 @@ def draw_scenario(rng: np.random.Generator, only: tuple[str, ...] | None = None)
                   initial_rest_s=30.0 if rest == "long" else float(rng.uniform(2.0, 8.0)),
                   latitude_deg=float(rng.uniform(-60, 60)), gravity=float(rng.uniform(9.78, 9.83)))
     kind = str(rng.choice(["hand-held", "Ferraris", "sparse"], p=[0.75, 0.2, 0.05]))
+    kind = protocol or kind  # drawn all the same: the draws after it stay as they were
     if kind == "Ferraris":
         sign = rng.choice([-1.0, 1.0], 3)
         kwargs.update(n_poses=6, directions=FACES, initial_rest_s=max(kwargs["initial_rest_s"], 4.0),
@@ -140,7 +143,8 @@ def reason_key(message: str) -> str:
     return re.sub(r"-?\d+(\.\d+)?(e-?\d+)?", "#", message)[:160]
 
 
-def run(runs: int, seed: int, verbose: bool, only: tuple[str, ...] | None = None, config: bool = False) -> None:
+def run(runs: int, seed: int, verbose: bool, only: tuple[str, ...] | None = None, config: bool = False,
+        protocol: str | None = None, temperature: bool = False) -> None:
     master = np.random.default_rng(seed)
     z: dict[str, list[np.ndarray]] = {}
     names: dict[str, tuple[str, ...]] = {}
@@ -149,18 +153,23 @@ def run(runs: int, seed: int, verbose: bool, only: tuple[str, ...] | None = None
     wrongly: list[str] = []
     started = time.perf_counter()
     for i in range(runs):
-        scenario = draw_scenario(master, only)
+        scenario = draw_scenario(master, only, protocol)
         sim_seed = int(master.integers(1 << 31))
         sim = simulate_handheld(sim_seed, real_world=scenario.real_world, **scenario.kwargs)
         needed = has_needed_poses(scenario.kind, sim)
         eligible += needed
-        recording = Recording(sim.t, sim.triads, sim.kinds, sim.units)
+        # With --temperature the logger writes the unit's temperature: the simulator's ramp, on
+        # the clock of the whole simulated session (its t starts at 0).
+        recorded = (scenario.real_world.temperature_ramp_k * (sim.t / sim.t[-1] - 0.5)) if temperature else None
+        recording = Recording(sim.t, sim.triads, sim.kinds, sim.units, temperature=recorded)
         station = Station(sim.latitude_deg, 0.0, sim.gravity)
         label = f"#{i} seed {sim_seed} {scenario.kind}: {', '.join(scenario.effects)}"
         try:
-            # With --config the user's device config gives the triads' noise (the datasheet's).
+            # With --config the user's device config gives the triads' noise (the datasheet's) and
+            # scale temperature coefficient.
             noise = {name: truth.noise for name, truth in sim.truth.items()} if config else {}
-            cal = calibrate_recording(recording, station, RecordingSettings(noise=noise))
+            tempco = {name: scenario.real_world.scale_tempco_ppm_per_k for name in sim.truth} if config else {}
+            cal = calibrate_recording(recording, station, RecordingSettings(noise=noise, scale_tempco_ppm_per_k=tempco))
         except (ValueError, CalibrationError) as exc:  # DetectionError is a ValueError
             reasons[reason_key(str(exc))] += 1
             if needed:
@@ -210,10 +219,15 @@ def main() -> int:
     parser.add_argument("--only", help="comma-separated effects allowed (parts of RealWorld's field names, "
                         "e.g. tremor,late_start); the others stay off: to see what one of them does")
     parser.add_argument("--config", action="store_true",
-                        help="calibrate as with a device config that gives the noise model (else none)")
+                        help="calibrate as with a device config that gives the noise model and the scale "
+                        "temperature coefficient (else none)")
+    parser.add_argument("--temperature", action="store_true",
+                        help="the logger writes the unit's temperature (else the recordings have none)")
+    parser.add_argument("--protocol", choices=("hand-held", "Ferraris", "sparse"),
+                        help="every recording of this protocol (else the mix: 75 %% hand-held, 20 %% Ferraris, 5 %% sparse)")
     args = parser.parse_args()
     run(args.runs, args.seed, args.verbose, None if args.only is None else tuple(args.only.split(",")),
-        args.config)
+        args.config, args.protocol, args.temperature)
     return 0
 
 

@@ -40,6 +40,9 @@ class TriadSpec:
     zero: tuple[float, float, float] = (0.0, 0.0, 0.0)
     sensitivity: tuple[float, float, float] = (1.0, 1.0, 1.0)
     lsb: float = 0.0
+    # The scale factors' temperature coefficient, ppm/K (datasheet), for the σ of a recording's
+    # Ferraris calibration (fieldcal.recording.ferraris.ScaleDrift); None: a typical one assumed.
+    scale_tempco_ppm_per_k: float | None = None
 
 
 @dataclass(frozen=True)
@@ -102,7 +105,7 @@ def _triads(r: FieldReader, raw, where: str) -> tuple[TriadSpec, ...]:
             r.fail(where, "triad names of ASCII letters, digits and _ (starting with a letter)",
                    describe(name), line_of(raw, name))
         here = f"{where}.{name}"
-        m = r.mapping(body, here, ("kind", "unit"), ("noise", "zero", "sensitivity", "lsb"))
+        m = r.mapping(body, here, ("kind", "unit"), ("noise", "zero", "sensitivity", "lsb", "scale_tempco_ppm_per_k"))
         noise = None
         if "noise" in m:
             n = r.mapping(m["noise"], f"{here}.noise", ("white",), ("bias_instability",))
@@ -112,7 +115,9 @@ def _triads(r: FieldReader, raw, where: str) -> tuple[TriadSpec, ...]:
         specs.append(TriadSpec(name, r.string(m, "kind", here, KINDS), r.string(m, "unit", here),
                                noise=noise, zero=_three(r, m, "zero", here, 0.0, None),
                                sensitivity=_three(r, m, "sensitivity", here, 1.0, 1e-12),
-                               lsb=r.number(m, "lsb", here, 0) if "lsb" in m else 0.0))
+                               lsb=r.number(m, "lsb", here, 0) if "lsb" in m else 0.0,
+                               scale_tempco_ppm_per_k=r.number(m, "scale_tempco_ppm_per_k", here, 0)
+                               if "scale_tempco_ppm_per_k" in m else None))
     return tuple(specs)
 
 

@@ -46,6 +46,8 @@ def mutated(tmp_path, old, new, name="sim.yaml"):
      "device.serial: expected the unit's serial number (text), got"),
     ("mti.yaml", "  protocol: ascii", "  protocol: stepper",
      "table.protocol: expected 'ascii' or 'grbl', got 'stepper'"),
+    ("vn100.yaml", "unit: rad/s, noise:", "unit: rad/s, scale_tempco_ppm_per_k: -50, noise:",
+     "device.triads.gyroscope.scale_tempco_ppm_per_k: expected a number >= 0, got -50"),
 ])
 def test_bad_config_is_one_line_naming_the_field(tmp_path, name, old, new, message):
     path = mutated(tmp_path, old, new, name)
@@ -53,6 +55,13 @@ def test_bad_config_is_one_line_naming_the_field(tmp_path, name, old, new, messa
         load_config(path)
     text = str(exc_info.value)
     assert "\n" not in text and text.startswith(f"{path}: ") and message in text
+
+
+def test_scale_temperature_coefficient_is_read_per_triad(tmp_path):
+    config = load_config(mutated(tmp_path, "unit: rad/s, noise:", "unit: rad/s, scale_tempco_ppm_per_k: 80, noise:",
+                                 "vn100.yaml"))
+    tempco = {t.name: t.scale_tempco_ppm_per_k for t in config.device.triads}
+    assert tempco == {"accelerometer": None, "gyroscope": 80.0}
 
 
 def test_real_device_needs_a_port(tmp_path):

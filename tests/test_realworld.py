@@ -171,25 +171,48 @@ def test_regular_times_take_out_jitter_and_keep_gaps_and_clock_rate():
     np.testing.assert_array_equal(regular_times(uneven, 100.0), uneven)
 
 
+def scale_errors_in_sigma(sim, settings: RecordingSettings, temperature=None):
+    recording = Recording(sim.t, sim.triads, sim.kinds, sim.units, temperature=temperature)
+    cal = calibrate_recording(recording, Station(sim.latitude_deg, 0.0, sim.gravity), settings)
+    acc, truth = cal.specific_force["accelerometer"], sim.truth["accelerometer"]
+    return ((acc.file_theta - params_from_k(truth.K, truth.bias, full=True)) / acc.file_sigma)[3:6], acc
+
+
 def test_ferraris_scale_sigma_holds_a_temperature_drift_of_the_scale():
     """A Ferraris session sees each axis at one time only (x first, z last), so a scale factor
     that drifts with the unit's warming is found as it was then, not as it is on average: the σ
     carry that drift (issue 11: the accelerometer's scale z had RMS z 1.56 over the Monte Carlo's
     Ferraris sessions, and the error was the scale's temperature drift). Here a typical
-    100 ppm/K over 3 K: over a few sessions the scale errors in σ have an RMS near 1, and the
-    output says why the σ are wider."""
-    from fieldcal.recording.ferraris import SCALE_DRIFT_PPM
+    100 ppm/K over 2 K, as assumed when nothing tells: over a few sessions the scale errors in σ
+    have an RMS near 1, and the output says why the σ are wider, and that it assumed."""
     z = []
     for seed in range(1, 7):
-        sim = simulate(dict(temperature_ramp_k=3.0, scale_tempco_ppm_per_k=100.0), seed=seed,
+        sim = simulate(dict(temperature_ramp_k=2.0, scale_tempco_ppm_per_k=100.0), seed=seed,
                        **dict(FERRARIS, raw_counts=False))
-        cal = calibrate(sim)
-        acc = cal.specific_force["accelerometer"]
-        truth = sim.truth["accelerometer"]
-        z.append(((acc.file_theta - params_from_k(truth.K, truth.bias, full=True)) / acc.file_sigma)[3:6])
-        assert f"{SCALE_DRIFT_PPM:.0f} ppm drift" in acc.diagnostics.message
+        errors, acc = scale_errors_in_sigma(sim, RecordingSettings(noise={n: t.noise for n, t in sim.truth.items()}))
+        z.append(errors)
+        assert "an assumed 100 ppm/K" in acc.diagnostics.message
+        assert "assumed 2 K warming (the recording has no temperature)" in acc.diagnostics.message
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.6 < rms < 1.6, np.round(z, 1)
+
+
+def test_ferraris_scale_sigma_takes_the_tempco_from_the_config_and_the_temperature_from_the_log():
+    """A unit whose scale moves 150 ppm/K over a 5 K warming, four times what is assumed when
+    nothing tells (the scale errors were 2.4σ RMS): with the device config's coefficient and the
+    logged temperature the σ hold that drift, the errors' RMS near 1."""
+    z = []
+    for seed in range(1, 7):
+        sim = simulate(dict(temperature_ramp_k=5.0, scale_tempco_ppm_per_k=150.0), seed=seed,
+                       **dict(FERRARIS, raw_counts=False))
+        logged = 5.0 * (sim.t / sim.t[-1] - 0.5) + 25.0  # °C: the simulator's ramp, on its clock from 0
+        settings = RecordingSettings(noise={n: t.noise for n, t in sim.truth.items()},
+                                     scale_tempco_ppm_per_k={n: 150.0 for n in sim.truth})
+        errors, acc = scale_errors_in_sigma(sim, settings, logged)
+        z.append(errors)
+        assert "the device config's 150 ppm/K over the recorded 5 K" in acc.diagnostics.message
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.6 < rms < 1.4, np.round(z, 1)
 
 
 @pytest.mark.parametrize("mode", ["g-sensitivity", "bias instability"])

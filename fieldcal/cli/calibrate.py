@@ -147,10 +147,12 @@ def cmd_calibrate(args) -> int:
     recording, directory, imported = _recording(args)
     for line in imported:
         print(line)
-    noise = {t.name: t.noise for t in config.device.triads if t.noise is not None} if config else {}
+    triads = config.device.triads if config else ()
+    noise = {t.name: t.noise for t in triads if t.noise is not None}
+    tempco = {t.name: t.scale_tempco_ppm_per_k for t in triads if t.scale_tempco_ppm_per_k is not None}
     settings = RecordingSettings(detector=DetectorSettings(init_rest_s=args.rest), method=args.method,
                                  estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
-                                 table_rate_deg_s=args.table_rate)
+                                 table_rate_deg_s=args.table_rate, scale_tempco_ppm_per_k=tempco)
     cal = calibrate_recording(recording, station, settings)
     station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None,

@@ -24,6 +24,7 @@ class Recording:
     unit ``units[name]`` ("count" for raw integers), of kind ``kinds[name]`` (``specific_force``
     or ``angular_rate``, see ``fieldcal.model``). ``sources``: the files it came from.
     ``malformed``: file -> (count, first few 1-based line numbers) of lines not used.
+    ``temperature``: (n,) the unit's temperature (K or °C) when the logger wrote it, else None.
     """
 
     t: np.ndarray
@@ -32,6 +33,7 @@ class Recording:
     units: dict[str, str]
     sources: tuple[str, ...] = ()
     malformed: dict[str, tuple[int, tuple[int, ...]]] = field(default_factory=dict)
+    temperature: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -40,6 +42,8 @@ class Recording:
                 raise ValueError(f"recording: triad {name} has shape {values.shape}, expected ({n}, 3)")
             if name not in self.kinds or name not in self.units:
                 raise ValueError(f"recording: triad {name} has no kind or unit")
+        if self.temperature is not None and np.shape(self.temperature) != (n,):
+            raise ValueError(f"recording: temperature has shape {np.shape(self.temperature)}, expected ({n},)")
 
     @property
     def rate_hz(self) -> float:

@@ -89,6 +89,9 @@ class RecordingSettings:
     noise: dict = field(default_factory=dict)
     # Turns on a turntable at this rate (°/s) become rate-norm equations for the gyro solve.
     table_rate_deg_s: float | None = None
+    # Each triad's scale temperature coefficient (ppm/K), e.g. from its device config: the σ of a
+    # Ferraris session's scale factors hold that drift (fieldcal.recording.ferraris.ScaleDrift).
+    scale_tempco_ppm_per_k: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -382,7 +385,8 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(
                 name, unit, means, axes, station.gravity, covariance, np.diff(poses.intervals, axis=1)[:, 0],
-                times=ferraris.session_times(recording.t, poses.intervals))
+                drift=ferraris.ScaleDrift(recording.t, recording.temperature,
+                                          settings.scale_tempco_ppm_per_k).at(name, poses.intervals))
         except CalibrationError as exc:
             if name == reference:
                 raise
@@ -390,6 +394,9 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     acc = specific_force[reference]
     up = ferraris.up_vectors(acc, interval_means(recording.triads[reference], poses.intervals))
     latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
+    # 1σ (rad) of a turn axis's direction: the accelerometer's cross terms, and its biases across
+    # the vertical (each from its own axis's two faces, at other times) over g.
+    up_sigma = math.sqrt(np.mean(acc.sigma[6:] ** 2) + np.mean((acc.sigma[:3] / np.diag(acc.K)) ** 2) / station.gravity**2)
     for name in detection.rates:
         gyro = recording.triads[name]
         t = regular_times(recording.t, recording.rate_hz)
@@ -398,8 +405,10 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         try:
             angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
                                                            poses.intervals, axes, turns, latitude,
-                                                           up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))),
-                                                           t=t, noise=settings.noise.get(name))
+                                                           up_sigma=up_sigma,
+                                                           t=t, noise=settings.noise.get(name),
+                                                           drift=ferraris.ScaleDrift(t, recording.temperature,
+                                                                                     settings.scale_tempco_ppm_per_k))
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)

@@ -24,7 +24,7 @@ poses' gyro means, its σ their scatter (g-sensitivity and bias shifts) over √
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -39,11 +39,13 @@ ALIGNED_DEG = 15.0  # a pose this close to an axis, up or down, is that axis's a
 SAME_POSE_DEG = 5.0  # a turn's start and end poses are this close
 MIN_TURN_FRACTION = 0.75  # of a full turn, in a known rate unit
 HEADING_SIGMA_DEG = 0.5  # 1σ of the hand's return to the same heading after a turn
-# 1σ of a scale factor's change from the session's start to its end, relative: ~100 ppm/K times
-# a 2 K warming (see the module doc). A linear drift, so an axis seen at the middle has none.
-SCALE_DRIFT_PPM = 200.0
-SCALE_DRIFT_NOTE = (f"σ of the scale factors include a {SCALE_DRIFT_PPM:.0f} ppm drift over the session "
-                    "(temperature; each axis is seen at one time only)")
+# A scale factor drifts with the unit's temperature, and a Ferraris session sees each axis at one
+# time only (x first, z last), so the scale is found as it was then, not as it is on average. 1σ
+# of that drift: the triad's temperature coefficient (the device config's scale_tempco_ppm_per_k,
+# else this typical MEMS one) times the temperature's move (the recording's temperature column,
+# else this warming from the session's start to its end, linear in time).
+ASSUMED_TEMPCO_PPM_PER_K = 100.0
+ASSUMED_WARMING_K = 2.0
 _AXES = SIX_FACES  # +x, +y, +z, −x, −y, −z
 
 
@@ -76,18 +78,49 @@ def session_times(t: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     return (middle - 0.5 * (t[0] + t[-1])) / span
 
 
-def scale_drift_covariance(values: np.ndarray, offset: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Covariance (flattened, position-major) of readings ``values`` (m, 3) taken at ``times``
-    (see session_times) that a drift of each axis's scale, SCALE_DRIFT_PPM from start to end and
-    independent per axis, moves from the session's mean: each axis's output less its ``offset``
-    grows by the same fraction at all of them, in proportion to its time."""
-    shift = (np.asarray(values, dtype=float) - offset) * times[:, None]  # (m, 3) per unit drift
+@dataclass(frozen=True)
+class ScaleDrift:
+    """What the scale factors' temperature drift can be: ``ppm_per_k`` (1σ, per triad name; a
+    triad not named gets ASSUMED_TEMPCO_PPM_PER_K) and the recording's ``t`` and ``temperature``
+    (per sample, K or °C; None: ASSUMED_WARMING_K, linear over the session)."""
+
+    t: np.ndarray
+    temperature: np.ndarray | None = None
+    ppm_per_k: dict = field(default_factory=dict)
+
+    def at(self, name: str, spans: np.ndarray) -> tuple[np.ndarray, str]:
+        """(k,) 1σ of the scale's relative change from the session's mean over each [start, stop)
+        of ``spans`` (one drift for the whole session: they move together), and what the σ hold,
+        for the output."""
+        tempco = self.ppm_per_k.get(name)
+        given = tempco is not None
+        tempco = float(tempco) if given else ASSUMED_TEMPCO_PPM_PER_K
+        if self.temperature is None:
+            moved = ASSUMED_WARMING_K * session_times(self.t, spans)
+            over = f"an assumed {ASSUMED_WARMING_K:g} K warming (the recording has no temperature)"
+        else:
+            temperature = np.asarray(self.temperature, dtype=float)
+            cums = np.r_[0.0, np.cumsum(temperature)]
+            moved = (cums[spans[:, 1]] - cums[spans[:, 0]]) / np.diff(spans, axis=1)[:, 0] - temperature.mean()
+            over = f"the recorded {np.ptp(temperature):.2g} K"
+        source = (f"the device config's {tempco:g} ppm/K" if given else
+                  f"an assumed {tempco:g} ppm/K (the device config gives no scale_tempco_ppm_per_k)")
+        note = f"σ of the scale factors include their temperature drift, {source} over {over}: each axis is seen at one time only"
+        return tempco * 1e-6 * moved, note
+
+
+def scale_drift_covariance(values: np.ndarray, offset: np.ndarray, drift: np.ndarray) -> np.ndarray:
+    """Covariance (flattened, position-major) of readings ``values`` (m, 3) that a drift of each
+    axis's scale, independent per axis and 1σ ``drift`` (m,) relative at each (ScaleDrift.at),
+    moves from the session's mean: each axis's output less its ``offset`` grows by the same
+    fraction at all of them, in proportion to its drift."""
+    shift = (np.asarray(values, dtype=float) - offset) * drift[:, None]  # (m, 3)
     cov = np.zeros((shift.size, shift.size))
     for j in range(3):  # per output axis: one drift for all positions
         v = np.zeros_like(shift)
         v[:, j] = shift[:, j]
         cov += np.outer(v.ravel(), v.ravel())
-    return cov * (SCALE_DRIFT_PPM * 1e-6) ** 2
+    return cov
 
 
 def first_placements(axes: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -108,26 +141,26 @@ def first_placements(axes: np.ndarray, counts: np.ndarray) -> np.ndarray:
 
 def solve_aligned_accelerometer(name: str, unit: str, means: np.ndarray, axes: np.ndarray,
                                 gravity: float, covariance: np.ndarray, counts: np.ndarray,
-                                times: np.ndarray | None = None) -> Calibration:
+                                drift: tuple[np.ndarray, str] | None = None) -> Calibration:
     """Ferraris's six-position solution (``fieldcal.solvers.classic.solve_six_position``: each
     axis's bias from its own up and down faces, the faces' norms fitted) on each face's first
     placement (first_placements). ``covariance``: of the flattened interval means (noise);
     the σ are scaled up by χ²/dof when the faces scatter more than that (placement errors),
-    never down. ``counts``: each interval's samples. ``times``: each interval's place in the
-    session (session_times), for the scale's drift (module doc); None: no drift."""
+    never down. ``counts``: each interval's samples. ``drift``: the scale's temperature drift at
+    each interval and its note (ScaleDrift.at); None: no drift."""
     average = first_placements(axes, counts)
     faces = average @ means
     A = np.kron(average, np.eye(3))
     face_cov = A @ covariance @ A.T
     sol, ratio = solve_six_position(faces, gravity, name, SPECIFIC_FORCE, unit, face_cov)
     message = sol.diagnostics.message
-    if times is not None:  # the drift hides in the scale, not in the residuals: added after χ²
+    if drift is not None:  # the drift hides in the scale, not in the residuals: added after χ²
         # The offset is the faces' mean, where ±g cancels.
-        face_cov = face_cov * max(ratio, 1.0) + A @ scale_drift_covariance(means, faces.mean(axis=0), times) @ A.T
-        message = f"{message}; {SCALE_DRIFT_NOTE}"
+        face_cov = face_cov * max(ratio, 1.0) + A @ scale_drift_covariance(means, faces.mean(axis=0), drift[0]) @ A.T
+        message = f"{message}; {drift[1]}"
     elif ratio > 1.0:
         face_cov = face_cov * ratio
-    if times is not None or ratio > 1.0:
+    if drift is not None or ratio > 1.0:
         sol = replace(sol, **_six_position_sigma(sol, faces, gravity, face_cov),
                       diagnostics=replace(sol.diagnostics, message=message))
     return sol
@@ -215,11 +248,13 @@ def find_turns(gyro: np.ndarray, rate_hz: float, intervals: np.ndarray, up: np.n
 
 def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, intervals: np.ndarray,
                      axes: np.ndarray, turns: Turns, latitude_rad: float | None,
-                     up_sigma: float = 0.0, t: np.ndarray | None = None, noise=None) -> Calibration:
+                     up_sigma: float = 0.0, t: np.ndarray | None = None, noise=None,
+                     drift: ScaleDrift | None = None) -> Calibration:
     """K from the turns' integrals, the bias from the statics; see the module doc for the σ.
     ``axes``: each interval's aligned axis (see aligned_axes); ``up_sigma``: 1σ (rad) of the
     turn axes' directions, from the accelerometer's calibration; ``noise``: the device's noise
-    model of this triad (a TriadNoise, in rad/s), if known, for its bias instability."""
+    model of this triad (a TriadNoise, in rad/s), if known, for its bias instability;
+    ``drift``: the scale's temperature drift (None: assumed, over the times ``t``)."""
     axes_seen = np.abs(turns.up).argmax(axis=1)
     missing = [a for i, a in enumerate("xyz") if i not in set(axes_seen.tolist())]
     if missing:
@@ -272,12 +307,12 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
         model = weights @ noise.window_covariance(times[intervals[:, 0]], counts / rate_hz) @ weights
         floor = floor + np.maximum(k_scale**2 * model - white_var, 0.0)
     bias_var = np.maximum(np.var(pairs, axis=0, ddof=1) / 3, floor)
-    drift = session_times(times, turns.spans)
+    drift, drift_note = (drift or ScaleDrift(times)).at(name, turns.spans)
     row_cov = np.zeros((3, 4, 4))
     for i in range(3):  # per output axis: K's row is W's row times C⁺, the columns independent
         row_cov[i, :3, :3] = C_pinv.T @ np.diag(var_W[:, i]) @ C_pinv
         # The scale's drift over the session (module doc): one per axis, in all turns at once.
-        shift = (drift * W[i]) @ C_pinv * SCALE_DRIFT_PPM * 1e-6
+        shift = (drift * W[i]) @ C_pinv
         row_cov[i, :3, :3] += np.outer(shift, shift)
         row_cov[i, 3, 3] = bias_var[i]
     residuals = (W - K @ C).T
@@ -288,5 +323,5 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     return Calibration(name=name, kind=ANGULAR_RATE, output_unit=unit, method="classic", K=K, bias=bias,
                        covariance=cov, sigma=sigma, residuals=residuals / np.abs(np.diag(K)),
                        parameter_names=FULL_PARAM_NAMES, residual_unit="rad",
-                       diagnostics=SolverDiagnostics(message=f"closed form (the turns' ±2π integrals); {SCALE_DRIFT_NOTE}",
+                       diagnostics=SolverDiagnostics(message=f"closed form (the turns' ±2π integrals); {drift_note}",
                                                      dof=residuals.size - 9))
