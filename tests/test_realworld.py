@@ -234,6 +234,49 @@ def test_ferraris_gyro_bias_sigma_matches_its_error(mode):
     assert 0.5 < rms < 1.5, np.round(z, 1)
 
 
+def table_turns(*turns):
+    """(pose, rate °/s) each: a full 360° turn (2 s ramps, the rest held)."""
+    return tuple((pose, rate, 360.0 / abs(rate) - 2.0) for pose, rate in turns)
+
+
+def test_ferraris_raw_counts_whose_turns_fill_most_of_the_quiet_time_find_their_turns():
+    """Raw counts, a 5 s rest, slow table turns: the accelerometer is quiet through the turns,
+    so most of its quiet windows turn, and their median gyro reading (once taken for a still
+    reading's shift) set the turning gate above the turns: none was found, the gyro refused
+    ("full turns about x, y, z missing"; 16 of 167 raw-count Ferraris sessions of the Monte Carlo)."""
+    sim = simulate({}, seed=5, n_poses=6, directions=FACES, raw_counts=True, initial_rest_s=4.8,
+                   table_turns=table_turns((0, -24.0), (2, 30.0), (4, -33.0)))
+    cal = calibrate(sim)
+    assert not cal.failures, cal.failures
+    assert len(cal.angular_rate["gyroscope"].residuals) == 3
+    z = errors_in_sigma(cal, sim)
+    assert np.all(np.abs(z) < 3.0), np.round(z, 1)
+
+
+def test_ferraris_short_pose_before_a_slow_turn_keeps_its_still_reading():
+    """A 3 s face before a slow (20 °/s) table turn: the turn's ramp takes over a second of it,
+    and the 1.9 s left was dropped as shorter than a pose, so the turn had no still pose before it
+    and was not found."""
+    sim = simulate({}, seed=3, n_poses=6, directions=FACES, raw_counts=False, initial_rest_s=30.0,
+                   static_s=(3.0, 3.2), table_turns=table_turns((0, -50.0), (2, -38.0), (4, -20.5)))
+    cal = calibrate(sim)
+    assert not cal.failures, cal.failures
+    z = errors_in_sigma(cal, sim)
+    assert np.all(np.abs(z) < 3.0), np.round(z, 1)
+
+
+def test_ferraris_session_short_of_a_face_is_refused_naming_the_face():
+    """Five faces (y up twice, y down never): neither solution can run, and the refusal says
+    which face the Ferraris protocol lacks, not only the norm method's nine poses."""
+    faces = FACES.copy()
+    faces[3] = FACES[2]
+    sim = simulate({}, n_poses=6, directions=faces, raw_counts=False, initial_rest_s=5.0,
+                   table_turns=table_turns((0, 30.0), (2, -40.0), (4, 45.0)))
+    with pytest.raises(DetectionError, match=r"for the Ferraris protocol \(six faces and a full turn about each "
+                                             r"axis\) y down was not found still for 2 s"):
+        calibrate(sim)
+
+
 def test_ferraris_turn_whose_slow_start_fills_much_of_the_pose_is_cut_from_the_still_reading():
     """Raw counts, a short pose before a slow turn: the turntable's 2 s ramp is over 40 % of what
     the detector took as the pose. Left in, its rate swelled the still reading taken off the turn,

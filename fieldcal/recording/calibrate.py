@@ -181,8 +181,22 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
             return aligned
         most = max(choice.tried, key=lambda x: x[1])
         raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
-                             f"{most[0]:g}× the noise level): {most[2]}")
+                             f"{most[0]:g}× the noise level): {most[2]}{_faces_missing(detection, settings.detector.min_static_s)}")
     return solve_triads(recording, detection, choice, station, settings)
+
+
+def _faces_missing(detection: Detection, min_static_s: float) -> str:
+    """For a refusal: when the poses found all lie on faces (a Ferraris session), which of the six
+    faces were not found still, and what would help."""
+    from fieldcal.recording.ferraris import missing_faces
+
+    candidate = max(detection.candidates, key=lambda c: len(c.poses.intervals))
+    missing = missing_faces(candidate.poses.up)
+    if not missing:
+        return ""
+    return (f"; for the Ferraris protocol (six faces and a full turn about each axis) {', '.join(missing)} "
+            f"{'was' if len(missing) == 1 else 'were'} not found still for {min_static_s:g} s: hold each face "
+            "still for longer")
 
 
 def place_gravity(station: Station | UnknownPlace, detection: Detection, unit: str) -> Station | UnknownPlace:

@@ -70,6 +70,19 @@ def aligned_axes(up: np.ndarray) -> np.ndarray | None:
     return nearest if close.all() and len(set(nearest.tolist())) == 6 else None
 
 
+FACE_NAMES = ("x up", "y up", "z up", "x down", "y down", "z down")  # _AXES order
+
+
+def missing_faces(up: np.ndarray) -> list[str] | None:
+    """The faces (FACE_NAMES) no pose lies on, when every pose lies within ALIGNED_DEG of one
+    (a Ferraris session short of faces); None when some pose is tilted (hand-held poses)."""
+    cosines = up @ _AXES.T
+    nearest = np.argmax(cosines, axis=1)
+    if not len(up) or np.any(cosines[np.arange(len(up)), nearest] < math.cos(math.radians(ALIGNED_DEG))):
+        return None
+    return [FACE_NAMES[a] for a in range(6) if a not in set(nearest.tolist())]
+
+
 def session_times(t: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     """(m,) each interval's middle relative to the session's middle, as a fraction of its length
     (−½ … ½): where a linear drift over the session stands at that interval."""

@@ -31,6 +31,12 @@ from fieldcal.recording.detect import (DetectorSettings, NoiseLevel, Poses, dist
 GATE_SIGMAS = 20.0  # half-second gyro mean this many of its σ from the still level: turning
 SHIFT_MULTIPLE = 5.0  # ... and this many times the quiet windows' typical shift
 MIN_TURN_DEG_S = 0.5  # ... and, in a known unit, at least this rate
+# In raw counts, when the median quiet window's distance from the still level is this many times
+# the quietest quarter's (or the white noise's gate, if above), more than half of the windows
+# turn (a turntable's steady turns read a hundred times a still reading's shift and more), and
+# the still ones are those within that multiple.
+STILL_GAP = 20.0
+BESIDE_TURN = 0.5  # of min_static_s: the least a still piece beside a turn keeps
 STEADY_FRACTION = 0.02  # a turn's rate vector stays within this fraction of its median
 MIN_TURN_S = 2.0
 
@@ -54,12 +60,19 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     level = np.median(means, axis=0)
     distance = np.linalg.norm(means - level, axis=1)
     shift = float(np.median(distance)) if len(distance) else 0.0
-    still = distance[distance < math.radians(MIN_TURN_DEG_S) * units_per_rad_s] if units_per_rad_s else ()
+    still = ()
+    if units_per_rad_s:
+        still = distance[distance < math.radians(MIN_TURN_DEG_S) * units_per_rad_s]
+    elif len(distance):  # raw counts, no rate to tell: see STILL_GAP
+        quietest = max(float(np.percentile(distance, 25)), GATE_SIGMAS * float(np.sqrt(np.mean(noise.gyro_variance) / n)))
+        if shift > STILL_GAP * quietest:
+            still = distance[distance <= STILL_GAP * quietest]
     if len(still):
         # On a turntable the accelerometer is quiet while the table turns, so in a Ferraris
         # session more than half of the quiet windows may be turning: in a known unit, windows
-        # beyond MIN_TURN_DEG_S are no still reading's shift and are left out; of the others the
-        # upper quartile, since a long initial rest's windows all sit at the level.
+        # beyond MIN_TURN_DEG_S are no still reading's shift and are left out (in counts, those
+        # beyond STILL_GAP); of the others the upper quartile, since a long
+        # initial rest's windows all sit at the level.
         shift = float(np.percentile(still, 75))
     sigma = float(np.sqrt(np.mean(noise.gyro_variance)))
     low = max(GATE_SIGMAS * sigma / math.sqrt(n), SHIFT_MULTIPLE * shift)
@@ -96,7 +109,10 @@ def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np
         if not touches:
             pieces.append((a, b))
             continue
-        pieces += [(a + s, a + e) for s, e in _runs(~turn_mask[a:b]) if e - s >= min_n]
+        # A piece beside a turn inside one still pose is that pose's still reading for the turn:
+        # the pose was still for min_static_s as a whole, and the turn's slow start takes some
+        # of it (a 3 s pose before a slow table turn kept 1.95 s, and the turn was lost).
+        pieces += [(a + s, a + e) for s, e in _runs(~turn_mask[a:b]) if e - s >= min_n * BESIDE_TURN]
         for s, e in _runs(turn_mask[a:b]):
             rate = smooth[a + s:a + e]
             median = np.median(rate, axis=0)
