@@ -19,6 +19,7 @@ import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only 
 import numpy as np
 
 from fieldcal.earth import Station
+from fieldcal.model import params_from_k
 from fieldcal.recording.calibrate import UnknownPlace, calibrate_recording
 from fieldcal.recording.detect import interval_means
 from fieldcal.recording.importer import import_recording
@@ -32,14 +33,13 @@ def unpacked(tmp: Path, name: str) -> Path:
     return path
 
 
-def residuals(recording, acc, intervals, gravity) -> tuple[float, float]:
-    """RMS of |a| − g (m/s²) over every sample of the intervals, and over their means."""
+def residuals(recording, calibrate, intervals, gravity) -> tuple[float, float]:
+    """RMS of |a| − g (m/s²) over every sample of the intervals, and over their means;
+    ``calibrate``: raw (n, 3) to m/s² (n, 3), e.g. a Calibration's ``calibrate``."""
     raw = recording.triads["accelerometer"]
     samples = np.concatenate([raw[a:b] for a, b in intervals])  # a loop over intervals
-    # Calibration.calibrate, not calibrate_with(theta): a full K's theta holds M's six terms, not
-    # the lower triangle's three angles that calibrate_with reads.
-    per_sample = np.linalg.norm(acc.calibrate(samples), axis=1) - gravity
-    per_mean = np.linalg.norm(acc.calibrate(interval_means(raw, intervals)), axis=1) - gravity
+    per_sample = np.linalg.norm(calibrate(samples), axis=1) - gravity
+    per_mean = np.linalg.norm(calibrate(interval_means(raw, intervals)), axis=1) - gravity
     return float(np.sqrt(np.mean(per_sample**2))), float(np.sqrt(np.mean(per_mean**2)))
 
 
@@ -66,7 +66,7 @@ def main() -> int:
         cal = calibrate_recording(rec, Station(45.0, 0.0, g))
         acc, gyro = cal.specific_force["accelerometer"], cal.angular_rate["gyroscope"]
         print(f"imu_tk Xsens: {len(cal.poses.intervals)} intervals, {cal.spread.count} distinct; "
-              "RMS(|a|-g) per sample %.4g, per interval mean %.4g m/s^2" % residuals(rec, acc, cal.poses.intervals, g))
+              "RMS(|a|-g) per sample %.4g, per interval mean %.4g m/s^2" % residuals(rec, acc.calibrate, cal.poses.intervals, g))
         print(f"  acc bias (counts) {pm(acc.bias, acc.sigma[:3])}; scale (counts per m/s^2) "
               f"{pm(np.diag(acc.K), acc.sigma[3:6])}")
         print(f"  gyro scale (counts per rad/s) {pm(np.diag(gyro.K), gyro.sigma[3:6])}; bias (counts) "
@@ -84,7 +84,7 @@ def main() -> int:
         shared = common(cal.poses.intervals, theirs)
         print(f"imucal Ferraris: {len(cal.poses.intervals)} intervals, {cal.spread.count} faces, "
               f"{len(gyro.residuals)} turns; on the {len(shared)} intervals shared with imucal's sections: "
-              "RMS(|a|-g) per sample %.5g, per interval mean %.4g m/s^2 (fieldcal)" % residuals(rec, acc, shared, g))
+              "RMS(|a|-g) per sample %.5g, per interval mean %.4g m/s^2 (fieldcal)" % residuals(rec, acc.calibrate, shared, g))
         print(f"  acc bias (m/s^2) {pm(acc.bias, acc.sigma[:3])}; scale {pm(np.diag(acc.K), acc.sigma[3:6])}")
         print(f"  gyro bias (deg/s) {pm(gyro.bias, gyro.sigma[:3])}; scale (deg/s per rad/s) "
               f"{pm(np.diag(gyro.K), gyro.sigma[3:6])}")
@@ -99,19 +99,18 @@ def main() -> int:
                 data, pd.read_json(REAL / "imucal_ferraris_session_list.json").T)
             info = imucal.FerrarisCalibration(grav=g).compute(
                 regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+            # imucal calibrates a = R⁻¹K⁻¹(u − b): fieldcal's raw = K·a + bias with K = K_a·R_a;
+            # the gyro's K_g·R_g is per deg/s of input, fieldcal's per rad/s (× 180/π).
             M = info.K_a @ info.R_a
-            theirs_res = []
-            for a, b in shared:
-                v = rec.triads["accelerometer"][a:b]
-                a_cal = np.linalg.solve(M, (v - info.b_a).T).T
-                theirs_res.append(np.linalg.norm(a_cal, axis=1) - g)
-            per_sample = float(np.sqrt(np.mean(np.concatenate(theirs_res) ** 2)))
-            means = interval_means(rec.triads["accelerometer"], shared)
-            per_mean = float(np.sqrt(np.mean((np.linalg.norm(np.linalg.solve(M, (means - info.b_a).T), axis=0) - g) ** 2)))
+            per_sample, per_mean = residuals(rec, lambda v: np.linalg.solve(M, (v - info.b_a).T).T, shared, g)
             print(f"  imucal on the same intervals: RMS(|a|-g) per sample {per_sample:.5g}, per interval mean "
                   f"{per_mean:.4g} m/s^2; acc bias {np.round(info.b_a, 5).tolist()}, scale "
                   f"{np.round(np.diag(M), 5).tolist()}; gyro bias {np.round(info.b_g, 4).tolist()} deg/s, "
                   f"scale {np.round(np.diag(info.K_g @ info.R_g) * 180 / np.pi, 4).tolist()}")
+            for ours, K, b in ((acc, M, info.b_a), (gyro, info.K_g @ info.R_g * 180 / np.pi, info.b_g)):
+                z = (ours.file_theta - params_from_k(K, b, full=True)) / ours.file_sigma
+                print(f"  {ours.name}: fieldcal − imucal in fieldcal's σ, per parameter (bias, scale, the three "
+                      f"angles): {np.round(z, 2).tolist()}; largest {np.abs(z).max():.2f}")
     return 0
 
 

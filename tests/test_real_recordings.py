@@ -11,7 +11,7 @@ import pytest
 
 from fieldcal.cli.main import main
 from fieldcal.earth import Station
-from fieldcal.model import calibrate_with
+from fieldcal.model import calibrate_with, params_from_k
 from fieldcal.paramfile import load
 from fieldcal.recording.calibrate import ALIGNED_PROTOCOL, UnknownPlace, calibrate_recording
 from fieldcal.recording.detect import DetectionError, DetectorSettings, interval_means
@@ -71,7 +71,7 @@ def parameters_of(M: np.ndarray, bias: np.ndarray) -> np.ndarray:
     K, so fieldcal's K is imucal's K·R and its bias imucal's b. For the gyro imucal's K_g·R_g is
     per deg/s of input, fieldcal's per rad/s: times 180/π; imucal's g-sensitivity K_ga has no
     counterpart (fieldcal takes the still readings either side of each turn off instead)."""
-    return np.r_[bias, np.diag(M), -M[1, 0] / M[1, 1], M[2, 0] / M[2, 2], -M[2, 1] / M[2, 2]]
+    return params_from_k(M, bias, full=True)
 
 
 @pytest.fixture(scope="module")
