@@ -291,3 +291,29 @@ def test_ferraris_turn_whose_slow_start_fills_much_of_the_pose_is_cut_from_the_s
     assert not cal.failures, cal.failures
     z = errors_in_sigma(cal, sim)
     assert np.all(np.abs(z) < 3.0), np.round(z, 1)
+
+
+def test_earth_lever_of_a_turn_is_its_time_less_what_its_slow_ends_give_back():
+    """Hand-worked: over a uniform full turn the body sees the horizontal Earth rate go round and
+    integrate to zero, so the error is the still reading's whole T. With 2 s linear ramps at
+    either end (a turntable's) the turn dwells near its start heading, and the lever is
+    |∫e^{iφ(t)}dt − T| of that profile, integrated here on a fine grid independently."""
+    from fieldcal.recording.ferraris import earth_lever
+    rate_hz, omega = 200.0, np.radians(30.0)
+    hold = 2 * np.pi / omega - 2.0  # 2 s ramps cover 1 s worth of the rate each
+    T = hold + 4.0
+    t = np.arange(round(T * rate_hz)) / rate_hz + 0.5 / rate_hz
+    rate = omega * np.clip(np.minimum(t, T - t) / 2.0, 0.0, 1.0)
+    gyro = np.zeros((len(t), 3))
+    gyro[:, 2] = rate
+    lever = earth_lever(gyro, rate_hz, np.array([[0, len(t)]]), np.zeros((1, 3)), np.array([2 * np.pi]))[0]
+    fine = np.linspace(0.0, T, 400001)
+    phi = np.where(fine < 2, omega * fine**2 / 4, np.where(fine < T - 2, omega * (fine - 1),
+                                                           2 * np.pi - omega * (T - fine) ** 2 / 4))
+    expected = abs(np.trapezoid(np.exp(1j * phi), fine) - T)
+    assert lever == pytest.approx(expected, rel=2e-3)
+    assert 0.5 * T < lever < T - 1.0  # the ramps give back some of T, not all
+    uniform = np.zeros((len(t), 3))
+    uniform[:, 2] = 2 * np.pi / T
+    assert earth_lever(uniform, rate_hz, np.array([[0, len(t)]]), np.zeros((1, 3)),
+                       np.array([2 * np.pi]))[0] == pytest.approx(T, rel=1e-3)

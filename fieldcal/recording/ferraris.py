@@ -16,8 +16,9 @@ constant through a turn about the vertical. Over all turns, K = W·C⁻¹ with W
 C the up vectors times their angles (least squares when there are more than three).
 
 What a turn's 1σ holds: the white noise integrated over the turn, the still reading's own noise
-times the turn's duration, the horizontal Earth rate (its heading unknown, it does not integrate
-to zero over a turn that takes time), and the hand's error in bringing the unit back to its
+times the turn's duration, the horizontal Earth rate (at an unknown heading: the still reading
+taken off holds it for the whole turn, while the turning body sees it go round, earth_lever),
+the accelerometer's error in the turn axis's direction, and the hand's error in bringing the unit back to its
 heading, ``HEADING_SIGMA_DEG``, which nothing in the data can see. The bias is the mean of the six
 poses' gyro means, its σ their scatter (g-sensitivity and bias shifts) over √6.
 """
@@ -190,16 +191,39 @@ def up_vectors(acc: Calibration, means: np.ndarray) -> np.ndarray:
     return a / np.linalg.norm(a, axis=1, keepdims=True)
 
 
+def sample_durations(n: int, rate_hz: float, t: np.ndarray | None) -> np.ndarray:
+    """(n,) s each sample holds: until the next timestamp (the last one the median step), or
+    1/rate_hz each without timestamps."""
+    if t is None:
+        return np.full(n, 1.0 / rate_hz)
+    return np.diff(t, append=t[-1] + float(np.median(np.diff(t))))
+
+
+def earth_lever(gyro: np.ndarray, rate_hz: float, spans: np.ndarray, reference: np.ndarray,
+                angles: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
+    """(k,) s: what multiplies the horizontal Earth rate in each turn's integral error. Still, the
+    pose holds that rate fixed in the body, and the still reading taken off removes it for the
+    whole turn, T; turning, the body sees it go round, which integrates to ∫e^{iφ(t)}dt, zero over
+    a uniform turn but not where the turn starts and stops slowly near the pose's heading. So
+    the error is |∫e^{iφ}dt − T| times the rate, in the horizontal direction of an unknown
+    heading; φ from the gyro itself (the share of the turn's integral reached, times its angle)."""
+    dt = sample_durations(len(gyro), rate_hz, t)
+    lever = np.zeros(len(spans))
+    for i, ((a, b), still, angle) in enumerate(zip(spans, reference, angles)):  # a loop over turns
+        step = (np.asarray(gyro[a:b], dtype=float) - still) * dt[a:b, None]
+        along = step @ (step.sum(axis=0) / np.linalg.norm(step.sum(axis=0)))
+        phi = angle * (np.cumsum(along) - 0.5 * along) / along.sum()  # at each sample's middle
+        lever[i] = abs(np.sum(dt[a:b] * np.exp(1j * phi)) - dt[a:b].sum())
+    return lever
+
+
 def integrals(gyro: np.ndarray, rate_hz: float, spans: np.ndarray, reference: np.ndarray,
               t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """∫(gyro − reference) dt over each [start, stop) of ``spans`` (k, 3), and their durations
     (k,) in s. With timestamps ``t`` each sample holds until the next one, so a logger's dropped
     samples and jitter do not shorten a turn (at a nominal rate a 0.5 % drop is a 0.5 % scale
     error); without, every sample lasts 1/rate_hz."""
-    if t is None:
-        dt = np.full(len(gyro), 1.0 / rate_hz)
-    else:
-        dt = np.diff(t, append=t[-1] + float(np.median(np.diff(t))))
+    dt = sample_durations(len(gyro), rate_hz, t)
     cums = np.cumsum(np.r_[np.zeros((1, 3)), (gyro - gyro[0]) * dt[:, None]], axis=0)
     times = np.r_[0.0, np.cumsum(dt)]
     duration = times[spans[:, 1]] - times[spans[:, 0]]
@@ -295,7 +319,9 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     reference_var = white[None, :] * ((1 - alpha) ** 2 / w_before + alpha**2 / w_after)[:, None]
     horizontal = EARTH_RATE if latitude_rad is None else EARTH_RATE * abs(math.cos(latitude_rad))
     k_scale = np.abs(np.diag(K))
-    earth = (k_scale[None, :] * horizontal * duration[:, None]) ** 2 / 2
+    # The horizontal Earth rate, across the axis only, each horizontal axis half of it.
+    lever = earth_lever(gyro, rate_hz, turns.spans, reference, turns.angles, t)
+    earth = (k_scale[None, :] * horizontal * lever[:, None]) ** 2 / 2 * (1 - turns.up**2)
     heading = ((K @ turns.up.T).T * math.radians(HEADING_SIGMA_DEG)) ** 2
     # The axis's direction error moves the integral across it, not along it.
     across = (k_scale[None, :] * turns.angles[:, None] * up_sigma) ** 2 * (1 - turns.up**2)
