@@ -150,6 +150,9 @@ def test_fieldcal_calibrate_says_which_solution_it_chose(ferraris, tmp_path, cap
     out = capsys.readouterr().out
     assert code == 0, out
     assert "protocol: Ferraris: six axis-aligned poses and full turns" in out
+    assert "accelerometer (Ferraris's six-position solution, the faces' norms fitted to g" in out
+    # No device config and no temperature column: the scale drift in the σ is assumed, and said.
+    assert "note: accelerometer: σ of the scale factors include their temperature drift, an assumed 100 ppm/K" in out
     pf = load(next(tmp_path.iterdir()) / "parameters.yaml")
     np.testing.assert_allclose(pf["gyroscope"].K, ferraris[2].angular_rate["gyroscope"].K)
 

@@ -385,6 +385,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         poses = replace(poses, intervals=trimmed, means=means)
     failures: dict[str, str] = {}
     specific_force, angular_rate, bias_sigma = {}, {}, {}
+    drift = ferraris.ScaleDrift(recording.t, recording.temperature, settings.scale_tempco_ppm_per_k)
     for name in detection.forces:
         values, unit = recording.triads[name], recording.units[name]
         means = interval_means(values, poses.intervals)
@@ -399,8 +400,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(
                 name, unit, means, axes, station.gravity, covariance, np.diff(poses.intervals, axis=1)[:, 0],
-                drift=ferraris.ScaleDrift(recording.t, recording.temperature,
-                                          settings.scale_tempco_ppm_per_k).at(name, poses.intervals))
+                drift=(drift.at(name, poses.intervals), drift.note(name)))
         except CalibrationError as exc:
             if name == reference:
                 raise
@@ -421,12 +421,13 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
                                                            poses.intervals, axes, turns, latitude,
                                                            up_sigma=up_sigma,
                                                            t=t, noise=settings.noise.get(name),
-                                                           drift=ferraris.ScaleDrift(t, recording.temperature,
-                                                                                     settings.scale_tempco_ppm_per_k))
+                                                           drift=replace(drift, t=t))
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)
     spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
                           message="6 distinct poses, each along an axis (Ferraris)")
+    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate))
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
-                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station, ALIGNED_PROTOCOL)
+                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station, ALIGNED_PROTOCOL,
+                                notes)

@@ -102,25 +102,27 @@ class ScaleDrift:
     temperature: np.ndarray | None = None
     ppm_per_k: dict = field(default_factory=dict)
 
-    def at(self, name: str, spans: np.ndarray) -> tuple[np.ndarray, str]:
+    def at(self, name: str, spans: np.ndarray) -> np.ndarray:
         """(k,) 1σ of the scale's relative change from the session's mean over each [start, stop)
-        of ``spans`` (one drift for the whole session: they move together), and what the σ hold,
-        for the output."""
-        tempco = self.ppm_per_k.get(name)
-        given = tempco is not None
-        tempco = float(tempco) if given else ASSUMED_TEMPCO_PPM_PER_K
+        of ``spans`` (one drift for the whole session: they move together)."""
+        tempco = float(self.ppm_per_k.get(name, ASSUMED_TEMPCO_PPM_PER_K))
         if self.temperature is None:
             moved = ASSUMED_WARMING_K * session_times(self.t, spans)
-            over = f"an assumed {ASSUMED_WARMING_K:g} K warming (the recording has no temperature)"
         else:
             temperature = np.asarray(self.temperature, dtype=float)
             cums = np.r_[0.0, np.cumsum(temperature)]
             moved = (cums[spans[:, 1]] - cums[spans[:, 0]]) / np.diff(spans, axis=1)[:, 0] - temperature.mean()
-            over = f"the recorded {np.ptp(temperature):.2g} K"
-        source = (f"the device config's {tempco:g} ppm/K" if given else
-                  f"an assumed {tempco:g} ppm/K (the device config gives no scale_tempco_ppm_per_k)")
-        note = f"σ of the scale factors include their temperature drift, {source} over {over}: each axis is seen at one time only"
-        return tempco * 1e-6 * moved, note
+        return tempco * 1e-6 * moved
+
+    def note(self, name: str) -> str:
+        """What the σ of triad ``name``'s scale factors hold, and what was assumed, for the output."""
+        if name in self.ppm_per_k:
+            source = f"the device config's {float(self.ppm_per_k[name]):g} ppm/K"
+        else:
+            source = f"an assumed {ASSUMED_TEMPCO_PPM_PER_K:g} ppm/K (the device config gives no scale_tempco_ppm_per_k)"
+        over = (f"an assumed {ASSUMED_WARMING_K:g} K warming (the recording has no temperature)"
+                if self.temperature is None else f"the recorded {np.ptp(self.temperature):.2g} K")
+        return f"σ of the scale factors include their temperature drift, {source} over {over}: each axis is seen at one time only"
 
 
 def scale_drift_covariance(values: np.ndarray, offset: np.ndarray, drift: np.ndarray) -> np.ndarray:
@@ -346,7 +348,8 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
         model = weights @ noise.window_covariance(times[intervals[:, 0]], counts / rate_hz) @ weights
         floor = floor + np.maximum(k_scale**2 * model - white_var, 0.0)
     bias_var = np.maximum(np.var(pairs, axis=0, ddof=1) / 3, floor)
-    drift, drift_note = (drift or ScaleDrift(times)).at(name, turns.spans)
+    drift = drift or ScaleDrift(times)
+    drift_note, drift = drift.note(name), drift.at(name, turns.spans)
     row_cov = np.zeros((3, 4, 4))
     for i in range(3):  # per output axis: K's row is W's row times C⁺, the columns independent
         row_cov[i, :3, :3] = C_pinv.T @ np.diag(var_W[:, i]) @ C_pinv

@@ -15,7 +15,7 @@ from fieldcal.earth import Station
 from fieldcal.paramfile import ParameterFile, hash_inputs
 from fieldcal.recording import Recording
 from fieldcal.recording.calibrate import RecordingCalibration, UnknownPlace
-from fieldcal.report import solution_header, solution_table
+from fieldcal.report import residual_text, solution_header, solution_table
 
 PROCEDURE = "recording"
 
@@ -67,7 +67,10 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
             "not used (give the table's rate to use them)"
         lines.append(f"  {len(cal.turns)} turntable turn{'s' * (len(cal.turns) != 1)} found: {used}")
     for name, sol in cal.specific_force.items():
-        lines += ["", solution_header(sol), solution_table(sol, truths.get(name))]
+        header = solution_header(sol)
+        if sol.method == CLASSIC_METHOD:  # the Ferraris faces
+            header = f"{name} (Ferraris's six-position solution, the faces' norms fitted to g; {residual_text(sol)})"
+        lines += ["", header, solution_table(sol, truths.get(name))]
     for name, sol in cal.angular_rate.items():
         fit = sol.diagnostics
         if sol.method == CLASSIC_METHOD:  # the Ferraris turns
