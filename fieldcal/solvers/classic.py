@@ -103,6 +103,7 @@ def fit_face_norms(K: np.ndarray, bias: np.ndarray, faces: np.ndarray, gravity: 
     """K's diagonal and the bias moved so that each of the six faces' calibrated means has norm g
     exactly (six equations, six unknowns; K's off-diagonal terms held), by Newton's method from
     the closed form, which already fits them to second order in the cross terms and tilts."""
+    start = (K, bias)
     K, bias = K.copy(), bias.copy()
     for _ in range(iterations):  # quadratic convergence from second-order-small misfits
         K_inv = np.linalg.inv(K)
@@ -111,12 +112,17 @@ def fit_face_norms(K: np.ndarray, bias: np.ndarray, faces: np.ndarray, gravity: 
         unit = a / norm[:, None]
         d_bias = -unit @ K_inv  # ∂|a|/∂b = −uᵀK⁻¹
         d_scale = -(unit @ K_inv) * a  # ∂|a|/∂K_ii = −(uᵀK⁻¹)_i a_i
-        step = np.linalg.solve(np.column_stack([d_bias, d_scale]), gravity - norm)
+        try:
+            step = np.linalg.solve(np.column_stack([d_bias, d_scale]), gravity - norm)
+        except np.linalg.LinAlgError:
+            return start
         bias += step[:3]
         K[np.diag_indices(3)] += step[3:]
         if np.max(np.abs(step[3:])) < 1e-15 * np.max(np.abs(np.diag(K))):
             break
-    return K, bias
+    # Faces too far from a six-position run for a second-order correction: the closed form.
+    moved = np.abs(np.diag(K) / np.diag(start[0]) - 1)
+    return (K, bias) if np.all(np.isfinite(K)) and np.all(np.isfinite(bias)) and moved.max() < 0.01 else start
 
 
 def solve_six_position(faces: np.ndarray, gravity: float, name: str, kind: str, output_unit: str,
