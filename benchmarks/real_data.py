@@ -66,7 +66,8 @@ def main() -> int:
         cal = calibrate_recording(rec, Station(45.0, 0.0, g))
         acc, gyro = cal.specific_force["accelerometer"], cal.angular_rate["gyroscope"]
         print(f"imu_tk Xsens: {len(cal.poses.intervals)} intervals, {cal.spread.count} distinct; "
-              "RMS(|a|-g) per sample %.4g, per interval mean %.4g m/s^2" % residuals(rec, acc.calibrate, cal.poses.intervals, g))
+              "RMS(|a|-g) per sample %.4g, per interval mean %.4g m/s^2"
+              % residuals(rec, acc.calibrate, cal.poses.intervals, g))
         print(f"  acc bias (counts) {pm(acc.bias, acc.sigma[:3])}; scale (counts per m/s^2) "
               f"{pm(np.diag(acc.K), acc.sigma[3:6])}")
         print(f"  gyro scale (counts per rad/s) {pm(np.diag(gyro.K), gyro.sigma[3:6])}; bias (counts) "
@@ -84,7 +85,8 @@ def main() -> int:
         shared = common(cal.poses.intervals, theirs)
         print(f"imucal Ferraris: {len(cal.poses.intervals)} intervals, {cal.spread.count} faces, "
               f"{len(gyro.residuals)} turns; on the {len(shared)} intervals shared with imucal's sections: "
-              "RMS(|a|-g) per sample %.5g, per interval mean %.4g m/s^2 (fieldcal)" % residuals(rec, acc.calibrate, shared, g))
+              "RMS(|a|-g) per sample %.5g, per interval mean %.4g m/s^2 (fieldcal)"
+              % residuals(rec, acc.calibrate, shared, g))
         print(f"  acc bias (m/s^2) {pm(acc.bias, acc.sigma[:3])}; scale {pm(np.diag(acc.K), acc.sigma[3:6])}")
         print(f"  gyro bias (deg/s) {pm(gyro.bias, gyro.sigma[:3])}; scale (deg/s per rad/s) "
               f"{pm(np.diag(gyro.K), gyro.sigma[3:6])}")

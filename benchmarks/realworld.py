@@ -224,7 +224,8 @@ def main() -> int:
     parser.add_argument("--temperature", action="store_true",
                         help="the logger writes the unit's temperature (else the recordings have none)")
     parser.add_argument("--protocol", choices=("hand-held", "Ferraris", "sparse"),
-                        help="every recording of this protocol (else the mix: 75 %% hand-held, 20 %% Ferraris, 5 %% sparse)")
+                        help="every recording of this protocol (else the mix: 75 %% hand-held, 20 %% Ferraris, "
+                        "5 %% sparse)")
     args = parser.parse_args()
     run(args.runs, args.seed, args.verbose, None if args.only is None else tuple(args.only.split(",")),
         args.config, args.protocol, args.temperature)

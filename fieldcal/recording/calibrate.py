@@ -180,8 +180,9 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
         if aligned is not None:
             return aligned
         most = max(choice.tried, key=lambda x: x[1])
+        faces = _faces_missing(detection, settings.detector.min_static_s)
         raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
-                             f"{most[0]:g}× the noise level): {most[2]}{_faces_missing(detection, settings.detector.min_static_s)}")
+                             f"{most[0]:g}× the noise level): {most[2]}{faces}")
     return solve_triads(recording, detection, choice, station, settings)
 
 
@@ -410,7 +411,8 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
     # 1σ (rad) of a turn axis's direction: the accelerometer's cross terms, and its biases across
     # the vertical (each from its own axis's two faces, at other times) over g.
-    up_sigma = math.sqrt(np.mean(acc.sigma[6:] ** 2) + np.mean((acc.sigma[:3] / np.diag(acc.K)) ** 2) / station.gravity**2)
+    up_sigma = math.sqrt(np.mean(acc.sigma[6:] ** 2)
+                         + np.mean((acc.sigma[:3] / np.diag(acc.K)) ** 2) / station.gravity**2)
     for name in detection.rates:
         gyro = recording.triads[name]
         t = regular_times(recording.t, recording.rate_hz)

@@ -18,8 +18,8 @@ C the up vectors times their angles (least squares when there are more than thre
 What a turn's 1σ holds: the white noise integrated over the turn, the still reading's own noise
 times the turn's duration, the horizontal Earth rate (at an unknown heading: the still reading
 taken off holds it for the whole turn, while the turning body sees it go round, earth_lever),
-the accelerometer's error in the turn axis's direction, and the hand's error in bringing the unit back to its
-heading, ``HEADING_SIGMA_DEG``, which nothing in the data can see. The bias is the mean of the six
+the accelerometer's error in the turn axis's direction, and the hand's error in bringing the
+unit back to its heading, ``HEADING_SIGMA_DEG``, which nothing in the data can see. The bias is the mean of the six
 poses' gyro means, its σ their scatter (g-sensitivity and bias shifts) over √6.
 """
 from __future__ import annotations
@@ -119,10 +119,12 @@ class ScaleDrift:
         if name in self.ppm_per_k:
             source = f"the device config's {float(self.ppm_per_k[name]):g} ppm/K"
         else:
-            source = f"an assumed {ASSUMED_TEMPCO_PPM_PER_K:g} ppm/K (the device config gives no scale_tempco_ppm_per_k)"
+            source = (f"an assumed {ASSUMED_TEMPCO_PPM_PER_K:g} ppm/K (the device config gives no "
+                      "scale_tempco_ppm_per_k)")
         over = (f"an assumed {ASSUMED_WARMING_K:g} K warming (the recording has no temperature)"
                 if self.temperature is None else f"the recorded {np.ptp(self.temperature):.2g} K")
-        return f"σ of the scale factors include their temperature drift, {source} over {over}: each axis is seen at one time only"
+        return (f"σ of the scale factors include their temperature drift, {source} over {over}: each axis is "
+                "seen at one time only")
 
 
 def scale_drift_covariance(values: np.ndarray, offset: np.ndarray, drift: np.ndarray) -> np.ndarray:

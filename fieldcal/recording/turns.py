@@ -64,7 +64,8 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     if units_per_rad_s:
         still = distance[distance < math.radians(MIN_TURN_DEG_S) * units_per_rad_s]
     elif len(distance):  # raw counts, no rate to tell: see STILL_GAP
-        quietest = max(float(np.percentile(distance, 25)), GATE_SIGMAS * float(np.sqrt(np.mean(noise.gyro_variance) / n)))
+        quietest = max(float(np.percentile(distance, 25)),
+                       GATE_SIGMAS * float(np.sqrt(np.mean(noise.gyro_variance) / n)))
         if shift > STILL_GAP * quietest:
             still = distance[distance <= STILL_GAP * quietest]
     if len(still):
