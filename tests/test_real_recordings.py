@@ -157,6 +157,37 @@ def test_fieldcal_calibrate_says_which_solution_it_chose(ferraris, tmp_path, cap
     np.testing.assert_allclose(pf["gyroscope"].K, ferraris[2].angular_rate["gyroscope"].K)
 
 
+FERRARIS_CONFIG = """\
+device:
+  name: imucal's body-worn IMU
+  protocol: sim
+  rate_hz: 102.4
+  sim: {imu_protocol: xsens}
+  triads:
+    accelerometer: {kind: specific_force, unit: m/s^2, scale_tempco_ppm_per_k: 40}
+    gyroscope: {kind: angular_rate, unit: deg/s}
+station: {latitude_deg: 49.6, height_m: 280, gravity_m_s2: 9.81}
+"""
+
+
+def test_fieldcal_calibrate_takes_the_scale_tempco_from_the_device_config(ferraris, tmp_path, capsys):
+    """The accelerometer's coefficient from the config, the gyro's assumed: each said, and the
+    accelerometer's scale σ narrower than with 100 ppm/K assumed (its drift is part of them)."""
+    path, _, cal = ferraris
+    config = tmp_path / "station.yaml"
+    config.write_text(FERRARIS_CONFIG)
+    code = main(["calibrate", str(path), "--map", "imucal", "--rate", str(FERRARIS_RATE_HZ), "--config", str(config),
+                 "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "note: accelerometer: σ of the scale factors include their temperature drift, the device config's " \
+           "40 ppm/K over an assumed 2 K warming" in out
+    assert "note: gyroscope: σ of the scale factors include their temperature drift, an assumed 100 ppm/K" in out
+    pf = load(next(tmp_path.glob("recording-*")) / "parameters.yaml")
+    assumed = cal.specific_force["accelerometer"].file_sigma[3:6]
+    assert np.all(pf["accelerometer"].file_sigma[3:6] < assumed)
+
+
 def test_px4_ulog_imports_its_sensor_combined_topic(tmp_path, capsys):
     """PX4's own sample log, by pyulog (lazily, in the import command only): the vehicle stands
     still, so the specific force is gravity and the rate is near zero."""
