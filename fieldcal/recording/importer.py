@@ -294,18 +294,22 @@ def _header_lines(data: bytes, starts, ends, lines: np.ndarray, count: int, cm) 
         parser.feed(data[starts[part[0] - 1]:ends[part[-1] - 1] + 1], 0.0)
         return parser.header_lines
 
-    def split(part: np.ndarray, k: int) -> list[np.ndarray]:
-        if k == 0 or k == len(part):
-            return [part] if k else []
-        half = len(part) // 2
-        left = headers_in(part[:half])
-        return split(part[:half], left) + split(part[half:], k - left)
-
     if count == 0:
         return np.zeros(0, dtype=np.int64)
     if headers_in(lines[:count]) == count:
         return lines[:count]
-    return np.concatenate(split(lines, count))
+    return np.concatenate(_split_headers(lines, count, headers_in))
+
+
+def _split_headers(part: np.ndarray, k: int, headers_in) -> list[np.ndarray]:
+    """The parts of ``part`` (holding ``k`` headers) that are all headers, by halving. At module
+    level, not nested: a nested recursive function is a reference cycle that would keep the whole
+    file's bytes (through ``headers_in``) alive until the next garbage collection."""
+    if k == 0 or k == len(part):
+        return [part] if k else []
+    half = len(part) // 2
+    left = headers_in(part[:half])
+    return _split_headers(part[:half], left, headers_in) + _split_headers(part[half:], k - left, headers_in)
 
 
 def _align(parsed: list[_Parsed]) -> tuple[np.ndarray, dict[str, np.ndarray], list[str]]:
