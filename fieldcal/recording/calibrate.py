@@ -5,7 +5,8 @@ poses, with no procedure and no operator.
 The threshold multiple of the pose detector is chosen as imu_tk chooses it: each multiple's
 poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
 wins; each set is ranked by the least χ² it allows, and only the best is solved by Powell.
-Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it is more data, though only distinct poses count for the spread. The noise comes from the device's noise model when one is given (exact covariance of the
+Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
+is more data, though only distinct poses count for the spread. The noise comes from the device's noise model when one is given (exact covariance of the
 pose means, bias instability included), else from the detector's noise level (the initial rest
 given by ``--rest``, or the recording's quietest windows): its per-axis variance
 weights each pose mean (white noise over the pose's samples), and the σ are scaled up by

@@ -209,8 +209,9 @@ def _powell(residuals_of_z, z_start: np.ndarray, per_sigma: bool, dof: int):
 def _gauss_newton(residuals_of_z, z: np.ndarray, per_sigma: bool, dof: int) -> optimize.OptimizeResult:
     """Gauss-Newton on ‖r(z)‖² from z (residuals_of_z takes a stack of points), the Jacobian by
     central differences in one evaluation of the stack. Fails (success False) when a step does
-    not lower χ² or the steps do not shrink below _SCREEN_STEP_SIGMA: the caller then solves by
-    Powell. The unit of σ in z as in _powell."""
+    not lower χ² or the steps do not shrink below _SCREEN_STEP_SIGMA (solve_norm then raises
+    CalibrationError, and choose_poses solves that set by the method asked for instead). The unit
+    of σ in z as in _powell."""
     r = residuals_of_z(z)
     f = float(r @ r)
     sigma_z = 1.0 if per_sigma or dof <= 0 or f <= 0 else math.sqrt(f / dof)
