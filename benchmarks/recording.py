@@ -1,25 +1,30 @@
 """Calibration from a plain recording: `fieldcal calibrate` end to end on imu_tk's own Xsens
-recording (tests/data/real: 51,175 samples at 100 Hz in two text files, raw counts, 38 poses),
-and accuracy against the simulator's truth.
+recording (tests/data/real: 51,175 samples at 100 Hz in two text files, raw counts, 40 static
+intervals) beside imu_tk itself, and accuracy against the simulator's truth.
 
 Speed: each tool is its own process, timed from process start to parameter file; CPU seconds
 (user + system) and peak resident memory come from ``os.wait4`` (the child's own
-``getrusage``), medians of ``--repeats`` runs, after one run that caches the bytecode (as an
-installed package has it). One function per measured tool: ``fieldcal_calibrate`` and the peers beside it.
+``getrusage``). Every round runs each process once, in turn (a change of the machine's load hits
+all of them alike), after one run of each that caches the bytecode (as an installed package has
+it); medians of ``--repeats`` rounds, the peak RSS the largest. Beside them: imu_tk (C++, Ceres,
+built by ``benchmarks/peers/build_imu_tk.sh``, skipped with a line when not built), the floor
+any Python calibration with Powell pays (``import numpy, scipy.optimize``), and ``import
+imucal`` (imucal cannot read this recording). Printed: each one's CPU, wall and peak RSS, its
+ratio to imu_tk's, the date and the load average; then both tools' results side by side.
 
 Accuracy (``--runs N``): N seeded simulated recordings (the default 20 poses); per parameter the
 RMS of (solved - true) / reported σ, and the share of |error| beyond 3σ (0.27 % for a Gaussian).
 
-    python benchmarks/recording.py [--repeats 5] [--runs 100]
+    python benchmarks/recording.py [--repeats 7] [--runs 100]
 """
 from __future__ import annotations
 
 import argparse
 import datetime
 import gzip
+import importlib.util
 import os
 import platform
-import statistics
 import sys
 import tempfile
 import time
@@ -29,7 +34,7 @@ import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only 
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from processes import BIN, Run, run_once, side_by_side  # noqa: E402
+from processes import BIN, run_once, side_by_side  # noqa: E402
 
 REAL = Path(__file__).resolve().parent.parent / "tests" / "data" / "real"
 XSENS = ("imu_tk_xsens_acc.mat.gz", "imu_tk_xsens_gyro.mat.gz")
@@ -48,44 +53,60 @@ def xsens_files(directory: Path) -> list[Path]:
     return paths
 
 
-def _summary(label: str, runs: list[Run]) -> tuple[str, float, float, float]:
-    if any(r.status != 0 for r in runs):
-        raise SystemExit(f"{label} failed (exit {runs[0].status})")
-    return (label, statistics.median(r.cpu_s for r in runs), statistics.median(r.wall_s for r in runs),
-            max(r.peak_mib for r in runs))
+IMU_TK_OUT = Path(__file__).parent / "out" / "imu_tk"  # benchmarks/peers/build_imu_tk.sh builds here
 
 
-def fieldcal_calibrate(files: list[Path], work: Path, repeats: int) -> tuple[str, float, float, float]:
-    """(label, median CPU s, median wall s, peak MiB) of the whole command, parameter file written."""
-    def argv(i):
-        return [str(BIN / "fieldcal"), "calibrate", *map(str, files), "--map", "imu_tk", "--latitude", "45",
-                "--gravity", str(XSENS_GRAVITY), "--out", str(work / f"out{i}"),
-                "--registry", str(work / "registry.sqlite")]
-    run_once(argv("-warm-up"))  # writes the bytecode caches
-    return _summary("fieldcal calibrate", [run_once(argv(i)) for i in range(repeats)])
+def commands(files: list[Path], work: Path) -> dict[str, list[str]]:
+    """The processes timed side by side, by label; imu_tk and imucal only where they are present."""
+    params = work / "fieldcal.yaml"
+    # Where the recording was made is not published: --gravity alone, as a new user would. The
+    # registry is a scratch one (the command records every parameter file it writes).
+    out = {"fieldcal calibrate": [
+        str(BIN / "fieldcal"), "calibrate", *map(str, files), "--map", "imu_tk", "--gravity", f"{XSENS_GRAVITY}",
+        "--params", str(params), "--force", "--out", str(work / "sessions"),
+        "--registry", str(work / "registry.sqlite")]}
+    if (IMU_TK_OUT / "imu_tk_calib").exists():
+        out["imu_tk (C++, Ceres)"] = [str(IMU_TK_OUT / "imu_tk_calib"), *map(str, files), str(work / "imu_tk")]
+    out["python -c 'import numpy, scipy.optimize'"] = [sys.executable, "-c", "import numpy, scipy.optimize"]
+    if importlib.util.find_spec("imucal") is not None:  # benchmark only, never a product dependency
+        out["python -c 'import imucal' (cannot read this recording)"] = [sys.executable, "-c", "import imucal"]
+    return out
 
 
-def imucal_import(repeats: int) -> tuple[str, float, float, float] | str:
-    """imucal cannot read this recording (its Ferraris method needs hand-marked turntable
-    regions): only `import imucal`, the floor of any run of it."""
-    try:
-        import imucal  # noqa: F401  (benchmark only, never a product dependency)
-    except ImportError:
-        return "imucal: not installed (pip install imucal)"
-    runs = [run_once([sys.executable, "-c", "import imucal"]) for _ in range(repeats)]
-    return _summary("imucal: `import imucal` only (cannot read this recording)", runs)
-
-
-def table(rows: list) -> list[str]:
-    ours = rows[0]
-    lines = ["| process | CPU (median) | wall (median) | peak RSS | CPU × fieldcal |", "|---|---|---|---|---|"]
-    for row in rows:
-        if isinstance(row, str):
-            lines.append(f"| {row} | | | | |")
-        else:
-            label, cpu, wall, peak = row
-            lines.append(f"| {label} | {cpu:.2f} s | {wall:.2f} s | {peak:.0f} MiB | {cpu / ours[1]:.2f} |")
+def speed_table(rows, reference: str | None) -> list[str]:
+    """Markdown rows: each process's medians and its ratio to ``reference`` (imu_tk)."""
+    ref = next((r for r in rows if r.label == reference), None)
+    lines = ["| process | CPU | wall | peak RSS | CPU ÷ imu_tk | RSS ÷ imu_tk |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        ratios = (f"{r.cpu_s / ref.cpu_s:.2f}× | {r.peak_mib / ref.peak_mib:.2f}×" if ref is not None else "— | —")
+        lines.append(f"| {r.label} | {r.cpu_s:.3f} s | {r.wall_s:.2f} s | {r.peak_mib:.0f} MiB | {ratios} |")
     return lines
+
+
+def speed(repeats: int) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        argv = commands(xsens_files(work), work)  # imu_tk's text format, which fieldcal reads by its map
+        for label, command in argv.items():  # bytecode cached, files in the page cache
+            if run_once(command).status != 0:
+                raise SystemExit(f"{label} failed: {' '.join(command)}")
+        rows = side_by_side(argv, repeats)
+        if any(r.status != 0 for r in rows):
+            raise SystemExit(f"a run failed ({', '.join(f'{r.label}: exit {r.status}' for r in rows)})")
+        compared = (_against_imu_tk(str(work / "fieldcal.yaml"), str(work / "imu_tk"))
+                    if "imu_tk (C++, Ceres)" in argv else [])
+    print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, load "
+          f"{os.getloadavg()[0]:.1f} (1 min): imu_tk's Xsens recording (51,175 samples × 2 triads, two "
+          f"text files), process start to parameter file, medians of {repeats} alternating rounds")
+    print("\n".join(speed_table(rows, "imu_tk (C++, Ceres)")))
+    ours = next(r for r in rows if r.label == "fieldcal calibrate")
+    peer = next((r for r in rows if r.label == "imu_tk (C++, Ceres)"), None)
+    if peer is None:
+        print("imu_tk: not built (benchmarks/peers/build_imu_tk.sh builds it into benchmarks/out/imu_tk)")
+    else:
+        print(f"fieldcal ÷ imu_tk: CPU {ours.cpu_s / peer.cpu_s:.2f}× ({ours.cpu_s:.2f} s ÷ {peer.cpu_s:.2f} s), "
+              f"peak RSS {ours.peak_mib / peer.peak_mib:.2f}× ({ours.peak_mib:.0f} ÷ {peer.peak_mib:.0f} MiB)")
+        print("\n".join(compared))
 
 
 def accuracy(runs: int) -> tuple[np.ndarray, np.ndarray]:
@@ -113,17 +134,12 @@ def accuracy(runs: int) -> tuple[np.ndarray, np.ndarray]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5, help="runs of each process (medians)")
+    parser.add_argument("--repeats", type=int, default=7, help="rounds of the processes (medians)")
     parser.add_argument("--runs", type=int, default=0, help="seeded recordings for the accuracy table")
     args = parser.parse_args()
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)  # the children cache their bytecode, as installed
     print(f"{platform.node()}: {os.cpu_count()} cores, CPython {platform.python_version()}")
-    with tempfile.TemporaryDirectory() as tmp:
-        files = xsens_files(Path(tmp))
-        rows = [fieldcal_calibrate(files, Path(tmp), args.repeats), imucal_import(args.repeats)]
-    print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, load {os.getloadavg()[0]:.1f}: "
-          f"imu_tk's Xsens recording (two files, 51,175 samples), process start to parameter file")
-    print("\n".join(table(rows)))
+    speed(args.repeats)
     if args.runs:
         started = time.perf_counter()
         z_acc, z_gyro = accuracy(args.runs)
@@ -133,50 +149,7 @@ def main() -> int:
             rms = np.sqrt(np.mean(z**2, axis=0))
             print(f"  {triad}: " + ", ".join(f"{n} {r:.2f}" for n, r in zip(names, rms))
                   + f"; beyond 3σ {100 * np.mean(np.abs(z) > 3):.2f} %")
-    imu_tk_peer()
     return 0
-
-
-IMU_TK_OUT = Path(__file__).parent / "out" / "imu_tk"  # benchmarks/peers/build_imu_tk.sh builds here
-IMU_TK_GRAVITY = 9.81744  # m/s^2, what imu_tk's example app uses for its Xsens recording
-
-
-def imu_tk_peer(repeats: int = 3) -> None:
-    """imu_tk (C++, Ceres) beside ``fieldcal calibrate`` on imu_tk's own Xsens files, each as its
-    own process, alternating in every round (a load change hits both alike): CPU, wall and peak
-    RSS of the child, the ratio fieldcal/imu_tk, and both results' biases and scale factors (imu_tk's
-    in fieldcal's convention: counts per m/s² or per rad/s) with fieldcal's σ. Skipped with a line
-    when imu_tk is not built (``benchmarks/peers/build_imu_tk.sh``)."""
-    import gzip
-
-    binary = IMU_TK_OUT / "imu_tk_calib"
-    if not binary.exists():
-        print("imu_tk: not built (benchmarks/peers/build_imu_tk.sh builds it into benchmarks/out/imu_tk)")
-        return
-    real = Path(__file__).parent.parent / "tests" / "data" / "real"
-    with tempfile.TemporaryDirectory() as tmp:
-        files = []
-        for triad in ("acc", "gyro"):  # imu_tk's own text format, as the build script unpacks it
-            files.append(Path(tmp) / f"xsens_{triad}.mat")
-            files[-1].write_bytes(gzip.decompress((real / f"imu_tk_xsens_{triad}.mat.gz").read_bytes()))
-        # Where the recording was made is not published: --gravity alone, as a new user would.
-        ours = [str(BIN / "fieldcal"), "calibrate", *map(str, files), "--map", "imu_tk",
-                "--gravity", f"{IMU_TK_GRAVITY}", "--params", os.path.join(tmp, "fieldcal.yaml"), "--force",
-                "--out", os.path.join(tmp, "sessions")]
-        peer = [str(binary), *map(str, files), os.path.join(tmp, "imu_tk")]
-        rows = side_by_side({"fieldcal calibrate": ours, "imu_tk (C++, Ceres)": peer}, repeats)
-        if any(r.status != 0 for r in rows):
-            raise SystemExit(f"imu_tk peer: a run failed ({', '.join(f'{r.label}: exit {r.status}' for r in rows)})")
-        compared = _against_imu_tk(os.path.join(tmp, "fieldcal.yaml"), os.path.join(tmp, "imu_tk"))
-    fieldcal_run, imu_tk_run = rows
-    print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, load {os.getloadavg()[0]:.1f}: "
-          f"imu_tk's Xsens recording (51,175 samples × 2 triads), median of {repeats}, side by side")
-    print("| process | CPU | wall | peak RSS |\n|---|---|---|---|")
-    for r in rows:
-        print(f"| {r.label} | {r.cpu_s:.2f} s | {r.wall_s:.2f} s | {r.peak_mib:.0f} MiB |")
-    print(f"fieldcal / imu_tk: CPU {fieldcal_run.cpu_s / imu_tk_run.cpu_s:.2f}×, wall "
-          f"{fieldcal_run.wall_s / imu_tk_run.wall_s:.2f}×, peak RSS {fieldcal_run.peak_mib / imu_tk_run.peak_mib:.2f}×")
-    print("\n".join(compared))
 
 
 def _against_imu_tk(params_path: str, imu_tk_prefix: str) -> list[str]:

@@ -120,12 +120,15 @@ def _recording(args):
 
 
 def cmd_calibrate(args) -> int:
-    from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
-    from fieldcal.recording.detect import DetectorSettings
-    from fieldcal.recording.results import parameter_file, summary_lines
-    from fieldcal.session.capture import SessionReader, SessionWriter
+    from fieldcal.cli.startup import imports_uncollected
 
-    from fieldcal.cli.production import accept_after, load_spec_option, operator_option
+    with imports_uncollected():  # numpy and scipy.optimize: see imports_uncollected
+        from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
+        from fieldcal.recording.detect import DetectorSettings
+        from fieldcal.recording.results import parameter_file, summary_lines
+        from fieldcal.session.capture import SessionReader, SessionWriter
+
+        from fieldcal.cli.production import accept_after, load_spec_option, operator_option
 
     operator = operator_option(args)  # refused before the work, not after it
     config = None

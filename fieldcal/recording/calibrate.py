@@ -4,7 +4,8 @@ poses, with no procedure and no operator.
 
 The threshold multiple of the pose detector is chosen as imu_tk chooses it: each multiple's
 poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
-wins. Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
+wins; each set is ranked by the least χ² it allows, and only the best is solved by Powell.
+Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
 is more data, though only distinct poses count for the spread. The noise comes from the device's noise model when one is given (exact covariance of the
 pose means, bias instability included), else from the detector's noise level (the initial rest
 given by ``--rest``, or the recording's quietest windows): its per-axis variance
@@ -32,6 +33,7 @@ from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, dete
 from fieldcal.recording.detect import DetectionError, DetectorSettings, Poses, SpreadReport, interval_means
 from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
 from fieldcal.solvers import CalibrationError, solve_norm
+from fieldcal.solvers.norm import SCREEN
 from fieldcal.calibration import Calibration
 from fieldcal.solvers.problems import StaticNormProblem
 from fieldcal.recording.turns import rate_residuals
@@ -116,15 +118,16 @@ def _reduced_chi2(solution: Calibration) -> float:
     return solution.diagnostics.chi2 / max(solution.diagnostics.dof, 1)
 
 
-def _solve_static(name, unit, means, intervals, t, variance, gravity, settings) -> Calibration:
+def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, method=None) -> Calibration:
+    """``method``: the norm solver, settings.method unless given (SCREEN: only the minimum χ²)."""
+    method = method or settings.method
     problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
                                 labels=tuple(f"pose {i + 1}" for i in range(len(means))))
-    solution = solve_norm(problem, _means_covariance(intervals, t, variance, None, None, unit),
-                          method=settings.method)
+    solution = solve_norm(problem, _means_covariance(intervals, t, variance, None, None, unit), method=method)
     noise = settings.noise.get(name)
     if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
         solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
-                              method=settings.method)
+                              method=method)
     # The noise alone under-states the σ when the poses scatter more than it says (the bias
     # wanders, the temperature moves the scale, a hand trembles: χ²/dof > 1 says so), with a
     # noise model as without one: the σ are scaled up by χ²/dof, never down.
@@ -220,25 +223,48 @@ class PoseChoice:
 
 def choose_poses(recording: Recording, detection: Detection, station: Station | UnknownPlace,
                  settings: RecordingSettings) -> PoseChoice:
-    """The candidate whose reference accelerometer fits best (smallest χ²/dof), as imu_tk chooses."""
-    reference = detection.reference
-    best, tried, solved = None, [], {}
+    """The candidate whose reference accelerometer fits best (smallest χ²/dof), as imu_tk chooses.
+
+    Each distinct set of poses is screened by the least χ² it allows (Gauss-Newton, the same
+    minimum Powell finds, at a fraction of the cost); only the best is solved by the method asked
+    for (the next best if that solve fails), so Powell runs once instead of once per set."""
+    reference, unit = detection.reference, recording.units[detection.reference]
+
+    def solve(poses, method=None):
+        try:
+            return _solve_static(reference, unit, poses.means, poses.intervals, recording.t,
+                                 detection.noise.variance, station.gravity, settings, method)
+        except CalibrationError as exc:
+            return str(exc)
+
+    screened: dict[bytes, Calibration | str] = {}  # several multiples often find the same intervals
+    keys = []
     for candidate in detection.candidates:
+        key = candidate.poses.intervals.tobytes() if candidate.spread.ok else None
+        keys.append(key)
+        if key is not None and key not in screened:
+            screened[key] = solve(candidate.poses, SCREEN)
+            if isinstance(screened[key], str):  # the method asked for says why (or does better)
+                screened[key] = solve(candidate.poses)
+    solved: dict[bytes, Calibration | str] = {}
+    fits = [k for k in dict.fromkeys(k for k in keys if k is not None) if isinstance(screened[k], Calibration)]
+    for key in sorted(fits, key=lambda k: _reduced_chi2(screened[k])):  # stable: the first of equals wins
+        solution = screened[key]
+        if solution.diagnostics.search == SCREEN:
+            solution = solve(detection.candidates[keys.index(key)].poses)
+        solved[key] = solution
+        if isinstance(solution, Calibration):
+            break
+    tried, best = [], None
+    for candidate, key in zip(detection.candidates, keys):
         poses, spread = candidate.poses, candidate.spread
-        if not spread.ok:
+        if key is None:
             tried.append((poses.multiple, spread.count, spread.message))
             continue
-        key = poses.intervals.tobytes()
-        if key not in solved:  # several multiples often find the same intervals
-            try:
-                solved[key] = _solve_static(reference, recording.units[reference], poses.means, poses.intervals,
-                                            recording.t, detection.noise.variance, station.gravity, settings)
-            except CalibrationError as exc:
-                solved[key] = str(exc)
-        sol = solved[key]
+        sol = solved.get(key, screened[key])
         tried.append((poses.multiple, spread.count, sol if isinstance(sol, str) else f"χ²/dof {_reduced_chi2(sol):.3g}"))
-        if not isinstance(sol, str) and (best is None or _reduced_chi2(sol) < _reduced_chi2(best[1])):
-            best = (candidate, sol)
+        if best is None and isinstance(solved.get(key), Calibration):
+            best = (candidate, solved[key])
     return PoseChoice(tuple(tried), *(best or ()))
 
 

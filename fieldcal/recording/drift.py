@@ -80,15 +80,17 @@ def rail_samples(values: np.ndarray) -> np.ndarray:
     recording for MIN_RAIL_RUN or more samples in a row (a clipped converter holds one code),
     that value far from the axis's median (a quarter of its range or more: a still reading that
     happens to be the lowest is not a rail)."""
-    values = np.asarray(values, dtype=float)
-    out = np.zeros(len(values), dtype=bool)
-    median, spread = np.median(values, axis=0), np.ptp(values, axis=0)
-    for extreme in (values.max(axis=0), values.min(axis=0)):
-        at = values == extreme[None, :]
+    # Each axis's samples side by side (a reduction down a column of an (n, 3) array strides
+    # through memory at a third of the speed), each extreme found once.
+    columns = np.ascontiguousarray(np.asarray(values, dtype=float).T)
+    out = np.zeros(columns.shape[1], dtype=bool)
+    median, high, low = np.median(columns, axis=1), columns.max(axis=1), columns.min(axis=1)
+    spread = high - low
+    for extreme in (high, low):
         for axis in np.flatnonzero(np.abs(extreme - median) >= 0.25 * spread):  # three axes at most
             if spread[axis] == 0:
                 continue
-            edges = np.flatnonzero(np.diff(np.r_[0, at[:, axis].astype(np.int8), 0]))
+            edges = np.flatnonzero(np.diff(np.r_[0, (columns[axis] == extreme[axis]).astype(np.int8), 0]))
             for start, stop in edges.reshape(-1, 2):
                 if stop - start >= MIN_RAIL_RUN:
                     out[start:stop] = True

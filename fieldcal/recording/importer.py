@@ -162,10 +162,11 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     tail = data[cut:].strip(b" \t\r")
     comment = cm.comment.encode("ascii") if cm.comment else None
     unterminated = bool(tail) and not (comment and tail.startswith(comment))
-    parser = DelimitedTextParser(cm, keep_malformed=max(data.count(b"\n", 0, cut), 1))  # every line number
+    n_lines = data.count(b"\n", 0, cut)
+    parser = DelimitedTextParser(cm, keep_malformed=max(n_lines, 1))  # every line number
     # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
     # not header lines, in order (the parser returns values, not where they came from).
-    t, triads, candidates, starts, ends = _parse_pieces(parser, data, cut, cm.comment)
+    t, triads, candidates, starts, ends = _parse_pieces(parser, data, cut, cm.comment, n_lines)
     n = len(t)
     malformed = np.array(sorted(parser.malformed_line_numbers), dtype=np.int64)
     rest = np.setdiff1d(candidates, malformed, assume_unique=True)
@@ -182,12 +183,14 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     text = np.array([_is_text(data[starts[k - 1]:ends[k - 1]]) for k in leading.tolist()], dtype=bool)
     malformed = np.union1d(malformed[malformed > first], np.concatenate([headers[headers > first], leading[~text]]))
     header_count = int(np.count_nonzero(text))
+    n_ends = len(ends)
+    del data, starts, ends, candidates, rest  # the bytes and per-line arrays: not needed from here
     if unterminated:
-        malformed = np.r_[malformed, len(ends) + 1].astype(np.int64)
+        malformed = np.r_[malformed, n_ends + 1].astype(np.int64)
     if n < 2:
         what = "no valid sample" if n == 0 else f"only one valid sample (line {lines[0]})"
         raise RecordingImportError(
-            f"{path}: {what} for {spec.name} in {len(ends)} lines ({len(malformed)} malformed, "
+            f"{path}: {what} for {spec.name} in {n_ends} lines ({len(malformed)} malformed, "
             f"{header_count} header lines); check the map (delimiter, columns, time)", path)
 
     t = t if cm.time_column is not None else np.arange(n) / rate_hz
@@ -210,7 +213,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     period = float(np.median(dt))
     widest = int(np.argmax(dt))
     report = FileReport(
-        path=path, name=spec.name, sha256=sha256, lines=len(ends) + unterminated, samples=n,
+        path=path, name=spec.name, sha256=sha256, lines=n_ends + unterminated, samples=n,
         header_lines=header_count, malformed=len(malformed),
         malformed_lines=tuple(int(x) for x in malformed[:FIRST_FEW]), rate_hz=1.0 / period,
         t_first=float(t[0]), t_last=float(t[-1]),
@@ -219,32 +222,43 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     return _Parsed(spec, report, t, triads)
 
 
-def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: str | None):
+def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: str | None, n_lines: int):
     """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, and the
-    [start, end) bytes of every line) of data[:cut] (whole lines), fed to the parser and scanned
-    in pieces of about FEED_BYTES cut at line ends: the temporaries are some ten times the bytes
-    seen at once, and a piece of whole lines parses as it would within the file."""
-    chunks, content, starts, ends = [], [], [], []
-    lo, lines = 0, 0
+    [start, end) bytes of every line) of data[:cut] (its ``n_lines`` whole lines), fed to the
+    parser and scanned in pieces of about FEED_BYTES cut at line ends: the temporaries are some
+    ten times the bytes seen at once, and a piece of whole lines parses as it would within the
+    file. Each piece's results go straight into arrays of the file's size (no list of pieces
+    and its joined copy held at once)."""
+    starts, ends = np.empty(n_lines, dtype=np.int64), np.empty(n_lines, dtype=np.int64)
+    content = np.empty(n_lines, dtype=np.int64)
+    t, triads = np.empty(n_lines), None  # at most one sample a line
+    lo, lines, n_content, n = 0, 0, 0, 0
     while lo < cut:  # a loop over pieces, a dozen per MiB
         hi = data.rfind(b"\n", lo, min(lo + FEED_BYTES, cut)) + 1 or data.find(b"\n", lo, cut) + 1
         a = np.frombuffer(data, dtype=np.uint8, count=hi - lo, offset=lo)
         end = np.flatnonzero(a == 10)
-        start = np.r_[0, end[:-1] + 1]
-        if (chunk := parser.feed(data[lo:hi], 0.0)) is not None:
-            chunks.append(chunk)
+        chunk = parser.feed(data[lo:hi], 0.0)
+        if chunk is not None:
+            if triads is None:
+                triads = {name: np.empty((n_lines, 3)) for name in chunk.triads}
+            k = len(chunk.t)
+            t[n:n + k] = chunk.t
+            for name, values in chunk.triads.items():
+                triads[name][n:n + k] = values
+            n += k
         if chunk is not None and len(chunk.t) == len(end):  # every line a sample: all are content
-            content.append(np.arange(lines + 1, lines + len(end) + 1, dtype=np.int64))
+            part = np.arange(lines + 1, lines + len(end) + 1, dtype=np.int64)
         else:
-            content.append(lines + _content_lines(a, start, end, comment))
-        starts.append(start + lo)
-        ends.append(end + lo)
+            part = lines + _content_lines(a, np.r_[0, end[:-1] + 1], end, comment)
+        content[n_content:n_content + len(part)] = part
+        n_content += len(part)
+        ends[lines:lines + len(end)] = end + lo
+        starts[lines] = lo
+        starts[lines + 1:lines + len(end)] = end[:-1] + lo + 1
         lo, lines = hi, lines + len(end)
-    joined = [np.concatenate(x) if x else np.zeros(0, dtype=np.int64) for x in (content, starts, ends)]
-    if not chunks:
-        return np.zeros(0), {}, *joined
-    return (np.concatenate([c.t for c in chunks]),
-            {name: np.concatenate([c.triads[name] for c in chunks]) for name in chunks[0].triads}, *joined)
+    if triads is None:
+        return np.zeros(0), {}, content[:n_content], starts, ends
+    return t[:n], {name: values[:n] for name, values in triads.items()}, content[:n_content], starts, ends
 
 
 def _largest(row: np.ndarray) -> float:
@@ -294,18 +308,22 @@ def _header_lines(data: bytes, starts, ends, lines: np.ndarray, count: int, cm) 
         parser.feed(data[starts[part[0] - 1]:ends[part[-1] - 1] + 1], 0.0)
         return parser.header_lines
 
-    def split(part: np.ndarray, k: int) -> list[np.ndarray]:
-        if k == 0 or k == len(part):
-            return [part] if k else []
-        half = len(part) // 2
-        left = headers_in(part[:half])
-        return split(part[:half], left) + split(part[half:], k - left)
-
     if count == 0:
         return np.zeros(0, dtype=np.int64)
     if headers_in(lines[:count]) == count:
         return lines[:count]
-    return np.concatenate(split(lines, count))
+    return np.concatenate(_split_headers(lines, count, headers_in))
+
+
+def _split_headers(part: np.ndarray, k: int, headers_in) -> list[np.ndarray]:
+    """The parts of ``part`` (holding ``k`` headers) that are all headers, by halving. At module
+    level, not nested: a nested recursive function is a reference cycle that would keep the whole
+    file's bytes (through ``headers_in``) alive until the next garbage collection."""
+    if k == 0 or k == len(part):
+        return [part] if k else []
+    half = len(part) // 2
+    left = headers_in(part[:half])
+    return _split_headers(part[:half], left, headers_in) + _split_headers(part[half:], k - left, headers_in)
 
 
 def _align(parsed: list[_Parsed]) -> tuple[np.ndarray, dict[str, np.ndarray], list[str]]:
@@ -322,15 +340,15 @@ def _align(parsed: list[_Parsed]) -> tuple[np.ndarray, dict[str, np.ndarray], li
         raise RecordingImportError(
             f"the files overlap in time for only {max(hi - lo, 0.0):.6g} s ({spans}); are they from "
             "one run, on one clock, with the right time unit in the map?")
-    t = base.t[keep]
+    t = _kept(base.t, keep)
     dropped = len(base.t) - len(t)
     notes = [f"time base: {base.report.name}"
              + (f", {dropped} sample{'s' * (dropped != 1)} outside the other files' time dropped" if dropped else "")]
-    triads = {name: v[keep] for name, v in base.triads.items()}
+    triads = {name: _kept(v, keep) for name, v in base.triads.items()}
     for p in parsed[1:]:
         inside = (p.t >= lo) & (p.t <= hi)
-        if np.array_equal(p.t[inside], t):
-            triads.update({name: v[inside] for name, v in p.triads.items()})
+        if np.array_equal(_kept(p.t, inside), t):
+            triads.update({name: _kept(v, inside) for name, v in p.triads.items()})
             notes.append(f"{p.report.name}: same timestamps, values used as they are")
         else:
             for name, v in p.triads.items():
@@ -338,3 +356,8 @@ def _align(parsed: list[_Parsed]) -> tuple[np.ndarray, dict[str, np.ndarray], li
             notes.append(f"{p.report.name}: other timestamps ({p.report.rate_hz:.6g} Hz), "
                          "interpolated linearly onto the time base")
     return t, triads, notes
+
+
+def _kept(values: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """values[keep], without a copy when every sample is kept (files from one run usually are)."""
+    return values if keep.all() else values[keep]
