@@ -33,11 +33,6 @@ to take it from there instead. The gyroscope's bias is the poses' mean
 (less the vertical Earth rate), or estimated (--gyro-bias estimate)."""
 
 
-NOISE_FROM_CONFIG = "the config's noise model (bias instability included)"
-NOISE_FROM_REST = ("white, measured where the summary says; the bias instability is not known, so "
-                   "the biases' σ may be too small (give --config with the device's noise)")
-
-
 def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser = sub.add_parser(
         "calibrate", help="calibrate from a plain recording: poses found automatically, no turntable",
@@ -122,7 +117,7 @@ def _recording(args):
 def cmd_calibrate(args) -> int:
     from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
     from fieldcal.recording.detect import DetectorSettings
-    from fieldcal.recording.results import parameter_file, summary_lines
+    from fieldcal.recording.results import noise_lines, parameter_file, summary_lines
     from fieldcal.session.capture import SessionReader, SessionWriter
 
     from fieldcal.cli.production import accept_after, load_spec_option, operator_option
@@ -167,7 +162,8 @@ def cmd_calibrate(args) -> int:
     else:
         print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
               f"{station.gravity:.6f} m/s^2 ({station.gravity_source})")
-    print(f"noise: {NOISE_FROM_CONFIG if noise else NOISE_FROM_REST}")
+    for line in noise_lines(cal, bool(noise)):
+        print(line)
     for line in summary_lines(cal):
         print(line)
     print(f"\nparameter file: {directory / 'parameters.yaml'} (a copy of "
