@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import time
+from dataclasses import replace
 from pathlib import Path
 
 _EPILOG = """\
@@ -58,6 +59,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("--rest", type=float, metavar="S",
                         help="the recording starts with S seconds still: the noise level from there "
                         "(default: from the quietest windows, no rest assumed)")
+    parser.add_argument("--min-still", type=float, metavar="S",
+                        help="shortest still stretch taken as a pose, s (default 2; shorter poses "
+                        "have noisier means)")
     parser.add_argument("--gyro-bias", choices=("rest", "estimate"), default="rest",
                         help="gyro bias: the poses' mean (default) or estimated with the rest")
     parser.add_argument("--method", choices=("powell", "lsq"), default="powell",
@@ -135,6 +139,8 @@ def cmd_calibrate(args) -> int:
         raise ValueError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
     if args.rest is not None and not args.rest > 0:
         raise ValueError(f"--rest: expected a positive number of seconds, got {args.rest:g}")
+    if args.min_still is not None and not args.min_still > 0:
+        raise ValueError(f"--min-still: expected a positive number of seconds, got {args.min_still:g}")
     if args.params:  # refused before anything is imported or written
         from fieldcal.session.output import check_output_path
         check_output_path(args.params, force=args.force, option="--params")
@@ -143,7 +149,10 @@ def cmd_calibrate(args) -> int:
     for line in imported:
         print(line)
     noise = {t.name: t.noise for t in config.device.triads if t.noise is not None} if config else {}
-    settings = RecordingSettings(detector=DetectorSettings(init_rest_s=args.rest), method=args.method,
+    detector = DetectorSettings(init_rest_s=args.rest)
+    if args.min_still is not None:
+        detector = replace(detector, min_static_s=args.min_still)
+    settings = RecordingSettings(detector=detector, method=args.method,
                                  estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
                                  table_rate_deg_s=args.table_rate)
     cal = calibrate_recording(recording, station, settings)
