@@ -5,11 +5,13 @@ poses, with no procedure and no operator.
 The threshold multiple of the pose detector is chosen as imu_tk chooses it: each multiple's
 poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
 wins. Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
-is more data, though only distinct poses count for the spread. The noise comes from the device's noise model when one is given (exact covariance of the
-pose means, bias instability included), else from the detector's noise level (the initial rest
-given by ``--rest``, or the recording's quietest windows): its per-axis variance
-weights each pose mean (white noise over the pose's samples), and the σ are scaled up by
-χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the mean of
+is more data, though only distinct poses count for the spread. The noise comes from the
+device's noise model when one is given (exact covariance of the pose means, bias instability
+included), else from a model of the same form measured from the recording (``noise_estimate``):
+the white noise of the detector's noise level (the initial rest given by ``--rest``, or the
+recording's quietest windows), the bias instability from how far the pose means scatter about
+the fit beyond it; either way the σ are scaled up by χ²/dof when the fit says the model is not
+all there is. The gyroscope's bias is the mean of
 every pose's still reading less the vertical Earth rate, which the accelerometer's up direction
 fixes; its σ comes from those readings' scatter (the horizontal Earth rate at an unknown heading,
 g-sensitivity, warm-up and other drift), counted over fewer poses when neighbours move together
@@ -289,10 +291,18 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
         if name == reference:
             continue
         values = recording.triads[name]
+        means, variance = interval_means(values, keep), np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1)
         try:
-            specific_force[name] = _solve_static(
-                name, recording.units[name], interval_means(values, keep), keep, recording.t,
-                np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1), station.gravity, settings)
+            solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
+                                     station.gravity, settings)
+            if settings.estimate_noise and name not in settings.noise:  # as the reference's
+                noise = estimated_force_noise(solution, means, keep, recording.t, variance, recording.rate_hz,
+                                              station.gravity)
+                settings = replace(settings, noise={**settings.noise, name: noise})
+                estimated_names += (name,)
+                solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
+                                         station.gravity, settings)
+            specific_force[name] = solution
         except CalibrationError as exc:
             failures[name] = str(exc)
     turns = choice.best.turns

@@ -462,7 +462,8 @@ def too_short(poses: Poses, settings: DetectorSettings) -> str:
         return ""
     lo, hi = f"{short.min():.1f}", f"{short.max():.1f}"
     span = f"{lo}-{hi} s" if lo != hi else f"{lo} s"
-    return (f"; {len(short)} more still stretch{'es' * (len(short) != 1)} of {span} were seen, held under the "
+    were = "were" if len(short) != 1 else "was"
+    return (f"; {len(short)} more still stretch{'es' * (len(short) != 1)} of {span} {were} seen, held under the "
             f"{settings.min_static_s:g} s a pose must last: hold each pose {settings.min_static_s:g} s or more, or "
             f"give --min-still S to take shorter ones (their means are noisier)")
 
