@@ -31,7 +31,7 @@ from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
-from fieldcal.recording.detect import (AXES, DetectionError, DetectorSettings, Poses, SpreadReport, interval_means,
+from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport, interval_means,
                                       too_short)
 from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
 from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
@@ -474,19 +474,15 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         # The nominal scale, from the faces' spread (±g on each axis): raw counts have an offset
         # that the means' norm would count as scale.
         scale = np.diag(np.ptp(means, axis=0) / (2 * station.gravity))
-        times = ferraris.session_times(recording.t, poses.intervals)
+        covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
         try:
-            given = settings.noise.get(name)
-            covariance = _means_covariance(poses.intervals, recording.t, variance, given, scale, unit)
-            solution = ferraris.solve_aligned_accelerometer(name, unit, means, axes, station.gravity, covariance,
-                                                            times=times)
-            if given is None and settings.estimate_noise:
-                estimated[name] = _aligned_force_noise(solution, poses.intervals, axes, recording.t, variance,
-                                                       recording.rate_hz, station.gravity, scale)
-                covariance = _means_covariance(poses.intervals, recording.t, variance, estimated[name], scale, unit)
-                solution = ferraris.solve_aligned_accelerometer(name, unit, means, axes, station.gravity,
-                                                                covariance, times=times)
-            specific_force[name] = solution
+            specific_force[name] = ferraris.solve_aligned_accelerometer(
+                name, unit, means, axes, station.gravity, covariance,
+                times=ferraris.session_times(recording.t, poses.intervals))
+            if settings.estimate_noise and name not in settings.noise:
+                specific_force[name], estimated[name] = _with_shared_flicker(
+                    specific_force[name], means, poses.intervals, axes, recording.t, variance, recording.rate_hz,
+                    scale)
         except CalibrationError as exc:
             if name == reference:
                 raise
@@ -500,7 +496,6 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]),
                                     t=t)
         try:
-            # No noise model of its own estimated: the bias's σ comes from the faces' scatter.
             angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
                                                            poses.intervals, axes, turns, latitude,
                                                            up_sigma=float(np.sqrt(np.mean(acc.sigma[6:] ** 2))),
@@ -515,19 +510,32 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
                                 estimated_noise=estimated)
 
 
-def _aligned_force_noise(solution: Calibration, intervals: np.ndarray, axes: np.ndarray, t: np.ndarray,
-                         variance: np.ndarray, rate_hz: float, gravity: float, scale: np.ndarray) -> MeasuredNoise:
-    """A specific-force triad's noise model (SI; ``scale`` its nominal K) from the Ferraris
-    six-face fit on white-noise weights: each output axis's six face means are fitted by the
-    same four unknowns (its row of K and its bias), so its residuals are one column of noise;
-    a face's mean is the average of its intervals'."""
+def _with_shared_flicker(solution: Calibration, means: np.ndarray, intervals: np.ndarray, axes: np.ndarray,
+                         t: np.ndarray, variance: np.ndarray, rate_hz: float,
+                         scale: np.ndarray) -> tuple[Calibration, MeasuredNoise]:
+    """A Ferraris accelerometer's solution with its biases' σ widened by the bias instability
+    that all faces share, and the noise model measured for it (SI; ``scale`` the nominal K).
+
+    B is measured from the repeated faces: a full turn on the table brings the unit back to the
+    attitude it had, so the still intervals before and after it on one face differ by noise
+    alone. (The six faces' fit, two degrees of freedom per axis, mostly sees how each face was
+    placed, not the sensor: on imucal's own session it put B at 3 mg and every σ at 5 times.)
+    Only the biases change: the faces' scatter already widens every σ (χ²/dof), and what no
+    scatter shows is the part of the flicker all faces share, which the bias, their mean, takes."""
     counts = np.diff(intervals, axis=1)[:, 0]
-    average = np.zeros((6, len(intervals)))
-    for a in range(6):
-        average[a, axes == a] = counts[axes == a] / counts[axes == a].sum()
-    white = float(np.mean(variance)) / (average @ counts)  # a face's mean over all its samples
-    design = np.column_stack([gravity * AXES, np.ones(6)])
-    flicker = average @ flicker_covariance(t[intervals[:, 0]], counts / rate_hz) @ average.T
+    faces = (axes[:, None] == np.arange(6)[None, :]).astype(float)  # which face each interval is on
+    white = float(np.mean(variance)) / counts
+    weights = 1.0 / white
+    root = np.sqrt(weights)[:, None]
+    fitted = faces @ np.linalg.lstsq(faces * root, means * root, rcond=None)[0]
+    flicker = flicker_covariance(t[intervals[:, 0]], counts / rate_hz)
+    b = bias_instability(means - fitted, faces, white, flicker, weights=weights)  # output units
+    mean_of_faces = (faces / faces.sum(axis=0)).sum(axis=1) / 6  # the bias as weights on the intervals
+    shared = b**2 * float(mean_of_faces @ flicker @ mean_of_faces)
+    covariance = solution.covariance.copy()
+    covariance[:3, :3] += shared * np.eye(3)
+    sigma = solution.sigma.copy()
+    sigma[:3] = np.sqrt(sigma[:3] ** 2 + shared)
     k = float(np.mean(np.abs(np.diag(scale))))
-    b = bias_instability(solution.residuals, design, white, flicker)
-    return MeasuredNoise(white=float(np.sqrt(np.mean(variance) / rate_hz)) / k, bias_instability=b / k)
+    noise = MeasuredNoise(white=float(np.sqrt(np.mean(variance) / rate_hz)) / k, bias_instability=b / k)
+    return replace(solution, covariance=covariance, sigma=sigma), noise

@@ -100,7 +100,8 @@ class Poses:
     up: np.ndarray
     distinct: np.ndarray
     multiple: float
-    short_s: np.ndarray = field(default_factory=lambda: np.zeros(0))  # durations (s) of the still stretches too short to be poses
+    # Durations (s) of the still stretches too short to be poses, for a refusal to name.
+    short_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def count(self) -> int:
@@ -415,7 +416,7 @@ def pose_candidates(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
     return [_poses(signals, acc, rate_hz, settings, m, noise, zero, sensitivity) for m in settings.multiples]
 
 
-AXES = np.vstack([np.eye(3), -np.eye(3)])
+_AXES = np.vstack([np.eye(3), -np.eye(3)])
 _AXIS_NAMES = ["x up", "y up", "z up", "x down", "y down", "z down"]
 
 
@@ -436,7 +437,7 @@ def check_spread(up: np.ndarray, min_poses: int, cover_deg: float = 60.0,
     """Is this set of distinct up vectors enough for the accelerometer's norm calibration?"""
     up = np.asarray(up, dtype=float).reshape(-1, 3)
     count = len(up)
-    covered = (up @ AXES.T).max(axis=0) >= math.cos(math.radians(cover_deg)) if count else np.zeros(6, bool)
+    covered = (up @ _AXES.T).max(axis=0) >= math.cos(math.radians(cover_deg)) if count else np.zeros(6, bool)
     missing = [name for name, c in zip(_AXIS_NAMES, covered) if not c]
     design = norm_design(up)
     where = f"add poses with {', '.join(missing)} (within {cover_deg:g}° of vertical)"
