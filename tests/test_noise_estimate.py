@@ -80,3 +80,26 @@ def test_the_summary_says_how_the_sigma_were_obtained():
                                                             ("accelerometer", "gyroscope")}))
     assert not with_config.estimated_noise
     assert noise_lines(with_config, configured=True) == ["noise: the config's noise model (bias instability included)"]
+
+
+FACES = np.vstack([np.eye(3), -np.eye(3)])
+
+
+def _ferraris_acc_bias_z(seed: int, settings: RecordingSettings = RecordingSettings()) -> np.ndarray:
+    """(solved − true)/σ of the accelerometer's biases, a consumer unit's Ferraris session (six
+    faces, a full table turn on three of them, each face seen again after its turn), no config."""
+    sim = simulate_handheld(seed, n_poses=6, directions=FACES, initial_rest_s=5.0, raw_counts=False,
+                            truth=handheld_truth(False, CONSUMER_NOISE),
+                            table_turns=((0, 30.0, 10.0), (2, -40.0, 7.0), (4, 45.0, 6.0)))
+    cal = calibrate_recording(Recording(sim.t, sim.triads, sim.kinds, sim.units),
+                              Station(sim.latitude_deg, 0.0, sim.gravity), settings)
+    acc, truth = cal.specific_force["accelerometer"], sim.truth["accelerometer"]
+    return ((acc.file_theta - params_from_k(truth.K, truth.bias, full=True)) / acc.file_sigma)[:3]
+
+
+def test_a_ferraris_accelerometers_bias_sigma_holds_the_flicker_its_faces_share():
+    z = np.array([_ferraris_acc_bias_z(seed) for seed in range(1, 9)])
+    assert 0.6 < np.sqrt(np.mean(z**2)) < 1.45, np.round(z, 1)
+    white_only = np.array([_ferraris_acc_bias_z(seed, RecordingSettings(estimate_noise=False))
+                           for seed in range(1, 9)])
+    assert np.sqrt(np.mean(white_only**2)) > 1.6, np.round(white_only, 1)
