@@ -167,3 +167,35 @@ def test_old_logs_with_millisecond_time_are_read(tmp_path):
     recording, _ = import_log(tmp_path / "old.bin")
     np.testing.assert_allclose(recording.t, 5.0 + np.arange(n) * 0.02)
     np.testing.assert_array_equal(recording.triads["accelerometer"], accel)
+
+
+def _edited(real_log: Path, tmp_path: Path, name: bytes, old: bytes, new: bytes) -> Path:
+    """The real log with one message type's FMT changed: ``old`` → ``new`` (same length) inside
+    the FMT message that defines ``name`` (its 4-byte name field)."""
+    data = bytearray(real_log.read_bytes())
+    start = data.index(b"\xa3\x95\x80" + bytes([data[data.index(name) - 2]]))  # FMT header, type
+    start = data.index(name, start)
+    stop = start + 4 + 16 + 64  # name, format, columns
+    data[start:stop] = data[start:stop].replace(old, new, 1)
+    path = tmp_path / f"edited-{new.decode().strip(chr(0))}.bin"
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_real_log_without_a_column_names_the_file_message_and_column(real_log, tmp_path, capsys):
+    """pymavlink's log with its IMU's AccY column renamed in the FMT: one line naming the file,
+    the message, the column, what it has, and what fieldcal reads."""
+    log = _edited(real_log, tmp_path, b"IMU\0", b"AccY", b"AccQ")
+    err = one_line_error(["import", str(log), "--out", str(tmp_path / "s")], capsys)
+    assert f"{log}: its IMU messages have no AccY column (they have TimeUS, GyrX, GyrY, GyrZ, AccX, AccQ" in err
+    assert "fieldcal reads AccX, AccY, AccZ (m/s²) from IMU messages, or ACC and GYR" in err
+    assert "--map" in err
+    recording, _ = import_log(log, imu=1)  # IMU2 kept its columns
+    assert len(recording.t) == 45
+
+
+def test_real_log_without_imu_messages_names_the_file_and_what_it_has(real_log, tmp_path, capsys):
+    log = _edited(_edited(real_log, tmp_path, b"IMU\0", b"IMU\0", b"IMX\0"), tmp_path, b"IMU2", b"IMU2", b"IMY2")
+    err = one_line_error(["calibrate", str(log), "--out", str(tmp_path / "s")], capsys)
+    assert f"{log}: no IMU messages (nor ACC and GYR) in the log: set LOG_BITMASK to log IMU" in err
+    assert "IMX" in err and "IMY2" in err  # what it has instead

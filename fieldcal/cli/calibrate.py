@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import time
+from dataclasses import replace
 from pathlib import Path
 
 _EPILOG = """\
@@ -33,11 +34,6 @@ to take it from there instead. The gyroscope's bias is the poses' mean
 (less the vertical Earth rate), or estimated (--gyro-bias estimate)."""
 
 
-NOISE_FROM_CONFIG = "the config's noise model (bias instability included)"
-NOISE_FROM_REST = ("white, measured where the summary says; the bias instability is not known, so "
-                   "the biases' σ may be too small (give --config with the device's noise)")
-
-
 def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser = sub.add_parser(
         "calibrate", help="calibrate from a plain recording: poses found automatically, no turntable",
@@ -63,6 +59,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("--rest", type=float, metavar="S",
                         help="the recording starts with S seconds still: the noise level from there "
                         "(default: from the quietest windows, no rest assumed)")
+    parser.add_argument("--min-still", type=float, metavar="S",
+                        help="shortest still stretch taken as a pose, s (default 2; shorter poses "
+                        "have noisier means)")
     parser.add_argument("--gyro-bias", choices=("rest", "estimate"), default="rest",
                         help="gyro bias: the poses' mean (default) or estimated with the rest")
     parser.add_argument("--method", choices=("powell", "lsq"), default="powell",
@@ -125,7 +124,7 @@ def cmd_calibrate(args) -> int:
     with imports_uncollected():  # numpy and scipy.optimize: see imports_uncollected
         from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
         from fieldcal.recording.detect import DetectorSettings
-        from fieldcal.recording.results import parameter_file, summary_lines
+        from fieldcal.recording.results import noise_lines, parameter_file, summary_lines
         from fieldcal.session.capture import SessionReader, SessionWriter
 
         from fieldcal.cli.production import accept_after, load_spec_option, operator_option
@@ -143,6 +142,8 @@ def cmd_calibrate(args) -> int:
         raise ValueError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
     if args.rest is not None and not args.rest > 0:
         raise ValueError(f"--rest: expected a positive number of seconds, got {args.rest:g}")
+    if args.min_still is not None and not args.min_still > 0:
+        raise ValueError(f"--min-still: expected a positive number of seconds, got {args.min_still:g}")
     if args.params:  # refused before anything is imported or written
         from fieldcal.session.output import check_output_path
         check_output_path(args.params, force=args.force, option="--params")
@@ -153,7 +154,10 @@ def cmd_calibrate(args) -> int:
     triads = config.device.triads if config else ()
     noise = {t.name: t.noise for t in triads if t.noise is not None}
     tempco = {t.name: t.scale_tempco_ppm_per_k for t in triads if t.scale_tempco_ppm_per_k is not None}
-    settings = RecordingSettings(detector=DetectorSettings(init_rest_s=args.rest), method=args.method,
+    detector = DetectorSettings(init_rest_s=args.rest)
+    if args.min_still is not None:
+        detector = replace(detector, min_static_s=args.min_still)
+    settings = RecordingSettings(detector=detector, method=args.method,
                                  estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
                                  table_rate_deg_s=args.table_rate, scale_tempco_ppm_per_k=tempco)
     cal = calibrate_recording(recording, station, settings)
@@ -172,7 +176,8 @@ def cmd_calibrate(args) -> int:
     else:
         print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
               f"{station.gravity:.6f} m/s^2 ({station.gravity_source})")
-    print(f"noise: {NOISE_FROM_CONFIG if noise else NOISE_FROM_REST}")
+    for line in noise_lines(cal, bool(noise)):
+        print(line)
     for line in summary_lines(cal):
         print(line)
     print(f"\nparameter file: {directory / 'parameters.yaml'} (a copy of "

@@ -6,11 +6,13 @@ The threshold multiple of the pose detector is chosen as imu_tk chooses it: each
 poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
 wins; each set is ranked by the least χ² it allows, and only the best is solved by Powell.
 Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
-is more data, though only distinct poses count for the spread. The noise comes from the device's noise model when one is given (exact covariance of the
-pose means, bias instability included), else from the detector's noise level (the initial rest
-given by ``--rest``, or the recording's quietest windows): its per-axis variance
-weights each pose mean (white noise over the pose's samples), and the σ are scaled up by
-χ²/dof when the fit says white noise is not all there is. The gyroscope's bias is the mean of
+is more data, though only distinct poses count for the spread. The noise comes from the
+device's noise model when one is given (exact covariance of the pose means, bias instability
+included), else from a model of the same form measured from the recording (``noise_estimate``):
+the white noise of the detector's noise level (the initial rest given by ``--rest``, or the
+recording's quietest windows), the bias instability from how far the pose means scatter about
+the fit beyond it; either way the σ are scaled up by χ²/dof when the fit says the model is not
+all there is. The gyroscope's bias is the mean of
 every pose's still reading less the vertical Earth rate, which the accelerometer's up direction
 fixes; its σ comes from those readings' scatter (the horizontal Earth rate at an unknown heading,
 g-sensitivity, warm-up and other drift), counted over fewer poses when neighbours move together
@@ -30,8 +32,10 @@ from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
-from fieldcal.recording.detect import DetectionError, DetectorSettings, Poses, SpreadReport, interval_means
+from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport, interval_means,
+                                      too_short)
 from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
+from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
 from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.solvers.norm import SCREEN
 from fieldcal.calibration import Calibration
@@ -94,6 +98,9 @@ class RecordingSettings:
     # Each triad's scale temperature coefficient (ppm/K), e.g. from its device config: the σ of a
     # Ferraris session's scale factors hold that drift (fieldcal.recording.ferraris.ScaleDrift).
     scale_tempco_ppm_per_k: dict = field(default_factory=dict)
+    # A triad with no noise model in ``noise``: its white noise and bias instability estimated
+    # from the recording (see noise_estimate); False: white noise alone, as measured.
+    estimate_noise: bool = True
 
 
 @dataclass(frozen=True)
@@ -112,6 +119,7 @@ class RecordingCalibration:
     place: Station | UnknownPlace | None = None  # the station used (gravity filled in when unknown)
     protocol: str = NORM_PROTOCOL  # which solution was chosen, and why
     notes: tuple[str, ...] = ()  # what the solve did about the data, for the summary (e.g. clipped motions)
+    estimated_noise: dict = field(default_factory=dict)  # triad -> MeasuredNoise (SI) from the recording
 
 
 def _reduced_chi2(solution: Calibration) -> float:
@@ -147,7 +155,7 @@ def _means_covariance(intervals, t, variance, noise, K, unit) -> np.ndarray:
         return np.diag((variance[None, :] / counts[:, None]).ravel())
     durations = counts * float(np.median(np.diff(t)))
     cov = np.kron(noise.window_covariance(t[intervals[:, 0]], durations), K @ K.T)
-    if unit == "count":  # quantisation, one count
+    if unit == "count" and not isinstance(noise, MeasuredNoise):  # quantisation, one count (measured: in it)
         cov += np.kron(np.diag(1.0 / 12.0 / counts), np.eye(3))
     return cov
 
@@ -161,12 +169,39 @@ def _up_vectors(acc: Calibration, means: np.ndarray, means_cov: np.ndarray) -> t
     D = block_diag(*((np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]))  # ∂u/∂a
     P = len(means)
     K_inv = np.linalg.inv(acc.K)
-    steps = 1e-6 * np.maximum(np.abs(acc.theta), 1e-3)
-    J_theta = np.column_stack([((calibrate_with(acc.theta + h * e, means)
-                                 - calibrate_with(acc.theta - h * e, means)) / (2 * h)).ravel()
-                               for h, e in zip(steps, np.eye(len(steps)))])
+    J_theta = _calibrated_jacobian(acc.theta, means)
     J_means = np.kron(np.eye(P), K_inv)
     return u, D @ (J_theta @ acc.covariance @ J_theta.T + J_means @ means_cov @ J_means.T) @ D.T
+
+
+def _calibrated_jacobian(theta: np.ndarray, means: np.ndarray) -> np.ndarray:
+    """(3m, 9): ∂ calibrate_with(theta, means) / ∂theta, flattened pose by pose (central differences)."""
+    steps = 1e-6 * np.maximum(np.abs(theta), 1e-3)
+    return np.column_stack([((calibrate_with(theta + h * e, means)
+                              - calibrate_with(theta - h * e, means)) / (2 * h)).ravel()
+                            for h, e in zip(steps, np.eye(len(steps)))])
+
+
+def estimated_force_noise(solution: Calibration, means: np.ndarray, intervals: np.ndarray, t: np.ndarray,
+                          variance: np.ndarray, rate_hz: float, gravity: float) -> MeasuredNoise:
+    """A specific-force triad's noise model (SI) from its norm fit on white-noise weights: the
+    white noise of ``variance`` (output units² per sample, per axis), and the bias instability
+    that the pose means' scatter about the fit shows beyond it (``noise_estimate``). A norm
+    residual |a| − g sees a pose's noise along its up direction only, so two poses' flicker
+    is shared as uᵢ·uⱼ."""
+    a = calibrate_with(solution.theta, means)
+    u = a / np.linalg.norm(a, axis=1)[:, None]
+    m = len(means)
+    design = np.einsum("ik,ikp->ip", u, _calibrated_jacobian(solution.theta, means).reshape(m, 3, -1))
+    counts = np.diff(intervals, axis=1)[:, 0]
+    along = np.linalg.solve(solution.K.T, u.T).T  # K⁻ᵀu: an output-unit error's share along up
+    white = (along**2 @ variance) / counts
+    durations = counts / rate_hz
+    flicker = flicker_covariance(t[intervals[:, 0]], durations) * (u @ u.T)
+    b = bias_instability(np.linalg.norm(a, axis=1) - gravity, design, white, flicker, weights=1.0 / white)
+    K_inv = np.linalg.inv(solution.K)
+    white_si = float(np.sqrt(np.trace(K_inv @ np.diag(variance) @ K_inv.T) / 3 / rate_hz))
+    return MeasuredNoise(white=white_si, bias_instability=b)
 
 
 def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
@@ -183,10 +218,29 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
         if aligned is not None:
             return aligned
         most = max(choice.tried, key=lambda x: x[1])
+        poses = next(c.poses for c in detection.candidates if c.multiple == most[0])
         faces = _faces_missing(detection, settings.detector.min_static_s)
         raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
-                             f"{most[0]:g}× the noise level): {most[2]}{faces}")
-    return solve_triads(recording, detection, choice, station, settings)
+                             f"{most[0]:g}× the noise level): {most[2]}{too_short(poses, settings.detector)}"
+                             f"{faces}")
+    estimated = ()
+    if settings.estimate_noise and detection.reference not in settings.noise:
+        choice, settings = _with_estimated_noise(recording, detection, choice, station, settings)
+        estimated = (detection.reference,)
+    return solve_triads(recording, detection, choice, station, settings, estimated)
+
+
+def _with_estimated_noise(recording: Recording, detection: Detection, choice: PoseChoice,
+                          station: Station | UnknownPlace, settings: RecordingSettings):
+    """The reference accelerometer's noise model measured from its chosen fit, and its solution
+    again with it; the settings carry the model on to the gyro's up vectors."""
+    reference, poses = detection.reference, choice.best.poses
+    noise = estimated_force_noise(choice.reference_solution, poses.means, poses.intervals, recording.t,
+                                  detection.noise.variance, recording.rate_hz, station.gravity)
+    settings = replace(settings, noise={**settings.noise, reference: noise})
+    solution = _solve_static(reference, recording.units[reference], poses.means, poses.intervals, recording.t,
+                             detection.noise.variance, station.gravity, settings)
+    return replace(choice, reference_solution=solution), settings
 
 
 def _faces_missing(detection: Detection, min_static_s: float) -> str:
@@ -200,7 +254,7 @@ def _faces_missing(detection: Detection, min_static_s: float) -> str:
         return ""
     return (f"; for the Ferraris protocol (six faces and a full turn about each axis) {', '.join(missing)} "
             f"{'was' if len(missing) == 1 else 'were'} not found still for {min_static_s:g} s: hold each face "
-            "still for longer")
+            "still for longer, or give --min-still S")
 
 
 def place_gravity(station: Station | UnknownPlace, detection: Detection, unit: str) -> Station | UnknownPlace:
@@ -269,9 +323,11 @@ def choose_poses(recording: Recording, detection: Detection, station: Station | 
 
 
 def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
-                 station: Station | UnknownPlace, settings: RecordingSettings) -> RecordingCalibration:
+                 station: Station | UnknownPlace, settings: RecordingSettings,
+                 estimated_names: tuple[str, ...] = ()) -> RecordingCalibration:
     """Every other specific-force triad on the chosen poses, then each gyro from the rotations
-    between them; a triad that cannot be solved is a failure, not an error."""
+    between them; a triad that cannot be solved is a failure, not an error. ``estimated_names``:
+    the triads whose noise model in ``settings`` was measured from the recording."""
     poses, reference, acc_solution = choice.best.poses, detection.reference, choice.reference_solution
     failures: dict[str, str] = {}
     specific_force = {reference: acc_solution}
@@ -280,25 +336,35 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
         if name == reference:
             continue
         values = recording.triads[name]
+        means, variance = interval_means(values, keep), np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1)
         try:
-            specific_force[name] = _solve_static(
-                name, recording.units[name], interval_means(values, keep), keep, recording.t,
-                np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1), station.gravity, settings)
+            solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
+                                     station.gravity, settings)
+            if settings.estimate_noise and name not in settings.noise:  # as the reference's
+                noise = estimated_force_noise(solution, means, keep, recording.t, variance, recording.rate_hz,
+                                              station.gravity)
+                settings = replace(settings, noise={**settings.noise, name: noise})
+                estimated_names += (name,)
+                solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
+                                         station.gravity, settings)
+            specific_force[name] = solution
         except CalibrationError as exc:
             failures[name] = str(exc)
     turns = choice.best.turns
     angular_rate, bias_sigma, notes = {}, {}, []
+    estimated = {n: settings.noise[n] for n in estimated_names}
     for name in detection.rates:
         try:
-            angular_rate[name], bias_sigma[name], note = _solve_gyro(
+            angular_rate[name], bias_sigma[name], note, noise = _solve_gyro(
                 recording, name, poses, acc_solution, detection.noise.variance, station, settings, turns)
             notes += [note] if note else []
+            estimated.update({name: noise} if noise is not None else {})
         except CalibrationError as exc:
             failures[name] = str(exc)
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
     return RecordingCalibration(poses, choice.best.spread, choice.tried, specific_force, angular_rate, failures,
                                 reference, bias_sigma, turns, used, detection.noise.source, station,
-                                notes=tuple(notes))
+                                notes=tuple(notes), estimated_noise=estimated)
 
 
 @dataclass(frozen=True)
@@ -316,12 +382,15 @@ class GyroPrior:
     rate_noise: float
     rest_variance: np.ndarray
     wander_variance: float = 0.0  # rad²/s² per axis: how far the bias moves from pose to pose beyond the noise
+    estimated_noise: MeasuredNoise | None = None  # measured from the recording when no model was given
 
 
 def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, spans: np.ndarray,
-               station: Station | UnknownPlace, noise=None) -> GyroPrior:
+               station: Station | UnknownPlace, noise=None, estimate: bool = False) -> GyroPrior:
     """``noise``: the gyro's TriadNoise from a device config, if any: its bias instability moves
-    every pose's reading alike, which their scatter cannot show, so it widens the bias's σ."""
+    every pose's reading alike, which their scatter cannot show, so it widens the bias's σ.
+    Without one and with ``estimate``, the model is measured from the poses' still readings
+    (see estimated_rate_noise)."""
     t, gyro, iv = recording.t, recording.triads[name], poses.intervals
     counts = np.diff(iv, axis=1)[:, 0]
     rest = slice(iv[0, 0], iv[0, 1])
@@ -330,14 +399,8 @@ def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, sp
     k = RATE_UNITS.get(recording.units[name])
     if k is None:  # raw counts: the scale that makes the rotations fit
         k = scan_scale(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)
-    still = interval_means(gyro, iv)  # every pose's still reading: each one an estimate of the bias
-    if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
-        earth_var = EARTH_RATE**2 / 3
-    else:
-        sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
-        still = still - k * EARTH_RATE * sin_lat * up  # each pose sees the vertical Earth rate
-        # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
-        earth_var = (EARTH_RATE * cos_lat) ** 2 / 2
+    # Every pose's still reading: each one an estimate of the bias.
+    still, earth_var = _less_earth_rate(interval_means(gyro, iv), up, k, station)
     # A real gyro's still reading moves between poses (g-sensitivity, warm-up, temperature, bias
     # random walk): the mean over the poses, its σ from their scatter (see drift.still_bias); never
     # below what the Earth rate and the white noise alone leave in a mean over independent poses.
@@ -352,24 +415,58 @@ def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, sp
         spread = np.sum(residuals**2, axis=0) / (len(iv) - X.shape[1])
         noise_floor = k**2 * earth_var + np.mean(rest_var[None, :] / counts[:, None], axis=0)
         wander = float(np.mean(np.maximum(spread - noise_floor, 0.0))) / k**2
+    estimated = None
+    if noise is None and estimate:
+        noise = estimated = estimated_rate_noise(still, up, iv, t, k, rest_var, k**2 * earth_var,
+                                                 recording.rate_hz)
     if noise is not None and noise.bias_instability:
         weights = np.full(len(iv), 1.0 / len(iv))
         model = weights @ noise.window_covariance(t[iv[:, 0]], counts / recording.rate_hz) @ weights
         bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(k**2 * model - white, 0.0))
     arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
-    return GyroPrior(k, b0, bias_sigma, earth_var, arw, rest_var, wander)
+    return GyroPrior(k, b0, bias_sigma, earth_var, arw, rest_var, wander, estimated)
+
+
+def _less_earth_rate(still: np.ndarray, up: np.ndarray, scale: float,
+                     station: Station | UnknownPlace) -> tuple[np.ndarray, float]:
+    """The poses' still readings (m, 3) less the vertical Earth rate each sees (``scale``: output
+    units per rad/s), and the variance (rad²/s² per axis) of what is left of the Earth rate."""
+    if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
+        return still, EARTH_RATE**2 / 3
+    sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
+    # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
+    return still - scale * EARTH_RATE * sin_lat * up, (EARTH_RATE * cos_lat) ** 2 / 2
+
+
+def estimated_rate_noise(still: np.ndarray, up: np.ndarray, intervals: np.ndarray, t: np.ndarray,
+                         scale: float, rest_variance: np.ndarray, earth_variance: float,
+                         rate_hz: float) -> MeasuredNoise:
+    """A gyro's noise model (rad/s) from its poses' ``still`` readings (m, 3, the vertical Earth
+    rate taken off) and their fit (``drift.still_fit``): the white noise of ``rest_variance``
+    (output units² per sample, ``scale`` output units per rad/s) and the bias instability their
+    scatter shows beyond it and beyond the horizontal Earth rate's ``earth_variance`` (output
+    units², a heading's share per pose)."""
+    counts = np.diff(intervals, axis=1)[:, 0]
+    times = 0.5 * (t[intervals[:, 0]] + t[intervals[:, 1] - 1])
+    design, _, residuals = still_fit(still, up, times)
+    white = float(np.mean(rest_variance)) / counts + earth_variance
+    b = bias_instability(residuals, design, white, flicker_covariance(t[intervals[:, 0]], counts / rate_hz))
+    k = abs(scale)
+    return MeasuredNoise(white=float(np.sqrt(np.mean(rest_variance) / rate_hz)) / k, bias_instability=b / k)
 
 
 def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration, acc_var: np.ndarray,
                 station: Station, settings: RecordingSettings,
-                turns: np.ndarray) -> tuple[Calibration, np.ndarray]:
-    """The solution, its bias's 1σ, and a note for the summary (or "")."""
+                turns: np.ndarray) -> tuple[Calibration, np.ndarray, str, MeasuredNoise | None]:
+    """The solution, its bias's 1σ, a note for the summary (or "") and the noise model
+    measured from the recording (None: given, or not estimated)."""
     t, iv = regular_times(recording.t, recording.rate_hz), poses.intervals
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
     means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
                                   recording.units[acc.name])
     up, up_cov = _up_vectors(acc, poses.means, means_cov)
-    prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name))
+    prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name),
+                       settings.estimate_noise)
     gyro = recording.triads[name]
     extra = None
     if settings.table_rate_deg_s is not None and len(turns):
@@ -391,7 +488,7 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
                                RotationStart.of(prior.scale, prior.bias, settings.estimate_gyro_bias),
                                noise, extra, settings.gyro_method, name, recording.units[name])
     # Held, the bias's σ is bias_sigma (drift and g-sensitivity included); estimated, the fit's.
-    return solution, solution.sigma[:3], note
+    return solution, solution.sigma[:3], note, prior.estimated_noise
 
 
 def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
@@ -411,7 +508,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         means = interval_means(recording.triads[reference], trimmed)
         poses = replace(poses, intervals=trimmed, means=means)
     failures: dict[str, str] = {}
-    specific_force, angular_rate, bias_sigma = {}, {}, {}
+    specific_force, angular_rate, bias_sigma, estimated = {}, {}, {}, {}
     drift = ferraris.ScaleDrift(recording.t, recording.temperature, settings.scale_tempco_ppm_per_k)
     for name in detection.forces:
         values, unit = recording.triads[name], recording.units[name]
@@ -428,6 +525,10 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
             specific_force[name] = ferraris.solve_aligned_accelerometer(
                 name, unit, means, axes, station.gravity, covariance, np.diff(poses.intervals, axis=1)[:, 0],
                 drift=(drift.at(name, poses.intervals), drift.note(name)))
+            if settings.estimate_noise and name not in settings.noise:
+                specific_force[name], estimated[name] = _with_shared_flicker(
+                    specific_force[name], means, poses.intervals, axes, recording.t, variance, recording.rate_hz,
+                    scale)
         except CalibrationError as exc:
             if name == reference:
                 raise
@@ -458,4 +559,35 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate))
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
                                 bias_sigma, np.zeros((0, 2), int), False, noise.source, station, ALIGNED_PROTOCOL,
-                                notes)
+                                notes, estimated_noise=estimated)
+
+
+def _with_shared_flicker(solution: Calibration, means: np.ndarray, intervals: np.ndarray, axes: np.ndarray,
+                         t: np.ndarray, variance: np.ndarray, rate_hz: float,
+                         scale: np.ndarray) -> tuple[Calibration, MeasuredNoise]:
+    """A Ferraris accelerometer's solution with its biases' σ widened by the bias instability
+    that all faces share, and the noise model measured for it (SI; ``scale`` the nominal K).
+
+    B is measured from the repeated faces: a full turn on the table brings the unit back to the
+    attitude it had, so the still intervals before and after it on one face differ by noise
+    alone. (The six faces' fit, two degrees of freedom per axis, mostly sees how each face was
+    placed, not the sensor: on imucal's own session it put B at 3 mg and every σ at 5 times.)
+    Only the biases change: the faces' scatter already widens every σ (χ²/dof), and what no
+    scatter shows is the part of the flicker all faces share, which the bias, their mean, takes."""
+    counts = np.diff(intervals, axis=1)[:, 0]
+    faces = (axes[:, None] == np.arange(6)[None, :]).astype(float)  # which face each interval is on
+    white = float(np.mean(variance)) / counts
+    weights = 1.0 / white
+    root = np.sqrt(weights)[:, None]
+    fitted = faces @ np.linalg.lstsq(faces * root, means * root, rcond=None)[0]
+    flicker = flicker_covariance(t[intervals[:, 0]], counts / rate_hz)
+    b = bias_instability(means - fitted, faces, white, flicker, weights=weights)  # output units
+    mean_of_faces = (faces / faces.sum(axis=0)).sum(axis=1) / 6  # the bias as weights on the intervals
+    shared = b**2 * float(mean_of_faces @ flicker @ mean_of_faces)
+    covariance = solution.covariance.copy()
+    covariance[:3, :3] += shared * np.eye(3)
+    sigma = solution.sigma.copy()
+    sigma[:3] = np.sqrt(sigma[:3] ** 2 + shared)
+    k = float(np.mean(np.abs(np.diag(scale))))
+    noise = MeasuredNoise(white=float(np.sqrt(np.mean(variance) / rate_hz)) / k, bias_instability=b / k)
+    return replace(solution, covariance=covariance, sigma=sigma), noise

@@ -81,19 +81,17 @@ def _imu(path, log, data, instance):
             raise RecordingImportError(f"{path}: no IMU instance {instance}; the log has "
                                        f"{', '.join(map(str, instances))} (choose with --imu N)", path)
         values = values[values["I"] == instance]
-        name = f"IMU instance {instance}"
+        message, name = "IMU", f"IMU instance {instance}"
     else:
         present = [i for i, n in enumerate(LEGACY_NAMES) if n in log.name_to_id and log.counts[log.name_to_id[n]]]
         if instance not in present:
             raise RecordingImportError(f"{path}: no IMU instance {instance}; the log has "
                                        f"{', '.join(map(str, present))} (choose with --imu N)", path)
-        name = LEGACY_NAMES[instance]
-        values = _messages(path, log, data, name)
-        name = f"{name} (instance {instance})"
+        message = LEGACY_NAMES[instance]
+        values = _messages(path, log, data, message)
+        name = f"{message} (instance {instance})"
     t = _seconds(path, values, "TimeUS")
-    acc = np.column_stack([values[f"Acc{a}"] for a in "XYZ"]).astype(float)
-    gyro = np.column_stack([values[f"Gyr{a}"] for a in "XYZ"]).astype(float)
-    return t, acc, gyro, name, ()
+    return t, _triad(path, values, message, "Acc"), _triad(path, values, message, "Gyr"), name, ()
 
 
 def _acc_gyr(path, log, data, instance):
@@ -109,10 +107,27 @@ def _acc_gyr(path, log, data, instance):
     # SampleUS is when the sensor sampled; TimeUS when it was logged (batched, later).
     clock = "SampleUS" if "SampleUS" in acc_v.dtype.names else "TimeUS"
     t, tg = _seconds(path, acc_v, clock), _seconds(path, gyr_v, clock)
-    acc = np.column_stack([acc_v[f"Acc{a}"] for a in "XYZ"]).astype(float)
-    gyro = np.column_stack([np.interp(t, tg, gyr_v[f"Gyr{a}"].astype(float)) for a in "XYZ"])
+    acc = _triad(path, acc_v, "ACC", "Acc")
+    gyro = np.column_stack([np.interp(t, tg, column) for column in _triad(path, gyr_v, "GYR", "Gyr").T])
     return t, acc, gyro, f"ACC + GYR instance {instance}", (
         "gyroscope interpolated onto the accelerometer's time",)
+
+
+_TRIAD_UNITS = {"Acc": "m/s²", "Gyr": "rad/s"}
+
+
+def _triad(path: str, values: np.ndarray, message: str, prefix: str) -> np.ndarray:
+    """(n, 3) float: the ``prefix``X/Y/Z columns of ``message``'s messages; a one-line error
+    naming the file, the message and the columns missing when the log's FMT has not got them."""
+    wanted = [f"{prefix}{a}" for a in "XYZ"]
+    missing = [c for c in wanted if c not in values.dtype.names]
+    if missing:
+        raise RecordingImportError(
+            f"{path}: its {message} messages have no {', '.join(missing)} column{'s' * (len(missing) > 1)} (they "
+            f"have {', '.join(values.dtype.names)}); fieldcal reads {', '.join(wanted)} ({_TRIAD_UNITS[prefix]}) "
+            "from IMU messages, or ACC and GYR: for another layout export the log as text and import it with "
+            "--map naming its columns", path)
+    return np.column_stack([values[c] for c in wanted]).astype(float)
 
 
 def _seconds(path: str, values: np.ndarray, column: str) -> np.ndarray:

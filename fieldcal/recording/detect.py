@@ -36,7 +36,7 @@ API (``acc``: (n, 3) accelerometer samples in any unit, ``rate_hz``: sample rate
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -100,6 +100,8 @@ class Poses:
     up: np.ndarray
     distinct: np.ndarray
     multiple: float
+    # Durations (s) of the still stretches too short to be poses, for a refusal to name.
+    short_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def count(self) -> int:
@@ -290,11 +292,14 @@ class _EdgeSignals:
 def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multiple: float,
                      settings: DetectorSettings, gyro: np.ndarray | None = None) -> np.ndarray:
     return _static_intervals(_EdgeSignals.of(acc, rate_hz, noise, settings, gyro), rate_hz, noise, multiple,
-                             settings)
+                             settings)[0]
 
 
 def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, multiple: float,
-                      settings: DetectorSettings) -> np.ndarray:
+                      settings: DetectorSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The static intervals, and the durations (s) of the still stretches too short to be poses
+    (a quiet run's length plus the window that found it still, or an interval cut below
+    ``min_static_s`` by its edges), for a refusal to say that poses were held too briefly."""
     columns, inv_var = signals.columns, signals.inv_var
     n = len(columns[0])
     half = _half_window(rate_hz, settings)
@@ -303,7 +308,9 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
     quiet[: max(rest_n - half, 0)] = True  # noise_level has checked the initial rest: always a pose
     min_n = _samples(settings.min_static_s, rate_hz)
     runs = _runs(quiet)
-    runs = runs[((runs[:, 0] == 0) & (rest_n > 0)) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)]
+    long_enough = ((runs[:, 0] == 0) & (rest_n > 0)) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)
+    short = (runs[~long_enough, 1] - runs[~long_enough, 0] + 2 * half) / rate_hz
+    runs = runs[long_enough]
 
     k = _samples(settings.edge_window_s, rate_hz)
     guard = round(settings.guard_s * rate_hz)
@@ -324,7 +331,8 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
     if len(out) > 1:
         out[1:, 0] = np.maximum(out[1:, 0], out[:-1, 1])  # neighbours never share samples
     keep = (out[:, 1] - out[:, 0] >= min_n) | ((out[:, 0] == 0) & (rest_n > 0))
-    return out[keep]
+    short = np.r_[short, np.maximum(out[~keep, 1] - out[~keep, 0], 0) / rate_hz]
+    return out[keep], np.sort(short)
 
 
 def up_directions(means: np.ndarray, zero=None, sensitivity=None) -> np.ndarray:
@@ -390,11 +398,11 @@ def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, mult
 
 
 def _poses(signals: _EdgeSignals, acc, rate_hz, settings, multiple, noise, zero, sensitivity) -> Poses:
-    intervals = _static_intervals(signals, rate_hz, noise, multiple, settings)
+    intervals, short = _static_intervals(signals, rate_hz, noise, multiple, settings)
     means = signals.means[0](intervals)
     up = up_directions(means, zero, sensitivity)
     return Poses(intervals=intervals, means=means, up=up,
-                 distinct=distinct_poses(up, settings.min_separation_deg), multiple=float(multiple))
+                 distinct=distinct_poses(up, settings.min_separation_deg), multiple=float(multiple), short_s=short)
 
 
 def pose_candidates(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
@@ -445,6 +453,20 @@ def check_spread(up: np.ndarray, min_poses: int, cover_deg: float = 60.0,
         message = f"{count} distinct poses, well spread"
     ok = count >= min_poses and not missing and design >= min_design
     return SpreadReport(count=count, ok=ok, missing=missing, design=design, message=message)
+
+
+def too_short(poses: Poses, settings: DetectorSettings) -> str:
+    """What a refusal adds when still stretches were seen that were held too briefly to be poses
+    ("" when none were)."""
+    short = poses.short_s[poses.short_s > 0]
+    if not len(short):
+        return ""
+    lo, hi = f"{short.min():.1f}", f"{short.max():.1f}"
+    span = f"{lo}-{hi} s" if lo != hi else f"{lo} s"
+    were = "were" if len(short) != 1 else "was"
+    return (f"; {len(short)} more still stretch{'es' * (len(short) != 1)} of {span} {were} seen, held under the "
+            f"{settings.min_static_s:g} s a pose must last: hold each pose {settings.min_static_s:g} s or more, or "
+            f"give --min-still S to take shorter ones (their means are noisier)")
 
 
 def require_poses(poses: Poses, settings: DetectorSettings) -> SpreadReport:

@@ -42,6 +42,26 @@ def parameter_file(cal: RecordingCalibration, recording: Recording, station: Sta
                                simulation=simulation, operator=operator)
 
 
+def noise_lines(cal: RecordingCalibration, configured: bool) -> list[str]:
+    """How the σ were obtained: the config's noise model, or one estimated from the recording
+    (each triad's white noise and bias instability, SI units), or white noise alone."""
+    from fieldcal.recording.noise_estimate import ESTIMATED
+
+    if not cal.estimated_noise:
+        return [f"noise: {NOISE_FROM_CONFIG if configured else NOISE_WHITE_ONLY}"]
+    lines = [f"noise: {ESTIMATED}" + (f"; the others' from {NOISE_FROM_CONFIG}" if configured else "")]
+    for name, noise in cal.estimated_noise.items():
+        unit = "rad/s" if name in cal.angular_rate or name not in cal.specific_force else "m/s²"
+        lines.append(f"  {name}: white {noise.white:.3g} {unit}/√Hz, bias instability "
+                     f"{noise.bias_instability:.3g} {unit}")
+    return lines
+
+
+NOISE_FROM_CONFIG = "the config's noise model (bias instability included)"
+NOISE_WHITE_ONLY = ("white, measured where the summary says; the bias instability is not known, so "
+                    "the biases' σ may be too small (give --config with the device's noise)")
+
+
 def _tried(tried) -> str:
     """Runs of multiples with the same outcome as one entry: "2-20×: 19 poses, χ²/dof 0.51"."""
     groups: list[list] = []
