@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from fieldcal.apply import apply_file, calibrated_blocks, plan
-from fieldcal.apply.fixed import format_rows
 from fieldcal.calibration import Calibration
 from fieldcal.cli.main import main
 from fieldcal.earth import Station
@@ -89,17 +88,6 @@ def test_a_triad_missing_from_the_parameters_is_skipped_and_a_wrong_unit_refused
     assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 2
     err = capsys.readouterr().err
     assert "read in 'g' but was calibrated in 'm/s^2'" in err and err.count("\n") == 1
-
-
-def test_fixed_point_text_reads_back_to_the_rounded_values():
-    values = np.array([[0.0, -0.5, 123.456789, -99999.123456789], [1e-10, -1e-9, 9.80665, -4e-10]])
-    text = format_rows([(values, 9, 5)]).decode()
-    assert text.splitlines()[1] == "     0.000000000,    -0.000000001,     9.806650000,     0.000000000"
-    np.testing.assert_array_equal(np.loadtxt(text.splitlines(), delimiter=","), np.round(values, 9))
-    with pytest.raises(ValueError, match="does not fit 5 digits"):
-        format_rows([(np.array([[1e5]]), 9, 5)])
-    with pytest.raises(ValueError, match="nan"):
-        format_rows([(np.array([[np.nan]]), 9, 5)])
 
 
 def test_two_file_map_writes_one_csv_per_input_into_a_directory(tmp_path, capsys):

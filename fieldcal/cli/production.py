@@ -178,7 +178,9 @@ def cmd_apply(args) -> int:
     from fieldcal.paramfile import load
     from fieldcal.recording.import_map import load_import_map
 
-    plans = plan(load(args.params), load_import_map(args.map), args.input)
+    if args.rate is not None and not args.rate > 0:
+        raise ValueError(f"apply: --rate: expected a sample rate above 0 Hz, got {args.rate:g}")
+    plans = plan(load(args.params), load_import_map(args.map), args.input, args.rate)
     targets = _apply_targets(args, plans)
     for p, target in zip(plans, targets):
         for name in p.skipped:
@@ -352,7 +354,8 @@ def add_production_parsers(sub) -> None:
         "apply", help="calibrated CSV from a recording's text files",
         description="Read a recording's text files in an import map's layout, block by block, and "
         "write each calibrated triad K⁻¹(raw − bias) in SI units (m/s^2, rad/s) as CSV: a time "
-        "column t_s, then x, y, z per triad.")
+        "column t_s, then x, y, z per triad, every number in the fewest digits that read back to "
+        "it exactly. A malformed line stops it with the line's number.")
     apply.add_argument("params", metavar="PARAMS", help="parameter file")
     apply.add_argument("input", nargs="+", metavar="INPUT", help="text files, one per map entry")
     apply.add_argument("--map", required=True, metavar="MAP", help="import map: a name in "
@@ -360,6 +363,8 @@ def add_production_parsers(sub) -> None:
     apply.add_argument("--out", metavar="PATH", help="the CSV (one input) or a directory for "
                        "INPUT-calibrated.csv files (default: standard output, one input)")
     apply.add_argument("--force", action="store_true", help="replace existing output files")
+    apply.add_argument("--rate", type=float, metavar="HZ",
+                       help="sample rate of files with no time column (else rate_hz in the map)")
     apply.set_defaults(func=cmd_apply)
 
     units = sub.add_parser("units", help="the units in the registry, with their last calibration",
