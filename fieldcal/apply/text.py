@@ -112,7 +112,7 @@ def layout(path: str, spec: FileSpec, triads) -> Layout:
             _check_ending(path, tail, size, cm)
             return probe
         offset += len(line)
-    raise TextError(f"{path}: no sample of {spec.name} in its first {HEADER_SEARCH_LINES} lines (a line "
+    raise TextError(f"apply: {path}: no sample of {spec.name} in its first {HEADER_SEARCH_LINES} lines (a line "
                     f"with a number in every column read: {', '.join(r for r, _ in roles)}); "
                     "check the map's delimiter and columns", path)
 
@@ -122,7 +122,7 @@ def _check_ending(path: str, tail: bytes, size: int, cm: ChannelMap) -> None:
     text = last.strip(b" \t\r")
     if text and not (cm.comment and text.startswith(cm.comment.encode("ascii"))):
         line = _count_lines(path, size) + 1
-        raise TextError(f"{path}: line {line}: the last line has no line end: the recording was cut "
+        raise TextError(f"apply: {path}: line {line}: the last line has no line end: the recording was cut "
                         f"off mid-write and its last number may be cut short ({last[:60].decode('utf-8', 'replace')!r}); "
                         "delete the line, or end it with a newline if it is whole", path, line)
 
@@ -178,11 +178,11 @@ def _bad_line(path: str, lay: Layout, from_row: int, exc: Exception | None) -> T
                 why = lay.fault(line)
                 if why is not None:
                     shown = line.rstrip(b"\r\n")[:60].decode("utf-8", "replace")
-                    return TextError(f"{path}: line {number}: {why} ({shown!r}); fix or delete the line",
+                    return TextError(f"apply: {path}: line {number}: {why} ({shown!r}); fix or delete the line",
                                      path, number)
             row += 1
     detail = str(exc).splitlines()[0] if exc is not None else "a value that is not a finite number"
-    return TextError(f"{path}: after sample {from_row}: {detail}; fix or delete the line", path)
+    return TextError(f"apply: {path}: after sample {from_row}: {detail}; fix or delete the line", path)
 
 
 class _Squeezed:
