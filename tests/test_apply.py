@@ -187,6 +187,7 @@ def test_blank_separated_text_with_ragged_blanks(tmp_path):
 def test_squeezing_blanks():
     assert squeeze_blanks(b"  1 \t 2\t3  \r\n\t4  5\n \n") == b"1 2 3\r\n4 5\n\n"
     assert squeeze_blanks(b"1,2\n") == b"1,2\n"
+    assert squeeze_blanks(b"1  2\t3\n", 3) == b"1 2 3\n"
 
 
 def test_named_columns_without_time_are_timed_by_the_rate(tmp_path, capsys):
@@ -261,3 +262,17 @@ def test_header_comments_and_blank_lines_are_skipped(tmp_path, capsys):
     (tmp_path / "empty.csv").write_text("t_ms,ax,ay,az,gx,gy,gz,T\n")
     assert main(["apply", str(params), str(tmp_path / "empty.csv"), "--map", "single-csv"]) == 2
     assert "no sample of CSV log in its first 200 lines" in capsys.readouterr().err
+
+
+def test_a_blank_too_many_is_not_hidden_by_a_short_line(tmp_path):
+    """Counting blanks alone cannot tell "1  2 3 4" + "5 6 7" from two good lines: the short
+    line is still the one refused."""
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
+                      K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    (tmp_path / "acc.txt").write_text("0 1 2 3\n0.01 1  2 3\n0.02 1 2\n0.03 1 2 3\n")
+    np.savetxt(tmp_path / "gyro.txt", np.zeros((1, 4)))
+    gyro = Calibration(name="gyroscope", kind="angular_rate", output_unit="count", method="powell",
+                       K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    plans = plan(parameter_file(acc, gyro), load_import_map("imu_tk"), [tmp_path / "acc.txt", tmp_path / "gyro.txt"])
+    with pytest.raises(TextError, match="line 3: 3 fields where the first sample has 4"):
+        _applied(plans[0], 1 << 20)

@@ -150,7 +150,7 @@ def read_blocks(path: str, lay: Layout, block_bytes: int) -> Iterator[np.ndarray
     rows = 0
     with open(path, "rb") as fh:
         fh.seek(lay.start)
-        source = _Squeezed(fh) if lay.squeezed else fh
+        source = _Squeezed(fh, lay.fields) if lay.squeezed else fh
         try:
             reader = csv.open_csv(source, read_options=read, parse_options=parse, convert_options=convert)
             for batch in reader:
@@ -189,8 +189,9 @@ class _Squeezed:
     """A blank-separated file as Arrow reads it: each run of blanks one space, none at a line's
     start or end. Whole lines only (a run never spans two reads); line numbers are kept."""
 
-    def __init__(self, fh) -> None:
+    def __init__(self, fh, fields: int) -> None:
         self._fh = fh
+        self._fields = fields
         self._rest = b""
         self.closed = False
 
@@ -201,7 +202,7 @@ class _Squeezed:
             more = self._fh.readline()
             data, cut = data + more, len(data + more)
         self._rest = data[cut:] if cut else b""
-        return squeeze_blanks(data[:cut] if cut else data)
+        return squeeze_blanks(data[:cut] if cut else data, self._fields)
 
     def readable(self) -> bool:
         return True
@@ -213,8 +214,14 @@ class _Squeezed:
         self.closed = True
 
 
-def squeeze_blanks(block: bytes) -> bytes:
-    """Runs of spaces and tabs as one space, none at the start or end of a line (vectorised)."""
+def squeeze_blanks(block: bytes, fields: int | None = None) -> bytes:
+    """Runs of spaces and tabs as one space, none at the start or end of a line (vectorised).
+
+    A block of whole lines with no tab and ``fields - 1`` spaces a line is returned as it is
+    (the usual logger's output; two byte counts). Its lines could only differ from "x y z" if a
+    line with a blank too many were balanced by a short line, which the reader refuses anyway."""
+    if fields and b"\t" not in block and block.count(b" ") == (fields - 1) * block.count(b"\n"):
+        return block
     a = np.frombuffer(block, dtype=np.uint8)
     blank = (a == 32) | (a == 9)
     if not blank.any():
