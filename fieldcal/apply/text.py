@@ -67,7 +67,8 @@ class Layout:
 
     def skipped(self, line: bytes) -> bool:
         """A line that is no sample and no fault: blank, or a comment with another number of
-        fields than a sample (a comment with as many reads as a bad sample)."""
+        fields than a sample (Arrow hands over only such lines; a comment line with as many
+        fields as a sample is read as one, and refused)."""
         text = line.strip(b" \t\r\n")
         comment = self.channel_map.comment
         return not text or (comment is not None and text.startswith(comment.encode("ascii"))
@@ -109,7 +110,7 @@ def layout(path: str, spec: FileSpec, triads) -> Layout:
     for number, line in enumerate(_LINES.findall(complete)[:HEADER_SEARCH_LINES], 1):
         probe = Layout(cm, roles, offset, number - 1, len(split_fields(cm, line)))
         if max(c for _, c in roles) < probe.fields and not probe.skipped(line) and probe.fault(line) is None:
-            _check_ending(path, tail, size, cm)
+            _check_ending(path, tail, cm)
             return probe
         offset += len(line)
     raise TextError(f"apply: {path}: no sample of {spec.name} in its first {HEADER_SEARCH_LINES} lines (a line "
@@ -117,17 +118,17 @@ def layout(path: str, spec: FileSpec, triads) -> Layout:
                     "check the map's delimiter and columns", path)
 
 
-def _check_ending(path: str, tail: bytes, size: int, cm: ChannelMap) -> None:
+def _check_ending(path: str, tail: bytes, cm: ChannelMap) -> None:
     last = tail[tail.rfind(b"\n") + 1:]
     text = last.strip(b" \t\r")
     if text and not (cm.comment and text.startswith(cm.comment.encode("ascii"))):
-        line = _count_lines(path, size) + 1
+        line = _count_lines(path) + 1
         raise TextError(f"apply: {path}: line {line}: the last line has no line end: the recording was cut "
                         f"off mid-write and its last number may be cut short ({last[:60].decode('utf-8', 'replace')!r}); "
                         "delete the line, or end it with a newline if it is whole", path, line)
 
 
-def _count_lines(path: str, size: int) -> int:
+def _count_lines(path: str) -> int:
     with open(path, "rb") as fh:
         return sum(block.count(b"\n") for block in iter(lambda: fh.read(1 << 22), b""))
 
