@@ -65,7 +65,7 @@ def _layouts(tmp: Path, n: int, rng) -> list[tuple[str, object, list[Path], tupl
     _write_text(named, {"gyr_x": gyr[:, 0], "gyr_y": gyr[:, 1], "gyr_z": gyr[:, 2],
                         "acc_x": acc[:, 0] / 100, "acc_y": acc[:, 1] / 100, "acc_z": acc[:, 2] / 100})
     return [("single-csv (CSV, 8 columns)", "single-csv", [single], ("g", "rad/s")),
-            ("imu_tk (2 blank-separated files)", "imu_tk", imu_tk, ("count", "count")),
+            ("imu_tk (2 blank-separated files; a sample is a line of each)", "imu_tk", imu_tk, ("count", "count")),
             ("imucal (CSV, named columns, no time)", "imucal", [named], ("m/s^2", "deg/s"))]
 
 
