@@ -2,6 +2,8 @@
 inputs the raw text was made from; a malformed line stops it with the line's number."""
 import io
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -276,3 +278,17 @@ def test_a_blank_too_many_is_not_hidden_by_a_short_line(tmp_path):
     plans = plan(parameter_file(acc, gyro), load_import_map("imu_tk"), [tmp_path / "acc.txt", tmp_path / "gyro.txt"])
     with pytest.raises(TextError, match="line 3: 3 fields where the first sample has 4"):
         _applied(plans[0], 1 << 20)
+
+
+def test_output_piped_into_head_ends_quietly(tmp_path):
+    """`fieldcal apply ... | head`: the reader leaving is not an error (exit 0, nothing on stderr)."""
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD * 20) + "\n")  # ~3 MB out, beyond a pipe
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    code = (f"from fieldcal.cli.main import main; raise SystemExit(main(['apply', {str(params)!r}, "
+            f"{str(path)!r}, '--map', 'single-csv']))")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout.readline().startswith(b"t_s,accelerometer_x")
+    proc.stdout.close()
+    assert proc.wait(timeout=120) == 0
+    assert proc.stderr.read() == b""

@@ -11,6 +11,7 @@ and polars are imported only when apply runs.
 """
 from __future__ import annotations
 
+import io
 import itertools
 import os
 from dataclasses import dataclass
@@ -122,6 +123,10 @@ def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES) -> int:
     for t, values in itertools.chain([first] if first is not None else [], blocks):
         # polars writes each double in the fewest digits that read back to it bit for bit
         # (Ryu), twice as fast as Arrow's writer: the write is most of apply's time.
-        pl.DataFrame(dict(zip(names, [t, *values.T]))).write_csv(out, include_header=False)
+        # Formatted into memory, then written by Python: a closed pipe (``| head``) is then
+        # Python's BrokenPipeError, which the command takes as the reader's choice.
+        text = io.BytesIO()
+        pl.DataFrame(dict(zip(names, [t, *values.T]))).write_csv(text, include_header=False)
+        out.write(text.getbuffer())
         n += len(t)
     return n
