@@ -293,3 +293,33 @@ def test_output_piped_into_head_ends_quietly(tmp_path):
     proc.stdout.close()
     assert proc.wait(timeout=120) == 0
     assert proc.stderr.read() == b""
+
+
+@pytest.mark.parametrize("files, map_name, units", [
+    (["imu_tk_xsens_acc.mat.gz", "imu_tk_xsens_gyro.mat.gz"], "imu_tk", ("count", "count")),
+    (["imucal_ferraris_session.csv.gz"], "imucal", ("m/s^2", "deg/s")),
+], ids=["imu_tk Xsens logs", "imucal Ferraris CSV"])
+def test_real_device_files_give_what_fieldcal_import_reads(tmp_path, files, map_name, units):
+    """Real bytes (tests/data/real): imu_tk's Xsens logs (runs of blanks, counts, two files) and
+    imucal's Ferraris CSV (columns by name, no time column). What apply calibrates is what the
+    importer's own parser (a separate reader) reads, calibrated."""
+    from test_real_recordings import unpacked
+
+    from fieldcal.recording.importer import import_recording
+    paths = unpacked(tmp_path, *files)
+    rate = 102.4 if map_name == "imucal" else None
+    recording = import_recording(paths, map_name, rate_hz=rate)
+    cals = [Calibration(name=name, kind=kind, output_unit=unit, method="classic",
+                        K=k_from_terms([k] * 3, [1e-3, -2e-3, 5e-4, 1e-3, 3e-3, -1e-3]), bias=[b, -b, 2 * b],
+                        sigma=np.zeros(9), residual_rms=0.0)
+            for name, kind, unit, k, b in zip(("accelerometer", "gyroscope"), ("specific_force", "angular_rate"),
+                                              units, (1.2, 0.9), (0.3, 0.7) if map_name == "imucal" else (32768, 32000))]
+    plans = plan(parameter_file(*cals), load_import_map(map_name), paths, rate_hz=rate)
+    first = np.loadtxt(io.BytesIO(_applied(plans[0], 1 << 16)), delimiter=",", skiprows=1)
+    # the importer keeps the first file's samples where all files overlap, bit for bit
+    keep = np.isin(first[:, 0], recording.t)
+    assert keep.sum() == len(recording.t) > 5000
+    triad = plans[0].calibrations[0]
+    np.testing.assert_allclose(first[keep, 1:4], triad.calibrate(recording.triads[triad.name]), rtol=1e-13, atol=1e-12)
+    if map_name == "imucal":  # both triads in one file
+        np.testing.assert_allclose(first[:, 4:7], cals[1].calibrate(recording.triads["gyroscope"]), rtol=1e-13, atol=1e-12)
