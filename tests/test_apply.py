@@ -7,6 +7,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from fieldcal.apply import apply_file, calibrated_blocks, plan
 from fieldcal.apply.text import TextError, squeeze_blanks
@@ -190,7 +192,9 @@ def test_blank_separated_text_with_ragged_blanks(tmp_path):
 def test_squeezing_blanks():
     assert squeeze_blanks(b"  1 \t 2\t3  \r\n\t4  5\n \n") == b"1 2 3\r\n4 5\n\n"
     assert squeeze_blanks(b"1,2\n") == b"1,2\n"
-    assert squeeze_blanks(b"1  2\t3\n", 3) == b"1 2 3\n"
+    assert squeeze_blanks(b"1 2\t3\n") == b"1 2 3\n"
+    assert squeeze_blanks(b"\t\ta\t\tb\t\t") == b"a b"  # the end of the block ends a line
+    assert squeeze_blanks(b"") == b""
 
 
 def test_named_columns_without_time_are_timed_by_the_rate(tmp_path, capsys):
@@ -268,8 +272,7 @@ def test_header_comments_and_blank_lines_are_skipped(tmp_path, capsys):
 
 
 def test_a_blank_too_many_is_not_hidden_by_a_short_line(tmp_path):
-    """Counting blanks alone cannot tell "1  2 3 4" + "5 6 7" from two good lines: the short
-    line is still the one refused."""
+    """A blank too many is no fault in a blank-separated file; the short line after it is."""
     acc = Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
                       K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
     (tmp_path / "acc.txt").write_text("0 1 2 3\n0.01 1  2 3\n0.02 1 2\n0.03 1 2 3\n")
@@ -323,3 +326,12 @@ def test_real_device_files_give_what_fieldcal_import_reads(tmp_path, files, map_
     np.testing.assert_allclose(first[keep, 1:4], triad.calibrate(recording.triads[triad.name]), rtol=1e-13, atol=1e-12)
     if map_name == "imucal":  # both triads in one file
         np.testing.assert_allclose(first[:, 4:7], cals[1].calibrate(recording.triads["gyroscope"]), rtol=1e-13, atol=1e-12)
+
+
+@given(st.lists(st.text(alphabet=" \t1a-.", max_size=12), max_size=8), st.sampled_from(["\n", "\r\n"]),
+       st.booleans())
+def test_squeezing_blanks_is_splitting_each_line_on_blanks(lines, end, ended):
+    """The vectorised squeeze against Python's own bytes.split, line by line."""
+    text = end.join(lines) + (end if ended else "")
+    want = "\n".join(" ".join(line.split()) for line in text.split("\n"))
+    assert squeeze_blanks(text.encode()).decode().replace("\r", "") == want.replace("\r", "")

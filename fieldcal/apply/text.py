@@ -151,7 +151,7 @@ def read_blocks(path: str, lay: Layout, block_bytes: int) -> Iterator[np.ndarray
     rows = 0
     with open(path, "rb") as fh:
         fh.seek(lay.start)
-        source = _Squeezed(fh, lay.fields) if lay.squeezed else fh
+        source = _Squeezed(fh) if lay.squeezed else fh
         try:
             reader = csv.open_csv(source, read_options=read, parse_options=parse, convert_options=convert)
             for batch in reader:
@@ -190,9 +190,8 @@ class _Squeezed:
     """A blank-separated file as Arrow reads it: each run of blanks one space, none at a line's
     start or end. Whole lines only (a run never spans two reads); line numbers are kept."""
 
-    def __init__(self, fh, fields: int) -> None:
+    def __init__(self, fh) -> None:
         self._fh = fh
-        self._fields = fields
         self._rest = b""
         self.closed = False
 
@@ -203,7 +202,7 @@ class _Squeezed:
             more = self._fh.readline()
             data, cut = data + more, len(data + more)
         self._rest = data[cut:] if cut else b""
-        return squeeze_blanks(data[:cut] if cut else data, self._fields)
+        return squeeze_blanks(data[:cut] if cut else data)
 
     def readable(self) -> bool:
         return True
@@ -215,25 +214,26 @@ class _Squeezed:
         self.closed = True
 
 
-def squeeze_blanks(block: bytes, fields: int | None = None) -> bytes:
-    """Runs of spaces and tabs as one space, none at the start or end of a line (vectorised).
-
-    A block of whole lines with no tab and ``fields - 1`` spaces a line is returned as it is
-    (the usual logger's output; two byte counts). Its lines could only differ from "x y z" if a
-    line with a blank too many were balanced by a short line, which the reader refuses anyway."""
-    if fields and b"\t" not in block and block.count(b" ") == (fields - 1) * block.count(b"\n"):
-        return block
+def squeeze_blanks(block: bytes) -> bytes:
+    """Runs of spaces and tabs as one space, none at the start or end of a line (vectorised;
+    a block already so, the usual logger's output, is returned as it is)."""
     a = np.frombuffer(block, dtype=np.uint8)
-    blank = (a == 32) | (a == 9)
-    if not blank.any():
+    if not len(a):
         return block
-    run_start = np.flatnonzero(blank & ~np.r_[False, blank[:-1]])
-    run_stop = np.flatnonzero(blank & ~np.r_[blank[1:], False]) + 1
-    before = a[np.maximum(run_start - 1, 0)]
-    after = a[np.minimum(run_stop, len(a) - 1)]
-    inner = (run_start > 0) & (before != _LF) & (run_stop < len(a)) & (after != _LF) & (after != _CR)
-    keep = ~blank
-    keep[run_start[inner]] = True
-    out = a.copy()
-    out[run_start] = 32
-    return out[keep].tobytes()
+    blank = (a == 32) | (a == 9)
+    line_end = (a == _LF) | (a == _CR)
+    follows_blank_or_line = np.empty_like(blank)
+    follows_blank_or_line[0] = True
+    np.logical_or(blank[:-1], a[:-1] == _LF, out=follows_blank_or_line[1:])
+    drop = blank & follows_blank_or_line  # all of a run but its first blank; a line's leading run
+    drop[:-1] |= blank[:-1] & line_end[1:]  # a run's last blank before a line's end
+    drop[-1] |= blank[-1]
+    if not drop.any():
+        return block.replace(b"\t", b" ")
+    kept = a[~drop]
+    # a run's first blank, kept above, may now stand just before a line's end
+    blank = (kept == 32) | (kept == 9)
+    trailing = np.append(blank[:-1] & ((kept[1:] == _LF) | (kept[1:] == _CR)), blank[-1:])
+    kept = kept[~trailing]
+    kept[kept == 9] = 32
+    return kept.tobytes()
