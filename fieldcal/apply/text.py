@@ -1,14 +1,15 @@
 """A recording's text file in an import map's layout, read block by block by Apache Arrow's CSV
-reader (``pyarrow.csv.open_csv``): the mapped columns as float64 numpy arrays, ``block_bytes``
-of text at a time, whatever the file's length.
+reader (``pyarrow.csv.open_csv``): the columns read (the time and the triads calibrated; other
+columns may hold anything) as float64 numpy arrays, ``block_bytes`` of text at a time, whatever
+the file's length.
 
 What is read, and what is refused (a one-line :class:`TextError` naming the file and line):
 
 - Lines before the first sample (column names, ``Fs,100`` metadata, comments) are skipped; the
-  first sample is the first line whose mapped fields are all numbers. Named columns are found
+  first sample is the first line with a number in every column read. Named columns are found
   in the header line as ``fieldcal import`` finds them.
 - After it, blank lines and comment lines are skipped; every other line is a sample and must
-  have as many fields as the first one, with a finite number in every mapped field. A line that
+  have as many fields as the first one, with a finite number in every column read. A line that
   does not (a short line, text, ``nan``) stops the read with its line number: apply never drops
   or guesses a sample.
 - A last line with no line end is a recording cut off mid-write (its last number may be cut
