@@ -210,6 +210,8 @@ def test_named_columns_without_time_are_timed_by_the_rate(tmp_path, capsys):
     argv = ["apply", str(params), str(path), "--map", "imucal"]
     assert main(argv) == 2
     assert "no time column: give its sample rate (--rate HZ" in capsys.readouterr().err
+    assert main([*argv, "--rate", "0"]) == 2
+    assert "--rate: expected a sample rate above 0 Hz, got 0" in capsys.readouterr().err
     assert main([*argv, "--rate", "100"]) == 0
     data = np.loadtxt(io.StringIO(capsys.readouterr().out), delimiter=",", skiprows=1)
     np.testing.assert_allclose(data[:, 0], np.arange(40) / 100, rtol=0, atol=1e-15)
