@@ -226,9 +226,10 @@ GOOD = [f"{1000 + 4 * i},{i % 7}.5,{2 * i},-{i % 5},0.1,0.2,0.3,25" for i in ran
     (GOOD[:1400] + ["6600,1,2"] + GOOD[1400:], 1402, "3 fields where the first sample has 8"),
     (GOOD[:1400] + ["6600,1,2,3,0.1,0.2,0.3"] + GOOD[1400:], 1402, "7 fields where the first sample has 8"),
     (GOOD[:1400] + ["6600,1,,3,0.1,0.2,0.3,25"] + GOOD[1400:], 1402, "accelerometer.y (column 3) is empty"),
+    (GOOD[:1400] + ["6600,1,2,3,0.1,0.2,0.3,25,7"] + GOOD[1400:], 1402, "9 fields where the first sample has 8"),
     (GOOD[:30] + ["1120,1,2,3,nan,0.2,0.3,25"] + GOOD[30:], 32, "gyroscope.x (column 5) is 'nan'"),
     (GOOD[:30] + ["1120,1,2,3,0.1,1e999,0.3,25"] + GOOD[30:], 32, "gyroscope.y (column 6) is '1e999'"),
-], ids=["text in the middle", "short line", "missing column", "empty field", "nan", "overflow"])
+], ids=["text in the middle", "short line", "missing column", "empty field", "long line", "nan", "overflow"])
 @pytest.mark.parametrize("block_bytes", [1 << 20, 4096])
 def test_a_malformed_line_stops_apply_with_its_number(tmp_path, capsys, lines, where, what, block_bytes):
     """Never a sample dropped or guessed: one line naming the file and the line, nothing written."""
@@ -244,6 +245,20 @@ def test_a_malformed_line_stops_apply_with_its_number(tmp_path, capsys, lines, w
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"line {where}:" in err and "Traceback" not in err
     assert sorted(tmp_path.iterdir()) == sorted([path, params])  # no CSV, no partial file left
+
+
+def test_an_empty_field_not_read_is_no_fault(tmp_path):
+    """The temperature (not calibrated) empty on some lines, last on the line: the samples are
+    read, an empty last field being no missing one."""
+    lines = [line.rsplit(",", 1)[0] + "," if i % 3 == 0 else line for i, line in enumerate(GOOD)]
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(lines) + "\n")
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    data = np.loadtxt(io.BytesIO(_applied(p, 4096)), delimiter=",", skiprows=1)
+    raw = np.array([[float(v) for v in line.split(",")[1:7]] for line in GOOD])
+    np.testing.assert_array_equal(data[:, 0], (1000 + 4 * np.arange(2000)) / 1000)
+    np.testing.assert_allclose(data[:, 1:], np.hstack([ACC.calibrate(raw[:, :3] * 1e-3),
+                                                       GYR.calibrate(np.deg2rad(raw[:, 3:]))]), rtol=1e-13, atol=1e-13)
 
 
 def test_a_last_line_cut_off_mid_write_is_refused(tmp_path, capsys):

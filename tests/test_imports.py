@@ -14,7 +14,7 @@ import pytest
 # Packages `fieldcal --help` must not pay for: numpy and everything built on it, the plotting and
 # TUI stacks, the simulator, and the CSV libraries of `fieldcal apply`.
 HEAVY = ("numpy", "scipy", "matplotlib", "allantools", "textual", "yaml", "drivers.sim",
-         "fieldcal.solvers.norm", "pyarrow", "polars")
+         "fieldcal.solvers.norm", "polars")
 
 _REPORT = """
 import json, sys

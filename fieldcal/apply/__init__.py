@@ -1,13 +1,13 @@
 """Calibrated output from a recording: text in (an import map's layout), CSV out, in blocks.
 
-Each input file is read ``block_bytes`` at a time by Apache Arrow's CSV reader
+Each input file is read ``block_bytes`` at a time by polars' CSV reader
 (:mod:`fieldcal.apply.text`: the columns read as float64 arrays; a malformed line stops the
 read with its line number), every triad the parameter file calibrates is corrected as
 ``Calibration.calibrate`` does, K⁻¹(raw − bias) into SI units, by one numpy product over the
-whole block, and the block is written by polars' CSV writer before the next is read: memory stays bounded by the
-block, whatever the recording's length. Every number is written in the fewest digits that read
-back to the same double (``1.004``, ``-0.12345678901234567``): nothing is rounded off. pyarrow
-and polars are imported only when apply runs.
+whole block, and the block is written by polars' CSV writer before the next is read: memory
+stays bounded by the block, whatever the recording's length. Every number is written in the
+fewest digits that read back to the same double (``1.004``, ``-0.12345678901234567``): nothing
+is rounded off. polars is imported only when apply runs.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""A recording's text file in an import map's layout, read block by block by Apache Arrow's CSV
-reader (``pyarrow.csv.open_csv``): the columns read (the time and the triads calibrated; other
-columns may hold anything) as float64 numpy arrays, ``block_bytes`` of text at a time, whatever
-the file's length.
+"""A recording's text file in an import map's layout, read block by block by polars' CSV reader
+(``polars.read_csv`` on whole lines, ``block_bytes`` of text at a time, whatever the file's
+length): the columns read (the time and the triads calibrated; other columns may hold anything)
+as float64 numpy arrays.
 
 What is read, and what is refused (a one-line :class:`TextError` naming the file and line):
 
@@ -10,15 +10,16 @@ What is read, and what is refused (a one-line :class:`TextError` naming the file
   in the header line as ``fieldcal import`` finds them.
 - After it, blank lines and comment lines are skipped; every other line is a sample and must
   have as many fields as the first one, with a finite number in every column read. A line that
-  does not (a short line, text, ``nan``) stops the read with its line number: apply never drops
-  or guesses a sample.
+  does not (a short or long line, text, ``nan``) stops the read with its line number: apply
+  never drops or guesses a sample.
 - A last line with no line end is a recording cut off mid-write (its last number may be cut
   short): refused before anything is read.
 - Blank-separated files (``delimiter: null``) have their runs of blanks made single spaces,
-  block by block (numpy), before Arrow splits them on a space.
+  block by block (numpy), before polars splits them on a space.
 
-Arrow reports a bad line without its number; only then is the file scanned again, line by line
-from the last good block, to name the line.
+A block polars cannot read whole (a blank or comment line, or a fault) is read again without its
+blank and comment lines; only if that fails too is the file scanned line by line, from the last
+good block, to name the line.
 """
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ from drivers.protocols.delimited import ChannelMap
 from fieldcal.recording.import_map import FileSpec
 from fieldcal.recording.importer import HEADER_SEARCH_BYTES, HEADER_SEARCH_LINES, _header_fields
 
-_PLAIN_NUMBER = re.compile(rb'"?[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?"?')  # what Arrow reads as a double
+_PLAIN_NUMBER = re.compile(rb'"?[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?"?')  # what polars reads as a double
 _LINES = re.compile(rb"[^\n]*\n|[^\n]+\Z")  # with their line ends, as file iteration gives them
 _LF, _CR = 10, 13
 _TAIL_BYTES = 1 << 16
@@ -68,8 +69,8 @@ class Layout:
 
     def skipped(self, line: bytes) -> bool:
         """A line that is no sample and no fault: blank, or a comment with another number of
-        fields than a sample (Arrow hands over only such lines; a comment line with as many
-        fields as a sample is read as one, and refused)."""
+        fields than a sample (a comment line with as many fields as a sample is read as one,
+        and refused)."""
         text = line.strip(b" \t\r\n")
         comment = self.channel_map.comment
         return not text or (comment is not None and text.startswith(comment.encode("ascii"))
@@ -136,38 +137,72 @@ def _count_lines(path: str) -> int:
 
 def read_blocks(path: str, lay: Layout, block_bytes: int) -> Iterator[np.ndarray]:
     """(n, k) float64 per block: the columns read, in ``lay.roles`` order."""
-    import pyarrow as pa
-    from pyarrow import csv
+    import polars as pl
 
     cm = lay.channel_map
-    names = [f"f{c}" for _, c in lay.roles]
+    read = [c for _, c in lay.roles]
+    last, beyond = lay.fields - 1, lay.fields
+    # Every field of a sample typed (the columns read as doubles, the others left as text), and
+    # one field more: a line with more fields than a sample puts text there, a shorter one
+    # leaves its last field null (as an empty last field does: told apart line by line).
+    schema = {f"f{i}": pl.Float64 if i in read else pl.String for i in range(beyond + 1)}
+    shown = sorted({*read, last, beyond})
+    options = dict(has_header=False, separator=" " if lay.squeezed else cm.delimiter, schema=schema,
+                   columns=shown, missing_columns="insert")
+    numbers = [f"f{c}" for c in read]
 
-    def invalid_row(row) -> str:  # a line with another number of fields than the first sample
-        return "skip" if lay.skipped(row.text.encode("utf-8", "surrogateescape")) else "error"
+    def parsed(block: bytes, fields_checked: bool = False) -> np.ndarray | None:
+        """The block's samples, or None if a line may not be a plain sample."""
+        try:
+            frame = pl.read_csv(block, **options)
+        except pl.exceptions.PolarsError:  # a field read that is no number
+            return None
+        nulls = dict(zip(frame.columns, frame.null_count().row(0)))
+        long_line = nulls[f"f{beyond}"] != len(frame)
+        short_line = nulls[f"f{last}"] > 0 and not fields_checked
+        if long_line or short_line or any(nulls[n] for n in numbers):
+            return None
+        values = frame.select(numbers).to_numpy()
+        return values if np.isfinite(values).all() else None
 
-    read = csv.ReadOptions(block_size=block_bytes, autogenerate_column_names=True)
-    parse = csv.ParseOptions(delimiter=" " if lay.squeezed else cm.delimiter, invalid_row_handler=invalid_row)
-    convert = csv.ConvertOptions(include_columns=names, column_types={n: pa.float64() for n in names},
-                                 null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False)
     rows = 0
     with open(path, "rb") as fh:
         fh.seek(lay.start)
-        source = _Squeezed(fh) if lay.squeezed else fh
-        try:
-            reader = csv.open_csv(source, read_options=read, parse_options=parse, convert_options=convert)
-            for batch in reader:
-                values = np.column_stack([batch.column(n).to_numpy() for n in names]) if batch.num_rows \
-                    else np.zeros((0, len(names)))
-                bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
-                if len(bad):
-                    raise _bad_line(path, lay, rows + int(bad[0]), None)
-                rows += len(values)
-                yield values
-        except pa.ArrowInvalid as exc:
-            raise _bad_line(path, lay, rows, exc) from None
+        for block in _whole_lines(fh, block_bytes):
+            block = squeeze_blanks(block) if lay.squeezed else block
+            values = parsed(block)
+            if values is None:  # without its blank and comment lines, or line by line
+                lines = [line for line in _LINES.findall(block) if not lay.skipped(line)]
+                kept = b"".join(lines)
+                values = parsed(kept) if kept else np.zeros((0, len(read)))
+                if values is None and not any(lay.fault(line) for line in lines):
+                    values = parsed(kept, fields_checked=True)  # empty last fields, not missing ones
+                if values is None:
+                    raise _bad_line(path, lay, rows)
+            rows += len(values)
+            yield values
 
 
-def _bad_line(path: str, lay: Layout, from_row: int, exc: Exception | None) -> TextError:
+def _whole_lines(fh, block_bytes: int) -> Iterator[bytes]:
+    """The file from where it stands, ``block_bytes`` or so at a time, each block ending at a
+    line's end (a line longer than a block is read on to its end); the last as the file ends."""
+    rest = b""
+    while True:
+        data = fh.read(block_bytes)
+        if not data:
+            if rest:
+                yield rest
+            return
+        data = rest + data
+        cut = data.rfind(b"\n") + 1
+        if cut == 0:
+            data += fh.readline()
+            cut = len(data)
+        rest = data[cut:]
+        yield data[:cut]
+
+
+def _bad_line(path: str, lay: Layout, from_row: int) -> TextError:
     """The first sample line at or after sample ``from_row`` that cannot be read (the file is
     read again from the first sample, line by line: only ever on the way to an error)."""
     row = 0
@@ -183,36 +218,7 @@ def _bad_line(path: str, lay: Layout, from_row: int, exc: Exception | None) -> T
                     return TextError(f"apply: {path}: line {number}: {why} ({shown!r}); fix or delete the line",
                                      path, number)
             row += 1
-    detail = str(exc).splitlines()[0] if exc is not None else "a value that is not a finite number"
-    return TextError(f"apply: {path}: after sample {from_row}: {detail}; fix or delete the line", path)
-
-
-class _Squeezed:
-    """A blank-separated file as Arrow reads it: each run of blanks one space, none at a line's
-    start or end. Whole lines only (a run never spans two reads); line numbers are kept."""
-
-    def __init__(self, fh) -> None:
-        self._fh = fh
-        self._rest = b""
-        self.closed = False
-
-    def read(self, size: int = -1) -> bytes:
-        data = self._rest + (self._fh.read() if size is None or size < 0 else self._fh.read(size))
-        cut = data.rfind(b"\n") + 1
-        if cut == 0 and len(data) > len(self._rest):  # no line end yet: read on to one
-            more = self._fh.readline()
-            data, cut = data + more, len(data + more)
-        self._rest = data[cut:] if cut else b""
-        return squeeze_blanks(data[:cut] if cut else data)
-
-    def readable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return False
-
-    def close(self) -> None:
-        self.closed = True
+    return TextError(f"apply: {path}: after sample {from_row}: a line that is not a sample; fix or delete it", path)
 
 
 def squeeze_blanks(block: bytes) -> bytes:
