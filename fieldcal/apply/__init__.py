@@ -33,10 +33,32 @@ class Plan:
     rate_hz: float | None = None  # the sample rate of a file with no time column
 
     def columns(self) -> list[str]:
-        return ["t_s"] + [f"{c.name}_{axis}_{c.input_unit}" for c in self.calibrations for axis in "xyz"]
+        return output_columns(self.calibrations)
 
-    def header(self) -> bytes:
-        return (",".join(self.columns()) + "\n").encode("ascii")
+
+def output_columns(calibrations) -> list[str]:
+    """The CSV's columns: t_s, then x, y, z of each triad in its SI unit."""
+    return ["t_s"] + [f"{c.name}_{axis}_{c.input_unit}" for c in calibrations for axis in "xyz"]
+
+
+def write_block(out: BinaryIO, names: list[str], t: np.ndarray, values: np.ndarray) -> None:
+    """One block of rows (t (n,), values (n, 3·triads)) as CSV lines, written whole."""
+    import polars as pl
+
+    # polars writes each double in the fewest digits that read back to it bit for bit (Ryu).
+    # Formatted into memory, then written by Python: a closed pipe (``| head``) is then
+    # Python's BrokenPipeError, which the command takes as the reader's choice.
+    text = io.BytesIO()
+    pl.DataFrame(dict(zip(names, [t, *values.T]))).write_csv(text, include_header=False)
+    write_all(out, text.getbuffer())
+
+
+def write_all(out: BinaryIO, data) -> None:
+    """All of ``data``: an unbuffered stream (``python -u``, PYTHONUNBUFFERED) writes only part
+    of it when a signal (Ctrl-C) interrupts a write to a full pipe, and says how much."""
+    view = memoryview(data)
+    while view:
+        view = view[out.write(view) or 0:]
 
 
 def plan(parameters, import_map, paths, rate_hz: float | None = None) -> list[Plan]:
@@ -113,20 +135,12 @@ def _seconds(time: np.ndarray, scale: float) -> np.ndarray:
 
 def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES) -> int:
     """Write ``p``'s calibrated CSV to ``out``; the number of samples written."""
-    import polars as pl
-
     names = p.columns()
     blocks = calibrated_blocks(p, block_bytes)
     first = next(blocks, None)  # a file refused at its start (no sample, cut off) writes nothing
-    out.write(p.header())
+    write_all(out, (",".join(names) + "\n").encode("ascii"))
     n = 0
     for t, values in itertools.chain([first] if first is not None else [], blocks):
-        # polars writes each double in the fewest digits that read back to it bit for bit
-        # (Ryu), twice as fast as Arrow's writer: the write is most of apply's time.
-        # Formatted into memory, then written by Python: a closed pipe (``| head``) is then
-        # Python's BrokenPipeError, which the command takes as the reader's choice.
-        text = io.BytesIO()
-        pl.DataFrame(dict(zip(names, [t, *values.T]))).write_csv(text, include_header=False)
-        out.write(text.getbuffer())
+        write_block(out, names, t, values)
         n += len(t)
     return n

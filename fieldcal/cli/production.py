@@ -174,12 +174,26 @@ def _apply_targets(args, plans) -> list[Path | None]:
 
 
 def cmd_apply(args) -> int:
-    from fieldcal.apply import apply_file, plan
     from fieldcal.paramfile import load
-    from fieldcal.recording.import_map import load_import_map
 
+    if bool(args.input) == bool(args.config):
+        raise ValueError("apply: give the recording's INPUT files (with --map) or a live device "
+                         "(--config), one of the two")
+    live_only = [f"--{name}" for name in ("samples", "seconds") if getattr(args, name) is not None]
+    files_only = [f"--{name}" for name in ("map", "rate") if getattr(args, name) is not None]
+    if args.input and live_only or args.config and files_only:
+        raise ValueError(f"apply: {', '.join(live_only or files_only)} "
+                         f"{'is' if len(live_only or files_only) == 1 else 'are'} for "
+                         f"{'a live device (--config)' if live_only else 'INPUT files'} only")
+    if args.config:
+        return _apply_device(args, load(args.params))
+    if args.map is None:
+        raise ValueError("apply: INPUT files need their import map: give --map MAP (see fieldcal import)")
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"apply: --rate: expected a sample rate above 0 Hz, got {args.rate:g}")
+    from fieldcal.apply import apply_file, plan
+    from fieldcal.recording.import_map import load_import_map
+
     plans = plan(load(args.params), load_import_map(args.map), args.input, args.rate)
     targets = _apply_targets(args, plans)
     for p, target in zip(plans, targets):
@@ -199,6 +213,41 @@ def cmd_apply(args) -> int:
             partial.unlink(missing_ok=True)
         print(f"{p.path}: {n} samples calibrated into {target}", file=sys.stderr)
     return 0
+
+
+def _apply_device(args, parameters) -> int:
+    """A live device's calibrated CSV, to stdout or --out (written as it comes, a block at a
+    time); Ctrl-C ends it after the block being written, never inside a line."""
+    import signal
+    import threading
+
+    from fieldcal.apply.live import apply_device, device_calibrations
+    from fieldcal.config import load_config
+    from fieldcal.session.output import check_output_path
+
+    config = load_config(args.config)
+    calibrations, skipped = device_calibrations(parameters, config)
+    for name in skipped:
+        print(f"fieldcal apply: {config.device.name}'s triad {name!r} is not in {args.params}: not written",
+              file=sys.stderr)
+    if args.out is not None:
+        check_output_path(Path(args.out), force=args.force, option="--out")
+    stop = threading.Event()
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, lambda *_: stop.set()) if in_main else None
+    try:
+        if args.out is None:
+            written, _ = apply_device(config, calibrations, sys.stdout.buffer, sys.stderr, stop,
+                                      args.samples, args.seconds)
+        else:
+            with open(args.out, "wb") as out:
+                written, _ = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
+                                          args.seconds)
+            print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
+    finally:
+        if in_main:
+            signal.signal(signal.SIGINT, previous)
+    return 0 if written else 1
 
 
 def cmd_units(args) -> int:
@@ -323,6 +372,7 @@ def _certificate_pdf(page: Path, pdf: Path) -> None:
 
 
 def add_production_parsers(sub) -> None:
+    from fieldcal.cli.main import _positive
     check = sub.add_parser(
         "check", help="PASS/FAIL of a parameter file against a product spec",
         description="Check every parameter of a parameter file against a product spec's acceptance "
@@ -351,20 +401,27 @@ def add_production_parsers(sub) -> None:
     export.set_defaults(func=cmd_export)
 
     apply = sub.add_parser(
-        "apply", help="calibrated CSV from a recording's text files",
-        description="Read a recording's text files in an import map's layout, block by block, and "
-        "write each calibrated triad K⁻¹(raw − bias) in SI units (m/s^2, rad/s) as CSV: a time "
-        "column t_s, then x, y, z per triad, every number in the fewest digits that read back to "
-        "it exactly. A malformed line stops it with the line's number.")
+        "apply", help="calibrated CSV from a recording's text files or a live device",
+        description="Calibrate each triad, K⁻¹(raw − bias) into SI units (m/s^2, rad/s), and write "
+        "CSV: a time column t_s, then x, y, z per triad, every number in the fewest digits that "
+        "read back to it exactly. From a recording: its text files in an import map's layout, "
+        "read block by block (a malformed line stops it with the line's number). From a live "
+        "device (--config, as fieldcal monitor reads it: a serial port, socket://, or the "
+        "simulated device): streamed and flushed a block at a time until Ctrl-C, --samples or "
+        "--seconds; Ctrl-C ends it between lines.")
     apply.add_argument("params", metavar="PARAMS", help="parameter file")
-    apply.add_argument("input", nargs="+", metavar="INPUT", help="text files, one per map entry")
-    apply.add_argument("--map", required=True, metavar="MAP", help="import map: a name in "
+    apply.add_argument("input", nargs="*", metavar="INPUT", help="text files, one per map entry")
+    apply.add_argument("--map", metavar="MAP", help="import map of the INPUT files: a name in "
                        "configs/recordings or a YAML path (see fieldcal import)")
-    apply.add_argument("--out", metavar="PATH", help="the CSV (one input) or a directory for "
-                       "INPUT-calibrated.csv files (default: standard output, one input)")
+    apply.add_argument("--config", metavar="CONFIG", help="read this station config's device live "
+                       "instead of files: a name in configs/ or a path")
+    apply.add_argument("--out", metavar="PATH", help="the CSV (one input or a device) or a directory "
+                       "for INPUT-calibrated.csv files (default: standard output, one input)")
     apply.add_argument("--force", action="store_true", help="replace existing output files")
     apply.add_argument("--rate", type=float, metavar="HZ",
                        help="sample rate of files with no time column (else rate_hz in the map)")
+    apply.add_argument("--samples", type=_positive(int), metavar="N", help="live: stop after N samples")
+    apply.add_argument("--seconds", type=_positive(float), metavar="S", help="live: stop after S seconds")
     apply.set_defaults(func=cmd_apply)
 
     units = sub.add_parser("units", help="the units in the registry, with their last calibration",

@@ -1,0 +1,100 @@
+"""Calibrated output from a live device: the station config's device opened as ``fieldcal
+monitor`` opens it (a serial port, ``socket://``, or the simulated device on a pty), its frames
+decoded by the protocol's parser, and every read's samples calibrated as one block,
+K⁻¹(raw − bias) per triad in numpy, and written as CSV lines (as a recording's are) and flushed,
+until Ctrl-C, a sample count or a duration. Ctrl-C ends it between blocks: the output ends
+with a whole line.
+
+``t_s`` is the device's own sample time where its frames carry one (Xsens SampleTimeFine, a
+delimited time column); else, as the procedure engine counts, the sample's number over the
+config's ``rate_hz`` (the host's arrival time is the same for every sample of a read).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import BinaryIO, TextIO
+
+import numpy as np
+
+from fieldcal.apply import output_columns, write_all, write_block
+
+POLL_S = 0.01  # how often the reader's bytes are taken (the port is read in the background)
+
+
+def device_calibrations(parameters, config) -> tuple[tuple, tuple[str, ...]]:
+    """The calibrations of the device's triads that the parameter file holds, and the device's
+    triads it does not; one-line errors for a triad whose unit is not the one it was calibrated
+    in, or a device with nothing to calibrate."""
+    device = config.device
+    cals, skipped = [], []
+    for triad in device.triads:
+        if triad.name not in parameters.names:
+            skipped.append(triad.name)
+            continue
+        cal = parameters.triad(triad.name)
+        if triad.unit != cal.output_unit:
+            raise ValueError(f"apply: {config.path}: {device.name}'s {triad.name} reads in {triad.unit!r} but "
+                             f"was calibrated in {cal.output_unit!r}; use the config it was calibrated with")
+        cals.append(cal)
+    if not cals:
+        raise ValueError(f"apply: {config.path}: none of {device.name}'s triads "
+                         f"({', '.join(t.name for t in device.triads)}) is in the parameter file "
+                         f"({', '.join(parameters.names)})")
+    return tuple(cals), tuple(skipped)
+
+
+def calibrate_chunks(chunks, calibrations) -> tuple[np.ndarray, np.ndarray]:
+    """(t (n,) in s, calibrated (n, 3·triads) in SI units) of a read's chunks, as one block."""
+    missing = sorted({c.name for c in calibrations} - set.intersection(*(set(ch.triads) for ch in chunks)))
+    if missing:
+        raise ValueError(f"apply: the device sent samples without {', '.join(missing)}: check the "
+                         "config's protocol and triads")
+    t = np.concatenate([chunk.t for chunk in chunks])
+    values = np.hstack([cal.calibrate(np.concatenate([chunk.triads[cal.name] for chunk in chunks]))
+                        for cal in calibrations])
+    return t, values
+
+
+def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threading.Event,
+                 max_samples: int | None = None, max_seconds: float | None = None) -> tuple[int, bool]:
+    """Stream ``config``'s device, calibrated, to ``out`` until ``stop`` is set (Ctrl-C), or
+    ``max_samples`` / ``max_seconds``: (samples written, whether the port ever opened)."""
+    from drivers.transport import PORT_OPENED
+    from fieldcal.cli.monitor import counters_line, no_samples_hint, port_event_line
+    from fieldcal.run.devices import DeviceConnection
+
+    names = output_columns(calibrations)
+    written, opened, device_time = 0, False, None
+    with DeviceConnection(config) as conn:
+        started = time.monotonic()
+        where = conn.simulated.imu_url if conn.simulated else config.device.port.url
+        print(f"applying to {config.device.name} on {where} ({conn.protocol}); Ctrl-C to stop",
+              file=err, flush=True)
+        write_all(out, (",".join(names) + "\n").encode("ascii"))
+        out.flush()
+        while not stop.is_set() and (max_samples is None or written < max_samples) \
+                and (max_seconds is None or time.monotonic() - started < max_seconds):
+            chunks, events = conn.read()
+            for event in events:
+                opened |= event.kind == PORT_OPENED
+                print(port_event_line(event, conn.reader.retry_s), file=err, flush=True)
+            if chunks:
+                t, values = calibrate_chunks(chunks, calibrations)
+                if device_time is None:  # decided by the first frames, kept for the whole output
+                    device_time = conn.parser.device_time
+                    if not device_time:
+                        print(f"t_s: {conn.protocol} frames carry no sample time here: sample number / "
+                              f"{config.device.rate_hz:g} Hz", file=err, flush=True)
+                if not device_time:
+                    t = (written + np.arange(len(t))) / config.device.rate_hz
+                if max_samples is not None:
+                    t, values = t[: max_samples - written], values[: max_samples - written]
+                write_block(out, names, t, values)
+                out.flush()
+                written += len(t)
+            stop.wait(POLL_S)
+        print(f"{written} samples calibrated; {counters_line(conn.counters)}", file=err, flush=True)
+        if not written:
+            print(f"fieldcal: {no_samples_hint(config, opened, conn.reader.bytes_read)}", file=err, flush=True)
+    return written, opened
