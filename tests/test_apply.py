@@ -352,3 +352,57 @@ def test_squeezing_blanks_is_splitting_each_line_on_blanks(lines, end, ended):
     text = end.join(lines) + (end if ended else "")
     want = "\n".join(" ".join(line.split()) for line in text.split("\n"))
     assert squeeze_blanks(text.encode()).decode().replace("\r", "") == want.replace("\r", "")
+
+
+def _ulog_combined(path):
+    """sensor_combined's timestamp (s), accelerometer and gyro, as pyulog reads them."""
+    from pyulog import ULog
+    [data] = [d.data for d in ULog(str(path), ["sensor_combined"]).data_list]
+    return (data["timestamp"] * 1e-6, np.column_stack([data[f"accelerometer_m_s2[{i}]"] for i in range(3)]),
+            np.column_stack([data[f"gyro_rad[{i}]"] for i in range(3)]))
+
+
+def _dataflash_imu(path):
+    from test_logs_dataflash import decoded
+    rows = decoded(path, "IMU")
+    return rows[:, 0] * 1e-6, rows[:, 1:4], rows[:, 4:7]
+
+
+def _ros_imu(path):
+    from test_logs_bags import deserialized
+    t, rate, accel = deserialized(path, "/imu/data")
+    return t, accel, rate
+
+
+@pytest.mark.parametrize("name, as_name, truth, extra", [
+    ("px4_sample_log_small.ulg.gz", "log.ulg", _ulog_combined, []),
+    ("pymavlink_test.BIN.gz", "test.BIN", _dataflash_imu, ["--imu", "0"]),
+    ("robot_localization_test2.bag.gz", "jackal.bag", _ros_imu, ["--topic", "/imu/data"]),
+], ids=["PX4 ULog", "ArduPilot DataFlash", "ROS 1 bag"])
+def test_real_logs_are_calibrated_as_their_own_readers_decode_them(tmp_path, capsys, name, as_name, truth, extra):
+    """Real logs (tests/data/real), read whole by the importer: the CSV is each sample as the
+    format's own library decodes it (pyulog, pymavlink's DFReader, rosbags' deserializer, one
+    message at a time), calibrated by K⁻¹ worked out here."""
+    pytest.importorskip({"log.ulg": "pyulog", "test.BIN": "pymavlink", "jackal.bag": "rosbags"}[as_name])
+    from xsens_logs import unpacked
+
+    path = unpacked(tmp_path, name, as_name)
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="m/s^2", method="classic",
+                      K=k_from_terms([1.01, 0.98, 1.02], [1e-3, -2e-3, 5e-4, 1e-3, 3e-3, -1e-3]),
+                      bias=[0.1, -0.2, 0.3], sigma=np.zeros(9), residual_rms=0.0)
+    gyr = Calibration(name="gyroscope", kind="angular_rate", output_unit="rad/s", method="classic",
+                      K=np.diag([1.01, 0.99, 1.0]), bias=[1e-3, -2e-3, 5e-4], sigma=np.zeros(9), residual_rms=0.0)
+    params = save(parameter_file(acc, gyr), tmp_path / "p.yaml")
+    out = tmp_path / "cal.csv"
+    assert main(["apply", str(params), str(path), *extra, "--out", str(out)]) == 0
+    t, raw_acc, raw_gyr = truth(path)
+    assert f"{len(t)} samples calibrated into {out}" in capsys.readouterr().err
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(data[:, 0], t - (t[0] if as_name == "jackal.bag" else 0), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(data[:, 1:4], (raw_acc - acc.bias) @ np.linalg.inv(acc.K).T, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(data[:, 4:7], (raw_gyr - gyr.bias) / np.diag(gyr.K), rtol=1e-12, atol=1e-12)
+    in_counts = Calibration(name="gyroscope", kind="angular_rate", output_unit="count", method="powell",
+                            K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    assert main(["apply", str(save(parameter_file(in_counts), tmp_path / "q.yaml")), str(path), *extra]) == 2
+    err = capsys.readouterr().err
+    assert "triad 'gyroscope' is read in 'rad/s' but was calibrated in 'count'" in err and err.count("\n") == 1

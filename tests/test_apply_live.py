@@ -150,11 +150,13 @@ def test_wrong_combinations_are_refused_in_one_line(tmp_path, capsys):
 
     params = true_parameters(tmp_path)
     config = device_config(tmp_path, "xsens", "socket://127.0.0.1:9")
-    cases = [([], "give the recording's INPUT files (with --map) or a live device (--config)"),
+    cases = [([], "give the recording's INPUT files or a live device (--config), one of the two"),
              (["log.csv", "--config", config], "give the recording's INPUT files"),
-             (["--config", config, "--map", "imu_tk"], "--map is for INPUT files only"),
-             (["log.csv", "--map", "imu_tk", "--samples", "5"], "--samples is for a live device (--config) only"),
-             (["log.csv"], "INPUT files need their import map: give --map MAP")]
+             (["--config", config, "--map", "imu_tk"], "--map is for text INPUT files, not a live device"),
+             (["log.csv", "--map", "imu_tk", "--samples", "5"], "--samples is for a live device (--config), not text"),
+             (["run.ulg", "--rate", "5"], "--rate is for text INPUT files, not a log INPUT"),
+             (["--config", config, "--topic", "/imu"], "--topic is for a log INPUT (.ulg, .bag, .bin), not a live"),
+             (["log.csv"], "text INPUT files need their import map: give --map MAP")]
     for argv, message in cases:
         assert main(["apply", str(params), *argv]) == 2
         err = capsys.readouterr().err
@@ -162,4 +164,4 @@ def test_wrong_combinations_are_refused_in_one_line(tmp_path, capsys):
     counts = tmp_path / "counts.yaml"
     counts.write_text(open(config).read().replace("unit: m/s^2", "unit: count"))
     assert main(["apply", str(params), "--config", str(counts)]) == 2
-    assert "accelerometer reads in 'count' but was calibrated in 'm/s^2'" in capsys.readouterr().err
+    assert "triad 'accelerometer' is read in 'count' but was calibrated in 'm/s^2'" in capsys.readouterr().err

@@ -71,22 +71,31 @@ def plan(parameters, import_map, paths, rate_hz: float | None = None) -> list[Pl
                          f"({', '.join(import_map.file_names)}), got {len(paths)}")
     plans = []
     for path, spec in zip(paths, import_map.files):
-        cals, skipped = [], []
-        for name in spec.units:
-            if name not in parameters.names:
-                skipped.append(name)
-                continue
-            cal = parameters.triad(name)
-            if spec.units[name] != cal.output_unit:
-                raise ValueError(f"apply: {import_map.path}: triad {name!r} is read in {spec.units[name]!r} "
-                                 f"but was calibrated in {cal.output_unit!r}; give a map with unit "
-                                 f"{cal.output_unit!r} (and the matching scale)")
-            cals.append(cal)
-        if not cals:
-            raise ValueError(f"apply: {path}: none of its triads ({', '.join(spec.units)}) "
-                             f"is in the parameter file ({', '.join(parameters.names)})")
-        plans.append(Plan(os.fspath(path), spec, tuple(cals), tuple(skipped), rate_hz or spec.rate_hz))
+        cals, skipped = calibrations_for(parameters, spec.units, os.fspath(path), f"{import_map.path}: ",
+                                         "give a map with unit {unit!r} (and the matching scale)")
+        plans.append(Plan(os.fspath(path), spec, cals, skipped, rate_hz or spec.rate_hz))
     return plans
+
+
+def calibrations_for(parameters, units: dict[str, str], source: str, where: str, fix: str) -> tuple[tuple, tuple]:
+    """The parameter file's calibrations of the triads ``units`` names (name: the unit it is
+    read in), in that order, and the names it has no calibration of. One-line errors naming
+    ``where`` for a triad read in another unit than it was calibrated in (``fix``: what to do,
+    ``{unit}`` the calibrated unit), and ``source`` when it has nothing to calibrate."""
+    cals, skipped = [], []
+    for name, unit in units.items():
+        if name not in parameters.names:
+            skipped.append(name)
+            continue
+        cal = parameters.triad(name)
+        if unit != cal.output_unit:
+            raise ValueError(f"apply: {where}triad {name!r} is read in {unit!r} but was calibrated in "
+                             f"{cal.output_unit!r}; {fix.format(unit=cal.output_unit)}")
+        cals.append(cal)
+    if not cals:
+        raise ValueError(f"apply: {source}: none of its triads ({', '.join(units)}) is in the parameter "
+                         f"file ({', '.join(parameters.names)})")
+    return tuple(cals), tuple(skipped)
 
 
 def calibrated_blocks(p: Plan, block_bytes: int = BLOCK_BYTES) -> Iterator[tuple[np.ndarray, np.ndarray]]:

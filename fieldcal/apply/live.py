@@ -17,31 +17,17 @@ from typing import BinaryIO, TextIO
 
 import numpy as np
 
-from fieldcal.apply import output_columns, write_all, write_block
+from fieldcal.apply import calibrations_for, output_columns, write_all, write_block
 
 POLL_S = 0.01  # how often the reader's bytes are taken (the port is read in the background)
 
 
 def device_calibrations(parameters, config) -> tuple[tuple, tuple[str, ...]]:
     """The calibrations of the device's triads that the parameter file holds, and the device's
-    triads it does not; one-line errors for a triad whose unit is not the one it was calibrated
-    in, or a device with nothing to calibrate."""
+    triads it does not (one-line errors as a file's: ``calibrations_for``)."""
     device = config.device
-    cals, skipped = [], []
-    for triad in device.triads:
-        if triad.name not in parameters.names:
-            skipped.append(triad.name)
-            continue
-        cal = parameters.triad(triad.name)
-        if triad.unit != cal.output_unit:
-            raise ValueError(f"apply: {config.path}: {device.name}'s {triad.name} reads in {triad.unit!r} but "
-                             f"was calibrated in {cal.output_unit!r}; use the config it was calibrated with")
-        cals.append(cal)
-    if not cals:
-        raise ValueError(f"apply: {config.path}: none of {device.name}'s triads "
-                         f"({', '.join(t.name for t in device.triads)}) is in the parameter file "
-                         f"({', '.join(parameters.names)})")
-    return tuple(cals), tuple(skipped)
+    return calibrations_for(parameters, {t.name: t.unit for t in device.triads}, f"{config.path}: {device.name}",
+                            f"{config.path}: {device.name}'s ", "use the config it was calibrated with")
 
 
 def calibrate_chunks(chunks, calibrations) -> tuple[np.ndarray, np.ndarray]:
