@@ -43,9 +43,10 @@ def calibrate_chunks(chunks, calibrations) -> tuple[np.ndarray, np.ndarray]:
 
 
 def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threading.Event,
-                 max_samples: int | None = None, max_seconds: float | None = None) -> tuple[int, bool]:
+                 max_samples: int | None = None, max_seconds: float | None = None) -> int:
     """Stream ``config``'s device, calibrated, to ``out`` until ``stop`` is set (Ctrl-C), or
-    ``max_samples`` / ``max_seconds``: (samples written, whether the port ever opened)."""
+    ``max_samples`` / ``max_seconds``; the samples written (none: a hint at the port, protocol
+    or baud rate on ``err``)."""
     from drivers.transport import PORT_OPENED
     from fieldcal.cli.monitor import counters_line, no_samples_hint, port_event_line
     from fieldcal.run.devices import DeviceConnection
@@ -83,4 +84,4 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
         print(f"{written} samples calibrated; {counters_line(conn.counters)}", file=err, flush=True)
         if not written:
             print(f"fieldcal: {no_samples_hint(config, opened, conn.reader.bytes_read)}", file=err, flush=True)
-    return written, opened
+    return written

@@ -270,12 +270,12 @@ def _apply_device(args, parameters) -> int:
     previous = signal.signal(signal.SIGINT, lambda *_: stop.set()) if in_main else None
     try:
         if args.out is None:
-            written, _ = apply_device(config, calibrations, sys.stdout.buffer, sys.stderr, stop,
-                                      args.samples, args.seconds)
+            written = apply_device(config, calibrations, sys.stdout.buffer, sys.stderr, stop,
+                                   args.samples, args.seconds)
         else:
             with open(args.out, "wb") as out:
-                written, _ = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
-                                          args.seconds)
+                written = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
+                                       args.seconds)
             print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
     finally:
         if in_main:
