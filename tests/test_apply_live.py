@@ -9,6 +9,7 @@ import io
 import signal
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -72,10 +73,11 @@ def device_config(tmp_path, protocol: str, url: str | None) -> str:
     return str(path)
 
 
-def served(protocol: str, transport: str) -> SimulatedDevices:
+def served(protocol: str, transport: str, on_chunk=None) -> SimulatedDevices:
     """The simulator at rest, level, as fast as it is read (the link's buffer paces it)."""
     return SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol=protocol,
-                            table_protocol=None, transport=transport, speed=0, seed=3, rate_hz=RATE_HZ)
+                            table_protocol=None, transport=transport, speed=0, seed=3, rate_hz=RATE_HZ,
+                            on_chunk=on_chunk)
 
 
 def apply_command(params, config, *extra) -> list[str]:
@@ -142,6 +144,38 @@ def test_ctrl_c_ends_the_stream_with_whole_lines(tmp_path):
     table = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1)
     assert table.ndim == 2 and table.shape[1] == 7 and len(table) >= 300
     assert f"{len(table)} samples calibrated;" in err.decode()
+    assert_true_inputs_within_noise(table)
+
+
+def test_ctrl_c_leaves_a_whole_out_file(tmp_path):
+    """--out: SIGINT once the device has sent 5000 samples (read as fast as they come, so the
+    port's buffer holds a few hundred at most): the file is whole lines, as many as counted."""
+    params = true_parameters(tmp_path)
+    out = tmp_path / "live.csv"
+    sent, enough = [0], threading.Event()
+
+    def count(chunk):
+        sent[0] += len(chunk)
+        if sent[0] >= 5000:
+            enough.set()
+
+    with served("xsens", "pty", on_chunk=count) as devices:
+        config = device_config(tmp_path, "xsens", devices.imu_url)
+        proc = subprocess.Popen(apply_command(params, config, "--out", str(out)), stderr=subprocess.PIPE)
+        try:
+            assert enough.wait(timeout=120)
+            proc.send_signal(signal.SIGINT)
+            err = proc.stderr.read().decode()
+            proc.wait(timeout=120)
+        finally:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    text = out.read_text()
+    assert text.endswith("\n") and text.splitlines()[0] == HEADER
+    table = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1)
+    assert table.ndim == 2 and table.shape[1] == 7 and len(table) >= 1000
+    assert f"{len(table)} samples calibrated into {out}" in err
     assert_true_inputs_within_noise(table)
 
 
