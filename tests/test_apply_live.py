@@ -199,3 +199,14 @@ def test_wrong_combinations_are_refused_in_one_line(tmp_path, capsys):
     counts.write_text(open(config).read().replace("unit: m/s^2", "unit: count"))
     assert main(["apply", str(params), "--config", str(counts)]) == 2
     assert "triad 'accelerometer' is read in 'count' but was calibrated in 'm/s^2'" in capsys.readouterr().err
+
+
+def test_sample_numbers_leave_lost_frames_out():
+    """Hand-worked: Xsens' 16-bit packet counter 65533, 65534, (65535 lost), 0 (wrapped), 1;
+    then the next read 3 (2 lost), 3 again (re-sent: counted as the next), 4."""
+    from fieldcal.apply.live import sample_numbers
+
+    first = sample_numbers(np.array([65533.0, 65534.0, 0.0, 1.0]), 65536, None)
+    np.testing.assert_array_equal(first, [0, 1, 3, 4])
+    np.testing.assert_array_equal(sample_numbers(np.array([3.0, 3.0, 4.0]), 65536, (4, 1)), [6, 7, 8])
+    np.testing.assert_array_equal(sample_numbers(np.array([10.0, 12.0, 5.0]), None, None), [0, 2, 3])

@@ -7,7 +7,9 @@ with a whole line.
 
 ``t_s`` is the device's own sample time where its frames carry one (Xsens SampleTimeFine, a
 delimited time column); else, as the procedure engine counts, the sample's number over the
-config's ``rate_hz`` (the host's arrival time is the same for every sample of a read).
+config's ``rate_hz`` (the host's arrival time is the same for every sample of a read), the
+number counted by the device's packet counter where its frames carry one, so that frames lost
+on the way leave their time out rather than shift every later sample.
 """
 from __future__ import annotations
 
@@ -42,6 +44,20 @@ def calibrate_chunks(chunks, calibrations) -> tuple[np.ndarray, np.ndarray]:
     return t, values
 
 
+def sample_numbers(counter: np.ndarray, modulus: int | None, previous: tuple[int, int] | None) -> np.ndarray:
+    """Each sample's number since the first sample (number 0), from the device's packet counter:
+    a frame's number is the last one's plus the counter's step, taken modulo ``modulus`` (where
+    the counter wraps), so lost frames leave a gap. ``previous``: (number, counter) of the
+    sample before ``counter``'s first; None: its first is the first. A step that is not forward
+    (a re-sent frame, a device restarted) counts as one."""
+    c = np.rint(np.asarray(counter, dtype=float)).astype(np.int64)
+    number, last = previous if previous is not None else (-1, c[0] - 1)
+    steps = np.diff(np.concatenate([[last], c]))
+    if modulus:
+        steps %= modulus
+    return number + np.cumsum(np.where(steps > 0, steps, 1))
+
+
 def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threading.Event,
                  max_samples: int | None = None, max_seconds: float | None = None) -> int:
     """Stream ``config``'s device, calibrated, to ``out`` until ``stop`` is set (Ctrl-C), or
@@ -51,8 +67,10 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
     from fieldcal.cli.monitor import counters_line, no_samples_hint, port_event_line
     from fieldcal.run.devices import DeviceConnection
 
+    from fieldcal.run.deviceclock import frame_counter
+
     names = output_columns(calibrations)
-    written, opened, device_time = 0, False, None
+    written, opened, device_time, previous = 0, False, None, None
     with DeviceConnection(config) as conn:
         started = time.monotonic()
         where = conn.simulated.imu_url if conn.simulated else config.device.port.url
@@ -74,7 +92,14 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
                         print(f"t_s: {conn.protocol} frames carry no sample time here: sample number / "
                               f"{config.device.rate_hz:g} Hz", file=err, flush=True)
                 if not device_time:
-                    t = (written + np.arange(len(t))) / config.device.rate_hz
+                    counters = [frame_counter(chunk, conn.parser) for chunk in chunks]
+                    if all(c is not None for c, _ in counters):
+                        counter = np.concatenate([c for c, _ in counters])
+                        numbers = sample_numbers(counter, counters[0][1], previous)
+                        previous = int(numbers[-1]), int(round(float(counter[-1])))
+                    else:
+                        numbers = written + np.arange(len(t))
+                    t = numbers / config.device.rate_hz
                 if max_samples is not None:
                     t, values = t[: max_samples - written], values[: max_samples - written]
                 write_block(out, names, t, values)
