@@ -104,6 +104,8 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
                     t, values = t[: max_samples - written], values[: max_samples - written]
                 write_block(out, names, t, values)
                 out.flush()
+                if not written:
+                    print(f"samples flowing: the first at t_s = {t[0]:.3f} s", file=err, flush=True)
                 written += len(t)
             stop.wait(POLL_S)
         print(f"{written} samples calibrated; {counters_line(conn.counters)}", file=err, flush=True)
