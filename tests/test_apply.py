@@ -1,10 +1,17 @@
 """fieldcal apply: a recording's text in, calibrated CSV out, block by block, equal to the true
-inputs the raw text was made from."""
+inputs the raw text was made from; a malformed line stops it with the line's number."""
+import io
+import re
+import subprocess
+import sys
+
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from fieldcal.apply import apply_file, calibrated_blocks, plan
-from fieldcal.apply.fixed import format_rows
+from fieldcal.apply.text import TextError, squeeze_blanks
 from fieldcal.calibration import Calibration
 from fieldcal.cli.main import main
 from fieldcal.earth import Station
@@ -56,10 +63,13 @@ def test_calibrated_output_is_the_true_input(tmp_path, capsys, recording):
     assert header == ("t_s,accelerometer_x_m/s^2,accelerometer_y_m/s^2,accelerometer_z_m/s^2,"
                       "gyroscope_x_rad/s,gyroscope_y_rad/s,gyroscope_z_rad/s")
     data = np.loadtxt(out, delimiter=",", skiprows=1)
-    np.testing.assert_allclose(data[:, 0], t, atol=1e-6)
-    # the text had 12 significant digits; the output 9 decimals
-    np.testing.assert_allclose(data[:, 1:4], true_acc, atol=1e-8)
-    np.testing.assert_allclose(data[:, 4:7], true_gyr, atol=1e-8)
+    np.testing.assert_array_equal(data[:, 0], t)  # 1004 ms is written 1.004, the double nearest
+    # the text had 12 significant digits (the raw values' rounding is all the difference)
+    np.testing.assert_allclose(data[:, 1:4], true_acc, atol=1e-9)
+    np.testing.assert_allclose(data[:, 4:7], true_gyr, atol=1e-9)
+    # every number is written in full: the text reads back to the very doubles calibrated
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    np.testing.assert_array_equal(data[:, 1:], np.vstack([v for _, v in calibrated_blocks(p)]))
 
 
 def test_small_blocks_split_lines_and_give_the_same_samples(recording):
@@ -91,17 +101,6 @@ def test_a_triad_missing_from_the_parameters_is_skipped_and_a_wrong_unit_refused
     assert "read in 'g' but was calibrated in 'm/s^2'" in err and err.count("\n") == 1
 
 
-def test_fixed_point_text_reads_back_to_the_rounded_values():
-    values = np.array([[0.0, -0.5, 123.456789, -99999.123456789], [1e-10, -1e-9, 9.80665, -4e-10]])
-    text = format_rows([(values, 9, 5)]).decode()
-    assert text.splitlines()[1] == "     0.000000000,    -0.000000001,     9.806650000,     0.000000000"
-    np.testing.assert_array_equal(np.loadtxt(text.splitlines(), delimiter=","), np.round(values, 9))
-    with pytest.raises(ValueError, match="does not fit 5 digits"):
-        format_rows([(np.array([[1e5]]), 9, 5)])
-    with pytest.raises(ValueError, match="nan"):
-        format_rows([(np.array([[np.nan]]), 9, 5)])
-
-
 def test_two_file_map_writes_one_csv_per_input_into_a_directory(tmp_path, capsys):
     """imu_tk: accelerometer and gyro in separate files, in counts; each file calibrated alone."""
     acc = Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
@@ -127,3 +126,283 @@ def test_two_file_map_writes_one_csv_per_input_into_a_directory(tmp_path, capsys
         np.testing.assert_allclose(data[:, 1:], truth[name], atol=1e-9)
     assert main([*argv, "--out", str(tmp_path / "out")]) == 2  # never over a file without --force
     assert "--force" in capsys.readouterr().err
+
+
+def test_a_hand_worked_sample(tmp_path):
+    """K = diag(2, 4, 0.5), b = (1, 0, -1): raw (3, 8, -0.5) is K⁻¹(2, 8, 0.5) = (1, 2, 1) rad/s."""
+    gyro = Calibration(name="gyroscope", kind="angular_rate", output_unit="rad/s", method="classic",
+                       K=np.diag([2.0, 4.0, 0.5]), bias=[1.0, 0.0, -1.0], sigma=np.zeros(9), residual_rms=0.0)
+    layout = tmp_path / "map.yaml"
+    layout.write_text("files:\n  - time: {column: 0, unit: ms}\n    triads:\n"
+                      "      gyroscope: {columns: [1, 2, 3], kind: angular_rate, unit: rad/s}\n")
+    (tmp_path / "in.csv").write_text("time,x,y,z\n1500,3,8,-0.5\n1504,1,0,-1\n")
+    [p] = plan(parameter_file(gyro), load_import_map(layout), [tmp_path / "in.csv"])
+    out = io.BytesIO()
+    assert apply_file(p, out) == 2
+    assert out.getvalue().decode().splitlines() == [
+        "t_s,gyroscope_x_rad/s,gyroscope_y_rad/s,gyroscope_z_rad/s", "1.5,1.0,2.0,1.0", "1.504,0.0,0.0,0.0"]
+
+
+def _applied(p, block_bytes) -> bytes:
+    out = io.BytesIO()
+    apply_file(p, out, block_bytes)
+    return out.getvalue()
+
+
+def test_one_block_or_many_give_the_same_csv(recording):
+    """The 3000-line file (~250 kB) read in one block, and in blocks of 64 kB and of 1000 bytes
+    (~10 lines each, cut mid-line), writes the same bytes."""
+    path = recording[0]
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    assert path.stat().st_size < 1 << 20
+    assert len(list(calibrated_blocks(p, 1 << 20))) == 1
+    shortest = min(len(line) for line in path.read_bytes().splitlines()[1:])
+    assert max(len(t) for t, _ in calibrated_blocks(p, 1000)) <= 2 * 1000 // shortest  # memory: a block
+    whole = _applied(p, 1 << 20)
+    assert whole.count(b"\n") == 3001
+    assert _applied(p, 1 << 16) == whole
+    assert _applied(p, 1000) == whole
+
+
+def test_blank_separated_text_with_ragged_blanks(tmp_path):
+    """imu_tk's blank-separated layout: runs of spaces and tabs, blanks at the line ends, CRLF,
+    comments and blank lines; read in small blocks and whole, both equal to the truth."""
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
+                      K=np.diag([400.0, 410.0, 420.0]), bias=[32768.0, 32700.0, 32800.0],
+                      sigma=np.zeros(9), residual_rms=0.0)
+    rng = np.random.default_rng(5)
+    raw = np.rint(rng.normal(size=(500, 3)) @ acc.K.T + acc.bias)
+    blanks = [" ", "  ", "\t", " \t "]
+    lines = [f"{blanks[i % 4]}{0.01 * i:.2f}{blanks[(i + 1) % 4]}{r[0]:.0f}{blanks[(i + 2) % 4]}{r[1]:.0f}"
+             f"{blanks[(i + 3) % 4]}{r[2]:.0f}{blanks[i % 3]}" for i, r in enumerate(raw)]
+    lines[100:100] = ["# paused", "", "   "]
+    (tmp_path / "acc.txt").write_bytes(("\r\n".join(lines) + "\r\n").encode())
+    np.savetxt(tmp_path / "gyro.txt", np.zeros((1, 4)))  # the map's second file
+    gyro_counts = Calibration(name="gyroscope", kind="angular_rate", output_unit="count", method="powell",
+                              K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    params = parameter_file(acc, gyro_counts)
+    plans = plan(params, load_import_map("imu_tk"), [tmp_path / "acc.txt", tmp_path / "gyro.txt"])
+    whole = _applied(plans[0], 1 << 20)
+    assert _applied(plans[0], 300) == whole
+    data = np.loadtxt(io.BytesIO(whole), delimiter=",", skiprows=1)
+    np.testing.assert_array_equal(data[:, 0], np.round(0.01 * np.arange(500), 2))
+    np.testing.assert_allclose(data[:, 1:], acc.calibrate(raw), rtol=1e-14, atol=1e-14)
+
+
+def test_squeezing_blanks():
+    assert squeeze_blanks(b"  1 \t 2\t3  \r\n\t4  5\n \n") == b"1 2 3\r\n4 5\n\n"
+    assert squeeze_blanks(b"1,2\n") == b"1,2\n"
+    assert squeeze_blanks(b"1 2\t3\n") == b"1 2 3\n"
+    assert squeeze_blanks(b"\t\ta\t\tb\t\t") == b"a b"  # the end of the block ends a line
+    assert squeeze_blanks(b"") == b""
+
+
+def test_named_columns_without_time_are_timed_by_the_rate(tmp_path, capsys):
+    """imucal's CSV: columns found by their header names (in any order), no time column."""
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="m/s^2", method="powell",
+                      K=np.diag([1.01, 0.99, 1.0]), bias=[0.1, -0.2, 0.05], sigma=np.zeros(9), residual_rms=0.0)
+    rng = np.random.default_rng(6)
+    raw = np.round(rng.normal(size=(40, 3)) * 9.8, 6)
+    path = tmp_path / "imucal.csv"
+    np.savetxt(path, np.c_[np.zeros((40, 3)), raw[:, ::-1]], delimiter=",", fmt="%.6f",
+               header="gyr_x,gyr_y,gyr_z,acc_z,acc_y,acc_x", comments="")
+    params = save(parameter_file(acc), tmp_path / "p.yaml")
+    argv = ["apply", str(params), str(path), "--map", "imucal"]
+    assert main(argv) == 2
+    assert "no time column: give its sample rate (--rate HZ" in capsys.readouterr().err
+    assert main([*argv, "--rate", "0"]) == 2
+    assert "--rate: expected a sample rate above 0 Hz, got 0" in capsys.readouterr().err
+    assert main([*argv, "--rate", "100"]) == 0
+    data = np.loadtxt(io.StringIO(capsys.readouterr().out), delimiter=",", skiprows=1)
+    np.testing.assert_allclose(data[:, 0], np.arange(40) / 100, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(data[:, 1:], acc.calibrate(raw), rtol=1e-14, atol=1e-14)
+
+
+GOOD = [f"{1000 + 4 * i},{i % 7}.5,{2 * i},-{i % 5},0.1,0.2,0.3,25" for i in range(2000)]
+
+
+@pytest.mark.parametrize("lines, where, what", [
+    (GOOD[:1400] + ["6600,1,x,3,0.1,0.2,0.3,25"] + GOOD[1400:], 1402, "accelerometer.y (column 3) is 'x'"),
+    (GOOD[:1400] + ["6600,1,2"] + GOOD[1400:], 1402, "3 fields where the first sample has 8"),
+    (GOOD[:1400] + ["6600,1,2,3,0.1,0.2,0.3"] + GOOD[1400:], 1402, "7 fields where the first sample has 8"),
+    (GOOD[:1400] + ["6600,1,,3,0.1,0.2,0.3,25"] + GOOD[1400:], 1402, "accelerometer.y (column 3) is empty"),
+    (GOOD[:1400] + ["6600,1,2,3,0.1,0.2,0.3,25,7"] + GOOD[1400:], 1402, "9 fields where the first sample has 8"),
+    (GOOD[:30] + ["1120,1,2,3,nan,0.2,0.3,25"] + GOOD[30:], 32, "gyroscope.x (column 5) is 'nan'"),
+    (GOOD[:30] + ["1120,1,2,3,0.1,1e999,0.3,25"] + GOOD[30:], 32, "gyroscope.y (column 6) is '1e999'"),
+], ids=["text in the middle", "short line", "missing column", "empty field", "long line", "nan", "overflow"])
+@pytest.mark.parametrize("block_bytes", [1 << 20, 4096])
+def test_a_malformed_line_stops_apply_with_its_number(tmp_path, capsys, lines, where, what, block_bytes):
+    """Never a sample dropped or guessed: one line naming the file and the line, nothing written."""
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(lines) + "\n")
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    with pytest.raises(TextError, match=f"^apply: {path}: line {where}: {re.escape(what)}") as caught:
+        _applied(p, block_bytes)
+    assert caught.value.line == where and "\n" not in str(caught.value)
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    out = tmp_path / "cal.csv"
+    assert main(["apply", str(params), str(path), "--map", "single-csv", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"line {where}:" in err and "Traceback" not in err
+    assert sorted(tmp_path.iterdir()) == sorted([path, params])  # no CSV, no partial file left
+
+
+def test_an_empty_field_not_read_is_no_fault(tmp_path):
+    """The temperature (not calibrated) empty on some lines, last on the line: the samples are
+    read, an empty last field being no missing one."""
+    lines = [line.rsplit(",", 1)[0] + "," if i % 3 == 0 else line for i, line in enumerate(GOOD)]
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(lines) + "\n")
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    data = np.loadtxt(io.BytesIO(_applied(p, 4096)), delimiter=",", skiprows=1)
+    raw = np.array([[float(v) for v in line.split(",")[1:7]] for line in GOOD])
+    np.testing.assert_array_equal(data[:, 0], (1000 + 4 * np.arange(2000)) / 1000)
+    np.testing.assert_allclose(data[:, 1:], np.hstack([ACC.calibrate(raw[:, :3] * 1e-3),
+                                                       GYR.calibrate(np.deg2rad(raw[:, 3:]))]), rtol=1e-13, atol=1e-13)
+
+
+def test_a_last_line_cut_off_mid_write_is_refused(tmp_path, capsys):
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD) + "\n1000,1,2,3,0.1,0.")
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""  # refused before anything is written
+    assert captured.err.count("\n") == 1
+    assert f"{path}: line 2002: the last line has no line end" in captured.err
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD) + "\n# end of log")  # a comment: whole
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 0
+    assert capsys.readouterr().out.count("\n") == 2001
+
+
+def test_header_comments_and_blank_lines_are_skipped(tmp_path, capsys):
+    path = tmp_path / "log.csv"
+    path.write_text("# logger v2\nFs,250\nt_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:10])
+                    + "\n\n# paused\n   \n" + "\n".join(GOOD[10:20]) + "\n")
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 0
+    data = np.loadtxt(io.StringIO(capsys.readouterr().out), delimiter=",", skiprows=1)
+    np.testing.assert_array_equal(data[:, 0], (1000 + 4 * np.arange(20)) / 1000)
+    (tmp_path / "empty.csv").write_text("t_ms,ax,ay,az,gx,gy,gz,T\n")
+    assert main(["apply", str(params), str(tmp_path / "empty.csv"), "--map", "single-csv"]) == 2
+    assert "no sample of CSV log in its first 200 lines" in capsys.readouterr().err
+
+
+def test_a_blank_too_many_is_not_hidden_by_a_short_line(tmp_path):
+    """A blank too many is no fault in a blank-separated file; the short line after it is."""
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
+                      K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    (tmp_path / "acc.txt").write_text("0 1 2 3\n0.01 1  2 3\n0.02 1 2\n0.03 1 2 3\n")
+    np.savetxt(tmp_path / "gyro.txt", np.zeros((1, 4)))
+    gyro = Calibration(name="gyroscope", kind="angular_rate", output_unit="count", method="powell",
+                       K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    plans = plan(parameter_file(acc, gyro), load_import_map("imu_tk"), [tmp_path / "acc.txt", tmp_path / "gyro.txt"])
+    with pytest.raises(TextError, match="line 3: 3 fields where the first sample has 4"):
+        _applied(plans[0], 1 << 20)
+
+
+def test_output_piped_into_head_ends_quietly(tmp_path):
+    """`fieldcal apply ... | head`: the reader leaving is not an error (exit 0, nothing on stderr)."""
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD * 20) + "\n")  # ~3 MB out, beyond a pipe
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    code = (f"from fieldcal.cli.main import main; raise SystemExit(main(['apply', {str(params)!r}, "
+            f"{str(path)!r}, '--map', 'single-csv']))")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout.readline().startswith(b"t_s,accelerometer_x")
+    proc.stdout.close()
+    assert proc.wait(timeout=120) == 0
+    assert proc.stderr.read() == b""
+
+
+@pytest.mark.parametrize("files, map_name, units", [
+    (["imu_tk_xsens_acc.mat.gz", "imu_tk_xsens_gyro.mat.gz"], "imu_tk", ("count", "count")),
+    (["imucal_ferraris_session.csv.gz"], "imucal", ("m/s^2", "deg/s")),
+], ids=["imu_tk Xsens logs", "imucal Ferraris CSV"])
+def test_real_device_files_give_what_fieldcal_import_reads(tmp_path, files, map_name, units):
+    """Real bytes (tests/data/real): imu_tk's Xsens logs (runs of blanks, counts, two files) and
+    imucal's Ferraris CSV (columns by name, no time column). What apply calibrates is what the
+    importer's own parser (a separate reader) reads, calibrated."""
+    from test_real_recordings import unpacked
+
+    from fieldcal.recording.importer import import_recording
+    paths = unpacked(tmp_path, *files)
+    rate = 102.4 if map_name == "imucal" else None
+    recording = import_recording(paths, map_name, rate_hz=rate)
+    cals = [Calibration(name=name, kind=kind, output_unit=unit, method="classic",
+                        K=k_from_terms([k] * 3, [1e-3, -2e-3, 5e-4, 1e-3, 3e-3, -1e-3]), bias=[b, -b, 2 * b],
+                        sigma=np.zeros(9), residual_rms=0.0)
+            for name, kind, unit, k, b in zip(("accelerometer", "gyroscope"), ("specific_force", "angular_rate"),
+                                              units, (1.2, 0.9), (0.3, 0.7) if map_name == "imucal" else (32768, 32000))]
+    plans = plan(parameter_file(*cals), load_import_map(map_name), paths, rate_hz=rate)
+    first = np.loadtxt(io.BytesIO(_applied(plans[0], 1 << 16)), delimiter=",", skiprows=1)
+    # the importer keeps the first file's samples where all files overlap, bit for bit
+    keep = np.isin(first[:, 0], recording.t)
+    assert keep.sum() == len(recording.t) > 5000
+    triad = plans[0].calibrations[0]
+    np.testing.assert_allclose(first[keep, 1:4], triad.calibrate(recording.triads[triad.name]), rtol=1e-13, atol=1e-12)
+    if map_name == "imucal":  # both triads in one file
+        np.testing.assert_allclose(first[:, 4:7], cals[1].calibrate(recording.triads["gyroscope"]), rtol=1e-13, atol=1e-12)
+
+
+@given(st.lists(st.text(alphabet=" \t1a-.", max_size=12), max_size=8), st.sampled_from(["\n", "\r\n"]),
+       st.booleans())
+def test_squeezing_blanks_is_splitting_each_line_on_blanks(lines, end, ended):
+    """The vectorised squeeze against Python's own bytes.split, line by line."""
+    text = end.join(lines) + (end if ended else "")
+    want = "\n".join(" ".join(line.split()) for line in text.split("\n"))
+    assert squeeze_blanks(text.encode()).decode().replace("\r", "") == want.replace("\r", "")
+
+
+def _ulog_combined(path):
+    """sensor_combined's timestamp (s), accelerometer and gyro, as pyulog reads them."""
+    from pyulog import ULog
+    [data] = [d.data for d in ULog(str(path), ["sensor_combined"]).data_list]
+    return (data["timestamp"] * 1e-6, np.column_stack([data[f"accelerometer_m_s2[{i}]"] for i in range(3)]),
+            np.column_stack([data[f"gyro_rad[{i}]"] for i in range(3)]))
+
+
+def _dataflash_imu(path):
+    from test_logs_dataflash import decoded
+    rows = decoded(path, "IMU")
+    return rows[:, 0] * 1e-6, rows[:, 1:4], rows[:, 4:7]
+
+
+def _ros_imu(path):
+    from test_logs_bags import deserialized
+    t, rate, accel = deserialized(path, "/imu/data")
+    return t, accel, rate
+
+
+@pytest.mark.parametrize("name, as_name, truth, extra", [
+    ("px4_sample_log_small.ulg.gz", "log.ulg", _ulog_combined, []),
+    ("pymavlink_test.BIN.gz", "test.BIN", _dataflash_imu, ["--imu", "0"]),
+    ("robot_localization_test2.bag.gz", "jackal.bag", _ros_imu, ["--topic", "/imu/data"]),
+], ids=["PX4 ULog", "ArduPilot DataFlash", "ROS 1 bag"])
+def test_real_logs_are_calibrated_as_their_own_readers_decode_them(tmp_path, capsys, name, as_name, truth, extra):
+    """Real logs (tests/data/real), read whole by the importer: the CSV is each sample as the
+    format's own library decodes it (pyulog, pymavlink's DFReader, rosbags' deserializer, one
+    message at a time), calibrated by K⁻¹ worked out here."""
+    pytest.importorskip({"log.ulg": "pyulog", "test.BIN": "pymavlink", "jackal.bag": "rosbags"}[as_name])
+    from xsens_logs import unpacked
+
+    path = unpacked(tmp_path, name, as_name)
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="m/s^2", method="classic",
+                      K=k_from_terms([1.01, 0.98, 1.02], [1e-3, -2e-3, 5e-4, 1e-3, 3e-3, -1e-3]),
+                      bias=[0.1, -0.2, 0.3], sigma=np.zeros(9), residual_rms=0.0)
+    gyr = Calibration(name="gyroscope", kind="angular_rate", output_unit="rad/s", method="classic",
+                      K=np.diag([1.01, 0.99, 1.0]), bias=[1e-3, -2e-3, 5e-4], sigma=np.zeros(9), residual_rms=0.0)
+    params = save(parameter_file(acc, gyr), tmp_path / "p.yaml")
+    out = tmp_path / "cal.csv"
+    assert main(["apply", str(params), str(path), *extra, "--out", str(out)]) == 0
+    t, raw_acc, raw_gyr = truth(path)
+    assert f"{len(t)} samples calibrated into {out}" in capsys.readouterr().err
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(data[:, 0], t - (t[0] if as_name == "jackal.bag" else 0), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(data[:, 1:4], (raw_acc - acc.bias) @ np.linalg.inv(acc.K).T, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(data[:, 4:7], (raw_gyr - gyr.bias) / np.diag(gyr.K), rtol=1e-12, atol=1e-12)
+    in_counts = Calibration(name="gyroscope", kind="angular_rate", output_unit="count", method="powell",
+                            K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    assert main(["apply", str(save(parameter_file(in_counts), tmp_path / "q.yaml")), str(path), *extra]) == 2
+    err = capsys.readouterr().err
+    assert "triad 'gyroscope' is read in 'rad/s' but was calibrated in 'count'" in err and err.count("\n") == 1

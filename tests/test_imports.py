@@ -12,9 +12,9 @@ import sys
 import pytest
 
 # Packages `fieldcal --help` must not pay for: numpy and everything built on it, the plotting and
-# TUI stacks, and the simulator.
+# TUI stacks, the simulator, and the CSV libraries of `fieldcal apply`.
 HEAVY = ("numpy", "scipy", "matplotlib", "allantools", "textual", "yaml", "drivers.sim",
-         "fieldcal.solvers.norm")
+         "fieldcal.solvers.norm", "polars")
 
 _REPORT = """
 import json, sys
@@ -43,7 +43,7 @@ def _heavy(modules: set[str]) -> list[str]:
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["calibrate", "--help"], ["import", "--help"],
-                                  ["tui", "--help"], ["run", "--help"]])
+                                  ["tui", "--help"], ["run", "--help"], ["apply", "--help"]])
 def test_help_imports_nothing_heavy(argv):
     modules, out, code = _cli(argv)
     assert code == 0 and "usage: fieldcal" in out

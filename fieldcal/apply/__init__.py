@@ -1,25 +1,25 @@
 """Calibrated output from a recording: text in (an import map's layout), CSV out, in blocks.
 
-Each input file is read ``block_bytes`` at a time through the import map's parser (which holds
-an unfinished line back for the next block), every triad the parameter file calibrates is
-corrected with ``Calibration.calibrate`` (K⁻¹(raw − bias), SI units out), and the block is
-written as CSV before the next is read: memory stays bounded by the block, whatever the
-recording's length. Numbers are formatted by ``fieldcal.apply.fixed`` (vectorised), not row by
-row.
+Each input file is read ``block_bytes`` at a time by polars' CSV reader
+(:mod:`fieldcal.apply.text`: the columns read as float64 arrays; a malformed line stops the
+read with its line number), every triad the parameter file calibrates is corrected as
+``Calibration.calibrate`` does, K⁻¹(raw − bias) into SI units, by one numpy product over the
+whole block, and the block is written by polars' CSV writer before the next is read: memory
+stays bounded by the block, whatever the recording's length. Every number is written in the
+fewest digits that read back to the same double (``1.004``, ``-0.12345678901234567``): nothing
+is rounded off. polars is imported only when apply runs.
 """
 from __future__ import annotations
 
+import io
+import itertools
 import os
 from dataclasses import dataclass
 from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from fieldcal.apply.fixed import format_rows
-
-BLOCK_BYTES = 4 << 20
-TIME_DECIMALS, TIME_DIGITS = 6, 10  # µs; up to 10^10 s (Unix time fits)
-VALUE_DECIMALS, VALUE_DIGITS = 9, 5  # 1e-9 SI (0.0002 °/h, 0.1 ng); |x| < 10^5 m/s², rad/s
+BLOCK_BYTES = 4 << 20  # text read (and memory held) at a time
 
 
 @dataclass(frozen=True)
@@ -30,64 +30,126 @@ class Plan:
     file_spec: object  # fieldcal.recording.import_map.FileSpec
     calibrations: tuple  # Calibration per triad written
     skipped: tuple[str, ...]  # the file's triads the parameter file does not calibrate
+    rate_hz: float | None = None  # the sample rate of a file with no time column
 
-    def header(self) -> bytes:
-        cols = ["t_s"] + [f"{c.name}_{axis}_{c.input_unit}" for c in self.calibrations for axis in "xyz"]
-        return (",".join(cols) + "\n").encode("ascii")
+    def columns(self) -> list[str]:
+        return output_columns(self.calibrations)
 
 
-def plan(parameters, import_map, paths) -> list[Plan]:
+def output_columns(calibrations) -> list[str]:
+    """The CSV's columns: t_s, then x, y, z of each triad in its SI unit."""
+    return ["t_s"] + [f"{c.name}_{axis}_{c.input_unit}" for c in calibrations for axis in "xyz"]
+
+
+def write_block(out: BinaryIO, names: list[str], t: np.ndarray, values: np.ndarray) -> None:
+    """One block of rows (t (n,), values (n, 3·triads)) as CSV lines, written whole."""
+    import polars as pl
+
+    # polars writes each double in the fewest digits that read back to it bit for bit (Ryu).
+    # Formatted into memory, then written by Python: a closed pipe (``| head``) is then
+    # Python's BrokenPipeError, which the command takes as the reader's choice.
+    text = io.BytesIO()
+    pl.DataFrame(dict(zip(names, [t, *values.T]))).write_csv(text, include_header=False)
+    write_all(out, text.getbuffer())
+
+
+def write_all(out: BinaryIO, data) -> None:
+    """All of ``data``: an unbuffered stream (``python -u``, PYTHONUNBUFFERED) writes only part
+    of it when a signal (Ctrl-C) interrupts a write to a full pipe, and says how much."""
+    view = memoryview(data)
+    while view:
+        view = view[out.write(view) or 0:]
+
+
+def plan(parameters, import_map, paths, rate_hz: float | None = None) -> list[Plan]:
     """One Plan per input file; one-line errors for a wrong number of files, a triad whose map
-    unit is not the unit it was calibrated in, or a file with nothing to calibrate."""
+    unit is not the unit it was calibrated in, or a file with nothing to calibrate. ``rate_hz``
+    (else the map's) times a file with no time column."""
     if len(paths) != len(import_map.files):
         n = len(import_map.files)
         raise ValueError(f"apply: {import_map.path} expects {n} file{'s' * (n != 1)} "
                          f"({', '.join(import_map.file_names)}), got {len(paths)}")
     plans = []
     for path, spec in zip(paths, import_map.files):
-        cals, skipped = [], []
-        for name in spec.channel_map.triads:
-            if name not in parameters.names:
-                skipped.append(name)
-                continue
-            cal = parameters.triad(name)
-            if spec.units[name] != cal.output_unit:
-                raise ValueError(f"apply: {import_map.path}: triad {name!r} is read in {spec.units[name]!r} "
-                                 f"but was calibrated in {cal.output_unit!r}; give a map with unit "
-                                 f"{cal.output_unit!r} (and the matching scale)")
-            cals.append(cal)
-        if not cals:
-            raise ValueError(f"apply: {path}: none of its triads ({', '.join(spec.channel_map.triads)}) "
-                             f"is in the parameter file ({', '.join(parameters.names)})")
-        plans.append(Plan(os.fspath(path), spec, tuple(cals), tuple(skipped)))
+        cals, skipped = calibrations_for(parameters, spec.units, os.fspath(path), f"{import_map.path}: ",
+                                         "give a map with unit {unit!r} (and the matching scale)")
+        plans.append(Plan(os.fspath(path), spec, cals, skipped, rate_hz or spec.rate_hz))
     return plans
 
 
-def calibrated_blocks(p: Plan, block_bytes: int = BLOCK_BYTES) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """(t (n,), calibrated (n, 3·triads)) per block of the file."""
-    from drivers.protocols.delimited import DelimitedTextParser
+def calibrations_for(parameters, units: dict[str, str], source: str, where: str, fix: str) -> tuple[tuple, tuple]:
+    """The parameter file's calibrations of the triads ``units`` names (name: the unit it is
+    read in), in that order, and the names it has no calibration of. One-line errors naming
+    ``where`` for a triad read in another unit than it was calibrated in (``fix``: what to do,
+    ``{unit}`` the calibrated unit), and ``source`` when it has nothing to calibrate."""
+    cals, skipped = [], []
+    for name, unit in units.items():
+        if name not in parameters.names:
+            skipped.append(name)
+            continue
+        cal = parameters.triad(name)
+        if unit != cal.output_unit:
+            raise ValueError(f"apply: {where}triad {name!r} is read in {unit!r} but was calibrated in "
+                             f"{cal.output_unit!r}; {fix.format(unit=cal.output_unit)}")
+        cals.append(cal)
+    if not cals:
+        raise ValueError(f"apply: {source}: none of its triads ({', '.join(units)}) is in the parameter "
+                         f"file ({', '.join(parameters.names)})")
+    return tuple(cals), tuple(skipped)
 
-    parser = DelimitedTextParser(p.file_spec.channel_map)
-    with open(p.path, "rb") as fh:
-        while True:
-            data = fh.read(block_bytes)
-            last = len(data) < block_bytes
-            if last and data and not data.endswith(b"\n"):
-                data += b"\n"  # an unterminated last line is a whole line at the end of the file
-            chunk = parser.feed(data, 0.0) if data else None
-            if chunk is not None and len(chunk):
-                out = np.hstack([c.calibrate(chunk.triads[c.name]) for c in p.calibrations])
-                yield chunk.t, out
-            if last:
-                return
+
+def calibrated_blocks(p: Plan, block_bytes: int = BLOCK_BYTES) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """(t (n,) in s, calibrated (n, 3·triads) in SI units) per block of the file."""
+    from fieldcal.apply.text import layout, read_blocks
+
+    if not p.file_spec.has_time and p.rate_hz is None:
+        raise ValueError(f"apply: {p.path}: {p.file_spec.name} has no time column: give its sample rate "
+                         f"(--rate HZ, or rate_hz in the map's {p.file_spec.where or 'entry'})")
+    lay = layout(p.path, p.file_spec, [c.name for c in p.calibrations])
+    cm = lay.channel_map
+    slot = {role: i for i, (role, _) in enumerate(lay.roles)}
+    scale, bias, inverse = _affine(p.calibrations, cm, slot)
+    first = 0
+    for v in read_blocks(p.path, lay, block_bytes):
+        n = len(v)
+        t = _seconds(v[:, slot["time"]], cm.time_scale) if cm.time_column is not None \
+            else (first + np.arange(n)) / p.rate_hz
+        first += n
+        # einsum's own loop, not BLAS: OpenBLAS spreads a (n, 7)·(7, 6) product over threads
+        # that cost 10-25 times its CPU on a busy machine. Computed column by column (the
+        # transpose returned is a view), so each output column is contiguous for the writer.
+        yield t, np.einsum("nk,km->mn", v * scale - bias, inverse).T
+
+
+def _affine(calibrations, cm, slot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``Calibration.calibrate`` of every triad, K⁻¹(text·scale − bias), as one product for the
+    whole block: (scale (k,), bias (k,) per column read, K⁻¹ (k, 3·triads) block by block).
+    The bias is taken off in the raw unit, as calibrate does: folded into an offset after K⁻¹
+    it would cancel against counts of 32768 and lose 8 digits."""
+    scale, bias = np.zeros(len(slot)), np.zeros(len(slot))
+    inverse = np.zeros((len(slot), 3 * len(calibrations)))
+    for j, cal in enumerate(calibrations):
+        rows = [slot[f"{cal.name}.{axis}"] for axis in "xyz"]
+        scale[rows], bias[rows] = cm.triads[cal.name].scale, cal.bias
+        inverse[np.ix_(rows, range(3 * j, 3 * j + 3))] = np.linalg.inv(cal.K).T
+    return scale, bias, inverse
+
+
+def _seconds(time: np.ndarray, scale: float) -> np.ndarray:
+    """Text time in seconds; divided by 1000 (not times 0.001) for ms, so that 1004 ms is the
+    double nearest 1.004 s, as the text meant."""
+    per_second = 1.0 / scale
+    return time / per_second if per_second > 1 and per_second == round(per_second) else time * scale
 
 
 def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES) -> int:
     """Write ``p``'s calibrated CSV to ``out``; the number of samples written."""
-    out.write(p.header())
+    names = p.columns()
+    blocks = calibrated_blocks(p, block_bytes)
+    first = next(blocks, None)  # a file refused at its start (no sample, cut off) writes nothing
+    write_all(out, (",".join(names) + "\n").encode("ascii"))
     n = 0
-    for t, values in calibrated_blocks(p, block_bytes):
-        out.write(format_rows([(t[:, None], TIME_DECIMALS, TIME_DIGITS),
-                               (values, VALUE_DECIMALS, VALUE_DIGITS)]))
+    for t, values in itertools.chain([first] if first is not None else [], blocks):
+        write_block(out, names, t, values)
         n += len(t)
     return n

@@ -71,12 +71,7 @@ def run_monitor(config: StationConfig, out, err, max_samples: int | None = None,
                 chunks, events = conn.read()
                 for event in events:
                     opened |= event.kind == PORT_OPENED
-                    if event.kind == PORT_LOST and event.message.startswith("cannot open"):
-                        line = (f"{event.message}; retrying every {conn.reader.retry_s:g} s "
-                                "(Ctrl-C to stop)")
-                    else:
-                        gap = f" after {event.gap_s:.2f} s" if event.gap_s else ""
-                        line = f"port {event.kind}{gap}: {event.message}"
+                    line = port_event_line(event, conn.reader.retry_s)
                     print(f"\n{line}" if live else line, file=err, flush=True)
                 for chunk in chunks:
                     if max_samples is not None:
@@ -115,6 +110,14 @@ def run_monitor(config: StationConfig, out, err, max_samples: int | None = None,
             return 0
         print(f"fieldcal: {no_samples_hint(config, opened, conn.reader.bytes_read)}", file=err, flush=True)
     return 1
+
+
+def port_event_line(event, retry_s: float) -> str:
+    """A port event as one line for the operator."""
+    if event.kind == PORT_LOST and event.message.startswith("cannot open"):
+        return f"{event.message}; retrying every {retry_s:g} s (Ctrl-C to stop)"
+    gap = f" after {event.gap_s:.2f} s" if event.gap_s else ""
+    return f"port {event.kind}{gap}: {event.message}"
 
 
 def no_samples_hint(config: StationConfig, opened: bool, bytes_read: int) -> str:

@@ -155,48 +155,132 @@ def cmd_export(args) -> int:
     return 0
 
 
-def _apply_targets(args, plans) -> list[Path | None]:
+def _apply_targets(args, paths) -> list[Path | None]:
     """Where each input's CSV goes: stdout (None), --out as a file (one input) or a directory."""
     from fieldcal.session.output import check_output_path
 
     if args.out is None:
-        if len(plans) > 1:
+        if len(paths) > 1:
             raise ValueError("apply: several input files give several CSVs: give --out DIR")
         return [None]
     out = Path(args.out)
-    targets = [out] if len(plans) == 1 and not out.is_dir() else \
-        [out / f"{Path(p.path).stem}-calibrated.csv" for p in plans]
-    if len(plans) > 1 and not out.is_dir():
+    targets = [out] if len(paths) == 1 and not out.is_dir() else \
+        [out / f"{Path(path).stem}-calibrated.csv" for path in paths]
+    if len(paths) > 1 and not out.is_dir():
         raise ValueError(f"apply: --out {out}: several input files need an existing directory")
     for target in targets:
         check_output_path(target, force=args.force, option="--out")
     return targets
 
 
+def _write_csv(target: Path | None, write, source: str) -> int:
+    """``write(binary file)`` to stdout, or to ``target`` whole or not at all (a partial file
+    first, renamed when complete); what it returns (the samples written)."""
+    if target is None:
+        n = write(sys.stdout.buffer)
+        sys.stdout.buffer.flush()
+        return n
+    partial = target.with_name(f".{target.name}.partial")
+    try:
+        with open(partial, "wb") as fh:
+            n = write(fh)
+        partial.replace(target)
+    finally:
+        partial.unlink(missing_ok=True)
+    print(f"{source}: {n} samples calibrated into {target}", file=sys.stderr)
+    return n
+
+
+# Which input each option is for, in its own words.
+_APPLY_OPTIONS = {"samples": "live", "seconds": "live", "map": "text", "rate": "text", "topic": "log", "imu": "log"}
+_APPLY_INPUTS = {"live": "a live device (--config)", "text": "text INPUT files", "log": "a log INPUT (.ulg, .bag, .bin)"}
+
+
 def cmd_apply(args) -> int:
-    from fieldcal.apply import apply_file, plan
     from fieldcal.paramfile import load
+    from fieldcal.recording.logs import LOG_NAMES, log_format
+
+    if bool(args.input) == bool(args.config):
+        raise ValueError("apply: give the recording's INPUT files or a live device (--config), one of the two")
+    kind = "live" if args.config else "log" if (args.map is None and len(args.input) == 1
+                                                and log_format(args.input[0]) is not None) else "text"
+    for name, owner in _APPLY_OPTIONS.items():
+        if getattr(args, name) is not None and owner != kind:
+            raise ValueError(f"apply: --{name} is for {_APPLY_INPUTS[owner]}, not {_APPLY_INPUTS[kind]}")
+    if kind == "live":
+        return _apply_device(args, load(args.params))
+    if kind == "log":
+        from fieldcal.apply.logs import apply_log
+
+        parameters = load(args.params)
+        [target] = _apply_targets(args, args.input)
+        skipped = []
+        _write_csv(target, lambda out: _logged(apply_log(parameters, args.input[0], out, args.topic, args.imu),
+                                               skipped), args.input[0])
+        for name in skipped:
+            print(f"fieldcal apply: {args.input[0]}: triad {name!r} is not in {args.params}: not written",
+                  file=sys.stderr)
+        return 0
+    if args.map is None:
+        raise ValueError(f"apply: text INPUT files need their import map: give --map MAP (see fieldcal "
+                         f"import); {LOG_NAMES} needs none")
+    if args.rate is not None and not args.rate > 0:
+        raise ValueError(f"apply: --rate: expected a sample rate above 0 Hz, got {args.rate:g}")
+    from fieldcal.apply import apply_file, plan
     from fieldcal.recording.import_map import load_import_map
 
-    plans = plan(load(args.params), load_import_map(args.map), args.input)
-    targets = _apply_targets(args, plans)
+    plans = plan(load(args.params), load_import_map(args.map), args.input, args.rate)
+    targets = _apply_targets(args, [p.path for p in plans])
     for p, target in zip(plans, targets):
         for name in p.skipped:
             print(f"fieldcal apply: {p.path}: triad {name!r} is not in {args.params}: not written",
                   file=sys.stderr)
-        if target is None:
-            n = apply_file(p, sys.stdout.buffer)
-            sys.stdout.buffer.flush()
-            continue
-        partial = target.with_name(f".{target.name}.partial")  # the CSV appears whole or not at all
-        try:
-            with open(partial, "wb") as fh:
-                n = apply_file(p, fh)
-            partial.replace(target)
-        finally:
-            partial.unlink(missing_ok=True)
-        print(f"{p.path}: {n} samples calibrated into {target}", file=sys.stderr)
+        _write_csv(target, lambda out, p=p: apply_file(p, out), p.path)
     return 0
+
+
+def _logged(result, skipped: list) -> int:
+    """apply_log's samples; its skipped triads into ``skipped``, what its import did said."""
+    n, names, report = result
+    skipped.extend(names)
+    for note in (*report.alignment, *report.warnings):  # samples dropped, the IMU or topic read
+        print(f"fieldcal apply: {note}", file=sys.stderr)
+    return n
+
+
+def _apply_device(args, parameters) -> int:
+    """A live device's calibrated CSV, to stdout or --out (written as it comes, a block at a
+    time); Ctrl-C ends it after the block being written, never inside a line."""
+    import signal
+    import threading
+
+    from fieldcal.apply.live import apply_device, device_calibrations
+    from fieldcal.config import load_config
+    from fieldcal.session.output import check_output_path
+
+    config = load_config(args.config)
+    calibrations, skipped = device_calibrations(parameters, config)
+    for name in skipped:
+        print(f"fieldcal apply: {config.device.name}'s triad {name!r} is not in {args.params}: not written",
+              file=sys.stderr)
+    if args.out is not None:
+        check_output_path(Path(args.out), force=args.force, option="--out")
+    stop = threading.Event()
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, lambda *_: stop.set()) if in_main else None
+    try:
+        if args.out is None:
+            written = apply_device(config, calibrations, sys.stdout.buffer, sys.stderr, stop,
+                                   args.samples, args.seconds)
+        else:
+            with open(args.out, "wb") as out:
+                written = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
+                                       args.seconds)
+            print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
+    finally:
+        if in_main:
+            signal.signal(signal.SIGINT, previous)
+    return 0 if written else 1
 
 
 def cmd_units(args) -> int:
@@ -321,6 +405,8 @@ def _certificate_pdf(page: Path, pdf: Path) -> None:
 
 
 def add_production_parsers(sub) -> None:
+    from fieldcal.cli.importing import add_log_options
+    from fieldcal.cli.main import _positive
     check = sub.add_parser(
         "check", help="PASS/FAIL of a parameter file against a product spec",
         description="Check every parameter of a parameter file against a product spec's acceptance "
@@ -349,17 +435,30 @@ def add_production_parsers(sub) -> None:
     export.set_defaults(func=cmd_export)
 
     apply = sub.add_parser(
-        "apply", help="calibrated CSV from a recording's text files",
-        description="Read a recording's text files in an import map's layout, block by block, and "
-        "write each calibrated triad K⁻¹(raw − bias) in SI units (m/s^2, rad/s) as CSV: a time "
-        "column t_s, then x, y, z per triad.")
+        "apply", help="calibrated CSV from a recording (text or a log) or a live device",
+        description="Calibrate each triad, K⁻¹(raw − bias) into SI units (m/s^2, rad/s), and write "
+        "CSV: a time column t_s, then x, y, z per triad, every number in the fewest digits that "
+        "read back to it exactly. From a recording's text files in an import map's layout (--map): "
+        "streamed, block by block (a malformed line stops it with the line's number). From a log "
+        "(PX4 .ulg, ROS 1 .bag or a ROS 2 bag directory, ArduPilot .bin; no --map): read whole "
+        "into memory by fieldcal import's reader, not streamed. From a live "
+        "device (--config, as fieldcal monitor reads it: a serial port, socket://, or the "
+        "simulated device): streamed and flushed a block at a time until Ctrl-C, --samples or "
+        "--seconds; Ctrl-C ends it between lines.")
     apply.add_argument("params", metavar="PARAMS", help="parameter file")
-    apply.add_argument("input", nargs="+", metavar="INPUT", help="text files, one per map entry")
-    apply.add_argument("--map", required=True, metavar="MAP", help="import map: a name in "
+    apply.add_argument("input", nargs="*", metavar="INPUT", help="text files, one per map entry, or one log")
+    apply.add_argument("--map", metavar="MAP", help="import map of the INPUT files: a name in "
                        "configs/recordings or a YAML path (see fieldcal import)")
-    apply.add_argument("--out", metavar="PATH", help="the CSV (one input) or a directory for "
-                       "INPUT-calibrated.csv files (default: standard output, one input)")
+    apply.add_argument("--config", metavar="CONFIG", help="read this station config's device live "
+                       "instead of files: a name in configs/ or a path")
+    apply.add_argument("--out", metavar="PATH", help="the CSV (one input or a device) or a directory "
+                       "for INPUT-calibrated.csv files (default: standard output, one input)")
     apply.add_argument("--force", action="store_true", help="replace existing output files")
+    apply.add_argument("--rate", type=float, metavar="HZ",
+                       help="sample rate of files with no time column (else rate_hz in the map)")
+    add_log_options(apply)
+    apply.add_argument("--samples", type=_positive(int), metavar="N", help="live: stop after N samples")
+    apply.add_argument("--seconds", type=_positive(float), metavar="S", help="live: stop after S seconds")
     apply.set_defaults(func=cmd_apply)
 
     units = sub.add_parser("units", help="the units in the registry, with their last calibration",

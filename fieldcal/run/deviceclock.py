@@ -44,20 +44,28 @@ class DeviceClock:
 
 def clock_of(chunk, parser, host_utc: float) -> DeviceClock:
     """The clock of a chunk's last sample, as far as ``parser``'s protocol tells it."""
-    from drivers.protocols.delimited import DelimitedTextParser
     from drivers.protocols.xsens import XsensMtData2Parser
 
     time_s = float(chunk.t[-1]) if getattr(parser, "device_time", False) else None
-    period = modulus = counter = None
-    if isinstance(parser, XsensMtData2Parser):
-        period, modulus = XSENS_TIME_PERIOD_S, XSENS_COUNTER_MODULUS
-        counter = chunk.extras.get("packet_counter")
-    elif isinstance(parser, DelimitedTextParser):
-        modulus = parser.map.counter_modulus
-        counter = chunk.extras.get("counter")
+    period = XSENS_TIME_PERIOD_S if isinstance(parser, XsensMtData2Parser) else None
+    counter, modulus = frame_counter(chunk, parser)
     return DeviceClock(host_utc, time_s, period if time_s is not None else None,
                        None if counter is None else int(round(float(counter[-1]))),
                        modulus if counter is not None else None)
+
+
+def frame_counter(chunk, parser):
+    """The device's packet counter of each of the chunk's samples (None: its frames carry
+    none: VectorNav, a delimited map without a counter column) and where it wraps (None: it
+    does not)."""
+    from drivers.protocols.delimited import DelimitedTextParser
+    from drivers.protocols.xsens import XsensMtData2Parser
+
+    if isinstance(parser, XsensMtData2Parser):
+        return chunk.extras.get("packet_counter"), XSENS_COUNTER_MODULUS
+    if isinstance(parser, DelimitedTextParser):
+        return chunk.extras.get("counter"), parser.map.counter_modulus
+    return None, None
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,114 @@
+"""Calibrated output from a live device: the station config's device opened as ``fieldcal
+monitor`` opens it (a serial port, ``socket://``, or the simulated device on a pty), its frames
+decoded by the protocol's parser, and every read's samples calibrated as one block,
+K⁻¹(raw − bias) per triad in numpy, and written as CSV lines (as a recording's are) and flushed,
+until Ctrl-C, a sample count or a duration. Ctrl-C ends it between blocks: the output ends
+with a whole line.
+
+``t_s`` is the device's own sample time where its frames carry one (Xsens SampleTimeFine, a
+delimited time column); else, as the procedure engine counts, the sample's number over the
+config's ``rate_hz`` (the host's arrival time is the same for every sample of a read), the
+number counted by the device's packet counter where its frames carry one, so that frames lost
+on the way leave their time out rather than shift every later sample.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import BinaryIO, TextIO
+
+import numpy as np
+
+from fieldcal.apply import calibrations_for, output_columns, write_all, write_block
+
+POLL_S = 0.01  # how often the reader's bytes are taken (the port is read in the background)
+
+
+def device_calibrations(parameters, config) -> tuple[tuple, tuple[str, ...]]:
+    """The calibrations of the device's triads that the parameter file holds, and the device's
+    triads it does not (one-line errors as a file's: ``calibrations_for``)."""
+    device = config.device
+    return calibrations_for(parameters, {t.name: t.unit for t in device.triads}, f"{config.path}: {device.name}",
+                            f"{config.path}: {device.name}'s ", "use the config it was calibrated with")
+
+
+def calibrate_chunks(chunks, calibrations) -> tuple[np.ndarray, np.ndarray]:
+    """(t (n,) in s, calibrated (n, 3·triads) in SI units) of a read's chunks, as one block."""
+    missing = sorted({c.name for c in calibrations} - set.intersection(*(set(ch.triads) for ch in chunks)))
+    if missing:
+        raise ValueError(f"apply: the device sent samples without {', '.join(missing)}: check the "
+                         "config's protocol and triads")
+    t = np.concatenate([chunk.t for chunk in chunks])
+    values = np.hstack([cal.calibrate(np.concatenate([chunk.triads[cal.name] for chunk in chunks]))
+                        for cal in calibrations])
+    return t, values
+
+
+def sample_numbers(counter: np.ndarray, modulus: int | None, previous: tuple[int, int] | None) -> np.ndarray:
+    """Each sample's number since the first sample (number 0), from the device's packet counter:
+    a frame's number is the last one's plus the counter's step, taken modulo ``modulus`` (where
+    the counter wraps), so lost frames leave a gap. ``previous``: (number, counter) of the
+    sample before ``counter``'s first; None: its first is the first. A step that is not forward
+    (a re-sent frame, a device restarted) counts as one."""
+    c = np.rint(np.asarray(counter, dtype=float)).astype(np.int64)
+    number, last = previous if previous is not None else (-1, c[0] - 1)
+    steps = np.diff(np.concatenate([[last], c]))
+    if modulus:
+        steps %= modulus
+    return number + np.cumsum(np.where(steps > 0, steps, 1))
+
+
+def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threading.Event,
+                 max_samples: int | None = None, max_seconds: float | None = None) -> int:
+    """Stream ``config``'s device, calibrated, to ``out`` until ``stop`` is set (Ctrl-C), or
+    ``max_samples`` / ``max_seconds``; the samples written (none: a hint at the port, protocol
+    or baud rate on ``err``)."""
+    from drivers.transport import PORT_OPENED
+    from fieldcal.cli.monitor import counters_line, no_samples_hint, port_event_line
+    from fieldcal.run.devices import DeviceConnection
+
+    from fieldcal.run.deviceclock import frame_counter
+
+    names = output_columns(calibrations)
+    written, opened, device_time, previous = 0, False, None, None
+    with DeviceConnection(config) as conn:
+        started = time.monotonic()
+        where = conn.simulated.imu_url if conn.simulated else config.device.port.url
+        print(f"applying to {config.device.name} on {where} ({conn.protocol}); Ctrl-C to stop",
+              file=err, flush=True)
+        write_all(out, (",".join(names) + "\n").encode("ascii"))
+        out.flush()
+        while not stop.is_set() and (max_samples is None or written < max_samples) \
+                and (max_seconds is None or time.monotonic() - started < max_seconds):
+            chunks, events = conn.read()
+            for event in events:
+                opened |= event.kind == PORT_OPENED
+                print(port_event_line(event, conn.reader.retry_s), file=err, flush=True)
+            if chunks:
+                t, values = calibrate_chunks(chunks, calibrations)
+                if device_time is None:  # decided by the first frames, kept for the whole output
+                    device_time = conn.parser.device_time
+                    if not device_time:
+                        print(f"t_s: {conn.protocol} frames carry no sample time here: sample number / "
+                              f"{config.device.rate_hz:g} Hz", file=err, flush=True)
+                if not device_time:
+                    counters = [frame_counter(chunk, conn.parser) for chunk in chunks]
+                    if all(c is not None for c, _ in counters):
+                        counter = np.concatenate([c for c, _ in counters])
+                        numbers = sample_numbers(counter, counters[0][1], previous)
+                        previous = int(numbers[-1]), int(round(float(counter[-1])))
+                    else:
+                        numbers = written + np.arange(len(t))
+                    t = numbers / config.device.rate_hz
+                if max_samples is not None:
+                    t, values = t[: max_samples - written], values[: max_samples - written]
+                write_block(out, names, t, values)
+                out.flush()
+                if not written:
+                    print(f"samples flowing: the first at t_s = {t[0]:.3f} s", file=err, flush=True)
+                written += len(t)
+            stop.wait(POLL_S)
+        print(f"{written} samples calibrated; {counters_line(conn.counters)}", file=err, flush=True)
+        if not written:
+            print(f"fieldcal: {no_samples_hint(config, opened, conn.reader.bytes_read)}", file=err, flush=True)
+    return written
