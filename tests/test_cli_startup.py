@@ -40,3 +40,12 @@ def test_the_collector_comes_back_when_an_import_fails(collector):
         with imports_uncollected():
             import fieldcal.no_such_module  # noqa: F401
     assert gc.isenabled()
+
+
+def test_main_gives_what_a_command_froze_back_to_the_collector(collector, tmp_path):
+    """A test (or any process) calling main again and again keeps nothing frozen after it."""
+    from fieldcal.cli.main import main
+
+    gc.unfreeze()
+    main(["calibrate", str(tmp_path / "missing.csv"), "--out", str(tmp_path)])  # refused, after its imports
+    assert gc.get_freeze_count() == 0

@@ -361,6 +361,8 @@ def main(argv=None) -> int:
         print(f"fieldcal: terminated (SIGTERM){_session_note(args, '')}", file=sys.stderr)
         return 128 + signal.SIGTERM
     finally:
+        from fieldcal.cli.startup import thaw
+        thaw()  # what a command froze for its own run (imports_uncollected), collectable again
         if catch_sigterm:  # None: a handler not set from Python; the default is what it did
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
