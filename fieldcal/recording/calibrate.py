@@ -568,22 +568,32 @@ def _with_shared_flicker(solution: Calibration, means: np.ndarray, intervals: np
     """A Ferraris accelerometer's solution with its biases' σ widened by the bias instability
     that all faces share, and the noise model measured for it (SI; ``scale`` the nominal K).
 
-    B is measured from the repeated faces: a full turn on the table brings the unit back to the
-    attitude it had, so the still intervals before and after it on one face differ by noise
-    alone. (The six faces' fit, two degrees of freedom per axis, mostly sees how each face was
-    placed, not the sensor: on imucal's own session it put B at 3 mg and every σ at 5 times.)
-    Only the biases change: the faces' scatter already widens every σ (χ²/dof), and what no
-    scatter shows is the part of the flicker all faces share, which the bias, their mean, takes."""
+    B is measured within placements (ferraris.placement_runs): a full turn on the table brings
+    the unit back to the attitude it had, so the still intervals before and after it differ by
+    noise alone. A face set down again later is another placement with another tilt: grouped by
+    face, imucal's session put B at 14 mm/s² (its +x placements differ by 8 mm/s²), by placement
+    1.6 mm/s². (The six faces' fit, two degrees of freedom per axis, mostly sees how each face
+    was placed, not the sensor: it put B at 3 mg and every σ at 5 times.) Only the biases
+    change: the faces' scatter already widens every σ (χ²/dof), and what no scatter shows is the
+    part of the flicker all faces share, with the weights the solve gives each interval: each
+    face's first placement (ferraris.first_placements), not every interval on the face. (The
+    whole flicker of each axis's own two faces would count their difference from the others
+    twice, once here and once in χ²/dof: Ferraris Monte Carlo bias RMS z 0.76-0.87, not 0.81-0.91.)"""
+    from fieldcal.recording.ferraris import first_placements, placement_runs
+
     counts = np.diff(intervals, axis=1)[:, 0]
-    faces = (axes[:, None] == np.arange(6)[None, :]).astype(float)  # which face each interval is on
+    run = placement_runs(axes)
+    placements = (run[:, None] == np.arange(run[-1] + 1)[None, :]).astype(float)  # interval × placement
     white = float(np.mean(variance)) / counts
     weights = 1.0 / white
     root = np.sqrt(weights)[:, None]
-    fitted = faces @ np.linalg.lstsq(faces * root, means * root, rcond=None)[0]
+    fitted = placements @ np.linalg.lstsq(placements * root, means * root, rcond=None)[0]
     flicker = flicker_covariance(t[intervals[:, 0]], counts / rate_hz)
-    b = bias_instability(means - fitted, faces, white, flicker, weights=weights)  # output units
-    mean_of_faces = (faces / faces.sum(axis=0)).sum(axis=1) / 6  # the bias as weights on the intervals
-    shared = b**2 * float(mean_of_faces @ flicker @ mean_of_faces)
+    b = bias_instability(means - fitted, placements, white, flicker, weights=weights)  # output units
+    # The flicker the six faces' means share, each face its first placement as the solve takes it
+    # (the rest of a bias's flicker, its two faces against the others, is in the faces' scatter).
+    common = first_placements(axes, counts).mean(axis=0)
+    shared = b**2 * float(common @ flicker @ common)
     covariance = solution.covariance.copy()
     covariance[:3, :3] += shared * np.eye(3)
     sigma = solution.sigma.copy()

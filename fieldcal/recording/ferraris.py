@@ -141,6 +141,14 @@ def scale_drift_covariance(values: np.ndarray, offset: np.ndarray, drift: np.nda
     return cov
 
 
+def placement_runs(axes: np.ndarray) -> np.ndarray:
+    """(m,) each interval's placement, numbered from 0: a run of consecutive intervals on one
+    face (only a turn about the vertical between them, which keeps the tilt) is one placement;
+    the face set down again later is another."""
+    axes = np.asarray(axes)
+    return np.cumsum(np.r_[True, axes[1:] != axes[:-1]]) - 1
+
+
 def first_placements(axes: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """(6, m) weights that average each face's first placement: the first run of consecutive
     intervals on that face (a turn about the vertical between them keeps the placement), each
@@ -148,8 +156,7 @@ def first_placements(axes: np.ndarray, counts: np.ndarray) -> np.ndarray:
     and time: its mean differs by more than the noise (imucal's session: 8 mm/s² on +x), and
     averaging two placements matches neither, so the calibrated faces' norms miss g."""
     weights = np.zeros((6, len(axes)))
-    new_run = np.r_[True, axes[1:] != axes[:-1]]
-    run = np.cumsum(new_run) - 1  # each interval's run of consecutive same-face intervals
+    run = placement_runs(axes)
     for a in range(6):  # a loop over faces
         on_face = np.flatnonzero(axes == a)
         chosen = on_face[run[on_face] == run[on_face[0]]]
