@@ -406,3 +406,23 @@ def test_real_logs_are_calibrated_as_their_own_readers_decode_them(tmp_path, cap
     assert main(["apply", str(save(parameter_file(in_counts), tmp_path / "q.yaml")), str(path), *extra]) == 2
     err = capsys.readouterr().err
     assert "triad 'gyroscope' is read in 'rad/s' but was calibrated in 'count'" in err and err.count("\n") == 1
+
+
+def test_a_quote_in_a_column_not_read_loses_no_sample(tmp_path, capsys):
+    """A ``"`` in the temperature (not read) is text, as fieldcal import reads it: polars must
+    not take the lines up to the next ``"`` as one quoted field (the samples would vanish)."""
+    path = tmp_path / "q.csv"
+    path.write_text('t_ms,ax,ay,az,gx,gy,gz,T\n1000,1,2,1000,0.1,0.2,0.3,"x\n1004,1,2,1000,0.1,0.2,0.3,25\n'
+                    '1008,1,2,1000,0.1,0.2,0.3,y"\n1012,1,2,1000,0.1,0.2,0.3,25\n')
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    for block_bytes in (1 << 20, 40):
+        [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+        data = np.loadtxt(io.BytesIO(_applied(p, block_bytes)), delimiter=",", skiprows=1)
+        np.testing.assert_array_equal(data[:, 0], [1.0, 1.004, 1.008, 1.012])
+        np.testing.assert_allclose(data[:, 1:4], np.tile(ACC.calibrate(np.array([[1e-3, 2e-3, 1.0]])), (4, 1)),
+                                   rtol=1e-14)
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 0
+    assert capsys.readouterr().out.count("\n") == 5
+    path.write_text('t_ms,ax,ay,az,gx,gy,gz,T\n1000,1,2,1000,0.1,0.2,0.3,25\n1004,"1",2,1000,0.1,0.2,0.3,25\n')
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 2  # a quoted number: refused
+    assert "line 3: accelerometer.x (column 2) is '\"1\"'" in capsys.readouterr().err

@@ -34,7 +34,8 @@ from drivers.protocols.delimited import ChannelMap
 from fieldcal.recording.import_map import FileSpec
 from fieldcal.recording.importer import HEADER_SEARCH_BYTES, HEADER_SEARCH_LINES, _header_fields
 
-_PLAIN_NUMBER = re.compile(rb'"?[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?"?')  # what polars reads as a double
+# what polars reads as a double (quotes are no quotes here: ``"`` is text, as fieldcal import reads it)
+_PLAIN_NUMBER = re.compile(rb'[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?')
 _LINES = re.compile(rb"[^\n]*\n|[^\n]+\Z")  # with their line ends, as file iteration gives them
 _LF, _CR = 10, 13
 _TAIL_BYTES = 1 << 16
@@ -83,7 +84,7 @@ class Layout:
             return f"{len(fields)} fields where the first sample has {self.fields}"
         for role, column in self.roles:
             field = fields[column].strip(b" \t")
-            if not _PLAIN_NUMBER.fullmatch(field) or not math.isfinite(float(field.strip(b'"'))):
+            if not _PLAIN_NUMBER.fullmatch(field) or not math.isfinite(float(field)):
                 shown = field.decode("utf-8", "replace")
                 return f"{role} (column {column + 1}) is {shown!r}, not a finite number" if shown \
                     else f"{role} (column {column + 1}) is empty"
@@ -147,15 +148,19 @@ def read_blocks(path: str, lay: Layout, block_bytes: int) -> Iterator[np.ndarray
     # leaves its last field null (as an empty last field does: told apart line by line).
     schema = {f"f{i}": pl.Float64 if i in read else pl.String for i in range(beyond + 1)}
     shown = sorted({*read, last, beyond})
+    # quote_char=None: a ``"`` in any field is text, never the start of a field over many lines
     options = dict(has_header=False, separator=" " if lay.squeezed else cm.delimiter, schema=schema,
-                   columns=shown, missing_columns="insert")
+                   columns=shown, missing_columns="insert", quote_char=None)
     numbers = [f"f{c}" for c in read]
 
-    def parsed(block: bytes, fields_checked: bool = False) -> np.ndarray | None:
-        """The block's samples, or None if a line may not be a plain sample."""
+    def parsed(block: bytes, lines: int, fields_checked: bool = False) -> np.ndarray | None:
+        """The block's samples, or None if a line may not be a plain sample (or polars did not
+        give one row per line: a sample is never dropped or merged unseen)."""
         try:
             frame = pl.read_csv(block, **options)
         except pl.exceptions.PolarsError:  # a field read that is no number
+            return None
+        if len(frame) != lines:
             return None
         nulls = dict(zip(frame.columns, frame.null_count().row(0)))
         long_line = nulls[f"f{beyond}"] != len(frame)
@@ -170,13 +175,13 @@ def read_blocks(path: str, lay: Layout, block_bytes: int) -> Iterator[np.ndarray
         fh.seek(lay.start)
         for block in _whole_lines(fh, block_bytes):
             block = squeeze_blanks(block) if lay.squeezed else block
-            values = parsed(block)
+            values = parsed(block, block.count(b"\n") + (not block.endswith(b"\n")))
             if values is None:  # without its blank and comment lines, or line by line
                 lines = [line for line in _LINES.findall(block) if not lay.skipped(line)]
                 kept = b"".join(lines)
-                values = parsed(kept) if kept else np.zeros((0, len(read)))
+                values = parsed(kept, len(lines)) if kept else np.zeros((0, len(read)))
                 if values is None and not any(lay.fault(line) for line in lines):
-                    values = parsed(kept, fields_checked=True)  # empty last fields, not missing ones
+                    values = parsed(kept, len(lines), fields_checked=True)  # empty last fields, not missing ones
                 if values is None:
                     raise _bad_line(path, lay, rows)
             rows += len(values)
