@@ -426,3 +426,32 @@ def test_a_quote_in_a_column_not_read_loses_no_sample(tmp_path, capsys):
     path.write_text('t_ms,ax,ay,az,gx,gy,gz,T\n1000,1,2,1000,0.1,0.2,0.3,25\n1004,"1",2,1000,0.1,0.2,0.3,25\n')
     assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 2  # a quoted number: refused
     assert "line 3: accelerometer.x (column 2) is '\"1\"'" in capsys.readouterr().err
+
+
+def test_outputs_that_would_overwrite_each_other_or_an_input_are_refused(tmp_path, capsys):
+    """a/x.txt and b/x.txt both give x-calibrated.csv: refused up front (nothing written), one
+    line naming both; an output that is an input or the parameter file: refused even with --force."""
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
+                      K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    gyro = Calibration(name="gyroscope", kind="angular_rate", output_unit="count", method="powell",
+                       K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    params = save(parameter_file(acc, gyro), tmp_path / "p.yaml")
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        np.savetxt(tmp_path / folder / "x.txt", np.c_[0.01 * np.arange(5), np.ones((5, 3))], fmt="%.10g")
+    (tmp_path / "out").mkdir()
+    inputs = [str(tmp_path / "a" / "x.txt"), str(tmp_path / "b" / "x.txt")]
+    assert main(["apply", str(params), *inputs, "--map", "imu_tk", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and inputs[0] in err and inputs[1] in err
+    assert list((tmp_path / "out").iterdir()) == []
+    single = tmp_path / "one.csv"
+    single.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:5]) + "\n")
+    before = single.read_bytes()
+    params = save(parameter_file(ACC, GYR), tmp_path / "p2.yaml")
+    for out in (single, params):
+        argv = ["apply", str(params), str(single), "--map", "single-csv", "--out", str(out), "--force"]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"--out {out} is the input" in err
+    assert single.read_bytes() == before

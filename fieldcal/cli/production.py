@@ -168,9 +168,26 @@ def _apply_targets(args, paths) -> list[Path | None]:
         [out / f"{Path(path).stem}-calibrated.csv" for path in paths]
     if len(paths) > 1 and not out.is_dir():
         raise ValueError(f"apply: --out {out}: several input files need an existing directory")
+    written = {}
+    for path, target in zip(paths, targets):
+        if target.resolve() in written:
+            raise ValueError(f"apply: {written[target.resolve()]} and {path} would both be written to {target}: "
+                             "give them different file names, or apply them one at a time")
+        written[target.resolve()] = path
+    _refuse_own_files(targets, [*paths, args.params])
     for target in targets:
         check_output_path(target, force=args.force, option="--out")
     return targets
+
+
+def _refuse_own_files(targets, sources) -> None:
+    """An output that is one of the command's own inputs (or its parameter file) is refused,
+    --force or not: it would be read while it is replaced."""
+    for target in targets:
+        for source in sources:
+            if Path(target).resolve() == Path(source).resolve() or \
+                    (Path(target).exists() and Path(source).exists() and os.path.samefile(target, source)):
+                raise ValueError(f"apply: --out {target} is the input {source}: give another output path")
 
 
 def _write_csv(target: Path | None, write, source: str) -> int:
@@ -264,6 +281,7 @@ def _apply_device(args, parameters) -> int:
         print(f"fieldcal apply: {config.device.name}'s triad {name!r} is not in {args.params}: not written",
               file=sys.stderr)
     if args.out is not None:
+        _refuse_own_files([args.out], [args.params, args.config])
         check_output_path(Path(args.out), force=args.force, option="--out")
     stop = threading.Event()
     in_main = threading.current_thread() is threading.main_thread()
