@@ -228,3 +228,17 @@ def test_a_counter_stepping_back_is_no_wrap():
     numbers, restarts = sample_numbers(np.array([40.0, 41.0]), 65536, (9, None))
     np.testing.assert_array_equal(numbers, [10, 11])
     assert restarts == 0
+
+
+def test_a_failed_start_leaves_the_old_out_file(tmp_path, capsys):
+    """--out FILE --force with no device answering: no samples, exit 1, and the file that
+    --force would have replaced is as it was (no partial file left beside it)."""
+    from fieldcal.cli.main import main
+
+    params = true_parameters(tmp_path)
+    config = device_config(tmp_path, "xsens", "socket://127.0.0.1:9")  # nothing listens there
+    out = tmp_path / "live.csv"
+    out.write_text("yesterday's calibrated samples\n")
+    assert main(["apply", str(params), "--config", config, "--out", str(out), "--force", "--seconds", "0.2"]) == 1
+    assert out.read_text() == "yesterday's calibrated samples\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["device.yaml", "live.csv", "truth.yaml"]

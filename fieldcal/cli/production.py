@@ -290,11 +290,19 @@ def _apply_device(args, parameters) -> int:
         if args.out is None:
             written = apply_device(config, calibrations, sys.stdout.buffer, sys.stderr, stop,
                                    args.samples, args.seconds)
-        else:
-            with open(args.out, "wb") as out:
-                written = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
-                                       args.seconds)
-            print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
+        else:  # into a partial file, renamed once samples were written: a start that fails
+            # (no device, no samples) leaves the file --force would replace as it was
+            target = Path(args.out)
+            partial = target.with_name(f".{target.name}.partial")
+            try:
+                with open(partial, "wb") as out:
+                    written = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
+                                           args.seconds)
+                if written:
+                    partial.replace(target)
+                    print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
+            finally:
+                partial.unlink(missing_ok=True)
     finally:
         if in_main:
             signal.signal(signal.SIGINT, previous)
