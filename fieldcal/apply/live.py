@@ -69,7 +69,7 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
     ``max_samples`` / ``max_seconds``; the samples written (none: a hint at the port, protocol
     or baud rate on ``err``)."""
     from drivers.transport import PORT_OPENED
-    from fieldcal.cli.monitor import counters_line, no_samples_hint, port_event_line
+    from fieldcal.run.devicetext import counters_line, no_samples_hint, port_event_line
     from fieldcal.run.devices import DeviceConnection
 
     from fieldcal.run.deviceclock import frame_counter

@@ -32,7 +32,7 @@ import numpy as np
 
 from drivers.protocols.delimited import ChannelMap
 from fieldcal.recording.import_map import FileSpec
-from fieldcal.recording.importer import HEADER_SEARCH_BYTES, HEADER_SEARCH_LINES, _header_fields
+from fieldcal.recording.importer import HEADER_SEARCH_BYTES, HEADER_SEARCH_LINES, header_fields
 
 # what polars reads as a double (quotes are no quotes here: ``"`` is text, as fieldcal import reads it)
 _PLAIN_NUMBER = re.compile(rb'[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?')
@@ -106,7 +106,7 @@ def layout(path: str, spec: FileSpec, triads) -> Layout:
         size = fh.tell()
         fh.seek(max(size - _TAIL_BYTES, 0))
         tail = fh.read()
-    cm = spec.resolve(_header_fields(head, spec, path), path) if spec.channel_map is None else spec.channel_map
+    cm = spec.resolve(header_fields(head, spec, path), path) if spec.channel_map is None else spec.channel_map
     roles = tuple((role, c) for role, c in cm.columns if role == "time" or role.rsplit(".", 1)[0] in triads)
     complete = head if size <= len(head) else head[:head.rfind(b"\n") + 1]
     offset = 0
