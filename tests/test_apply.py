@@ -455,3 +455,42 @@ def test_outputs_that_would_overwrite_each_other_or_an_input_are_refused(tmp_pat
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and f"--out {out} is the input" in err
     assert single.read_bytes() == before
+
+
+def test_padded_fields_and_other_bytes_in_a_column_not_read_are_read_as_fieldcal_import_reads_them(tmp_path):
+    """``1004, 1 ,2,...`` (blanks around fields) and ``25\\xb0C`` (Latin-1 in the temperature, not
+    read): the same samples as fieldcal import reads; ``1 2`` (a blank inside a field) is refused."""
+    from fieldcal.apply.text import strip_padding
+    from fieldcal.recording.importer import import_recording
+
+    lines = [line.replace(",", " , ", 2).replace(",25", ",  25\xb0C\t") if i % 2 else " " + line + " "
+             for i, line in enumerate(GOOD[:300])]
+    path = tmp_path / "log.csv"
+    path.write_bytes(("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(lines) + "\n").encode("latin-1"))
+    truth = import_recording([path], "single-csv")
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    for block_bytes in (1 << 20, 500):
+        data = np.loadtxt(io.BytesIO(_applied(p, block_bytes)), delimiter=",", skiprows=1)
+        np.testing.assert_allclose(data[:, 0], truth.t, rtol=1e-15)  # import takes ms × 0.001
+        np.testing.assert_allclose(data[:, 1:4], ACC.calibrate(truth.triads["accelerometer"]), rtol=1e-13, atol=1e-13)
+    assert strip_padding(b" 1 ,\t2 2 , \r\n\t,3\n", ",") == b"1,2 2,\r\n,3\n"
+    assert strip_padding(b"1\t \t2\n", "\t") == b"1\t\t2\n"  # a tab delimiter is no padding
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:5]) + "\n1020,1 2,3,4,0.1,0.2,0.3,25\n")
+    with pytest.raises(TextError, match=r"line 7: accelerometer.x \(column 2\) is '1 2'"):
+        _applied(p, 1 << 20)
+
+
+def test_a_line_only_the_csv_reader_refuses_is_named(tmp_path, monkeypatch):
+    """Whatever polars refuses that the line check lets pass is still named by its line number
+    (found by halving the block), never 'after sample N'."""
+    import fieldcal.apply.text as text
+
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:40]) + "\n1160,1_0,2,3,0.1,0.2,0.3,25\n"
+                    + "\n".join(GOOD[40:60]) + "\n")
+    monkeypatch.setattr(text, "_PLAIN_NUMBER", re.compile(rb"[0-9_.+-]+"))  # a check blind to '1_0'
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    for block_bytes in (1 << 20, 300):
+        with pytest.raises(TextError, match="line 42: not read as a sample by the CSV reader") as caught:
+            _applied(p, block_bytes)
+        assert caught.value.line == 42
