@@ -494,3 +494,17 @@ def test_a_line_only_the_csv_reader_refuses_is_named(tmp_path, monkeypatch):
         with pytest.raises(TextError, match="line 42: not read as a sample by the CSV reader") as caught:
             _applied(p, block_bytes)
         assert caught.value.line == 42
+
+
+def test_a_closed_standard_output_is_one_line(tmp_path):
+    """``fieldcal apply p.yaml log.csv --map single-csv >&-``: no traceback, a line saying what to do."""
+    import os
+
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:5]) + "\n")
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    proc = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "apply", str(params), str(path), "--map",
+                           "single-csv"], stderr=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(1),
+                          timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr == "fieldcal: apply: standard output is closed: give --out FILE\n"

@@ -219,6 +219,8 @@ def cmd_apply(args) -> int:
 
     if bool(args.input) == bool(args.config):
         raise ValueError("apply: give the recording's INPUT files or a live device (--config), one of the two")
+    if args.out is None and (sys.stdout is None or sys.stdout.closed):  # started with >&-
+        raise ValueError("apply: standard output is closed: give --out FILE")
     kind = "live" if args.config else "log" if (args.map is None and len(args.input) == 1
                                                 and log_format(args.input[0]) is not None) else "text"
     for name, owner in _APPLY_OPTIONS.items():
