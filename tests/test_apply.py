@@ -508,3 +508,19 @@ def test_a_closed_standard_output_is_one_line(tmp_path):
                           timeout=120)
     assert proc.returncode == 2
     assert proc.stderr == "fieldcal: apply: standard output is closed: give --out FILE\n"
+
+
+def test_a_pipe_as_input_is_refused_in_one_line_naming_it(tmp_path):
+    """``cat log.csv | fieldcal apply p.yaml /dev/stdin``: one line naming the input; /dev/stdin
+    redirected from a regular file is read."""
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:5]) + "\n")
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    argv = [sys.executable, "-m", "fieldcal.cli.main", "apply", str(params), "/dev/stdin", "--map", "single-csv"]
+    piped = subprocess.run(argv, input=path.read_bytes(), capture_output=True, timeout=120)
+    assert piped.returncode == 2 and piped.stdout == b""
+    assert piped.stderr.decode() == ("fieldcal: apply: /dev/stdin: not a regular file (a pipe or a device): apply "
+                                     "reads a file more than once; save the text to a file and give that\n")
+    with open(path, "rb") as stdin:
+        redirected = subprocess.run(argv, stdin=stdin, capture_output=True, timeout=120)
+    assert redirected.returncode == 0 and redirected.stdout.count(b"\n") == 6

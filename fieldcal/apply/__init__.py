@@ -14,6 +14,7 @@ from __future__ import annotations
 import io
 import itertools
 import os
+import stat
 from dataclasses import dataclass
 from typing import BinaryIO, Iterator
 
@@ -71,10 +72,24 @@ def plan(parameters, import_map, paths, rate_hz: float | None = None) -> list[Pl
                          f"({', '.join(import_map.file_names)}), got {len(paths)}")
     plans = []
     for path, spec in zip(paths, import_map.files):
+        _require_regular_file(os.fspath(path))
         cals, skipped = calibrations_for(parameters, spec.units, os.fspath(path), f"{import_map.path}: ",
                                          "give a map with unit {unit!r} (and the matching scale)")
         plans.append(Plan(os.fspath(path), spec, cals, skipped, rate_hz or spec.rate_hz))
     return plans
+
+
+def _require_regular_file(path: str) -> None:
+    """A pipe, /dev/stdin from a pipe, a device: refused in one line (its start and end are read
+    before its samples, and a faulty line is found by reading it again). A file that does not
+    exist is left to the reader's own error."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"apply: {path}: not a regular file (a pipe or a device): apply reads a file "
+                         "more than once; save the text to a file and give that")
 
 
 def calibrations_for(parameters, units: dict[str, str], source: str, where: str, fix: str) -> tuple[tuple, tuple]:
