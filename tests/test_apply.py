@@ -524,3 +524,26 @@ def test_a_pipe_as_input_is_refused_in_one_line_naming_it(tmp_path):
     with open(path, "rb") as stdin:
         redirected = subprocess.run(argv, stdin=stdin, capture_output=True, timeout=120)
     assert redirected.returncode == 0 and redirected.stdout.count(b"\n") == 6
+
+
+def test_rate_with_a_time_column_is_refused_and_times_not_forward_are_counted(tmp_path, capsys):
+    """--rate where the file has its own times: refused in one line. Times that repeat (1004
+    twice) or go back (1000 after 1008) across a block's edge: said once with their count (2),
+    and every sample is written, in the file's order."""
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    path = tmp_path / "log.csv"
+    lines = GOOD[:3] + [GOOD[1]] + [GOOD[0]] + GOOD[3:8]  # t: 1000 1004 1008 1004 1000 1012 ...
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(lines) + "\n")
+    assert main(["apply", str(params), str(path), "--map", "single-csv", "--rate", "100"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--rate" in err and "time column" in err
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 0
+    captured = capsys.readouterr()
+    data = np.loadtxt(io.StringIO(captured.out), delimiter=",", skiprows=1)
+    np.testing.assert_array_equal(data[:, 0], [float(line.split(",")[0]) / 1000 for line in lines])
+    assert captured.err == (f"fieldcal apply: {path}: 2 sample times repeat or go back (t_s not increasing); "
+                            "every sample is written, in the file's order\n")
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    said = []
+    apply_file(p, io.BytesIO(), block_bytes=100, warn=said.append)  # the step back across blocks
+    assert len(said) == 1 and ": 2 sample times" in said[0]

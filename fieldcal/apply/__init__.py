@@ -70,6 +70,9 @@ def plan(parameters, import_map, paths, rate_hz: float | None = None) -> list[Pl
         n = len(import_map.files)
         raise ValueError(f"apply: {import_map.path} expects {n} file{'s' * (n != 1)} "
                          f"({', '.join(import_map.file_names)}), got {len(paths)}")
+    if rate_hz is not None and all(spec.has_time for spec in import_map.files):
+        raise ValueError(f"apply: --rate: {import_map.path}'s files have a time column, and their own times "
+                         "are written: leave --rate out")
     plans = []
     for path, spec in zip(paths, import_map.files):
         _require_regular_file(os.fspath(path))
@@ -157,14 +160,21 @@ def _seconds(time: np.ndarray, scale: float) -> np.ndarray:
     return time / per_second if per_second > 1 and per_second == round(per_second) else time * scale
 
 
-def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES) -> int:
-    """Write ``p``'s calibrated CSV to ``out``; the number of samples written."""
+def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES, warn=None) -> int:
+    """Write ``p``'s calibrated CSV to ``out``; the number of samples written. ``warn(line)``
+    (if given) is told once, at the end, how many sample times repeat or go back: every
+    sample is written all the same, in the file's order (apply never drops one)."""
     names = p.columns()
     blocks = calibrated_blocks(p, block_bytes)
     first = next(blocks, None)  # a file refused at its start (no sample, cut off) writes nothing
     write_all(out, (",".join(names) + "\n").encode("ascii"))
-    n = 0
+    n, not_forward, last = 0, 0, None
     for t, values in itertools.chain([first] if first is not None else [], blocks):
         write_block(out, names, t, values)
+        not_forward += int(np.count_nonzero(np.diff(t if last is None else np.r_[last, t]) <= 0))
+        last = t[-1] if len(t) else last
         n += len(t)
+    if not_forward and warn is not None:
+        warn(f"apply: {p.path}: {not_forward} sample time{'s' * (not_forward != 1)} repeat or go back "
+             "(t_s not increasing); every sample is written, in the file's order")
     return n

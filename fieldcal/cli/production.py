@@ -254,7 +254,8 @@ def cmd_apply(args) -> int:
         for name in p.skipped:
             print(f"fieldcal apply: {p.path}: triad {name!r} is not in {args.params}: not written",
                   file=sys.stderr)
-        _write_csv(target, lambda out, p=p: apply_file(p, out), p.path)
+        _write_csv(target, lambda out, p=p: apply_file(p, out, warn=lambda line: print(
+            f"fieldcal {line}", file=sys.stderr)), p.path)
     return 0
 
 
