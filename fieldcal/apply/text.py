@@ -152,17 +152,20 @@ def read_blocks(path: str, lay: Layout, block_bytes: int) -> Iterator[np.ndarray
     # leaves its last field null (as an empty last field does: told apart line by line).
     schema = {f"f{i}": pl.Float64 if i in read else pl.String for i in range(beyond + 1)}
     shown = sorted({*read, last, beyond})
-    # quote_char=None: a ``"`` in any field is text, never the start of a field over many lines;
-    # utf8-lossy: a column not read may hold any bytes (``25\xb0C``), as fieldcal import reads it
+    # quote_char=None: a ``"`` in any field is text, never the start of a field over many lines
     options = dict(has_header=False, separator=" " if lay.squeezed else cm.delimiter, schema=schema,
-                   columns=shown, missing_columns="insert", quote_char=None, encoding="utf8-lossy")
+                   columns=shown, missing_columns="insert", quote_char=None)
     numbers = [f"f{c}" for c in read]
 
     def parsed(block: bytes, lines: int, fields_checked: bool = False) -> np.ndarray | None:
         """The block's samples, or None if a line may not be a plain sample (or polars did not
         give one row per line: a sample is never dropped or merged unseen)."""
         try:
-            frame = pl.read_csv(block, **options)
+            try:
+                frame = pl.read_csv(block, **options)
+            except pl.exceptions.ComputeError:  # maybe other bytes than UTF-8 in a column not read
+                # (``25\xb0C``), which fieldcal import reads: lossy only then (it costs ~10 %)
+                frame = pl.read_csv(block, **options, encoding="utf8-lossy")
         except pl.exceptions.PolarsError:  # a field read that is no number
             return None
         if len(frame) != lines:
