@@ -242,3 +242,7 @@ def test_a_failed_start_leaves_the_old_out_file(tmp_path, capsys):
     assert main(["apply", str(params), "--config", config, "--out", str(out), "--force", "--seconds", "0.2"]) == 1
     assert out.read_text() == "yesterday's calibrated samples\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["device.yaml", "live.csv", "truth.yaml"]
+    for own in (params, config):  # never over the command's own files, --force or not
+        assert main(["apply", str(params), "--config", config, "--out", str(own), "--force"]) == 2
+        assert f"--out {own} is the input" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["device.yaml", "live.csv", "truth.yaml"]

@@ -184,9 +184,9 @@ def _refuse_own_files(targets, sources) -> None:
     """An output that is one of the command's own inputs (or its parameter file) is refused,
     --force or not: it would be read while it is replaced."""
     for target in targets:
-        for source in sources:
-            if Path(target).resolve() == Path(source).resolve() or \
-                    (Path(target).exists() and Path(source).exists() and os.path.samefile(target, source)):
+        for source in sources:  # (a --config name such as ``sim`` is no file: not compared)
+            if Path(source).exists() and (Path(target).resolve() == Path(source).resolve() or (
+                    Path(target).exists() and os.path.samefile(target, source))):
                 raise ValueError(f"apply: --out {target} is the input {source}: give another output path")
 
 
