@@ -406,3 +406,144 @@ def test_real_logs_are_calibrated_as_their_own_readers_decode_them(tmp_path, cap
     assert main(["apply", str(save(parameter_file(in_counts), tmp_path / "q.yaml")), str(path), *extra]) == 2
     err = capsys.readouterr().err
     assert "triad 'gyroscope' is read in 'rad/s' but was calibrated in 'count'" in err and err.count("\n") == 1
+
+
+def test_a_quote_in_a_column_not_read_loses_no_sample(tmp_path, capsys):
+    """A ``"`` in the temperature (not read) is text, as fieldcal import reads it: polars must
+    not take the lines up to the next ``"`` as one quoted field (the samples would vanish)."""
+    path = tmp_path / "q.csv"
+    path.write_text('t_ms,ax,ay,az,gx,gy,gz,T\n1000,1,2,1000,0.1,0.2,0.3,"x\n1004,1,2,1000,0.1,0.2,0.3,25\n'
+                    '1008,1,2,1000,0.1,0.2,0.3,y"\n1012,1,2,1000,0.1,0.2,0.3,25\n')
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    for block_bytes in (1 << 20, 40):
+        [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+        data = np.loadtxt(io.BytesIO(_applied(p, block_bytes)), delimiter=",", skiprows=1)
+        np.testing.assert_array_equal(data[:, 0], [1.0, 1.004, 1.008, 1.012])
+        np.testing.assert_allclose(data[:, 1:4], np.tile(ACC.calibrate(np.array([[1e-3, 2e-3, 1.0]])), (4, 1)),
+                                   rtol=1e-14)
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 0
+    assert capsys.readouterr().out.count("\n") == 5
+    path.write_text('t_ms,ax,ay,az,gx,gy,gz,T\n1000,1,2,1000,0.1,0.2,0.3,25\n1004,"1",2,1000,0.1,0.2,0.3,25\n')
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 2  # a quoted number: refused
+    assert "line 3: accelerometer.x (column 2) is '\"1\"'" in capsys.readouterr().err
+
+
+def test_outputs_that_would_overwrite_each_other_or_an_input_are_refused(tmp_path, capsys):
+    """a/x.txt and b/x.txt both give x-calibrated.csv: refused up front (nothing written), one
+    line naming both; an output that is an input or the parameter file: refused even with --force."""
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
+                      K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    gyro = Calibration(name="gyroscope", kind="angular_rate", output_unit="count", method="powell",
+                       K=np.eye(3), bias=np.zeros(3), sigma=np.zeros(9), residual_rms=0.0)
+    params = save(parameter_file(acc, gyro), tmp_path / "p.yaml")
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        np.savetxt(tmp_path / folder / "x.txt", np.c_[0.01 * np.arange(5), np.ones((5, 3))], fmt="%.10g")
+    (tmp_path / "out").mkdir()
+    inputs = [str(tmp_path / "a" / "x.txt"), str(tmp_path / "b" / "x.txt")]
+    assert main(["apply", str(params), *inputs, "--map", "imu_tk", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and inputs[0] in err and inputs[1] in err
+    assert list((tmp_path / "out").iterdir()) == []
+    single = tmp_path / "one.csv"
+    single.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:5]) + "\n")
+    before = single.read_bytes()
+    params = save(parameter_file(ACC, GYR), tmp_path / "p2.yaml")
+    for out in (single, params):
+        argv = ["apply", str(params), str(single), "--map", "single-csv", "--out", str(out), "--force"]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"--out {out} is the input" in err
+    assert single.read_bytes() == before
+
+
+def test_padded_fields_and_other_bytes_in_a_column_not_read_are_read_as_fieldcal_import_reads_them(tmp_path):
+    """``1004, 1 ,2,...`` (blanks around fields) and ``25\\xb0C`` (Latin-1 in the temperature, not
+    read): the same samples as fieldcal import reads; ``1 2`` (a blank inside a field) is refused."""
+    from fieldcal.apply.text import strip_padding
+    from fieldcal.recording.importer import import_recording
+
+    lines = [line.replace(",", " , ", 2).replace(",25", ",  25\xb0C\t") if i % 2 else " " + line + " "
+             for i, line in enumerate(GOOD[:300])]
+    path = tmp_path / "log.csv"
+    path.write_bytes(("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(lines) + "\n").encode("latin-1"))
+    truth = import_recording([path], "single-csv")
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    for block_bytes in (1 << 20, 500):
+        data = np.loadtxt(io.BytesIO(_applied(p, block_bytes)), delimiter=",", skiprows=1)
+        np.testing.assert_allclose(data[:, 0], truth.t, rtol=1e-15)  # import takes ms × 0.001
+        np.testing.assert_allclose(data[:, 1:4], ACC.calibrate(truth.triads["accelerometer"]), rtol=1e-13, atol=1e-13)
+    assert strip_padding(b" 1 ,\t2 2 , \r\n\t,3\n", ",") == b"1,2 2,\r\n,3\n"
+    assert strip_padding(b"1\t \t2\n", "\t") == b"1\t\t2\n"  # a tab delimiter is no padding
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:5]) + "\n1020,1 2,3,4,0.1,0.2,0.3,25\n")
+    with pytest.raises(TextError, match=r"line 7: accelerometer.x \(column 2\) is '1 2'"):
+        _applied(p, 1 << 20)
+
+
+def test_a_line_only_the_csv_reader_refuses_is_named(tmp_path, monkeypatch):
+    """Whatever polars refuses that the line check lets pass is still named by its line number
+    (found by halving the block), never 'after sample N'."""
+    import fieldcal.apply.text as text
+
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:40]) + "\n1160,1_0,2,3,0.1,0.2,0.3,25\n"
+                    + "\n".join(GOOD[40:60]) + "\n")
+    monkeypatch.setattr(text, "_PLAIN_NUMBER", re.compile(rb"[0-9_.+-]+"))  # a check blind to '1_0'
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    for block_bytes in (1 << 20, 300):
+        with pytest.raises(TextError, match="line 42: not read as a sample by the CSV reader") as caught:
+            _applied(p, block_bytes)
+        assert caught.value.line == 42
+
+
+def test_a_closed_standard_output_is_one_line(tmp_path):
+    """``fieldcal apply p.yaml log.csv --map single-csv >&-``: no traceback, a line saying what to do."""
+    import os
+
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:5]) + "\n")
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    proc = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "apply", str(params), str(path), "--map",
+                           "single-csv"], stderr=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(1),
+                          timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr == "fieldcal: apply: standard output is closed: give --out FILE\n"
+
+
+def test_a_pipe_as_input_is_refused_in_one_line_naming_it(tmp_path):
+    """``cat log.csv | fieldcal apply p.yaml /dev/stdin``: one line naming the input; /dev/stdin
+    redirected from a regular file is read."""
+    path = tmp_path / "log.csv"
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(GOOD[:5]) + "\n")
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    argv = [sys.executable, "-m", "fieldcal.cli.main", "apply", str(params), "/dev/stdin", "--map", "single-csv"]
+    piped = subprocess.run(argv, input=path.read_bytes(), capture_output=True, timeout=120)
+    assert piped.returncode == 2 and piped.stdout == b""
+    assert piped.stderr.decode() == ("fieldcal: apply: /dev/stdin: not a regular file (a pipe or a device): apply "
+                                     "reads a file more than once; save the text to a file and give that\n")
+    with open(path, "rb") as stdin:
+        redirected = subprocess.run(argv, stdin=stdin, capture_output=True, timeout=120)
+    assert redirected.returncode == 0 and redirected.stdout.count(b"\n") == 6
+
+
+def test_rate_with_a_time_column_is_refused_and_times_not_forward_are_counted(tmp_path, capsys):
+    """--rate where the file has its own times: refused in one line. Times that repeat (1004
+    twice) or go back (1000 after 1008) across a block's edge: said once with their count (2),
+    and every sample is written, in the file's order."""
+    params = save(parameter_file(ACC, GYR), tmp_path / "p.yaml")
+    path = tmp_path / "log.csv"
+    lines = GOOD[:3] + [GOOD[1]] + [GOOD[0]] + GOOD[3:8]  # t: 1000 1004 1008 1004 1000 1012 ...
+    path.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "\n".join(lines) + "\n")
+    assert main(["apply", str(params), str(path), "--map", "single-csv", "--rate", "100"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--rate" in err and "time column" in err
+    assert main(["apply", str(params), str(path), "--map", "single-csv"]) == 0
+    captured = capsys.readouterr()
+    data = np.loadtxt(io.StringIO(captured.out), delimiter=",", skiprows=1)
+    np.testing.assert_array_equal(data[:, 0], [float(line.split(",")[0]) / 1000 for line in lines])
+    assert captured.err == (f"fieldcal apply: {path}: 2 sample times repeat or go back (t_s not increasing); "
+                            "every sample is written, in the file's order\n")
+    [p] = plan(parameter_file(ACC, GYR), load_import_map("single-csv"), [path])
+    said = []
+    apply_file(p, io.BytesIO(), block_bytes=100, warn=said.append)  # the step back across blocks
+    assert len(said) == 1 and ": 2 sample times" in said[0]

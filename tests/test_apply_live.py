@@ -206,7 +206,43 @@ def test_sample_numbers_leave_lost_frames_out():
     then the next read 3 (2 lost), 3 again (re-sent: counted as the next), 4."""
     from fieldcal.apply.live import sample_numbers
 
-    first = sample_numbers(np.array([65533.0, 65534.0, 0.0, 1.0]), 65536, None)
+    first, restarts = sample_numbers(np.array([65533.0, 65534.0, 0.0, 1.0]), 65536, None)
     np.testing.assert_array_equal(first, [0, 1, 3, 4])
-    np.testing.assert_array_equal(sample_numbers(np.array([3.0, 3.0, 4.0]), 65536, (4, 1)), [6, 7, 8])
-    np.testing.assert_array_equal(sample_numbers(np.array([10.0, 12.0, 5.0]), None, None), [0, 2, 3])
+    assert restarts == 0
+    np.testing.assert_array_equal(sample_numbers(np.array([3.0, 3.0, 4.0]), 65536, (4, 1))[0], [6, 7, 8])
+    np.testing.assert_array_equal(sample_numbers(np.array([10.0, 12.0, 5.0]), None, None)[0], [0, 2, 3])
+
+
+def test_a_counter_stepping_back_is_no_wrap():
+    """Hand-worked: 100, 101, then 99 (a frame re-sent or the device restarted), 100: the step
+    back is one sample, not 65534 (655 s at Xsens' 100 Hz), and said; a read without counters
+    (previous counter None) goes on from the last number."""
+    from fieldcal.apply.live import sample_numbers
+
+    numbers, restarts = sample_numbers(np.array([100.0, 101.0, 99.0, 100.0]), 65536, None)
+    np.testing.assert_array_equal(numbers, [0, 1, 2, 3])
+    assert restarts == 1
+    numbers, restarts = sample_numbers(np.array([7.0, 0.0, 1.0]), 65536, (3, 5))  # restart at 0
+    np.testing.assert_array_equal(numbers, [5, 6, 7])
+    assert restarts == 1
+    numbers, restarts = sample_numbers(np.array([40.0, 41.0]), 65536, (9, None))
+    np.testing.assert_array_equal(numbers, [10, 11])
+    assert restarts == 0
+
+
+def test_a_failed_start_leaves_the_old_out_file(tmp_path, capsys):
+    """--out FILE --force with no device answering: no samples, exit 1, and the file that
+    --force would have replaced is as it was (no partial file left beside it)."""
+    from fieldcal.cli.main import main
+
+    params = true_parameters(tmp_path)
+    config = device_config(tmp_path, "xsens", "socket://127.0.0.1:9")  # nothing listens there
+    out = tmp_path / "live.csv"
+    out.write_text("yesterday's calibrated samples\n")
+    assert main(["apply", str(params), "--config", config, "--out", str(out), "--force", "--seconds", "0.2"]) == 1
+    assert out.read_text() == "yesterday's calibrated samples\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["device.yaml", "live.csv", "truth.yaml"]
+    for own in (params, config):  # never over the command's own files, --force or not
+        assert main(["apply", str(params), "--config", config, "--out", str(own), "--force"]) == 2
+        assert f"--out {own} is the input" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["device.yaml", "live.csv", "truth.yaml"]

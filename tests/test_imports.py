@@ -73,3 +73,29 @@ def test_the_noise_model_is_one_class():
     from drivers.sim import TriadNoise as SimTriadNoise
     from fieldcal.config import TriadNoise as ConfigTriadNoise
     assert SimTriadNoise is TriadNoise and ConfigTriadNoise is TriadNoise
+
+
+def test_the_library_never_imports_the_command_line():
+    """fieldcal.cli is a front end: no library module imports it (and apply takes no other
+    module's private names). Read from the source, so an import inside a function counts too."""
+    import ast
+    from pathlib import Path
+
+    import fieldcal
+
+    root = Path(fieldcal.__file__).parent
+    offenders = []
+    for path in sorted(root.rglob("*.py")):
+        if path.relative_to(root).parts[0] in ("cli", "tui"):  # the front ends
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+                private = [a.name for a in node.names if a.name.startswith("_")] \
+                    if path.relative_to(root).parts[0] == "apply" else []
+                if any(n.startswith("fieldcal.cli") for n in names) or \
+                        (node.module.startswith("fieldcal.") and private):
+                    offenders.append(f"{path.relative_to(root)}:{node.lineno} {node.module}")
+            elif isinstance(node, ast.Import) and any(a.name.startswith("fieldcal.cli") for a in node.names):
+                offenders.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert offenders == []

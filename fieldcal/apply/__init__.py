@@ -14,6 +14,7 @@ from __future__ import annotations
 import io
 import itertools
 import os
+import stat
 from dataclasses import dataclass
 from typing import BinaryIO, Iterator
 
@@ -69,12 +70,29 @@ def plan(parameters, import_map, paths, rate_hz: float | None = None) -> list[Pl
         n = len(import_map.files)
         raise ValueError(f"apply: {import_map.path} expects {n} file{'s' * (n != 1)} "
                          f"({', '.join(import_map.file_names)}), got {len(paths)}")
+    if rate_hz is not None and all(spec.has_time for spec in import_map.files):
+        raise ValueError(f"apply: --rate: {import_map.path}'s files have a time column, and their own times "
+                         "are written: leave --rate out")
     plans = []
     for path, spec in zip(paths, import_map.files):
+        _require_regular_file(os.fspath(path))
         cals, skipped = calibrations_for(parameters, spec.units, os.fspath(path), f"{import_map.path}: ",
                                          "give a map with unit {unit!r} (and the matching scale)")
         plans.append(Plan(os.fspath(path), spec, cals, skipped, rate_hz or spec.rate_hz))
     return plans
+
+
+def _require_regular_file(path: str) -> None:
+    """A pipe, /dev/stdin from a pipe, a device: refused in one line (its start and end are read
+    before its samples, and a faulty line is found by reading it again). A file that does not
+    exist is left to the reader's own error."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"apply: {path}: not a regular file (a pipe or a device): apply reads a file "
+                         "more than once; save the text to a file and give that")
 
 
 def calibrations_for(parameters, units: dict[str, str], source: str, where: str, fix: str) -> tuple[tuple, tuple]:
@@ -142,14 +160,21 @@ def _seconds(time: np.ndarray, scale: float) -> np.ndarray:
     return time / per_second if per_second > 1 and per_second == round(per_second) else time * scale
 
 
-def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES) -> int:
-    """Write ``p``'s calibrated CSV to ``out``; the number of samples written."""
+def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES, warn=None) -> int:
+    """Write ``p``'s calibrated CSV to ``out``; the number of samples written. ``warn(line)``
+    (if given) is told once, at the end, how many sample times repeat or go back: every
+    sample is written all the same, in the file's order (apply never drops one)."""
     names = p.columns()
     blocks = calibrated_blocks(p, block_bytes)
     first = next(blocks, None)  # a file refused at its start (no sample, cut off) writes nothing
     write_all(out, (",".join(names) + "\n").encode("ascii"))
-    n = 0
+    n, not_forward, last = 0, 0, None
     for t, values in itertools.chain([first] if first is not None else [], blocks):
         write_block(out, names, t, values)
+        not_forward += int(np.count_nonzero(np.diff(t if last is None else np.r_[last, t]) <= 0))
+        last = t[-1] if len(t) else last
         n += len(t)
+    if not_forward and warn is not None:
+        warn(f"apply: {p.path}: {not_forward} sample time{'s' * (not_forward != 1)} repeat or go back "
+             "(t_s not increasing); every sample is written, in the file's order")
     return n

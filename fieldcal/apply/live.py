@@ -44,18 +44,23 @@ def calibrate_chunks(chunks, calibrations) -> tuple[np.ndarray, np.ndarray]:
     return t, values
 
 
-def sample_numbers(counter: np.ndarray, modulus: int | None, previous: tuple[int, int] | None) -> np.ndarray:
+def sample_numbers(counter: np.ndarray, modulus: int | None,
+                   previous: tuple[int, int | None] | None) -> tuple[np.ndarray, int]:
     """Each sample's number since the first sample (number 0), from the device's packet counter:
     a frame's number is the last one's plus the counter's step, taken modulo ``modulus`` (where
     the counter wraps), so lost frames leave a gap. ``previous``: (number, counter) of the
-    sample before ``counter``'s first; None: its first is the first. A step that is not forward
-    (a re-sent frame, a device restarted) counts as one."""
+    sample before ``counter``'s first (counter None: that sample had none, the step is one);
+    None: its first is the first. A step that is not forward, or (modulo the wrap) more than
+    half the counter's range forward, is a re-sent frame or a device restarted, not frames
+    lost: it counts as one, so time never jumps back or a whole wrap ahead. Also returned:
+    how many such steps there were."""
     c = np.rint(np.asarray(counter, dtype=float)).astype(np.int64)
-    number, last = previous if previous is not None else (-1, c[0] - 1)
-    steps = np.diff(np.concatenate([[last], c]))
+    number, last = previous if previous is not None else (-1, None)
+    steps = np.diff(np.concatenate([[c[0] - 1 if last is None else last], c]))
     if modulus:
         steps %= modulus
-    return number + np.cumsum(np.where(steps > 0, steps, 1))
+    backward = (steps <= 0) | (steps > modulus // 2) if modulus else steps <= 0
+    return number + np.cumsum(np.where(backward, 1, steps)), int(np.count_nonzero(backward))
 
 
 def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threading.Event,
@@ -64,7 +69,7 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
     ``max_samples`` / ``max_seconds``; the samples written (none: a hint at the port, protocol
     or baud rate on ``err``)."""
     from drivers.transport import PORT_OPENED
-    from fieldcal.cli.monitor import counters_line, no_samples_hint, port_event_line
+    from fieldcal.run.devicetext import counters_line, no_samples_hint, port_event_line
     from fieldcal.run.devices import DeviceConnection
 
     from fieldcal.run.deviceclock import frame_counter
@@ -95,10 +100,15 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
                     counters = [frame_counter(chunk, conn.parser) for chunk in chunks]
                     if all(c is not None for c, _ in counters):
                         counter = np.concatenate([c for c, _ in counters])
-                        numbers = sample_numbers(counter, counters[0][1], previous)
+                        numbers, restarts = sample_numbers(counter, counters[0][1], previous)
                         previous = int(numbers[-1]), int(round(float(counter[-1])))
-                    else:
-                        numbers = written + np.arange(len(t))
+                        if restarts:
+                            print(f"apply: the device's packet counter stepped back or far ahead {restarts} "
+                                  "time(s) (a frame re-sent, the device restarted): each counted as one "
+                                  "sample step", file=err, flush=True)
+                    else:  # counted on from the last number given, so t never goes back
+                        numbers = (previous[0] + 1 if previous else written) + np.arange(len(t))
+                        previous = int(numbers[-1]), None
                     t = numbers / config.device.rate_hz
                 if max_samples is not None:
                     t, values = t[: max_samples - written], values[: max_samples - written]

@@ -15,11 +15,15 @@ What is read, and what is refused (a one-line :class:`TextError` naming the file
 - A last line with no line end is a recording cut off mid-write (its last number may be cut
   short): refused before anything is read.
 - Blank-separated files (``delimiter: null``) have their runs of blanks made single spaces,
-  block by block (numpy), before polars splits them on a space.
+  block by block (numpy), before polars splits them on a space; other files have the blanks
+  around their fields taken off (``1004, 1 ,2``), as ``fieldcal import`` does.
+- A ``"`` is text, as ``fieldcal import`` reads it (never a quoted field over many lines), and
+  polars must give one row per sample line: a block it reads otherwise is refused.
 
 A block polars cannot read whole (a blank or comment line, or a fault) is read again without its
 blank and comment lines; only if that fails too is the file scanned line by line, from the last
-good block, to name the line.
+good block, to name the line (the line polars refuses, found by halving the block, where the
+line check finds no fault).
 """
 from __future__ import annotations
 
@@ -32,9 +36,10 @@ import numpy as np
 
 from drivers.protocols.delimited import ChannelMap
 from fieldcal.recording.import_map import FileSpec
-from fieldcal.recording.importer import HEADER_SEARCH_BYTES, HEADER_SEARCH_LINES, _header_fields
+from fieldcal.recording.importer import HEADER_SEARCH_BYTES, HEADER_SEARCH_LINES, header_fields
 
-_PLAIN_NUMBER = re.compile(rb'"?[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?"?')  # what polars reads as a double
+# what polars reads as a double (quotes are no quotes here: ``"`` is text, as fieldcal import reads it)
+_PLAIN_NUMBER = re.compile(rb'[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?')
 _LINES = re.compile(rb"[^\n]*\n|[^\n]+\Z")  # with their line ends, as file iteration gives them
 _LF, _CR = 10, 13
 _TAIL_BYTES = 1 << 16
@@ -83,7 +88,7 @@ class Layout:
             return f"{len(fields)} fields where the first sample has {self.fields}"
         for role, column in self.roles:
             field = fields[column].strip(b" \t")
-            if not _PLAIN_NUMBER.fullmatch(field) or not math.isfinite(float(field.strip(b'"'))):
+            if not _PLAIN_NUMBER.fullmatch(field) or not math.isfinite(float(field)):
                 shown = field.decode("utf-8", "replace")
                 return f"{role} (column {column + 1}) is {shown!r}, not a finite number" if shown \
                     else f"{role} (column {column + 1}) is empty"
@@ -105,7 +110,7 @@ def layout(path: str, spec: FileSpec, triads) -> Layout:
         size = fh.tell()
         fh.seek(max(size - _TAIL_BYTES, 0))
         tail = fh.read()
-    cm = spec.resolve(_header_fields(head, spec, path), path) if spec.channel_map is None else spec.channel_map
+    cm = spec.resolve(header_fields(head, spec, path), path) if spec.channel_map is None else spec.channel_map
     roles = tuple((role, c) for role, c in cm.columns if role == "time" or role.rsplit(".", 1)[0] in triads)
     complete = head if size <= len(head) else head[:head.rfind(b"\n") + 1]
     offset = 0
@@ -147,15 +152,23 @@ def read_blocks(path: str, lay: Layout, block_bytes: int) -> Iterator[np.ndarray
     # leaves its last field null (as an empty last field does: told apart line by line).
     schema = {f"f{i}": pl.Float64 if i in read else pl.String for i in range(beyond + 1)}
     shown = sorted({*read, last, beyond})
+    # quote_char=None: a ``"`` in any field is text, never the start of a field over many lines
     options = dict(has_header=False, separator=" " if lay.squeezed else cm.delimiter, schema=schema,
-                   columns=shown, missing_columns="insert")
+                   columns=shown, missing_columns="insert", quote_char=None)
     numbers = [f"f{c}" for c in read]
 
-    def parsed(block: bytes, fields_checked: bool = False) -> np.ndarray | None:
-        """The block's samples, or None if a line may not be a plain sample."""
+    def parsed(block: bytes, lines: int, fields_checked: bool = False) -> np.ndarray | None:
+        """The block's samples, or None if a line may not be a plain sample (or polars did not
+        give one row per line: a sample is never dropped or merged unseen)."""
         try:
-            frame = pl.read_csv(block, **options)
+            try:
+                frame = pl.read_csv(block, **options)
+            except pl.exceptions.ComputeError:  # maybe other bytes than UTF-8 in a column not read
+                # (``25\xb0C``), which fieldcal import reads: lossy only then (it costs ~10 %)
+                frame = pl.read_csv(block, **options, encoding="utf8-lossy")
         except pl.exceptions.PolarsError:  # a field read that is no number
+            return None
+        if len(frame) != lines:
             return None
         nulls = dict(zip(frame.columns, frame.null_count().row(0)))
         long_line = nulls[f"f{beyond}"] != len(frame)
@@ -169,16 +182,23 @@ def read_blocks(path: str, lay: Layout, block_bytes: int) -> Iterator[np.ndarray
     with open(path, "rb") as fh:
         fh.seek(lay.start)
         for block in _whole_lines(fh, block_bytes):
-            block = squeeze_blanks(block) if lay.squeezed else block
-            values = parsed(block)
+            block = squeeze_blanks(block) if lay.squeezed else strip_padding(block, cm.delimiter)
+            values = parsed(block, block.count(b"\n") + (not block.endswith(b"\n")))
             if values is None:  # without its blank and comment lines, or line by line
                 lines = [line for line in _LINES.findall(block) if not lay.skipped(line)]
                 kept = b"".join(lines)
-                values = parsed(kept) if kept else np.zeros((0, len(read)))
+                values = parsed(kept, len(lines)) if kept else np.zeros((0, len(read)))
                 if values is None and not any(lay.fault(line) for line in lines):
-                    values = parsed(kept, fields_checked=True)  # empty last fields, not missing ones
-                if values is None:
-                    raise _bad_line(path, lay, rows)
+                    values = parsed(kept, len(lines), fields_checked=True)  # empty last fields, not missing ones
+                if values is None:  # the first line polars cannot read alone, by halving
+                    lo, hi = 0, len(lines)
+                    while hi - lo > 1:
+                        mid = (lo + hi) // 2
+                        if parsed(b"".join(lines[lo:mid]), mid - lo, fields_checked=True) is None:
+                            hi = mid
+                        else:
+                            lo = mid
+                    raise _bad_line(path, lay, rows, rows + lo)
             rows += len(values)
             yield values
 
@@ -202,9 +222,10 @@ def _whole_lines(fh, block_bytes: int) -> Iterator[bytes]:
         yield data[:cut]
 
 
-def _bad_line(path: str, lay: Layout, from_row: int) -> TextError:
-    """The first sample line at or after sample ``from_row`` that cannot be read (the file is
-    read again from the first sample, line by line: only ever on the way to an error)."""
+def _bad_line(path: str, lay: Layout, from_row: int, unread_row: int) -> TextError:
+    """The first sample line at or after sample ``from_row`` that cannot be read, or else the
+    line of sample ``unread_row`` (the one polars could not read: the file is read again from
+    the first sample, line by line: only ever on the way to an error)."""
     row = 0
     with open(path, "rb") as fh:
         fh.seek(lay.start)
@@ -213,12 +234,34 @@ def _bad_line(path: str, lay: Layout, from_row: int) -> TextError:
                 continue
             if row >= from_row:
                 why = lay.fault(line)
-                if why is not None:
+                if why is not None or row == unread_row:
                     shown = line.rstrip(b"\r\n")[:60].decode("utf-8", "replace")
+                    why = why or "not read as a sample by the CSV reader"
                     return TextError(f"apply: {path}: line {number}: {why} ({shown!r}); fix or delete the line",
                                      path, number)
             row += 1
-    return TextError(f"apply: {path}: after sample {from_row}: a line that is not a sample; fix or delete it", path)
+    line = lay.lines_before + 1 + row
+    return TextError(f"apply: {path}: line {line}: the file changed while it was read; apply it again",
+                     path, line)
+
+
+def strip_padding(block: bytes, delimiter: str) -> bytes:
+    """Blanks (spaces, tabs) around each field taken off, as fieldcal import takes them
+    (``1004, 1 ,2``); blanks inside a field kept, so ``1 2`` stays no number (vectorised; a
+    block with no blank, the usual logger's output, is returned as it is)."""
+    if b" " not in block and b"\t" not in block:
+        return block
+    a = np.frombuffer(block, dtype=np.uint8)
+    sep = ord(delimiter)
+    blank = ((a == 32) | (a == 9)) & (a != sep)
+    index = np.arange(len(a))
+    before = np.maximum.accumulate(np.where(blank, -1, index))  # the last byte no blank, at or before
+    after = np.minimum.accumulate(np.where(blank, len(a), index)[::-1])[::-1]  # the next, at or after
+    padded = np.concatenate([a, [_LF]])
+    at_start = (before < 0) | (padded[before] == sep) | (padded[before] == _LF)
+    at_end = (padded[after] == sep) | (padded[after] == _LF) | (padded[after] == _CR)
+    drop = blank & (at_start | at_end)
+    return a[~drop].tobytes() if drop.any() else block
 
 
 def squeeze_blanks(block: bytes) -> bytes:

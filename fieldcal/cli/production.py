@@ -168,9 +168,26 @@ def _apply_targets(args, paths) -> list[Path | None]:
         [out / f"{Path(path).stem}-calibrated.csv" for path in paths]
     if len(paths) > 1 and not out.is_dir():
         raise ValueError(f"apply: --out {out}: several input files need an existing directory")
+    written = {}
+    for path, target in zip(paths, targets):
+        if target.resolve() in written:
+            raise ValueError(f"apply: {written[target.resolve()]} and {path} would both be written to {target}: "
+                             "give them different file names, or apply them one at a time")
+        written[target.resolve()] = path
+    _refuse_own_files(targets, [*paths, args.params])
     for target in targets:
         check_output_path(target, force=args.force, option="--out")
     return targets
+
+
+def _refuse_own_files(targets, sources) -> None:
+    """An output that is one of the command's own inputs (or its parameter file) is refused,
+    --force or not: it would be read while it is replaced."""
+    for target in targets:
+        for source in sources:  # (a --config name such as ``sim`` is no file: not compared)
+            if Path(source).exists() and (Path(target).resolve() == Path(source).resolve() or (
+                    Path(target).exists() and os.path.samefile(target, source))):
+                raise ValueError(f"apply: --out {target} is the input {source}: give another output path")
 
 
 def _write_csv(target: Path | None, write, source: str) -> int:
@@ -202,6 +219,8 @@ def cmd_apply(args) -> int:
 
     if bool(args.input) == bool(args.config):
         raise ValueError("apply: give the recording's INPUT files or a live device (--config), one of the two")
+    if args.out is None and (sys.stdout is None or sys.stdout.closed):  # started with >&-
+        raise ValueError("apply: standard output is closed: give --out FILE")
     kind = "live" if args.config else "log" if (args.map is None and len(args.input) == 1
                                                 and log_format(args.input[0]) is not None) else "text"
     for name, owner in _APPLY_OPTIONS.items():
@@ -235,7 +254,8 @@ def cmd_apply(args) -> int:
         for name in p.skipped:
             print(f"fieldcal apply: {p.path}: triad {name!r} is not in {args.params}: not written",
                   file=sys.stderr)
-        _write_csv(target, lambda out, p=p: apply_file(p, out), p.path)
+        _write_csv(target, lambda out, p=p: apply_file(p, out, warn=lambda line: print(
+            f"fieldcal {line}", file=sys.stderr)), p.path)
     return 0
 
 
@@ -264,6 +284,7 @@ def _apply_device(args, parameters) -> int:
         print(f"fieldcal apply: {config.device.name}'s triad {name!r} is not in {args.params}: not written",
               file=sys.stderr)
     if args.out is not None:
+        _refuse_own_files([args.out], [args.params, args.config])
         check_output_path(Path(args.out), force=args.force, option="--out")
     stop = threading.Event()
     in_main = threading.current_thread() is threading.main_thread()
@@ -272,11 +293,19 @@ def _apply_device(args, parameters) -> int:
         if args.out is None:
             written = apply_device(config, calibrations, sys.stdout.buffer, sys.stderr, stop,
                                    args.samples, args.seconds)
-        else:
-            with open(args.out, "wb") as out:
-                written = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
-                                       args.seconds)
-            print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
+        else:  # into a partial file, renamed once samples were written: a start that fails
+            # (no device, no samples) leaves the file --force would replace as it was
+            target = Path(args.out)
+            partial = target.with_name(f".{target.name}.partial")
+            try:
+                with open(partial, "wb") as out:
+                    written = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
+                                           args.seconds)
+                if written:
+                    partial.replace(target)
+                    print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
+            finally:
+                partial.unlink(missing_ok=True)
     finally:
         if in_main:
             signal.signal(signal.SIGINT, previous)

@@ -130,7 +130,7 @@ def import_with_report(paths, import_map: ImportMap | str | os.PathLike,
     return recording, report
 
 
-def _header_fields(data: bytes, spec: FileSpec, path: str) -> list[str]:
+def header_fields(data: bytes, spec: FileSpec, path: str) -> list[str]:
     """The fields of the first text line that holds every column name of ``spec``."""
     delimiter = spec.channels["delimiter"]
     comment = spec.channels["comment"]
@@ -151,7 +151,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None
     sha256 = hashlib.sha256(data).hexdigest()
-    cm = spec.resolve(_header_fields(data, spec, path), path) if spec.channel_map is None else spec.channel_map
+    cm = spec.resolve(header_fields(data, spec, path), path) if spec.channel_map is None else spec.channel_map
     rate_hz = rate_hz or spec.rate_hz
     if cm.time_column is None and rate_hz is None:
         raise RecordingImportError(f"{path}: {spec.name} has no time column: give its sample rate "
