@@ -103,12 +103,12 @@ def test_the_plan_takes_less_time_than_field_18_and_the_model_matches_the_engine
 
 
 def test_candidates_are_proper_rotations_with_distinct_gravity_directions():
-    pool = candidates()
+    pool = candidates(corners=True)
     ups = np.array([c.attitude[2] for c in pool])
-    assert len(pool) == 18  # 6 faces and 12 edges
+    assert len(pool) == 26  # 6 faces, 12 edges and 8 corners
     for c in pool:
         assert np.allclose(c.attitude.T @ c.attitude, np.eye(3)) and np.linalg.det(c.attitude) > 0
-    assert len({tuple(np.round(u, 6)) for u in ups}) == 18
+    assert len({tuple(np.round(u, 6)) for u in ups}) == 26
 
 
 def test_a_longer_dwell_does_not_loosen_the_bound():
