@@ -318,7 +318,10 @@ def test_a_margin_plans_every_bound_under_the_target_it_writes(tmp_path, capsys)
     out = tmp_path / "margin.yaml"
     target = ",".join(f"{t}.{g}={v:g}" for (t, g), v in TARGETS.items())
     assert main(["plan", "--config", "sim", "--target", target, "--margin", "0.2", "--out", str(out)]) == 0
-    assert "20% under" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "20% under" in printed
+    # The infeasibility of the 1/3 and its aim 1/5, said with numbers.
+    assert "in 1/3 of field-18's time" in printed and "in 1/5 of field-18's time" in printed
     procedure = load_procedure(out)
     step = procedure.rate_step
     design = Design(tuple(p.attitude for p in procedure.positions), procedure.dwell_s,
