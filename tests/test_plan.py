@@ -6,7 +6,7 @@ import pytest
 from drivers.sim.device import paper_mimu
 from fieldcal.cli.main import main
 from fieldcal.earth import EARTH_RATE
-from fieldcal.model import SPECIFIC_FORCE, params_from_k
+from fieldcal.model import PARAM_NAMES, SPECIFIC_FORCE, params_from_k
 from fieldcal.planning.command import GROUPS
 from fieldcal.planning.design import Design, OperatorModel, bound_sigmas, operator_time
 from fieldcal.planning.search import candidates
@@ -103,12 +103,12 @@ def test_the_plan_takes_less_time_than_field_18_and_the_model_matches_the_engine
 
 
 def test_candidates_are_proper_rotations_with_distinct_gravity_directions():
-    pool = candidates()
+    pool = candidates(corners=True)
     ups = np.array([c.attitude[2] for c in pool])
-    assert len(pool) == 18  # 6 faces and 12 edges
+    assert len(pool) == 26  # 6 faces, 12 edges and 8 corners
     for c in pool:
         assert np.allclose(c.attitude.T @ c.attitude, np.eye(3)) and np.linalg.det(c.attitude) > 0
-    assert len({tuple(np.round(u, 6)) for u in ups}) == 18
+    assert len({tuple(np.round(u, 6)) for u in ups}) == 26
 
 
 def test_a_longer_dwell_does_not_loosen_the_bound():
@@ -277,3 +277,71 @@ def test_the_simulators_window_means_have_the_covariance_the_bound_uses():
     corr = lambda c: c / np.sqrt(np.outer(np.diag(c), np.diag(c)))  # noqa: E731
     assert np.abs(corr(drawn) - corr(model)).max() < 0.1
     assert corr(model)[0, 1] > 0.2  # far from white: the bound must not treat the windows as independent
+
+
+def test_no_design_in_a_third_of_field_18s_time_beats_the_best_bias_ratio_printed():
+    """The best ratio `fieldcal plan` prints for a share of field-18's time is a bound: designs of
+    that operator time or less (few positions, short dwells, one turn) never reach below it in
+    crb.py's bound, and it grows as the time shrinks."""
+    from fieldcal.planning.command import best_bias_ratios
+
+    models = models_from_truth(paper_mimu())
+    operator = OperatorModel()
+    field = load_procedure("field-18")
+    reference = Design(tuple(p.attitude for p in field.positions), field.dwell_s,
+                       field.rate_step.rate_deg_s, field.rate_step.turns)
+    ref_sigmas = bound_sigmas(reference, operator, models, DEFAULT_STATION, 250.0)
+    ref_seconds = operator_time(reference, operator)
+    third = best_bias_ratios(models, ref_sigmas, ref_seconds / 3)
+    fifth = best_bias_ratios(models, ref_sigmas, ref_seconds / 5)
+    whole = best_bias_ratios(models, ref_sigmas, ref_seconds)
+    for name in models:
+        assert whole[name] <= 1.0 + 1e-9 < third[name] < fifth[name]
+    every = tuple(c.attitude for c in candidates())
+    tried = 0
+    for positions in (every, every[:6] + every[6:12:2]):
+        for dwell in (10.0, 60.0):
+            design = Design(positions, dwell, 20.0, 1)
+            if operator_time(design, operator) > ref_seconds / 3:
+                continue
+            tried += 1
+            sigmas = bound_sigmas(design, operator, models, DEFAULT_STATION, 250.0)
+            for name in models:
+                ratio = np.max(sigmas[name][:3] / ref_sigmas[name][:3])
+                assert ratio >= third[name] * 0.99, (name, len(positions), dwell, ratio, third[name])
+    assert tried >= 2
+
+
+def test_a_margin_plans_every_bound_under_the_target_it_writes(tmp_path, capsys):
+    """--margin: the written procedure's own bound (recomputed here from the file) is at least the
+    margin under every target, and the targets written for the TUI are the unmargined ones."""
+    out = tmp_path / "margin.yaml"
+    target = ",".join(f"{t}.{g}={v:g}" for (t, g), v in TARGETS.items())
+    assert main(["plan", "--config", "sim", "--target", target, "--margin", "0.2", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "20% under" in printed
+    # The infeasibility of the issue's 1/3 and its aim 1/5, said with numbers.
+    assert "in 1/3 of field-18's time" in printed and "in 1/5 of field-18's time" in printed
+    procedure = load_procedure(out)
+    step = procedure.rate_step
+    design = Design(tuple(p.attitude for p in procedure.positions), procedure.dwell_s,
+                    step.rate_deg_s, step.turns)
+    models = models_from_truth(paper_mimu())
+    sigmas = bound_sigmas(design, OperatorModel(), models, DEFAULT_STATION, 250.0)
+    written = {(t, p): s for t, p, s in procedure.targets}
+    for (triad, group), sigma in TARGETS.items():
+        model = models[triad]
+        for j in GROUPS[group]:
+            name = PARAM_NAMES[j]
+            assert written[(triad, name)] == pytest.approx(sigma, rel=1e-3)
+            shown = sigmas[triad][j] * display_scale(model.kind, model.output_unit, j)
+            assert shown <= sigma / 1.2 * (1 + 1e-9), (triad, name, shown, sigma)
+
+
+@pytest.mark.parametrize("margin", ["-0.1", "1", "nan"])
+def test_a_bad_margin_is_a_one_line_error(tmp_path, capsys, margin):
+    out = tmp_path / "p.yaml"
+    assert main(["plan", "--config", "sim", "--target", "gyroscope.bias=1", "--margin", margin,
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--margin" in err and len(err.splitlines()) == 1 and not out.exists()

@@ -1,10 +1,13 @@
 """The least-time procedure that meets a target σ per parameter: an optimal-design search.
 
 Candidates are attitudes the procedure format can write: one per gravity direction in body axes
-(the 6 faces and the 12 edges, 45° between two axes), plus any given procedure's own (field-18
-has every face twice, at two headings). Corners (gravity equally on three axes) need directions
-the format does not have, so they are not offered; faces alone cannot tell the misalignments
-apart (the norm method needs gravity off the axes), edges can.
+(the 6 faces, the 12 edges, 45° between two axes, and on request the 8 corners, gravity along a
+body diagonal, written as ``up: x+y+z, north: x``), plus any given procedure's own (field-18 has
+every face twice, at two headings). Faces alone cannot tell the misalignments apart, corners alone
+the scale factors (the norm method sees gravity's direction only through u uᵀ); edges can, and
+faces with corners. Corners are not offered by default: for the paper's unit the biases, which
+the span of the run sets, bind the time, and corners save about 1 % of it (the bound with and
+without them) while the search takes twice as long.
 
 Positions come and go in antipodal pairs (a face and its opposite, an edge and its opposite),
 which keep each axis's bias separable from its scale factor. For each number of whole turns per
@@ -27,7 +30,7 @@ import numpy as np
 
 from fieldcal.earth import Station
 from fieldcal.planning.design import Design, OperatorModel, bound_sigmas, operator_time
-from fieldcal.procedure.positions import _WORDS
+from fieldcal.procedure.positions import _WORDS, attitude_from_up_and_north
 from fieldcal.solvers.solve import TriadModel
 
 MIN_DWELL_S = 5.0  # a dwell needs a few stillness windows to be recognised as one
@@ -38,9 +41,13 @@ PATIENCE = 2  # pair removals in a row that save no time before the search stops
 
 @dataclass(frozen=True)
 class Candidate:
-    name: str  # e.g. "x-up" or "x-up z-up edge"
-    axes: tuple[str, str, str]  # the words for x, y, z
+    name: str  # e.g. "x-up", "x-up z-up edge" or "x-up y-down z-up corner"
+    fields: dict  # how a procedure file writes it: {"axes": {x, y, z words}} or {"up", "north"}
     attitude: np.ndarray
+
+    @property
+    def corner(self) -> bool:
+        return bool(np.all(np.abs(self.attitude[2]) > 1e-9))
 
 
 def _words() -> dict[str, np.ndarray]:
@@ -55,9 +62,10 @@ def _words() -> dict[str, np.ndarray]:
     return {**single, **pairs}
 
 
-def candidates(extra=()) -> list[Candidate]:
-    """One writable proper attitude per gravity direction (faces, then edges), then ``extra``
-    (positions of a procedure file) whose attitude differs from all before."""
+def candidates(extra=(), corners: bool = False) -> list[Candidate]:
+    """One writable proper attitude per gravity direction (faces, edges, then with ``corners``
+    the corners), then ``extra`` (positions of a procedure file) whose attitude differs from all
+    before and that compass words can write."""
     words = _words()
     found: dict[tuple, Candidate] = {}
     for wx, wy, wz in itertools.product(words, repeat=3):
@@ -66,24 +74,37 @@ def candidates(extra=()) -> list[Candidate]:
             continue
         key = tuple(np.round(A[2], 6))
         if key not in found:
-            found[key] = Candidate(_describe(A), (wx, wy, wz), A)
+            found[key] = Candidate(_describe(A), {"axes": dict(zip("xyz", (wx, wy, wz)))}, A)
+    if corners:
+        for signs in itertools.product((1, -1), repeat=3):
+            up = "".join(f"{'+' if s > 0 else '-'}{a}" for s, a in zip(signs, "xyz")).lstrip("+")
+            A = corner_attitude(np.array(signs, float))
+            found[tuple(np.round(A[2], 6))] = Candidate(_describe(A), {"up": up, "north": "x"}, A)
     pool = sorted(found.values(), key=lambda c: (np.count_nonzero(np.abs(c.attitude[2]) > 1e-9), c.name))
     for position in extra:
         if not any(np.allclose(c.attitude, position.attitude) for c in pool):
-            axes = tuple(_word_of(position.attitude[:, i], words) for i in range(3))
+            axes = [_word_of(position.attitude[:, i], words) for i in range(3)]
+            if None in axes:  # not a face or edge at a compass heading: written as it was given
+                continue
             pool.append(Candidate(f"{_describe(position.attitude)} (heading of {position.description})",
-                                  axes, position.attitude))
+                                  {"axes": dict(zip("xyz", axes))}, position.attitude))
     return pool
+
+
+def corner_attitude(up_body: np.ndarray) -> np.ndarray:
+    """Body -> ENU with local up along ``up_body`` (a body diagonal) and body x's horizontal part
+    towards north, as ``up: ±x±y±z, north: x`` in a procedure file."""
+    return attitude_from_up_and_north(up_body, np.array([1.0, 0.0, 0.0]))
 
 
 def _describe(A: np.ndarray) -> str:
     up = A[2]
     names = [f"{n}-{'up' if c > 0 else 'down'}" for n, c in zip("xyz", up) if abs(c) > 1e-9]
-    return names[0] if len(names) == 1 else " ".join(names) + " edge"
+    return names[0] if len(names) == 1 else " ".join(names) + (" edge" if len(names) == 2 else " corner")
 
 
-def _word_of(direction: np.ndarray, words: dict[str, np.ndarray]) -> str:
-    return next(w for w, v in words.items() if np.allclose(v, direction, atol=1e-9))
+def _word_of(direction: np.ndarray, words: dict[str, np.ndarray]) -> str | None:
+    return next((w for w, v in words.items() if np.allclose(v, direction, atol=1e-9)), None)
 
 
 def antipodal_pairs(pool: list[Candidate]) -> list[tuple[Candidate, ...]]:

@@ -3,6 +3,11 @@
 A procedure file names, for each position, the local direction each body axis points to
 (``up``, ``north``, ``south-up`` for 45° between south and up, ...). From that the attitude
 (body -> ENU) and the expected gravity direction in body axes follow.
+
+Or, the other way round, which body direction points up and which one's horizontal part points
+north: ``up: x+y+z, north: x`` is the unit on a corner (gravity along the body diagonal, every
+axis 35° above the horizontal, x's horizontal part towards north), which compass words cannot
+say. A body direction is a signed sum of distinct axes: ``z``, ``-x``, ``x-y``, ``-x+y-z``.
 """
 from __future__ import annotations
 
@@ -81,6 +86,45 @@ def _direction(r: FieldReader, word, where: str, line: int | None) -> np.ndarray
     return v / norm
 
 
+_BODY_DIRECTION = re.compile(r"[+-]?[xyz](?:[+-][xyz]){0,2}")
+
+
+def _body_direction(r: FieldReader, word, where: str, line: int | None) -> np.ndarray:
+    """A signed sum of distinct body axes ('x+y+z', '-z', 'x-y'), normalised."""
+    if not isinstance(word, str) or not _BODY_DIRECTION.fullmatch(word) \
+            or len(set(re.findall("[xyz]", word))) != len(re.findall("[xyz]", word)):
+        r.fail(where, "a body direction like 'z', '-x', 'x-y' or 'x+y+z' (each axis at most once)",
+               describe(word), line)
+    v = np.zeros(3)
+    for sign, axis in re.findall(r"([+-]?)([xyz])", word):
+        v["xyz".index(axis)] = -1.0 if sign == "-" else 1.0
+    return v / np.linalg.norm(v)
+
+
+def _attitude_from_up_and_north(r: FieldReader, m: dict, where: str) -> np.ndarray:
+    """Body -> ENU from the body direction that points up and the one whose horizontal part
+    points north."""
+    up = _body_direction(r, m["up"], join(where, "up"), line_of(m, "up"))
+    toward_north = _body_direction(r, m["north"], join(where, "north"), line_of(m, "north"))
+    attitude = attitude_from_up_and_north(up, toward_north)
+    if attitude is None:
+        r.refuse(join(where, "north"), f"{m['north']!r} is along up ({m['up']!r}), so it has no horizontal "
+                 "part to point north; name another body direction", line_of(m, "north"))
+    return attitude
+
+
+def attitude_from_up_and_north(up: np.ndarray, toward_north: np.ndarray) -> np.ndarray | None:
+    """Body -> ENU whose local up is ``up`` (body axes) and whose north is the horizontal part of
+    ``toward_north``; None when that has (almost) none."""
+    up = up / np.linalg.norm(up)
+    north = toward_north / np.linalg.norm(toward_north)
+    north = north - (north @ up) * up
+    if np.linalg.norm(north) < 0.1:
+        return None
+    north /= np.linalg.norm(north)
+    return np.array([np.cross(north, up), north, up])  # rows east, north, up: east = north × up
+
+
 def _text(r: FieldReader, m: dict, key: str, where: str) -> str:
     """Optional free text, checked before any conversion (a list is not a title)."""
     if key not in m:
@@ -93,15 +137,25 @@ def _text(r: FieldReader, m: dict, key: str, where: str) -> str:
 
 
 def _position(r: FieldReader, raw, where: str) -> Position:
-    m = r.mapping(raw, where, ("id", "axes"), ("description",))
-    axes = r.mapping(m["axes"], join(where, "axes"), ("x", "y", "z"), line=line_of(m, "axes"))
-    cols = [_direction(r, axes[k], f"{where}.axes.{k}", line_of(axes, k)) for k in "xyz"]
-    attitude = np.column_stack(cols)
-    if not np.allclose(attitude.T @ attitude, np.eye(3), atol=1e-9):
-        r.refuse(f"{where}.axes", "the axes are not mutually perpendicular", line_of(m, "axes"))
-    if np.linalg.det(attitude) < 0:
-        r.refuse(f"{where}.axes", "x, y, z form a left-handed set (mirror one horizontal axis)",
-                 line_of(m, "axes"))
+    m = r.mapping(raw, where, ("id",), ("axes", "up", "north", "description"))
+    by_up = [k for k in ("up", "north") if k in m]
+    if "axes" in m and by_up:
+        r.refuse(join(where, by_up[0]), "give either axes or up and north, not both", line_of(m, by_up[0]))
+    if "axes" not in m and len(by_up) < 2:
+        missing = "axes, or up and north" if not by_up else "north" if "up" in m else "up"
+        r.refuse(join(where, "north" if "up" in m else "up") if by_up else join(where, "axes"),
+                 f"missing ({missing})", line_of(m))
+    if by_up:
+        attitude = _attitude_from_up_and_north(r, m, where)
+    else:
+        axes = r.mapping(m["axes"], join(where, "axes"), ("x", "y", "z"), line=line_of(m, "axes"))
+        cols = [_direction(r, axes[k], f"{where}.axes.{k}", line_of(axes, k)) for k in "xyz"]
+        attitude = np.column_stack(cols)
+        if not np.allclose(attitude.T @ attitude, np.eye(3), atol=1e-9):
+            r.refuse(f"{where}.axes", "the axes are not mutually perpendicular", line_of(m, "axes"))
+        if np.linalg.det(attitude) < 0:
+            r.refuse(f"{where}.axes", "x, y, z form a left-handed set (mirror one horizontal axis)",
+                     line_of(m, "axes"))
     ident = r.whole(m, "id", where, 0, 10**6)
     return Position(id=ident, description=_text(r, m, "description", where), attitude=attitude)
 

@@ -46,6 +46,20 @@ def _horizontal_axis(p: Position) -> tuple[str, str] | None:
     return None
 
 
+def _elevations(p: Position) -> str:
+    """Each body axis's angle above (or below) the horizontal and the compass side its horizontal
+    part points to: 'x 35° up towards north, y 35° up towards south-east, ...'."""
+    out = []
+    for i, axis in enumerate(_AXES):
+        v = p.attitude[:, i]
+        elevation = math.degrees(math.asin(float(np.clip(v[2], -1.0, 1.0))))
+        east, north = np.array([v[0], v[1]]) / max(float(np.hypot(v[0], v[1])), 1e-12)
+        compass = "-".join(w for c, w in ((north, "north" if north > 0 else "south"),
+                                          (east, "east" if east > 0 else "west")) if abs(c) > 0.3)
+        out.append(f"{axis} {abs(elevation):.0f}° {'up' if elevation > 0 else 'down'} towards {compass}")
+    return ", ".join(out)
+
+
 def _heading_change_deg(previous: Position, target: Position) -> float:
     """The turn about the vertical from one pose to the other, counter-clockwise seen from
     above positive (degrees, -180..180)."""
@@ -69,6 +83,8 @@ def placement(previous: Position | None, target: Position) -> Guidance:
         where = f" so that {level[0]} points {level[1]}" if level else ""
         return Guidance(f"rotate it {abs(turn):.0f}°{sense}{where}", heading_only=True)
     verb = "turn it over" if tip > 135 else f"tip it {tip:.0f}° over"
+    if vertical is None and level is None:  # on a corner: no compass word is an axis's direction
+        return Guidance(f"{verb} onto a corner: {_elevations(target)}")
     if vertical is None:  # tilted: every axis's direction, as the procedure file gives them
         words = [f"{a} {direction_word(target.attitude[:, i])}" for i, a in enumerate(_AXES)]
         if level is not None:
