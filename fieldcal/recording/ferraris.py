@@ -32,6 +32,7 @@ import numpy as np
 from fieldcal.earth import EARTH_RATE
 from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
 from fieldcal.recording.detect import DetectionError, interval_means
+from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
 from fieldcal.calibration import Calibration, SolverDiagnostics
 from fieldcal.model import FULL_PARAM_NAMES
 from fieldcal.solvers.classic import SIX_FACES, _parameter_covariance, solve_six_position
@@ -293,7 +294,8 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
                      drift: ScaleDrift | None = None) -> Calibration:
     """K from the turns' integrals, the bias from the statics; see the module doc for the σ.
     ``axes``: each interval's aligned axis (see aligned_axes); ``up_sigma``: 1σ (rad) of the
-    turn axes' directions, from the accelerometer's calibration; ``noise``: the device's noise
+    turn axes' directions, from the accelerometer's calibration, or (k, 3) the variance (rad²)
+    of each turn's up along each axis (turn_up_variance); ``noise``: the device's noise
     model of this triad (a TriadNoise, in rad/s), if known, for its bias instability;
     ``drift``: the scale's temperature drift (None: assumed, over the times ``t``)."""
     axes_seen = np.abs(turns.up).argmax(axis=1)
@@ -327,8 +329,11 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     lever = earth_lever(gyro, rate_hz, turns.spans, reference, turns.angles, t)
     earth = (k_scale[None, :] * horizontal * lever[:, None]) ** 2 / 2 * (1 - turns.up**2)
     heading = ((K @ turns.up.T).T * math.radians(HEADING_SIGMA_DEG)) ** 2
-    # The axis's direction error moves the integral across it, not along it.
-    across = (k_scale[None, :] * turns.angles[:, None] * up_sigma) ** 2 * (1 - turns.up**2)
+    # The axis's direction error moves the integral across it, not along it (turn_up_variance).
+    if np.ndim(up_sigma) == 0:
+        across = (k_scale[None, :] * turns.angles[:, None] * up_sigma) ** 2 * (1 - turns.up**2)
+    else:
+        across = (k_scale[None, :] * turns.angles[:, None]) ** 2 * np.asarray(up_sigma, dtype=float)
     var_W = (white[None, :] * n[:, None] / rate_hz**2 + reference_var * duration[:, None] ** 2 + earth + heading
              + across)
     # The six poses' gyro means: bias and the g-sensitivity, which cancels between up and down
@@ -369,3 +374,57 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
                        parameter_names=FULL_PARAM_NAMES, residual_unit="rad",
                        diagnostics=SolverDiagnostics(message=f"closed form (the turns' ±2π integrals); {drift_note}",
                                                      dof=residuals.size - 9))
+
+
+def turn_up_variance(turns: Turns, intervals: np.ndarray, axes: np.ndarray, covariance: np.ndarray,
+                     acc: Calibration, gravity: float) -> np.ndarray:
+    """(k, 3) rad²: the variance of each turn's calibrated up vector along each body axis, given
+    the covariance (flattened, position-major, output units) of the accelerometer's interval
+    means it was solved from (solve_aligned_accelerometer), scaled up by its faces' χ²/dof.
+
+    Why not the accelerometer's σ: on a face with axis j vertical, the up's component i is the
+    reading there less the bias b_i and the cross term M_ij·g, and Ferraris's closed form takes
+    both from the same kind of readings: b_i from the i faces, M_ij from the j faces' i readings.
+    So the up's error is (the j faces' mean i reading − the i faces' mean i reading) / (k_i g): a
+    bias instability that all faces share moves both alike and cancels. σ(b_i)² + σ(M_ij)² counts
+    that shared part in full, once the biases' σ hold it (the estimated or the configured
+    flicker): the gyro's cross terms then came out with σ ~25 % too wide (RMS z 0.75-0.81)."""
+    counts = np.diff(intervals, axis=1)[:, 0]
+    average = first_placements(axes, counts)  # (6, m): each face's mean as weights on the intervals
+    chi2 = acc.diagnostics.reduced_chi2 or 1.0
+    out = np.zeros((len(turns.spans), 3))
+    for n, (before, after, up) in enumerate(zip(turns.before, turns.after, turns.up)):  # a loop over turns
+        j = int(np.argmax(np.abs(up)))
+        sense = float(np.sign(up[j]))
+        at_turn = np.zeros(len(intervals))
+        at_turn[[before, after]] += 0.5
+        for i in set(range(3)) - {j}:
+            w = (at_turn - 0.5 * (average[i] + average[i + 3])
+                 - sense * 0.5 * (average[j] - average[j + 3]))
+            cov_i = covariance[i::3, i::3]
+            out[n, i] = max(chi2, 1.0) * float(w @ cov_i @ w) / (acc.K[i, i] * gravity) ** 2
+    return out
+
+
+def estimated_turns_noise(gyro: np.ndarray, intervals: np.ndarray, axes: np.ndarray, t: np.ndarray,
+                          rate_hz: float, scale: float) -> MeasuredNoise:
+    """A Ferraris gyro's noise model (rad/s; ``scale`` output units per rad/s) from the recording,
+    when no config gives one: the white noise of its first pose, and the bias instability B
+    (``noise_estimate.bias_instability``) from the faces seen again after each turn. A full
+    turn about the vertical brings the unit back to its attitude and heading, so the still
+    readings before and after it hold the same bias, g-sensitivity and Earth rate: they differ
+    by the noise alone, white and flicker. What that shows of B tells the flicker's slow part,
+    which all faces share and the bias (their mean) carries, and which no scatter shows."""
+    counts = np.diff(intervals, axis=1)[:, 0]
+    white_var = np.var(gyro[intervals[0, 0]:intervals[0, 1]], axis=0, ddof=1)
+    still = interval_means(gyro, intervals)
+    faces = (axes[:, None] == np.arange(6)[None, :]).astype(float)  # which face each interval is on
+    # And a drift linear in time (warm-up, temperature), as the turns' still reading takes it.
+    faces = np.column_stack([faces, session_times(t, intervals)])
+    white = float(np.mean(white_var)) / counts
+    root = np.sqrt(1.0 / white)[:, None]
+    fitted = faces @ np.linalg.lstsq(faces * root, still * root, rcond=None)[0]
+    flicker = flicker_covariance(t[intervals[:, 0]], counts / rate_hz)
+    b = bias_instability(still - fitted, faces, white, flicker, weights=1.0 / white)  # output units
+    k = abs(float(scale))
+    return MeasuredNoise(white=float(np.sqrt(np.mean(white_var) / rate_hz)) / k, bias_instability=b / k)
