@@ -555,6 +555,10 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
                         drift=replace(drift, t=t))
         try:
             angular_rate[name] = solve(noise=settings.noise.get(name))
+            if settings.estimate_noise and name not in settings.noise:  # its flicker, then the σ again
+                estimated[name] = ferraris.estimated_turns_noise(
+                    gyro, poses.intervals, axes, t, recording.rate_hz, np.mean(np.abs(np.diag(angular_rate[name].K))))
+                angular_rate[name] = solve(noise=estimated[name])
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)
