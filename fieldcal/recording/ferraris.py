@@ -19,8 +19,11 @@ What a turn's 1σ holds: the white noise integrated over the turn, the still rea
 times the turn's duration, the horizontal Earth rate (at an unknown heading: the still reading
 taken off holds it for the whole turn, while the turning body sees it go round, earth_lever),
 the accelerometer's error in the turn axis's direction, and the hand's error in bringing the
-unit back to its heading, ``HEADING_SIGMA_DEG``, which nothing in the data can see. The bias is the mean of the six
-poses' gyro means, its σ their scatter (g-sensitivity and bias shifts) over √6.
+unit back to its heading, ``HEADING_SIGMA_DEG``, which nothing in the data can see. The
+accelerometer's error in the turn axis is taken from its face means (turn_up_variance). The bias
+is the mean of the six poses' gyro means, its σ their scatter (g-sensitivity and bias shifts)
+over √6, never below the bias instability all faces share: a device config's, else measured
+from the still intervals (estimated_turns_noise).
 """
 from __future__ import annotations
 
