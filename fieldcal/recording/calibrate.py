@@ -23,6 +23,7 @@ scan over the scale finds the one that makes the motions' rotations fit.
 from __future__ import annotations
 
 import math
+from functools import partial
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -536,21 +537,28 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     acc = specific_force[reference]
     up = ferraris.up_vectors(acc, interval_means(recording.triads[reference], poses.intervals))
     latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
-    # 1σ (rad) of a turn axis's direction: the accelerometer's cross terms, and its biases across
-    # the vertical (each from its own axis's two faces, at other times) over g.
-    up_sigma = math.sqrt(np.mean(acc.sigma[6:] ** 2)
-                         + np.mean((acc.sigma[:3] / np.diag(acc.K)) ** 2) / station.gravity**2)
+    # The covariance of the reference's interval means, where the turn axes' error comes from
+    # (ferraris.turn_up_variance): the config's noise model, else white noise. Not the estimated
+    # flicker: its shared part cancels in the up, and what its faster part moves between faces
+    # is in the faces' χ²/dof, which turn_up_variance scales by (with it, RMS z 0.71-0.74).
+    up_noise = settings.noise.get(reference)
+    up_means_cov = _means_covariance(poses.intervals, recording.t, noise.variance, up_noise, acc.K,
+                                     recording.units[reference])
     for name in detection.rates:
         gyro = recording.triads[name]
         t = regular_times(recording.t, recording.rate_hz)
         turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]),
                                     t=t)
+        up_variance = ferraris.turn_up_variance(turns, poses.intervals, axes, up_means_cov, acc, station.gravity)
+        solve = partial(ferraris.solve_turns_gyro, name, recording.units[name], gyro, recording.rate_hz,
+                        poses.intervals, axes, turns, latitude, up_sigma=up_variance, t=t,
+                        drift=replace(drift, t=t))
         try:
-            angular_rate[name] = ferraris.solve_turns_gyro(name, recording.units[name], gyro, recording.rate_hz,
-                                                           poses.intervals, axes, turns, latitude,
-                                                           up_sigma=up_sigma,
-                                                           t=t, noise=settings.noise.get(name),
-                                                           drift=replace(drift, t=t))
+            angular_rate[name] = solve(noise=settings.noise.get(name))
+            if settings.estimate_noise and name not in settings.noise:  # its flicker, then the σ again
+                estimated[name] = ferraris.estimated_turns_noise(
+                    gyro, poses.intervals, axes, t, recording.rate_hz, np.mean(np.abs(np.diag(angular_rate[name].K))))
+                angular_rate[name] = solve(noise=estimated[name])
             bias_sigma[name] = angular_rate[name].sigma[:3]
         except DetectionError as exc:
             failures[name] = str(exc)
