@@ -115,10 +115,14 @@ class LiveBench:
     def command_table(self, rate_deg_s: float) -> None:
         if self.table is None:
             raise ValueError("the procedure asks for a table rate, and the config has no table")
-        if rate_deg_s == 0.0:
-            self.table.stop()
-        else:
-            self.table.set_rate(rate_deg_s)
+        try:
+            if rate_deg_s == 0.0:
+                self.table.stop()
+            else:
+                self.table.set_rate(rate_deg_s)
+        except OSError as exc:  # its port is gone (unplugged, powered off): the operator's to deal with
+            raise TableError(f"its port {self.config.table.port.url} failed ({exc}): is the table "
+                             "plugged in and powered?") from exc
 
     def get_state(self) -> dict:
         """What a resumed run needs of a live bench: not its samples (a device cannot be rewound)
