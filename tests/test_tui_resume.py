@@ -4,6 +4,8 @@ power-cycled in between; and the device-clock judgement itself, on hand-worked c
 frame bytes."""
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -343,3 +345,111 @@ async def test_the_setup_screen_offers_an_unfinished_session_and_resumes_it(tmp_
         await until(pilot, lambda: app.outcome is not None and on_results(app))
     assert app.outcome.status == "completed" and app.outcome.completed == 2
     assert SessionReader(sessions / "quit-after-one").stop_reason == "completed"
+
+
+# --- the port lost and regained mid-run ---------------------------------------------------------
+
+def without_table(tmp_path, devices):
+    """``live_config`` without the table: a power cycle of the unit alone (static steps)."""
+    path = Path(live_config(tmp_path, devices).path)
+    path.write_text(re.sub(r"table:\n(  .*\n)+", "", path.read_text()))
+    return load_config(path)
+
+
+def power_cycle(devices: SimulatedDevices, seed: int) -> SimulatedDevices:
+    """The unit switched off and on again on the same port (its by-id link): a new simulated unit,
+    its clock from zero and its own turn-on bias, served behind the old one's path."""
+    path = Path(devices.imu_url)
+    devices.stop()  # its pty closes: the station's port fails
+    restarted = serve(seed)
+    path.parent.mkdir(exist_ok=True)
+    path.symlink_to(os.readlink(restarted.imu_url))
+    return restarted
+
+
+def log_text(app) -> str:
+    return " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
+
+
+async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step):
+    """A live run: the first step, ``meanwhile()`` (the port goes and comes back; it returns the
+    device serving now), the banner shown once the run waits for the operator at ``then_step``."""
+    config = without_table(tmp_path, devices)
+    app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config,
+                      wall_clock=world)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(app, 1))
+        devices = await meanwhile(app, pilot)
+        await until(pilot, lambda: "regained" in log_text(app) and waiting_at(app, then_step))
+        banner = str(app.screen.query_one("#banner").render())
+        for step in range(then_step, len(procedure.positions)):
+            await until(pilot, lambda step=step: waiting_at(app, step))
+            devices.carry(procedure.positions[step].attitude, 2.0).result(timeout=60)
+            await pilot.press("r")
+            await until(pilot, lambda step=step: app.telemetry.step > step or app.outcome is not None)
+        await until(pilot, lambda: app.outcome is not None and on_results(app))
+        log = log_text(app)
+    return app, banner, log
+
+
+@run_async
+async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_again(tmp_path, served):
+    """The port is lost and comes back with the unit's clock restarted: the station says so and
+    the run starts over, keeping the old step documents but no longer counting them."""
+    devices = served[0]
+    world = WorldClock(devices)
+    procedure = two_positions(tmp_path, SHORT)
+    link = Path(devices.imu_url)
+
+    async def switched_off_and_on(app, pilot):
+        restarted = power_cycle(devices, 4)
+        served.append(restarted)
+        world.switch(restarted)
+        return restarted
+
+    try:
+        app, banner, log = await _step_one_then(tmp_path, devices, world, procedure, switched_off_and_on, 0)
+    finally:
+        link.unlink(missing_ok=True)
+        link.parent.rmdir()
+    assert banner.startswith("POWER-CYCLED while the port was lost: its gyro turn-on bias may have changed; "
+                             "the 1 completed step is measured again")
+    assert "WARNING: the unit was power-cycled while its port was lost (its clock reads" in log
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    reader = SessionReader(tmp_path / "session")
+    (resume,) = [d["data"] for d in reader.documents("resume")]
+    assert resume["completed_steps"] == [] and "power-cycled while its port was lost" in resume["why"]
+    steps = reader.steps()
+    assert [s["step"] for s in steps] == [0, 0, 1]  # the first measurement kept in the session,
+    assert [s.record.step for s in steps_on_record(reader)] == [0, 1]  # but no longer counted
+    assert steps_on_record(reader)[0].record.to_dict() != \
+        {k: v for k, v in steps[0].items() if k not in ("skipped", "bench")}
+    replayed = []
+    unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
+    assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
+    assert unit.failures == app.outcome.unit.failures
+
+
+@run_async
+async def test_a_unit_whose_cable_was_pulled_keeps_its_completed_steps(tmp_path, served):
+    """The port is lost and comes back with the unit's clock run on: nothing is measured again."""
+    devices = served[0]
+    world = WorldClock(devices)
+    procedure = two_positions(tmp_path, SHORT)
+
+    async def cable_pulled_and_plugged_back(app, pilot):
+        devices.imu_link.unplug()
+        await until(pilot, lambda: ": lost" in log_text(app))
+        devices.imu_link.replug()
+        return devices
+
+    app, banner, log = await _step_one_then(tmp_path, devices, world, procedure, cable_pulled_and_plugged_back, 1)
+    assert "POWER-CYCLED" not in banner and "power-cycled" not in log
+    assert f"port {devices.imu_url} regained: its clock ran on" in log and "the 1 completed step is kept" in log
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    reader = SessionReader(tmp_path / "session")
+    assert list(reader.documents("resume")) == []
+    assert [s["step"] for s in reader.steps()] == [0, 1]

@@ -69,9 +69,15 @@ class DeviceConnection:
         return self.parser.counters
 
     def read(self) -> tuple[list[SampleChunk], list[PortEvent]]:
+        chunks, events = self.read_stamped()
+        return [chunk for _, chunk in chunks], events
+
+    def read_stamped(self) -> tuple[list[tuple[float, SampleChunk]], list[PortEvent]]:
+        """``read``, each chunk with the host time its bytes arrived (to order them among the
+        port's events: read before or after the port was regained)."""
         chunks = []
         for t, data in self.reader.poll():
             chunk = self.parser.feed(data, t)
             if chunk is not None and len(chunk):
-                chunks.append(chunk)
-        return chunks, self.reader.events()
+                chunks.append((t, chunk))
+        return chunks, self.reader.events()  # after: each event put before bytes polled is in it
