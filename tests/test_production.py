@@ -300,3 +300,41 @@ def test_resolve_tries_a_registry_that_hangs_up_once_not_once_per_session(pristi
     assert main(["registry", "rebuild", str(batch), "--registry", str(db)]) == 0
     with Registry(db) as registry:
         assert registry.query("SELECT COUNT(*) FROM calibrations")[0][0] == 3  # each re-solve: unchanged
+
+
+def test_resolve_with_a_registry_server_stopped_mid_batch_says_it_once(pristine_session, tmp_path, capsys,
+                                                                      monkeypatch):
+    """A real PostgreSQL server records the first session's calibration and is stopped: the next
+    record fails, is said once, and the rest of the batch is re-solved without trying again."""
+    from postgres_server import SUPERUSER, _started
+
+    from fieldcal.registry import BatchRecorder
+
+    batch = tmp_path / "batch"
+    for name in "abc":
+        _copy(pristine_session, batch / name)
+    server = _started()
+    try:
+        url = server.url("postgres")
+        tries = []
+        record = BatchRecorder.record
+
+        def record_then_stop_the_server(self, params, passed=None):
+            tries.append(params)
+            done = record(self, params, passed)
+            if len(tries) == 1:
+                assert done  # the first is in the registry
+                server.stop()
+                server.port = 0  # (stopped: nothing left for the finally to stop)
+            return done
+        monkeypatch.setattr(BatchRecorder, "record", record_then_stop_the_server)
+        assert main(["resolve", str(batch), "--method", "lsq", "--registry", url]) == 0
+    finally:
+        server.stop()
+    out, err = capsys.readouterr()
+    assert out.splitlines()[-1] == "3 re-solved, 0 failed" and len(tries) == 3
+    warning, summary = _registry_lines(err)
+    assert warning.startswith(f"warning: the unit registry ({url}) was not updated: RegistryError: cannot connect")
+    assert summary.startswith(f"2 calibrations not in the unit registry ({url}): index them with "
+                              f"`fieldcal registry rebuild {batch} --registry ")
+    assert SUPERUSER in url
