@@ -130,15 +130,24 @@ def vectornav_config(tmp_path, devices):
     return load_config(path)
 
 
+def _live_app(tmp_path, config, procedure, world) -> FieldcalApp:
+    return FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config,
+                       wall_clock=world)
+
+
+async def _first_step(app, pilot, devices, procedure) -> None:
+    """The operator places the unit for the first step; the run then waits at the second."""
+    await until(pilot, lambda: waiting_at(app, 0))
+    devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
+    await pilot.press("r")
+    await until(pilot, lambda: waiting_at(app, 1))
+
+
 async def _first_step_then_quit(tmp_path, devices, world, procedure, make_config=live_config):
     config = make_config(tmp_path, devices)
-    app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config,
-                      wall_clock=world)
+    app = _live_app(tmp_path, config, procedure, world)
     async with app.run_test(size=(80, 24)) as pilot:
-        await until(pilot, lambda: waiting_at(app, 0))
-        devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
-        await pilot.press("r")
-        await until(pilot, lambda: waiting_at(app, 1))
+        await _first_step(app, pilot, devices, procedure)
         await pilot.press("q", "y")
     app.source.done.wait(10.0)
     assert app.source.outcome.status == "stopped"
@@ -156,7 +165,7 @@ async def _resume(tmp_path, config, world, first_step, carry):
             carry(app.spec.procedure.positions[step].attitude)
             await pilot.press("r")
         await until(pilot, lambda: app.outcome is not None and on_results(app))
-        log = " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
+        log = log_text(app)
     return app, banner, log
 
 
@@ -374,14 +383,9 @@ def log_text(app) -> str:
 async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step):
     """A live run: the first step, ``meanwhile()`` (the port goes and comes back; it returns the
     device serving now), the banner shown once the run waits for the operator at ``then_step``."""
-    config = without_table(tmp_path, devices)
-    app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config,
-                      wall_clock=world)
+    app = _live_app(tmp_path, without_table(tmp_path, devices), procedure, world)
     async with app.run_test(size=(80, 24)) as pilot:
-        await until(pilot, lambda: waiting_at(app, 0))
-        devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
-        await pilot.press("r")
-        await until(pilot, lambda: waiting_at(app, 1))
+        await _first_step(app, pilot, devices, procedure)
         devices = await meanwhile(app, pilot)
         await until(pilot, lambda: "regained" in log_text(app) and waiting_at(app, then_step))
         banner = str(app.screen.query_one("#banner").render())
