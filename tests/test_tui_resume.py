@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import os
 import re
+import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -457,3 +460,73 @@ async def test_a_unit_whose_cable_was_pulled_keeps_its_completed_steps(tmp_path,
     reader = SessionReader(tmp_path / "session")
     assert list(reader.documents("resume")) == []
     assert [s["step"] for s in reader.steps()] == [0, 1]
+
+
+# --- resumed at the console (`fieldcal resume SESSION --config`) -------------------------------
+
+class Lines:
+    """A stdout the test can wait on: what was written, and an event per awaited text."""
+
+    def __init__(self):
+        self.text = ""
+        self.changed = threading.Condition()
+
+    def write(self, data: str) -> int:
+        with self.changed:
+            self.text += data
+            self.changed.notify_all()
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def wait_for(self, text: str, timeout_s: float = 60.0) -> None:
+        with self.changed:
+            assert self.changed.wait_for(lambda: text in self.text, timeout_s), f"{text!r} never came"
+
+
+def test_a_live_session_resumed_at_the_console_after_a_power_cycle_measures_its_steps_again(
+        tmp_path, served, monkeypatch, capsys):
+    """`fieldcal resume` of a quit live run: the same device-clock check as the terminal UI's
+    resume; the operator places the unit and presses Enter."""
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from fieldcal.cli.main import main
+
+    devices = served[0]
+    procedure = two_positions(tmp_path, SHORT)
+    # The host's own clock, as the command uses: a power cycle puts the device's far behind it.
+    asyncio.run(_first_step_then_quit(tmp_path, devices, time.time, procedure))
+    (first,) = SessionReader(tmp_path / "session").steps()
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))  # no remembered setup: --config needed
+    assert main(["resume", str(tmp_path / "session")]) == 2
+    assert "give its station config (the ports) with --config" in capsys.readouterr().err
+    devices.stop()  # switched off; switched on again, plugged into another port
+    restarted = serve(4)
+    served.append(restarted)
+    config = live_config(tmp_path, restarted)
+
+    read, write = os.pipe()
+    keys = os.fdopen(write, "w")
+    out = Lines()
+    monkeypatch.setattr(sys, "stdin", os.fdopen(read, "r"))
+    monkeypatch.setattr(sys, "stdout", out)
+    with ThreadPoolExecutor(1) as pool:
+        status = pool.submit(main, ["resume", str(tmp_path / "session"), "--config", str(config.path),
+                                    "--registry", str(tmp_path / "r.sqlite")])
+        for position in procedure.positions:
+            out.wait_for(f"place the unit in position {position.id}")
+            restarted.carry(position.attitude, 2.0).result(timeout=60)
+            keys.write("\n")
+            keys.flush()
+        assert status.result(timeout=120) == 1  # two static positions calibrate nothing
+    keys.close()
+    assert "WARNING: the unit was power-cycled since the last completed step (its clock reads" in out.text
+    assert "procedure complete: 2 positions done" in out.text and "solved: nothing" in out.text
+    reader = SessionReader(tmp_path / "session")
+    assert reader.stop_reason == "completed"
+    (resume,) = [d["data"] for d in reader.documents("resume")]
+    assert resume["completed_steps"] == [] and "power-cycled" in resume["why"]
+    steps = reader.steps()
+    assert [s["step"] for s in steps] == [0, 0, 1] and steps[0] == first

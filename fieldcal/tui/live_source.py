@@ -251,7 +251,8 @@ class LiveSource(SimSource):
         if self.session_dir is None:
             return "stopped before the end"
         return ("stopped before the end; the session can be continued with "
-                f"`fieldcal tui --resume {self.session_dir} --config {self.config.path}`")
+                f"`fieldcal tui --resume {self.session_dir} --config {self.config.path}` (or at the "
+                f"console: `fieldcal resume {self.session_dir} --config {self.config.path}`)")
 
 
 def check_same_device(live, config, directory) -> None:
