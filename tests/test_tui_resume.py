@@ -251,7 +251,7 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
     assert app.outcome.status == "completed" and app.outcome.completed == 2
     reader = SessionReader(tmp_path / "session")
     (resume,) = [d["data"] for d in reader.documents("resume")]
-    assert resume["completed_steps"] == [] and "power-cycled" in resume["why"]
+    assert resume["completed_steps"] == [] and resume["dropped"] == [0] and "power-cycled" in resume["why"]
     steps = reader.steps()
     assert len(steps) == 3 and steps[0] == first  # the first measurement is kept in the session,
     kept = steps_on_record(reader)  # but no longer counted
@@ -312,7 +312,8 @@ async def test_a_device_whose_frames_carry_no_clock_is_taken_as_power_cycled(tmp
     assert "its frames carry no packet counter or time" in log
     assert app.outcome.status == "completed" and app.outcome.completed == 2
     (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
-    assert resume["completed_steps"] == [] and "may have been power-cycled" in resume["why"]
+    assert resume["completed_steps"] == [] and resume["dropped"] == [0]
+    assert "may have been power-cycled" in resume["why"]
 
 
 # --- the setup screen's offer ------------------------------------------------------------------
@@ -428,7 +429,8 @@ async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_agai
     assert app.outcome.status == "completed" and app.outcome.completed == 2
     reader = SessionReader(tmp_path / "session")
     (resume,) = [d["data"] for d in reader.documents("resume")]
-    assert resume["completed_steps"] == [] and "power-cycled while its port was lost" in resume["why"]
+    assert resume["completed_steps"] == [] and resume["dropped"] == [0]
+    assert "power-cycled while its port was lost" in resume["why"]
     steps = reader.steps()
     assert [s["step"] for s in steps] == [0, 0, 1]  # the first measurement kept in the session,
     assert [s.record.step for s in steps_on_record(reader)] == [0, 1]  # but no longer counted
@@ -527,6 +529,6 @@ def test_a_live_session_resumed_at_the_console_after_a_power_cycle_measures_its_
     reader = SessionReader(tmp_path / "session")
     assert reader.stop_reason == "completed"
     (resume,) = [d["data"] for d in reader.documents("resume")]
-    assert resume["completed_steps"] == [] and "power-cycled" in resume["why"]
+    assert resume["completed_steps"] == [] and resume["dropped"] == [0] and "power-cycled" in resume["why"]
     steps = reader.steps()
     assert [s["step"] for s in steps] == [0, 0, 1] and steps[0] == first

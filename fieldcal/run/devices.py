@@ -6,6 +6,7 @@ like hardware, so the whole path (pyserial, protocol parser, counters) is the re
 from __future__ import annotations
 
 import math
+import time
 
 from drivers.chunk import SampleChunk
 from drivers.transport import PortEvent, PortSettings, SerialReader
@@ -51,7 +52,8 @@ class DeviceConnection:
             self.protocol = device.protocol
             settings = device.port
             self.parser = make_parser(self.protocol, device.channels)
-        self.reader = SerialReader(settings, tap=tap)
+        self.arrival_clock = time.monotonic  # what the reader stamps each read's arrival with
+        self.reader = SerialReader(settings, tap=tap, clock=self.arrival_clock)
 
     def __enter__(self) -> DeviceConnection:
         if self.simulated:

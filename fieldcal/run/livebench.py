@@ -107,7 +107,8 @@ class LiveBench:
 
     def _clock_at(self, arrival: float, chunk) -> DeviceClock:
         """The device's clock in ``chunk``, with the host's wall time when its bytes arrived."""
-        return clock_of(chunk, self.connection.parser, self.wall_clock() - max(0.0, self.clock() - arrival))
+        age = max(0.0, self.connection.arrival_clock() - arrival)
+        return clock_of(chunk, self.connection.parser, self.wall_clock() - age)
 
     def first_clock(self, timeout_s: float, cancelled=lambda: False, fresh_s: float = 1.0) -> DeviceClock | None:
         """Wait (up to ``timeout_s`` of wall time) for the first frames and return the device's

@@ -142,7 +142,8 @@ class LiveSource(SimSource):
             conductor = Conductor(self.spec, self.bench, self, [self], session=self.session_dir,
                                   settings=self.settings)
             self.conductor = conductor
-            conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why)
+            conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why,
+                              dropped=sorted({s.record.step for s in steps} - {s.record.step for s in kept}))
             # (locked by another station, read-only, damaged: the ports are closed again, so a
             # retry from the setup screen does not open the device a second time)
             self._record_to(SessionRecorder.append_to(self.session_dir))
@@ -200,9 +201,9 @@ class LiveSource(SimSource):
             kept = f"; the {done} completed step{'s are' if done != 1 else ' is'} kept" if done else ""
             return [Say(f"port {self.bench.url} regained: {check.reason}{kept}")]
         skipped = tuple(sorted(e.skipped))
-        self._items.append(ResumeNote(e.t, f"WARNING: {why}", power_cycle_banner(check, done, "while the port was lost"),
-                                      warn=True, skipped=skipped))
-        return [Restart(ResumePoint((), skipped, why))]
+        banner = power_cycle_banner(check, done, "while the port was lost")
+        self._items.append(ResumeNote(e.t, f"WARNING: {why}", banner, warn=True, skipped=skipped))
+        return [Restart(ResumePoint((), skipped, why, tuple(sorted(e.records))))]
 
     def _holds_for_keys(self, run: Conductor) -> bool:
         return False  # samples flow all the time, also while the operator places the unit
