@@ -362,9 +362,9 @@ async def test_the_setup_screen_offers_an_unfinished_session_and_resumes_it(tmp_
 
 # --- the port lost and regained mid-run ---------------------------------------------------------
 
-def without_table(tmp_path, devices):
-    """``live_config`` without the table: a power cycle of the unit alone (static steps)."""
-    path = Path(live_config(tmp_path, devices).path)
+def without_table(tmp_path, devices, make_config=live_config):
+    """``make_config`` without the table: a power cycle of the unit alone (static steps)."""
+    path = Path(make_config(tmp_path, devices).path)
     path.write_text(re.sub(r"table:\n(  .*\n)+", "", path.read_text()))
     return load_config(path)
 
@@ -384,10 +384,10 @@ def log_text(app) -> str:
     return " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
 
 
-async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step):
+async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step, make_config=live_config):
     """A live run: the first step, ``meanwhile()`` (the port goes and comes back; it returns the
     device serving now), the banner shown once the run waits for the operator at ``then_step``."""
-    app = _live_app(tmp_path, without_table(tmp_path, devices), procedure, world)
+    app = _live_app(tmp_path, without_table(tmp_path, devices, make_config), procedure, world)
     async with app.run_test(size=(80, 24)) as pilot:
         await _first_step(app, pilot, devices, procedure)
         devices = await meanwhile(app, pilot)
@@ -442,6 +442,33 @@ async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_agai
     assert unit.failures == app.outcome.unit.failures
 
 
+def _cable_pulled(devices):
+    """``meanwhile`` for ``_step_one_then``: the cable pulled and plugged back, the unit running on."""
+    async def cable_pulled_and_plugged_back(app, pilot):
+        devices.imu_link.unplug()
+        await until(pilot, lambda: ": lost" in log_text(app))
+        devices.imu_link.replug()
+        return devices
+    return cable_pulled_and_plugged_back
+
+
+@run_async
+async def test_a_unit_whose_frames_carry_no_clock_has_its_steps_measured_again_after_a_pulled_cable(tmp_path):
+    """VectorNav ASCII: nothing tells whether the unit was cycled while its port was lost."""
+    devices = serve(5, "vectornav")
+    try:
+        app, banner, log = await _step_one_then(tmp_path, devices, WorldClock(devices), two_positions(tmp_path, SHORT),
+                                                _cable_pulled(devices), 0, vectornav_config)
+    finally:
+        devices.stop()
+    assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
+                             "changed; the 1 completed step is measured again")
+    assert "its frames carry no packet counter or time" in log
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
+    assert resume["dropped"] == [0] and "may have been power-cycled while its port was lost" in resume["why"]
+
+
 @run_async
 async def test_a_unit_whose_cable_was_pulled_keeps_its_completed_steps(tmp_path, served):
     """The port is lost and comes back with the unit's clock run on: nothing is measured again."""
@@ -449,13 +476,7 @@ async def test_a_unit_whose_cable_was_pulled_keeps_its_completed_steps(tmp_path,
     world = WorldClock(devices)
     procedure = two_positions(tmp_path, SHORT)
 
-    async def cable_pulled_and_plugged_back(app, pilot):
-        devices.imu_link.unplug()
-        await until(pilot, lambda: ": lost" in log_text(app))
-        devices.imu_link.replug()
-        return devices
-
-    app, banner, log = await _step_one_then(tmp_path, devices, world, procedure, cable_pulled_and_plugged_back, 1)
+    app, banner, log = await _step_one_then(tmp_path, devices, world, procedure, _cable_pulled(devices), 1)
     assert "POWER-CYCLED" not in banner and "power-cycled" not in log
     assert f"port {devices.imu_url} regained: its clock ran on" in log and "the 1 completed step is kept" in log
     assert app.outcome.status == "completed" and app.outcome.completed == 2
