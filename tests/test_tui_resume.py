@@ -245,13 +245,10 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
 
     app, banner, log = await _resume(tmp_path, config, world, 0,
                                      lambda attitude: restarted.carry(attitude, 2.0).result(timeout=60))
-    assert banner.startswith("POWER-CYCLED since the last step: its gyro turn-on bias may have changed; "
-                             "the 1 completed step is measured again")
-    assert "WARNING: the unit was power-cycled since the last completed step (its clock reads" in log
-    assert app.outcome.status == "completed" and app.outcome.completed == 2
-    reader = SessionReader(tmp_path / "session")
-    (resume,) = [d["data"] for d in reader.documents("resume")]
-    assert resume["completed_steps"] == [] and resume["dropped"] == [0] and "power-cycled" in resume["why"]
+    reader, why = _first_step_measured_again(
+        tmp_path, app, banner, log, "POWER-CYCLED since the last step",
+        "WARNING: the unit was power-cycled since the last completed step (its clock reads")
+    assert "power-cycled" in why
     steps = reader.steps()
     assert len(steps) == 3 and steps[0] == first  # the first measurement is kept in the session,
     kept = steps_on_record(reader)  # but no longer counted
@@ -307,13 +304,25 @@ async def test_a_device_whose_frames_carry_no_clock_is_taken_as_power_cycled(tmp
                                          lambda attitude: devices.carry(attitude, 2.0).result(timeout=60))
     finally:
         devices.stop()
-    assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
-                             "changed; the 1 completed step is measured again")
-    assert "its frames carry no packet counter or time" in log
+    _, why = _first_step_measured_again(tmp_path, app, banner, log, CANNOT_TELL, NO_CLOCK)
+    assert "may have been power-cycled since" in why
+
+
+def _first_step_measured_again(tmp_path, app, banner: str, log: str, said: str, logged: str):
+    """The banner ``said`` so and the log ``logged`` why, the first step was measured again and
+    the run completed: the session's reader and its resume document's why."""
+    assert banner.startswith(f"{said}: its gyro turn-on bias may have changed; the 1 completed step is "
+                             "measured again")
+    assert logged in log
     assert app.outcome.status == "completed" and app.outcome.completed == 2
-    (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
+    reader = SessionReader(tmp_path / "session")
+    (resume,) = [d["data"] for d in reader.documents("resume")]
     assert resume["completed_steps"] == [] and resume["dropped"] == [0]
-    assert "may have been power-cycled" in resume["why"]
+    return reader, resume["why"]
+
+
+CANNOT_TELL = "CANNOT TELL whether the unit was power-cycled"
+NO_CLOCK = "its frames carry no packet counter or time"
 
 
 # --- the setup screen's offer ------------------------------------------------------------------
@@ -423,14 +432,10 @@ async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_agai
     finally:
         link.unlink(missing_ok=True)
         link.parent.rmdir()
-    assert banner.startswith("POWER-CYCLED while the port was lost: its gyro turn-on bias may have changed; "
-                             "the 1 completed step is measured again")
-    assert "WARNING: the unit was power-cycled while its port was lost (its clock reads" in log
-    assert app.outcome.status == "completed" and app.outcome.completed == 2
-    reader = SessionReader(tmp_path / "session")
-    (resume,) = [d["data"] for d in reader.documents("resume")]
-    assert resume["completed_steps"] == [] and resume["dropped"] == [0]
-    assert "power-cycled while its port was lost" in resume["why"]
+    reader, why = _first_step_measured_again(
+        tmp_path, app, banner, log, "POWER-CYCLED while the port was lost",
+        "WARNING: the unit was power-cycled while its port was lost (its clock reads")
+    assert "power-cycled while its port was lost" in why
     steps = reader.steps()
     assert [s["step"] for s in steps] == [0, 0, 1]  # the first measurement kept in the session,
     assert [s.record.step for s in steps_on_record(reader)] == [0, 1]  # but no longer counted
@@ -461,12 +466,8 @@ async def test_a_unit_whose_frames_carry_no_clock_has_its_steps_measured_again_a
                                                 _cable_pulled(devices), 0, vectornav_config)
     finally:
         devices.stop()
-    assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
-                             "changed; the 1 completed step is measured again")
-    assert "its frames carry no packet counter or time" in log
-    assert app.outcome.status == "completed" and app.outcome.completed == 2
-    (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
-    assert resume["dropped"] == [0] and "may have been power-cycled while its port was lost" in resume["why"]
+    _, why = _first_step_measured_again(tmp_path, app, banner, log, CANNOT_TELL, NO_CLOCK)
+    assert "may have been power-cycled while its port was lost" in why
 
 
 @run_async
