@@ -400,7 +400,8 @@ async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_st
     async with app.run_test(size=(80, 24)) as pilot:
         await _first_step(app, pilot, devices, procedure)
         devices = await meanwhile(app, pilot)
-        await until(pilot, lambda: "regained" in log_text(app) and waiting_at(app, then_step))
+        await until(pilot, lambda: "regained" in log_text(app) and waiting_at(app, then_step)
+                    and app.telemetry.silent_s is None)  # (not the outage's NO SAMPLES banner)
         banner = str(app.screen.query_one("#banner").render())
         for step in range(then_step, len(procedure.positions)):
             await until(pilot, lambda step=step: waiting_at(app, step))

@@ -85,7 +85,7 @@ class LiveBench:
             detail = f": {pe.message}" if pe.message and pe.message != self.url else ""
             self.say(f"port {self.url}: {pe.kind}{f' after {pe.gap_s:.1f} s' if pe.gap_s else ''}{detail}")
         now = self.clock()
-        if chunks:
+        if chunks or self._pending:  # (frames held back after a regain came too: not a silence)
             self._last_sample_wall, self._silent_reported = now, False
         elif now - self._last_sample_wall > self.silence_s and not self._silent_reported:
             self._silent_reported = True
