@@ -210,3 +210,131 @@ def test_the_operator_is_kept_in_the_session_the_parameter_file_and_the_registry
     # a name that could not be printed on one line is refused before anything runs
     assert main(argv[:-1] + ["A.\nNg"]) == 2
     assert capsys.readouterr().err.startswith("fieldcal: --operator: expected a name of 1 to 100")
+
+
+class DeadServer:
+    """A TCP port on 127.0.0.1 that takes each connection and hangs up at once (a server going
+    down), counting the connections a client makes."""
+
+    def __init__(self):
+        import socket
+        import threading
+
+        self.socket = socket.create_server(("127.0.0.1", 0))
+        self.port = self.socket.getsockname()[1]
+        self.connections = 0
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        while True:
+            try:
+                client, _ = self.socket.accept()
+            except OSError:  # closed
+                return
+            self.connections += 1
+            client.close()
+
+    def close(self):
+        self.socket.close()
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _registry_lines(err: str) -> list[str]:
+    return [line for line in err.splitlines() if "unit registry" in line]
+
+
+def test_resolve_with_a_registry_nobody_answers_says_it_once_and_re_solves_every_session(
+        pristine_session, tmp_path, capsys):
+    """A PostgreSQL URL whose port has no server: one line says so (the password hidden), every
+    session is re-solved all the same, and the end names the rebuild that indexes them."""
+    pytest.importorskip("psycopg")
+    batch = tmp_path / "batch"
+    sessions = [_copy(pristine_session, batch / name) for name in "abc"]
+    url = f"postgresql://fieldcal:s3cret@127.0.0.1:{_free_port()}/line"
+    hidden = url.replace("s3cret", "***")
+
+    status = main(["resolve", str(batch), "-j", "2", "--method", "lsq", "--registry", url])
+    out, err = capsys.readouterr()
+    assert status == 0 and out.splitlines()[-1] == "3 re-solved, 0 failed"
+    assert all((s / "parameters-002.yaml").is_file() for s in sessions)
+    warning, summary = _registry_lines(err)
+    assert warning.startswith(f"warning: the unit registry ({hidden}) was not updated: RegistryError: "
+                              "cannot connect: ")
+    rebuild = f"fieldcal registry rebuild {batch} --registry '{hidden}'"  # quoted: *** is a glob
+    assert f"`{rebuild}` will index them" in warning
+    assert summary == f"3 calibrations not in the unit registry ({hidden}): index them with `{rebuild}`"
+    assert "s3cret" not in out + err
+
+
+def test_resolve_tries_a_registry_that_hangs_up_once_not_once_per_session(pristine_session, tmp_path, capsys):
+    """The server takes the connection and drops it: as many connections as one record makes,
+    however many sessions the batch has; and the sessions index later with the rebuild named."""
+    pytest.importorskip("psycopg")
+    from fieldcal.registry import record_safely
+
+    batch = tmp_path / "batch"
+    for name in "abc":
+        _copy(pristine_session, batch / name)
+    server = DeadServer()
+    try:
+        url = f"postgresql://fieldcal@127.0.0.1:{server.port}/line"
+        assert not record_safely(batch / "a" / "parameters-001.yaml", None, url, warn=lambda text: None)
+        one_record = server.connections
+        assert one_record >= 1
+        assert main(["resolve", str(batch), "--registry", url]) == 0
+        err = capsys.readouterr().err
+        assert server.connections == 2 * one_record
+    finally:
+        server.close()
+    warning, summary = _registry_lines(err)
+    assert warning.startswith(f"warning: the unit registry ({url}) was not updated: RegistryError: ")
+    assert summary.startswith(f"3 calibrations not in the unit registry ({url})")
+    db = tmp_path / "r.sqlite"  # the rebuild it names, on a registry that works
+    assert main(["registry", "rebuild", str(batch), "--registry", str(db)]) == 0
+    with Registry(db) as registry:
+        assert registry.query("SELECT COUNT(*) FROM calibrations")[0][0] == 3  # each re-solve: unchanged
+
+
+def test_resolve_with_a_registry_server_stopped_mid_batch_says_it_once(pristine_session, tmp_path, capsys,
+                                                                      monkeypatch):
+    """A real PostgreSQL server records the first session's calibration and is stopped: the next
+    record fails, is said once, and the rest of the batch is re-solved without trying again."""
+    from postgres_server import SUPERUSER, _started
+
+    from fieldcal.registry import BatchRecorder
+
+    batch = tmp_path / "batch"
+    for name in "abc":
+        _copy(pristine_session, batch / name)
+    server = _started()
+    try:
+        url = server.url("postgres")
+        tries = []
+        record = BatchRecorder.record
+
+        def record_then_stop_the_server(self, params, passed=None):
+            tries.append(params)
+            done = record(self, params, passed)
+            if len(tries) == 1:
+                assert done  # the first is in the registry
+                server.stop()
+                server.port = 0  # (stopped: nothing left for the finally to stop)
+            return done
+        monkeypatch.setattr(BatchRecorder, "record", record_then_stop_the_server)
+        assert main(["resolve", str(batch), "--method", "lsq", "--registry", url]) == 0
+    finally:
+        server.stop()
+    out, err = capsys.readouterr()
+    assert out.splitlines()[-1] == "3 re-solved, 0 failed" and len(tries) == 3
+    warning, summary = _registry_lines(err)
+    assert warning.startswith(f"warning: the unit registry ({url}) was not updated: RegistryError: cannot connect")
+    assert summary.startswith(f"2 calibrations not in the unit registry ({url}): index them with "
+                              f"`fieldcal registry rebuild {batch} --registry ")
+    assert SUPERUSER in url

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +22,7 @@ from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.cli.tui import live_spec
 from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, on_results, run_async, two_positions, until, waiting_at
+from tests.tui_pilot import log_settled
 
 STATION = Station(40.0, 50.0)
 OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart")
@@ -144,3 +146,36 @@ async def test_a_lost_device_is_said_at_once_the_dwell_waits_and_quitting_is_cle
         await pilot.press("q", "y")
     app.source.done.wait(10.0)
     assert app.source.outcome.status == "stopped"  # not an error: the ports were closed cleanly
+
+
+@run_async
+async def test_a_table_whose_port_goes_away_is_said_and_the_run_waits_for_the_operator(tmp_path, devices):
+    """The table's cable is pulled (its port fails with EIO) while the unit sends on: the station
+    says so and waits for the operator to skip or abort, as for any table that refuses a
+    command; the run does not end in an error. (Under load the old code hit this when the device
+    and table stopped while a backlog of samples was still being fed: the test above.)"""
+    from drivers.sim.ports import PtyLink
+
+    table = PtyLink()  # a table port nobody answers on; closed below, as a pulled cable
+    try:
+        config = live_config(tmp_path, devices)
+        path = Path(config.path)
+        path.write_text(path.read_text().replace(devices.table_url, table.url))
+        config = load_config(path)
+        procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+        app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: waiting_at(app, 0))
+            table.close()  # the station holds the port open; its far end is gone
+            devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
+            await pilot.press("r")
+            await until(pilot, lambda: log_settled(app, "ERROR: table: its port"))
+            assert app.outcome is None and not app.source.done.is_set()
+            log = " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
+            assert f"its port {table.url} failed" in log and "skip this step (s) or abort (a)" in log
+            await pilot.press("a", "y")
+            await until(pilot, lambda: app.outcome is not None)
+        app.source.done.wait(10.0)
+    finally:
+        table.close()
+    assert app.source.outcome.status == "aborted"

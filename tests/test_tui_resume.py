@@ -4,6 +4,11 @@ power-cycled in between; and the device-clock judgement itself, on hand-worked c
 frame bytes."""
 from __future__ import annotations
 
+import os
+import re
+import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -128,15 +133,24 @@ def vectornav_config(tmp_path, devices):
     return load_config(path)
 
 
+def _live_app(tmp_path, config, procedure, world) -> FieldcalApp:
+    return FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config,
+                       wall_clock=world)
+
+
+async def _first_step(app, pilot, devices, procedure) -> None:
+    """The operator places the unit for the first step; the run then waits at the second."""
+    await until(pilot, lambda: waiting_at(app, 0))
+    devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
+    await pilot.press("r")
+    await until(pilot, lambda: waiting_at(app, 1))
+
+
 async def _first_step_then_quit(tmp_path, devices, world, procedure, make_config=live_config):
     config = make_config(tmp_path, devices)
-    app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config,
-                      wall_clock=world)
+    app = _live_app(tmp_path, config, procedure, world)
     async with app.run_test(size=(80, 24)) as pilot:
-        await until(pilot, lambda: waiting_at(app, 0))
-        devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
-        await pilot.press("r")
-        await until(pilot, lambda: waiting_at(app, 1))
+        await _first_step(app, pilot, devices, procedure)
         await pilot.press("q", "y")
     app.source.done.wait(10.0)
     assert app.source.outcome.status == "stopped"
@@ -154,7 +168,7 @@ async def _resume(tmp_path, config, world, first_step, carry):
             carry(app.spec.procedure.positions[step].attitude)
             await pilot.press("r")
         await until(pilot, lambda: app.outcome is not None and on_results(app))
-        log = " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
+        log = log_text(app)
     return app, banner, log
 
 
@@ -231,13 +245,10 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
 
     app, banner, log = await _resume(tmp_path, config, world, 0,
                                      lambda attitude: restarted.carry(attitude, 2.0).result(timeout=60))
-    assert banner.startswith("POWER-CYCLED since the last step: its gyro turn-on bias may have changed; "
-                             "the 1 completed step is measured again")
-    assert "WARNING: the unit was power-cycled since the last completed step (its clock reads" in log
-    assert app.outcome.status == "completed" and app.outcome.completed == 2
-    reader = SessionReader(tmp_path / "session")
-    (resume,) = [d["data"] for d in reader.documents("resume")]
-    assert resume["completed_steps"] == [] and "power-cycled" in resume["why"]
+    reader, why = _first_step_measured_again(
+        tmp_path, app, banner, log, "POWER-CYCLED since the last step",
+        "WARNING: the unit was power-cycled since the last completed step (its clock reads")
+    assert "power-cycled" in why
     steps = reader.steps()
     assert len(steps) == 3 and steps[0] == first  # the first measurement is kept in the session,
     kept = steps_on_record(reader)  # but no longer counted
@@ -293,12 +304,25 @@ async def test_a_device_whose_frames_carry_no_clock_is_taken_as_power_cycled(tmp
                                          lambda attitude: devices.carry(attitude, 2.0).result(timeout=60))
     finally:
         devices.stop()
-    assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
-                             "changed; the 1 completed step is measured again")
-    assert "its frames carry no packet counter or time" in log
+    _, why = _first_step_measured_again(tmp_path, app, banner, log, CANNOT_TELL, NO_CLOCK)
+    assert "may have been power-cycled since" in why
+
+
+def _first_step_measured_again(tmp_path, app, banner: str, log: str, said: str, logged: str):
+    """The banner ``said`` so and the log ``logged`` why, the first step was measured again and
+    the run completed: the session's reader and its resume document's why."""
+    assert banner.startswith(f"{said}: its gyro turn-on bias may have changed; the 1 completed step is "
+                             "measured again")
+    assert logged in log
     assert app.outcome.status == "completed" and app.outcome.completed == 2
-    (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
-    assert resume["completed_steps"] == [] and "may have been power-cycled" in resume["why"]
+    reader = SessionReader(tmp_path / "session")
+    (resume,) = [d["data"] for d in reader.documents("resume")]
+    assert resume["completed_steps"] == [] and resume["dropped"] == [0]
+    return reader, resume["why"]
+
+
+CANNOT_TELL = "CANNOT TELL whether the unit was power-cycled"
+NO_CLOCK = "its frames carry no packet counter or time"
 
 
 # --- the setup screen's offer ------------------------------------------------------------------
@@ -343,3 +367,191 @@ async def test_the_setup_screen_offers_an_unfinished_session_and_resumes_it(tmp_
         await until(pilot, lambda: app.outcome is not None and on_results(app))
     assert app.outcome.status == "completed" and app.outcome.completed == 2
     assert SessionReader(sessions / "quit-after-one").stop_reason == "completed"
+
+
+# --- the port lost and regained mid-run ---------------------------------------------------------
+
+def without_table(tmp_path, devices, make_config=live_config):
+    """``make_config`` without the table: a power cycle of the unit alone (static steps)."""
+    path = Path(make_config(tmp_path, devices).path)
+    path.write_text(re.sub(r"table:\n(  .*\n)+", "", path.read_text()))
+    return load_config(path)
+
+
+def power_cycle(devices: SimulatedDevices, seed: int) -> SimulatedDevices:
+    """The unit switched off and on again on the same port (its by-id link): a new simulated unit,
+    its clock from zero and its own turn-on bias, served behind the old one's path."""
+    path = Path(devices.imu_url)
+    devices.stop()  # its pty closes: the station's port fails
+    restarted = serve(seed)
+    path.parent.mkdir(exist_ok=True)
+    path.symlink_to(os.readlink(restarted.imu_url))
+    return restarted
+
+
+def log_text(app) -> str:
+    return " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
+
+
+async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step, make_config=live_config):
+    """A live run: the first step, ``meanwhile()`` (the port goes and comes back; it returns the
+    device serving now), the banner shown once the run waits for the operator at ``then_step``."""
+    app = _live_app(tmp_path, without_table(tmp_path, devices, make_config), procedure, world)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await _first_step(app, pilot, devices, procedure)
+        devices = await meanwhile(app, pilot)
+        await until(pilot, lambda: "regained" in log_text(app) and waiting_at(app, then_step)
+                    and app.telemetry.silent_s is None)  # (not the outage's NO SAMPLES banner)
+        banner = str(app.screen.query_one("#banner").render())
+        for step in range(then_step, len(procedure.positions)):
+            await until(pilot, lambda step=step: waiting_at(app, step))
+            devices.carry(procedure.positions[step].attitude, 2.0).result(timeout=60)
+            await pilot.press("r")
+            await until(pilot, lambda step=step: app.telemetry.step > step or app.outcome is not None)
+        await until(pilot, lambda: app.outcome is not None and on_results(app))
+        log = log_text(app)
+    return app, banner, log
+
+
+@run_async
+async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_again(tmp_path, served):
+    """The port is lost and comes back with the unit's clock restarted: the station says so and
+    the run starts over, keeping the old step documents but no longer counting them."""
+    devices = served[0]
+    world = WorldClock(devices)
+    procedure = two_positions(tmp_path, SHORT)
+    link = Path(devices.imu_url)
+
+    async def switched_off_and_on(app, pilot):
+        restarted = power_cycle(devices, 4)
+        served.append(restarted)
+        world.switch(restarted)
+        return restarted
+
+    try:
+        app, banner, log = await _step_one_then(tmp_path, devices, world, procedure, switched_off_and_on, 0)
+    finally:
+        link.unlink(missing_ok=True)
+        link.parent.rmdir()
+    reader, why = _first_step_measured_again(
+        tmp_path, app, banner, log, "POWER-CYCLED while the port was lost",
+        "WARNING: the unit was power-cycled while its port was lost (its clock reads")
+    assert "power-cycled while its port was lost" in why
+    steps = reader.steps()
+    assert [s["step"] for s in steps] == [0, 0, 1]  # the first measurement kept in the session,
+    assert [s.record.step for s in steps_on_record(reader)] == [0, 1]  # but no longer counted
+    assert steps_on_record(reader)[0].record.to_dict() != \
+        {k: v for k, v in steps[0].items() if k not in ("skipped", "bench")}
+    replayed = []
+    unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
+    assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
+    assert unit.failures == app.outcome.unit.failures
+
+
+def _cable_pulled(devices):
+    """``meanwhile`` for ``_step_one_then``: the cable pulled and plugged back, the unit running on."""
+    async def cable_pulled_and_plugged_back(app, pilot):
+        devices.imu_link.unplug()
+        await until(pilot, lambda: ": lost" in log_text(app))
+        devices.imu_link.replug()
+        return devices
+    return cable_pulled_and_plugged_back
+
+
+@run_async
+async def test_a_unit_whose_frames_carry_no_clock_has_its_steps_measured_again_after_a_pulled_cable(tmp_path):
+    """VectorNav ASCII: nothing tells whether the unit was cycled while its port was lost."""
+    devices = serve(5, "vectornav")
+    try:
+        app, banner, log = await _step_one_then(tmp_path, devices, WorldClock(devices), two_positions(tmp_path, SHORT),
+                                                _cable_pulled(devices), 0, vectornav_config)
+    finally:
+        devices.stop()
+    _, why = _first_step_measured_again(tmp_path, app, banner, log, CANNOT_TELL, NO_CLOCK)
+    assert "may have been power-cycled while its port was lost" in why
+
+
+@run_async
+async def test_a_unit_whose_cable_was_pulled_keeps_its_completed_steps(tmp_path, served):
+    """The port is lost and comes back with the unit's clock run on: nothing is measured again."""
+    devices = served[0]
+    world = WorldClock(devices)
+    procedure = two_positions(tmp_path, SHORT)
+
+    app, banner, log = await _step_one_then(tmp_path, devices, world, procedure, _cable_pulled(devices), 1)
+    assert "POWER-CYCLED" not in banner and "power-cycled" not in log
+    assert f"port {devices.imu_url} regained: its clock ran on" in log and "the 1 completed step is kept" in log
+    assert app.outcome.status == "completed" and app.outcome.completed == 2
+    reader = SessionReader(tmp_path / "session")
+    assert list(reader.documents("resume")) == []
+    assert [s["step"] for s in reader.steps()] == [0, 1]
+
+
+# --- resumed at the console (`fieldcal resume SESSION --config`) -------------------------------
+
+class Lines:
+    """A stdout the test can wait on: what was written, and an event per awaited text."""
+
+    def __init__(self):
+        self.text = ""
+        self.changed = threading.Condition()
+
+    def write(self, data: str) -> int:
+        with self.changed:
+            self.text += data
+            self.changed.notify_all()
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def wait_for(self, text: str, timeout_s: float = 60.0) -> None:
+        with self.changed:
+            assert self.changed.wait_for(lambda: text in self.text, timeout_s), f"{text!r} never came"
+
+
+def test_a_live_session_resumed_at_the_console_after_a_power_cycle_measures_its_steps_again(
+        tmp_path, served, monkeypatch, capsys):
+    """`fieldcal resume` of a quit live run: the same device-clock check as the terminal UI's
+    resume; the operator places the unit and presses Enter."""
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from fieldcal.cli.main import main
+
+    devices = served[0]
+    procedure = two_positions(tmp_path, SHORT)
+    # The host's own clock, as the command uses: a power cycle puts the device's far behind it.
+    asyncio.run(_first_step_then_quit(tmp_path, devices, time.time, procedure))
+    (first,) = SessionReader(tmp_path / "session").steps()
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))  # no remembered setup: --config needed
+    assert main(["resume", str(tmp_path / "session")]) == 2
+    assert "give its station config (the ports) with --config" in capsys.readouterr().err
+    devices.stop()  # switched off; switched on again, plugged into another port
+    restarted = serve(4)
+    served.append(restarted)
+    config = live_config(tmp_path, restarted)
+
+    read, write = os.pipe()
+    keys = os.fdopen(write, "w")
+    out = Lines()
+    monkeypatch.setattr(sys, "stdin", os.fdopen(read, "r"))
+    monkeypatch.setattr(sys, "stdout", out)
+    with ThreadPoolExecutor(1) as pool:
+        status = pool.submit(main, ["resume", str(tmp_path / "session"), "--config", str(config.path),
+                                    "--registry", str(tmp_path / "r.sqlite")])
+        for position in procedure.positions:
+            out.wait_for(f"place the unit in position {position.id}")
+            restarted.carry(position.attitude, 2.0).result(timeout=60)
+            keys.write("\n")
+            keys.flush()
+        assert status.result(timeout=120) == 1  # two static positions calibrate nothing
+    keys.close()
+    assert "WARNING: the unit was power-cycled since the last completed step (its clock reads" in out.text
+    assert "procedure complete: 2 positions done" in out.text and "solved: nothing" in out.text
+    reader = SessionReader(tmp_path / "session")
+    assert reader.stop_reason == "completed"
+    (resume,) = [d["data"] for d in reader.documents("resume")]
+    assert resume["completed_steps"] == [] and resume["dropped"] == [0] and "power-cycled" in resume["why"]
+    steps = reader.steps()
+    assert [s["step"] for s in steps] == [0, 0, 1] and steps[0] == first

@@ -214,10 +214,15 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="only the result, no progress lines")
     run.set_defaults(func=_lazy("cmd_run"))
 
-    resume = sub.add_parser("resume", help="continue a headless run that was killed",
+    resume = sub.add_parser("resume", help="continue a run that was killed or quit (headless)",
                             description="Continue a session after its last completed step; the "
-                            "result is what the uninterrupted run would have given.")
+                            "result is what the uninterrupted run would have given. A real device's "
+                            "session is continued on the ports of --config, its clock checked for a "
+                            "power cycle as `fieldcal tui --resume` does, the operator at the console.")
     resume.add_argument("session", help="session directory")
+    resume.add_argument("--config", metavar="CONFIG", help="a real device's session: the station config "
+                        "whose ports it is resumed on (the same device; default: the terminal UI setup's "
+                        "last choice); the operator places the unit and presses Enter at the console")
     resume.add_argument("--quiet", action="store_true")
     resume.set_defaults(func=_lazy("cmd_resume"))
 

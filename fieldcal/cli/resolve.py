@@ -6,7 +6,10 @@ unfinished one is resumed, not re-solved, and an aborted one is no calibration o
 damaged, locked by a running station) is reported in one line and skipped; the batch always goes on, and the
 exit status says whether any failed. A re-solve giving the bytes of the session's current
 parameter file writes nothing (it is already there). Only the parent process writes the
-registry, one record per session as it finishes, so the workers never contend for it.
+registry, one record per session as it finishes, so the workers never contend for it. A registry
+that cannot be written (a server down, or gone mid-batch) is said once and not tried again: the
+batch re-solves every session all the same, and ends naming the ``fieldcal registry rebuild``
+that indexes them later.
 """
 from __future__ import annotations
 
@@ -84,7 +87,11 @@ def _results(sessions: list[str], method: str | None, jobs: int):
 
 
 def cmd_resolve(args) -> int:
-    from fieldcal.cli.production import EXIT_FAILED_SPEC, find_sessions, load_spec_option, record_in_registry
+    import shlex
+
+    from fieldcal.cli.production import EXIT_FAILED_SPEC, find_sessions, load_spec_option
+    from fieldcal.registry import BatchRecorder
+    from fieldcal.registry.backends import redact
 
     spec = load_spec_option(args)
     # each session once, however it was named (two workers on one session: one would be refused)
@@ -98,6 +105,11 @@ def cmd_resolve(args) -> int:
     jobs = min(args.jobs, len(sessions))
     print(f"re-solving {len(sessions)} session{'s' * (len(sessions) != 1)} in {jobs} "
           f"process{'es' * (jobs != 1)}", flush=True)
+    # One registry for the batch: a server that is down is found once, not waited for per session.
+    rebuild = " ".join(["fieldcal registry rebuild", *map(shlex.quote, args.directory)]
+                       + (["--registry", shlex.quote(redact(args.registry))] if args.registry else []))
+    registry = BatchRecorder(args.registry, warn=lambda text: print(text, file=sys.stderr), source="resolve",
+                             require_tls=args.registry_require_tls, rebuild=rebuild)
     failed = spec_failed = 0
     for done, result in enumerate(_results(sessions, args.method, jobs), start=1):
         passed = None
@@ -112,9 +124,11 @@ def cmd_resolve(args) -> int:
         failed += result.params is None
         print(f"[{done}/{len(sessions)}] {result.line}", flush=True)
         if result.params is not None:
-            record_in_registry(args, result.params, passed, "resolve")
+            registry.record(result.params, passed)
     print(f"{len(sessions) - failed} re-solved, {failed} failed"
           + (f", {spec_failed} failed {spec.path}" if spec is not None else ""), flush=True)
+    if (missed := registry.summary()) is not None:
+        print(missed, file=sys.stderr)
     if failed:
         return EXIT_SOME_FAILED
     return EXIT_FAILED_SPEC if spec_failed else 0

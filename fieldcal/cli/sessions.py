@@ -18,7 +18,7 @@ def _print_result(result, out) -> int:
     worst = worst_error(result.unit.solutions, result.truth)
     for name, why in result.unit.failures.items():
         print(f"\n{name}: not calibrated: {why}", file=out)
-    if result.unit.solutions:
+    if result.unit.solutions and result.truth:  # (a real device has no truth)
         print(f"\nlargest error against the simulation truth: {worst:.2f}σ", file=out)
     print(f"session: {result.session}", file=out)
     if result.parameters:
@@ -99,7 +99,7 @@ def cmd_resume(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import resume_headless
 
-    reader, _, steps = _procedure_session(args.session)
+    reader, spec, steps = _procedure_session(args.session)
     if reader.start.get("device", {}).get("link") == "pty":
         raise ValueError(f"{args.session}: a run through a serial device cannot be resumed (the "
                          "device cannot be rewound); replay it, or run again")
@@ -110,10 +110,26 @@ def cmd_resume(args) -> int:
                             if completed else "nothing to resume"))
     done = len(steps)
     warn_if_torn(args.session)  # what resuming will cut away
-    print(f"resuming {args.session} after {done} completed step{'s' if done != 1 else ''}", flush=True)
     from fieldcal.cli.production import accept_after
+    if spec.live is not None:
+        return accept_after(args, None, *_resume_live(args, spec))
+    print(f"resuming {args.session} after {done} completed step{'s' if done != 1 else ''}", flush=True)
     result = resume_headless(Path(args.session), printer(sys.stdout, args.quiet))
     return accept_after(args, None, result.parameters, _print_result(result, sys.stdout))
+
+
+def _resume_live(args, spec) -> tuple:
+    """A real device's session, on the ports of --config (else the terminal UI setup's last
+    choice), the operator at the console: (parameter file or None, exit status)."""
+    from fieldcal.cli.tui import resume_config
+    from fieldcal.tui.console import resume_live
+
+    config = resume_config(Path(args.session), spec.live, args.config)
+    result = resume_live(Path(args.session), config, sys.stdin, sys.stdout, args.quiet)
+    if result.status in ("stopped", "error"):
+        print(result.message, file=sys.stdout if result.status == "stopped" else sys.stderr)
+        return None, 1
+    return result.parameters, _print_result(result, sys.stdout)
 
 
 def cmd_replay(args) -> int:

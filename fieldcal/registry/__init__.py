@@ -255,7 +255,21 @@ RECORD_DEADLINE_S = 60.0  # past the lock wait and a migration: a registry this 
 def record_safely(params, passed: bool | None, registry=None, warn=print, source: str = "",
                   require_tls: bool = False, deadline_s: float = RECORD_DEADLINE_S) -> bool:
     """Record ``params`` in the registry at ``registry`` (see ``Registry``); any failure is a
-    warning, never an exception: the session is already complete and is the source of truth.
+    warning, never an exception: the session is already complete and is the source of truth."""
+    failure = _record_or_why_not(params, passed, registry, source, require_tls, deadline_s)
+    if failure is not None:
+        warn(f"warning: the unit registry ({_where(registry)}) {failure} -- the session is complete; "
+             "`fieldcal registry rebuild` will index it")
+    return failure is None
+
+
+def _where(registry) -> str:
+    return redact(registry if registry is not None else default_path())
+
+
+def _record_or_why_not(params, passed: bool | None, registry, source: str, require_tls: bool,
+                       deadline_s: float) -> str | None:
+    """Record ``params``; None, or why it was not (a phrase after "the unit registry (where)").
 
     The record runs on a daemon thread the station waits for at most ``deadline_s``: a server that
     stops answering after the connection was made (a dropped network, a stalled host) is beyond
@@ -275,17 +289,50 @@ def record_safely(params, passed: bool | None, registry=None, warn=print, source
     worker = threading.Thread(target=record, name="fieldcal-registry", daemon=True)
     worker.start()
     worker.join(deadline_s)
-    where = redact(registry if registry is not None else default_path())
     if not outcome:
-        warn(f"warning: the unit registry ({where}) did not answer within {deadline_s:g} s and was not "
-             "updated -- the session is complete; `fieldcal registry rebuild` will index it")
-        return False
+        return f"did not answer within {deadline_s:g} s and was not updated"
     exc = outcome[0]
     if exc is None:
-        return True
+        return None
+    where = _where(registry)
     text = str(exc).splitlines()[0] if str(exc) else ""
     if isinstance(exc, RegistryError) and text.startswith(f"registry {where}: "):
         text = text[len(f"registry {where}: "):]
-    warn(f"warning: the unit registry ({where}) was not updated: {type(exc).__name__}: {text} "
-         "-- the session is complete; `fieldcal registry rebuild` will index it")
-    return False
+    return f"was not updated: {type(exc).__name__}: {text}"
+
+
+class BatchRecorder:
+    """Records a batch's calibrations (``fieldcal resolve``) in the registry as they come. The
+    first that cannot be recorded (a server down or gone mid-batch, no answer, a broken file)
+    stops the attempts: it is said once, in one line, and the batch goes on without the registry
+    instead of waiting for it again with every session. The sessions are the source of truth:
+    ``rebuild`` (the command that indexes them, e.g. ``fieldcal registry rebuild DIR...``) is
+    named for the ones left out."""
+
+    def __init__(self, registry, warn=print, source: str = "", require_tls: bool = False,
+                 rebuild: str = "fieldcal registry rebuild", deadline_s: float = RECORD_DEADLINE_S):
+        self.registry, self.warn, self.source = registry, warn, source
+        self.require_tls, self.rebuild, self.deadline_s = require_tls, rebuild, deadline_s
+        self.recorded = 0
+        self.left_out = 0  # calibrations not recorded (from the first failure on)
+
+    def record(self, params, passed: bool | None = None) -> bool:
+        if self.left_out:
+            self.left_out += 1
+            return False
+        failure = _record_or_why_not(params, passed, self.registry, self.source, self.require_tls,
+                                     self.deadline_s)
+        if failure is None:
+            self.recorded += 1
+            return True
+        self.left_out = 1
+        self.warn(f"warning: the unit registry ({_where(self.registry)}) {failure} -- the batch goes on "
+                  f"without it (the sessions are complete); `{self.rebuild}` will index them")
+        return False
+
+    def summary(self) -> str | None:
+        """One line on what the registry missed; None if it missed nothing."""
+        if not self.left_out:
+            return None
+        return (f"{self.left_out} calibration{'s' * (self.left_out != 1)} not in the unit registry "
+                f"({_where(self.registry)}): index {'them' if self.left_out != 1 else 'it'} with `{self.rebuild}`")

@@ -160,10 +160,10 @@ class Conductor:
     # --- setting up -------------------------------------------------------------------------
 
     def restore(self, steps: Sequence[StepDocument], skipped: Sequence[int] | None = None,
-                why: str = "") -> ResumePoint:
+                why: str = "", dropped: Sequence[int] = ()) -> ResumePoint:
         """Continue after the last of these completed steps (resume): engine and bench as they were.
-        ``skipped``: the steps skipped so far, if not the last step's (``why`` says why steps
-        completed before are not among ``steps``: they are measured again)."""
+        ``skipped``: the steps skipped so far, if not the last step's (``why`` says why the steps
+        ``dropped``, completed before, are not among ``steps``: they are measured again)."""
         if skipped is None:
             skipped = steps[-1].skipped if steps else ()
         self.engine.restore([s.record for s in steps], skipped)
@@ -172,7 +172,8 @@ class Conductor:
                 raise ValueError(f"step {steps[-1].record.step + 1}: the session holds no bench state "
                                  "after it, so the run cannot be continued exactly; replay it, or run again")
             self.bench.set_state(steps[-1].bench)
-        self._resume = ResumePoint(tuple(sorted(self.engine.records)), tuple(sorted(self.engine.skipped)), why)
+        self._resume = ResumePoint(tuple(sorted(self.engine.records)), tuple(sorted(self.engine.skipped)), why,
+                                   tuple(sorted(dropped)))
         return self._resume
 
     # --- the loop ---------------------------------------------------------------------------

@@ -119,3 +119,43 @@ def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float
                                     f"read about {round(recorded.counter + advance) % (modulus or 2**63)}")
         return ClockCheck(False, f"its packet counter ran on ({now.counter}, {away:.0f} s after the last step)")
     return ClockCheck(None, "its frames carry no packet counter or time")
+
+
+def measured_again(check: ClockCheck | None, done: int, when: str) -> str:
+    """Why the ``done`` completed steps are measured again after ``check`` (a device's clock
+    judged ``when``: "since the last completed step", "while its port was lost"); "" if they
+    are kept (it ran on, or no step was completed).
+
+    A power cycle gives a MEMS gyro a new turn-on bias (bias repeatability, often far above
+    the Earth rate the static dwells measure). The solver fits one bias per triad to all
+    the windows (fieldcal.solvers.problems.RateNormProblem): every static dwell's average
+    (a = K⁻¹(u − b)) and every rate step's pair mean ((u₊ + u₋)/2 − b) carries it; only the
+    half-difference of a ± pair is free of it, and it is never used alone. So no gyro window
+    of a step before the power cycle can be combined with one after, and every position's
+    step has gyro windows: all completed steps are measured again (the accelerometer's
+    turn-on bias, shared the same way by its static norms, is renewed with them).
+    A device that cannot say (no counter or time in its frames) may have been cycled: the
+    same, since a calibration mixing two biases is wrong without any sign of it."""
+    if not done or (check is not None and check.power_cycled is False):
+        return ""
+    return (f"{_cycled(check)} {when}{f' ({check.reason})' if check is not None else ''}; the gyro's turn-on "
+            f"bias may have changed, so the {done} completed step{'s are' if done != 1 else ' is'} measured again")
+
+
+def _cycled(check: ClockCheck | None) -> str:
+    return "the unit was power-cycled" if check is not None and check.power_cycled \
+        else "the unit may have been power-cycled"
+
+
+def step_started_again(check: ClockCheck, when: str) -> str:
+    """``measured_again`` for a run with no completed step whose first step had begun."""
+    return f"{_cycled(check)} {when} ({check.reason}); the step in progress starts over"
+
+
+def power_cycle_banner(check: ClockCheck, done: int, when: str) -> str:
+    """The banner's line when completed steps are measured again (or, ``done`` 0, the step in
+    progress starts over): what happened, in capitals."""
+    again = f"the {done} completed step{'s are' if done != 1 else ' is'} measured again" if done \
+        else "the step in progress starts over"
+    return (f"POWER-CYCLED {when}" if check.power_cycled else "CANNOT TELL whether the unit was power-cycled") + \
+        f": its gyro turn-on bias may have changed; {again}"

@@ -6,6 +6,7 @@ like hardware, so the whole path (pyserial, protocol parser, counters) is the re
 from __future__ import annotations
 
 import math
+import time
 
 from drivers.chunk import SampleChunk
 from drivers.transport import PortEvent, PortSettings, SerialReader
@@ -51,7 +52,8 @@ class DeviceConnection:
             self.protocol = device.protocol
             settings = device.port
             self.parser = make_parser(self.protocol, device.channels)
-        self.reader = SerialReader(settings, tap=tap)
+        self.arrival_clock = time.monotonic  # what the reader stamps each read's arrival with
+        self.reader = SerialReader(settings, tap=tap, clock=self.arrival_clock)
 
     def __enter__(self) -> DeviceConnection:
         if self.simulated:
@@ -69,9 +71,15 @@ class DeviceConnection:
         return self.parser.counters
 
     def read(self) -> tuple[list[SampleChunk], list[PortEvent]]:
+        chunks, events = self.read_stamped()
+        return [chunk for _, chunk in chunks], events
+
+    def read_stamped(self) -> tuple[list[tuple[float, SampleChunk]], list[PortEvent]]:
+        """``read``, each chunk with the host time its bytes arrived (to order them among the
+        port's events: read before or after the port was regained)."""
         chunks = []
         for t, data in self.reader.poll():
             chunk = self.parser.feed(data, t)
             if chunk is not None and len(chunk):
-                chunks.append(chunk)
-        return chunks, self.reader.events()
+                chunks.append((t, chunk))
+        return chunks, self.reader.events()  # after: each event put before bytes polled is in it

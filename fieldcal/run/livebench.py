@@ -10,8 +10,9 @@ from __future__ import annotations
 import time
 
 from drivers.tables import TableError, open_table
+from drivers.transport import PORT_REGAINED
 from fieldcal.config import StationConfig
-from fieldcal.run.deviceclock import DeviceClock, clock_of
+from fieldcal.run.deviceclock import DeviceClock, clock_of, judge_restart
 from fieldcal.run.devices import DeviceConnection
 
 
@@ -37,8 +38,10 @@ class LiveBench:
         self.wall_clock = wall_clock
         self.device_clock: DeviceClock | None = None  # the device's clock as last read
         self.recorded_clock: DeviceClock | None = None  # set_state's: the last completed step's
-        self._pending: list = []  # chunks read by first_clock, not yet handed out
+        self._pending: list = []  # (arrival, chunk) read and not yet handed out (first_clock, a regain)
         self._pending_events: list = []  # and the port's events meanwhile
+        self._regained_at: float | None = None  # the port came back then; its first frames not yet read
+        self.regain_check = None  # what the device's clock said when its port came back (ClockCheck)
 
     def start(self) -> LiveBench:
         self.connection.__enter__()
@@ -50,25 +53,39 @@ class LiveBench:
                                     bytesize=p.bytesize, parity=p.parity, stopbits=p.stopbits)
         return self
 
-    def poll(self):
-        """New sample chunks and port events; never blocks."""
-        chunks, port_events = self.connection.read()
+    def next_chunks(self) -> list:
+        """The chunks read since last asked (never blocks), saying what the port and parser did.
+
+        When the port comes back after it was lost, the first frames after it are judged by the
+        device's clock against the last before (``judge_restart``: did the unit restart, i.e. was
+        it power-cycled?) into ``regain_check``, and handed out only on the next call, so that the
+        operator can act on the judgement (``take_regain_check``) before they are fed."""
+        fresh, port_events = self.connection.read_stamped()
         if self._pending_events:
             port_events, self._pending_events = self._pending_events + list(port_events), []
-        return chunks, port_events
-
-    def next_chunks(self) -> list:
-        """The chunks read since last asked (never blocks), saying what the port and parser did."""
-        chunks, port_events = self.poll()
-        if self._pending:
-            chunks, self._pending = self._pending + list(chunks), []
-        if chunks:
-            self.device_clock = clock_of(chunks[-1], self.connection.parser, self.wall_clock())
+        for pe in port_events:
+            if pe.kind == PORT_REGAINED and self._regained_at is None:
+                self._regained_at = pe.t
+        stamped, self._pending = self._pending, []
+        if self._regained_at is None:
+            stamped += fresh
+        else:
+            stamped += [(t, c) for t, c in fresh if t < self._regained_at]
+            after = [(t, c) for t, c in fresh if t >= self._regained_at]
+            if after:
+                if stamped:
+                    self.device_clock = self._clock_at(*stamped[-1])
+                self.regain_check = judge_restart(self.device_clock, self._clock_at(*after[0]),
+                                                  self.config.device.rate_hz)
+                self._regained_at, self._pending = None, after
+        chunks = [c for _, c in stamped]
+        if stamped:
+            self.device_clock = self._clock_at(*stamped[-1])
         for pe in port_events:
             detail = f": {pe.message}" if pe.message and pe.message != self.url else ""
             self.say(f"port {self.url}: {pe.kind}{f' after {pe.gap_s:.1f} s' if pe.gap_s else ''}{detail}")
         now = self.clock()
-        if chunks:
+        if chunks or self._pending:  # (frames held back after a regain came too: not a silence)
             self._last_sample_wall, self._silent_reported = now, False
         elif now - self._last_sample_wall > self.silence_s and not self._silent_reported:
             self._silent_reported = True
@@ -80,7 +97,18 @@ class LiveBench:
             self.say(f"parser: {c.discarded_bytes} byte(s) discarded, {c.checksum_failures} checksum "
                      f"failure(s), {c.missing_frames} frame(s) missing so far")
             self._trouble_reported = trouble
-        return list(chunks)
+        return chunks
+
+    def take_regain_check(self):
+        """The judgement of the device's clock when its port came back (``ClockCheck``), once;
+        None if there is none new."""
+        check, self.regain_check = self.regain_check, None
+        return check
+
+    def _clock_at(self, arrival: float, chunk) -> DeviceClock:
+        """The device's clock in ``chunk``, with the host's wall time when its bytes arrived."""
+        age = max(0.0, self.connection.arrival_clock() - arrival)
+        return clock_of(chunk, self.connection.parser, self.wall_clock() - age)
 
     def first_clock(self, timeout_s: float, cancelled=lambda: False, fresh_s: float = 1.0) -> DeviceClock | None:
         """Wait (up to ``timeout_s`` of wall time) for the first frames and return the device's
@@ -93,11 +121,11 @@ class LiveBench:
             now = self.clock()
             if (fresh_until is not None and now >= fresh_until) or (fresh_until is None and now >= deadline):
                 break
-            chunks, port_events = self.connection.read()
+            stamped, port_events = self.connection.read_stamped()
             self._pending_events += list(port_events)  # said by next_chunks, in the run's log
-            if chunks:
-                self._pending += list(chunks)
-                self.device_clock = clock_of(chunks[-1], self.connection.parser, self.wall_clock())
+            if stamped:
+                self._pending += stamped
+                self.device_clock = self._clock_at(*stamped[-1])
                 fresh_until = fresh_until if fresh_until is not None else now + fresh_s
             else:
                 time.sleep(0.02)  # the port's reader thread fills its queue meanwhile
@@ -115,10 +143,14 @@ class LiveBench:
     def command_table(self, rate_deg_s: float) -> None:
         if self.table is None:
             raise ValueError("the procedure asks for a table rate, and the config has no table")
-        if rate_deg_s == 0.0:
-            self.table.stop()
-        else:
-            self.table.set_rate(rate_deg_s)
+        try:
+            if rate_deg_s == 0.0:
+                self.table.stop()
+            else:
+                self.table.set_rate(rate_deg_s)
+        except OSError as exc:  # its port is gone (unplugged, powered off): the operator's to deal with
+            raise TableError(f"its port {self.config.table.port.url} failed ({exc}): is the table "
+                             "plugged in and powered?") from exc
 
     def get_state(self) -> dict:
         """What a resumed run needs of a live bench: not its samples (a device cannot be rewound)

@@ -56,7 +56,8 @@ class SessionRecorder(Subscriber):
                                           run.bench.get_state()).to_dict())
 
     def resumed(self, point: ResumePoint, run) -> None:
-        self.writer.resume(point.to_dict())
+        """A resumed run, or (the writer active) a run starting over mid-way from ``point``."""
+        self.writer.resume(point.to_dict(), mid_run=self.writer.active)
 
     def parameters(self, pf, run) -> Path:
         self.writer.write_parameters(pf)

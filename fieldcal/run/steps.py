@@ -28,20 +28,26 @@ class StepDocument:
 @dataclass(frozen=True)
 class ResumePoint:
     """Where a run continued: the steps it kept (and, so, the ones it did again). ``why``: why
-    completed steps were not kept (a live device power-cycled meanwhile), if any were not."""
+    completed steps were not kept (a live device power-cycled meanwhile), if any were not, and
+    ``dropped``: which."""
 
     completed_steps: tuple[int, ...]
     skipped: tuple[int, ...]
     why: str = ""
+    dropped: tuple[int, ...] = ()  # the completed steps not kept (measured again), if any
 
     def to_dict(self) -> dict:
         doc = {"completed_steps": list(self.completed_steps), "skipped": list(self.skipped)}
-        return {**doc, "why": self.why} if self.why else doc
+        if self.why:
+            doc["why"] = self.why
+        if self.dropped:
+            doc["dropped"] = list(self.dropped)
+        return doc
 
     @classmethod
     def from_dict(cls, doc: dict) -> ResumePoint:
         return cls(tuple(int(s) for s in doc["completed_steps"]), tuple(int(s) for s in doc["skipped"]),
-                   str(doc.get("why", "")))
+                   str(doc.get("why", "")), tuple(int(s) for s in doc.get("dropped", ())))
 
 
 def steps_on_record(reader: SessionReader) -> list[StepDocument]:

@@ -735,12 +735,16 @@ class SessionWriter:
             self.sync()
             return seq
 
-    def resume(self, data: Mapping | None = None) -> int:
+    def resume(self, data: Mapping | None = None, *, mid_run: bool = False) -> int:
         """Start a new run continuing this session (after ``append_to``, or after ``stop``).
+        ``mid_run``: the active run starts over from a resume point without having stopped (a
+        live device power-cycled mid-run, its completed steps measured again).
 
         A session whose run completed is never resumed (SessionError naming its stop line)."""
         payload = _data({} if data is None else data, "resume")
-        with self._writing("resume"):
+        with self._writing("resume mid-run" if mid_run else "resume"):
+            if mid_run and not self._active:
+                raise SessionStateError(f"{self.directory}: cannot resume mid-run: no active run")
             if self._completed_line is not None:
                 raise SessionError(f"{self.directory / LOG}: line {self._completed_line}: this session "
                                    "completed; a completed session is never resumed (replay it, or run "

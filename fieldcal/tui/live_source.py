@@ -21,8 +21,10 @@ from pathlib import Path
 
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.engine import PLACE, WAITING_FOR_OPERATOR, WRONG
-from fieldcal.run.conductor import Act, Conductor, Say
+from fieldcal.run.conductor import Act, Conductor, Restart, Say
+from fieldcal.run.deviceclock import measured_again, power_cycle_banner, step_started_again
 from fieldcal.run.outcome import Status
+from fieldcal.run.steps import ResumePoint
 from fieldcal.tui.source import (ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, Note,
                                  ResumeNote, SimSource, Sink)
 
@@ -140,7 +142,8 @@ class LiveSource(SimSource):
             conductor = Conductor(self.spec, self.bench, self, [self], session=self.session_dir,
                                   settings=self.settings)
             self.conductor = conductor
-            conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why)
+            conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why,
+                              dropped=sorted({s.record.step for s in steps} - {s.record.step for s in kept}))
             # (locked by another station, read-only, damaged: the ports are closed again, so a
             # retry from the setup screen does not open the device a second time)
             self._record_to(SessionRecorder.append_to(self.session_dir))
@@ -156,27 +159,12 @@ class LiveSource(SimSource):
         return conductor
 
     def _kept_after(self, steps) -> tuple[list, str]:
-        """The completed steps the resumed run keeps, and why not all (or "").
-
-        A power cycle gives a MEMS gyro a new turn-on bias (bias repeatability, often far above
-        the Earth rate the static dwells measure). The solver fits one bias per triad to all
-        the windows (fieldcal.solvers.problems.RateNormProblem): every static dwell's average
-        (a = K⁻¹(u − b)) and every rate step's pair mean ((u₊ + u₋)/2 − b) carries it; only the
-        half-difference of a ± pair is free of it, and it is never used alone. So no gyro window
-        of a step before the power cycle can be combined with one after, and every position's
-        step has gyro windows: all completed steps are measured again (the accelerometer's
-        turn-on bias, shared the same way by its static norms, is renewed with them). The old
-        step documents stay in the session; the resume document says they are not kept.
-        A device that cannot say (no counter or time in its frames) may have been cycled: the
-        same, since a calibration mixing two biases is wrong without any sign of it.
-        """
-        check = self.clock_check
-        if not steps or (check is not None and check.power_cycled is False):
-            return list(steps), ""
-        done = len({s.record.step for s in steps})
-        what = "the unit was power-cycled" if check.power_cycled else "the unit may have been power-cycled"
-        return [], (f"{what} since the last completed step ({check.reason}); the gyro's turn-on bias may "
-                    f"have changed, so the {done} completed step{'s are' if done != 1 else ' is'} measured again")
+        """The completed steps the resumed run keeps, and why not all (or ""): none unless the
+        device's clock shows it ran on (``deviceclock.measured_again``). The old step documents
+        stay in the session; the resume document says they are not kept."""
+        why = measured_again(self.clock_check, len({s.record.step for s in steps}),
+                             "since the last completed step")
+        return ([], why) if why else (list(steps), "")
 
     def _resume_note(self, steps, kept, why: str, t: float) -> ResumeNote:
         """The log line and the banner of where the resumed run goes on."""
@@ -190,12 +178,32 @@ class LiveSource(SimSource):
                                  "again for the next step",
                               f"RESUMED after {done} completed step{'s' if done != 1 else ''}: "
                               "place the unit again")
-        power_cycled = self.clock_check.power_cycled
-        banner = ("POWER-CYCLED since the last step" if power_cycled
-                  else "CANNOT TELL whether the unit was power-cycled") + \
-            f": its gyro turn-on bias may have changed; the {done} completed step" \
-            f"{'s are' if done != 1 else ' is'} measured again"
-        return ResumeNote(t, f"WARNING: {why}", banner, warn=True)
+        return ResumeNote(t, f"WARNING: {why}", power_cycle_banner(self.clock_check, done, "since the last step"),
+                          warn=True)
+
+    def next_moves(self, run: Conductor):
+        check = self.bench.take_regain_check()
+        if check is not None:
+            return self._regained(check, run)
+        return super().next_moves(run)
+
+    def _regained(self, check, run: Conductor) -> list:
+        """The device's port came back (a cable, a power cycle): unless its clock shows it ran on,
+        the run starts over as a resume after a power cycle does (every completed step measured
+        again; the session keeps the old step documents and says why they no longer count)."""
+        e = run.engine
+        done = len(e.records)
+        when = "while its port was lost"
+        why = measured_again(check, done, when)
+        if not why and check.power_cycled is not False and e.phase != PLACE:
+            why = step_started_again(check, when)
+        if not why:
+            kept = f"; the {done} completed step{'s are' if done != 1 else ' is'} kept" if done else ""
+            return [Say(f"port {self.bench.url} regained: {check.reason}{kept}")]
+        skipped = tuple(sorted(e.skipped))
+        banner = power_cycle_banner(check, done, "while the port was lost")
+        self._items.append(ResumeNote(e.t, f"WARNING: {why}", banner, warn=True, skipped=skipped))
+        return [Restart(ResumePoint((), skipped, why, tuple(sorted(e.records))))]
 
     def _holds_for_keys(self, run: Conductor) -> bool:
         return False  # samples flow all the time, also while the operator places the unit
@@ -244,7 +252,8 @@ class LiveSource(SimSource):
         if self.session_dir is None:
             return "stopped before the end"
         return ("stopped before the end; the session can be continued with "
-                f"`fieldcal tui --resume {self.session_dir} --config {self.config.path}`")
+                f"`fieldcal tui --resume {self.session_dir} --config {self.config.path}` (or at the "
+                f"console: `fieldcal resume {self.session_dir} --config {self.config.path}`)")
 
 
 def check_same_device(live, config, directory) -> None:

@@ -125,12 +125,10 @@ class RunView:
     def apply(self, item) -> str | None:
         """Fold one event or note in; the log line for it (None if it has none)."""
         self.last_t = max(self.last_t, item.t)
-        if isinstance(item, ResumeNote):
+        if isinstance(item, ResumeNote):  # (also mid-run: a power-cycled unit's steps are done again)
             self.resumed = item
-            for step in item.done:
-                self.tiles[step] = DONE
-            for step in item.skipped:
-                self.tiles[step] = SKIPPED
+            self.tiles = [DONE if step in item.done else SKIPPED if step in item.skipped else TODO
+                          for step in range(self.total_steps)]
         if isinstance(item, Note):
             return f"[{item.t:7.1f} s] {item.text}"
         self._fold(item)
