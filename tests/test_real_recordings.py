@@ -12,7 +12,7 @@ import pytest
 
 from fieldcal.cli.main import main
 from fieldcal.earth import Station
-from fieldcal.model import calibrate_with, params_from_k
+from fieldcal.model import calibrate_with, params_from_k, terms_from_k
 from fieldcal.paramfile import load
 from fieldcal.recording.calibrate import (ALIGNED_PROTOCOL, RecordingSettings, UnknownPlace, _solve_static,
                                           calibrate_recording)
@@ -114,6 +114,80 @@ def test_imu_tk_xsens_screening_picks_the_poses_powell_on_every_candidate_would(
         # χ² grows by (the move in σ)² near its minimum
         assert abs(fit(poses, SCREEN).chi2 - powell[key].chi2) < 1e-6
     assert min(powell, key=lambda key: powell[key].reduced_chi2) == cal.poses.intervals.tobytes()
+
+
+IMU_TK_RESULT = REAL / "imu_tk_xsens_result.json"  # imu_tk's own calibration of these files (its README entry)
+
+
+def imu_tk_result() -> dict:
+    """imu_tk's T·K (per count) and bias (counts) per triad, as recorded in IMU_TK_RESULT."""
+    doc = json.loads(IMU_TK_RESULT.read_text())
+    return {name: (np.array(doc[name]["misalignment_T"]) @ np.array(doc[name]["scale_K"]), np.array(doc[name]["bias"]))
+            for name in ("accelerometer", "gyroscope")}
+
+
+def imu_tk_in_fieldcal_frame(acc_tk: np.ndarray, gyro_tk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """fieldcal's K (counts per m/s² and per rad/s) for imu_tk's calibrated = T·K·(raw − b).
+
+    fieldcal's model is raw = K·true + b, so imu_tk's K is (T·K)⁻¹; but the two define the
+    frame differently: imu_tk's accelerometer T is upper unit-triangular, fieldcal's K lower
+    triangular (x is the reference axis in both, the other axes' roles differ). Both are one
+    sensor up to a rotation Q of the frame, to which |a| = g is blind: (T·K)⁻¹ = L·Q with L lower
+    triangular is the same accelerometer in fieldcal's frame. The gyro, which imu_tk calibrates
+    in its accelerometer's frame, is then (T_g·K_g)⁻¹·Qᵀ in fieldcal's."""
+    q, r = np.linalg.qr(np.linalg.inv(acc_tk).T)  # (T·K)⁻¹ = rᵀ·qᵀ
+    sign = np.sign(np.diag(r))
+    lower, rotation = (sign[:, None] * r).T, (q * sign).T
+    return lower, np.linalg.inv(gyro_tk) @ rotation.T
+
+
+def test_imu_tk_xsens_fits_the_common_intervals_at_least_as_well_as_imu_tk(xsens):
+    """Issue 11's done-when on imu_tk's own recording: on the same still intervals (fieldcal's;
+    imu_tk picks its own among ten detector thresholds by its least residual, which is not
+    reproduced here), RMS of |a| − g per sample and per interval mean, with the g imu_tk used,
+    no larger for fieldcal's accelerometer than for imu_tk's (8.08e-3 against 8.13e-3 and 1.05e-3
+    against 1.11e-3 m/s² when written)."""
+    recording, cal = xsens
+    acc_tk, bias_tk = imu_tk_result()["accelerometer"]
+    raw = recording.triads["accelerometer"]
+    samples = np.concatenate([raw[a:b] for a, b in cal.poses.intervals])
+    means = interval_means(raw, cal.poses.intervals)
+    acc = cal.specific_force["accelerometer"]
+    for values in (samples, means):
+        ours = np.sqrt(np.mean((np.linalg.norm(acc.calibrate(values), axis=1) - IMU_TK_GRAVITY) ** 2))
+        theirs = np.sqrt(np.mean((np.linalg.norm((values - bias_tk) @ acc_tk.T, axis=1) - IMU_TK_GRAVITY) ** 2))
+        assert ours <= theirs, (ours, theirs)
+
+
+def test_imu_tk_xsens_parameters_agree_with_imu_tk_within_3_sigma_but_the_gyro_bias(xsens):
+    """imu_tk's parameters in fieldcal's frame (imu_tk_in_fieldcal_frame) against fieldcal's, in
+    fieldcal's σ: the accelerometer's nine and the gyro's scales and cross terms within 3σ
+    (largest 2.4σ and 1.1σ when written). The gyro bias is not (−6.2σ, −8.1σ, −2.2σ, σ 1.1
+    counts): imu_tk takes it as the mean of the initial 50 s rest and does not refine it (its
+    optimize_gyro_bias_ is false), and the recording's gyro bias does not stay there: the later
+    rests read 6.5 and 4.7 counts from it on x and y (6.0σ, 4.3σ). fieldcal's bias is fitted to
+    all the rests and turns, so the two tools estimate different things on x and y."""
+    recording, cal = xsens
+    result = imu_tk_result()
+    acc_k, gyro_k = imu_tk_in_fieldcal_frame(result["accelerometer"][0], result["gyroscope"][0])
+    acc, gyro = cal.specific_force["accelerometer"], cal.angular_rate["gyroscope"]
+    z_acc = (acc.file_theta - params_from_k(acc_k, result["accelerometer"][1])) / acc.file_sigma
+    assert np.all(np.abs(z_acc) < 3.0), z_acc
+    bias_tk = result["gyroscope"][1]
+    theirs = np.r_[bias_tk, terms_from_k(gyro_k)[0], terms_from_k(gyro_k)[1]]
+    assert gyro.parameter_names[:6] == ("bias_x", "bias_y", "bias_z", "scale_x", "scale_y", "scale_z")
+    assert gyro.parameter_names[6:] == ("m_xy", "m_xz", "m_yx", "m_yz", "m_zx", "m_zy")  # terms_from_k's order
+    z_gyro = (gyro.theta - theirs) / gyro.sigma
+    assert np.all(np.abs(z_gyro[3:]) < 3.0), z_gyro
+    # The explanation, from the samples: imu_tk's gyro bias is the first 50 s's mean ...
+    rate = recording.triads["gyroscope"]
+    first = rate[recording.t - recording.t[0] < 50.0].mean(axis=0)
+    assert np.all(np.abs(bias_tk - first) < 0.1 * gyro.sigma[:3]), (bias_tk, first)
+    # ... and the later rests' mean reads more than 3σ away from it on each axis where the two
+    # tools' biases differ by more than 3σ.
+    later = interval_means(rate, cal.poses.intervals[1:]).mean(axis=0)
+    disagree = np.abs(z_gyro[:3]) > 3.0
+    assert np.all(np.abs(later - first)[disagree] > 3 * gyro.sigma[:3][disagree]), (later - first, z_gyro[:3])
 
 
 FERRARIS_RATE_HZ = 102.4  # imucal's examples/basic_ferraris.py
