@@ -2,7 +2,7 @@
 
 Per recording: the poses found, the accelerometer's fit (RMS of |a| − g per sample and per
 interval mean, on fieldcal's own intervals, and on the intervals it shares with the peer tool
-where the peer's are published), the main parameters ± 1σ, and the source's or peer's result
+where the peer's are published; imu_tk's recorded result on fieldcal's intervals), the main parameters ± 1σ, and the source's or peer's result
 on the same data where one exists (imucal is run on its own session when installed).
 
     python benchmarks/real_data.py
@@ -19,7 +19,7 @@ import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only 
 import numpy as np
 
 from fieldcal.earth import Station
-from fieldcal.model import params_from_k
+from fieldcal.model import params_from_k, terms_from_k
 from fieldcal.recording.calibrate import UnknownPlace, calibrate_recording
 from fieldcal.recording.detect import interval_means
 from fieldcal.recording.importer import import_recording
@@ -51,6 +51,13 @@ def common(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
     return np.column_stack([start[keep], stop[keep]])
 
 
+def lq(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """M = L·Q, L lower triangular with a positive diagonal, Q a rotation (or reflection)."""
+    q, r = np.linalg.qr(M.T)
+    sign = np.sign(np.diag(r))
+    return (sign[:, None] * r).T, (q * sign).T
+
+
 def pm(values, sigmas, fmt="{:.5g}") -> str:
     return ", ".join(f"{fmt.format(v)} ± {s:.2g}" for v, s in zip(values, sigmas))
 
@@ -72,6 +79,22 @@ def main() -> int:
               f"{pm(np.diag(acc.K), acc.sigma[3:6])}")
         print(f"  gyro scale (counts per rad/s) {pm(np.diag(gyro.K), gyro.sigma[3:6])}; bias (counts) "
               f"{pm(gyro.bias, gyro.sigma[:3])}")
+        # imu_tk's own result on these files (tests/data/real/imu_tk_xsens_result.json), on the
+        # same intervals: a = T·K·(raw − b); fieldcal's K is (T·K)⁻¹ up to a rotation of the frame.
+        peer = json.loads((REAL / "imu_tk_xsens_result.json").read_text())
+        tk = {n: (np.array(peer[n]["misalignment_T"]) @ np.array(peer[n]["scale_K"]), np.array(peer[n]["bias"]))
+              for n in ("accelerometer", "gyroscope")}
+        (acc_tk, acc_b), (gyro_tk, gyro_b) = tk["accelerometer"], tk["gyroscope"]
+        print("  imu_tk (its recorded result) on the same intervals: RMS(|a|-g) per sample %.4g, per interval "
+              "mean %.4g m/s^2" % residuals(rec, lambda v: (v - acc_b) @ acc_tk.T, cal.poses.intervals, g))
+        lower, rotation = lq(np.linalg.inv(acc_tk))
+        gyro_k = np.linalg.inv(gyro_tk) @ rotation.T
+        z_acc = (acc.file_theta - params_from_k(lower, acc_b)) / acc.file_sigma
+        z_gyro = (gyro.theta - np.r_[gyro_b, np.concatenate(terms_from_k(gyro_k))]) / gyro.sigma
+        print(f"  fieldcal − imu_tk in fieldcal's σ, in fieldcal's frame: accelerometer {np.round(z_acc, 2).tolist()} "
+              f"(largest {np.abs(z_acc).max():.2f}); gyro bias {np.round(z_gyro[:3], 2).tolist()} (imu_tk's: the "
+              f"first 50 s's mean), scale and terms {np.round(z_gyro[3:], 2).tolist()} "
+              f"(largest {np.abs(z_gyro[3:]).max():.2f})")
 
         # imucal's Ferraris session: 102.4 Hz, m/s^2 and deg/s, imucal's own sections.
         path = unpacked(tmp, "imucal_ferraris_session.csv.gz")

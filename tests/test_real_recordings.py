@@ -135,9 +135,9 @@ def imu_tk_in_fieldcal_frame(acc_tk: np.ndarray, gyro_tk: np.ndarray) -> tuple[n
     sensor up to a rotation Q of the frame, to which |a| = g is blind: (T·K)⁻¹ = L·Q with L lower
     triangular is the same accelerometer in fieldcal's frame. The gyro, which imu_tk calibrates
     in its accelerometer's frame, is then (T_g·K_g)⁻¹·Qᵀ in fieldcal's."""
-    q, r = np.linalg.qr(np.linalg.inv(acc_tk).T)  # (T·K)⁻¹ = rᵀ·qᵀ
-    sign = np.sign(np.diag(r))
-    lower, rotation = (sign[:, None] * r).T, (q * sign).T
+    k_tk = np.linalg.inv(acc_tk)
+    lower = np.linalg.cholesky(k_tk @ k_tk.T)  # L·Lᵀ = K·Kᵀ: what |a| = g sees of K
+    rotation = np.linalg.solve(lower, k_tk)
     return lower, np.linalg.inv(gyro_tk) @ rotation.T
 
 
