@@ -2,7 +2,7 @@
 
 Per recording: the poses found, the accelerometer's fit (RMS of |a| − g per sample and per
 interval mean, on fieldcal's own intervals, and on the intervals it shares with the peer tool
-where the peer's are published; imu_tk's recorded result on fieldcal's intervals), the main parameters ± 1σ, and the source's or peer's result
+where the peer's are published or reproduced; imu_tk's recorded result on the same intervals), the main parameters ± 1σ, and the source's or peer's result
 on the same data where one exists (imucal is run on its own session when installed).
 
     python benchmarks/real_data.py
@@ -12,6 +12,7 @@ from __future__ import annotations
 import datetime
 import gzip
 import json
+import sys
 import tempfile
 from pathlib import Path
 
@@ -24,7 +25,8 @@ from fieldcal.recording.calibrate import UnknownPlace, calibrate_recording
 from fieldcal.recording.detect import interval_means
 from fieldcal.recording.importer import import_recording
 
-REAL = Path(__file__).resolve().parent.parent / "tests" / "data" / "real"
+TESTS = Path(__file__).resolve().parent.parent / "tests"
+REAL = TESTS / "data" / "real"
 
 
 def unpacked(tmp: Path, name: str) -> Path:
@@ -43,26 +45,14 @@ def residuals(recording, calibrate, intervals, gravity) -> tuple[float, float]:
     return float(np.sqrt(np.mean(per_sample**2))), float(np.sqrt(np.mean(per_mean**2)))
 
 
-def common(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
-    """The overlaps of two sets of [start, stop) intervals."""
-    start = np.maximum(ours[:, None, 0], theirs[None, :, 0])
-    stop = np.minimum(ours[:, None, 1], theirs[None, :, 1])
-    keep = stop - start > 0
-    return np.column_stack([start[keep], stop[keep]])
-
-
-def lq(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """M = L·Q, L lower triangular with a positive diagonal, Q a rotation (or reflection)."""
-    q, r = np.linalg.qr(M.T)
-    sign = np.sign(np.diag(r))
-    return (sign[:, None] * r).T, (q * sign).T
-
-
 def pm(values, sigmas, fmt="{:.5g}") -> str:
     return ", ".join(f"{fmt.format(v)} ± {s:.2g}" for v, s in zip(values, sigmas))
 
 
 def main() -> int:
+    sys.path.insert(0, str(TESTS))  # imu_tk's recorded result and its detector, as the tests read them
+    from test_real_recordings import imu_tk_in_fieldcal_frame, imu_tk_result, imu_tk_xsens_intervals, overlaps
+
     print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -79,17 +69,18 @@ def main() -> int:
               f"{pm(np.diag(acc.K), acc.sigma[3:6])}")
         print(f"  gyro scale (counts per rad/s) {pm(np.diag(gyro.K), gyro.sigma[3:6])}; bias (counts) "
               f"{pm(gyro.bias, gyro.sigma[:3])}")
-        # imu_tk's own result on these files (tests/data/real/imu_tk_xsens_result.json), on the
-        # same intervals: a = T·K·(raw − b); fieldcal's K is (T·K)⁻¹ up to a rotation of the frame.
-        peer = json.loads((REAL / "imu_tk_xsens_result.json").read_text())
-        tk = {n: (np.array(peer[n]["misalignment_T"]) @ np.array(peer[n]["scale_K"]), np.array(peer[n]["bias"]))
-              for n in ("accelerometer", "gyroscope")}
+        # imu_tk's own result on these files (tests/data/real/imu_tk_xsens_result.json) on the same
+        # intervals: fieldcal's, and fieldcal's overlapped with imu_tk's (its detector, reproduced).
+        tk = imu_tk_result()
         (acc_tk, acc_b), (gyro_tk, gyro_b) = tk["accelerometer"], tk["gyroscope"]
-        print("  imu_tk (its recorded result) on the same intervals: RMS(|a|-g) per sample %.4g, per interval "
-              "mean %.4g m/s^2" % residuals(rec, lambda v: (v - acc_b) @ acc_tk.T, cal.poses.intervals, g))
-        lower, rotation = lq(np.linalg.inv(acc_tk))
-        gyro_k = np.linalg.inv(gyro_tk) @ rotation.T
-        z_acc = (acc.file_theta - params_from_k(lower, acc_b)) / acc.file_sigma
+        shared = overlaps(cal.poses.intervals, imu_tk_xsens_intervals(rec))
+        for label, intervals in (("fieldcal's intervals", cal.poses.intervals),
+                                 (f"the {len(shared)} shared with imu_tk's", shared)):
+            print(f"  on {label}: RMS(|a|-g) per sample, per interval mean: fieldcal %.4g, %.4g; imu_tk %.4g, "
+                  "%.4g m/s^2" % (residuals(rec, acc.calibrate, intervals, g)
+                                  + residuals(rec, lambda v: (v - acc_b) @ acc_tk.T, intervals, g)))
+        acc_k, gyro_k = imu_tk_in_fieldcal_frame(acc_tk, gyro_tk)
+        z_acc = (acc.file_theta - params_from_k(acc_k, acc_b)) / acc.file_sigma
         z_gyro = (gyro.theta - np.r_[gyro_b, np.concatenate(terms_from_k(gyro_k))]) / gyro.sigma
         print(f"  fieldcal − imu_tk in fieldcal's σ, in fieldcal's frame: accelerometer {np.round(z_acc, 2).tolist()} "
               f"(largest {np.abs(z_acc).max():.2f}); gyro bias {np.round(z_gyro[:3], 2).tolist()} (imu_tk's: the "
@@ -105,7 +96,7 @@ def main() -> int:
         sections = json.loads((REAL / "imucal_ferraris_session_list.json").read_text())
         theirs = np.array([[sections[k]["start"], sections[k]["end"]] for k in
                            ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")])
-        shared = common(cal.poses.intervals, theirs)
+        shared = overlaps(cal.poses.intervals, theirs)
         print(f"imucal Ferraris: {len(cal.poses.intervals)} intervals, {cal.spread.count} faces, "
               f"{len(gyro.residuals)} turns; on the {len(shared)} intervals shared with imucal's sections: "
               "RMS(|a|-g) per sample %.5g, per interval mean %.4g m/s^2 (fieldcal)"
