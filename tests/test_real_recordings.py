@@ -130,8 +130,8 @@ def imu_tk_in_fieldcal_frame(acc_tk: np.ndarray, gyro_tk: np.ndarray) -> tuple[n
     """fieldcal's K (counts per m/s² and per rad/s) for imu_tk's calibrated = T·K·(raw − b).
 
     fieldcal's model is raw = K·true + b, so imu_tk's K is (T·K)⁻¹; but the two define the
-    frame differently: imu_tk's accelerometer T is upper unit-triangular, fieldcal's K lower
-    triangular (x is the reference axis in both, the other axes' roles differ). Both are one
+    frame differently: imu_tk's accelerometer T is upper unit-triangular (the frame's z is the
+    sensor's z axis), fieldcal's K lower triangular (the frame's x is the sensor's x). Both are one
     sensor up to a rotation Q of the frame, to which |a| = g is blind: (T·K)⁻¹ = L·Q with L lower
     triangular is the same accelerometer in fieldcal's frame. The gyro, which imu_tk calibrates
     in its accelerometer's frame, is then (T_g·K_g)⁻¹·Qᵀ in fieldcal's."""
