@@ -62,8 +62,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("--min-still", type=float, metavar="S",
                         help="shortest still stretch taken as a pose, s (default 2; shorter poses "
                         "have noisier means)")
-    parser.add_argument("--gyro-bias", choices=("rest", "estimate"), default="rest",
-                        help="gyro bias: the poses' mean (default) or estimated with the rest")
+    parser.add_argument("--gyro-bias", choices=("poses", "estimate", "rest"), default="poses",
+                        help="gyro bias: the still poses' mean, less the vertical Earth rate "
+                        "(default; 'rest' is its old name), or estimated with the rotations")
     parser.add_argument("--method", choices=("powell", "lsq"), default="powell",
                         help="accelerometer solver (default powell)")
     parser.add_argument("--table-rate", type=float, metavar="DEG_S",
