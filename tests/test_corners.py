@@ -150,8 +150,22 @@ def test_a_wrong_corner_is_named_in_the_procedure_format_words(tmp_path, capsys)
     main(["run", "--headless", "--procedure", str(procedure), "--out", str(tmp_path / "s"),
           "--seed", "3", "--wrong-step", "2"])
     out = capsys.readouterr()
+    assert "step 1/3: position 1 (x+y+z upward, x towards north)" in out.out  # not 'position 1 ()'
     wrong = [line for line in (out.out + out.err).splitlines() if "WRONG POSITION" in line]
     assert wrong, out.out + out.err
     # Position 2's gravity is along -x-y-z: the file's own words, not its components.
     assert "position 2 expects -x-y-z upward, x towards north, but" in wrong[0]
     assert wrong[0].endswith("until -x-y-z points up") and "(-0.58" not in wrong[0]
+
+
+def test_the_run_screen_names_an_undescribed_corner_and_places_it_at_the_first_step():
+    from fieldcal.procedure import events as ev
+    from fieldcal.tui.readings import Telemetry
+    from fieldcal.tui.view import RunView
+
+    view = RunView(parse_procedure(CORNERS.replace("description: corner x+y+z, ", ""), "corners.yaml"))
+    view.apply(ev.StepStarted(0.0, 0, 1, "", 12))
+    view.telemetry = Telemetry(0.0, 0, "place", True, 0)
+    assert view.step_text() == "step 1 of 12 · position 1: x+y+z upward, x towards north"
+    assert view.banner(sim=False)[0] == ("Position 1: place it on a corner: x 35° up towards north, y 35° up "
+                                         "towards south-west, z 35° up towards south-east, then press r")
