@@ -221,3 +221,20 @@ def test_solve_of_a_session_without_its_log_says_so(tmp_path, capsys):
     assert main(["solve", str(tmp_path / "empty")]) != 0
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "log.jsonl" in err
+
+
+def test_resume_refuses_a_config_for_a_simulated_session(tmp_path, capsys):
+    """--config names the ports a live session is continued on; a simulator session has none, so
+    the flag is refused in one line rather than ignored (the run would go on, on the simulator)."""
+    import shutil
+    from pathlib import Path
+
+    session = tmp_path / "tui-quit"
+    shutil.copytree(Path(__file__).parent / "data" / "golden" / "tui-quit", session)
+    log_before = (session / "log.jsonl").read_bytes()
+    assert main(["resume", str(session), "--config", "vn100", "--quiet"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.strip().count("\n") == 0 and "Traceback" not in captured.err
+    assert "--config is for a live session's ports" in captured.err and "ran on the simulator" in captured.err
+    assert "resuming" not in captured.out
+    assert (session / "log.jsonl").read_bytes() == log_before and not (session / "parameters.yaml").exists()

@@ -129,3 +129,43 @@ def test_faces_and_corners_together_tell_all_nine_parameters_apart_and_neither_a
     assert not np.any(determined(sigmas(faces)[6:]))
     assert not np.any(determined(sigmas(corners)[3:6]))
     assert np.all(determined(sigmas(faces + corners)))
+
+
+def test_a_position_without_a_description_is_placed_by_its_attitude_at_the_first_step():
+    # Before this, placement(None, p) said 'place it ' for a position the file did not describe.
+    corner = one("{id: 1, up: x+y+z, north: x}")
+    assert placement(None, corner).text == ("place it on a corner: x 35° up towards north, "
+                                            "y 35° up towards south-west, z 35° up towards south-east")
+    assert placement(None, one("{id: 1, up: z, north: x}")).text == "place it: z must point up, x north"
+    assert placement(None, one("{id: 1, description: on its back, up: -z, north: x}")).text == \
+        "place it on its back"
+
+
+def test_a_wrong_corner_is_named_in_the_procedure_format_words(tmp_path, capsys):
+    from fieldcal.cli.main import main
+
+    procedure = tmp_path / "three-corners.yaml"
+    procedure.write_text("dwell_s: 10\npositions:\n" + "".join(
+        f"  - {{id: {i}, up: '{up}', north: x}}\n" for i, up in enumerate(("x+y+z", "-x-y-z", "x-y+z"), 1)))
+    main(["run", "--headless", "--procedure", str(procedure), "--out", str(tmp_path / "s"),
+          "--seed", "3", "--wrong-step", "2"])
+    out = capsys.readouterr()
+    assert "step 1/3: position 1 (x+y+z upward, x towards north)" in out.out  # not 'position 1 ()'
+    wrong = [line for line in (out.out + out.err).splitlines() if "WRONG POSITION" in line]
+    assert wrong, out.out + out.err
+    # Position 2's gravity is along -x-y-z: the file's own words, not its components.
+    assert "position 2 expects -x-y-z upward, x towards north, but" in wrong[0]
+    assert wrong[0].endswith("until -x-y-z points up") and "(-0.58" not in wrong[0]
+
+
+def test_the_run_screen_names_an_undescribed_corner_and_places_it_at_the_first_step():
+    from fieldcal.procedure import events as ev
+    from fieldcal.tui.readings import Telemetry
+    from fieldcal.tui.view import RunView
+
+    view = RunView(parse_procedure(CORNERS.replace("description: corner x+y+z, ", ""), "corners.yaml"))
+    view.apply(ev.StepStarted(0.0, 0, 1, "", 12))
+    view.telemetry = Telemetry(0.0, 0, "place", True, 0)
+    assert view.step_text() == "step 1 of 12 · position 1: x+y+z upward, x towards north"
+    assert view.banner(sim=False)[0] == ("Position 1: place it on a corner: x 35° up towards north, y 35° up "
+                                         "towards south-west, z 35° up towards south-east, then press r")

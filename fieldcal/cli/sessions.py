@@ -108,6 +108,9 @@ def cmd_resume(args) -> int:
         raise ValueError(f"{args.session}: this session already ended ({reader.stop_reason}); "
                          + ("a completed session is never resumed: replay it, or run again"
                             if completed else "nothing to resume"))
+    if spec.live is None and args.config is not None:  # not a port to open: said, not ignored
+        raise ValueError(f"--config is for a live session's ports; {args.session} ran on the simulator "
+                         "(resume it without --config)")
     done = len(steps)
     warn_if_torn(args.session)  # what resuming will cut away
     from fieldcal.cli.production import accept_after

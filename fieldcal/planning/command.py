@@ -183,6 +183,12 @@ def cmd_plan(args) -> int:
         chosen = tuple(next(c for c in pool if np.allclose(c.attitude, p.attitude))
                        for p in reference.positions)
         plan = Plan(chosen, ref_design, ref_seconds, ref_sigmas)
+    elif plan.seconds >= ref_seconds:  # field-18 misses the target too: longer is the price, said
+        untightened = all(np.all(ref_sigmas[n] <= t) for n, t in limits.items())
+        why = (f"; field-18 meets it without the {args.margin:.0%} --margin (--slack {args.margin:g} "
+               f"plans to field-18's σ)" if args.margin and untightened else "")
+        print(f"no procedure shorter than field-18 meets the target{' with --margin' * bool(args.margin)}: "
+              f"this plan takes {plan.seconds / ref_seconds:.2f}× field-18's time{why}", file=sys.stderr)
     out = Path(args.out)
     text = procedure_yaml(plan, out.stem, plan_title(config.device.name, args.target, args.slack),
                           operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""),

@@ -20,7 +20,7 @@ from enum import StrEnum
 import numpy as np
 
 from fieldcal.procedure import events as ev
-from fieldcal.procedure.positions import Procedure
+from fieldcal.procedure.positions import Procedure, position_words
 from fieldcal.procedure.stillness import StillnessDetector, StillnessSettings, check_orientation, gravity_direction
 from fieldcal.procedure.windows import MINUS, PLUS, STATIC, StepRecord, Window, WindowKind, WindowRecord
 
@@ -414,8 +414,9 @@ class Engine:
             return [ev.ProcedureComplete(self.t, len(self.records), len(self.skipped))]
         self.phase = PLACE
         p = self.position
-        return [ev.StepStarted(self.t, step, p.id, p.description, len(self.procedure.positions)),
-                ev.PlaceUnit(self.t, p.id, p.description)]
+        words = position_words(p)  # a corner the file does not describe: its attitude in words
+        return [ev.StepStarted(self.t, step, p.id, words, len(self.procedure.positions)),
+                ev.PlaceUnit(self.t, p.id, words)]
 
     def _stop_table(self) -> list[ev.Event]:
         if self.phase in (RATE_WAIT, RATE_AVERAGE):

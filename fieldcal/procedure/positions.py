@@ -222,3 +222,49 @@ def _targets(r: FieldReader, m: dict) -> tuple[tuple[str, str, float], ...]:
                 r.fail(join(where, name), "a σ > 0", describe(value), line_of(params, name))
             out.append((triad, name, sigma))
     return tuple(out)
+
+
+_SIGNED_SUMS = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)
+                         if (a, b, c) != (0, 0, 0)], dtype=float)
+
+
+def body_direction_name(v, tolerance_deg: float = 10.0) -> str | None:
+    """``v`` (body axes) as the procedure format writes a body direction: '-x' for an axis,
+    'x+z' for a face diagonal, '-x-y-z' for a body diagonal (within ``tolerance_deg``); None
+    when it is none of these."""
+    v = np.asarray(v, dtype=float) / np.linalg.norm(v)
+    units = _SIGNED_SUMS / np.linalg.norm(_SIGNED_SUMS, axis=1, keepdims=True)
+    best = int(np.argmax(units @ v))
+    if np.degrees(np.arccos(np.clip(units[best] @ v, -1.0, 1.0))) > tolerance_deg:
+        return None
+    name = "".join(("-" if s < 0 else "+") + a for s, a in zip(_SIGNED_SUMS[best], "xyz") if s)
+    return name.removeprefix("+")
+
+
+def compass_side(v_enu) -> str:
+    """The compass side the horizontal part of an ENU vector points to: 'north', 'south-east'."""
+    east, north = np.asarray(v_enu, dtype=float)[:2] / max(float(np.hypot(v_enu[0], v_enu[1])), 1e-12)
+    return "-".join(w for c, w in ((north, "north" if north > 0 else "south"),
+                                   (east, "east" if east > 0 else "west")) if abs(c) > 0.3)
+
+
+def position_words(p: Position) -> str:
+    """The position's description, or, when its file gives none, its attitude in the words of the
+    procedure files: 'z-upward, x-north, y-west' on a face, 'x+y+z upward, x towards north' on a
+    corner (the body direction that points up, and where the axes' horizontal parts point)."""
+    if p.description:
+        return p.description
+    up = body_direction_name(p.up_body)
+    if up is None:
+        words = ["(" + ", ".join(f"{c:.2f}" for c in p.up_body) + ") upward"]
+    elif len(up.lstrip("-")) == 1:  # a face: the files' own 'z-upward', 'x-downward'
+        words = [f"{up[-1]}-{'downward' if up.startswith('-') else 'upward'}"]
+    else:
+        words = [f"{up} upward"]
+    level = [i for i in range(3) if abs(p.attitude[2, i]) < 0.1]
+    if level:
+        words += [f"{'xyz'[i]}-{compass_side(p.attitude[:, i])}" for i in level]
+    else:
+        i = int(np.argmin(np.abs(p.attitude[2])))  # the axis nearest the horizontal
+        words.append(f"{'xyz'[i]} towards {compass_side(p.attitude[:, i])}")
+    return ", ".join(words)

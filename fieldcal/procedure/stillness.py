@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.chunk import SampleChunk
-from fieldcal.procedure.positions import Position
+from fieldcal.procedure.positions import Position, body_direction_name, position_words
 
 
 def _per_axis(value, name: str) -> tuple[float, float, float]:
@@ -369,23 +369,9 @@ _AXES = "xyz"
 
 
 def _body_direction_name(v: np.ndarray) -> str:
-    """'-x' for an axis, 'x+z' for a 45° diagonal (within 10°), else the components."""
+    """'-x' for an axis, 'x+z' or '-x-y-z' for a diagonal (within 10°), else the components."""
     v = v / np.linalg.norm(v)
-    for i in range(3):
-        for sign in (1, -1):
-            e = np.zeros(3)
-            e[i] = sign
-            if angle_between(v, e) <= 10:
-                return f"{'-' if sign < 0 else ''}{_AXES[i]}"
-    for i in range(3):
-        for j in range(i + 1, 3):
-            for si in (1, -1):
-                for sj in (1, -1):
-                    e = np.zeros(3)
-                    e[i], e[j] = si, sj
-                    if angle_between(v, e) <= 10:
-                        return f"{'-' if si < 0 else ''}{_AXES[i]}{'-' if sj < 0 else '+'}{_AXES[j]}"
-    return "(" + ", ".join(f"{c:.2f}" for c in v) + ")"
+    return body_direction_name(v) or "(" + ", ".join(f"{c:.2f}" for c in v) + ")"
 
 
 def describe_up(direction) -> str:
@@ -441,7 +427,7 @@ def check_orientation(direction, expected: Position, positions: Sequence[Positio
     tilt = tuple(float(a) for a in axis)
     if angle <= tolerance_deg:
         return OrientationCheck(True, angle, looks_like,
-                                f"position {expected.id} ({expected.description}): orientation ok, "
+                                f"position {expected.id} ({position_words(expected)}): orientation ok, "
                                 f"{angle:.0f}° from the expected up direction", tilt)
     if looks_like:
         ids = [p.id for p, _ in looks_like]
@@ -450,7 +436,7 @@ def check_orientation(direction, expected: Position, positions: Sequence[Positio
         seen = f"the unit is {describe_up(m)}, like no position"
     how = (f"tilt it {angle:.0f}° about the body {_body_direction_name(axis)} axis (right-hand rule) "
            f"until {_body_direction_name(e)} points up")
-    message = (f"position {expected.id} expects {expected.description}, but {seen}, "
+    message = (f"position {expected.id} expects {position_words(expected)}, but {seen}, "
                f"{angle:.0f}° away; {how}")
     return OrientationCheck(False, angle, looks_like, message, tilt)
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fieldcal.procedure.positions import Position
+from fieldcal.procedure.positions import Position, compass_side
 
 _AXES = "xyz"
 _ENU = (("east", "west"), ("north", "south"), ("up", "down"))
@@ -53,9 +53,7 @@ def _elevations(p: Position) -> str:
     for i, axis in enumerate(_AXES):
         v = p.attitude[:, i]
         elevation = math.degrees(math.asin(float(np.clip(v[2], -1.0, 1.0))))
-        east, north = np.array([v[0], v[1]]) / max(float(np.hypot(v[0], v[1])), 1e-12)
-        compass = "-".join(w for c, w in ((north, "north" if north > 0 else "south"),
-                                          (east, "east" if east > 0 else "west")) if abs(c) > 0.3)
+        compass = compass_side(v)
         out.append(f"{axis} {abs(elevation):.0f}° {'up' if elevation > 0 else 'down'} towards {compass}")
     return ", ".join(out)
 
@@ -70,8 +68,10 @@ def _heading_change_deg(previous: Position, target: Position) -> float:
 def placement(previous: Position | None, target: Position) -> Guidance:
     """How to move the unit from ``previous`` (None: not placed yet) into ``target``."""
     vertical, level = _vertical_axis(target), _horizontal_axis(target)
-    if previous is None:
-        return Guidance(f"place it {target.description}")
+    if previous is None:  # a position the file does not describe: its attitude says it
+        if target.description:
+            return Guidance(f"place it {target.description}")
+        return _pose("place it", "on", target, vertical, level)
     cos = float(np.clip(previous.up_body @ target.up_body, -1.0, 1.0))
     tip = math.degrees(math.acos(cos))
     if tip < 5.0:
@@ -83,8 +83,13 @@ def placement(previous: Position | None, target: Position) -> Guidance:
         where = f" so that {level[0]} points {level[1]}" if level else ""
         return Guidance(f"rotate it {abs(turn):.0f}°{sense}{where}", heading_only=True)
     verb = "turn it over" if tip > 135 else f"tip it {tip:.0f}° over"
+    return _pose(verb, "onto", target, vertical, level)
+
+
+def _pose(verb: str, onto: str, target: Position, vertical, level) -> Guidance:
+    """``verb`` followed by the pose ``target`` puts the unit in, axis by axis."""
     if vertical is None and level is None:  # on a corner: no compass word is an axis's direction
-        return Guidance(f"{verb} onto a corner: {_elevations(target)}")
+        return Guidance(f"{verb} {onto} a corner: {_elevations(target)}")
     if vertical is None:  # tilted: every axis's direction, as the procedure file gives them
         words = [f"{a} {direction_word(target.attitude[:, i])}" for i, a in enumerate(_AXES)]
         if level is not None:

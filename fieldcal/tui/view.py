@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from fieldcal.procedure import engine as en
 from fieldcal.procedure.engine import skipped_to_return_to
 from fieldcal.procedure import events as ev
-from fieldcal.procedure.positions import Procedure
+from fieldcal.procedure.positions import Procedure, position_words
 from fieldcal.run.progress import describe
 from fieldcal.tui.guidance import placement
 from fieldcal.tui.readings import Telemetry
@@ -297,7 +297,7 @@ class RunView:
         if self.step >= self.total_steps:
             return f"all {self.total_steps} steps done"
         p = self.position
-        return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {p.description}"
+        return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {position_words(p)}"
 
     def banner(self, sim: bool) -> tuple[str, str]:
         """(instruction for the operator, style class)."""
@@ -329,7 +329,7 @@ class RunView:
             seen = by_id.get(self.looks_like[0]) if self.looks_like else None
             move = placement(seen, p) if seen is not None else None
             text = (f"WRONG POSITION: it looks like position {seen.id}; {move.text}" if move else
-                    f"WRONG POSITION: position {p.id} is {p.description}")
+                    f"WRONG POSITION: position {p.id} is {position_words(p)}")
             how = "r: the simulator corrects it" if sim else "checked again once still"
             return f"{text}; {how}", "bad"
         if phase == en.SETTLING:
