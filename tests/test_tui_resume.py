@@ -393,14 +393,16 @@ def log_text(app) -> str:
     return " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
 
 
-async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step, make_config=live_config):
+async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step, make_config=live_config,
+                         said="regained"):
     """A live run: the first step, ``meanwhile()`` (the port goes and comes back; it returns the
-    device serving now), the banner shown once the run waits for the operator at ``then_step``."""
+    device serving now), the banner shown once the log has ``said`` it and the run waits for the
+    operator at ``then_step``."""
     app = _live_app(tmp_path, without_table(tmp_path, devices, make_config), procedure, world)
     async with app.run_test(size=(80, 24)) as pilot:
         await _first_step(app, pilot, devices, procedure)
         devices = await meanwhile(app, pilot)
-        await until(pilot, lambda: "regained" in log_text(app) and waiting_at(app, then_step)
+        await until(pilot, lambda: said in log_text(app) and waiting_at(app, then_step)
                     and app.telemetry.silent_s is None)  # (not the outage's NO SAMPLES banner)
         banner = str(app.screen.query_one("#banner").render())
         for step in range(then_step, len(procedure.positions)):
@@ -446,6 +448,27 @@ async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_agai
     unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
     assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
     assert unit.failures == app.outcome.unit.failures
+
+
+@run_async
+async def test_a_unit_power_cycled_with_its_port_open_has_its_completed_steps_measured_again(tmp_path, served):
+    """A unit behind a powered adapter (or on its own supply) restarts without its port noticing:
+    its clock going back mid-stream tells, and the run starts over as after a regained port."""
+    devices = served[0]
+    procedure = two_positions(tmp_path, SHORT)
+
+    async def switched_off_and_on(app, pilot):
+        devices.power_cycle(4).result(timeout=60)
+        return devices
+
+    app, banner, log = await _step_one_then(tmp_path, devices, lambda: devices.world_time, procedure,
+                                            switched_off_and_on, 0, said="stayed open")
+    reader, why = _first_step_measured_again(
+        tmp_path, app, banner, log, "POWER-CYCLED while the port stayed open",
+        "WARNING: the unit was power-cycled while its port stayed open (its clock reads")
+    assert ": lost" not in log and "regained" not in log  # the port never noticed
+    assert [s["step"] for s in reader.steps()] == [0, 0, 1]
+    assert [s.record.step for s in steps_on_record(reader)] == [0, 1]
 
 
 def _cable_pulled(devices):
