@@ -20,7 +20,7 @@ from drivers.sim.device import paper_mimu
 from drivers.sim.serve import SimulatedDevices
 from fieldcal.cli.tui import live_spec
 from fieldcal.config import load_config
-from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart
+from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart, went_back
 from fieldcal.run.replay import replay_session
 from fieldcal.run.steps import completed_records, steps_on_record
 from fieldcal.session.capture import SessionReader
@@ -73,6 +73,20 @@ def test_a_packet_counter_is_judged_modulo_its_wrap_and_nothing_is_cannot_tell()
     assert judge_restart(None, DeviceClock(10.0, 5.0), rate_hz=100).power_cycled is None
     assert DeviceClock.from_dict(last.to_dict()) == last
     assert DeviceClock.from_dict(None) is None  # a step recorded before clocks were
+
+
+def test_with_the_port_open_only_a_clock_gone_back_is_a_restart():
+    """Between two reads (``went_back``): frames read late or faster than the host run ahead of
+    or lag the host's time but never go back; a restarted clock does."""
+    last = DeviceClock(1000.0, 600.0)
+    assert went_back(last, DeviceClock(1000.1, 640.0), rate_hz=100) is None  # ran ahead (as fast as read)
+    assert went_back(last, DeviceClock(1010.0, 600.5), rate_hz=100) is None  # lagging (a backlog)
+    assert went_back(last, DeviceClock(1000.1, 599.0), rate_hz=100) is None  # within the slack
+    assert went_back(last, DeviceClock(1000.5, 0.3), rate_hz=100).power_cycled is True
+    near_wrap = DeviceClock(0.0, XSENS_TIME_PERIOD_S - 0.5, XSENS_TIME_PERIOD_S)
+    assert went_back(near_wrap, DeviceClock(1.0, 0.5, XSENS_TIME_PERIOD_S), rate_hz=100) is None  # wrapped
+    assert went_back(DeviceClock(0.0, counter=5000), DeviceClock(0.2, counter=20), rate_hz=100).power_cycled
+    assert went_back(DeviceClock(0.0), DeviceClock(0.2), rate_hz=100) is None  # no clock: cannot tell
 
 
 def test_the_clock_is_read_from_real_frames():

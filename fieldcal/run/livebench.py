@@ -12,7 +12,7 @@ import time
 from drivers.tables import TableError, open_table
 from drivers.transport import PORT_REGAINED
 from fieldcal.config import StationConfig
-from fieldcal.run.deviceclock import DeviceClock, clock_of, judge_restart
+from fieldcal.run.deviceclock import DeviceClock, clock_of, judge_restart, went_back
 from fieldcal.run.devices import DeviceConnection
 
 
@@ -107,15 +107,15 @@ class LiveBench:
         return chunks
 
     def _until_restart(self, before: DeviceClock | None, stamped: list) -> list:
-        """``stamped`` up to the first chunk whose device clock went back against the one
-        before it (``before``: the last chunk's before them), judged into ``regain_check``; that
-        chunk and the rest are held for the next call. All of them if none did, or one is
+        """``stamped`` up to the first chunk whose device clock went back against the one before
+        it (``went_back``; ``before``: the last chunk's before them), judged into ``regain_check``;
+        that chunk and the rest are held for the next call. All of them if none did, or one is
         already being judged."""
         for i, (arrival, chunk) in enumerate(stamped):
             now = self._clock_at(arrival, chunk)
             if before is not None and self.regain_check is None:
-                check = judge_restart(before, now, self.config.device.rate_hz)
-                if check.power_cycled:
+                check = went_back(before, now, self.config.device.rate_hz)
+                if check is not None:
                     self._judged(check, "stayed open")
                     self._pending = stamped[i:]
                     return stamped[:i]
