@@ -592,3 +592,39 @@ def test_a_live_session_resumed_at_the_console_after_a_power_cycle_measures_its_
     assert resume["completed_steps"] == [] and resume["dropped"] == [0] and "power-cycled" in resume["why"]
     steps = reader.steps()
     assert [s["step"] for s in steps] == [0, 0, 1] and steps[0] == first
+
+
+def test_frames_held_at_resume_past_a_regained_port_are_judged_against_those_before_it(tmp_path, served):
+    """``first_clock`` holds what it read, a lost and regained port among it: the frames after the
+    regain are judged against those before (here the unit restarted: its time went from 100 s
+    to 0.5 s in 2 s) and handed out only after the judgement is taken."""
+    from types import SimpleNamespace
+
+    from drivers.transport import PORT_REGAINED, PortEvent
+    from fieldcal.run.livebench import LiveBench
+
+    def chunk(t):
+        return SampleChunk(t=np.array([t - 0.01, t]), triads={"accelerometer": np.zeros((2, 3))})
+
+    class Port:
+        """The device's port as read once: stamped chunks (arrival, chunk) and the port's events."""
+        parser = SimpleNamespace(device_time=True)  # frames carry the device's time
+        counters = SimpleNamespace(discarded_bytes=0, checksum_failures=0, missing_frames=0)
+        batches = [([(1.0, chunk(100.0)), (3.0, chunk(0.5))], [PortEvent(PORT_REGAINED, 2.0, gap_s=0.5)])]
+
+        def read_stamped(self):
+            return self.batches.pop(0) if self.batches else ([], [])
+
+        def arrival_clock(self):
+            return 3.0
+
+    ticks = iter(range(100))
+    bench = LiveBench(without_table(tmp_path, served[0]), clock=lambda: float(next(ticks)),
+                      wall_clock=lambda: 1000.0)
+    bench.connection = Port()
+    assert bench.first_clock(timeout_s=10.0, fresh_s=0.5).time_s == 0.5
+    first = bench.next_chunks()
+    assert [float(c.t[-1]) for c in first] == [100.0]  # the frame before the loss only
+    check = bench.take_regain_check()
+    assert check.power_cycled is True and bench.judged_port == "was lost"
+    assert [float(c.t[-1]) for c in bench.next_chunks()] == [0.5]  # then the one after
