@@ -275,3 +275,53 @@ def test_certificate_checks_the_drift_since_the_units_previous_calibration(tmp_p
     for axis, drift in zip("xyz", (now.bias - before.bias) / 9.80665e-3):
         assert rows[f"bias {axis}"] == (f"FAIL: drifted {drift:.6g} mg since the previous calibration, "
                                         "more than 0.001 mg")
+
+
+def test_certificate_counts_the_steps_the_parameter_file_was_solved_from_not_those_measured_again(tmp_path):
+    """A run that starts over mid-way (a live device power-cycled: ``Restart``) keeps the old step
+    documents in its log; the certificate counts only the steps on record, and the skips made
+    after the restart, as the run's own engine ended with them."""
+    from fieldcal.earth import Station
+    from fieldcal.procedure import events as ev
+    from fieldcal.procedure.engine import PLACE
+    from fieldcal.procedure.positions import load_procedure
+    from fieldcal.run.conductor import Act, Conductor, Restart
+    from fieldcal.run.operators import ScriptedOperator
+    from fieldcal.run.recorder import SessionRecorder
+    from fieldcal.run.runner import RunSpec, SimulatedBench
+    from fieldcal.run.steps import ResumePoint
+    from fieldcal.certificate.evidence import gather
+    from fieldcal.session.capture import SessionReader
+
+    procedure = load_procedure(QUICK)
+    spec = RunSpec(procedure, Station(40.0, 50.0), seed=3)
+
+    class PowerCycledAfterTwoSteps(ScriptedOperator):
+        """Restarts (every completed step measured again) once two steps are done, then skips the first."""
+        restarted = False
+
+        def next_moves(self, run):
+            e = run.engine
+            if not self.restarted and len(e.records) == 2 and e.phase != PLACE:
+                self.restarted = True
+                return [Restart(ResumePoint((), tuple(sorted(e.skipped)), "power-cycled (test)",
+                                            tuple(sorted(e.records))))]
+            return super().next_moves(run)
+
+        def observe(self, e, run):
+            if self.restarted and isinstance(e, ev.PlaceUnit) and run.engine.step == 0:
+                self.pending.append(Act(ev.SKIP))
+                return
+            super().observe(e, run)
+
+    directory = tmp_path / "s"
+    recorder = SessionRecorder.create(directory, spec.session_metadata("in-process"))
+    operator = PowerCycledAfterTwoSteps(spec.script, procedure)
+    conductor = Conductor(spec, SimulatedBench(spec), operator, [recorder], session=directory,
+                          settings=spec.engine_settings())
+    assert conductor.run().status == "completed" and operator.restarted
+    engine = conductor.engine  # what the parameter file was solved from
+    assert len(SessionReader(directory).steps()) == len(engine.records) + 2  # the two dropped ones too
+    evidence = gather(directory)
+    assert evidence.completed == len(engine.records) == len(procedure.positions) - 1
+    assert evidence.skipped == (procedure.positions[0].id,)

@@ -251,3 +251,61 @@ def test_headless_progress_lines_reach_a_pipe_as_they_happen(tmp_path):
         proc.wait()
     assert header.startswith("headless field-18") and "step 1/18" in first
     assert steps_written < 3, "the first progress line came only after later steps were done"
+
+
+def test_a_restart_during_a_rate_step_stops_the_table_before_the_unit_is_placed_again():
+    """A power cycle seen mid-run (``Restart``) while the table turns: the old step's table is
+    stopped first, so the operator is never told to place the unit on a turning table."""
+    from fieldcal.procedure import events as ev
+    from fieldcal.procedure.engine import RATE_WAIT
+    from fieldcal.run.conductor import Conductor, Restart
+    from fieldcal.run.operators import ScriptedOperator
+    from fieldcal.run.runner import SimulatedBench
+    from fieldcal.run.steps import ResumePoint
+
+    procedure = parse_procedure("""name: t
+dwell_s: 5
+rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}
+positions:
+  - {id: 1, axes: {x: north, y: west, z: up}}
+  - {id: 2, axes: {x: south, y: east, z: up}}
+""", "t.yaml")
+    spec = RunSpec(procedure, STATION, seed=1)
+
+    class Bench(SimulatedBench):
+        def __init__(self, spec):
+            super().__init__(spec)
+            self.commands = []
+
+        def command_table(self, rate_deg_s):
+            self.commands.append(rate_deg_s)
+            super().command_table(rate_deg_s)
+
+    class PowerCycledInRateStep(ScriptedOperator):
+        restarted_after = None  # the table commands made before the restart
+        told_to_place_at = []  # the table's rate each time the operator was told to place the unit
+
+        def next_moves(self, run):
+            e = run.engine
+            if self.restarted_after is None and e.phase == RATE_WAIT:
+                self.restarted_after = list(run.bench.commands)
+                return [Restart(ResumePoint((), tuple(sorted(e.skipped)), "power-cycled",
+                                            tuple(sorted(e.records))))]
+            return super().next_moves(run)
+
+        def observe(self, e, run):
+            if isinstance(e, ev.PlaceUnit):
+                self.told_to_place_at = self.told_to_place_at + [run.bench.target_deg_s]
+            super().observe(e, run)
+
+    bench = Bench(spec)
+    operator = PowerCycledInRateStep(spec.script, procedure)
+    conductor = Conductor(spec, bench, operator, [], settings=spec.engine_settings())
+    conductor.start()
+    while conductor.step():
+        pass
+    assert operator.restarted_after == [10.0]  # the restart came while the table turned
+    assert bench.commands[:2] == [10.0, 0.0]  # and stopped it first
+    assert len(operator.told_to_place_at) >= 3  # first step, the restart's, the second step
+    assert operator.told_to_place_at == [0.0] * len(operator.told_to_place_at)
+    assert bench.target_deg_s == 0.0

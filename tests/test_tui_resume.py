@@ -20,7 +20,7 @@ from drivers.sim.device import paper_mimu
 from drivers.sim.serve import SimulatedDevices
 from fieldcal.cli.tui import live_spec
 from fieldcal.config import load_config
-from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart
+from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart, went_back
 from fieldcal.run.replay import replay_session
 from fieldcal.run.steps import completed_records, steps_on_record
 from fieldcal.session.capture import SessionReader
@@ -73,6 +73,20 @@ def test_a_packet_counter_is_judged_modulo_its_wrap_and_nothing_is_cannot_tell()
     assert judge_restart(None, DeviceClock(10.0, 5.0), rate_hz=100).power_cycled is None
     assert DeviceClock.from_dict(last.to_dict()) == last
     assert DeviceClock.from_dict(None) is None  # a step recorded before clocks were
+
+
+def test_with_the_port_open_only_a_clock_gone_back_is_a_restart():
+    """Between two reads (``went_back``): frames read late or faster than the host run ahead of
+    or lag the host's time but never go back; a restarted clock does."""
+    last = DeviceClock(1000.0, 600.0)
+    assert went_back(last, DeviceClock(1000.1, 640.0), rate_hz=100) is None  # ran ahead (as fast as read)
+    assert went_back(last, DeviceClock(1010.0, 600.5), rate_hz=100) is None  # lagging (a backlog)
+    assert went_back(last, DeviceClock(1000.1, 599.0), rate_hz=100) is None  # within the slack
+    assert went_back(last, DeviceClock(1000.5, 0.3), rate_hz=100).power_cycled is True
+    near_wrap = DeviceClock(0.0, XSENS_TIME_PERIOD_S - 0.5, XSENS_TIME_PERIOD_S)
+    assert went_back(near_wrap, DeviceClock(1.0, 0.5, XSENS_TIME_PERIOD_S), rate_hz=100) is None  # wrapped
+    assert went_back(DeviceClock(0.0, counter=5000), DeviceClock(0.2, counter=20), rate_hz=100).power_cycled
+    assert went_back(DeviceClock(0.0), DeviceClock(0.2), rate_hz=100) is None  # no clock: cannot tell
 
 
 def test_the_clock_is_read_from_real_frames():
@@ -393,14 +407,16 @@ def log_text(app) -> str:
     return " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
 
 
-async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step, make_config=live_config):
+async def _step_one_then(tmp_path, devices, world, procedure, meanwhile, then_step, make_config=live_config,
+                         said="regained"):
     """A live run: the first step, ``meanwhile()`` (the port goes and comes back; it returns the
-    device serving now), the banner shown once the run waits for the operator at ``then_step``."""
+    device serving now), the banner shown once the log has ``said`` it and the run waits for the
+    operator at ``then_step``."""
     app = _live_app(tmp_path, without_table(tmp_path, devices, make_config), procedure, world)
     async with app.run_test(size=(80, 24)) as pilot:
         await _first_step(app, pilot, devices, procedure)
         devices = await meanwhile(app, pilot)
-        await until(pilot, lambda: "regained" in log_text(app) and waiting_at(app, then_step)
+        await until(pilot, lambda: said in log_text(app) and waiting_at(app, then_step)
                     and app.telemetry.silent_s is None)  # (not the outage's NO SAMPLES banner)
         banner = str(app.screen.query_one("#banner").render())
         for step in range(then_step, len(procedure.positions)):
@@ -446,6 +462,27 @@ async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_agai
     unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
     assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
     assert unit.failures == app.outcome.unit.failures
+
+
+@run_async
+async def test_a_unit_power_cycled_with_its_port_open_has_its_completed_steps_measured_again(tmp_path, served):
+    """A unit behind a powered adapter (or on its own supply) restarts without its port noticing:
+    its clock going back mid-stream tells, and the run starts over as after a regained port."""
+    devices = served[0]
+    procedure = two_positions(tmp_path, SHORT)
+
+    async def switched_off_and_on(app, pilot):
+        devices.power_cycle(4).result(timeout=60)
+        return devices
+
+    app, banner, log = await _step_one_then(tmp_path, devices, lambda: devices.world_time, procedure,
+                                            switched_off_and_on, 0, said="stayed open")
+    reader, why = _first_step_measured_again(
+        tmp_path, app, banner, log, "POWER-CYCLED while the port stayed open",
+        "WARNING: the unit was power-cycled while its port stayed open (its clock reads")
+    assert ": lost" not in log and "regained" not in log  # the port never noticed
+    assert [s["step"] for s in reader.steps()] == [0, 0, 1]
+    assert [s.record.step for s in steps_on_record(reader)] == [0, 1]
 
 
 def _cable_pulled(devices):
@@ -555,3 +592,39 @@ def test_a_live_session_resumed_at_the_console_after_a_power_cycle_measures_its_
     assert resume["completed_steps"] == [] and resume["dropped"] == [0] and "power-cycled" in resume["why"]
     steps = reader.steps()
     assert [s["step"] for s in steps] == [0, 0, 1] and steps[0] == first
+
+
+def test_frames_held_at_resume_past_a_regained_port_are_judged_against_those_before_it(tmp_path, served):
+    """``first_clock`` holds what it read, a lost and regained port among it: the frames after the
+    regain are judged against those before (here the unit restarted: its time went from 100 s
+    to 0.5 s in 2 s) and handed out only after the judgement is taken."""
+    from types import SimpleNamespace
+
+    from drivers.transport import PORT_REGAINED, PortEvent
+    from fieldcal.run.livebench import LiveBench
+
+    def chunk(t):
+        return SampleChunk(t=np.array([t - 0.01, t]), triads={"accelerometer": np.zeros((2, 3))})
+
+    class Port:
+        """The device's port as read once: stamped chunks (arrival, chunk) and the port's events."""
+        parser = SimpleNamespace(device_time=True)  # frames carry the device's time
+        counters = SimpleNamespace(discarded_bytes=0, checksum_failures=0, missing_frames=0)
+        batches = [([(1.0, chunk(100.0)), (3.0, chunk(0.5))], [PortEvent(PORT_REGAINED, 2.0, gap_s=0.5)])]
+
+        def read_stamped(self):
+            return self.batches.pop(0) if self.batches else ([], [])
+
+        def arrival_clock(self):
+            return 3.0
+
+    ticks = iter(range(100))
+    bench = LiveBench(without_table(tmp_path, served[0]), clock=lambda: float(next(ticks)),
+                      wall_clock=lambda: 1000.0)
+    bench.connection = Port()
+    assert bench.first_clock(timeout_s=10.0, fresh_s=0.5).time_s == 0.5
+    first = bench.next_chunks()
+    assert [float(c.t[-1]) for c in first] == [100.0]  # the frame before the loss only
+    check = bench.take_regain_check()
+    assert check.power_cycled is True and bench.judged_port == "was lost"
+    assert [float(c.t[-1]) for c in bench.next_chunks()] == [0.5]  # then the one after

@@ -70,7 +70,13 @@ class SimulatedDevices:
             raise ValueError(f"rate_hz: expected a finite number > 0, got {rate_hz}")
         self.simulator = MimuSimulator(triads, gravity=gravity, latitude_rad=latitude_rad,
                                        rate_hz=rate_hz, seed=seed)
-        self.encoder = make_encoder(imu_protocol)
+        self._make_simulator = lambda seed: MimuSimulator(triads, gravity=gravity, latitude_rad=latitude_rad,
+                                                          rate_hz=rate_hz, seed=seed)
+        self._make_encoder = lambda: make_encoder(imu_protocol)
+        self.encoder = self._make_encoder()
+        self._cycles: queue.SimpleQueue = queue.SimpleQueue()  # power cycles asked for, not yet made
+        self._time_lock = threading.Lock()
+        self._time_before_cycles = 0.0  # sample time run before the last power cycle, s
         self.motion = TableMotion()
         self.table = make_virtual_table(table_protocol, self.motion) if table_protocol else None
         link = PtyLink if transport == "pty" else TcpLink
@@ -96,6 +102,21 @@ class SimulatedDevices:
         done: Future = Future()
         self._moves.put((np.asarray(attitude, dtype=float), seconds, shake, done))
         return done
+
+    def power_cycle(self, seed: int) -> Future:
+        """The unit switched off and on again with its port left open (a powered adapter, a
+        socket, a unit with its own supply): from its next frame on, its clock and packet counter
+        start from zero and its turn-on biases are ``seed``'s (the simulated table, modelled with the
+        unit, starts again at rest). The future is done once it is."""
+        done: Future = Future()
+        self._cycles.put((seed, done))
+        return done
+
+    @property
+    def world_time(self) -> float:
+        """The sample time run since the devices started, across power cycles, s."""
+        with self._time_lock:
+            return self._time_before_cycles + self.simulator.time
 
     @property
     def imu_url(self) -> str:
@@ -129,6 +150,13 @@ class SimulatedDevices:
         sim, motion = self.simulator, self.motion
         pending = None
         while not self._stop.is_set():
+            if not self._cycles.empty():
+                seed, cycled = self._cycles.get()
+                with self._time_lock:
+                    self._time_before_cycles += sim.time
+                    sim = self.simulator = self._make_simulator(seed)
+                self.encoder, started = self._make_encoder(), time.monotonic()
+                cycled.set_result(None)
             if pending is None and not self._moves.empty():
                 pending = self._moves.get()
             with motion.lock:

@@ -85,6 +85,7 @@ def gather(directory: Path) -> Evidence:
     """Everything the certificate takes from the session directory. An imported recording (no
     procedure) has no positions to re-solve: its certificate says so."""
     from fieldcal.run.runner import RunSpec
+    from fieldcal.run.steps import skipped_on_record, steps_on_record
     from fieldcal.session.capture import SessionReader
 
     reader = SessionReader(directory)
@@ -93,9 +94,9 @@ def gather(directory: Path) -> Evidence:
         return Evidence({}, "an imported recording: no procedure positions to re-solve (`fieldcal calibrate "
                         "SESSION` shows each pose's residual)", session_temperature(reader), allan=allan)
     positions = RunSpec.from_metadata(reader.start).procedure.positions
-    steps = reader.steps()  # each says which steps were skipped before it
-    done = {s["step"] for s in steps}
-    skipped = sorted({i for s in steps for i in s.get("skipped", ())} - done)
+    # The steps the parameter file was solved from: not those a resume dropped (measured again)
+    done = {s.record.step for s in steps_on_record(reader)}
+    skipped = skipped_on_record(reader)
     found, note = replayed_residuals(directory)
     return Evidence(found, note, session_temperature(reader), tuple(positions[i].id for i in skipped),
                     len(done), allan)

@@ -418,6 +418,12 @@ class Engine:
         return [ev.StepStarted(self.t, step, p.id, words, len(self.procedure.positions)),
                 ev.PlaceUnit(self.t, p.id, words)]
 
+    def stop_table(self) -> list[ev.Event]:
+        """The table's stop command if this step has it turning (else none), the phase unchanged:
+        what a run that replaces this engine mid-step (a restart after a power cycle) publishes
+        first, so that the operator is never told to place the unit on a turning table."""
+        return self._stop_table()
+
     def _stop_table(self) -> list[ev.Event]:
         if self.phase in (RATE_WAIT, RATE_AVERAGE):
             return [ev.CommandTable(self.t, 0.0)]

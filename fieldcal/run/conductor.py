@@ -262,7 +262,10 @@ class Conductor:
         return True
 
     def _restart(self, point: ResumePoint) -> None:
-        """A recorded resume (replay): the engine restarts from the steps that run kept."""
+        """A run starting over mid-way (a power cycle seen when the port came back, or its
+        replay): the table stops first (the old engine's step may have it turning), then the engine
+        restarts from the steps that run kept."""
+        self._publish(self.engine.stop_table())
         keep = set(point.completed_steps)
         records = [r for step, r in self.engine.records.items() if step in keep]
         self.engine = Engine(self.spec.procedure, self.settings)

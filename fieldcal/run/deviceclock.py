@@ -121,6 +121,26 @@ def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float
     return ClockCheck(None, "its frames carry no packet counter or time")
 
 
+def went_back(before: DeviceClock, now: DeviceClock, rate_hz: float) -> ClockCheck | None:
+    """A restart seen between two reads with the port open: the device's time (else its packet
+    counter) went back from ``before`` to ``now`` by more than SLACK_S, judged then against the
+    host's time (``judge_restart``); None if it did not. A running clock only moves forward:
+    frames read late (a backlog drained, a device faster than the host) make it run ahead of the
+    host's time or lag it, never go back."""
+    if before.time_s is not None and now.time_s is not None:
+        step, period, slack = now.time_s - before.time_s, before.time_period_s, SLACK_S
+    elif before.counter is not None and now.counter is not None:
+        step, period, slack = now.counter - before.counter, before.counter_modulus, SLACK_S * rate_hz
+    else:
+        return None
+    if period is not None:
+        step = (step + period / 2) % period - period / 2  # the nearer way round
+    if step >= -slack:
+        return None
+    check = judge_restart(before, now, rate_hz)
+    return check if check.power_cycled else None
+
+
 def measured_again(check: ClockCheck | None, done: int, when: str) -> str:
     """Why the ``done`` completed steps are measured again after ``check`` (a device's clock
     judged ``when``: "since the last completed step", "while its port was lost"); "" if they

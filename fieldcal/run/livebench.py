@@ -12,7 +12,7 @@ import time
 from drivers.tables import TableError, open_table
 from drivers.transport import PORT_REGAINED
 from fieldcal.config import StationConfig
-from fieldcal.run.deviceclock import DeviceClock, clock_of, judge_restart
+from fieldcal.run.deviceclock import DeviceClock, clock_of, judge_restart, went_back
 from fieldcal.run.devices import DeviceConnection
 
 
@@ -41,7 +41,9 @@ class LiveBench:
         self._pending: list = []  # (arrival, chunk) read and not yet handed out (first_clock, a regain)
         self._pending_events: list = []  # and the port's events meanwhile
         self._regained_at: float | None = None  # the port came back then; its first frames not yet read
-        self.regain_check = None  # what the device's clock said when its port came back (ClockCheck)
+        self.regain_check = None  # what the device's clock said when it may have restarted (ClockCheck)
+        self.judged_port = ""  # what its port did meanwhile: "was lost", "stayed open"
+        self._fed_clock: DeviceClock | None = None  # the device's clock in the last chunk handed out
 
     def start(self) -> LiveBench:
         self.connection.__enter__()
@@ -56,31 +58,36 @@ class LiveBench:
     def next_chunks(self) -> list:
         """The chunks read since last asked (never blocks), saying what the port and parser did.
 
-        When the port comes back after it was lost, the first frames after it are judged by the
-        device's clock against the last before (``judge_restart``: did the unit restart, i.e. was
-        it power-cycled?) into ``regain_check``, and handed out only on the next call, so that the
-        operator can act on the judgement (``take_regain_check``) before they are fed."""
+        The device's clock is judged against the frames before (``judge_restart``: did the unit
+        restart, i.e. was it power-cycled?) into ``regain_check`` where it may have: when the port
+        comes back after it was lost (the first frames after it against the last before), and on
+        every chunk read while it stays open (a unit on a powered adapter, a socket, its own
+        supply restarts without the port noticing). The frames from the judged one on are handed
+        out only on the next call, so that the operator can act on the judgement
+        (``take_regain_check``) before they are fed."""
         fresh, port_events = self.connection.read_stamped()
         if self._pending_events:
             port_events, self._pending_events = self._pending_events + list(port_events), []
         for pe in port_events:
             if pe.kind == PORT_REGAINED and self._regained_at is None:
                 self._regained_at = pe.t
-        stamped, self._pending = self._pending, []
-        if self._regained_at is None:
-            stamped += fresh
-        else:
-            stamped += [(t, c) for t, c in fresh if t < self._regained_at]
-            after = [(t, c) for t, c in fresh if t >= self._regained_at]
+        held, self._pending = self._pending, []  # (first_clock's, or those after a judgement)
+        stamped = held + fresh
+        if self._regained_at is not None:
+            # first_clock's frames too: those read after the regain wait for its judgement
+            after = [(t, c) for t, c in stamped if t >= self._regained_at]
+            stamped = [(t, c) for t, c in stamped if t < self._regained_at]
             if after:
-                if stamped:
-                    self.device_clock = self._clock_at(*stamped[-1])
-                self.regain_check = judge_restart(self.device_clock, self._clock_at(*after[0]),
-                                                  self.config.device.rate_hz)
+                lost_at = self._clock_at(*stamped[-1]) if stamped else self._fed_clock
+                if lost_at is not None:  # (none handed out yet: a resume judges the first frames)
+                    self._judged(judge_restart(lost_at, self._clock_at(*after[0]), self.config.device.rate_hz),
+                                 "was lost")
                 self._regained_at, self._pending = None, after
+        else:
+            stamped = held + self._until_restart(self._clock_at(*held[-1]) if held else self._fed_clock, fresh)
         chunks = [c for _, c in stamped]
         if stamped:
-            self.device_clock = self._clock_at(*stamped[-1])
+            self.device_clock = self._fed_clock = self._clock_at(*stamped[-1])
         for pe in port_events:
             detail = f": {pe.message}" if pe.message and pe.message != self.url else ""
             self.say(f"port {self.url}: {pe.kind}{f' after {pe.gap_s:.1f} s' if pe.gap_s else ''}{detail}")
@@ -98,6 +105,25 @@ class LiveBench:
                      f"failure(s), {c.missing_frames} frame(s) missing so far")
             self._trouble_reported = trouble
         return chunks
+
+    def _until_restart(self, before: DeviceClock | None, stamped: list) -> list:
+        """``stamped`` up to the first chunk whose device clock went back against the one before
+        it (``went_back``; ``before``: the last chunk's before them), judged into ``regain_check``;
+        that chunk and the rest are held for the next call. All of them if none did, or one is
+        already being judged."""
+        for i, (arrival, chunk) in enumerate(stamped):
+            now = self._clock_at(arrival, chunk)
+            if before is not None and self.regain_check is None:
+                check = went_back(before, now, self.config.device.rate_hz)
+                if check is not None:
+                    self._judged(check, "stayed open")
+                    self._pending = stamped[i:]
+                    return stamped[:i]
+            before = now
+        return stamped
+
+    def _judged(self, check, port: str) -> None:
+        self.regain_check, self.judged_port = check, port
 
     def take_regain_check(self):
         """The judgement of the device's clock when its port came back (``ClockCheck``), once;

@@ -73,6 +73,19 @@ def steps_on_record(reader: SessionReader) -> list[StepDocument]:
     return steps
 
 
+def skipped_on_record(reader: SessionReader) -> list[int]:
+    """The steps the run skipped and did not complete since: the last resume's skips and those
+    logged after it (a resume that started over says which skips it kept)."""
+    skipped: set[int] = set()
+    for doc in reader.documents("event", "resume"):
+        data = doc["data"]
+        if doc["type"] == "resume":
+            skipped = set(ResumePoint.from_dict(data).skipped)
+        elif data.get("event") == "step_skipped":
+            skipped.add(int(data["step"]))
+    return sorted(skipped - {s.record.step for s in steps_on_record(reader)})
+
+
 def completed_records(reader: SessionReader) -> list[StepRecord]:
     """The completed steps a solve uses: per step, its last record (a resumed run may redo one)."""
     return list({s.record.step: s.record for s in steps_on_record(reader)}.values())

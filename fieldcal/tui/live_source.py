@@ -188,20 +188,23 @@ class LiveSource(SimSource):
         return super().next_moves(run)
 
     def _regained(self, check, run: Conductor) -> list:
-        """The device's port came back (a cable, a power cycle): unless its clock shows it ran on,
+        """The device's port came back (a cable, a power cycle), or its clock went back with the
+        port open (a power cycle behind a powered adapter): unless its clock shows it ran on,
         the run starts over as a resume after a power cycle does (every completed step measured
         again; the session keeps the old step documents and says why they no longer count)."""
         e = run.engine
         done = len(e.records)
-        when = "while its port was lost"
+        port = self.bench.judged_port  # "was lost", or "stayed open" (its clock went back meanwhile)
+        when = f"while its port {port}"
         why = measured_again(check, done, when)
         if not why and check.power_cycled is not False and e.phase != PLACE:
             why = step_started_again(check, when)
         if not why:
             kept = f"; the {done} completed step{'s are' if done != 1 else ' is'} kept" if done else ""
-            return [Say(f"port {self.bench.url} regained: {check.reason}{kept}")]
+            news = "regained" if port == "was lost" else "open, the unit restarted"
+            return [Say(f"port {self.bench.url} {news}: {check.reason}{kept}")]
         skipped = tuple(sorted(e.skipped))
-        banner = power_cycle_banner(check, done, "while the port was lost")
+        banner = power_cycle_banner(check, done, f"while the port {port}")
         self._items.append(ResumeNote(e.t, f"WARNING: {why}", banner, warn=True, skipped=skipped))
         return [Restart(ResumePoint((), skipped, why, tuple(sorted(e.records))))]
 
