@@ -84,7 +84,7 @@ XSENS_B046897 = {
 }
 
 
-def test_imu_tk_xsens_optimum_is_the_one_before_the_speed_work(xsens):
+def test_imu_tk_xsens_optimum_is_b046897s_within_a_thousandth_sigma(xsens):
     # b046897 weighted the pose means by white noise alone; the noise measured from the recording
     # (noise_estimate, later) changes the weights and so the optimum, not the search for it.
     recording, _ = xsens

@@ -486,7 +486,7 @@ def test_a_layout_change_never_mixes_channels():
     assert parser.counters.frames == 7 and parser.counters.sequence_gaps == 0
 
 
-def test_layouts_alternating_faster_than_feed_calls_are_capped_and_counted():
+def test_layouts_alternating_more_often_than_feed_calls_are_capped_and_counted():
     parser = XsensMtData2Parser()
     parser.MAX_PENDING_RUNS = 3
     stream = b"".join(basic_frame(i, mag=(1.0, 1.0, 1.0) if i % 2 else None) for i in range(8))
