@@ -98,14 +98,15 @@ def _bit_reversed(n: int) -> np.ndarray:
 
 
 def _compose(q):
-    """(4, g, P) -> (4, g): the product of each group's P quaternions in time order, stored in
-    bit-reversed order (P a power of two), so that each of the log2(P) passes multiplies the first
-    half by the second: element i of the first half is always the step just before element i of
-    the second (contiguous halves, no strided pairs)."""
-    while q.shape[-1] > 1:
-        half = q.shape[-1] // 2
-        q = _qmul(q[..., :half], q[..., half:])
-    return q[..., 0]
+    """(4, ..., P, g) -> (4, ..., g): the product of each group's P quaternions in time order,
+    stored in bit-reversed order (P a power of two), so that each of the log2(P) passes multiplies
+    the first half by the second: element i of the first half is always the step just before
+    element i of the second. The groups are the last axis, so each half is one contiguous run of
+    memory per leading index (a short strided inner axis would cost numpy several times more)."""
+    while q.shape[-2] > 1:
+        half = q.shape[-2] // 2
+        q = _qmul(q[..., :half, :], q[..., half:, :])
+    return q[..., 0, :]
 
 
 def _rotate_back(q, v):
@@ -155,9 +156,10 @@ class _Steps:
         padded = blocks * _BLOCK
         owner = np.repeat(np.arange(len(spans)), padded)
         k = np.arange(padded.sum()) - np.repeat(np.cumsum(padded) - padded, padded)
-        # Within each block the steps are stored in bit-reversed order (see _compose).
-        k = (k.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)]).ravel()
-        owner = owner.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].ravel()
+        # Stored position-major, (_BLOCK, blocks): position p of every block, then p + 1; within
+        # a block the positions are the steps in bit-reversed order (see _compose).
+        k = k.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
+        owner = owner.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
         valid = k < lengths[owner]
         j = np.where(valid, i0[owner] + k, i0[owner])  # padding: any real step
         h = np.where(valid, t[j + 1] - t[j], 0.0)
@@ -180,7 +182,7 @@ class _Steps:
         first = np.cumsum(blocks) - blocks
         slot = np.arange(size)
         gather = np.where(slot < blocks[:, None], first[:, None] + slot, blocks.sum())
-        self.gather = gather[:, _bit_reversed(size)]
+        self.gather = gather[:, _bit_reversed(size)].T.copy()  # (size, m), as _compose reads it
         self.duration = t[i1] - t[i0]
         self._groups: dict[int, np.ndarray] = {}
 
@@ -189,7 +191,7 @@ class _Steps:
         bit-reversed time, so a group's steps are those that differ only in its high bits."""
         if group not in self._groups:
             c = len(self.terms)
-            self._groups[group] = self.terms.reshape(c, -1, group, _BLOCK // group).sum(axis=2).reshape(c, -1)
+            self._groups[group] = self.terms.reshape(c, group, -1).sum(axis=1)
         return self._groups[group]
 
     def quaternions(self, K_inv, delta_b, group: int = 1):
@@ -213,7 +215,7 @@ class _Steps:
         # sin(θ/2)/θ times φ; at θ = 0 (the padding) φ = 0 and any finite factor gives 0.
         np.multiply(np.moveaxis(phi, -2, 0), np.sin(half) / np.maximum(angle, 1e-300), out=q[:3])
         np.cos(half, out=q[3])
-        q = _compose(q.reshape(q.shape[:-1] + (-1, _BLOCK // group)))  # (4, ..., blocks)
+        q = _compose(q.reshape(q.shape[:-1] + (_BLOCK // group, -1)))  # (4, ..., blocks)
         identity = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]).reshape((4,) + (1,) * (q.ndim - 1)),
                                    q.shape[:-1] + (1,))
         q = _compose(np.concatenate([q, identity], axis=-1)[..., self.gather])  # (4, ..., m)
