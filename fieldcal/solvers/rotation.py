@@ -130,6 +130,69 @@ def _rate_slope(window, t, idx, j):
             + wp[:, None] * window[rows, r + 2])
 
 
+def _compose_levels(q):
+    """As ``_compose`` for one array (4, P, g), keeping every level: [q, pairs, ..., (4, 1, g)]."""
+    levels = [q]
+    while q.shape[-2] > 1:
+        half = q.shape[-2] // 2
+        q = _qmul(q[:, :half], q[:, half:])
+        levels.append(q)
+    return levels
+
+
+_CONJUGATE = np.array([-1.0, -1.0, -1.0, 1.0])[:, None, None]
+
+
+def _after(levels, top):
+    """Walk ``_compose_levels`` back down: from the (4, 1, g) quaternions of what follows each
+    root, the (4, P, g) ones of what follows each leaf, as rotations carried back to the leaf:
+    a right child is followed by what follows its parent, a left child by that after its right
+    sibling, so its quaternion is the parent's times the sibling's conjugate."""
+    s = top
+    for children in levels[-2::-1]:
+        half = children.shape[1] // 2
+        s = np.concatenate([_qmul(s, children[:, half:] * _CONJUGATE), s], axis=1)
+    return s
+
+
+def _matrix(q):
+    """(3, 3, ...) rotation matrices of quaternions (4, ...) [x, y, z, w]."""
+    x, y, z, w = q
+    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
+    return 2.0 * np.array([[0.5 - yy - zz, xy - wz, xz + wy],
+                           [xy + wz, 0.5 - xx - zz, yz - wx],
+                           [xz - wy, yz + wx, 0.5 - xx - yy]])
+
+
+def _weights(A, delta_b):
+    """(10, 3): a step's rotation vector is this matrix's transpose times its 10 terms (see
+    _Steps) for calibrated rates A·(v − δb)."""
+    coning = np.linalg.det(A) * np.linalg.inv(A)  # det(A)·K, applied to row vectors
+    bias_cross = np.array([[0.0, -delta_b[2], delta_b[1]], [delta_b[2], 0.0, -delta_b[0]],
+                           [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
+    return np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]])
+
+
+def _skews(v):
+    """(p, 3, 3) matrices X with row·X = row × v, for v (p, 3)."""
+    X = np.zeros(v.shape[:-1] + (3, 3))
+    X[..., 0, 1], X[..., 0, 2], X[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return X - np.swapaxes(X, -1, -2)
+
+
+def _weight_derivatives(A, delta_b, dK, d_delta_b):
+    """(p, 10, 3): the derivatives of _weights(A, δb) along p directions (dK, dδb) of K = A⁻¹ and
+    δb: dA = −A·dK·A, d(det A·K) = det A·(dK − tr(dK·A)·K)."""
+    K, det = np.linalg.inv(A), np.linalg.det(A)
+    dA = -A @ dK @ A
+    coning = det * K
+    d_coning = det * (dK - np.einsum("pij,ji->p", dK, A)[:, None, None] * K)
+    bias_cross = _skews(np.asarray(delta_b, dtype=float))
+    d_bias = _skews(d_delta_b) @ coning + bias_cross @ d_coning
+    d_rate = -(dA @ delta_b + d_delta_b @ A.T)
+    return np.concatenate([np.swapaxes(dA, 1, 2), d_coning, d_bias, d_rate[:, None]], axis=1)
+
+
 _BLOCK = 64  # steps composed per block: a span is padded to whole blocks, not to the longest span
 
 
@@ -183,6 +246,7 @@ class _Steps:
         slot = np.arange(size)
         gather = np.where(slot < blocks[:, None], first[:, None] + slot, blocks.sum())
         self.gather = gather[:, _bit_reversed(size)].T.copy()  # (size, m), as _compose reads it
+        self.first_block = first  # each span's first block (they are numbered span by span)
         self.duration = t[i1] - t[i0]
         self._groups: dict[int, np.ndarray] = {}
 
@@ -198,13 +262,50 @@ class _Steps:
         """(m, 4) quaternions of each span's rotation, scalar last. ``group`` (a power of two up
         to _BLOCK): so many consecutive steps taken as one, their increments summed (a coarse
         integration that leaves out the coning between them: for a scan, not a solve)."""
-        A = np.asarray(K_inv, dtype=float)
-        coning = np.linalg.det(A) * np.linalg.inv(A)  # det(A)·K, applied to row vectors
-        bias_cross = np.array([[0.0, -delta_b[2], delta_b[1]], [delta_b[2], 0.0, -delta_b[0]],
-                               [-delta_b[1], delta_b[0], 0.0]])  # row·this = row × δb
         terms = self.terms if group == 1 else self._grouped(group)
-        phi = np.vstack([A.T, coning, bias_cross @ coning, -(A @ delta_b)[None]]).T @ terms
-        return self.compose(phi, group)
+        return self.compose(_weights(np.asarray(K_inv, dtype=float), delta_b).T @ terms, group)
+
+    def jacobian(self, K_inv, delta_b, dK, d_delta_b):
+        """(m, 4) quaternions as ``quaternions`` and (m, 3, p) their derivatives along p
+        directions of (K, δb), dK (p, 3, 3) and d_delta_b (p, 3): δψ with C(x + dx) = C·exp(δψ×)
+        to first order (rad per unit of dx). Exact (no differencing): each step's rotation
+        vector φ_j moves by dW_jᵀ·terms_j, its rotation by J_r(φ_j) times that (the right
+        Jacobian of the exponential), and a change on step j reaches the span's end rotated by
+        S_jᵀ, S_j the product of the steps after j. The S_j come from the products the
+        composition made, walked back down its tree (a left child is followed by its right
+        sibling): about one more composition's work for all p directions."""
+        A = np.asarray(K_inv, dtype=float)
+        phi = _weights(A, delta_b).T @ self.terms
+        angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+        sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
+        cos = np.cos(0.5 * angle)
+        leaves = np.concatenate([phi * sinc, cos[None]]).reshape(4, _BLOCK, -1)
+        inner = _compose_levels(leaves)
+        blocks = inner[-1][:, 0]
+        identity = np.array([0.0, 0.0, 0.0, 1.0])
+        outer = _compose_levels(np.concatenate([blocks, identity[:, None]], axis=1)[:, self.gather])
+        q = outer[-1][:, 0]
+        q = (q / np.sqrt(np.sum(q * q, axis=0))).T
+        # Back down: each node's S (as a quaternion), the product of everything after it.
+        after = np.empty((4, blocks.shape[1] + 1))
+        after[:, self.gather] = _after(outer, np.broadcast_to(identity[:, None, None], (4, 1, len(q))))
+        after = _after(inner, after[:, None, :-1]).reshape(4, -1)
+        S = _matrix(after)  # (3, 3, steps)
+        # J_r(φ) = I − c1·[φ]× + c2·[φ]×², c1 = (1 − cos θ)/θ² = 2·sinc², c2 = (θ − sin θ)/θ³;
+        # B = S·J_r, summed against each step's terms per span: T[s, a, b, c] = Σ_j B_j[a, b]·t_j[c].
+        c1 = 2.0 * sinc * sinc
+        c2 = (1.0 - 2.0 * sinc * cos) / np.maximum(angle * angle, 1e-300)
+        skew = ((0.0, -phi[2], phi[1]), (phi[2], 0.0, -phi[0]), (-phi[1], phi[0], 0.0))  # [φ]×
+        J = np.empty((3, 3) + angle.shape)
+        for a in range(3):  # nine entries, each a vector over the steps
+            for b in range(3):
+                J[a, b] = c2 * (phi[a] * phi[b]) - c1 * skew[a][b]
+            J[a, a] += 1.0 - c2 * angle * angle
+        B = np.einsum("abj,bcj->acj", S, J, optimize=False).reshape(9, _BLOCK, -1)
+        per_block = np.matmul(B.transpose(2, 0, 1), self.terms.reshape(len(self.terms), _BLOCK, -1).transpose(2, 1, 0))
+        T = np.add.reduceat(per_block, self.first_block, axis=0).reshape(len(q), 3, 3, -1)
+        dW = _weight_derivatives(A, delta_b, np.asarray(dK, dtype=float), np.asarray(d_delta_b, dtype=float))
+        return q, np.einsum("sabc,kcb->sak", T, dW)
 
     def compose(self, phi, group: int = 1):
         """(..., m, 4) quaternions of each span's rotation from its steps' rotation vectors phi
@@ -400,6 +501,24 @@ class _Residuals:
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
+    def jacobian(self, theta, bias=None):
+        """(rotations as ``rotations``, their (2m, 12) Jacobian over bias_x..z, scale_x..z and
+        the six angles, whether the bias is estimated or held, exact (see _Steps.jacobian), and
+        the motions' quaternions)."""
+        nb = self.nb
+        b, K_inv = self.unpack(theta)
+        scale, angles = theta[nb:nb + 3], theta[nb + 3:]
+        dK = np.zeros((12, 3, 3))
+        dK[3:6] = [k_from_terms(e, angles) for e in np.eye(3)]  # K is linear in each group
+        dK[6:] = [k_from_terms(scale, e) - np.diag(scale) for e in np.eye(6)]
+        q, D = self.steps.jacobian(K_inv, (b if bias is None else bias) - self.start.b0, dK,
+                                   np.eye(12, 3))
+        turned = _rotate_back(q, self.motions.up_start)
+        r = np.einsum("mi,mik->mk", turned - self.motions.up_end, self.E).ravel()
+        # Cᵀ·u moves by (Cᵀ·u) × δψ when C becomes C·exp(δψ×).
+        moved = _cross(turned[:, None, :], np.swapaxes(D, 1, 2))  # (m, 12, 3)
+        return r, np.einsum("mpi,mik->mkp", moved, self.E).reshape(len(r), 12), q
+
     def side(self, theta):
         """The bias prior's equations (when estimated with a σ) and the extra ones, whitened."""
         b, K_inv = self.unpack(theta)
@@ -409,11 +528,11 @@ class _Residuals:
         return np.concatenate(parts) if parts else np.zeros(0)
 
 
-def _check_geometry(model: _Residuals, natural, fd_steps, name) -> np.ndarray:
-    """The rotation residuals' Jacobian at the start (natural units; forward differences: it
-    scales the search, the covariance has its own); CalibrationError when the motions leave some
+def _check_geometry(model: _Residuals, J_start, natural, name) -> np.ndarray:
+    """The rotation residuals' Jacobian at the start (natural units: it scales the search) from
+    ``J_start`` (model.jacobian's at theta0); CalibrationError when the motions leave some
     parameter (nearly) without effect."""
-    J_rot = _jacobian(model.rotations, model.theta0, fd_steps, central=False) * natural
+    J_rot = J_start[:, 3 - model.nb:] * natural
     sv, V = np.linalg.svd(J_rot, full_matrices=False)[1:]
     weak = sv < _GEOMETRY_RATIO * sv[0]
     if np.any(weak):
@@ -425,24 +544,26 @@ def _check_geometry(model: _Residuals, natural, fd_steps, name) -> np.ndarray:
     return J_rot
 
 
-def _whitening(model: _Residuals, noise: RotationNoise, n_side: int, name: str) -> np.ndarray | None:
+def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side: int, name: str) -> np.ndarray | None:
     """Whitening of [rotation residuals, side residuals]: the side ones come whitened, but a fixed
-    bias's error is common to all of them, so it is marginalised over the joint vector."""
+    bias's error is common to all of them, so it is marginalised over the joint vector
+    (``J_start``, ``q_start``: model.jacobian's at theta0; its first columns are ∂r/∂b)."""
     if not noise.given:
         return None
     m, start, steps = len(model.motions.spans), model.start, model.steps
     K_inv0 = model.unpack(model.theta0)[1]
-    C = Rotation.from_quat(steps.quaternions(K_inv0, 0 * start.b0)).as_matrix()
+    C = Rotation.from_quat(q_start).as_matrix()
     cov = _residual_covariance(model.E, C, model.motions.shared, noise.up_sigma, noise.rate_noise,
                                steps.duration, noise.motion_variance)
     if noise.up_covariance is not None:
         cov += _chained_up_covariance(model.E, C, np.asarray(noise.up_covariance, dtype=float))
     cov = np.block([[cov, np.zeros((2 * m, n_side))], [np.zeros((n_side, 2 * m)), np.eye(n_side)]])
     if noise.bias_sigma is not None and not start.estimate_bias:
-        def all_residuals(b):
-            side = model.extra(K_inv0, b.copy()) if model.extra is not None else []
-            return np.r_[model.rotations(model.theta0, b), np.atleast_1d(np.asarray(side, dtype=float))]
-        G = _jacobian(all_residuals, start.b0, 1e-6 * np.abs(np.diag(start.K0)))
+        G = J_start[:, :3]
+        if model.extra is not None:
+            def extra(b):
+                return np.atleast_1d(np.asarray(model.extra(K_inv0, b.copy()), dtype=float))
+            G = np.vstack([G, _jacobian(extra, start.b0, 1e-6 * np.abs(np.diag(start.K0)))])
         cov += G @ np.diag(model.sigma_b**2) @ G.T
     try:
         return np.linalg.inv(np.linalg.cholesky(cov))
@@ -453,13 +574,12 @@ def _whitening(model: _Residuals, noise: RotationNoise, n_side: int, name: str) 
 _STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the solve
 _SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
 _MAX_ITERATIONS = 100
-_FD_STEP_Z = 1e-5  # σ: forward-difference step of a fresh Jacobian in the search coordinates
 _FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
 
 
-def _broyden_gauss_newton(fun, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
+def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
     """Minimise ‖fun(z)‖² from z = 0, where fun's Jacobian at 0 is Q (orthonormal columns, so z
-    is in σ units): Gauss–Newton steps on a Jacobian made afresh by forward differences after a
+    is in σ units): Gauss–Newton steps on a Jacobian made afresh (``jac(z)``) after a
     step longer than _FAR σ and otherwise kept current by Broyden's rank-one updates (no
     evaluations of their own), each step halved until it lowers the cost. (z, iterations) once
     a step is below _SEARCH_TOL σ: the polish takes it from there."""
@@ -477,20 +597,20 @@ def _broyden_gauss_newton(fun, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
         else:
             if fresh:  # no step along the true gradient lowers the cost: at the optimum
                 return z, iteration
-            J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
+            J = jac(z)
             fresh = True
             continue
         r_old = r
         z, r, cost, fresh = z + dz, r_new, float(r_new @ r_new), False
         if np.linalg.norm(dz) > _FAR:  # far from the optimum: the curvature has changed much
-            J = np.column_stack([(fun(z + _FD_STEP_Z * e) - r) / _FD_STEP_Z for e in np.eye(p)])
+            J = jac(z)
             fresh = True
         else:
             J = J + np.outer(r - r_old - J @ dz, dz) / float(dz @ dz)
     return z, _MAX_ITERATIONS
 
 
-def _search(whitened, theta0, to_theta, Q, method):
+def _search(whitened, jacobian, theta0, to_theta, Q, method):
     """(theta, converged, message, iterations) of the search in whitened coordinates z."""
     p = len(theta0)
     if method == "powell":
@@ -501,7 +621,8 @@ def _search(whitened, theta0, to_theta, Q, method):
                                 options={"direc": np.eye(p), "xtol": 1e-4, "ftol": 1e-13,
                                          "maxfev": 20000})
         return theta0 + to_theta @ res.x, bool(res.success), str(res.message), int(res.nit)
-    z, iterations = _broyden_gauss_newton(lambda z: whitened(theta0 + to_theta @ z), p, Q)
+    z, iterations = _broyden_gauss_newton(lambda z: whitened(theta0 + to_theta @ z),
+                                          lambda z: jacobian(theta0 + to_theta @ z) @ to_theta, p, Q)
     converged = iterations < _MAX_ITERATIONS
     message = (f"Gauss-Newton (Broyden): steps below {_SEARCH_TOL:g} sigma after {iterations} iterations"
                if converged else f"Gauss-Newton (Broyden): no convergence in {iterations} iterations")
@@ -511,15 +632,14 @@ def _search(whitened, theta0, to_theta, Q, method):
 _POLISH_DONE = 0.1  # σ: after a longer polishing step the Jacobian is made afresh
 
 
-def _polish(whitened, theta, natural, fd_steps):
+def _polish(whitened, jacobian, theta, natural):
     """(theta, the whitened residuals and their Jacobian in natural units): Gauss–Newton steps on
-    forward-difference Jacobians of step 1e-7 of each parameter's natural unit (the covariance's:
-    truncation and rounding errors near 1e-7 relative), so that the optimum does not depend on
-    the search's approximate Jacobian, until a step is below _STEP_TOL σ. The Jacobian is made afresh
+    Jacobians made afresh (``jacobian(theta)``, the covariance's), so that the optimum does not
+    depend on the search's approximate Jacobian, until a step is below _STEP_TOL σ. The Jacobian is made afresh
     after a step longer than _POLISH_DONE σ (or one that fails); shorter ones reuse it (chord
     steps, one evaluation each). The Jacobian returned is the last one made."""
     r = whitened(theta)
-    J, fresh = _jacobian(whitened, theta, fd_steps, central=False, f0=r) * natural, True
+    J, fresh = jacobian(theta) * natural, True
     for _ in range(20):
         d = -np.linalg.lstsq(J, r, rcond=None)[0]
         size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
@@ -529,11 +649,11 @@ def _polish(whitened, theta, natural, fd_steps):
         if float(r_new @ r_new) > float(r @ r):
             if fresh:
                 break
-            J, fresh = _jacobian(whitened, theta, fd_steps, central=False, f0=r) * natural, True
+            J, fresh = jacobian(theta) * natural, True
             continue
         theta, r = theta + natural * d, r_new
         if size > _POLISH_DONE:
-            J, fresh = _jacobian(whitened, theta, fd_steps, central=False, f0=r) * natural, True
+            J, fresh = jacobian(theta) * natural, True
         else:
             fresh = False
     return theta, r, J
@@ -568,8 +688,9 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
     natural = np.r_[np.abs(k0)[:nb] / model.steps.duration.mean(), np.abs(k0), np.ones(6)]
     fd_steps = 1e-7 * natural
-    J_rot = _check_geometry(model, natural, fd_steps, name)
-    whiten = _whitening(model, noise, n_side, name)
+    _, J_start, q_start = model.jacobian(theta0)
+    J_rot = _check_geometry(model, J_start, natural, name)
+    whiten = _whitening(model, J_start, q_start, noise, n_side, name)
     count = [0]
 
     def whitened(theta):
@@ -583,10 +704,17 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
     Q, R = np.linalg.qr(J0)
     to_theta = natural[:, None] * np.linalg.inv(R)
-    theta, converged, message, iterations = _search(whitened, theta0, to_theta, Q, method)
+    def jacobian(theta):
+        """Of whitened: the rotations' exact, the side residuals' by forward differences."""
+        J = model.jacobian(theta)[1][:, 3 - nb:]
+        if n_side:
+            J = np.vstack([J, _jacobian(model.side, theta, fd_steps, central=False)])
+        return J if whiten is None else whiten @ J
+
+    theta, converged, message, iterations = _search(whitened, jacobian, theta0, to_theta, Q, method)
     if not converged:
         raise CalibrationError(f"{name}: {method} did not converge ({message})")
-    theta, r_w, J = _polish(whitened, theta, natural, fd_steps)
+    theta, r_w, J = _polish(whitened, jacobian, theta, natural)
     evaluations = count[0]
     chi2, dof = float(r_w @ r_w), len(r_w) - p
     sv = np.linalg.svd(J, compute_uv=False)
