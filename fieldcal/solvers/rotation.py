@@ -116,18 +116,23 @@ def _rotate_back(q, v):
     return v + qw * t + _cross(qv, t)
 
 
-def _rate_slope(window, t, idx, j):
-    """dω/dt at samples idx from the quadratic through three neighbours (one-sided at the ends);
-    window[:, r] holds sample j - 1 + r of the rates."""
-    c = np.clip(idx, 1, len(t) - 2)
+def _rate_slopes(values, offset, t, wide, rates):
+    """(k - 2, 3) dω/dt at samples wide[1:-1] from the quadratic through three neighbours
+    (one-sided at the recording's ends): ``rates`` (k, 3) are values[wide] − offset, and where
+    wide[i - 1], wide[i], wide[i + 1] are not consecutive (between spans) the slope is not used."""
+    n = len(t)
+    idx = np.clip(wide[1:-1], 0, n - 1)
+    c = np.clip(idx, 1, n - 2)
     tm, t0, tp, x = t[c - 1], t[c], t[c + 1], t[idx]
     wm = (2 * x - t0 - tp) / ((tm - t0) * (tm - tp))
     w0 = (2 * x - tm - tp) / ((t0 - tm) * (t0 - tp))
     wp = (2 * x - tm - t0) / ((tp - tm) * (tp - t0))
-    r = c - j  # c - 1 - (j - 1): the window column of sample c - 1
-    rows = np.arange(len(window))
-    return (wm[:, None] * window[rows, r] + w0[:, None] * window[rows, r + 1]
-            + wp[:, None] * window[rows, r + 2])
+    vm, v0, vp = rates[:-2], rates[1:-1], rates[2:]
+    ends = np.flatnonzero(c != idx)  # the first or last sample: its stencil is one-sided
+    if len(ends):
+        vm, v0, vp = vm.copy(), v0.copy(), vp.copy()
+        vm[ends], v0[ends], vp[ends] = (values[c[ends] + d] - offset for d in (-1, 0, 1))
+    return wm[:, None] * vm + w0[:, None] * v0 + wp[:, None] * vp
 
 
 def _compose_levels(q):
@@ -228,17 +233,23 @@ class _Steps:
         h = np.where(valid, t[j + 1] - t[j], 0.0)
         if np.any(h[valid] <= 0):
             raise ValueError("t must increase within every span")
-        # The samples a step reads: j - 1 .. j + 2 (the slopes' stencils), offset taken off.
-        rows = np.clip(j[:, None] + np.arange(-1, 3), 0, n - 1)
-        window = np.asarray(values, dtype=float)[rows]
-        if offset is not None:
-            window -= offset
+        # Each sample of each span once (span by span, i0..i1) with its slope, offset taken off;
+        # a step j reads sample j's row and the next. Read with one more sample each side (the
+        # slopes' stencils): consecutive samples, so each stencil is three shifted slices.
+        values = np.asarray(values, dtype=float)
+        offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=float)
+        read = lengths + 3
+        first_read = np.cumsum(read) - read
+        wide = np.arange(read.sum()) - np.repeat(first_read - i0 + 1, read)  # i0 - 1 .. i1 + 1
+        rates = values[np.clip(wide, 0, n - 1)] - offset
+        table = np.hstack([rates[1:-1], _rate_slopes(values, offset, t, wide, rates)])
+        at = np.where(valid, first_read[owner] + k, first_read[owner])  # row of sample j in table
+        step0, step1 = table[at], table[at + 1]
+        v0, v1 = step0[:, :3], step1[:, :3]
         h = h[:, None]  # zero for padding: a zero increment, the identity rotation
         w = h * h / 12.0
-        v0, v1 = window[:, 1], window[:, 2]
         # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
-        slope_change = _rate_slope(window, t, j + 1, j) - _rate_slope(window, t, j, j)
-        integral = h / 2 * (v0 + v1) - w * slope_change
+        integral = h / 2 * (v0 + v1) - w * (step1[:, 3:] - step0[:, 3:])
         self.terms = np.hstack([integral, w * _cross(v0, v1), w * (v1 - v0), h]).T.copy()  # (10, steps)
         # Each span's blocks, padded to a power of two with an identity block, bit-reversed.
         size = 1 << int(blocks.max() - 1).bit_length()
