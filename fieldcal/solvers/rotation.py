@@ -341,30 +341,52 @@ def integrate(omega, t, spans) -> np.ndarray:
 
 _SCAN_GROUP = 8  # steps taken as one by the coarse scan (0.08 s at 100 Hz)
 _SCAN_BATCH = 8  # candidate scales integrated at once (their temporaries: a few MiB)
+_SCAN_SAMPLE = 6  # every so many motions bound every scale's misfit from below (see scan_scale)
+_SCAN_BOUNDED = 4  # scales integrated at once over all motions, in the order of their bounds
 
 
 def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
     """The k of ``scales`` (sorted, a few dozen) whose K = k·I best carries every motion's start
     direction onto its end (least sum of squared misfits): a raw-count gyro's sensitivity, the
-    start of its solve. All k by a coarse integration, then the best and its two neighbours by
-    the exact one."""
+    start of its solve. The best k by a coarse integration, then the best of it and its two
+    neighbours by the exact one.
+
+    The misfit is a sum over the motions of squares, so every _SCAN_SAMPLE-th motion's share is
+    a lower bound of it: all k are integrated over those motions, and over all motions only in
+    the order of their bounds until the next bound exceeds the least misfit found. A k left out
+    cannot be the best, so the choice is the full scan's."""
+    scales = np.asarray(scales, dtype=float)
+    spans = np.asarray(spans, dtype=int).reshape(-1, 2)
     steps = _Steps(raw, t, spans, offset=b0)
     up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
 
-    def misfit(k, group):
-        q = steps.quaternions(np.eye(3) / k, np.zeros(3), group)
-        return np.sum((_rotate_back(q, up_s) - up_e) ** 2)
-
-    # K⁻¹ = I/k, no bias change: a step's phi is ∫v/k + coning/k², for a batch of k at once.
-    terms = steps._grouped(_SCAN_GROUP)
-    coarse = []
-    for k in np.array_split(np.asarray(scales, dtype=float), -(-len(scales) // _SCAN_BATCH)):
+    def coarse(steps, k, rows=slice(None)):
+        # K⁻¹ = I/k, no bias change: a step's phi is ∫v/k + coning/k², for a batch of k at once.
+        terms = steps._grouped(_SCAN_GROUP)
         q = steps.compose(terms[None, 0:3] / k[:, None, None] + terms[None, 3:6] / k[:, None, None] ** 2,
                           _SCAN_GROUP)
-        coarse.append(np.sum((_rotate_back(q, up_s) - up_e) ** 2, axis=(1, 2)))
-    best = int(np.argmin(np.concatenate(coarse)))
+        return np.sum((_rotate_back(q, up_s[rows]) - up_e[rows]) ** 2, axis=(1, 2))
+
+    def batches(index):
+        return np.array_split(index, -(-len(index) // _SCAN_BATCH))
+
+    rows = np.arange(0, len(spans), _SCAN_SAMPLE)
+    sample = _Steps(raw, t, spans[rows], offset=b0)
+    bound = coarse(sample, scales, rows)  # all at once: a sixth of the steps
+    misfits = np.full(len(scales), np.inf)
+    order = np.argsort(bound, kind="stable")
+    for start in range(0, len(order), _SCAN_BOUNDED):
+        if bound[order[start]] > np.min(misfits) * (1 + 1e-9):  # the rest too: none can be the best
+            break
+        batch = order[start:start + _SCAN_BOUNDED]
+        misfits[batch] = coarse(steps, scales[batch])
+    if not np.all(np.isfinite(bound)) or np.any(np.isnan(misfits)):  # no bound: every k
+        misfits = np.concatenate([coarse(steps, scales[i]) for i in batches(np.arange(len(scales)))])
+    best = int(np.argmin(misfits))
     near = scales[max(best - 1, 0):best + 2]
-    return float(near[int(np.argmin([misfit(k, 1) for k in near]))])
+    exact = [np.sum((_rotate_back(steps.quaternions(np.eye(3) / k, np.zeros(3)), up_s) - up_e) ** 2)
+             for k in near]
+    return float(near[int(np.argmin(exact))])
 
 
 def _tangent_bases(up):
