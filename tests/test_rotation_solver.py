@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from fieldcal.solvers import CalibrationError
 from fieldcal.model import k_from_terms
-from fieldcal.solvers.rotation import integrate, solve_gyro_rotations
+from fieldcal.solvers.rotation import _Steps, integrate, scan_scale, solve_gyro_rotations
 
 FS = 100.0
 DEG = math.pi / 180
@@ -359,3 +359,69 @@ def test_the_parameter_file_holds_the_rotation_calibration():
     # And against the simulated truth: the file's angles are the true M's, within 4σ.
     true_terms = np.array([-obs["M"][2], obs["M"][4], -obs["M"][5]])
     assert np.all(np.abs(back.misalignment - true_terms) < 4 * back.sigma[6:])
+
+
+def test_the_exact_jacobian_is_a_hand_worked_turns_derivative():
+    """A constant rate ω about a fixed axis n for T seconds, raw = k·ω + b: the turn is exactly
+    exp(θ·n), θ = |ω|·T (no slope, no coning), and its derivatives are known in closed form:
+    scaling k by dk turns it back by θ/k·dk about n; a bias change δ along n by T/k·δ; one
+    perpendicular to n, e, by J_r(θn)·(−T/k)e = −T/k·(sin θ/θ·e − (1 − cos θ)/θ·n × e)."""
+    n = np.array([1.0, 2.0, 2.0]) / 3.0
+    e = np.array([2.0, -1.0, 0.0]) / math.sqrt(5.0)  # ⟂ n
+    rate, T, k, b = 1.3, 2.0, 1877.0, np.array([32768.0, 32700.0, 32800.0])
+    t = np.arange(int(T * FS) + 1) / FS
+    raw = np.tile(k * rate * n + b, (len(t), 1))
+    dK = np.array([np.eye(3), np.zeros((3, 3)), np.zeros((3, 3))])  # d(k·I), then two bias moves
+    d_bias = np.array([np.zeros(3), n, e])
+    q, D = _Steps(raw, t, [(0, len(t) - 1)], offset=b).jacobian(np.eye(3) / k, np.zeros(3), dK, d_bias)
+    theta = rate * T
+    np.testing.assert_allclose(Rotation.from_quat(q[0]).as_rotvec(), theta * n, rtol=1e-13, atol=1e-13)
+    expected = np.column_stack([-theta / k * n, -T / k * n,
+                                -T / k * (math.sin(theta) / theta * e - (1 - math.cos(theta)) / theta * np.cross(n, e))])
+    np.testing.assert_allclose(D[0], expected, rtol=1e-11, atol=1e-16)
+
+
+def test_the_exact_jacobian_is_the_finite_difference_one_on_a_hand_recording():
+    """Every element of K and of the bias, on two-axis turns in raw counts: the exact Jacobian and
+    central differences agree to their truncation and rounding errors (1e-7 relative here;
+    a wrong term would be off by its own size)."""
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(7), **GRADES["counts"])
+    steps = _Steps(obs["raw"], rec.t, rec.spans, offset=obs["b0"])
+    K = k_from_terms(obs["k"], obs["M"])
+    delta_b = obs["b"] - obs["b0"]
+
+    def turned(dK, d_bias):
+        return Rotation.from_quat(steps.quaternions(np.linalg.inv(K + dK), delta_b + d_bias))
+
+    dK = np.zeros((12, 3, 3))
+    dK[:9].reshape(9, 9)[:, :] = np.eye(9) * obs["nominal"]  # each element of K, 1 count per rad/s
+    d_bias = np.zeros((12, 3))
+    d_bias[9:] = np.eye(3)  # 1 count
+    q, D = steps.jacobian(np.linalg.inv(K), delta_b, dK, d_bias)
+    np.testing.assert_array_equal(q, steps.quaternions(np.linalg.inv(K), delta_b))
+    h = 1e-5
+    for p in range(12):
+        # δψ with C(x + h) = C(x)·exp(δψ·h), by central differences of the rotation vector
+        ahead = (turned(0 * dK[p], 0 * d_bias[p]).inv() * turned(h * dK[p], h * d_bias[p])).as_rotvec()
+        behind = (turned(0 * dK[p], 0 * d_bias[p]).inv() * turned(-h * dK[p], -h * d_bias[p])).as_rotvec()
+        np.testing.assert_allclose(D[:, :, p], (ahead - behind) / (2 * h), rtol=0, atol=1e-7 * np.abs(D[:, :, p]).max())
+
+
+@pytest.mark.parametrize("seed,n_poses", [(3, 20), (4, 6), (11, 20)])
+def test_the_scale_scan_finds_the_grid_scale_an_exhaustive_exact_scan_finds(seed, n_poses):
+    """The scan integrates most scales over a few motions only (a lower bound of their misfit);
+    its choice is every grid scale's exact misfit's least, computed here with ``integrate``, and
+    the grid scale nearest the gyro's true sensitivity. Six poses: one motion bounds them all."""
+    rec = hand_recording(seed, n_poses=n_poses)
+    obs = observe(rec, np.random.default_rng(seed), **GRADES["counts"])
+    scales = np.geomspace(1e-3, 1e6, 73)  # fieldcal.recording.calibrate's grid
+    up = obs["up"]
+
+    def misfit(k):
+        q = Rotation.from_quat(integrate((obs["raw"] - obs["b0"]) / k, rec.t, rec.spans))
+        return np.sum((q.inv().apply(up[:-1]) - up[1:]) ** 2)
+
+    found = scan_scale(rec.t, obs["raw"], rec.spans, up[:-1], up[1:], obs["b0"], scales)
+    assert found == scales[np.argmin([misfit(k) for k in scales])]
+    assert found == scales[np.argmin(np.abs(np.log(scales / np.mean(obs["k"]))))]
