@@ -117,8 +117,8 @@ def _rotate_back(q, v):
 
 
 def _rate_slopes(values, offset, t, wide, rates):
-    """(k - 2, 3) dω/dt at samples wide[1:-1] from the quadratic through three neighbours
-    (one-sided at the recording's ends): ``rates`` (k, 3) are values[wide] − offset, and where
+    """(3, k - 2) dω/dt at samples wide[1:-1] from the quadratic through three neighbours
+    (one-sided at the recording's ends): ``rates`` (3, k) are values[wide] − offset, and where
     wide[i - 1], wide[i], wide[i + 1] are not consecutive (between spans) the slope is not used."""
     n = len(t)
     idx = np.clip(wide[1:-1], 0, n - 1)
@@ -127,12 +127,12 @@ def _rate_slopes(values, offset, t, wide, rates):
     wm = (2 * x - t0 - tp) / ((tm - t0) * (tm - tp))
     w0 = (2 * x - tm - tp) / ((t0 - tm) * (t0 - tp))
     wp = (2 * x - tm - t0) / ((tp - tm) * (tp - t0))
-    vm, v0, vp = rates[:-2], rates[1:-1], rates[2:]
+    vm, v0, vp = rates[:, :-2], rates[:, 1:-1], rates[:, 2:]
     ends = np.flatnonzero(c != idx)  # the first or last sample: its stencil is one-sided
     if len(ends):
         vm, v0, vp = vm.copy(), v0.copy(), vp.copy()
-        vm[ends], v0[ends], vp[ends] = (values[c[ends] + d] - offset for d in (-1, 0, 1))
-    return wm[:, None] * vm + w0[:, None] * v0 + wp[:, None] * vp
+        vm[:, ends], v0[:, ends], vp[:, ends] = ((values[c[ends] + d] - offset).T for d in (-1, 0, 1))
+    return wm * vm + w0 * v0 + wp * vp
 
 
 def _compose_levels(q):
@@ -241,16 +241,19 @@ class _Steps:
         read = lengths + 3
         first_read = np.cumsum(read) - read
         wide = np.arange(read.sum()) - np.repeat(first_read - i0 + 1, read)  # i0 - 1 .. i1 + 1
-        rates = values[np.clip(wide, 0, n - 1)] - offset
-        table = np.hstack([rates[1:-1], _rate_slopes(values, offset, t, wide, rates)])
-        at = np.where(valid, first_read[owner] + k, first_read[owner])  # row of sample j in table
-        step0, step1 = table[at], table[at + 1]
-        v0, v1 = step0[:, :3], step1[:, :3]
-        h = h[:, None]  # zero for padding: a zero increment, the identity rotation
-        w = h * h / 12.0
+        rates = np.ascontiguousarray((values[np.clip(wide, 0, n - 1)] - offset).T)  # (3, read)
+        table = np.vstack([rates[:, 1:-1], _rate_slopes(values, offset, t, wide, rates)])
+        at = np.where(valid, first_read[owner] + k, first_read[owner])  # column of sample j in table
+        step0, step1 = table[:, at], table[:, at + 1]
+        v0, v1 = step0[:3], step1[:3]
+        w = h * h / 12.0  # h is zero for padding: a zero increment, the identity rotation
+        terms = np.empty((10, len(h)))  # (10, steps)
         # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
-        integral = h / 2 * (v0 + v1) - w * (step1[:, 3:] - step0[:, 3:])
-        self.terms = np.hstack([integral, w * _cross(v0, v1), w * (v1 - v0), h]).T.copy()  # (10, steps)
+        np.subtract(h / 2 * (v0 + v1), w * (step1[3:] - step0[3:]), out=terms[0:3])
+        terms[3:6] = w * _cross(v0.T, v1.T).T
+        np.multiply(w, v1 - v0, out=terms[6:9])
+        terms[9] = h
+        self.terms = terms
         # Each span's blocks, padded to a power of two with an identity block, bit-reversed.
         size = 1 << int(blocks.max() - 1).bit_length()
         first = np.cumsum(blocks) - blocks
