@@ -156,17 +156,29 @@ def _after(levels, top):
     s = top
     for children in levels[-2::-1]:
         half = children.shape[1] // 2
-        s = np.concatenate([_qmul(s, children[:, half:] * _CONJUGATE), s], axis=1)
+        below = np.empty(children.shape)
+        below[:, :half] = _qmul(s, children[:, half:] * _CONJUGATE)
+        below[:, half:] = s
+        s = below
     return s
 
 
 def _matrix(q):
     """(3, 3, ...) rotation matrices of quaternions (4, ...) [x, y, z, w]."""
-    x, y, z, w = q
-    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
-    return 2.0 * np.array([[0.5 - yy - zz, xy - wz, xz + wy],
-                           [xy + wz, 0.5 - xx - zz, yz - wx],
-                           [xz - wy, yz + wx, 0.5 - xx - yy]])
+    x, y, z, w = 2.0 * q
+    x2, y2, z2 = 0.5 * x, 0.5 * y, 0.5 * z
+    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x2, y * y2, z * z2, x * y2, x * z2, y * z2, w * x2, w * y2, w * z2
+    R = np.empty((3, 3) + x.shape)
+    np.subtract(1.0 - yy, zz, out=R[0, 0])
+    np.subtract(xy, wz, out=R[0, 1])
+    np.add(xz, wy, out=R[0, 2])
+    np.add(xy, wz, out=R[1, 0])
+    np.subtract(1.0 - xx, zz, out=R[1, 1])
+    np.subtract(yz, wx, out=R[1, 2])
+    np.subtract(xz, wy, out=R[2, 0])
+    np.add(yz, wx, out=R[2, 1])
+    np.subtract(1.0 - xx, yy, out=R[2, 2])
+    return R
 
 
 def _weights(A, delta_b):
@@ -309,12 +321,13 @@ class _Steps:
         # B = S·J_r, summed against each step's terms per span: T[s, a, b, c] = Σ_j B_j[a, b]·t_j[c].
         c1 = 2.0 * sinc * sinc
         c2 = (1.0 - 2.0 * sinc * cos) / np.maximum(angle * angle, 1e-300)
-        skew = ((0.0, -phi[2], phi[1]), (phi[2], 0.0, -phi[0]), (-phi[1], phi[0], 0.0))  # [φ]×
         J = np.empty((3, 3) + angle.shape)
-        for a in range(3):  # nine entries, each a vector over the steps
-            for b in range(3):
-                J[a, b] = c2 * (phi[a] * phi[b]) - c1 * skew[a][b]
-            J[a, a] += 1.0 - c2 * angle * angle
+        scaled = c2 * phi
+        J[0, 0], J[1, 1], J[2, 2] = 1.0 + scaled * phi - c2 * angle * angle  # [φ]×² = φφᵀ − θ²·I
+        for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # [φ]×[a, b] = −φ_c, [φ]×[b, a] = φ_c
+            square, cross = scaled[a] * phi[b], c1 * phi[c]
+            np.add(square, cross, out=J[a, b])
+            np.subtract(square, cross, out=J[b, a])
         B = np.einsum("abj,bcj->acj", S, J, optimize=False).reshape(9, _BLOCK, -1)
         per_block = np.matmul(B.transpose(2, 0, 1), self.terms.reshape(len(self.terms), _BLOCK, -1).transpose(2, 1, 0))
         T = np.add.reduceat(per_block, self.first_block, axis=0).reshape(len(q), 3, 3, -1)
