@@ -741,11 +741,22 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     J_rot = _check_geometry(model, J_start, natural, name)
     whiten = _whitening(model, J_start, q_start, noise, n_side, name)
     count = [0]
+    recent: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # theta: (residuals, whitened)
+
+    def evaluated(theta):
+        """The residuals at theta and them whitened; the last few kept, as the search hands its
+        last point to the polish and the polish its optimum to the result."""
+        key = theta.tobytes()
+        if key not in recent:
+            count[0] += 1
+            r = np.r_[model.rotations(theta), model.side(theta)]
+            if len(recent) >= 4:
+                del recent[next(iter(recent))]
+            recent[key] = r, (r if whiten is None else whiten @ r)
+        return recent[key]
 
     def whitened(theta):
-        count[0] += 1
-        r = np.r_[model.rotations(theta), model.side(theta)]
-        return r if whiten is None else whiten @ r
+        return evaluated(theta)[1]
 
     J_side = _jacobian(model.side, theta0, fd_steps) * natural
     J0 = np.vstack([J_rot, J_side])
@@ -793,12 +804,12 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     return Calibration(
         name=name, kind=ANGULAR_RATE, output_unit=output_unit or "rad/s", method=ROTATION_METHOD,
         theta=np.r_[bias, theta[nb:]], covariance=covariance, parameter_names=FULL_PARAM_NAMES,
-        residuals=model.rotations(theta), residual_unit="rad", residual_labels=labels,
+        residuals=evaluated(theta)[0][:2 * m], residual_unit="rad", residual_labels=labels,
         diagnostics=SolverDiagnostics(
             iterations=iterations, evaluations=evaluations, converged=converged,
             message=message, search=method, chi2=chi2, dof=dof,
             scaled_by_residuals=bool(scaled), condition_number=float(sv[0] / sv[-1]),
-            held=() if start.estimate_bias else BIAS_NAMES, extra_residuals=model.side(theta)))
+            held=() if start.estimate_bias else BIAS_NAMES, extra_residuals=evaluated(theta)[0][2 * m:]))
 
 
 def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bias=False,
