@@ -737,7 +737,7 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
     natural = np.r_[np.abs(k0)[:nb] / model.steps.duration.mean(), np.abs(k0), np.ones(6)]
     fd_steps = 1e-7 * natural
-    _, J_start, q_start = model.jacobian(theta0)
+    r_start, J_start, q_start = model.jacobian(theta0)
     J_rot = _check_geometry(model, J_start, natural, name)
     whiten = _whitening(model, J_start, q_start, noise, n_side, name)
     count = [0]
@@ -757,6 +757,9 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
 
     def whitened(theta):
         return evaluated(theta)[1]
+
+    r_start = np.r_[r_start, model.side(theta0)]  # the Jacobian's integration gave the start's
+    recent[theta0.tobytes()] = r_start, (r_start if whiten is None else whiten @ r_start)
 
     J_side = _jacobian(model.side, theta0, fd_steps) * natural
     J0 = np.vstack([J_rot, J_side])
