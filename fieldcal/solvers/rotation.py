@@ -32,7 +32,10 @@ gyro-to-accelerometer rotation is estimated too. Calibrated rate = K⁻¹(raw �
   residual variance (``scaled_by_residuals``), as it is when χ² is implausible (Birge).
 
 The search runs in coordinates whitened by the Jacobian at K0, b0 (as in norm.py), so raw counts
-(k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Not modelled: Earth rate (≤ 2e-4 rad over a
+(k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is exact
+(``_Steps.jacobian``: the per-step right Jacobian of the exponential, carried to each span's end
+by walking the composition's tree back down), about three integrations' work for all twelve
+parameters where differences took one integration per parameter. Not modelled: Earth rate (≤ 2e-4 rad over a
 3 s motion: below consumer MEMS noise, not below a tactical gyro's; a caller that knows the
 latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 """
@@ -835,7 +838,8 @@ def solve_gyro_rotations(t, raw, spans, up_start, up_end, *, K0, b0, estimate_bi
     ``extra_residuals(K_inv, bias)`` returns whitened residuals appended to the rotations' (e.g.
     turntable rate norms). method: "lsq" (Gauss–Newton in the whitened coordinates, its Jacobian
     updated by Broyden's rule and made afresh after long steps) or "powell" (scipy's); either
-    ends with Gauss–Newton steps on the covariance's forward-difference Jacobian.
+    ends with Gauss–Newton steps on the covariance's Jacobian (the rotations' exact, see
+    ``_Steps.jacobian``; the extra residuals' by forward differences).
     Raises CalibrationError for too few motions (ceil(n_params / 2) + 2, fewer with extra
     equations) or motions that leave a parameter undetermined.
     """
