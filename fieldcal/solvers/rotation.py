@@ -278,6 +278,7 @@ class _Steps:
         self.first_block = first  # each span's first block (they are numbered span by span)
         self.duration = t[i1] - t[i0]
         self._groups: dict[int, np.ndarray] = {}
+        self._last = None  # (key, _forward's result) of the last K⁻¹, δb integrated
 
     def _grouped(self, group: int) -> np.ndarray:
         """The terms of ``group`` consecutive steps summed (made once): the storage index is the
@@ -291,8 +292,27 @@ class _Steps:
         """(m, 4) quaternions of each span's rotation, scalar last. ``group`` (a power of two up
         to _BLOCK): so many consecutive steps taken as one, their increments summed (a coarse
         integration that leaves out the coning between them: for a scan, not a solve)."""
-        terms = self.terms if group == 1 else self._grouped(group)
-        return self.compose(_weights(np.asarray(K_inv, dtype=float), delta_b).T @ terms, group)
+        if group == 1:
+            return self._forward(K_inv, delta_b)[-1]
+        return self.compose(_weights(np.asarray(K_inv, dtype=float), delta_b).T @ self._grouped(group), group)
+
+    def _forward(self, K_inv, delta_b):
+        """(phi, sin(θ/2)/θ, cos(θ/2), the composition's levels inside the blocks and over each
+        span's blocks, the (m, 4) quaternions), as ``compose`` makes them; the last one kept, as a
+        Jacobian is often wanted where the residuals were just evaluated."""
+        A, delta_b = np.asarray(K_inv, dtype=float), np.asarray(delta_b, dtype=float)
+        key = A.tobytes() + delta_b.tobytes()
+        if self._last is None or self._last[0] != key:
+            phi = _weights(A, delta_b).T @ self.terms
+            angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+            sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
+            cos = np.cos(0.5 * angle)
+            inner = _compose_levels(np.concatenate([phi * sinc, cos[None]]).reshape(4, _BLOCK, -1))
+            blocks = np.concatenate([inner[-1][:, 0], [[0.0], [0.0], [0.0], [1.0]]], axis=1)  # and identity
+            outer = _compose_levels(blocks[:, self.gather])
+            q = outer[-1][:, 0]
+            self._last = key, (phi, angle, sinc, cos, inner, outer, (q / np.sqrt(np.sum(q * q, axis=0))).T)
+        return self._last[1]
 
     def jacobian(self, K_inv, delta_b, dK, d_delta_b):
         """(m, 4) quaternions as ``quaternions`` and (m, 3, p) their derivatives along p
@@ -304,19 +324,10 @@ class _Steps:
         composition made, walked back down its tree (a left child is followed by its right
         sibling): about one more composition's work for all p directions."""
         A = np.asarray(K_inv, dtype=float)
-        phi = _weights(A, delta_b).T @ self.terms
-        angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-        sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
-        cos = np.cos(0.5 * angle)
-        leaves = np.concatenate([phi * sinc, cos[None]]).reshape(4, _BLOCK, -1)
-        inner = _compose_levels(leaves)
-        blocks = inner[-1][:, 0]
-        identity = np.array([0.0, 0.0, 0.0, 1.0])
-        outer = _compose_levels(np.concatenate([blocks, identity[:, None]], axis=1)[:, self.gather])
-        q = outer[-1][:, 0]
-        q = (q / np.sqrt(np.sum(q * q, axis=0))).T
+        phi, angle, sinc, cos, inner, outer, q = self._forward(A, delta_b)
         # Back down: each node's S (as a quaternion), the product of everything after it.
-        after = np.empty((4, blocks.shape[1] + 1))
+        after = np.empty((4, inner[-1].shape[-1] + 1))
+        identity = np.array([0.0, 0.0, 0.0, 1.0])
         after[:, self.gather] = _after(outer, np.broadcast_to(identity[:, None, None], (4, 1, len(q))))
         after = _after(inner, after[:, None, :-1]).reshape(4, -1)
         S = _matrix(after)  # (3, 3, steps)
