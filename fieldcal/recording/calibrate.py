@@ -387,11 +387,13 @@ class GyroPrior:
 
 
 def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, spans: np.ndarray,
-               station: Station | UnknownPlace, noise=None, estimate: bool = False) -> GyroPrior:
+               station: Station | UnknownPlace, noise=None, estimate: bool = False,
+               motions: Motions | None = None) -> GyroPrior:
     """``noise``: the gyro's TriadNoise from a device config, if any: its bias instability moves
     every pose's reading alike, which their scatter cannot show, so it widens the bias's σ.
     Without one and with ``estimate``, the model is measured from the poses' still readings
-    (see estimated_rate_noise)."""
+    (see estimated_rate_noise). ``motions``: the solve's, when they hold the recording's own
+    timestamps (the scan then makes the steps the solve integrates, once)."""
     t, gyro, iv = recording.t, recording.triads[name], poses.intervals
     counts = np.diff(iv, axis=1)[:, 0]
     rest = slice(iv[0, 0], iv[0, 1])
@@ -399,7 +401,7 @@ def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, sp
     rest_var = np.var(gyro[rest], axis=0, ddof=1)
     k = RATE_UNITS.get(recording.units[name])
     if k is None:  # raw counts: the scale that makes the rotations fit
-        k = scan_scale(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN)
+        k = scan_scale(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN, motions)
     # Every pose's still reading: each one an estimate of the bias.
     still, earth_var = _less_earth_rate(interval_means(gyro, iv), up, k, station)
     # A real gyro's still reading moves between poses (g-sensitivity, warm-up, temperature, bias
@@ -466,9 +468,10 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
     means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
                                   recording.units[acc.name])
     up, up_cov = _up_vectors(acc, poses.means, means_cov)
-    prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name),
-                       settings.estimate_noise)
     gyro = recording.triads[name]
+    motions = Motions.of(t, gyro, spans, up[:-1], up[1:])
+    prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name),
+                       settings.estimate_noise, motions if t is recording.t else None)
     extra = None
     if settings.table_rate_deg_s is not None and len(turns):
         extra = rate_residuals(gyro, recording.triads[acc.name], acc.theta, turns, settings.table_rate_deg_s,
@@ -485,7 +488,7 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
     noise = RotationNoise(bias_sigma=prior.bias_sigma, up_covariance=up_cov, rate_noise=prior.rate_noise,
                           motion_variance=(prior.earth_variance + prior.wander_variance) * duration**2
                           + np.where(clipped, (2 * math.pi) ** 2, 0.0))
-    solution = solve_rotations(Motions.of(t, gyro, spans, up[:-1], up[1:]),
+    solution = solve_rotations(motions,
                                RotationStart.of(prior.scale, prior.bias, settings.estimate_gyro_bias),
                                noise, extra, settings.gyro_method, name, recording.units[name])
     # Held, the bias's σ is bias_sigma (drift and g-sensitivity included); estimated, the fit's.

@@ -42,7 +42,7 @@ latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -252,7 +252,7 @@ class _Steps:
         # a step j reads sample j's row and the next. Read with one more sample each side (the
         # slopes' stencils): consecutive samples, so each stencil is three shifted slices.
         values = np.asarray(values, dtype=float)
-        offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=float)
+        self.offset = offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=float).copy()
         read = lengths + 3
         first_read = np.cumsum(read) - read
         wide = np.arange(read.sum()) - np.repeat(first_read - i0 + 1, read)  # i0 - 1 .. i1 + 1
@@ -375,7 +375,7 @@ _SCAN_SAMPLE = 6  # every so many motions bound every scale's misfit from below 
 _SCAN_BOUNDED = 4  # scales integrated at once over all motions, in the order of their bounds
 
 
-def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
+def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | None = None) -> float:
     """The k of ``scales`` (sorted, a few dozen) whose K = k·I best carries every motion's start
     direction onto its end (least sum of squared misfits): a raw-count gyro's sensitivity, the
     start of its solve. The best k by a coarse integration, then the best of it and its two
@@ -384,10 +384,15 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales) -> float:
     The misfit is a sum over the motions of squares, so every _SCAN_SAMPLE-th motion's share is
     a lower bound of it: all k are integrated over those motions, and over all motions only in
     the order of their bounds until the next bound exceeds the least misfit found. A k left out
-    cannot be the best, so the choice is the full scan's."""
+    cannot be the best, so the choice is the full scan's.
+
+    ``motions``: the same t, raw and spans as a Motions whose steps the solve will use (made
+    here, offset by b0, unless already made with another offset)."""
     scales = np.asarray(scales, dtype=float)
     spans = np.asarray(spans, dtype=int).reshape(-1, 2)
-    steps = _Steps(raw, t, spans, offset=b0)
+    steps = motions.steps(b0) if motions is not None else None
+    if steps is None or not np.array_equal(steps.offset, b0):
+        steps = _Steps(raw, t, spans, offset=b0)
     up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
 
     def coarse(steps, k, rows=slice(None)):
@@ -481,6 +486,14 @@ class Motions:
     spans: np.ndarray
     up_start: np.ndarray
     up_end: np.ndarray
+    _made: dict = field(default_factory=dict, compare=False, repr=False)  # the steps, once made
+
+    def steps(self, offset) -> _Steps:
+        """The motions' integration steps, made once (with the first caller's ``offset``: any
+        value near the bias keeps raw counts' precision; a later caller's bias is a change δb)."""
+        if "steps" not in self._made:
+            self._made["steps"] = _Steps(self.raw, self.t, self.spans, offset=offset)
+        return self._made["steps"]
 
     @classmethod
     def of(cls, t, raw, spans, up_start, up_end) -> "Motions":
@@ -548,7 +561,7 @@ class _Residuals:
         self.sigma_b = np.broadcast_to(np.asarray(bias_sigma if bias_sigma is not None else 1.0, float), 3)
         self.motions = motions
         # The motion samples only, offset by b0 so that raw counts keep their precision.
-        self.steps = _Steps(motions.raw, motions.t, motions.spans, offset=start.b0)
+        self.steps = motions.steps(start.b0)
         self.E = _tangent_bases(motions.up_end)
 
     def unpack(self, theta):
@@ -560,7 +573,7 @@ class _Residuals:
         """2 per motion, rad: Cᵀ·up_start − up_end in the end pose's tangent basis (bias: instead
         of theta's)."""
         b, K_inv = self.unpack(theta)
-        q = self.steps.quaternions(K_inv, (b if bias is None else bias) - self.start.b0)
+        q = self.steps.quaternions(K_inv, (b if bias is None else bias) - self.steps.offset)
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
@@ -574,7 +587,7 @@ class _Residuals:
         dK = np.zeros((12, 3, 3))
         dK[3:6] = [k_from_terms(e, angles) for e in np.eye(3)]  # K is linear in each group
         dK[6:] = [k_from_terms(scale, e) - np.diag(scale) for e in np.eye(6)]
-        q, D = self.steps.jacobian(K_inv, (b if bias is None else bias) - self.start.b0, dK,
+        q, D = self.steps.jacobian(K_inv, (b if bias is None else bias) - self.steps.offset, dK,
                                    np.eye(12, 3))
         turned = _rotate_back(q, self.motions.up_start)
         r = np.einsum("mi,mik->mk", turned - self.motions.up_end, self.E).ravel()
