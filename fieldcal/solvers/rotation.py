@@ -788,7 +788,7 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     r_start = np.r_[r_start, model.side(theta0)]  # the Jacobian's integration gave the start's
     recent[theta0.tobytes()] = r_start, (r_start if whiten is None else whiten @ r_start)
 
-    J_side = _jacobian(model.side, theta0, fd_steps) * natural
+    J_side = _jacobian(model.side, theta0, fd_steps) * natural if n_side else np.zeros((0, p))
     J0 = np.vstack([J_rot, J_side])
     J0 = J0 if whiten is None else whiten @ J0
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
