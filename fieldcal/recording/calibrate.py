@@ -27,7 +27,6 @@ from functools import partial
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.linalg import block_diag
 
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
@@ -167,12 +166,17 @@ def _up_vectors(acc: Calibration, means: np.ndarray, means_cov: np.ndarray) -> t
     a = calibrate_with(acc.theta, means)
     norm = np.linalg.norm(a, axis=1)
     u = a / norm[:, None]
-    D = block_diag(*((np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]))  # ∂u/∂a
+    D = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # (P, 3, 3) ∂u/∂a, pose by pose
     P = len(means)
     K_inv = np.linalg.inv(acc.K)
     J_theta = _calibrated_jacobian(acc.theta, means)
-    J_means = np.kron(np.eye(P), K_inv)
-    return u, D @ (J_theta @ acc.covariance @ J_theta.T + J_means @ means_cov @ J_means.T) @ D.T
+
+    def blocks(left, C, right):  # left_i·C_ij·right_jᵀ for the 3×3 blocks of C: block-diagonal factors
+        C = C.reshape(P, 3, P, 3).transpose(0, 2, 1, 3)
+        return (left[:, None] @ C @ np.swapaxes(right, -1, -2)[None]).transpose(0, 2, 1, 3).reshape(3 * P, 3 * P)
+
+    K_invs = np.broadcast_to(K_inv, (P, 3, 3))
+    return u, blocks(D, J_theta @ acc.covariance @ J_theta.T + blocks(K_invs, means_cov, K_invs), D)
 
 
 def _calibrated_jacobian(theta: np.ndarray, means: np.ndarray) -> np.ndarray:
