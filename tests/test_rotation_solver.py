@@ -376,8 +376,8 @@ def test_the_exact_jacobian_is_a_hand_worked_turns_derivative():
     q, D = _Steps(raw, t, [(0, len(t) - 1)], offset=b).jacobian(np.eye(3) / k, np.zeros(3), dK, d_bias)
     theta = rate * T
     np.testing.assert_allclose(Rotation.from_quat(q[0]).as_rotvec(), theta * n, rtol=1e-13, atol=1e-13)
-    expected = np.column_stack([-theta / k * n, -T / k * n,
-                                -T / k * (math.sin(theta) / theta * e - (1 - math.cos(theta)) / theta * np.cross(n, e))])
+    perpendicular = math.sin(theta) / theta * e - (1 - math.cos(theta)) / theta * np.cross(n, e)
+    expected = np.column_stack([-theta / k * n, -T / k * n, -T / k * perpendicular])
     np.testing.assert_allclose(D[0], expected, rtol=1e-11, atol=1e-16)
 
 

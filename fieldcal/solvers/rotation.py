@@ -35,9 +35,9 @@ The search runs in coordinates whitened by the Jacobian at K0, b0 (as in norm.py
 (k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is exact
 (``_Steps.jacobian``: the per-step right Jacobian of the exponential, carried to each span's end
 by walking the composition's tree back down), about three integrations' work for all twelve
-parameters where differences took one integration per parameter. Not modelled: Earth rate (≤ 2e-4 rad over a
-3 s motion: below consumer MEMS noise, not below a tactical gyro's; a caller that knows the
-latitude can pass its horizontal part as ``motion_variance``) and bias drift.
+parameters where differences took one integration per parameter. Not modelled: Earth rate
+(≤ 2e-4 rad over a 3 s motion: below consumer MEMS noise, not below a tactical gyro's; a caller
+that knows the latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 """
 from __future__ import annotations
 
@@ -560,7 +560,8 @@ class _Residuals:
         self.prior = start.estimate_bias and bias_sigma is not None
         self.sigma_b = np.broadcast_to(np.asarray(bias_sigma if bias_sigma is not None else 1.0, float), 3)
         self.motions = motions
-        # The motion samples only, offset by b0 so that raw counts keep their precision.
+        # The motion samples only, offset by b0 (or by what the scale scan that made them used)
+        # so that raw counts keep their precision.
         self.steps = motions.steps(start.b0)
         self.E = _tangent_bases(motions.up_end)
 
