@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from drivers.sim.handheld import (CONSUMER_NOISE, SPREAD_UP, handheld_truth, simulate_handheld,
                                   to_text)
 from fieldcal.recording.detect import (DetectionError, DetectorSettings, check_spread, find_poses,
-                                       noise_level, pose_candidates, require_poses)
+                                       noise_level, pose_candidates, require_poses, window_variances)
 
 SETTINGS = DetectorSettings(init_rest_s=30.0)  # the simulator starts with 30 s still
 
@@ -272,6 +272,18 @@ def test_without_a_rest_the_noise_comes_from_the_quietest_windows():
     assert len(poses.intervals) == len(short.static)
     assert np.all(poses.intervals[:, 0] >= short.static[:, 0])
     assert np.all(poses.intervals[:, 1] <= short.static[:, 1])
+
+
+def test_window_variances_are_each_whole_windows_own_variance_and_mean():
+    """Against the definition, window by window (the rows past the last whole window unused):
+    raw counts about mid-scale, so a variance taken about the wrong mean would show."""
+    values = 32768.0 + np.random.default_rng(5).normal(0.0, 3.0, (1013, 3)).cumsum(axis=0)
+    variance, mean = window_variances(values, 101)
+    assert variance.shape == mean.shape == (10, 3)
+    for j in range(10):  # a loop over windows: the oracle
+        window = values[101 * j:101 * (j + 1)]
+        np.testing.assert_allclose(mean[j], window.mean(axis=0), rtol=1e-15)
+        np.testing.assert_allclose(variance[j], np.var(window, axis=0), rtol=1e-12)
 
 
 def test_a_too_short_recording_without_rest_names_the_option():
