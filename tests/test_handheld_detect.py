@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 from drivers.sim.handheld import (CONSUMER_NOISE, SPREAD_UP, handheld_truth, simulate_handheld,
                                   to_text)
 from fieldcal.recording.detect import (DetectionError, DetectorSettings, check_spread, find_poses,
-                                       noise_level, pose_candidates, require_poses, window_variances)
+                                       distinct_poses, noise_level, pose_candidates, require_poses, true_runs,
+                                       window_variances)
 
 SETTINGS = DetectorSettings(init_rest_s=30.0)  # the simulator starts with 30 s still
 
@@ -188,6 +189,24 @@ def test_duplicate_poses_are_marked_not_distinct():
     assert len(poses.intervals) == len(directions)  # duplicates are still poses (rotation endpoints)
     np.testing.assert_array_equal(poses.distinct, [True] * 14 + [False] * 3)
     assert poses.count == 14 and require_poses(poses, SETTINGS).message == "14 distinct poses, well spread"
+
+
+def test_a_pose_near_only_a_duplicate_is_distinct():
+    """Hand-worked, 10° apart counts: b is 8° from a (a duplicate); c is 8° from b but 16° from a,
+    so c is distinct, since only distinct poses are compared against."""
+    def at(deg):
+        return [np.cos(np.radians(deg)), np.sin(np.radians(deg)), 0.0]
+
+    up = np.array([at(0), at(8), at(16), at(0.5), [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(distinct_poses(up, 10.0), [True, False, True, False, True])
+    assert distinct_poses(np.zeros((0, 3)), 10.0).shape == (0,)
+
+
+def test_true_runs_are_start_stop_pairs_of_each_run():
+    mask = np.array([1, 1, 0, 0, 1, 0, 1, 1, 1], dtype=bool)
+    np.testing.assert_array_equal(true_runs(mask), [[0, 2], [4, 5], [6, 9]])
+    assert true_runs(np.zeros(4, dtype=bool)).shape == (0, 2)
+    np.testing.assert_array_equal(true_runs(np.ones(3, dtype=bool)), [[0, 3]])
 
 
 def test_too_few_poses_are_refused_naming_what_is_missing():

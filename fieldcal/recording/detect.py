@@ -241,10 +241,11 @@ def quiet_noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSetting
                       source=f"the quietest {settings.window_s:g} s windows ({int(quiet.sum())} of {len(quiet)})")
 
 
-def _runs(mask: np.ndarray) -> np.ndarray:
+def true_runs(mask: np.ndarray) -> np.ndarray:
     """(k, 2) [start, stop) of the runs of True."""
-    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
-    return edges.reshape(-1, 2)
+    padded = np.zeros(len(mask) + 2, dtype=bool)
+    padded[1:-1] = mask
+    return np.flatnonzero(padded[1:] != padded[:-1]).reshape(-1, 2)
 
 
 def _first_loud(columns: tuple[np.ndarray, ...], inv_var: np.ndarray, means: np.ndarray, first: np.ndarray,
@@ -311,7 +312,7 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
     quiet = signals.stat < multiple * noise.base
     quiet[: max(rest_n - half, 0)] = True  # noise_level has checked the initial rest: always a pose
     min_n = _samples(settings.min_static_s, rate_hz)
-    runs = _runs(quiet)
+    runs = true_runs(quiet)
     long_enough = ((runs[:, 0] == 0) & (rest_n > 0)) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)
     short = (runs[~long_enough, 1] - runs[~long_enough, 0] + 2 * half) / rate_hz
     runs = runs[long_enough]
@@ -366,10 +367,11 @@ def up_directions(means: np.ndarray, zero=None, sensitivity=None) -> np.ndarray:
 def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     """(m,) bool: False for a pose within ``min_separation_deg`` of an earlier distinct one."""
     cos_min = math.cos(math.radians(min_separation_deg))
-    distinct = np.zeros(len(up), dtype=bool)
-    for i in range(len(up)):  # a loop over poses, not samples
-        distinct[i] = not np.any(up[distinct] @ up[i] > cos_min)
-    return distinct
+    close = (up @ up.T > cos_min).tolist()  # every pair at once; the choice below is in order
+    distinct = []
+    for i, row in enumerate(close):  # a loop over poses, not samples
+        distinct.append(not any(near and kept for near, kept in zip(row[:i], distinct)))
+    return np.array(distinct, dtype=bool)
 
 
 class PrefixMeans:
