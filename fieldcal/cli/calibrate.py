@@ -185,6 +185,8 @@ def cmd_calibrate(args) -> int:
           f"{SessionReader(directory).parameters_path.name})  ({time.perf_counter() - started:.2f} s)")
     if args.params:
         from fieldcal.session.output import save_parameter_file
-        print(f"parameter file: {save_parameter_file(pf, args.params, force=args.force, option='--params')}")
+        written = save_parameter_file(pf, args.params, force=args.force, option="--params",
+                                      data=(directory / "parameters.yaml").read_bytes())  # pf's text, made once
+        print(f"parameter file: {written}")
     return accept_after(args, spec, directory / "parameters.yaml", 0 if not cal.failures else 1,
                         source="calibrate")
