@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from fieldcal.session.capture import LOG, SessionError
+from fieldcal.session import LOG, SessionError  # not capture: no numpy before a command's imports
 
 
 def refuse_inside_session(path: str | os.PathLike, what: str) -> None:
