@@ -296,26 +296,31 @@ class _EdgeSignals:
 
 def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multiple: float,
                      settings: DetectorSettings, gyro: np.ndarray | None = None) -> np.ndarray:
-    return _static_intervals(_EdgeSignals.of(acc, rate_hz, noise, settings, gyro), rate_hz, noise, multiple,
-                             settings)[0]
+    return _static_intervals(_EdgeSignals.of(acc, rate_hz, noise, settings, gyro), rate_hz, noise, (multiple,),
+                             settings)[0][0]
 
 
-def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, multiple: float,
-                      settings: DetectorSettings) -> tuple[np.ndarray, np.ndarray]:
-    """The static intervals, and the durations (s) of the still stretches too short to be poses
-    (a quiet run's length plus the window that found it still, or an interval cut below
-    ``min_static_s`` by its edges), for a refusal to say that poses were held too briefly."""
+def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, multiples,
+                      settings: DetectorSettings) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per threshold multiple: the static intervals, and the durations (s) of the still stretches
+    too short to be poses (a quiet run's length plus the window that found it still, or an
+    interval cut below ``min_static_s`` by its edges), for a refusal to say that poses were held
+    too briefly. Every multiple's runs are found, and their edges placed, at once."""
     columns, inv_var = signals.columns, signals.inv_var
     n = len(columns[0])
     half = _half_window(rate_hz, settings)
     rest_n = noise.rest_samples
-    quiet = signals.stat < multiple * noise.base
-    quiet[: max(rest_n - half, 0)] = True  # noise_level has checked the initial rest: always a pose
+    levels = np.asarray(multiples, dtype=float)[:, None] * noise.base
+    padded = np.zeros((len(levels), n + 2), dtype=bool)
+    padded[:, 1:-1] = signals.stat[None, :] < levels
+    padded[:, 1:max(rest_n - half, 0) + 1] = True  # noise_level has checked the initial rest: always a pose
+    owner, edges = np.nonzero(padded[:, 1:] != padded[:, :-1])  # row by row, each run's start then stop
+    runs, owner = edges.reshape(-1, 2), owner[::2]
     min_n = _samples(settings.min_static_s, rate_hz)
-    runs = true_runs(quiet)
     long_enough = ((runs[:, 0] == 0) & (rest_n > 0)) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)
     short = (runs[~long_enough, 1] - runs[~long_enough, 0] + 2 * half) / rate_hz
-    runs = runs[long_enough]
+    short_owner = owner[~long_enough]
+    runs, owner = runs[long_enough], owner[long_enough]
 
     k = _samples(settings.edge_window_s, rate_hz)
     guard = round(settings.guard_s * rate_hz)
@@ -333,11 +338,13 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
     start = np.where(a > 0, inner_start - _first_loud(columns, inv_var, means, inner_start - 1, inner_start - lo, -1,
                                                       k, threshold) + guard, 0)
     out = np.column_stack([start, np.minimum(stop, n)])
-    if len(out) > 1:
-        out[1:, 0] = np.maximum(out[1:, 0], out[:-1, 1])  # neighbours never share samples
+    same = owner[1:] == owner[:-1]  # neighbours (of one multiple) never share samples
+    out[1:, 0] = np.where(same, np.maximum(out[1:, 0], out[:-1, 1]), out[1:, 0])
     keep = (out[:, 1] - out[:, 0] >= min_n) | ((out[:, 0] == 0) & (rest_n > 0))
     short = np.r_[short, np.maximum(out[~keep, 1] - out[~keep, 0], 0) / rate_hz]
-    return out[keep], np.sort(short)
+    short_owner = np.r_[short_owner, owner[~keep]]
+    out, owner = out[keep], owner[keep]
+    return [(out[owner == j], np.sort(short[short_owner == j])) for j in range(len(levels))]
 
 
 def up_directions(means: np.ndarray, zero=None, sensitivity=None) -> np.ndarray:
@@ -404,7 +411,11 @@ def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, mult
 
 
 def _poses(signals: _EdgeSignals, acc, rate_hz, settings, multiple, noise, zero, sensitivity) -> Poses:
-    intervals, short = _static_intervals(signals, rate_hz, noise, multiple, settings)
+    return _poses_of(signals, settings, multiple, zero, sensitivity,
+                     *_static_intervals(signals, rate_hz, noise, (multiple,), settings)[0])
+
+
+def _poses_of(signals: _EdgeSignals, settings, multiple, zero, sensitivity, intervals, short) -> Poses:
     means = signals.means[0](intervals)
     up = up_directions(means, zero, sensitivity)
     return Poses(intervals=intervals, means=means, up=up,
@@ -419,7 +430,9 @@ def pose_candidates(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
     acc = np.asarray(acc, dtype=float)
     noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
     signals = _EdgeSignals.of(acc, rate_hz, noise, settings, gyro)
-    return [_poses(signals, acc, rate_hz, settings, m, noise, zero, sensitivity) for m in settings.multiples]
+    found = _static_intervals(signals, rate_hz, noise, settings.multiples, settings)
+    return [_poses_of(signals, settings, m, zero, sensitivity, intervals, short)
+            for m, (intervals, short) in zip(settings.multiples, found)]
 
 
 _AXES = np.vstack([np.eye(3), -np.eye(3)])
