@@ -81,13 +81,15 @@ class NoiseLevel:
     """Accelerometer per-axis white-noise variance (input units²), ``base`` = its norm (imu_tk),
     and the gyroscope's per-axis variance when one was given. ``rest_samples``: the initial rest
     that is a pose whatever the threshold (0 without ``--rest``); ``source``: where the level was
-    measured, for the summary."""
+    measured, for the summary. ``quiet``: over the non-overlapping windows, the quietest ones it
+    was measured in (see quiet_windows; None: measured over the initial rest)."""
 
     variance: np.ndarray
     base: float
     gyro_variance: np.ndarray | None = None
     rest_samples: int = 0
     source: str = "the initial rest"
+    quiet: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -238,7 +240,8 @@ def quiet_noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSetting
             raise DetectionError("gyroscope shows no noise on some axis in the quietest windows: check "
                                  "that the file holds live samples")
     return NoiseLevel(variance=variance, base=base, gyro_variance=gyro_variance, rest_samples=0,
-                      source=f"the quietest {settings.window_s:g} s windows ({int(quiet.sum())} of {len(quiet)})")
+                      source=f"the quietest {settings.window_s:g} s windows ({int(quiet.sum())} of {len(quiet)})",
+                      quiet=quiet)
 
 
 def true_runs(mask: np.ndarray) -> np.ndarray:

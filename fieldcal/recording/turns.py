@@ -55,7 +55,7 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     level). ``units_per_rad_s``: the gyro's output unit per rad/s when known (not for counts)."""
     n = max(1, round(0.5 * rate_hz))
     window = 2 * max(1, round(settings.window_s * rate_hz) // 2) + 1
-    quiet = quiet_windows(acc, rate_hz, settings)
+    quiet = noise.quiet if noise.quiet is not None else quiet_windows(acc, rate_hz, settings)
     means = window_variances(gyro, window)[1][quiet]
     level = np.median(means, axis=0)
     distance = np.linalg.norm(means - level, axis=1)
