@@ -410,15 +410,11 @@ def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, mult
     acc = np.asarray(acc, dtype=float)
     noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
     signals = _EdgeSignals.of(acc, rate_hz, noise, settings, gyro)
-    return _poses(signals, acc, rate_hz, settings, multiple, noise, zero, sensitivity)
+    return _poses(signals, settings, multiple, zero, sensitivity,
+                  *_static_intervals(signals, rate_hz, noise, (multiple,), settings)[0])
 
 
-def _poses(signals: _EdgeSignals, acc, rate_hz, settings, multiple, noise, zero, sensitivity) -> Poses:
-    return _poses_of(signals, settings, multiple, zero, sensitivity,
-                     *_static_intervals(signals, rate_hz, noise, (multiple,), settings)[0])
-
-
-def _poses_of(signals: _EdgeSignals, settings, multiple, zero, sensitivity, intervals, short) -> Poses:
+def _poses(signals: _EdgeSignals, settings, multiple, zero, sensitivity, intervals, short) -> Poses:
     means = signals.means[0](intervals)
     up = up_directions(means, zero, sensitivity)
     return Poses(intervals=intervals, means=means, up=up,
@@ -429,12 +425,12 @@ def pose_candidates(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
                     zero=None, sensitivity=None, gyro: np.ndarray | None = None,
                     noise: NoiseLevel | None = None) -> list[Poses]:
     """The poses for each of ``settings.multiples``, the noise level and the window statistic
-    measured once (the noise level may be given)."""
+    measured once (the noise level may be given), every multiple's intervals found in one pass."""
     acc = np.asarray(acc, dtype=float)
     noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
     signals = _EdgeSignals.of(acc, rate_hz, noise, settings, gyro)
     found = _static_intervals(signals, rate_hz, noise, settings.multiples, settings)
-    return [_poses_of(signals, settings, m, zero, sensitivity, intervals, short)
+    return [_poses(signals, settings, m, zero, sensitivity, intervals, short)
             for m, (intervals, short) in zip(settings.multiples, found)]
 
 
