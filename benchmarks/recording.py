@@ -9,13 +9,15 @@ all of them alike), after one run of each that caches the bytecode (as an instal
 it); medians of ``--repeats`` rounds, the peak RSS the largest. Beside them: imu_tk (C++, Ceres,
 built by ``benchmarks/peers/build_imu_tk.sh``, skipped with a line when not built), the floor
 any Python calibration with Powell pays (``import numpy, scipy.optimize``), and ``import
-imucal`` (imucal cannot read this recording). Printed: each one's CPU, wall and peak RSS, its
-ratio to imu_tk's, the date and the load average; then both tools' results side by side.
+imucal`` (imucal cannot read this recording); with ``--baseline REV``, fieldcal as of that git
+revision beside this tree's, both launched alike (the change's own effect). Printed: each one's
+CPU, wall and peak RSS, its ratio to imu_tk's, the date and the load average; then both tools'
+results side by side.
 
 Accuracy (``--runs N``): N seeded simulated recordings (the default 20 poses); per parameter the
 RMS of (solved - true) / reported σ, and the share of |error| beyond 3σ (0.27 % for a Gaussian).
 
-    python benchmarks/recording.py [--repeats 7] [--runs 100]
+    python benchmarks/recording.py [--repeats 7] [--runs 100] [--baseline bcecd58]
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ import gzip
 import importlib.util
 import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -83,10 +86,36 @@ def speed_table(rows, reference: str | None) -> list[str]:
     return lines
 
 
-def speed(repeats: int) -> None:
+_LAUNCH = ("import sys; sys.path[:0] = {path!r}; from fieldcal.cli.main import main; "
+           "raise SystemExit(main({argv!r}))")
+
+
+def with_baseline(argv: dict[str, list[str]], rev: str, work: Path) -> dict[str, list[str]]:
+    """``argv`` and fieldcal calibrate as of git revision ``rev`` (``git archive`` into ``work``),
+    each run the same way (``python -c``, the tree first on the path, its own parameter file and
+    registry), so that old and new alternate in one series and their difference is the change."""
+    root = Path(__file__).resolve().parent.parent
+    tree = work / "baseline"
+    tree.mkdir()
+    archive = subprocess.run(["git", "-C", str(root), "archive", rev], capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    ours = argv["fieldcal calibrate"][1:]
+    out = dict(argv)
+    for label, path, name in ((f"fieldcal calibrate as of {rev}", [str(tree)], "baseline"),
+                              ("fieldcal calibrate (this tree, launched as the baseline)", [], "this")):
+        own = {work / "fieldcal.yaml": work / f"{name}.yaml", work / "registry.sqlite": work / f"{name}.sqlite",
+               work / "sessions": work / f"{name}-sessions"}  # a session's name has the second it began
+        args = [str(own.get(Path(a), a)) for a in ours]
+        out[label] = [sys.executable, "-c", _LAUNCH.format(path=path, argv=args)]
+    return out
+
+
+def speed(repeats: int, baseline: str | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         argv = commands(xsens_files(work), work)  # imu_tk's text format, which fieldcal reads by its map
+        if baseline:
+            argv = with_baseline(argv, baseline, work)
         for label, command in argv.items():  # bytecode cached, files in the page cache
             if run_once(command).status != 0:
                 raise SystemExit(f"{label} failed: {' '.join(command)}")
@@ -136,10 +165,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7, help="rounds of the processes (medians)")
     parser.add_argument("--runs", type=int, default=0, help="seeded recordings for the accuracy table")
+    parser.add_argument("--baseline", metavar="REV", help="also time fieldcal calibrate as of this git "
+                        "revision, alternating with this tree's (e.g. the commit a change started from)")
     args = parser.parse_args()
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)  # the children cache their bytecode, as installed
     print(f"{platform.node()}: {os.cpu_count()} cores, CPython {platform.python_version()}")
-    speed(args.repeats)
+    speed(args.repeats, args.baseline)
     if args.runs:
         started = time.perf_counter()
         z_acc, z_gyro = accuracy(args.runs)

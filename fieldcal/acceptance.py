@@ -25,9 +25,7 @@ import math
 import os
 from dataclasses import dataclass
 
-import numpy as np
-
-from fieldcal.calibration import nearest
+from fieldcal.calibration import nearest, operator_values  # noqa: F401 (its home was here)
 from fieldcal.model import FULL_PARAM_NAMES, PARAM_NAMES
 from fieldcal.units import ANGLE, BIAS, SCALE, group_of, operator_unit
 from fieldcal.validation import MISSING, FieldReader, describe, join, read_yaml_file
@@ -180,14 +178,6 @@ class Verdict:
     @property
     def failures(self) -> tuple[Check, ...]:
         return tuple(c for c in self.checks if not c.passed)
-
-
-def operator_values(cal) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
-    """(values, σ, units) of a Calibration's parameters in operator units."""
-    scales, units = zip(*(operator_unit(cal.kind, cal.output_unit, group_of(n))
-                          for n in cal.parameter_names))
-    factors = np.array(scales)
-    return cal.theta * factors, cal.sigma * factors, units
 
 
 def _unit_error(spec: ProductSpec, where: str, want: str, got: str, triad: str) -> SpecError:

@@ -25,6 +25,7 @@ import numpy as np
 
 from fieldcal.model import (ANGLE_TERMS, KINDS, PARAM_NAMES, SI_UNIT, k_from, k_from_params, params_from,
                             params_from_k)
+from fieldcal.units import group_of, operator_unit
 
 # Norm-method solvers give a lower-triangular K; a file claiming one of these methods with a
 # non-zero upper triangle has been edited by hand.
@@ -236,3 +237,11 @@ class Calibration:
 
     def __hash__(self) -> int:
         return hash(self._key())
+
+
+def operator_values(cal: Calibration) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """(values, σ, units) of a Calibration's parameters in operator units."""
+    scales, units = zip(*(operator_unit(cal.kind, cal.output_unit, group_of(n))
+                          for n in cal.parameter_names))
+    factors = np.array(scales)
+    return cal.theta * factors, cal.sigma * factors, units

@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 from drivers.sim.handheld import (CONSUMER_NOISE, SPREAD_UP, handheld_truth, simulate_handheld,
                                   to_text)
 from fieldcal.recording.detect import (DetectionError, DetectorSettings, check_spread, find_poses,
-                                       noise_level, pose_candidates, require_poses)
+                                       distinct_poses, noise_level, pose_candidates, require_poses, true_runs,
+                                       window_variances)
 
 SETTINGS = DetectorSettings(init_rest_s=30.0)  # the simulator starts with 30 s still
 
@@ -190,6 +191,24 @@ def test_duplicate_poses_are_marked_not_distinct():
     assert poses.count == 14 and require_poses(poses, SETTINGS).message == "14 distinct poses, well spread"
 
 
+def test_a_pose_near_only_a_duplicate_is_distinct():
+    """Hand-worked, 10° apart counts: b is 8° from a (a duplicate); c is 8° from b but 16° from a,
+    so c is distinct, since only distinct poses are compared against."""
+    def at(deg):
+        return [np.cos(np.radians(deg)), np.sin(np.radians(deg)), 0.0]
+
+    up = np.array([at(0), at(8), at(16), at(0.5), [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(distinct_poses(up, 10.0), [True, False, True, False, True])
+    assert distinct_poses(np.zeros((0, 3)), 10.0).shape == (0,)
+
+
+def test_true_runs_are_start_stop_pairs_of_each_run():
+    mask = np.array([1, 1, 0, 0, 1, 0, 1, 1, 1], dtype=bool)
+    np.testing.assert_array_equal(true_runs(mask), [[0, 2], [4, 5], [6, 9]])
+    assert true_runs(np.zeros(4, dtype=bool)).shape == (0, 2)
+    np.testing.assert_array_equal(true_runs(np.ones(3, dtype=bool)), [[0, 3]])
+
+
 def test_too_few_poses_are_refused_naming_what_is_missing():
     rec = recording(7, n_poses=6)
     poses = find_poses(rec.accelerometer, rec.rate_hz, SETTINGS, 5, gyro=rec.gyroscope)
@@ -272,6 +291,18 @@ def test_without_a_rest_the_noise_comes_from_the_quietest_windows():
     assert len(poses.intervals) == len(short.static)
     assert np.all(poses.intervals[:, 0] >= short.static[:, 0])
     assert np.all(poses.intervals[:, 1] <= short.static[:, 1])
+
+
+def test_window_variances_are_each_whole_windows_own_variance_and_mean():
+    """Against the definition, window by window (the rows past the last whole window unused):
+    raw counts about mid-scale, so a variance taken about the wrong mean would show."""
+    values = 32768.0 + np.random.default_rng(5).normal(0.0, 3.0, (1013, 3)).cumsum(axis=0)
+    variance, mean = window_variances(values, 101)
+    assert variance.shape == mean.shape == (10, 3)
+    for j in range(10):  # a loop over windows: the oracle
+        window = values[101 * j:101 * (j + 1)]
+        np.testing.assert_allclose(mean[j], window.mean(axis=0), rtol=1e-15)
+        np.testing.assert_allclose(variance[j], np.var(window, axis=0), rtol=1e-12)
 
 
 def test_a_too_short_recording_without_rest_names_the_option():

@@ -99,3 +99,25 @@ def test_the_library_never_imports_the_command_line():
             elif isinstance(node, ast.Import) and any(a.name.startswith("fieldcal.cli") for a in node.names):
                 offenders.append(f"{path.relative_to(root)}:{node.lineno}")
     assert offenders == []
+
+
+def test_calibrate_checks_its_paths_before_numpy_and_loads_only_what_it_uses(tmp_path):
+    """`fieldcal calibrate` checks where it writes before it imports numpy (its imports are made
+    with the collector paused, cli.startup), and runs without the spec checks (acceptance: no
+    --spec) or procedure files (positions) loaded."""
+    from drivers.sim.handheld import simulate_handheld, to_text
+
+    acc, gyro = to_text(simulate_handheld(3), tmp_path)
+    argv = ["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--latitude", "40", "--gravity", "9.80",
+            "--out", str(tmp_path / "sessions"), "--params", str(tmp_path / "unit.yaml"),
+            "--registry", str(tmp_path / "registry.sqlite")]
+    body = (f"from fieldcal.cli.main import build_parser, main\n"
+            f"from fieldcal.cli.paths import check_paths\n"
+            f"check_paths(build_parser().parse_args({argv!r}))\n"
+            f"print(json.dumps(sorted(sys.modules)))\n"
+            f"assert main({argv!r}) == 0\n")
+    after_run, proc = _modules_after(body)
+    after_checks = set(json.loads([line for line in proc.stdout.splitlines() if line.startswith("[")][0]))
+    assert _heavy(after_checks) == []
+    assert "numpy" in after_run and (tmp_path / "unit.yaml").is_file()  # not vacuous: it ran
+    assert not after_run & {"fieldcal.acceptance", "fieldcal.procedure.positions"}

@@ -17,7 +17,7 @@ from fieldcal.paramfile import load
 from fieldcal.recording.calibrate import (ALIGNED_PROTOCOL, RecordingSettings, UnknownPlace, _solve_static,
                                           calibrate_recording)
 from fieldcal.recording.candidates import detect_candidates
-from fieldcal.recording.detect import DetectionError, DetectorSettings, interval_means
+from fieldcal.recording.detect import DetectionError, DetectorSettings, find_poses, interval_means, pose_candidates
 from fieldcal.recording.importer import import_recording
 from fieldcal.solvers.norm import SCREEN
 
@@ -49,6 +49,21 @@ def test_imu_tk_xsens_poses_are_all_found_without_a_rest_option(xsens):
     assert 38 <= len(cal.poses.intervals) <= 40 and cal.spread.count == 14
     assert "quietest" in cal.noise_source
     assert cal.poses.intervals[0, 0] == 0 and cal.poses.intervals[0, 1] > 45 * recording.rate_hz
+
+
+def test_imu_tk_xsens_every_multiple_found_at_once_is_what_it_finds_alone(xsens):
+    """pose_candidates places every multiple's edges in one pass: no multiple's runs may reach
+    another's (a neighbour's stop, a short stretch), so each is find_poses at that multiple alone."""
+    recording, _ = xsens
+    acc, gyro, settings = recording.triads["accelerometer"], recording.triads["gyroscope"], DetectorSettings()
+    candidates = pose_candidates(acc, recording.rate_hz, settings, gyro=gyro)
+    assert [c.multiple for c in candidates] == list(settings.multiples)
+    assert len({c.intervals.tobytes() for c in candidates}) > 3  # the multiples do differ here
+    for poses in candidates:
+        alone = find_poses(acc, recording.rate_hz, settings, poses.multiple, gyro=gyro)
+        np.testing.assert_array_equal(poses.intervals, alone.intervals)
+        np.testing.assert_array_equal(poses.short_s, alone.short_s)
+        np.testing.assert_array_equal(poses.distinct, alone.distinct)
 
 
 def test_imu_tk_xsens_calibrated_poses_have_the_local_gravity(xsens):

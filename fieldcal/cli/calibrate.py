@@ -123,6 +123,11 @@ def cmd_calibrate(args) -> int:
     from fieldcal.cli.startup import imports_uncollected
 
     with imports_uncollected():  # numpy and scipy.optimize: see imports_uncollected
+        # scipy first, from here: CPython 3.11 grows the frame stack in 16 KiB chunks, mapped and
+        # unmapped as calls cross a chunk's end. scipy's import runs numpy.f2py's module body
+        # (thousands of calls); at the depth of fieldcal's own import chain they crossed one some
+        # 900 times (an mmap, a munmap and a page fault each); from here, some 40 (strace).
+        import scipy.linalg  # noqa: F401
         from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
         from fieldcal.recording.detect import DetectorSettings
         from fieldcal.recording.results import noise_lines, parameter_file, summary_lines
@@ -185,6 +190,8 @@ def cmd_calibrate(args) -> int:
           f"{SessionReader(directory).parameters_path.name})  ({time.perf_counter() - started:.2f} s)")
     if args.params:
         from fieldcal.session.output import save_parameter_file
-        print(f"parameter file: {save_parameter_file(pf, args.params, force=args.force, option='--params')}")
+        written = save_parameter_file(pf, args.params, force=args.force, option="--params",
+                                      data=(directory / "parameters.yaml").read_bytes())  # pf's text, made once
+        print(f"parameter file: {written}")
     return accept_after(args, spec, directory / "parameters.yaml", 0 if not cal.failures else 1,
                         source="calibrate")

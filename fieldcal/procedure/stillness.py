@@ -33,11 +33,16 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from drivers.chunk import SampleChunk
-from fieldcal.procedure.positions import Position, body_direction_name, position_words
+
+# Position names a type here only: positions (procedure files, YAML) is imported by the functions
+# whose messages name positions, so the recording detector (sliding_std) does not load it.
+if TYPE_CHECKING:
+    from fieldcal.procedure.positions import Position
 
 
 def _per_axis(value, name: str) -> tuple[float, float, float]:
@@ -370,6 +375,8 @@ _AXES = "xyz"
 
 def _body_direction_name(v: np.ndarray) -> str:
     """'-x' for an axis, 'x+z' or '-x-y-z' for a diagonal (within 10°), else the components."""
+    from fieldcal.procedure.positions import body_direction_name
+
     v = v / np.linalg.norm(v)
     return body_direction_name(v) or "(" + ", ".join(f"{c:.2f}" for c in v) + ")"
 
@@ -418,6 +425,8 @@ def check_orientation(direction, expected: Position, positions: Sequence[Positio
                       tolerance_deg: float = 15.0) -> OrientationCheck:
     """Is the measured up ``direction`` (body axes) that of ``expected``? If not, which positions
     does it look like, and which way to tilt. Heading is not checked: gravity cannot see it."""
+    from fieldcal.procedure.positions import position_words
+
     m = np.asarray(direction, dtype=float)
     m = m / np.linalg.norm(m)
     e = expected.up_body / np.linalg.norm(expected.up_body)

@@ -12,6 +12,7 @@ it. ``calibrate.calibrate_recording`` runs them for ``fieldcal calibrate``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -45,7 +46,7 @@ class Recording:
         if self.temperature is not None and np.shape(self.temperature) != (n,):
             raise ValueError(f"recording: temperature has shape {np.shape(self.temperature)}, expected ({n},)")
 
-    @property
+    @cached_property  # a median over every sample: asked for by each stage, computed once
     def rate_hz(self) -> float:
         """The median sample rate."""
         return float(1.0 / np.median(np.diff(self.t))) if len(self.t) > 1 else 0.0

@@ -126,12 +126,16 @@ def _reduced_chi2(solution: Calibration) -> float:
     return solution.diagnostics.chi2 / max(solution.diagnostics.dof, 1)
 
 
-def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, method=None) -> Calibration:
-    """``method``: the norm solver, settings.method unless given (SCREEN: only the minimum χ²)."""
+def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, method=None,
+                  white: Calibration | None = None) -> Calibration:
+    """``method``: the norm solver, settings.method unless given (SCREEN: only the minimum χ²).
+    ``white``: this very problem's solution by ``method`` on white-noise weights when it is at
+    hand (the solve a noise model's weights start from: not done again)."""
     method = method or settings.method
     problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
                                 labels=tuple(f"pose {i + 1}" for i in range(len(means))))
-    solution = solve_norm(problem, _means_covariance(intervals, t, variance, None, None, unit), method=method)
+    solution = white if white is not None else solve_norm(
+        problem, _means_covariance(intervals, t, variance, None, None, unit), method=method)
     noise = settings.noise.get(name)
     if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
         solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
@@ -244,7 +248,7 @@ def _with_estimated_noise(recording: Recording, detection: Detection, choice: Po
                                   detection.noise.variance, recording.rate_hz, station.gravity)
     settings = replace(settings, noise={**settings.noise, reference: noise})
     solution = _solve_static(reference, recording.units[reference], poses.means, poses.intervals, recording.t,
-                             detection.noise.variance, station.gravity, settings)
+                             detection.noise.variance, station.gravity, settings, white=choice.reference_solution)
     return replace(choice, reference_solution=solution), settings
 
 
@@ -351,7 +355,7 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
                 settings = replace(settings, noise={**settings.noise, name: noise})
                 estimated_names += (name,)
                 solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
-                                         station.gravity, settings)
+                                         station.gravity, settings, white=solution)
             specific_force[name] = solution
         except CalibrationError as exc:
             failures[name] = str(exc)

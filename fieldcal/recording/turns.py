@@ -26,7 +26,7 @@ import numpy as np
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
 from fieldcal.recording.detect import (DetectorSettings, NoiseLevel, Poses, distinct_poses, interval_means,
-                                       quiet_windows, up_directions, window_variances)
+                                       quiet_windows, true_runs, up_directions, window_variances)
 
 GATE_SIGMAS = 20.0  # half-second gyro mean this many of its σ from the still level: turning
 SHIFT_MULTIPLE = 5.0  # ... and this many times the quiet windows' typical shift
@@ -55,7 +55,7 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     level). ``units_per_rad_s``: the gyro's output unit per rad/s when known (not for counts)."""
     n = max(1, round(0.5 * rate_hz))
     window = 2 * max(1, round(settings.window_s * rate_hz) // 2) + 1
-    quiet = quiet_windows(acc, rate_hz, settings)
+    quiet = noise.quiet if noise.quiet is not None else quiet_windows(acc, rate_hz, settings)
     means = window_variances(gyro, window)[1][quiet]
     level = np.median(means, axis=0)
     distance = np.linalg.norm(means - level, axis=1)
@@ -82,18 +82,13 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     rate = np.linalg.norm(smooth, axis=1)
     # A turn is a stretch above the high gate, and all of it, down to the low one on either side
     # (its slow start and stop are still motion).
-    runs = _runs(rate > low)
+    runs = true_runs(rate > low)
     mask = np.zeros(len(rate), dtype=bool)
     if len(runs):
         peaks = np.maximum.reduceat(rate, runs[:, 0])
         for a, b in runs[peaks > high]:  # a loop over turns, not samples
             mask[a:b] = True
     return mask, smooth
-
-
-def _runs(mask: np.ndarray) -> np.ndarray:
-    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
-    return edges.reshape(-1, 2)
 
 
 def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np.ndarray,
@@ -113,12 +108,12 @@ def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np
         # A piece beside a turn inside one still pose is that pose's still reading for the turn:
         # the pose was still for min_static_s as a whole, and the turn's slow start takes some
         # of it (a 3 s pose before a slow table turn kept 1.95 s, and the turn was lost).
-        pieces += [(a + s, a + e) for s, e in _runs(~turn_mask[a:b]) if e - s >= min_n * BESIDE_TURN]
-        for s, e in _runs(turn_mask[a:b]):
+        pieces += [(a + s, a + e) for s, e in true_runs(~turn_mask[a:b]) if e - s >= min_n * BESIDE_TURN]
+        for s, e in true_runs(turn_mask[a:b]):
             rate = smooth[a + s:a + e]
             median = np.median(rate, axis=0)
             steady = np.linalg.norm(rate - median, axis=1) < STEADY_FRACTION * np.linalg.norm(median)
-            turns += [(a + s + i, a + s + j) for i, j in _runs(steady) if j - i >= min_turn]
+            turns += [(a + s + i, a + s + j) for i, j in true_runs(steady) if j - i >= min_turn]
     if len(pieces) == len(poses.intervals):
         return poses, np.zeros((0, 2), int)
     intervals = np.array(pieces, dtype=int).reshape(-1, 2)

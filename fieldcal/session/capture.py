@@ -24,10 +24,10 @@ import numpy as np
 from drivers.chunk import SampleChunk
 from fieldcal.atomic import WouldOverwrite, write_atomically
 from fieldcal.session.lock import SessionLock, is_held
+from fieldcal.session import LOG, SessionError  # noqa: F401 (this module's names too)
 
 SCHEMA = "fieldcal-session/2"  # 2: every log line ends with "crc" (version 1, without, still reads)
 SCHEMA_V1 = "fieldcal-session/1"
-LOG = "log.jsonl"
 SAMPLES = "samples.bin"
 PARAMETERS = "parameters.yaml"  # the current parameter file: a copy of the newest numbered one
 PARAMETERS_NUMBERED = re.compile(r"parameters-(\d{3,})\.yaml")
@@ -44,15 +44,6 @@ DOC_TYPES = ("start", "descriptor", "chunk", "event", "action", "step", "checkpo
 RUN_TYPES = ("chunk", "event", "action", "step", "checkpoint", "stop")  # need an active run
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 _SHA256 = re.compile(r"[0-9a-f]{64}")
-
-
-class SessionError(ValueError):
-    """A directory that is not a usable session; the message is one line naming file and line."""
-
-    def __init__(self, message: str, path: str = "", line: int | None = None) -> None:
-        super().__init__(message)
-        self.path = path
-        self.line = line
 
 
 class SessionStateError(RuntimeError):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from fieldcal.session.capture import LOG, SessionError
+from fieldcal.session import LOG, SessionError  # not capture: no numpy before a command's imports
 
 
 def refuse_inside_session(path: str | os.PathLike, what: str) -> None:
@@ -34,11 +34,14 @@ def check_output_path(path: str | os.PathLike, *, force: bool, option: str) -> N
         raise WouldOverwrite(p, _HINT)
 
 
-def save_parameter_file(pf, path: str | os.PathLike, *, force: bool = False, option: str = "--out") -> Path:
+def save_parameter_file(pf, path: str | os.PathLike, *, force: bool = False, option: str = "--out",
+                        data: bytes | None = None) -> Path:
     """Write ``pf`` to ``path`` atomically; refused inside a session, and over an existing file
-    unless ``force`` (the refusal names ``path`` and the --force flag)."""
+    unless ``force`` (the refusal names ``path`` and the --force flag). ``data``: ``pf``'s text
+    as a file already holds it (a session's copy), so that it is not made again."""
     from fieldcal.atomic import write_atomically
     from fieldcal.paramfile import dump
 
     check_output_path(path, force=force, option=option)
-    return write_atomically(path, dump(pf).encode("utf-8"), overwrite=force, hint=_HINT)
+    data = dump(pf).encode("utf-8") if data is None else data
+    return write_atomically(path, data, overwrite=force, hint=_HINT)
