@@ -24,6 +24,7 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from drivers.protocols.base import ParserCounters
+from drivers.protocols.decimals import plain_decimals, solid_runs
 
 _LF, _CR, _SP, _TAB = 10, 13, 32, 9
 _NUMERIC_BYTES = b"0123456789+-.eE,"
@@ -352,14 +353,11 @@ class DelimitedTextParser:
             values = _clean_delimited(block, a, ends, self._clean_delim, self._need)
             if values is not None:
                 return self._whole_block(values, t_host)
-        blank = (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
-        # runs of non-blank bytes: [run_start[i], run_stop[i])
-        solid = ~blank
-        run_start = np.flatnonzero(solid[1:] & blank[:-1]) + 1
-        run_stop = np.flatnonzero(solid[:-1] & blank[1:]) + 1  # the block ends in a blank "\n"
-        if solid[0]:
-            run_start = np.concatenate([[0], run_start])
-        if self._runs_only and not malformed[0]:
+        # Only blanks and number bytes (the usual file): the blanks are the bytes up to 32.
+        plain = self._runs_only and not block.translate(None, _BLANK_BYTES + _NUMBER_BYTES)
+        blank = a <= _SP if plain else (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
+        run_start, run_stop = solid_runs(blank)  # runs of non-blank bytes: [run_start[i], run_stop[i])
+        if plain and not malformed[0]:
             values = _clean_lines(block, ends, run_start, run_stop, self._need)
             if values is not None:
                 return self._whole_block(values, t_host)
@@ -527,10 +525,10 @@ def _parse_spans(a: np.ndarray, spans: np.ndarray):
 
 
 def _clean_lines(block: bytes, ends, run_start, run_stop, need: int) -> np.ndarray | None:
-    """(lines, T) numbers of a blank-separated block whose every line holds the same number T >=
-    ``need`` of fields, all plain finite numbers (no blank line, comment, header or short line):
-    the usual file, parsed whole by one fromstring call. None for any other block (the general
-    path then sorts its lines out)."""
+    """(lines, T) numbers of a blank-separated block of only blanks and number bytes whose every
+    line holds the same number T >= ``need`` of fields, all plain finite numbers (no blank line,
+    comment, header or short line): the usual file, parsed whole. None for any other block (the
+    general path then sorts its lines out)."""
     nlines, runs = len(ends), len(run_start)
     if nlines == 0 or runs % nlines or runs // nlines < need:
         return None
@@ -539,14 +537,16 @@ def _clean_lines(block: bytes, ends, run_start, run_stop, need: int) -> np.ndarr
     # last stops before its own end (runs are in order, so then no line has more or fewer).
     if not ((run_start[T::T] > ends[:-1]).all() and (run_stop[T - 1::T] <= ends).all()):
         return None
-    if block.translate(None, _BLANK_BYTES + _NUMBER_BYTES):
-        return None
-    return _numbers_of_block(block, nlines, T)
+    return _numbers_of_block(block, nlines, T, run_start, run_stop)
 
 
-def _numbers_of_block(text: bytes, nlines: int, T: int) -> np.ndarray | None:
-    """(nlines, T) from blank-separated ``text`` in one fromstring call, or None unless it holds
-    exactly that many finite numbers."""
+def _numbers_of_block(text: bytes, nlines: int, T: int, run_start=None, run_stop=None) -> np.ndarray | None:
+    """(nlines, T) from blank-separated ``text`` (blanks and number bytes only), or None unless
+    it holds exactly that many finite numbers. Plain decimals take plain_decimals' fast exact
+    path; anything else one fromstring call (strtod), which reads plain decimals the same."""
+    flat = plain_decimals(text, run_start, run_stop)
+    if flat is not None and flat.size == nlines * T:
+        return flat.reshape(nlines, T)
     try:
         flat = np.fromstring(text, dtype=np.float64, sep=" ")
     except ValueError:  # a field that is not one number (e.g. "1-2", "1e")
