@@ -49,12 +49,12 @@ def plain_decimals(text: bytes, start: np.ndarray | None = None,
     n = len(start)
     if n == 0:
         return np.zeros(0)
-    # A sign stands first in its token or right after the exponent letter.
-    signs = np.flatnonzero((a == _PLUS) | (a == _MINUS))
-    if len(signs):
-        before = a[signs - 1]  # signs[0] == 0 reads the last byte: a blank
-        if not ((before <= 32) | ((before | 32) == ord("e"))).all():
-            return None
+    # A sign stands first in its token or right after the exponent letter: never after a sign,
+    # a digit or a point. Shifted by 33, the signs are the bytes below 13 (+ 10, - 12), and
+    # those three below 36 ("E" 36, "e" 68; blanks wrap round to 223 and above).
+    shifted = a - np.uint8(33)
+    if ((shifted[1:] < 13) & (shifted[:-1] < 36)).any():
+        return None
     points = np.flatnonzero(a == _POINT)
     letters = np.flatnonzero((a | 32) == ord("e"))
     pi = _token_of_each(points, start, stop)
