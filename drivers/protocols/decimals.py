@@ -26,6 +26,7 @@ _INT_POWERS = 10 ** np.arange(19, dtype=np.int64)
 _MAX_EXACT = 2 ** 53  # every integer up to this is an exact double
 _MAX_DIGITS = 18  # mantissa and exponent digits read as one int64 (< 2^63)
 _PLUS, _MINUS, _POINT = 43, 45, 46
+_PLAIN = bytes(b if b in b" \t\r\n0123456789.eE+-" else 0 for b in range(256))  # the rest: NUL
 
 
 def solid_runs(blank: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -36,13 +37,24 @@ def solid_runs(blank: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return edges[0::2], edges[1::2]
 
 
-def plain_decimals(text: bytes, start: np.ndarray | None = None,
+def plain_digits(text: bytes) -> bytes | None:
+    """``text`` without its points, exponent letters and signs (what :func:`plain_decimals` reads
+    as integers), or None if it holds any byte but blanks (space, tab, CR, LF) and ``0-9 + - . e
+    E``: one pass, in which every other byte becomes a NUL."""
+    digits = text.translate(_PLAIN, b".eE+-")
+    return None if b"\0" in digits else digits
+
+
+def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray | None = None,
                    stop: np.ndarray | None = None) -> np.ndarray | None:
     """The numbers of ``text`` in order, or None unless each is a plain decimal in the fast path.
 
-    ``text`` holds only blanks (space, tab, CR, LF) and the bytes ``0-9 + - . e E``, and ends
-    with a blank; ``start``/``stop``: its tokens, ``solid_runs(bytes <= 32)`` (computed if not
-    given)."""
+    ``text`` ends with a blank; ``digits``: ``plain_digits(text)``, ``start``/``stop``: its
+    tokens, ``solid_runs(bytes <= 32)`` (each computed if not given)."""
+    if digits is None:
+        digits = plain_digits(text)
+        if digits is None:
+            return None
     a = np.frombuffer(text, dtype=np.uint8)
     if start is None or stop is None:
         start, stop = solid_runs(a <= 32)
@@ -55,51 +67,60 @@ def plain_decimals(text: bytes, start: np.ndarray | None = None,
     shifted = a - np.uint8(33)
     if ((shifted[1:] < 13) & (shifted[:-1] < 36)).any():
         return None
-    points = np.flatnonzero(a == _POINT)
-    letters = np.flatnonzero((a | 32) == ord("e"))
+    # The points and exponent letters, in one scan: at most one of each per token.
+    marks = np.flatnonzero((a == _POINT) | ((a | 32) == ord("e")))
+    is_point = a[marks] == _POINT
+    points, letters = marks[is_point], marks[~is_point]
     pi = _token_of_each(points, start, stop)
     ei = _token_of_each(letters, start, stop)
     if pi is None or ei is None:
         return None
+    lead = a[start]
     mantissa_end = stop.copy()
     mantissa_end[ei] = letters
-    digits = mantissa_end - start - (a[start] < _POINT)  # less a leading sign (+ 43, - 45)
+    count = mantissa_end - start - (lead < _POINT)  # mantissa digits (+ 43, - 45 go)...
     fraction = np.zeros(n, dtype=np.int64)  # digits after the point
     if len(points):
         after = mantissa_end[pi] - points - 1
         if (after < 0).any():  # a point in the exponent
             return None
-        digits[pi] -= 1
+        count[pi] -= 1  # ...and so does the point
         fraction[pi] = after
-    exponent_digits = np.zeros(n, dtype=np.int64)
-    negative_exponent = None
+    if (count < 1).any():
+        return None
+    tail = None  # 10^(exponent digits) of each token
     if len(letters):
         first = a[letters + 1]
         signed = (first == _PLUS) | (first == _MINUS)
-        counted = stop[ei] - letters - 1 - signed
-        if (counted < 1).any():  # "1e", "1e+"
+        exponent_digits = stop[ei] - letters - 1 - signed
+        if (exponent_digits < 1).any():  # "1e", "1e+"
             return None
-        exponent_digits[ei] = counted
-        negative_exponent = np.zeros(n, dtype=bool)
-        negative_exponent[ei] = first == _MINUS
-    if (digits < 1).any() or (digits + exponent_digits > _MAX_DIGITS).any():
+        count[ei] += exponent_digits
+        tail = np.ones(n, dtype=np.int64)
+        tail[ei] = _INT_POWERS[np.minimum(exponent_digits, _MAX_DIGITS)]
+    if (count > _MAX_DIGITS).any():
         return None
     # Every token keeps at least one digit, so the tokens stay where they were, one int each.
-    ints = np.fromstring(text.translate(None, b".eE+-"), dtype=np.int64, sep=" ")
+    ints = np.fromstring(digits, dtype=np.int64, sep=" ")
     if ints.size != n:
         return None
-    tail = _INT_POWERS[exponent_digits]
-    mantissa = ints // tail
-    exponent = ints - mantissa * tail
-    if negative_exponent is not None:
-        exponent = np.where(negative_exponent, -exponent, exponent)
-    exponent -= fraction
-    if not ((mantissa <= _MAX_EXACT) & (np.abs(exponent) <= 22)).all():
+    if tail is None:
+        mantissa, exponent = ints, -fraction
+    else:
+        mantissa = ints // tail
+        exponent = ints - mantissa * tail
+        if (first == _MINUS).any():
+            exponent[ei] *= np.where(first == _MINUS, -1, 1)
+        exponent -= fraction
+    if not ((mantissa <= _MAX_EXACT).all() and (exponent >= -22).all() and (exponent <= 22).all()):
         return None
     m = mantissa.astype(np.float64)
-    value = np.where(exponent >= 0, m * _EXACT_POWERS[np.maximum(exponent, 0)],
-                     m / _EXACT_POWERS[np.maximum(-exponent, 0)])
-    return np.where(a[start] == _MINUS, -value, value)  # -0 stays -0.0, as strtod reads it
+    if (exponent <= 0).all():  # the usual file: no multiplications needed
+        value = np.divide(m, _EXACT_POWERS[-exponent], out=m)
+    else:
+        value = np.where(exponent >= 0, m * _EXACT_POWERS[np.maximum(exponent, 0)],
+                         m / _EXACT_POWERS[np.maximum(-exponent, 0)])
+    return np.negative(value, out=value, where=lead == _MINUS)  # -0 stays -0.0, as strtod reads it
 
 
 def _token_of_each(positions: np.ndarray, start: np.ndarray, stop: np.ndarray):

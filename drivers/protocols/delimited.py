@@ -24,14 +24,13 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from drivers.protocols.base import ParserCounters
-from drivers.protocols.decimals import plain_decimals, solid_runs
+from drivers.protocols.decimals import plain_decimals, plain_digits, solid_runs
 
 _LF, _CR, _SP, _TAB = 10, 13, 32, 9
 _NUMERIC_BYTES = b"0123456789+-.eE,"
 _NUMERIC = np.zeros(256, dtype=bool)
 _NUMERIC[np.frombuffer(_NUMERIC_BYTES, dtype=np.uint8)] = True
 _NUMBER_BYTES = _NUMERIC_BYTES.replace(b",", b"")  # the bytes of one number
-_BLANK_BYTES = b" \t\r\n"
 _NUMBER_BYTE = _NUMERIC.copy()
 _NUMBER_BYTE[44] = False  # inside one field
 
@@ -354,11 +353,12 @@ class DelimitedTextParser:
             if values is not None:
                 return self._whole_block(values, t_host)
         # Only blanks and number bytes (the usual file): the blanks are the bytes up to 32.
-        plain = self._runs_only and not block.translate(None, _BLANK_BYTES + _NUMBER_BYTES)
+        digits = plain_digits(block) if self._runs_only else None  # None: not plain
+        plain = digits is not None
         blank = a <= _SP if plain else (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
         run_start, run_stop = solid_runs(blank)  # runs of non-blank bytes: [run_start[i], run_stop[i])
         if plain and not malformed[0]:
-            values = _clean_lines(block, ends, run_start, run_stop, self._need)
+            values = _clean_lines(block, digits, ends, run_start, run_stop, self._need)
             if values is not None:
                 return self._whole_block(values, t_host)
         first = _next_run(run_start, starts, stops)  # first non-blank byte of each line, or stop
@@ -524,11 +524,11 @@ def _parse_spans(a: np.ndarray, spans: np.ndarray):
     return values[ok], ok
 
 
-def _clean_lines(block: bytes, ends, run_start, run_stop, need: int) -> np.ndarray | None:
+def _clean_lines(block: bytes, digits: bytes, ends, run_start, run_stop, need: int) -> np.ndarray | None:
     """(lines, T) numbers of a blank-separated block of only blanks and number bytes whose every
     line holds the same number T >= ``need`` of fields, all plain finite numbers (no blank line,
-    comment, header or short line): the usual file, parsed whole. None for any other block (the
-    general path then sorts its lines out)."""
+    comment, header or short line): the usual file, parsed whole (``digits``: plain_digits of
+    the block). None for any other block (the general path then sorts its lines out)."""
     nlines, runs = len(ends), len(run_start)
     if nlines == 0 or runs % nlines or runs // nlines < need:
         return None
@@ -537,14 +537,15 @@ def _clean_lines(block: bytes, ends, run_start, run_stop, need: int) -> np.ndarr
     # last stops before its own end (runs are in order, so then no line has more or fewer).
     if not ((run_start[T::T] > ends[:-1]).all() and (run_stop[T - 1::T] <= ends).all()):
         return None
-    return _numbers_of_block(block, nlines, T, run_start, run_stop)
+    return _numbers_of_block(block, nlines, T, digits, run_start, run_stop)
 
 
-def _numbers_of_block(text: bytes, nlines: int, T: int, run_start=None, run_stop=None) -> np.ndarray | None:
+def _numbers_of_block(text: bytes, nlines: int, T: int, digits=None, run_start=None,
+                      run_stop=None) -> np.ndarray | None:
     """(nlines, T) from blank-separated ``text`` (blanks and number bytes only), or None unless
     it holds exactly that many finite numbers. Plain decimals take plain_decimals' fast exact
     path; anything else one fromstring call (strtod), which reads plain decimals the same."""
-    flat = plain_decimals(text, run_start, run_stop)
+    flat = plain_decimals(text, digits, run_start, run_stop)
     if flat is not None and flat.size == nlines * T:
         return flat.reshape(nlines, T)
     try:
