@@ -61,14 +61,9 @@ def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray |
     n = len(start)
     if n == 0:
         return np.zeros(0)
-    # A sign stands first in its token or right after the exponent letter: never after a sign,
-    # a digit or a point. Shifted by 33, the signs are the bytes below 13 (+ 10, - 12), and
-    # those three below 36 ("E" 36, "e" 68; blanks wrap round to 223 and above).
-    shifted = a - np.uint8(33)
-    if ((shifted[1:] < 13) & (shifted[:-1] < 36)).any():
-        return None
     # The points and exponent letters, in one scan: at most one of each per token.
     marks = np.flatnonzero((a == _POINT) | ((a | 32) == ord("e")))
+    signs = len(text) - len(digits) - len(marks)  # the bytes deleted from digits are the others
     is_point = a[marks] == _POINT
     points, letters = marks[is_point], marks[~is_point]
     pi = _token_of_each(points, start, stop)
@@ -76,9 +71,10 @@ def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray |
     if pi is None or ei is None:
         return None
     lead = a[start]
+    lead_sign = lead < _POINT  # + 43, - 45
     mantissa_end = stop.copy()
     mantissa_end[ei] = letters
-    count = mantissa_end - start - (lead < _POINT)  # mantissa digits (+ 43, - 45 go)...
+    count = mantissa_end - start - lead_sign  # mantissa digits (the sign goes)...
     fraction = np.zeros(n, dtype=np.int64)  # digits after the point
     if len(points):
         after = mantissa_end[pi] - points - 1
@@ -88,17 +84,19 @@ def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray |
         fraction[pi] = after
     if (count < 1).any():
         return None
-    tail = None  # 10^(exponent digits) of each token
+    tail, exponent_signs = None, 0  # 10^(exponent digits) of each token
     if len(letters):
         first = a[letters + 1]
         signed = (first == _PLUS) | (first == _MINUS)
+        exponent_signs = np.count_nonzero(signed)
         exponent_digits = stop[ei] - letters - 1 - signed
         if (exponent_digits < 1).any():  # "1e", "1e+"
             return None
         count[ei] += exponent_digits
         tail = np.ones(n, dtype=np.int64)
         tail[ei] = _INT_POWERS[np.minimum(exponent_digits, _MAX_DIGITS)]
-    if (count > _MAX_DIGITS).any():
+    # A sign stands first in its token or right after its exponent letter: then those are all.
+    if signs != np.count_nonzero(lead_sign) + exponent_signs or (count > _MAX_DIGITS).any():
         return None
     # Every token keeps at least one digit, so the tokens stay where they were, one int each.
     ints = np.fromstring(digits, dtype=np.int64, sep=" ")
