@@ -61,11 +61,11 @@ def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray |
     n = len(start)
     if n == 0:
         return np.zeros(0)
-    # The points and exponent letters, in one scan: at most one of each per token.
-    marks = np.flatnonzero((a == _POINT) | ((a | 32) == ord("e")))
-    signs = len(text) - len(digits) - len(marks)  # the bytes deleted from digits are the others
-    is_point = a[marks] == _POINT
-    points, letters = marks[is_point], marks[~is_point]
+    # The points and exponent letters (at most one of each per token), each by its own scan:
+    # one scan for both and a split costs twice as much (boolean indexing is slow).
+    points = np.flatnonzero(a == _POINT)
+    letters = np.flatnonzero((a | 32) == ord("e")) if b"e" in text or b"E" in text else points[:0]
+    signs = len(text) - len(digits) - len(points) - len(letters)  # the other bytes deleted
     pi = _token_of_each(points, start, stop)
     ei = _token_of_each(letters, start, stop)
     if pi is None or ei is None:

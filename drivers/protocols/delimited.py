@@ -337,18 +337,14 @@ class DelimitedTextParser:
         nlines = len(ends)
         first_line_no = self.lines + 1
         self.lines += nlines
-        starts = np.concatenate([[0], ends[:-1] + 1])
-        line_no = first_line_no + np.arange(nlines)
-        malformed = np.zeros(nlines, dtype=bool)
-        if self._overlong:  # the first line's head was dropped already: the rest goes too
+        head_dropped = self._overlong  # the first line's head was dropped already: the rest goes too
+        if head_dropped:
             self._overlong = False
-            malformed[0] = True
             self.counters.discarded_bytes += int(ends[0] + 1)
             self.malformed_lines += 1
-            self.malformed_line_numbers.append(int(line_no[0]))
-        stops = ends - ((ends > starts) & (a[np.maximum(ends - 1, 0)] == _CR))  # drop CR of CRLF
+            self.malformed_line_numbers.append(first_line_no)
 
-        if self._clean_delim is not None and not malformed[0]:  # (needs none of the blank runs below)
+        if self._clean_delim is not None and not head_dropped:  # (needs none of the blank runs below)
             values = _clean_delimited(block, a, ends, self._clean_delim, self._need)
             if values is not None:
                 return self._whole_block(values, t_host)
@@ -357,10 +353,17 @@ class DelimitedTextParser:
         plain = digits is not None
         blank = a <= _SP if plain else (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
         run_start, run_stop = solid_runs(blank)  # runs of non-blank bytes: [run_start[i], run_stop[i])
-        if plain and not malformed[0]:
+        if plain and not head_dropped:
             values = _clean_lines(block, digits, ends, run_start, run_stop, self._need)
             if values is not None:
                 return self._whole_block(values, t_host)
+
+        # The general path: line by line, vectorised.
+        starts = np.concatenate([[0], ends[:-1] + 1])
+        line_no = first_line_no + np.arange(nlines)
+        malformed = np.zeros(nlines, dtype=bool)
+        malformed[0] = head_dropped
+        stops = ends - ((ends > starts) & (a[np.maximum(ends - 1, 0)] == _CR))  # drop CR of CRLF
         first = _next_run(run_start, starts, stops)  # first non-blank byte of each line, or stop
         empty = first >= stops
         comment = np.zeros(nlines, dtype=bool)
