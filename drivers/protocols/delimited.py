@@ -311,9 +311,10 @@ class DelimitedTextParser:
         block = self._buf + data[: cut + 1]
         self._buf = b""
         self._hold(data[cut + 1:])
-        if self._runs_only or self._clean_delim is not None:
-            # A file's first block starts with its header: read that line alone, so the clean
-            # lines after it still take the whole-block path.
+        if self.lines == 0 and (self._runs_only or self._clean_delim is not None):
+            # A stream's first block starts with its header: read that line alone, so the clean
+            # lines after it still take the whole-block path. (A header further on takes the
+            # general path with its block: the same samples and counts, only slower.)
             head = block.find(b"\n") + 1
             if head < len(block) and not self._overlong and self._is_header(block[:head]):
                 self._block(block[:head], t_host)  # counted as the header: no mapped field is a number
