@@ -3,6 +3,8 @@ for bit: awkward hand-picked numbers, random ones, tokens that are not plain dec
 blank-separated file read by the delimited parser."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -90,6 +92,26 @@ def test_random_decimals_are_float_bit_for_bit_or_refused(tokens):
         assert bits(got) == bits([float(t) for t in tokens])
     for t, s in zip(tokens, singles):
         assert s is None or bits(s) == bits([float(t)])
+
+
+PLAIN_DECIMAL = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.text(" \t\r\n0123456789+-.eE", max_size=60).map(lambda s: s + "\n"))
+def test_any_mix_of_number_bytes_is_read_as_float_does_or_refused(soup):
+    """Every string of blanks and number bytes: a token that is not one plain decimal means
+    None; when the result is not None, it is float() of every token, bit for bit."""
+    tokens = soup.split()
+    got = plain_decimals(soup.encode("ascii"))
+    if not all(PLAIN_DECIMAL.fullmatch(t) for t in tokens):
+        assert got is None
+    elif got is not None:
+        assert bits(got) == bits([float(t) for t in tokens])
+
+
+def test_text_without_a_blank_at_its_end_is_refused():
+    assert plain_decimals(b"1.5 2") is None and plain_decimals(b"").size == 0
 
 
 def test_short_decimals_always_take_the_fast_path():

@@ -51,6 +51,8 @@ def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray |
 
     ``text`` ends with a blank; ``digits``: ``plain_digits(text)``, ``start``/``stop``: its
     tokens, ``solid_runs(bytes <= 32)`` (each computed if not given)."""
+    if text[-1:] not in (b" ", b"\t", b"\r", b"\n"):
+        return None if text else np.zeros(0)
     if digits is None:
         digits = plain_digits(text)
         if digits is None:
