@@ -163,6 +163,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     tail = data[cut:].strip(b" \t\r")
     comment = cm.comment.encode("ascii") if cm.comment else None
     unterminated = bool(tail) and not (comment and tail.startswith(comment))
+    _let_malloc_keep(REUSE_BYTES)  # before the temporaries of the count and of the pieces
     n_lines = _count_lines(data, cut)
     parser = DelimitedTextParser(cm, keep_malformed=max(n_lines, 1))  # every line number
     # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
@@ -268,14 +269,13 @@ def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: s
 
 def _count_lines(data: bytes, cut: int) -> int:
     """How many "\n" in data[:cut], a piece at a time (no mask the size of the file)."""
-    _let_malloc_keep(REUSE_BYTES)
     return sum(int(np.count_nonzero(np.frombuffer(data, dtype=np.uint8, count=min(FEED_BYTES, cut - lo),
                                                   offset=lo) == 10)) for lo in range(0, cut, FEED_BYTES))
 
 
 def _let_malloc_keep(size: int) -> None:
-    """Have malloc keep freed memory up to twice ``size`` for reuse, before the pieces'
-    temporaries come and go.
+    """Have malloc keep freed memory up to twice ``size`` for reuse, before temporaries of up to
+    that size come and go.
 
     glibc's malloc serves blocks above 128 KiB by fresh mmaps, and gives freed memory above
     128 KiB back to the system, until a block that large is freed: from then on it keeps up to
