@@ -331,3 +331,16 @@ def test_a_clean_comma_block_after_its_header_with_one_odd_field_loses_only_that
     rows, bad = reference_rows(text)
     assert [[t, *a] for t, a in zip(chunk.t.tolist(), chunk.triads["a"].tolist())] == rows
     assert list(p.malformed_line_numbers) == bad and p.header_lines == 1 and len(rows) >= 39
+
+
+@pytest.mark.parametrize("line_end", [b"\n", b"\r\n", b" \n", b"\t \r\n", b"\r\r\n"])
+def test_clean_blank_separated_lines_with_any_line_end_are_read_whole_and_alike(line_end):
+    """The whole-block path knows a line's end by the "\\n" (or "\\r\\n") right after its last
+    field, or, with blanks before it, by where the line ends are: every ending reads the same."""
+    lines = [b"  %d.25 -%d.5e-3\t%de2 +%d" % (i, i, i, i) for i in range(30)]
+    text = line_end.join(lines) + line_end
+    p = DelimitedTextParser(BLANK_SOUP_MAP)
+    chunk = p.feed(text, 0.0)
+    rows, bad = reference_rows(text, delimiter=None)
+    assert bad == [] and p.malformed_lines == 0 and len(rows) == 30
+    assert [[t, *a] for t, a in zip(chunk.t.tolist(), chunk.triads["a"].tolist())] == rows

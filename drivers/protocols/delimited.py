@@ -24,13 +24,13 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from drivers.protocols.base import ParserCounters
+from drivers.protocols.decimals import plain_decimals, plain_digits, solid_runs
 
 _LF, _CR, _SP, _TAB = 10, 13, 32, 9
 _NUMERIC_BYTES = b"0123456789+-.eE,"
 _NUMERIC = np.zeros(256, dtype=bool)
 _NUMERIC[np.frombuffer(_NUMERIC_BYTES, dtype=np.uint8)] = True
 _NUMBER_BYTES = _NUMERIC_BYTES.replace(b",", b"")  # the bytes of one number
-_BLANK_BYTES = b" \t\r\n"
 _NUMBER_BYTE = _NUMERIC.copy()
 _NUMBER_BYTE[44] = False  # inside one field
 
@@ -280,6 +280,7 @@ class DelimitedTextParser:
         # parse the mapped columns in column order; _slot[role] = index in that order
         order = sorted(roles, key=lambda rc: rc[1])
         self._cols = np.array([c for _, c in order], dtype=np.int64)
+        self._first_columns = bool((self._cols == np.arange(len(self._cols))).all())  # 0, 1, 2...
         self._slot = {role: i for i, (role, _) in enumerate(order)}
         self._need = int(self._cols.max()) + 1
         delim = channel_map.delimiter
@@ -311,9 +312,10 @@ class DelimitedTextParser:
         block = self._buf + data[: cut + 1]
         self._buf = b""
         self._hold(data[cut + 1:])
-        if self._runs_only or self._clean_delim is not None:
-            # A file's first block starts with its header: read that line alone, so the clean
-            # lines after it still take the whole-block path.
+        if self.lines == 0 and (self._runs_only or self._clean_delim is not None):
+            # A stream's first block starts with its header: read that line alone, so the clean
+            # lines after it still take the whole-block path. (A header further on takes the
+            # general path with its block: the same samples and counts, only slower.)
             head = block.find(b"\n") + 1
             if head < len(block) and not self._overlong and self._is_header(block[:head]):
                 self._block(block[:head], t_host)  # counted as the header: no mapped field is a number
@@ -333,36 +335,37 @@ class DelimitedTextParser:
 
     def _block(self, block: bytes, t_host: float) -> SampleChunk | None:
         a = np.frombuffer(block, dtype=np.uint8)
-        ends = np.flatnonzero(a == _LF)  # one per line; the block ends with "\n"
-        nlines = len(ends)
+        nlines = int(np.count_nonzero(a == _LF))  # one "\n" per line; the block ends with one
         first_line_no = self.lines + 1
         self.lines += nlines
+        head_dropped = self._overlong  # the first line's head was dropped already: the rest goes too
+        if head_dropped:
+            self._overlong = False
+            self.counters.discarded_bytes += block.find(b"\n") + 1
+            self.malformed_lines += 1
+            self.malformed_line_numbers.append(first_line_no)
+
+        if self._clean_delim is not None and not head_dropped:  # (needs none of the blank runs below)
+            values = _clean_delimited(block, a, np.flatnonzero(a == _LF), self._clean_delim, self._need)
+            if values is not None:
+                return self._whole_block(values, t_host)
+        # Only blanks and number bytes (the usual file): the blanks are the bytes up to 32.
+        digits = plain_digits(block) if self._runs_only else None  # None: not plain
+        plain = digits is not None
+        blank = a <= _SP if plain else (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
+        run_start, run_stop = solid_runs(blank)  # runs of non-blank bytes: [run_start[i], run_stop[i])
+        if plain and not head_dropped:
+            values = _clean_lines(block, digits, nlines, run_start, run_stop, self._need)
+            if values is not None:
+                return self._whole_block(values, t_host)
+
+        # The general path: line by line, vectorised.
+        ends = np.flatnonzero(a == _LF)
         starts = np.concatenate([[0], ends[:-1] + 1])
         line_no = first_line_no + np.arange(nlines)
         malformed = np.zeros(nlines, dtype=bool)
-        if self._overlong:  # the first line's head was dropped already: the rest goes too
-            self._overlong = False
-            malformed[0] = True
-            self.counters.discarded_bytes += int(ends[0] + 1)
-            self.malformed_lines += 1
-            self.malformed_line_numbers.append(int(line_no[0]))
+        malformed[0] = head_dropped
         stops = ends - ((ends > starts) & (a[np.maximum(ends - 1, 0)] == _CR))  # drop CR of CRLF
-
-        if self._clean_delim is not None and not malformed[0]:  # (needs none of the blank runs below)
-            values = _clean_delimited(block, a, ends, self._clean_delim, self._need)
-            if values is not None:
-                return self._whole_block(values, t_host)
-        blank = (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
-        # runs of non-blank bytes: [run_start[i], run_stop[i])
-        solid = ~blank
-        run_start = np.flatnonzero(solid[1:] & blank[:-1]) + 1
-        run_stop = np.flatnonzero(solid[:-1] & blank[1:]) + 1  # the block ends in a blank "\n"
-        if solid[0]:
-            run_start = np.concatenate([[0], run_start])
-        if self._runs_only and not malformed[0]:
-            values = _clean_lines(block, ends, run_start, run_stop, self._need)
-            if values is not None:
-                return self._whole_block(values, t_host)
         first = _next_run(run_start, starts, stops)  # first non-blank byte of each line, or stop
         empty = first >= stops
         comment = np.zeros(nlines, dtype=bool)
@@ -462,7 +465,8 @@ class DelimitedTextParser:
     def _whole_block(self, values: np.ndarray, t_host: float) -> SampleChunk:
         """A block of clean lines, every one a sample (``values``: its lines × fields)."""
         self.counters.frames += len(values)
-        return self._chunk(values[:, self._cols], t_host)
+        every = self._first_columns and values.shape[1] == len(self._cols)  # no column to leave out
+        return self._chunk(values if every else values[:, self._cols], t_host)
 
     def _chunk(self, v: np.ndarray, t_host: float) -> SampleChunk:
         cm, slot, n = self.map, self._slot, len(v)
@@ -526,27 +530,38 @@ def _parse_spans(a: np.ndarray, spans: np.ndarray):
     return values[ok], ok
 
 
-def _clean_lines(block: bytes, ends, run_start, run_stop, need: int) -> np.ndarray | None:
-    """(lines, T) numbers of a blank-separated block whose every line holds the same number T >=
-    ``need`` of fields, all plain finite numbers (no blank line, comment, header or short line):
-    the usual file, parsed whole by one fromstring call. None for any other block (the general
-    path then sorts its lines out)."""
-    nlines, runs = len(ends), len(run_start)
+def _clean_lines(block: bytes, digits: bytes, nlines: int, run_start, run_stop, need: int) -> np.ndarray | None:
+    """(lines, T) numbers of a blank-separated block of only blanks and number bytes (its
+    ``nlines`` lines) whose every line holds the same number T >= ``need`` of fields, all plain
+    finite numbers (no blank line, comment, header or short line): the usual file, parsed whole
+    (``digits``: plain_digits of the block). None for any other block (the general path then
+    sorts its lines out)."""
+    runs = len(run_start)
     if nlines == 0 or runs % nlines or runs // nlines < need:
         return None
     T = runs // nlines
-    # Line i must hold runs i·T .. i·T + T - 1: its first starts after the line before ends, its
-    # last stops before its own end (runs are in order, so then no line has more or fewer).
-    if not ((run_start[T::T] > ends[:-1]).all() and (run_stop[T - 1::T] <= ends).all()):
-        return None
-    if block.translate(None, _BLANK_BYTES + _NUMBER_BYTES):
-        return None
-    return _numbers_of_block(block, nlines, T)
+    # Line i must hold runs i·T .. i·T + T - 1. Usually each T-th run ends its line ("\n" or
+    # "\r\n" right after it): as many line ends as lines, so none falls inside one.
+    a = np.frombuffer(block, dtype=np.uint8)
+    last = run_stop[T - 1::T]
+    after = a[last]  # the block ends with "\n": a run stops before it
+    if not ((after == _LF) | ((after == _CR) & (a[np.minimum(last + 1, len(a) - 1)] == _LF))).all():
+        # Else (blanks at line ends): each line's first run starts after the line before ends,
+        # its last stops before its own end (runs are in order, so no line has more or fewer).
+        ends = np.flatnonzero(a == _LF)
+        if not ((run_start[T::T] > ends[:-1]).all() and (last <= ends).all()):
+            return None
+    return _numbers_of_block(block, nlines, T, digits, run_start, run_stop)
 
 
-def _numbers_of_block(text: bytes, nlines: int, T: int) -> np.ndarray | None:
-    """(nlines, T) from blank-separated ``text`` in one fromstring call, or None unless it holds
-    exactly that many finite numbers."""
+def _numbers_of_block(text: bytes, nlines: int, T: int, digits=None, run_start=None,
+                      run_stop=None) -> np.ndarray | None:
+    """(nlines, T) from blank-separated ``text`` (blanks and number bytes only), or None unless
+    it holds exactly that many finite numbers. Plain decimals take plain_decimals' fast exact
+    path; anything else one fromstring call (strtod), which reads plain decimals the same."""
+    flat = plain_decimals(text, digits, run_start, run_stop)
+    if flat is not None and flat.size == nlines * T:
+        return flat.reshape(nlines, T)
     try:
         flat = np.fromstring(text, dtype=np.float64, sep=" ")
     except ValueError:  # a field that is not one number (e.g. "1-2", "1e")

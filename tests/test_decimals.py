@@ -1,0 +1,137 @@
+"""The fast decimal reader against Python's float() (correctly rounded, David Gay's strtod), bit
+for bit: awkward hand-picked numbers, random ones, tokens that are not plain decimals, and a
+blank-separated file read by the delimited parser."""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.protocols.decimals import plain_decimals
+from drivers.protocols.delimited import ChannelMap, DelimitedTextParser
+
+# Inside the fast path: at most 18 digits, mantissa <= 2^53, |decimal exponent| <= 22.
+AWKWARD = [
+    "0", "-0", "+0", "-0.0", "0e0", "-0e-5", "7", "-7", "+7", "007", "-00.250", "00000000000000001",
+    ".5", "-.5", "+.5", "5.", "-5.", "1.e5", "1E+05", "1e-05", "3.3108000e+04", "2.9840000e-02",
+    "-1.234e+02", "0.1", "0.2", "0.3", "-0.3", "1.1", "2.675", "123456789012345",
+    "9007199254740992", "9007199254740991e-22", "4.35679e-17", "1e22", "1e-22", "-9.87654321e+10",
+    "1234567.1234567", "0.000001", "8999999999999.999", "8.98846567431158e+07", "5e-1",
+    "1.797693134862315e+8", "2.225073858507201e-7", "0.000000000000001", "-1e+0022",
+]
+# Plain decimals outside the fast path: the caller falls back to strtod.
+SLOW = ["9007199254740993", "1234567890123456789", "1e23", "1e-23", "1.7976931348623157e308",
+        "4.9e-324", "0.1000000000000000055511151231257827", "4.35679e-22", "99999999999999.99",
+        "2.2250738585072014e-8", "0.000000000000000000001", "0.30000000000000004"]
+NOT_PLAIN = ["1-2", "1..5", "1e", "1e+", "+", "-", ".", "e5", "-e5", ".e5", "1e5e3", "1e+-5",
+             "--1", "+-1", "1.5.", "1e5.3", "1.2.3", "1+", "1e5-"]
+
+
+def bits(values) -> list[int]:
+    return np.asarray(values, dtype=np.float64).view(np.int64).tolist()
+
+
+def text(tokens: list[str], blanks: str = " ") -> bytes:
+    return (blanks.join(tokens) + "\n").encode("ascii")
+
+
+def test_awkward_numbers_are_read_bit_for_bit_as_float_does():
+    got = plain_decimals(text(AWKWARD))
+    assert got is not None  # all of them in the fast path
+    assert bits(got) == bits([float(t) for t in AWKWARD])
+    assert np.signbit(got[AWKWARD.index("-0")]) and np.signbit(got[AWKWARD.index("-0e-5")])
+
+
+@pytest.mark.parametrize("token", SLOW)
+def test_numbers_outside_the_exact_fast_path_are_left_to_strtod(token):
+    assert plain_decimals(text(["1.5", token, "2"])) is None
+
+
+@pytest.mark.parametrize("token", NOT_PLAIN)
+def test_a_token_that_is_not_one_plain_decimal_is_refused(token):
+    assert plain_decimals(text(["1.5", token, "2"])) is None
+    assert plain_decimals(text([token])) is None
+
+
+def test_tabs_crlf_runs_of_blanks_and_a_leading_token():
+    tokens = ["-1.5", "2e3", "+.25", "7"]
+    got = plain_decimals(b"-1.5\t\t2e3 \r\n   +.25\t7\r\n")
+    assert bits(got) == bits([float(t) for t in tokens])
+    assert plain_decimals(b"\n  \n").size == 0
+
+
+@st.composite
+def decimals(draw):
+    """A plain decimal of up to 18 digits, with or without point and exponent, and its text."""
+    digits = draw(st.text("0123456789", min_size=1, max_size=17))
+    point = draw(st.integers(-1, len(digits)))  # -1: no point
+    mantissa = digits if point < 0 else digits[:point] + "." + digits[point:]
+    sign = draw(st.sampled_from(["", "-", "+"]))
+    letter = draw(st.sampled_from(["", "e", "E"]))
+    exponent = ""
+    if letter:
+        e = draw(st.integers(-30, 30))
+        exponent_sign = "-" if e < 0 else draw(st.sampled_from(["", "+"]))
+        exponent = f"{letter}{exponent_sign}{abs(e):0{draw(st.integers(1, 3))}d}"
+    return sign + mantissa + exponent
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(decimals(), min_size=1, max_size=40))
+def test_random_decimals_are_float_bit_for_bit_or_refused(tokens):
+    """Either every token is read exactly as float() reads it, or the whole text is refused
+    (and then one token at least is outside the fast path)."""
+    got = plain_decimals(text(tokens))
+    singles = [plain_decimals(text([t])) for t in tokens]
+    if got is None:
+        assert any(s is None for s in singles)
+    else:
+        assert bits(got) == bits([float(t) for t in tokens])
+    for t, s in zip(tokens, singles):
+        assert s is None or bits(s) == bits([float(t)])
+
+
+PLAIN_DECIMAL = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.text(" \t\r\n0123456789+-.eE", max_size=60).map(lambda s: s + "\n"))
+def test_any_mix_of_number_bytes_is_read_as_float_does_or_refused(soup):
+    """Every string of blanks and number bytes: a token that is not one plain decimal means
+    None; when the result is not None, it is float() of every token, bit for bit."""
+    tokens = soup.split()
+    got = plain_decimals(soup.encode("ascii"))
+    if not all(PLAIN_DECIMAL.fullmatch(t) for t in tokens):
+        assert got is None
+    elif got is not None:
+        assert bits(got) == bits([float(t) for t in tokens])
+
+
+def test_text_without_a_blank_at_its_end_is_refused():
+    assert plain_decimals(b"1.5 2") is None and plain_decimals(b"").size == 0
+
+
+def test_short_decimals_always_take_the_fast_path():
+    """Up to 15 significant digits, magnitudes 1e-7 .. 1e8 (the usual log, %g or %e written) are
+    never refused: the speed the importer counts on. The decimal exponent stays within ±22."""
+    rng = np.random.default_rng(7)
+    x = rng.choice([-1, 1], 3000) * rng.uniform(1, 10, 3000) * 10.0 ** rng.integers(-7, 9, 3000)
+    p = rng.integers(1, 15, 3000)
+    tokens = ([f"{v:.{p}g}" for v, p in zip(x[:1000], p)] + [f"{v:.{p}e}" for v, p in zip(x[1000:2000], p)]
+              + [f"{v:.{p % 7}f}" for v, p in zip(x[2000:], p)])  # at most 9 + 6 digits
+    got = plain_decimals(text(tokens, " \t"))
+    assert got is not None and bits(got) == bits([float(t) for t in tokens])
+
+
+def test_the_whitespace_parser_reads_awkward_numbers_as_float_does():
+    """Through DelimitedTextParser: lines of awkward numbers (the whole-block path) and a block
+    with numbers outside the fast path (the fallback) both give float()'s bits."""
+    cm = ChannelMap(triads={"a": (1, 2, 3)}, delimiter=None, time_column=0)
+    for pool in (AWKWARD, AWKWARD + SLOW):
+        rows = [[str(i), *(pool[(3 * i + k) % len(pool)] for k in range(3))] for i in range(60)]
+        chunk = DelimitedTextParser(cm).feed(("\n".join("  ".join(r) for r in rows) + "\n").encode(), 0.0)
+        assert bits(chunk.triads["a"]) == bits([[float(x) for x in r[1:]] for r in rows])
+        assert bits(chunk.t) == bits([float(r[0]) for r in rows])
