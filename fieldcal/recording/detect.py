@@ -251,12 +251,20 @@ def true_runs(mask: np.ndarray) -> np.ndarray:
     return np.flatnonzero(padded[1:] != padded[:-1]).reshape(-1, 2)
 
 
+_RUNS_AT_ONCE = 64  # runs whose edges _first_loud searches together (under 1 MiB of temporaries at 100 Hz)
+
+
 def _first_loud(columns: tuple[np.ndarray, ...], inv_var: np.ndarray, means: np.ndarray, first: np.ndarray,
                 length: np.ndarray, step: int, k: int, threshold: float) -> np.ndarray:
     """Per run r, how many samples from ``first[r]`` (going by ``step``, ±1, over ``length[r]``
     samples) the first k-sample window starts whose mean z² = Σ (x − mean_r)²/σ² exceeds
     threshold (length - k + 1 if none); x the columns side by side. All runs at once: only the
-    samples near each edge are read."""
+    samples near each edge are read, in batches of runs that bound the temporaries (every
+    threshold's runs are searched together)."""
+    if len(first) > _RUNS_AT_ONCE:
+        return np.concatenate([_first_loud(columns, inv_var, means[i:i + _RUNS_AT_ONCE], first[i:i + _RUNS_AT_ONCE],
+                                           length[i:i + _RUNS_AT_ONCE], step, k, threshold)
+                               for i in range(0, len(first), _RUNS_AT_ONCE)])
     width = int(max(length.max(initial=0), k))
     j = np.arange(width)
     idx = np.clip(first[:, None] + step * j, 0, len(columns[0]) - 1)

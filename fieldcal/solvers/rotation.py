@@ -184,6 +184,22 @@ def _matrix(q):
     return R
 
 
+def _right_jacobians(phi, angle, sinc, cos):
+    """(3, 3, ...) right Jacobians of the exponential at rotation vectors phi (3, ...), given
+    their angles θ, sin(θ/2)/θ and cos(θ/2): J_r(φ) = I − c1·[φ]× + c2·[φ]×², with
+    c1 = (1 − cos θ)/θ² = 2·sinc² and c2 = (θ − sin θ)/θ³."""
+    c1 = 2.0 * sinc * sinc
+    c2 = (1.0 - 2.0 * sinc * cos) / np.maximum(angle * angle, 1e-300)
+    J = np.empty((3, 3) + angle.shape)
+    scaled = c2 * phi
+    J[0, 0], J[1, 1], J[2, 2] = 1.0 + scaled * phi - c2 * angle * angle  # [φ]×² = φφᵀ − θ²·I
+    for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # [φ]×[a, b] = −φ_c, [φ]×[b, a] = φ_c
+        square, cross = scaled[a] * phi[b], c1 * phi[c]
+        np.add(square, cross, out=J[a, b])
+        np.subtract(square, cross, out=J[b, a])
+    return J
+
+
 def _weights(A, delta_b):
     """(10, 3): a step's rotation vector is this matrix's transpose times its 10 terms (see
     _Steps) for calibrated rates A·(v − δb)."""
@@ -214,6 +230,7 @@ def _weight_derivatives(A, delta_b, dK, d_delta_b):
 
 
 _BLOCK = 64  # steps composed per block: a span is padded to whole blocks, not to the longest span
+_JACOBIAN_BLOCKS = 32  # blocks whose (3, 3, steps) matrices a Jacobian makes at once (~0.15 MiB each)
 
 
 class _Steps:
@@ -329,21 +346,18 @@ class _Steps:
         after = np.empty((4, inner[-1].shape[-1] + 1))
         identity = np.array([0.0, 0.0, 0.0, 1.0])
         after[:, self.gather] = _after(outer, np.broadcast_to(identity[:, None, None], (4, 1, len(q))))
-        after = _after(inner, after[:, None, :-1]).reshape(4, -1)
-        S = _matrix(after)  # (3, 3, steps)
-        # J_r(φ) = I − c1·[φ]× + c2·[φ]×², c1 = (1 − cos θ)/θ² = 2·sinc², c2 = (θ − sin θ)/θ³;
-        # B = S·J_r, summed against each step's terms per span: T[s, a, b, c] = Σ_j B_j[a, b]·t_j[c].
-        c1 = 2.0 * sinc * sinc
-        c2 = (1.0 - 2.0 * sinc * cos) / np.maximum(angle * angle, 1e-300)
-        J = np.empty((3, 3) + angle.shape)
-        scaled = c2 * phi
-        J[0, 0], J[1, 1], J[2, 2] = 1.0 + scaled * phi - c2 * angle * angle  # [φ]×² = φφᵀ − θ²·I
-        for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # [φ]×[a, b] = −φ_c, [φ]×[b, a] = φ_c
-            square, cross = scaled[a] * phi[b], c1 * phi[c]
-            np.add(square, cross, out=J[a, b])
-            np.subtract(square, cross, out=J[b, a])
-        B = np.einsum("abj,bcj->acj", S, J, optimize=False).reshape(9, _BLOCK, -1)
-        per_block = np.matmul(B.transpose(2, 0, 1), self.terms.reshape(len(self.terms), _BLOCK, -1).transpose(2, 1, 0))
+        after = _after(inner, after[:, None, :-1])  # (4, _BLOCK, blocks)
+        # B = S·J_r, summed against each step's terms per block: per_block[k, ab, c] = Σ_j B_j[a, b]·t_j[c].
+        # Made a few blocks at a time: the (3, 3, steps) matrices are then never all held at once.
+        n_blocks = after.shape[-1]
+        terms = self.terms.reshape(len(self.terms), _BLOCK, n_blocks)
+        shaped = [x.reshape(x.shape[:-1] + (_BLOCK, n_blocks)) for x in (phi, angle, sinc, cos)]
+        per_block = np.empty((n_blocks, 9, len(self.terms)))
+        for lo in range(0, n_blocks, _JACOBIAN_BLOCKS):
+            part = np.s_[..., lo:lo + _JACOBIAN_BLOCKS]
+            B = np.einsum("ab...,bc...->ac...", _matrix(after[part]),
+                          _right_jacobians(*(x[part] for x in shaped)), optimize=False)
+            per_block[part[1]] = np.matmul(B.reshape(9, _BLOCK, -1).transpose(2, 0, 1), terms[part].transpose(2, 1, 0))
         T = np.add.reduceat(per_block, self.first_block, axis=0).reshape(len(q), 3, 3, -1)
         dW = _weight_derivatives(A, delta_b, np.asarray(dK, dtype=float), np.asarray(d_delta_b, dtype=float))
         return q, np.einsum("sabc,kcb->sak", T, dW)
