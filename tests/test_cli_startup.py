@@ -49,3 +49,21 @@ def test_main_gives_what_a_command_froze_back_to_the_collector(collector, tmp_pa
     gc.unfreeze()
     main(["calibrate", str(tmp_path / "missing.csv"), "--out", str(tmp_path)])  # refused, after its imports
     assert gc.get_freeze_count() == 0
+
+
+def test_the_command_entry_point_keeps_the_imports_frozen_for_the_shutdown(tmp_path):
+    """`fieldcal` ends its process: what its imports froze stays frozen, so the collection at
+    interpreter shutdown skips it (the objects the command made are collected as ever)."""
+    import subprocess
+    import sys
+    from importlib.metadata import entry_points
+
+    (script,) = entry_points(group="console_scripts", name="fieldcal")
+    assert script.value == "fieldcal.cli.main:run"
+    body = ("import gc, sys\nfrom fieldcal.cli.main import run\n"
+            f"sys.argv = ['fieldcal', 'calibrate', {str(tmp_path / 'missing.csv')!r}, '--out', {str(tmp_path)!r}]\n"
+            "code = run()\nprint(code, gc.get_freeze_count())")
+    proc = subprocess.run([sys.executable, "-c", body], capture_output=True, text=True, timeout=120)
+    code, frozen = map(int, proc.stdout.split())
+    assert code == 2 and "text files need --map" in proc.stderr  # refused, after its imports
+    assert frozen > 10_000
