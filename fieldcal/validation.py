@@ -44,9 +44,30 @@ class _Refused(yaml.MarkedYAMLError):
     """A document the strict loader will not build (tags, alias bombs)."""
 
 
-class _StrictMappings:
-    """Mappings built strictly: a key given twice is an error instead of last-one-wins, and each
-    mapping remembers its lines (a loader's mixin)."""
+class UniqueKeyLoader(yaml.SafeLoader):
+    """safe_load, but strict: a key given twice in one mapping is an error instead of
+    last-one-wins, explicit tags are refused, aliases are capped, and mappings remember lines."""
+
+    def __init__(self, stream) -> None:
+        super().__init__(stream)
+        self._aliases = 0
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > MAX_ALIASES:
+                raise _Refused(None, None, f"more than {MAX_ALIASES} aliases (*name)", event.start_mark)
+        elif getattr(event, "tag", None) not in (None, "!"):
+            raise _Refused(None, None, f"the tag {event.tag} is not allowed (write plain values)",
+                           event.start_mark)
+        return super().compose_node(parent, index)
+
+    def get_single_node(self):
+        node = super().get_single_node()
+        if node is not None and self._aliases:
+            _check_expansion(node)
+        return node
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -73,55 +94,7 @@ class _StrictMappings:
                 data.key_lines.setdefault(self.construct_object(key_node), key_node.start_mark.line + 1)
 
 
-class UniqueKeyLoader(_StrictMappings, yaml.SafeLoader):
-    """safe_load, but strict: a key given twice in one mapping is an error instead of
-    last-one-wins, explicit tags are refused, aliases are capped, and mappings remember lines."""
-
-    def __init__(self, stream) -> None:
-        super().__init__(stream)
-        self._aliases = 0
-
-    def compose_node(self, parent, index):
-        event = self.peek_event()
-        if isinstance(event, yaml.AliasEvent):
-            self._aliases += 1
-            if self._aliases > MAX_ALIASES:
-                raise _Refused(None, None, f"more than {MAX_ALIASES} aliases (*name)", event.start_mark)
-        elif getattr(event, "tag", None) not in (None, "!"):
-            raise _Refused(None, None, f"the tag {event.tag} is not allowed (write plain values)",
-                           event.start_mark)
-        return super().compose_node(parent, index)
-
-    def get_single_node(self):
-        node = super().get_single_node()
-        if node is not None and self._aliases:
-            _check_expansion(node)
-        return node
-
-
 UniqueKeyLoader.add_constructor("tag:yaml.org,2002:map", UniqueKeyLoader.construct_marked_mapping)
-
-# The same mappings on libyaml's parser (PyYAML's C extension, where it is built): a parameter
-# file in 0.8 ms instead of 5.5. Taken only for documents with no alias, no explicit tag and no
-# character the pure-Python reader refuses (see _plain), and only when it succeeds: everything
-# else, every error included, goes through UniqueKeyLoader, which says what is wrong.
-_FastLoader = None
-if hasattr(yaml, "CSafeLoader"):
-    class _FastLoader(_StrictMappings, yaml.CSafeLoader):  # noqa: N801 -- a loader class
-        pass
-
-    _FastLoader.add_constructor("tag:yaml.org,2002:map", _FastLoader.construct_marked_mapping)
-
-
-def _plain(text: str) -> bool:
-    """No alias, no explicit tag, nothing unprintable: what UniqueKeyLoader would take as it is
-    (its caps and refusals concern nothing else); by libyaml's events."""
-    if yaml.reader.Reader.NON_PRINTABLE.search(text):
-        return False
-    for event in yaml.parse(text, Loader=yaml.CSafeLoader):
-        if isinstance(event, yaml.AliasEvent) or getattr(event, "tag", None) not in (None, "!"):
-            return False
-    return True
 
 
 def _check_expansion(root) -> None:
@@ -318,12 +291,6 @@ def parse_yaml(text: str, path: str, error: type[ValueError]):
     if len(text) > MAX_YAML_BYTES:
         raise error(f"{path}: not loaded: {len(text)} characters, more than the "
                     f"{MAX_YAML_BYTES // 1024} kB a hand-written YAML file can need", path)
-    if _FastLoader is not None:
-        try:
-            if _plain(text):
-                return yaml.load(text, Loader=_FastLoader)  # noqa: S506 -- a CSafeLoader subclass
-        except Exception:  # noqa: BLE001 -- whatever it is, the loader below names it
-            pass
     try:
         return yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 -- a SafeLoader subclass
     except yaml.MarkedYAMLError as exc:
