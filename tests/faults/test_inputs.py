@@ -93,6 +93,8 @@ HOSTILE = {
     "a list": lambda text, key: "- 1\n- 2\n",
     "empty": lambda text, key: "",
     "duplicate key": lambda text, key: text + f"\n{key}: again\n",
+    "deep nesting": lambda text, key: "[" * 20000 + "]" * 20000 + "\n",  # a C parser's stack
+    "tab before a value": lambda text, key: text.replace(f"{key}:", f"{key}:\t", 1),
 }
 
 
