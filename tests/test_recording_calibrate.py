@@ -208,6 +208,39 @@ def test_fieldcal_calibrate_from_text_files(tmp_path, capsys):
     assert (tmp_path / "again.yaml").read_bytes() == (tmp_path / "unit.yaml").read_bytes()
 
 
+def test_params_is_this_runs_calibration_when_another_writer_follows(tmp_path, monkeypatch, capsys):
+    """--params copies the numbered file this run wrote, not parameters.yaml: another fieldcal
+    may take the session's lock between this run's close and its copy."""
+    from dataclasses import replace
+
+    from fieldcal.session.capture import SessionWriter
+
+    sim = simulate_handheld(3)
+    acc, gyro = to_text(sim, tmp_path)
+    close = SessionWriter.close
+
+    def close_then_another_writer(self):
+        close(self)
+        if self.parameters_written is not None:  # the other one re-solves with another operator
+            other = load(self.parameters_written)
+            other = replace(other, provenance=replace(other.provenance, operator="someone else"))
+            later = SessionWriter.append_to(self.directory)
+            try:
+                later.write_parameters(other)
+            finally:
+                close(later)
+
+    monkeypatch.setattr(SessionWriter, "close", close_then_another_writer)
+    code = main(["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--latitude", "40", "--gravity", "9.80",
+                 "--out", str(tmp_path / "sessions"), "--params", str(tmp_path / "unit.yaml")])
+    assert code == 0, capsys.readouterr().err
+    session = next((tmp_path / "sessions").iterdir())
+    assert load(session / "parameters.yaml").provenance.operator == "someone else"  # the race happened
+    assert (tmp_path / "unit.yaml").read_bytes() == (session / "parameters-001.yaml").read_bytes()
+    assert load(tmp_path / "unit.yaml").provenance.operator is None
+    assert "(a copy of parameters-001.yaml)" in capsys.readouterr().out
+
+
 def test_fieldcal_calibrate_errors_are_one_line(tmp_path):
     sim = simulate_handheld(3, n_poses=5)
     acc, gyro = to_text(sim, tmp_path)

@@ -131,7 +131,7 @@ def cmd_calibrate(args) -> int:
         from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
         from fieldcal.recording.detect import DetectorSettings
         from fieldcal.recording.results import noise_lines, parameter_file, summary_lines
-        from fieldcal.session.capture import SessionReader, SessionWriter
+        from fieldcal.session.capture import SessionWriter
 
         from fieldcal.cli.production import accept_after, load_spec_option, operator_option
 
@@ -186,12 +186,13 @@ def cmd_calibrate(args) -> int:
         print(line)
     for line in summary_lines(cal):
         print(line)
+    ours = writer.parameters_written  # numbered, never overwritten: parameters.yaml may be a later run's
     print(f"\nparameter file: {directory / 'parameters.yaml'} (a copy of "
-          f"{SessionReader(directory).parameters_path.name})  ({time.perf_counter() - started:.2f} s)")
+          f"{ours.name})  ({time.perf_counter() - started:.2f} s)")
     if args.params:
         from fieldcal.session.output import save_parameter_file
         written = save_parameter_file(pf, args.params, force=args.force, option="--params",
-                                      data=(directory / "parameters.yaml").read_bytes())  # pf's text, made once
+                                      data=ours.read_bytes())  # pf's text, made once
         print(f"parameter file: {written}")
     return accept_after(args, spec, directory / "parameters.yaml", 0 if not cal.failures else 1,
                         source="calibrate")

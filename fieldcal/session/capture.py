@@ -502,6 +502,7 @@ class SessionWriter:
         self._samples = samples
         self._raw: dict[str, Any] = {}
         self._lock = threading.RLock()
+        self.parameters_written: Path | None = None  # the last file write_parameters wrote
         self._clock = clock
         self.fsync_interval_s = float(fsync_interval_s)
         self._active = active
@@ -792,6 +793,7 @@ class SessionWriter:
             # atomic and never over another file: a failure leaves the log as it was
             path = write_atomically(self.directory / name, data, overwrite=False,
                                     hint="a session's files are never overwritten")
+            self.parameters_written = path  # this writer's file: parameters.yaml may be another's later
             with self._writing("parameters"):
                 seq = self._write({"seq": self._seq, "type": "parameters", "file": name,
                                    "sha256": hashlib.sha256(data).hexdigest()})
