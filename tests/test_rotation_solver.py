@@ -425,3 +425,25 @@ def test_the_scale_scan_finds_the_grid_scale_an_exhaustive_exact_scan_finds(seed
     found = scan_scale(rec.t, obs["raw"], rec.spans, up[:-1], up[1:], obs["b0"], scales)
     assert found == scales[np.argmin([misfit(k) for k in scales])]
     assert found == scales[np.argmin(np.abs(np.log(scales / np.mean(obs["k"]))))]
+
+
+def test_motions_replaced_or_not_the_scans_own_make_their_own_steps():
+    """The integration steps a Motions keeps are its own: dataclasses.replace starts a new cache,
+    and scan_scale uses a Motions only when it holds the very t and raw it was given."""
+    from dataclasses import replace
+
+    from fieldcal.solvers.rotation import Motions
+
+    t = np.arange(200) * 0.01
+    raw = np.zeros((200, 3))
+    raw[50:150, 2] = 0.5  # rad/s about z for 1 s
+    spans = np.array([[40, 160]])
+    up = np.array([[1.0, 0.0, 0.0]])
+    motions = Motions.of(t, raw, spans, up, up)
+    first = motions.steps(np.zeros(3))
+    assert motions.steps(np.zeros(3)) is first
+    doubled = replace(motions, raw=2 * raw)
+    assert doubled.steps(np.zeros(3)) is not first
+    angle = lambda m: 2 * np.degrees(np.arccos(m.steps(np.zeros(3)).quaternions(np.eye(3), np.zeros(3))[0, 3]))
+    assert angle(motions) == pytest.approx(np.degrees(0.5), abs=1e-6)  # 0.5 rad in 1 s
+    assert angle(doubled) == pytest.approx(np.degrees(1.0), abs=1e-6)

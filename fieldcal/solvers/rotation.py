@@ -404,7 +404,8 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
     here, offset by b0, unless already made with another offset)."""
     scales = np.asarray(scales, dtype=float)
     spans = np.asarray(spans, dtype=int).reshape(-1, 2)
-    steps = motions.steps(b0) if motions is not None else None
+    mine = motions is not None and motions.t is t and motions.raw is raw and np.array_equal(motions.spans, spans)
+    steps = motions.steps(b0) if mine else None
     if steps is None or not np.array_equal(steps.offset, b0):
         steps = _Steps(raw, t, spans, offset=b0)
     up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
@@ -500,7 +501,8 @@ class Motions:
     spans: np.ndarray
     up_start: np.ndarray
     up_end: np.ndarray
-    _made: dict = field(default_factory=dict, compare=False, repr=False)  # the steps, once made
+    # The steps, once made: not an init field, so dataclasses.replace starts a new cache.
+    _made: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     def steps(self, offset) -> _Steps:
         """The motions' integration steps, made once (with the first caller's ``offset``: any
