@@ -267,10 +267,16 @@ def _first_loud(columns: tuple[np.ndarray, ...], inv_var: np.ndarray, means: np.
                                for i in range(0, len(first), _RUNS_AT_ONCE)])
     width = int(max(length.max(initial=0), k))
     j = np.arange(width)
-    idx = np.clip(first[:, None] + step * j, 0, len(columns[0]) - 1)
-    near = np.concatenate([c[idx] for c in columns], axis=-1)  # (runs, width, columns)
-    z2 = ((near - means[:, None, :]) ** 2) @ inv_var  # (runs, width)
-    c = np.cumsum(np.concatenate([np.zeros((len(first), 1)), z2], axis=1), axis=1)
+    idx = first[:, None] + step * j  # clipped to the samples by the gathers
+    near = np.empty((len(first), width, means.shape[1]))  # (runs, width, columns): each triad gathered in place
+    at = 0
+    for c in columns:
+        np.take(c, idx, axis=0, out=near[..., at:at + c.shape[1]], mode="clip")
+        at += c.shape[1]
+    near -= means[:, None, :]
+    z2 = np.square(near, out=near) @ inv_var  # (runs, width)
+    c = np.zeros((len(first), width + 1))
+    np.cumsum(z2, axis=1, out=c[:, 1:])
     loud = ((c[:, k:] - c[:, :-k]) / k > threshold) & (j[None, :width - k + 1] <= (length - k)[:, None])
     return np.where(loud.any(axis=1), np.argmax(loud, axis=1), length - k + 1)
 

@@ -1,0 +1,53 @@
+"""The detector's edge search (detect._first_loud) against its plain definition: per run, the
+first k-sample window, going by ±1 from ``first``, whose mean z² exceeds the threshold."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fieldcal.recording.detect import _first_loud
+
+
+def first_loud_by_definition(columns, inv_var, means, first, length, step, k, threshold):
+    x = np.hstack(columns)
+    out = []
+    for r in range(len(first)):  # a loop over runs: the definition, not the product's code
+        found = length[r] - k + 1
+        for s in range(length[r] - k + 1):
+            rows = np.clip(first[r] + step * (s + np.arange(k)), 0, len(x) - 1)
+            if np.mean(((x[rows] - means[r]) ** 2) @ inv_var) > threshold:
+                found = s
+                break
+        out.append(found)
+    return np.array(out)
+
+
+def test_a_window_by_hand():
+    # One column, unit variance, mean 0: samples 0 0 0 3 3 0. With k = 2 and threshold 4, the
+    # windows from sample 1 going up read z² means 0, 4.5 (samples 2-3): the second, at 1 step.
+    x = np.array([[0.0], [0.0], [0.0], [3.0], [3.0], [0.0]])
+    got = _first_loud((x,), np.array([1.0]), np.zeros((1, 1)), np.array([1]), np.array([5]), 1, 2, 4.0)
+    assert got.tolist() == [1]
+    # Going down from sample 4: samples 4-3 read 9 at once.
+    got = _first_loud((x,), np.array([1.0]), np.zeros((1, 1)), np.array([4]), np.array([5]), -1, 2, 4.0)
+    assert got.tolist() == [0]
+
+
+@pytest.mark.parametrize("step", [1, -1])
+def test_first_loud_is_its_definition_on_random_runs(step):
+    rng = np.random.default_rng(7 + step)
+    n = 600
+    acc = rng.normal(0.0, 1.0, (n, 3)) + 32768.0
+    gyro = rng.normal(0.0, 2.0, (n, 3))
+    loud = rng.integers(0, n, 40)
+    acc[loud] += rng.normal(0.0, 30.0, (40, 3))  # motions the windows run into
+    runs = 150  # more than one batch of runs
+    first = rng.integers(0, n, runs)
+    length = rng.integers(5, 60, runs)  # some run past either end: the samples are clipped
+    means = np.hstack([acc[first], gyro[first]]) + rng.normal(0.0, 0.5, (runs, 6))
+    inv_var = 1.0 / np.r_[[1.0] * 3, [4.0] * 3]
+    k, threshold = 5, 6.0 + 6.0 * np.sqrt(2.0 * 6 / 5)
+    got = _first_loud((acc, gyro), inv_var, means, first, length, step, k, threshold)
+    want = first_loud_by_definition((acc, gyro), inv_var, means, first, length, step, k, threshold)
+    assert np.array_equal(got, want)
+    assert 0 < np.sum(got < length - k + 1) < runs  # both found and not-found runs were tested
