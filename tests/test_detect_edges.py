@@ -1,11 +1,12 @@
-"""The detector's edge search (detect._first_loud) against its plain definition: per run, the
-first k-sample window, going by ±1 from ``first``, whose mean z² exceeds the threshold."""
+"""The detector's loops made numpy against their plain definitions: the edge search
+(detect._first_loud: per run, the first k-sample window, going by ±1 from ``first``, whose mean z²
+exceeds the threshold) and the choice of distinct poses (detect.distinct_poses)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from fieldcal.recording.detect import _first_loud
+from fieldcal.recording.detect import _first_loud, distinct_poses
 
 
 def first_loud_by_definition(columns, inv_var, means, first, length, step, k, threshold):
@@ -51,3 +52,23 @@ def test_first_loud_is_its_definition_on_random_runs(step):
     want = first_loud_by_definition((acc, gyro), inv_var, means, first, length, step, k, threshold)
     assert np.array_equal(got, want)
     assert 0 < np.sum(got < length - k + 1) < runs  # both found and not-found runs were tested
+
+
+def distinct_by_definition(up: np.ndarray, min_separation_deg: float) -> list[bool]:
+    """A pose is distinct when no earlier distinct pose lies within the separation."""
+    out: list[bool] = []
+    for i in range(len(up)):
+        angles = [np.degrees(np.arccos(np.clip(up[i] @ up[j], -1, 1))) for j in range(i) if out[j]]
+        out.append(all(a >= min_separation_deg for a in angles))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_distinct_poses_is_its_definition(seed):
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(size=(8, 3))
+    up = centres[rng.integers(0, 8, 40)] + rng.normal(0.0, 0.15, (40, 3))  # clusters: repeats and near ones
+    up /= np.linalg.norm(up, axis=1)[:, None]
+    got = distinct_poses(up, 10.0)
+    assert got.tolist() == distinct_by_definition(up, 10.0)
+    assert 0 < got.sum() < len(up)

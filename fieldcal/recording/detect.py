@@ -391,11 +391,12 @@ def up_directions(means: np.ndarray, zero=None, sensitivity=None) -> np.ndarray:
 def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     """(m,) bool: False for a pose within ``min_separation_deg`` of an earlier distinct one."""
     cos_min = math.cos(math.radians(min_separation_deg))
-    close = (up @ up.T > cos_min).tolist()  # every pair at once; the choice below is in order
-    distinct = []
-    for i, row in enumerate(close):  # a loop over poses, not samples
-        distinct.append(not any(near and kept for near, kept in zip(row[:i], distinct)))
-    return np.array(distinct, dtype=bool)
+    close = up @ up.T > cos_min  # every pair at once; the choice below is in order
+    distinct = np.ones(len(up), dtype=bool)
+    for i in range(len(up)):  # a loop over poses, not samples: each distinct one rules out the later close ones
+        if distinct[i]:
+            distinct[i + 1:] &= ~close[i + 1:, i]  # row k, column i: as the order written
+    return distinct
 
 
 class PrefixMeans:
