@@ -72,3 +72,18 @@ def test_distinct_poses_is_its_definition(seed):
     got = distinct_poses(up, 10.0)
     assert got.tolist() == distinct_by_definition(up, 10.0)
     assert 0 < got.sum() < len(up)
+
+
+def test_prefix_means_are_the_old_sums_bit_for_bit_and_the_means_by_hand():
+    from fieldcal.recording.detect import PrefixMeans
+
+    rng = np.random.default_rng(3)
+    values = 32768.0 + rng.normal(0.0, 40.0, (5000, 3)).round()
+    intervals = np.sort(rng.integers(0, 5001, (60, 2)), axis=1)
+    intervals = intervals[intervals[:, 1] > intervals[:, 0]]
+    cums = np.zeros((len(values) + 1, 3))  # the sums as made before (ed231b9): row by row
+    np.cumsum(values - values[0], axis=0, out=cums[1:])
+    old = values[0] + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+    assert np.array_equal(PrefixMeans(values)(intervals), old)
+    hand = PrefixMeans(np.array([[1.0, 10.0], [2.0, 20.0], [6.0, 60.0]]))
+    assert hand(np.array([[0, 3], [1, 3], [2, 3]])).tolist() == [[3.0, 30.0], [4.0, 40.0], [6.0, 60.0]]

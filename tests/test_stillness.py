@@ -429,8 +429,8 @@ def test_the_steady_path_windows_agree_with_sliding_std():
 
 
 def _window_var_as_written_before(x: np.ndarray, n: int, ddof: int) -> np.ndarray:
-    """stillness._window_var before its steps were worked in place, column by column (ed231b9), kept as the oracle
-    that the in-place version gives the same numbers bit for bit."""
+    """stillness._window_var before its steps were worked in place, column by column (ed231b9),
+    kept as the oracle that the new version gives the same numbers bit for bit."""
     m, c = x.shape
     blocks_n = -(-m // n)
     pad = blocks_n * n - m

@@ -406,8 +406,13 @@ class PrefixMeans:
     def __init__(self, values: np.ndarray):
         values = np.asarray(values, dtype=float)
         self.offset = values[0]
-        self.cums = np.zeros((len(values) + 1, values.shape[1]))
-        np.cumsum(values - self.offset, axis=0, out=self.cums[1:])
+        # Summed column by column (each column's samples side by side: the sums run along the
+        # samples, not across 3 columns at a time); the same sums, read back as (n + 1, d).
+        deviations = np.ascontiguousarray(values.T)
+        deviations -= self.offset[:, None]
+        columns = np.zeros((values.shape[1], len(values) + 1))
+        np.cumsum(deviations, axis=1, out=columns[:, 1:])
+        self.cums = columns.T
 
     def __call__(self, intervals: np.ndarray) -> np.ndarray:
         intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
