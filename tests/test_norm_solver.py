@@ -203,3 +203,27 @@ def test_rate_residuals_evaluate_many_parameter_vectors_at_once():
     np.testing.assert_allclose(problem.residuals(truth, problem.data)[:18],
                                np.linalg.norm(calibrate_with(np.r_[0, 0, 0, truth[3:]], half), axis=1)
                                - problem.table_rate, rtol=0, atol=1e-12)
+
+
+def test_powells_one_point_residuals_are_the_problems_own_bit_for_bit():
+    """The objective Powell evaluates point by point (norm._one_point_fast) against the
+    problem's residuals, the definition, at points around a raw-count triad's solution."""
+    from fieldcal.solvers.norm import _one_point_fast
+    from fieldcal.solvers.problems import StaticNormProblem
+
+    rng = np.random.default_rng(12)
+    up = rng.normal(size=(14, 3))
+    up /= np.linalg.norm(up, axis=1)[:, None]
+    K = np.array([[415.0, 0.0, 0.0], [2.1, 409.0, 0.0], [-3.3, 4.4, 421.0]])  # count per m/s²
+    means = 9.81 * up @ K.T + 32768.0 + rng.normal(0.0, 0.3, (14, 3))
+    problem = StaticNormProblem(means, 9.81, output_unit="count")
+    fast = _one_point_fast(problem, problem.residual_function(problem.data))
+    theta0 = np.r_[32768.0, 32768.0, 32768.0, 415.0, 409.0, 421.0, 0.005, -0.008, 0.01]
+    points = theta0 + rng.normal(size=(50, 9)) * np.r_[[0.5] * 3, [0.2] * 3, [1e-3] * 3]
+    for theta in points:
+        assert np.array_equal(fast(theta), problem.residuals(theta, problem.data))
+    assert np.array_equal(fast(points), problem.residuals(points, problem.data))  # stacks as before
+    # and a hand-worked point: K = I, no bias, no misalignment, so the residual is |mean| - g
+    hand = StaticNormProblem(np.array([[3.0, 4.0, 0.0], [0.0, 0.0, 9.0]]), 5.0)
+    one = _one_point_fast(hand, hand.residual_function(hand.data))
+    assert one(np.r_[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]).tolist() == [0.0, 4.0]

@@ -69,11 +69,11 @@ def detect_candidates(recording: Recording, settings: DetectorSettings) -> Detec
     zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
     if gyro is not None:  # on a turntable the accelerometer is as still as in a pose
         turn_mask, smooth = turning(gyro, acc, rate_hz, noise, settings, RATE_UNITS.get(recording.units[rates[0]]))
-    candidates = []
+    candidates, split_memo = [], {}  # an interval's split, worked out once for every threshold
     for found in pose_candidates(acc, rate_hz, settings, zero=zero, gyro=gyro, noise=noise):
         poses, turns = found, np.zeros((0, 2), int)
         if gyro is not None:
-            poses, turns = split_poses(found, acc, turn_mask, smooth, rate_hz, settings, zero)
+            poses, turns = split_poses(found, acc, turn_mask, smooth, rate_hz, settings, zero, split_memo)
         spread = check_spread(poses.up[poses.distinct], settings.min_poses, settings.cover_deg, settings.min_design)
         candidates.append(Candidate(found, poses, turns, spread))
     return Detection(forces, rates, reference, noise, tuple(candidates))

@@ -267,10 +267,16 @@ def _first_loud(columns: tuple[np.ndarray, ...], inv_var: np.ndarray, means: np.
                                for i in range(0, len(first), _RUNS_AT_ONCE)])
     width = int(max(length.max(initial=0), k))
     j = np.arange(width)
-    idx = np.clip(first[:, None] + step * j, 0, len(columns[0]) - 1)
-    near = np.concatenate([c[idx] for c in columns], axis=-1)  # (runs, width, columns)
-    z2 = ((near - means[:, None, :]) ** 2) @ inv_var  # (runs, width)
-    c = np.cumsum(np.concatenate([np.zeros((len(first), 1)), z2], axis=1), axis=1)
+    idx = first[:, None] + step * j  # clipped to the samples by the gathers
+    near = np.empty((len(first), width, means.shape[1]))  # (runs, width, columns): each triad gathered in place
+    at = 0
+    for c in columns:
+        np.take(c, idx, axis=0, out=near[..., at:at + c.shape[1]], mode="clip")
+        at += c.shape[1]
+    near -= means[:, None, :]
+    z2 = np.square(near, out=near) @ inv_var  # (runs, width)
+    c = np.zeros((len(first), width + 1))
+    np.cumsum(z2, axis=1, out=c[:, 1:])
     loud = ((c[:, k:] - c[:, :-k]) / k > threshold) & (j[None, :width - k + 1] <= (length - k)[:, None])
     return np.where(loud.any(axis=1), np.argmax(loud, axis=1), length - k + 1)
 
@@ -385,11 +391,12 @@ def up_directions(means: np.ndarray, zero=None, sensitivity=None) -> np.ndarray:
 def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     """(m,) bool: False for a pose within ``min_separation_deg`` of an earlier distinct one."""
     cos_min = math.cos(math.radians(min_separation_deg))
-    close = (up @ up.T > cos_min).tolist()  # every pair at once; the choice below is in order
-    distinct = []
-    for i, row in enumerate(close):  # a loop over poses, not samples
-        distinct.append(not any(near and kept for near, kept in zip(row[:i], distinct)))
-    return np.array(distinct, dtype=bool)
+    close = up @ up.T > cos_min  # every pair at once; the choice below is in order
+    distinct = np.ones(len(up), dtype=bool)
+    for i in range(len(up)):  # a loop over poses, not samples: each distinct one rules out the later close ones
+        if distinct[i]:
+            distinct[i + 1:] &= ~close[i + 1:, i]  # row k, column i: as the order written
+    return distinct
 
 
 class PrefixMeans:
@@ -399,8 +406,13 @@ class PrefixMeans:
     def __init__(self, values: np.ndarray):
         values = np.asarray(values, dtype=float)
         self.offset = values[0]
-        self.cums = np.zeros((len(values) + 1, values.shape[1]))
-        np.cumsum(values - self.offset, axis=0, out=self.cums[1:])
+        # Summed column by column (each column's samples side by side: the sums run along the
+        # samples, not across 3 columns at a time); the same sums, read back as (n + 1, d).
+        deviations = np.ascontiguousarray(values.T)
+        deviations -= self.offset[:, None]
+        columns = np.zeros((values.shape[1], len(values) + 1))
+        np.cumsum(deviations, axis=1, out=columns[:, 1:])
+        self.cums = columns.T
 
     def __call__(self, intervals: np.ndarray) -> np.ndarray:
         intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)

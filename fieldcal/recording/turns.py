@@ -26,7 +26,7 @@ import numpy as np
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
 from fieldcal.recording.detect import (DetectorSettings, NoiseLevel, Poses, distinct_poses, interval_means,
-                                       quiet_windows, true_runs, up_directions, window_variances)
+                                       quiet_windows, true_runs, up_directions)
 
 GATE_SIGMAS = 20.0  # half-second gyro mean this many of its σ from the still level: turning
 SHIFT_MULTIPLE = 5.0  # ... and this many times the quiet windows' typical shift
@@ -43,10 +43,22 @@ MIN_TURN_S = 2.0
 
 def _moving_mean(values: np.ndarray, n: int) -> np.ndarray:
     """Centred mean over n samples (shorter at the ends), per column."""
-    cums = np.cumsum(np.r_[np.zeros((1, values.shape[1])), values], axis=0)
-    idx = np.arange(len(values))
-    lo, hi = np.maximum(idx - n // 2, 0), np.minimum(idx + n - n // 2, len(values))
-    return (cums[hi] - cums[lo]) / (hi - lo)[:, None]
+    length = len(values)
+    cums = np.zeros((length + 1, values.shape[1]))
+    np.cumsum(values, axis=0, out=cums[1:])
+    before, after = n // 2, n - n // 2  # sample i averages [i - before, i + after), clipped to the data
+    if length < n:
+        idx = np.arange(length)
+        lo, hi = np.maximum(idx - before, 0), np.minimum(idx + after, length)
+        return (cums[hi] - cums[lo]) / (hi - lo)[:, None]
+    out = np.empty(values.shape)
+    # Samples before..length-after see a whole window: slices, not gathers; the ends, a shorter one.
+    np.subtract(cums[n:], cums[:length + 1 - n], out=out[before:length + 1 - after])
+    out[before:length + 1 - after] /= n
+    head, tail = np.arange(before), np.arange(length + 1 - after, length)
+    out[:before] = cums[head + after] / (head + after)[:, None]
+    out[length + 1 - after:] = (cums[length] - cums[tail - before]) / (length - tail + before)[:, None]
+    return out
 
 
 def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel, settings: DetectorSettings,
@@ -56,7 +68,8 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     n = max(1, round(0.5 * rate_hz))
     window = 2 * max(1, round(settings.window_s * rate_hz) // 2) + 1
     quiet = noise.quiet if noise.quiet is not None else quiet_windows(acc, rate_hz, settings)
-    means = window_variances(gyro, window)[1][quiet]
+    whole = len(gyro) // window * window  # the windows' means (as window_variances sums them); no variances
+    means = (np.asarray(gyro[:whole], dtype=float).reshape(-1, window, gyro.shape[1]).sum(axis=1) / window)[quiet]
     level = np.median(means, axis=0)
     distance = np.linalg.norm(means - level, axis=1)
     shift = float(np.median(distance)) if len(distance) else 0.0
@@ -92,28 +105,27 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
 
 
 def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np.ndarray,
-                rate_hz: float, settings: DetectorSettings, zero=None) -> tuple[Poses, np.ndarray]:
+                rate_hz: float, settings: DetectorSettings, zero=None,
+                memo: dict | None = None) -> tuple[Poses, np.ndarray]:
     """The poses without the turning samples (pieces shorter than min_static_s dropped) and the
-    steady turns found inside static intervals ((k, 2) [start, stop))."""
+    steady turns found inside static intervals ((k, 2) [start, stop)). ``memo``: a dict kept
+    across calls with the same mask, smooth rates and settings (every threshold's poses): an
+    interval's pieces and turns, worked out once (the thresholds share most intervals)."""
     turning_samples = np.r_[0, np.cumsum(turn_mask)]
     touched = turning_samples[poses.intervals[:, 1]] > turning_samples[poses.intervals[:, 0]]
     if not touched.any():  # the usual case, no interval holds a turning sample: all at once
         return poses, np.zeros((0, 2), int)
     pieces, turns = [], []
-    min_n, min_turn = round(settings.min_static_s * rate_hz), round(MIN_TURN_S * rate_hz)
+    memo = {} if memo is None else memo
     for (a, b), touches in zip(poses.intervals.tolist(), touched):  # a loop over poses
         if not touches:
             pieces.append((a, b))
             continue
-        # A piece beside a turn inside one still pose is that pose's still reading for the turn:
-        # the pose was still for min_static_s as a whole, and the turn's slow start takes some
-        # of it (a 3 s pose before a slow table turn kept 1.95 s, and the turn was lost).
-        pieces += [(a + s, a + e) for s, e in true_runs(~turn_mask[a:b]) if e - s >= min_n * BESIDE_TURN]
-        for s, e in true_runs(turn_mask[a:b]):
-            rate = smooth[a + s:a + e]
-            median = np.median(rate, axis=0)
-            steady = np.linalg.norm(rate - median, axis=1) < STEADY_FRACTION * np.linalg.norm(median)
-            turns += [(a + s + i, a + s + j) for i, j in true_runs(steady) if j - i >= min_turn]
+        if (a, b) not in memo:
+            memo[a, b] = _split_interval(a, b, turn_mask, smooth, rate_hz, settings)
+        more_pieces, more_turns = memo[a, b]
+        pieces += more_pieces
+        turns += more_turns
     if len(pieces) == len(poses.intervals):
         return poses, np.zeros((0, 2), int)
     intervals = np.array(pieces, dtype=int).reshape(-1, 2)
@@ -121,6 +133,24 @@ def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np
     up = up_directions(means, zero)
     return replace(poses, intervals=intervals, means=means, up=up,
                    distinct=distinct_poses(up, settings.min_separation_deg)), np.array(turns, int).reshape(-1, 2)
+
+
+def _split_interval(a: int, b: int, turn_mask: np.ndarray, smooth: np.ndarray, rate_hz: float,
+                    settings: DetectorSettings) -> tuple[list, list]:
+    """The still pieces and the steady turns of the static interval [a, b), which holds turning
+    samples."""
+    min_n, min_turn = round(settings.min_static_s * rate_hz), round(MIN_TURN_S * rate_hz)
+    # A piece beside a turn inside one still pose is that pose's still reading for the turn:
+    # the pose was still for min_static_s as a whole, and the turn's slow start takes some
+    # of it (a 3 s pose before a slow table turn kept 1.95 s, and the turn was lost).
+    pieces = [(a + s, a + e) for s, e in true_runs(~turn_mask[a:b]) if e - s >= min_n * BESIDE_TURN]
+    turns = []
+    for s, e in true_runs(turn_mask[a:b]):
+        rate = smooth[a + s:a + e]
+        median = np.median(rate, axis=0)
+        steady = np.linalg.norm(rate - median, axis=1) < STEADY_FRACTION * np.linalg.norm(median)
+        turns += [(a + s + i, a + s + j) for i, j in true_runs(steady) if j - i >= min_turn]
+    return pieces, turns
 
 
 def rate_residuals(gyro: np.ndarray, acc_values: np.ndarray, acc_theta: np.ndarray, turns: np.ndarray,

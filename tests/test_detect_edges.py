@@ -1,0 +1,89 @@
+"""The detector's loops made numpy against their plain definitions: the edge search
+(detect._first_loud: per run, the first k-sample window, going by ±1 from ``first``, whose mean z²
+exceeds the threshold) and the choice of distinct poses (detect.distinct_poses)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fieldcal.recording.detect import _first_loud, distinct_poses
+
+
+def first_loud_by_definition(columns, inv_var, means, first, length, step, k, threshold):
+    x = np.hstack(columns)
+    out = []
+    for r in range(len(first)):  # a loop over runs: the definition, not the product's code
+        found = length[r] - k + 1
+        for s in range(length[r] - k + 1):
+            rows = np.clip(first[r] + step * (s + np.arange(k)), 0, len(x) - 1)
+            if np.mean(((x[rows] - means[r]) ** 2) @ inv_var) > threshold:
+                found = s
+                break
+        out.append(found)
+    return np.array(out)
+
+
+def test_a_window_by_hand():
+    # One column, unit variance, mean 0: samples 0 0 0 3 3 0. With k = 2 and threshold 4, the
+    # windows from sample 1 going up read z² means 0, 4.5 (samples 2-3): the second, at 1 step.
+    x = np.array([[0.0], [0.0], [0.0], [3.0], [3.0], [0.0]])
+    got = _first_loud((x,), np.array([1.0]), np.zeros((1, 1)), np.array([1]), np.array([5]), 1, 2, 4.0)
+    assert got.tolist() == [1]
+    # Going down from sample 4: samples 4-3 read 9 at once.
+    got = _first_loud((x,), np.array([1.0]), np.zeros((1, 1)), np.array([4]), np.array([5]), -1, 2, 4.0)
+    assert got.tolist() == [0]
+
+
+@pytest.mark.parametrize("step", [1, -1])
+def test_first_loud_is_its_definition_on_random_runs(step):
+    rng = np.random.default_rng(7 + step)
+    n = 600
+    acc = rng.normal(0.0, 1.0, (n, 3)) + 32768.0
+    gyro = rng.normal(0.0, 2.0, (n, 3))
+    loud = rng.integers(0, n, 40)
+    acc[loud] += rng.normal(0.0, 30.0, (40, 3))  # motions the windows run into
+    runs = 150  # more than one batch of runs
+    first = rng.integers(0, n, runs)
+    length = rng.integers(5, 60, runs)  # some run past either end: the samples are clipped
+    means = np.hstack([acc[first], gyro[first]]) + rng.normal(0.0, 0.5, (runs, 6))
+    inv_var = 1.0 / np.r_[[1.0] * 3, [4.0] * 3]
+    k, threshold = 5, 6.0 + 6.0 * np.sqrt(2.0 * 6 / 5)
+    got = _first_loud((acc, gyro), inv_var, means, first, length, step, k, threshold)
+    want = first_loud_by_definition((acc, gyro), inv_var, means, first, length, step, k, threshold)
+    assert np.array_equal(got, want)
+    assert 0 < np.sum(got < length - k + 1) < runs  # both found and not-found runs were tested
+
+
+def distinct_by_definition(up: np.ndarray, min_separation_deg: float) -> list[bool]:
+    """A pose is distinct when no earlier distinct pose lies within the separation."""
+    out: list[bool] = []
+    for i in range(len(up)):
+        angles = [np.degrees(np.arccos(np.clip(up[i] @ up[j], -1, 1))) for j in range(i) if out[j]]
+        out.append(all(a >= min_separation_deg for a in angles))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_distinct_poses_is_its_definition(seed):
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(size=(8, 3))
+    up = centres[rng.integers(0, 8, 40)] + rng.normal(0.0, 0.15, (40, 3))  # clusters: repeats and near ones
+    up /= np.linalg.norm(up, axis=1)[:, None]
+    got = distinct_poses(up, 10.0)
+    assert got.tolist() == distinct_by_definition(up, 10.0)
+    assert 0 < got.sum() < len(up)
+
+
+def test_prefix_means_are_the_old_sums_bit_for_bit_and_the_means_by_hand():
+    from fieldcal.recording.detect import PrefixMeans
+
+    rng = np.random.default_rng(3)
+    values = 32768.0 + rng.normal(0.0, 40.0, (5000, 3)).round()
+    intervals = np.sort(rng.integers(0, 5001, (60, 2)), axis=1)
+    intervals = intervals[intervals[:, 1] > intervals[:, 0]]
+    cums = np.zeros((len(values) + 1, 3))  # the sums as made before (ed231b9): row by row
+    np.cumsum(values - values[0], axis=0, out=cums[1:])
+    old = values[0] + (cums[intervals[:, 1]] - cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+    assert np.array_equal(PrefixMeans(values)(intervals), old)
+    hand = PrefixMeans(np.array([[1.0, 10.0], [2.0, 20.0], [6.0, 60.0]]))
+    assert hand(np.array([[0, 3], [1, 3], [2, 3]])).tolist() == [[3.0, 30.0], [4.0, 40.0], [6.0, 60.0]]
