@@ -112,6 +112,7 @@ class Poses:
 
 @dataclass(frozen=True)
 class SpreadReport:
+    """Whether the detected poses point in enough directions for a norm solve."""
     count: int
     ok: bool
     missing: list[str]
