@@ -124,10 +124,10 @@ def test_calibrate_checks_its_paths_before_numpy_and_loads_only_what_it_uses(tmp
 
 
 # What only other commands use: the binary protocols' parsers, the other commands' parser modules
-# (the terminal UI's keys, the planner's), resolve's worker pool.
+# (the terminal UI's keys, the planner's), resolve's worker pool, the live stillness detector.
 CALIBRATE_NEEDS_NOT = ("drivers.protocols.xsens", "drivers.protocols.vectornav", "fieldcal.cli.tui",
                        "fieldcal.tui", "fieldcal.tui.keys", "fieldcal.planning", "fieldcal.planning.command",
-                       "fieldcal.cli.resolve")
+                       "fieldcal.cli.resolve", "fieldcal.procedure.stillness")
 
 
 def test_the_calibrate_command_line_loads_none_of_what_only_other_commands_use(tmp_path):
@@ -143,9 +143,11 @@ def test_the_calibrate_command_line_loads_none_of_what_only_other_commands_use(t
                                 f"assert main() == 0\n")
     assert (tmp_path / "unit.yaml").is_file() and "fieldcal.recording.calibrate" in modules  # it ran
     assert sorted(modules & set(CALIBRATE_NEEDS_NOT)) == []
-    # the case is not vacuous: the full parser loads the parser modules, a device parser the protocols
+    # the case is not vacuous: the full parser loads the parser modules, a device parser the
+    # protocols, the live engine the stillness detector
     full, _ = _modules_after("from fieldcal.cli.main import build_parser\nbuild_parser()\n"
-                             "from drivers.protocols import make_parser\nmake_parser('xsens')\n")
+                             "from drivers.protocols import make_parser\nmake_parser('xsens')\n"
+                             "import fieldcal.procedure.engine\n")
     assert set(CALIBRATE_NEEDS_NOT) - {"fieldcal.cli.resolve"} <= full
 
 

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from drivers.chunk import SampleChunk
 from drivers.sim import MimuSimulator, Segment
 from drivers.sim.device import paper_mimu
-from fieldcal.procedure import stillness
+from fieldcal.procedure import sliding
 from fieldcal.procedure.positions import load_procedure
 from fieldcal.run.simrun import plan_procedure
 from fieldcal.procedure.stillness import (
@@ -115,7 +115,7 @@ def test_bad_settings_are_refused(kw):
 @pytest.mark.parametrize("n", [2, 7, 250, 999])
 def test_sliding_std_is_exact_despite_a_large_offset(n, pieces, monkeypatch):
     if pieces:  # long inputs are worked in pieces; make this one long
-        monkeypatch.setattr(stillness, "_PIECE_ROWS", 1000)
+        monkeypatch.setattr(sliding, "_PIECE_ROWS", 1000)
     rng = np.random.default_rng(n)
     m = 3001
     x = 1e6 + 0.01 * rng.standard_normal((m, 3))

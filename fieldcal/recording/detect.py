@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fieldcal.procedure.stillness import sliding_std
+from fieldcal.procedure.sliding import sliding_std
 
 
 class DetectionError(ValueError):
