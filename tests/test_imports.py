@@ -121,3 +121,57 @@ def test_calibrate_checks_its_paths_before_numpy_and_loads_only_what_it_uses(tmp
     assert _heavy(after_checks) == []
     assert "numpy" in after_run and (tmp_path / "unit.yaml").is_file()  # not vacuous: it ran
     assert not after_run & {"fieldcal.acceptance", "fieldcal.procedure.positions"}
+
+
+# What only other commands use: the binary protocols' parsers, the other commands' parser modules
+# (the terminal UI's keys, the planner's), resolve's worker pool, the live stillness detector.
+CALIBRATE_NEEDS_NOT = ("drivers.protocols.xsens", "drivers.protocols.vectornav", "fieldcal.cli.tui",
+                       "fieldcal.tui", "fieldcal.tui.keys", "fieldcal.planning", "fieldcal.planning.command",
+                       "fieldcal.cli.resolve", "fieldcal.procedure.stillness")
+
+
+def test_the_calibrate_command_line_loads_none_of_what_only_other_commands_use(tmp_path):
+    """`fieldcal calibrate` as run from the command line (main with its argv) builds only its own
+    parser; the modules of the other commands' parsers stay unloaded, and the command runs."""
+    from drivers.sim.handheld import simulate_handheld, to_text
+
+    acc, gyro = to_text(simulate_handheld(3), tmp_path)
+    argv = ["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--gravity", "9.80",
+            "--out", str(tmp_path / "sessions"), "--params", str(tmp_path / "unit.yaml"),
+            "--registry", str(tmp_path / "registry.sqlite")]
+    modules, _ = _modules_after(f"import sys\nfrom fieldcal.cli.main import main\nsys.argv[1:] = {argv!r}\n"
+                                f"assert main() == 0\n")
+    assert (tmp_path / "unit.yaml").is_file() and "fieldcal.recording.calibrate" in modules  # it ran
+    assert sorted(modules & set(CALIBRATE_NEEDS_NOT)) == []
+    # the case is not vacuous: the full parser loads the parser modules, a device parser the
+    # protocols, the live engine the stillness detector
+    full, _ = _modules_after("from fieldcal.cli.main import build_parser\nbuild_parser()\n"
+                             "from drivers.protocols import make_parser\nmake_parser('xsens')\n"
+                             "import fieldcal.procedure.engine\n")
+    assert set(CALIBRATE_NEEDS_NOT) - {"fieldcal.cli.resolve"} <= full
+
+
+@pytest.mark.parametrize("argv", [
+    ["calibrate", "a.txt", "b.txt", "--map", "imu_tk", "--gravity", "9.81", "--force", "--latitude", "40"],
+    ["calibrate", "session-dir"],
+    ["import", "a.txt", "b.txt", "--map", "imu_tk", "--out", "sessions/x"],
+])
+def test_a_one_command_parser_parses_as_the_full_parser(argv):
+    from fieldcal.cli.main import build_parser
+
+    assert vars(build_parser(argv[0]).parse_args(argv)) == vars(build_parser().parse_args(argv))
+
+
+@pytest.mark.parametrize("argv", [["calibrate", "--help"], ["import", "--help"], ["calibrate"],
+                                  ["calibrate", "a.txt", "--gravity", "x"], ["calibrate", "a", "--bogus"],
+                                  ["import", "--map"]])
+def test_a_one_command_parser_says_what_the_full_parser_says(argv, capsys):
+    from fieldcal.cli.main import build_parser
+
+    said = []
+    for parser in (build_parser(argv[0]), build_parser()):
+        with pytest.raises(SystemExit) as exit_:
+            parser.parse_args(argv)
+        out, err = capsys.readouterr()
+        said.append((exit_.value.code, out, err))
+    assert said[0] == said[1] and said[0][1] + said[0][2]  # and it said something

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from drivers.chunk import SampleChunk
 from drivers.sim import MimuSimulator, Segment
 from drivers.sim.device import paper_mimu
-from fieldcal.procedure import stillness
+from fieldcal.procedure import sliding
 from fieldcal.procedure.positions import load_procedure
 from fieldcal.run.simrun import plan_procedure
 from fieldcal.procedure.stillness import (
@@ -115,7 +115,7 @@ def test_bad_settings_are_refused(kw):
 @pytest.mark.parametrize("n", [2, 7, 250, 999])
 def test_sliding_std_is_exact_despite_a_large_offset(n, pieces, monkeypatch):
     if pieces:  # long inputs are worked in pieces; make this one long
-        monkeypatch.setattr(stillness, "_PIECE_ROWS", 1000)
+        monkeypatch.setattr(sliding, "_PIECE_ROWS", 1000)
     rng = np.random.default_rng(n)
     m = 3001
     x = 1e6 + 0.01 * rng.standard_normal((m, 3))
@@ -429,7 +429,7 @@ def test_the_steady_path_windows_agree_with_sliding_std():
 
 
 def _window_var_as_written_before(x: np.ndarray, n: int, ddof: int) -> np.ndarray:
-    """stillness._window_var before its steps were worked in place, column by column (ed231b9),
+    """sliding._window_var before its steps were worked in place, column by column (ed231b9),
     kept as the oracle that the new version gives the same numbers bit for bit."""
     m, c = x.shape
     blocks_n = -(-m // n)
@@ -456,4 +456,4 @@ def test_window_var_in_place_gives_the_numbers_as_written_before(m, n, ddof):
     rng = np.random.default_rng(m + n)
     x = 32768.0 + rng.normal(0.0, 3.0, (m, 3)).round()  # raw counts: ties and exact zeros too
     x[m // 3: m // 2] += 9.81 * 415.0  # a step inside
-    assert np.array_equal(stillness._window_var(x, n, ddof), _window_var_as_written_before(x, n, ddof))
+    assert np.array_equal(sliding._window_var(x, n, ddof), _window_var_as_written_before(x, n, ddof))

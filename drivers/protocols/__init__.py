@@ -3,17 +3,32 @@
 ``PARSERS`` and ``ENCODERS`` map a protocol's name to its class, as ``drivers.tables.PROTOCOLS``
 does for the rate tables; ``make_parser``/``make_encoder`` build one by name. Delimited text is
 the one protocol that needs a ``ChannelMap`` (which column holds what).
+
+The binary protocols (Xsens, VectorNav) load on first use of ``PARSERS``, ``ENCODERS`` or
+``make_*``: importing ``drivers.protocols.delimited`` (as a recording import does) runs this file
+first, and should not pay for parsers it never uses.
 """
 from __future__ import annotations
 
 from drivers.protocols.base import ParserCounters, StreamEncoder, StreamParser
 from drivers.protocols.delimited import ChannelMap, DelimitedTextEncoder, DelimitedTextParser
-from drivers.protocols.vectornav import VectorNavEncoder, VectorNavParser
-from drivers.protocols.xsens import XsensMtData2Encoder, XsensMtData2Parser
 
-PARSERS = {"xsens": XsensMtData2Parser, "vectornav": VectorNavParser, "delimited": DelimitedTextParser}
-ENCODERS = {"xsens": XsensMtData2Encoder, "vectornav": VectorNavEncoder, "delimited": DelimitedTextEncoder}
 NEEDS_CHANNEL_MAP = frozenset({"delimited"})
+
+
+def __getattr__(name: str) -> dict:
+    """``PARSERS`` and ``ENCODERS``, built (and kept as module attributes) on first access."""
+    if name not in ("PARSERS", "ENCODERS"):
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    if name in globals():  # called directly by make_* after the first build
+        return globals()[name]
+    from drivers.protocols.vectornav import VectorNavEncoder, VectorNavParser
+    from drivers.protocols.xsens import XsensMtData2Encoder, XsensMtData2Parser
+
+    globals().update(
+        PARSERS={"xsens": XsensMtData2Parser, "vectornav": VectorNavParser, "delimited": DelimitedTextParser},
+        ENCODERS={"xsens": XsensMtData2Encoder, "vectornav": VectorNavEncoder, "delimited": DelimitedTextEncoder})
+    return globals()[name]
 
 
 def _build(registry: dict, protocol: str, channel_map: ChannelMap | None):
@@ -29,11 +44,11 @@ def _build(registry: dict, protocol: str, channel_map: ChannelMap | None):
 
 
 def make_parser(protocol: str, channel_map: ChannelMap | None = None) -> StreamParser:
-    return _build(PARSERS, protocol, channel_map)
+    return _build(__getattr__("PARSERS"), protocol, channel_map)
 
 
 def make_encoder(protocol: str, channel_map: ChannelMap | None = None) -> StreamEncoder:
-    return _build(ENCODERS, protocol, channel_map)
+    return _build(__getattr__("ENCODERS"), protocol, channel_map)
 
 
 __all__ = [

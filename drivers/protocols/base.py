@@ -14,6 +14,7 @@ from drivers.chunk import SampleChunk
 
 @dataclass
 class ParserCounters:
+    """What a parser has accepted and thrown away so far (``as_dict`` for reports)."""
     frames: int = 0  # frames accepted
     discarded_bytes: int = 0  # bytes that belonged to no accepted frame
     checksum_failures: int = 0  # frames with the right shape but a wrong checksum

@@ -164,11 +164,25 @@ def _lazy(name: str):
     return handler
 
 
-def build_parser() -> argparse.ArgumentParser:
+# Commands whose whole parser one function adds (module, function): a command line naming one of
+# them is parsed by the top-level parser with that subcommand alone, the same parse and the same
+# messages, without building (and importing) the other thirty-odd commands' parsers.
+_ONE_FUNCTION_PARSERS = {"calibrate": ("fieldcal.cli.calibrate", "add_calibrate_parser"),
+                         "import": ("fieldcal.cli.importing", "add_import_parser")}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``fieldcal`` parser; ``command``: the command line's first word, when it may be built
+    with only that subcommand's parser (``_ONE_FUNCTION_PARSERS``), else every command's."""
     parser = argparse.ArgumentParser(prog="fieldcal", description="Field calibration station for "
                                      "MIMU accelerometer, gyroscope and inclinometer triads.")
     parser.add_argument("--version", action="version", version=f"fieldcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    if command in _ONE_FUNCTION_PARSERS:
+        import importlib
+        module, function = _ONE_FUNCTION_PARSERS[command]
+        getattr(importlib.import_module(module), function)(sub)
+        return parser
     demo = sub.add_parser("demo", help="calibrate the simulated MIMU headless and compare with its truth",
                           description="Run a procedure against the simulated MIMU (errors of paper "
                           "Table 3, noise of Table 4), solve every triad with the norm method and "
@@ -349,7 +363,8 @@ def main(argv=None, *, ending_process: bool = False) -> int:
     import signal
     import threading
 
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv[0] if argv else None).parse_args(argv)
     # The terminal UI restores the terminal on its own way out; everything else unwinds on
     # SIGTERM as on Ctrl-C, closing its files and saying where its session is.
     catch_sigterm = threading.current_thread() is threading.main_thread() and args.command != "tui"

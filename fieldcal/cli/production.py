@@ -1,5 +1,6 @@
 """The production commands: ``fieldcal check`` (acceptance limits), ``export``, ``apply``,
-``units``, ``history``, ``registry rebuild`` and ``certificate`` (``resolve`` is in cli.resolve);
+``units``, ``history``, ``registry rebuild`` and ``certificate`` (``resolve``: its arguments here, the
+command in cli.resolve, loaded only when it runs);
 ``--spec`` for the commands that calibrate, and ``--registry`` (an SQLite file or a PostgreSQL
 URL) for every command that records or reads calibrations."""
 from __future__ import annotations
@@ -12,6 +13,7 @@ from pathlib import Path
 # The exit status of a calibration that finished but failed its product's acceptance limits
 # (0: passed; 1: not calibrated; 2: bad input).
 EXIT_FAILED_SPEC = 3
+EXIT_SOME_FAILED = 1  # `fieldcal resolve`: some sessions could not be re-solved
 
 SPEC_HELP = (f"product spec YAML: PASS/FAIL per parameter with the reason; exit status "
              f"{EXIT_FAILED_SPEC} if any fails")
@@ -516,7 +518,6 @@ def add_production_parsers(sub) -> None:
     add_registry_option(rebuild)
     rebuild.set_defaults(func=cmd_registry_rebuild)
 
-    from fieldcal.cli.resolve import add_resolve_parser
     add_resolve_parser(sub)
 
     certificate = sub.add_parser(
@@ -535,3 +536,37 @@ def add_production_parsers(sub) -> None:
     certificate.add_argument("--no-pdf", action="store_true", help="only the HTML page, even where "
                              "Chromium is installed")
     certificate.set_defaults(func=cmd_certificate)
+
+
+def _jobs(text: str) -> int:
+    value = int(text) if text.isdigit() else 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number of processes >= 1, got {text!r}")
+    return value
+
+
+def _cmd_resolve(args) -> int:
+    """fieldcal.cli.resolve (its worker pool and result records) loads only when resolve runs."""
+    from fieldcal.cli.resolve import cmd_resolve
+    return cmd_resolve(args)
+
+
+def add_resolve_parser(sub) -> None:
+    from fieldcal.solvers.methods import METHODS
+
+    parser = sub.add_parser(
+        "resolve", help="re-solve many sessions in parallel, writing and registering the results",
+        description="Re-solve every session in each DIR (a session, or a directory of sessions) from "
+        "the step averages in its log, in N processes. A result that differs from the session's "
+        "current parameter file goes into its next parameters-NNN.yaml (earlier files are kept); "
+        "every result is recorded in the unit registry. A session that cannot be re-solved is "
+        "reported in one line and skipped.",
+        epilog=f"exit status: 0 all re-solved, {EXIT_SOME_FAILED} some could not be, 3 all re-solved "
+        "but some failed --spec, 2 bad arguments")
+    parser.add_argument("directory", nargs="+", metavar="DIR")
+    parser.add_argument("-j", "--jobs", type=_jobs, default=1, metavar="N",
+                        help="processes re-solving at once (default 1)")
+    parser.add_argument("--method", choices=METHODS[1:], help="solve with this method instead of "
+                        "each session's own")
+    add_spec_option(parser)
+    parser.set_defaults(func=_cmd_resolve)

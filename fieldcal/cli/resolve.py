@@ -13,12 +13,11 @@ that indexes them later.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-EXIT_SOME_FAILED = 1
+from fieldcal.cli.production import EXIT_SOME_FAILED
 
 
 @dataclass(frozen=True)
@@ -147,32 +146,3 @@ def _verdict(spec, params: str) -> tuple[bool, str]:
     first, more = verdict.failures[0], len(verdict.failures) - 1
     return False, (f"FAIL: {first.triad} {first.parameter} {first.reasons[0]}"
                    + (f" (+{more} more)" if more else ""))
-
-
-def _jobs(text: str) -> int:
-    value = int(text) if text.isdigit() else 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number of processes >= 1, got {text!r}")
-    return value
-
-
-def add_resolve_parser(sub) -> None:
-    from fieldcal.cli.production import add_spec_option
-    from fieldcal.solvers.methods import METHODS
-
-    parser = sub.add_parser(
-        "resolve", help="re-solve many sessions in parallel, writing and registering the results",
-        description="Re-solve every session in each DIR (a session, or a directory of sessions) from "
-        "the step averages in its log, in N processes. A result that differs from the session's "
-        "current parameter file goes into its next parameters-NNN.yaml (earlier files are kept); "
-        "every result is recorded in the unit registry. A session that cannot be re-solved is "
-        "reported in one line and skipped.",
-        epilog=f"exit status: 0 all re-solved, {EXIT_SOME_FAILED} some could not be, 3 all re-solved "
-        "but some failed --spec, 2 bad arguments")
-    parser.add_argument("directory", nargs="+", metavar="DIR")
-    parser.add_argument("-j", "--jobs", type=_jobs, default=1, metavar="N",
-                        help="processes re-solving at once (default 1)")
-    parser.add_argument("--method", choices=METHODS[1:], help="solve with this method instead of "
-                        "each session's own")
-    add_spec_option(parser)
-    parser.set_defaults(func=cmd_resolve)

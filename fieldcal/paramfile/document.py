@@ -148,6 +148,7 @@ class Provenance:
 
 @dataclass(frozen=True)
 class ParameterFile:
+    """A parameter file: the calibrated triads and where they came from (validated on creation)."""
     triads: tuple[TriadParameters, ...]
     provenance: Provenance
 

@@ -86,6 +86,7 @@ ALIGNED_PROTOCOL = ("Ferraris: six axis-aligned poses and full turns; the aligne
 
 @dataclass(frozen=True)
 class RecordingSettings:
+    """How ``calibrate_recording`` finds the poses and solves the triads."""
     detector: DetectorSettings = field(default_factory=DetectorSettings)
     method: str = "powell"  # the specific-force triads' norm solver
     gyro_method: str = "lsq"
@@ -105,6 +106,7 @@ class RecordingSettings:
 
 @dataclass(frozen=True)
 class RecordingCalibration:
+    """What ``calibrate_recording`` found and solved, and what it did about the data."""
     poses: Poses
     spread: SpreadReport
     tried: tuple[tuple[float, int, str], ...]  # (multiple, distinct poses, χ²/dof or why not)

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fieldcal.procedure.stillness import sliding_std
+from fieldcal.procedure.sliding import sliding_std
 
 
 class DetectionError(ValueError):
@@ -112,6 +112,7 @@ class Poses:
 
 @dataclass(frozen=True)
 class SpreadReport:
+    """Whether the detected poses point in enough directions for a norm solve."""
     count: int
     ok: bool
     missing: list[str]

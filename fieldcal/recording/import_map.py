@@ -91,6 +91,7 @@ class FileSpec:
 
 @dataclass(frozen=True)
 class ImportMap:
+    """An import map: which file holds which triads, in which columns and units."""
     path: str  # where it was read from (for messages)
     text: str  # the YAML as written, kept in the session for provenance
     files: tuple[FileSpec, ...]

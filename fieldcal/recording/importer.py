@@ -57,6 +57,7 @@ class RecordingImportError(ValueError):
 
 @dataclass(frozen=True)
 class FileReport:
+    """What was read from one file of a recording: its lines, samples, rate and gaps."""
     path: str
     name: str  # the map entry's name
     sha256: str  # of the bytes parsed
@@ -80,6 +81,7 @@ class FileReport:
 
 @dataclass(frozen=True)
 class ImportReport:
+    """How a recording was imported: the map, each file's report, the alignment done."""
     map_path: str
     map_text: str
     files: tuple[FileReport, ...]
@@ -89,6 +91,7 @@ class ImportReport:
 
 @dataclass
 class _Parsed:
+    """One file as parsed, before the files are put on one time base."""
     spec: FileSpec
     report: FileReport
     t: np.ndarray

@@ -131,6 +131,7 @@ def _data(value, where: str) -> dict:
 
 @dataclass(frozen=True)
 class Column:
+    """One column of a session's sample records: its name, role and dtype."""
     name: str
     role: str
     dtype: np.dtype
@@ -175,6 +176,7 @@ def _chunk_columns(chunk: SampleChunk) -> list[tuple[Column, np.ndarray]]:
 
 @dataclass
 class _Scan:
+    """What scanning a session's files found: the consistent prefix of each, and what is beyond."""
     directory: Path
     docs: list[dict]
     kept_log_bytes: int  # the log's consistent prefix, in bytes
