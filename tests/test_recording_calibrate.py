@@ -232,13 +232,22 @@ def test_params_is_this_runs_calibration_when_another_writer_follows(tmp_path, m
 
     monkeypatch.setattr(SessionWriter, "close", close_then_another_writer)
     code = main(["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--latitude", "40", "--gravity", "9.80",
-                 "--out", str(tmp_path / "sessions"), "--params", str(tmp_path / "unit.yaml")])
+                 "--out", str(tmp_path / "sessions"), "--params", str(tmp_path / "unit.yaml"),
+                 "--registry", str(tmp_path / "registry.sqlite")])
     assert code == 0, capsys.readouterr().err
     session = next((tmp_path / "sessions").iterdir())
     assert load(session / "parameters.yaml").provenance.operator == "someone else"  # the race happened
-    assert (tmp_path / "unit.yaml").read_bytes() == (session / "parameters-001.yaml").read_bytes()
+    ours = (session / "parameters-001.yaml").read_bytes()
+    assert (tmp_path / "unit.yaml").read_bytes() == ours
     assert load(tmp_path / "unit.yaml").provenance.operator is None
     assert "(a copy of parameters-001.yaml)" in capsys.readouterr().out
+    # The registry holds this run's calibration, not the other writer's.
+    import hashlib
+    import sqlite3
+
+    with sqlite3.connect(tmp_path / "registry.sqlite") as db:
+        rows = db.execute("SELECT params_sha256 FROM calibrations").fetchall()
+    assert rows == [(hashlib.sha256(ours).hexdigest(),)]
 
 
 def test_fieldcal_calibrate_errors_are_one_line(tmp_path):

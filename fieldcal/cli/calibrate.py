@@ -194,5 +194,5 @@ def cmd_calibrate(args) -> int:
         written = save_parameter_file(pf, args.params, force=args.force, option="--params",
                                       data=ours.read_bytes())  # pf's text, made once
         print(f"parameter file: {written}")
-    return accept_after(args, spec, directory / "parameters.yaml", 0 if not cal.failures else 1,
+    return accept_after(args, spec, ours, 0 if not cal.failures else 1,
                         source="calibrate")
