@@ -86,8 +86,9 @@ def speed_table(rows, reference: str | None) -> list[str]:
     return lines
 
 
-_LAUNCH = ("import sys; sys.path[:0] = {path!r}; from fieldcal.cli.main import main; "
-           "raise SystemExit(main({argv!r}))")
+# As the `fieldcal` script does: its entry point (run, which reads sys.argv) where the tree has one.
+_LAUNCH = ("import sys; sys.path[:0] = {path!r}; import fieldcal.cli.main as m; sys.argv = ['fieldcal', *{argv!r}]; "
+           "raise SystemExit(m.run() if hasattr(m, 'run') else m.main(sys.argv[1:]))")
 
 
 def with_baseline(argv: dict[str, list[str]], rev: str, work: Path) -> dict[str, list[str]]:

@@ -175,3 +175,12 @@ def test_a_one_command_parser_says_what_the_full_parser_says(argv, capsys):
         out, err = capsys.readouterr()
         said.append((exit_.value.code, out, err))
     assert said[0] == said[1] and said[0][1] + said[0][2]  # and it said something
+
+
+def test_the_binary_protocols_classes_are_still_names_of_drivers_protocols():
+    """drivers.protocols loads the Xsens and VectorNav modules on first use; their classes stay
+    importable from it, as they were before that."""
+    modules, _ = _modules_after("from drivers.protocols import XsensMtData2Parser, XsensMtData2Encoder, "
+                                "VectorNavParser, VectorNavEncoder, PARSERS\n"
+                                "assert PARSERS['xsens'] is XsensMtData2Parser")
+    assert "drivers.protocols.xsens" in modules and "drivers.protocols.vectornav" in modules

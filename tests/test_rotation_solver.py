@@ -447,3 +447,14 @@ def test_motions_replaced_or_not_the_scans_own_make_their_own_steps():
     angle = lambda m: 2 * np.degrees(np.arccos(m.steps(np.zeros(3)).quaternions(np.eye(3), np.zeros(3))[0, 3]))
     assert angle(motions) == pytest.approx(np.degrees(0.5), abs=1e-6)  # 0.5 rad in 1 s
     assert angle(doubled) == pytest.approx(np.degrees(1.0), abs=1e-6)
+    # scan_scale given another recording's Motions integrates its own raw: a turn of 90° read in
+    # counts of 1/1000 rad/s scans to 1000, whatever the Motions at hand holds.
+    from fieldcal.solvers.rotation import scan_scale
+
+    turned = np.zeros((200, 3))
+    turned[50:150, 2] = 1000.0 * (np.pi / 2)  # counts: 90° about z in 1 s
+    start, end = np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, -1.0, 0.0]])
+    scales = np.geomspace(10.0, 1e5, 41)  # 1000 among them
+    own = scan_scale(t, turned, spans, start, end, np.zeros(3), scales)
+    other = scan_scale(t, turned, spans, start, end, np.zeros(3), scales, motions=doubled)
+    assert own == other == pytest.approx(1000.0)

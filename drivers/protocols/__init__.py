@@ -16,9 +16,13 @@ from drivers.protocols.delimited import ChannelMap, DelimitedTextEncoder, Delimi
 NEEDS_CHANNEL_MAP = frozenset({"delimited"})
 
 
-def __getattr__(name: str) -> dict:
-    """``PARSERS`` and ``ENCODERS``, built (and kept as module attributes) on first access."""
-    if name not in ("PARSERS", "ENCODERS"):
+_BINARY = ("XsensMtData2Parser", "XsensMtData2Encoder", "VectorNavParser", "VectorNavEncoder")
+
+
+def __getattr__(name: str):
+    """``PARSERS`` and ``ENCODERS`` (and the binary protocols' classes, as before they loaded
+    lazily), built and kept as module attributes on first access."""
+    if name not in ("PARSERS", "ENCODERS") + _BINARY:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     if name in globals():  # called directly by make_* after the first build
         return globals()[name]
@@ -26,6 +30,8 @@ def __getattr__(name: str) -> dict:
     from drivers.protocols.xsens import XsensMtData2Encoder, XsensMtData2Parser
 
     globals().update(
+        XsensMtData2Parser=XsensMtData2Parser, XsensMtData2Encoder=XsensMtData2Encoder,
+        VectorNavParser=VectorNavParser, VectorNavEncoder=VectorNavEncoder,
         PARSERS={"xsens": XsensMtData2Parser, "vectornav": VectorNavParser, "delimited": DelimitedTextParser},
         ENCODERS={"xsens": XsensMtData2Encoder, "vectornav": VectorNavEncoder, "delimited": DelimitedTextEncoder})
     return globals()[name]

@@ -197,8 +197,8 @@ def _one_point_fast(problem, residuals_at):
         theta = np.asarray(theta, dtype=float)
         if theta.ndim != 1:
             return residuals_at(theta)
-        _, _, _, k_x, k_y, k_z, dyz, dzy, dzx = theta.tolist()
-        inv_x, inv_y, inv_z = 1.0 / k_x, 1.0 / k_y, 1.0 / k_z
+        dyz, dzy, dzx = theta[6:].tolist()
+        inv_x, inv_y, inv_z = (1.0 / theta[3:6]).tolist()  # numpy's division: a zero scale gives inf, not an exception
         A = np.array(((inv_x, 0.0, 0.0), (dyz * inv_x, inv_y, 0.0), ((dzx * dyz - dzy) * inv_x, dzx * inv_y, inv_z)))
         c = -(A @ theta[:3, None])[..., 0]
         return _norms(points @ A.T + c[None, :]) - gravity
