@@ -15,7 +15,9 @@ def run_async(test):
     return wrapper
 
 
-async def until(pilot, predicate, timeout_s: float = 30.0) -> None:
+async def until(pilot, predicate, timeout_s: float = 120.0) -> None:
+    # A hang detector, not a speed check: a live run with turns takes ~9 s quiet, and more than
+    # 30 s was seen once while CI's two workers and other jobs shared the 2 cores.
     deadline = time.monotonic() + timeout_s
     while not predicate():
         assert time.monotonic() < deadline, "the UI did not get there in time"
