@@ -46,7 +46,7 @@ def test_awkward_numbers_are_read_bit_for_bit_as_float_does():
 
 
 @pytest.mark.parametrize("token", SLOW)
-def test_numbers_outside_the_exact_fast_path_are_left_to_strtod(token):
+def test_numbers_beyond_exact_scaling_are_left_to_strtod(token):
     assert plain_decimals(text(["1.5", token, "2"])) is None
 
 
@@ -114,9 +114,9 @@ def test_text_without_a_blank_at_its_end_is_refused():
     assert plain_decimals(b"1.5 2") is None and plain_decimals(b"").size == 0
 
 
-def test_short_decimals_always_take_the_fast_path():
+def test_short_decimals_are_always_read_by_exact_scaling():
     """Up to 15 significant digits, magnitudes 1e-7 .. 1e8 (the usual log, %g or %e written) are
-    never refused: the speed the importer counts on. The decimal exponent stays within ±22."""
+    never refused: the common case the importer reads this way. The decimal exponent stays within ±22."""
     rng = np.random.default_rng(7)
     x = rng.choice([-1, 1], 3000) * rng.uniform(1, 10, 3000) * 10.0 ** rng.integers(-7, 9, 3000)
     p = rng.integers(1, 15, 3000)
