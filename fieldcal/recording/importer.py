@@ -190,9 +190,9 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     # Text lines before the first sample are the header and metadata ("Fs,100" does not parse as
     # a sample, yet it is no fault); after it (or binary junk) a line is malformed.
     # The loop runs over the leading lines only, usually a few.
-    leading = _union(headers[headers < first], malformed[malformed < first])
+    leading = np.union1d(headers[headers < first], malformed[malformed < first])
     text = np.array([_is_text(data[starts[k - 1]:ends[k - 1]]) for k in leading.tolist()], dtype=bool)
-    malformed = _union(malformed[malformed > first], headers[headers > first], leading[~text])
+    malformed = np.union1d(malformed[malformed > first], np.concatenate([headers[headers > first], leading[~text]]))
     header_count = int(np.count_nonzero(text))
     n_ends = n_lines
     del data, starts, ends, candidates, rest  # the bytes and per-line arrays: not needed from here
@@ -223,7 +223,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
                 f"{path}: line {lines[i]}: {name} reads {_largest(values[i]):.6g} {spec.units[name]}, "
                 f"beyond any sensor's range (|x| > {MAX_READING:.0e}): fix or delete the line "
                 f"({len(wild)} such line{'s' * (len(wild) != 1)} in the file)", path, int(lines[i]))
-    period = _median(dt)
+    period = float(np.median(dt))
     widest = int(np.argmax(dt))
     report = FileReport(
         path=path, name=spec.name, sha256=sha256, lines=n_ends + unterminated, samples=n,
@@ -289,21 +289,6 @@ def _let_malloc_keep(size: int) -> None:
     good: a long-running process that imports files (the TUI) may keep up to 8 MiB of freed
     memory mapped. Elsewhere (another malloc) this costs nothing."""
     np.empty(size, dtype=np.uint8)
-
-
-def _median(values: np.ndarray) -> float:
-    """np.median of finite values (the mean of the middle two of an even count), without the
-    import of numpy.ma (~10 ms) that np.median makes on its first call to look for NaN."""
-    k = len(values) // 2
-    middle = slice(k, k + 1) if len(values) % 2 else slice(k - 1, k + 1)
-    return float(np.mean(np.partition(values, [middle.start, k])[middle]))  # as np.median does
-
-
-def _union(*parts: np.ndarray) -> np.ndarray:
-    """The distinct values of the int64 arrays, sorted: np.union1d, without the import of
-    numpy.ma (~10 ms) that np.unique makes on its first call."""
-    values = np.sort(np.concatenate(parts))
-    return values[np.r_[True, values[1:] != values[:-1]]] if len(values) else values
 
 
 def _largest(row: np.ndarray) -> float:
