@@ -205,11 +205,11 @@ def test_rate_residuals_evaluate_many_parameter_vectors_at_once():
                                - problem.table_rate, rtol=0, atol=1e-12)
 
 
-def test_powells_one_point_residuals_are_the_problems_own_bit_for_bit():
-    """The objective Powell evaluates point by point (norm._one_point_fast) against the
-    problem's residuals, the definition, at points around a raw-count triad's solution."""
-    from fieldcal.solvers.norm import _one_point_fast
-    from fieldcal.solvers.problems import StaticNormProblem
+def test_one_parameter_vector_gives_the_stacked_evaluations_numbers_bit_for_bit():
+    """K⁻¹ and −K⁻¹b of one parameter vector (what Powell evaluates, point by point) made from
+    its nine numbers directly, against the stacked evaluation of the same vectors, at points
+    around a raw-count triad's solution; the residuals Powell sees, and a hand-worked point."""
+    from fieldcal.solvers.problems import StaticNormProblem, _inverse_affine
 
     rng = np.random.default_rng(12)
     up = rng.normal(size=(14, 3))
@@ -217,13 +217,14 @@ def test_powells_one_point_residuals_are_the_problems_own_bit_for_bit():
     K = np.array([[415.0, 0.0, 0.0], [2.1, 409.0, 0.0], [-3.3, 4.4, 421.0]])  # count per m/s²
     means = 9.81 * up @ K.T + 32768.0 + rng.normal(0.0, 0.3, (14, 3))
     problem = StaticNormProblem(means, 9.81, output_unit="count")
-    fast = _one_point_fast(problem, problem.residual_function(problem.data))
     theta0 = np.r_[32768.0, 32768.0, 32768.0, 415.0, 409.0, 421.0, 0.005, -0.008, 0.01]
     points = theta0 + rng.normal(size=(50, 9)) * np.r_[[0.5] * 3, [0.2] * 3, [1e-3] * 3]
-    for theta in points:
-        assert np.array_equal(fast(theta), problem.residuals(theta, problem.data))
-    assert np.array_equal(fast(points), problem.residuals(points, problem.data))  # stacks as before
+    A_all, c_all = _inverse_affine(points)
+    stacked = problem.residuals(points, problem.data)
+    for theta, A, c, r in zip(points, A_all, c_all, stacked):
+        one_A, one_c = _inverse_affine(theta)
+        assert np.array_equal(one_A, A) and np.array_equal(one_c, c)
+        assert np.array_equal(problem.residuals(theta, problem.data), r)
     # and a hand-worked point: K = I, no bias, no misalignment, so the residual is |mean| - g
     hand = StaticNormProblem(np.array([[3.0, 4.0, 0.0], [0.0, 0.0, 9.0]]), 5.0)
-    one = _one_point_fast(hand, hand.residual_function(hand.data))
-    assert one(np.r_[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]).tolist() == [0.0, 4.0]
+    assert hand.residuals(np.r_[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0], hand.data).tolist() == [0.0, 4.0]

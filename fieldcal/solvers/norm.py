@@ -113,7 +113,7 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
     u = problem.data
 
     whitener_t = None if whitener is None else whitener.T
-    residuals_at = _one_point_fast(problem, problem.residual_function(u))
+    residuals_at = problem.residual_function(u)
 
     def whitened(theta):  # theta (9,) or a stack (k, 9)
         r = residuals_at(theta)
@@ -180,29 +180,6 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
             iterations=iterations, evaluations=evaluations, converged=bool(res.success),
             message=str(res.message), search=method, chi2=chi2, dof=dof, scaled_by_residuals=scaled,
             condition_number=float(sv[0] / sv[-1])))
-
-
-def _one_point_fast(problem, residuals_at):
-    """``residuals_at`` (theta (..., 9) -> residuals), for a static norm problem with one point
-    (what Powell evaluates, ~170 times a solve) worked out without the stacked-parameter
-    machinery: K⁻¹ from the nine numbers directly, then the same numpy steps as
-    StaticNormProblem's residuals (the same numbers, bit for bit); stacks as before."""
-    from fieldcal.solvers.problems import StaticNormProblem, _norms
-
-    if not isinstance(problem, StaticNormProblem):
-        return residuals_at
-    points, gravity = problem.data.reshape(-1, 3), problem.gravity
-
-    def residuals(theta):
-        theta = np.asarray(theta, dtype=float)
-        if theta.ndim != 1:
-            return residuals_at(theta)
-        dyz, dzy, dzx = theta[6:].tolist()
-        inv_x, inv_y, inv_z = (1.0 / theta[3:6]).tolist()  # numpy's division: a zero scale gives inf, not an exception
-        A = np.array(((inv_x, 0.0, 0.0), (dyz * inv_x, inv_y, 0.0), ((dzx * dyz - dzy) * inv_x, dzx * inv_y, inv_z)))
-        c = -(A @ theta[:3, None])[..., 0]
-        return _norms(points @ A.T + c[None, :]) - gravity
-    return residuals
 
 
 def _powell(residuals_of_z, z_start: np.ndarray, per_sigma: bool, dof: int):

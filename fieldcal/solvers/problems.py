@@ -31,6 +31,12 @@ def _inverse_affine(theta) -> tuple[np.ndarray, np.ndarray]:
     """A = K⁻¹ and c = −K⁻¹b, so that calibrate_with(theta, raw) = raw·Aᵀ + c, for theta of shape
     (..., 9): the solvers evaluate many parameter vectors in one call (Jacobian columns)."""
     theta = np.asarray(theta, dtype=float)
+    if theta.ndim == 1:  # one vector (Powell's line searches, ~170 a solve): the nine numbers as
+        # floats, no stacked arrays to index; the same operations, so the same numbers bit for bit
+        dyz, dzy, dzx = theta[6:].tolist()
+        inv_x, inv_y, inv_z = (1.0 / theta[3:6]).tolist()
+        A = np.array(((inv_x, 0.0, 0.0), (dyz * inv_x, inv_y, 0.0), ((dzx * dyz - dzy) * inv_x, dzx * inv_y, inv_z)))
+        return A, -(A @ theta[:3, None])[..., 0]
     inv_k = 1.0 / theta[..., 3:6]
     dyz, dzy, dzx = theta[..., 6], theta[..., 7], theta[..., 8]
     A = np.zeros(theta.shape[:-1] + (3, 3))
