@@ -183,17 +183,16 @@ class Registry:
                                          "params_sha256 = ?", (int(passed), str(path), sha))
                 return False
             cid = inserted[0]
-            # Every triad's row, then every parameter's, each kind in one statement (the rows as one
-            # by one: positions count on across the triads).
-            self.backend.executemany("INSERT INTO triads VALUES (?, ?, ?, ?, ?, ?)",
-                                     [(cid, cal.name, cal.kind, cal.output_unit, cal.residual_rms,
-                                       cal.residual_unit) for cal, *_ in triads])
-            rows = [(cid, cal.name, n, float(v), float(s), u)
-                    for cal, values, sigmas, units in triads
-                    for n, v, s, u in zip(cal.parameter_names, values, sigmas, units)]
-            self.backend.executemany("INSERT INTO parameters (calibration_id, triad, name, value, sigma, unit, "
-                                     "position) VALUES (?, ?, ?, ?, ?, ?, ?)",
-                                     [row + (position,) for position, row in enumerate(rows)])
+            position = 0
+            for cal, values, sigmas, units in triads:
+                self.backend.execute("INSERT INTO triads VALUES (?, ?, ?, ?, ?, ?)",
+                                     (cid, cal.name, cal.kind, cal.output_unit, cal.residual_rms,
+                                      cal.residual_unit))
+                for n, v, s, u in zip(cal.parameter_names, values, sigmas, units):
+                    self.backend.execute("INSERT INTO parameters (calibration_id, triad, name, value, "
+                                         "sigma, unit, position) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                                         (cid, cal.name, n, float(v), float(s), u, position))
+                    position += 1
             return True
         return self._transaction(write)
 

@@ -111,12 +111,6 @@ class SqliteBackend:
         except sqlite3.Error as exc:  # locked past the timeout, disk full, not a database
             raise RegistryError(f"registry {self.where}: {exc}") from None
 
-    def executemany(self, sql: str, rows) -> None:
-        try:
-            self.db.executemany(sql, rows)
-        except sqlite3.Error as exc:
-            raise RegistryError(f"registry {self.where}: {exc}") from None
-
     def begin(self, migrating: bool = False) -> None:
         # IMMEDIATE: the write lock now, so two stations never both read then both write
         self.execute("BEGIN IMMEDIATE")
@@ -177,14 +171,6 @@ class PostgresBackend:
         try:
             return self.db.execute(sql.replace("?", "%s"), params)
         except self._errors as exc:  # the server gone, a statement refused: one line
-            text = " ".join(line.strip() for line in _scrub(str(exc), self._secret).splitlines())
-            raise RegistryError(f"registry {self.where}: {text[:300]}") from None
-
-    def executemany(self, sql: str, rows) -> None:
-        try:
-            with self.db.cursor() as cursor:
-                cursor.executemany(sql.replace("?", "%s"), rows)
-        except self._errors as exc:  # as execute
             text = " ".join(line.strip() for line in _scrub(str(exc), self._secret).splitlines())
             raise RegistryError(f"registry {self.where}: {text[:300]}") from None
 
