@@ -72,7 +72,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                         "use them as rate equations too")
     parser.add_argument("--params", metavar="FILE", help="also write the parameter file here")
     parser.add_argument("--force", action="store_true", help="replace the --params file if it exists")
-    from fieldcal.cli.production import add_operator_option, add_spec_option
+    from fieldcal.cli.options import add_operator_option, add_spec_option
     add_spec_option(parser)
     add_operator_option(parser)
     parser.set_defaults(func=cmd_calibrate)
@@ -133,7 +133,7 @@ def cmd_calibrate(args) -> int:
         from fieldcal.recording.results import noise_lines, parameter_file, summary_lines
         from fieldcal.session.capture import SessionWriter
 
-        from fieldcal.cli.production import accept_after, load_spec_option, operator_option
+        from fieldcal.cli.options import accept_after, load_spec_option, operator_option
 
     operator = operator_option(args)  # refused before the work, not after it
     config = None

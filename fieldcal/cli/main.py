@@ -2,46 +2,14 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 
 from fieldcal import __version__
+from fieldcal.cli.options import _positive, _seed, _speed, add_run_options
 from fieldcal.solvers.methods import METHODS
 
 MAX_SERVE_RATE_HZ = 4000.0  # the fastest MEMS IMU output rates; above it the simulator cannot keep up
-
-
-def _seed(text: str) -> int:
-    value = int(text) if text.lstrip("-").isdigit() else -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
-    return value
-
-
-def _positive(kind, maximum: float = math.inf, unit: str = ""):
-    """An argparse type: a finite number > 0 (and <= maximum); nan and inf are refused."""
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            value = -1
-        if not (math.isfinite(value) and 0 < value <= maximum):
-            top = f" and <= {maximum:g}{unit}" if math.isfinite(maximum) else ""
-            raise argparse.ArgumentTypeError(f"expected a number > 0{top}, got {text!r}")
-        return value
-    return parse
-
-
-def _speed(text: str) -> float:
-    """Times real time: a finite number >= 0 (0 = as fast as read)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0 (0 = as fast as read), got {text!r}")
-    return value
 
 
 def _progress_printer(stream):
@@ -141,19 +109,6 @@ def cmd_sim_serve(args) -> int:
         except (KeyboardInterrupt, Terminated):  # the ports and their links go with the block
             print(f"stopped after {devices.samples_sent} samples", flush=True)
     return 0
-
-
-def add_run_options(parser: argparse.ArgumentParser) -> None:
-    """Options shared by everything that runs a procedure (run, tui)."""
-    parser.add_argument("--config", default="sim", help="station config (default: sim)")
-    parser.add_argument("--procedure", default="field-18",
-                        help="procedure name or YAML path (default field-18)")
-    parser.add_argument("--seed", type=_seed, help="simulation seed (default: the config's)")
-    parser.add_argument("--out", default="sessions", help="where sessions go (default ./sessions)")
-    parser.add_argument("--method", choices=METHODS, default="auto",
-                        help="solver: auto (default) is classic for an aligned procedure, else powell")
-    parser.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
-                        help="a bump during a dwell restarts it (default) or drops only the disturbed part")
 
 
 def _lazy(name: str):
@@ -299,8 +254,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     from fieldcal.cli.importing import add_import_parser
     add_import_parser(sub)
     add_calibrate_parser(sub)
-    from fieldcal.cli.production import (add_operator_option, add_production_parsers, add_registry_option,
-                                         add_spec_option)
+    from fieldcal.cli.options import add_operator_option, add_registry_option, add_spec_option
+    from fieldcal.cli.production import add_production_parsers
     add_spec_option(run)
     add_operator_option(run)
     add_registry_option(replay)

@@ -10,122 +10,8 @@ import os
 import sys
 from pathlib import Path
 
-# The exit status of a calibration that finished but failed its product's acceptance limits
-# (0: passed; 1: not calibrated; 2: bad input).
-EXIT_FAILED_SPEC = 3
-EXIT_SOME_FAILED = 1  # `fieldcal resolve`: some sessions could not be re-solved
-
-SPEC_HELP = (f"product spec YAML: PASS/FAIL per parameter with the reason; exit status "
-             f"{EXIT_FAILED_SPEC} if any fails")
-
-
-def add_registry_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--registry", metavar="PATH|URL", help="the unit registry: an SQLite file "
-                        "(default $XDG_DATA_HOME/fieldcal/registry.sqlite) or a PostgreSQL server, "
-                        "postgresql://USER@HOST[:PORT]/DB (password from PGPASSWORD, ~/.pgpass or a "
-                        "service file, never from this option; ?sslmode=require for TLS)")
-    parser.add_argument("--registry-require-tls", action="store_true",
-                        help="refuse a PostgreSQL registry connection without TLS (as sslmode=require)")
-
-
-def open_registry(args):
-    """The registry the command's options name (``Registry``; a context manager)."""
-    from fieldcal.registry import Registry
-    return Registry(args.registry, require_tls=args.registry_require_tls)
-
-
-def add_operator_option(parser: argparse.ArgumentParser) -> None:
-    """--operator, for the commands that measure a unit (a re-solve keeps the session's)."""
-    parser.add_argument("--operator", metavar="NAME", default=os.environ.get("FIELDCAL_OPERATOR"),
-                        help="who calibrates: written into the session, the parameter file and the "
-                        "registry (default $FIELDCAL_OPERATOR; none when unset)")
-
-
-def operator_option(args) -> str | None:
-    """The --operator given (or its default), checked; None when none was."""
-    from fieldcal.paramfile.document import OPERATOR_MAX, valid_operator
-
-    name = getattr(args, "operator", None)
-    if name is not None and not valid_operator(name):
-        raise ValueError(f"--operator: expected a name of 1 to {OPERATOR_MAX} printable characters "
-                         f"without blanks around it, got {name!r}"[:200])
-    return name
-
-
-def add_spec_option(parser: argparse.ArgumentParser) -> None:
-    """--spec and --registry, for the commands that calibrate."""
-    parser.add_argument("--spec", metavar="SPEC", help=SPEC_HELP)
-    add_registry_option(parser)
-
-
-def load_spec_option(args):
-    """The --spec file, read before any work is done (a bad spec stops nothing half-way)."""
-    if getattr(args, "spec", None) is None:
-        return None
-    from fieldcal.acceptance import load_spec
-    return load_spec(args.spec)
-
-
-def previous_calibration_of(params: Path):
-    """The previous calibration of the unit whose parameter file is ``params``, when that file
-    is in a session directory among its siblings; else None."""
-    from fieldcal.paramfile import load
-    from fieldcal.session.history import previous_calibration
-
-    from fieldcal.session.capture import LOG
-
-    if not (params.parent / LOG).is_file():
-        return None
-    p = load(params).provenance
-    found, _ = previous_calibration(params.parent.parent, p.device_name, p.device_serial,
-                                    exclude=params.parent)
-    return found
-
-
-def report_acceptance(spec, params: str | Path, previous: str | Path | None = None, out=None):
-    """Print the verdict of ``params`` against ``spec``; the Verdict.
-    The previous calibration (for the drift) is ``previous``, or the newest sibling session's."""
-    from fieldcal.acceptance import evaluate, verdict_lines
-    from fieldcal.paramfile import load
-
-    out = out or sys.stdout
-    params = Path(params)
-    parameters = load(params)
-    if previous is not None:
-        prev, where = load(previous), Path(previous)
-    else:
-        found = previous_calibration_of(params)
-        prev, where = (found.parameters, found.path) if found is not None else (None, None)
-    print(f"\nacceptance against {spec.path} ({spec.product}): {params}", file=out)
-    if where is not None:
-        print(f"drift since {where}", file=out)
-    verdict = evaluate(spec, parameters, prev)
-    for line in verdict_lines(verdict):
-        print(line, file=out)
-    return verdict
-
-
-def accept_after(args, spec, params, status: int, source: str = "run") -> int:
-    """After a calibration command that exited ``status``: its verdict against the spec, if any,
-    and the parameter file recorded in the unit registry (a failure there is a warning)."""
-    if params is None or not Path(params).is_file():
-        return status
-    passed = None
-    try:
-        if spec is not None and status == 0:
-            passed = report_acceptance(spec, params).passed  # a spec that fits no triad raises
-            status = 0 if passed else EXIT_FAILED_SPEC
-    finally:  # recorded whatever the spec made of it
-        record_in_registry(args, params, passed, source)
-    return status
-
-
-def record_in_registry(args, params, passed: bool | None, source: str) -> bool:
-    """Record a parameter file in the --registry; a failure is a warning on stderr."""
-    from fieldcal.registry import record_safely
-
-    return record_safely(params, passed, args.registry, warn=lambda text: print(text, file=sys.stderr),
-                         source=source, require_tls=args.registry_require_tls)
+from fieldcal.cli.options import (EXIT_FAILED_SPEC, EXIT_SOME_FAILED, add_registry_option, add_spec_option,
+                                  find_sessions, open_registry, previous_calibration_of, report_acceptance)
 
 
 def cmd_check(args) -> int:
@@ -349,18 +235,6 @@ def cmd_history(args) -> int:
     return 0
 
 
-def find_sessions(directories, command: str) -> list[Path]:
-    """The sessions in each directory: itself if it is one, else the sessions directly in it."""
-    from fieldcal.session.capture import LOG
-
-    sessions = []
-    for d in map(Path, directories):
-        if not d.is_dir():
-            raise ValueError(f"{command}: {d}: not a directory")
-        sessions += [d] if (d / LOG).is_file() else sorted(p.parent for p in d.glob(f"*/{LOG}"))
-    return sessions
-
-
 def cmd_registry_rebuild(args) -> int:
     from fieldcal.registry import session_parameter_files
 
@@ -437,7 +311,7 @@ def _certificate_pdf(page: Path, pdf: Path) -> None:
 
 def add_production_parsers(sub) -> None:
     from fieldcal.cli.importing import add_log_options
-    from fieldcal.cli.main import _positive
+    from fieldcal.cli.options import _positive
     check = sub.add_parser(
         "check", help="PASS/FAIL of a parameter file against a product spec",
         description="Check every parameter of a parameter file against a product spec's acceptance "

@@ -17,7 +17,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from fieldcal.cli.production import EXIT_SOME_FAILED
+from fieldcal.cli.options import EXIT_SOME_FAILED
 
 
 @dataclass(frozen=True)
@@ -88,7 +88,7 @@ def _results(sessions: list[str], method: str | None, jobs: int):
 def cmd_resolve(args) -> int:
     import shlex
 
-    from fieldcal.cli.production import EXIT_FAILED_SPEC, find_sessions, load_spec_option
+    from fieldcal.cli.options import EXIT_FAILED_SPEC, find_sessions, load_spec_option
     from fieldcal.registry import BatchRecorder
     from fieldcal.registry.backends import redact
 
@@ -136,7 +136,7 @@ def cmd_resolve(args) -> int:
 def _verdict(spec, params: str) -> tuple[bool, str]:
     """(passed, "PASS" or "FAIL: first reason (+n more)") against the spec, drift included."""
     from fieldcal.acceptance import evaluate
-    from fieldcal.cli.production import previous_calibration_of
+    from fieldcal.cli.options import previous_calibration_of
     from fieldcal.paramfile import load
 
     previous = previous_calibration_of(Path(params))

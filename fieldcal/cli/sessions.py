@@ -42,7 +42,7 @@ def cmd_run(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
 
-    from fieldcal.cli.production import accept_after, load_spec_option, operator_option
+    from fieldcal.cli.options import accept_after, load_spec_option, operator_option
 
     config = load_config(args.config)
     spec = load_spec_option(args)
@@ -113,7 +113,7 @@ def cmd_resume(args) -> int:
                          "(resume it without --config)")
     done = len(steps)
     warn_if_torn(args.session)  # what resuming will cut away
-    from fieldcal.cli.production import accept_after
+    from fieldcal.cli.options import accept_after
     if spec.live is not None:
         return accept_after(args, None, *_resume_live(args, spec))
     print(f"resuming {args.session} after {done} completed step{'s' if done != 1 else ''}", flush=True)
@@ -157,7 +157,7 @@ def cmd_replay(args) -> int:
     if outcome.parameter_file is None:
         print("nothing could be calibrated from this session")
         return 1
-    from fieldcal.cli.production import record_in_registry
+    from fieldcal.cli.options import record_in_registry
     if args.out:
         save_parameter_file(outcome.parameter_file, args.out, force=args.force, option="--out")
         print(f"parameter file written to {args.out}")

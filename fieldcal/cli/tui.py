@@ -53,7 +53,7 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
         "screens. The keys are listed below.",
         epilog=_keys_epilog(SETUP_KEYS, SIM_KEYS),
         formatter_class=lambda prog: _HelpFormatter(prog, width=HELP_WIDTH))
-    from fieldcal.cli.main import add_run_options  # here: fieldcal.cli.main imports this module
+    from fieldcal.cli.options import add_run_options
     add_run_options(tui)
     tui.set_defaults(config=None, procedure=None)  # given or not: given ones override the setup's
     tui.add_argument("--sim", action="store_true",
@@ -65,13 +65,13 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
                      "(default: the config's sim speed for a run, 10 for a replay)")
     tui.add_argument("--no-capture", action="store_true", help="do not write a session")
     tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
-    from fieldcal.cli.production import EXIT_FAILED_SPEC
+    from fieldcal.cli.options import EXIT_FAILED_SPEC
     tui.add_argument("--spec", metavar="SPEC", help="product spec YAML: the results say PASS/FAIL per "
                      f"parameter with the reason; exit status {EXIT_FAILED_SPEC} if any fails")
     tui.add_argument("--resume", metavar="SESSION",
                      help="continue this unfinished (quit) session after its last completed step; a live "
                      "device's on the ports of --config (default: the setup's last config)")
-    from fieldcal.cli.production import add_operator_option, add_registry_option
+    from fieldcal.cli.options import add_operator_option, add_registry_option
     add_registry_option(tui)  # where the calibrations are recorded when the UI closes
     add_operator_option(tui)
     tui.set_defaults(func=cmd_tui)
@@ -79,7 +79,7 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_tui(args) -> int:
-    from fieldcal.cli.production import load_spec_option
+    from fieldcal.cli.options import load_spec_option
     from fieldcal.tui import run_tui
 
     accept = {"product_spec": load_spec_option(args)}  # a bad spec stops it before any run
@@ -141,7 +141,7 @@ def _remembering_resume(make_resume, sessions: list):
 def record_sessions(args, sessions) -> None:
     """The calibrations the UI's sessions ended with, recorded in the registry once the terminal
     is back (a failure there is a warning; a session quit before calibrating has none)."""
-    from fieldcal.cli.production import record_in_registry
+    from fieldcal.cli.options import record_in_registry
     from fieldcal.session.capture import SessionReader
 
     for session in sessions:
@@ -282,7 +282,7 @@ def _initial_choice(args):
 
 def sim_run(config, procedure, args):
     """The simulated bench's run: (spec, session directory, speed)."""
-    from fieldcal.cli.production import operator_option
+    from fieldcal.cli.options import operator_option
     from fieldcal.run.runner import RunSpec
 
     seed = config.device.sim.seed if args.seed is None else args.seed
@@ -304,7 +304,7 @@ def live_spec(config, procedure, args):
     """The run of a real device: its model from the config; refused before any port is opened
     when the config cannot carry the procedure out."""
     from fieldcal.run.livedevice import LiveDevice
-    from fieldcal.cli.production import operator_option
+    from fieldcal.cli.options import operator_option
     from fieldcal.run.runner import RunSpec
 
     step = procedure.rate_step
