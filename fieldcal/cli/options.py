@@ -10,6 +10,7 @@ import os
 import sys
 from pathlib import Path
 
+from fieldcal.exit_status import EXIT_FAILED_SPEC
 from fieldcal.solvers.methods import METHODS
 
 
@@ -44,11 +45,6 @@ def _speed(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number >= 0 (0 = as fast as read), got {text!r}")
     return value
 
-
-# The exit status of a calibration that finished but failed its product's acceptance limits
-# (0: passed; 1: not calibrated; 2: bad input).
-EXIT_FAILED_SPEC = 3
-EXIT_SOME_FAILED = 1  # `fieldcal resolve`: some sessions could not be re-solved
 
 SPEC_HELP = (f"product spec YAML: PASS/FAIL per parameter with the reason; exit status "
              f"{EXIT_FAILED_SPEC} if any fails")

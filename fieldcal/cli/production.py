@@ -10,8 +10,9 @@ import os
 import sys
 from pathlib import Path
 
-from fieldcal.cli.options import (EXIT_FAILED_SPEC, EXIT_SOME_FAILED, add_registry_option, add_spec_option,
-                                  find_sessions, open_registry, previous_calibration_of, report_acceptance)
+from fieldcal.cli.options import (add_registry_option, add_spec_option, find_sessions, open_registry,
+                                  previous_calibration_of, report_acceptance)
+from fieldcal.exit_status import EXIT_FAILED_SPEC, EXIT_SOME_FAILED
 
 
 def cmd_check(args) -> int:

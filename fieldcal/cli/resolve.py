@@ -17,7 +17,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from fieldcal.cli.options import EXIT_SOME_FAILED
+from fieldcal.exit_status import EXIT_FAILED_SPEC, EXIT_SOME_FAILED
 
 
 @dataclass(frozen=True)
@@ -88,7 +88,7 @@ def _results(sessions: list[str], method: str | None, jobs: int):
 def cmd_resolve(args) -> int:
     import shlex
 
-    from fieldcal.cli.options import EXIT_FAILED_SPEC, find_sessions, load_spec_option
+    from fieldcal.cli.options import find_sessions, load_spec_option
     from fieldcal.registry import BatchRecorder
     from fieldcal.registry.backends import redact
 

@@ -65,7 +65,7 @@ def add_tui_parser(sub) -> argparse.ArgumentParser:
                      "(default: the config's sim speed for a run, 10 for a replay)")
     tui.add_argument("--no-capture", action="store_true", help="do not write a session")
     tui.add_argument("--replay", metavar="SESSION", help="replay this session instead of running")
-    from fieldcal.cli.options import EXIT_FAILED_SPEC
+    from fieldcal.exit_status import EXIT_FAILED_SPEC
     tui.add_argument("--spec", metavar="SPEC", help="product spec YAML: the results say PASS/FAIL per "
                      f"parameter with the reason; exit status {EXIT_FAILED_SPEC} if any fails")
     tui.add_argument("--resume", metavar="SESSION",

@@ -224,7 +224,7 @@ class FieldcalApp(App[int]):
             self.source.stop()
         code = self.return_code_for(self.outcome)
         if code == 0 and self.verdict is not None and not self.verdict.passed:
-            from fieldcal.cli.options import EXIT_FAILED_SPEC
+            from fieldcal.exit_status import EXIT_FAILED_SPEC
             code = EXIT_FAILED_SPEC
         self.exit(code)
 
