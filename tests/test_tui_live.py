@@ -98,7 +98,7 @@ async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp
     assert unit.failures == outcome.unit.failures and samples > 0
     # `fieldcal solve` re-solves it from the log with the device's own noise models (a real
     # device has no simulation truth to take them from).
-    from fieldcal.solvers.compare import compare_methods
+    from fieldcal.run.compare import compare_methods
     solved = compare_methods(tmp_path / "session", ["powell", "classic"])
     assert "2 completed steps" in solved and solved.count("not calibrated") == 2 * len(outcome.unit.failures)
 

@@ -173,7 +173,7 @@ def cmd_replay(args) -> int:
 
 
 def cmd_solve(args) -> int:
-    from fieldcal.solvers.compare import compare_methods
+    from fieldcal.run.compare import compare_methods
 
     # The averages are in the log: samples.bin is neither read nor required.
     reader, spec, steps = _procedure_session(args.session, log_only=True)  # every step checked
