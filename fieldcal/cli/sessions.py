@@ -5,6 +5,7 @@ import datetime
 import sys
 from pathlib import Path
 
+from fieldcal.cli.options import procedure_session
 from fieldcal.report import solution_header, solution_table, worst_error
 
 
@@ -77,29 +78,11 @@ def cmd_run(args) -> int:
     return accept_after(args, spec, result.parameters, _print_result(result, sys.stdout))
 
 
-def _procedure_session(directory, log_only: bool = False):
-    """(reader, run spec, checked step records) of a procedure run's session; one-line errors.
-    ``log_only``: read the log's documents alone (see ``SessionReader``)."""
-    from fieldcal.run.runner import RunSpec
-    from fieldcal.session.capture import SessionReader
-    from fieldcal.session.steps import checked_steps
-
-    reader = SessionReader(directory, log_only=log_only)
-    try:
-        spec = RunSpec.from_metadata(reader.start)
-    except (KeyError, TypeError, AttributeError) as exc:
-        raise ValueError(f"{reader.directory / 'log.jsonl'}: line 1: the start document's metadata is "
-                         f"not a procedure run's ({type(exc).__name__}: {exc})"[:300]) from None
-    except ValueError as exc:  # a recording session, a procedure or station out of bounds
-        raise ValueError(f"{reader.directory}: {exc}") from None
-    return reader, spec, checked_steps(reader, len(spec.procedure.positions))
-
-
 def cmd_resume(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import resume_headless
 
-    reader, spec, steps = _procedure_session(args.session)
+    reader, spec, steps = procedure_session(args.session)
     if reader.start.get("device", {}).get("link") == "pty":
         raise ValueError(f"{args.session}: a run through a serial device cannot be resumed (the "
                          "device cannot be rewound); replay it, or run again")
@@ -143,7 +126,7 @@ def cmd_replay(args) -> int:
 
     if args.out:  # never into a session, never over a file without --force: said before replaying
         check_output_path(args.out, force=args.force, option="--out")
-    reader, _, _ = _procedure_session(args.session)
+    reader, _, _ = procedure_session(args.session)
     noted = list(reader.documents("parameters"))
     if noted:  # the recorded parameter file must be there to compare with: said before replaying
         path = reader.directory / noted[-1]["file"]
@@ -176,7 +159,7 @@ def cmd_solve(args) -> int:
     from fieldcal.run.compare import compare_methods
 
     # The averages are in the log: samples.bin is neither read nor required.
-    reader, spec, steps = _procedure_session(args.session, log_only=True)  # every step checked
+    reader, spec, steps = procedure_session(args.session, log_only=True)  # every step checked
     for line in reader.torn:
         print(f"warning: {args.session}: {line}", file=sys.stderr)
     if not steps:

@@ -157,12 +157,12 @@ def record_sessions(args, sessions) -> None:
 
 def resumable(session: str) -> Path:
     """The session ``--resume`` continues; a one-line ValueError for one it cannot."""
-    from fieldcal.cli.sessions import _procedure_session
+    from fieldcal.cli.options import procedure_session
     from fieldcal.tui.choices import resume_refusal
 
     if not Path(session, "log.jsonl").is_file():
         raise ValueError(f"--resume: {session} is not a session directory (no log.jsonl)")
-    reader, _, _ = _procedure_session(session)
+    reader, _, _ = procedure_session(session)
     refusal = resume_refusal(reader)
     if refusal is not None:
         raise ValueError(f"--resume: {session} {refusal}")
