@@ -14,7 +14,6 @@ import difflib
 import math
 import os
 import re
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np

@@ -5,7 +5,6 @@ import pytest
 
 from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
-from fieldcal.procedure.engine import Engine
 from fieldcal.procedure.positions import parse_procedure
 from fieldcal.run.conductor import Conductor, Operator, Place, Subscriber
 from fieldcal.run.runner import RunSpec, SimulatedBench

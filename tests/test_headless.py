@@ -4,7 +4,6 @@ resume, and byte-identical replay.
 The runs use field-18's 18 positions with 20 s dwells and 30 °/s turns (a tenth of the samples
 of the paper's 200 s and 10 °/s): every behaviour tested here is the same, and the reported σ
 grows to match, so the 3σ checks mean what they meant."""
-import json
 import os
 import signal
 import subprocess

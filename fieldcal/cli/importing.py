@@ -77,8 +77,7 @@ def add_log_options(parser) -> None:
 
 def cmd_import(args) -> int:
     # Here, not at the top: `fieldcal --help` builds this parser without numpy.
-    from fieldcal.recording.import_map import load_import_map
-    from fieldcal.recording.importer import RecordingImportError, import_with_report
+    from fieldcal.recording.importer import RecordingImportError
     from fieldcal.recording.store import save_recording
 
     out = Path(args.out)

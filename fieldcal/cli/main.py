@@ -26,8 +26,6 @@ def _progress_printer(stream):
 
 
 def cmd_demo(args) -> int:
-    import numpy as np
-
     from drivers.sim.device import paper_mimu
     from fieldcal.cli.station import station_from_options
     from fieldcal.report import solution_header, solution_table, worst_error

@@ -16,7 +16,7 @@ import re
 import sqlite3
 import time
 from pathlib import Path
-from urllib.parse import unquote, urlsplit
+from urllib.parse import unquote
 
 POSTGRES_SCHEMES = ("postgresql", "postgres")
 # sslmode values that refuse a connection without TLS (libpq's own words)

@@ -195,7 +195,7 @@ def test_a_torn_tail_is_cut_and_kept_and_the_resumed_run_matches(session_copy, q
     assert (session_copy / "parameters.yaml").read_bytes() == (quick_session / "parameters.yaml").read_bytes()
     resume = list(SessionReader(session_copy).documents("resume"))[0]
     assert [r.split(" (")[0] for r in resume["repaired"]] == [
-        f"log.jsonl: cut a torn last line", f"samples.bin: cut {samples_cut - chunk['offset']} bytes after the "
+        "log.jsonl: cut a torn last line", f"samples.bin: cut {samples_cut - chunk['offset']} bytes after the "
         "last logged chunk"]
 
 

@@ -22,7 +22,7 @@ class PositionTiles(Horizontal):
         self.narrow = len(ids) > 19  # 4 cells per tile fit 19 in 78 columns; else 3 (no gap)
 
     def compose(self) -> ComposeResult:
-        for i, ident in enumerate(self.ids):
+        for i in range(len(self.ids)):
             tile = Static(self.label(i, TODO), classes=f"tile {TODO}", id=f"tile-{i}")
             if self.narrow:
                 tile.add_class("narrow")

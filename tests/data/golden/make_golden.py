@@ -1,5 +1,5 @@
 """Write the golden sessions with the code at commit 58c3726 (run from that tree)."""
-import shutil, sys, threading
+import sys
 from pathlib import Path
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
