@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 # Two processes per decade from 0.5 s to 5000 s: flat Allan deviation (ripple < 3 %) from about
 # 5 s to 2000 s, which covers the 200 s dwells and the session length.
@@ -59,7 +60,7 @@ class TriadNoise:
                 var = var + (s**2 * c**2 / tau**2) * (2 * x - 3 + 4 * np.exp(-x) - np.exp(-2 * x))
         return np.sqrt(var)
 
-    def window_covariance(self, starts: np.ndarray, durations: np.ndarray) -> np.ndarray:
+    def window_covariance(self, starts: npt.ArrayLike, durations: npt.ArrayLike) -> np.ndarray:
         """Covariance between the means of one axis over non-overlapping windows [start, start+T).
 
         Exact for the continuous-time model (white + Gauss-Markov bank). Rate random walk has no

@@ -14,7 +14,7 @@ import difflib
 import math
 import os
 import re
-from typing import Sequence
+from typing import Literal, NoReturn, Sequence, overload
 
 import numpy as np
 import yaml
@@ -178,12 +178,12 @@ class FieldReader:
         self.path = path
         self.error = error
 
-    def fail(self, where: str, expected: str, got: str, line: int | None = None) -> None:
+    def fail(self, where: str, expected: str, got: str, line: int | None = None) -> NoReturn:
         prefix = f"{self.path}: {where}: " if where else f"{self.path}: "
         at = f" (line {line})" if line else ""
         raise self.error(f"{prefix}expected {expected}, got {got}{at}", self.path, where)
 
-    def refuse(self, where: str, message: str, line: int | None = None) -> None:
+    def refuse(self, where: str, message: str, line: int | None = None) -> NoReturn:
         """A one-line error in the file's own words (not "expected X, got Y")."""
         prefix = f"{self.path}: {where}: " if where else f"{self.path}: "
         at = f" (line {line})" if line else ""
@@ -261,6 +261,14 @@ class FieldReader:
         if not isinstance(value, bool):
             self.fail(join(where, key), "true or false (unquoted)", describe(value), line_of(m, key))
         return value
+
+    @overload
+    def string(self, m: dict, key: str, where: str, allowed: Sequence[str] | None = None,
+               optional: Literal[False] = False) -> str: ...
+
+    @overload
+    def string(self, m: dict, key: str, where: str, allowed: Sequence[str] | None = None,
+               optional: bool = False) -> str | None: ...
 
     def string(self, m: dict, key: str, where: str, allowed: Sequence[str] | None = None,
                optional: bool = False) -> str | None:

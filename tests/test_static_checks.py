@@ -46,6 +46,12 @@ def test_ruff_finds_nothing(tmp_path):
     assert proc.returncode == 0, _said(proc)
 
 
+def test_mypy_finds_no_type_error(tmp_path):
+    proc = _run([sys.executable, "-m", "mypy"], tmp_path)  # the files: pyproject.toml's [tool.mypy]
+    assert proc.returncode == 0, _said(proc)
+    assert "Success: no issues found" in proc.stdout, _said(proc)
+
+
 def test_each_check_fails_on_what_it_guards(tmp_path):
     """The checks can fail: a copy of the package with one upward import, one unused import and
     one type error is refused by each tool, naming the line."""
@@ -71,3 +77,5 @@ def test_each_check_fails_on_what_it_guards(tmp_path):
     lint = run([_tool("ruff"), "check", "--output-format", "concise", "fieldcal"])
     assert lint.returncode != 0 and "fieldcal/solvers/methods.py" in lint.stdout and "F401" in lint.stdout, \
         _said(lint)
+    types = run([sys.executable, "-m", "mypy"])
+    assert types.returncode != 0 and "fieldcal/solvers/methods.py" in types.stdout, _said(types)

@@ -25,7 +25,6 @@ from fieldcal.procedure.stillness import (
     check_orientation,
     closest_positions,
     gravity_direction,
-    repeated_pose,
     sliding_std,
 )
 
@@ -397,21 +396,6 @@ def test_the_message_says_which_way_to_tilt():
     lost = check_orientation([1.0, 0.0, 0.35], BY_ID[1], POSITIONS)
     assert lost.looks_like == () and "like no position" in lost.message
     assert "about the body y axis" in lost.message
-
-
-def test_repeated_pose_finds_a_repeat_and_ignores_distinct_poses():
-    means, _, _ = position_means(False, seed=5)
-    d = gravity_direction(means)  # index i is position i + 1
-    completed = [d[0], d[2], d[4], d[8]]  # positions 1 (z up), 3 (z down), 5 (y up), 9 (x up)
-    assert repeated_pose(d[1], completed) == 0  # position 2 has position 1's up direction
-    assert repeated_pose(d[3], completed) == 1
-    assert repeated_pose(d[12], completed) is None  # 13: 45° from positions 1 and 9
-    assert repeated_pose(d[6], completed) is None  # 7: y down
-    assert repeated_pose(d[1], []) is None
-    tilted = Rotation.from_rotvec([math.radians(20), 0, 0]).apply([0, 0, 1])
-    assert repeated_pose(tilted, [[0, 0, 1]]) is None
-    assert repeated_pose(tilted, [[0, 0, 1]], min_separation_deg=25) == 0
-    assert repeated_pose(tilted, [[1, 0, 0], [0, -0.1, 1], [0, 0, 1]], min_separation_deg=25) == 1
 
 
 def test_the_steady_path_windows_agree_with_sliding_std():

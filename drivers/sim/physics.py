@@ -65,7 +65,7 @@ class MimuSimulator:
     earth_rate: float = 7.292115e-5  # rad/s
     rate_hz: float = 250.0
     lever_arm: np.ndarray = field(default_factory=lambda: np.array([0.03, 0.02, 0.01]))  # m, body
-    seed: int = 0
+    seed: int | np.random.SeedSequence = 0  # (anything numpy's default_rng takes)
     noise_model: str = "innovations"  # one of NOISE_MODELS
 
     def __post_init__(self) -> None:

@@ -59,7 +59,7 @@ def _as_device_sends(chunk: SampleChunk) -> SampleChunk:
 class SimulatedDevices:
     def __init__(self, triads: dict[str, TriadTruth], gravity: float, latitude_rad: float,
                  imu_protocol: str = "xsens", table_protocol: str | None = "ascii",
-                 transport: str = "pty", speed: float = 1.0, seed: int = 1, rate_hz: float = 250.0,
+                 transport: str = "pty", speed: float = 1.0, seed: int | np.random.SeedSequence = 1, rate_hz: float = 250.0,
                  attitude: np.ndarray | None = None, block_s: float = 0.02, on_chunk=None):
         from drivers.sim.tables import TableMotion
         if transport not in ("pty", "tcp"):

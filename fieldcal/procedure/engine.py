@@ -16,11 +16,12 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import cast
 
 import numpy as np
 
 from fieldcal.procedure import events as ev
-from fieldcal.procedure.positions import Procedure, position_words
+from fieldcal.procedure.positions import Procedure, RateStep, position_words
 from fieldcal.procedure.stillness import StillnessDetector, StillnessSettings, check_orientation, gravity_direction
 from fieldcal.procedure.windows import MINUS, PLUS, STATIC, StepRecord, Window, WindowKind, WindowRecord
 
@@ -116,12 +117,12 @@ class _Average:
         count = sum(d[1] for d in self.diffs)
         if count < MIN_WINDOW_SAMPLES:
             return None
-        return sum(d[0][name] for d in self.diffs) / (2.0 * count)
+        return cast(np.ndarray, sum(d[0][name] for d in self.diffs)) / (2.0 * count)  # (diffs: not empty)
 
     def means(self) -> dict[str, list[float]]:
         n = self.n
         names = self.blocks[0][3].keys()
-        return {name: (sum(b[3][name] for b in self.blocks) / n).tolist() for name in names}
+        return {name: (cast(np.ndarray, sum(b[3][name] for b in self.blocks)) / n).tolist() for name in names}
 
 
 def windows_and_averages(records: Iterable[StepRecord]) -> tuple[list[Window], dict[str, np.ndarray]]:
@@ -324,15 +325,21 @@ class Engine:
             return self._complete_step(i, t, out)
         return self._command_rate(+1.0, i, t, out)
 
+    @property
+    def _rate_step(self) -> RateStep:
+        """The procedure's rate step: the rate phases are entered only for a procedure with one."""
+        assert self.procedure.rate_step is not None
+        return self.procedure.rate_step
+
     def _command_rate(self, sign, i, t, out) -> int:
         self._sign = sign
-        out.append(ev.CommandTable(t, sign * self.procedure.rate_step.rate_deg_s))
+        out.append(ev.CommandTable(t, sign * self._rate_step.rate_deg_s))
         self.phase = RATE_WAIT
         return i
 
     def _on_rate_wait(self, chunk, still, i, out) -> int:
         s = self.settings
-        rate = math.radians(self.procedure.rate_step.rate_deg_s)
+        rate = math.radians(self._rate_step.rate_deg_s)
         gyro = (chunk.triads[s.angular_rate][i:] - np.array(s.rate_zero)) / np.array(s.rate_sensitivity)
         # Steady, and turning the commanded way about the table axis (local up, measured in the
         # dwell): a steady +ω must not pass for −ω.
@@ -341,14 +348,14 @@ class Engine:
         if not len(hits):
             return len(chunk)
         start = i + int(hits[0])
-        step = self.procedure.rate_step
+        step = self._rate_step
         out.append(ev.RateSettled(float(chunk.t[start]), self._sign * step.rate_deg_s,
                                   step.turns * 360.0 / step.rate_deg_s))
         self.phase = RATE_AVERAGE
         return start
 
     def _on_rate_average(self, chunk, still, i, out) -> int:
-        step = self.procedure.rate_step
+        step = self._rate_step
         target = round(step.turns * 360.0 / step.rate_deg_s * self.settings.rate_hz)
         j = self._still_until(still, i, len(chunk))
         take = min(j, i + target - self._average.n)

@@ -50,7 +50,7 @@ def _per_axis(value, name: str) -> tuple[float, float, float]:
     arr = np.broadcast_to(np.asarray(value, dtype=float), (3,))
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         raise ValueError(f"{name}: expected a positive number or three, got {value!r}")
-    return tuple(float(v) for v in arr)
+    return float(arr[0]), float(arr[1]), float(arr[2])
 
 
 def _row_gain(k) -> np.ndarray:
@@ -295,7 +295,7 @@ def closest_positions(direction, positions: Sequence[Position],
     if not positions:
         return []
     ups = np.array([p.up_body for p in positions])
-    angles = angle_between(ups, np.asarray(direction, dtype=float))
+    angles = np.atleast_1d(angle_between(ups, np.asarray(direction, dtype=float)))  # (one per position)
     order = np.argsort(angles, kind="stable")
     return [(positions[i], float(angles[i])) for i in order if angles[i] <= tolerance_deg]
 
@@ -362,8 +362,8 @@ def _tilt_axis(measured: np.ndarray, expected: np.ndarray) -> np.ndarray:
 
 
 def _or_list(ids: list[int]) -> str:
-    ids = [str(i) for i in ids]
-    return ids[0] if len(ids) == 1 else ", ".join(ids[:-1]) + " or " + ids[-1]
+    words = [str(i) for i in ids]
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " or " + words[-1]
 
 
 def check_orientation(direction, expected: Position, positions: Sequence[Position],
@@ -375,10 +375,10 @@ def check_orientation(direction, expected: Position, positions: Sequence[Positio
     m = np.asarray(direction, dtype=float)
     m = m / np.linalg.norm(m)
     e = expected.up_body / np.linalg.norm(expected.up_body)
-    angle = angle_between(m, e)
+    angle = float(angle_between(m, e))  # (two vectors: one angle)
     looks_like = tuple(closest_positions(m, positions, tolerance_deg))
     axis = _tilt_axis(m, e)
-    tilt = tuple(float(a) for a in axis)
+    tilt = float(axis[0]), float(axis[1]), float(axis[2])
     if angle <= tolerance_deg:
         return OrientationCheck(True, angle, looks_like,
                                 f"position {expected.id} ({position_words(expected)}): orientation ok, "
@@ -393,19 +393,3 @@ def check_orientation(direction, expected: Position, positions: Sequence[Positio
     message = (f"position {expected.id} expects {position_words(expected)}, but {seen}, "
                f"{angle:.0f}° away; {how}")
     return OrientationCheck(False, angle, looks_like, message, tilt)
-
-
-def repeated_pose(direction, completed_directions, min_separation_deg: float = 15.0) -> int | None:
-    """Index of the completed step whose measured up direction is nearest ``direction``, if it is
-    within ``min_separation_deg``; else None (ArduPilot rejects a pose too close to an earlier one).
-
-    Meant for steps whose procedure position expects an up direction no completed step had: there,
-    a match means the operator put the unit back in a pose already done. Positions that differ
-    only in heading (field-18 1 and 2) legitimately repeat the up direction.
-    """
-    done = np.asarray(completed_directions, dtype=float).reshape(-1, 3)
-    if len(done) == 0:
-        return None
-    angles = angle_between(done, np.asarray(direction, dtype=float))
-    i = int(np.argmin(angles))
-    return i if angles[i] <= min_separation_deg else None

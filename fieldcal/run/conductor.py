@@ -193,7 +193,7 @@ class Conductor:
                 self.bench.close()
             finally:
                 # After an error the session stays open to resume, as after a quit.
-                self._tell("end", self.outcome.status if ended else Status.ERROR)
+                self._tell("end", self.outcome.status if ended and self.outcome is not None else Status.ERROR)
         return self.outcome
 
     def start(self) -> None:

@@ -111,7 +111,7 @@ def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float
     if recorded.counter is not None and now.counter is not None:
         modulus = recorded.counter_modulus
         advance, slack_counts = away * rate_hz, slack * rate_hz
-        if _wraps_too_often(slack_counts, modulus):
+        if modulus is not None and _wraps_too_often(slack_counts, modulus):
             return ClockCheck(None, f"its packet counter wraps every {modulus / rate_hz:.0f} s, too often "
                                     f"to tell after {away:.0f} s away")
         if _behind(recorded.counter, now.counter, advance, slack_counts, modulus):

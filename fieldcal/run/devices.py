@@ -40,6 +40,7 @@ class DeviceConnection:
             from drivers.sim.device import paper_mimu
             from drivers.sim.serve import SimulatedDevices
             sim = device.sim
+            assert sim is not None  # (the config gives a simulated device its settings)
             table = config.table.protocol if config.table else None
             self.simulated = SimulatedDevices(
                 paper_mimu(raw_counts=sim.raw_counts), config.station.gravity,
@@ -50,6 +51,7 @@ class DeviceConnection:
             self.parser = make_parser(self.protocol)
         else:
             self.protocol = device.protocol
+            assert device.port is not None  # (the config gives a real device its port)
             settings = device.port
             self.parser = make_parser(self.protocol, device.channels)
         self.arrival_clock = time.monotonic  # what the reader stamps each read's arrival with

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 
-from drivers.tables import TableError, open_table
+from drivers.tables import RateTable, TableError, open_table
 from drivers.transport import PORT_REGAINED
 from fieldcal.config import StationConfig
 from fieldcal.run.deviceclock import DeviceClock, clock_of, judge_restart, went_back
@@ -27,7 +27,7 @@ class LiveBench:
         Unix time, recorded beside the device's own clock (``device_clock``)."""
         self.config = config
         self.connection = DeviceConnection(config, tap=tap)
-        self.table = None
+        self.table: RateTable | None = None
         self.url = config.device.port.url if config.device.port else "(simulated)"
         self.say = lambda text: None
         self.clock = clock
@@ -175,13 +175,15 @@ class LiveBench:
             else:
                 self.table.set_rate(rate_deg_s)
         except OSError as exc:  # its port is gone (unplugged, powered off): the operator's to deal with
-            raise TableError(f"its port {self.config.table.port.url} failed ({exc}): is the table "
+            table = self.config.table
+            assert table is not None and table.port is not None  # (self.table was opened on it)
+            raise TableError(f"its port {table.port.url} failed ({exc}): is the table "
                              "plugged in and powered?") from exc
 
     def get_state(self) -> dict:
         """What a resumed run needs of a live bench: not its samples (a device cannot be rewound)
         but its clock, to tell whether it was power-cycled meanwhile."""
-        state = {"live": True}
+        state: dict[str, object] = {"live": True}
         if self.device_clock is not None:
             state["device_clock"] = self.device_clock.to_dict()
         return state

@@ -36,14 +36,16 @@ class LiveDevice:
             if needed not in names:
                 raise ConfigError(f"{config.path}: device.triads: a calibration run needs a triad named "
                                   f"{needed!r} (it has {', '.join(names)})", config.path, "device.triads")
-        models, zeros = {}, {}
+        models: dict[str, TriadModel] = {}
+        zeros: dict[str, tuple[float, float, float]] = {}
         for t in device.triads:
             if t.noise is None:
                 raise ConfigError(f"{config.path}: device.triads.{t.name}.noise: expected {{white, "
                                   "bias_instability}} in SI units for a calibration run (measure them "
                                   "with `fieldcal allan`)", config.path, f"device.triads.{t.name}.noise")
             models[t.name] = TriadModel(t.kind, t.unit, t.noise, np.diag(t.sensitivity), t.lsb)
-            zeros[t.name] = tuple(t.zero)
+            zeros[t.name] = t.zero  # (a tuple of three: the config made it)
+        assert device.port is not None  # (the config gives a real device its port)
         return cls(device.name, device.serial, device.protocol, device.port.url, models, zeros)
 
     def to_metadata(self) -> dict:

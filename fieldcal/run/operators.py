@@ -129,9 +129,10 @@ class ReplayOperator(Operator):
         self.pacer = pacer if pacer is not None else Pacer(speed or 0.0)
 
     def next_moves(self, run: Conductor):
-        kind, item = next(self.items, (None, None))
-        if kind is None:
+        found = next(self.items, None)
+        if found is None:
             return None  # the end of the capture
+        kind, item = found
         if kind == "chunk":
             return [Feed(item)]
         if kind == "action":

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fieldcal.run.conductor import Conductor, Reporter
+from fieldcal.run.conductor import Conductor, Operator, Reporter
 from fieldcal.run.environment import compare_parameters
 from fieldcal.run.operators import NoBench, ReplayOperator
 from fieldcal.run.outcome import Outcome, Status
@@ -88,6 +88,6 @@ def resolve_session(directory: str | Path, method: str | None = None):
 
     reader = SessionReader(directory)
     spec = RunSpec.from_metadata(reader.start)
-    conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), None)
+    conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), Operator())  # (no loop is run)
     conductor.engine.restore(completed_records(reader))
     return conductor.solve()

@@ -25,7 +25,7 @@ from fieldcal.procedure.engine import EngineSettings
 from fieldcal.model import params_from_k
 from fieldcal.procedure.positions import Procedure, parse_procedure
 from fieldcal.procedure.stillness import StillnessSettings
-from fieldcal.run.conductor import Conductor, Reporter
+from fieldcal.run.conductor import Bench, Conductor, Reporter
 from fieldcal.run.operators import OperatorScript, ScriptedOperator
 from fieldcal.run.outcome import Outcome
 from fieldcal.run.recorder import SessionRecorder
@@ -162,6 +162,7 @@ class RunSpec:
         from fieldcal.run.livedevice import ANGULAR_RATE_TRIAD, SPECIFIC_FORCE_TRIAD
 
         live = self.live
+        assert live is not None  # (called for a live device's run)
         acc, gyro = live.models[SPECIFIC_FORCE_TRIAD], live.models[ANGULAR_RATE_TRIAD]
         return EngineSettings(
             rate_hz=self.rate_hz, on_motion=self.on_motion,
@@ -232,6 +233,7 @@ def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool =
     """``serial``: reach the simulated device only through bytes on a pty, as hardware would be."""
     settings = spec.engine_settings()  # bad settings fail before any file
     recorder = SessionRecorder.create(out, spec.session_metadata("pty" if serial else "in-process"))
+    bench: Bench
     if serial:
         from fieldcal.run.serialbench import SerialBench
         bench = SerialBench(spec, tap=recorder.raw)

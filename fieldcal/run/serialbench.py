@@ -39,6 +39,7 @@ class SerialBench:
                                    max_buffered_bytes=int(2 * spec.rate_hz * 54)).start()
         time.sleep(0.05)  # the port is open (and flushed) before the device starts talking
         self.devices.start()
+        assert self.devices.table_url is not None  # (served: table_protocol is given above)
         self.table = open_table("ascii", self.devices.table_url, timeout_s=2.0)
         self.attitude = np.eye(3)
         self._ready: deque = deque()

@@ -65,7 +65,7 @@ def plan_procedure(procedure: Procedure, rate_hz: float, rng: np.random.Generato
 
 
 def simulate_averages(plan: Plan, device: dict[str, TriadTruth], station: Station,
-                      rate_hz: float = 250.0, seed: int = 0,
+                      rate_hz: float = 250.0, seed: int | np.random.SeedSequence = 0,
                       progress=None) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Run the simulator over the plan; per-triad (n_windows, 3) means and the static table angles.
 

@@ -37,7 +37,7 @@ class ResumePoint:
     dropped: tuple[int, ...] = ()  # the completed steps not kept (measured again), if any
 
     def to_dict(self) -> dict:
-        doc = {"completed_steps": list(self.completed_steps), "skipped": list(self.skipped)}
+        doc: dict[str, object] = {"completed_steps": list(self.completed_steps), "skipped": list(self.skipped)}
         if self.why:
             doc["why"] = self.why
         if self.dropped:

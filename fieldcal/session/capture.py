@@ -481,6 +481,7 @@ def _read_record(fh, doc: dict, columns: tuple[Column, ...], path: Path, line: i
             temperature = a
         else:
             extras[col.name] = a
+    assert t is not None  # (a descriptor's first column is the time: checked by the scan)
     return SampleChunk(t=t, triads=triads, temperature=temperature, extras=extras)
 
 

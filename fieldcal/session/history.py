@@ -93,5 +93,5 @@ def previous_calibration(sessions: Path, device_name: str | None, device_serial:
             candidates.append((stamp, str(path), pf))
     if not candidates:
         return None, unreadable
-    _, path, pf = max(candidates)
-    return PreviousCalibration(Path(path), pf, recorded_check(Path(path))), unreadable
+    _, newest, pf = max(candidates)
+    return PreviousCalibration(Path(newest), pf, recorded_check(Path(newest))), unreadable

@@ -6,6 +6,12 @@ submodule such as ``fieldcal.solvers.methods`` does not pay for the solvers.
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # what the names below are, for static tools (at run time: loaded on first use)
+    from fieldcal.solvers.classic import solve_classic
+    from fieldcal.solvers.norm import CalibrationError, solve_norm
+    from fieldcal.solvers.problems import RateNormProblem, StaticNormProblem
 
 _HOMES = {
     "solve_classic": "classic", "CalibrationError": "norm", "solve_norm": "norm",

@@ -19,7 +19,8 @@ def window_indices(windows: list[Window], kind: str) -> list[int]:
 
 
 def build_problem(name: str, kind: str, output_unit: str, windows: list[Window],
-                  means: np.ndarray, station: Station, position_ids) -> tuple[object, list[int]]:
+                  means: np.ndarray, station: Station,
+                  position_ids) -> tuple[StaticNormProblem | RateNormProblem, list[int]]:
     """The problem for one triad, and the window order of its ``data`` (for covariances)."""
     static = window_indices(windows, STATIC)
     if kind == SPECIFIC_FORCE:
@@ -36,8 +37,9 @@ def build_problem(name: str, kind: str, output_unit: str, windows: list[Window],
     if [windows[i].position for i in minus] != [windows[i].position for i in plus]:
         raise ValueError(f"{name}: every +rate step needs a -rate step on the same mount")
     problem = RateNormProblem(
-        plus=means[plus], minus=means[minus], table_rate=[windows[i].table_rate for i in plus],
-        static=means[static], static_step=[step_of_position.get(windows[i].position, -1) for i in static],
+        plus=means[plus], minus=means[minus], table_rate=np.array([windows[i].table_rate for i in plus]),
+        static=means[static], static_step=np.array([step_of_position.get(windows[i].position, -1) for i in static],
+                                                   dtype=int),
         earth_rate=EARTH_RATE, earth_rate_vertical=station.earth_rate_vertical, name=name,
         output_unit=output_unit,
         step_labels=tuple(f"position {position_ids[windows[i].position]} rate" for i in plus),

@@ -271,7 +271,7 @@ class RateNormProblem:
 
     def initial(self) -> np.ndarray:
         if len(self.plus) < 6 and len(self.single):
-            radius = np.mean(np.abs(self.single_rate + self.earth_rate_vertical))
+            radius = float(np.mean(np.abs(self.single_rate + self.earth_rate_vertical)))
             return fit_offset_ellipsoid(self.single, radius)
         half_diff = 0.5 * (self.plus - self.minus)
         K = fit_centred_ellipsoid(half_diff, self.table_rate)

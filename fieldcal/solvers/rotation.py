@@ -97,7 +97,10 @@ def _bit_reversed(n: int) -> np.ndarray:
     """The bit-reversal permutation of range(n), n a power of two."""
     bits = n.bit_length() - 1
     i = np.arange(n)
-    return sum(((i >> b) & 1) << (bits - 1 - b) for b in range(bits)) if bits else i
+    out = np.zeros_like(i)
+    for b in range(bits):  # (log2 n passes, each over the whole array)
+        out |= ((i >> b) & 1) << (bits - 1 - b)
+    return out if bits else i
 
 
 def _compose(q):
@@ -405,7 +408,7 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
     scales = np.asarray(scales, dtype=float)
     spans = np.asarray(spans, dtype=int).reshape(-1, 2)
     mine = motions is not None and motions.t is t and motions.raw is raw and np.array_equal(motions.spans, spans)
-    steps = motions.steps(b0) if mine else None
+    steps = motions.steps(b0) if mine and motions is not None else None
     if steps is None or not np.array_equal(steps.offset, b0):
         steps = _Steps(raw, t, spans, offset=b0)
     up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
@@ -653,9 +656,10 @@ def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side
     cov = np.block([[cov, np.zeros((2 * m, n_side))], [np.zeros((n_side, 2 * m)), np.eye(n_side)]])
     if noise.bias_sigma is not None and not start.estimate_bias:
         G = J_start[:, :3]
-        if model.extra is not None:
+        model_extra = model.extra
+        if model_extra is not None:
             def extra(b):
-                return np.atleast_1d(np.asarray(model.extra(K_inv0, b.copy()), dtype=float))
+                return np.atleast_1d(np.asarray(model_extra(K_inv0, b.copy()), dtype=float))
             G = np.vstack([G, _jacobian(extra, start.b0, 1e-6 * np.abs(np.diag(start.K0)))])
         cov += G @ np.diag(model.sigma_b**2) @ G.T
     try:
