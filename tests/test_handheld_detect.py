@@ -1,6 +1,7 @@
 """The hand-held recording simulator and the static-pose detector, against the simulator's truth."""
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
@@ -9,11 +10,16 @@ from scipy.spatial.transform import Rotation
 
 from drivers.sim.handheld import (CONSUMER_NOISE, SPREAD_UP, handheld_truth, simulate_handheld,
                                   to_text)
-from fieldcal.recording.detect import (DetectionError, DetectorSettings, check_spread, find_poses,
-                                       distinct_poses, noise_level, pose_candidates, require_poses, true_runs,
-                                       window_variances)
+from fieldcal.recording.detect import (DetectionError, DetectorSettings, check_spread, distinct_poses,
+                                       noise_level, pose_candidates, require_poses, true_runs, window_variances)
 
 SETTINGS = DetectorSettings(init_rest_s=30.0)  # the simulator starts with 30 s still
+
+
+def find_poses(acc, rate_hz, settings, multiple, noise=None, zero=None, sensitivity=None, gyro=None):
+    """The poses found at one threshold multiple alone (the calibration tries several)."""
+    return pose_candidates(acc, rate_hz, replace(settings, multiples=(multiple,)), zero, sensitivity, gyro,
+                           noise)[0]
 
 
 @cache

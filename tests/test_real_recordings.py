@@ -17,9 +17,10 @@ from fieldcal.paramfile import load
 from fieldcal.recording.calibrate import (ALIGNED_PROTOCOL, RecordingSettings, UnknownPlace, _solve_static,
                                           calibrate_recording)
 from fieldcal.recording.candidates import detect_candidates
-from fieldcal.recording.detect import DetectionError, DetectorSettings, find_poses, interval_means, pose_candidates
+from fieldcal.recording.detect import DetectionError, DetectorSettings, interval_means, pose_candidates
 from fieldcal.recording.importer import import_recording
 from fieldcal.solvers.norm import SCREEN
+from test_handheld_detect import find_poses
 
 REAL = Path(__file__).parent / "data" / "real"
 IMU_TK_GRAVITY = 9.81744  # m/s^2, what imu_tk's example app uses for this recording

@@ -217,9 +217,10 @@ def test_documents_actions_and_their_interleaving(tmp_path):
     assert [e["i"] for e in r.events()] == list(range(6))
     [step] = r.steps()
     assert step["mean"] == [0.1, -0.0, 9.81] and np.signbit(step["mean"][1]) and np.isnan(step["bad"])
-    assert r.last_checkpoint() == {"rng": np.random.default_rng(6).bit_generator.state, "step": 8}
+    checkpoint = [doc["data"] for doc in r.documents("checkpoint")][-1]  # the last one
+    assert checkpoint == {"rng": np.random.default_rng(6).bit_generator.state, "step": 8}
     rng = np.random.default_rng()
-    rng.bit_generator.state = r.last_checkpoint()["rng"]  # a checkpointed RNG state restores exactly
+    rng.bit_generator.state = checkpoint["rng"]  # a checkpointed RNG state restores exactly
     assert rng.random() == np.random.default_rng(6).random()
     assert r.stopped and r.stop_reason == "aborted"
     # actions record the chunk they came after
@@ -302,7 +303,7 @@ def test_parameters_are_saved_into_the_session_and_noted(tmp_path):
     loaded = load(r.parameters_path)
     assert np.array_equal(loaded.triad("accelerometer").K, pf.triad("accelerometer").K)
     import hashlib
-    assert r.parameters_sha256 == hashlib.sha256(r.parameters_path.read_bytes()).hexdigest()
+    assert list(r.documents("parameters"))[-1]["sha256"] == hashlib.sha256(r.parameters_path.read_bytes()).hexdigest()
     assert sorted(p.name for p in (tmp_path / "s").iterdir()) == [
         "lock", "log.jsonl", "parameters-001.yaml", "parameters-002.yaml", "parameters.yaml", "samples.bin"]
     assert (tmp_path / "s" / "parameters.yaml").read_bytes() == r.parameters_path.read_bytes()

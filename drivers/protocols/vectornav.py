@@ -83,14 +83,6 @@ _NUMERIC[np.frombuffer(b"0123456789+-.eE,", dtype=np.uint8)] = True
 _NUMERIC_BYTES = b"0123456789+-.eE,"
 
 
-def checksum8(body: bytes) -> int:
-    """The manual's 8-bit checksum of the bytes between ``$`` and ``*``."""
-    x = 0
-    for b in body:
-        x ^= b
-    return x
-
-
 def crc16_vn(body: bytes) -> int:
     """The manual's 16-bit CRC (UM001 §3.8.3 C snippet, transcribed)."""
     crc = 0

@@ -74,19 +74,6 @@ class TableState:
 
 
 @runtime_checkable
-class SerialPort(Protocol):
-    """The part of ``serial.Serial`` the drivers use (``read_until`` preferred, ``read`` enough)."""
-
-    timeout: float | None
-
-    def write(self, data: bytes) -> int | None: ...
-
-    def read(self, size: int = 1) -> bytes: ...
-
-    def close(self) -> None: ...
-
-
-@runtime_checkable
 class RateTable(Protocol):
     """A single-axis rate table."""
 

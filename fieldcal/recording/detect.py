@@ -16,14 +16,14 @@ API (``acc``: (n, 3) accelerometer samples in any unit, ``rate_hz``: sample rate
   within twice the 10th percentile of the window statistic, i.e. every still window and no
   moving one, whose mean variance is the white noise (each window's own mean removed, so a
   bias that shifts between poses does not count as noise).
-* ``static_intervals(acc, rate_hz, noise, multiple, settings) -> (m, 2)``: [start, stop) sample
-  indices, the initial rest first. The long window finds the static runs; each edge is then placed
+* the static intervals (inside ``pose_candidates``): [start, stop) sample indices, the initial
+  rest first. The long window finds the static runs; each edge is then placed
   by a short window (``edge_window_s``) on the deviation from the run's own mean, which sees the
   start of a motion far sooner than the long window's variance does, and backed off by ``guard_s``
   so that no moving sample is kept: a few still samples lost cost little, a turn cut short spoils
   the gyro calibration that integrates between poses.
-* ``find_poses(acc, rate_hz, settings, multiple, noise=None, zero=None, sensitivity=None) -> Poses``
-  and ``pose_candidates(...) -> list[Poses]`` (one per multiple).
+* ``pose_candidates(acc, rate_hz, settings, zero=None, sensitivity=None, gyro=None, noise=None)
+  -> list[Poses]``: the poses at each of ``settings.multiples``.
 * ``up_directions(means, zero=None, sensitivity=None)``: gravity direction per pose in body axes.
   With ``zero`` (output at zero input, e.g. 32768 counts) it is (mean - zero) / sensitivity; without
   it, the centre of the sphere fitted to the pose means (|m - c| = r, linear least squares) is the
@@ -312,12 +312,6 @@ class _EdgeSignals:
         return np.hstack([m(intervals) for m in self.means])
 
 
-def static_intervals(acc: np.ndarray, rate_hz: float, noise: NoiseLevel, multiple: float,
-                     settings: DetectorSettings, gyro: np.ndarray | None = None) -> np.ndarray:
-    return _static_intervals(_EdgeSignals.of(acc, rate_hz, noise, settings, gyro), rate_hz, noise, (multiple,),
-                             settings)[0][0]
-
-
 def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, multiples,
                       settings: DetectorSettings) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per threshold multiple: the static intervals, and the durations (s) of the still stretches
@@ -423,16 +417,6 @@ class PrefixMeans:
 def interval_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     """Mean of ``values`` (n, 3) over each [start, stop) of ``intervals`` (m, 2), vectorised."""
     return PrefixMeans(values)(intervals)
-
-
-def find_poses(acc: np.ndarray, rate_hz: float, settings: DetectorSettings, multiple: float,
-               noise: NoiseLevel | None = None, zero=None, sensitivity=None,
-               gyro: np.ndarray | None = None) -> Poses:
-    acc = np.asarray(acc, dtype=float)
-    noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
-    signals = _EdgeSignals.of(acc, rate_hz, noise, settings, gyro)
-    return _poses(signals, settings, multiple, zero, sensitivity,
-                  *_static_intervals(signals, rate_hz, noise, (multiple,), settings)[0])
 
 
 def _poses(signals: _EdgeSignals, settings, multiple, zero, sensitivity, intervals, short) -> Poses:

@@ -945,7 +945,7 @@ class SessionReader:
         self.stopped, self.stop_reason = _run_state(self._scan.docs)
 
     @property
-    def start_document(self) -> dict:
+    def start_document(self) -> dict:  # kept: the start whole, its schema saying which format wrote it
         return self._scan.docs[0]
 
     @property
@@ -968,17 +968,13 @@ class SessionReader:
     def events(self) -> list[dict]:
         return self._data_of("event")
 
-    def actions(self) -> list[dict]:
+    def actions(self) -> list[dict]:  # kept: what the operator did, the TUI tests' check of a run
         return self._data_of("action")
 
     def steps(self) -> list[dict]:
         return self._data_of("step")
 
-    def last_checkpoint(self) -> dict | None:
-        """The data of the last checkpoint (its document, with after_chunk, via documents())."""
-        found = self._data_of("checkpoint")
-        return found[-1] if found else None
-
+    # n_chunks, n_samples, raw_names: kept, what a session holds, checked against the writer's counts
     @property
     def n_chunks(self) -> int:
         return sum(1 for _ in self.documents("chunk"))
@@ -1044,8 +1040,3 @@ class SessionReader:
             return None
         path = self.directory / docs[-1]["file"]
         return path if path.is_file() else None
-
-    @property
-    def parameters_sha256(self) -> str | None:
-        docs = list(self.documents("parameters"))
-        return docs[-1]["sha256"] if docs else None
