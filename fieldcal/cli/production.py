@@ -1,8 +1,7 @@
 """The production commands: ``fieldcal check`` (acceptance limits), ``export``, ``apply``,
 ``units``, ``history``, ``registry rebuild`` and ``certificate`` (``resolve``: its arguments here, the
-command in cli.resolve, loaded only when it runs);
-``--spec`` for the commands that calibrate, and ``--registry`` (an SQLite file or a PostgreSQL
-URL) for every command that records or reads calibrations."""
+command in cli.resolve, loaded only when it runs). The options they share with other commands
+(--spec, --registry, --operator) are in cli.options."""
 from __future__ import annotations
 
 import argparse
