@@ -13,8 +13,7 @@ from fieldcal.paramfile import dump, load
 from fieldcal.procedure.positions import load_procedure, parse_procedure
 from fieldcal.run.environment import compare_parameters
 from fieldcal.run.replay import replay_session, resolve_session
-from fieldcal.run.runner import OperatorScript, RunSpec, resume_headless, run_headless
-from fieldcal.run.steps import steps_on_record
+from fieldcal.run.runner import OperatorScript, RunSpec, open_run, resume_headless, run_headless
 from fieldcal.session.capture import SessionReader
 
 from crashes import cut_before_step_record
@@ -65,17 +64,17 @@ def test_an_old_resumed_headless_session_replays_and_resolves_to_its_parameter_f
     recorded = load(session / "parameters.yaml")
     # Recorded before sessions named their numeric environment, and before the Powell search
     # was re-fed (issue 12): compared parameter by parameter in units of each recorded σ.
-    _, pf, samples = replay_session(session)
+    _, pf, samples = replay_session(open_run(session))
     assert _as_recorded(pf, recorded), _shift_in_sigma(pf, recorded)
     assert samples == SessionReader(session).n_samples
-    _, resolved = resolve_session(session)
+    _, resolved = resolve_session(open_run(session))
     assert dump(resolved) == dump(pf)  # the re-solve from the log's averages is the replay's result
     found = compare_parameters(resolved, (session / "parameters.yaml").read_bytes(), None)
     assert "does not record its numeric environment" in found.text
 
 
 def test_old_tui_steps_read_with_their_separate_checkpoints():
-    steps = steps_on_record(SessionReader(GOLDEN / "tui-quit"))
+    steps = open_run(GOLDEN / "tui-quit").steps
     assert [s.record.step for s in steps] == [0, 1, 2, 3, 4, 5]
     assert all(s.skipped == () and s.bench is not None and "sim" in s.bench for s in steps)
 
@@ -84,7 +83,7 @@ def test_an_old_tui_session_quit_half_way_resumes_to_the_uninterrupted_run(tmp_p
     """Defect 1 of issue 10 on a session the old terminal UI wrote (it died with KeyError 'skipped')."""
     session = tmp_path / "tui-quit"
     shutil.copytree(GOLDEN / "tui-quit", session)
-    resumed = resume_headless(session)
+    resumed = resume_headless(open_run(session))
     # The old session's simulator drew its noise one normal number per process ("bank"): the
     # uninterrupted run to compare with draws it the same way.
     whole = run_headless(RunSpec(golden_procedure(), STATION, seed=8, rate_hz=20.0,
@@ -106,7 +105,7 @@ def test_an_old_tui_session_killed_between_step_and_checkpoint_is_refused_in_one
     log.write_text(text[:text.rindex('{"seq"', 0, text.rindex('"type":"checkpoint"'))])
     before = log.read_bytes()
     with pytest.raises(ValueError, match="step 6: the session holds no bench state"):
-        resume_headless(session)
+        resume_headless(open_run(session))
     assert log.read_bytes() == before  # refused before anything was written
 
 
@@ -145,8 +144,8 @@ def test_a_tui_run_quit_half_way_resumes_headless_to_the_uninterrupted_run(tmp_p
     source = sink.source = SimSource(golden_spec(12), sink, speed=0, session_dir=tmp_path / "tui")
     quit_ = source.run()
     assert quit_.status == "stopped" and "fieldcal resume" in quit_.message
-    assert len(steps_on_record(SessionReader(tmp_path / "tui"))) == 7
-    resumed = resume_headless(tmp_path / "tui")
+    assert len(open_run(tmp_path / "tui").steps) == 7
+    resumed = resume_headless(open_run(tmp_path / "tui"))
     whole = run_headless(golden_spec(12), tmp_path / "whole")
     assert resumed.status == "completed" and resumed.completed == 18
     assert resumed.parameters.read_bytes() == whole.parameters.read_bytes()
@@ -156,7 +155,7 @@ def _replay_in_the_tui(session: Path):
     from fieldcal.tui.source import ReplaySource
 
     sink = KeySink()
-    source = sink.source = ReplaySource(session, sink, speed=0)
+    source = sink.source = ReplaySource(open_run(session), sink, speed=0)
     return source.run(), sink
 
 
@@ -167,7 +166,7 @@ def test_the_tui_replay_of_a_killed_and_resumed_session_is_identical(tmp_path):
                          tmp_path / "s")
     expected = whole.parameters.read_bytes()
     cut_before_step_record(whole.session, 6)
-    assert resume_headless(whole.session).parameters.read_bytes() == expected
+    assert resume_headless(open_run(whole.session)).parameters.read_bytes() == expected
     outcome_here, sink_here = _replay_in_the_tui(whole.session)
     outcome, sink = _replay_in_the_tui(whole.session)
     assert outcome.status == "completed" and outcome.identical is True
@@ -192,12 +191,12 @@ def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_p
     recorded_env = SessionReader(session).start["numeric_environment"]
     assert recorded_env == environment.numeric_environment()
     assert {"numpy", "scipy", "blas", "machine"} <= set(recorded_env)
-    outcome, _ = replay(session)
+    outcome, _ = replay(open_run(session))
     assert outcome.identical is True and "byte for byte" in outcome.comparison
 
     elsewhere = {**recorded_env, "blas": "another BLAS 9.9", "machine": "aarch64"}
     monkeypatch.setattr(environment, "numeric_environment", lambda: elsewhere)
-    outcome, _ = replay(session)
+    outcome, _ = replay(open_run(session))
     assert outcome.identical is True
     assert "numeric environment differs" in outcome.comparison and "aarch64" in outcome.comparison
     assert "within 0.001σ" in outcome.comparison
@@ -210,11 +209,11 @@ def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_p
     changed = dataclasses.replace(pf, triads=tuple(moved if t.name == acc.name else t for t in pf.triads))
     from fieldcal.paramfile import save
     save(changed, noted)
-    outcome, _ = replay(session)
+    outcome, _ = replay(open_run(session))
     assert outcome.identical is False
     assert "accelerometer bias_x off by 0.5σ" in outcome.comparison
     monkeypatch.setattr(environment, "numeric_environment", lambda: recorded_env)
-    outcome, _ = replay(session)
+    outcome, _ = replay(open_run(session))
     assert outcome.identical is False and "compared byte for byte" in outcome.comparison
 
 
@@ -261,7 +260,7 @@ def test_a_restart_during_a_rate_step_stops_the_table_before_the_unit_is_placed_
     from fieldcal.run.conductor import Conductor, Restart
     from fieldcal.run.operators import ScriptedOperator
     from fieldcal.run.runner import SimulatedBench
-    from fieldcal.run.steps import ResumePoint
+    from fieldcal.session.record import ResumePoint
 
     procedure = parse_procedure("""name: t
 dwell_s: 5
