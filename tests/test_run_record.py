@@ -230,3 +230,41 @@ def test_the_genuine_format_1_session_still_reads(tmp_path):
     refuse_a_later_writer(reader)  # no exception: written before 0.2.0
     assert reader.start_document["schema"] == "fieldcal-session/1"
     assert np.isfinite(next(reader.chunks()).t).all()
+
+
+# --------------------------------------------------------------------------------------------
+# One scan: every command reads a session's log once
+
+
+def _unfinished(session: Path) -> Path:
+    from crashes import cut_before_step_record
+
+    cut_before_step_record(session, 5)  # killed before its 6th step document
+    return session
+
+
+@pytest.mark.parametrize("command, prepare", [
+    (lambda s, t: ["solve", str(s)], None),
+    (lambda s, t: ["resolve", str(s), "--method", "lsq", *_registry(t)], None),
+    (lambda s, t: ["replay", str(s), "--quiet", *_registry(t)], None),
+    (lambda s, t: ["certificate", str(s), "--out", str(t / "c.html"), "--no-pdf"], None),
+    (lambda s, t: ["allan", str(s), "--plot-dir", str(t / "plots")], None),
+    (lambda s, t: ["resume", str(s), "--quiet"], _unfinished),
+], ids=["solve", "resolve", "replay", "certificate", "allan", "resume"])
+def test_every_command_reads_the_session_log_once(pristine_session, tmp_path, monkeypatch, capsys,
+                                                  command, prepare):
+    from fieldcal.session import capture
+
+    session = _copy(pristine_session, tmp_path / "s")
+    if prepare is not None:
+        prepare(session)
+    scans = []
+    scan = capture._scan
+    monkeypatch.setattr(capture, "_scan", lambda d, verb, **kw: scans.append((Path(d).resolve(), verb))
+                        or scan(d, verb, **kw))
+    assert main(command(session, tmp_path)) == 0, capsys.readouterr()
+    reads = [verb for d, verb in scans if d == session.resolve() and verb == "ignored"]
+    assert len(reads) == 1, scans
+    # a command that writes into the session reopens it once more, under its lock, to append
+    assert [verb for d, verb in scans if verb != "ignored"] == \
+        (["cut"] if command(session, tmp_path)[0] in ("resolve", "resume") else [])
