@@ -268,3 +268,59 @@ def test_every_command_reads_the_session_log_once(pristine_session, tmp_path, mo
     # a command that writes into the session reopens it once more, under its lock, to append
     assert [verb for d, verb in scans if verb != "ignored"] == \
         (["cut"] if command(session, tmp_path)[0] in ("resolve", "resume") else [])
+
+
+# --------------------------------------------------------------------------------------------
+# The record's typed view
+
+
+def test_the_record_says_who_wrote_each_parameter_file_and_from_which_averages(pristine_session, tmp_path, capsys):
+    from fieldcal.run.runner import open_run
+
+    session = _copy(pristine_session, tmp_path / "s")
+    assert main(["resolve", str(session), "--method", "lsq", *_registry(tmp_path)]) == 0
+    record = open_run(session)
+    run, resolve = record.parameter_files
+    assert (run.file, run.written_by) == ("parameters-001.yaml", "run")
+    assert (resolve.file, resolve.written_by) == ("parameters-002.yaml", "re-solve")
+    assert record.run_parameters is run and record.current_parameters is resolve
+    assert record.resolved_after(run) == [resolve]
+    assert (run.method(), resolve.method()) == ("powell", "lsq")
+    # both solved from the same step averages: the same input hash, that of the log's averages
+    assert run.input_sha256() == resolve.input_sha256()
+    assert record.stop_reason == "completed" and not record.torn and record.skipped == ()
+    assert [r.step for r in record.completed] == list(range(18))
+    assert all(d.line > 1 and d.bench is not None for d in record.steps)
+
+
+def _nudge_the_first_average(session: Path, ulps: int) -> None:
+    docs = _lines(session)
+    w = docs[_first_step(docs)]["data"]["windows"][0]
+    x = w["means"]["accelerometer"][0]
+    for _ in range(ulps):
+        x = float(np.nextafter(x, np.inf))
+    w["means"]["accelerometer"][0] = x
+    _write(session, docs)
+
+
+def test_replay_compares_averages_bit_for_bit_here_and_within_the_tolerance_elsewhere(
+        pristine_session, tmp_path, monkeypatch):
+    from fieldcal.run import environment, replay as replay_module
+    from fieldcal.run.replay import replay
+    from fieldcal.run.runner import open_run
+    from fieldcal.session import SessionError
+
+    session = _copy(pristine_session, tmp_path / "s")
+    _nudge_the_first_average(session, 4)  # a few units in the last place: summation order elsewhere
+    with pytest.raises(SessionError, match="compared bit for bit"):
+        replay(open_run(session))
+    recorded = open_run(session).start["numeric_environment"]
+    elsewhere = {**recorded, "blas": "another BLAS 9.9"}
+    monkeypatch.setattr(replay_module, "numeric_environment", lambda: elsewhere)
+    monkeypatch.setattr(environment, "numeric_environment", lambda: elsewhere)
+    outcome, _ = replay(open_run(session))  # within AVERAGES_RTOL: vouched for
+    assert outcome.identical is True and "within" in outcome.comparison
+    forged = _copy(pristine_session, tmp_path / "forged")
+    _forge_an_average(forged)  # 0.01 mg: far outside the tolerance, in any environment
+    with pytest.raises(SessionError, match=f"within {replay_module.AVERAGES_RTOL:g} relative"):
+        replay(open_run(forged))

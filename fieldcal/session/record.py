@@ -108,10 +108,18 @@ class ParameterFileNote:
                                "changed after it was written", str(self.path), self.line)
         return data
 
-    def method(self) -> str:
+    def provenance(self):
+        """The file's provenance (``fieldcal.paramfile.Provenance``: method, ``input_sha256`` of
+        the averages it was solved from, station, device, ...), the file checked against the log."""
         from fieldcal.paramfile import loads
 
-        return loads(self.read_bytes().decode("utf-8"), str(self.path)).provenance.method
+        return loads(self.read_bytes().decode("utf-8"), str(self.path)).provenance
+
+    def method(self) -> str:
+        return self.provenance().method
+
+    def input_sha256(self) -> str:
+        return self.provenance().input_sha256
 
 
 # --------------------------------------------------------------------------------------------
