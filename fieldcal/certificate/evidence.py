@@ -65,7 +65,7 @@ def replayed_residuals(record) -> tuple[dict[str, PositionResiduals], str]:
     from fieldcal.session import SessionError
 
     try:
-        outcome, _ = replay_session_outcome(record)
+        outcome = replay_session_outcome(record)
     except SessionError:
         raise
     except (ValueError, OSError) as exc:

@@ -136,9 +136,8 @@ def cmd_replay(args) -> int:
     if run_file is not None:  # the run's parameter file must be there to compare with: said before replaying
         run_file.read_bytes(check=False)
     torn = warn_if_torn(record)
-    outcome, samples = replay_session_outcome(record, ReplayOperator(record, args.speed),
-                                              printer(sys.stdout, args.quiet))
-    print(f"replayed {samples} samples")
+    outcome = replay_session_outcome(record, ReplayOperator(record, args.speed), printer(sys.stdout, args.quiet))
+    print(f"replayed {outcome.samples} samples")
     if outcome.parameter_file is None:
         print("nothing could be calibrated from this session")
         return 1

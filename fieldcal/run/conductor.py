@@ -326,7 +326,7 @@ class Conductor:
 
     def _outcome(self, status: Status, **kw) -> Outcome:
         return Outcome(status, self.spec.procedure, truth=self.truth(), session=self.session,
-                       completed=len(self.engine.records), skipped=len(self.engine.skipped), **kw)
+                       completed=len(self.engine.records), skipped=len(self.engine.skipped), samples=self.samples, **kw)
 
     def _unfinished(self) -> Outcome:
         """The operator ended the run (quit; the end of a replayed capture) before the procedure did."""

@@ -4,8 +4,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fieldcal.procedure.positions import Procedure
+
+if TYPE_CHECKING:  # the solvers load scipy: typed here, imported where a run concludes
+    from fieldcal.paramfile import ParameterFile
+    from fieldcal.session.history import PreviousCalibration
+    from fieldcal.solvers.solve import UnitSolution
 
 
 class Status(StrEnum):
@@ -20,18 +26,19 @@ class Status(StrEnum):
 class Outcome:
     status: Status
     procedure: Procedure
-    unit: object | None = None  # fieldcal.solvers.solve.UnitSolution
+    unit: UnitSolution | None = None
     truth: dict = field(default_factory=dict)  # triad -> true parameters (simulation)
     session: Path | None = None
     parameters: Path | None = None  # the parameter file written (or, in a replay, the recorded one)
-    parameter_file: object | None = None  # fieldcal.paramfile.ParameterFile solved in this run
+    parameter_file: ParameterFile | None = None  # solved in this run
     replay_of: Path | None = None
     identical: bool | None = None  # replay: the parameter file equals the recorded one
     comparison: str = ""  # replay: how the parameter files were compared, and the verdict
     completed: int = 0
     skipped: int = 0
     message: str = ""
-    previous: object | None = None  # fieldcal.session.history.PreviousCalibration of the same unit
+    previous: PreviousCalibration | None = None  # the same unit's last calibration
+    samples: int = 0  # fed to the engine (a replay: the samples replayed)
 
     @property
     def solved(self) -> bool:

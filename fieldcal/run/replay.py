@@ -65,6 +65,7 @@ def finish_replay(conductor: Conductor, record: RunRecord, outcome: Outcome) -> 
     ended before the procedure did, and how the parameter file compares with the run's.
     A SessionError if the logged step averages are not the samples'."""
     check_averages(record, conductor)
+    outcome.samples = conductor.samples
     note = record.run_parameters
     outcome.replay_of, outcome.session = record.directory, None
     outcome.parameters = note.path if note is not None else None
@@ -105,13 +106,13 @@ def replay(record: RunRecord, operator: ReplayOperator | None = None, subscriber
 
 
 def replay_session_outcome(record: RunRecord, operator: ReplayOperator | None = None,
-                           report=lambda e: None) -> tuple[Outcome, int]:
+                           report=lambda e: None) -> Outcome:
     """Replay (``fieldcal replay``); a capture that ends early or was aborted is solved from the
-    steps it completed. The outcome and the number of samples replayed."""
+    steps it completed (``outcome.samples``: how many were replayed)."""
     outcome, conductor = replay(record, operator, [Reporter(report)])
     if outcome.unit is None:
         outcome.unit, outcome.parameter_file = conductor.solve()
-    return outcome, conductor.samples
+    return outcome
 
 
 def replay_session(record: RunRecord, speed: float | None = None, report=lambda e: None):
@@ -119,8 +120,8 @@ def replay_session(record: RunRecord, speed: float | None = None, report=lambda 
 
     ``speed``: None for as fast as possible, else that many times real (sample) time.
     """
-    outcome, samples = replay_session_outcome(record, ReplayOperator(record, speed), report)
-    return outcome.unit, outcome.parameter_file, samples
+    outcome = replay_session_outcome(record, ReplayOperator(record, speed), report)
+    return outcome.unit, outcome.parameter_file, outcome.samples
 
 
 def recorded_parameters(record: RunRecord) -> bytes | None:
