@@ -221,17 +221,6 @@ def test_a_format_1_session_written_by_a_later_fieldcal_is_refused(pristine_sess
     assert not (session / "parameters-002.yaml").exists()
 
 
-def test_the_genuine_format_1_session_still_reads(tmp_path):
-    from fieldcal.session.legacy import refuse_a_later_writer
-    from fieldcal.session.capture import SessionReader
-
-    golden = Path(__file__).parent / "data" / "session-v1"
-    reader = SessionReader(golden)
-    refuse_a_later_writer(reader)  # no exception: written before 0.2.0
-    assert reader.start_document["schema"] == "fieldcal-session/1"
-    assert np.isfinite(next(reader.chunks()).t).all()
-
-
 # --------------------------------------------------------------------------------------------
 # One scan: every command reads a session's log once
 
