@@ -313,3 +313,20 @@ def test_replay_compares_averages_bit_for_bit_here_and_within_the_tolerance_else
     _forge_an_average(forged)  # 0.01 mg: far outside the tolerance, in any environment
     with pytest.raises(SessionError, match=f"within {replay_module.AVERAGES_RTOL:g} relative"):
         replay(open_run(forged))
+
+
+def test_the_tui_replay_after_a_re_solve_compares_with_the_runs_file_and_names_the_re_solve(
+        pristine_session, tmp_path, capsys):
+    from fieldcal.run.runner import open_run
+    from fieldcal.tui.source import ReplaySource
+    from test_conductor import KeySink
+
+    session = _copy(pristine_session, tmp_path / "s")
+    assert main(["resolve", str(session), "--method", "lsq", *_registry(tmp_path)]) == 0
+    sink = KeySink()
+    source = sink.source = ReplaySource(open_run(session), sink, speed=0)
+    outcome = source.run()
+    assert outcome.identical is True and outcome.parameters == session / "parameters-001.yaml"
+    said = [getattr(i, "text", "") for i in sink.items]
+    assert any("parameters-001.yaml" in t and "byte for byte" in t for t in said), said
+    assert any(t.startswith("re-solved later: parameters-002.yaml (lsq)") for t in said), said

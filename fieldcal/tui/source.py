@@ -408,13 +408,15 @@ class ReplaySource(Source):
         return self.recorded.next_moves(run)
 
     def _ended(self, outcome: Outcome) -> Outcome:
-        from fieldcal.run.replay import finish_replay
+        from fieldcal.run.replay import finish_replay, later_resolves
 
         if self.stopping:  # quit: not the end of the capture
             return super()._ended(outcome)
         outcome = finish_replay(self.conductor, self.record, outcome)
         if outcome.comparison:
             self._items.append(Note(self.conductor.engine.t, outcome.comparison))
+            for line in later_resolves(self.record):
+                self._items.append(Note(self.conductor.engine.t, line))
         return outcome
 
 
