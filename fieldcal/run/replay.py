@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fieldcal.run.conductor import Conductor, Reporter
+from fieldcal.run.conductor import Conductor, Operator, Reporter
 from fieldcal.run.environment import compare_parameters, numeric_environment
 from fieldcal.run.operators import NoBench, ReplayOperator
 from fieldcal.run.outcome import Outcome, Status
@@ -142,6 +142,6 @@ def resolve_session(record: RunRecord, method: str | None = None):
     from dataclasses import replace
 
     spec = record.spec
-    conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), None)
+    conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), Operator())
     conductor.engine.restore(record.completed)
     return conductor.solve()

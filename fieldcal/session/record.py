@@ -55,7 +55,7 @@ class ResumePoint:
     dropped: tuple[int, ...] = ()  # the completed steps not kept (measured again), if any
 
     def to_dict(self) -> dict:
-        doc = {"completed_steps": list(self.completed_steps), "skipped": list(self.skipped)}
+        doc: dict[str, Any] = {"completed_steps": list(self.completed_steps), "skipped": list(self.skipped)}
         if self.why:
             doc["why"] = self.why
         if self.dropped:
