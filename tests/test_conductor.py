@@ -131,12 +131,12 @@ def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_p
     recorded_env = SessionReader(session).start["numeric_environment"]
     assert recorded_env == environment.numeric_environment()
     assert {"numpy", "scipy", "blas", "machine"} <= set(recorded_env)
-    outcome, _ = replay(open_run(session))
+    outcome = replay(open_run(session))
     assert outcome.identical is True and "byte for byte" in outcome.comparison
 
     elsewhere = {**recorded_env, "blas": "another BLAS 9.9", "machine": "aarch64"}
     monkeypatch.setattr(environment, "numeric_environment", lambda: elsewhere)
-    outcome, _ = replay(open_run(session))
+    outcome = replay(open_run(session))
     assert outcome.identical is True
     assert "numeric environment differs" in outcome.comparison and "aarch64" in outcome.comparison
     assert "within 0.001σ" in outcome.comparison
@@ -149,11 +149,11 @@ def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_p
     changed = dataclasses.replace(pf, triads=tuple(moved if t.name == acc.name else t for t in pf.triads))
     from fieldcal.paramfile import save
     save(changed, noted)
-    outcome, _ = replay(open_run(session))
+    outcome = replay(open_run(session))
     assert outcome.identical is False
     assert "accelerometer bias_x off by 0.5σ" in outcome.comparison
     monkeypatch.setattr(environment, "numeric_environment", lambda: recorded_env)
-    outcome, _ = replay(open_run(session))
+    outcome = replay(open_run(session))
     assert outcome.identical is False and "compared byte for byte" in outcome.comparison
 
 

@@ -307,7 +307,7 @@ def test_replay_compares_averages_bit_for_bit_here_and_within_the_tolerance_else
     elsewhere = {**recorded, "blas": "another BLAS 9.9"}
     monkeypatch.setattr(replay_module, "numeric_environment", lambda: elsewhere)
     monkeypatch.setattr(environment, "numeric_environment", lambda: elsewhere)
-    outcome, _ = replay(open_run(session))  # within AVERAGES_RTOL: vouched for
+    outcome = replay(open_run(session))  # within AVERAGES_RTOL: vouched for
     assert outcome.identical is True and "within" in outcome.comparison
     forged = _copy(pristine_session, tmp_path / "forged")
     _forge_an_average(forged)  # 0.01 mg: far outside the tolerance, in any environment

@@ -12,7 +12,7 @@ import pytest
 
 from fieldcal.paramfile import dump, load
 from fieldcal.run.environment import compare_parameters
-from fieldcal.run.replay import replay_session, resolve_session
+from fieldcal.run.replay import replay, resolve_session
 from fieldcal.run.runner import OperatorScript, RunSpec, open_run, resume_headless, run_headless
 from fieldcal.session.capture import LOG, SessionReader, SessionWriter
 
@@ -32,7 +32,8 @@ def test_an_old_resumed_headless_session_replays_and_resolves_to_its_parameter_f
     recorded = load(session / "parameters.yaml")
     # Recorded before sessions named their numeric environment, and before the Powell search
     # was re-fed (issue 12): compared parameter by parameter in units of each recorded σ.
-    _, pf, samples = replay_session(open_run(session))
+    replayed = replay(open_run(session))
+    pf, samples = replayed.parameter_file, replayed.samples
     assert _as_recorded(pf, recorded), _shift_in_sigma(pf, recorded)
     assert samples == SessionReader(session).n_samples
     _, resolved = resolve_session(open_run(session))

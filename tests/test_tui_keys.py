@@ -85,7 +85,7 @@ async def test_abort_asks_first_and_any_other_key_carries_on(tmp_path):
 
 @run_async
 async def test_a_skip_is_confirmed_and_undone_and_the_run_completes_all_positions(tmp_path):
-    from fieldcal.run.replay import replay_session
+    from fieldcal.run.replay import replay
     from fieldcal.session.capture import SessionReader
     from fieldcal.tui.screens.results import ResultsScreen
 
@@ -118,7 +118,7 @@ async def test_a_skip_is_confirmed_and_undone_and_the_run_completes_all_position
     assert [a["action"] for a in SessionReader(tmp_path / "s").actions()] == \
         ["skip", "unskip", "ready", "ready", "ready"]
     replayed = []  # the recorded unskip replays to the same events
-    replay_session(open_run(tmp_path / "s"), report=lambda e: replayed.append(e.to_dict()))
+    replay(open_run(tmp_path / "s"), report=lambda e: replayed.append(e.to_dict()))
     assert replayed == SessionReader(tmp_path / "s").events()[:len(replayed)]
     assert [e["event"] for e in replayed].count("step_complete") == 3
 

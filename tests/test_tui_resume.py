@@ -21,7 +21,7 @@ from drivers.sim.serve import SimulatedDevices
 from fieldcal.cli.tui import live_spec
 from fieldcal.config import load_config
 from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart, went_back
-from fieldcal.run.replay import replay_session
+from fieldcal.run.replay import replay
 from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.run.runner import open_run
@@ -269,7 +269,8 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
     assert [r.step for r in open_run(reader.directory).completed] == [0, 1]
     # Replayed without the devices: the recorded resume restarts the engine from no step.
     replayed = []
-    unit, _, samples = replay_session(open_run(tmp_path / "session"), report=replayed.append)
+    again = replay(open_run(tmp_path / "session"), report=replayed.append)
+    unit, samples = again.unit, again.samples
     assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
     assert unit.failures == app.outcome.unit.failures
 
@@ -457,7 +458,8 @@ async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_agai
     assert open_run(reader.directory).steps[0].record.to_dict() != \
         {k: v for k, v in steps[0].items() if k not in ("skipped", "bench")}
     replayed = []
-    unit, _, samples = replay_session(open_run(tmp_path / "session"), report=replayed.append)
+    again = replay(open_run(tmp_path / "session"), report=replayed.append)
+    unit, samples = again.unit, again.samples
     assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
     assert unit.failures == app.outcome.unit.failures
 

@@ -61,11 +61,11 @@ def replayed_residuals(record) -> tuple[dict[str, PositionResiduals], str]:
     A session the replay refuses (its step averages not its samples', damaged data) is refused
     here too: a SessionError, never a certificate with a note."""
     from fieldcal.residuals import per_position
-    from fieldcal.run.replay import replay_session_outcome
+    from fieldcal.run.replay import replay
     from fieldcal.session import SessionError
 
     try:
-        outcome = replay_session_outcome(record)
+        outcome = replay(record)
     except SessionError:
         raise
     except (ValueError, OSError) as exc:

@@ -126,7 +126,7 @@ def _resume_live(args, record) -> tuple:
 def cmd_replay(args) -> int:
     from fieldcal.run.operators import ReplayOperator
     from fieldcal.run.progress import printer
-    from fieldcal.run.replay import later_resolves, replay_session_outcome
+    from fieldcal.run.replay import later_resolves, replay
     from fieldcal.session.output import check_output_path, save_parameter_file
 
     if args.out:  # never into a session, never over a file without --force: said before replaying
@@ -136,7 +136,7 @@ def cmd_replay(args) -> int:
     if run_file is not None:  # the run's parameter file must be there to compare with: said before replaying
         run_file.read_bytes(check=False)
     torn = warn_if_torn(record)
-    outcome = replay_session_outcome(record, ReplayOperator(record, args.speed), printer(sys.stdout, args.quiet))
+    outcome = replay(record, ReplayOperator(record, args.speed), printer(sys.stdout, args.quiet))
     print(f"replayed {outcome.samples} samples")
     if outcome.parameter_file is None:
         print("nothing could be calibrated from this session")

@@ -99,29 +99,15 @@ def later_resolves(record: RunRecord) -> list[str]:
     return lines
 
 
-def replay(record: RunRecord, operator: ReplayOperator | None = None, subscribers=()) -> tuple[Outcome, Conductor]:
-    """Replay to the end of the capture."""
-    conductor = replay_conductor(record, operator, subscribers)
-    return finish_replay(conductor, record, conductor.run()), conductor
-
-
-def replay_session_outcome(record: RunRecord, operator: ReplayOperator | None = None,
-                           report=lambda e: None) -> Outcome:
-    """Replay (``fieldcal replay``); a capture that ends early or was aborted is solved from the
-    steps it completed (``outcome.samples``: how many were replayed)."""
-    outcome, conductor = replay(record, operator, [Reporter(report)])
+def replay(record: RunRecord, operator: ReplayOperator | None = None, report=lambda e: None) -> Outcome:
+    """Replay to the end of the capture (``fieldcal replay``, the certificate); a capture that
+    ends early or was aborted is solved from the steps it completed. ``operator``: a paced one
+    (``ReplayOperator(record, speed)``), else as fast as possible; ``report``: each event."""
+    conductor = replay_conductor(record, operator, [Reporter(report)])
+    outcome = finish_replay(conductor, record, conductor.run())
     if outcome.unit is None:
         outcome.unit, outcome.parameter_file = conductor.solve()
     return outcome
-
-
-def replay_session(record: RunRecord, speed: float | None = None, report=lambda e: None):
-    """Re-run the engine on the capture; (solution, parameter file, samples replayed).
-
-    ``speed``: None for as fast as possible, else that many times real (sample) time.
-    """
-    outcome = replay_session_outcome(record, ReplayOperator(record, speed), report)
-    return outcome.unit, outcome.parameter_file, outcome.samples
 
 
 def recorded_parameters(record: RunRecord) -> bytes | None:
@@ -133,7 +119,7 @@ def recorded_parameters(record: RunRecord) -> bytes | None:
 def replay_matches(record: RunRecord) -> bool:
     """Does replaying the session give its parameter file (byte for byte in the same numeric
     environment, within the stated tolerance elsewhere)?"""
-    return replay(record)[0].identical is True
+    return replay(record).identical is True
 
 
 def resolve_session(record: RunRecord, method: str | None = None):
