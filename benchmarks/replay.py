@@ -17,8 +17,8 @@ import numpy as np
 
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import parse_procedure
-from fieldcal.run.replay import replay_session
-from fieldcal.run.runner import RunSpec, run_headless
+from fieldcal.run.replay import replay
+from fieldcal.run.runner import RunSpec, open_run, run_headless
 
 ONE_HOUR = """name: still-1h
 dwell_s: 3600
@@ -34,7 +34,8 @@ def main() -> int:
         times, samples = [], 0
         for _ in range(3):
             started = time.perf_counter()
-            _, _, samples = replay_session(Path(tmp) / "session")
+            replayed = replay(open_run(Path(tmp) / "session"))
+            samples = replayed.samples
             times.append(time.perf_counter() - started)
     hours = samples / 250.0 / 3600.0
     median = float(np.median(times))

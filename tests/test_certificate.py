@@ -15,6 +15,7 @@ from fieldcal.acceptance import operator_values
 from fieldcal.cli.main import main
 from fieldcal.paramfile import load
 from fieldcal.units import BIAS, operator_unit
+from fieldcal.run.runner import open_run
 
 QUICK = str(Path(__file__).parent / "faults" / "quick.yaml")
 
@@ -289,7 +290,7 @@ def test_certificate_counts_the_steps_the_parameter_file_was_solved_from_not_tho
     from fieldcal.run.operators import ScriptedOperator
     from fieldcal.run.recorder import SessionRecorder
     from fieldcal.run.runner import RunSpec, SimulatedBench
-    from fieldcal.run.steps import ResumePoint
+    from fieldcal.session.record import ResumePoint
     from fieldcal.certificate.evidence import gather
     from fieldcal.session.capture import SessionReader
 
@@ -322,6 +323,6 @@ def test_certificate_counts_the_steps_the_parameter_file_was_solved_from_not_tho
     assert conductor.run().status == "completed" and operator.restarted
     engine = conductor.engine  # what the parameter file was solved from
     assert len(SessionReader(directory).steps()) == len(engine.records) + 2  # the two dropped ones too
-    evidence = gather(directory)
+    evidence = gather(open_run(directory))
     assert evidence.completed == len(engine.records) == len(procedure.positions) - 1
     assert evidence.skipped == (procedure.positions[0].id,)

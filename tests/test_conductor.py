@@ -1,20 +1,14 @@
-"""The one run loop: sessions written before it (tests/data/golden, format of commit 58c3726)
-still resume, replay and re-solve to the same parameter file, and the terminal UI's sessions
-resume headless."""
+"""The one run loop: the terminal UI's sessions resume headless, replay in the terminal UI and
+elsewhere compare within tolerance (the golden sessions written before the loop was one, format
+of commit 58c3726, are tested in test_session_legacy.py)."""
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
-
-import pytest
 
 from fieldcal.earth import Station
 from fieldcal.paramfile import dump, load
 from fieldcal.procedure.positions import load_procedure, parse_procedure
-from fieldcal.run.environment import compare_parameters
-from fieldcal.run.replay import replay_session, resolve_session
-from fieldcal.run.runner import OperatorScript, RunSpec, resume_headless, run_headless
-from fieldcal.run.steps import steps_on_record
+from fieldcal.run.runner import OperatorScript, RunSpec, open_run, resume_headless, run_headless
 from fieldcal.session.capture import SessionReader
 
 from crashes import cut_before_step_record
@@ -30,11 +24,6 @@ def golden_procedure():
         .replace("rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}",
                  "rate_step: {rate_deg_s: 60, turns: 1, ramp_s: 3, settle_s: 1}")
     return parse_procedure(text, "golden-mini.yaml")
-
-
-def test_the_golden_procedure_is_the_one_recorded():
-    recorded = SessionReader(GOLDEN / "tui-quit").start["procedure"]["yaml"]
-    assert golden_procedure().text == recorded
 
 
 def _shift_in_sigma(pf, recorded) -> dict[str, float]:
@@ -58,56 +47,6 @@ GYRO_SHIFT_SIGMA = 0.25
 def _as_recorded(pf, recorded) -> bool:
     shift = _shift_in_sigma(pf, recorded)
     return all(v < 1e-3 for name, v in shift.items() if name != "gyroscope") and shift["gyroscope"] < GYRO_SHIFT_SIGMA
-
-
-def test_an_old_resumed_headless_session_replays_and_resolves_to_its_parameter_file():
-    session = GOLDEN / "headless-resumed"
-    recorded = load(session / "parameters.yaml")
-    # Recorded before sessions named their numeric environment, and before the Powell search
-    # was re-fed (issue 12): compared parameter by parameter in units of each recorded σ.
-    _, pf, samples = replay_session(session)
-    assert _as_recorded(pf, recorded), _shift_in_sigma(pf, recorded)
-    assert samples == SessionReader(session).n_samples
-    _, resolved = resolve_session(session)
-    assert dump(resolved) == dump(pf)  # the re-solve from the log's averages is the replay's result
-    found = compare_parameters(resolved, (session / "parameters.yaml").read_bytes(), None)
-    assert "does not record its numeric environment" in found.text
-
-
-def test_old_tui_steps_read_with_their_separate_checkpoints():
-    steps = steps_on_record(SessionReader(GOLDEN / "tui-quit"))
-    assert [s.record.step for s in steps] == [0, 1, 2, 3, 4, 5]
-    assert all(s.skipped == () and s.bench is not None and "sim" in s.bench for s in steps)
-
-
-def test_an_old_tui_session_quit_half_way_resumes_to_the_uninterrupted_run(tmp_path):
-    """Defect 1 of issue 10 on a session the old terminal UI wrote (it died with KeyError 'skipped')."""
-    session = tmp_path / "tui-quit"
-    shutil.copytree(GOLDEN / "tui-quit", session)
-    resumed = resume_headless(session)
-    # The old session's simulator drew its noise one normal number per process ("bank"): the
-    # uninterrupted run to compare with draws it the same way.
-    whole = run_headless(RunSpec(golden_procedure(), STATION, seed=8, rate_hz=20.0,
-                                 script=OperatorScript(handling_s=2.0), sim_noise="bank"), tmp_path / "whole")
-    assert resumed.status == "completed" and not resumed.unit.failures
-    # Its first six steps were averaged by the code of 58c3726, whose simulator noise summed in
-    # another order (issue 12 made it closed-form): equal within 1e-3σ, not to the last bit.
-    found = compare_parameters(load(resumed.parameters), whole.parameters.read_bytes(), None)
-    assert found.identical, found.text
-    # The golden copy itself is left as it was: resuming works on the copy only.
-    assert not (GOLDEN / "tui-quit" / "parameters.yaml").exists()
-
-
-def test_an_old_tui_session_killed_between_step_and_checkpoint_is_refused_in_one_line(tmp_path):
-    session = tmp_path / "s"
-    shutil.copytree(GOLDEN / "tui-quit", session)
-    log = session / "log.jsonl"
-    text = log.read_text()
-    log.write_text(text[:text.rindex('{"seq"', 0, text.rindex('"type":"checkpoint"'))])
-    before = log.read_bytes()
-    with pytest.raises(ValueError, match="step 6: the session holds no bench state"):
-        resume_headless(session)
-    assert log.read_bytes() == before  # refused before anything was written
 
 
 class KeySink:
@@ -145,8 +84,8 @@ def test_a_tui_run_quit_half_way_resumes_headless_to_the_uninterrupted_run(tmp_p
     source = sink.source = SimSource(golden_spec(12), sink, speed=0, session_dir=tmp_path / "tui")
     quit_ = source.run()
     assert quit_.status == "stopped" and "fieldcal resume" in quit_.message
-    assert len(steps_on_record(SessionReader(tmp_path / "tui"))) == 7
-    resumed = resume_headless(tmp_path / "tui")
+    assert len(open_run(tmp_path / "tui").steps) == 7
+    resumed = resume_headless(open_run(tmp_path / "tui"))
     whole = run_headless(golden_spec(12), tmp_path / "whole")
     assert resumed.status == "completed" and resumed.completed == 18
     assert resumed.parameters.read_bytes() == whole.parameters.read_bytes()
@@ -156,7 +95,7 @@ def _replay_in_the_tui(session: Path):
     from fieldcal.tui.source import ReplaySource
 
     sink = KeySink()
-    source = sink.source = ReplaySource(session, sink, speed=0)
+    source = sink.source = ReplaySource(open_run(session), sink, speed=0)
     return source.run(), sink
 
 
@@ -167,7 +106,7 @@ def test_the_tui_replay_of_a_killed_and_resumed_session_is_identical(tmp_path):
                          tmp_path / "s")
     expected = whole.parameters.read_bytes()
     cut_before_step_record(whole.session, 6)
-    assert resume_headless(whole.session).parameters.read_bytes() == expected
+    assert resume_headless(open_run(whole.session)).parameters.read_bytes() == expected
     outcome_here, sink_here = _replay_in_the_tui(whole.session)
     outcome, sink = _replay_in_the_tui(whole.session)
     assert outcome.status == "completed" and outcome.identical is True
@@ -192,12 +131,12 @@ def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_p
     recorded_env = SessionReader(session).start["numeric_environment"]
     assert recorded_env == environment.numeric_environment()
     assert {"numpy", "scipy", "blas", "machine"} <= set(recorded_env)
-    outcome, _ = replay(session)
+    outcome = replay(open_run(session))
     assert outcome.identical is True and "byte for byte" in outcome.comparison
 
     elsewhere = {**recorded_env, "blas": "another BLAS 9.9", "machine": "aarch64"}
     monkeypatch.setattr(environment, "numeric_environment", lambda: elsewhere)
-    outcome, _ = replay(session)
+    outcome = replay(open_run(session))
     assert outcome.identical is True
     assert "numeric environment differs" in outcome.comparison and "aarch64" in outcome.comparison
     assert "within 0.001σ" in outcome.comparison
@@ -210,25 +149,12 @@ def test_a_replay_in_another_numeric_environment_compares_within_tolerance(tmp_p
     changed = dataclasses.replace(pf, triads=tuple(moved if t.name == acc.name else t for t in pf.triads))
     from fieldcal.paramfile import save
     save(changed, noted)
-    outcome, _ = replay(session)
+    outcome = replay(open_run(session))
     assert outcome.identical is False
     assert "accelerometer bias_x off by 0.5σ" in outcome.comparison
     monkeypatch.setattr(environment, "numeric_environment", lambda: recorded_env)
-    outcome, _ = replay(session)
+    outcome = replay(open_run(session))
     assert outcome.identical is False and "compared byte for byte" in outcome.comparison
-
-
-def test_fieldcal_resume_continues_an_old_tui_session(tmp_path):
-    import subprocess
-    import sys
-
-    session = tmp_path / "tui-quit"
-    shutil.copytree(GOLDEN / "tui-quit", session)
-    done = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "resume", str(session), "--quiet"],
-                          capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert "resuming" in done.stdout and "after 6 completed steps" in done.stdout
-    assert "Traceback" not in done.stderr and (session / "parameters.yaml").is_file()
 
 
 def test_headless_progress_lines_reach_a_pipe_as_they_happen(tmp_path):
@@ -261,7 +187,7 @@ def test_a_restart_during_a_rate_step_stops_the_table_before_the_unit_is_placed_
     from fieldcal.run.conductor import Conductor, Restart
     from fieldcal.run.operators import ScriptedOperator
     from fieldcal.run.runner import SimulatedBench
-    from fieldcal.run.steps import ResumePoint
+    from fieldcal.session.record import ResumePoint
 
     procedure = parse_procedure("""name: t
 dwell_s: 5

@@ -12,8 +12,8 @@ from fieldcal.paramfile import dump
 from fieldcal.planning.design import Design, OperatorModel, bound_sigmas
 from fieldcal.planning.search import candidates
 from fieldcal.procedure.positions import ProcedureError, parse_procedure
-from fieldcal.run.replay import recorded_parameters, replay_session
-from fieldcal.run.runner import RunSpec, run_headless
+from fieldcal.run.replay import recorded_parameters, replay
+from fieldcal.run.runner import RunSpec, open_run, run_headless
 from fieldcal.solvers.solve import models_from_truth
 from fieldcal.tui.guidance import placement
 
@@ -92,8 +92,9 @@ def test_a_procedure_with_corners_runs_headless_within_four_sigma_and_replays_by
     for name, sol in result.unit.solutions.items():
         z = (sol.theta - result.truth[name]) / sol.sigma
         assert np.all(np.abs(z) < 4.0), (name, z)
-    _, pf, _ = replay_session(result.session)
-    assert dump(pf).encode() == recorded_parameters(result.session)
+    replayed = replay(open_run(result.session))
+    pf = replayed.parameter_file
+    assert dump(pf).encode() == recorded_parameters(open_run(result.session))
 
 
 def test_the_planner_offers_the_8_corners_and_writes_them_as_the_format_reads_them():

@@ -17,8 +17,8 @@ import pytest
 from fieldcal.earth import Station
 from fieldcal.paramfile import dump
 from fieldcal.procedure.positions import load_procedure, parse_procedure
-from fieldcal.run.replay import recorded_parameters, replay_session
-from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
+from fieldcal.run.replay import recorded_parameters, replay
+from fieldcal.run.runner import OperatorScript, RunSpec, open_run, run_headless
 from fieldcal.session.capture import SessionReader
 
 from crashes import cut_before_step_record
@@ -91,9 +91,10 @@ def test_too_few_positions_say_how_many_more(tmp_path):
 
 def test_replay_gives_the_same_parameter_file_byte_for_byte(mishap_run):
     result, _ = mishap_run
-    _, pf, samples = replay_session(result.session)
+    replayed = replay(open_run(result.session))
+    pf, samples = replayed.parameter_file, replayed.samples
     assert samples > 18 * SHORT.dwell_s * 250
-    assert dump(pf).encode() == recorded_parameters(result.session)
+    assert dump(pf).encode() == recorded_parameters(open_run(result.session))
 
 
 def _wait_for(condition, proc, timeout_s=120.0):
@@ -142,7 +143,8 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
     uninterrupted = next((tmp_path / "whole").glob("*/parameters.yaml")).read_bytes()
     assert (session / "parameters.yaml").read_bytes() == uninterrupted
     # And the resumed session replays to the same file too.
-    _, pf, _ = replay_session(session)
+    replayed = replay(open_run(session))
+    pf = replayed.parameter_file
     assert dump(pf).encode() == uninterrupted
 
 
@@ -164,8 +166,9 @@ def test_the_same_run_through_a_serial_device_on_a_pty(tmp_path):
         parsed += len(chunk) if chunk is not None else 0
     assert parsed >= reader.n_samples and parser.counters.discarded_bytes == 0
     # Replay of a serial run works like any other: the capture is the whole truth.
-    _, pf, _ = replay_session(result.session)
-    assert dump(pf).encode() == recorded_parameters(result.session)
+    replayed = replay(open_run(result.session))
+    pf = replayed.parameter_file
+    assert dump(pf).encode() == recorded_parameters(open_run(result.session))
 
 
 def test_resume_at_awkward_crash_points_twice_still_matches(tmp_path):
@@ -178,10 +181,11 @@ def test_resume_at_awkward_crash_points_twice_still_matches(tmp_path):
     crashed = tmp_path / "crashed"
     shutil.copytree(whole.session, crashed)
     cut_before_step_record(crashed, 3)
-    first = resume_headless(crashed)
+    first = resume_headless(open_run(crashed))
     assert first.parameters.read_bytes() == expected
     cut_before_step_record(crashed, 12)  # counting the records written before and after the resume
-    second = resume_headless(crashed)
+    second = resume_headless(open_run(crashed))
     assert second.parameters.read_bytes() == expected
-    _, pf, _ = replay_session(crashed)
+    replayed = replay(open_run(crashed))
+    pf = replayed.parameter_file
     assert dump(pf).encode() == expected

@@ -17,8 +17,8 @@ from fieldcal.procedure.positions import load_procedure
 from fieldcal.run.conductor import Conductor, Subscriber
 from fieldcal.run.operators import ScriptedOperator
 from fieldcal.paramfile import dump
-from fieldcal.run.replay import recorded_parameters, replay_session
-from fieldcal.run.runner import OperatorScript, RunSpec, SimulatedBench, run_headless
+from fieldcal.run.replay import recorded_parameters, replay
+from fieldcal.run.runner import OperatorScript, RunSpec, SimulatedBench, open_run, run_headless
 from fieldcal.run.simcal import DEFAULT_STATION
 from fieldcal.solvers.solve import models_from_truth
 from fieldcal.solvers.crb import angular_rate_bound, specific_force_bound
@@ -143,8 +143,9 @@ def test_a_planned_adaptive_run_replays_byte_for_byte(planned, tmp_path):
                           tmp_path / "s", events.append)
     assert not result.unit.failures
     assert any(e.kind == "wrong_orientation" for e in events)
-    _, pf, _ = replay_session(result.session)
-    assert dump(pf).encode() == recorded_parameters(result.session)
+    replayed = replay(open_run(result.session))
+    pf = replayed.parameter_file
+    assert dump(pf).encode() == recorded_parameters(open_run(result.session))
 
 
 def test_the_bias_floor_of_white_noise_is_the_plain_mean_and_grows_with_bias_instability():
@@ -254,8 +255,9 @@ def test_a_planned_run_in_the_tui_shows_its_sigma_against_the_targets_and_equals
     assert "left" in first and first.count("not yet determined") == len({t for t, _ in TARGETS})
     assert final and all(s.met or s.sigma <= 1.05 * s.target for s in final), final
     assert outcome.parameters.read_bytes() == headless.parameters.read_bytes()
-    _, pf, _ = replay_session(outcome.session)
-    assert dump(pf).encode() == recorded_parameters(outcome.session)
+    replayed = replay(open_run(outcome.session))
+    pf = replayed.parameter_file
+    assert dump(pf).encode() == recorded_parameters(open_run(outcome.session))
 
 
 def test_the_simulators_window_means_have_the_covariance_the_bound_uses():

@@ -970,26 +970,6 @@ def test_a_version_2_line_without_its_checksum_is_refused(tmp_path):
 DATA = Path(__file__).resolve().parent / "data"
 
 
-def test_a_version_1_session_written_by_the_old_code_still_reads_and_resumes(tmp_path):
-    """tests/data/session-v1 was written by the session writer of commit 58c3726 (format 1)."""
-    import shutil
-
-    d = tmp_path / "v1"
-    shutil.copytree(DATA / "session-v1", d)
-    r = SessionReader(d)
-    assert r.start_document["schema"] == "fieldcal-session/1"
-    assert [doc["type"] for doc in r.documents()] == ["start", "descriptor", "chunk", "event", "chunk", "event",
-                                                      "chunk", "event", "step", "stop"]
-    assert_all_identical(r.chunks(), [small_chunk(i) for i in range(3)])
-    assert r.steps() == [{"step": 0, "value": 1.5}] and r.stopped and r.stop_reason == "completed"
-    w = SessionWriter.append_to(d)  # continued with checksummed lines; version 1 ones stay as they are
-    w.write_raw("imu", 1.0, b"abc")
-    w.close()
-    assert lines_of(d / LOG)[:10] == lines_of(DATA / "session-v1" / LOG)
-    assert lines_of(d / LOG)[10].endswith(b'}\n') and b',"crc":' in lines_of(d / LOG)[10]
-    assert [t for t, _ in SessionReader(d).raw("imu")] == [1.0]
-
-
 def test_a_completed_session_is_never_resumed(tmp_path):
     d = tmp_path / "s"
     w = SessionWriter.create(d, {})

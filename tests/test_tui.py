@@ -14,7 +14,7 @@ from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
 from fieldcal.run.replay import replay_matches
-from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
+from fieldcal.run.runner import OperatorScript, RunSpec, open_run, run_headless
 from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.tui.screens.procedure import ProcedureScreen
@@ -98,7 +98,7 @@ async def test_a_run_equals_the_headless_run_of_the_same_seed(tmp_path, headless
         assert np.array_equal(sol.theta, headless.unit.solutions[name].theta), name
         assert np.array_equal(sol.sigma, headless.unit.solutions[name].sigma), name
     assert outcome.parameters.read_bytes() == headless.parameters.read_bytes()
-    assert replay_matches(outcome.session)
+    assert replay_matches(open_run(outcome.session))
     assert [e.kind for e in app.events] == \
         [e["event"] for e in SessionReader(headless.session).events()]
     assert FieldcalApp.return_code_for(outcome) == 0
@@ -168,7 +168,7 @@ async def test_a_field18_run_with_a_wrong_position_and_a_bump_equals_the_headles
     for name, sol in outcome.unit.solutions.items():
         assert np.array_equal(sol.theta, headless.unit.solutions[name].theta), name
     assert outcome.parameters.read_bytes() == headless.parameters.read_bytes()
-    assert replay_matches(outcome.session)
+    assert replay_matches(open_run(outcome.session))
 
 
 @run_async
@@ -216,7 +216,7 @@ async def test_a_bump_restarts_the_dwell_and_the_run_ends_on_the_results(tmp_pat
 @run_async
 async def test_replay_runs_through_the_same_screens_and_ignores_keys(headless_field18):
     _, headless = headless_field18
-    app = FieldcalApp(None, speed=0, replay=headless.session)
+    app = FieldcalApp(None, speed=0, replay=open_run(headless.session))
     async with app.run_test(size=(80, 24)) as pilot:
         await pilot.press("a", "s", "d", "r", "b")  # ignored: the recorded actions apply
         await until(pilot, lambda: on_results(app))
@@ -280,7 +280,7 @@ def test_snapshot_results_screen(snap_compare, headless_classic12, tmp_path, mon
     _, headless = headless_classic12
     shutil.copytree(headless.session, tmp_path / "session")
     monkeypatch.chdir(tmp_path)  # so that the paths shown do not depend on the temporary directory
-    app = FieldcalApp(None, speed=0, replay=Path("session"))
+    app = FieldcalApp(None, speed=0, replay=open_run(Path("session")))
 
     async def results(pilot):
         await until(pilot, lambda: on_results(app))
@@ -379,7 +379,7 @@ async def test_a_run_quit_half_way_resumes_in_the_tui_to_the_uninterrupted_run(t
     assert f"fieldcal tui --resume {session}" in app.source.outcome.message
     assert not SessionReader(session).stopped
 
-    resumed = FieldcalApp(speed=0, resume=session)
+    resumed = FieldcalApp(speed=0, resume=open_run(session))
     async with resumed.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(resumed, 7))  # after the last completed step
         await press_ready_from(pilot, resumed, 7)

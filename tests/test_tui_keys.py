@@ -8,7 +8,7 @@ from tui_pilot import run_async, until, waiting_at
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import parse_procedure
 from fieldcal.run.operators import OperatorScript
-from fieldcal.run.runner import RunSpec
+from fieldcal.run.runner import RunSpec, open_run
 from fieldcal.tui import FieldcalApp
 from fieldcal.tui.choices import SetupChoice
 from fieldcal.tui.screens.help import HelpScreen
@@ -85,7 +85,7 @@ async def test_abort_asks_first_and_any_other_key_carries_on(tmp_path):
 
 @run_async
 async def test_a_skip_is_confirmed_and_undone_and_the_run_completes_all_positions(tmp_path):
-    from fieldcal.run.replay import replay_session
+    from fieldcal.run.replay import replay
     from fieldcal.session.capture import SessionReader
     from fieldcal.tui.screens.results import ResultsScreen
 
@@ -118,7 +118,7 @@ async def test_a_skip_is_confirmed_and_undone_and_the_run_completes_all_position
     assert [a["action"] for a in SessionReader(tmp_path / "s").actions()] == \
         ["skip", "unskip", "ready", "ready", "ready"]
     replayed = []  # the recorded unskip replays to the same events
-    replay_session(tmp_path / "s", report=lambda e: replayed.append(e.to_dict()))
+    replay(open_run(tmp_path / "s"), report=lambda e: replayed.append(e.to_dict()))
     assert replayed == SessionReader(tmp_path / "s").events()[:len(replayed)]
     assert [e["event"] for e in replayed].count("step_complete") == 3
 

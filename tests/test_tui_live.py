@@ -16,8 +16,8 @@ from drivers.sim.serve import SimulatedDevices
 from fieldcal.procedure import events as ev
 from fieldcal.config import ConfigError, load_config
 from fieldcal.earth import Station
-from fieldcal.run.replay import replay_session
-from fieldcal.run.runner import RunSpec
+from fieldcal.run.replay import replay
+from fieldcal.run.runner import RunSpec, open_run
 from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.cli.tui import live_spec
@@ -93,13 +93,14 @@ async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp
     assert sum(1 for _ in reader.raw("imu")) > 0  # the bytes, as read
     # Replayed without the device or its config: the same events, the same verdicts.
     replayed = []
-    unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
+    again = replay(open_run(tmp_path / "session"), report=replayed.append)
+    unit, samples = again.unit, again.samples
     assert [e.kind for e in replayed] == kinds[:len(replayed)] and len(replayed) >= len(kinds) - 1
     assert unit.failures == outcome.unit.failures and samples > 0
     # `fieldcal solve` re-solves it from the log with the device's own noise models (a real
     # device has no simulation truth to take them from).
     from fieldcal.run.compare import compare_methods
-    solved = compare_methods(tmp_path / "session", ["powell", "classic"])
+    solved = compare_methods(open_run(tmp_path / "session", log_only=True), ["powell", "classic"])
     assert "2 completed steps" in solved and solved.count("not calibrated") == 2 * len(outcome.unit.failures)
 
 

@@ -15,7 +15,7 @@ from tui_pilot import run_async, until, waiting_at
 from fieldcal.acceptance import spec_from_document
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
-from fieldcal.run.runner import RunSpec, run_headless
+from fieldcal.run.runner import RunSpec, open_run, run_headless
 from fieldcal.tui import FieldcalApp
 from fieldcal.tui.screens.results import ResultsScreen
 
@@ -163,7 +163,7 @@ def test_snapshot_results_with_a_spec(snap_compare, classic12_session, tmp_path,
     monkeypatch.chdir(tmp_path)  # the paths shown do not depend on the temporary directory
     spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "paper MIMU", "triads": {
         "accelerometer": {"bias": {"unit": "mg", "min": -10, "max": 2.5}}}}, "spec.yaml")
-    app = FieldcalApp(None, speed=0, replay=Path("session"), product_spec=spec)
+    app = FieldcalApp(None, speed=0, replay=open_run(Path("session")), product_spec=spec)
 
     async def results(pilot):
         await until(pilot, lambda: on_results(app))

@@ -21,10 +21,10 @@ from drivers.sim.serve import SimulatedDevices
 from fieldcal.cli.tui import live_spec
 from fieldcal.config import load_config
 from fieldcal.run.deviceclock import XSENS_TIME_PERIOD_S, DeviceClock, clock_of, judge_restart, went_back
-from fieldcal.run.replay import replay_session
-from fieldcal.run.steps import completed_records, steps_on_record
+from fieldcal.run.replay import replay
 from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
+from fieldcal.run.runner import open_run
 from tests.test_tui_live import OPTIONS, STATION, live_config
 from tests.tui_pilot import run_async, until, waiting_at
 from tests.test_tui import on_results, two_positions
@@ -173,7 +173,7 @@ async def _first_step_then_quit(tmp_path, devices, world, procedure, make_config
 
 
 async def _resume(tmp_path, config, world, first_step, carry):
-    app = FieldcalApp(speed=0, resume=tmp_path / "session", config=config, wall_clock=world)
+    app = FieldcalApp(speed=0, resume=open_run(tmp_path / "session"), config=config, wall_clock=world)
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, first_step))
         banner = str(app.screen.query_one("#banner").render())
@@ -189,16 +189,14 @@ async def _resume(tmp_path, config, world, first_step, carry):
 def _the_config_must_be_the_sessions_device(tmp_path, config):
     """`tui --resume` of a live session: which config gives the ports, in one line if none fits."""
     from fieldcal.cli.tui import resume_config
-    from fieldcal.tui.app import live_device_of
-
-    session = tmp_path / "session"
-    live = live_device_of(session)
+    session = open_run(tmp_path / "session")
+    live = session.spec.live
     assert live.name == "bench MTi" and live.serial == "SN-42"
     with pytest.raises(ValueError, match="give its station config \\(the ports\\) with --config"):
-        resume_config(session, live, None)  # (XDG_CONFIG_HOME is empty: no remembered setup)
+        resume_config(session, None)  # (XDG_CONFIG_HOME is empty: no remembered setup)
     with pytest.raises(ValueError, match="was recorded from bench MTi \\(serial SN-42, xsens\\); .*sim.yaml is"):
-        resume_config(session, live, "sim")
-    assert resume_config(session, live, str(config.path)).device.port.url == config.device.port.url
+        resume_config(session, "sim")
+    assert resume_config(session, str(config.path)).device.port.url == config.device.port.url
 
 
 def _the_command_line_resumes_it_on_the_configs_ports(tmp_path, config, monkeypatch):
@@ -209,7 +207,7 @@ def _the_command_line_resumes_it_on_the_configs_ports(tmp_path, config, monkeypa
     monkeypatch.setattr(app, "run_tui", lambda *a, **kw: asked.append((a, kw)) or 0)
     assert main(["tui", "--resume", str(tmp_path / "session"), "--config", str(config.path)]) == 0
     (args, kw), = asked
-    assert args[1] == 0.0 and kw["resume"] == tmp_path / "session"  # a device's pace, not a speed
+    assert args[1] == 0.0 and kw["resume"].directory == tmp_path / "session"  # a device's pace, not a speed
     assert kw["config"].device.port.url == config.device.port.url
 
 
@@ -236,7 +234,7 @@ async def test_a_live_run_resumed_on_a_device_that_ran_on_continues_after_its_la
     (resume,) = [d["data"] for d in reader.documents("resume")]
     assert resume == {"completed_steps": [0], "skipped": []}
     assert reader.steps()[0] == first  # appended to, never rewritten
-    assert [r.step for r in completed_records(reader)] == [0, 1]
+    assert [r.step for r in open_run(reader.directory).completed] == [0, 1]
     # Every sample fed came from bytes in the raw capture, also those read to judge the clock
     # before the session could be written.
     parser = make_parser("xsens")
@@ -265,13 +263,14 @@ async def test_a_live_run_resumed_after_a_power_cycle_measures_the_completed_ste
     assert "power-cycled" in why
     steps = reader.steps()
     assert len(steps) == 3 and steps[0] == first  # the first measurement is kept in the session,
-    kept = steps_on_record(reader)  # but no longer counted
+    kept = open_run(reader.directory).steps  # but no longer counted
     assert [s.record.step for s in kept] == [0, 1] and kept[0].record.to_dict() != \
         {k: v for k, v in first.items() if k not in ("skipped", "bench")}
-    assert [r.step for r in completed_records(reader)] == [0, 1]
+    assert [r.step for r in open_run(reader.directory).completed] == [0, 1]
     # Replayed without the devices: the recorded resume restarts the engine from no step.
     replayed = []
-    unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
+    again = replay(open_run(tmp_path / "session"), report=replayed.append)
+    unit, samples = again.unit, again.samples
     assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
     assert unit.failures == app.outcome.unit.failures
 
@@ -294,7 +293,7 @@ async def test_a_session_another_station_holds_is_not_resumed_and_the_ports_are_
     before = (tmp_path / "session" / "log.jsonl").read_bytes()
     holder = SessionWriter.append_to(tmp_path / "session")  # another station writing it
     try:
-        app = FieldcalApp(speed=0, resume=tmp_path / "session", config=config, wall_clock=world)
+        app = FieldcalApp(speed=0, resume=open_run(tmp_path / "session"), config=config, wall_clock=world)
         async with app.run_test(size=(80, 24)) as pilot:
             await until(pilot, lambda: app.source.done.is_set())
             await pilot.press("q")
@@ -455,11 +454,12 @@ async def test_a_unit_power_cycled_mid_run_has_its_completed_steps_measured_agai
     assert "power-cycled while its port was lost" in why
     steps = reader.steps()
     assert [s["step"] for s in steps] == [0, 0, 1]  # the first measurement kept in the session,
-    assert [s.record.step for s in steps_on_record(reader)] == [0, 1]  # but no longer counted
-    assert steps_on_record(reader)[0].record.to_dict() != \
+    assert [s.record.step for s in open_run(reader.directory).steps] == [0, 1]  # but no longer counted
+    assert open_run(reader.directory).steps[0].record.to_dict() != \
         {k: v for k, v in steps[0].items() if k not in ("skipped", "bench")}
     replayed = []
-    unit, _, samples = replay_session(tmp_path / "session", report=replayed.append)
+    again = replay(open_run(tmp_path / "session"), report=replayed.append)
+    unit, samples = again.unit, again.samples
     assert [e.kind for e in replayed].count("step_complete") == 3 and samples > 0
     assert unit.failures == app.outcome.unit.failures
 
@@ -482,7 +482,7 @@ async def test_a_unit_power_cycled_with_its_port_open_has_its_completed_steps_me
         "WARNING: the unit was power-cycled while its port stayed open (its clock reads")
     assert ": lost" not in log and "regained" not in log  # the port never noticed
     assert [s["step"] for s in reader.steps()] == [0, 0, 1]
-    assert [s.record.step for s in steps_on_record(reader)] == [0, 1]
+    assert [s.record.step for s in open_run(reader.directory).steps] == [0, 1]
 
 
 def _cable_pulled(devices):

@@ -55,14 +55,19 @@ def session_temperature(reader) -> Temperature | None:
     return Temperature(low, high, total / n, n) if n else None
 
 
-def replayed_residuals(directory: Path) -> tuple[dict[str, PositionResiduals], str]:
-    """Each solved triad's residual per position from re-solving the session; and a note that
-    says whether that re-solve reproduces the session's parameter file."""
+def replayed_residuals(record) -> tuple[dict[str, PositionResiduals], str]:
+    """Each solved triad's residual per position from replaying the session (``record``: its
+    ``RunRecord``); and a note that says whether the replay reproduces the run's parameter file.
+    A session the replay refuses (its step averages not its samples', damaged data) is refused
+    here too: a SessionError, never a certificate with a note."""
     from fieldcal.residuals import per_position
-    from fieldcal.run.replay import replay_session_outcome
+    from fieldcal.run.replay import replay
+    from fieldcal.session import SessionError
 
     try:
-        outcome, _ = replay_session_outcome(directory)
+        outcome = replay(record)
+    except SessionError:
+        raise
     except (ValueError, OSError) as exc:
         why = str(exc).splitlines()[0]
         return {}, f"residuals per position not available: re-solving the session failed ({why})"
@@ -73,30 +78,29 @@ def replayed_residuals(directory: Path) -> tuple[dict[str, PositionResiduals], s
         rows, unit = per_position(sol)
         found[name] = PositionResiduals(name, unit, tuple(r[0] for r in rows),
                                         np.array([r[1] for r in rows]), all(r[2] for r in rows))
-    if outcome.identical is True:
+    run, current = record.run_parameters, record.current_parameters
+    if outcome.identical is True and run is current:
         note = "residuals from re-solving the session, which reproduces this parameter file"
+    elif outcome.identical is True:
+        note = (f"residuals from replaying the run, which reproduces the run's {run.file}; this parameter "
+                f"file ({current.file}) was re-solved later from the same step averages")
     else:
         note = ("residuals from re-solving the session; NOTE: " + (outcome.comparison or
                 "the re-solve could not be compared with the parameter file"))
     return found, note
 
 
-def gather(directory: Path) -> Evidence:
-    """Everything the certificate takes from the session directory. An imported recording (no
-    procedure) has no positions to re-solve: its certificate says so."""
-    from fieldcal.run.runner import RunSpec
-    from fieldcal.run.steps import skipped_on_record, steps_on_record
-    from fieldcal.session.capture import SessionReader
-
-    reader = SessionReader(directory)
-    allan = tuple(sorted(Path(directory).glob("allan-*.png")))
-    if reader.start.get("kind") == "recording":
+def gather(record) -> Evidence:
+    """Everything the certificate takes from the session (``record``: its ``RunRecord``, the
+    spec rebuilt for a procedure run). An imported recording (no procedure) has no positions to
+    re-solve: its certificate says so."""
+    allan = tuple(sorted(Path(record.directory).glob("allan-*.png")))
+    if record.spec is None:
         return Evidence({}, "an imported recording: no procedure positions to re-solve (`fieldcal calibrate "
-                        "SESSION` shows each pose's residual)", session_temperature(reader), allan=allan)
-    positions = RunSpec.from_metadata(reader.start).procedure.positions
+                        "SESSION` shows each pose's residual)", session_temperature(record), allan=allan)
+    positions = record.spec.procedure.positions
     # The steps the parameter file was solved from: not those a resume dropped (measured again)
-    done = {s.record.step for s in steps_on_record(reader)}
-    skipped = skipped_on_record(reader)
-    found, note = replayed_residuals(directory)
-    return Evidence(found, note, session_temperature(reader), tuple(positions[i].id for i in skipped),
+    done = {s.record.step for s in record.steps}
+    found, note = replayed_residuals(record)
+    return Evidence(found, note, session_temperature(record), tuple(positions[i].id for i in record.skipped),
                     len(done), allan)

@@ -37,32 +37,26 @@ def recommended_dwell(taus: np.ndarray, terms: list) -> tuple[float, bool]:
     return worst, floor_seen
 
 
-def _session_records(directory: Path) -> tuple[dict[str, np.ndarray], dict[str, str], float]:
-    from fieldcal.run.runner import RunSpec
-    from fieldcal.session.capture import SessionReader
-
-    from fieldcal.session.steps import checked_steps
-
-    reader = SessionReader(directory)
-    spec = RunSpec.from_metadata(reader.start)
-    checked_steps(reader, len(spec.procedure.positions))  # a step of the wrong shape: file and line
+def _session_records(record) -> tuple[dict[str, np.ndarray], dict[str, str], float]:
+    """The samples of a procedure run's longest static dwell (``record``: its ``RunRecord``)."""
     # After a resume, sample time starts over from the last checkpoint, so the samples of a
     # dwell are those of the run segment (between resumes) that recorded its step.
+    counted = {s.line: s.record for s in record.steps}  # checked, and still counted after resumes
     segment, best = 0, None
-    for kind, item in reader.replay_items(("resume", "step")):
-        if kind == "resume":
+    for doc in record.documents("resume", "step"):
+        if doc["type"] == "resume":
             segment += 1
             continue
-        for w in item["windows"]:
-            if w["kind"] == "static" and (best is None or w["duration"] > best[1]["duration"]):
+        for w in counted[doc["seq"] + 1].windows if doc["seq"] + 1 in counted else ():
+            if w.kind == "static" and (best is None or w.duration > best[1].duration):
                 best = (segment, w)
     if best is None:
-        raise ValueError(f"{directory}: no completed static dwell to analyse")
+        raise ValueError(f"{record.directory}: no completed static dwell to analyse")
     wanted, window = best
-    lo, hi = window["start"], window["start"] + window["duration"]
+    lo, hi = window.start, window.end
     parts: dict[str, list[np.ndarray]] = {}
     segment = 0
-    for kind, chunk in reader.replay_items(("chunk", "resume")):
+    for kind, chunk in record.replay_items(("chunk", "resume")):
         if kind == "resume":
             segment += 1
             continue
@@ -72,8 +66,8 @@ def _session_records(directory: Path) -> tuple[dict[str, np.ndarray], dict[str, 
         if keep.any():
             for name, values in chunk.triads.items():
                 parts.setdefault(name, []).append(values[keep])
-    kinds = {n: t["kind"] for n, t in reader.start["simulation_truth"].items()}
-    return {n: np.concatenate(v) for n, v in parts.items()}, kinds, spec.rate_hz
+    kinds = {n: t["kind"] for n, t in record.start["simulation_truth"].items()}
+    return {n: np.concatenate(v) for n, v in parts.items()}, kinds, record.spec.rate_hz
 
 
 def _text_record(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str, str], float]:
@@ -121,8 +115,10 @@ def cmd_allan(args) -> int:
     source = Path(args.source)
     if source.is_dir():
         from fieldcal.cli.sessions import warn_if_torn
-        warn_if_torn(source)
-        records, kinds, rate = _session_records(source)
+        from fieldcal.run.runner import open_run
+        record = open_run(source)  # one scan; every step document checked: file, line and field
+        warn_if_torn(record)
+        records, kinds, rate = _session_records(record)
         plot_dir = source
     elif source.is_file():
         records, kinds, rate = _text_record(source, args.kind)

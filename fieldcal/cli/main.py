@@ -56,14 +56,10 @@ def cmd_demo(args) -> int:
         return 1
     print(f"largest error: {worst:.2f}σ")
     if args.params:
-        from fieldcal.paramfile import ParameterFile, hash_inputs
         from fieldcal.session.output import save_parameter_file
-        from fieldcal.solvers.methods import resolve_method
-        pf = ParameterFile.build(
-            triads=tuple(cal.solutions.values()),
-            procedure=cal.procedure.name, method=resolve_method(cal.procedure, args.method),
-            station=station,
-            input_sha256=hash_inputs(*(p.data for p in cal.problems.values())), simulation=True)
+        # the run's builder: the hash of the averages each triad was solved from (a classic
+        # procedure's too, which has no norm problems)
+        pf = cal.unit.parameter_file(cal.procedure, args.method, station, simulation=True)
         save_parameter_file(pf, args.params, force=args.force, option="--params")
         print(f"parameter file written to {args.params}")
     return 0

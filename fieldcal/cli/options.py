@@ -185,18 +185,8 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
 
 
 def procedure_session(directory, log_only: bool = False):
-    """(reader, run spec, checked step records) of a procedure run's session; one-line errors.
-    ``log_only``: read the log's documents alone (see ``SessionReader``)."""
-    from fieldcal.run.runner import RunSpec
-    from fieldcal.session.capture import SessionReader
-    from fieldcal.session.steps import checked_steps
+    """A procedure run's session read once (``RunRecord``: its spec rebuilt, every step checked);
+    one-line errors. ``log_only``: read the log's documents alone (see ``SessionReader``)."""
+    from fieldcal.run.runner import open_run
 
-    reader = SessionReader(directory, log_only=log_only)
-    try:
-        spec = RunSpec.from_metadata(reader.start)
-    except (KeyError, TypeError, AttributeError) as exc:
-        raise ValueError(f"{reader.directory / 'log.jsonl'}: line 1: the start document's metadata is "
-                         f"not a procedure run's ({type(exc).__name__}: {exc})"[:300]) from None
-    except ValueError as exc:  # a recording session, a procedure or station out of bounds
-        raise ValueError(f"{reader.directory}: {exc}") from None
-    return reader, spec, checked_steps(reader, len(spec.procedure.positions))
+    return open_run(directory, log_only=log_only)

@@ -262,7 +262,7 @@ def cmd_certificate(args) -> int:
     from fieldcal.certificate import certificate_html
     from fieldcal.certificate.evidence import gather
     from fieldcal.paramfile import load
-    from fieldcal.session.capture import SessionReader
+    from fieldcal.run.runner import open_run
     from fieldcal.session.history import recorded_check
     from fieldcal.session.output import check_output_path
 
@@ -273,8 +273,8 @@ def cmd_certificate(args) -> int:
     if not args.no_pdf:
         check_output_path(pdf, force=args.force, option="--out (its PDF)")
     spec = load_spec(args.spec) if args.spec else None
-    reader = SessionReader(session)
-    params = reader.parameters_path
+    record = open_run(session, recordings=True)  # one scan; every step document checked
+    params = record.parameters_path
     if params is None:
         raise ValueError(f"certificate: {session}: the session has no parameter file (not calibrated)")
     parameters = load(params)
@@ -282,8 +282,8 @@ def cmd_certificate(args) -> int:
     if spec is not None:
         previous = previous_calibration_of(params)
         verdict = evaluate(spec, parameters, previous.parameters if previous is not None else None)
-    page = certificate_html(session, params, parameters, recorded_check(params), verdict,
-                            reader.stop_reason, gather(session), spec, previous)
+    page = certificate_html(session, params, parameters, recorded_check(params, record), verdict,
+                            record.stop_reason, gather(record), spec, previous)
     write_atomically(out, page.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
     print(f"certificate: {out}")
     if not args.no_pdf:

@@ -41,17 +41,18 @@ def resolve_one(session: str, method: str | None) -> Resolved:
 def _resolve(session: Path, method: str | None) -> Resolved:
     from fieldcal.paramfile import dump
     from fieldcal.run.replay import resolve_session
-    from fieldcal.session.capture import SessionReader, SessionWriter
+    from fieldcal.run.runner import open_run
+    from fieldcal.session.capture import SessionWriter
 
-    reader = SessionReader(session, log_only=True)
-    if reader.stop_reason != "completed":  # its partial solve would enter the unit's history
-        state = f"its run {reader.stop_reason}" if reader.stopped else "its run did not finish (resume it first)"
+    record = open_run(session, log_only=True)  # every step document checked: file, line and field
+    if record.stop_reason != "completed":  # its partial solve would enter the unit's history
+        state = f"its run {record.stop_reason}" if record.stopped else "its run did not finish (resume it first)"
         return Resolved(str(session), None, f"FAILED {session}: not re-solved: {state}")
-    unit, pf = resolve_session(session, method)
+    unit, pf = resolve_session(record, method)
     if pf is None:
         why = "; ".join(f"{n}: {r}" for n, r in unit.failures.items()) or "no completed steps"
         return Resolved(str(session), None, f"FAILED {session}: nothing could be calibrated ({why})")
-    current = reader.parameters_path
+    current = record.parameters_path
     if current is not None and Path(current).read_bytes() == dump(pf).encode("utf-8"):
         return Resolved(str(session), str(current), f"unchanged {session}: {Path(current).name} "
                         f"({pf.provenance.method})")
@@ -60,7 +61,7 @@ def _resolve(session: Path, method: str | None) -> Resolved:
         writer.write_parameters(pf)  # the next parameters-NNN.yaml: earlier ones are kept
     finally:
         writer.close()
-    written = SessionReader(session, log_only=True).parameters_path
+    written = writer.parameters_written
     failed = f"; not calibrated: {', '.join(unit.failures)}" if unit.failures else ""
     return Resolved(str(session), str(written), f"re-solved {session}: {Path(written).name} "
                     f"({pf.provenance.method}, {len(unit.solutions)} triads{failed})")

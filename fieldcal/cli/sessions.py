@@ -27,14 +27,11 @@ def _print_result(result, out) -> int:
     return 0 if result.unit.solutions and not result.unit.failures else 1
 
 
-def warn_if_torn(directory) -> bool:
+def warn_if_torn(record) -> bool:
     """Say what of a capture could not be read (a crash's torn tail); True if anything."""
-    from fieldcal.session.capture import SessionReader
-
-    torn = SessionReader(directory).torn
-    for line in torn:
-        print(f"warning: {directory}: {line}", file=sys.stderr)
-    return bool(torn)
+    for line in record.torn:
+        print(f"warning: {record.directory}: {line}", file=sys.stderr)
+    return bool(record.torn)
 
 
 def cmd_run(args) -> int:
@@ -82,7 +79,8 @@ def cmd_resume(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import resume_headless
 
-    reader, spec, steps = procedure_session(args.session)
+    record = procedure_session(args.session)
+    reader, spec, steps = record, record.spec, record.steps
     if reader.start.get("device", {}).get("link") == "pty":
         raise ValueError(f"{args.session}: a run through a serial device cannot be resumed (the "
                          "device cannot be rewound); replay it, or run again")
@@ -95,23 +93,23 @@ def cmd_resume(args) -> int:
         raise ValueError(f"--config is for a live session's ports; {args.session} ran on the simulator "
                          "(resume it without --config)")
     done = len(steps)
-    warn_if_torn(args.session)  # what resuming will cut away
+    warn_if_torn(record)  # what resuming will cut away
     from fieldcal.cli.options import accept_after
     if spec.live is not None:
-        return accept_after(args, None, *_resume_live(args, spec))
+        return accept_after(args, None, *_resume_live(args, record))
     print(f"resuming {args.session} after {done} completed step{'s' if done != 1 else ''}", flush=True)
-    result = resume_headless(Path(args.session), printer(sys.stdout, args.quiet))
+    result = resume_headless(record, printer(sys.stdout, args.quiet))
     return accept_after(args, None, result.parameters, _print_result(result, sys.stdout))
 
 
-def _resume_live(args, spec) -> tuple:
+def _resume_live(args, record) -> tuple:
     """A real device's session, on the ports of --config (else the terminal UI setup's last
     choice), the operator at the console: (parameter file or None, exit status)."""
     from fieldcal.cli.tui import resume_config
     from fieldcal.tui.console import resume_live
 
-    config = resume_config(Path(args.session), spec.live, args.config)
-    result = resume_live(Path(args.session), config, sys.stdin, sys.stdout, args.quiet)
+    config = resume_config(record, args.config)
+    result = resume_live(record, config, sys.stdin, sys.stdout, args.quiet)
     if result.status in ("stopped", "error"):
         print(result.message, file=sys.stdout if result.status == "stopped" else sys.stderr)
         return None, 1
@@ -121,22 +119,18 @@ def _resume_live(args, spec) -> tuple:
 def cmd_replay(args) -> int:
     from fieldcal.run.operators import ReplayOperator
     from fieldcal.run.progress import printer
-    from fieldcal.run.replay import replay_session_outcome
+    from fieldcal.run.replay import later_resolves, replay
     from fieldcal.session.output import check_output_path, save_parameter_file
 
     if args.out:  # never into a session, never over a file without --force: said before replaying
         check_output_path(args.out, force=args.force, option="--out")
-    reader, _, _ = procedure_session(args.session)
-    noted = list(reader.documents("parameters"))
-    if noted:  # the recorded parameter file must be there to compare with: said before replaying
-        path = reader.directory / noted[-1]["file"]
-        if not path.is_file():
-            raise ValueError(f"{path}: the session's parameter file (noted in log.jsonl line "
-                             f"{noted[-1]['seq'] + 1}) cannot be read (it is missing); nothing to compare the replay with")
-    torn = warn_if_torn(args.session)
-    outcome, samples = replay_session_outcome(args.session, ReplayOperator(Path(args.session), args.speed),
-                                              printer(sys.stdout, args.quiet))
-    print(f"replayed {samples} samples")
+    record = procedure_session(args.session)
+    run_file = record.run_parameters
+    if run_file is not None:  # the run's parameter file must be there to compare with: said before replaying
+        run_file.read_bytes(check=False)
+    torn = warn_if_torn(record)
+    outcome = replay(record, ReplayOperator(record, args.speed), printer(sys.stdout, args.quiet))
+    print(f"replayed {outcome.samples} samples")
     if outcome.parameter_file is None:
         print("nothing could be calibrated from this session")
         return 1
@@ -145,13 +139,15 @@ def cmd_replay(args) -> int:
         save_parameter_file(outcome.parameter_file, args.out, force=args.force, option="--out")
         print(f"parameter file written to {args.out}")
         record_in_registry(args, args.out, None, "replay")  # a calibration of the unit: indexed
-    if not noted:
-        print("the session has no parameter file to compare with ("
-              + (f"its run {reader.stop_reason}" if reader.stopped else "it did not finish") + ")")
+    if run_file is None:
+        print("the session has no parameter file its run wrote to compare with ("
+              + (f"its run {record.stop_reason}" if record.stopped else "it did not finish") + ")")
         return 1 if torn else 0
     print(outcome.comparison)
+    for line in later_resolves(record):
+        print(line)
     if outcome.identical:  # the session's own calibration, confirmed: indexed if it was not yet
-        record_in_registry(args, reader.directory / noted[-1]["file"], None, "run")
+        record_in_registry(args, run_file.path, None, "run")
     return 0 if outcome.identical else 1
 
 
@@ -159,14 +155,13 @@ def cmd_solve(args) -> int:
     from fieldcal.run.compare import compare_methods
 
     # The averages are in the log: samples.bin is neither read nor required.
-    reader, spec, steps = procedure_session(args.session, log_only=True)  # every step checked
-    for line in reader.torn:
-        print(f"warning: {args.session}: {line}", file=sys.stderr)
-    if not steps:
+    record = procedure_session(args.session, log_only=True)  # every step checked
+    warn_if_torn(record)
+    if not record.steps:
         raise ValueError(f"{args.session}: no completed steps to solve from")
     methods = args.method
     if not methods:
-        aligned = spec.procedure.aligned
+        aligned = record.spec.procedure.aligned
         methods = ["classic"] if aligned else ["powell", "lsq"]
-    print(compare_methods(Path(args.session), methods))
+    print(compare_methods(record, methods))
     return 0

@@ -84,20 +84,19 @@ def cmd_tui(args) -> int:
 
     accept = {"product_spec": load_spec_option(args)}  # a bad spec stops it before any run
     if args.replay is not None:
+        from fieldcal.run.runner import open_run
+
         if not Path(args.replay, "log.jsonl").is_file():
             raise ValueError(f"--replay: {args.replay} is not a session directory (no log.jsonl)")
-        return run_tui(None, 10.0 if args.speed is None else args.speed, None, Path(args.replay), **accept)
+        return run_tui(None, 10.0 if args.speed is None else args.speed, None, open_run(args.replay), **accept)
     if args.resume is not None:
-        from fieldcal.tui.app import live_device_of
-
-        session = resumable(args.resume)
-        live = live_device_of(session)
-        if live is None:
-            status = run_tui(None, _resume_speed(args), None, None, resume=session, **accept)
+        record = resumable(args.resume)
+        if record.spec.live is None:
+            status = run_tui(None, _resume_speed(args), None, None, resume=record, **accept)
         else:
-            status = run_tui(None, 0.0, None, None, config=resume_config(session, live, args.config),
-                             resume=session, **accept)
-        record_sessions(args, [session])
+            status = run_tui(None, 0.0, None, None, config=resume_config(record, args.config),
+                             resume=record, **accept)
+        record_sessions(args, [record.directory])
         return status
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: expected a whole number >= 0, got {args.seed}")
@@ -142,37 +141,38 @@ def record_sessions(args, sessions) -> None:
     """The calibrations the UI's sessions ended with, recorded in the registry once the terminal
     is back (a failure there is a warning; a session quit before calibrating has none)."""
     from fieldcal.cli.options import record_in_registry
-    from fieldcal.session.capture import SessionReader
+    from fieldcal.session.record import RunRecord
 
     for session in sessions:
         if session is None or not Path(session, "log.jsonl").is_file():
             continue  # --no-capture, or never started
         try:
-            params = SessionReader(session, log_only=True).parameters_path
+            params = RunRecord.open(session, log_only=True).parameters_path
         except (ValueError, OSError):  # damaged: the UI has said what became of it
             continue
         if params is not None:
             record_in_registry(args, params, None, "run")
 
 
-def resumable(session: str) -> Path:
-    """The session ``--resume`` continues; a one-line ValueError for one it cannot."""
+def resumable(session: str):
+    """The ``RunRecord`` of the session ``--resume`` continues; a one-line ValueError for one it cannot."""
     from fieldcal.cli.options import procedure_session
     from fieldcal.tui.choices import resume_refusal
 
     if not Path(session, "log.jsonl").is_file():
         raise ValueError(f"--resume: {session} is not a session directory (no log.jsonl)")
-    reader, _, _ = procedure_session(session)
-    refusal = resume_refusal(reader)
+    record = procedure_session(session)
+    refusal = resume_refusal(record)
     if refusal is not None:
         raise ValueError(f"--resume: {session} {refusal}")
-    return Path(session)
+    return record
 
 
-def resume_config(session: Path, live, config_name: str | None):
-    """The station config whose ports a live session is resumed on: ``--config``, else the
-    setup screen's last choice (with its ports); a one-line ValueError if neither is of the
-    session's device (``live``) or its ports cannot be opened."""
+def resume_config(record, config_name: str | None):
+    """The station config whose ports a live session (``record``: its ``RunRecord``) is resumed
+    on: ``--config``, else the setup screen's last choice (with its ports); a one-line ValueError
+    if neither is of the session's device or its ports cannot be opened."""
+    session, live = record.directory, record.spec.live
     from fieldcal.tui.choices import load_choice_config, load_last_choice, resolve_choice
 
     if config_name is not None:
@@ -200,13 +200,11 @@ def resume_maker(args):
     simulated session at the command line's speed (no config needed), a live one on the ports
     of the setup's ``config``; a one-line ValueError for what cannot be resumed."""
     def make_resume(session: Path, config):
-        from fieldcal.tui.app import live_device_of
-
-        resumable(str(session))
-        live = live_device_of(session)
+        record = resumable(str(session))
+        live = record.spec.live
         if live is None:
-            return _resume_speed(args), None
-        return 0.0, _checked_for(live, config, session)
+            return _resume_speed(args), None, record
+        return 0.0, _checked_for(live, config, session), record
     return make_resume
 
 

@@ -192,7 +192,7 @@ class ParameterFile:
                        inputs: Sequence[np.ndarray] | None = None, input_sha256: str | None = None,
                        method: str | None = None, device_name: str | None = None,
                        device_serial: str | None = None,
-                       simulation: bool | None = None) -> ParameterFile:
+                       simulation: bool | None = None, operator: str | None = None) -> ParameterFile:
         """Parameters of solver solutions, with provenance from ``station`` and the averages.
 
         Give the averages that went in as ``inputs`` (hashed with ``hash_inputs``) or their hash
@@ -207,7 +207,7 @@ class ParameterFile:
             method = "+".join(sorted({t.method for t in triads}))
         return cls.build(triads, station=station, procedure=procedure, method=method,
                          input_sha256=input_sha256, device_name=device_name,
-                         device_serial=device_serial, simulation=simulation)
+                         device_serial=device_serial, simulation=simulation, operator=operator)
 
 
 def hash_inputs(*arrays) -> str:

@@ -12,7 +12,7 @@ import numpy as np
 
 from fieldcal.calibration import CLASSIC_METHOD
 from fieldcal.earth import Station
-from fieldcal.paramfile import ParameterFile, hash_inputs
+from fieldcal.paramfile import ParameterFile
 from fieldcal.recording import Recording
 from fieldcal.recording.calibrate import RecordingCalibration, UnknownPlace
 from fieldcal.report import residual_text, solution_header, solution_table
@@ -36,10 +36,10 @@ def parameter_file(cal: RecordingCalibration, recording: Recording, station: Sta
     triads = [*cal.specific_force.values(), *cal.angular_rate.values()]
     methods = "+".join(dict.fromkeys([s.method for s in cal.specific_force.values()]
                                      + [s.method for s in cal.angular_rate.values()]))
-    data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]
-    return ParameterFile.build(triads, station=_file_station(station), procedure=PROCEDURE, method=methods,
-                               input_sha256=hash_inputs(*data), device_name=device_name,
-                               simulation=simulation, operator=operator)
+    data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]  # what was solved from
+    return ParameterFile.from_solutions(triads, inputs=data, station=_file_station(station), procedure=PROCEDURE,
+                                        method=methods, device_name=device_name, simulation=simulation,
+                                        operator=operator)
 
 
 def noise_lines(cal: RecordingCalibration, configured: bool) -> list[str]:

@@ -19,7 +19,8 @@ import numpy as np
 from drivers.chunk import SampleChunk
 from fieldcal import __version__
 from fieldcal.recording import Recording
-from fieldcal.session.capture import SessionReader, SessionWriter
+from fieldcal.session.capture import SessionWriter
+from fieldcal.session.record import RunRecord
 
 KIND = "recording"
 STOP_REASON = "imported"
@@ -97,7 +98,7 @@ def _sha256_or_none(path: str) -> str | None:
 
 def load_recording(directory: str | os.PathLike) -> Recording:
     """The recording saved in ``directory``; a one-line error for anything else."""
-    reader = SessionReader(directory)  # SessionError (one line) if it is no session at all
+    reader = RunRecord.open(directory)  # SessionError (one line) if it is no session at all
     meta = reader.start
     where = str(reader.directory)
     if meta.get("kind") != KIND:

@@ -6,23 +6,19 @@ column pair per method (paper Table 5 extended to the misalignments).
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 from fieldcal.procedure.engine import windows_and_averages
 from fieldcal.report import methods_table, solution_header
-from fieldcal.run.runner import RunSpec
-from fieldcal.run.steps import completed_records
-from fieldcal.session.capture import LOG, SessionReader
+from fieldcal.session import LOG
 from fieldcal.solvers.solve import solve_unit
 
 
-def compare_methods(directory: Path, methods: list[str]) -> str:
-    reader = SessionReader(directory, log_only=True)
-    spec = RunSpec.from_metadata(reader.start)
-    records = completed_records(reader)  # the last record of each step (a resumed run redoes one)
+def compare_methods(record, methods: list[str]) -> str:
+    """``record``: a procedure run's ``RunRecord`` (its spec rebuilt)."""
+    spec = record.spec
+    records = record.completed  # the last record of each step (a resumed run redoes one)
     windows, averages = windows_and_averages(records)
     if not windows:
-        return f"{directory}: no completed steps to solve from"
+        return f"{record.directory}: no completed steps to solve from"
     models = spec.models()  # the live device's noise models, or the simulator's
     results = {m: solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, m)
                for m in methods}

@@ -29,7 +29,7 @@ import numpy as np
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.engine import Engine
 from fieldcal.run.outcome import Outcome, Status
-from fieldcal.run.steps import ResumePoint, StepDocument
+from fieldcal.session.record import ResumePoint, StepDocument
 
 
 class Bench(Protocol):
@@ -295,22 +295,15 @@ class Conductor:
 
     def solve(self):
         """The unit's solution and parameter file (None if nothing solved) from the completed steps."""
-        from fieldcal.paramfile import ParameterFile, hash_inputs
-        from fieldcal.solvers.solve import resolve_method, solve_unit
+        from fieldcal.solvers.solve import solve_unit
 
         spec = self.spec
         windows, averages = self.engine.windows_and_averages()
         models = {n: m for n, m in spec.models().items() if n in averages}
         unit = solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, spec.method)
-        if not unit.solutions:
-            return unit, None
-        pf = ParameterFile.build(
-            triads=tuple(unit.solutions.values()),
-            procedure=spec.procedure.name, method=resolve_method(spec.procedure, spec.method),
-            station=spec.station, input_sha256=hash_inputs(*unit.inputs.values()),
-            device_name=spec.device_name, device_serial=spec.device_serial, simulation=spec.live is None,
-            operator=spec.operator)
-        return unit, pf
+        return unit, unit.parameter_file(spec.procedure, spec.method, spec.station, device_name=spec.device_name,
+                                         device_serial=spec.device_serial, simulation=spec.live is None,
+                                         operator=spec.operator)
 
     def conclude(self, done: ev.ProcedureComplete) -> None:
         """Solve, say so, write the parameter file; the outcome, with the unit's previous calibration."""
@@ -333,7 +326,7 @@ class Conductor:
 
     def _outcome(self, status: Status, **kw) -> Outcome:
         return Outcome(status, self.spec.procedure, truth=self.truth(), session=self.session,
-                       completed=len(self.engine.records), skipped=len(self.engine.skipped), **kw)
+                       completed=len(self.engine.records), skipped=len(self.engine.skipped), samples=self.samples, **kw)
 
     def _unfinished(self) -> Outcome:
         """The operator ended the run (quit; the end of a replayed capture) before the procedure did."""

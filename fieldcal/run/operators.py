@@ -7,14 +7,13 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass
-from pathlib import Path
 
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure
 from fieldcal.run.conductor import Act, Bump, Conductor, Feed, Operator, Place, Restart, Say
 from fieldcal.run.pacing import Pacer
-from fieldcal.run.steps import ResumePoint
-from fieldcal.session.capture import SessionReader
+from fieldcal.session.record import ResumePoint
+from fieldcal.session.record import RunRecord
 
 
 @dataclass(frozen=True)
@@ -123,9 +122,9 @@ class ReplayOperator(Operator):
     starts over at each resume: a resumed run's sample time continues from its last step).
     """
 
-    def __init__(self, directory: Path, speed: float | None = None, pacer: Pacer | None = None):
-        self.reader = SessionReader(directory)
-        self.items = self.reader.replay_items(("chunk", "action", "resume"))
+    def __init__(self, record: RunRecord, speed: float | None = None, pacer: Pacer | None = None):
+        self.record = record
+        self.items = record.replay_items(("chunk", "action", "resume"))
         self.pacer = pacer if pacer is not None else Pacer(speed or 0.0)
 
     def next_moves(self, run: Conductor):

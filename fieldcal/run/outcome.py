@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 from fieldcal.procedure.positions import Procedure
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the solvers load scipy: typed here, imported where a run concludes
     from fieldcal.paramfile import ParameterFile
     from fieldcal.session.history import PreviousCalibration
     from fieldcal.solvers.solve import UnitSolution
@@ -37,7 +37,8 @@ class Outcome:
     completed: int = 0
     skipped: int = 0
     message: str = ""
-    previous: PreviousCalibration | None = None  # of the same unit
+    previous: PreviousCalibration | None = None  # the same unit's last calibration
+    samples: int = 0  # fed to the engine (a replay: the samples replayed)
 
     @property
     def solved(self) -> bool:

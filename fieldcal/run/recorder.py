@@ -3,9 +3,8 @@
 It subscribes to a conductor: chunks, events, actions, one ``step`` document per completed step
 (the step's record, the steps skipped so far and the bench's state: everything resuming after it
 needs, in one document so a crash cannot separate them), ``resume`` where a run continues, the
-parameter file and ``stop``. ``steps_on_record`` reads the steps back, also from sessions
-written before the documents were unified (the terminal UI then wrote ``step`` without
-``skipped``/``bench`` and a separate ``checkpoint``).
+parameter file and ``stop``. The documents are ``fieldcal.session.record``'s, and its
+``RunRecord`` reads them back (older shapes through ``fieldcal.session.legacy``).
 """
 from __future__ import annotations
 
@@ -13,7 +12,7 @@ from pathlib import Path
 
 from fieldcal.procedure import events as ev
 from fieldcal.run.conductor import Subscriber
-from fieldcal.run.steps import ResumePoint, StepDocument
+from fieldcal.session.record import ResumePoint, StepDocument
 from fieldcal.session.capture import PARAMETERS, SessionWriter
 
 

@@ -2,92 +2,132 @@
 
 Replay feeds the captured chunks and operator actions, in the order they happened, through a
 conductor with a fresh engine; where a run was resumed after a crash, the engine restarts from
-the steps that run kept, as the resumed run did. In the numeric environment the session was
-recorded in, the parameter file comes out byte for byte the same as the one the run wrote.
+the steps that run kept, as the resumed run did. It vouches for the session only after checking
+what it vouches for: the step averages the log holds (what ``solve`` and ``resolve`` use) must be
+the averages of the samples (bit for bit in the numeric environment the session was recorded
+in, within ``AVERAGES_RTOL`` elsewhere), and the parameter file comes out as the one the *run*
+wrote (byte for byte in the same environment), whatever re-solves wrote after it.
 """
 from __future__ import annotations
 
-from pathlib import Path
+import numpy as np
 
 from fieldcal.run.conductor import Conductor, Operator, Reporter
-from fieldcal.run.environment import compare_parameters
+from fieldcal.run.environment import compare_parameters, numeric_environment
 from fieldcal.run.operators import NoBench, ReplayOperator
 from fieldcal.run.outcome import Outcome, Status
-from fieldcal.run.runner import RunSpec
-from fieldcal.session.capture import SessionReader
+from fieldcal.session import LOG, SessionError
+from fieldcal.session.record import RunRecord
+
+# Re-averaging the same samples elsewhere (another numpy's summation order) moves a mean by a few
+# units in the last place; a changed average moves it by far more than this (0.01 mg is 1e-5 of g).
+AVERAGES_RTOL = 1e-9
 
 
-def replay_conductor(directory: str | Path, operator: ReplayOperator | None = None,
+def replay_conductor(record: RunRecord, operator: ReplayOperator | None = None,
                      subscribers=()) -> Conductor:
     """A conductor that replays the session (``operator``: a paced one, else as fast as possible)."""
-    operator = operator if operator is not None else ReplayOperator(Path(directory))
-    spec = RunSpec.from_metadata(operator.reader.start)
-    return Conductor(spec, NoBench(), operator, subscribers)
+    operator = operator if operator is not None else ReplayOperator(record)
+    return Conductor(record.spec, NoBench(), operator, subscribers)
 
 
-def finish_replay(conductor: Conductor, directory: str | Path, outcome: Outcome) -> Outcome:
+def check_averages(record: RunRecord, conductor: Conductor) -> None:
+    """A SessionError naming the log line of the first step whose logged averages are not the
+    replayed samples' averages (the replay's engine ``conductor.engine``)."""
+    exact = record.start.get("numeric_environment") == numeric_environment()
+    replayed = conductor.engine.records
+    for doc in record.completed_documents:
+        logged = doc.record
+        where = f"{record.directory / LOG}: line {doc.line}: step {logged.step + 1}"
+        again = replayed.get(logged.step)
+        if again is None:
+            raise SessionError(f"{where}: the log holds its averages, but its samples do not complete it on "
+                               "replay; the step documents are not the samples'", str(record.directory / LOG), doc.line)
+        if [(w.kind, tuple(sorted(w.means))) for w in again.windows] != \
+                [(w.kind, tuple(sorted(w.means))) for w in logged.windows]:
+            raise SessionError(f"{where}: its windows differ from those the samples give on replay",
+                               str(record.directory / LOG), doc.line)
+        for i, (a, b) in enumerate(zip(logged.windows, again.windows)):
+            for name in a.means:
+                x, y = np.asarray(a.means[name], float), np.asarray(b.means[name], float)
+                same = np.array_equal(x, y) if exact else np.allclose(x, y, rtol=AVERAGES_RTOL, atol=0.0)
+                if not same:
+                    how = "bit for bit (same numeric environment)" if exact else f"within {AVERAGES_RTOL:g} relative"
+                    raise SessionError(
+                        f"{where}: window {i + 1} ({a.kind}): the logged {name} mean {a.means[name]} and the "
+                        f"samples' {list(b.means[name])} differ (compared {how}); the step averages were changed "
+                        "after they were written: refused (restore the session from a copy)",
+                        str(record.directory / LOG), doc.line)
+
+
+def finish_replay(conductor: Conductor, record: RunRecord, outcome: Outcome) -> Outcome:
     """What a replay's outcome says beyond a run's: the capture it replayed, whether the capture
-    ended before the procedure did, and how the parameter file compares with the recorded one."""
-    reader = SessionReader(directory)
-    outcome.replay_of, outcome.session, outcome.parameters = Path(directory), None, reader.parameters_path
+    ended before the procedure did, and how the parameter file compares with the run's.
+    A SessionError if the logged step averages are not the samples'."""
+    check_averages(record, conductor)
+    outcome.samples = conductor.samples
+    note = record.run_parameters
+    outcome.replay_of, outcome.session = record.directory, None
+    outcome.parameters = note.path if note is not None else None
     if outcome.status == Status.STOPPED:
         engine = conductor.engine
         outcome.status = Status.INCOMPLETE
         outcome.message = f"the capture ends during step {engine.step + 1} of {len(engine.procedure.positions)}"
     elif outcome.status == Status.ABORTED:
         outcome.message = "the recorded run was aborted"
-    recorded = recorded_parameters(directory)
-    if outcome.parameter_file is not None and recorded is not None:
-        found = compare_parameters(outcome.parameter_file, recorded, reader.start.get("numeric_environment"))
-        outcome.identical, outcome.comparison = found.identical, found.text
+    if outcome.parameter_file is not None and note is not None:
+        found = compare_parameters(outcome.parameter_file, note.read_bytes(check=False),
+                                   record.start.get("numeric_environment"))
+        outcome.identical = found.identical
+        outcome.comparison = found.text.replace("the recorded one", f"the run's {note.file}", 1)
     return outcome
 
 
-def replay(directory: str | Path, operator: ReplayOperator | None = None, subscribers=()) -> tuple[Outcome, Conductor]:
-    """Replay to the end of the capture."""
-    conductor = replay_conductor(directory, operator, subscribers)
-    return finish_replay(conductor, directory, conductor.run()), conductor
+def later_resolves(record: RunRecord) -> list[str]:
+    """One line per parameter file a re-solve wrote after the run's: its file and method."""
+    note = record.run_parameters
+    if note is None:
+        return []
+    lines = []
+    for later in record.resolved_after(note):
+        try:
+            method = later.method()
+        except ValueError as exc:  # changed or unreadable: said, the replay's verdict stands
+            method = f"unreadable: {str(exc).splitlines()[0]}"
+        current = " (the session's current calibration)" if later is record.current_parameters else ""
+        lines.append(f"re-solved later: {later.file} ({method}){current}")
+    return lines
 
 
-def replay_session_outcome(directory: str | Path, operator: ReplayOperator | None = None,
-                           report=lambda e: None) -> tuple[Outcome, int]:
-    """Replay (``fieldcal replay``); a capture that ends early or was aborted is solved from the
-    steps it completed. The outcome and the number of samples replayed."""
-    outcome, conductor = replay(directory, operator, [Reporter(report)])
+def replay(record: RunRecord, operator: ReplayOperator | None = None, report=lambda e: None) -> Outcome:
+    """Replay to the end of the capture (``fieldcal replay``, the certificate); a capture that
+    ends early or was aborted is solved from the steps it completed. ``operator``: a paced one
+    (``ReplayOperator(record, speed)``), else as fast as possible; ``report``: each event."""
+    conductor = replay_conductor(record, operator, [Reporter(report)])
+    outcome = finish_replay(conductor, record, conductor.run())
     if outcome.unit is None:
         outcome.unit, outcome.parameter_file = conductor.solve()
-    return outcome, conductor.samples
+    return outcome
 
 
-def replay_session(directory: str | Path, speed: float | None = None, report=lambda e: None):
-    """Re-run the engine on the capture; (solution, parameter file, samples replayed).
-
-    ``speed``: None for as fast as possible, else that many times real (sample) time.
-    """
-    outcome, samples = replay_session_outcome(directory, ReplayOperator(Path(directory), speed), report)
-    return outcome.unit, outcome.parameter_file, samples
+def recorded_parameters(record: RunRecord) -> bytes | None:
+    """The bytes of the parameter file the run wrote (None: it wrote none)."""
+    note = record.run_parameters
+    return note.read_bytes() if note is not None else None
 
 
-def recorded_parameters(directory: str | Path) -> bytes | None:
-    path = SessionReader(directory).parameters_path
-    return Path(path).read_bytes() if path else None
-
-
-def replay_matches(directory: str | Path) -> bool:
+def replay_matches(record: RunRecord) -> bool:
     """Does replaying the session give its parameter file (byte for byte in the same numeric
     environment, within the stated tolerance elsewhere)?"""
-    return replay(directory)[0].identical is True
+    return replay(record).identical is True
 
 
-def resolve_session(directory: str | Path, method: str | None = None):
+def resolve_session(record: RunRecord, method: str | None = None):
     """Solve again from the step averages the session stored (no samples read); (solution, file).
     ``method``: another solver than the session's."""
     from dataclasses import replace
 
-    from fieldcal.run.steps import completed_records
-
-    reader = SessionReader(directory)
-    spec = RunSpec.from_metadata(reader.start)
-    conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), Operator())  # (no loop is run)
-    conductor.engine.restore(completed_records(reader))
+    spec = record.spec
+    conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), Operator())
+    conductor.engine.restore(record.completed)
     return conductor.solve()

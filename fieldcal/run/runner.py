@@ -29,9 +29,8 @@ from fieldcal.run.conductor import Bench, Conductor, Reporter
 from fieldcal.run.operators import OperatorScript, ScriptedOperator
 from fieldcal.run.outcome import Outcome
 from fieldcal.run.recorder import SessionRecorder
-from fieldcal.run.steps import steps_on_record
 from fieldcal.run.simrun import placed_attitude
-from fieldcal.session.capture import SessionReader
+from fieldcal.session.record import RunRecord
 
 if TYPE_CHECKING:  # at run time they load scipy.optimize: imported where used, not at start-up
     from fieldcal.run.livedevice import LiveDevice
@@ -244,17 +243,25 @@ def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool =
     return conductor.run()
 
 
-def resume_headless(directory: Path, report=lambda e: None) -> Outcome:
+def open_run(directory: str | Path, *, log_only: bool = False, recordings: bool = False) -> RunRecord:
+    """A procedure run's session, read once, with its spec rebuilt (``RunRecord.open``).
+    ``recordings``: an imported recording is opened too (its record has no spec), not refused."""
+    def spec_from(metadata: dict) -> RunSpec | None:
+        if recordings and metadata.get("kind") == "recording":
+            return None
+        return RunSpec.from_metadata(metadata)
+
+    return RunRecord.open(directory, log_only=log_only, spec_from=spec_from)
+
+
+def resume_headless(record: RunRecord, report=lambda e: None) -> Outcome:
     """Continue a run (headless, or the terminal UI's simulator) after its last completed step.
 
     Everything up to the last completed step is kept; what came after it (a partial step, a
     skip) is done again, exactly as the uninterrupted run did it.
     """
-    reader = SessionReader(directory)
-    spec = RunSpec.from_metadata(reader.start)
-    steps = steps_on_record(reader)
-    conductor = Conductor(spec, SimulatedBench(spec), ScriptedOperator(spec.script, spec.procedure),
-                          session=directory)
-    conductor.restore(steps)  # before the session is touched: refuses what cannot be continued
-    conductor.subscribers = [SessionRecorder.append_to(directory), Reporter(report)]
-    return conductor.run()
+    from fieldcal.run.resume import resume_conductor
+
+    spec = record.spec
+    return resume_conductor(record, SimulatedBench(spec), ScriptedOperator(spec.script, spec.procedure),
+                            [Reporter(report)]).run()

@@ -34,6 +34,7 @@ class SimulatedCalibration:
     covariances: dict[str, np.ndarray]  # of each problem's data
     static_table_angles: np.ndarray
     failures: dict[str, str]  # triads the procedure could not calibrate, and why
+    unit: object = None  # fieldcal.solvers.solve.UnitSolution: all of the above, and the averages used
 
     def bound(self, name: str) -> np.ndarray:
         """Cramér-Rao bound (9x9) for one triad at the true parameters and orientations."""
@@ -71,4 +72,4 @@ def run_simulated_calibration(seed: int, procedure: Procedure | str = "field-18"
                       rate_hz, method)
     truths = {name: params_from_k(t.K, t.bias) for name, t in device.items()}
     return SimulatedCalibration(procedure, station, plan, device, unit.solutions, truths,
-                                unit.problems, unit.covariances, angles, unit.failures)
+                                unit.problems, unit.covariances, angles, unit.failures, unit)

@@ -1,4 +1,5 @@
-"""Sessions: the append-only capture format, its writer and reader, history of a unit."""
+"""Sessions: the append-only capture format, its writer and reader, the run record (what a
+session means, read once; old shapes in legacy), history of a unit."""
 
 # Here, not in capture (which needs numpy): a command checks its output paths against sessions
 # (session.output, cli.paths) before it imports what its work needs.

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fieldcal.paramfile import ParameterFile, ParameterFileError, load
-from fieldcal.session.capture import PARAMETERS, SessionError, SessionReader
+from fieldcal.session.capture import PARAMETERS, SessionError
 
 VERIFIED = "verified"
 EDITED = "edited after calibration"
@@ -42,11 +42,14 @@ class PreviousCalibration:
         return text
 
 
-def recorded_check(path: Path) -> str:
+def recorded_check(path: Path, record=None) -> str:
     """VERIFIED if ``path`` has the SHA-256 its session's log recorded for it, EDITED if not,
-    UNRECORDED when there is no readable log or it names no such file."""
+    UNRECORDED when there is no readable log or it names no such file. ``record``: the
+    session's ``RunRecord`` where the caller has it (else it is read)."""
+    from fieldcal.session.record import RunRecord
+
     try:
-        reader = SessionReader(path.parent)
+        reader = record if record is not None else RunRecord.open(path.parent, log_only=True)
         # parameters.yaml is a copy of the newest numbered file, which the log names instead
         docs = [d for d in reader.documents("parameters") if d["file"] == path.name
                 or path.name == PARAMETERS]

@@ -39,6 +39,18 @@ class UnitSolution:
     covariances: dict[str, np.ndarray]  # triad -> covariance of the data it was solved from
     inputs: dict[str, np.ndarray]  # triad -> the averages it was solved from, flattened
 
+    def parameter_file(self, procedure: Procedure, method: str, station: Station, **provenance):
+        """The parameter file of the solved triads (None if none solved): its ``input_sha256``
+        is the hash of the averages each triad was actually solved from (``inputs``), whichever
+        method solved it. ``provenance``: device_name, device_serial, simulation, operator."""
+        from fieldcal.paramfile import ParameterFile
+
+        if not self.solutions:
+            return None
+        return ParameterFile.from_solutions(self.solutions.values(), inputs=list(self.inputs.values()),
+                                            station=station, procedure=procedure.name,
+                                            method=resolve_method(procedure, method), **provenance)
+
 
 def average_covariance(model: TriadModel, windows: list[Window], rate_hz: float) -> np.ndarray:
     """Covariance of the flattened window means (window-major, then axis), output units.

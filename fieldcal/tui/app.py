@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 from textual.app import App
 from textual.binding import Binding, BindingType
@@ -24,6 +24,9 @@ from fieldcal.tui.source import Outcome, ReplaySource, SimSource, Source
 from fieldcal.tui.widgets.toosmall import MIN_COLUMNS, MIN_ROWS
 from fieldcal.tui.view import DONE, SKIPPED, RunView
 
+if TYPE_CHECKING:
+    from fieldcal.session.record import RunRecord
+
 
 def _speed_words(speed: float) -> str:
     return "as fast as possible" if speed <= 0 else f"{speed:g}× real time"
@@ -31,7 +34,7 @@ def _speed_words(speed: float) -> str:
 
 class FieldcalApp(App[int]):
     """``FieldcalApp(spec, speed, session_dir)`` runs the simulated bench;
-    ``FieldcalApp(None, speed, replay=SESSION)`` replays a capture."""
+    ``FieldcalApp(None, speed, replay=RECORD)`` replays a capture (``RECORD``: its ``RunRecord``)."""
 
     CSS_PATH = "app.tcss"
     TITLE = "fieldcal"
@@ -42,8 +45,8 @@ class FieldcalApp(App[int]):
     ]
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
-                 replay: Path | None = None, clock=time.monotonic, config=None, setup=None,
-                 resume: Path | None = None, product_spec=None, wall_clock=time.time) -> None:
+                 replay: RunRecord | None = None, clock=time.monotonic, config=None, setup=None,
+                 resume: RunRecord | None = None, product_spec=None, wall_clock=time.time) -> None:
         """``product_spec``: an ``acceptance.ProductSpec``: the results say PASS/FAIL against it,
         and the exit status is 3 (as the headless run's) when a check fails.
 
@@ -59,7 +62,7 @@ class FieldcalApp(App[int]):
         a procedure, goes to ``make_run(config, procedure) -> (spec, session_dir, speed)``, whose
         ValueError goes back to the setup screen. ``(initial, make_run, sessions, make_resume)``:
         the setup screen also offers the unfinished sessions in the directory ``sessions``, and
-        one chosen goes to ``make_resume(session, config) -> (speed, config)`` (the config of a
+        one chosen goes to ``make_resume(session, config) -> (speed, config, record)`` (the config of a
         live session's ports, None for a simulated one).
         """
         super().__init__()
@@ -77,26 +80,26 @@ class FieldcalApp(App[int]):
         if setup is None:
             self._prepare(spec, session_dir, replay, config, resume)
 
-    def _prepare(self, spec, session_dir: Path | None, replay: Path | None, config,
-                 resume: Path | None = None) -> None:
+    def _prepare(self, spec, session_dir: Path | None, replay: RunRecord | None, config,
+                 resume: RunRecord | None = None) -> None:
         clock = self.clock
-        if resume is not None and live_device_of(resume) is not None:
+        if resume is not None and resume.spec.live is not None:
             from fieldcal.tui.live_source import LiveSource
 
             if config is None:
                 raise ValueError(f"{resume}: a live device's session: resuming it needs the station config "
                                  "of that device (its ports)")
-            self.source = LiveSource.resuming(Path(resume), config, self, clock, self.wall_clock)
+            self.source = LiveSource.resuming(resume, config, self, clock, self.wall_clock)
             live = self.source.spec.live
-            title = (f"fieldcal · {self.source.spec.procedure.name} · resuming {Path(resume).name} · "
+            title = (f"fieldcal · {self.source.spec.procedure.name} · resuming {resume.directory.name} · "
                      f"{live.name} on {config.device.port.url}")
         elif resume is not None:
-            self.source = SimSource.resuming(Path(resume), self, self.speed, clock)
-            title = (f"fieldcal · {self.source.spec.procedure.name} · resuming {Path(resume).name} · "
+            self.source = SimSource.resuming(resume, self, self.speed, clock)
+            title = (f"fieldcal · {self.source.spec.procedure.name} · resuming {resume.directory.name} · "
                      f"simulated MIMU, seed {self.source.spec.seed} · {_speed_words(self.speed)}")
         elif replay is not None:
-            self.source = ReplaySource(Path(replay), self, self.speed, clock)
-            title = f"fieldcal · replay of {Path(replay).name} · {_speed_words(self.speed)}"
+            self.source = ReplaySource(replay, self, self.speed, clock)
+            title = f"fieldcal · replay of {replay.directory.name} · {_speed_words(self.speed)}"
         elif spec is not None and spec.live is not None:
             from fieldcal.tui.live_source import LiveSource
 
@@ -160,9 +163,9 @@ class FieldcalApp(App[int]):
 
     def _resume_chosen(self, screen, choice) -> None:
         try:
-            speed, config = self.setup[3](choice.session, screen.resolved[0] if choice.live else None)
+            speed, config, record = self.setup[3](choice.session, screen.resolved[0] if choice.live else None)
             self.speed = float(speed)
-            self._prepare(None, None, None, config, resume=choice.session)
+            self._prepare(None, None, None, config, resume=record)
         except ValueError as exc:
             self._ask_setup(self.setup[0], str(exc).splitlines()[0])
             return
@@ -235,22 +238,14 @@ class FieldcalApp(App[int]):
         return 0 if outcome.solved and not outcome.unit.failures and outcome.identical is not False else 1
 
 
-def live_device_of(directory: Path):
-    """The real device a session was recorded from (a ``LiveDevice``), None for the simulator."""
-    from fieldcal.run.runner import RunSpec
-    from fieldcal.session.capture import SessionReader
-
-    return RunSpec.from_metadata(SessionReader(Path(directory), log_only=True).start).live
-
-
-def run_tui(spec, speed: float, session_dir: Path | None, replay: Path | None, config=None,
-            setup=None, resume: Path | None = None, product_spec=None) -> int:
+def run_tui(spec, speed: float, session_dir: Path | None, replay: RunRecord | None, config=None,
+            setup=None, resume: RunRecord | None = None, product_spec=None) -> int:
     """Run the terminal UI until the operator quits; the exit status (0: calibrated).
 
     ``spec``: the run (procedure, station, seed, ...), simulated or on a real device (with its
     ``config``); ignored with ``replay`` (the session says what it was). ``speed``: sample time
     per wall time, 0 = as fast as possible. ``session_dir``: where to capture the session (None:
-    no capture). ``replay``: a session directory to replay through the same screens.
+    no capture). ``replay``: a session (its ``RunRecord``) to replay through the same screens.
     ``setup``: open the setup screen first (see ``FieldcalApp``). ``resume``: continue this
     unfinished simulated session instead (see ``FieldcalApp``). ``product_spec``: PASS/FAIL
     against it on the results screen; exit status 3 when a check fails.

@@ -226,13 +226,13 @@ class UnfinishedSession:
         return f"{self.path.name} ({self.done}/{self.total} done)"  # the name says sim or live
 
 
-def resume_refusal(reader) -> str | None:
-    """Why a session (a ``SessionReader``) cannot be resumed, or None if it can."""
-    if reader.stopped:
-        return (f"already ended ({reader.stop_reason}); "
+def resume_refusal(record) -> str | None:
+    """Why a session (its ``RunRecord``) cannot be resumed, or None if it can."""
+    if record.stopped:
+        return (f"already ended ({record.stop_reason}); "
                 + ("a completed session is never resumed: replay it with `fieldcal tui --replay`"
-                   if reader.stop_reason == "completed" else "nothing to resume"))
-    if reader.start.get("device", {}).get("link") == "pty":
+                   if record.stop_reason == "completed" else "nothing to resume"))
+    if record.start.get("device", {}).get("link") == "pty":
         return "ran through a serial device, which cannot be rewound; replay it, or run again"
     return None
 
@@ -251,9 +251,8 @@ def unfinished_sessions(directory: str | os.PathLike) -> list[UnfinishedSession]
     """The sessions under ``directory`` that can be resumed, newest first: not ended, not being
     written by another process, and procedure runs (of the newest ``UNFINISHED_LISTED``).
     A session that cannot be read is passed over: the list is an offer, not a check."""
-    from fieldcal.run.runner import RunSpec
-    from fieldcal.run.steps import steps_on_record
-    from fieldcal.session.capture import LOG, SessionReader
+    from fieldcal.run.runner import open_run
+    from fieldcal.session.capture import LOG
     from fieldcal.session.lock import is_held
 
     def modified(path: Path) -> float:
@@ -273,11 +272,11 @@ def unfinished_sessions(directory: str | os.PathLike) -> list[UnfinishedSession]
         try:
             if _ends_stopped(log) or is_held(session):
                 continue
-            reader = SessionReader(session, log_only=True)
-            if resume_refusal(reader) is not None:
+            record = open_run(session, log_only=True)
+            if resume_refusal(record) is not None:
                 continue
-            spec = RunSpec.from_metadata(reader.start)
-            done = len({s.record.step for s in steps_on_record(reader)})
+            spec = record.spec
+            done = len({s.record.step for s in record.steps})
         except (ValueError, KeyError, TypeError, OSError):
             continue
         found.append(UnfinishedSession(session, spec.procedure.name, done, len(spec.procedure.positions),

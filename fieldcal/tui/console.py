@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import threading
 import time
-from pathlib import Path
 
 from fieldcal.procedure import events as ev
 from fieldcal.run.progress import describe
@@ -59,11 +58,12 @@ def read_commands(stream, source, out) -> None:
     source.stop()
 
 
-def resume_live(session: Path, config, stdin, out, quiet: bool = False, wall_clock=time.time):
-    """Continue the unfinished live ``session`` on the device of ``config``; the Outcome."""
+def resume_live(record, config, stdin, out, quiet: bool = False, wall_clock=time.time):
+    """Continue the unfinished live session of ``record`` (its ``RunRecord``) on the device of
+    ``config``; the Outcome."""
     from fieldcal.tui.live_source import LiveSource
 
-    source = LiveSource.resuming(Path(session), config, ConsoleSink(out, quiet), wall_clock=wall_clock)
+    source = LiveSource.resuming(record, config, ConsoleSink(out, quiet), wall_clock=wall_clock)
     print(f"the operator's commands, one a line: {KEYS}", file=out, flush=True)
     threading.Thread(target=read_commands, args=(stdin, source, out), name="fieldcal-commands",
                      daemon=True).start()

@@ -24,7 +24,7 @@ from fieldcal.procedure.engine import PLACE, WAITING_FOR_OPERATOR, WRONG
 from fieldcal.run.conductor import Act, Conductor, Restart, Say
 from fieldcal.run.deviceclock import measured_again, power_cycle_banner, step_started_again
 from fieldcal.run.outcome import Status
-from fieldcal.run.steps import ResumePoint
+from fieldcal.session.record import ResumePoint
 from fieldcal.tui.source import (ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, Note,
                                  ResumeNote, SimSource, Sink)
 
@@ -37,9 +37,10 @@ class LiveSource(SimSource):
     mode = Mode.LIVE
 
     def __init__(self, spec, config, sink: Sink, session_dir: Path | None,
-                 clock: Callable[[], float] = time.monotonic, resume: bool = False,
+                 clock: Callable[[], float] = time.monotonic, resume=None,
                  wall_clock: Callable[[], float] = time.time):
-        """``resume``: ``session_dir`` is an unfinished live session to continue (``resuming``).
+        """``resume``: the ``RunRecord`` of the unfinished live session in ``session_dir`` to
+        continue (``resuming``).
         ``wall_clock``: the host's Unix time, against which the device's clock is judged."""
         from fieldcal.run.livebench import LiveBench
 
@@ -51,21 +52,18 @@ class LiveSource(SimSource):
         self.clock_check = None  # a resumed run: what the device's clock said (deviceclock.ClockCheck)
         # A resumed run reads the device before it may write the session: those bytes wait here.
         self._raw_lock = threading.Lock()
-        self._early_raw: list[tuple[float, bytes]] | None = [] if resume else None
+        self._early_raw: list[tuple[float, bytes]] | None = [] if resume is not None else None
 
     @classmethod
-    def resuming(cls, directory: Path, config, sink: Sink, clock: Callable[[], float] = time.monotonic,
+    def resuming(cls, record, config, sink: Sink, clock: Callable[[], float] = time.monotonic,
                  wall_clock: Callable[[], float] = time.time) -> LiveSource:
-        """Continue the unfinished live session in ``directory`` on the device of ``config``
-        (its ports; the device must be the session's): the run's spec is the session's."""
-        from fieldcal.run.runner import RunSpec
-        from fieldcal.session.capture import SessionReader
-
-        spec = RunSpec.from_metadata(SessionReader(Path(directory)).start)
+        """Continue the unfinished live session of ``record`` (its ``RunRecord``) on the device
+        of ``config`` (its ports; the device must be the session's): the run's spec is the session's."""
+        spec = record.spec
         if spec.live is None:
-            raise ValueError(f"{directory}: a simulated session; LiveSource resumes a live device's")
-        check_same_device(spec.live, config, directory)
-        return cls(spec, config, sink, directory, clock, resume=True, wall_clock=wall_clock)
+            raise ValueError(f"{record.directory}: a simulated session; LiveSource resumes a live device's")
+        check_same_device(spec.live, config, record.directory)
+        return cls(spec, config, sink, record.directory, clock, resume=record, wall_clock=wall_clock)
 
     def _capture_raw(self, t: float, data: bytes) -> None:
         """Called on the port's reader thread (the session writer is thread-safe)."""
@@ -114,15 +112,11 @@ class LiveSource(SimSource):
         have been) power-cycled since, after none of them. The ports are opened and the first
         frames read before the session is touched: what cannot go on leaves it unchanged."""
         from fieldcal.run.deviceclock import judge_restart
-        from fieldcal.run.recorder import SessionRecorder
-        from fieldcal.run.steps import steps_on_record
-        from fieldcal.session.capture import SessionReader
+        from fieldcal.run.resume import refuse_ended, resume_conductor
 
-        reader = SessionReader(self.session_dir)
-        if reader.stopped:
-            raise ValueError(f"{self.session_dir}: this session already ended ({reader.stop_reason}); "
-                             "nothing to resume")
-        steps = steps_on_record(reader)
+        record = self.resume
+        refuse_ended(record)  # before the ports are opened
+        steps = record.steps
         self.bench.say = lambda text: self._items.append(Note(self._t(), text))
         try:
             self.bench.start()
@@ -139,18 +133,14 @@ class LiveSource(SimSource):
                                      "unchanged; resume it again")
                 self.clock_check = judge_restart(self.bench.recorded_clock, now, self.spec.rate_hz)
             kept, why = self._kept_after(steps)
-            conductor = Conductor(self.spec, self.bench, self, [self], session=self.session_dir,
-                                  settings=self.settings)
-            self.conductor = conductor
-            conductor.restore(kept, skipped=steps[-1].skipped if steps else (), why=why,
-                              dropped=sorted({s.record.step for s in steps} - {s.record.step for s in kept}))
             # (locked by another station, read-only, damaged: the ports are closed again, so a
             # retry from the setup screen does not open the device a second time)
-            self._record_to(SessionRecorder.append_to(self.session_dir))
+            conductor = resume_conductor(record, self.bench, self, [self], settings=self.settings,
+                                         measured_again=why, attach=self._record_to)
+            self.conductor = conductor
         except BaseException:
             self.bench.close()
             raise
-        conductor.subscribers.insert(0, self.recorder)
         self.bench.say = conductor.say
         self._say_reading(conductor)
         note = self._resume_note(steps, kept, why, conductor.engine.t)

@@ -235,12 +235,12 @@ class SimSource(Source):
     mode = Mode.SIM
 
     def __init__(self, spec, sink: Sink, speed: float, session_dir: Path | None,
-                 clock: Callable[[], float] = time.monotonic, bench=None, resume: bool = False):
-        """``resume``: ``session_dir`` is an unfinished session to continue after its last
-        completed step (see ``resuming``), not a new one."""
+                 clock: Callable[[], float] = time.monotonic, bench=None, resume=None):
+        """``resume``: the ``RunRecord`` of the unfinished session in ``session_dir`` to continue
+        after its last completed step (see ``resuming``), not a new one."""
         super().__init__(spec, sink, speed, clock)
         self.session_dir = Path(session_dir) if session_dir is not None else None
-        if resume and self.session_dir is None:
+        if resume is not None and self.session_dir is None:
             raise ValueError("resume: which session?")
         self.resume = resume
         self.recorder = None
@@ -259,18 +259,15 @@ class SimSource(Source):
         return SmoothHands(bench)
 
     @classmethod
-    def resuming(cls, directory: Path, sink: Sink, speed: float,
+    def resuming(cls, record, sink: Sink, speed: float,
                  clock: Callable[[], float] = time.monotonic) -> SimSource:
-        """Continue the unfinished simulated session in ``directory`` after its last completed
-        step, as ``fieldcal resume`` does headless: the run's spec is the session's, the bench's
-        state that of the last completed step, and what follows is appended to the session."""
-        from fieldcal.run.runner import RunSpec
-        from fieldcal.session.capture import SessionReader
-
-        spec = RunSpec.from_metadata(SessionReader(Path(directory)).start)
-        if spec.live is not None:
-            raise ValueError(f"{directory}: a live device's session; SimSource resumes simulated ones")
-        return cls(spec, sink, speed, directory, clock, resume=True)
+        """Continue the unfinished simulated session of ``record`` (its ``RunRecord``) after its
+        last completed step, as ``fieldcal resume`` does headless: the run's spec is the
+        session's, the bench's state that of the last completed step, and what follows is
+        appended to the session."""
+        if record.spec.live is not None:
+            raise ValueError(f"{record.directory}: a live device's session; SimSource resumes simulated ones")
+        return cls(record.spec, sink, speed, record.directory, clock, resume=record)
 
     def _metadata(self) -> dict:
         return self.spec.session_metadata("in-process", "tui")
@@ -288,25 +285,13 @@ class SimSource(Source):
                          settings=self.settings)
 
     def _resumed_conductor(self) -> Conductor:
-        """The conductor after the session's last completed step: engine and bench restored
-        before the session is touched (what cannot be continued is refused first), then the
-        recorder appends to it."""
-        from fieldcal.run.recorder import SessionRecorder
-        from fieldcal.run.steps import steps_on_record
-        from fieldcal.session.capture import SessionReader
+        """The conductor after the session's last completed step (``fieldcal.run.resume``)."""
+        from fieldcal.run.resume import resume_conductor
 
-        reader = SessionReader(self.session_dir)
-        if reader.stopped:
-            raise ValueError(f"{self.session_dir}: this session already ended ({reader.stop_reason}); "
-                             "nothing to resume")
-        steps = steps_on_record(reader)
-        conductor = Conductor(self.spec, self.bench, self, [self], session=self.session_dir,
-                              settings=self.settings)
-        self.conductor = conductor  # the telemetry shows where the run stands while it restores
-        conductor.restore(steps)
-        self.recorder = SessionRecorder.append_to(self.session_dir)
-        conductor.subscribers.insert(0, self.recorder)
-        done = len(steps)
+        conductor = resume_conductor(self.resume, self.bench, self, [self], settings=self.settings,
+                                     attach=lambda recorder: setattr(self, "recorder", recorder))
+        self.conductor = conductor
+        done = len(self.resume.steps)
         self._items.append(ResumeNote(conductor.engine.t, f"resuming {self.session_dir.name} after {done} "
                                       f"completed step{'s' if done != 1 else ''}: place the unit for the next step",
                                       f"RESUMED after {done} completed step{'s' if done != 1 else ''}",
@@ -390,14 +375,15 @@ class ReplaySource(Source):
 
     mode = Mode.REPLAY
 
-    def __init__(self, directory: Path, sink: Sink, speed: float,
+    def __init__(self, record, sink: Sink, speed: float,
                  clock: Callable[[], float] = time.monotonic):
+        """``record``: the session's ``RunRecord`` (``fieldcal.run.runner.open_run``)."""
         from fieldcal.run.operators import ReplayOperator
-        from fieldcal.run.runner import RunSpec
 
-        self.directory = Path(directory)
-        self.recorded = ReplayOperator(self.directory)
-        super().__init__(RunSpec.from_metadata(self.recorded.reader.start), sink, speed, clock)
+        self.record = record
+        self.directory = record.directory
+        self.recorded = ReplayOperator(record)
+        super().__init__(record.spec, sink, speed, clock)
         self.recorded.pacer = self.pacer  # a recorded resume re-anchors the pacing
 
     def send(self, command: str) -> None:
@@ -422,13 +408,15 @@ class ReplaySource(Source):
         return self.recorded.next_moves(run)
 
     def _ended(self, outcome: Outcome) -> Outcome:
-        from fieldcal.run.replay import finish_replay
+        from fieldcal.run.replay import finish_replay, later_resolves
 
         if self.stopping:  # quit: not the end of the capture
             return super()._ended(outcome)
-        outcome = finish_replay(self.conductor, self.directory, outcome)
+        outcome = finish_replay(self.conductor, self.record, outcome)
         if outcome.comparison:
             self._items.append(Note(self.conductor.engine.t, outcome.comparison))
+            for line in later_resolves(self.record):
+                self._items.append(Note(self.conductor.engine.t, line))
         return outcome
 
 
