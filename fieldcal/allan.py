@@ -214,7 +214,13 @@ def plot_allan(taus, adev, terms, path, title: str = "", kind: str | None = None
     ax.plot([], [], "ko", mfc="none", label="fitted minimum = 0.664·B")
     # Below the axes: inside, it hides the bottom of the curve, which is what the plot is for.
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.12))
-    fig.savefig(path, format="png", bbox_inches="tight")
+    import io
+
+    from fieldcal.atomic import write_atomically
+
+    png = io.BytesIO()  # then written by the one rule: never through a link planted at ``path``
+    fig.savefig(png, format="png", bbox_inches="tight")
+    write_atomically(path, png.getvalue())
 
 
 GAP_FACTOR = 3.0        # a step this many local sample intervals long: samples are missing

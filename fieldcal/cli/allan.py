@@ -119,6 +119,18 @@ def _text_record(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str
 
 def cmd_allan(args) -> int:
     source = Path(args.source)
+    from fieldcal.session import LOG
+    if (source / LOG).is_file() and not args.plot_dir:  # plots go into the session: its one writer, or refused
+        from fieldcal.session.lock import SessionLock
+        lock = SessionLock.acquire(source)
+        try:
+            return _allan(args, source)
+        finally:
+            lock.release()
+    return _allan(args, source)
+
+
+def _allan(args, source: Path) -> int:
     if source.is_dir():
         from fieldcal.cli.sessions import warn_if_torn
         warn_if_torn(source)

@@ -370,9 +370,11 @@ def main(argv=None, *, ending_process: bool = False) -> int:
     catch_sigterm = threading.current_thread() is threading.main_thread() and args.command != "tui"
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if catch_sigterm else None
     try:
+        from fieldcal.atomic import command_reads
         from fieldcal.cli.paths import check_paths
-        check_paths(args)
-        return args.func(args)
+        with command_reads():  # what the command reads, it never writes over
+            check_paths(args)
+            return args.func(args)
     except ValueError as exc:  # ConfigError, ProcedureError, ParameterFileError, bad arguments
         print(f"fieldcal: {exc}", file=sys.stderr)
         return 2

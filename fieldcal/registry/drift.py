@@ -77,9 +77,12 @@ def plot_history(calibrations: list[dict], serial: str, directory) -> list:
     """One PNG per triad: each parameter over the calibrations, ± 1σ bars; the paths written."""
     from pathlib import Path
 
+    import io
+
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    from fieldcal.atomic import write_atomically
     from fieldcal.report import label
 
     directory = Path(directory)
@@ -102,6 +105,8 @@ def plot_history(calibrations: list[dict], serial: str, directory) -> list:
         fig.suptitle(f"{serial}: {triad}, ± 1σ")
         fig.tight_layout()
         path = directory / f"{serial}-{triad}-history.png"
-        fig.savefig(path, dpi=80)
+        png = io.BytesIO()  # then written by the one rule: never through a link planted at ``path``
+        fig.savefig(png, format="png", dpi=80)
+        write_atomically(path, png.getvalue())
         paths.append(path)
     return paths
