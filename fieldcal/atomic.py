@@ -103,7 +103,7 @@ def check_target(path: str | os.PathLike, *, force: bool = False, inputs: Iterab
         raise _cannot(p, exc) from None
     if stat.S_ISLNK(st.st_mode):
         raise RefusedTarget(f"{label}: is a symbolic link; fieldcal never writes through a link "
-                            "(give the file it points to, or another path)", p)
+                            "(remove the link, or give another path)", p)
     if stat.S_ISDIR(st.st_mode):
         raise RefusedTarget(f"{label}: is a directory; give a file name", p)
     if not stat.S_ISREG(st.st_mode):

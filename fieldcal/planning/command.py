@@ -150,7 +150,7 @@ def plan_inputs(args) -> list[str]:
 
     given = Path(args.config)
     names = [given, given.with_suffix(".yaml"), CONFIGS_DIR / f"{given.name}.yaml",
-             PROCEDURES_DIR / "field-18.yaml", PROCEDURES_DIR / f"{Path(args.target).name}.yaml"]
+             PROCEDURES_DIR / "field-18.yaml"]
     return [str(n) for n in names if n.is_file()]
 
 

@@ -22,7 +22,7 @@ from typing import Any, Self
 import numpy as np
 
 from drivers.chunk import SampleChunk
-from fieldcal.atomic import WouldOverwrite, open_append, open_nofollow, write_atomically
+from fieldcal.atomic import WouldOverwrite, check_target, open_append, open_nofollow, write_atomically
 from fieldcal.session.lock import SessionLock, is_held
 from fieldcal.session import LOG, SessionError  # noqa: F401 (this module's names too)
 
@@ -644,6 +644,8 @@ class SessionWriter:
                 yield
             except BaseException as exc:
                 self._failed = (str(exc).splitlines() or [""])[0][:200] or type(exc).__name__
+                if isinstance(exc, OSError) and exc.filename is None:  # a buffered write names no file:
+                    exc.filename = str(self.directory)  # the session it was for (a full disk, say)
                 raise
 
     def _write(self, doc: dict) -> int:
@@ -790,6 +792,7 @@ class SessionWriter:
         with self._lock:
             self._require("parameters")
             if filename is None:
+                check_target(self.directory / PARAMETERS, force=True)  # before the numbered file: a link is refused
                 self._keep_current_parameters()
             name = filename or self._next_parameters_name()
             # atomic and never over another file: a failure leaves the log as it was
