@@ -55,6 +55,8 @@ def output_file(path: str | os.PathLike, flag: str) -> None:
     refuse_inside_session(p, f"{flag}'s parameter file")
     if p.is_dir():
         raise ValueError(f"{flag} {p}: is a directory; name the file to write")
+    from fieldcal.atomic import check_target
+    check_target(p, force=True, option=flag)  # a link, a FIFO: refused before the work (--force: later)
     parent = p.parent
     if not parent.exists():
         raise ValueError(f"{flag} {p}: the directory {parent} does not exist")
