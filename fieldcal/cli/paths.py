@@ -55,14 +55,14 @@ def output_file(path: str | os.PathLike, flag: str) -> None:
     refuse_inside_session(p, f"{flag}'s parameter file")
     if p.is_dir():
         raise ValueError(f"{flag} {p}: is a directory; name the file to write")
-    from fieldcal.atomic import check_target
-    check_target(p, force=True, option=flag)  # a link, a FIFO: refused before the work (--force: later)
     parent = p.parent
     if not parent.exists():
         raise ValueError(f"{flag} {p}: the directory {parent} does not exist")
     if not parent.is_dir():
         raise ValueError(f"{flag} {p}: {parent} is a file, not a directory")
     _probe(parent, flag, p)
+    from fieldcal.atomic import check_target
+    check_target(p, force=True, option=flag)  # a link, a FIFO: refused before the work (--force: later)
 
 
 def writable_session(directory: str | os.PathLike) -> None:
@@ -97,9 +97,9 @@ def check_paths(args) -> None:
             command == "tui" and getattr(args, "go", False) and not getattr(args, "no_capture", False)):
         output_directory(args.out, "--out")
     if command in ("demo", "calibrate") and getattr(args, "params", None):
-        output_file(args.params, "--params")
+        output_target(args.params, "--params", args, command_inputs(args, output="params"))
     if command == "replay" and args.out:
-        output_file(args.out, "--out")
+        output_target(args.out, "--out", args, command_inputs(args))
     if command == "resume":
         writable_session(args.session)
     if command == "allan" and args.plot_dir:
@@ -115,11 +115,11 @@ def check_paths(args) -> None:
         output_target(args.out, "--out", args, command_inputs(args))
 
 
-def command_inputs(args) -> list[str]:
+def command_inputs(args, output: str = "out") -> list[str]:
     """The files a command line names as inputs (every path option but its outputs)."""
     found = []
     for name, value in vars(args).items():
-        if name in ("out", "plot_dir", "plot", "registry", "func", "command"):
+        if name in (output, "out", "plot_dir", "plot", "registry", "func", "command"):
             continue
         for item in value if isinstance(value, list) else [value]:
             if isinstance(item, (str, os.PathLike)) and os.path.isfile(item):

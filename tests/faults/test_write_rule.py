@@ -353,3 +353,14 @@ def test_a_link_at_every_path_a_command_writes_leaves_its_target_untouched(
     assert path.is_symlink()  # refused, not replaced
     if needs in ("recording", "unfinished", "session", "calibrated"):
         SessionReader(session)  # the session is still a consistent session
+
+
+def test_calibrate_params_never_over_its_own_recording(capsys, tmp_path, recording):
+    """The rule's 'never over an input': --params naming the recording, even with --force."""
+    text = tmp_path / "text"
+    shutil.copytree(recording.parent / "text", text)
+    before = (text / "acc.txt").read_bytes()
+    line = one_line(capsys, ["calibrate", text / "acc.txt", text / "gyro.txt", "--map", "imu_tk", "--latitude", "40",
+                             "--out", tmp_path / "sessions", "--params", text / "acc.txt", "--force"], 2)
+    assert line.startswith(f"fieldcal: --params {text / 'acc.txt'} is the input {text / 'acc.txt'}")
+    assert (text / "acc.txt").read_bytes() == before and not (tmp_path / "sessions").exists()
