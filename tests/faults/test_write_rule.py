@@ -282,6 +282,7 @@ CASES = {
     "resume": ("unfinished", ["resume", "{S}", "--quiet", "--registry", "{W}/reg.sqlite"],
                ["{S}/lock", "{S}/log.jsonl", "{S}/samples.bin", "{S}/parameters-001.yaml",
                 "{S}/parameters.yaml", "{W}/reg.sqlite"]),
+    "resume-torn": ("torn", ["resume", "{S}", "--quiet"], ["{S}/log.jsonl.torn"]),
     "run": ("none", ["run", "--headless", "--quiet", "--procedure", "{Q}", "--out", "{W}/new",
                      "--registry", "{W}/reg.sqlite"], ["{W}/reg.sqlite", "{W}/reg.sqlite-wal"]),
     "import": ("none", ["import", "{T}/acc.txt", "{T}/gyro.txt", "--map", "imu_tk", "--out", "{W}/new"],
@@ -327,8 +328,11 @@ def test_a_link_at_every_path_a_command_writes_leaves_its_target_untouched(
         session = tmp_path / "rec-session"
         shutil.copytree(recording, session)
         assert main(["calibrate", str(session), "--latitude", "40"]) == 0
-    elif needs == "unfinished":
+    elif needs in ("unfinished", "torn"):
         session = unfinished(session_copy)
+        if needs == "torn":  # a crash inside a log line: resume keeps the cut bytes in log.jsonl.torn
+            with open(session / LOG, "ab") as fh:
+                fh.write(b'{"seq": 4')
     else:
         session = session_copy
     names = {"{S}": str(session), "{W}": str(work), "{Q}": str(QUICK), "{P}": str(params_csv[0]),
@@ -351,7 +355,7 @@ def test_a_link_at_every_path_a_command_writes_leaves_its_target_untouched(
     assert "Traceback" not in err
     assert victim.read_bytes() == content, (status, err)
     assert path.is_symlink()  # refused, not replaced
-    if needs in ("recording", "unfinished", "session", "calibrated"):
+    if needs != "none":
         SessionReader(session)  # the session is still a consistent session
 
 
