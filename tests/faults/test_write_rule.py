@@ -368,3 +368,19 @@ def test_calibrate_params_never_over_its_own_recording(capsys, tmp_path, recordi
                              "--out", tmp_path / "sessions", "--params", text / "acc.txt", "--force"], 2)
     assert line.startswith(f"fieldcal: --params {text / 'acc.txt'} is the input {text / 'acc.txt'}")
     assert (text / "acc.txt").read_bytes() == before and not (tmp_path / "sessions").exists()
+
+
+def test_history_plots_never_follow_a_link(tmp_path):
+    """``history --plot DIR``: a link planted at a unit's plot name is refused, its target untouched."""
+    from fieldcal.atomic import RefusedTarget
+    from fieldcal.registry.drift import plot_history
+
+    calibrations = [{"time": f"2026-0{m}-01T00:00:00+00:00",
+                     "parameters": {("accelerometer", "bias_x"): (0.01 * m, 0.001, "mg")}} for m in (1, 2)]
+    victim = plant(tmp_path / "SN1-accelerometer-history.png", tmp_path / "victims")
+    with pytest.raises(RefusedTarget, match="is a symbolic link"):
+        plot_history(calibrations, "SN1", tmp_path)
+    assert victim.read_bytes() == VICTIM
+    (tmp_path / "SN1-accelerometer-history.png").unlink()
+    (path,) = plot_history(calibrations, "SN1", tmp_path)
+    assert path.read_bytes().startswith(b"\x89PNG")
