@@ -141,6 +141,10 @@ def _allan(args, source: Path) -> int:
         plot_dir = source.parent
     else:
         raise ValueError(f"{source}: no such session directory or file")
+    from fieldcal.atomic import check_target
+    for name in records:  # every plot refused (a link, an earlier plot without --force) before the work
+        if not args.triad or name in args.triad:
+            check_target(Path(args.plot_dir or plot_dir) / f"allan-{name}.png", force=args.force)
     for name, samples in records.items():
         if args.triad and name not in args.triad:
             continue
@@ -157,6 +161,6 @@ def _allan(args, source: Path) -> int:
         folder = Path(args.plot_dir or plot_dir)
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"allan-{name}.png"
-        plot_allan(taus, adev, terms, path, title=f"{name}: Allan deviation", kind=kind)
+        plot_allan(taus, adev, terms, path, title=f"{name}: Allan deviation", kind=kind, overwrite=args.force)
         print(f"  plot: {path}")
     return 0

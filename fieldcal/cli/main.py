@@ -271,6 +271,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                        help="what a text file holds (default angular_rate)")
     allan.add_argument("--triad", action="append", help="only this triad of a session (repeatable)")
     allan.add_argument("--plot-dir", help="where the PNGs go (default: beside the source)")
+    allan.add_argument("--force", action="store_true", help="replace plots left by an earlier allan")
     allan.set_defaults(func=lambda args: __import__("fieldcal.cli.allan", fromlist=["cmd_allan"]).cmd_allan(args))
 
     sim = sub.add_parser("sim", help="the simulated MIMU and rate table")

@@ -339,7 +339,7 @@ def cmd_history(args) -> int:
         print(line)
     if args.plot:
         from fieldcal.registry.drift import plot_history
-        for path in plot_history(calibrations, args.serial, args.plot):
+        for path in plot_history(calibrations, args.serial, args.plot, overwrite=args.force):
             print(f"plot: {path}")
     return 0
 
@@ -501,6 +501,7 @@ def add_production_parsers(sub) -> None:
     history.add_argument("--spec", metavar="SPEC", help="product spec: flag drift beyond its max_drift")
     history.add_argument("--plot", metavar="DIR", help="also write a PNG per triad here: each "
                          "parameter over time with ± 1σ bars")
+    history.add_argument("--force", action="store_true", help="replace the --plot PNGs if they exist")
     add_registry_option(history)
     history.set_defaults(func=cmd_history)
     registry = sub.add_parser("registry", help="the unit registry")

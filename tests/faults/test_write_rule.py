@@ -384,3 +384,13 @@ def test_history_plots_never_follow_a_link(tmp_path):
     (tmp_path / "SN1-accelerometer-history.png").unlink()
     (path,) = plot_history(calibrations, "SN1", tmp_path)
     assert path.read_bytes().startswith(b"\x89PNG")
+
+
+def test_allan_never_over_an_earlier_plot_without_force(capsys, session_copy):
+    assert main(["allan", str(session_copy), "--triad", "gyroscope"]) == 0
+    plot = session_copy / "allan-gyroscope.png"
+    before = plot.read_bytes()
+    line = one_line(capsys, ["allan", session_copy, "--triad", "gyroscope"], 2)
+    assert line == f"fieldcal: {plot}: already exists; not overwritten (give --force to replace it)"
+    assert plot.read_bytes() == before
+    assert main(["allan", str(session_copy), "--triad", "gyroscope", "--force"]) == 0
