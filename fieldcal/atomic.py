@@ -89,10 +89,12 @@ def _identity(path) -> tuple[int, int] | None:
 # -- the checks --------------------------------------------------------------------------------
 
 def check_target(path: str | os.PathLike, *, force: bool = False, inputs: Iterable = (),
-                 hint: str = "give --force to replace it", option: str = "") -> Path:
+                 hint: str = "give --force to replace it", option: str = "", state: bool = False) -> Path:
     """Refuse writing ``path`` as ``write_atomically`` would, before any work: a link, a directory,
     a FIFO or device, an ``inputs`` file or one this command read (even with ``force``), an
-    existing file without ``force``. ``option`` (e.g. ``--out``) prefixes the message."""
+    existing file without ``force``. ``option`` (e.g. ``--out``) prefixes the message.
+    ``state``: a file fieldcal keeps for itself (the TUI's remembered setup), read and then
+    replaced by design: not refused for having been read."""
     p = Path(path)
     label = f"{option} {p}" if option else str(p)
     try:
@@ -113,7 +115,7 @@ def check_target(path: str | os.PathLike, *, force: bool = False, inputs: Iterab
         if source is not None and _identity(source) == here:
             raise RefusedTarget(f"{label} is the input {source} of this command: never written over, "
                                 "even with --force; give another path", p)
-    if _read_files is not None and here in _read_files:
+    if not state and _read_files is not None and here in _read_files:
         raise RefusedTarget(f"{label}: this command read that file (its config, procedure or "
                             "parameter file); never written over, even with --force: give another path", p)
     if not force:
@@ -167,12 +169,12 @@ class _Pending:
 
 @contextlib.contextmanager
 def atomic_file(path: str | os.PathLike, *, overwrite: bool = True, hint: str = "",
-                inputs: Iterable = ()) -> Iterator[_Pending]:
+                inputs: Iterable = (), state: bool = False) -> Iterator[_Pending]:
     """Write ``pending.file`` (binary); at a clean exit it becomes ``path`` whole, unless
     ``pending.keep`` was set False. The rule of this module applies (``check_target``)."""
     path = Path(path)
     inputs = tuple(inputs)
-    check_target(path, force=overwrite, inputs=inputs, hint=hint)
+    check_target(path, force=overwrite, inputs=inputs, hint=hint, state=state)
     directory = path.parent
     tmp = directory / f".{path.name}.{secrets.token_hex(6)}.tmp"
     try:  # O_EXCL: never through a link planted at the temp name; umask applies, unlike mkstemp
@@ -192,7 +194,7 @@ def atomic_file(path: str | os.PathLike, *, overwrite: bool = True, hint: str = 
                 raise _Discard
             fh.flush()
             os.fsync(fh.fileno())
-        check_target(path, force=overwrite, inputs=inputs, hint=hint)  # again: the work took time
+        check_target(path, force=overwrite, inputs=inputs, hint=hint, state=state)  # again: the work took time
         if overwrite:
             os.replace(tmp, path)  # replaces a name, never writes through one
         else:
@@ -227,7 +229,7 @@ class _Callers(Exception):
 
 
 def write_atomically(path: str | os.PathLike, data: bytes, *, overwrite: bool = True,
-                     hint: str = "", inputs: Iterable = ()) -> Path:
+                     hint: str = "", inputs: Iterable = (), state: bool = False) -> Path:
     """Write ``data`` to ``path`` so that a crash leaves the old file or the new one, never half.
 
     ``overwrite=False``: refuse (``WouldOverwrite``, naming the path and ``hint``) if ``path``
@@ -236,7 +238,7 @@ def write_atomically(path: str | os.PathLike, data: bytes, *, overwrite: bool = 
     this command read (``RefusedTarget``). An OSError comes back as ``CannotWrite`` (an OSError
     and a ValueError) naming the path.
     """
-    with atomic_file(path, overwrite=overwrite, hint=hint, inputs=inputs) as pending:
+    with atomic_file(path, overwrite=overwrite, hint=hint, inputs=inputs, state=state) as pending:
         pending.file.write(data)
     return Path(path)
 

@@ -394,3 +394,23 @@ def test_allan_never_over_an_earlier_plot_without_force(capsys, session_copy):
     assert line == f"fieldcal: {plot}: already exists; not overwritten (give --force to replace it)"
     assert plot.read_bytes() == before
     assert main(["allan", str(session_copy), "--triad", "gyroscope", "--force"]) == 0
+
+
+def test_the_tuis_remembered_setup_is_replaced_but_never_through_a_link(tmp_path):
+    """The remembered setup is read at start and replaced by design (not an input of the command);
+    a link at its name is still refused."""
+    from fieldcal.atomic import RefusedTarget, command_reads
+    from fieldcal.tui.choices import SetupChoice, load_last_choice, save_last_choice
+
+    path = tmp_path / "last-setup.yaml"
+    first = SetupChoice("sim", None, "field-18", 40.0, 0.0)
+    second = SetupChoice("sim", None, "classic-12", 45.0, 10.0)
+    save_last_choice(first, path)
+    with command_reads():  # as inside `fieldcal tui`
+        assert load_last_choice(path) == first
+        save_last_choice(second, path)
+    assert load_last_choice(path) == second
+    victim = plant(path, tmp_path / "victims")
+    with pytest.raises(RefusedTarget, match="is a symbolic link"):
+        save_last_choice(first, path)
+    assert victim.read_bytes() == VICTIM
