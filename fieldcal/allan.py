@@ -175,7 +175,8 @@ def noise_terms(taus, adev, *, unit: str = "", n_clusters=None) -> NoiseTerms:
                       tau_at_minimum=float(t[i_min]), rate_random_walk=rrw, unit=unit)
 
 
-def plot_allan(taus, adev, terms, path, title: str = "", kind: str | None = None) -> None:
+def plot_allan(taus, adev, terms, path, title: str = "", kind: str | None = None,
+               overwrite: bool = True) -> None:
     """Log-log PNG like paper Figs. 2-4: one line per axis, its fitted -1/2 (dashed) and +1/2
     (dotted) lines and its minimum (circle). terms: one NoiseTerms per column of adev; kind
     ("angular_rate"/"specific_force") puts the terms in operator units in the legend."""
@@ -214,7 +215,13 @@ def plot_allan(taus, adev, terms, path, title: str = "", kind: str | None = None
     ax.plot([], [], "ko", mfc="none", label="fitted minimum = 0.664·B")
     # Below the axes: inside, it hides the bottom of the curve, which is what the plot is for.
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.12))
-    fig.savefig(path, format="png", bbox_inches="tight")
+    import io
+
+    from fieldcal.atomic import write_atomically
+
+    png = io.BytesIO()  # then written by the one rule: never through a link planted at ``path``
+    fig.savefig(png, format="png", bbox_inches="tight")
+    write_atomically(path, png.getvalue(), overwrite=overwrite, hint="give --force to replace it")
 
 
 GAP_FACTOR = 3.0        # a step this many local sample intervals long: samples are missing

@@ -1,9 +1,26 @@
-"""Files replaced whole or not at all: a temp file beside the target, fsync, then os.replace (or,
-when the target must not be overwritten, os.link, which fails if the name is taken)."""
+"""Every file fieldcal writes goes through one rule (DESIGN principle 11), here:
+
+* never through a symbolic link (fieldcal writes no file through a link it did not create: a
+  link planted in a copied session or beside an output would aim the write at any file the
+  station user can write), nor into a FIFO or device;
+* never over a file the command itself read (its config, procedure, parameter file: noted by
+  ``note_read``) nor over one of its inputs, even with ``--force``;
+* never over an existing file unless the caller allows it (``--force``);
+* whole or not at all: a temp file beside the target (created exclusively, so never through a
+  link), fsync, then ``os.replace`` (or, when the target must not be overwritten, ``os.link``,
+  which fails if the name is taken);
+* every error names the path the user gave, never the hidden temp file.
+
+``check_target`` says the same refusals before a command's long work starts.
+"""
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
 import secrets
+import stat
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 
@@ -28,54 +45,223 @@ class CannotWrite(OSError, ValueError):
         return self.strerror
 
 
-def write_atomically(path: str | os.PathLike, data: bytes, *, overwrite: bool = True,
-                     hint: str = "") -> Path:
-    """Write ``data`` to ``path`` so that a crash leaves the old file or the new one, never half.
+class RefusedTarget(ValueError):
+    """A write the rule refuses whatever the options (a link, an input of the command, not a
+    regular file); one line naming the path."""
 
-    ``overwrite=False``: refuse (``WouldOverwrite``, naming the path and ``hint``) if ``path``
-    exists, checked atomically at the moment the file appears, so two writers cannot both win.
-    An OSError comes back as ``CannotWrite`` (an OSError and a ValueError) naming the path.
-    """
+    def __init__(self, message: str, path: Path) -> None:
+        super().__init__(message)
+        self.path = path
+
+
+# -- the files this command read ---------------------------------------------------------------
+
+# (st_dev, st_ino) of every file read since the command began; None outside a command, so that
+# library callers (and tests) that read a file and save to it are not refused.
+_read_files: set[tuple[int, int]] | None = None
+
+
+@contextlib.contextmanager
+def command_reads() -> Iterator[None]:
+    """Within: every file noted by ``note_read`` is refused as a write target."""
+    global _read_files
+    previous, _read_files = _read_files, set()
+    try:
+        yield
+    finally:
+        _read_files = previous
+
+
+def note_read(st: os.stat_result) -> None:
+    """A file this command read (its ``fstat``): never written over, even with ``--force``."""
+    if _read_files is not None and stat.S_ISREG(st.st_mode):
+        _read_files.add((st.st_dev, st.st_ino))
+
+
+def _identity(path) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
+
+
+# -- the checks --------------------------------------------------------------------------------
+
+def check_target(path: str | os.PathLike, *, force: bool = False, inputs: Iterable = (),
+                 hint: str = "give --force to replace it", option: str = "", state: bool = False) -> Path:
+    """Refuse writing ``path`` as ``write_atomically`` would, before any work: a link, a directory,
+    a FIFO or device, an ``inputs`` file or one this command read (even with ``force``), an
+    existing file without ``force``. ``option`` (e.g. ``--out``) prefixes the message.
+    ``state``: a file fieldcal keeps for itself (the TUI's remembered setup), read and then
+    replaced by design: not refused for having been read."""
+    p = Path(path)
+    label = f"{option} {p}" if option else str(p)
+    try:
+        st = os.lstat(p)
+    except FileNotFoundError:
+        return p
+    except OSError as exc:
+        raise _cannot(p, exc) from None
+    if stat.S_ISLNK(st.st_mode):
+        raise RefusedTarget(f"{label}: is a symbolic link; fieldcal never writes through a link "
+                            "(remove the link, or give another path)", p)
+    if stat.S_ISDIR(st.st_mode):
+        raise RefusedTarget(f"{label}: is a directory; give a file name", p)
+    if not stat.S_ISREG(st.st_mode):
+        raise RefusedTarget(f"{label}: not a regular file (a FIFO, socket or device); not written", p)
+    here = (st.st_dev, st.st_ino)
+    for source in inputs:
+        if source is not None and _identity(source) == here:
+            raise RefusedTarget(f"{label} is the input {source} of this command: never written over, "
+                                "even with --force; give another path", p)
+    if not state and _read_files is not None and here in _read_files:
+        raise RefusedTarget(f"{label}: this command read that file (its config, procedure or "
+                            "parameter file); never written over, even with --force: give another path", p)
+    if not force:
+        raise WouldOverwrite(p, hint)
+    return p
+
+
+def check_appendable(path: str | os.PathLike, option: str = "") -> Path:
+    """A file fieldcal adds to (a session's log, a registry): a regular file or none, never a link."""
+    return check_target(path, force=True, option=option)
+
+
+def open_nofollow(path: str | os.PathLike, flags: int, mode: int = 0o666) -> int:
+    """``os.open`` that never follows a link at ``path`` and never blocks on a FIFO; the file
+    must be regular. RefusedTarget or CannotWrite naming ``path``."""
+    p = Path(path)
+    try:
+        fd = os.open(p, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, mode)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP or (exc.errno == errno.EEXIST and p.is_symlink()):
+            check_target(p, force=True)  # says which (a link)
+        if exc.errno == errno.ENXIO:  # a FIFO with no reader
+            raise RefusedTarget(f"{p}: not a regular file (a FIFO); not written", p) from None
+        raise _cannot(p, exc) from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise RefusedTarget(f"{p}: not a regular file (a FIFO, socket or device); not written", p)
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def open_append(path: str | os.PathLike, *, new: bool = False):
+    """A binary file opened for appending (``new``: created, refused if the name is taken),
+    never through a link."""
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | (os.O_EXCL if new else 0)
+    return os.fdopen(open_nofollow(path, flags), "ab")
+
+
+# -- writing -----------------------------------------------------------------------------------
+
+class _Pending:
+    """The hidden temp file of one atomic write; ``keep = False`` drops it at the end."""
+
+    def __init__(self, file) -> None:
+        self.file = file
+        self.keep = True
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike, *, overwrite: bool = True, hint: str = "",
+                inputs: Iterable = (), state: bool = False) -> Iterator[_Pending]:
+    """Write ``pending.file`` (binary); at a clean exit it becomes ``path`` whole, unless
+    ``pending.keep`` was set False. The rule of this module applies (``check_target``)."""
     path = Path(path)
-    if not overwrite and (path.exists() or path.is_symlink()):
-        raise WouldOverwrite(path, hint)
+    inputs = tuple(inputs)
+    check_target(path, force=overwrite, inputs=inputs, hint=hint, state=state)
     directory = path.parent
     tmp = directory / f".{path.name}.{secrets.token_hex(6)}.tmp"
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies, unlike mkstemp
+    try:  # O_EXCL: never through a link planted at the temp name; umask applies, unlike mkstemp
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
     except OSError as exc:
         raise _cannot(path, exc) from None
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            pending = _Pending(fh)
+            try:
+                yield pending
+            except OSError as exc:  # the caller's write failed (a full disk): name the target
+                if exc.filename is None and exc.errno in _WRITE_ERRNOS:
+                    raise _cannot(path, exc) from None
+                raise _Callers(exc) from exc
+            if not pending.keep:
+                raise _Discard
             fh.flush()
             os.fsync(fh.fileno())
+        check_target(path, force=overwrite, inputs=inputs, hint=hint, state=state)  # again: the work took time
         if overwrite:
-            os.replace(tmp, path)
+            os.replace(tmp, path)  # replaces a name, never writes through one
         else:
             os.link(tmp, path)  # FileExistsError if another writer got there first
             os.unlink(tmp)
+    except _Discard:
+        _unlink(tmp)
+        return
+    except _Callers as wrapped:  # the caller's own error (reading its input, say): as it was
+        _unlink(tmp)
+        raise wrapped.error from None
     except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
+        _unlink(tmp)
         if isinstance(exc, FileExistsError) and not overwrite:
             raise WouldOverwrite(path, hint) from None
-        if isinstance(exc, OSError):
+        if isinstance(exc, OSError) and not isinstance(exc, CannotWrite):
             raise _cannot(path, exc) from None
         raise
-    try:  # make the rename itself durable; not possible everywhere (e.g. Windows)
+    _fsync_directory(directory)
+
+
+_WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS)
+
+
+class _Discard(Exception):
+    pass
+
+
+class _Callers(Exception):
+    def __init__(self, error: OSError) -> None:
+        self.error = error
+
+
+def write_atomically(path: str | os.PathLike, data: bytes, *, overwrite: bool = True,
+                     hint: str = "", inputs: Iterable = (), state: bool = False) -> Path:
+    """Write ``data`` to ``path`` so that a crash leaves the old file or the new one, never half.
+
+    ``overwrite=False``: refuse (``WouldOverwrite``, naming the path and ``hint``) if ``path``
+    exists, checked atomically at the moment the file appears, so two writers cannot both win.
+    Refused whatever ``overwrite`` says: a link, a non-regular file, one of ``inputs``, a file
+    this command read (``RefusedTarget``). An OSError comes back as ``CannotWrite`` (an OSError
+    and a ValueError) naming the path.
+    """
+    with atomic_file(path, overwrite=overwrite, hint=hint, inputs=inputs, state=state) as pending:
+        pending.file.write(data)
+    return Path(path)
+
+
+def _unlink(path: Path) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+def _fsync_directory(directory: Path) -> None:
+    """Make a rename durable; not possible everywhere (e.g. Windows)."""
+    try:
         dir_fd = os.open(directory, os.O_RDONLY)
     except OSError:
-        return path
+        return
     try:
         os.fsync(dir_fd)
     except OSError:
         pass
     finally:
         os.close(dir_fd)
-    return path
 
 
 def _cannot(path: Path, exc: OSError) -> CannotWrite:

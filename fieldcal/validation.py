@@ -19,6 +19,8 @@ from typing import Literal, NoReturn, Sequence, overload
 import numpy as np
 import yaml
 
+from fieldcal.atomic import note_read
+
 # A hand-written station file is a few kB; a parameter file for a dozen triads some tens of kB.
 MAX_YAML_BYTES = 1 << 20
 # Anchors and aliases are legal YAML, and a few are handy; thousands are an attack. The
@@ -318,6 +320,7 @@ def read_yaml_text(path: str | os.PathLike, error: type[ValueError], what: str) 
     name = os.fspath(path)
     try:
         with open(path, "rb") as f:
+            note_read(os.fstat(f.fileno()))  # a file this command read is never written over
             data = f.read(MAX_YAML_BYTES + 1)
     except OSError as exc:
         raise error(f"{name}: cannot read {what} ({exc.strerror or exc})", name) from None

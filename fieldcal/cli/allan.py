@@ -113,6 +113,18 @@ def _text_record(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str
 
 def cmd_allan(args) -> int:
     source = Path(args.source)
+    from fieldcal.session import LOG
+    if (source / LOG).is_file() and not args.plot_dir:  # plots go into the session: its one writer, or refused
+        from fieldcal.session.lock import SessionLock
+        lock = SessionLock.acquire(source)
+        try:
+            return _allan(args, source)
+        finally:
+            lock.release()
+    return _allan(args, source)
+
+
+def _allan(args, source: Path) -> int:
     if source.is_dir():
         from fieldcal.cli.sessions import warn_if_torn
         from fieldcal.run.runner import open_run
@@ -125,6 +137,10 @@ def cmd_allan(args) -> int:
         plot_dir = source.parent
     else:
         raise ValueError(f"{source}: no such session directory or file")
+    from fieldcal.atomic import check_target
+    for name in records:  # every plot refused (a link, an earlier plot without --force) before the work
+        if not args.triad or name in args.triad:
+            check_target(Path(args.plot_dir or plot_dir) / f"allan-{name}.png", force=args.force)
     for name, samples in records.items():
         if args.triad and name not in args.triad:
             continue
@@ -141,6 +157,6 @@ def cmd_allan(args) -> int:
         folder = Path(args.plot_dir or plot_dir)
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"allan-{name}.png"
-        plot_allan(taus, adev, terms, path, title=f"{name}: Allan deviation", kind=kind)
+        plot_allan(taus, adev, terms, path, title=f"{name}: Allan deviation", kind=kind, overwrite=args.force)
         print(f"  plot: {path}")
     return 0

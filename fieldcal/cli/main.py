@@ -220,6 +220,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                        help="what a text file holds (default angular_rate)")
     allan.add_argument("--triad", action="append", help="only this triad of a session (repeatable)")
     allan.add_argument("--plot-dir", help="where the PNGs go (default: beside the source)")
+    allan.add_argument("--force", action="store_true", help="replace plots left by an earlier allan")
     allan.set_defaults(func=lambda args: __import__("fieldcal.cli.allan", fromlist=["cmd_allan"]).cmd_allan(args))
 
     sim = sub.add_parser("sim", help="the simulated MIMU and rate table")
@@ -319,9 +320,11 @@ def main(argv=None, *, ending_process: bool = False) -> int:
     catch_sigterm = threading.current_thread() is threading.main_thread() and args.command != "tui"
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if catch_sigterm else None
     try:
+        from fieldcal.atomic import command_reads
         from fieldcal.cli.paths import check_paths
-        check_paths(args)
-        return args.func(args)
+        with command_reads():  # what the command reads, it never writes over
+            check_paths(args)
+            return args.func(args)
     except ValueError as exc:  # ConfigError, ProcedureError, ParameterFileError, bad arguments
         print(f"fieldcal: {exc}", file=sys.stderr)
         return 2

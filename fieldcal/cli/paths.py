@@ -61,6 +61,8 @@ def output_file(path: str | os.PathLike, flag: str) -> None:
     if not parent.is_dir():
         raise ValueError(f"{flag} {p}: {parent} is a file, not a directory")
     _probe(parent, flag, p)
+    from fieldcal.atomic import check_target
+    check_target(p, force=True, option=flag)  # a link, a FIFO: refused before the work (--force: later)
 
 
 def writable_session(directory: str | os.PathLike) -> None:
@@ -69,17 +71,21 @@ def writable_session(directory: str | os.PathLike) -> None:
     d = Path(directory)
     if not d.is_dir():
         return  # the session reader names what is missing
+    from fieldcal.atomic import open_append
+
     try:
         with tempfile.TemporaryFile(dir=d):
             pass
-        for name in ("log.jsonl", "samples.bin"):
-            if (d / name).exists():
-                with open(d / name, "ab"):  # opened for appending, nothing written
-                    pass
-    except OSError as exc:
-        what = exc.filename or d
-        raise ValueError(f"{d}: cannot resume: {what} cannot be written ({exc.strerror or exc}); "
+    except OSError as exc:  # named by the folder, not by the probe's hidden temp name
+        raise ValueError(f"{d}: cannot resume: the folder cannot be written ({exc.strerror or exc}); "
                          "nothing was re-run") from None
+    for name in ("log.jsonl", "samples.bin"):
+        if (d / name).exists() or (d / name).is_symlink():
+            try:
+                with open_append(d / name):  # opened for appending (never through a link), nothing written
+                    pass
+            except (OSError, ValueError) as exc:
+                raise ValueError(f"{d}: cannot resume: {exc}; nothing was re-run") from None
 
 
 def check_paths(args) -> None:
@@ -91,12 +97,42 @@ def check_paths(args) -> None:
             command == "tui" and getattr(args, "go", False) and not getattr(args, "no_capture", False)):
         output_directory(args.out, "--out")
     if command in ("demo", "calibrate") and getattr(args, "params", None):
-        output_file(args.params, "--params")
+        output_target(args.params, "--params", args, command_inputs(args, output="params"))
     if command == "replay" and args.out:
-        output_file(args.out, "--out")
+        output_target(args.out, "--out", args, command_inputs(args))
     if command == "resume":
         writable_session(args.session)
     if command == "allan" and args.plot_dir:
         output_directory(args.plot_dir, "--plot-dir")
+    # files written whole (the rule of fieldcal.atomic), refused before the command's work
+    if command == "plan":
+        from fieldcal.planning.command import plan_inputs
+        output_target(args.out, "--out", args, [*command_inputs(args), *plan_inputs(args)])
+    if command in ("export", "certificate") and args.out:
+        output_target(args.out, "--out", args, command_inputs(args))
+    if command == "apply" and args.out and not Path(args.out).is_dir() and not (
+            len(args.input or ()) > 1):  # one CSV (several go into a directory)
+        output_target(args.out, "--out", args, command_inputs(args))
+
+
+def command_inputs(args, output: str = "out") -> list[str]:
+    """The files a command line names as inputs (every path option but its outputs)."""
+    found = []
+    for name, value in vars(args).items():
+        if name in (output, "out", "plot_dir", "plot", "registry", "func", "command"):
+            continue
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, (str, os.PathLike)) and os.path.isfile(item):
+                found.append(os.fspath(item))
+    return found
+
+
+def output_target(path, flag: str, args, inputs) -> None:
+    """A file written whole by the command: in an existing writable directory, never a link,
+    never one of ``inputs``, never over a file without --force."""
+    from fieldcal.atomic import check_target
+
+    output_file(path, flag)
+    check_target(path, force=getattr(args, "force", False), inputs=inputs, option=flag)
 
 

@@ -28,7 +28,7 @@ def cmd_export(args) -> int:
     from fieldcal.session.output import check_output_path
 
     if args.out:
-        check_output_path(args.out, force=args.force, option="--out")
+        check_output_path(args.out, force=args.force, option="--out", inputs=[args.params])
     parameters = load(args.params)
     text = export(parameters, args.format, accelerometer=args.accelerometer, gyroscope=args.gyroscope)
     if args.format in ("ardupilot", "px4"):  # say what the format cannot hold, where people look
@@ -36,7 +36,8 @@ def cmd_export(args) -> int:
                                         gyro_scale=False)[1]:
             print(f"fieldcal export: {args.format}: {loss.line()}", file=sys.stderr)
     if args.out:
-        write_atomically(args.out, text.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
+        write_atomically(args.out, text.encode("utf-8"), overwrite=args.force, hint="give --force to replace it",
+                         inputs=[args.params])
         print(f"{args.format} written to {args.out}", file=sys.stderr)
     else:
         sys.stdout.write(text)
@@ -78,20 +79,17 @@ def _refuse_own_files(targets, sources) -> None:
                 raise ValueError(f"apply: --out {target} is the input {source}: give another output path")
 
 
-def _write_csv(target: Path | None, write, source: str) -> int:
-    """``write(binary file)`` to stdout, or to ``target`` whole or not at all (a partial file
-    first, renamed when complete); what it returns (the samples written)."""
+def _write_csv(target: Path | None, write, source: str, force: bool = False) -> int:
+    """``write(binary file)`` to stdout, or to ``target`` whole or not at all (the rule of
+    fieldcal.atomic); what it returns (the samples written)."""
+    from fieldcal.atomic import atomic_file
+
     if target is None:
         n = write(sys.stdout.buffer)
         sys.stdout.buffer.flush()
         return n
-    partial = target.with_name(f".{target.name}.partial")
-    try:
-        with open(partial, "wb") as fh:
-            n = write(fh)
-        partial.replace(target)
-    finally:
-        partial.unlink(missing_ok=True)
+    with atomic_file(target, overwrite=force, hint="give --force to replace it", inputs=[source]) as pending:
+        n = write(pending.file)
     print(f"{source}: {n} samples calibrated into {target}", file=sys.stderr)
     return n
 
@@ -123,7 +121,7 @@ def cmd_apply(args) -> int:
         [target] = _apply_targets(args, args.input)
         skipped = []
         _write_csv(target, lambda out: _logged(apply_log(parameters, args.input[0], out, args.topic, args.imu),
-                                               skipped), args.input[0])
+                                               skipped), args.input[0], args.force)
         for name in skipped:
             print(f"fieldcal apply: {args.input[0]}: triad {name!r} is not in {args.params}: not written",
                   file=sys.stderr)
@@ -143,7 +141,7 @@ def cmd_apply(args) -> int:
             print(f"fieldcal apply: {p.path}: triad {name!r} is not in {args.params}: not written",
                   file=sys.stderr)
         _write_csv(target, lambda out, p=p: apply_file(p, out, warn=lambda line: print(
-            f"fieldcal {line}", file=sys.stderr)), p.path)
+            f"fieldcal {line}", file=sys.stderr)), p.path, args.force)
     return 0
 
 
@@ -183,17 +181,14 @@ def _apply_device(args, parameters) -> int:
                                    args.samples, args.seconds)
         else:  # into a partial file, renamed once samples were written: a start that fails
             # (no device, no samples) leaves the file --force would replace as it was
-            target = Path(args.out)
-            partial = target.with_name(f".{target.name}.partial")
-            try:
-                with open(partial, "wb") as out:
-                    written = apply_device(config, calibrations, out, sys.stderr, stop, args.samples,
-                                           args.seconds)
-                if written:
-                    partial.replace(target)
-                    print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
-            finally:
-                partial.unlink(missing_ok=True)
+            from fieldcal.atomic import atomic_file
+            with atomic_file(args.out, overwrite=args.force, hint="give --force to replace it",
+                             inputs=[args.params, args.config]) as pending:
+                written = apply_device(config, calibrations, pending.file, sys.stderr, stop, args.samples,
+                                       args.seconds)
+                pending.keep = bool(written)
+            if written:
+                print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
     finally:
         if in_main:
             signal.signal(signal.SIGINT, previous)
@@ -230,7 +225,7 @@ def cmd_history(args) -> int:
         print(line)
     if args.plot:
         from fieldcal.registry.drift import plot_history
-        for path in plot_history(calibrations, args.serial, args.plot):
+        for path in plot_history(calibrations, args.serial, args.plot, overwrite=args.force):
             print(f"plot: {path}")
     return 0
 
@@ -287,11 +282,11 @@ def cmd_certificate(args) -> int:
     write_atomically(out, page.encode("utf-8"), overwrite=args.force, hint="give --force to replace it")
     print(f"certificate: {out}")
     if not args.no_pdf:
-        _certificate_pdf(out, pdf)
+        _certificate_pdf(out, pdf, args.force)
     return 0 if verdict is None or verdict.passed else EXIT_FAILED_SPEC
 
 
-def _certificate_pdf(page: Path, pdf: Path) -> None:
+def _certificate_pdf(page: Path, pdf: Path, force: bool = False) -> None:
     """The PDF beside the page where a headless Chromium is installed; one line either way (a
     failed print is a warning: the HTML page is the certificate)."""
     from fieldcal.certificate.render import find_browser, print_pdf
@@ -302,7 +297,7 @@ def _certificate_pdf(page: Path, pdf: Path) -> None:
               "page is the certificate")
         return
     try:
-        print_pdf(page, pdf, browser)
+        print_pdf(page, pdf, browser, overwrite=force)
     except ValueError as exc:
         print(f"warning: certificate: no PDF: {exc}", file=sys.stderr)
         return
@@ -380,6 +375,7 @@ def add_production_parsers(sub) -> None:
     history.add_argument("--spec", metavar="SPEC", help="product spec: flag drift beyond its max_drift")
     history.add_argument("--plot", metavar="DIR", help="also write a PNG per triad here: each "
                          "parameter over time with ± 1σ bars")
+    history.add_argument("--force", action="store_true", help="replace the --plot PNGs if they exist")
     add_registry_option(history)
     history.set_defaults(func=cmd_history)
     registry = sub.add_parser("registry", help="the unit registry")

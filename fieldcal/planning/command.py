@@ -33,6 +33,8 @@ def add_plan_parser(sub) -> argparse.ArgumentParser:
                         "for the scatter of the errors a check measures: a Monte Carlo's RMS error "
                         "over N runs scatters by about 1/√(2N) (default 0)")
     parser.add_argument("--out", required=True, metavar="FILE.yaml", help="where the procedure goes")
+    parser.add_argument("--force", action="store_true", help="replace the --out file if it exists "
+                        "(never the --config nor a procedure the plan reads)")
     parser.add_argument("--place-s", type=float, metavar="S",
                         help="seconds to carry and place the unit (default: the headless operator's)")
     parser.add_argument("--settle-s", type=float, metavar="S",
@@ -140,6 +142,18 @@ def plan_title(device: str, target: str, slack: float) -> str:
     return title
 
 
+def plan_inputs(args) -> list[str]:
+    """The files ``plan`` reads: its config (a path or a shipped name), the procedure it plans
+    from; its --out is never one of them, even with --force."""
+    from fieldcal.paths import CONFIGS_DIR
+    from fieldcal.procedure.positions import PROCEDURES_DIR
+
+    given = Path(args.config)
+    names = [given, given.with_suffix(".yaml"), CONFIGS_DIR / f"{given.name}.yaml",
+             PROCEDURES_DIR / "field-18.yaml"]
+    return [str(n) for n in names if n.is_file()]
+
+
 def cmd_plan(args) -> int:
     import numpy as np
 
@@ -194,7 +208,9 @@ def cmd_plan(args) -> int:
                           operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""),
                           operator_targets(models, limits))
     parse_procedure(text, out.name)  # what is written loads as an ordinary procedure
-    out.write_text(text)
+    from fieldcal.atomic import write_atomically
+    write_atomically(out, text.encode("utf-8"), overwrite=args.force, hint="give --force to replace it",
+                     inputs=plan_inputs(args))
     design = plan.design
     print(f"{len(plan.positions)} positions, {design.dwell_s:g} s dwell, rate steps ±{design.rate_deg_s:g} °/s "
           f"× {design.turns} turn{'s' * (design.turns > 1)}: operator time {plan.seconds / 60:.1f} min "

@@ -73,6 +73,18 @@ def _scrub(text: str, secrets: tuple[str, ...]) -> str:
     return text
 
 
+def _refuse_links(path: Path) -> None:
+    """The registry file and the journals SQLite writes beside it: never a link (SQLite would
+    write through it), never a FIFO or device (fieldcal.atomic's rule)."""
+    from fieldcal.atomic import check_appendable
+
+    for name in (path, *(path.with_name(path.name + end) for end in ("-journal", "-wal", "-shm"))):
+        try:
+            check_appendable(name)
+        except ValueError as exc:
+            raise RegistryError(f"registry {path}: {exc}") from None
+
+
 class SqliteBackend:
     """One SQLite file in WAL mode; writers wait for each other up to the busy timeout."""
     kind = "sqlite"
@@ -82,6 +94,7 @@ class SqliteBackend:
         self.path = path
         self.where = str(path)
         path.parent.mkdir(parents=True, exist_ok=True)
+        _refuse_links(path)
         self.db = sqlite3.connect(path, timeout=timeout_s, isolation_level=None)
         try:
             self.db.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")

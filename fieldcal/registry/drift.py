@@ -73,18 +73,23 @@ def history_lines(calibrations: list[dict], spec=None) -> list[str]:
     return lines
 
 
-def plot_history(calibrations: list[dict], serial: str, directory) -> list:
+def plot_history(calibrations: list[dict], serial: str, directory, overwrite: bool = True) -> list:
     """One PNG per triad: each parameter over the calibrations, ± 1σ bars; the paths written."""
     from pathlib import Path
+
+    import io
 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    from fieldcal.atomic import check_target, write_atomically
     from fieldcal.report import label
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     triads = dict.fromkeys(t for t, _ in calibrations[-1]["parameters"])
+    for triad in triads:  # every plot refused (a link, an existing file) before any is drawn
+        check_target(directory / f"{serial}-{triad}-history.png", force=overwrite, option="--plot")
     paths = []
     for triad in triads:
         names = [n for t, n in calibrations[-1]["parameters"] if t == triad]
@@ -102,6 +107,8 @@ def plot_history(calibrations: list[dict], serial: str, directory) -> list:
         fig.suptitle(f"{serial}: {triad}, ± 1σ")
         fig.tight_layout()
         path = directory / f"{serial}-{triad}-history.png"
-        fig.savefig(path, dpi=80)
+        png = io.BytesIO()  # then written by the one rule: never through a link planted at ``path``
+        fig.savefig(png, format="png", dpi=80)
+        write_atomically(path, png.getvalue(), overwrite=overwrite, hint="give --force to replace it")
         paths.append(path)
     return paths

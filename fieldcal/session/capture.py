@@ -22,7 +22,7 @@ from typing import Any, Self
 import numpy as np
 
 from drivers.chunk import SampleChunk
-from fieldcal.atomic import WouldOverwrite, write_atomically
+from fieldcal.atomic import WouldOverwrite, check_target, open_append, open_nofollow, write_atomically
 from fieldcal.session.lock import SessionLock, is_held
 from fieldcal.session import LOG, SessionError  # noqa: F401 (this module's names too)
 
@@ -550,8 +550,8 @@ class SessionWriter:
             if (d / LOG).exists():
                 raise SessionError(f"{d}: already a session (a new session needs a new directory; to "
                                    "continue this one, resume it)", str(d))
-            log = open(d / LOG, "xb")  # noqa: SIM115 -- held open by the writer until close()
-            samples = open(d / SAMPLES, "xb")  # noqa: SIM115
+            log = open_append(d / LOG, new=True)  # held open by the writer until close()
+            samples = open_append(d / SAMPLES, new=True)
         except BaseException as exc:
             for fh in (log, samples):
                 if fh is not None:
@@ -591,8 +591,8 @@ class SessionWriter:
                 if kept_in is not None:
                     repaired += [f"{line} (kept in {kept_in.name})" for line in scan.beyond
                                  if line.startswith(f"{path.name}:")]
-            log = open(d / LOG, "ab")  # noqa: SIM115 -- held open by the writer until close()
-            samples = open(d / SAMPLES, "ab")  # noqa: SIM115
+            log = open_append(d / LOG)  # held open by the writer until close()
+            samples = open_append(d / SAMPLES)
         except BaseException as exc:
             session_lock.release()
             if isinstance(exc, OSError):
@@ -601,7 +601,7 @@ class SessionWriter:
         writer = cls(d, log, samples, scan, fsync_interval_s=fsync_interval_s, clock=clock,
                      active=False, repaired=repaired, session_lock=session_lock)
         for name in scan.raw_ends:
-            writer._raw[name] = open(raw_path(d, name), "ab")  # noqa: SIM115
+            writer._raw[name] = open_append(raw_path(d, name))
         return writer
 
     # -- state --------------------------------------------------------------------------------
@@ -645,6 +645,8 @@ class SessionWriter:
                 yield
             except BaseException as exc:
                 self._failed = (str(exc).splitlines() or [""])[0][:200] or type(exc).__name__
+                if isinstance(exc, OSError) and exc.filename is None:  # a buffered write names no file:
+                    exc.filename = str(self.directory)  # the session it was for (a full disk, say)
                 raise
 
     def _write(self, doc: dict) -> int:
@@ -765,7 +767,7 @@ class SessionWriter:
         with self._writing("raw"):
             fh = self._raw.get(name)
             if fh is None:
-                fh = self._raw[name] = open(raw_path(self.directory, name), "ab")  # noqa: SIM115
+                fh = self._raw[name] = open_append(raw_path(self.directory, name))
             offset = self._raw_ends.get(name, 0)
             fh.write(view)
             fh.flush()
@@ -791,6 +793,7 @@ class SessionWriter:
         with self._lock:
             self._require("parameters")
             if filename is None:
+                check_target(self.directory / PARAMETERS, force=True)  # before the numbered file: a link is refused
                 self._keep_current_parameters()
             name = filename or self._next_parameters_name()
             # atomic and never over another file: a failure leaves the log as it was
@@ -890,7 +893,7 @@ def _cut_torn(path: Path, size: int) -> Path | None:
             continue
     else:
         raise SessionError(f"{path}: too many earlier {TORN_SUFFIX} copies beside it", str(path))
-    with open(path, "r+b") as fh:
+    with os.fdopen(open_nofollow(path, os.O_RDWR), "r+b") as fh:  # never cut a link's target
         fh.truncate(size)
         fh.flush()
         os.fsync(fh.fileno())

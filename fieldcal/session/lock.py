@@ -51,10 +51,14 @@ class SessionLock:
     @classmethod
     def acquire(cls, directory: str | os.PathLike) -> SessionLock:
         """Lock ``directory`` (an existing directory) or refuse in one line naming the holder."""
+        from fieldcal.atomic import RefusedTarget, open_nofollow
+
         d = Path(directory)
         path = d / LOCK
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        try:  # never through a link planted at ``lock`` (the note would land in its target)
+            fd = open_nofollow(path, os.O_RDWR | os.O_CREAT)
+        except RefusedTarget as exc:
+            raise SessionLockedError(f"{d}: cannot write to this session ({exc})", str(path)) from None
         except OSError as exc:
             raise SessionLockedError(f"{d}: cannot write to this session ({exc.strerror or exc}: "
                                      f"{path})", str(path)) from None
@@ -91,7 +95,7 @@ class SessionLock:
 def is_held(directory: str | os.PathLike) -> bool:
     """Is a writer holding ``directory``'s lock right now? (False when there is no lock file.)"""
     try:
-        fd = os.open(Path(directory) / LOCK, os.O_RDONLY | os.O_CLOEXEC)
+        fd = os.open(Path(directory) / LOCK, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK)
     except OSError:
         return False
     try:

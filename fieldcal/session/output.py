@@ -22,26 +22,22 @@ def refuse_inside_session(path: str | os.PathLike, what: str) -> None:
 _HINT = "give --force to replace it"
 
 
-def check_output_path(path: str | os.PathLike, *, force: bool, option: str) -> None:
+def check_output_path(path: str | os.PathLike, *, force: bool, option: str, inputs=()) -> None:
     """What ``save_parameter_file`` would refuse, said before the work that leads to it."""
-    from fieldcal.atomic import WouldOverwrite
+    from fieldcal.atomic import check_target
 
     refuse_inside_session(path, f"{option}'s parameter file")
-    p = Path(path)
-    if p.is_dir():
-        raise SessionError(f"{p}: {option}: is a directory; give a file name", str(p))
-    if not force and (p.exists() or p.is_symlink()):
-        raise WouldOverwrite(p, _HINT)
+    check_target(path, force=force, inputs=inputs, hint=_HINT, option=option)
 
 
 def save_parameter_file(pf, path: str | os.PathLike, *, force: bool = False, option: str = "--out",
-                        data: bytes | None = None) -> Path:
+                        data: bytes | None = None, inputs=()) -> Path:
     """Write ``pf`` to ``path`` atomically; refused inside a session, and over an existing file
     unless ``force`` (the refusal names ``path`` and the --force flag). ``data``: ``pf``'s text
     as a file already holds it (a session's copy), so that it is not made again."""
     from fieldcal.atomic import write_atomically
     from fieldcal.paramfile import dump
 
-    check_output_path(path, force=force, option=option)
+    check_output_path(path, force=force, option=option, inputs=inputs)
     data = dump(pf).encode("utf-8") if data is None else data
-    return write_atomically(path, data, overwrite=force, hint=_HINT)
+    return write_atomically(path, data, overwrite=force, hint=_HINT, inputs=inputs)

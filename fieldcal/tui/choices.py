@@ -101,7 +101,7 @@ def save_last_choice(choice: SetupChoice, path: str | os.PathLike | None = None)
             "height_m": float(choice.height_m)}
     text = ("# the last setup chosen in `fieldcal tui`; delete this file to forget it\n"
             + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
-    return write_atomically(path, text.encode("utf-8"))
+    return write_atomically(path, text.encode("utf-8"), state=True)
 
 
 def available_configs() -> list[str]:

@@ -343,7 +343,7 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
             return
         try:
             save_last_choice(choice, self.last_choice_path)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:  # ValueError: the write rule's refusal (a link)
             self.app.notify(f"could not remember this setup: {exc}", severity="warning")
         self.dismiss(choice)
 
