@@ -21,7 +21,8 @@ examples:
       latitude: the Earth rate is an error term
   fieldcal calibrate flight.ulg
       a PX4 log (pip install 'fieldcal[logs]'); no place, no gravity:
-      g from the poses, with a warning
+      normal gravity at 45°, its ±0.3 % worldwide spread in the scale
+      factors' σ, with a warning (never the sensor's own norm)
   fieldcal calibrate run.bag --topic /imu/data --latitude 48.1
       a ROS 1 bag, or a ROS 2 bag's directory (sensor_msgs/Imu); an
       ArduPilot DataFlash log (.bin) likewise, its IMU instance by --imu N
@@ -81,13 +82,20 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
 
 def _station(args, config):
     """The station; an UnknownPlace when neither --latitude nor a config says where."""
-    from fieldcal.earth import Station
+    from fieldcal.earth import GRAVITY_RANGE_M_S2, HEIGHT_RANGE_M, Station
     from fieldcal.recording.calibrate import UnknownPlace
 
+    # Each option checked by its own name (Station's own checks name its fields, not the options).
+    if args.gravity is not None and not GRAVITY_RANGE_M_S2[0] < args.gravity < GRAVITY_RANGE_M_S2[1]:
+        raise ValueError(f"--gravity: expected 9.7..9.9 m/s^2 (local gravity), got {args.gravity:g}")
+    if args.latitude is not None and not -90.0 <= args.latitude <= 90.0:
+        raise ValueError(f"--latitude: expected -90..90°, got {args.latitude:g}")
+    if args.height is not None and not HEIGHT_RANGE_M[0] <= args.height <= HEIGHT_RANGE_M[1]:
+        raise ValueError(f"--height: expected -500..9000 m above the ellipsoid, got {args.height:g}")
     base = config.station if config is not None else None
     if args.latitude is None and base is None:
-        if args.gravity is not None and not 9.7 < args.gravity < 9.9:
-            raise ValueError(f"--gravity: expected 9.7..9.9 m/s^2, got {args.gravity:g}")
+        if args.height is not None and args.gravity is None:
+            raise ValueError("--height: needs --latitude too (normal gravity depends on both)")
         return UnknownPlace(gravity=args.gravity)
     latitude = args.latitude if args.latitude is not None else base.latitude_deg
     height = args.height if args.height is not None else (base.height_m if base else 0.0)

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from fieldcal.earth import EARTH_RATE, Station
+from fieldcal.earth import EARTH_RATE, Station, normal_gravity
 from fieldcal.model import calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
@@ -46,15 +46,23 @@ from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, sca
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
 
 
-STANDARD_GRAVITY = 9.80665  # m/s^2 per g, by definition
-_SI_PER_FORCE_UNIT = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY, "mg": STANDARD_GRAVITY * 1e-3}
+# Where nothing tells g: WGS84 normal gravity at 45°, within ±0.3 % of g anywhere people live
+# (9.780 m/s² at the equator to 9.832 at the poles, less up a mountain). A place is as likely
+# anywhere in that band, so its 1σ is the band's half-width over √3. Never the sensor's own norm:
+# the uncalibrated norm at rest holds the very scale error the calibration is to find.
+DEFAULT_LATITUDE_DEG = 45.0
+GRAVITY_SPREAD = 0.003  # relative half-width of the worldwide band
+DEFAULT_GRAVITY_SOURCE = (f"WGS84 normal gravity at {DEFAULT_LATITUDE_DEG:g}° (place unknown: g anywhere is within "
+                          f"±{GRAVITY_SPREAD:.1%} of it, carried in every scale factor's σ; give --latitude "
+                          "(and --height), or --gravity)")
 
 
 @dataclass(frozen=True)
 class UnknownPlace:
     """A recording whose place is not known: no latitude, so the Earth rate (7.29e-5 rad/s, its
     direction unknown) is an error term of Ω²/3 per axis instead of a known vertical part.
-    ``gravity``: m/s^2 as given, or None: taken from the pose means (see calibrate_recording).
+    ``gravity``: m/s^2 as given, or None: normal gravity at 45° (see place_gravity), whose
+    relative 1σ ``gravity_relative_sigma`` widens every specific-force scale factor's σ.
     Written to a parameter file as latitude 0 with this g as a given ("measured") one: a file's
     gravity source is one of ``fieldcal.earth.GRAVITY_SOURCES`` (see recording.results)."""
 
@@ -62,21 +70,32 @@ class UnknownPlace:
     gravity_source: str = "given (--gravity); place unknown"
     latitude_deg: float = 0.0
     height_m: float = 0.0
+    gravity_relative_sigma: float = 0.0
 
     @property
     def latitude_rad(self) -> float:
         return 0.0
 
 
-def gravity_from_poses(means: np.ndarray, unit: str) -> tuple[float, str]:
-    """(g in m/s^2, where it came from) when nothing tells: the median norm of the pose means in
-    a unit with a known scale (its scale error goes into g, so the scale factors are relative to
-    it), else standard gravity (within ±0.3 % of any place on Earth)."""
-    factor = _SI_PER_FORCE_UNIT.get(unit)
-    if factor is None:
-        return STANDARD_GRAVITY, "standard gravity (place unknown, raw counts: scale factors relative to it)"
-    g = float(np.median(np.linalg.norm(means, axis=1))) * factor
-    return g, f"the pose means' median norm in {unit} (place unknown: scale factors relative to it)"
+def with_gravity_uncertainty(solution: Calibration, relative_sigma: float) -> tuple[Calibration, str]:
+    """A specific-force triad's solution with g's relative 1σ in its scale factors' σ, and a note
+    when that is most of their σ (else ""). Every scale factor is output per m/s², so a g wrong by
+    a fraction ε moves each by −ε·k and nothing else: to first order the covariance gains
+    σ²·v·vᵀ with v = −k on the scale factors."""
+    if relative_sigma <= 0:
+        return solution, ""
+    v = np.zeros(len(solution.theta))
+    v[3:6] = -solution.theta[3:6]
+    covariance = solution.covariance + relative_sigma**2 * np.outer(v, v)
+    widened = replace(solution, covariance=covariance, sigma=None)
+    own = np.sqrt(np.diag(solution.covariance)[3:6]) / np.abs(solution.theta[3:6])
+    note = ""
+    if np.all(own < relative_sigma):
+        total = float(np.max(widened.sigma[3:6] / np.abs(solution.theta[3:6])))
+        note = (f"{solution.name}: the scale factors' σ ({total:.2%}) is mostly the unknown g's "
+                f"({relative_sigma:.2%}, 1σ of ±{GRAVITY_SPREAD:.1%} worldwide; the fit alone: "
+                f"{float(np.max(own)) * 1e6:.3g} ppm): give --latitude (and --height), or --gravity")
+    return widened, note
 
 
 NORM_PROTOCOL = "hand-held poses: the norm method for the accelerometer, the rotations for the gyro"
@@ -136,8 +155,9 @@ def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, 
     method = method or settings.method
     problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
                                 labels=tuple(f"pose {i + 1}" for i in range(len(means))))
+    # White noise: each mean's per-axis 1σ, the (n, 3) form solve_norm weighs without an n×n matrix.
     solution = white if white is not None else solve_norm(
-        problem, _means_covariance(intervals, t, variance, None, None, unit), method=method)
+        problem, np.sqrt(variance[None, :] / np.diff(intervals, axis=1)), method=method)
     noise = settings.noise.get(name)
     if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
         solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
@@ -222,12 +242,12 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     triad. Raises DetectionError (poses too few or badly spread, the rest not still) or
     CalibrationError (the reference accelerometer cannot be solved) with a one-line message."""
     detection = detect_candidates(recording, settings.detector)
-    station = place_gravity(station, detection, recording.units[detection.reference])
+    station = place_gravity(station)
     choice = choose_poses(recording, detection, station, settings)
     if choice.best is None:
         aligned = _aligned_protocol(recording, station, detection, choice.tried, settings)
         if aligned is not None:
-            return aligned
+            return _with_unknown_gravity(aligned)
         most = max(choice.tried, key=lambda x: x[1])
         poses = next(c.poses for c in detection.candidates if c.multiple == most[0])
         faces = _faces_missing(detection, settings.detector.min_static_s)
@@ -238,7 +258,20 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     if settings.estimate_noise and detection.reference not in settings.noise:
         choice, settings = _with_estimated_noise(recording, detection, choice, station, settings)
         estimated = (detection.reference,)
-    return solve_triads(recording, detection, choice, station, settings, estimated)
+    return _with_unknown_gravity(solve_triads(recording, detection, choice, station, settings, estimated))
+
+
+def _with_unknown_gravity(cal: RecordingCalibration) -> RecordingCalibration:
+    """The specific-force triads' scale σ widened by an unknown place's g (see place_gravity),
+    with a note for each whose σ that dominates."""
+    relative = getattr(cal.place, "gravity_relative_sigma", 0.0)
+    if not relative:
+        return cal
+    widened, notes = {}, []
+    for name, solution in cal.specific_force.items():
+        widened[name], note = with_gravity_uncertainty(solution, relative)
+        notes += [note] if note else []
+    return replace(cal, specific_force=widened, notes=cal.notes + tuple(notes))
 
 
 def _with_estimated_noise(recording: Recording, detection: Detection, choice: PoseChoice,
@@ -268,12 +301,12 @@ def _faces_missing(detection: Detection, min_static_s: float) -> str:
             "still for longer, or give --min-still S")
 
 
-def place_gravity(station: Station | UnknownPlace, detection: Detection, unit: str) -> Station | UnknownPlace:
-    """The station, an unknown place's g filled in from the middle threshold's pose means."""
+def place_gravity(station: Station | UnknownPlace) -> Station | UnknownPlace:
+    """The station, an unknown place's g filled in as normal gravity at 45° with its spread."""
     if not (isinstance(station, UnknownPlace) and station.gravity is None):
         return station
-    middle = detection.candidates[len(detection.candidates) // 2].found
-    return replace(station, **dict(zip(("gravity", "gravity_source"), gravity_from_poses(middle.means, unit))))
+    return replace(station, gravity=normal_gravity(DEFAULT_LATITUDE_DEG), gravity_source=DEFAULT_GRAVITY_SOURCE,
+                   gravity_relative_sigma=GRAVITY_SPREAD / math.sqrt(3))
 
 
 @dataclass(frozen=True)
