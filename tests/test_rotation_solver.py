@@ -458,3 +458,27 @@ def test_motions_replaced_or_not_the_scans_own_make_their_own_steps():
     own = scan_scale(t, turned, spans, start, end, np.zeros(3), scales)
     other = scan_scale(t, turned, spans, start, end, np.zeros(3), scales, motions=doubled)
     assert own == other == pytest.approx(1000.0)
+
+
+def test_the_chained_up_covariance_is_the_dense_product():
+    """Motion i moves by E_iᵀ·C_iᵀ·δup_i − E_iᵀ·δup_{i+1}: the block-bidiagonal map applied block
+    by block (O(m²)) gives the dense A·U·Aᵀ (the oracle, O(m³)), and the block sandwich of the
+    up vectors' covariance its dense L·C·Lᵀ."""
+    from fieldcal.recording.calibrate import block_sandwich
+    from fieldcal.solvers.rotation import _chained_up_covariance
+
+    rng = np.random.default_rng(8)
+    m = 7
+    E, C = rng.normal(size=(m, 3, 2)), Rotation.random(m, random_state=3).as_matrix()
+    root = rng.normal(size=(3 * m + 3, 3 * m + 3))
+    U = root @ root.T
+    A = np.zeros((2 * m, 3 * m + 3))
+    for i in range(m):
+        A[2 * i:2 * i + 2, 3 * i:3 * i + 3] = E[i].T @ C[i].T
+        A[2 * i:2 * i + 2, 3 * i + 3:3 * i + 6] = -E[i].T
+    np.testing.assert_allclose(_chained_up_covariance(E, C, U), A @ U @ A.T, rtol=1e-12, atol=1e-12 * np.abs(U).max())
+    blocks = rng.normal(size=(m + 1, 3, 3))
+    L = np.zeros((3 * m + 3, 3 * m + 3))
+    for i, block in enumerate(blocks):
+        L[3 * i:3 * i + 3, 3 * i:3 * i + 3] = block
+    np.testing.assert_allclose(block_sandwich(blocks, U), L @ U @ L.T, rtol=1e-12, atol=1e-12 * np.abs(U).max())

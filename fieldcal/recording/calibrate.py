@@ -194,15 +194,21 @@ def _up_vectors(acc: Calibration, means: np.ndarray, means_cov: np.ndarray) -> t
     u = a / norm[:, None]
     D = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # (P, 3, 3) ∂u/∂a, pose by pose
     P = len(means)
-    K_inv = np.linalg.inv(acc.K)
-    J_theta = _calibrated_jacobian(acc.theta, means)
+    # Both terms through the poses' own 3×3 factors, never a dense 3m×3m product (O(m²), not O(m³)):
+    # the calibration's error through each pose's D_i·∂a_i/∂θ (rank 9), each mean's through D_i·K⁻¹.
+    DJ = (D @ _calibrated_jacobian(acc.theta, means).reshape(P, 3, -1)).reshape(3 * P, -1)
+    return u, DJ @ acc.covariance @ DJ.T + block_sandwich(D @ np.linalg.inv(acc.K), means_cov)
 
-    def blocks(left, C, right):  # left_i·C_ij·right_jᵀ for the 3×3 blocks of C: block-diagonal factors
-        C = C.reshape(P, 3, P, 3).transpose(0, 2, 1, 3)
-        return (left[:, None] @ C @ np.swapaxes(right, -1, -2)[None]).transpose(0, 2, 1, 3).reshape(3 * P, 3 * P)
 
-    K_invs = np.broadcast_to(K_inv, (P, 3, 3))
-    return u, blocks(D, J_theta @ acc.covariance @ J_theta.T + blocks(K_invs, means_cov, K_invs), D)
+def block_sandwich(left: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """L·C·Lᵀ for L block-diagonal of (m, 3, 3) blocks and C (3m, 3m): each block L_i·C_ij·L_jᵀ.
+    A 3-term sum of elementwise products per side (O(m²); a batched matmul of 3×3 blocks is
+    slower, a dense product O(m³))."""
+    m = len(left)
+    slabs = C.reshape(m, 3, 3 * m)  # row slab i: the three rows of pose i
+    rows = sum(left[:, :, b, None] * slabs[:, None, b, :] for b in range(3))  # L·C
+    rows = rows.reshape(3 * m, m, 3)  # column slab j: its three columns
+    return sum(rows[:, :, c, None] * left[None, :, :, c] for c in range(3)).reshape(3 * m, 3 * m)
 
 
 def _calibrated_jacobian(theta: np.ndarray, means: np.ndarray) -> np.ndarray:
