@@ -184,9 +184,10 @@ def cmd_calibrate(args) -> int:
     finally:
         writer.close()
     if isinstance(station, UnknownPlace):
+        gyro = ("; the Earth rate is carried as an error in the gyro's bias and rotations"
+                if any(kind == "angular_rate" for kind in recording.kinds.values()) else "")
         print(f"WARNING: where the recording was made is not known (give --latitude, and --gravity if "
-              f"measured): g = {station.gravity:.6f} m/s^2 from {station.gravity_source}; the Earth rate "
-              "is carried as an error in the gyro's bias and rotations")
+              f"measured): g = {station.gravity:.6f} m/s^2 from {station.gravity_source}{gyro}")
     else:
         print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
               f"{station.gravity:.6f} m/s^2 ({station.gravity_source})")

@@ -99,8 +99,11 @@ def with_gravity_uncertainty(solution: Calibration, relative_sigma: float) -> tu
 
 
 NORM_PROTOCOL = "hand-held poses: the norm method for the accelerometer, the rotations for the gyro"
+FORCE_ONLY_PROTOCOL = "static poses: the norm method for the accelerometer"
 ALIGNED_PROTOCOL = ("Ferraris: six axis-aligned poses and full turns; the aligned six-position solution for "
                     "the accelerometer (the norm method needs 9 poses), the turns' ±2π integrals for the gyro")
+ALIGNED_FORCE_ONLY_PROTOCOL = ("six axis-aligned poses: the aligned six-position solution for the accelerometer "
+                               "(the norm method needs 9 poses)")
 
 
 @dataclass(frozen=True)
@@ -414,6 +417,7 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
     return RecordingCalibration(poses, choice.best.spread, choice.tried, specific_force, angular_rate, failures,
                                 reference, bias_sigma, turns, used, detection.noise.source, station,
+                                NORM_PROTOCOL if detection.rates else FORCE_ONLY_PROTOCOL,
                                 notes=tuple(notes), estimated_noise=estimated)
 
 
@@ -618,7 +622,8 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
                           message="6 distinct poses, each along an axis (Ferraris)")
     notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate))
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
-                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station, ALIGNED_PROTOCOL,
+                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station,
+                                ALIGNED_PROTOCOL if detection.rates else ALIGNED_FORCE_ONLY_PROTOCOL,
                                 notes, estimated_noise=estimated)
 
 
