@@ -104,7 +104,9 @@ def _station(args, config):
 
 
 def _recording(args):
-    """(recording, session directory, import summary lines)."""
+    """(recording, session directory, import summary lines); for files, the session directory is
+    a function that writes the session and returns its directory: called once the calibration
+    has succeeded, so that a refused one leaves nothing behind."""
     from fieldcal.recording.store import load_recording
 
     from fieldcal.recording.logs import LOG_NAMES, log_format
@@ -123,8 +125,11 @@ def _recording(args):
                          f"path); or give one session directory from `fieldcal import`, or {LOG_NAMES}")
     recording, report = read_recording(args.recording, args.map, args.rate, args.topic, args.imu)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    directory = save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
-    return recording, directory, summary_lines(recording, report)
+
+    def save() -> Path:
+        return save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
+
+    return recording, save, summary_lines(recording, report)
 
 
 def cmd_calibrate(args) -> int:
@@ -178,6 +183,7 @@ def cmd_calibrate(args) -> int:
     station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None,
                         operator=operator)
+    directory = directory() if callable(directory) else directory  # files: their session, now
     writer = SessionWriter.append_to(directory)  # refused if another fieldcal is writing it
     try:
         writer.write_parameters(pf)  # parameters-NNN.yaml: an earlier calibration is kept

@@ -30,6 +30,23 @@ def _file_station(station: Station | UnknownPlace) -> Station:
     return station
 
 
+def place_of(provenance) -> Station | UnknownPlace:
+    """The place a recording's parameter file was calibrated for (its provenance), as
+    ``_file_station`` wrote it: latitude 0, height 0 and a given g is an unknown place, and that g
+    normal gravity at 45° the default with its worldwide spread (see calibrate.place_gravity)."""
+    from fieldcal.earth import MEASURED
+    from fieldcal.recording.calibrate import DEFAULT_LATITUDE_DEG, normal_gravity
+
+    p = provenance
+    if p.gravity_source != MEASURED:
+        return Station(p.latitude_deg, p.height_m)
+    if p.latitude_deg != 0.0 or p.height_m != 0.0:
+        return Station(p.latitude_deg, p.height_m, p.gravity_m_s2)
+    if math.isclose(p.gravity_m_s2, normal_gravity(DEFAULT_LATITUDE_DEG), rel_tol=1e-12):
+        return UnknownPlace()
+    return UnknownPlace(gravity=p.gravity_m_s2)
+
+
 def parameter_file(cal: RecordingCalibration, recording: Recording, station: Station | UnknownPlace,
                    device_name: str | None = None, simulation: bool | None = None,
                    operator: str | None = None) -> ParameterFile:
