@@ -2,6 +2,8 @@
 them FAILED, exit 1), and a refused `calibrate` leaves no session directory behind."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -60,3 +62,59 @@ def test_a_refused_calibrate_leaves_no_session_behind(tmp_path, capsys):
     assert code == 2
     assert "distinct poses" in capsys.readouterr().err
     assert list(out.iterdir()) == []
+
+
+def impossible_join(tmp_path):
+    """A recording joined to its time-reversed copy whose gyro was not negated (as a careless join
+    makes it): the second half's rotations turn the wrong way, which no calibration can fit."""
+    sim = simulate_handheld(6)
+    t = np.r_[sim.t, sim.t[-1] + 1.0 / sim.rate_hz + (sim.t - sim.t[0])]
+    joined = replace(sim, t=t, accelerometer=np.vstack([sim.accelerometer, sim.accelerometer[::-1]]),
+                     gyroscope=np.vstack([sim.gyroscope, sim.gyroscope[::-1]]))
+    return to_text(joined, tmp_path / "joined")
+
+
+def test_an_impossible_join_is_refused_for_its_misfit_not_its_axes(tmp_path, capsys):
+    """Before: 'the motions do not span enough rotation axes' (σ grown by χ²/dof in the millions)."""
+    files = impossible_join(tmp_path)
+    code = main(["calibrate", *map(str, files), "--map", "imu_tk", "--latitude", "40", "--out", str(tmp_path / "s")])
+    out = capsys.readouterr().out
+    assert code == 1  # the accelerometer calibrated, the gyro not
+    line = next(l for l in out.splitlines() if l.startswith("gyroscope: not calibrated"))
+    assert "the rotations do not fit the motions: χ²/dof" in line and "not still" in line
+    assert "span enough rotation axes" not in line
+
+
+def misfit_recording(tmp_path):
+    """The last three motions read 2 % fast (as if the gyro's range switched mid-recording): a fit
+    still possible, its χ²/dof hundreds of times what the noise allows."""
+    sim = simulate_handheld(6)
+    gyro, bias = sim.gyroscope.copy(), sim.truth["gyroscope"].bias
+    start = sim.static[-4, 1]
+    gyro[start:] = np.round(bias + 1.02 * (gyro[start:] - bias))
+    return to_text(replace(sim, gyroscope=gyro), tmp_path / "misfit")
+
+
+def test_a_fit_far_beyond_the_noise_is_refused_or_kept_with_a_warning(tmp_path, capsys):
+    files = misfit_recording(tmp_path)
+    out = tmp_path / "sessions"
+    out.mkdir()
+    code = main(["calibrate", *map(str, files), "--map", "imu_tk", "--latitude", "40", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1 and "gyroscope fits with χ²/dof" in err and "--accept-misfit" in err
+    assert "not still" in err and "wrong map" in err
+    assert list(out.iterdir()) == []  # nothing written
+    code = main(["calibrate", *map(str, files), "--map", "imu_tk", "--latitude", "40", "--out", str(out),
+                 "--accept-misfit"])
+    text = capsys.readouterr().out
+    assert code == 0
+    assert "WARNING: kept (--accept-misfit): gyroscope fits with χ²/dof" in text
+    ratio = float(text.split("gyroscope fits with χ²/dof ")[1].split()[0])
+    assert ratio > 100
+
+
+def test_a_plausible_fit_passes_the_gate(tmp_path, text_files, capsys):
+    assert main(["calibrate", *map(str, text_files), "--map", "imu_tk", "--latitude", "40",
+                 "--out", str(tmp_path / "s")]) == 0
+    assert "accept-misfit" not in capsys.readouterr().out

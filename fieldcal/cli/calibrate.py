@@ -71,6 +71,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("--table-rate", type=float, metavar="DEG_S",
                         help="the recording has turns on a turntable at this rate (°/s, either sense): "
                         "use them as rate equations too")
+    parser.add_argument("--accept-misfit", action="store_true",
+                        help="keep a calibration whose fit is far beyond the noise (χ²/dof over 100), "
+                        "with a warning, instead of refusing it")
     parser.add_argument("--params", metavar="FILE", help="also write the parameter file here")
     parser.add_argument("--force", action="store_true", help="replace the --params file if it exists")
     from fieldcal.cli.production import add_operator_option, add_spec_option
@@ -143,7 +146,7 @@ def cmd_calibrate(args) -> int:
         import scipy.linalg  # noqa: F401
         from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
         from fieldcal.recording.detect import DetectorSettings
-        from fieldcal.recording.results import noise_lines, parameter_file, summary_lines
+        from fieldcal.recording.results import MISFIT_CAUSES, misfits, noise_lines, parameter_file, summary_lines
         from fieldcal.session.capture import SessionWriter
 
         from fieldcal.cli.production import accept_after, load_spec_option, operator_option
@@ -180,6 +183,9 @@ def cmd_calibrate(args) -> int:
                                  estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
                                  table_rate_deg_s=args.table_rate, scale_tempco_ppm_per_k=tempco)
     cal = calibrate_recording(recording, station, settings)
+    misfit = misfits(cal)
+    if misfit and not args.accept_misfit:  # before anything is written
+        raise ValueError(f"calibrate: {'; '.join(misfit)}: {MISFIT_CAUSES}; give --accept-misfit to keep it")
     station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None,
                         operator=operator)
@@ -197,6 +203,8 @@ def cmd_calibrate(args) -> int:
     else:
         print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
               f"{station.gravity:.6f} m/s^2 ({station.gravity_source})")
+    for line in misfit:
+        print(f"WARNING: kept (--accept-misfit): {line}: {MISFIT_CAUSES}")
     for line in noise_lines(cal, bool(noise)):
         print(line)
     for line in summary_lines(cal):

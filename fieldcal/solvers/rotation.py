@@ -843,6 +843,13 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
         cov_natural *= chi2 / dof
     sigma_natural = np.sqrt(np.diag(cov_natural))
     worst = int(np.argmax(sigma_natural))
+    if scaled and noise.given and sigma_natural[worst] > _DEGENERATE_FRACTION >= sigma_natural[worst] / math.sqrt(
+            chi2 / dof):  # the motions span the axes; the rotations do not fit them
+        raise CalibrationError(
+            f"{name}: the rotations do not fit the motions: χ²/dof {chi2 / dof:.3g}, {math.sqrt(chi2 / dof):.0f} "
+            f"times the noise, leaves {names[worst]} determined only to ±{sigma_natural[worst]:.2g}; likely a "
+            "pose that was not still, a wrong map (columns, units, axis order, a triad's sign) or a gap or "
+            "jump in time")
     if sigma_natural[worst] > _DEGENERATE_FRACTION:
         raise CalibrationError(f"{name}: the motions do not span enough rotation axes: "
                                f"{names[worst]} is determined only to ±{sigma_natural[worst]:.2g} "
