@@ -41,6 +41,7 @@ from fieldcal.solvers.norm import SCREEN
 from fieldcal.calibration import Calibration
 from fieldcal.solvers.problems import StaticNormProblem
 from fieldcal.recording.turns import rate_residuals
+from fieldcal.recording.up_covariance import MeansCovariance, UpCovariance, means_parts
 from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, scan_scale, solve_rotations
 
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
@@ -163,7 +164,7 @@ def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, 
         problem, np.sqrt(variance[None, :] / np.diff(intervals, axis=1)), method=method)
     noise = settings.noise.get(name)
     if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
-        solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
+        solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit, parts=True),
                               method=method)
     # The noise alone under-states the σ when the poses scatter more than it says (the bias
     # wanders, the temperature moves the scale, a hand trembles: χ²/dof > 1 says so), with a
@@ -176,42 +177,35 @@ def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, 
     return solution
 
 
-def _means_covariance(intervals, t, variance, noise, K, unit) -> np.ndarray:
+def _means_covariance(intervals, t, variance, noise, K, unit, parts: bool = False):
     """Covariance of the flattened pose means (output units): white noise measured over the rest,
-    or, with the device's noise model and scale K, the exact one, bias instability included."""
+    or, with the device's noise model and scale K, the exact one, bias instability included
+    (``parts``: kept by its parts, a MeansCovariance, as a norm solve weighs it in O(m²))."""
     counts = np.diff(intervals, axis=1)[:, 0]
     if noise is None:
         return np.diag((variance[None, :] / counts[:, None]).ravel())
     durations = counts * float(np.median(np.diff(t)))
+    if parts:
+        quantised = unit == "count" and not isinstance(noise, MeasuredNoise)
+        own = np.broadcast_to((1.0 / 12.0 / counts if quantised else np.zeros(len(counts)))[:, None], (len(counts), 3))
+        return MeansCovariance(noise.window_covariance(t[intervals[:, 0]], durations), K, own)
     cov = np.kron(noise.window_covariance(t[intervals[:, 0]], durations), K @ K.T)
     if unit == "count" and not isinstance(noise, MeasuredNoise):  # quantisation, one count (measured: in it)
         cov += np.kron(np.diag(1.0 / 12.0 / counts), np.eye(3))
     return cov
 
 
-def _up_vectors(acc: Calibration, means: np.ndarray, means_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every pose's unit up vector (m, 3) and their covariance (3m, 3m): each mean's own noise
-    and the accelerometer calibration's error, which all poses share."""
+def _up_vectors(acc: Calibration, means: np.ndarray, windows: np.ndarray | None,
+                own: np.ndarray) -> tuple[np.ndarray, UpCovariance]:
+    """Every pose's unit up vector (m, 3) and their covariance, by its parts (see
+    recording.up_covariance): each mean's own noise (``windows``, ``own``: ``means_parts``) and
+    the accelerometer calibration's error, which all poses share."""
     a = calibrate_with(acc.theta, means)
     norm = np.linalg.norm(a, axis=1)
     u = a / norm[:, None]
     D = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # (P, 3, 3) ∂u/∂a, pose by pose
-    P = len(means)
-    # Both terms through the poses' own 3×3 factors, never a dense 3m×3m product (O(m²), not O(m³)):
-    # the calibration's error through each pose's D_i·∂a_i/∂θ (rank 9), each mean's through D_i·K⁻¹.
-    DJ = (D @ _calibrated_jacobian(acc.theta, means).reshape(P, 3, -1)).reshape(3 * P, -1)
-    return u, DJ @ acc.covariance @ DJ.T + block_sandwich(D @ np.linalg.inv(acc.K), means_cov)
-
-
-def block_sandwich(left: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """L·C·Lᵀ for L block-diagonal of (m, 3, 3) blocks and C (3m, 3m): each block L_i·C_ij·L_jᵀ.
-    A 3-term sum of elementwise products per side (O(m²); a batched matmul of 3×3 blocks is
-    slower, a dense product O(m³))."""
-    m = len(left)
-    slabs = C.reshape(m, 3, 3 * m)  # row slab i: the three rows of pose i
-    rows = sum(left[:, :, b, None] * slabs[:, None, b, :] for b in range(3))  # L·C
-    rows = rows.reshape(3 * m, m, 3)  # column slab j: its three columns
-    return sum(rows[:, :, c, None] * left[None, :, :, c] for c in range(3)).reshape(3 * m, 3 * m)
+    shared = D @ _calibrated_jacobian(acc.theta, means).reshape(len(means), 3, -1)
+    return u, UpCovariance(D, windows, own, shared, acc.covariance)
 
 
 def _calibrated_jacobian(theta: np.ndarray, means: np.ndarray) -> np.ndarray:
@@ -518,9 +512,9 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
     measured from the recording (None: given, or not estimated)."""
     t, iv = regular_times(recording.t, recording.rate_hz), poses.intervals
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
-    means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
-                                  recording.units[acc.name])
-    up, up_cov = _up_vectors(acc, poses.means, means_cov)
+    acc_noise = settings.noise.get(acc.name)  # quantisation as _means_covariance counts it
+    quantised = recording.units[acc.name] == "count" and not isinstance(acc_noise, MeasuredNoise)
+    up, up_cov = _up_vectors(acc, poses.means, *means_parts(iv, t, acc_var, acc_noise, acc.K, quantised))
     gyro = recording.triads[name]
     motions = Motions.of(t, gyro, spans, up[:-1], up[1:])
     prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name),

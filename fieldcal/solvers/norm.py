@@ -110,11 +110,18 @@ def _residual_whitener(problem, theta0, covariance) -> Whitener | None:
     if covariance is None:
         return None
     u = problem.data
-    cov = np.asarray(covariance, dtype=float)
+    by_parts = getattr(covariance, "residual_covariance", None)  # a covariance kept by its parts
+    if by_parts is not None and hasattr(problem, "point_gradients"):
+        return _whitener_of(problem, by_parts(problem.point_gradients(theta0)))
+    cov = np.asarray(covariance.dense() if by_parts is not None else covariance, dtype=float)
     if cov.shape != (len(u), len(u)) and cov.shape != (len(u) // 3, 3):
         raise ValueError(f"{problem.name}: covariance must be ({len(u)}, {len(u)}) or "
                          f"({len(u) // 3}, 3) sigmas, got {cov.shape}")
-    S = _residual_covariance(problem, theta0, u, cov)
+    return _whitener_of(problem, _residual_covariance(problem, theta0, u, cov))
+
+
+def _whitener_of(problem, S: np.ndarray) -> Whitener:
+    """The whitening of residuals of covariance S: (m,) diagonal, or (m, m)."""
     if S.ndim == 1:
         if not np.all(S > 0):
             raise CalibrationError(f"{problem.name}: the covariance of the averages is not positive definite")

@@ -653,8 +653,10 @@ def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side
     C = Rotation.from_quat(q_start).as_matrix()
     cov = _residual_covariance(model.E, C, model.motions.shared, noise.up_sigma, noise.rate_noise,
                                steps.duration, noise.motion_variance)
-    if noise.up_covariance is not None:
-        cov += _chained_up_covariance(model.E, C, np.asarray(noise.up_covariance, dtype=float))
+    if noise.up_covariance is not None:  # a matrix, or its parts (one with a chained method)
+        chained = getattr(noise.up_covariance, "chained", None)
+        cov += chained(model.E, C) if chained is not None else _chained_up_covariance(
+            model.E, C, np.asarray(noise.up_covariance, dtype=float))
     cov = np.block([[cov, np.zeros((2 * m, n_side))], [np.zeros((n_side, 2 * m)), np.eye(n_side)]])
     if noise.bias_sigma is not None and not start.estimate_bias:
         G = J_start[:, :3]
