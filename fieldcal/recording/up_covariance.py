@@ -55,11 +55,12 @@ class UpCovariance:
         Z = sum(end @ self.shared[p] for end, p in zip(ends, poses)).reshape(2 * k, -1)
         out = Z @ self.theta_covariance @ Z.T
         if self.windows is not None:
+            blocks = out.reshape(k, 2, k, 2)  # a view: each motion's 2×2 block
             for s in (0, 1):
                 for t in (0, 1):
-                    W = self.windows[poses[s], poses[t]]
-                    out += np.repeat(np.repeat(W, 2, axis=0), 2, axis=1) * (Y[s].reshape(2 * k, 3)
-                                                                            @ Y[t].reshape(2 * k, 3).T)
+                    product = (Y[s].reshape(2 * k, 3) @ Y[t].reshape(2 * k, 3).T).reshape(k, 2, k, 2)
+                    product *= self.windows[poses[s], poses[t]][:, None, :, None]
+                    blocks += product
         # Each pose's own part reaches the motions that touch it: block-tridiagonal.
         blocks = np.zeros((k, 2, k, 2))
         idx = np.arange(k)

@@ -474,15 +474,16 @@ def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_va
     if up_sigma is not None:
         s = np.asarray(up_sigma, dtype=float)
         s = np.broadcast_to(s[:, None] if s.ndim == 1 else s, (m, 2))
-        cov += np.kron(np.diag(s[:, 0] ** 2 + s[:, 1] ** 2), np.eye(2))
+        cov[np.arange(2 * m), np.arange(2 * m)] += np.repeat(s[:, 0] ** 2 + s[:, 1] ** 2, 2)
         for i in np.flatnonzero(shared):
             block = -s[i, 1] * s[i + 1, 0] * E[i].T @ C[i + 1] @ E[i + 1]
             cov[2 * i:2 * i + 2, 2 * i + 2:2 * i + 4] = block
             cov[2 * i + 2:2 * i + 4, 2 * i:2 * i + 2] = block.T
+    diagonal = np.arange(2 * m)  # the independent parts: on the diagonal, two per motion
     if rate_noise is not None:  # angle random walk, independent between motions
-        cov += np.kron(np.diag(rate_noise**2 * duration), np.eye(2))
+        cov[diagonal, diagonal] += np.repeat(rate_noise**2 * duration, 2)
     if motion_variance is not None:  # e.g. the horizontal Earth rate, heading unknown
-        cov += np.kron(np.diag(np.broadcast_to(np.asarray(motion_variance, float), (m,))), np.eye(2))
+        cov[diagonal, diagonal] += np.repeat(np.broadcast_to(np.asarray(motion_variance, float), (m,)), 2)
     return cov
 
 
