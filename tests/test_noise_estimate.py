@@ -214,3 +214,25 @@ def test_the_scatters_moments_from_the_low_rank_residual_maker_are_the_dense_one
         residuals = rng.normal(size=(m, 3)) * 3e-2
         ours = bias_instability(residuals, design, white, flicker, weights=weights)
         assert ours == pytest.approx(dense(residuals, design, white, flicker, weights), rel=1e-9)
+
+
+def test_the_window_covariance_is_each_terms_masked_sum_bit_for_bit():
+    """The window covariance sets its diagonal once instead of masking every Gauss-Markov term:
+    the same sums in the same order as the masked form (the oracle), so the same bits."""
+    from drivers.noise import flicker_bank
+
+    rng = np.random.default_rng(21)
+    starts, durations = np.cumsum(rng.uniform(5, 9, 60)), rng.uniform(2, 4, 60)
+    noise = TriadNoise(white=1e-3, bias_instability=2e-4)
+    a, T = starts, durations
+    expected = np.diag(noise.white**2 / T)
+    later = a[None, :] >= a[:, None]
+    gap = np.where(later, a[None, :] - (a[:, None] + T[:, None]), a[:, None] - (a[None, :] + T[None, :]))
+    off_diag = ~np.eye(len(a), dtype=bool)
+    for c, s in zip(*flicker_bank(noise.bias_instability)):
+        ramp = c * (1 - np.exp(-T / c)) / T
+        cross = s**2 * np.outer(ramp, ramp) * np.exp(-np.maximum(gap, 0) / c)
+        expected += np.where(off_diag, cross, np.diag(2 * s**2 * c / T * (1 - ramp)))
+    np.testing.assert_array_equal(noise.window_covariance(starts, durations), expected)
+    with pytest.raises(ValueError, match="windows overlap"):
+        noise.window_covariance(np.array([0.0, 1.0]), np.array([2.0, 2.0]))

@@ -92,7 +92,8 @@ def test_fieldcal_calibrate_of_a_unit_reading_4_percent_high_is_no_refusal(tmp_p
 
 @pytest.mark.parametrize("options, named", [(["--latitude", "52", "--gravity", "9.5"], "--gravity"),
                                             (["--latitude", "95"], "--latitude"),
-                                            (["--latitude", "52", "--height", "20000"], "--height")])
+                                            (["--latitude", "52", "--height", "20000"], "--height"),
+                                            (["--height", "300"], "--height: needs --latitude")])
 def test_a_place_option_out_of_range_is_named(tmp_path, capsys, options, named):
     acc, gyro, mapping = _si_text(tmp_path, 1.0)
     code = main(["calibrate", str(acc), str(gyro), "--map", str(mapping), "--out", str(tmp_path / "s"), *options])
