@@ -364,3 +364,19 @@ def test_poses_held_too_briefly_are_refused_saying_so_and_min_still_takes_them(t
     assert found, err
     assert int(found[1]) >= 10 and 1.0 <= float(found[2]) <= float(found[3]) < 2.0
     assert main(args + ["--out", str(tmp_path / "taken"), "--min-still", "0.8"]) == 0, capsys.readouterr()
+
+
+@pytest.mark.parametrize("seed", [3, 5])
+def test_six_faces_among_too_few_poses_give_the_accelerometers_bias_and_scale(seed):
+    """Six faces and two tilted poses: 8 distinct, too few for the norm method (9), once refused
+    whole. The six faces alone fix bias and scale (Ferraris's six-position solution); the tilted
+    poses are left out and said to be, and the gyro, with no turns, fails with its reason."""
+    tilted = np.array([[1, 1, 1], [1, -1, 1]], float) / np.sqrt(3)
+    ups = np.vstack([FACES[[4, 0, 1, 2, 3, 5]], tilted])  # z up first: the initial rest
+    sim = simulate_handheld(seed, n_poses=8, directions=ups)
+    cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+    acc, truth = cal.specific_force["accelerometer"], sim.truth["accelerometer"]
+    assert np.all(np.abs((acc.theta[:3] - truth.bias) / acc.sigma[:3]) < 3.5)
+    assert np.all(np.abs((acc.theta[3:6] - np.diag(truth.K)) / acc.sigma[3:6]) < 3.5)
+    assert "the six faces alone (the norm method needs 9 distinct poses; 2 tilted left out)" in cal.notes
+    assert "turns" in cal.failures["gyroscope"]

@@ -549,9 +549,17 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     from fieldcal.recording import ferraris
 
     found = [(c.poses, axes) for c in detection.candidates if (axes := ferraris.aligned_axes(c.poses.up)) is not None]
-    if not found:
-        return None
+    left_out = ""
+    if not found:  # six faces among tilted poses too few for the norm method: the faces alone
+        found = [(_only(c.poses, mask), axes) for c in detection.candidates
+                 if (faces := ferraris.face_poses(c.poses.up)) is not None for mask, axes in [faces]]
+        if not found:
+            return None
+        left_out = "the six faces alone (the norm method needs 9 distinct poses; {} tilted left out)"
     poses, axes = max(found, key=lambda pa: len(pa[0].intervals))  # the most intervals: more data
+    if left_out:
+        tilted = next(c.poses for c in detection.candidates if c.poses.multiple == poses.multiple)
+        left_out = left_out.format(int(tilted.distinct.sum() - poses.distinct.sum()))
     reference, noise = detection.reference, detection.noise
     if detection.rates and noise.gyro_variance is not None:  # a turn's slow start kept in a pose
         trimmed = ferraris.trim_turning_edges(recording.triads[detection.rates[0]], poses.intervals,
@@ -614,11 +622,18 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
             failures[name] = str(exc)
     spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
                           message="6 distinct poses, each along an axis (Ferraris)")
-    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate))
+    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate)) + (
+        (left_out,) if left_out else ())
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
                                 bias_sigma, np.zeros((0, 2), int), False, noise.source, station,
                                 ALIGNED_PROTOCOL if detection.rates else ALIGNED_FORCE_ONLY_PROTOCOL,
                                 notes, estimated_noise=estimated)
+
+
+def _only(poses: Poses, mask: np.ndarray) -> Poses:
+    """The poses of ``mask`` alone."""
+    return replace(poses, intervals=poses.intervals[mask], means=poses.means[mask], up=poses.up[mask],
+                   distinct=poses.distinct[mask])
 
 
 def _with_shared_flicker(solution: Calibration, means: np.ndarray, intervals: np.ndarray, axes: np.ndarray,
