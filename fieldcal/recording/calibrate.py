@@ -626,7 +626,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         (left_out,) if left_out else ())
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
                                 bias_sigma, np.zeros((0, 2), int), False, noise.source, station,
-                                ALIGNED_PROTOCOL if detection.rates else ALIGNED_FORCE_ONLY_PROTOCOL,
+                                ALIGNED_PROTOCOL if detection.rates and not left_out else ALIGNED_FORCE_ONLY_PROTOCOL,
                                 notes, estimated_noise=estimated)
 
 
