@@ -43,7 +43,7 @@ def gyro_step(directory: Path):
     station = Station(45.0, 0.0, XSENS_GRAVITY)  # where it was recorded is not published
     settings = calibrate.RecordingSettings()
     detection = detect_candidates(recording, settings.detector)
-    station = calibrate.place_gravity(station, detection, recording.units[detection.reference])
+    station = calibrate.place_gravity(station)
     choice = calibrate.choose_poses(recording, detection, station, settings)
     choice, settings = calibrate._with_estimated_noise(recording, detection, choice, station, settings)
     name = detection.rates[0]

@@ -18,6 +18,7 @@ Accuracy (``--runs N``): N seeded simulated recordings (the default 20 poses); p
 RMS of (solved - true) / reported σ, and the share of |error| beyond 3σ (0.27 % for a Gaussian).
 
     python benchmarks/recording.py [--repeats 7] [--runs 100] [--baseline bcecd58]
+    python benchmarks/recording.py --joined --repeats 3   # the 1×/4×/16× joined recordings' scaling
 """
 from __future__ import annotations
 
@@ -53,6 +54,29 @@ def xsens_files(directory: Path) -> list[Path]:
     paths = [directory / name.removesuffix(".gz") for name in XSENS]
     for name, path in zip(XSENS, paths):
         path.write_bytes(gzip.decompress((REAL / name).read_bytes()))
+    return paths
+
+
+def joined_xsens(directory: Path, copies: int) -> list[Path]:
+    """imu_tk's two Xsens files joined to themselves ``copies`` times into ``directory``: forward
+    and time-reversed copies in turn, so each join is physically continuous (a reversed copy
+    starts where the one before ended). Time runs on at the recording's own steps; a
+    reversed copy's gyro turns the other way about its bias (the first second's mean, at rest):
+    2b − u. The accelerometer reads the same forces backwards."""
+    acc, gyro = (np.loadtxt(REAL / name) for name in XSENS)
+    t = acc[:, 0]
+    steps = np.diff(t, append=t[-1] + np.median(np.diff(t)))
+    bias = gyro[t < t[0] + 1.0, 1:].mean(axis=0)
+    reversed_gyro = np.column_stack([t, 2 * bias - gyro[::-1, 1:]])
+    parts_acc, parts_gyro = [], []
+    for copy in range(copies):
+        forward = copy % 2 == 0
+        parts_acc.append((acc if forward else acc[::-1])[:, 1:])
+        parts_gyro.append(gyro[:, 1:] if forward else reversed_gyro[:, 1:])
+    times = t[0] + np.r_[0.0, np.cumsum(np.tile(np.r_[steps, steps[::-1]], copies)[:copies * len(t) - 1])]
+    paths = [directory / f"joined{copies}_acc.txt", directory / f"joined{copies}_gyro.txt"]
+    for path, parts in zip(paths, (parts_acc, parts_gyro)):
+        np.savetxt(path, np.column_stack([times, np.vstack(parts)]), fmt=["%.6f", "%d", "%d", "%d"])
     return paths
 
 
@@ -139,6 +163,46 @@ def speed(repeats: int, baseline: str | None = None) -> None:
         print("\n".join(compared))
 
 
+JOINS = (1, 4, 16)
+FLOOR = "python -c 'import numpy, scipy.optimize'"
+
+
+def scaling(repeats: int) -> None:
+    """`fieldcal calibrate` (and imu_tk, where built) on imu_tk's recording joined to itself
+    1×/4×/16× (``joined_xsens``): CPU, the CPU less the import floor, and that work's growth
+    against the recording's (1.00× is linear)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        argv: dict[str, list[str]] = {FLOOR: [sys.executable, "-c", "import numpy, scipy.optimize"]}
+        for copies in JOINS:
+            files = joined_xsens(work, copies)
+            argv[f"fieldcal calibrate {copies}×"] = [
+                str(BIN / "fieldcal"), "calibrate", *map(str, files), "--map", "imu_tk", "--gravity",
+                f"{XSENS_GRAVITY}", "--out", str(work / f"sessions{copies}"), "--registry",
+                str(work / f"registry{copies}.sqlite")]
+            if (IMU_TK_OUT / "imu_tk_calib").exists():
+                argv[f"imu_tk {copies}×"] = [str(IMU_TK_OUT / "imu_tk_calib"), *map(str, files),
+                                            str(work / f"imu_tk{copies}")]
+        for label, command in argv.items():
+            if run_once(command).status != 0:
+                raise SystemExit(f"{label} failed: {' '.join(command)}")
+        rows = {r.label: r for r in side_by_side(argv, repeats)}
+    floor = rows[FLOOR].cpu_s
+    print(f"\n{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, load {os.getloadavg()[0]:.1f} "
+          f"(1 min): imu_tk's recording joined to itself (forward and time-reversed copies), medians of "
+          f"{repeats} alternating rounds; import floor {floor:.3f} s CPU")
+    print("| process | CPU | CPU − floor | growth ÷ recording's | peak RSS |\n|---|---|---|---|---|")
+    for tool in ("fieldcal calibrate", "imu_tk"):
+        first = rows.get(f"{tool} 1×")
+        for copies in JOINS:
+            r = rows.get(f"{tool} {copies}×")
+            if r is None:
+                continue
+            own = r.cpu_s - floor if tool != "imu_tk" else r.cpu_s
+            base = first.cpu_s - floor if tool != "imu_tk" else first.cpu_s
+            print(f"| {r.label} | {r.cpu_s:.2f} s | {own:.2f} s | {own / base / copies:.2f}× | {r.peak_mib:.0f} MiB |")
+
+
 def accuracy(runs: int) -> tuple[np.ndarray, np.ndarray]:
     from drivers.sim.device import PAPER_NOISE
     from drivers.sim.handheld import simulate_handheld
@@ -168,9 +232,14 @@ def main() -> int:
     parser.add_argument("--runs", type=int, default=0, help="seeded recordings for the accuracy table")
     parser.add_argument("--baseline", metavar="REV", help="also time fieldcal calibrate as of this git "
                         "revision, alternating with this tree's (e.g. the commit a change started from)")
+    parser.add_argument("--joined", action="store_true", help="only the 1×/4×/16× joined recordings' "
+                        "scaling (see scaling)")
     args = parser.parse_args()
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)  # the children cache their bytecode, as installed
     print(f"{platform.node()}: {os.cpu_count()} cores, CPython {platform.python_version()}")
+    if args.joined:
+        scaling(args.repeats)
+        return 0
     speed(args.repeats, args.baseline)
     if args.runs:
         started = time.perf_counter()

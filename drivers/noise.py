@@ -75,12 +75,17 @@ class TriadNoise:
             later = a[None, :] >= a[:, None]
             gap = np.where(later, a[None, :] - (a[:, None] + T[:, None]),
                            a[:, None] - (a[None, :] + T[None, :]))
-            off_diag = ~np.eye(len(a), dtype=bool)
-            if np.any(gap[off_diag] < -1e-9):
+            diagonal = np.arange(len(a))
+            gap[diagonal, diagonal] = 0.0  # a window with itself: its own term, below
+            if np.any(gap < -1e-9):
                 raise ValueError("windows overlap")
+            np.maximum(gap, 0, out=gap)
+            variance = cov[diagonal, diagonal].copy()
+            # The cross terms everywhere, the diagonal then set to the windows' own variance: the
+            # same sums as masking each term, without an n×n mask and diagonal matrix per term.
             for c, s in zip(*flicker_bank(self.bias_instability)):
                 ramp = c * (1 - np.exp(-T / c)) / T
-                cross = s**2 * np.outer(ramp, ramp) * np.exp(-np.maximum(gap, 0) / c)
-                own = 2 * s**2 * c / T * (1 - ramp)
-                cov += np.where(off_diag, cross, np.diag(own))
+                cov += s**2 * np.outer(ramp, ramp) * np.exp(-gap / c)
+                variance += 2 * s**2 * c / T * (1 - ramp)
+            cov[diagonal, diagonal] = variance
         return cov

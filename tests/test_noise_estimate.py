@@ -171,3 +171,68 @@ def test_a_ferraris_gyros_bias_sigma_holds_the_flicker_its_faces_share():
     assert any(line.startswith("  gyroscope: white") and "rad/s" in line for line in noise_lines(runs[0][0], False))
     white_only = np.array([_ferraris_gyro(seed, RecordingSettings(estimate_noise=False))[1] for seed in range(1, 13)])
     assert np.sqrt(np.mean(white_only**2)) > 2.0, np.round(white_only, 1)
+
+
+def test_the_scatters_moments_from_the_low_rank_residual_maker_are_the_dense_ones():
+    """Q = RᵀWR is W less a rank-p term: B from it is B from the dense residual maker (the
+    oracle, O(m³)), weighted or not, with a rank-deficient design too."""
+    import math
+
+    from scipy.special import gammaln
+
+    from fieldcal.recording.noise_estimate import PRIOR_POWER
+
+    def dense(residuals, design, white, flicker, weights=None):
+        m = len(white)
+        residuals = residuals.reshape(m, -1)
+        d = residuals.shape[1]
+        w = np.ones(m) if weights is None else weights
+        X = design.reshape(m, -1)
+        H = X @ np.linalg.pinv(X.T @ (w[:, None] * X)) @ (X.T * w[None, :])
+        R = np.eye(m) - H
+        Q = R.T @ (w[:, None] * R)
+        observed = float(np.sum(w[:, None] * residuals**2))
+        QW, QF = Q * white[None, :], Q @ flicker
+        mean_white, mean_flicker = d * np.trace(QW), d * np.trace(QF)
+        terms = 2 * d * np.array([np.sum(QW * QW.T), 2 * np.sum(QW * QF.T), np.sum(QF * QF.T)])
+        b = math.sqrt(float(np.mean(white))) * np.geomspace(1e-3, 1e3, 241)
+        mean = mean_white + b**2 * mean_flicker
+        variance = terms[0] + b**2 * terms[1] + b**4 * terms[2]
+        scale, dof = variance / (2 * mean), 2 * mean**2 / variance
+        log_like = (0.5 * dof - 1) * math.log(observed) - observed / (2 * scale) - 0.5 * dof * np.log(
+            2 * scale) - gammaln(0.5 * dof) + PRIOR_POWER * np.log(b)
+        weight = np.exp(log_like - log_like.max())
+        return float(np.sqrt(np.sum(weight * b**2) / np.sum(weight)))
+
+    rng = np.random.default_rng(12)
+    m = 40
+    starts = np.cumsum(rng.uniform(5, 9, m))
+    flicker = flicker_covariance(starts, rng.uniform(2, 4, m))
+    white = rng.uniform(0.5, 2, m) * 1e-4
+    for design, weights in ((rng.normal(size=(m, 9)), None), (rng.normal(size=(m, 9)), 1 / white),
+                            (np.repeat(rng.normal(size=(m, 3)), 2, axis=1), 1 / white)):
+        residuals = rng.normal(size=(m, 3)) * 3e-2
+        ours = bias_instability(residuals, design, white, flicker, weights=weights)
+        assert ours == pytest.approx(dense(residuals, design, white, flicker, weights), rel=1e-9)
+
+
+def test_the_window_covariance_is_each_terms_masked_sum_bit_for_bit():
+    """The window covariance sets its diagonal once instead of masking every Gauss-Markov term:
+    the same sums in the same order as the masked form (the oracle), so the same bits."""
+    from drivers.noise import flicker_bank
+
+    rng = np.random.default_rng(21)
+    starts, durations = np.cumsum(rng.uniform(5, 9, 60)), rng.uniform(2, 4, 60)
+    noise = TriadNoise(white=1e-3, bias_instability=2e-4)
+    a, T = starts, durations
+    expected = np.diag(noise.white**2 / T)
+    later = a[None, :] >= a[:, None]
+    gap = np.where(later, a[None, :] - (a[:, None] + T[:, None]), a[:, None] - (a[None, :] + T[None, :]))
+    off_diag = ~np.eye(len(a), dtype=bool)
+    for c, s in zip(*flicker_bank(noise.bias_instability)):
+        ramp = c * (1 - np.exp(-T / c)) / T
+        cross = s**2 * np.outer(ramp, ramp) * np.exp(-np.maximum(gap, 0) / c)
+        expected += np.where(off_diag, cross, np.diag(2 * s**2 * c / T * (1 - ramp)))
+    np.testing.assert_array_equal(noise.window_covariance(starts, durations), expected)
+    with pytest.raises(ValueError, match="windows overlap"):
+        noise.window_covariance(np.array([0.0, 1.0]), np.array([2.0, 2.0]))

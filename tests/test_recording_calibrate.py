@@ -15,7 +15,7 @@ from drivers.sim.device import PAPER_NOISE
 from drivers.noise import TriadNoise
 from drivers.sim.handheld import RealWorld, handheld_truth, simulate_handheld, to_text
 from fieldcal.cli.main import main
-from fieldcal.earth import Station
+from fieldcal.earth import Station, normal_gravity
 from fieldcal.model import params_from_k
 from fieldcal.paramfile import load
 from fieldcal.recording import Recording
@@ -287,7 +287,8 @@ def test_a_short_initial_rest_and_gyro_shifts_between_poses_calibrate():
 
 def test_gravity_alone_or_nothing_known_of_the_place():
     """No latitude: the Earth rate is an error term (the gyro's σ widen, its errors stay within
-    them); no gravity either: g from the pose means of an SI-unit accelerometer, with a warning."""
+    them); no gravity either: normal gravity at 45°, never the sensor's own norm, its worldwide
+    spread in the scale factors' σ (tests/test_unknown_gravity.py)."""
     sim = simulate_handheld(3)
     known = calibrate_recording(recording_of(sim), station_of(sim), NOISE)
     cal = calibrate_recording(recording_of(sim), UnknownPlace(gravity=sim.gravity), NOISE)
@@ -299,8 +300,8 @@ def test_gravity_alone_or_nothing_known_of_the_place():
     assert np.all(np.abs((acc.theta - params_from_k(truth.K, truth.bias)) / acc.sigma)[3:] < 3.0)
     si = simulate_handheld(3, raw_counts=False)
     guessed = calibrate_recording(recording_of(si), UnknownPlace(), NOISE)
-    assert abs(guessed.place.gravity / si.gravity - 1) < 0.01  # the scale errors go into it
-    assert "pose means" in guessed.place.gravity_source
+    assert guessed.place.gravity == pytest.approx(normal_gravity(45.0))
+    assert "45°" in guessed.place.gravity_source
 
 
 def test_fieldcal_calibrate_without_a_place_warns(tmp_path, capsys):
@@ -309,7 +310,7 @@ def test_fieldcal_calibrate_without_a_place_warns(tmp_path, capsys):
     code = main(["calibrate", str(acc), str(gyro), "--map", "imu_tk", "--out", str(tmp_path / "s")])
     out = capsys.readouterr().out
     assert code == 0, out
-    assert "WARNING: where the recording was made is not known" in out and "standard gravity" in out
+    assert "WARNING: where the recording was made is not known" in out and "normal gravity at 45°" in out
 
 
 FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
@@ -363,3 +364,19 @@ def test_poses_held_too_briefly_are_refused_saying_so_and_min_still_takes_them(t
     assert found, err
     assert int(found[1]) >= 10 and 1.0 <= float(found[2]) <= float(found[3]) < 2.0
     assert main(args + ["--out", str(tmp_path / "taken"), "--min-still", "0.8"]) == 0, capsys.readouterr()
+
+
+@pytest.mark.parametrize("seed", [3, 5])
+def test_six_faces_among_too_few_poses_give_the_accelerometers_bias_and_scale(seed):
+    """Six faces and two tilted poses: 8 distinct, too few for the norm method (9), once refused
+    whole. The six faces alone fix bias and scale (Ferraris's six-position solution); the tilted
+    poses are left out and said to be, and the gyro, with no turns, fails with its reason."""
+    tilted = np.array([[1, 1, 1], [1, -1, 1]], float) / np.sqrt(3)
+    ups = np.vstack([FACES[[4, 0, 1, 2, 3, 5]], tilted])  # z up first: the initial rest
+    sim = simulate_handheld(seed, n_poses=8, directions=ups)
+    cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+    acc, truth = cal.specific_force["accelerometer"], sim.truth["accelerometer"]
+    assert np.all(np.abs((acc.theta[:3] - truth.bias) / acc.sigma[:3]) < 3.5)
+    assert np.all(np.abs((acc.theta[3:6] - np.diag(truth.K)) / acc.sigma[3:6]) < 3.5)
+    assert "the six faces alone (the norm method needs 9 distinct poses; 2 tilted left out)" in cal.notes
+    assert "turns" in cal.failures["gyroscope"]

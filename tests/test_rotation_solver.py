@@ -458,3 +458,44 @@ def test_motions_replaced_or_not_the_scans_own_make_their_own_steps():
     own = scan_scale(t, turned, spans, start, end, np.zeros(3), scales)
     other = scan_scale(t, turned, spans, start, end, np.zeros(3), scales, motions=doubled)
     assert own == other == pytest.approx(1000.0)
+
+
+def test_the_chained_up_covariance_is_the_dense_product():
+    """Motion i moves by E_iᵀ·C_iᵀ·δup_i − E_iᵀ·δup_{i+1}: the block-bidiagonal map applied block
+    by block (O(m²)) gives the dense A·U·Aᵀ (the oracle, O(m³)); so does the up covariance kept by
+    its parts, whose dense form is the means' covariance (W ⊗ K·Kᵀ plus each pose's own, in
+    output units) carried through K⁻¹ and ∂u/∂a, plus the calibration's shared error."""
+    from fieldcal.recording.up_covariance import UpCovariance
+    from fieldcal.solvers.rotation import _chained_up_covariance
+
+    rng = np.random.default_rng(8)
+    m = 7
+    E, C = rng.normal(size=(m, 3, 2)), Rotation.random(m, random_state=3).as_matrix()
+    root = rng.normal(size=(3 * m + 3, 3 * m + 3))
+    U = root @ root.T
+    A = np.zeros((2 * m, 3 * m + 3))
+    for i in range(m):
+        A[2 * i:2 * i + 2, 3 * i:3 * i + 3] = E[i].T @ C[i].T
+        A[2 * i:2 * i + 2, 3 * i + 3:3 * i + 6] = -E[i].T
+    np.testing.assert_allclose(_chained_up_covariance(E, C, U), A @ U @ A.T, rtol=1e-12, atol=1e-12 * np.abs(U).max())
+
+    K = np.diag([400.0, 410.0, 395.0]) + rng.normal(size=(3, 3))
+    K_inv = np.linalg.inv(K)
+    root = rng.normal(size=(m + 1, m + 1))
+    W = root @ root.T
+    own_counts = rng.uniform(0.5, 2.0, (m + 1, 3))  # each pose's own variance per output axis
+    D, shared = rng.normal(size=(m + 1, 3, 3)), rng.normal(size=(m + 1, 3, 9))
+    theta_cov = np.cov(rng.normal(size=(9, 30)))
+    parts = UpCovariance(D, W, (K_inv[None] * own_counts[:, None, :]) @ K_inv.T, shared, theta_cov)
+    means_cov = np.kron(W, K @ K.T) + np.diag(own_counts.ravel())  # output units
+    L = np.zeros((3 * m + 3, 3 * m + 3))
+    for i in range(m + 1):
+        L[3 * i:3 * i + 3, 3 * i:3 * i + 3] = D[i] @ K_inv
+    S = shared.reshape(3 * m + 3, 9)
+    dense = L @ means_cov @ L.T + S @ theta_cov @ S.T
+    np.testing.assert_allclose(parts.dense(), dense, rtol=1e-10, atol=1e-12 * np.abs(dense).max())
+    expected = A @ dense @ A.T
+    np.testing.assert_allclose(parts.chained(E, C), expected, rtol=1e-10, atol=1e-12 * np.abs(expected).max())
+    white = UpCovariance(D, None, parts.own, shared, theta_cov)  # white noise alone: no windows
+    expected = A @ (L @ np.diag(own_counts.ravel()) @ L.T + S @ theta_cov @ S.T) @ A.T
+    np.testing.assert_allclose(white.chained(E, C), expected, rtol=1e-10, atol=1e-12 * np.abs(expected).max())

@@ -21,7 +21,8 @@ examples:
       latitude: the Earth rate is an error term
   fieldcal calibrate flight.ulg
       a PX4 log (pip install 'fieldcal[logs]'); no place, no gravity:
-      g from the poses, with a warning
+      normal gravity at 45°, its ±0.3 % worldwide spread in the scale
+      factors' σ, with a warning (never the sensor's own norm)
   fieldcal calibrate run.bag --topic /imu/data --latitude 48.1
       a ROS 1 bag, or a ROS 2 bag's directory (sensor_msgs/Imu); an
       ArduPilot DataFlash log (.bin) likewise, its IMU instance by --imu N
@@ -70,6 +71,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("--table-rate", type=float, metavar="DEG_S",
                         help="the recording has turns on a turntable at this rate (°/s, either sense): "
                         "use them as rate equations too")
+    parser.add_argument("--accept-misfit", action="store_true",
+                        help="keep a calibration whose fit is far beyond the noise (χ²/dof over 100), "
+                        "with a warning, instead of refusing it")
     parser.add_argument("--params", metavar="FILE", help="also write the parameter file here")
     parser.add_argument("--force", action="store_true", help="replace the --params file if it exists")
     from fieldcal.cli.options import add_operator_option, add_spec_option
@@ -81,13 +85,20 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
 
 def _station(args, config):
     """The station; an UnknownPlace when neither --latitude nor a config says where."""
-    from fieldcal.earth import Station
+    from fieldcal.earth import GRAVITY_RANGE_M_S2, HEIGHT_RANGE_M, Station
     from fieldcal.recording.calibrate import UnknownPlace
 
+    # Each option checked by its own name (Station's own checks name its fields, not the options).
+    if args.gravity is not None and not GRAVITY_RANGE_M_S2[0] < args.gravity < GRAVITY_RANGE_M_S2[1]:
+        raise ValueError(f"--gravity: expected 9.7..9.9 m/s^2 (local gravity), got {args.gravity:g}")
+    if args.latitude is not None and not -90.0 <= args.latitude <= 90.0:
+        raise ValueError(f"--latitude: expected -90..90°, got {args.latitude:g}")
+    if args.height is not None and not HEIGHT_RANGE_M[0] <= args.height <= HEIGHT_RANGE_M[1]:
+        raise ValueError(f"--height: expected -500..9000 m above the ellipsoid, got {args.height:g}")
     base = config.station if config is not None else None
     if args.latitude is None and base is None:
-        if args.gravity is not None and not 9.7 < args.gravity < 9.9:
-            raise ValueError(f"--gravity: expected 9.7..9.9 m/s^2, got {args.gravity:g}")
+        if args.height is not None and args.gravity is None:
+            raise ValueError("--height: needs --latitude too (normal gravity depends on both)")
         return UnknownPlace(gravity=args.gravity)
     latitude = args.latitude if args.latitude is not None else base.latitude_deg
     height = args.height if args.height is not None else (base.height_m if base else 0.0)
@@ -96,7 +107,9 @@ def _station(args, config):
 
 
 def _recording(args):
-    """(recording, session directory, import summary lines)."""
+    """(recording, session directory, import summary lines); for files, the session directory is
+    a function that writes the session and returns its directory: called once the calibration
+    has succeeded, so that a refused one leaves nothing behind."""
     from fieldcal.recording.store import load_recording
 
     from fieldcal.recording.logs import LOG_NAMES, log_format
@@ -115,8 +128,11 @@ def _recording(args):
                          f"path); or give one session directory from `fieldcal import`, or {LOG_NAMES}")
     recording, report = read_recording(args.recording, args.map, args.rate, args.topic, args.imu)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    directory = save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
-    return recording, directory, summary_lines(recording, report)
+
+    def save() -> Path:
+        return save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
+
+    return recording, save, summary_lines(recording, report)
 
 
 def cmd_calibrate(args) -> int:
@@ -130,7 +146,7 @@ def cmd_calibrate(args) -> int:
         import scipy.linalg  # noqa: F401
         from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
         from fieldcal.recording.detect import DetectorSettings
-        from fieldcal.recording.results import noise_lines, parameter_file, summary_lines
+        from fieldcal.recording.results import MISFIT_CAUSES, misfits, noise_lines, parameter_file, summary_lines
         from fieldcal.session.capture import SessionWriter
 
         from fieldcal.cli.options import accept_after, load_spec_option, operator_option
@@ -167,21 +183,28 @@ def cmd_calibrate(args) -> int:
                                  estimate_gyro_bias=args.gyro_bias == "estimate", noise=noise,
                                  table_rate_deg_s=args.table_rate, scale_tempco_ppm_per_k=tempco)
     cal = calibrate_recording(recording, station, settings)
+    misfit = misfits(cal)
+    if misfit and not args.accept_misfit:  # before anything is written
+        raise ValueError(f"calibrate: {'; '.join(misfit)}: {MISFIT_CAUSES}; give --accept-misfit to keep it")
     station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None,
                         operator=operator)
+    directory = directory() if callable(directory) else directory  # files: their session, now
     writer = SessionWriter.append_to(directory)  # refused if another fieldcal is writing it
     try:
         writer.write_parameters(pf)  # parameters-NNN.yaml: an earlier calibration is kept
     finally:
         writer.close()
     if isinstance(station, UnknownPlace):
+        gyro = ("; the Earth rate is carried as an error in the gyro's bias and rotations"
+                if any(kind == "angular_rate" for kind in recording.kinds.values()) else "")
         print(f"WARNING: where the recording was made is not known (give --latitude, and --gravity if "
-              f"measured): g = {station.gravity:.6f} m/s^2 from {station.gravity_source}; the Earth rate "
-              "is carried as an error in the gyro's bias and rotations")
+              f"measured): g = {station.gravity:.6f} m/s^2 from {station.gravity_source}{gyro}")
     else:
         print(f"station: latitude {station.latitude_deg:g}°, height {station.height_m:g} m, g = "
               f"{station.gravity:.6f} m/s^2 ({station.gravity_source})")
+    for line in misfit:
+        print(f"WARNING: kept (--accept-misfit): {line}: {MISFIT_CAUSES}")
     for line in noise_lines(cal, bool(noise)):
         print(line)
     for line in summary_lines(cal):

@@ -44,7 +44,9 @@ def _resolve(session: Path, method: str | None) -> Resolved:
     from fieldcal.run.runner import open_run
     from fieldcal.session.capture import SessionWriter
 
-    record = open_run(session, log_only=True)  # every step document checked: file, line and field
+    record = open_run(session, log_only=True, recordings=True)  # every step document checked: file, line and field
+    if record.start.get("kind") == "recording":
+        return _resolve_recording(session, record, method)
     if record.stop_reason != "completed":  # its partial solve would enter the unit's history
         state = f"its run {record.stop_reason}" if record.stopped else "its run did not finish (resume it first)"
         return Resolved(str(session), None, f"FAILED {session}: not re-solved: {state}")
@@ -65,6 +67,38 @@ def _resolve(session: Path, method: str | None) -> Resolved:
     failed = f"; not calibrated: {', '.join(unit.failures)}" if unit.failures else ""
     return Resolved(str(session), str(written), f"re-solved {session}: {Path(written).name} "
                     f"({pf.provenance.method}, {len(unit.solutions)} triads{failed})")
+
+
+def _resolve_recording(session: Path, record, method: str | None) -> Resolved:
+    """An imported recording calibrated again as `fieldcal calibrate` does, at the place of its
+    current parameter file (none: an unknown place), the noise measured from the recording."""
+    from fieldcal.paramfile import dump, load
+    from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
+    from fieldcal.recording.results import parameter_file, place_of
+    from fieldcal.recording.store import load_recording
+    from fieldcal.session.capture import SessionWriter
+
+    if method not in (None, "powell", "lsq"):  # "auto" and "classic" name procedure solvers
+        return Resolved(str(session), None, f"FAILED {session}: not re-solved: a recording's accelerometer is "
+                        f"solved by powell or lsq, not {method}")
+    recording = load_recording(session)
+    current = record.parameters_path
+    previous = load(current) if current is not None else None
+    station = place_of(previous.provenance) if previous is not None else UnknownPlace()
+    cal = calibrate_recording(recording, station, RecordingSettings(method=method or "powell"))
+    kept = previous.provenance if previous is not None else None
+    pf = parameter_file(cal, recording, cal.place, device_name=kept.device_name if kept else None,
+                        operator=kept.operator if kept else None)
+    if current is not None and Path(current).read_bytes() == dump(pf).encode("utf-8"):
+        return Resolved(str(session), str(current), f"unchanged {session}: {Path(current).name} (recording)")
+    writer = SessionWriter.append_to(session)
+    try:
+        writer.write_parameters(pf)
+    finally:
+        writer.close()
+    failed = f"; not calibrated: {', '.join(cal.failures)}" if cal.failures else ""
+    return Resolved(str(session), str(writer.parameters_written), f"re-solved {session}: "
+                    f"{writer.parameters_written.name} (recording, {len(pf.triads)} triads{failed})")
 
 
 def _results(sessions: list[str], method: str | None, jobs: int):

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from fieldcal.earth import EARTH_RATE, Station
+from fieldcal.earth import EARTH_RATE, Station, normal_gravity
 from fieldcal.model import calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
@@ -41,20 +41,29 @@ from fieldcal.solvers.norm import SCREEN
 from fieldcal.calibration import Calibration
 from fieldcal.solvers.problems import StaticNormProblem
 from fieldcal.recording.turns import rate_residuals
+from fieldcal.recording.up_covariance import MeansCovariance, UpCovariance, means_parts
 from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, scan_scale, solve_rotations
 
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
 
 
-STANDARD_GRAVITY = 9.80665  # m/s^2 per g, by definition
-_SI_PER_FORCE_UNIT = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY, "mg": STANDARD_GRAVITY * 1e-3}
+# Where nothing tells g: WGS84 normal gravity at 45°, within ±0.3 % of g anywhere people live
+# (9.780 m/s² at the equator to 9.832 at the poles, less up a mountain). A place is as likely
+# anywhere in that band, so its 1σ is the band's half-width over √3. Never the sensor's own norm:
+# the uncalibrated norm at rest holds the very scale error the calibration is to find.
+DEFAULT_LATITUDE_DEG = 45.0
+GRAVITY_SPREAD = 0.003  # relative half-width of the worldwide band
+DEFAULT_GRAVITY_SOURCE = (f"WGS84 normal gravity at {DEFAULT_LATITUDE_DEG:g}° (place unknown: g anywhere is within "
+                          f"±{GRAVITY_SPREAD:.1%} of it, carried in every scale factor's σ; give --latitude "
+                          "(and --height), or --gravity)")
 
 
 @dataclass(frozen=True)
 class UnknownPlace:
     """A recording whose place is not known: no latitude, so the Earth rate (7.29e-5 rad/s, its
     direction unknown) is an error term of Ω²/3 per axis instead of a known vertical part.
-    ``gravity``: m/s^2 as given, or None: taken from the pose means (see calibrate_recording).
+    ``gravity``: m/s^2 as given, or None: normal gravity at 45° (see place_gravity), whose
+    relative 1σ ``gravity_relative_sigma`` widens every specific-force scale factor's σ.
     Written to a parameter file as latitude 0 with this g as a given ("measured") one: a file's
     gravity source is one of ``fieldcal.earth.GRAVITY_SOURCES`` (see recording.results)."""
 
@@ -62,26 +71,40 @@ class UnknownPlace:
     gravity_source: str = "given (--gravity); place unknown"
     latitude_deg: float = 0.0
     height_m: float = 0.0
+    gravity_relative_sigma: float = 0.0
 
     @property
     def latitude_rad(self) -> float:
         return 0.0
 
 
-def gravity_from_poses(means: np.ndarray, unit: str) -> tuple[float, str]:
-    """(g in m/s^2, where it came from) when nothing tells: the median norm of the pose means in
-    a unit with a known scale (its scale error goes into g, so the scale factors are relative to
-    it), else standard gravity (within ±0.3 % of any place on Earth)."""
-    factor = _SI_PER_FORCE_UNIT.get(unit)
-    if factor is None:
-        return STANDARD_GRAVITY, "standard gravity (place unknown, raw counts: scale factors relative to it)"
-    g = float(np.median(np.linalg.norm(means, axis=1))) * factor
-    return g, f"the pose means' median norm in {unit} (place unknown: scale factors relative to it)"
+def with_gravity_uncertainty(solution: Calibration, relative_sigma: float) -> tuple[Calibration, str]:
+    """A specific-force triad's solution with g's relative 1σ in its scale factors' σ, and a note
+    when that is most of their σ (else ""). Every scale factor is output per m/s², so a g wrong by
+    a fraction ε moves each by −ε·k and nothing else: to first order the covariance gains
+    σ²·v·vᵀ with v = −k on the scale factors."""
+    if relative_sigma <= 0:
+        return solution, ""
+    v = np.zeros(len(solution.theta))
+    v[3:6] = -solution.theta[3:6]
+    covariance = solution.covariance + relative_sigma**2 * np.outer(v, v)
+    widened = replace(solution, covariance=covariance, sigma=None)
+    own = np.sqrt(np.diag(solution.covariance)[3:6]) / np.abs(solution.theta[3:6])
+    note = ""
+    if np.all(own < relative_sigma):
+        total = float(np.max(widened.sigma[3:6] / np.abs(solution.theta[3:6])))
+        note = (f"{solution.name}: the scale factors' σ ({total:.2%}) is mostly the unknown g's "
+                f"({relative_sigma:.2%}, 1σ of ±{GRAVITY_SPREAD:.1%} worldwide; the fit alone: "
+                f"{float(np.max(own)) * 1e6:.3g} ppm): give --latitude (and --height), or --gravity")
+    return widened, note
 
 
 NORM_PROTOCOL = "hand-held poses: the norm method for the accelerometer, the rotations for the gyro"
+FORCE_ONLY_PROTOCOL = "static poses: the norm method for the accelerometer"
 ALIGNED_PROTOCOL = ("Ferraris: six axis-aligned poses and full turns; the aligned six-position solution for "
                     "the accelerometer (the norm method needs 9 poses), the turns' ±2π integrals for the gyro")
+ALIGNED_FORCE_ONLY_PROTOCOL = ("six axis-aligned poses: the aligned six-position solution for the accelerometer "
+                               "(the norm method needs 9 poses)")
 
 
 @dataclass(frozen=True)
@@ -136,11 +159,12 @@ def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, 
     method = method or settings.method
     problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
                                 labels=tuple(f"pose {i + 1}" for i in range(len(means))))
+    # White noise: each mean's per-axis 1σ, the (n, 3) form solve_norm weighs without an n×n matrix.
     solution = white if white is not None else solve_norm(
-        problem, _means_covariance(intervals, t, variance, None, None, unit), method=method)
+        problem, np.sqrt(variance[None, :] / np.diff(intervals, axis=1)), method=method)
     noise = settings.noise.get(name)
     if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
-        solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit),
+        solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit, parts=True),
                               method=method)
     # The noise alone under-states the σ when the poses scatter more than it says (the bias
     # wanders, the temperature moves the scale, a hand trembles: χ²/dof > 1 says so), with a
@@ -153,36 +177,35 @@ def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, 
     return solution
 
 
-def _means_covariance(intervals, t, variance, noise, K, unit) -> np.ndarray:
+def _means_covariance(intervals, t, variance, noise, K, unit, parts: bool = False):
     """Covariance of the flattened pose means (output units): white noise measured over the rest,
-    or, with the device's noise model and scale K, the exact one, bias instability included."""
+    or, with the device's noise model and scale K, the exact one, bias instability included
+    (``parts``: kept by its parts, a MeansCovariance, as a norm solve weighs it in O(m²))."""
     counts = np.diff(intervals, axis=1)[:, 0]
     if noise is None:
         return np.diag((variance[None, :] / counts[:, None]).ravel())
     durations = counts * float(np.median(np.diff(t)))
+    if parts:
+        quantised = unit == "count" and not isinstance(noise, MeasuredNoise)
+        own = np.broadcast_to((1.0 / 12.0 / counts if quantised else np.zeros(len(counts)))[:, None], (len(counts), 3))
+        return MeansCovariance(noise.window_covariance(t[intervals[:, 0]], durations), K, own)
     cov = np.kron(noise.window_covariance(t[intervals[:, 0]], durations), K @ K.T)
     if unit == "count" and not isinstance(noise, MeasuredNoise):  # quantisation, one count (measured: in it)
         cov += np.kron(np.diag(1.0 / 12.0 / counts), np.eye(3))
     return cov
 
 
-def _up_vectors(acc: Calibration, means: np.ndarray, means_cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every pose's unit up vector (m, 3) and their covariance (3m, 3m): each mean's own noise
-    and the accelerometer calibration's error, which all poses share."""
+def _up_vectors(acc: Calibration, means: np.ndarray, windows: np.ndarray | None,
+                own: np.ndarray) -> tuple[np.ndarray, UpCovariance]:
+    """Every pose's unit up vector (m, 3) and their covariance, by its parts (see
+    recording.up_covariance): each mean's own noise (``windows``, ``own``: ``means_parts``) and
+    the accelerometer calibration's error, which all poses share."""
     a = calibrate_with(acc.theta, means)
     norm = np.linalg.norm(a, axis=1)
     u = a / norm[:, None]
     D = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # (P, 3, 3) ∂u/∂a, pose by pose
-    P = len(means)
-    K_inv = np.linalg.inv(acc.K)
-    J_theta = _calibrated_jacobian(acc.theta, means)
-
-    def blocks(left, C, right):  # left_i·C_ij·right_jᵀ for the 3×3 blocks of C: block-diagonal factors
-        C = C.reshape(P, 3, P, 3).transpose(0, 2, 1, 3)
-        return (left[:, None] @ C @ np.swapaxes(right, -1, -2)[None]).transpose(0, 2, 1, 3).reshape(3 * P, 3 * P)
-
-    K_invs = np.broadcast_to(K_inv, (P, 3, 3))
-    return u, blocks(D, J_theta @ acc.covariance @ J_theta.T + blocks(K_invs, means_cov, K_invs), D)
+    shared = D @ _calibrated_jacobian(acc.theta, means).reshape(len(means), 3, -1)
+    return u, UpCovariance(D, windows, own, shared, acc.covariance)
 
 
 def _calibrated_jacobian(theta: np.ndarray, means: np.ndarray) -> np.ndarray:
@@ -222,12 +245,12 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     triad. Raises DetectionError (poses too few or badly spread, the rest not still) or
     CalibrationError (the reference accelerometer cannot be solved) with a one-line message."""
     detection = detect_candidates(recording, settings.detector)
-    station = place_gravity(station, detection, recording.units[detection.reference])
+    station = place_gravity(station)
     choice = choose_poses(recording, detection, station, settings)
     if choice.best is None:
         aligned = _aligned_protocol(recording, station, detection, choice.tried, settings)
         if aligned is not None:
-            return aligned
+            return _with_unknown_gravity(aligned)
         most = max(choice.tried, key=lambda x: x[1])
         poses = next(c.poses for c in detection.candidates if c.multiple == most[0])
         faces = _faces_missing(detection, settings.detector.min_static_s)
@@ -238,7 +261,20 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     if settings.estimate_noise and detection.reference not in settings.noise:
         choice, settings = _with_estimated_noise(recording, detection, choice, station, settings)
         estimated = (detection.reference,)
-    return solve_triads(recording, detection, choice, station, settings, estimated)
+    return _with_unknown_gravity(solve_triads(recording, detection, choice, station, settings, estimated))
+
+
+def _with_unknown_gravity(cal: RecordingCalibration) -> RecordingCalibration:
+    """The specific-force triads' scale σ widened by an unknown place's g (see place_gravity),
+    with a note for each whose σ that dominates."""
+    relative = getattr(cal.place, "gravity_relative_sigma", 0.0)
+    if not relative:
+        return cal
+    widened, notes = {}, []
+    for name, solution in cal.specific_force.items():
+        widened[name], note = with_gravity_uncertainty(solution, relative)
+        notes += [note] if note else []
+    return replace(cal, specific_force=widened, notes=cal.notes + tuple(notes))
 
 
 def _with_estimated_noise(recording: Recording, detection: Detection, choice: PoseChoice,
@@ -268,12 +304,12 @@ def _faces_missing(detection: Detection, min_static_s: float) -> str:
             "still for longer, or give --min-still S")
 
 
-def place_gravity(station: Station | UnknownPlace, detection: Detection, unit: str) -> Station | UnknownPlace:
-    """The station, an unknown place's g filled in from the middle threshold's pose means."""
+def place_gravity(station: Station | UnknownPlace) -> Station | UnknownPlace:
+    """The station, an unknown place's g filled in as normal gravity at 45° with its spread."""
     if not (isinstance(station, UnknownPlace) and station.gravity is None):
         return station
-    middle = detection.candidates[len(detection.candidates) // 2].found
-    return replace(station, **dict(zip(("gravity", "gravity_source"), gravity_from_poses(middle.means, unit))))
+    return replace(station, gravity=normal_gravity(DEFAULT_LATITUDE_DEG), gravity_source=DEFAULT_GRAVITY_SOURCE,
+                   gravity_relative_sigma=GRAVITY_SPREAD / math.sqrt(3))
 
 
 @dataclass(frozen=True)
@@ -375,6 +411,7 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
     used = bool(settings.table_rate_deg_s is not None and len(turns) and angular_rate)
     return RecordingCalibration(poses, choice.best.spread, choice.tried, specific_force, angular_rate, failures,
                                 reference, bias_sigma, turns, used, detection.noise.source, station,
+                                NORM_PROTOCOL if detection.rates else FORCE_ONLY_PROTOCOL,
                                 notes=tuple(notes), estimated_noise=estimated)
 
 
@@ -475,9 +512,9 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
     measured from the recording (None: given, or not estimated)."""
     t, iv = regular_times(recording.t, recording.rate_hz), poses.intervals
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
-    means_cov = _means_covariance(iv, t, acc_var, settings.noise.get(acc.name), acc.K,
-                                  recording.units[acc.name])
-    up, up_cov = _up_vectors(acc, poses.means, means_cov)
+    acc_noise = settings.noise.get(acc.name)  # quantisation as _means_covariance counts it
+    quantised = recording.units[acc.name] == "count" and not isinstance(acc_noise, MeasuredNoise)
+    up, up_cov = _up_vectors(acc, poses.means, *means_parts(iv, t, acc_var, acc_noise, acc.K, quantised))
     gyro = recording.triads[name]
     motions = Motions.of(t, gyro, spans, up[:-1], up[1:])
     prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name),
@@ -512,9 +549,17 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     from fieldcal.recording import ferraris
 
     found = [(c.poses, axes) for c in detection.candidates if (axes := ferraris.aligned_axes(c.poses.up)) is not None]
-    if not found:
-        return None
+    left_out = ""
+    if not found:  # six faces among tilted poses too few for the norm method: the faces alone
+        found = [(_only(c.poses, mask), axes) for c in detection.candidates
+                 if (faces := ferraris.face_poses(c.poses.up)) is not None for mask, axes in [faces]]
+        if not found:
+            return None
+        left_out = "the six faces alone (the norm method needs 9 distinct poses; {} tilted left out)"
     poses, axes = max(found, key=lambda pa: len(pa[0].intervals))  # the most intervals: more data
+    if left_out:
+        tilted = next(c.poses for c in detection.candidates if c.poses.multiple == poses.multiple)
+        left_out = left_out.format(int(tilted.distinct.sum() - poses.distinct.sum()))
     reference, noise = detection.reference, detection.noise
     if detection.rates and noise.gyro_variance is not None:  # a turn's slow start kept in a pose
         trimmed = ferraris.trim_turning_edges(recording.triads[detection.rates[0]], poses.intervals,
@@ -577,10 +622,18 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
             failures[name] = str(exc)
     spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
                           message="6 distinct poses, each along an axis (Ferraris)")
-    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate))
+    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate)) + (
+        (left_out,) if left_out else ())
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
-                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station, ALIGNED_PROTOCOL,
+                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station,
+                                ALIGNED_PROTOCOL if detection.rates and not left_out else ALIGNED_FORCE_ONLY_PROTOCOL,
                                 notes, estimated_noise=estimated)
+
+
+def _only(poses: Poses, mask: np.ndarray) -> Poses:
+    """The poses of ``mask`` alone."""
+    return replace(poses, intervals=poses.intervals[mask], means=poses.means[mask], up=poses.up[mask],
+                   distinct=poses.distinct[mask])
 
 
 def _with_shared_flicker(solution: Calibration, means: np.ndarray, intervals: np.ndarray, axes: np.ndarray,

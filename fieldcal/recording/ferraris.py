@@ -76,6 +76,18 @@ def aligned_axes(up: np.ndarray) -> np.ndarray | None:
     return nearest if close.all() and len(set(nearest.tolist())) == 6 else None
 
 
+def face_poses(up: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(mask of the poses within ALIGNED_DEG of an axis, their axes) when those poses hold all six
+    faces and some other pose is tilted: the six faces alone fix bias and scale (Ferraris) where
+    the norm method lacks poses; None otherwise (aligned_axes takes a session of faces only)."""
+    cosines = up @ _AXES.T
+    nearest = np.argmax(cosines, axis=1)
+    close = cosines[np.arange(len(up)), nearest] >= math.cos(math.radians(ALIGNED_DEG))
+    if close.all() or len(set(nearest[close].tolist())) != 6:
+        return None
+    return close, nearest[close]
+
+
 FACE_NAMES = ("x up", "y up", "z up", "x down", "y down", "z down")  # _AXES order
 
 

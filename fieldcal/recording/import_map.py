@@ -12,6 +12,8 @@ An import map is a YAML file (``configs/recordings/NAME.yaml``, or any path)::
                                         #   scale: seconds per text unit (e.g. 1.0e-4)
         # or no time column at all: the samples are 1 / rate_hz apart (or `--rate` at import)
         rate_hz: 100
+        variable: acc                   # a MATLAB MAT-file (v4-v7.2): the matrix to read, one
+                                        #   sample a row (default: its only numeric matrix)
         triads:
           accelerometer: {columns: [1, 2, 3], kind: specific_force, unit: count}
           # optional scale: the value kept is text value * scale, in the unit named
@@ -65,6 +67,7 @@ class FileSpec:
     names: tuple[str, ...] = ()
     channels: dict | None = None
     where: str = ""  # the entry's place in the map, for messages
+    variable: str | None = None  # a MATLAB MAT-file's matrix to read (see recording.containers)
 
     @property
     def has_time(self) -> bool:
@@ -150,8 +153,9 @@ def parse_import_map(doc, path: str, text: str = "") -> ImportMap:
 
 
 def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
-    m = r.mapping(entry, where, ("triads",), ("name", "delimiter", "comment", "time", "rate_hz"))
+    m = r.mapping(entry, where, ("triads",), ("name", "delimiter", "comment", "time", "rate_hz", "variable"))
     name = r.string(m, "name", where, optional=True) or f"file {index + 1}"
+    variable = r.string(m, "variable", where, optional=True) or None
     time_column, time_scale = (None, 1.0) if m.get("time") is None else _time(r, m["time"], join(where, "time"))
     rate_hz = None
     if "rate_hz" in m:
@@ -206,8 +210,9 @@ def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
         raise ImportMapError(f"{r.path}: {exc}", r.path, where) from None
     if names:
         return FileSpec(name=name, channel_map=None, kinds=kinds, units=units, rate_hz=rate_hz,
-                        names=tuple(dict.fromkeys(names)), channels=channels, where=where)
-    return FileSpec(name=name, channel_map=channel_map, kinds=kinds, units=units, rate_hz=rate_hz, where=where)
+                        names=tuple(dict.fromkeys(names)), channels=channels, where=where, variable=variable)
+    return FileSpec(name=name, channel_map=channel_map, kinds=kinds, units=units, rate_hz=rate_hz, where=where,
+                    variable=variable)
 
 
 def _time(r: FieldReader, raw, where: str) -> tuple[int, float]:

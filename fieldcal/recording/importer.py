@@ -34,6 +34,7 @@ import numpy as np
 
 from drivers.protocols.delimited import DelimitedTextParser
 from fieldcal.recording import Recording
+from fieldcal.recording.containers import ContainerError, text_of
 from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
 
 FIRST_FEW = 10  # malformed line numbers kept per file
@@ -155,7 +156,11 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         data = Path(path).read_bytes()
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None
-    sha256 = hashlib.sha256(data).hexdigest()
+    sha256 = hashlib.sha256(data).hexdigest()  # of the file as it is, compressed or a MAT-file
+    try:
+        data = text_of(data, path, spec)
+    except ContainerError as exc:
+        raise RecordingImportError(str(exc), path) from None
     cm = spec.resolve(header_fields(data, spec, path), path) if spec.channel_map is None else spec.channel_map
     rate_hz = rate_hz or spec.rate_hz
     if cm.time_column is None and rate_hz is None:

@@ -76,11 +76,13 @@ def bias_instability(residuals: np.ndarray, design: np.ndarray, white: np.ndarra
     X = np.asarray(design, dtype=float).reshape(m, -1)
     # The fit's residual maker R = I − H, H = X (XᵀWX)⁻¹ XᵀW, and Q = Rᵀ W R: the scatter
     # rᵀWr has mean tr(QΣ) for noise of covariance Σ, linear in the white and flicker parts.
-    H = X @ np.linalg.pinv(X.T @ (w[:, None] * X)) @ (X.T * w[None, :])
-    R = np.eye(m) - H
-    Q = R.T @ (w[:, None] * R)
+    # Q = W − U P Uᵀ with U = WX and P = (XᵀWX)⁺ (P·XᵀWX·P = P): rank p off a diagonal, so Q·F
+    # costs O(m²p), not the O(m³) of a dense product.
+    U = w[:, None] * X
+    P = np.linalg.pinv(X.T @ U)
+    Q = np.diag(w) - U @ P @ U.T
     observed = float(np.sum(w[:, None] * residuals**2))
-    QW, QF = Q * white[None, :], Q @ flicker
+    QW, QF = Q * white[None, :], w[:, None] * flicker - U @ (P @ (U.T @ flicker))
     mean_white, mean_flicker = d * float(np.trace(QW)), d * float(np.trace(QF))
     if mean_flicker <= 0:
         return 0.0

@@ -68,25 +68,70 @@ def _forward_jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return ((values[1:] - values[0]) / steps[:, None]).T
 
 
-def _residual_whitener(problem, theta0, covariance):
-    """L⁻¹ with L Lᵀ = G Σ Gᵀ, the residual covariance at the start (G = ∂r/∂u), or None."""
-    if covariance is None:
-        return None
-    u = problem.data
-    cov = np.asarray(covariance, dtype=float)
-    if cov.shape == (len(u) // 3, 3):  # per-average, per-axis 1σ
+class Whitener:
+    """r ↦ L⁻¹r for residuals r (..., m), with L Lᵀ = G Σ Gᵀ the residuals' covariance at the start
+    (G = ∂r/∂u). Independent residuals (a diagonal G Σ Gᵀ) are scaled one by one: no m×m matrix."""
+
+    def __init__(self, inverse_sigma: np.ndarray | None = None, inverse_factor: np.ndarray | None = None):
+        self.inverse_sigma, self.inverse_factor = inverse_sigma, inverse_factor
+
+    def __call__(self, r: np.ndarray) -> np.ndarray:
+        if self.inverse_sigma is not None:
+            return r * self.inverse_sigma
+        return r @ self.inverse_factor.T
+
+    def matrix(self) -> np.ndarray:
+        """L⁻¹ itself (m, m), for a check."""
+        return np.diag(self.inverse_sigma) if self.inverse_sigma is not None else self.inverse_factor
+
+
+def _residual_covariance(problem, theta0, u, cov) -> np.ndarray:
+    """G Σ Gᵀ: (m,) when it is diagonal, else (m, m). A problem whose every residual depends on one
+    average of three numbers alone (``point_gradients``: each residual's (3,) gradient) has a G of
+    1×3 blocks on the diagonal, so G Σ Gᵀ costs 9 products per pair of averages and, with Σ given
+    per average and axis, is diagonal; any other problem's G comes by forward differences."""
+    gradients = getattr(problem, "point_gradients", None)
+    if gradients is not None:
+        g = gradients(theta0)  # (n, 3)
+        if cov.ndim == 2 and cov.shape[1] == 3 and cov.shape[0] == len(g):  # per-average, per-axis 1σ
+            return np.einsum("ia,ia->i", g**2, cov**2)
+        n = len(g)
+        return np.einsum("ia,iajb,jb->ij", g, cov.reshape(n, 3, n, 3), g, optimize=True)
+    if cov.shape == (len(u) // 3, 3):
         cov = np.diag(cov.ravel() ** 2)
-    if cov.shape != (len(u), len(u)):
-        raise ValueError(f"{problem.name}: covariance must be ({len(u)}, {len(u)}) or "
-                         f"({len(u) // 3}, 3) sigmas, got {cov.shape}")
     steps = 1e-6 * np.maximum(np.abs(u), np.abs(theta0[3:6]).max() * problem.reference_scale)
     # Forward differences: the residuals are smooth in u and only weights depend on G.
     G = _forward_jacobian(lambda x: problem.residuals(theta0, x), u, steps)
+    return G @ cov @ G.T
+
+
+def _residual_whitener(problem, theta0, covariance) -> Whitener | None:
+    """The whitening of the residuals at the start (see Whitener), or None without a covariance."""
+    if covariance is None:
+        return None
+    u = problem.data
+    by_parts = getattr(covariance, "residual_covariance", None)  # a covariance kept by its parts
+    if by_parts is not None and hasattr(problem, "point_gradients"):
+        return _whitener_of(problem, by_parts(problem.point_gradients(theta0)))
+    cov = np.asarray(covariance.dense() if by_parts is not None else covariance, dtype=float)
+    if cov.shape != (len(u), len(u)) and cov.shape != (len(u) // 3, 3):
+        raise ValueError(f"{problem.name}: covariance must be ({len(u)}, {len(u)}) or "
+                         f"({len(u) // 3}, 3) sigmas, got {cov.shape}")
+    return _whitener_of(problem, _residual_covariance(problem, theta0, u, cov))
+
+
+def _whitener_of(problem, S: np.ndarray) -> Whitener:
+    """The whitening of residuals of covariance S: (m,) diagonal, or (m, m)."""
+    if S.ndim == 1:
+        if not np.all(S > 0):
+            raise CalibrationError(f"{problem.name}: the covariance of the averages is not positive definite")
+        return Whitener(inverse_sigma=1.0 / np.sqrt(S))
     try:
-        return np.linalg.inv(np.linalg.cholesky(G @ cov @ G.T))
+        L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
         raise CalibrationError(f"{problem.name}: the covariance of the averages is not positive "
                                "definite") from None
+    return Whitener(inverse_factor=np.linalg.inv(L))
 
 
 def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
@@ -112,12 +157,11 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
     whitener = _residual_whitener(problem, theta0, covariance)
     u = problem.data
 
-    whitener_t = None if whitener is None else whitener.T
     residuals_at = problem.residual_function(u)
 
     def whitened(theta):  # theta (9,) or a stack (k, 9)
         r = residuals_at(theta)
-        return r if whitener_t is None else r @ whitener_t
+        return r if whitener is None else whitener(r)
 
     natural = _natural_scales(problem, theta0)
     # Geometry first, independent of the noise: relative residual per natural unit of each

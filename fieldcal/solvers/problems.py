@@ -108,6 +108,13 @@ class StaticNormProblem:
 
         return residuals
 
+    def point_gradients(self, theta) -> np.ndarray:
+        """(n, 3): ∂r_i/∂u_i, each residual's gradient in its own average (it depends on no
+        other): r_i = |a_i| − g with a_i = A u_i + c, so ∂r_i/∂u_i = (a_i/|a_i|)ᵀ A."""
+        A, c = _inverse_affine(theta)
+        a = self.means @ A.T + c
+        return (a / _norms(a)[:, None]) @ A
+
     def initial(self) -> np.ndarray:
         return fit_offset_ellipsoid(self.means, self.gravity)
 
