@@ -143,6 +143,8 @@ def cmd_export(args) -> int:
 
     if args.out:
         check_output_path(args.out, force=args.force, option="--out")
+    elif sys.stdout is None or sys.stdout.closed:  # started with >&-
+        raise ValueError("export: standard output is closed: give --out FILE")
     parameters = load(args.params)
     text = export(parameters, args.format, accelerometer=args.accelerometer, gyroscope=args.gyroscope)
     if args.format in ("ardupilot", "px4"):  # say what the format cannot hold, where people look
@@ -364,11 +366,18 @@ def find_sessions(directories, command: str) -> list[Path]:
 def cmd_registry_rebuild(args) -> int:
     from fieldcal.registry import session_parameter_files
 
+    from fieldcal.session.history import EDITED, recorded_check
+
     sessions = find_sessions(args.directory, "registry rebuild")
-    added = known = bad = 0
+    added = known = bad = edited = 0
     with open_registry(args) as registry:
         for session in sessions:
             for params in session_parameter_files(session):
+                if recorded_check(params) == EDITED:  # not what the calibration produced: not indexed as such
+                    edited += 1
+                    print(f"warning: {params}: not indexed: {EDITED} (its SHA-256 differs from the one its "
+                          "session logged); restore it, or re-solve the session (fieldcal resolve)", file=sys.stderr)
+                    continue
                 try:
                     if registry.record(params):
                         added += 1
@@ -378,7 +387,7 @@ def cmd_registry_rebuild(args) -> int:
                     bad += 1
                     print(f"warning: {params}: not indexed: {str(exc).splitlines()[0]}", file=sys.stderr)
     print(f"{registry.where}: {len(sessions)} sessions, {added} calibrations added, {known} already "
-          f"there, {bad} unreadable")
+          f"there, {bad} unreadable" + (f", {edited} edited after calibration (not indexed)" if edited else ""))
     return 0
 
 
