@@ -150,6 +150,9 @@ def header_fields(data: bytes, spec: FileSpec, path: str) -> list[str]:
 
 
 def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
+    from fieldcal.recording.inputs import check_input
+
+    check_input(path, f"{spec.name} recording")  # a FIFO, a device, a file of zeros: one line, at once
     _let_malloc_keep(REUSE_BYTES)  # before the bytes and the temporaries of the count and the pieces
     try:
         data = Path(path).read_bytes()

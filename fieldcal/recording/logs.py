@@ -54,6 +54,10 @@ def import_log(path: str | os.PathLike, topic: str | None = None,
         raise RecordingImportError(f"--topic is for ROS bags; {path} is read as {kind}", path)
     if imu is not None and kind != DATAFLASH:
         raise RecordingImportError(f"--imu is for ArduPilot DataFlash logs; {path} is read as {kind}", path)
+    from fieldcal.recording.bags import bag_root
+    from fieldcal.recording.inputs import check_input
+
+    check_input(bag_root(path) or path, f"{kind} log")  # a FIFO, a device, a file of zeros: one line
     sha256 = _digest(path)
     if kind == ULOG:
         t, acc, gyro, topic = _ulog(path)
