@@ -132,9 +132,10 @@ def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
             first = ", ".join(map(str, f.malformed_lines))
             more = ", ..." if f.malformed > len(f.malformed_lines) else ""
             cut = f" (line {f.lines} has no line end: cut off mid-write?)" if f.cut_off else ""
-            lines.append(f"    {_count(f.malformed, 'malformed line')} not used: {first}{more}{cut}")
+            what = "malformed line" if f.item == "line" else f.item  # a log: its samples (messages)
+            lines.append(f"    {_count(f.malformed, what)} not used: {first}{more}{cut}")
         else:
-            lines.append("    no malformed lines")
+            lines.append("    no malformed lines" if f.item == "line" else f"    every {f.item} used")
         if f.gaps:
             lines.append(f"    {_count(f.gaps, 'gap')} longer than {GAP_PERIODS:g} sample periods, "
                          f"the largest {f.largest_gap_s:.6g} s before line {f.largest_gap_line}")

@@ -73,6 +73,7 @@ class FileReport:
     largest_gap_s: float  # largest step in time (a gap if gaps > 0)
     largest_gap_line: int  # the line after that step
     cut_off: bool = False  # the last line had no line end: malformed, not used
+    item: str = "line"  # what is counted: a text file's lines, a log's samples (messages)
 
     @property
     def malformed_fraction(self) -> float:
