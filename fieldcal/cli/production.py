@@ -223,6 +223,11 @@ def cmd_apply(args) -> int:
 
     if bool(args.input) == bool(args.config):
         raise ValueError("apply: give the recording's INPUT files or a live device (--config), one of the two")
+    if args.input:  # '-' or a file mostly of zeros: one line before anything is read (pipes: plan's)
+        from fieldcal.recording.inputs import check_input
+        for path in args.input:
+            if path == "-" or os.path.isfile(path):
+                check_input(path, "recording")
     if args.out is None and (sys.stdout is None or sys.stdout.closed):  # started with >&-
         raise ValueError("apply: standard output is closed: give --out FILE")
     kind = "live" if args.config else "log" if (args.map is None and len(args.input) == 1

@@ -195,7 +195,8 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     # a sample, yet it is no fault); after it (or binary junk) a line is malformed.
     # The loop runs over the leading lines only, usually a few.
     leading = np.union1d(headers[headers < first], malformed[malformed < first])
-    text = np.array([_is_text(data[starts[k - 1]:ends[k - 1]]) for k in leading.tolist()], dtype=bool)
+    text = np.array([_is_header_text(data[starts[k - 1]:ends[k - 1]], cm.delimiter) for k in leading.tolist()],
+                    dtype=bool)
     malformed = np.union1d(malformed[malformed > first], np.concatenate([headers[headers > first], leading[~text]]))
     header_count = int(np.count_nonzero(text))
     n_ends = n_lines
@@ -299,13 +300,26 @@ def _largest(row: np.ndarray) -> float:
     return float(row[int(np.argmax(np.abs(row)))])
 
 
-def _is_text(line: bytes) -> bool:
-    """UTF-8 without control characters (tab and CR allowed): a plausible header line."""
+def _is_header_text(line: bytes, delimiter: str | None) -> bool:
+    """UTF-8 without control characters (tab and CR allowed), with a field that is no number: a
+    plausible header line. A line of numbers only (too few columns for the map) is a malformed
+    sample line, not a header."""
     try:
         decoded = line.decode("utf-8")
     except UnicodeDecodeError:
         return False
-    return _CONTROL.search(decoded) is None
+    if _CONTROL.search(decoded) is not None:
+        return False
+    fields = [f.strip() for f in (decoded.split() if delimiter is None else decoded.split(delimiter))]
+    return not all(_is_number(f) for f in fields if f)
+
+
+def _is_number(field: str) -> bool:
+    try:
+        float(field)
+    except ValueError:
+        return False
+    return True
 
 
 def _content_lines(a: np.ndarray, starts: np.ndarray, ends: np.ndarray, comment: str | None) -> np.ndarray:
