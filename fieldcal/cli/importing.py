@@ -124,7 +124,7 @@ def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
     how = report.map_path if report.map_path.startswith("(") else f"with the map {report.map_path}"
     lines = [f"imported {n} file{'s' * (n != 1)} {how}:"]
     for f in report.files:
-        lines.append(f"  {f.name}: {f.path}: {f.samples} samples of {f.lines} lines, "
+        lines.append(f"  {f.name}: {f.path}: {f.samples} samples of {f.lines} {'lines' if f.item == 'line' else 'read'}, "
                      f"{f.rate_hz:.6g} Hz, t {f.t_first:.6g} .. {f.t_last:.6g} s")
         if f.header_lines:
             lines.append(f"    {_count(f.header_lines, 'header line')} skipped")
@@ -138,7 +138,7 @@ def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
             lines.append("    no malformed lines" if f.item == "line" else f"    every {f.item} used")
         if f.gaps:
             lines.append(f"    {_count(f.gaps, 'gap')} longer than {GAP_PERIODS:g} sample periods, "
-                         f"the largest {f.largest_gap_s:.6g} s before line {f.largest_gap_line}")
+                         f"the largest {f.largest_gap_s:.6g} s before {f.item} {f.largest_gap_line}")
     lines += [f"  {note}" for note in report.alignment]
     triads = ", ".join(f"{name} ({recording.kinds[name]}, {recording.units[name]})"
                        for name in recording.triads)
