@@ -90,6 +90,28 @@ def test_a_csv_with_a_nul_tail_is_refused_and_one_without_imports(tmp_path, caps
     assert main(["import", str(path), "--map", "single-csv", "--out", str(tmp_path / "s")]) == 2
     err = capsys.readouterr().err
     assert f"{path}: at least " in err and "are zeros" in err and err.count("\n") == 1
-    path.write_bytes(text.encode() + bytes(len(text) // 2))  # a third zeros: read (its NULs malformed)
+    path.write_bytes(text.encode() + bytes(len(text) // 2))  # a third zeros: imported, the NULs left unread
     assert main(["import", str(path), "--map", "single-csv", "--out", str(tmp_path / "t")]) == 0
-    assert "40000 samples" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "40000 samples of 40001 lines" in out and "no malformed lines" in out
+    assert f"{len(text) // 2} NUL bytes after the last line (a pre-allocated file's unused end?) not read" in out
+
+
+def test_the_nul_end_of_a_text_file_is_not_read(tmp_path):
+    """What the text reader holds follows the samples: the NUL end (written out, then holes) is
+    measured from the end backwards and left out; the bytes parsed are the text's own."""
+    import hashlib
+
+    from fieldcal.recording import inputs
+    from fieldcal.recording.importer import import_with_report
+
+    text = b"time_ms,ax_mg,ay_mg,az_mg,gx_dps,gy_dps,gz_dps\n" + b"".join(
+        b"%d,1,2,1000,0.5,0,0\n" % (10 * i) for i in range(2000))
+    path = tmp_path / "logger.csv"
+    with open(path, "wb") as f:
+        f.write(text + bytes(1 << 20))  # NULs written out
+    os.truncate(path, len(text) + (3 << 20))  # then holes
+    assert inputs.zero_tail(str(path)) == (len(text) + (3 << 20), 3 << 20)
+    _, report = import_with_report([path], "single-csv")
+    assert report.files[0].sha256 == hashlib.sha256(text).hexdigest()
+    assert report.files[0].zero_tail == 3 << 20 and report.files[0].samples == 2000

@@ -128,6 +128,9 @@ def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
                      f"{f.rate_hz:.6g} Hz, t {f.t_first:.6g} .. {f.t_last:.6g} s")
         if f.header_lines:
             lines.append(f"    {_count(f.header_lines, 'header line')} skipped")
+        if f.zero_tail:
+            lines.append(f"    {_count(f.zero_tail, 'NUL byte')} after the last line (a pre-allocated file's unused "
+                         "end?) not read")
         if f.malformed:
             first = ", ".join(map(str, f.malformed_lines))
             more = ", ..." if f.malformed > len(f.malformed_lines) else ""

@@ -60,7 +60,7 @@ class FileReport:
     """What was read from one file of a recording: its lines, samples, rate and gaps."""
     path: str
     name: str  # the map entry's name
-    sha256: str  # of the bytes parsed
+    sha256: str  # of the bytes parsed (a text file's NUL end is not)
     lines: int
     samples: int
     header_lines: int  # skipped before the first sample
@@ -74,6 +74,7 @@ class FileReport:
     largest_gap_line: int  # the line after that step
     cut_off: bool = False  # the last line had no line end: malformed, not used
     item: str = "line"  # what is counted: a text file's lines, a log's samples (messages)
+    zero_tail: int = 0  # NUL bytes that end the file (a pre-allocated logger file's unused end), not read
 
     @property
     def malformed_fraction(self) -> float:
@@ -151,12 +152,14 @@ def header_fields(data: bytes, spec: FileSpec, path: str) -> list[str]:
 
 
 def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
-    from fieldcal.recording.inputs import check_input
+    from fieldcal.recording.inputs import check_input, zero_tail
 
     check_input(path, f"{spec.name} recording")  # a FIFO, a device, a file of zeros: one line, at once
     _let_malloc_keep(REUSE_BYTES)  # before the bytes and the temporaries of the count and the pieces
     try:
-        data = Path(path).read_bytes()
+        size, zeros = zero_tail(path)  # a pre-allocated file's NUL end: not read, not held, said
+        with open(path, "rb") as f:
+            data = f.read(size - zeros)
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None
     sha256 = hashlib.sha256(data).hexdigest()
@@ -236,7 +239,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         malformed_lines=tuple(int(x) for x in malformed[:FIRST_FEW]), rate_hz=1.0 / period,
         t_first=float(t[0]), t_last=float(t[-1]),
         gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
-        largest_gap_line=int(lines[widest + 1]), cut_off=unterminated)
+        largest_gap_line=int(lines[widest + 1]), cut_off=unterminated, zero_tail=zeros)
     return _Parsed(spec, report, t, triads)
 
 

@@ -123,3 +123,23 @@ def _zero_bytes(f, size: int, limit: float) -> int:
             data += len(block)
             position += len(block)
     return zeros
+
+
+def zero_tail(path: str) -> tuple[int, int]:
+    """(size, the zero bytes that end the file): a pre-allocated logger file's unused end, holes
+    or NULs written out. Found from the end backwards (holes by SEEK_DATA, then blocks growing
+    from 64 KiB), so a reader can leave them unread: its memory then follows the samples."""
+    with open(path, "rb", buffering=0) as f:
+        size = os.fstat(f.fileno()).st_size
+        regions = list(_data_regions(f.fileno(), size))
+        position = regions[-1][1] if regions else 0  # after the last data: a hole to the end
+        step = 1 << 16
+        while position > 0:
+            start = max(0, position - step)
+            f.seek(start)
+            block = f.read(position - start)
+            kept = len(block.rstrip(b"\0"))
+            if kept:
+                return size, size - (start + kept)
+            position, step = start, min(2 * step, BLOCK)
+        return size, size
