@@ -134,3 +134,21 @@ def test_wild_timestamps_only_where_time_does_not_increase():
     t_damaged[[300, 700]] = [1.8e13, -5e9]
     wild = _wild_timestamps(t_damaged, np.ones(1000, dtype=bool))
     assert np.flatnonzero(wild).tolist() == [300, 700]
+
+
+def test_a_zero_end_is_said_as_such_not_as_damage(real_bin, real_ulg, tmp_path):
+    """A pre-allocated log file's unused end: the DataFlash log imports whole with a note; pyulog
+    calls it corruption, which the warning then explains."""
+    at = _imu_offsets(real_bin)[0][-1]  # a message's start: whole messages before it
+    whole = tmp_path / "whole.BIN"
+    whole.write_bytes(real_bin.read_bytes()[:at])
+    path = tmp_path / "prealloc.BIN"
+    path.write_bytes(whole.read_bytes() + bytes(40000))
+    recording, report = import_log(path)
+    assert np.array_equal(_rows(recording), _rows(import_log(whole)[0])) and report.warnings == ()
+    assert "its last 40000 bytes are zeros (a pre-allocated file's unused end?): not read" in report.alignment
+    path = tmp_path / "prealloc.ulg"
+    path.write_bytes(real_ulg.read_bytes() + bytes(300000))
+    recording, report = import_log(path)
+    assert "its last 300000 bytes are zeros" in report.warnings[0]
+    assert _subset_of(recording, import_log(real_ulg)[0])

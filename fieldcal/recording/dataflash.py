@@ -52,7 +52,7 @@ def read_dataflash(path: str, instance: int | None = None):
     try:
         # Our own map of the file: a numpy view of DFReader's would keep it from closing its map.
         data = np.memmap(path, dtype=np.uint8, mode="r")
-        damage, cut_notes = _damage(path, log, len(data), noise)
+        damage, cut_notes = _damage(path, log, data, noise)
         if "IMU" in log.name_to_id and log.counts[log.name_to_id["IMU"]]:
             read = _imu(path, log, data, instance)
         elif all(n in log.name_to_id and log.counts[log.name_to_id[n]] for n in ("ACC", "GYR")):
@@ -95,13 +95,14 @@ def _noise_note(noise) -> str:
 TRAILING_SLACK = 528  # bytes after the last message DFReader itself passes over (a block log's last page)
 
 
-def _damage(path: str, log, size: int, noise) -> tuple[tuple[str, ...], tuple[str, ...]]:
+def _damage(path: str, log, data: np.ndarray, noise) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """(damage, notes): what the indexer could not read, in words, measured from where the messages it indexed
     lie: bytes between them (no message header where one was due: DFReader skips them one by
     one), the part after the last one (it stops at a message type no FMT defines), a last
     message cut off. Empty for a whole log. (DFReader's own lines about it, written by C, are
     silenced: ``noise`` holds only what it printed from Python.) A last message cut off is a
     note, not damage."""
+    size = len(data)
     starts, lengths = [], []
     for message_type, offsets in enumerate(log.offsets):
         if offsets and message_type in log.formats:
@@ -123,6 +124,8 @@ def _damage(path: str, log, size: int, noise) -> tuple[tuple[str, ...], tuple[st
     if last_end > size:  # a power cut mid-write, or a copy cut short: said, as a text file's last line
         notes.append(f"the log ends inside its last message (at byte {int(starts[-1])}; cut off mid-write, or a "
                      "copy cut short?): not used")
+    elif size - last_end > TRAILING_SLACK and not data[last_end:].any():
+        notes.append(f"its last {size - last_end} bytes are zeros (a pre-allocated file's unused end?): not read")
     elif size - last_end > TRAILING_SLACK:
         found.append(f"reading stopped at byte {last_end} (a message type no FMT message defines): the last "
                      f"{size - last_end} of its {size} bytes were not read")

@@ -102,8 +102,12 @@ def _ulog(path: str):
         raise RecordingImportError(f"{path}: not a readable ULog ({exc})", path) from None
     damage = ()
     if log.file_corruption:
+        from fieldcal.recording.inputs import zero_tail
+
         said = noise.summary("pyulog")
-        damage = ("pyulog found corrupt data in it: messages were skipped" + (f"; {said}" if said else ""),)
+        zeros = zero_tail(path)[1]
+        why = f" (its last {zeros} bytes are zeros: a pre-allocated file's unused end?)" if zeros > 1024 else ""
+        damage = (f"pyulog found corrupt data in it{why}: messages were skipped" + (f"; {said}" if said else ""),)
     topics = {(d.name, d.multi_id): d.data for d in log.data_list}
     combined = topics.get(("sensor_combined", 0))
     if combined is not None and len(combined["timestamp"]) >= 2:
