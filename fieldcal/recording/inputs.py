@@ -22,7 +22,7 @@ import numpy as np
 
 from fieldcal.recording.importer import RecordingImportError
 
-CHECKED_BYTES = 64 << 20  # smaller files cannot swallow memory or time: the readers' own checks do
+CHECKED_BYTES = 1 << 20  # below this, no reader takes long whatever the bytes (pymavlink: ~1 s per MB of junk)
 ZERO_FRACTION = 0.5  # of a file's bytes in holes and zero pages: refused above this
 PAGE = 4096
 BLOCK = 8 << 20  # bytes read at once while counting zero pages
