@@ -7,6 +7,8 @@ its warnings with ``print``. ``captured_output()`` points the process's file des
 from what the parser indexed instead; a pipe read by a thread would deadlock, as the indexer
 holds the GIL while its write waits), and Python's sys.stdout/sys.stderr at a counter of
 lines: memory is a few counters whatever the volume, and what was said is summed up in ``Noise``.
+Not for a process whose terminal another thread is drawing (the TUI): its output would be lost
+for the duration. No front end imports logs on a thread today.
 """
 from __future__ import annotations
 
@@ -15,11 +17,10 @@ import io
 import os
 import re
 import sys
-import threading
 from dataclasses import dataclass, field
 
-_BLOCK = 1 << 16
-_KEPT = 3  # distinct other lines kept, to be named
+_LONGEST = 1 << 16  # characters of a line without end kept before it is counted
+_KEPT = 3  # kinds of line named in the summary, the most frequent first
 
 
 @dataclass
@@ -58,21 +59,20 @@ def _kind(line: str) -> str:
 class _LineSink(io.TextIOBase):
     """A text stream whose lines go to ``noise`` (Python-level prints)."""
 
-    def __init__(self, noise: Noise, lock: threading.Lock) -> None:
-        self.noise, self.lock, self.carry = noise, lock, ""
+    def __init__(self, noise: Noise) -> None:
+        self.noise, self.carry = noise, ""
 
     def writable(self) -> bool:
         return True
 
     def write(self, text: str) -> int:
-        with self.lock:
-            *lines, self.carry = (self.carry + text).split("\n")
-            for line in lines:
-                if line.strip():
-                    self.noise.add(line)
-            if len(self.carry) > _BLOCK:  # a line without end: count it, keep no more
-                self.noise.add(self.carry)
-                self.carry = ""
+        *lines, self.carry = (self.carry + text).split("\n")
+        for line in lines:
+            if line.strip():
+                self.noise.add(line)
+        if len(self.carry) > _LONGEST:  # a line without end: count it, keep no more
+            self.noise.add(self.carry)
+            self.carry = ""
         return len(text)
 
     def close_lines(self) -> None:
@@ -86,7 +86,7 @@ def captured_output():
     """Silence file descriptors 1 and 2 and sys.stdout/sys.stderr; yields the Noise of what was
     printed from Python."""
     noise = Noise()
-    sink = _LineSink(noise, threading.Lock())
+    sink = _LineSink(noise)
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
