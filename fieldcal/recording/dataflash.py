@@ -43,11 +43,18 @@ def read_dataflash(path: str, instance: int | None = None):
     instance = 0 if instance is None else instance
     _require_log_start(path)
     try:
+        size, zeros = zero_tail(path)
+    except OSError as exc:
+        raise RecordingImportError(f"{path}: cannot read it ({exc.strerror or exc})", path) from None
+    # A zero end is left out of the index, but for a slack longer than any message: a last message
+    # whose own last bytes are zeros stays whole (DFReader passes that slack over quickly).
+    indexed = min(size, size - zeros + TRAILING_SLACK)
+    noise = None
+    try:
         # DFReader's indexer writes a line per damaged byte to stderr (from C) and its warnings to
         # stdout: silenced, counted, and said in one line with what the damage cost.
-        size, zeros = zero_tail(path)
         with captured_output() as noise:
-            log = _indexed_reader(DFReader, size - zeros)(path)
+            log = _indexed_reader(DFReader, indexed)(path)
     except Exception as exc:  # DFReader raises bare exceptions on files that are not DataFlash
         raise RecordingImportError(f"{path}: not a readable DataFlash log ({type(exc).__name__}: {exc})"
                                    f"{_noise_note(noise)}", path) from None
@@ -90,7 +97,7 @@ def _require_log_start(path: str) -> None:
 
 
 def _noise_note(noise) -> str:
-    summary = noise.summary("pymavlink")
+    summary = noise.summary("pymavlink") if noise is not None else None
     return f"; {summary}" if summary else ""
 
 
