@@ -177,3 +177,31 @@ def test_c_header_and_json(tmp_path, capsys, simulated):
     out.write_text("keep")
     status, _, err = _run(["export", str(params), "--format", "c-header", "--out", str(out)], capsys)
     assert status == 2 and out.read_text() == "keep" and "--force" in err
+
+
+@pytest.mark.parametrize("fmt", ["px4", "ardupilot", "c-header", "imucal-json"])
+def test_a_triad_of_the_wrong_kind_is_refused(tmp_path, capsys, diagonal_case, fmt):
+    """Issue 25 item 5: `--gyroscope accelerometer` wrote the accelerometer's m/s² offsets as
+    CAL_GYRO0_*OFF (exit 0); every format now checks the kind of the triads it is told to use."""
+    pf, _, _ = diagonal_case
+    params = save(pf, tmp_path / "p.yaml")
+    out = tmp_path / "out"
+    status, text, err = _run(["export", str(params), "--format", fmt, "--gyroscope", "accelerometer",
+                              "--out", str(out)], capsys)
+    assert status == 2 and not out.exists()
+    assert "--gyroscope accelerometer" in err and "is specific_force" in err and "not angular_rate" in err
+    assert "gyroscope" in err.split("triad: ")[-1] and len(err.strip().splitlines()) == 1
+    status, _, err = _run(["export", str(params), "--format", fmt, "--accelerometer", "gyroscope"], capsys)
+    assert status == 2 and "--accelerometer gyroscope" in err and "is angular_rate" in err
+
+
+def test_c_header_refuses_a_gyroscope_named_triad_that_measures_force(tmp_path, capsys):
+    """A file whose triad called 'gyroscope' is an accelerometer: its arrays would be taken by the
+    firmware's gyro code by their name."""
+    acc = triad("gyroscope", "specific_force", "m/s^2", [0.1, 0, 0], [1, 1, 1], ACC_TERMS)
+    params = save(parameter_file(acc), tmp_path / "p.yaml")
+    status, text, err = _run(["export", str(params), "--format", "c-header"], capsys)
+    assert status == 2 and text == "" and "--gyroscope gyroscope" in err
+    status, text, _ = _run(["export", str(params), "--format", "c-header", "--accelerometer", "gyroscope",
+                            "--gyroscope", "none"], capsys)
+    assert status == 0 and "gyroscope (specific_force): raw in m/s^2, calibrated in m/s^2" in text

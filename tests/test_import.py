@@ -222,6 +222,13 @@ def reference_lines(data: bytes, delimiter: str | None, comment: str | None):
     def number(f):
         return f is not None and NUMBER.fullmatch(f) is not None and math.isfinite(float(f))
 
+    def floatable(f):  # a line of numbers only is a sample line with too few columns, no header
+        try:
+            float(f)
+        except ValueError:
+            return False
+        return True
+
     samples, bad, headers = [], [], 0
     for no, line in enumerate(data.split(b"\n")[:-1], 1):
         bare = line.strip(b" \t\r")
@@ -233,8 +240,9 @@ def reference_lines(data: bytes, delimiter: str | None, comment: str | None):
         if all(number(f) for f in mapped):
             samples.append((no, float(mapped[0])))
         elif not samples and not CONTROL.search(line) \
-                and line.decode("utf-8", "replace") == line.decode("utf-8", "ignore"):
-            headers += 1  # text before the data: a header or metadata line
+                and line.decode("utf-8", "replace") == line.decode("utf-8", "ignore") \
+                and any(f and not floatable(f) for f in fields):
+            headers += 1  # text before the data, with a word in it: a header or metadata line
         else:
             bad.append(no)
     return samples, bad, headers

@@ -94,7 +94,8 @@ def test_log_errors_are_one_line(real_log, tmp_path, capsys):
     assert "--topic is for ROS bags" in one_line_error(["import", str(real_log), "--topic", "/imu", *out], capsys)
     junk = tmp_path / "junk.bin"
     junk.write_bytes(b"\x00\x01 not a log " * 100)
-    assert "junk.bin: no IMU messages" in one_line_error(["import", str(junk), *out], capsys)
+    assert "junk.bin: not a DataFlash log: it does not start with a message header (A3 95)" in one_line_error(
+        ["import", str(junk), *out], capsys)
     empty = tmp_path / "empty.bin"
     empty.write_bytes(b"")
     assert "empty.bin: not a readable DataFlash log" in one_line_error(["calibrate", str(empty), *out], capsys)

@@ -83,6 +83,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     return parser
 
 
+TABLE_RATE_MAX_DEG_S = 2000.0  # the widest full scale of MEMS gyros: no turn above it is measured
+
+
 def _station(args, config):
     """The station; an UnknownPlace when neither --latitude nor a config says where."""
     from fieldcal.earth import GRAVITY_RANGE_M_S2, HEIGHT_RANGE_M, Station
@@ -97,8 +100,9 @@ def _station(args, config):
         raise ValueError(f"--height: expected -500..9000 m above the ellipsoid, got {args.height:g}")
     base = config.station if config is not None else None
     if args.latitude is None and base is None:
-        if args.height is not None and args.gravity is None:
-            raise ValueError("--height: needs --latitude too (normal gravity depends on both)")
+        if args.height is not None and args.gravity is None:  # it would be ignored: normal gravity needs the latitude too
+            raise ValueError(f"--height {args.height:g}: give the station's --latitude with it (the height "
+                             "only sets local gravity together with the latitude), or --gravity if measured")
         return UnknownPlace(gravity=args.gravity)
     latitude = args.latitude if args.latitude is not None else base.latitude_deg
     height = args.height if args.height is not None else (base.height_m if base else 0.0)
@@ -158,8 +162,9 @@ def cmd_calibrate(args) -> int:
         config = load_config(args.config)
     spec = load_spec_option(args)
     station = _station(args, config)
-    if args.table_rate is not None and not args.table_rate > 0:
-        raise ValueError(f"--table-rate: expected a rate above 0 °/s, got {args.table_rate:g}")
+    if args.table_rate is not None and not 0 < args.table_rate <= TABLE_RATE_MAX_DEG_S:
+        raise ValueError(f"--table-rate: expected a rate above 0 and up to {TABLE_RATE_MAX_DEG_S:g} °/s (a "
+                         f"gyro's widest range), got {args.table_rate:g}")
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
     if args.rest is not None and not args.rest > 0:

@@ -123,20 +123,24 @@ def summary_lines(recording: Recording, report: ImportReport) -> list[str]:
     how = report.map_path if report.map_path.startswith("(") else f"with the map {report.map_path}"
     lines = [f"imported {n} file{'s' * (n != 1)} {how}:"]
     for f in report.files:
-        lines.append(f"  {f.name}: {f.path}: {f.samples} samples of {f.lines} lines, "
+        lines.append(f"  {f.name}: {f.path}: {f.samples} samples of {f.lines} {'lines' if f.item == 'line' else 'read'}, "
                      f"{f.rate_hz:.6g} Hz, t {f.t_first:.6g} .. {f.t_last:.6g} s")
         if f.header_lines:
             lines.append(f"    {_count(f.header_lines, 'header line')} skipped")
+        if f.zero_tail:
+            lines.append(f"    {_count(f.zero_tail, 'NUL byte')} after the last line (a pre-allocated file's unused "
+                         "end?) not read")
         if f.malformed:
             first = ", ".join(map(str, f.malformed_lines))
             more = ", ..." if f.malformed > len(f.malformed_lines) else ""
             cut = f" (line {f.lines} has no line end: cut off mid-write?)" if f.cut_off else ""
-            lines.append(f"    {_count(f.malformed, 'malformed line')} not used: {first}{more}{cut}")
+            what = "malformed line" if f.item == "line" else f.item  # a log: its samples (messages)
+            lines.append(f"    {_count(f.malformed, what)} not used: {first}{more}{cut}")
         else:
-            lines.append("    no malformed lines")
+            lines.append("    no malformed lines" if f.item == "line" else f"    every {f.item} used")
         if f.gaps:
             lines.append(f"    {_count(f.gaps, 'gap')} longer than {GAP_PERIODS:g} sample periods, "
-                         f"the largest {f.largest_gap_s:.6g} s before line {f.largest_gap_line}")
+                         f"the largest {f.largest_gap_s:.6g} s before {f.item} {f.largest_gap_line}")
     lines += [f"  {note}" for note in report.alignment]
     triads = ", ".join(f"{name} ({recording.kinds[name]}, {recording.units[name]})"
                        for name in recording.triads)

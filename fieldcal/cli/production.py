@@ -29,6 +29,8 @@ def cmd_export(args) -> int:
 
     if args.out:
         check_output_path(args.out, force=args.force, option="--out", inputs=[args.params])
+    elif sys.stdout is None or sys.stdout.closed:  # started with >&-
+        raise ValueError("export: standard output is closed: give --out FILE")
     parameters = load(args.params)
     text = export(parameters, args.format, accelerometer=args.accelerometer, gyroscope=args.gyroscope)
     if args.format in ("ardupilot", "px4"):  # say what the format cannot hold, where people look
@@ -105,6 +107,11 @@ def cmd_apply(args) -> int:
 
     if bool(args.input) == bool(args.config):
         raise ValueError("apply: give the recording's INPUT files or a live device (--config), one of the two")
+    if args.input:  # '-' or a file mostly of zeros: one line before anything is read (pipes: plan's)
+        from fieldcal.recording.inputs import check_input
+        for path in args.input:
+            if path == "-" or os.path.isfile(path):
+                check_input(path, "recording")
     if args.out is None and (sys.stdout is None or sys.stdout.closed):  # started with >&-
         raise ValueError("apply: standard output is closed: give --out FILE")
     kind = "live" if args.config else "log" if (args.map is None and len(args.input) == 1
@@ -233,11 +240,18 @@ def cmd_history(args) -> int:
 def cmd_registry_rebuild(args) -> int:
     from fieldcal.registry import session_parameter_files
 
+    from fieldcal.session.history import EDITED, recorded_check
+
     sessions = find_sessions(args.directory, "registry rebuild")
-    added = known = bad = 0
+    added = known = bad = edited = 0
     with open_registry(args) as registry:
         for session in sessions:
             for params in session_parameter_files(session):
+                if recorded_check(params) == EDITED:  # not what the calibration produced: not indexed as such
+                    edited += 1
+                    print(f"warning: {params}: not indexed: {EDITED} (its SHA-256 differs from the one its "
+                          "session logged); restore it, or re-solve the session (fieldcal resolve)", file=sys.stderr)
+                    continue
                 try:
                     if registry.record(params):
                         added += 1
@@ -247,7 +261,7 @@ def cmd_registry_rebuild(args) -> int:
                     bad += 1
                     print(f"warning: {params}: not indexed: {str(exc).splitlines()[0]}", file=sys.stderr)
     print(f"{registry.where}: {len(sessions)} sessions, {added} calibrations added, {known} already "
-          f"there, {bad} unreadable")
+          f"there, {bad} unreadable" + (f", {edited} edited after calibration (not indexed)" if edited else ""))
     return 0
 
 

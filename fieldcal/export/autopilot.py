@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fieldcal.model import SPECIFIC_FORCE, SI_UNIT, terms_from_k
+from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, SI_UNIT, terms_from_k
 from fieldcal.units import BIAS, SI_PER_UNIT, STANDARD_GRAVITY, operator_unit
 
 # The input size the dropped error is quoted at: 1 g, and a brisk 100 °/s.
@@ -59,11 +59,28 @@ def dropped(cal, K_si: np.ndarray, kept_scale: np.ndarray) -> Dropped:
     return Dropped(cal.name, tuple(what), float(error_si * factor), unit, reference)
 
 
-def _triad(parameters, name: str, option: str):
+# What each option names: the triad a format writes as its accelerometer or its gyro.
+OPTION_KIND = {"--accelerometer": SPECIFIC_FORCE, "--gyroscope": ANGULAR_RATE}
+
+
+def _triad(parameters, name: str, option: str, fmt: str = ""):
+    """The triad ``option`` names, refused unless it is of the kind the option asks for (a
+    gyro's offsets written as an accelerometer's would be applied in the wrong unit)."""
     if name not in parameters.names:
         raise ValueError(f"export: no triad named {name!r} in the parameter file (it has "
                          f"{', '.join(parameters.names)}); name it with {option}")
+    check_kind(parameters, name, option, fmt)
     return parameters.triad(name)
+
+
+def check_kind(parameters, name: str, option: str, fmt: str) -> None:
+    """One line if the triad ``name`` is not of the kind ``option`` names."""
+    expected, cal = OPTION_KIND[option], parameters.triad(name)
+    if cal.kind != expected:
+        fitting = [c.name for c in parameters.triads if c.kind == expected]
+        hint = f" (the file's {expected} triad{'s' * (len(fitting) > 1)}: {', '.join(fitting)})" if fitting else ""
+        raise ValueError(f"export{' ' + fmt if fmt else ''}: {option} {name}: that triad is {cal.kind} in "
+                         f"{cal.output_unit}, not {expected}: name the {expected} triad with {option}{hint}")
 
 
 def diagonal_parameters(parameters, fmt: str, accelerometer: str, gyroscope: str, gyro_scale: bool):
@@ -71,7 +88,7 @@ def diagonal_parameters(parameters, fmt: str, accelerometer: str, gyroscope: str
     rows, losses = [], []
     for name, option, with_scale in ((accelerometer, "--accelerometer", True),
                                      (gyroscope, "--gyroscope", gyro_scale)):
-        cal = _triad(parameters, name, option)
+        cal = _triad(parameters, name, option, fmt)
         K_si, bias_si = si_model(cal, fmt)
         kept = np.diag(K_si).copy() if with_scale else np.ones(3)
         rows.append((cal, bias_si, 1.0 / kept if with_scale else None))

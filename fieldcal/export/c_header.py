@@ -15,7 +15,14 @@ def _numbers(values) -> str:
     return ", ".join(repr(float(v)) for v in values)
 
 
-def c_header(parameters, **_) -> str:
+def c_header(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
+    """Every triad's arrays; the triads --accelerometer and --gyroscope name (when the file has
+    them) must be of those kinds, as firmware takes FIELDCAL_<NAME>_* by the name."""
+    from fieldcal.export.autopilot import check_kind
+
+    for name, option in ((accelerometer, "--accelerometer"), (gyroscope, "--gyroscope")):
+        if name in parameters.names:
+            check_kind(parameters, name, option, "c-header")
     p = parameters.provenance
     lines = ["/* fieldcal calibration parameters, generated: do not edit.",
              f" * fieldcal {p.software_version}, procedure {p.procedure}, method {p.method},",
@@ -25,7 +32,7 @@ def c_header(parameters, **_) -> str:
     for cal in parameters.triads:
         ident = _identifier(cal.name)
         kinv = np.linalg.inv(cal.K)
-        lines += [f"/* {cal.name}: raw in {cal.output_unit}, calibrated in {cal.input_unit} */",
+        lines += [f"/* {cal.name} ({cal.kind}): raw in {cal.output_unit}, calibrated in {cal.input_unit} */",
                   f"static const double FIELDCAL_{ident}_BIAS[3] = {{{_numbers(cal.bias)}}};",
                   f"static const double FIELDCAL_{ident}_KINV[3][3] = {{"
                   + ", ".join(f"{{{_numbers(row)}}}" for row in kinv) + "};", ""]

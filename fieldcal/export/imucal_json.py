@@ -11,7 +11,6 @@ import json
 
 import numpy as np
 
-from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
 from fieldcal.export.autopilot import _triad
 
 # imucal's file format version this writer produces (imucal 2.x reads it).
@@ -25,11 +24,8 @@ def _split(K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def imucal_json(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
-    acc = _triad(parameters, accelerometer, "--accelerometer")
-    gyr = _triad(parameters, gyroscope, "--gyroscope")
-    for cal, kind in ((acc, SPECIFIC_FORCE), (gyr, ANGULAR_RATE)):
-        if cal.kind != kind:
-            raise ValueError(f"export imucal-json: triad {cal.name!r} is {cal.kind}, expected {kind}")
+    acc = _triad(parameters, accelerometer, "--accelerometer", "imucal-json")
+    gyr = _triad(parameters, gyroscope, "--gyroscope", "imucal-json")
     K_a, R_a = _split(acc.K)
     K_g, R_g = _split(gyr.K * _RAD_PER_DEG)  # output units per deg/s
     p = parameters.provenance

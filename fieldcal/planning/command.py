@@ -13,6 +13,10 @@ if TYPE_CHECKING:
 # called whenever the command line is built, and `fieldcal --help` must stay light (issue 12).
 
 GROUPS = {"bias": range(0, 3), "scale": range(3, 6), "misalignment": range(6, 9)}
+MAX_HANDLING_S = 3600.0  # --place-s and --settle-s: an hour per position is no station's
+# A planned σ this many times field-18's leaves its parameter undetermined (the TUI's plan view
+# uses the same factor against the target): such a plan is refused, not written.
+UNDETERMINED = 100.0
 
 
 def add_plan_parser(sub) -> argparse.ArgumentParser:
@@ -164,10 +168,7 @@ def cmd_plan(args) -> int:
     from fieldcal.procedure.positions import load_procedure, parse_procedure
     from fieldcal.units import display_scale, param_unit
 
-    if not args.slack >= 0:
-        raise ValueError(f"--slack: expected a fraction >= 0, got {args.slack!r}")
-    if not 0 <= args.margin < 1:
-        raise ValueError(f"--margin: expected a fraction from 0 to below 1, got {args.margin!r}")
+    check_plan_options(args)
     config = load_config(args.config)
     models = station_models(config)
     station, rate_hz = config.station, config.device.rate_hz
@@ -203,6 +204,7 @@ def cmd_plan(args) -> int:
                f"plans to field-18's σ)" if args.margin and untightened else "")
         print(f"no procedure shorter than field-18 meets the target{' with --margin' * bool(args.margin)}: "
               f"this plan takes {plan.seconds / ref_seconds:.2f}× field-18's time{why}", file=sys.stderr)
+    refuse_undetermined(plan.sigmas, ref_sigmas, models)
     out = Path(args.out)
     text = procedure_yaml(plan, out.stem, plan_title(config.device.name, args.target, args.slack),
                           operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""),
@@ -229,6 +231,44 @@ def cmd_plan(args) -> int:
                   f"{plan.sigmas[name][j] * scale:.3g} | {ratio} | {ref_sigmas[name][j] * scale:.3g} |")
     print_time_and_floor(plan, ref_design, ref_seconds, operator, models, planned_to, ref_sigmas)
     return 0
+
+
+def check_plan_options(args) -> None:
+    """Every numeric option finite and in its range, before the search (which takes minutes):
+    one line naming the option, its range and the value."""
+    import math
+
+    if not (math.isfinite(args.slack) and args.slack >= 0):
+        raise ValueError(f"--slack: expected a finite fraction >= 0, got {args.slack!r}")
+    if not 0 <= args.margin < 1:
+        raise ValueError(f"--margin: expected a fraction from 0 to below 1, got {args.margin!r}")
+    for option, value in (("--place-s", args.place_s), ("--settle-s", args.settle_s)):
+        if value is not None and not 0 <= value <= MAX_HANDLING_S:
+            raise ValueError(f"{option}: expected seconds from 0 to {MAX_HANDLING_S:g}, got {value!r}")
+
+
+def refuse_undetermined(sigmas, ref_sigmas, models) -> None:
+    """A plan whose bound leaves a parameter undetermined (σ beyond UNDETERMINED × field-18's,
+    or not finite) is refused in one line naming the worst: a procedure file that cannot
+    calibrate its unit must not be written, whatever the target allowed."""
+    import numpy as np
+
+    from fieldcal.model import PARAM_NAMES
+    from fieldcal.units import display_scale, param_unit
+
+    worst = None
+    for name, model in models.items():
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(np.isfinite(sigmas[name]), sigmas[name] / ref_sigmas[name], np.inf)
+        j = int(np.argmax(ratio))
+        if not ratio[j] <= UNDETERMINED and (worst is None or ratio[j] > worst[0]):
+            worst = (float(ratio[j]), name, j, model)
+    if worst is not None:
+        ratio, name, j, model = worst
+        scale = display_scale(model.kind, model.output_unit, j)
+        raise ValueError(f"plan: the shortest procedure that meets the target leaves {name} {PARAM_NAMES[j]} "
+                         f"undetermined (σ {sigmas[name][j] * scale:.3g} {param_unit(model.kind, model.output_unit, j)}, "
+                         f"{ratio:.3g}× field-18's): give a target for it, or less --slack; nothing was written")
 
 
 def bias_spans(models, limits) -> dict[str, float]:

@@ -20,6 +20,8 @@ import io
 import numpy as np
 
 from fieldcal.recording.importer import RecordingImportError
+from fieldcal.recording.inputs import zero_tail
+from fieldcal.recording.noise import captured_output
 
 _HEADER_BYTES = 3  # 0xA3 0x95 and the message type
 # DataFlash format characters of the fields read here (all fixed-size, little-endian).
@@ -31,39 +33,139 @@ _CHECKED = {"TimeUS", "TimeMS", "SampleUS", "I", "AccX", "AccY", "AccZ", "GyrX",
 
 
 def read_dataflash(path: str, instance: int | None = None):
-    """(t s, accelerometer m/s², gyroscope rad/s, what was read, notes) from the log at ``path``."""
+    """(t s, accelerometer m/s², gyroscope rad/s, what was read, notes, damage) from the log at
+    ``path``; damage: what could not be read, in words (empty for a whole log)."""
     try:
         from pymavlink import DFReader
     except ImportError:
         raise RecordingImportError(f"{path}: reading ArduPilot logs needs pymavlink: pip install "
                                    "'fieldcal[logs]'", path) from None
     instance = 0 if instance is None else instance
+    _require_log_start(path)
     try:
-        # DFReader prints warnings about damaged messages to stdout; the report says what matters.
-        with contextlib.redirect_stdout(io.StringIO()):
-            log = _indexed_reader(DFReader)(path)
+        size, zeros = zero_tail(path)
+    except OSError as exc:
+        raise RecordingImportError(f"{path}: cannot read it ({exc.strerror or exc})", path) from None
+    # A zero end is left out of the index, but for a slack longer than any message: a last message
+    # whose own last bytes are zeros stays whole (DFReader passes that slack over quickly).
+    indexed = min(size, size - zeros + TRAILING_SLACK)
+    noise = None
+    try:
+        # DFReader's indexer writes a line per damaged byte to stderr (from C) and its warnings to
+        # stdout: silenced, counted, and said in one line with what the damage cost.
+        with captured_output() as noise:
+            log = _indexed_reader(DFReader, indexed)(path)
     except Exception as exc:  # DFReader raises bare exceptions on files that are not DataFlash
-        raise RecordingImportError(f"{path}: not a readable DataFlash log ({type(exc).__name__}: {exc})",
-                                   path) from None
+        raise RecordingImportError(f"{path}: not a readable DataFlash log ({type(exc).__name__}: {exc})"
+                                   f"{_noise_note(noise)}", path) from None
     try:
         # Our own map of the file: a numpy view of DFReader's would keep it from closing its map.
         data = np.memmap(path, dtype=np.uint8, mode="r")
+        damage, cut_notes = _damage(path, log, data, noise)
         if "IMU" in log.name_to_id and log.counts[log.name_to_id["IMU"]]:
-            return _imu(path, log, data, instance)
-        if all(n in log.name_to_id and log.counts[log.name_to_id[n]] for n in ("ACC", "GYR")):
-            return _acc_gyr(path, log, data, instance)
-        present = sorted(n for n, i in log.name_to_id.items() if log.counts[i])
-        raise RecordingImportError(f"{path}: no IMU messages (nor ACC and GYR) in the log: set LOG_BITMASK to "
-                                   f"log IMU; its messages: {', '.join(present) or 'none'}", path)
+            read = _imu(path, log, data, instance)
+        elif all(n in log.name_to_id and log.counts[log.name_to_id[n]] for n in ("ACC", "GYR")):
+            read = _acc_gyr(path, log, data, instance)
+        else:
+            present = sorted(n for n, i in log.name_to_id.items() if log.counts[i])
+            if damage:
+                raise RecordingImportError(f"{path}: damaged: {'; '.join(damage)}; no IMU messages (nor ACC and "
+                                           f"GYR) were found in what could be read ({', '.join(present) or 'none'})",
+                                           path)
+            raise RecordingImportError(f"{path}: no IMU messages (nor ACC and GYR) in the log: set LOG_BITMASK to "
+                                       f"log IMU; its messages: {', '.join(present) or 'none'}", path)
+        t, acc, gyro, name, notes = read
+        return t, acc, gyro, name, (*notes, *cut_notes), damage
     finally:
         log.close()
 
 
-def _indexed_reader(DFReader):
+HEADER = b"\xa3\x95"
+
+
+def _require_log_start(path: str) -> None:
+    """A DataFlash log starts with a message header (its FMT messages): a file that does not is
+    refused at once, before the indexer walks every byte of it one by one."""
+    try:
+        with open(path, "rb") as f:
+            start = f.read(2)
+    except OSError as exc:
+        raise RecordingImportError(f"{path}: cannot read it ({exc.strerror or exc})", path) from None
+    if start and start != HEADER:
+        raise RecordingImportError(f"{path}: not a DataFlash log: it does not start with a message header "
+                                   f"(A3 95), but {start.hex(' ').upper()}", path)
+
+
+def _noise_note(noise) -> str:
+    summary = noise.summary("pymavlink") if noise is not None else None
+    return f"; {summary}" if summary else ""
+
+
+TRAILING_SLACK = 528  # bytes after the last message DFReader itself passes over (a block log's last page)
+
+
+def _damage(path: str, log, data: np.ndarray, noise) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(damage, notes): what the indexer could not read, in words, measured from where the messages it indexed
+    lie: bytes between them (no message header where one was due: DFReader skips them one by
+    one), the part after the last one (it stops at a message type no FMT defines), a last
+    message cut off. Empty for a whole log. (DFReader's own lines about it, written by C, are
+    silenced: ``noise`` holds only what it printed from Python.) A last message cut off is a
+    note, not damage."""
+    size = len(data)
+    starts, lengths = [], []
+    for message_type, offsets in enumerate(log.offsets):
+        if offsets and message_type in log.formats:
+            starts.append(np.asarray(offsets, dtype=np.int64))
+            lengths.append(np.full(len(offsets), log.formats[message_type].len, dtype=np.int64))
+    if not starts:
+        return (f"no message could be indexed in its {size} bytes",), ()
+    starts, lengths = np.concatenate(starts), np.concatenate(lengths)
+    order = np.argsort(starts, kind="stable")
+    starts, ends = starts[order], starts[order] + lengths[order]
+    gaps = np.r_[starts[0], starts[1:] - ends[:-1]]
+    found, notes = [], []
+    skipped = int(gaps[gaps > 0].sum())
+    if skipped:
+        first = int(ends[np.flatnonzero(gaps > 0)[0] - 1]) if gaps[0] <= 0 else 0
+        found.append(f"{skipped} bytes between messages had no message header and were skipped "
+                     f"(in {int(np.count_nonzero(gaps > 0))} place(s), the first at byte {first})")
+    last_end = int(ends[-1])
+    if last_end > size:  # a power cut mid-write, or a copy cut short: said, as a text file's last line
+        notes.append(f"the log ends inside its last message (at byte {int(starts[-1])}; cut off mid-write, or a "
+                     "copy cut short?): not used")
+    elif size - last_end > TRAILING_SLACK and not data[last_end:].any():
+        notes.append(f"its last {size - last_end} bytes are zeros (a pre-allocated file's unused end?): not read")
+    elif size - last_end > TRAILING_SLACK:
+        found.append(f"reading stopped at byte {last_end} (a message type no FMT message defines): the last "
+                     f"{size - last_end} of its {size} bytes were not read")
+    said = noise.summary("pymavlink")
+    return ((*found, said) if found and said else tuple(found)), tuple(notes)
+
+
+def _indexed_reader(DFReader, content_end: int):
     class IndexedReader(DFReader.DFReader_binary):
         """DFReader's index and formats, with the plain microsecond clock: the samples' times are
         their own TimeUS here, and DFReader's search for a GPS time base parses every message of a
-        log with no GPS fix (a bench recording) one by one in Python, ~10 µs each."""
+        log with no GPS fix (a bench recording) one by one in Python, ~10 µs each.
+
+        It indexes the file up to ``content_end`` only: a pre-allocated file's zero end would be
+        walked byte by byte ("bad header" for each: a minute per 60 MB)."""
+
+        def init_arrays_fast(self, progress_callback=None):
+            self._map_content()
+            super().init_arrays_fast(progress_callback)
+
+        def init_arrays(self, progress_callback=None):
+            self._map_content()
+            super().init_arrays(progress_callback)
+
+        def _map_content(self):
+            import mmap
+
+            if content_end < self.data_len:
+                self.data_map.close()
+                self.data_map = mmap.mmap(self.filehandle.fileno(), content_end, mmap.MAP_PRIVATE, mmap.PROT_READ)
+                self.data_len = content_end
 
         def init_clock(self):
             self._rewind(keep_messages=True)

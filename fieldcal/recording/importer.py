@@ -61,7 +61,7 @@ class FileReport:
     """What was read from one file of a recording: its lines, samples, rate and gaps."""
     path: str
     name: str  # the map entry's name
-    sha256: str  # of the bytes parsed
+    sha256: str  # of the bytes parsed (a text file's NUL end is not)
     lines: int
     samples: int
     header_lines: int  # skipped before the first sample
@@ -74,6 +74,8 @@ class FileReport:
     largest_gap_s: float  # largest step in time (a gap if gaps > 0)
     largest_gap_line: int  # the line after that step
     cut_off: bool = False  # the last line had no line end: malformed, not used
+    item: str = "line"  # what is counted: a text file's lines, a log's samples (messages)
+    zero_tail: int = 0  # NUL bytes that end the file (a pre-allocated logger file's unused end), not read
 
     @property
     def malformed_fraction(self) -> float:
@@ -151,9 +153,14 @@ def header_fields(data: bytes, spec: FileSpec, path: str) -> list[str]:
 
 
 def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
+    from fieldcal.recording.inputs import check_input, zero_tail
+
+    check_input(path, f"{spec.name} recording")  # a FIFO, a device, a file of zeros: one line, at once
     _let_malloc_keep(REUSE_BYTES)  # before the bytes and the temporaries of the count and the pieces
     try:
-        data = Path(path).read_bytes()
+        size, zeros = zero_tail(path)  # a pre-allocated file's NUL end: not read, not held, said
+        with open(path, "rb") as f:
+            data = f.read(size - zeros)
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None
     sha256 = hashlib.sha256(data).hexdigest()  # of the file as it is, compressed or a MAT-file
@@ -196,7 +203,8 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     # a sample, yet it is no fault); after it (or binary junk) a line is malformed.
     # The loop runs over the leading lines only, usually a few.
     leading = np.union1d(headers[headers < first], malformed[malformed < first])
-    text = np.array([_is_text(data[starts[k - 1]:ends[k - 1]]) for k in leading.tolist()], dtype=bool)
+    text = np.array([_is_header_text(data[starts[k - 1]:ends[k - 1]], cm.delimiter) for k in leading.tolist()],
+                    dtype=bool)
     malformed = np.union1d(malformed[malformed > first], np.concatenate([headers[headers > first], leading[~text]]))
     header_count = int(np.count_nonzero(text))
     n_ends = n_lines
@@ -236,7 +244,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         malformed_lines=tuple(int(x) for x in malformed[:FIRST_FEW]), rate_hz=1.0 / period,
         t_first=float(t[0]), t_last=float(t[-1]),
         gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
-        largest_gap_line=int(lines[widest + 1]), cut_off=unterminated)
+        largest_gap_line=int(lines[widest + 1]), cut_off=unterminated, zero_tail=zeros)
     return _Parsed(spec, report, t, triads)
 
 
@@ -300,13 +308,26 @@ def _largest(row: np.ndarray) -> float:
     return float(row[int(np.argmax(np.abs(row)))])
 
 
-def _is_text(line: bytes) -> bool:
-    """UTF-8 without control characters (tab and CR allowed): a plausible header line."""
+def _is_header_text(line: bytes, delimiter: str | None) -> bool:
+    """UTF-8 without control characters (tab and CR allowed), with a field that is no number: a
+    plausible header line. A line of numbers only (too few columns for the map) is a malformed
+    sample line, not a header."""
     try:
         decoded = line.decode("utf-8")
     except UnicodeDecodeError:
         return False
-    return _CONTROL.search(decoded) is None
+    if _CONTROL.search(decoded) is not None:
+        return False
+    fields = [f.strip() for f in (decoded.split() if delimiter is None else decoded.split(delimiter))]
+    return not all(_is_number(f) for f in fields if f)
+
+
+def _is_number(field: str) -> bool:
+    try:
+        float(field)
+    except ValueError:
+        return False
+    return True
 
 
 def _content_lines(a: np.ndarray, starts: np.ndarray, ends: np.ndarray, comment: str | None) -> np.ndarray:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import re
 import sqlite3
+import stat
 import time
 from pathlib import Path
 from urllib.parse import unquote
@@ -24,6 +25,8 @@ TLS_MODES = ("require", "verify-ca", "verify-full")
 # one key for the advisory lock under which a station migrates a PostgreSQL registry
 _MIGRATION_LOCK = 0x6669656C6463616C  # "fieldcal"
 HIDDEN = "***"
+# "scheme://": a URL, never a file name (a mistyped scheme must not become ./scheme:/host/db)
+_URL = re.compile(r"[A-Za-z][A-Za-z0-9+.\-]*://")
 
 
 class RegistryError(ValueError):
@@ -85,6 +88,29 @@ def _refuse_links(path: Path) -> None:
             raise RegistryError(f"registry {path}: {exc}") from None
 
 
+def check_url_scheme(location: str) -> None:
+    """A registry given as ``scheme://...`` must be a scheme fieldcal speaks; else one line naming
+    the nearest one (a typo must not quietly make a local SQLite file the line never sees)."""
+    import difflib
+
+    scheme, rest = location.split("://", 1)
+    if scheme.lower() in POSTGRES_SCHEMES:
+        return
+    nearest = (difflib.get_close_matches(scheme.lower(), POSTGRES_SCHEMES, n=1, cutoff=0.0) or ["postgresql"])[0]
+    shown = scheme + redact(f"postgresql://{rest}")[len("postgresql"):]  # a password in it hidden
+    raise RegistryError(f"registry {shown}: {scheme}:// is not a registry fieldcal speaks (did you mean "
+                        f"{nearest}://?); give postgresql://USER@HOST/DB or an SQLite file path")
+
+
+def unix_socket_hosts(given: dict) -> list[str]:
+    """The unix-socket directories a libpq connection would use (no TLS on them): a host that is
+    a path (or empty: libpq's default socket), unless a hostaddr makes it TCP."""
+    if given.get("hostaddr") or os.environ.get("PGHOSTADDR"):
+        return []
+    hosts = (given.get("host") or os.environ.get("PGHOST") or "").split(",")
+    return [h or "(the default socket)" for h in hosts if not h or h.startswith(("/", "@"))]
+
+
 class SqliteBackend:
     """One SQLite file in WAL mode; writers wait for each other up to the busy timeout."""
     kind = "sqlite"
@@ -93,9 +119,13 @@ class SqliteBackend:
     def __init__(self, path: Path, timeout_s: float) -> None:
         self.path = path
         self.where = str(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        _refuse_links(path)
-        self.db = sqlite3.connect(path, timeout=timeout_s, isolation_level=None)
+        _require_database_file(path)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            _refuse_links(path)
+            self.db = sqlite3.connect(path, timeout=timeout_s, isolation_level=None)
+        except (OSError, sqlite3.Error) as exc:
+            raise RegistryError(f"registry {self.where}: cannot open it ({getattr(exc, 'strerror', None) or exc})") from None
         try:
             self.db.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")
             self._wal(timeout_s)
@@ -164,6 +194,12 @@ class PostgresBackend:
             raise RegistryError(f"registry {self.where}: not a PostgreSQL URL: "
                                 f"{_scrub(str(exc), secret).splitlines()[0]}") from None
         mode = given.get("sslmode") or os.environ.get("PGSSLMODE")
+        sockets = unix_socket_hosts(given)
+        if (require_tls or mode in TLS_MODES) and sockets:  # libpq would connect without TLS
+            why = "--registry-require-tls" if require_tls else f"sslmode={mode}"
+            raise RegistryError(f"registry {self.where}: {why} asks for TLS, but the connection would go "
+                                f"through the unix socket {sockets[0]}, which has no TLS: give a TCP host "
+                                "(postgresql://USER@HOST/DB), or drop the TLS requirement for a local socket")
         if require_tls and mode not in TLS_MODES:
             options["sslmode"] = "require"  # a stricter mode the user gave (verify-*) is kept
         try:
@@ -203,7 +239,23 @@ class PostgresBackend:
         self.db.close()
 
 
+def _require_database_file(path: Path) -> None:
+    """An existing registry path must be a regular file: a directory, a FIFO or a device is
+    refused in one line (SQLite's own error is a traceback-bound OperationalError, and a FIFO
+    could block it)."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return  # none yet: created
+    if not stat.S_ISREG(mode):
+        what = "a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "not a regular file"
+        raise RegistryError(f"registry {path}: is {what}, not an SQLite file: name the registry file "
+                            f"(e.g. {path / 'registry.sqlite' if stat.S_ISDIR(mode) else 'registry.sqlite'})")
+
+
 def open_backend(location, timeout_s: float, require_tls: bool = False):
+    if isinstance(location, str) and _URL.match(location):
+        check_url_scheme(location)
     if is_postgres(location):
         return PostgresBackend(location, timeout_s, require_tls)
     if require_tls:

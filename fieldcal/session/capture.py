@@ -329,6 +329,23 @@ class _DocChecker:
             self.fail(line, f"parameters document: bad sha256 {sha!r}"[:200])
 
 
+def _not_a_file(path: Path) -> str:
+    """What is at ``path`` instead of a regular file, in words: a directory or a link to
+    /dev/zero is not "missing"."""
+    import stat
+
+    if not os.path.lexists(path):
+        return "missing"
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return f"a link to {os.readlink(path)!r}, which does not exist" if path.is_symlink() else "unreadable"
+    kind = ("a directory" if stat.S_ISDIR(mode) else "a character device" if stat.S_ISCHR(mode)
+            else "a FIFO" if stat.S_ISFIFO(mode) else "a block device" if stat.S_ISBLK(mode) else "a special file")
+    link = f" (a link to {os.readlink(path)})" if path.is_symlink() else ""
+    return f"{kind}{link}, not a file"
+
+
 def _file_size(path: Path) -> int:
     try:
         return path.stat().st_size
@@ -392,7 +409,7 @@ def _scan(directory: str | os.PathLike, verb: str, live: bool = False, log_only:
         path = d / SAMPLES if kind == "chunk" else raw_path(d, doc["name"])
         size = samples_size if kind == "chunk" else raw_sizes.get(doc["name"])
         if kind == "chunk" and not path.is_file() or size is None:
-            raise SessionError(f"{path}: missing, but {LOG} line {i + 1} refers to it", str(path), i + 1)
+            raise SessionError(f"{path}: {_not_a_file(path)}, but {LOG} line {i + 1} refers to it", str(path), i + 1)
         end = doc["offset"] + doc["length"]
         if end > size:
             raise SessionError(f"{path}: damaged: the file ends at byte {size}, but {LOG} line {i + 1} "

@@ -1,0 +1,118 @@
+"""Issue 25, items 14 and 15: no input hangs an import or swallows memory.
+
+A 2 GB sparse file of every format fieldcal reads is refused in one line by a `fieldcal import`
+whose address space is capped at 300 MB (resource.setrlimit in the child: a reader that held the
+file, or mapped it, would die of MemoryError instead); a FIFO with no writer and a character
+device are refused before they are opened. Timing is in benchmarks/hostile_inputs.py, not here."""
+from __future__ import annotations
+
+import os
+import resource
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fieldcal.cli.main import main
+from xsens_logs import unpacked
+
+MEMORY_CAP = 300 << 20
+SPARSE_SIZE = 2 << 30
+REAL = {".BIN": ("pymavlink_test.BIN.gz", ()), ".ulg": ("px4_sample_log_small.ulg.gz", ()),
+        ".bag": ("robot_localization_test2.bag.gz", ()),
+        ".csv": ("mpu6050_tomisuarez_calibration.csv.gz", ("--map", "single-csv")),
+        ".txt": ("mpu6050_tomisuarez_calibration.csv.gz", ("--map", "single-csv"))}
+
+
+def _cap_memory():
+    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_CAP, MEMORY_CAP))
+
+
+def _sparse(tmp: Path, suffix: str) -> Path:
+    """A real file of the format, its first 64 KiB, then holes up to 2 GB (as a copy made with
+    truncate, or a pre-allocated logger file on a file system that keeps holes)."""
+    real = unpacked(tmp, REAL[suffix][0], "real" + suffix)
+    path = tmp / f"sparse{suffix}"
+    path.write_bytes(real.read_bytes()[:1 << 16])
+    os.truncate(path, SPARSE_SIZE)
+    assert os.stat(path).st_blocks * 512 < SPARSE_SIZE / 100  # the test is about holes
+    return path
+
+
+@pytest.mark.parametrize("suffix", list(REAL))
+def test_a_2gb_sparse_file_is_refused_in_one_line_within_300mb(tmp_path, suffix):
+    path = _sparse(tmp_path, suffix)
+    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), *REAL[suffix][1],
+                          "--out", str(tmp_path / "s")], capture_output=True, text=True,
+                         preexec_fn=_cap_memory, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
+    assert f"{path}: at least 99% of its 2048 MiB are zeros" in out.stderr
+    assert not (tmp_path / "s").exists()
+
+
+def test_the_memory_cap_is_real(tmp_path):
+    """The cap that the test above relies on does stop a reader that holds the whole file."""
+    path = tmp_path / "zeros"
+    path.touch()
+    os.truncate(path, 512 << 20)
+    out = subprocess.run([sys.executable, "-c", f"open({str(path)!r}, 'rb').read()"], capture_output=True,
+                         text=True, preexec_fn=_cap_memory)
+    assert out.returncode != 0 and "MemoryError" in out.stderr
+
+
+@pytest.mark.parametrize("suffix, extra", [(".ulg", ()), (".bag", ()), (".BIN", ()), (".csv", ("--map", "single-csv"))])
+@pytest.mark.parametrize("command", ["import", "calibrate"])
+def test_a_fifo_or_a_device_is_refused_before_it_is_opened(tmp_path, capsys, suffix, extra, command):
+    fifo = tmp_path / f"fifo{suffix}"
+    os.mkfifo(fifo)  # no writer: opening it would block for ever
+    device = tmp_path / f"zero{suffix}"
+    device.symlink_to("/dev/zero")
+    for path, what in ((fifo, "a FIFO (named pipe)"), (device, "a character device")):
+        assert main([command, str(path), *extra, "--out", str(tmp_path / "s")]) == 2
+        err = capsys.readouterr().err
+        assert err == f"fieldcal: {path}: is {what}, not a file: fieldcal reads a " + err.split("reads a ")[1]
+        assert err.count("\n") == 1
+
+
+def test_a_csv_with_a_nul_tail_is_refused_and_one_without_imports(tmp_path, capsys, monkeypatch):
+    """A pre-allocated logger file: its samples, then NULs written to the end (no holes). The
+    check runs above CHECKED_BYTES (64 MiB): lowered here so that the file stays small."""
+    from fieldcal.recording import inputs
+
+    monkeypatch.setattr(inputs, "CHECKED_BYTES", 1 << 20)
+    rows = "".join(f"{i * 10},{0.01 * i:.3f},0,1000,0.5,0,0\n" for i in range(40000))
+    text = "time_ms,ax_mg,ay_mg,az_mg,gx_dps,gy_dps,gz_dps\n" + rows
+    path = tmp_path / "logger.csv"
+    path.write_bytes(text.encode() + bytes(3 * len(text)))
+    assert os.stat(path).st_blocks * 512 >= os.stat(path).st_size  # real zeros, not holes
+    assert main(["import", str(path), "--map", "single-csv", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: at least " in err and "are zeros" in err and err.count("\n") == 1
+    path.write_bytes(text.encode() + bytes(len(text) // 2))  # a third zeros: imported, the NULs left unread
+    assert main(["import", str(path), "--map", "single-csv", "--out", str(tmp_path / "t")]) == 0
+    out = capsys.readouterr().out
+    assert "40000 samples of 40001 lines" in out and "no malformed lines" in out
+    assert f"{len(text) // 2} NUL bytes after the last line (a pre-allocated file's unused end?) not read" in out
+
+
+def test_the_nul_end_of_a_text_file_is_not_read(tmp_path, monkeypatch):
+    """What the text reader holds follows the samples: the NUL end (written out, then holes) is
+    measured from the end backwards and left out; the bytes parsed are the text's own."""
+    import hashlib
+
+    from fieldcal.recording import inputs
+    from fieldcal.recording.importer import import_with_report
+
+    text = b"time_ms,ax_mg,ay_mg,az_mg,gx_dps,gy_dps,gz_dps\n" + b"".join(
+        b"%d,1,2,1000,0.5,0,0\n" % (10 * i) for i in range(2000))
+    path = tmp_path / "logger.csv"
+    with open(path, "wb") as f:
+        f.write(text + bytes(1 << 20))  # NULs written out
+    os.truncate(path, len(text) + (3 << 20))  # then holes
+    monkeypatch.setattr(inputs, "CHECKED_BYTES", 1 << 30)  # a small file: not refused for its zeros
+    assert inputs.zero_tail(str(path)) == (len(text) + (3 << 20), 3 << 20)
+    _, report = import_with_report([path], "single-csv")
+    assert report.files[0].sha256 == hashlib.sha256(text).hexdigest()
+    assert report.files[0].zero_tail == 3 << 20 and report.files[0].samples == 2000

@@ -1,0 +1,69 @@
+"""Issue 25, items 6, 9, 10, 13: what --registry names is what is used, or one line says why not."""
+import hashlib
+import os
+from pathlib import Path
+
+import pytest
+
+from fieldcal.cli.main import main
+from fieldcal.registry import Registry
+from fieldcal.registry.backends import RegistryError
+
+QUICK = str(Path(__file__).parent / "faults" / "quick.yaml")
+
+
+@pytest.mark.parametrize("url, nearest", [("postgressql://line@db.plant/fieldcal", "postgresql"),
+                                          ("mysql://line@db.plant/fieldcal", "postgresql"),
+                                          ("postgres+psycopg://line:s3cret@db.plant/fieldcal", "postgres")])
+def test_a_mistyped_url_is_refused_and_makes_no_file(tmp_path, monkeypatch, capsys, url, nearest):
+    """It used to become ./postgressql:/line@db.plant/fieldcal, an SQLite file the line never sees."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["units", "--registry", url]) == 2
+    err = capsys.readouterr().err
+    assert f"did you mean {nearest}://?" in err and url.split("://")[0] + "://" in err
+    assert len(err.splitlines()) == 1 and "s3cret" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("url", ["postgresql:///fieldcal", "postgresql://line@/fieldcal?host=/run/postgresql",
+                                 "postgresql://line@%2Frun%2Fpostgresql/fieldcal"])
+def test_tls_required_over_a_unix_socket_is_refused(url, monkeypatch):
+    """libpq ignores sslmode on a unix socket: the README promises such a connection is refused."""
+    monkeypatch.delenv("PGHOST", raising=False)
+    monkeypatch.delenv("PGHOSTADDR", raising=False)
+    monkeypatch.delenv("PGSSLMODE", raising=False)
+    with pytest.raises(RegistryError, match="unix socket .* has no TLS"):
+        Registry(url, require_tls=True)
+    with pytest.raises(RegistryError, match="sslmode=require asks for TLS"):
+        Registry(url + ("&" if "?" in url else "?") + "sslmode=require")
+    monkeypatch.setenv("PGSSLMODE", "verify-full")
+    with pytest.raises(RegistryError, match="sslmode=verify-full asks for TLS"):
+        Registry(url)
+
+
+def test_a_directory_or_fifo_as_registry_is_one_line(tmp_path, capsys):
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    for where, what in ((tmp_path, "a directory"), (fifo, "a FIFO")):
+        for argv in (["units"], ["registry", "rebuild", str(tmp_path)]):
+            assert main([*argv, "--registry", str(where)]) == 2
+            err = capsys.readouterr().err
+            assert err.startswith(f"fieldcal: registry {where}: is {what}, not an SQLite file") and err.count("\n") == 1
+
+
+def test_rebuild_does_not_index_a_file_edited_after_calibration(tmp_path, capsys):
+    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path / "s"),
+                 "--seed", "8", "--registry", str(tmp_path / "first.sqlite")]) == 0
+    [session] = (tmp_path / "s").iterdir()
+    numbered = session / "parameters-001.yaml"
+    numbered.write_text(numbered.read_text().replace("device_name:", "device_name: edited", 1)
+                        if "device_name:" in numbered.read_text() else numbered.read_text() + "# edited\n")
+    capsys.readouterr()
+    db = tmp_path / "r.sqlite"
+    assert main(["registry", "rebuild", str(tmp_path / "s"), "--registry", str(db)]) == 0
+    captured = capsys.readouterr()
+    assert "0 calibrations added" in captured.out and "1 edited after calibration (not indexed)" in captured.out
+    assert f"{numbered}: not indexed: edited after calibration" in captured.err
+    with Registry(db) as registry:
+        shas = [r[0] for r in registry.query("SELECT params_sha256 FROM calibrations")]
+    assert hashlib.sha256(numbered.read_bytes()).hexdigest() not in shas
