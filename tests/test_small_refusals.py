@@ -68,7 +68,9 @@ def test_height_without_latitude_and_a_wild_table_rate_are_refused(tmp_path, cap
     csv = _csv(tmp_path / "log.csv")
     out = ["--map", "single-csv", "--out", str(tmp_path / "s")]
     assert main(["calibrate", str(csv), "--height", "1e9", *out]) == 2
-    assert "--height 1e+09: give the station's --latitude with it" in _one_line(capsys)
+    assert "--height: expected -500..9000 m above the ellipsoid, got 1e+09" in _one_line(capsys)
+    assert main(["calibrate", str(csv), "--height", "300", *out]) == 2  # in range, but alone it sets nothing
+    assert "--height: needs --latitude too" in _one_line(capsys)
     assert main(["calibrate", str(csv), "--latitude", "40", "--table-rate", "1e9", *out]) == 2
     assert "--table-rate: expected a rate above 0 and up to 2000 °/s" in _one_line(capsys)
     assert not (tmp_path / "s").exists()

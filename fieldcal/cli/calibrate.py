@@ -101,8 +101,8 @@ def _station(args, config):
     base = config.station if config is not None else None
     if args.latitude is None and base is None:
         if args.height is not None and args.gravity is None:  # it would be ignored: normal gravity needs the latitude too
-            raise ValueError(f"--height {args.height:g}: give the station's --latitude with it (the height "
-                             "only sets local gravity together with the latitude), or --gravity if measured")
+            raise ValueError("--height: needs --latitude too (the height only sets local gravity together "
+                             "with the latitude), or give --gravity if measured")
         return UnknownPlace(gravity=args.gravity)
     latitude = args.latitude if args.latitude is not None else base.latitude_deg
     height = args.height if args.height is not None else (base.height_m if base else 0.0)

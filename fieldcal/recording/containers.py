@@ -27,6 +27,12 @@ class ContainerError(ValueError):
     """A file's container cannot be read; the message names the file and what would help."""
 
 
+def is_container(head: bytes) -> bool:
+    """Whether a file starting with ``head`` is compressed or a MAT-file: its zero bytes at the
+    end are part of it (a gzip trailer's length, a matrix of zeros), not a logger's unused end."""
+    return head.startswith(tuple(magic for magic, *_ in _COMPRESSED) + (b"MATLAB",))
+
+
 def text_of(data: bytes, path: str, spec) -> bytes:
     """The text to parse from a file's bytes: as they are, unpacked, or a MAT-file's variable
     written as text in the delimiter of ``spec`` (an import map's FileSpec)."""

@@ -34,7 +34,8 @@ import numpy as np
 
 from drivers.protocols.delimited import DelimitedTextParser
 from fieldcal.recording import Recording
-from fieldcal.recording.containers import ContainerError, text_of
+from fieldcal.recording.errors import RecordingImportError
+from fieldcal.recording.containers import ContainerError, is_container, text_of
 from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
 
 FIRST_FEW = 10  # malformed line numbers kept per file
@@ -48,12 +49,6 @@ MIN_OVERLAP = 0.5  # of the shortest file's duration
 FEED_BYTES = 1 << 18  # text parsed at once
 REUSE_BYTES = 1 << 22  # freed memory malloc keeps for the pieces' temporaries (_let_malloc_keep)
 _CONTROL = re.compile("[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")  # all but tab and CR
-
-
-class RecordingImportError(ValueError):
-    def __init__(self, message: str, path: str = "", line: int | None = None):
-        super().__init__(message)
-        self.path, self.line = path, line
 
 
 @dataclass(frozen=True)
@@ -158,8 +153,10 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     check_input(path, f"{spec.name} recording")  # a FIFO, a device, a file of zeros: one line, at once
     _let_malloc_keep(REUSE_BYTES)  # before the bytes and the temporaries of the count and the pieces
     try:
-        size, zeros = zero_tail(path)  # a pre-allocated file's NUL end: not read, not held, said
         with open(path, "rb") as f:
+            # a pre-allocated file's NUL end: not read, not held, said (a container's zeros are its own)
+            size, zeros = (os.fstat(f.fileno()).st_size, 0) if is_container(f.read(8)) else zero_tail(path)
+            f.seek(0)
             data = f.read(size - zeros)
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fieldcal.recording.importer import RecordingImportError
+from fieldcal.recording.errors import RecordingImportError
 
 CHECKED_BYTES = 1 << 20  # below this, no reader takes long whatever the bytes (pymavlink: ~1 s per MB of junk)
 ZERO_FRACTION = 0.5  # of a file's bytes in holes and zero pages: refused above this

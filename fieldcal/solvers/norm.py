@@ -78,11 +78,15 @@ class Whitener:
     def __call__(self, r: np.ndarray) -> np.ndarray:
         if self.inverse_sigma is not None:
             return r * self.inverse_sigma
+        assert self.inverse_factor is not None  # one of the two is always given
         return r @ self.inverse_factor.T
 
     def matrix(self) -> np.ndarray:
         """L⁻¹ itself (m, m), for a check."""
-        return np.diag(self.inverse_sigma) if self.inverse_sigma is not None else self.inverse_factor
+        if self.inverse_sigma is not None:
+            return np.diag(self.inverse_sigma)
+        assert self.inverse_factor is not None  # one of the two is always given
+        return self.inverse_factor
 
 
 def _residual_covariance(problem, theta0, u, cov) -> np.ndarray:
