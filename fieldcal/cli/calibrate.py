@@ -40,7 +40,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
         description="Find the static poses of a hand-held recording, calibrate every\n"
         "accelerometer-like triad by the norm method and the gyroscope from the rotations\n"
         "between poses (scale factors, all six gyro-to-accelerometer misalignment terms; the\n"
-        "bias from the first pose or estimated), and write a parameter file.",
+        "bias from the still poses' mean or estimated), and write a parameter file.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("recording", nargs="+", metavar="RECORDING",
                         help="a session directory from `fieldcal import`, or text files (with --map)")
