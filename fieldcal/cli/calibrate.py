@@ -75,6 +75,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     from fieldcal.cli.production import add_operator_option, add_spec_option
     add_spec_option(parser)
     add_operator_option(parser)
+    from fieldcal.cli.identity import add_unit_serial_option
+    add_unit_serial_option(parser, "the unit recorded (default: an imported session's, else the "
+                           "--config's device.serial)")
     parser.set_defaults(func=cmd_calibrate)
     return parser
 
@@ -95,7 +98,10 @@ def _station(args, config):
     return Station(latitude, height, gravity)
 
 
-def _recording(args):
+def _recording(args, serial: str | None):
+    """(recording, its session directory, what importing it said); ``serial``: the unit's, as
+    given (--unit-serial, the config's), kept in a session imported here; checked against the
+    serial an imported session was given."""
     """(recording, session directory, import summary lines)."""
     from fieldcal.recording.store import load_recording
 
@@ -106,7 +112,13 @@ def _recording(args):
         if args.map is not None or args.topic is not None or args.imu is not None:
             option = "--map" if args.map is not None else "--topic" if args.topic is not None else "--imu"
             raise ValueError(f"calibrate: {first} is a session: {option} is for the files it was imported from")
-        return load_recording(first), first, []
+        recording = load_recording(first)
+        if serial is not None and recording.unit_serial not in (None, serial):
+            raise ValueError(f"calibrate: {first} was imported as unit {recording.unit_serial!r}, not {serial!r} "
+                             "(--unit-serial, or the --config's device.serial)")
+        if serial is not None and recording.unit_serial is None:
+            recording = replace(recording, unit_serial=serial)
+        return recording, first, []
     from fieldcal.cli.importing import read_recording, summary_lines
     from fieldcal.recording.store import save_recording
 
@@ -114,6 +126,7 @@ def _recording(args):
         raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
                          f"path); or give one session directory from `fieldcal import`, or {LOG_NAMES}")
     recording, report = read_recording(args.recording, args.map, args.rate, args.topic, args.imu)
+    recording = replace(recording, unit_serial=serial)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
     return recording, directory, summary_lines(recording, report)
@@ -154,7 +167,8 @@ def cmd_calibrate(args) -> int:
         from fieldcal.session.output import check_output_path
         check_output_path(args.params, force=args.force, option="--params")
     started = time.perf_counter()
-    recording, directory, imported = _recording(args)
+    from fieldcal.cli.identity import unit_serial
+    recording, directory, imported = _recording(args, unit_serial(args, config))
     for line in imported:
         print(line)
     triads = config.device.triads if config else ()
@@ -169,7 +183,7 @@ def cmd_calibrate(args) -> int:
     cal = calibrate_recording(recording, station, settings)
     station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None,
-                        operator=operator)
+                        operator=operator, device_serial=recording.unit_serial)
     writer = SessionWriter.append_to(directory)  # refused if another fieldcal is writing it
     try:
         writer.write_parameters(pf)  # parameters-NNN.yaml: an earlier calibration is kept

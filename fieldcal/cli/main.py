@@ -154,6 +154,8 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="solver: auto (default) is classic for an aligned procedure, else powell")
     parser.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
                         help="a bump during a dwell restarts it (default) or drops only the disturbed part")
+    from fieldcal.cli.identity import add_unit_serial_option
+    add_unit_serial_option(parser)
 
 
 def _lazy(name: str):
@@ -237,6 +239,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     resume.add_argument("--config", metavar="CONFIG", help="a real device's session: the station config "
                         "whose ports it is resumed on (the same device; default: the terminal UI setup's "
                         "last choice); the operator places the unit and presses Enter at the console")
+    from fieldcal.cli.identity import add_unit_serial_option
+    add_unit_serial_option(resume, "the unit the session was recorded of (checked, never changed)")
     resume.add_argument("--quiet", action="store_true")
     resume.set_defaults(func=_lazy("cmd_resume"))
 

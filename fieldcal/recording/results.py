@@ -32,14 +32,14 @@ def _file_station(station: Station | UnknownPlace) -> Station:
 
 def parameter_file(cal: RecordingCalibration, recording: Recording, station: Station | UnknownPlace,
                    device_name: str | None = None, simulation: bool | None = None,
-                   operator: str | None = None) -> ParameterFile:
+                   operator: str | None = None, device_serial: str | None = None) -> ParameterFile:
     triads = [*cal.specific_force.values(), *cal.angular_rate.values()]
     methods = "+".join(dict.fromkeys([s.method for s in cal.specific_force.values()]
                                      + [s.method for s in cal.angular_rate.values()]))
     data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]
     return ParameterFile.build(triads, station=_file_station(station), procedure=PROCEDURE, method=methods,
                                input_sha256=hash_inputs(*data), device_name=device_name,
-                               simulation=simulation, operator=operator)
+                               device_serial=device_serial, simulation=simulation, operator=operator)
 
 
 def noise_lines(cal: RecordingCalibration, configured: bool) -> list[str]:
