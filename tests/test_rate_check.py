@@ -50,7 +50,8 @@ def served(protocol: str, rate_hz: float, speed: float) -> SimulatedDevices:
 
 
 def config_for(tmp_path, devices: SimulatedDevices, protocol: str, rate_hz: float):
-    acc, gyro = PAPER_NOISE["accelerometer"], PAPER_NOISE["gyroscope"]
+    acc, gyro = (f"{{white: {n.white!r}, bias_instability: {n.bias_instability!r}}}"
+                 for n in (PAPER_NOISE["accelerometer"], PAPER_NOISE["gyroscope"]))
     path = tmp_path / "bench.yaml"
     path.write_text(f"""\
 device:
@@ -59,8 +60,8 @@ device:
   rate_hz: {rate_hz:g}
   port: {{url: {devices.imu_url}}}
   triads:
-    accelerometer: {{kind: specific_force, unit: m/s^2, noise: {{white: {acc.white!r}, bias_instability: {acc.bias_instability!r}}}}}
-    gyroscope: {{kind: angular_rate, unit: rad/s, noise: {{white: {gyro.white!r}, bias_instability: {gyro.bias_instability!r}}}}}
+    accelerometer: {{kind: specific_force, unit: m/s^2, noise: {acc}}}
+    gyroscope: {{kind: angular_rate, unit: rad/s, noise: {gyro}}}
 table:
   protocol: ascii
   port: {{url: {devices.table_url}}}
