@@ -166,3 +166,27 @@ def test_shipped_configs_carry_no_serial():
 
     for path in CONFIGS_DIR.glob("*.yaml"):
         assert load_config(path).device.serial is None, path
+
+
+def test_the_terminal_ui_takes_the_unit_serial_for_the_simulator_and_a_live_device(tmp_path):
+    """`tui --unit-serial` names the simulated unit, and a live device's over its config's."""
+    import types
+
+    from fieldcal.cli.tui import live_spec, sim_run
+    from fieldcal.config import load_config
+
+    args = types.SimpleNamespace(seed=None, method="auto", on_motion="restart", speed=None, no_capture=True,
+                                 out=str(tmp_path), unit_serial="TUI-1")
+    spec, _, _ = sim_run(load_config("sim"), load_procedure("field-18"), args)
+    assert spec.device_serial == "TUI-1"
+    assert RunSpec.from_metadata(spec.session_metadata(None, "tui")).device_serial == "TUI-1"
+    args.unit_serial = None
+    assert sim_run(load_config("sim"), load_procedure("field-18"), args)[0].device_serial is None
+    (tmp_path / "static.yaml").write_text(
+        "name: static\ndwell_s: 20\npositions:\n"
+        "  - {id: 1, description: z up, axes: {x: south, y: east, z: up}}\n")
+    procedure = load_procedure(str(tmp_path / "static.yaml"))
+    args.unit_serial = "VN-77"
+    assert live_spec(load_config("vn100"), procedure, args).device_serial == "VN-77"
+    args.unit_serial = None
+    assert live_spec(load_config("vn100"), procedure, args).device_serial is None  # ships none
