@@ -334,9 +334,8 @@ def cmd_units(args) -> int:
 
 def cmd_history(args) -> int:
     from fieldcal.acceptance import load_spec
-    from fieldcal.registry.drift import history_lines
-
     from fieldcal.registry import NO_SERIAL, UNKNOWN
+    from fieldcal.registry.drift import history_lines
 
     spec = load_spec(args.spec) if args.spec else None
     unnamed = args.serial == NO_SERIAL  # what `units` lists calibrations without a serial as
