@@ -219,12 +219,32 @@ def _parameter_check(spec, ts: TriadSpec, cal, i: int, value: float, sigma: floa
     return Check(cal.name, name, value, sigma, unit, tuple(reasons), drift, drift_sigma)
 
 
+def not_the_same_unit(parameters, previous) -> str | None:
+    """Why two parameter files cannot be taken as one unit's calibrations (drift is never taken
+    across them); None when both name the same serial (and the same model, where both name one)."""
+    now, then = parameters.provenance, previous.provenance
+    if now.device_serial is None:
+        return "this calibration's unit has no serial (give --unit-serial)"
+    if then.device_serial is None:
+        return "the previous calibration's unit has no serial"
+    if now.device_serial != then.device_serial:
+        return f"the previous calibration is of unit {then.device_serial!r}, this one of {now.device_serial!r}"
+    if now.device_name and then.device_name and now.device_name != then.device_name:
+        return f"the previous calibration is of a {then.device_name}, this one of a {now.device_name}"
+    return None
+
+
 def evaluate(spec: ProductSpec, parameters, previous=None) -> Verdict:
     """Every parameter of every triad the spec names, against its limits. ``parameters`` and
     ``previous`` (for the drift) are ``ParameterFile``s; a triad the spec names and the file
     lacks fails."""
     checks, notes = [], []
-    if previous is None and any(lim.max_drift is not None for t in spec.triads for lim in t.limits.values()):
+    drift_limited = any(lim.max_drift is not None for t in spec.triads for lim in t.limits.values())
+    unlike = not_the_same_unit(parameters, previous) if previous is not None else None
+    if unlike is not None:
+        previous = None
+        notes.append(f"drift not checked: {unlike}")
+    elif previous is None and drift_limited:
         notes.append("drift not checked: no previous calibration of this unit")
     for ts in spec.triads:
         if ts.name not in parameters.names:

@@ -17,6 +17,18 @@ READ_CLUSTERS = 8       # noise_terms ignores taus with fewer independent cluste
 FLICKER_FLOOR = 0.664   # ADEV of flicker noise is flat at 0.664·B (IEEE Std 952)
 G0 = 9.80665            # m/s² per g, for mg
 _DEG = 180.0 / np.pi
+# The floor is shown where the white noise no longer dominates the deviation: at the curve's
+# lowest point its share of the variance (N²/τ over σ²) is at most this. Past the white/floor
+# crossing (share 1/2) the curve flattens (log slope -share/2); at 0.55 it lies at most
+# 1/√0.45 = 1.49× above the floor, and a minimum turned up by a rate random walk (share 1/2)
+# passes. Above it the curve is still falling along its -1/2 line and its lowest point is
+# only an upper bound on the floor.
+WHITE_SHARE_AT_FLOOR = 0.55
+# ... and the part above the white line must stand out of the scatter of the deviation there
+# (relative 1σ about 1/√clusters): on a short record the last, few-cluster points scatter up
+# off the -1/2 line and bend the fit up like a floor would.
+FLOOR_SIGMAS = 2.0
+TOO_SHORT = "(the record is too short to show the floor)"
 
 
 def _default_ms(n: int) -> np.ndarray:
@@ -68,13 +80,18 @@ def allan_deviation(samples, rate_hz: float, taus=None):
 @dataclass(frozen=True)
 class NoiseTerms:
     """IEEE Std 952 terms of one axis, in SI: white (N, unit·√s), bias_instability (B, unit),
-    tau_at_minimum (s), rate_random_walk (K, unit/√s, None without a +1/2 region)."""
+    tau_at_minimum (s), rate_random_walk (K, unit/√s, None without a +1/2 region).
+
+    ``floor_reached`` False: the curve was still falling (white noise still dominant) where the
+    record ends, so ``bias_instability`` is only an upper bound (the flicker floor lies at or
+    below the lowest deviation the record reached), not a reading."""
 
     white: float
     bias_instability: float
     tau_at_minimum: float
     rate_random_walk: float | None
     unit: str = ""
+    floor_reached: bool = True
 
     def describe(self, kind: str) -> dict[str, str]:
         """Operator-unit strings, e.g. {"ARW": "0.15 deg/sqrt(h)", ...}, for kind
@@ -93,6 +110,8 @@ class NoiseTerms:
         values = (self.white, self.bias_instability, self.rate_random_walk)
         out = {name: ("none" if v is None else f"{v * s:.3g} {u}")
                for name, v, s, u in zip(names, values, scale, units)}
+        if not self.floor_reached:
+            out["bias instability"] = f"≤ {out['bias instability']} {TOO_SHORT}"
         out["tau at minimum"] = f"{self.tau_at_minimum:.4g} s"
         return out
 
@@ -171,8 +190,12 @@ def noise_terms(taus, adev, *, unit: str = "", n_clusters=None) -> NoiseTerms:
     # Two or three rising points in the noisy tail are no evidence of a random walk.
     rrw = line(walk_run, 0.5) * np.sqrt(3.0) if walk_run.size >= 4 else None  # value at 3 s
 
+    white_share = white**2 / t[i_min] / fitted[i_min] ** 2
+    above_white = 1.0 - np.sqrt(min(white_share, 1.0))  # relative height of the fit over the white line
+    floor_reached = bool(white_share <= WHITE_SHARE_AT_FLOOR and above_white > FLOOR_SIGMAS / np.sqrt(nc[i_min]))
     return NoiseTerms(white=white, bias_instability=float(fitted[i_min]) / FLICKER_FLOOR,
-                      tau_at_minimum=float(t[i_min]), rate_random_walk=rrw, unit=unit)
+                      tau_at_minimum=float(t[i_min]), rate_random_walk=rrw, unit=unit,
+                      floor_reached=floor_reached)
 
 
 def plot_allan(taus, adev, terms, path, title: str = "", kind: str | None = None,

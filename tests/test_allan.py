@@ -79,6 +79,29 @@ def test_accelerometer_white_and_bias_instability(acc_curves, seed_index):
         assert 100.0 <= nt.tau_at_minimum <= taus[-1]  # past the white/floor crossing at 9 s
 
 
+def test_accelerometer_floor_is_read_not_bounded(acc_curves):
+    """6 h against a white/floor crossing at 9 s: the floor is inside the record, so B is a reading."""
+    for taus, adev, n in acc_curves:
+        for axis in range(3):
+            nt = noise_terms(taus, adev[:, axis], unit="m/s^2", n_clusters=n)
+            assert nt.floor_reached
+            assert not nt.describe("specific_force")["bias instability"].startswith("≤")
+
+
+def test_a_dwell_too_short_for_the_gyro_floor_gives_an_upper_bound_only():
+    """A 200 s dwell of the paper's gyro (white/floor crossing at (N/0.664B)² ≈ 740 s): the curve
+    still falls along its -1/2 line where the record ends, so its lowest point, several times B,
+    is stated as an upper bound, never as the bias instability."""
+    for seed in SEEDS:
+        taus, adev, n = allan_deviation(record(GYRO, 250.0, 200, seed), 250.0)
+        for axis in range(3):
+            nt = noise_terms(taus, adev[:, axis], unit="rad/s", n_clusters=n)
+            assert not nt.floor_reached
+            assert nt.bias_instability > 1.5 * GYRO.bias_instability  # what used to be stated as B
+            text = nt.describe("angular_rate")["bias instability"]
+            assert text.startswith("≤ ") and text.endswith("deg/h (the record is too short to show the floor)")
+
+
 def test_gyro_angle_random_walk():
     # The paper's gyro hides its floor under white noise until ~700 s, so B is not read here (see
     # the accelerometer test); its ARW comes off the -1/2 line.

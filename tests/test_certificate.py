@@ -66,7 +66,8 @@ def assert_self_contained(page: Page) -> None:
 def session(tmp_path_factory):
     root = tmp_path_factory.mktemp("cert")
     assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(root / "s"),
-                 "--seed", "12", "--registry", str(root / "r.sqlite")]) == 0
+                 "--seed", "12", "--registry", str(root / "r.sqlite"), "--unit-serial", "PAPER-12",
+                 "--operator", "Ada Bench"]) == 0
     [directory] = (root / "s").iterdir()
     return directory
 
@@ -96,7 +97,7 @@ def test_certificate_holds_every_parameter_and_the_verdict(tmp_path, capsys, ses
             assert float(row[1]) == pytest.approx(v, rel=1e-6, abs=1e-12)
             assert float(row[2]) == pytest.approx(s, rel=1e-2)
             assert row[3] == u
-    results = {row[0]: row[4] for row in triads["accelerometer"][1:]}
+    results = {row[0]: row[-1] for row in triads["accelerometer"][1:]}
     assert results["bias z"].startswith("FAIL: ") and "above the maximum 2.5 mg" in results["bias z"]
     assert all(r == "PASS" for name, r in results.items() if name != "bias z")
     # written again only with --force
@@ -171,8 +172,8 @@ def test_certificate_of_a_serial_run_with_a_skip_and_an_allan_plot(tmp_path, ser
     residuals_against_the_file(page, params)
     assert "pos 5" not in [label for label, _ in page.residuals["accelerometer"][1]]
     triads = {a["data-triad"]: rows for a, rows in page.tables[1:]}
-    assert {row[4] for row in triads["accelerometer"][1:]} == {"– not in the spec"}  # not PASS
-    assert {row[4] for row in triads["gyroscope"][1:]} == {"PASS"}  # no limit on its parameters
+    assert {row[-1] for row in triads["accelerometer"][1:]} == {"– not in the spec"}  # not PASS
+    assert {row[-1] for row in triads["gyroscope"][1:]} == {"PASS"}  # no limit on its parameters
     assert facts["Note"] == "not in the spec, not checked: accelerometer"
     assert f"FAIL: RMS {gyro.residual_rms * factor:.6g} {unit} above the maximum" in text
     # the Allan plot `fieldcal allan` wrote into the session, embedded byte for byte
@@ -261,7 +262,7 @@ def test_certificate_checks_the_drift_since_the_units_previous_calibration(tmp_p
 
     shutil.copytree(session, tmp_path / "earlier")
     assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path),
-                 "--seed", "13", "--registry", str(tmp_path / "r.sqlite")]) == 0
+                 "--seed", "13", "--registry", str(tmp_path / "r.sqlite"), "--unit-serial", "PAPER-12"]) == 0
     [today] = [d for d in tmp_path.iterdir() if d.name.startswith("quick-")]
     spec = tmp_path / "spec.yaml"
     spec.write_text("schema: fieldcal-spec/1\nproduct: paper MIMU\ntriads:\n"
@@ -272,10 +273,76 @@ def test_certificate_checks_the_drift_since_the_units_previous_calibration(tmp_p
     assert dict(page.tables[0][1])["Drift since"] == f"{tmp_path / 'earlier' / 'parameters.yaml'} (verified)"
     before = load(tmp_path / "earlier" / "parameters-001.yaml")["accelerometer"]
     now = load(today / "parameters-001.yaml")["accelerometer"]
-    rows = {row[0]: row[4] for row in {a["data-triad"]: r for a, r in page.tables[1:]}["accelerometer"][1:]}
+    rows = {row[0]: row[-1] for row in {a["data-triad"]: r for a, r in page.tables[1:]}["accelerometer"][1:]}
     for axis, drift in zip("xyz", (now.bias - before.bias) / 9.80665e-3):
         assert rows[f"bias {axis}"] == (f"FAIL: drifted {drift:.6g} mg since the previous calibration, "
                                         "more than 0.001 mg")
+
+
+def test_no_drift_on_the_certificate_of_a_unit_without_a_serial(tmp_path, session):
+    """Issue 23: beside an earlier calibration, a run of a unit without a serial said "serial not
+    given" and then "Drift since" that other file. Such a unit is compared with nothing."""
+    import shutil
+
+    shutil.copytree(session, tmp_path / "earlier")
+    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path),
+                 "--seed", "13", "--registry", str(tmp_path / "r.sqlite")]) == 0
+    [today] = [d for d in tmp_path.iterdir() if d.name.startswith("quick-")]
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("schema: fieldcal-spec/1\nproduct: paper MIMU\ntriads:\n"
+                    "  accelerometer: {bias: {unit: mg, max_drift: 0.001}}\n")
+    out = tmp_path / "cert.html"
+    assert main(["certificate", str(today), "--spec", str(spec), "--out", str(out), "--no-pdf"]) == 0
+    rows = Page(out.read_text(encoding="utf-8")).tables[0][1]
+    facts = dict(rows)
+    assert "Drift since" not in facts
+    assert facts["Unit"].startswith("simulated MIMU (paper Tables 3-4), serial not given")
+    assert ["Note", "drift not checked: no previous calibration of this unit"] in rows
+
+
+def test_certificate_states_when_who_where_and_each_limit_beside_its_value(tmp_path, session):
+    """The calibration's date and time (UTC and local: when its first parameter file was
+    written), the operator and the station; each parameter's limits from the spec beside its
+    value and verdict; residual plots on the residuals' own scale, the 1 mg limit said to be
+    above it."""
+    import datetime
+    import re
+
+    out = tmp_path / "cert.html"
+    spec = Path(__file__).parents[1] / "configs" / "specs" / "paper-mimu.yaml"
+    assert main(["certificate", str(session), "--spec", str(spec), "--out", str(out), "--no-pdf"]) == 0
+    page = Page(out.read_text(encoding="utf-8"))
+    facts = dict(page.tables[0][1])
+    assert facts["Operator"] == "Ada Bench"
+    assert facts["Unit"].startswith("simulated MIMU (paper Tables 3-4), serial PAPER-12")
+    assert facts["Station"] == "latitude 40.00000°, height 50 m"  # configs/sim.yaml
+    found = re.fullmatch(r"(\S+ \S+) UTC; local time (\S+ \S+) \((?:.*, )?UTC([+-]\d\d):(\d\d)\)", facts["Calibrated"])
+    assert found, facts["Calibrated"]
+    written = datetime.datetime.fromtimestamp((session / "parameters-001.yaml").stat().st_mtime,
+                                              datetime.timezone.utc)
+    utc = datetime.datetime.strptime(found[1], "%Y-%m-%d %H:%M:%S").replace(tzinfo=datetime.timezone.utc)
+    assert abs((utc - written).total_seconds()) < 1
+    sign = 1 if found[3][0] == "+" else -1
+    offset = datetime.timedelta(hours=int(found[3][1:]), minutes=int(found[4])) * sign
+    local = datetime.datetime.strptime(found[2], "%Y-%m-%d %H:%M:%S")
+    assert local == utc.replace(tzinfo=None) + offset
+
+    tables = {a["data-triad"]: rows for a, rows in page.tables[1:]}
+    header, *rows = tables["accelerometer"]
+    assert header == ["parameter", "value", "±1σ", "unit", "limits", "result"]
+    limits = {row[0]: row[4] for row in rows}
+    assert limits["bias x"] == "-10 to 10 mg; σ ≤ 0.5 mg; drift ≤ 1 mg"  # configs/specs/paper-mimu.yaml
+    assert limits["scale y"] == "0.998 to 1.002; σ ≤ 0.0001; drift ≤ 0.0002"
+    assert limits["Δzx"] == "-5 to 5 mrad; σ ≤ 0.5 mrad"
+    assert {row[0]: row[4] for row in tables["inclinometer"][1:]}["Δyz"] == "–"  # the spec sets none
+    unit, values = page.residuals["accelerometer"]
+    largest = max(abs(v) for _, v in values)
+    assert unit == "mg" and largest < 0.5  # the simulator's residuals, far under the 1 mg limit
+    scale = {a["data-triad"]: float(a["data-scale"]) for tag, a in page.attrs if tag == "figure" and "data-scale" in a}
+    assert largest <= scale["accelerometer"] <= 1.5 * largest + 1e-12 and scale["accelerometer"] < 1.0
+    text = out.read_text(encoding="utf-8")
+    assert "the spec&#x27;s maximum RMS, 1 mg, is above this scale" in text or \
+        "the spec's maximum RMS, 1 mg, is above this scale" in text
 
 
 def test_certificate_counts_the_steps_the_parameter_file_was_solved_from_not_those_measured_again(tmp_path):

@@ -42,7 +42,7 @@ def mutated(tmp_path, old, new, name="sim.yaml"):
      "device.triads.gyroscope.noise.bias_instabilty: unknown key 'bias_instabilty'; did you mean 'bias_instability'?"),
     ("vn100.yaml", "unit: rad/s, noise:", "unit: rad/s, zero: [1, 2], noise:",
      "device.triads.gyroscope.zero: expected a number or a list of three numbers, got a list of 2 items"),
-    ("vn100.yaml", 'serial: "0100123456"', "serial: [1]",
+    ("vn100.yaml", "  rate_hz: 200\n", "  rate_hz: 200\n  serial: [1]\n",
      "device.serial: expected the unit's serial number (text), got"),
     ("mti.yaml", "  protocol: ascii", "  protocol: stepper",
      "table.protocol: expected 'ascii' or 'grbl', got 'stepper'"),

@@ -290,17 +290,22 @@ def test_snapshot_results_screen(snap_compare, headless_classic12, tmp_path, mon
 
 @run_async
 async def test_the_results_show_the_previous_calibration_of_the_same_unit(tmp_path, headless_field18):
-    """A second run beside an earlier session shows each parameter against the earlier file."""
-    from fieldcal.paramfile import load
+    """A second run beside an earlier session shows each parameter against the earlier file.
+    The same unit: the same serial (a unit without one is compared with nothing: issue 23)."""
+    from dataclasses import replace
+
+    from fieldcal.paramfile import load, save
 
     spec, headless = headless_field18
     sessions = tmp_path / "sessions"
     earlier = sessions / "earlier"
     earlier.mkdir(parents=True)
-    (earlier / "parameters.yaml").write_bytes(headless.parameters.read_bytes())
+    first = load(headless.parameters)
+    save(replace(first, provenance=replace(first.provenance, device_serial="PAPER-7")), earlier / "parameters.yaml")
     (sessions / "damaged").mkdir()
     (sessions / "damaged" / "parameters.yaml").write_text("schema: nonsense\n")
-    app = FieldcalApp(RunSpec(spec.procedure, STATION, seed=7), speed=0, session_dir=sessions / "today")
+    app = FieldcalApp(RunSpec(spec.procedure, STATION, seed=7, unit_serial="PAPER-7"), speed=0,
+                      session_dir=sessions / "today")
     async with app.run_test(size=(100, 40)) as pilot:
         await press_ready_through(pilot, app)
         await until(pilot, lambda: len(app.screen.query(".previous-head")) > 0)  # composed

@@ -109,12 +109,13 @@ async def test_results_flag_the_drift_since_the_units_previous_calibration(tmp_p
 
     procedure = field18_short()
     sessions = tmp_path / "sessions"
-    first = run_headless(RunSpec(procedure, STATION, seed=5), sessions / "first")
+    # the same unit: the same serial (two serial-less runs are never compared: issue 23)
+    first = run_headless(RunSpec(procedure, STATION, seed=5, unit_serial="PAPER-5"), sessions / "first")
     before = load(first.parameters)["accelerometer"]
     spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "paper MIMU", "triads": {
         "accelerometer": {"bias": {"unit": "mg", "max_drift": 0.001}}}}, "drift.yaml")
-    app = FieldcalApp(RunSpec(procedure, STATION, seed=7), speed=0, session_dir=sessions / "second",
-                      product_spec=spec)
+    app = FieldcalApp(RunSpec(procedure, STATION, seed=7, unit_serial="PAPER-5"), speed=0,
+                      session_dir=sessions / "second", product_spec=spec)
     async with app.run_test(size=(120, 40)) as pilot:
         await finish(pilot, app)
         body = app.screen.query(".triad-body .table").first().render().plain

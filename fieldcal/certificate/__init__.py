@@ -64,7 +64,7 @@ def _temperature(evidence) -> str:
 
 
 def _residual_figure(cal, res, limit, skipped) -> str:
-    from fieldcal.certificate.plots import residual_svg
+    from fieldcal.certificate.plots import residual_scale, residual_svg
     from fieldcal.units import BIAS, operator_unit
 
     factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
@@ -74,29 +74,58 @@ def _residual_figure(cal, res, limit, skipped) -> str:
                         f"{escape(label.removeprefix('pos '))}: {shown.format(v)}</span>"
                         for label, v in zip(res.labels, map(float, res.values)))
     what = "residual" if res.signed else "RMS of the residuals"
-    return (f"<figure class='residuals' data-triad='{escape(cal.name)}' data-unit='{escape(res.unit)}'>"
-            f"{residual_svg(res, rms, limit, skipped)}<figcaption>{escape(cal.name)}, {what} per position "
-            f"({escape(res.unit)}): <span class='values'>{values}</span></figcaption></figure>")
+    top = residual_scale(res.values, rms)
+    off = "" if limit is None or limit <= top else \
+        f"; the spec's maximum RMS, {limit:g} {escape(res.unit)}, is above this scale"
+    return (f"<figure class='residuals' data-triad='{escape(cal.name)}' data-unit='{escape(res.unit)}' "
+            f"data-scale='{top!r}'>{residual_svg(res, rms, limit, skipped)}<figcaption>{escape(cal.name)}, "
+            f"{what} per position ({escape(res.unit)}){off}: <span class='values'>{values}</span>"
+            "</figcaption></figure>")
+
+
+def _limits(limit, unit: str) -> str:
+    """The tolerance a parameter was judged against, in its unit: "-50 to 50 mg; σ ≤ 1 mg; drift
+    ≤ 5 mg"; "–" where the spec sets none."""
+    if limit is None:
+        return "–"
+    u = "" if limit.unit == "1" else f" {limit.unit}"
+    parts = []
+    if limit.min is not None and limit.max is not None:
+        parts.append(f"{limit.min:g} to {limit.max:g}{u}")
+    elif limit.min is not None:
+        parts.append(f"≥ {limit.min:g}{u}")
+    elif limit.max is not None:
+        parts.append(f"≤ {limit.max:g}{u}")
+    if limit.max_sigma is not None:
+        parts.append(f"σ ≤ {limit.max_sigma:g}{u}")
+    if limit.max_drift is not None:
+        parts.append(f"drift ≤ {limit.max_drift:g}{u}")
+    return "; ".join(parts) or "–"
 
 
 def _triad_section(cal, checks: dict, with_results: bool, evidence, spec) -> str:
-    """One triad: its parameters ± 1σ (with PASS/FAIL), its residual RMS (with its verdict) and
-    the plot of each position's residual."""
+    """One triad: its parameters ± 1σ (with the spec's limits and PASS/FAIL), its residual RMS
+    (with its limit and verdict) and the plot of each position's residual."""
     from fieldcal.acceptance import operator_values
     from fieldcal.report import label
     from fieldcal.units import BIAS, operator_unit
 
+    ts = next((t for t in spec.triads if t.name == cal.name), None) if spec is not None else None
     values, sigmas, units = operator_values(cal)
-    rows = [_row(["parameter", "value", "±1σ", "unit"] + (["result"] if with_results else []), header=True)]
+    rows = [_row(["parameter", "value", "±1σ", "unit"] + (["limits", "result"] if with_results else []),
+                 header=True)]
     for name, v, s, u in zip(cal.parameter_names, values, sigmas, units):
         cell = [_result(checks.get((cal.name, name)))] if with_results else []
         styles = [c[:4] if c != NOT_CHECKED else "" for c in cell]  # the PASS or FAIL class
-        rows.append(_row([label(name), f"{v:.7g}", f"{s:.3g}", u] + cell,
-                         classes=["", "num", "num", ""] + styles))
+        limits = [_limits(ts.limit_for(name) if ts is not None else None, u)] if with_results else []
+        rows.append(_row([label(name), f"{v:.7g}", f"{s:.3g}", u] + limits + cell,
+                         classes=["", "num", "num", ""] + [""] * len(limits) + styles))
     factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
     residual_check = checks.get((cal.name, "residual"))
+    residual_limit = "" if ts is None or ts.max_residual is None else \
+        f" (limit {ts.max_residual[0]:g} {escape(ts.max_residual[1])})"
     verdict_text = "" if residual_check is None else \
-        f" <span class='{_result(residual_check)[:4]}'>{escape(_result(residual_check))}</span>"
+        f"{residual_limit} <span class='{_result(residual_check)[:4]}'>{escape(_result(residual_check))}</span>"
     section = [f"<section class='triad'><h2>{escape(cal.name)} ({escape(cal.kind.replace('_', ' '))}, "
                f"output in {escape(cal.output_unit)})</h2>",
                f"<table class='triad' data-triad='{escape(cal.name)}'>{''.join(rows)}</table>",
@@ -104,11 +133,25 @@ def _triad_section(cal, checks: dict, with_results: bool, evidence, spec) -> str
                f"({escape(cal.method)}){verdict_text}</p>"]
     res = evidence.residuals.get(cal.name) if evidence is not None else None
     if res is not None:
-        ts = next((t for t in spec.triads if t.name == cal.name), None) if spec is not None else None
         limit = ts.max_residual[0] if ts is not None and ts.max_residual is not None \
             and ts.max_residual[1] == res.unit else None
         section.append(_residual_figure(cal, res, limit, evidence.skipped))
     return "".join(section) + "</section>"
+
+
+def _calibrated(params: Path) -> str:
+    """When the session first calibrated (``history.calibrated_at``: a re-solve later does not
+    move it), in UTC and in the station's local time."""
+    import datetime
+
+    from fieldcal.session.history import calibrated_at
+
+    when = datetime.datetime.fromtimestamp(calibrated_at(params) / 1e9, datetime.timezone.utc)
+    local = when.astimezone()
+    zone = f"UTC{local.isoformat(timespec='seconds')[19:]}"  # "UTC+01:00"
+    if local.tzname() and not local.tzname().startswith(("UTC", "+", "-")):
+        zone = f"{local.tzname()}, {zone}"
+    return f"{when:%Y-%m-%d %H:%M:%S} UTC; local time {local:%Y-%m-%d %H:%M:%S} ({zone})"
 
 
 def certificate_html(session: Path, params: Path, parameters, check: str, verdict=None,
@@ -123,8 +166,11 @@ def certificate_html(session: Path, params: Path, parameters, check: str, verdic
     sha = hashlib.sha256(params.read_bytes()).hexdigest()
     result = "" if verdict is None else ("PASS" if verdict.passed else "FAIL")
     checks = {} if verdict is None else {(c.triad, c.parameter): c for c in verdict.checks}
-    facts = [("Unit", f"{p.device_name or 'unnamed device'}, serial {p.device_serial or 'not given'}"
+    facts = [("Unit", f"{p.device_name or 'unnamed device'}, serial "
+              f"{p.device_serial or 'not given (not compared with any other calibration)'}"
               + (" (simulated)" if p.simulation else "")),
+             ("Calibrated", _calibrated(params)),
+             ("Operator", p.operator or "not given"),
              ("Session", f"{session.name} ({stop_reason or 'state unknown'})"),
              ("Station", f"latitude {p.latitude_deg:.5f}°, height {p.height_m:g} m"),
              ("Local gravity", f"{p.gravity_m_s2:.6f} m/s² ({p.gravity_source})")]

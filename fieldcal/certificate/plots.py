@@ -13,10 +13,22 @@ import numpy as np
 WIDTH_IN, HEIGHT_IN = 7.0, 1.8  # an A4 page's text width; two triads' tables and plots a page
 
 
+HEADROOM = 1.25  # the plot's scale over the largest residual (or the RMS line)
+
+
+def residual_scale(values, rms: float | None = None) -> float:
+    """The top of a residual plot's y axis (and, signed, minus its bottom): the residuals' own
+    size, never a spec limit's; a 1 mg limit would flatten 0.03 mg residuals to a line."""
+    top = max(float(np.max(np.abs(values))) if len(values) else 0.0, rms or 0.0) * HEADROOM
+    return top if top > 0 else 1.0
+
+
 def residual_svg(res, rms: float | None = None, limit: float | None = None, skipped=()) -> str:
     """``res`` (an ``evidence.PositionResiduals``) as bars, one per position, with the ``skipped``
     position ids in their place marked "skipped"; dashed lines at the triad's RMS residual and,
-    when a product spec gives one, dotted at its maximum RMS residual."""
+    when a product spec gives one, dotted at its maximum RMS residual. The scale is the
+    residuals' (``residual_scale``): a limit above it is marked by an arrow at the top edge
+    with its value."""
     import matplotlib
     from matplotlib.backends.backend_svg import FigureCanvasSVG
     from matplotlib.figure import Figure
@@ -40,13 +52,21 @@ def residual_svg(res, rms: float | None = None, limit: float | None = None, skip
         ax.set_xlim(-0.6, len(x) - 0.4)
         if res.signed:
             ax.axhline(0.0, color="black", lw=0.6)
+        top = residual_scale(res.values, rms)
+        ax.set_ylim(-top if res.signed else 0.0, top)
         for value, style, text in ((rms, "--", "RMS"), (limit, ":", "spec maximum RMS")):
             if value is None:
                 continue
-            for v in ((value, -value) if res.signed else (value,)):
-                ax.axhline(v, color="#444" if style == "--" else "#a00", ls=style, lw=0.9)
-            ax.plot([], [], color="#444" if style == "--" else "#a00", ls=style, lw=0.9,
-                    label=f"{text} {value:.3g} {res.unit}")
+            color = "#444" if style == "--" else "#a00"
+            if value <= top:
+                for v in ((value, -value) if res.signed else (value,)):
+                    ax.axhline(v, color=color, ls=style, lw=0.9)
+                label = f"{text} {value:.3g} {res.unit}"
+            else:  # off the scale: an arrow up at the right edge says where it is
+                ax.annotate("", xy=(0.995, 1.0), xytext=(0.995, 0.8), xycoords="axes fraction",
+                            arrowprops={"arrowstyle": "->", "color": color, "lw": 0.9})
+                label = f"{text} {value:.3g} {res.unit} (↑ {value / top * HEADROOM:.0f}× the largest, off the scale)"
+            ax.plot([], [], color=color, ls=style, lw=0.9, label=label)
         if rms is not None or limit is not None:
             # above the axes, right: inside, it would hide the bars it explains
             ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, fontsize=7, frameon=False,

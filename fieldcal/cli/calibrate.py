@@ -41,7 +41,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
         description="Find the static poses of a hand-held recording, calibrate every\n"
         "accelerometer-like triad by the norm method and the gyroscope from the rotations\n"
         "between poses (scale factors, all six gyro-to-accelerometer misalignment terms; the\n"
-        "bias from the first pose or estimated), and write a parameter file.",
+        "bias from the still poses' mean or estimated), and write a parameter file.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("recording", nargs="+", metavar="RECORDING",
                         help="a session directory from `fieldcal import`, or text files (with --map)")
@@ -79,6 +79,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     from fieldcal.cli.options import add_operator_option, add_spec_option
     add_spec_option(parser)
     add_operator_option(parser)
+    from fieldcal.cli.identity import add_unit_serial_option
+    add_unit_serial_option(parser, "the unit recorded (default: an imported session's, else the "
+                           "--config's device.serial)")
     parser.set_defaults(func=cmd_calibrate)
     return parser
 
@@ -110,10 +113,12 @@ def _station(args, config):
     return Station(latitude, height, gravity)
 
 
-def _recording(args):
+def _recording(args, serial: str | None):
     """(recording, session directory, import summary lines); for files, the session directory is
     a function that writes the session and returns its directory: called once the calibration
-    has succeeded, so that a refused one leaves nothing behind."""
+    has succeeded, so that a refused one leaves nothing behind. ``serial``: the unit's, as given
+    (--unit-serial, the config's), kept in a session imported here; checked against the serial an
+    imported session was given."""
     from fieldcal.recording.store import load_recording
 
     from fieldcal.recording.logs import LOG_NAMES, log_format
@@ -123,7 +128,13 @@ def _recording(args):
         if args.map is not None or args.topic is not None or args.imu is not None:
             option = "--map" if args.map is not None else "--topic" if args.topic is not None else "--imu"
             raise ValueError(f"calibrate: {first} is a session: {option} is for the files it was imported from")
-        return load_recording(first), first, []
+        recording = load_recording(first)
+        if serial is not None and recording.unit_serial not in (None, serial):
+            raise ValueError(f"calibrate: {first} was imported as unit {recording.unit_serial!r}, not {serial!r} "
+                             "(--unit-serial, or the --config's device.serial)")
+        if serial is not None and recording.unit_serial is None:
+            recording = replace(recording, unit_serial=serial)
+        return recording, first, []
     from fieldcal.cli.importing import read_recording, summary_lines
     from fieldcal.recording.store import save_recording
 
@@ -131,6 +142,7 @@ def _recording(args):
         raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
                          f"path); or give one session directory from `fieldcal import`, or {LOG_NAMES}")
     recording, report = read_recording(args.recording, args.map, args.rate, args.topic, args.imu)
+    recording = replace(recording, unit_serial=serial)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
 
     def save() -> Path:
@@ -175,7 +187,8 @@ def cmd_calibrate(args) -> int:
         from fieldcal.session.output import check_output_path
         check_output_path(args.params, force=args.force, option="--params")
     started = time.perf_counter()
-    recording, directory, imported = _recording(args)
+    from fieldcal.cli.identity import unit_serial
+    recording, directory, imported = _recording(args, unit_serial(args, config))
     for line in imported:
         print(line)
     triads = config.device.triads if config else ()
@@ -193,7 +206,7 @@ def cmd_calibrate(args) -> int:
         raise ValueError(f"calibrate: {'; '.join(misfit)}: {MISFIT_CAUSES}; give --accept-misfit to keep it")
     station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None,
-                        operator=operator)
+                        operator=operator, device_serial=recording.unit_serial)
     directory = directory() if callable(directory) else directory  # files: their session, now
     writer = SessionWriter.append_to(directory)  # refused if another fieldcal is writing it
     try:

@@ -63,6 +63,8 @@ def add_import_parser(sub) -> argparse.ArgumentParser:
                         help="the new session directory (must not exist, or be empty)")
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="sample rate of files with no time column (else rate_hz in the map)")
+    from fieldcal.cli.identity import add_unit_serial_option
+    add_unit_serial_option(parser, "the unit recorded (kept in the session; `calibrate` uses it)")
     parser.set_defaults(func=cmd_import)
     return parser
 
@@ -87,6 +89,9 @@ def cmd_import(args) -> int:
     if args.rate is not None and not args.rate > 0:
         raise RecordingImportError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
     recording, report = read_recording(args.files, args.map, args.rate, args.topic, args.imu)
+    if args.unit_serial is not None:
+        from dataclasses import replace
+        recording = replace(recording, unit_serial=args.unit_serial)
     try:
         directory = save_recording(recording, out, report=report)
     except OSError as exc:

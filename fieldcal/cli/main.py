@@ -186,6 +186,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     resume.add_argument("--config", metavar="CONFIG", help="a real device's session: the station config "
                         "whose ports it is resumed on (the same device; default: the terminal UI setup's "
                         "last choice); the operator places the unit and presses Enter at the console")
+    from fieldcal.cli.identity import add_unit_serial_option
+    add_unit_serial_option(resume, "the unit the session was recorded of (checked, never changed)")
     resume.add_argument("--quiet", action="store_true")
     resume.set_defaults(func=_lazy("cmd_resume"))
 
@@ -327,7 +329,7 @@ def main(argv=None, *, ending_process: bool = False) -> int:
             return args.func(args)
     except ValueError as exc:  # ConfigError, ProcedureError, ParameterFileError, bad arguments
         print(f"fieldcal: {exc}", file=sys.stderr)
-        return 2
+        return getattr(exc, "exit_status", 2)  # 1: input read whole but nothing to calibrate from
     except BrokenPipeError:  # output piped into head: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

@@ -128,7 +128,8 @@ def report_acceptance(spec, params: str | Path, previous: str | Path | None = No
         found = previous_calibration_of(params)
         prev, where = (found.parameters, found.path) if found is not None else (None, None)
     print(f"\nacceptance against {spec.path} ({spec.product}): {params}", file=out)
-    if where is not None:
+    from fieldcal.acceptance import not_the_same_unit
+    if where is not None and not_the_same_unit(parameters, prev) is None:  # else evaluate says why not
         print(f"drift since {where}", file=out)
     verdict = evaluate(spec, parameters, prev)
     for line in verdict_lines(verdict):
@@ -182,6 +183,8 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="solver: auto (default) is classic for an aligned procedure, else powell")
     parser.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
                         help="a bump during a dwell restarts it (default) or drops only the disturbed part")
+    from fieldcal.cli.identity import add_unit_serial_option
+    add_unit_serial_option(parser)
 
 
 def procedure_session(directory, log_only: bool = False):

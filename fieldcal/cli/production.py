@@ -203,6 +203,7 @@ def _apply_device(args, parameters) -> int:
 
 
 def cmd_units(args) -> int:
+    from fieldcal.registry import NO_SERIAL
     from fieldcal.report import aligned
 
     with open_registry(args) as registry:
@@ -212,7 +213,7 @@ def cmd_units(args) -> int:
         return 0
     verdicts = {None: "-", 1: "PASS", 0: "FAIL"}
     rows = [["serial", "model", "calibrations", "last", "last result"]]
-    rows += [[serial or "(none)", model or "(none)", str(n), last, verdicts[passed]]
+    rows += [[serial or NO_SERIAL, model or "(none)", str(n), last, verdicts[passed]]
              for serial, model, n, last, passed in units]
     print(aligned(rows, "llrll", indent=""))
     return 0
@@ -220,19 +221,22 @@ def cmd_units(args) -> int:
 
 def cmd_history(args) -> int:
     from fieldcal.acceptance import load_spec
+    from fieldcal.registry import NO_SERIAL, UNKNOWN
     from fieldcal.registry.drift import history_lines
 
     spec = load_spec(args.spec) if args.spec else None
+    unnamed = args.serial == NO_SERIAL  # what `units` lists calibrations without a serial as
     with open_registry(args) as registry:
-        calibrations = registry.history(args.serial)
+        calibrations = registry.history(UNKNOWN if unnamed else args.serial)
     if not calibrations:
         raise ValueError(f"history: no unit with serial {args.serial!r} in {registry.where} "
                          "(fieldcal units lists them)")
-    for line in history_lines(calibrations, spec):
+    for line in history_lines(calibrations, spec, one_unit=not unnamed):
         print(line)
     if args.plot:
         from fieldcal.registry.drift import plot_history
-        for path in plot_history(calibrations, args.serial, args.plot, overwrite=args.force):
+        for path in plot_history(calibrations, "no-serial" if unnamed else args.serial, args.plot,
+                                 overwrite=args.force):
             print(f"plot: {path}")
     return 0
 
@@ -385,7 +389,8 @@ def add_production_parsers(sub) -> None:
         description="Every calibration of one unit, oldest first, each parameter ± 1σ in operator "
         "units and its drift since the calibration before in σ (the two calibrations' 1σ combined); "
         "with --spec, drift beyond the product's max_drift is flagged.")
-    history.add_argument("serial", metavar="SERIAL")
+    history.add_argument("serial", metavar="SERIAL", help="as `fieldcal units` lists it; \"(none)\": "
+                         "the calibrations recorded without a serial (listed, never compared for drift)")
     history.add_argument("--spec", metavar="SPEC", help="product spec: flag drift beyond its max_drift")
     history.add_argument("--plot", metavar="DIR", help="also write a PNG per triad here: each "
                          "parameter over time with ± 1σ bars")

@@ -40,6 +40,7 @@ def cmd_run(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
 
+    from fieldcal.cli.identity import unit_serial
     from fieldcal.cli.options import accept_after, load_spec_option, operator_option
 
     config = load_config(args.config)
@@ -65,7 +66,8 @@ def cmd_run(args) -> int:
                             skip_steps=tuple(s - 1 for s in args.skip))
     run_spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                        raw_counts=config.device.sim.raw_counts, method=args.method,
-                       on_motion=args.on_motion, script=script, operator=operator_option(args))
+                       on_motion=args.on_motion, script=script, operator=operator_option(args),
+                       unit_serial=unit_serial(args, config))
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = Path(args.out) / f"{procedure.name}-seed{seed}-{stamp}"
     args.session_path = directory  # for the interrupted / disk-full message (cli.main)
@@ -79,8 +81,11 @@ def cmd_resume(args) -> int:
     from fieldcal.run.progress import printer
     from fieldcal.run.runner import resume_headless
 
+    from fieldcal.cli.identity import check_recorded_serial
+
     record = procedure_session(args.session)
     reader, spec, steps = record, record.spec, record.steps
+    check_recorded_serial(args, spec.device_serial, args.session)
     if reader.start.get("device", {}).get("link") == "pty":
         raise ValueError(f"{args.session}: a run through a serial device cannot be resumed (the "
                          "device cannot be rewound); replay it, or run again")

@@ -280,13 +280,14 @@ def _initial_choice(args):
 
 def sim_run(config, procedure, args):
     """The simulated bench's run: (spec, session directory, speed)."""
+    from fieldcal.cli.identity import unit_serial
     from fieldcal.cli.options import operator_option
     from fieldcal.run.runner import RunSpec
 
     seed = config.device.sim.seed if args.seed is None else args.seed
     spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                    raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion,
-                   operator=operator_option(args))
+                   operator=operator_option(args), unit_serial=unit_serial(args, config))
     speed = config.device.sim.speed if args.speed is None else args.speed
     return spec, _session_dir(args, procedure.name, f"seed{seed}"), speed
 
@@ -302,6 +303,7 @@ def live_spec(config, procedure, args):
     """The run of a real device: its model from the config; refused before any port is opened
     when the config cannot carry the procedure out."""
     from fieldcal.run.livedevice import LiveDevice
+    from fieldcal.cli.identity import with_unit_serial
     from fieldcal.cli.options import operator_option
     from fieldcal.run.runner import RunSpec
 
@@ -314,4 +316,5 @@ def live_spec(config, procedure, args):
             raise ValueError(f"procedure {procedure.name} turns the table at {step.rate_deg_s:g} °/s, above "
                              f"{config.path}'s table.max_rate_deg_s of {config.table.max_rate_deg_s:g} °/s")
     return RunSpec(procedure, config.station, rate_hz=config.device.rate_hz, method=args.method,
-                   on_motion=args.on_motion, live=LiveDevice.from_config(config), operator=operator_option(args))
+                   on_motion=args.on_motion, live=LiveDevice.from_config(with_unit_serial(config, args)),
+                   operator=operator_option(args))

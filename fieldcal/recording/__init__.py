@@ -35,6 +35,7 @@ class Recording:
     sources: tuple[str, ...] = ()
     malformed: dict[str, tuple[int, tuple[int, ...]]] = field(default_factory=dict)
     temperature: np.ndarray | None = None
+    unit_serial: str | None = None  # the unit's serial (--unit-serial); None: not given
 
     def __post_init__(self) -> None:
         n = len(self.t)

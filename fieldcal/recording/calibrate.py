@@ -32,8 +32,8 @@ from fieldcal.earth import EARTH_RATE, Station, normal_gravity
 from fieldcal.model import calibrate_with
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
-from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport, interval_means,
-                                      too_short)
+from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport, TooFewPoses,
+                                      interval_means, too_short)
 from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
 from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
 from fieldcal.solvers import CalibrationError, solve_norm
@@ -254,9 +254,9 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
         most = max(choice.tried, key=lambda x: x[1])
         poses = next(c.poses for c in detection.candidates if c.multiple == most[0])
         faces = _faces_missing(detection, settings.detector.min_static_s)
-        raise DetectionError(f"no threshold gave usable poses; with the most ({most[1]} at "
-                             f"{most[0]:g}× the noise level): {most[2]}{too_short(poses, settings.detector)}"
-                             f"{faces}")
+        raise TooFewPoses(f"no threshold gave usable poses; with the most ({most[1]} at "
+                          f"{most[0]:g}× the noise level): {most[2]}{too_short(poses, settings.detector)}"
+                          f"{faces}")
     estimated = ()
     if settings.estimate_noise and detection.reference not in settings.noise:
         choice, settings = _with_estimated_noise(recording, detection, choice, station, settings)

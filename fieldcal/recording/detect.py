@@ -47,6 +47,13 @@ class DetectionError(ValueError):
     """A recording the detector cannot use; the message says what and what to do."""
 
 
+class TooFewPoses(DetectionError):
+    """A recording read and searched whole that holds too few usable poses (or turns) to calibrate
+    from: "not calibrated" (exit status 1 in the README's table), not bad input (2)."""
+
+    exit_status = 1
+
+
 @dataclass(frozen=True)
 class DetectorSettings:
     """``init_rest_s``: the still start that sets the noise level (``--rest``); None: the quietest
@@ -497,5 +504,5 @@ def require_poses(poses: Poses, settings: DetectorSettings) -> SpreadReport:
     report = check_spread(poses.up[poses.distinct], settings.min_poses, settings.cover_deg,
                           settings.min_design)
     if not report.ok:
-        raise DetectionError(report.message)
+        raise TooFewPoses(report.message)
     return report

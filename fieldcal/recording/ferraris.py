@@ -34,7 +34,7 @@ import numpy as np
 
 from fieldcal.earth import EARTH_RATE
 from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE
-from fieldcal.recording.detect import DetectionError, interval_means
+from fieldcal.recording.detect import TooFewPoses, interval_means
 from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
 from fieldcal.calibration import Calibration, SolverDiagnostics
 from fieldcal.model import FULL_PARAM_NAMES
@@ -324,8 +324,8 @@ def solve_turns_gyro(name: str, unit: str, gyro: np.ndarray, rate_hz: float, int
     axes_seen = np.abs(turns.up).argmax(axis=1)
     missing = [a for i, a in enumerate("xyz") if i not in set(axes_seen.tolist())]
     if missing:
-        raise DetectionError(f"full turns about {', '.join(missing)} missing (found {len(turns.spans)} "
-                             "turns): turn the unit once through 360° about each axis while it is vertical")
+        raise TooFewPoses(f"full turns about {', '.join(missing)} missing (found {len(turns.spans)} "
+                          "turns): turn the unit once through 360° about each axis while it is vertical")
     counts = np.diff(intervals, axis=1)[:, 0]
     still = interval_means(gyro, intervals)
     n = np.diff(turns.spans, axis=1)[:, 0]

@@ -49,14 +49,14 @@ def place_of(provenance) -> Station | UnknownPlace:
 
 def parameter_file(cal: RecordingCalibration, recording: Recording, station: Station | UnknownPlace,
                    device_name: str | None = None, simulation: bool | None = None,
-                   operator: str | None = None) -> ParameterFile:
+                   operator: str | None = None, device_serial: str | None = None) -> ParameterFile:
     triads = [*cal.specific_force.values(), *cal.angular_rate.values()]
     methods = "+".join(dict.fromkeys([s.method for s in cal.specific_force.values()]
                                      + [s.method for s in cal.angular_rate.values()]))
     data = [recording.t] + [recording.triads[n] for n in sorted(recording.triads)]  # what was solved from
     return ParameterFile.from_solutions(triads, inputs=data, station=_file_station(station), procedure=PROCEDURE,
                                         method=methods, device_name=device_name, simulation=simulation,
-                                        operator=operator)
+                                        device_serial=device_serial, operator=operator)
 
 
 # χ²/dof beyond which a fit is not noise the model misses but data that do not fit it: a residual

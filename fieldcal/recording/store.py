@@ -86,6 +86,7 @@ def recording_metadata(recording: Recording, report=None) -> dict:
         "import_map": ({"path": report.map_path, "text": report.map_text} if report is not None else None),
         "alignment": list(report.alignment) if report is not None else [],
         "warnings": list(report.warnings) if report is not None else [],
+        **({"unit_serial": recording.unit_serial} if recording.unit_serial is not None else {}),
     }
 
 
@@ -130,6 +131,8 @@ def load_recording(directory: str | os.PathLike) -> Recording:
               for name in names}
     if len(t) != expected:
         raise RecordingSessionError(f"{where}: {len(t)} samples stored, the metadata says {expected}", where)
+    serial = meta.get("unit_serial")
     return Recording(t=t, triads=triads, kinds=kinds, units=units,
-                     sources=tuple(s["path"] for s in sources), malformed=malformed)
+                     sources=tuple(s["path"] for s in sources), malformed=malformed,
+                     unit_serial=serial if isinstance(serial, str) and serial else None)
 

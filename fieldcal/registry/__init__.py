@@ -61,6 +61,7 @@ _MIGRATIONS = (
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 UNKNOWN = ""  # a serial or model the parameter file does not give
+NO_SERIAL = "(none)"  # how `units` lists, and `history` names, the calibrations without a serial
 SOURCES = ("", "run", "replay", "calibrate", "resolve")
 
 

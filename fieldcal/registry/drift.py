@@ -39,7 +39,9 @@ def drifts(calibrations: list[dict], spec=None) -> list[Drift]:
     return out
 
 
-def history_lines(calibrations: list[dict], spec=None) -> list[str]:
+def history_lines(calibrations: list[dict], spec=None, one_unit: bool = True) -> list[str]:
+    """``one_unit`` False: calibrations recorded without a serial, listed but not known to be of
+    one unit, so no drift is taken between them."""
     from fieldcal.report import aligned, label
 
     verdicts = {None: "no spec applied", 1: "PASS", 0: "FAIL"}
@@ -47,7 +49,7 @@ def history_lines(calibrations: list[dict], spec=None) -> list[str]:
              f"{' [' + c['source'] + ']' if c.get('source') else ''}"
              f"{' by ' + c['operator'] if c.get('operator') else ''} "
              f"({verdicts[c['passed']]}): {c['path']}" for i, c in enumerate(calibrations)]
-    found = {(d.triad, d.parameter, d.index): d for d in drifts(calibrations, spec)}
+    found = {(d.triad, d.parameter, d.index): d for d in drifts(calibrations, spec)} if one_unit else {}
     keys = list(calibrations[-1]["parameters"])
     header = ["triad", "parameter", "unit"] + [f"#{i + 1}" for i in range(len(calibrations))] + ["flag"]
     rows = [header]
@@ -68,7 +70,10 @@ def history_lines(calibrations: list[dict], spec=None) -> list[str]:
         flagged += bool(flags)
         rows.append([triad, label(name), unit, *cells, "; ".join(flags)])
     lines.append(aligned(rows, "lll" + "r" * len(calibrations) + "l", indent=""))
-    if spec is not None:
+    if not one_unit:
+        lines.append("recorded without a serial: not known to be one unit, so no drift is taken between "
+                     "them (give --unit-serial when calibrating)")
+    elif spec is not None:
         lines.append(f"{flagged} parameter{'s' * (flagged != 1)} drifted beyond {spec.path}'s max_drift")
     return lines
 

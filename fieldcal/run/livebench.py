@@ -157,6 +157,50 @@ class LiveBench:
                 time.sleep(0.02)  # the port's reader thread fills its queue meanwhile
         return self.device_clock if self._pending else None
 
+    def measure_rate(self, timeout_s: float, nominal_hz: float, cancelled=lambda: False):
+        """The device's sample rate from its first frames (``fieldcal.run.ratecheck``) and the
+        rate expected of it in that measure (``nominal_hz``, the rate the engine counts samples
+        at; a simulator's times its speed in host time): (MeasuredRate, expected Hz), or None when nothing
+        came within ``timeout_s`` of wall time (or cancelled), or a simulator served as fast
+        as it is read has no rate in host time. The frames read are kept for ``next_chunks``."""
+        import numpy as np
+
+        from fieldcal.run.ratecheck import (MEASURE_S, SETTLE_S, MeasuredRate, rate_from_arrivals,
+                                            rate_from_device_time)
+
+        device = self.config.device
+        speed = device.sim.speed if device.protocol == "sim" and device.sim is not None else None
+        reads: list = []  # (arrival, chunk) read here
+        deadline = self.clock() + timeout_s
+        while not cancelled():
+            stamped, port_events = self.connection.read_stamped()
+            self._pending_events += list(port_events)  # said by next_chunks, in the run's log
+            self._pending += stamped
+            reads += stamped
+            if stamped:
+                self.device_clock = self._clock_at(*stamped[-1])
+            # (a parser knows whether its frames carry the device's time once it has read some)
+            device_time = self._pending and getattr(self.connection.parser, "device_time", False)
+            if device_time:
+                rate = rate_from_device_time(np.concatenate([c.t for _, c in self._pending]))
+                if rate is not None:
+                    return MeasuredRate(rate, "from the device's clock"), nominal_hz
+            elif speed == 0 and reads:
+                return None  # a simulator served as fast as it is read: no rate in host time
+            elif reads:
+                expected = nominal_hz * (speed if speed is not None else 1.0)
+                settled = [(a, len(c)) for a, c in reads if a >= reads[0][0] + SETTLE_S]
+                if len(settled) > 1 and settled[-1][0] - settled[0][0] >= MEASURE_S:
+                    arrivals, counts = zip(*settled)
+                    rate = rate_from_arrivals(np.array(arrivals), np.array(counts))
+                    span = arrivals[-1] - arrivals[0]
+                    return MeasuredRate(rate, f"from the host's arrival times over {span:.1f} s"), expected
+            if self.clock() >= deadline:
+                break
+            if not stamped:
+                time.sleep(0.02)  # the port's reader thread fills its queue meanwhile
+        return None
+
     @property
     def last_sample_wall(self) -> float:
         """The wall time (``clock``) at which samples last came (or the port was opened)."""

@@ -57,6 +57,9 @@ class RunSpec:
     # before the model was named used "bank", and resume with it.
     sim_noise: str = "innovations"
     operator: str | None = None  # who runs it (--operator), into the parameter file and registry
+    # The simulated unit's serial (--unit-serial, a sim config's device.serial); None: recorded
+    # without one. A live device's is its LiveDevice's.
+    unit_serial: str | None = None
 
     def to_metadata(self) -> dict:
         said = {"operator": self.operator} if self.operator is not None else {}  # older sessions: none
@@ -77,7 +80,7 @@ class RunSpec:
             "station": {"latitude_deg": self.station.latitude_deg, "height_m": self.station.height_m,
                         "gravity_m_s2": self.station.gravity_m_s2},
             "device": {"name": SIM_DEVICE_NAME, "raw_counts": self.raw_counts,
-                       "rate_hz": self.rate_hz},
+                       "rate_hz": self.rate_hz, **({"serial": self.unit_serial} if self.unit_serial else {})},
             "seed": self.seed, "sim_noise": self.sim_noise, "method": self.method, "on_motion": self.on_motion,
             "script": asdict(self.script),
             "simulation_truth": {name: {"kind": t.kind, "K": t.K.tolist(), "bias": t.bias.tolist(),
@@ -112,7 +115,7 @@ class RunSpec:
         script["skip_steps"] = tuple(script["skip_steps"])
         script["bump_at_s"] = tuple(script.get("bump_at_s", ()))  # absent before bump_at_s existed
         return cls(**common, seed=meta["seed"], sim_noise=meta.get("sim_noise", "bank"),
-                   raw_counts=meta["device"]["raw_counts"],
+                   raw_counts=meta["device"]["raw_counts"], unit_serial=meta["device"].get("serial"),
                    script=OperatorScript(**script))
 
     def device(self):
@@ -127,7 +130,7 @@ class RunSpec:
 
     @property
     def device_serial(self) -> str | None:
-        return None if self.live is None else self.live.serial
+        return self.unit_serial if self.live is None else self.live.serial
 
     def models(self) -> dict[str, TriadModel]:
         """What the station knows of each triad before calibrating it."""

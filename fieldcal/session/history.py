@@ -64,7 +64,7 @@ def recorded_check(path: Path, record=None) -> str:
     return VERIFIED if actual == docs[-1]["sha256"] else EDITED
 
 
-def _calibrated_at(path: Path) -> int:
+def calibrated_at(path: Path) -> int:
     """When the session of ``path`` first calibrated (ns): its first numbered parameter file's
     modification time. A re-solve writes a newer numbered file and ``parameters.yaml`` again, but
     the unit was measured when the session ran, so re-solving an old session must not make it
@@ -75,11 +75,12 @@ def _calibrated_at(path: Path) -> int:
 
 def previous_calibration(sessions: Path, device_name: str | None, device_serial: str | None,
                          exclude: Path | None = None) -> tuple[PreviousCalibration | None, int]:
-    """The parameter file under ``sessions/*/`` of this device's newest calibration, by when its
-    session first calibrated (see ``_calibrated_at``), other than ``exclude``'s,
-    with its checksum verified; and how many unreadable parameter files were passed over."""
-    if device_name is None or not Path(sessions).is_dir():
-        return None, 0
+    """The parameter file under ``sessions/*/`` of this unit's (model and serial; none without a
+    serial) newest calibration, by when its session first calibrated (see ``calibrated_at``),
+    other than ``exclude``'s, with its checksum verified; and how many unreadable parameter
+    files were passed over."""
+    if device_name is None or device_serial is None or not Path(sessions).is_dir():
+        return None, 0  # a unit without a serial is never taken for another's: no drift
     skip = Path(exclude).resolve() if exclude is not None else None
     candidates, unreadable = [], 0
     for path in Path(sessions).glob(f"*/{PARAMETERS}"):
@@ -87,7 +88,7 @@ def previous_calibration(sessions: Path, device_name: str | None, device_serial:
             continue
         try:
             pf = load(path)
-            stamp = _calibrated_at(path)
+            stamp = calibrated_at(path)
         except (ParameterFileError, OSError):
             unreadable += 1
             continue

@@ -28,6 +28,7 @@ from fieldcal.session.record import ResumePoint
 from fieldcal.tui.source import (ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, Note,
                                  ResumeNote, SimSource, Sink)
 
+RATE_FRAMES_S = 10.0  # a run waits this long for the frames its device's rate is measured from
 NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the log says so
 SILENT_S = 0.5  # wall time without a sample before the readings, stillness and banner say so
 FIRST_FRAMES_S = 30.0  # a resumed run waits this long for the device's first frames (its clock)
@@ -91,6 +92,7 @@ class LiveSource(SimSource):
         self.bench.say = conductor.say
         try:
             self.bench.start()
+            self._check_rate(conductor.say)
         except BaseException:  # the port or the table would not open: close what did, keep the session
             try:
                 self.bench.close()
@@ -100,6 +102,24 @@ class LiveSource(SimSource):
             raise
         self._say_reading(conductor)
         return conductor
+
+    def _check_rate(self, say) -> None:
+        """Hold the run (a one-line ValueError) before any dwell counts when the device's real
+        sample rate is more than 1 % off the config's (``fieldcal.run.ratecheck``); say it."""
+        from fieldcal.run.ratecheck import held_line
+
+        found = self.bench.measure_rate(RATE_FRAMES_S, self.spec.rate_hz, lambda: self.stopping)
+        if found is None:
+            if not self.stopping and self.config.device.protocol != "sim":
+                say(f"WARNING: no samples from {self.bench.url} within {RATE_FRAMES_S:g} s to measure its rate")
+            return
+        measured, expected = found
+        device = self.config.device
+        say(f"sample rate: {measured.describe()}; device.rate_hz {self.spec.rate_hz:g} Hz")
+        line = held_line(measured, expected, self.config.path,
+                         device.sim.speed if device.protocol == "sim" and device.sim else None)
+        if line is not None:
+            raise ValueError(line)
 
     def _say_reading(self, conductor: Conductor) -> None:
         table = self.config.table
@@ -132,6 +152,7 @@ class LiveSource(SimSource):
                                      "clock cannot be read: is the unit on and sending? The session is "
                                      "unchanged; resume it again")
                 self.clock_check = judge_restart(self.bench.recorded_clock, now, self.spec.rate_hz)
+            self._check_rate(self.bench.say)  # before the session is touched
             kept, why = self._kept_after(steps)
             # (locked by another station, read-only, damaged: the ports are closed again, so a
             # retry from the setup screen does not open the device a second time)
