@@ -193,8 +193,9 @@ class LiveBench:
                 if len(settled) > 1 and settled[-1][0] - settled[0][0] >= MEASURE_S:
                     arrivals, counts = zip(*settled)
                     rate = rate_from_arrivals(np.array(arrivals), np.array(counts))
-                    span = arrivals[-1] - arrivals[0]
-                    return MeasuredRate(rate, f"from the host's arrival times over {span:.1f} s"), expected
+                    if rate is not None:  # None: no read arrived after the first (a frozen host clock)
+                        span = arrivals[-1] - arrivals[0]
+                        return MeasuredRate(rate, f"from the host's arrival times over {span:.1f} s"), expected
             if self.clock() >= deadline:
                 break
             if not stamped:
