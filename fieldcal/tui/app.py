@@ -39,6 +39,10 @@ class FieldcalApp(App[int]):
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("question_mark", "help", "help"),
         Binding("q", "quit", "quit"),
+        # Textual's ctrl+q quits at once and its ctrl+c only says "press ctrl+q": mid-run both
+        # ask first, as q does. ctrl+c is no priority, so that a text field's copy keeps it.
+        Binding("ctrl+q", "request_quit", "quit", show=False, priority=True),
+        Binding("ctrl+c", "request_quit", "quit", show=False, system=True),
     ]
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
@@ -218,6 +222,24 @@ class FieldcalApp(App[int]):
     def action_help(self) -> None:
         if not isinstance(self.screen, HelpScreen):
             self.push_screen(HelpScreen(self.mode))
+
+    def running(self) -> bool:
+        """A run is under way (prepared and not ended): quitting now would cut it short."""
+        return self.source is not None and self.outcome is None and self.mode != "replay"
+
+    async def action_request_quit(self) -> None:
+        """ctrl+q, ctrl+c: mid-run, the procedure screen (brought back from over it) asks first
+        and says what quitting would lose; otherwise quit at once."""
+        if not self.running():
+            await self.action_quit()
+            return
+        while self.screen is not self.procedure_screen and len(self.screen_stack) > 1:
+            self.pop_screen()  # (the help, or the results of an ended run: not here mid-run)
+        await self.procedure_screen.action_ask("quit")
+
+    def resume_prospect(self) -> str:
+        """What quitting now leaves to resume, in the operator's words (the source knows)."""
+        return self.source.resume_prospect() if self.source is not None else ""
 
     async def action_quit(self) -> None:
         if self.source is not None:

@@ -147,6 +147,10 @@ class Source(Operator, Subscriber):
     def _stopped_message(self) -> str:
         return "stopped before the end"
 
+    def resume_prospect(self) -> str:
+        """What a resume could continue if the run stopped now, for the quit question."""
+        return ""
+
     def _session_after_error(self) -> Path | None:
         return None
 
@@ -315,6 +319,11 @@ class SimSource(Source):
 
     def _session_after_error(self) -> Path | None:
         return self.session_dir if self.recorder is not None else None
+
+    def resume_prospect(self) -> str:
+        if self.session_dir is None:
+            return "Nothing is captured (no session directory): all of it is lost."
+        return "The session is kept: a resume continues after the last completed step."
 
     def _stopped_message(self) -> str:
         if self.session_dir is None:

@@ -265,26 +265,54 @@ class RunView:
             return None
         return skipped_to_return_to({i for i, s in enumerate(self.tiles) if s == SKIPPED}, self.step)
 
-    def confirmation(self, action: str, running: bool = True) -> str | None:
-        """The question to ask before ``action`` ("skip", "abort", "unskip", "quit"), or None
-        when it loses nothing and needs no confirmation."""
+    def work_words(self) -> str:
+        """The run's work so far, as quitting or aborting would cost it: "7 of 18 positions done
+        in 35 min"."""
+        done = self.tiles.count(DONE)
+        return (f"{done} of {self.total_steps} position{'' if self.total_steps == 1 else 's'} done "
+                f"in {duration_words(self.t)}")
+
+    def step_work_words(self) -> str | None:
+        """What the current step has measured, which redo, skip and going back drop: "80 s of
+        its 200 s dwell and 1 of 2 rate steps"; None before anything is measured."""
+        if self.step >= self.total_steps or not self.placed:
+            return None
+        parts = []
+        dwell = self.dwell.done(self.t)
+        if dwell >= 1:
+            parts.append(f"{dwell:.0f} s of its {self.dwell.total:g} s dwell")
+        if self.rates_done:
+            parts.append(f"{self.rates_done} of 2 rate steps")
+        return " and ".join(parts) or None
+
+    def confirmation(self, action: str, running: bool = True, resume: str = "") -> str | None:
+        """The question to ask before ``action`` ("skip", "abort", "unskip", "redo", "quit"), in
+        words that say what it would lose, or None when it loses nothing and needs no
+        confirmation. ``resume``: what a resume of the run could do (the source knows), said
+        with the quit question."""
         if self.finished is not None or not running or self.step >= self.total_steps:
             return None
         pid = self.position.id
         begun = self.phase not in (en.PLACE, en.DONE)
+        measured = self.step_work_words()
         if action == "abort":
-            return "ABORT the run? It ends for good (no resume)."
+            return f"ABORT the run? {self.work_words()}; it ends for good, no resume (the session is kept)."
         if action == "quit":
-            return "Quit mid-run? The session is kept, unfinished."
+            return f"Quit mid-run? {self.work_words()}. {resume}".rstrip()
         if action == "skip":
+            lost = f" {measured[0].upper()}{measured[1:]} would be dropped." if measured else ""
             others = [i for i, s in enumerate(self.tiles) if i != self.step and s in (TODO, ACTIVE, WRONG)]
             if not others:
-                return f"Skip position {pid}, the last one? The run then ends."
-            return f"Skip position {pid}? (u goes back to it)"
+                return f"Skip position {pid}, the last one? The run then ends.{lost}"
+            return f"Skip position {pid}?{lost} (u goes back to it)"
+        if action == "redo":
+            lost = f"{measured} would be lost" if measured else "nothing of it is measured yet"
+            return f"Redo position {pid} from the placement? {lost[0].upper()}{lost[1:]}."
         if action == "unskip" and begun:
             back = self.unskip_target()
             back_id = self.procedure.positions[back].id if back is not None else "?"
-            return f"Back to position {back_id}? Position {pid}'s progress is lost."
+            lost = f": {measured}" if measured else ""
+            return f"Back to position {back_id}? Position {pid}'s progress is lost{lost}."
         return None
 
     @staticmethod
