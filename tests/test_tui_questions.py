@@ -10,7 +10,7 @@ from fieldcal.tui import FieldcalApp
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.screens.help import HelpScreen
 from fieldcal.tui.screens.procedure import ProcedureScreen
-from fieldcal.tui.view import RunView
+from fieldcal.tui.view import RunView, clock_text, duration_words
 from tests.test_tui_keys import STATION, confirm_text, three_positions
 
 
@@ -207,3 +207,32 @@ async def test_the_quit_question_says_when_a_resume_measures_everything_again(tm
         finally:
             devices.stop()
         assert app.source.done.wait(10.0) and app.source.outcome.status == "stopped"
+
+
+@run_async
+async def test_elapsed_does_not_go_back_after_a_resume(tmp_path):
+    """A resume continues from the last completed step's sample time; the run had gone on past
+    it (the unit carried towards the next position) before it was quit: "elapsed" keeps that."""
+    app = sim_app(tmp_path)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(app, 1))
+        quit_at = app.view.elapsed
+        assert quit_at > app.view.placing_s[0]  # (the run has sample time behind it)
+        await pilot.press("q", "y")
+    assert app.source.done.wait(10.0)
+    resumed = FieldcalApp(speed=0, resume=tmp_path / "s")
+    async with resumed.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(resumed, 1))
+        assert resumed.view.t < quit_at  # the engine's clock restarts at the last completed step
+        assert resumed.view.elapsed >= quit_at
+        assert resumed.view.job_text().endswith(f"{clock_text(resumed.view.elapsed)} elapsed, "
+                                                f"≈{duration_words(resumed.view.remaining_s())} to go")
+
+
+def test_elapsed_keeps_counting_when_the_sample_clock_goes_back():
+    view = RunView(three_positions())
+    for t in (0.0, 30.0, 5.0, 12.0):  # a clock that restarted at 5 s after 30 s
+        view.set_telemetry(Telemetry(t=t, step=0, phase="place", waiting=False, samples=0))
+    assert view.elapsed == 30.0 + 7.0

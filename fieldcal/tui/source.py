@@ -74,6 +74,7 @@ class ResumeNote(Note):
     warn: bool = False
     done: tuple[int, ...] = ()
     skipped: tuple[int, ...] = ()
+    elapsed_s: float | None = None  # the sample time the session had reached when it stopped
 
 
 class Sink(Protocol):
@@ -314,7 +315,8 @@ class SimSource(Source):
         self._items.append(ResumeNote(conductor.engine.t, f"resuming {self.session_dir.name} after {done} "
                                       f"completed step{'s' if done != 1 else ''}: place the unit for the next step",
                                       f"RESUMED after {done} completed step{'s' if done != 1 else ''}",
-                                      done=tuple(conductor.engine.records), skipped=tuple(conductor.engine.skipped)))
+                                      done=tuple(conductor.engine.records), skipped=tuple(conductor.engine.skipped),
+                                      elapsed_s=recorded_until(reader)))
         return conductor
 
     def _session_after_error(self) -> Path | None:
@@ -360,6 +362,13 @@ class SimSource(Source):
             return [Say(f"operator: {command}"), Act(command)]
         self.bump_times.append(e.t)  # BUMP
         return [Say("operator: bump! (the simulator knocks the fixture)"), Bump()]
+
+
+def recorded_until(reader) -> float | None:
+    """The sample time a session's samples reach (its last chunk's last sample), None if it
+    has none: the run went on past its last completed step, where a resume continues."""
+    ends = [d["t_last"] for d in reader.documents("chunk") if isinstance(d.get("t_last"), (int, float))]
+    return max(ends, default=None)
 
 
 def _pieces(chunks, n: int) -> list:

@@ -100,6 +100,10 @@ class RunView:
     unit_at: object | None = None  # the Position the unit was last found still in
     looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
     resumed: ResumeNote | None = None  # a resumed run, until its first unit is placed
+    # "elapsed" never goes back: sample time the run's clock went back by (a resume continues
+    # from its last completed step, not from where it was quit) is added to it.
+    elapsed_offset: float = 0.0
+    _telemetry_t: float | None = None
 
     def __post_init__(self) -> None:
         if not self.tiles:
@@ -115,6 +119,11 @@ class RunView:
         return self.telemetry.t if self.telemetry is not None else self.last_t
 
     @property
+    def elapsed(self) -> float:
+        """The run's time so far, as the operator lived it: it never goes back."""
+        return self.t + self.elapsed_offset
+
+    @property
     def phase(self) -> str:
         return self.telemetry.phase if self.telemetry is not None else en.PLACE
 
@@ -127,6 +136,8 @@ class RunView:
         self.last_t = max(self.last_t, item.t)
         if isinstance(item, ResumeNote):  # (also mid-run: a power-cycled unit's steps are done again)
             self.resumed = item
+            if item.elapsed_s is not None:
+                self.elapsed_offset = max(self.elapsed_offset, item.elapsed_s - item.t)
             self.tiles = [DONE if step in item.done else SKIPPED if step in item.skipped else TODO
                           for step in range(self.total_steps)]
         if isinstance(item, Note):
@@ -207,6 +218,9 @@ class RunView:
         self.carry_from = (self.telemetry.samples if self.telemetry is not None else 0) if value else None
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
+        if self._telemetry_t is not None and telemetry.t < self._telemetry_t:
+            self.elapsed_offset += self._telemetry_t - telemetry.t
+        self._telemetry_t = telemetry.t
         self.telemetry = telemetry
         if telemetry.phase != en.PLACE:
             self.carrying = False
@@ -256,8 +270,8 @@ class RunView:
         legend = (f"✓{n[DONE]} done  –{n[SKIPPED]} skipped  {'▶ now  ' if running else ''}"
                   f"·{n[TODO]} to do   ")
         if not running:
-            return f"{legend}{clock_text(self.t)} in all"
-        return f"{legend}{clock_text(self.t)} elapsed, ≈{duration_words(self.remaining_s())} to go"
+            return f"{legend}{clock_text(self.elapsed)} in all"
+        return f"{legend}{clock_text(self.elapsed)} elapsed, ≈{duration_words(self.remaining_s())} to go"
 
     def unskip_target(self) -> int | None:
         """The step that going back (unskip) returns to, as the engine chooses it."""
@@ -270,7 +284,7 @@ class RunView:
         in 35 min"."""
         done = self.tiles.count(DONE)
         return (f"{done} of {self.total_steps} position{'' if self.total_steps == 1 else 's'} done "
-                f"in {duration_words(self.t)}")
+                f"in {duration_words(self.elapsed)}")
 
     def step_work_words(self) -> str | None:
         """What the current step has measured, which redo, skip and going back drop: "80 s of
