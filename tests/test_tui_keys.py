@@ -41,7 +41,7 @@ async def test_help_on_the_setup_screen_shows_the_setup_keys(tmp_path, monkeypat
     """`?` on the setup screen (no run prepared yet) used to raise AttributeError."""
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
 
-    def make_run(config, procedure):  # pragma: no cover - the test never starts
+    def make_run(config, procedure, choice=None):  # pragma: no cover - the test never starts
         raise AssertionError("not started")
 
     app = FieldcalApp(setup=(SetupChoice("sim", None, "field-18", 45.0, 10.0), make_run))

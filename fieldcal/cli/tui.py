@@ -122,8 +122,8 @@ def cmd_tui(args) -> int:
 
 def _remembering(make_run, sessions: list):
     """``make_run`` that also notes each session directory it hands out."""
-    def remembering(config, procedure):
-        made = make_run(config, procedure)
+    def remembering(config, procedure, choice=None):
+        made = make_run(config, procedure, choice)
         sessions.append(made[1])
         return made
     return remembering
@@ -219,10 +219,20 @@ def _resume_speed(args) -> float:
 
 
 def run_maker(args):
-    """``make_run(config, procedure) -> (spec, session directory, speed)`` for the command line's
-    options; a live device's ports are opened (and closed) first, so that a port that cannot be
+    """``make_run(config, procedure, choice=None) -> (spec, session directory, speed)`` for the
+    command line's options, the setup ``choice``'s operator and sessions directory in place of
+    theirs; a live device's ports are opened (and closed) first, so that a port that cannot be
     opened is one line on the setup screen and no session directory is made for it."""
-    def make_run(config, procedure):
+    def make_run(config, procedure, choice=None):
+        if choice is not None:
+            args_now = argparse.Namespace(**vars(args))
+            args_now.operator = choice.operator or args.operator
+            args_now.out = choice.out or args.out
+        else:
+            args_now = args
+        return _make_run(config, procedure, args_now)
+
+    def _make_run(config, procedure, args):
         if config.device.protocol != "sim":
             spec = live_spec(config, procedure, args)
             check_ports(config)
@@ -263,9 +273,13 @@ def _initial_choice(args):
     from fieldcal.tui.choices import SetupChoice, load_last_choice
 
     choice = load_last_choice()
+    given = {k: v for k, v in (("operator", getattr(args, "operator", None)), ("out", getattr(args, "out", None)),
+                               ("spec", getattr(args, "spec", None))) if v is not None}
     if choice is None:
         if args.config is None and args.procedure is None:
-            return None
+            if not given:
+                return None
+            args = argparse.Namespace(**{**vars(args), "config": "sim"})
         from fieldcal.config import load_config
         config = load_config(args.config or "sim")
         choice = SetupChoice(args.config or "sim", None, args.procedure or "field-18",
@@ -277,7 +291,7 @@ def _initial_choice(args):
                          height_m=config.station.height_m)
     if args.procedure is not None:
         choice = replace(choice, procedure=args.procedure)
-    return choice
+    return replace(choice, **given)  # the command line's operator, sessions directory and spec
 
 
 def sim_run(config, procedure, args):

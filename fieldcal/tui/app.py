@@ -60,8 +60,9 @@ class FieldcalApp(App[int]):
 
         ``setup``: instead of a run, ``(initial, make_run)``: the setup screen opens with the
         ``SetupChoice`` ``initial`` (or none), and the operator's choice, resolved to a config and
-        a procedure, goes to ``make_run(config, procedure) -> (spec, session_dir, speed)``, whose
-        ValueError goes back to the setup screen. ``(initial, make_run, sessions, make_resume)``:
+        a procedure, goes to ``make_run(config, procedure, choice) -> (spec, session_dir, speed)``
+        (the choice: its operator and sessions directory), whose ValueError goes back to the setup
+        screen; the product spec becomes the choice's. ``(initial, make_run, sessions, make_resume)``:
         the setup screen also offers the unfinished sessions in the directory ``sessions``, and
         one chosen goes to ``make_resume(session, config) -> (speed, config)`` (the config of a
         live session's ports, None for a simulated one).
@@ -153,8 +154,9 @@ class FieldcalApp(App[int]):
             self._resume_chosen(screen, choice)
             return
         config, procedure = screen.resolved
+        self.product_spec = screen.product_spec  # the spec field's (the command line's --spec shown there)
         try:
-            spec, session_dir, speed = self.setup[1](config, procedure)
+            spec, session_dir, speed = self.setup[1](config, procedure, choice)
             self.speed = float(speed)
             self._prepare(spec, session_dir, None, config)
         except ValueError as exc:
@@ -163,8 +165,14 @@ class FieldcalApp(App[int]):
         self._begin()
 
     def _resume_chosen(self, screen, choice) -> None:
+        from fieldcal.tui.choices import config_for_session
+
         try:
-            speed, config = self.setup[3](choice.session, screen.resolved[0] if choice.live else None)
+            config = None
+            if choice.live:  # the session's own device: the config chosen if it is that one's
+                chosen = screen.resolved[0] if screen.resolved is not None else None
+                config = config_for_session(live_device_of(choice.session), chosen)
+            speed, config = self.setup[3](choice.session, config)
             self.speed = float(speed)
             self._prepare(None, None, None, config, resume=choice.session)
         except ValueError as exc:

@@ -40,10 +40,10 @@ v   the results, once the replay has ended; Esc there comes back here
 
 SETUP_KEYS = """\
 Choose the device config (or type the path of one), the ports, the
-procedure and the station, then start.
+procedure, the station, the operator and the unit's serial, then start.
 
-Tab, shift+Tab  next, previous field
-ctrl+s          start (anywhere); Enter in a text field starts too
+Tab, shift+Tab  next, previous field; Enter in a text field: next field
+ctrl+s          start (anywhere), or click Start; nothing else starts
 ctrl+r          resume the unfinished session chosen (listed when there are
                 any in --out; a live one on the ports shown)
 Esc             quit; q quits too, outside a text field

@@ -40,6 +40,22 @@ def duration_words(seconds: float) -> str:
     return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
 
 
+def rate_step_s(procedure: Procedure) -> float:
+    """One rate step (one sign) of a procedure: ramp, settle and the whole turns averaged."""
+    r = procedure.rate_step
+    return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
+
+
+def step_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S) -> float:
+    """One position's step: a placement, the dwell and the rate steps both ways."""
+    return placing_s + procedure.dwell_s + 2 * rate_step_s(procedure)
+
+
+def job_duration_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S) -> float:
+    """The whole job, as the run's own estimate counts it before any step is timed."""
+    return len(procedure.positions) * step_s(procedure, placing_s)
+
+
 @dataclass
 class Progress:
     """An average that accumulates while still: total, done at an anchor, running or not."""
@@ -242,8 +258,7 @@ class RunView:
 
     def rate_step_s(self) -> float:
         """One rate step (one sign): ramp, settle and the whole turns averaged."""
-        r = self.procedure.rate_step
-        return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
+        return rate_step_s(self.procedure)
 
     def remaining_s(self) -> float:
         """Sample time the open steps still need: dwells and rate steps from the procedure,
@@ -252,7 +267,7 @@ class RunView:
         if self.finished is not None or self.step >= self.total_steps:
             return 0.0
         placing = sum(self.placing_s) / len(self.placing_s) if self.placing_s else PLACING_GUESS_S
-        per_step = self.procedure.dwell_s + 2 * self.rate_step_s() + placing
+        per_step = step_s(self.procedure, placing)
         open_steps = sum(s in (TODO, ACTIVE, WRONG) for i, s in enumerate(self.tiles) if i != self.step)
         t = self.t
         if self.placed:
