@@ -7,6 +7,7 @@ that started (or re-synchronised) it, advanced by the telemetry's sample time.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 from fieldcal.procedure import engine as en
@@ -14,7 +15,7 @@ from fieldcal.procedure.engine import skipped_to_return_to
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure, position_words
 from fieldcal.run.progress import describe
-from fieldcal.tui.guidance import placement
+from fieldcal.tui.guidance import names_heading, placement
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.source import Note, ResumeNote
 
@@ -354,7 +355,10 @@ class RunView:
         if self.step >= self.total_steps:
             return f"all {self.total_steps} steps done"
         p = self.position
-        return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {position_words(p)}"
+        words = position_words(p)
+        if p.description and not names_heading(p.description):  # "y-down": and its heading
+            words += f" ({position_words(dataclasses.replace(p, description=''))})"
+        return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {words}"
 
     def banner(self, sim: bool) -> tuple[str, str]:
         """(instruction for the operator, style class)."""

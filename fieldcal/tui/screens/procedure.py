@@ -57,13 +57,13 @@ class ProcedureScreen(Screen):
         yield Static("", id="job")
         yield Static("", id="step")
         yield Static("", id="banner")
+        yield Static("", id="confirm")  # a question, in the banner's place while it is asked
         if self.view.procedure.targets:  # a planned procedure: time left, σ against its targets
             yield PlanPanel(id="plan")
         with Horizontal(id="body"):
             yield Static("", id="cube")
             yield LivePanel(id="live")
         yield EventLog(id="log", wrap=True, max_lines=5000, markup=False, min_width=20)
-        yield Static("", id="confirm")
         yield Footer()
         yield TooSmall()
 
@@ -168,6 +168,7 @@ class ProcedureScreen(Screen):
         bar = self.query_one("#confirm", Static)
         bar.update(text)
         bar.display = name is not None
+        self.query_one("#banner").display = name is None
 
     async def _do(self, name: str) -> None:
         if name == "quit":
