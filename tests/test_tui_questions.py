@@ -236,3 +236,29 @@ def test_elapsed_keeps_counting_when_the_sample_clock_goes_back():
     for t in (0.0, 30.0, 5.0, 12.0):  # a clock that restarted at 5 s after 30 s
         view.set_telemetry(Telemetry(t=t, step=0, phase="place", waiting=False, samples=0))
     assert view.elapsed == 30.0 + 7.0
+
+
+@run_async
+async def test_the_bell_rings_when_a_step_ends_and_the_banner_says_what_next(tmp_path):
+    """Issue 22: the operator, across the bench during a dwell, hears that it is their turn."""
+    app = sim_app(tmp_path)
+    rings = []
+    app.bell = lambda: rings.append(app.view.step)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        assert rings == []  # nothing has ended yet
+        await pilot.press("r")
+        await until(pilot, lambda: waiting_at(app, 1))
+        assert len(rings) == 1
+        await pilot.pause()
+        assert str(app.screen.query_one("#banner").render()).startswith("Position 2: ")
+        await pilot.press("s", "s")  # a skip ends the step too
+        await until(pilot, lambda: waiting_at(app, 2))
+        assert len(rings) == 2
+        await pilot.press("q", "y")
+    assert app.source.done.wait(10.0)
+    replay = FieldcalApp(None, speed=0, replay=tmp_path / "s")  # nobody to call: it stays quiet
+    replay.bell = lambda: rings.append("replay")
+    async with replay.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: replay.outcome is not None)
+    assert [e.kind for e in replay.events].count("step_complete") == 1 and "replay" not in rings

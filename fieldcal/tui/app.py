@@ -25,6 +25,9 @@ from fieldcal.tui.widgets.toosmall import MIN_COLUMNS, MIN_ROWS
 from fieldcal.tui.view import DONE, SKIPPED, RunView
 
 
+STEP_ENDS = (ev.StepComplete, ev.StepSkipped, ev.ProcedureComplete)  # then the operator acts
+
+
 def _speed_words(speed: float) -> str:
     return "as fast as possible" if speed <= 0 else f"{speed:g}× real time"
 
@@ -201,6 +204,8 @@ class FieldcalApp(App[int]):
     def on_run_items(self, message: RunItems) -> None:
         self.events.extend(i for i in message.items if isinstance(i, ev.Event))
         self.procedure_screen.add_items(message.items)
+        if self.mode != "replay" and any(isinstance(i, STEP_ENDS) for i in message.items):
+            self.bell()  # the operator's turn (the banner says what next): heard from across the bench
 
     def on_run_telemetry(self, message: RunTelemetry) -> None:
         self.telemetry = message.telemetry
