@@ -69,15 +69,18 @@ async def test_ctrl_c_asks_the_same_question_instead_of_telling_to_press_ctrl_q(
 
 
 @run_async
-async def test_ctrl_q_over_the_help_comes_back_to_the_run_and_asks(tmp_path):
+async def test_ctrl_q_and_ctrl_c_over_the_help_come_back_to_the_run_and_ask(tmp_path):
     app = sim_app(tmp_path, capture=False)
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("question_mark")
-        await until(pilot, lambda: isinstance(app.screen, HelpScreen))
-        await pilot.press("ctrl+q")
-        await until(pilot, lambda: isinstance(app.screen, ProcedureScreen))
-        assert confirm_text(app).startswith("Quit mid-run?")
+        for key in ("ctrl+q", "ctrl+c"):
+            await pilot.press("question_mark")
+            await until(pilot, lambda: isinstance(app.screen, HelpScreen))
+            await pilot.press(key)
+            await until(pilot, lambda: isinstance(app.screen, ProcedureScreen))
+            assert confirm_text(app).startswith("Quit mid-run?"), key
+            await pilot.press("n")
+            assert confirm_text(app) == "" and waiting_at(app, 0)
         await no_keeps_the_run_going(pilot, app, 0)
 
 
