@@ -567,3 +567,15 @@ def test_a_live_session_is_resumed_on_its_own_devices_config():
     with pytest.raises(ValueError) as refused:
         config_for_session(unknown, load_config("sim"))
     assert "bench MTi (xsens)" in str(refused.value) and len(str(refused.value)) <= 3 * 78
+
+
+def test_the_command_lines_operator_spec_and_sessions_directory_fill_the_setup(xdg, tmp_path):
+    from fieldcal.cli.main import build_parser
+    from fieldcal.cli.tui import _initial_choice
+
+    save_last_choice(SetupChoice("sim", None, "classic-12", 10.0, 0.0, operator="old", spec="old.yaml"))
+    args = build_parser().parse_args(["tui", "--out", str(tmp_path), "--operator", "AB"])
+    choice = _initial_choice(args)
+    assert (choice.procedure, choice.operator, choice.out, choice.spec) == ("classic-12", "AB", str(tmp_path), "old.yaml")
+    args.unit_serial = "SN-3"  # as the bench's --unit-serial sets it
+    assert _initial_choice(args).unit_serial == "SN-3"

@@ -273,13 +273,12 @@ def _initial_choice(args):
     from fieldcal.tui.choices import SetupChoice, load_last_choice
 
     choice = load_last_choice()
-    given = {k: v for k, v in (("operator", getattr(args, "operator", None)), ("out", getattr(args, "out", None)),
-                               ("spec", getattr(args, "spec", None))) if v is not None}
+    # (--unit-serial, where the command line has it, fills the setup's unit serial field)
+    given = {k: getattr(args, k, None) for k in ("operator", "out", "spec", "unit_serial")
+             if getattr(args, k, None) is not None}
     if choice is None:
-        if args.config is None and args.procedure is None:
-            if not given:
-                return None
-            args = argparse.Namespace(**{**vars(args), "config": "sim"})
+        if args.config is None and args.procedure is None and not given:
+            return None
         from fieldcal.config import load_config
         config = load_config(args.config or "sim")
         choice = SetupChoice(args.config or "sim", None, args.procedure or "field-18",
@@ -291,7 +290,7 @@ def _initial_choice(args):
                          height_m=config.station.height_m)
     if args.procedure is not None:
         choice = replace(choice, procedure=args.procedure)
-    return replace(choice, **given)  # the command line's operator, sessions directory and spec
+    return replace(choice, **given)  # the command line's operator, sessions directory, spec, serial
 
 
 def sim_run(config, procedure, args):
