@@ -579,3 +579,22 @@ def test_the_command_lines_operator_spec_and_sessions_directory_fill_the_setup(x
     assert (choice.procedure, choice.operator, choice.out, choice.spec) == ("classic-12", "AB", str(tmp_path), "old.yaml")
     args.unit_serial = "SN-3"  # as the bench's --unit-serial sets it
     assert _initial_choice(args).unit_serial == "SN-3"
+
+
+@run_async
+async def test_clearing_the_configs_serial_runs_the_unit_without_one(xdg, tmp_path):
+    """A config's serial belongs to one unit: cleared on the setup screen, the run has none (it
+    is never compared for drift) instead of silently keeping the config's."""
+    raw = yaml.safe_load((CONFIGS_DIR / "vn100.yaml").read_text())
+    raw["device"]["serial"] = "SN-1"
+    path = tmp_path / "one-unit.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    app = Host(SetupChoice(str(path), None, "field-18", 40.0, 50.0))
+    async with app.run_test(size=SIZE) as pilot:
+        screen = app.setup
+        await until(pilot, lambda: value_of(screen, "#unit-serial") == "SN-1")
+        await paste_into(pilot, screen, "#unit-serial", "")
+        await pilot.press("ctrl+s")
+        await until(pilot, lambda: app.results)
+    assert app.results[0].unit_serial == ""
+    assert screen.resolved[0].device.serial is None

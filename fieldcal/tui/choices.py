@@ -42,7 +42,7 @@ class SetupChoice:
     height_m: float
     table_port: str | None = None  # overrides the config's table port, like ``port``
     operator: str | None = None  # who calibrates (None: the command line's --operator, if any)
-    unit_serial: str | None = None  # the unit's serial, into the config's device.serial (never remembered)
+    unit_serial: str | None = None  # into the config's device.serial ("": none; None: the config's); never remembered
     out: str | None = None  # the sessions directory (None: the command line's --out)
     spec: str | None = None  # the product spec (acceptance limits) file; None: none
 
@@ -211,8 +211,9 @@ def resolve_choice(choice: SetupChoice) -> tuple[StationConfig, Procedure]:
         if not port or any(c.isspace() for c in port):
             raise ValueError(f"table port: expected a pyserial URL such as /dev/ttyACM0, got {choice.table_port!r}")
         table = dataclasses.replace(table, port=dataclasses.replace(table.port, url=port))
-    if choice.unit_serial is not None:
-        device = dataclasses.replace(device, serial=checked_unit_serial(choice.unit_serial))
+    if choice.unit_serial is not None:  # "": the config's serial cleared (not this unit's)
+        serial = checked_unit_serial(choice.unit_serial) if choice.unit_serial else None
+        device = dataclasses.replace(device, serial=serial)
     if choice.operator is not None:
         check_operator(choice.operator)
     if choice.out is not None and Path(choice.out).exists() and not Path(choice.out).is_dir():

@@ -332,10 +332,10 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
             except ValueError:
                 raise ValueError(f"{name}: expected a number in {unit}, got {text!r}") from None
         config_serial = config.device.serial if config is not None else None
-        serial = self._text("#unit-serial")
+        serial = self._text("#unit-serial") or ""  # "": cleared, the unit has no serial given
         return SetupChoice(self.config_text(), port, self.procedure_text(), numbers[0], numbers[1], table_port,
                            operator=self._text("#operator"), out=self._text("#out"), spec=self._text("#spec"),
-                           unit_serial=serial if serial != config_serial else None)
+                           unit_serial=serial if serial != (config_serial or "") else None)
 
     def _text(self, field: str) -> str | None:
         """A text field's value, None when blank."""
