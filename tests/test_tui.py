@@ -332,7 +332,7 @@ async def test_the_setup_screen_starts_the_run_it_was_given(tmp_path, monkeypatc
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
     asked = []
 
-    def make_run(config, procedure):
+    def make_run(config, procedure, choice=None):
         asked.append((config, procedure))
         if len(asked) == 1:
             raise ValueError("the table is not answering (say)")

@@ -41,7 +41,7 @@ async def test_help_on_the_setup_screen_shows_the_setup_keys(tmp_path, monkeypat
     """`?` on the setup screen (no run prepared yet) used to raise AttributeError."""
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
 
-    def make_run(config, procedure):  # pragma: no cover - the test never starts
+    def make_run(config, procedure, choice=None):  # pragma: no cover - the test never starts
         raise AssertionError("not started")
 
     app = FieldcalApp(setup=(SetupChoice("sim", None, "field-18", 45.0, 10.0), make_run))
@@ -134,7 +134,7 @@ async def test_going_back_from_a_step_begun_asks_first(tmp_path):
         await pilot.press("r")
         await until(pilot, lambda: app.telemetry.phase not in ("place", "settling"))
         await pilot.press("u")
-        assert "Back to position 1? Position 2's progress is lost." in confirm_text(app)
+        assert "Back to position 1? Position 2's progress is lost" in confirm_text(app)
         await pilot.press("u")
         await until(pilot, lambda: waiting_at(app, 0))
         assert app.screen.view.tiles == ["active", "todo", "todo"]
@@ -217,7 +217,7 @@ def test_tui_help_lists_every_key_within_80_columns(capsys, monkeypatch):
     text = capsys.readouterr().out
     assert max(len(line) for line in text.splitlines()) <= 80
     keys = {b.key for b in ProcedureScreen.BINDINGS} | {"?"}
-    assert keys == set("rdsuabwvq?")
+    assert keys == set("rsuoabwvq?")
     for key in keys:
         assert re.search(rf"^  {re.escape(key)} ", text, re.M), key
     for key in ("ctrl+s", "Esc", "Tab"):

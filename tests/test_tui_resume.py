@@ -367,7 +367,7 @@ async def test_the_setup_screen_offers_an_unfinished_session_and_resumes_it(tmp_
     run_headless(spec, sessions / "completed")  # ended: not offered
     (sessions / "not-a-session").mkdir()
 
-    def make_run(config, procedure):  # pragma: no cover - the test resumes, it never starts
+    def make_run(config, procedure, choice=None):  # pragma: no cover - the test resumes, it never starts
         raise AssertionError("not started")
 
     args = types.SimpleNamespace(speed=0.0, config=None)

@@ -225,7 +225,7 @@ async def test_a_bad_latitude_is_named_with_its_range_and_the_screen_stays(xdg):
         await pilot.pause()
         assert value_of(screen, "#latitude") == "40"  # the sim config's station
         await type_into(pilot, screen, "#latitude", "123")
-        await pilot.press("enter")  # Enter in a field starts
+        await pilot.press("ctrl+s")
         await until(pilot, lambda: text_of(screen, "#error") != "")
         error = text_of(screen, "#error")
         assert "latitude" in error and "-90" in error and "90°" in error and "123" in error
@@ -264,7 +264,7 @@ async def test_choosing_vn100_prefills_its_port_and_station_and_an_override_reac
         assert (float(value_of(screen, "#latitude")), float(value_of(screen, "#height"))) == \
             (vn100.station.latitude_deg, vn100.station.height_m) != (45.5, 120.0)
         await paste_into(pilot, screen, "#port", "socket://127.0.0.1:4001")
-        await pilot.press("enter")
+        await pilot.press("ctrl+s")
         await until(pilot, lambda: app.results)
         config, procedure = screen.resolved
     assert app.results == [SetupChoice("vn100", "socket://127.0.0.1:4001", "field-18",
@@ -340,7 +340,7 @@ async def test_escape_and_q_quit_but_q_in_a_field_is_typed(xdg):
         screen = app.setup
         await type_into(pilot, screen, "#config-path", "q")
         assert value_of(screen, "#config-path") == "q" and app.results == []
-        screen.query_one("#start", Button).focus()
+        screen.query_one("#procedure").focus()  # (the Start button takes no focus: Enter cannot start)
         await pilot.press("q")
         await until(pilot, lambda: app.results)
     assert app.results == [None]
@@ -368,7 +368,8 @@ async def test_every_widget_fits_an_80x24_screen_even_with_an_error(xdg, tmp_pat
         await pilot.pause()
         if long_path:
             assert screen.query_one("#config-summary").region.height == 2
-            assert screen.query_one("#error").region.height == 2
+            error = screen.query_one("#error")  # the whole line, wrapped, not cut
+            assert error.region.height == -(-len(text_of(screen, "#error")) // (SIZE[0] - 2)) == 3
         whole = Region(0, 0, *SIZE)
         shown = [w for w in screen.query("*") if w.display and w.region.area]
         names = {w.id for w in shown}
@@ -398,6 +399,8 @@ def test_snapshot_setup_screen(snap_compare, monkeypatch):
     async def with_an_error(pilot):
         await until(pilot, lambda: app.setup is not None and app.setup.is_mounted)
         await type_into(pilot, app.setup, "#latitude", "123")
+        await paste_into(pilot, app.setup, "#unit-serial", "SN-0001")  # (not the shipped config's)
+        await paste_into(pilot, app.setup, "#operator", "AB")
         await pilot.press("ctrl+s")
         await until(pilot, lambda: text_of(app.setup, "#error") != "")
 
@@ -444,7 +447,7 @@ async def test_both_ports_are_shown_and_a_port_that_cannot_open_is_named_before_
             assert text_of(app.screen, "#error") == \
                 f"table port {missing}: cannot open it: No such file or directory"
             await type_into(pilot, app.screen, "#port", str(tmp_path / "no-imu"))
-            await pilot.press("enter")
+            await pilot.press("ctrl+s")
             await until(pilot, lambda: text_of(app.screen, "#error").startswith("IMU port"))
             assert text_of(app.screen, "#error") == \
                 f"IMU port {tmp_path / 'no-imu'}: cannot open it: No such file or directory"
@@ -467,3 +470,131 @@ def test_the_serial_ports_line_gives_usb_descriptions(monkeypatch):
     assert serial_ports_text() == "serial ports here: /dev/ttyACM0, /dev/ttyUSB0 (FT232R USB UART)"
     monkeypatch.setattr(list_ports, "comports", lambda: [])
     assert serial_ports_text() == "serial ports here: none found"
+
+
+# --- issue 23: Enter moves on, ctrl+s starts; operator, unit serial, sessions, spec, duration ---
+
+
+@run_async
+async def test_enter_in_a_field_moves_to_the_next_field_and_never_starts(xdg):
+    app = Host(SetupChoice("sim", None, "field-18", 40.0, 50.0))
+    async with app.run_test(size=SIZE) as pilot:
+        screen = app.setup
+        await type_into(pilot, screen, "#latitude", "45")
+        await pilot.press("enter")
+        assert screen.focused is screen.query_one("#height")
+        await type_into(pilot, screen, "#operator", "AB")
+        await pilot.press("enter")
+        assert screen.focused is screen.query_one("#unit-serial")
+        await pilot.press(*"SN-7", "enter", "enter", "enter", "enter")  # past the last field, round again
+        assert app.results == [] and app.screen is screen  # nothing started
+        assert screen.focused is not None and screen.focused.id != "start"
+        await pilot.press("ctrl+s")
+        await until(pilot, lambda: app.results)
+    assert app.results == [SetupChoice("sim", None, "field-18", 45.0, 50.0, operator="AB", unit_serial="SN-7",
+                                       out=None, spec=None)]
+    config, _ = screen.resolved
+    assert config.device.serial == "SN-7"  # the config's device.serial, as --unit-serial sets it
+    remembered = yaml.safe_load((xdg / "fieldcal" / "last-setup.yaml").read_text())
+    assert remembered["operator"] == "AB" and "unit_serial" not in remembered  # the next unit is another
+
+
+@run_async
+async def test_a_bad_spec_or_operator_is_one_line_and_nothing_starts(xdg, tmp_path):
+    app = Host(SetupChoice("sim", None, "field-18", 40.0, 50.0))
+    async with app.run_test(size=SIZE) as pilot:
+        screen = app.setup
+        await paste_into(pilot, screen, "#spec", str(tmp_path / "none.yaml"))
+        await pilot.press("ctrl+s")
+        await until(pilot, lambda: text_of(screen, "#error") != "")
+        assert text_of(screen, "#error").startswith(f"spec: {tmp_path / 'none.yaml'}")
+        await paste_into(pilot, screen, "#spec", "")
+        await paste_into(pilot, screen, "#operator", "x" * 200)
+        await pilot.press("ctrl+s")
+        await until(pilot, lambda: text_of(screen, "#error").startswith("operator: expected a name"))
+        assert app.results == []
+
+
+def test_the_whole_jobs_duration_is_its_positions_steps():
+    from fieldcal.procedure.positions import load_procedure
+    from fieldcal.tui.screens.setup import duration_summary
+
+    field18 = load_procedure("field-18")  # 18 positions, 200 s dwells, ±10 °/s for 1 turn, 2 s ramp, 1 s settle
+    step = 30 + 200 + 2 * (2 + 1 + 360 / 10)  # placing (the run's first guess), dwell, each way's turn
+    assert 18 * step == 5544  # 1 h 32 min
+    assert duration_summary(field18) == ("whole job ≈ 1 h 32 min: 18 × (≈30 s placing + 200 s dwell + "
+                                         "2 × 39 s turning)")
+
+
+@run_async
+async def test_the_setup_fields_reach_the_run(xdg, tmp_path):
+    from fieldcal.cli.main import build_parser
+    from fieldcal.cli.tui import run_maker
+    from fieldcal.tui import FieldcalApp
+    from fieldcal.tui.screens.procedure import ProcedureScreen
+
+    args = build_parser().parse_args(["tui", "--out", str(tmp_path / "default-out")])
+    spec_file = sorted(Path("configs/specs").glob("*.yaml"))[0]
+    app = FieldcalApp(setup=(SetupChoice("sim", None, "classic-12", 40.0, 50.0, spec=str(spec_file)),
+                             run_maker(args)))
+    async with app.run_test(size=SIZE) as pilot:
+        screen = app.screen
+        assert value_of(screen, "#spec") == str(spec_file)
+        await type_into(pilot, screen, "#operator", "AB")
+        await paste_into(pilot, screen, "#out", str(tmp_path / "here"))
+        await pilot.press("ctrl+s")
+        await until(pilot, lambda: isinstance(app.screen, ProcedureScreen))
+        assert app.spec.operator == "AB"
+        assert app.product_spec is not None and app.product_spec.path == str(spec_file)
+        assert app.source.session_dir.parent == tmp_path / "here"
+        await pilot.press("q", "y")
+    assert app.source.done.wait(10.0)
+
+
+def test_a_live_session_is_resumed_on_its_own_devices_config():
+    import dataclasses
+
+    from fieldcal.run.livedevice import LiveDevice
+    from fieldcal.tui.choices import config_for_session
+
+    recorded = dataclasses.replace(LiveDevice.from_config(load_config("vn100")), serial="SN-9", url="/dev/ttyUSB3")
+    config = config_for_session(recorded, load_config("sim"))  # the setup still shows the simulator
+    assert (config.device.name, config.device.serial, config.device.port.url) == \
+        ("VectorNav VN-100", "SN-9", "/dev/ttyUSB3")
+    chosen = load_config("vn100")  # chosen above: its ports are the operator's
+    assert config_for_session(recorded, chosen).device.port.url == chosen.device.port.url
+    unknown = dataclasses.replace(recorded, name="bench MTi", protocol="xsens")
+    with pytest.raises(ValueError) as refused:
+        config_for_session(unknown, load_config("sim"))
+    assert "bench MTi (xsens)" in str(refused.value) and len(str(refused.value)) <= 3 * 78
+
+
+def test_the_command_lines_operator_spec_and_sessions_directory_fill_the_setup(xdg, tmp_path):
+    from fieldcal.cli.main import build_parser
+    from fieldcal.cli.tui import _initial_choice
+
+    save_last_choice(SetupChoice("sim", None, "classic-12", 10.0, 0.0, operator="old", spec="old.yaml"))
+    args = build_parser().parse_args(["tui", "--out", str(tmp_path), "--operator", "AB"])
+    choice = _initial_choice(args)
+    assert (choice.procedure, choice.operator, choice.out, choice.spec) == ("classic-12", "AB", str(tmp_path), "old.yaml")
+    args.unit_serial = "SN-3"  # as the bench's --unit-serial sets it
+    assert _initial_choice(args).unit_serial == "SN-3"
+
+
+@run_async
+async def test_clearing_the_configs_serial_runs_the_unit_without_one(xdg, tmp_path):
+    """A config's serial belongs to one unit: cleared on the setup screen, the run has none (it
+    is never compared for drift) instead of silently keeping the config's."""
+    raw = yaml.safe_load((CONFIGS_DIR / "vn100.yaml").read_text())
+    raw["device"]["serial"] = "SN-1"
+    path = tmp_path / "one-unit.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    app = Host(SetupChoice(str(path), None, "field-18", 40.0, 50.0))
+    async with app.run_test(size=SIZE) as pilot:
+        screen = app.setup
+        await until(pilot, lambda: value_of(screen, "#unit-serial") == "SN-1")
+        await paste_into(pilot, screen, "#unit-serial", "")
+        await pilot.press("ctrl+s")
+        await until(pilot, lambda: app.results)
+    assert app.results[0].unit_serial == ""
+    assert screen.resolved[0].device.serial is None

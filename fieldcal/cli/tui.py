@@ -121,8 +121,8 @@ def cmd_tui(args) -> int:
 
 def _remembering(make_run, sessions: list):
     """``make_run`` that also notes each session directory it hands out."""
-    def remembering(config, procedure):
-        made = make_run(config, procedure)
+    def remembering(config, procedure, choice=None):
+        made = make_run(config, procedure, choice)
         sessions.append(made[1])
         return made
     return remembering
@@ -196,15 +196,19 @@ def _checked_for(live, config, session: Path):
 
 
 def resume_maker(args):
-    """``make_resume(session, config) -> (speed, config)`` for the setup screen's Resume: a
+    """``make_resume(session, config) -> (speed, config, record)`` for the setup screen's Resume: a
     simulated session at the command line's speed (no config needed), a live one on the ports
     of the setup's ``config``; a one-line ValueError for what cannot be resumed."""
+    from fieldcal.tui.choices import config_for_session
+
     def make_resume(session: Path, config):
         record = resumable(str(session))
         live = record.spec.live
         if live is None:
             return _resume_speed(args), None, record
-        return 0.0, _checked_for(live, config, session), record
+        # the session's own device: the config chosen on the setup screen if it is that one's,
+        # else a shipped config of that device on the session's port, with the session's serial
+        return 0.0, _checked_for(live, config_for_session(live, config), session), record
     return make_resume
 
 
@@ -217,10 +221,20 @@ def _resume_speed(args) -> float:
 
 
 def run_maker(args):
-    """``make_run(config, procedure) -> (spec, session directory, speed)`` for the command line's
-    options; a live device's ports are opened (and closed) first, so that a port that cannot be
+    """``make_run(config, procedure, choice=None) -> (spec, session directory, speed)`` for the
+    command line's options, the setup ``choice``'s operator and sessions directory in place of
+    theirs; a live device's ports are opened (and closed) first, so that a port that cannot be
     opened is one line on the setup screen and no session directory is made for it."""
-    def make_run(config, procedure):
+    def make_run(config, procedure, choice=None):
+        if choice is not None:
+            args_now = argparse.Namespace(**vars(args))
+            args_now.operator = choice.operator or args.operator
+            args_now.out = choice.out or args.out
+        else:
+            args_now = args
+        return _make_run(config, procedure, args_now)
+
+    def _make_run(config, procedure, args):
         if config.device.protocol != "sim":
             spec = live_spec(config, procedure, args)
             check_ports(config)
@@ -261,8 +275,11 @@ def _initial_choice(args):
     from fieldcal.tui.choices import SetupChoice, load_last_choice
 
     choice = load_last_choice()
+    # (--unit-serial, where the command line has it, fills the setup's unit serial field)
+    given = {k: getattr(args, k, None) for k in ("operator", "out", "spec", "unit_serial")
+             if getattr(args, k, None) is not None}
     if choice is None:
-        if args.config is None and args.procedure is None:
+        if args.config is None and args.procedure is None and not given:
             return None
         from fieldcal.config import load_config
         config = load_config(args.config or "sim")
@@ -275,7 +292,7 @@ def _initial_choice(args):
                          height_m=config.station.height_m)
     if args.procedure is not None:
         choice = replace(choice, procedure=args.procedure)
-    return choice
+    return replace(choice, **given)  # the command line's operator, sessions directory, spec, serial
 
 
 def sim_run(config, procedure, args):

@@ -28,6 +28,9 @@ if TYPE_CHECKING:
     from fieldcal.session.record import RunRecord
 
 
+STEP_ENDS = (ev.StepComplete, ev.StepSkipped, ev.ProcedureComplete)  # then the operator acts
+
+
 def _speed_words(speed: float) -> str:
     return "as fast as possible" if speed <= 0 else f"{speed:g}× real time"
 
@@ -42,6 +45,10 @@ class FieldcalApp(App[int]):
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("question_mark", "help", "help"),
         Binding("q", "quit", "quit"),
+        # Textual's ctrl+q quits at once and its ctrl+c only says "press ctrl+q": mid-run both
+        # ask first, as q does. ctrl+c is no priority, so that a text field's copy keeps it.
+        Binding("ctrl+q", "request_quit", "quit", show=False, priority=True),
+        Binding("ctrl+c", "request_quit", "quit", show=False, system=True),
     ]
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
@@ -59,8 +66,9 @@ class FieldcalApp(App[int]):
 
         ``setup``: instead of a run, ``(initial, make_run)``: the setup screen opens with the
         ``SetupChoice`` ``initial`` (or none), and the operator's choice, resolved to a config and
-        a procedure, goes to ``make_run(config, procedure) -> (spec, session_dir, speed)``, whose
-        ValueError goes back to the setup screen. ``(initial, make_run, sessions, make_resume)``:
+        a procedure, goes to ``make_run(config, procedure, choice) -> (spec, session_dir, speed)``
+        (the choice: its operator and sessions directory), whose ValueError goes back to the setup
+        screen; the product spec becomes the choice's. ``(initial, make_run, sessions, make_resume)``:
         the setup screen also offers the unfinished sessions in the directory ``sessions``, and
         one chosen goes to ``make_resume(session, config) -> (speed, config, record)`` (the config of a
         live session's ports, None for a simulated one).
@@ -152,8 +160,9 @@ class FieldcalApp(App[int]):
             self._resume_chosen(screen, choice)
             return
         config, procedure = screen.resolved
+        self.product_spec = screen.product_spec  # the spec field's (the command line's --spec shown there)
         try:
-            spec, session_dir, speed = self.setup[1](config, procedure)
+            spec, session_dir, speed = self.setup[1](config, procedure, choice)
             self.speed = float(speed)
             self._prepare(spec, session_dir, None, config)
         except ValueError as exc:
@@ -163,7 +172,8 @@ class FieldcalApp(App[int]):
 
     def _resume_chosen(self, screen, choice) -> None:
         try:
-            speed, config, record = self.setup[3](choice.session, screen.resolved[0] if choice.live else None)
+            chosen = screen.resolved[0] if choice.live and screen.resolved is not None else None
+            speed, config, record = self.setup[3](choice.session, chosen)
             self.speed = float(speed)
             self._prepare(None, None, None, config, resume=record)
         except ValueError as exc:
@@ -192,6 +202,8 @@ class FieldcalApp(App[int]):
     def on_run_items(self, message: RunItems) -> None:
         self.events.extend(i for i in message.items if isinstance(i, ev.Event))
         self.procedure_screen.add_items(message.items)
+        if self.mode != "replay" and any(isinstance(i, STEP_ENDS) for i in message.items):
+            self.bell()  # the operator's turn (the banner says what next): heard from across the bench
 
     def on_run_telemetry(self, message: RunTelemetry) -> None:
         self.telemetry = message.telemetry
@@ -221,6 +233,24 @@ class FieldcalApp(App[int]):
     def action_help(self) -> None:
         if not isinstance(self.screen, HelpScreen):
             self.push_screen(HelpScreen(self.mode))
+
+    def running(self) -> bool:
+        """A run is under way (prepared and not ended): quitting now would cut it short."""
+        return self.source is not None and self.outcome is None and self.mode != "replay"
+
+    async def action_request_quit(self) -> None:
+        """ctrl+q, ctrl+c: mid-run, the procedure screen (brought back from over it) asks first
+        and says what quitting would lose; otherwise quit at once."""
+        if not self.running():
+            await self.action_quit()
+            return
+        while self.screen is not self.procedure_screen and len(self.screen_stack) > 1:
+            self.pop_screen()  # (the help, or the results of an ended run: not here mid-run)
+        await self.procedure_screen.action_ask("quit")
+
+    def resume_prospect(self) -> str:
+        """What quitting now leaves to resume, in the operator's words (the source knows)."""
+        return self.source.resume_prospect() if self.source is not None else ""
 
     async def action_quit(self) -> None:
         if self.source is not None:

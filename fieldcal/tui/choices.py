@@ -41,6 +41,10 @@ class SetupChoice:
     latitude_deg: float
     height_m: float
     table_port: str | None = None  # overrides the config's table port, like ``port``
+    operator: str | None = None  # who calibrates (None: the command line's --operator, if any)
+    unit_serial: str | None = None  # into the config's device.serial ("": none; None: the config's); never remembered
+    out: str | None = None  # the sessions directory (None: the command line's --out)
+    spec: str | None = None  # the product spec (acceptance limits) file; None: none
 
 
 def last_choice_path() -> Path:
@@ -77,7 +81,15 @@ def _choice_from(raw) -> SetupChoice | None:
         return None
     if not LATITUDE_RANGE[0] <= latitude <= LATITUDE_RANGE[1] or not HEIGHT_RANGE[0] <= height <= HEIGHT_RANGE[1]:
         return None
-    return SetupChoice(config, port, procedure, latitude, height, table_port)
+    extras = {key: raw.get(key) for key in _REMEMBERED_EXTRAS}  # absent in older files
+    if any(v is not None and (not isinstance(v, str) or not v.strip()) for v in extras.values()):
+        return None
+    return SetupChoice(config, port, procedure, latitude, height, table_port, **extras)
+
+
+# Remembered with the choice when given; the unit's serial never is (the next unit is another),
+# nor the sessions directory (the command line's --out, default ./sessions, says it each time).
+_REMEMBERED_EXTRAS = ("operator", "spec")
 
 
 def load_last_choice(path: str | os.PathLike | None = None) -> SetupChoice | None:
@@ -99,6 +111,7 @@ def save_last_choice(choice: SetupChoice, path: str | os.PathLike | None = None)
     data = {"config": choice.config, "port": choice.port, "table_port": choice.table_port,
             "procedure": choice.procedure, "latitude_deg": float(choice.latitude_deg),
             "height_m": float(choice.height_m)}
+    data.update({key: getattr(choice, key) for key in _REMEMBERED_EXTRAS if getattr(choice, key) is not None})
     text = ("# the last setup chosen in `fieldcal tui`; delete this file to forget it\n"
             + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
     return write_atomically(path, text.encode("utf-8"), state=True)
@@ -198,11 +211,60 @@ def resolve_choice(choice: SetupChoice) -> tuple[StationConfig, Procedure]:
         if not port or any(c.isspace() for c in port):
             raise ValueError(f"table port: expected a pyserial URL such as /dev/ttyACM0, got {choice.table_port!r}")
         table = dataclasses.replace(table, port=dataclasses.replace(table.port, url=port))
+    if choice.unit_serial is not None:  # "": the config's serial cleared (not this unit's)
+        serial = checked_unit_serial(choice.unit_serial) if choice.unit_serial else None
+        device = dataclasses.replace(device, serial=serial)
+    if choice.operator is not None:
+        check_operator(choice.operator)
+    if choice.out is not None and Path(choice.out).exists() and not Path(choice.out).is_dir():
+        raise ValueError(f"sessions directory: {choice.out} is not a directory")
     try:
         station = Station(float(choice.latitude_deg), float(choice.height_m), config.station.gravity_m_s2)
     except ValueError as exc:  # pragma: no cover - check_station has the same bounds
         raise ValueError(f"station: {_one_line(exc)}") from None
     return dataclasses.replace(config, device=device, table=table, station=station), procedure
+
+
+def checked_unit_serial(text: str) -> str:
+    """A unit's serial as typed, checked as the config's device.serial is: one-line ValueError."""
+    serial = text.strip()
+    if not serial or not serial.isprintable():
+        raise ValueError(f"unit serial: expected the serial printed on the unit (printable "
+                         f"characters), got {text!r}"[:200])
+    return serial
+
+
+def check_operator(name: str) -> None:
+    from fieldcal.paramfile.document import OPERATOR_MAX, valid_operator
+
+    if not valid_operator(name):
+        raise ValueError(f"operator: expected a name of 1 to {OPERATOR_MAX} printable characters "
+                         f"without blanks around it, got {name!r}"[:200])
+
+
+def config_for_session(live, chosen: StationConfig | None) -> StationConfig:
+    """The station config a live session (its ``LiveDevice``) is resumed on: the one chosen on the
+    setup screen if it is of the session's device (name and protocol), else the first shipped
+    config that is, on the port the session was recorded on; with the session's own serial (it
+    is the same unit). A one-line ValueError, short enough for the setup screen, when none is."""
+    def same_device(config: StationConfig) -> bool:
+        return (config.device.name, config.device.protocol) == (live.name, live.protocol)
+
+    found = chosen if chosen is not None and same_device(chosen) else None
+    if found is None:
+        for name in available_configs():
+            try:
+                config = load_config(name)
+            except (ValueError, OSError):
+                continue
+            if same_device(config) and config.device.port is not None:
+                port = dataclasses.replace(config.device.port, url=live.url)
+                found = dataclasses.replace(config, device=dataclasses.replace(config.device, port=port))
+                break
+    if found is None:
+        raise ValueError(f"resume: the session is of {live.name} ({live.protocol}); choose that unit's "
+                         "config above (its ports), then resume")
+    return dataclasses.replace(found, device=dataclasses.replace(found.device, serial=live.serial))
 
 
 # --- unfinished sessions, to resume --------------------------------------------------------

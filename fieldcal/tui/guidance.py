@@ -65,12 +65,21 @@ def _heading_change_deg(previous: Position, target: Position) -> float:
     return math.degrees(math.atan2(r[1, 0], r[0, 0]))
 
 
+COMPASS = ("north", "south", "east", "west")
+
+
+def names_heading(description: str) -> bool:
+    """Does a position's description say where its level axes point (a compass word)?"""
+    return any(word in description.lower() for word in COMPASS)
+
+
 def placement(previous: Position | None, target: Position) -> Guidance:
     """How to move the unit from ``previous`` (None: not placed yet) into ``target``."""
     vertical, level = _vertical_axis(target), _horizontal_axis(target)
     if previous is None:  # a position the file does not describe: its attitude says it
-        if target.description:
+        if target.description and names_heading(target.description):
             return Guidance(f"place it {target.description}")
+        # (a planned position's "y-down" says which face is down, not where the others point)
         return _pose("place it", "on", target, vertical, level)
     cos = float(np.clip(previous.up_body @ target.up_body, -1.0, 1.0))
     tip = math.degrees(math.acos(cos))

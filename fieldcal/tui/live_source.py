@@ -262,6 +262,18 @@ class LiveSource(SimSource):
         assert command in (BUMP, MISPLACE)
         return [Say(f"({command}: the simulator's keys; this is a real device)")]
 
+    def resume_prospect(self) -> str:
+        """A resume keeps the completed steps only where the device's clock shows the unit ran on
+        meanwhile (``deviceclock.measured_again``): said so for a device whose frames carry none."""
+        if self.session_dir is None:
+            return super().resume_prospect()
+        clock = self.bench.device_clock  # as last read (the worker thread replaces it whole)
+        if clock is None or (clock.time_s is None and clock.counter is None):
+            return ("The session is kept, but this device's frames carry no clock: a resume cannot "
+                    "tell a power cycle, so it measures every position again from the first.")
+        return ("The session is kept: a resume continues after the last completed step if the unit "
+                "stays powered (its clock tells).")
+
     def _stopped_message(self) -> str:
         if self.session_dir is None:
             return "stopped before the end"

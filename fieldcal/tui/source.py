@@ -74,6 +74,7 @@ class ResumeNote(Note):
     warn: bool = False
     done: tuple[int, ...] = ()
     skipped: tuple[int, ...] = ()
+    elapsed_s: float | None = None  # the sample time the session had reached when it stopped
 
 
 class Sink(Protocol):
@@ -146,6 +147,10 @@ class Source(Operator, Subscriber):
 
     def _stopped_message(self) -> str:
         return "stopped before the end"
+
+    def resume_prospect(self) -> str:
+        """What a resume could continue if the run stopped now, for the quit question."""
+        return ""
 
     def _session_after_error(self) -> Path | None:
         return None
@@ -295,11 +300,17 @@ class SimSource(Source):
         self._items.append(ResumeNote(conductor.engine.t, f"resuming {self.session_dir.name} after {done} "
                                       f"completed step{'s' if done != 1 else ''}: place the unit for the next step",
                                       f"RESUMED after {done} completed step{'s' if done != 1 else ''}",
-                                      done=tuple(conductor.engine.records), skipped=tuple(conductor.engine.skipped)))
+                                      done=tuple(conductor.engine.records), skipped=tuple(conductor.engine.skipped),
+                                      elapsed_s=recorded_until(reader)))
         return conductor
 
     def _session_after_error(self) -> Path | None:
         return self.session_dir if self.recorder is not None else None
+
+    def resume_prospect(self) -> str:
+        if self.session_dir is None:
+            return "Nothing is captured (no session directory): all of it is lost."
+        return "The session is kept: a resume continues after the last completed step."
 
     def _stopped_message(self) -> str:
         if self.session_dir is None:
@@ -336,6 +347,13 @@ class SimSource(Source):
             return [Say(f"operator: {command}"), Act(command)]
         self.bump_times.append(e.t)  # BUMP
         return [Say("operator: bump! (the simulator knocks the fixture)"), Bump()]
+
+
+def recorded_until(reader) -> float | None:
+    """The sample time a session's samples reach (its last chunk's last sample), None if it
+    has none: the run went on past its last completed step, where a resume continues."""
+    ends = [d["t_last"] for d in reader.documents("chunk") if isinstance(d.get("t_last"), (int, float))]
+    return max(ends, default=None)
 
 
 def _pieces(chunks, n: int) -> list:

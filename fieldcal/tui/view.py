@@ -7,6 +7,7 @@ that started (or re-synchronised) it, advanced by the telemetry's sample time.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 from fieldcal.procedure import engine as en
@@ -14,7 +15,7 @@ from fieldcal.procedure.engine import skipped_to_return_to
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure, position_words
 from fieldcal.run.progress import describe
-from fieldcal.tui.guidance import placement
+from fieldcal.tui.guidance import names_heading, placement
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.source import Note, ResumeNote
 
@@ -38,6 +39,22 @@ def duration_words(seconds: float) -> str:
         return f"{s:.0f} s"
     minutes = round(s / 60)
     return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
+
+
+def rate_step_s(procedure: Procedure) -> float:
+    """One rate step (one sign) of a procedure: ramp, settle and the whole turns averaged."""
+    r = procedure.rate_step
+    return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
+
+
+def step_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S) -> float:
+    """One position's step: a placement, the dwell and the rate steps both ways."""
+    return placing_s + procedure.dwell_s + 2 * rate_step_s(procedure)
+
+
+def job_duration_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S) -> float:
+    """The whole job, as the run's own estimate counts it before any step is timed."""
+    return len(procedure.positions) * step_s(procedure, placing_s)
 
 
 @dataclass
@@ -100,6 +117,10 @@ class RunView:
     unit_at: object | None = None  # the Position the unit was last found still in
     looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
     resumed: ResumeNote | None = None  # a resumed run, until its first unit is placed
+    # "elapsed" never goes back: sample time the run's clock went back by (a resume continues
+    # from its last completed step, not from where it was quit) is added to it.
+    elapsed_offset: float = 0.0
+    _telemetry_t: float | None = None
 
     def __post_init__(self) -> None:
         if not self.tiles:
@@ -115,6 +136,11 @@ class RunView:
         return self.telemetry.t if self.telemetry is not None else self.last_t
 
     @property
+    def elapsed(self) -> float:
+        """The run's time so far, as the operator lived it: it never goes back."""
+        return self.t + self.elapsed_offset
+
+    @property
     def phase(self) -> str:
         return self.telemetry.phase if self.telemetry is not None else en.PLACE
 
@@ -127,6 +153,8 @@ class RunView:
         self.last_t = max(self.last_t, item.t)
         if isinstance(item, ResumeNote):  # (also mid-run: a power-cycled unit's steps are done again)
             self.resumed = item
+            if item.elapsed_s is not None:
+                self.elapsed_offset = max(self.elapsed_offset, item.elapsed_s - item.t)
             self.tiles = [DONE if step in item.done else SKIPPED if step in item.skipped else TODO
                           for step in range(self.total_steps)]
         if isinstance(item, Note):
@@ -207,6 +235,9 @@ class RunView:
         self.carry_from = (self.telemetry.samples if self.telemetry is not None else 0) if value else None
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
+        if self._telemetry_t is not None and telemetry.t < self._telemetry_t:
+            self.elapsed_offset += self._telemetry_t - telemetry.t
+        self._telemetry_t = telemetry.t
         self.telemetry = telemetry
         if telemetry.phase != en.PLACE:
             self.carrying = False
@@ -228,8 +259,7 @@ class RunView:
 
     def rate_step_s(self) -> float:
         """One rate step (one sign): ramp, settle and the whole turns averaged."""
-        r = self.procedure.rate_step
-        return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
+        return rate_step_s(self.procedure)
 
     def remaining_s(self) -> float:
         """Sample time the open steps still need: dwells and rate steps from the procedure,
@@ -238,7 +268,7 @@ class RunView:
         if self.finished is not None or self.step >= self.total_steps:
             return 0.0
         placing = sum(self.placing_s) / len(self.placing_s) if self.placing_s else PLACING_GUESS_S
-        per_step = self.procedure.dwell_s + 2 * self.rate_step_s() + placing
+        per_step = step_s(self.procedure, placing)
         open_steps = sum(s in (TODO, ACTIVE, WRONG) for i, s in enumerate(self.tiles) if i != self.step)
         t = self.t
         if self.placed:
@@ -256,8 +286,8 @@ class RunView:
         legend = (f"✓{n[DONE]} done  –{n[SKIPPED]} skipped  {'▶ now  ' if running else ''}"
                   f"·{n[TODO]} to do   ")
         if not running:
-            return f"{legend}{clock_text(self.t)} in all"
-        return f"{legend}{clock_text(self.t)} elapsed, ≈{duration_words(self.remaining_s())} to go"
+            return f"{legend}{clock_text(self.elapsed)} in all"
+        return f"{legend}{clock_text(self.elapsed)} elapsed, ≈{duration_words(self.remaining_s())} to go"
 
     def unskip_target(self) -> int | None:
         """The step that going back (unskip) returns to, as the engine chooses it."""
@@ -265,26 +295,54 @@ class RunView:
             return None
         return skipped_to_return_to({i for i, s in enumerate(self.tiles) if s == SKIPPED}, self.step)
 
-    def confirmation(self, action: str, running: bool = True) -> str | None:
-        """The question to ask before ``action`` ("skip", "abort", "unskip", "quit"), or None
-        when it loses nothing and needs no confirmation."""
+    def work_words(self) -> str:
+        """The run's work so far, as quitting or aborting would cost it: "7 of 18 positions done
+        in 35 min"."""
+        done = self.tiles.count(DONE)
+        return (f"{done} of {self.total_steps} position{'' if self.total_steps == 1 else 's'} done "
+                f"in {duration_words(self.elapsed)}")
+
+    def step_work_words(self) -> str | None:
+        """What the current step has measured, which redo, skip and going back drop: "80 s of
+        its 200 s dwell and 1 of 2 rate steps"; None before anything is measured."""
+        if self.step >= self.total_steps or not self.placed:
+            return None
+        parts = []
+        dwell = self.dwell.done(self.t)
+        if dwell >= 1:
+            parts.append(f"{dwell:.0f} s of its {self.dwell.total:g} s dwell")
+        if self.rates_done:
+            parts.append(f"{self.rates_done} of 2 rate steps")
+        return " and ".join(parts) or None
+
+    def confirmation(self, action: str, running: bool = True, resume: str = "") -> str | None:
+        """The question to ask before ``action`` ("skip", "abort", "unskip", "redo", "quit"), in
+        words that say what it would lose, or None when it loses nothing and needs no
+        confirmation. ``resume``: what a resume of the run could do (the source knows), said
+        with the quit question."""
         if self.finished is not None or not running or self.step >= self.total_steps:
             return None
         pid = self.position.id
         begun = self.phase not in (en.PLACE, en.DONE)
+        measured = self.step_work_words()
         if action == "abort":
-            return "ABORT the run? It ends for good (no resume)."
+            return f"ABORT the run? {self.work_words()}; it ends for good, no resume (the session is kept)."
         if action == "quit":
-            return "Quit mid-run? The session is kept, unfinished."
+            return f"Quit mid-run? {self.work_words()}. {resume}".rstrip()
         if action == "skip":
+            lost = f" {measured[0].upper()}{measured[1:]} would be dropped." if measured else ""
             others = [i for i, s in enumerate(self.tiles) if i != self.step and s in (TODO, ACTIVE, WRONG)]
             if not others:
-                return f"Skip position {pid}, the last one? The run then ends."
-            return f"Skip position {pid}? (u goes back to it)"
+                return f"Skip position {pid}, the last one? The run then ends.{lost}"
+            return f"Skip position {pid}?{lost} (u goes back to it)"
+        if action == "redo":
+            lost = f"{measured} would be lost" if measured else "nothing of it is measured yet"
+            return f"Redo position {pid} from the placement? {lost[0].upper()}{lost[1:]}."
         if action == "unskip" and begun:
             back = self.unskip_target()
             back_id = self.procedure.positions[back].id if back is not None else "?"
-            return f"Back to position {back_id}? Position {pid}'s progress is lost."
+            lost = f": {measured}" if measured else ""
+            return f"Back to position {back_id}? Position {pid}'s progress is lost{lost}."
         return None
 
     @staticmethod
@@ -297,7 +355,10 @@ class RunView:
         if self.step >= self.total_steps:
             return f"all {self.total_steps} steps done"
         p = self.position
-        return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {position_words(p)}"
+        words = position_words(p)
+        if p.description and not names_heading(p.description):  # "y-down": and its heading
+            words += f" ({position_words(dataclasses.replace(p, description=''))})"
+        return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {words}"
 
     def banner(self, sim: bool) -> tuple[str, str]:
         """(instruction for the operator, style class)."""

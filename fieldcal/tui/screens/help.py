@@ -13,7 +13,12 @@ from fieldcal.tui.keys import LIVE_KEYS, REPLAY_KEYS, SETUP_KEYS, SIM_KEYS
 
 class HelpScreen(ModalScreen):
     CSS_PATH = "help.tcss"
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,question_mark,q", "dismiss", "close", show=False)]
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("escape,question_mark,q", "dismiss", "close", show=False),
+        # A modal screen keeps the app's ctrl+c (no priority key, so that a text field can copy)
+        # from reaching the app: here it asks to quit, as over the run.
+        Binding("ctrl+c", "app.request_quit", "quit", show=False),
+    ]
 
     def __init__(self, mode: str) -> None:
         """``mode``: "setup", or the source's "sim", "live" or "replay"."""

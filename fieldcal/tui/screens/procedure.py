@@ -22,17 +22,19 @@ from fieldcal.tui.view import RunView
 
 OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort", "unskip")
 SIM_ACTIONS = ("bump", "misplace")
+QUIT_KEYS = ("ctrl+q", "ctrl+c")  # the app's: they ask as q does, and answer its question
 BIG = (110, 34)  # columns and rows from which the cube and the live bars grow
-CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u"}  # pressed again: confirmed
+# Pressed again: confirmed. Redo is on o, away from s and a (a slip between neighbours asks anyway).
+CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u", "redo": "o"}
 
 
 class ProcedureScreen(Screen):
     CSS_PATH = "procedure.tcss"
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("r", "command('ready')", "ready"),
-        Binding("d", "command('redo')", "redo"),
         Binding("s", "ask('skip')", "skip"),
         Binding("u", "ask('unskip')", "back"),
+        Binding("o", "ask('redo')", "redo"),
         Binding("a", "ask('abort')", "abort"),
         Binding("b", "command('bump')", "bump"),
         Binding("w", "command('misplace')", "misplace", show=False),
@@ -55,13 +57,13 @@ class ProcedureScreen(Screen):
         yield Static("", id="job")
         yield Static("", id="step")
         yield Static("", id="banner")
+        yield Static("", id="confirm")  # a question, in the banner's place while it is asked
         if self.view.procedure.targets:  # a planned procedure: time left, σ against its targets
             yield PlanPanel(id="plan")
         with Horizontal(id="body"):
             yield Static("", id="cube")
             yield LivePanel(id="live")
         yield EventLog(id="log", wrap=True, max_lines=5000, markup=False, min_width=20)
-        yield Static("", id="confirm")
         yield Footer()
         yield TooSmall()
 
@@ -148,9 +150,13 @@ class ProcedureScreen(Screen):
         self.app.send_command(name)
 
     async def action_ask(self, name: str) -> None:
-        """Abort, skip, quit (and going back, when it drops a step begun) wait for a confirmation:
-        one slip of a finger must not cost the run."""
-        question = self.view.confirmation(name, running=self.mode != "replay")
+        """Abort, skip, redo, quit (and going back, when it drops a step begun) wait for a
+        confirmation that says what they would lose: one slip of a finger must not cost the run."""
+        if name == "quit" and self.pending == "quit":
+            await self._do(name)  # ctrl+q (or ctrl+c) pressed again while its question is asked
+            return
+        resume = self.app.resume_prospect() if name == "quit" else ""
+        question = self.view.confirmation(name, running=self.mode != "replay", resume=resume)
         if question is None:
             await self._do(name)
         else:
@@ -162,6 +168,7 @@ class ProcedureScreen(Screen):
         bar = self.query_one("#confirm", Static)
         bar.update(text)
         bar.display = name is not None
+        self.query_one("#banner").display = name is None
 
     async def _do(self, name: str) -> None:
         if name == "quit":
@@ -177,7 +184,7 @@ class ProcedureScreen(Screen):
         event.stop()
         event.prevent_default()
         self._ask(None)
-        if event.key in (CONFIRM_KEYS[name], "y"):
+        if event.key in (CONFIRM_KEYS[name], "y") or (name == "quit" and event.key in QUIT_KEYS):
             await self._do(name)
 
     def action_results(self) -> None:

@@ -166,6 +166,11 @@ def summary(outcome: Outcome, skipped: list[int], not_done: list[int], verdict=N
         text.append(f"  {' '.join(str(why).split()).removeprefix(name + ': ')}\n")
     if outcome.status == "completed" and not solutions and not failures:
         text.append("nothing was solved\n", style="yellow")
+    if outcome.procedure.targets and (solutions or failures):  # a planned procedure: its targets
+        from fieldcal.tui.widgets.plan import solved_standings, target_text
+
+        for standing in solved_standings(outcome.procedure, solutions):
+            text.append(f"plan · {target_text(standing)}\n", style="green" if standing.met else "bold red")
     if verdict is not None:
         for c in verdict.checks:  # a triad the spec names that the run neither solved nor refused
             if c.parameter == "triad" and c.triad not in solutions and c.triad not in failures:

@@ -3,7 +3,9 @@ present), the procedure and the station, before a run.
 
 ``SetupScreen(initial)`` dismisses with the operator's ``SetupChoice`` (already checked by
 ``resolve_choice`` and remembered with ``save_last_choice``), or with None when the operator quits
-(Esc, or q outside a text field). Start: ctrl+s anywhere, Enter in a text field, or the button.
+(Esc, or q outside a text field). Start: ctrl+s anywhere or the button (Enter in a text field
+moves to the next field). The operator, the unit's serial (into the config's device.serial),
+the sessions directory and the product spec ride on the choice.
 
 Given a sessions directory, it also offers the unfinished sessions there: Resume dismisses with a
 ``ResumeChoice`` (a live session's ports: the config chosen above, checked like Start's).
@@ -24,6 +26,7 @@ from textual.widgets import Button, Footer, Input, Label, Select, Static
 
 from fieldcal.config import CONFIGS_DIR, StationConfig
 from fieldcal.procedure.positions import Procedure
+from fieldcal.tui.view import PLACING_GUESS_S, duration_words, job_duration_s, rate_step_s
 from fieldcal.tui.choices import (
     SetupChoice,
     available_configs,
@@ -55,6 +58,25 @@ def procedure_summary(procedure: Procedure) -> str:
     if step is not None:
         text += f" · table ±{step.rate_deg_s:g} °/s"
     return text
+
+
+def duration_summary(procedure: Procedure) -> str:
+    """The whole job's expected time, and what it is made of."""
+    rate = f" + 2 × {rate_step_s(procedure):.0f} s turning" if procedure.rate_step is not None else ""
+    return (f"whole job ≈ {duration_words(job_duration_s(procedure))}: {len(procedure.positions)} × "
+            f"(≈{PLACING_GUESS_S:.0f} s placing + {procedure.dwell_s:g} s dwell{rate})")
+
+
+def load_spec_choice(path: str | None):
+    """The product spec the spec field names (None: none); a one-line ValueError naming it."""
+    if path is None:
+        return None
+    from fieldcal.acceptance import load_spec
+
+    try:
+        return load_spec(path)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"spec: {' '.join(str(exc).split())}") from None
 
 
 def serial_ports_text() -> str:
@@ -124,6 +146,7 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
         self.config: StationConfig | None = None  # the config currently chosen, if it loads
         self.procedure: Procedure | None = None
         self.resolved: tuple[StationConfig, Procedure] | None = None  # after a successful Start
+        self.product_spec = None  # the spec file's ProductSpec, after a successful Start
         self._prefilled_from: Path | None = None  # the config the port and station came from
         self._selected_config: object = None  # the config list's value, to tell a new choice
         self._configs = available_configs()
@@ -151,44 +174,62 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
 
         self._selected_config = config if config_names else Select.NULL
         yield Static("fieldcal · setup", id="title")
+        # Compact fields (one line each): every one, the error and Start fit 80×24.
         with Horizontal(classes="row"):
             yield Label("Config", classes="label")
             yield Select([(n, n) for n in config_names], value=config if config_names else Select.NULL,
-                         allow_blank=not config_names, id="config")
+                         allow_blank=not config_names, id="config", compact=True)
             yield Label("or file", classes="label small")
-            yield Input(config_path, placeholder="path/to/config.yaml", id="config-path")
+            yield Input(config_path, placeholder="path/to/config.yaml", id="config-path", compact=True)
         yield Static("", id="config-summary", classes="summary")
         with Horizontal(classes="row"):
             yield Label("IMU port", classes="label")
-            yield Input("", placeholder="pyserial URL, e.g. /dev/ttyUSB0", id="port")
+            yield Input("", placeholder="pyserial URL, e.g. /dev/ttyUSB0", id="port", compact=True)
             yield Label("table", classes="label small")
-            yield Input("", placeholder="e.g. /dev/ttyACM0", id="table-port")
+            yield Input("", placeholder="e.g. /dev/ttyACM0", id="table-port", compact=True)
         yield Static(serial_ports_text(), id="ports", classes="summary")
         with Horizontal(classes="row"):
             yield Label("Procedure", classes="label")
             yield Select([(n, n) for n in procedure_names],
                          value=procedure if procedure_names else Select.NULL,
-                         allow_blank=not procedure_names, id="procedure")
+                         allow_blank=not procedure_names, id="procedure", compact=True)
             yield Static("", id="procedure-summary", classes="summary")
+        yield Static("", id="duration", classes="summary")
         with Horizontal(classes="row"):
             yield Label("Latitude", classes="label")
-            yield Input("", type="number", id="latitude")
+            yield Input("", type="number", id="latitude", compact=True)
             yield Label("°", classes="unit")
             yield Label("Height", classes="label small")
-            yield Input("", type="number", id="height")
+            yield Input("", type="number", id="height", compact=True)
             yield Label("m", classes="unit")
+        with Horizontal(classes="row"):
+            yield Label("Operator", classes="label")
+            yield Input(self._extra("operator"), placeholder="name or initials", id="operator", compact=True)
+            yield Label("unit serial", classes="label small")
+            yield Input("", placeholder="printed on the unit", id="unit-serial", compact=True)
+        with Horizontal(classes="row"):
+            yield Label("Sessions", classes="label")
+            yield Input(self._extra("out"), placeholder="directory", id="out", compact=True)
+            yield Label("spec", classes="label small")
+            yield Input(self._extra("spec"), placeholder="limits file (optional)", id="spec", compact=True)
         if self.unfinished:
             with Horizontal(classes="row"):
                 yield Label("Unfinished", classes="label")
                 yield Select([(u.label, str(u.path)) for u in self.unfinished], prompt="a session to resume",
-                             value=str(self.unfinished[0].path), id="unfinished")
-                yield Button("Resume", id="resume")
+                             value=str(self.unfinished[0].path), id="unfinished", compact=True)
+                yield Button("Resume", id="resume", compact=True)
         yield Static("", id="error")
         with Horizontal(id="actions"):
-            yield Button("Start", id="start", variant="success")
-            yield Static("ctrl+s or Enter in a field: start · Esc: quit", id="hint")
+            start = Button("Start", id="start", variant="success")
+            start.can_focus = False  # Enter moves between the fields; only ctrl+s or a click starts
+            yield start
+            yield Static("ctrl+s: start · Enter: next field · Esc: quit", id="hint")
         yield Footer()
         yield TooSmall()
+
+    def _extra(self, name: str) -> str:
+        value = getattr(self.initial, name, None) if self.initial is not None else None
+        return value or ""
 
     def on_mount(self) -> None:
         initial = self.initial
@@ -202,6 +243,8 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
                 table.value = initial.table_port
             self.query_one("#latitude", Input).value = _format_number(initial.latitude_deg)
             self.query_one("#height", Input).value = _format_number(initial.height_m)
+        if initial is not None and initial.unit_serial:
+            self.query_one("#unit-serial", Input).value = initial.unit_serial
         self._load_procedure()
         self.set_error("")
 
@@ -253,6 +296,7 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
             table.value = config.table.port.url
         self.query_one("#latitude", Input).value = _format_number(config.station.latitude_deg)
         self.query_one("#height", Input).value = _format_number(config.station.height_m)
+        self.query_one("#unit-serial", Input).value = config.device.serial or ""
 
     def _load_procedure(self) -> None:
         summary = self.query_one("#procedure-summary", Static)
@@ -262,9 +306,11 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
             self.procedure = None
             summary.update(str(exc))
             summary.set_class(True, "bad")
+            self.query_one("#duration", Static).update("")
             return
         summary.update(procedure_summary(self.procedure))
         summary.set_class(False, "bad")
+        self.query_one("#duration", Static).update(duration_summary(self.procedure))
 
     def set_error(self, message: str) -> None:
         error = self.query_one("#error", Static)
@@ -285,7 +331,16 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
                 numbers.append(float(text))
             except ValueError:
                 raise ValueError(f"{name}: expected a number in {unit}, got {text!r}") from None
-        return SetupChoice(self.config_text(), port, self.procedure_text(), numbers[0], numbers[1], table_port)
+        config_serial = config.device.serial if config is not None else None
+        serial = self._text("#unit-serial") or ""  # "": cleared, the unit has no serial given
+        return SetupChoice(self.config_text(), port, self.procedure_text(), numbers[0], numbers[1], table_port,
+                           operator=self._text("#operator"), out=self._text("#out"), spec=self._text("#spec"),
+                           unit_serial=serial if serial != (config_serial or "") else None)
+
+    def _text(self, field: str) -> str | None:
+        """A text field's value, None when blank."""
+        text = self.query_one(field, Input).value.strip()
+        return text or None
 
     def _override(self, field: str, own: str | None) -> str | None:
         """A port field's text, if it differs from the config's own port (None: keep that)."""
@@ -322,7 +377,7 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
 
     @on(Input.Submitted)
     def _submitted(self) -> None:
-        self.action_start()
+        self.focus_next()  # Enter moves on: a run of 85 minutes starts on one explicit key only
 
     @on(Button.Pressed, "#start")
     def _start_pressed(self) -> None:
@@ -338,6 +393,7 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
         try:
             choice = self.choice()
             self.resolved = resolve_choice(choice)
+            self.product_spec = load_spec_choice(choice.spec)
         except ValueError as exc:
             self.set_error(" ".join(str(exc).split()))
             return
@@ -357,12 +413,12 @@ class SetupScreen(Screen[SetupChoice | ResumeChoice | None]):
             self.set_error("resume: choose an unfinished session first")
             return
         session = next(u for u in self.unfinished if str(u.path) == value)
-        if session.device is not None:
+        self.resolved = None
+        if session.device is not None:  # its ports: the fields', if they are of its device
             try:
                 self.resolved = resolve_choice(self.choice())
-            except ValueError as exc:
-                self.set_error(" ".join(str(exc).split()))
-                return
+            except ValueError:
+                pass  # (the session's own config is found without them)
         self.dismiss(ResumeChoice(session.path, session.device is not None))
 
     def action_quit(self) -> None:
