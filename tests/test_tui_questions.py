@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from tui_pilot import run_async, until, waiting_at
 from fieldcal.procedure import events as ev
-from fieldcal.run.runner import RunSpec
+from fieldcal.run.runner import RunSpec, open_run
 from fieldcal.tui import FieldcalApp
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.screens.help import HelpScreen
@@ -165,8 +165,11 @@ def live_app(tmp_path, protocol: str):
     from fieldcal.config import load_config
     from tests.test_tui_live import OPTIONS
 
+    # VectorNav ASCII carries no device time: its rate is measured in host time, so it is served in
+    # real time at the config's rate (as fast as read, the run would be held: issue 23's rate check)
+    speed = 1.0 if protocol == "vectornav" else 0
     devices = SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol=protocol,
-                               table_protocol=None, speed=0, seed=3, rate_hz=200)
+                               table_protocol=None, speed=speed, seed=3, rate_hz=200)
     devices.start()
     tmp_path.mkdir()
     acc, gyro = PAPER_NOISE["accelerometer"], PAPER_NOISE["gyroscope"]
@@ -225,7 +228,7 @@ async def test_elapsed_does_not_go_back_after_a_resume(tmp_path):
         assert quit_at > app.view.placing_s[0]  # (the run has sample time behind it)
         await pilot.press("q", "y")
     assert app.source.done.wait(10.0)
-    resumed = FieldcalApp(speed=0, resume=tmp_path / "s")
+    resumed = FieldcalApp(speed=0, resume=open_run(tmp_path / "s"))
     async with resumed.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(resumed, 1))
         assert resumed.view.t < quit_at  # the engine's clock restarts at the last completed step
@@ -260,7 +263,7 @@ async def test_the_bell_rings_when_a_step_ends_and_the_banner_says_what_next(tmp
         assert len(rings) == 2
         await pilot.press("q", "y")
     assert app.source.done.wait(10.0)
-    replay = FieldcalApp(None, speed=0, replay=tmp_path / "s")  # nobody to call: it stays quiet
+    replay = FieldcalApp(None, speed=0, replay=open_run(tmp_path / "s"))  # nobody to call: it stays quiet
     replay.bell = lambda: rings.append("replay")
     async with replay.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: replay.outcome is not None)

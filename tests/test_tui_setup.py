@@ -8,7 +8,7 @@ import pytest
 import yaml
 from textual.app import App
 from textual.geometry import Region
-from textual.widgets import Button, Footer, Input, Select, Static
+from textual.widgets import Footer, Input, Select, Static
 
 from tui_pilot import run_async, until
 from fieldcal.config import CONFIGS_DIR, load_config

@@ -301,7 +301,7 @@ class SimSource(Source):
                                       f"completed step{'s' if done != 1 else ''}: place the unit for the next step",
                                       f"RESUMED after {done} completed step{'s' if done != 1 else ''}",
                                       done=tuple(conductor.engine.records), skipped=tuple(conductor.engine.skipped),
-                                      elapsed_s=recorded_until(reader)))
+                                      elapsed_s=recorded_until(self.resume)))
         return conductor
 
     def _session_after_error(self) -> Path | None:

@@ -230,7 +230,7 @@ def test_sigkill_in_run_and_in_resume_then_resume_gives_the_same_parameter_file(
     assert final.returncode == 0, final.stdout + final.stderr
     assert (session / "parameters.yaml").read_bytes() == (quick_session / "parameters.yaml").read_bytes()
     replay = fieldcal("replay", session, "--quiet")
-    assert replay.returncode == 0 and "identical to the recorded one" in replay.stdout
+    assert replay.returncode == 0 and "identical to the run's parameters-001.yaml" in replay.stdout
     again = fieldcal("resume", session)
     assert again.returncode == 2 and "a completed session is never resumed" in one_line_error(again.stderr)
 
