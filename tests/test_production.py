@@ -88,6 +88,27 @@ def test_a_replay_is_recorded(pristine_session, tmp_path, capsys):
                     (str((session / "parameters-001.yaml").resolve()), "run")]
 
 
+def test_a_replay_whose_parameter_file_differs_exits_1_and_confirms_nothing(pristine_session, tmp_path, capsys):
+    """The recorded file moved by half a σ in one parameter (still a valid file): the replay says
+    DIFFERS, exits 1, and does not index the session's calibration as confirmed."""
+    import dataclasses
+
+    from fieldcal.paramfile import save
+
+    session = _copy(pristine_session, tmp_path / "s")
+    noted = session / "parameters-001.yaml"
+    pf = load(noted)
+    acc = pf["accelerometer"]
+    moved = dataclasses.replace(acc, bias=acc.bias + [0.5 * acc.sigma[0], 0.0, 0.0])
+    save(dataclasses.replace(pf, triads=tuple(moved if t.name == acc.name else t for t in pf.triads)), noted)
+    db = str(tmp_path / "r.sqlite")
+    assert main(["replay", str(session), "--quiet", "--registry", db]) == 1
+    out = capsys.readouterr().out
+    assert "parameter file DIFFERS from the recorded one" in out
+    with Registry(db) as registry:
+        assert registry.query("SELECT params_path FROM calibrations WHERE source = 'run'") == []
+
+
 def test_a_resumed_run_is_recorded(pristine_session, tmp_path, capsys):
     from crashes import cut_before_step_record
 
