@@ -6,6 +6,7 @@ from functools import lru_cache
 
 import numpy as np
 import pytest
+from hypothesis import settings as hypothesis_settings
 
 from drivers.sim import TriadNoise
 from drivers.sim.device import paper_mimu
@@ -15,6 +16,12 @@ from fieldcal.procedure.positions import load_procedure
 from fieldcal.run.simcal import DEFAULT_STATION
 from fieldcal.run.simrun import plan_procedure, simulate_averages
 from fieldcal.solvers.solve import average_covariance, models_from_truth
+
+
+# No Hypothesis example may fail for taking long: on a loaded machine (two workers, other jobs)
+# the default 200 ms deadline is a wall-clock threshold. Each property test says so too.
+hypothesis_settings.register_profile("fieldcal", deadline=None)
+hypothesis_settings.load_profile("fieldcal")
 
 
 @dataclasses.dataclass(frozen=True)

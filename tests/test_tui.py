@@ -374,7 +374,7 @@ async def test_a_run_quit_half_way_resumes_in_the_tui_to_the_uninterrupted_run(t
             await pilot.press("r")
         await until(pilot, lambda: waiting_at(app, 7))
         await pilot.press("q", "y")
-    app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0), "the run's thread never ended"
     assert app.source.outcome.status == "stopped"
     assert f"fieldcal tui --resume {session}" in app.source.outcome.message
     assert not SessionReader(session).stopped

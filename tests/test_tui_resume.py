@@ -166,7 +166,7 @@ async def _first_step_then_quit(tmp_path, devices, world, procedure, make_config
     async with app.run_test(size=(80, 24)) as pilot:
         await _first_step(app, pilot, devices, procedure)
         await pilot.press("q", "y")
-    app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0), "the run's thread never ended"
     assert app.source.outcome.status == "stopped"
     assert f"fieldcal tui --resume {tmp_path / 'session'} --config" in app.source.outcome.message
     return config
@@ -359,7 +359,7 @@ async def test_the_setup_screen_offers_an_unfinished_session_and_resumes_it(tmp_
         await pilot.press("r")
         await until(pilot, lambda: waiting_at(quit_run, 1))
         await pilot.press("q", "y")
-    quit_run.source.done.wait(10.0)
+    assert quit_run.source.done.wait(60.0), "the run's thread never ended"
     run_headless(spec, sessions / "completed")  # ended: not offered
     (sessions / "not-a-session").mkdir()
 
