@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tui_pilot import log_settled, run_async, until, waiting_at
+from tui_pilot import log_settled, run_async, show_hand_built_results, until, waiting_at
 from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -280,6 +280,7 @@ def test_snapshot_results_screen(snap_compare, headless_classic12, tmp_path, mon
     _, headless = headless_classic12
     shutil.copytree(headless.session, tmp_path / "session")
     monkeypatch.chdir(tmp_path)  # so that the paths shown do not depend on the temporary directory
+    show_hand_built_results(monkeypatch)  # round numbers in place of the solved ones (tui_pilot)
     app = FieldcalApp(None, speed=0, replay=Path("session"))
 
     async def results(pilot):
