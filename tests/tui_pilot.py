@@ -97,3 +97,18 @@ def show_hand_built_results(monkeypatch) -> None:
             super().__init__(outcome, *args, **kwargs)
 
     monkeypatch.setattr(app_module, "ResultsScreen", HandBuiltResults)
+
+
+def show_hand_built_readings(monkeypatch) -> None:
+    """The live panel's readings, once samples come, are round numbers (1, -2, 1000 mg; 0.01,
+    -0.02, 0.03 °/s; 0.5° from the expected up; quiet 0.8) in place of the simulator's noisy
+    means, which a snapshot must not hold."""
+    from fieldcal.tui.readings import RecentSamples
+
+    def readings(self, expected_up):
+        if len(self._sf) == 0:
+            return {}
+        return {"accel_mg": (1.0, -2.0, 1000.0), "gyro_deg_s": (0.01, -0.02, 0.03), "angle_deg": 0.5,
+                "quiet": 0.8}
+
+    monkeypatch.setattr(RecentSamples, "readings", readings)
