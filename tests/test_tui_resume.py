@@ -176,6 +176,9 @@ async def _resume(tmp_path, config, world, first_step, carry):
     app = FieldcalApp(speed=0, resume=tmp_path / "session", config=config, wall_clock=world)
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, first_step))
+        # A loaded machine may keep the device's first samples more than 2 s (wall) away: the
+        # banner says NO SAMPLES until they come. What the resume says is read once they have.
+        await until(pilot, lambda: app.telemetry.silent_s is None)
         banner = str(app.screen.query_one("#banner").render())
         for step in range(first_step, 2):
             await until(pilot, lambda step=step: waiting_at(app, step))
