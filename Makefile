@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 # commit both). The product's own requirements in pyproject.toml stay ranges.
 CONSTRAINTS := constraints.txt
 
-.PHONY: demo test test-fast constraints bench clean
+.PHONY: demo test test-fast constraints mutants bench clean
 
 $(STAMP): pyproject.toml $(CONSTRAINTS)
 	$(PYTHON) -m venv $(VENV)
@@ -41,6 +41,16 @@ constraints:
 	mv $(CONSTRAINTS).new $(CONSTRAINTS)
 	rm -rf .venv-constraints
 
+# Mutation testing of the core ([tool.mutmut] in pyproject.toml), not in CI: hours on 2 cores.
+# mutmut in its own environment, so its dependencies stay out of the tests'; it resumes where it
+# stopped. Then `.venv-mutants/bin/mutmut results` lists the survivors, `... show NAME` one.
+MUTANTS_VENV := .venv-mutants
+mutants: pyproject.toml $(CONSTRAINTS)
+	$(PYTHON) -m venv $(MUTANTS_VENV)
+	$(MUTANTS_VENV)/bin/pip install --quiet -c $(CONSTRAINTS) -e '.[test]' 'mutmut>=3.3,<4'
+	$(MUTANTS_VENV)/bin/mutmut run
+	$(MUTANTS_VENV)/bin/mutmut results
+
 bench: $(STAMP)
 	$(BIN)/python benchmarks/startup.py
 	$(BIN)/python benchmarks/tui_start.py
@@ -52,4 +62,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/accuracy.py
 
 clean:
-	rm -rf $(VENV) .venv-constraints build *.egg-info
+	rm -rf $(VENV) .venv-constraints $(MUTANTS_VENV) mutants build *.egg-info
