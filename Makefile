@@ -3,21 +3,53 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# The test environment's exact versions (Textual, numpy, scipy, ...): a new release changes the
+# suite only when this file is regenerated on purpose (`make constraints`, then `make test`, then
+# commit both). The product's own requirements in pyproject.toml stay ranges.
+CONSTRAINTS := constraints.txt
 
-.PHONY: demo test bench clean
+.PHONY: demo test test-fast constraints mutants bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(CONSTRAINTS)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -c $(CONSTRAINTS) -e '.[test]'
 	touch $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/fieldcal run --config configs/sim.yaml --procedure field-18 --headless --seed 1
 
-# One worker per core (pytest-xdist); `make test PYTEST_ARGS=...` adds options.
+# One worker per core (pytest-xdist); `make test PYTEST_ARGS=...` adds options. loadgroup: the
+# tests sharing an expensive module fixture run on one worker, which builds it once (conftest.py).
 test: $(STAMP)
-	$(BIN)/python -m pytest -n auto $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -n auto --dist loadgroup $(PYTEST_ARGS)
+
+# The quick loop while working: every module, without the tests marked slow (long statistics,
+# end-to-end runs); `make test` runs them all.
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -n auto --dist loadgroup -m "not slow" $(PYTEST_ARGS)
+
+# Regenerate constraints.txt from the newest releases pyproject.toml's ranges allow, in a
+# scratch environment (the working .venv is left alone).
+constraints:
+	rm -rf .venv-constraints
+	$(PYTHON) -m venv .venv-constraints
+	.venv-constraints/bin/pip install --quiet --upgrade pip
+	.venv-constraints/bin/pip install --quiet -e '.[test]'
+	{ echo "# Exact versions for the test environment (make test): regenerate with make constraints."; \
+	  .venv-constraints/bin/pip freeze --exclude-editable; } > $(CONSTRAINTS).new
+	mv $(CONSTRAINTS).new $(CONSTRAINTS)
+	rm -rf .venv-constraints
+
+# Mutation testing of the core ([tool.mutmut] in pyproject.toml), not in CI: hours on 2 cores.
+# mutmut in its own environment, so its dependencies stay out of the tests'; it resumes where it
+# stopped. Then `.venv-mutants/bin/mutmut results` lists the survivors, `... show NAME` one.
+MUTANTS_VENV := .venv-mutants
+mutants: pyproject.toml $(CONSTRAINTS)
+	$(PYTHON) -m venv $(MUTANTS_VENV)
+	$(MUTANTS_VENV)/bin/pip install --quiet -c $(CONSTRAINTS) -e '.[test]' 'mutmut>=3.3,<4'
+	$(MUTANTS_VENV)/bin/mutmut run
+	$(MUTANTS_VENV)/bin/mutmut results
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/startup.py
@@ -30,4 +62,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/accuracy.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) .venv-constraints $(MUTANTS_VENV) mutants build *.egg-info

@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fieldcal.apply import apply_file, calibrated_blocks, plan
@@ -345,6 +345,7 @@ def test_real_device_files_give_what_fieldcal_import_reads(tmp_path, files, map_
         np.testing.assert_allclose(first[:, 4:7], cals[1].calibrate(recording.triads["gyroscope"]), rtol=1e-13, atol=1e-12)
 
 
+@settings(deadline=None)  # a loaded machine must not fail it: no time limit per example
 @given(st.lists(st.text(alphabet=" \t1a-.", max_size=12), max_size=8), st.sampled_from(["\n", "\r\n"]),
        st.booleans())
 def test_squeezing_blanks_is_splitting_each_line_on_blanks(lines, end, ended):

@@ -5,9 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 from fieldcal.earth import Station
 from fieldcal.paramfile import dump, load
 from fieldcal.procedure.positions import load_procedure, parse_procedure
+from fieldcal.run.environment import compare_parameters
 from fieldcal.run.runner import OperatorScript, RunSpec, open_run, resume_headless, run_headless
 from fieldcal.session.capture import SessionReader
 
@@ -27,14 +31,11 @@ def golden_procedure():
 
 
 def _shift_in_sigma(pf, recorded) -> dict[str, float]:
-    """Per triad, the largest |new - recorded| of a parameter in units of its recorded σ (as the
-    replay's own comparison measures it)."""
-    from fieldcal.paramfile import ParameterFile
-    from fieldcal.run.environment import _worst_deviation
-
-    def alone(f, name):
-        return ParameterFile((f[name],), f.provenance)
-    return {name: _worst_deviation(alone(pf, name), alone(recorded, name))[0] for name in recorded.names}
+    """Per triad, the largest |new - recorded| of a parameter in units of its recorded σ, worked
+    out here from the two files' numbers (not by the replay's own comparison, which is under test)."""
+    assert set(pf.names) == set(recorded.names)
+    return {name: float(np.max(np.abs(pf[name].theta - recorded[name].theta) / recorded[name].sigma))
+            for name in recorded.names}
 
 
 # The golden sessions were solved by fieldcal 0.1.0. Since then the gyroscope's static dwells drop
@@ -235,3 +236,40 @@ positions:
     assert len(operator.told_to_place_at) >= 3  # first step, the restart's, the second step
     assert operator.told_to_place_at == [0.0] * len(operator.told_to_place_at)
     assert bench.target_deg_s == 0.0
+
+
+def _hand_built(bias_y: float, scale_z: float = 1.002):
+    from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs
+
+    triad = TriadParameters(name="accelerometer", kind="specific_force", output_unit="m/s^2",
+                            bias=np.array([0.01, bias_y, 0.03]), K=np.diag([1.0, 1.0, scale_z]),
+                            sigma=np.array([1e-4, 2e-4, 1e-4, 1e-5, 1e-5, 1e-5, 1e-4, 1e-4, 1e-4]),
+                            residual_rms=1e-3, method="powell")
+    return ParameterFile.build([triad], station=STATION, procedure="golden-mini", method="powell",
+                               input_sha256=hash_inputs(np.zeros(3)), device_name="imu", device_serial="A1")
+
+
+@pytest.mark.parametrize("bias_y_shift, scale_z_shift, identical, named", [
+    (0.0, 0.0, True, None),
+    (-0.0009 * 2e-4, 0.0, True, None),  # 0.9e-3 of bias_y's σ (2e-4): within 1e-3σ
+    (+0.0011 * 2e-4, 0.0, False, "accelerometer bias_y off by 0.0011σ"),
+    (-0.0011 * 2e-4, 0.0, False, "accelerometer bias_y off by 0.0011σ"),  # either sign
+    (0.0009 * 2e-4, 0.002 * 1e-5, False, "accelerometer scale_z off by 0.002σ"),  # the worst one named
+])
+def test_a_replay_elsewhere_compares_each_value_in_units_of_its_recorded_sigma(monkeypatch, bias_y_shift,
+                                                                               scale_z_shift, identical, named):
+    """The tolerance's value comparison with hand-built files: σ(bias_y) = 2e-4 m/s², σ(scale_z)
+    = 1e-5, so a shift of 0.9e-3 σ passes and 1.1e-3 σ (of either sign) does not."""
+    from fieldcal.paramfile import dump
+    from fieldcal.run import environment
+
+    monkeypatch.setattr(environment, "numeric_environment", lambda: {"numpy": "9.9", "machine": "here"})
+    recorded = dump(_hand_built(0.02)).encode()
+    found = compare_parameters(_hand_built(0.02 + bias_y_shift, 1.002 + scale_z_shift), recorded,
+                               {"numpy": "1.0", "machine": "there"})
+    assert found.identical is identical, found.text
+    assert "numpy: 1.0 -> 9.9" in found.text and "machine: there -> here" in found.text
+    if named is None:
+        assert "all within 0.001σ" in found.text
+    else:
+        assert named in found.text and "DIFFERS" in found.text

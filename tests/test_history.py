@@ -69,6 +69,29 @@ def test_a_file_edited_after_calibration_is_said_to_be(tmp_path):
     assert "EDITED AFTER CALIBRATION" in found.describe() and str(path) in found.describe()
 
 
+def test_a_re_solved_sessions_genuine_file_is_verified_against_the_newest_calibration(tmp_path):
+    """parameters.yaml is a copy of the newest numbered file: after a re-solve its SHA-256 is the
+    one the log recorded last, not the first calibration's; the file the first wrote is still
+    checked against its own record."""
+    from fieldcal.session.history import recorded_check
+
+    _session(tmp_path / "s", _parameters(0.01), 1_000_000_000)
+    w = SessionWriter.append_to(tmp_path / "s")
+    w.write_parameters(_parameters(0.011))  # the re-solve
+    w.close()
+    s = tmp_path / "s"
+    assert (s / "parameters.yaml").read_bytes() == (s / "parameters-002.yaml").read_bytes() \
+        != (s / "parameters-001.yaml").read_bytes()
+    found, _ = previous_calibration(tmp_path, "imu", "A1")
+    assert found.parameters["accelerometer"].bias[0] == 0.011
+    assert found.check == VERIFIED and not found.edited
+    assert recorded_check(s / "parameters-001.yaml") == VERIFIED
+    assert recorded_check(s / "parameters-002.yaml") == VERIFIED
+    # and the first calibration's values put back by hand are an edit of the current file
+    (s / "parameters.yaml").write_bytes((s / "parameters-001.yaml").read_bytes())
+    assert recorded_check(s / "parameters.yaml") == EDITED
+
+
 def test_a_file_without_a_recorded_checksum_is_not_called_verified(tmp_path):
     (tmp_path / "copied").mkdir()
     (tmp_path / "copied" / "parameters.yaml").write_text(dump(_parameters(0.01)))

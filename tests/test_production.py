@@ -59,8 +59,11 @@ def test_resolve_batch_writes_records_and_skips_a_bad_session(pristine_session, 
     resolved = load(a / "parameters-002.yaml")
     assert resolved.provenance.method == "lsq"
     truth = {n: params_from_k(t.K, t.bias) for n, t in paper_mimu().items()}
-    for cal in resolved.triads:  # the re-solve is a calibration: the simulator's truth within 5σ
-        assert np.all(np.abs(cal.theta - truth[cal.name]) < 5 * cal.sigma), cal.name
+    # The re-solve is a calibration: its errors against the simulator's truth, in units of its σ,
+    # neither beyond 4 nor all shrunk (σ inflated) nor spread wide (σ understated).
+    z = np.concatenate([(cal.theta - truth[cal.name]) / cal.sigma for cal in resolved.triads])
+    assert len(z) == 27 and np.all(np.abs(z) < 4.0), z
+    assert 0.5 < np.sqrt(np.mean(z**2)) < 1.5, z
     with Registry(db) as registry:
         rows = registry.query("SELECT params_path, method, source FROM calibrations ORDER BY params_path")
     assert rows == [(str((s / "parameters-002.yaml").resolve()), "lsq", "resolve") for s in (a, b)]
@@ -86,6 +89,27 @@ def test_a_replay_is_recorded(pristine_session, tmp_path, capsys):
     # the replay's own file, and the session's calibration it confirmed
     assert rows == [(str((tmp_path / "re.yaml").resolve()), "replay"),
                     (str((session / "parameters-001.yaml").resolve()), "run")]
+
+
+def test_a_replay_whose_parameter_file_differs_exits_1_and_confirms_nothing(pristine_session, tmp_path, capsys):
+    """The recorded file moved by half a σ in one parameter (still a valid file): the replay says
+    DIFFERS, exits 1, and does not index the session's calibration as confirmed."""
+    import dataclasses
+
+    from fieldcal.paramfile import save
+
+    session = _copy(pristine_session, tmp_path / "s")
+    noted = session / "parameters-001.yaml"
+    pf = load(noted)
+    acc = pf["accelerometer"]
+    moved = dataclasses.replace(acc, bias=acc.bias + [0.5 * acc.sigma[0], 0.0, 0.0])
+    save(dataclasses.replace(pf, triads=tuple(moved if t.name == acc.name else t for t in pf.triads)), noted)
+    db = str(tmp_path / "r.sqlite")
+    assert main(["replay", str(session), "--quiet", "--registry", db]) == 1
+    out = capsys.readouterr().out
+    assert "parameter file DIFFERS from the recorded one" in out
+    with Registry(db) as registry:
+        assert registry.query("SELECT params_path FROM calibrations WHERE source = 'run'") == []
 
 
 def test_a_resumed_run_is_recorded(pristine_session, tmp_path, capsys):

@@ -100,7 +100,11 @@ XSENS_B046897 = {
 }
 
 
-def test_imu_tk_xsens_optimum_is_b046897s_within_a_thousandth_sigma(xsens):
+def test_regression_alarm_imu_tk_xsens_optimum_is_b046897s_within_a_thousandth_sigma(xsens):
+    # A REGRESSION ALARM, not a guard of correctness: fieldcal's own earlier numbers. It says that
+    # something moved; whether the numbers are right is judged against independent truth: imu_tk's
+    # fit (below), local gravity (above), and for the σ the z-score statistics over seeded draws
+    # (test_norm_solver, test_recording_calibrate's static solve without a noise model).
     # b046897 weighted the pose means by white noise alone; the noise measured from the recording
     # (noise_estimate, later) changes the weights and so the optimum, not the search for it.
     recording, _ = xsens

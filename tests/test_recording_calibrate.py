@@ -392,3 +392,39 @@ def test_calibrate_help_says_the_gyro_bias_default_is_the_poses_mean(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "first pose" not in text
     assert "bias from the still poses' mean or estimated" in text
+
+
+@pytest.mark.parametrize("scatter_over_stated", [1.0, 2.0])
+def test_the_static_solve_without_a_noise_model_has_honest_sigma_over_seeded_draws(scatter_over_stated):
+    """σ-honesty of a recording's static solve without a noise model (white noise as measured over
+    the rest), over 300 seeded draws of 18 pose means: as measured (f = 1), and when the poses
+    scatter more than that noise says (f = 2 in variance, as a wandering bias or a trembling hand
+    make them). Its σ² are scaled by χ²/ν (ν = 18 − 9) when χ²/ν > 1, never down. In the linear
+    limit z = error/σ is then N(0, 1)·√(f / max(1, f·X/ν)), X ~ χ²_ν independent of the error,
+    so E[z²] = E[min(f, ν/X)] (scipy's χ² expectation: 0.85 and 1.18). A scaling by χ²/n instead
+    of χ²/(n − 9) gives 1.71 at f = 2."""
+    from scipy import stats
+
+    from fieldcal.model import distort_with
+    from fieldcal.recording.calibrate import _solve_static
+
+    rng = np.random.default_rng(2626)
+    n, per_pose, rate_hz, gravity, white = 18, 100, 100.0, 9.80, 0.02  # m/s² per sample
+    nu = n - 9
+    t = np.arange(n * per_pose) / rate_hz
+    intervals = np.column_stack([np.arange(n) * per_pose, (np.arange(n) + 1) * per_pose])
+    stated = np.full(3, white**2 / scatter_over_stated)  # the per-sample variance "measured"
+    z = []
+    for _ in range(300):
+        truth = np.r_[rng.uniform(-0.3, 0.3, 3), 1 + rng.uniform(-0.01, 0.01, 3), rng.uniform(-3e-3, 3e-3, 3)]
+        up = rng.normal(size=(n, 3))
+        up /= np.linalg.norm(up, axis=1, keepdims=True)
+        means = distort_with(truth, gravity * up) + rng.normal(0.0, white / np.sqrt(per_pose), (n, 3))
+        sol = _solve_static("accelerometer", "m/s^2", means, intervals, t, stated, gravity, RecordingSettings())
+        z.append((sol.theta - truth) / sol.sigma)
+    z = np.array(z)
+    expected = stats.chi2(nu).expect(lambda x: min(scatter_over_stated, nu / x))
+    assert np.all(np.abs(z.mean(axis=0)) < 4.0 * np.sqrt(expected / len(z))), z.mean(axis=0)
+    square = np.mean(z**2, axis=0)
+    assert np.all((square > 0.6 * expected) & (square < 1.5 * expected)), (square, expected)
+    assert 0.85 * expected < square.mean() < 1.2 * expected, (square.mean(), expected)

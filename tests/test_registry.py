@@ -104,7 +104,7 @@ def test_a_file_that_is_no_registry_is_one_line(tmp_path, capsys):
 
 
 def _writer(db, files, go):
-    go.wait(60)
+    assert go.wait(60), "the parent never said go"  # (a failed assert: exit code 1, which the parent checks)
     with Registry(db) as registry:  # the first to open an empty registry migrates it
         for f in files:
             registry.record(f)

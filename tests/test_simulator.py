@@ -200,3 +200,44 @@ def test_rotations_agree_with_scipy_at_every_angle():
             np.testing.assert_allclose(matrix_rotvec(m), v, rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.abs(matrix_rotvec(np.diag([1.0, -1.0, -1.0]))), [math.pi, 0, 0], atol=1e-15)
     np.testing.assert_allclose(z_rotation(0.7), Rotation.from_euler("z", 0.7).as_matrix(), rtol=0, atol=1e-15)
+
+
+def test_window_means_take_samples_from_the_start_inclusive_to_the_end_exclusive():
+    """The simulated runs' averaging windows are [start, end) in sample time, worked by hand: at
+    1 Hz with values equal to t, [2, 5) averages t = 2, 3, 4 and [5, 8) t = 5, 6, 7, so a sample on
+    a shared edge counts once, in the later window. (The other convention, (start, end], gives
+    4 and 7.) The chunk edge at t = 5 falls on the window edge too."""
+    from drivers.chunk import SampleChunk
+    from fieldcal.procedure.averaging import WindowAverager
+
+    t = np.arange(10.0)
+    values = np.column_stack([t, 10 * t, -t])
+    averager = WindowAverager([5.0, 2.0], [8.0, 5.0])  # given out of order: means in this order
+    for part in (slice(0, 5), slice(5, 10)):
+        averager.feed(SampleChunk(t=t[part], triads={"accelerometer": values[part]}))
+    np.testing.assert_array_equal(averager.counts, [3, 3])
+    np.testing.assert_array_equal(averager.means("accelerometer"), [[6.0, 60.0, -6.0], [3.0, 30.0, -3.0]])
+
+
+def test_window_means_refuse_overlapping_windows_and_a_window_without_samples():
+    """What a mutation run of averaging.py found untested (issue 26): windows that overlap or end
+    before they start are refused, and means of a window no sample fell in are an error naming
+    how many, not a NaN."""
+    import pytest
+
+    from drivers.chunk import SampleChunk
+    from fieldcal.procedure.averaging import WindowAverager
+
+    for starts, ends in (([0.0, 2.0], [3.0, 5.0]), ([4.0], [3.0])):
+        with pytest.raises(ValueError, match="^averaging windows overlap or end before they start$"):
+            WindowAverager(starts, ends)
+    WindowAverager([0.0, 3.0], [3.0, 5.0])  # touching is not overlapping
+    averager = WindowAverager([0.0, 2.0, 4.0, 20.0], [1.0, 3.0, 5.0, 21.0])
+    averager.feed(SampleChunk(t=np.arange(10.0), triads={"accelerometer": np.ones((10, 3))}))
+    np.testing.assert_array_equal(averager.counts, [1, 1, 1, 0])
+    assert averager.counts.dtype.kind == "i"
+    with pytest.raises(ValueError, match="^1 averaging windows received no samples$"):
+        averager.means("accelerometer")
+    single = WindowAverager([0.0], [1.0])  # one sample is a mean
+    single.feed(SampleChunk(t=np.arange(10.0), triads={"accelerometer": np.full((10, 3), 2.0)}))
+    np.testing.assert_array_equal(single.means("accelerometer"), [[2.0, 2.0, 2.0]])

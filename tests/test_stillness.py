@@ -412,32 +412,23 @@ def test_the_steady_path_windows_agree_with_sliding_std():
             np.testing.assert_allclose(_trailing_std(x, 250), expected, rtol=1e-9, atol=1e-12 * expected.max())
 
 
-def _window_var_as_written_before(x: np.ndarray, n: int, ddof: int) -> np.ndarray:
-    """sliding._window_var before its steps were worked in place, column by column (ed231b9),
-    kept as the oracle that the new version gives the same numbers bit for bit."""
-    m, c = x.shape
-    blocks_n = -(-m // n)
-    pad = blocks_n * n - m
-    if pad:
-        x = np.concatenate([x, np.repeat(x[-1:], pad, axis=0)])
-    blocks = x.reshape(blocks_n, n, c)
-    ref = blocks[:, :1, :]
-    d = blocks - ref
-    p1, p2 = np.cumsum(d, axis=1), np.cumsum(d * d, axis=1)
-    a1, a2 = p1[:-1, -1:, :] - p1[:-1], p2[:-1, -1:, :] - p2[:-1]
-    tail = np.arange(n - 1, -1, -1, dtype=float)[None, :, None]
-    delta = ref[:-1] - ref[1:]
-    s1 = p1[1:] + a1 + tail * delta
-    s2 = p2[1:] + a2 + 2.0 * delta * a1 + tail * delta * delta
-    s1 = np.concatenate([p1[0, -1:], s1.reshape(-1, c)])[: m - n + 1]
-    s2 = np.concatenate([p2[0, -1:], s2.reshape(-1, c)])[: m - n + 1]
-    return np.maximum((s2 - s1 * s1 / n) / (n - ddof), 0.0)
+def _window_var_by_definition(x: np.ndarray, n: int, ddof: int) -> np.ndarray:
+    """Each window's variance by numpy's own np.var over a view of its n rows (one column at a
+    time, to keep the view's temporary small): the definition, independent of the block sums."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    return np.column_stack([sliding_window_view(x[:, j], n).var(axis=-1, ddof=ddof) for j in range(x.shape[1])])
 
 
 @pytest.mark.parametrize("m, n, ddof", [(2, 2, 1), (5, 3, 0), (101, 101, 0), (102, 101, 1), (1000, 101, 0),
                                         (999, 7, 1), (40_000, 100, 1)])
-def test_window_var_in_place_gives_the_numbers_as_written_before(m, n, ddof):
+def test_window_var_gives_each_windows_variance_by_definition(m, n, ddof):
     rng = np.random.default_rng(m + n)
     x = 32768.0 + rng.normal(0.0, 3.0, (m, 3)).round()  # raw counts: ties and exact zeros too
     x[m // 3: m // 2] += 9.81 * 415.0  # a step inside
-    assert np.array_equal(sliding._window_var(x, n, ddof), _window_var_as_written_before(x, n, ddof))
+    got, expected = sliding._window_var(x, n, ddof), _window_var_by_definition(x, n, ddof)
+    assert got.shape == expected.shape == (m - n + 1, 3)
+    # the block sums round differently from np.var's two passes: equal to ~1e-9 of the largest
+    # variance (a window across the step), exactly 0 where a window holds one value
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9 * expected.max())
+    assert np.array_equal(got == 0.0, expected == 0.0)

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tui_pilot import log_settled, run_async, until, waiting_at
+from tui_pilot import (log_settled, run_async, show_hand_built_readings, show_hand_built_results, until,
+                        waiting_at)
 from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -258,9 +259,12 @@ async def test_abort_keeps_the_session(tmp_path):
 
 
 @pytest.mark.skipif(not HAVE_SNAPSHOTS, reason="pytest-textual-snapshot is not installed")
-def test_snapshot_procedure_screen(snap_compare, tmp_path):
-    # sim_noise="bank": the readings on screen are simulated digits (see headless_classic12).
-    spec = RunSpec(two_positions(tmp_path, TWO_WITH_TURNS), STATION, seed=3, sim_noise="bank")
+def test_snapshot_procedure_screen(snap_compare, tmp_path, monkeypatch):
+    # The live readings are hand-built round numbers (tui_pilot), and the simulated operator
+    # places the unit exactly: no simulated digits on the screen but the procedure's own.
+    show_hand_built_readings(monkeypatch)
+    spec = RunSpec(two_positions(tmp_path, TWO_WITH_TURNS), STATION, seed=3, sim_noise="bank",
+                   script=OperatorScript(placement_sigma_deg=0.0))
     app = FieldcalApp(spec, speed=0, session_dir=None)
 
     async def second_step(pilot):
@@ -280,6 +284,7 @@ def test_snapshot_results_screen(snap_compare, headless_classic12, tmp_path, mon
     _, headless = headless_classic12
     shutil.copytree(headless.session, tmp_path / "session")
     monkeypatch.chdir(tmp_path)  # so that the paths shown do not depend on the temporary directory
+    show_hand_built_results(monkeypatch)  # round numbers in place of the solved ones (tui_pilot)
     app = FieldcalApp(None, speed=0, replay=open_run(Path("session")))
 
     async def results(pilot):
@@ -379,7 +384,7 @@ async def test_a_run_quit_half_way_resumes_in_the_tui_to_the_uninterrupted_run(t
             await pilot.press("r")
         await until(pilot, lambda: waiting_at(app, 7))
         await pilot.press("q", "y")
-    app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0), "the run's thread never ended"
     assert app.source.outcome.status == "stopped"
     assert f"fieldcal tui --resume {session}" in app.source.outcome.message
     assert not SessionReader(session).stopped

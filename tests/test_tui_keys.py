@@ -151,7 +151,7 @@ async def test_quit_mid_run_asks_and_after_the_end_does_not(tmp_path):
         assert confirm_text(app) == "" and app.is_running
         await pilot.press("q", "y")
         await until(pilot, lambda: not app.is_running)
-    app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0), "the run's thread never ended"
     assert app.source.outcome.status == "stopped"
 
 

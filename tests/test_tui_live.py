@@ -141,11 +141,13 @@ async def test_a_lost_device_is_said_at_once_the_dwell_waits_and_quitting_is_cle
         shown = rows(view)
         assert "no samples" in shown["still"].plain and "σ" not in shown["still"].plain
         assert "s left" not in shown["dwell"].plain  # the dwell waits
-        phase = app.telemetry.phase
-        await pilot.pause(0.3)
+        # Nothing moves: a later telemetry (its silence counted further) is still at the same
+        # sample time and phase. (Waited for by what it says, not for a fixed time.)
+        phase, silent = app.telemetry.phase, app.telemetry.silent_s
+        await until(pilot, lambda: app.telemetry.silent_s > silent)
         assert app.telemetry.t == t and app.telemetry.phase == phase
         await pilot.press("q", "y")
-    app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0), "the run's thread never ended"
     assert app.source.outcome.status == "stopped"  # not an error: the ports were closed cleanly
 
 
@@ -176,7 +178,7 @@ async def test_a_table_whose_port_goes_away_is_said_and_the_run_waits_for_the_op
             assert f"its port {table.url} failed" in log and "skip this step (s) or abort (a)" in log
             await pilot.press("a", "y")
             await until(pilot, lambda: app.outcome is not None)
-        app.source.done.wait(10.0)
+        assert app.source.done.wait(60.0), "the run's thread never ended"
     finally:
         table.close()
     assert app.source.outcome.status == "aborted"

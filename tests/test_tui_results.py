@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tui_pilot import run_async, until, waiting_at
+from tui_pilot import run_async, show_hand_built_results, until, waiting_at
 from fieldcal.acceptance import spec_from_document
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -159,9 +159,11 @@ def classic12_session(tmp_path_factory):
 @pytest.mark.skipif(not HAVE_SNAPSHOTS, reason="pytest-textual-snapshot is not installed")
 @pytest.mark.parametrize("size", [(80, 24), (120, 40)])
 def test_snapshot_results_with_a_spec(snap_compare, classic12_session, tmp_path, monkeypatch, size):
-    """PASS and FAIL with limits far from the values (bias z 3 mg against 2.5 mg; σ ≈ 0.05 mg)."""
+    """PASS and FAIL with limits far from the values (bias z 3 mg against 2.5 mg; σ 0.05 mg),
+    the values hand-built round numbers (tui_pilot.hand_built_unit), not the run's solved ones."""
     shutil.copytree(classic12_session, tmp_path / "session")
     monkeypatch.chdir(tmp_path)  # the paths shown do not depend on the temporary directory
+    show_hand_built_results(monkeypatch)
     spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "paper MIMU", "triads": {
         "accelerometer": {"bias": {"unit": "mg", "min": -10, "max": 2.5}}}}, "spec.yaml")
     app = FieldcalApp(None, speed=0, replay=open_run(Path("session")), product_spec=spec)

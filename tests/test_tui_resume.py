@@ -171,7 +171,7 @@ async def _first_step_then_quit(tmp_path, devices, world, procedure, make_config
     async with app.run_test(size=(80, 24)) as pilot:
         await _first_step(app, pilot, devices, procedure)
         await pilot.press("q", "y")
-    app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0), "the run's thread never ended"
     assert app.source.outcome.status == "stopped"
     assert f"fieldcal tui --resume {tmp_path / 'session'} --config" in app.source.outcome.message
     return config
@@ -181,6 +181,9 @@ async def _resume(tmp_path, config, world, first_step, carry):
     app = FieldcalApp(speed=0, resume=open_run(tmp_path / "session"), config=config, wall_clock=world)
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, first_step))
+        # A loaded machine may keep the device's first samples more than 2 s (wall) away: the
+        # banner says NO SAMPLES until they come. What the resume says is read once they have.
+        await until(pilot, lambda: app.telemetry.silent_s is None)
         banner = str(app.screen.query_one("#banner").render())
         for step in range(first_step, 2):
             await until(pilot, lambda step=step: waiting_at(app, step))
@@ -363,7 +366,7 @@ async def test_the_setup_screen_offers_an_unfinished_session_and_resumes_it(tmp_
         await pilot.press("r")
         await until(pilot, lambda: waiting_at(quit_run, 1))
         await pilot.press("q", "y")
-    quit_run.source.done.wait(10.0)
+    assert quit_run.source.done.wait(60.0), "the run's thread never ended"
     run_headless(spec, sessions / "completed")  # ended: not offered
     (sessions / "not-a-session").mkdir()
 

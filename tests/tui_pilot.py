@@ -38,3 +38,77 @@ def log_settled(app, last: str) -> bool:
         return False
     log = logs.first()
     return any(last in line.text for line in log.lines) and log.scroll_y >= log.max_scroll_y
+
+
+def hand_built_unit(unit):
+    """``unit`` (a UnitSolution) with every solved triad replaced by round numbers of the same
+    shape (its name, kind, units, method and residual labels kept), and the truth set to them
+    less a round number of σ: what a snapshot of the results may show, since no solver, BLAS or
+    noise stream moves it. In the operator's units: biases (1, 2, 3) ± 0.05 (mg, °/h), scale
+    factors 1.001-1.003 ± 20 ppm, angles or terms 0.1, -0.2, ... mrad ± 0.05 mrad, residuals
+    -0.01 ... +0.01 per equation; errors against the truth -1.5σ ... +2.5σ."""
+    import dataclasses
+
+    import numpy as np
+
+    from fieldcal.calibration import Calibration, SolverDiagnostics
+    from fieldcal.units import BIAS, operator_unit
+
+    solutions, truth = {}, {}
+    for name, sol in unit.solutions.items():
+        factor, _ = operator_unit(sol.kind, sol.output_unit, BIAS)
+        residual_factor, _ = operator_unit(sol.kind, sol.residual_unit, BIAS)
+        p = len(sol.parameter_names)
+        angles = np.array([0.1, -0.2, 0.3, 0.4, -0.5, 0.6])[:p - 6] * 1e-3
+        theta = np.r_[np.array([1.0, 2.0, 3.0]) / factor, 1.001, 1.002, 1.003, angles]
+        sigma = np.r_[np.full(3, 0.05 / factor), np.full(3, 2e-5), np.full(p - 6, 5e-5)]
+        n = sol.residuals.size
+        residuals = ((np.arange(n) - (n - 1) / 2) / max((n - 1) / 2, 1) * 0.01 / residual_factor)
+        solutions[name] = Calibration(
+            name=sol.name, kind=sol.kind, output_unit=sol.output_unit, method=sol.method, theta=theta,
+            covariance=np.diag(sigma**2), residuals=residuals.reshape(sol.residuals.shape),
+            residual_unit=sol.residual_unit, residual_labels=sol.residual_labels,
+            parameter_names=sol.parameter_names,
+            diagnostics=SolverDiagnostics(search=sol.method))  # no iterations: closed form, said so
+        errors = np.array([-1.5, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0, 2.5, -2.0, -1.0, 1.0])[:p]
+        truth[name] = theta - sigma * errors  # in the calibration's own parameters
+    return dataclasses.replace(unit, solutions=solutions), truth
+
+
+def show_hand_built_results(monkeypatch) -> None:
+    """The terminal UI's results screen, when it opens, shows ``hand_built_unit``'s numbers in
+    place of the run's solved ones (all else as the run left it: verdicts, files, skipped)."""
+    import dataclasses
+    import inspect
+    from pathlib import Path
+
+    from fieldcal.tui import app as app_module
+
+    real = app_module.ResultsScreen
+
+    class HandBuiltResults(real):
+        CSS_PATH = str(Path(inspect.getfile(real)).parent / real.CSS_PATH)  # (relative to its module)
+
+        def __init__(self, outcome, *args, **kwargs):
+            outcome.unit, outcome.truth = hand_built_unit(outcome.unit)
+            if outcome.parameter_file is not None:  # what the verdicts judge
+                outcome.parameter_file = dataclasses.replace(outcome.parameter_file, triads=tuple(
+                    outcome.unit.solutions[t.name] for t in outcome.parameter_file.triads))
+            super().__init__(outcome, *args, **kwargs)
+
+    monkeypatch.setattr(app_module, "ResultsScreen", HandBuiltResults)
+
+
+def show_hand_built_readings(monkeypatch) -> None:
+    """The live panel's readings, once samples come, are round numbers (1, -2, 1000 mg; 0.01,
+    -0.02, 0.03 °/s; 0.5° from the expected up; quiet 0.8) in place of the simulator's noisy
+    means, which a snapshot must not hold."""
+    from fieldcal.tui.readings import RecentSamples
+
+    def readings(self, expected_up):
+        if len(self._sf) == 0:
+            return {}
+        return {"accel_mg": (1.0, -2.0, 1000.0), "gyro_deg_s": (0.01, -0.02, 0.03), "angle_deg": 0.5,
+                "quiet": 0.8}
+
+    monkeypatch.setattr(RecentSamples, "readings", readings)
