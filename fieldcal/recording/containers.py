@@ -27,6 +27,11 @@ class ContainerError(ValueError):
     """A file's container cannot be read; the message names the file and what would help."""
 
 
+def is_compressed(data: bytes) -> bool:
+    """Whether the bytes begin as a compressed stream this module unpacks."""
+    return any(data.startswith(magic) for magic, *_ in _COMPRESSED)
+
+
 def text_of(data: bytes, path: str, spec) -> bytes:
     """The text to parse from a file's bytes: as they are, unpacked, or a MAT-file's variable
     written as text in the delimiter of ``spec`` (an import map's FileSpec)."""

@@ -34,7 +34,7 @@ import numpy as np
 
 from drivers.protocols.delimited import DelimitedTextParser
 from fieldcal.recording import Recording
-from fieldcal.recording.containers import ContainerError, text_of
+from fieldcal.recording.containers import ContainerError, is_compressed, text_of
 from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
 
 FIRST_FEW = 10  # malformed line numbers kept per file
@@ -161,6 +161,9 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         size, zeros = zero_tail(path)  # a pre-allocated file's NUL end: not read, not held, said
         with open(path, "rb") as f:
             data = f.read(size - zeros)
+            if zeros and is_compressed(data):  # the stream's own end (a gzip trailer's length under
+                data += f.read()  # 16 MiB ends in zero bytes), not a logger's unused end: kept
+                zeros = 0
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None
     sha256 = hashlib.sha256(data).hexdigest()  # of the file as it is, compressed or a MAT-file
