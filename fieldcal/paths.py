@@ -54,9 +54,10 @@ def find_named(name_or_path: str | os.PathLike, kind: str) -> Path | None:
 
 
 def not_found(name_or_path: str | os.PathLike, kind: str) -> str:
-    """One line saying where a name was looked for and which shipped names there are."""
+    """One line saying where a name was looked for and which shipped names there are (the folder
+    named, so a user of an installed fieldcal can copy a shipped file to edit)."""
     given = Path(name_or_path)
-    where = "" if given.suffix else f", nor {given}.yaml here, nor a shipped {kind}"
+    where = "" if given.suffix else f", nor {given}.yaml here, nor in {shipped_dir(kind)}"
     known = ", ".join(shipped_names(kind)) or "none"
     return f"{given}: no such {kind} (not a file{where}; the shipped {kind}s: {known})"
 
