@@ -37,7 +37,6 @@ def _run(argv, cwd: Path) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory) -> Path:
     """The bin/ of a fresh venv holding the wheel built from a copy of the checkout's sources."""
-    pytest.importorskip("build")
     source = tmp_path_factory.mktemp("source")
     for name in SOURCES:  # a copy: the build writes build/ and *.egg-info beside what it builds
         copy = shutil.copytree if (CHECKOUT / name).is_dir() else shutil.copy2
@@ -80,6 +79,18 @@ def test_the_installed_fieldcal_is_the_wheels_with_its_shipped_files(installed, 
     assert Path(root).resolve() == Path(module).resolve().parent / "_shipped"
     assert procedures.split() == sorted(p.stem for p in (CHECKOUT / "procedures").glob("*.yaml"))
     assert configs.split() == sorted(p.stem for p in (CHECKOUT / "configs").glob("*.yaml"))
+
+
+def test_the_installed_fieldcal_takes_a_users_file_of_a_shipped_name_first(installed, elsewhere):
+    probe = "from fieldcal.config import load_config; print(load_config('sim').device.name)"
+    shipped = _run([installed / "python", "-c", probe], cwd=elsewhere)
+    assert shipped.returncode == 0, shipped.stderr
+    assert shipped.stdout.strip() == "simulated MIMU (paper Tables 3-4)"  # configs/sim.yaml's name
+    text = (CHECKOUT / "configs" / "sim.yaml").read_text()
+    (elsewhere / "sim.yaml").write_text(text.replace("name: simulated MIMU (paper Tables 3-4)", "name: my bench"))
+    own = _run([installed / "python", "-c", probe], cwd=elsewhere)
+    assert own.returncode == 0, own.stderr
+    assert own.stdout.strip() == "my bench"
 
 
 def test_fieldcal_demo_runs_from_an_empty_directory(installed, elsewhere):
