@@ -209,7 +209,7 @@ def load_config(name_or_path: str | os.PathLike) -> StationConfig:
     given = Path(name_or_path)
     path = find_named(given, "config")
     if path is None and not given.suffix and not given.exists():
-        raise ConfigError(f"{not_found(given, 'config')}", str(given))
+        raise ConfigError(not_found(given, "config"), str(given))
     path = path or given  # a path given: the reader says what is wrong with it
     doc = read_yaml_file(path, ConfigError, "config")
     r = FieldReader(str(path), ConfigError)

@@ -19,6 +19,7 @@ import numpy as np
 
 from fieldcal.paths import PROCEDURES_DIR, find_named, not_found  # noqa: F401 (PROCEDURES_DIR: imported from here)
 from fieldcal.validation import FieldReader, describe, join, line_of, parse_yaml, read_yaml_text
+
 _WORDS = {"east": (1, 0, 0), "west": (-1, 0, 0), "north": (0, 1, 0), "south": (0, -1, 0),
           "up": (0, 0, 1), "down": (0, 0, -1)}
 
