@@ -24,9 +24,11 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from pathlib import Path
 
 from fieldcal.calibration import nearest, operator_values  # noqa: F401 (its home was here)
 from fieldcal.model import FULL_PARAM_NAMES, PARAM_NAMES
+from fieldcal.paths import find_named, not_found
 from fieldcal.units import ANGLE, BIAS, SCALE, group_of, operator_unit
 from fieldcal.validation import MISSING, FieldReader, describe, join, read_yaml_file
 
@@ -139,7 +141,12 @@ def spec_from_document(doc, path: str = "<spec>") -> ProductSpec:
 
 
 def load_spec(path: str | os.PathLike) -> ProductSpec:
-    """Read and check a product spec; any problem is a one-line SpecError."""
+    """Read and check a product spec, a path or a bare name (NAME.yaml here, else a shipped spec:
+    ``paper-mimu``); any problem is a one-line SpecError."""
+    found = find_named(path, "product spec")
+    if found is None and not Path(path).suffix and not Path(path).exists():
+        raise SpecError(not_found(path, "product spec"), os.fspath(path))
+    path = found or path  # a path given: the reader says what is wrong with it
     return spec_from_document(read_yaml_file(path, SpecError, "product spec"), os.fspath(path))
 
 

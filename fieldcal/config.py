@@ -12,7 +12,7 @@ from drivers.noise import TriadNoise
 from drivers.transport import PortSettings
 from fieldcal.earth import Station
 from fieldcal.model import KINDS
-from fieldcal.paths import CONFIGS_DIR
+from fieldcal.paths import CONFIGS_DIR, find_named, not_found  # noqa: F401 (CONFIGS_DIR: imported from here)
 from fieldcal.validation import IDENTIFIER, MISSING, FieldReader, describe, line_of, read_yaml_file
 
 DEVICE_PROTOCOLS = ("sim", "delimited", "vectornav", "xsens")
@@ -204,11 +204,13 @@ def _station(r: FieldReader, raw, where: str) -> Station:
 
 
 def load_config(name_or_path: str | os.PathLike) -> StationConfig:
-    """Load ``configs/NAME.yaml`` or a path; a bad file is a one-line ConfigError."""
+    """Load a path, or a bare name: NAME.yaml here, else the shipped one (``fieldcal.paths``); a
+    bad file is a one-line ConfigError."""
     given = Path(name_or_path)
-    candidates = [given] if given.suffix else [given, given.with_suffix(".yaml"),
-                                                CONFIGS_DIR / f"{given.name}.yaml"]
-    path = next((c for c in candidates if c.is_file()), given)
+    path = find_named(given, "config")
+    if path is None and not given.suffix and not given.exists():
+        raise ConfigError(not_found(given, "config"), str(given))
+    path = path or given  # a path given: the reader says what is wrong with it
     doc = read_yaml_file(path, ConfigError, "config")
     r = FieldReader(str(path), ConfigError)
     m = r.mapping(doc, "", ("device", "station"), ("table",))

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from fieldcal.paths import RECORDINGS_DIR
+from fieldcal.paths import shipped_names
 
 if TYPE_CHECKING:
     from fieldcal.recording import Recording
@@ -44,7 +44,7 @@ their timestamps are the same)."""
 
 
 def add_import_parser(sub) -> argparse.ArgumentParser:
-    maps = ", ".join(sorted(p.stem for p in RECORDINGS_DIR.glob("*.yaml"))) or "none yet"
+    maps = ", ".join(shipped_names("import map")) or "none yet"
     parser = sub.add_parser(
         "import", help="turn a recording (text files) into a session for calibration",
         description="Read a continuous recording of a unit from delimited text files, as an\n"

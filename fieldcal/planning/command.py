@@ -149,13 +149,10 @@ def plan_title(device: str, target: str, slack: float) -> str:
 def plan_inputs(args) -> list[str]:
     """The files ``plan`` reads: its config (a path or a shipped name), the procedure it plans
     from; its --out is never one of them, even with --force."""
-    from fieldcal.paths import CONFIGS_DIR
-    from fieldcal.procedure.positions import PROCEDURES_DIR
+    from fieldcal.paths import find_named
 
-    given = Path(args.config)
-    names = [given, given.with_suffix(".yaml"), CONFIGS_DIR / f"{given.name}.yaml",
-             PROCEDURES_DIR / "field-18.yaml"]
-    return [str(n) for n in names if n.is_file()]
+    names = [find_named(args.config, "config"), find_named("field-18", "procedure")]
+    return [str(n) for n in names if n is not None]
 
 
 def cmd_plan(args) -> int:

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from fieldcal.paths import PROCEDURES_DIR, find_named, not_found  # noqa: F401 (PROCEDURES_DIR: imported from here)
 from fieldcal.validation import FieldReader, describe, join, line_of, parse_yaml, read_yaml_text
 
-PROCEDURES_DIR = Path(__file__).resolve().parents[2] / "procedures"
 _WORDS = {"east": (1, 0, 0), "west": (-1, 0, 0), "north": (0, 1, 0), "south": (0, -1, 0),
           "up": (0, 0, 1), "down": (0, 0, -1)}
 
@@ -161,14 +161,14 @@ def _position(r: FieldReader, raw, where: str) -> Position:
 
 
 def load_procedure(name_or_path: str | Path) -> Procedure:
-    """Load ``procedures/NAME.yaml`` or a path; a bad file gives a one-line ProcedureError."""
+    """Load a path, or a bare name: NAME.yaml here, else the shipped one (``fieldcal.paths``); a bad
+    file gives a one-line ProcedureError."""
     path = Path(name_or_path)
     if not path.suffix and not path.exists():
-        path = PROCEDURES_DIR / f"{path.name}.yaml"
-        if not path.is_file():
-            known = ", ".join(sorted(p.stem for p in PROCEDURES_DIR.glob("*.yaml")))
-            raise ProcedureError(f"{name_or_path}: no such procedure (not a file, nor {path}; the "
-                                 f"procedures: {known})", str(name_or_path))
+        found = find_named(path, "procedure")
+        if found is None:
+            raise ProcedureError(not_found(path, "procedure"), str(name_or_path))
+        path = found
     return parse_procedure(read_yaml_text(path, ProcedureError, "procedure"), str(path))
 
 

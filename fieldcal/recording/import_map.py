@@ -34,7 +34,7 @@ from pathlib import Path
 
 from drivers.protocols.delimited import ChannelMap
 from fieldcal.model import ANGULAR_RATE, KINDS, SPECIFIC_FORCE
-from fieldcal.paths import RECORDINGS_DIR
+from fieldcal.paths import RECORDINGS_DIR, find_named, not_found  # noqa: F401 (RECORDINGS_DIR: imported from here)
 from fieldcal.validation import IDENTIFIER, FieldReader, describe, join, parse_yaml, read_yaml_text
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -106,17 +106,11 @@ class ImportMap:
 
 
 def resolve_map_path(name_or_path: str | os.PathLike) -> Path:
-    """A path as given, or a bare name found as NAME.yaml or in configs/recordings/ (as
-    ``fieldcal.config.load_config`` resolves station configs)."""
-    given = Path(name_or_path)
-    candidates = [given] if given.suffix else [given, given.with_suffix(".yaml"),
-                                                RECORDINGS_DIR / f"{given.name}.yaml"]
-    found = next((c for c in candidates if c.is_file()), None)
+    """A path as given, or a bare name: NAME.yaml here, else a shipped map (configs/recordings/),
+    by the rule of ``fieldcal.paths`` that also finds configs and procedures."""
+    found = find_named(name_or_path, "import map")
     if found is None:
-        known = sorted(p.stem for p in RECORDINGS_DIR.glob("*.yaml"))
-        where = "" if given.suffix else f", nor {RECORDINGS_DIR / (given.name + '.yaml')}"
-        raise ImportMapError(f"{given}: no such import map (not a file{where}; the maps in "
-                             f"configs/recordings: {', '.join(known) or 'none'})", str(given))
+        raise ImportMapError(not_found(name_or_path, "import map"), str(name_or_path))
     return found
 
 

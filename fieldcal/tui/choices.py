@@ -15,9 +15,10 @@ from pathlib import Path
 import yaml
 
 from fieldcal.atomic import write_atomically
-from fieldcal.config import CONFIGS_DIR, StationConfig, load_config
+from fieldcal.config import StationConfig, load_config
 from fieldcal.earth import Station
-from fieldcal.procedure.positions import PROCEDURES_DIR, Procedure, load_procedure
+from fieldcal.paths import find_named, shipped_names
+from fieldcal.procedure.positions import Procedure, load_procedure
 from fieldcal.validation import read_yaml_file
 
 LAST_SETUP_NAME = "last-setup.yaml"
@@ -118,13 +119,13 @@ def save_last_choice(choice: SetupChoice, path: str | os.PathLike | None = None)
 
 
 def available_configs() -> list[str]:
-    """Names of the configs shipped in ``configs/`` (sorted)."""
-    return sorted(p.stem for p in CONFIGS_DIR.glob("*.yaml") if p.is_file())
+    """Names of the shipped configs (sorted)."""
+    return shipped_names("config")
 
 
 def available_procedures() -> list[str]:
-    """Names of the procedures shipped in ``procedures/`` (sorted)."""
-    return sorted(p.stem for p in PROCEDURES_DIR.glob("*.yaml") if p.is_file())
+    """Names of the shipped procedures (sorted)."""
+    return shipped_names("procedure")
 
 
 def _one_line(exc: BaseException) -> str:
@@ -140,10 +141,9 @@ def load_choice_config(config: str) -> StationConfig:
     name = config.strip()
     if not name:
         raise ValueError("config: choose a config or give the path of one")
-    if _looks_like_name(name) and not Path(name).is_file() and not Path(name + ".yaml").is_file() \
-            and not (CONFIGS_DIR / f"{name}.yaml").is_file():
+    if _looks_like_name(name) and find_named(name, "config") is None:
         known = ", ".join(available_configs()) or "none"
-        raise ValueError(f"config: no config named {name!r} (in {CONFIGS_DIR.name}/: {known})")
+        raise ValueError(f"config: no config named {name!r} (none here, and the shipped configs: {known})")
     try:
         return load_config(name)
     except (ValueError, OSError) as exc:
@@ -155,9 +155,9 @@ def load_choice_procedure(procedure: str) -> Procedure:
     name = procedure.strip()
     if not name:
         raise ValueError("procedure: choose a procedure or give the path of one")
-    if _looks_like_name(name) and not (PROCEDURES_DIR / f"{name}.yaml").is_file():
+    if _looks_like_name(name) and find_named(name, "procedure") is None:
         known = ", ".join(available_procedures()) or "none"
-        raise ValueError(f"procedure: no procedure named {name!r} (in {PROCEDURES_DIR.name}/: {known})")
+        raise ValueError(f"procedure: no procedure named {name!r} (none here, and the shipped procedures: {known})")
     try:
         return load_procedure(name)
     except (ValueError, OSError) as exc:
