@@ -58,7 +58,8 @@ def station_models(config):
     if config.device.protocol == "sim":
         from drivers.sim.device import paper_mimu
         from fieldcal.solvers.solve import models_from_truth
-        return models_from_truth(paper_mimu(config.device.sim.raw_counts))
+        sim = config.device.sim
+        return models_from_truth(paper_mimu(sim.raw_counts, sim.flicker_tau_max_s))
     from fieldcal.run.livedevice import LiveDevice
     return dict(LiveDevice.from_config(config).models)
 
