@@ -306,7 +306,7 @@ def live_spec(config, procedure, args):
     from fieldcal.cli.options import operator_option
     from fieldcal.run.runner import RunSpec
 
-    step = procedure.rate_step
+    step = procedure.rate_steps[-1] if procedure.rate_steps else None  # the fastest
     if step is not None:
         if config.table is None:
             raise ValueError(f"{config.path}: no table, and procedure {procedure.name} has rate steps "

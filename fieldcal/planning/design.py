@@ -113,8 +113,12 @@ def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarra
         cov = average_covariance(model, ordered, rate_hz)
         # Table angle zero at each static dwell: the heading is a nuisance of the bound.
         north_body = attitudes[:, 1, :]
-        bound = angular_rate_bound(theta, up_body, np.radians(rate_deg_s), north_body,
-                                   EARTH_RATE, station.latitude_rad, cov)
+        plus = [w for w in windows if w.kind == PLUS]  # the positions that turn, at their rates
+        if not plus:
+            return np.full(9, np.inf)  # no rate step: the scale factors are not determined
+        rates = [w.table_rate or np.radians(rate_deg_s) for w in plus]
+        bound = angular_rate_bound(theta, up_body, np.array(rates), north_body,
+                                   EARTH_RATE, station.latitude_rad, cov, [w.position for w in plus])
     else:
         raise ValueError(f"unknown triad kind {model.kind!r}")
     with np.errstate(invalid="ignore"):  # a negative variance: the design cannot tell it (nan)

@@ -59,15 +59,18 @@ def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance)
 
 
 def angular_rate_bound(theta, axis_body: np.ndarray, table_rate: np.ndarray, north_body: np.ndarray,
-                       earth_rate: float, latitude_rad: float, covariance) -> np.ndarray:
+                       earth_rate: float, latitude_rad: float, covariance, turning=None) -> np.ndarray:
     """Bound for per-position +ω, −ω and static averages (data order: all +, all −, all static).
 
     axis_body: true table axis (local up) in body axes per position; north_body: true horizontal
-    direction of the Earth rate in body axes during each static dwell.
+    direction of the Earth rate in body axes during each static dwell; turning: the indices of
+    the positions with a rate step, in order (default: every position), and table_rate one rate
+    for them all or one each.
     """
     axis_body = np.asarray(axis_body, dtype=float)
     n = len(axis_body)
-    rate = np.broadcast_to(np.asarray(table_rate, dtype=float), (n,))
+    turning = np.arange(n) if turning is None else np.asarray(turning, dtype=int)
+    rate = np.broadcast_to(np.asarray(table_rate, dtype=float), (len(turning),))
     vertical, horizontal = earth_rate * np.sin(latitude_rad), earth_rate * np.cos(latitude_rad)
 
     def mean(x):
@@ -77,8 +80,8 @@ def angular_rate_bound(theta, axis_body: np.ndarray, table_rate: np.ndarray, nor
         north = north_body - np.einsum("ij,ij->i", north_body, d)[:, None] * d
         north /= np.linalg.norm(north, axis=1, keepdims=True)
         north = np.cos(nuis[:, [2]]) * north + np.sin(nuis[:, [2]]) * np.cross(d, north)
-        plus = distort_with(theta_, (rate + vertical)[:, None] * d)
-        minus = distort_with(theta_, (-rate + vertical)[:, None] * d)
+        plus = distort_with(theta_, (rate + vertical)[:, None] * d[turning])
+        minus = distort_with(theta_, (-rate + vertical)[:, None] * d[turning])
         static = distort_with(theta_, vertical * d + horizontal * north)
         return np.concatenate([plus.ravel(), minus.ravel(), static.ravel()])
 

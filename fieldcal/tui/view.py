@@ -226,9 +226,10 @@ class RunView:
 
     # --- the whole job -------------------------------------------------------------------
 
-    def rate_step_s(self) -> float:
-        """One rate step (one sign): ramp, settle and the whole turns averaged."""
-        r = self.procedure.rate_step
+    def rate_step_s(self, step: int | None = None) -> float:
+        """One rate step (one sign) of a step (default: the current one): ramp, settle and the
+        whole turns averaged; 0 for a position without one."""
+        r = self.procedure.rate_step_at(min(self.step if step is None else step, self.total_steps - 1))
         return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
 
     def remaining_s(self) -> float:
@@ -238,16 +239,18 @@ class RunView:
         if self.finished is not None or self.step >= self.total_steps:
             return 0.0
         placing = sum(self.placing_s) / len(self.placing_s) if self.placing_s else PLACING_GUESS_S
-        per_step = self.procedure.dwell_s + 2 * self.rate_step_s() + placing
-        open_steps = sum(s in (TODO, ACTIVE, WRONG) for i, s in enumerate(self.tiles) if i != self.step)
+        def per_step(i: int) -> float:
+            return self.procedure.dwell_s + 2 * self.rate_step_s(i) + placing
+
+        open_time = sum(per_step(i) for i, s in enumerate(self.tiles) if i != self.step and s in (TODO, ACTIVE, WRONG))
         t = self.t
         if self.placed:
-            rate_left = self.rate_step_s() * (2 - self.rates_done) if self.procedure.rate_step else 0.0
+            rate_left = self.rate_step_s() * (2 - self.rates_done)
             turning = 0.0 if self.turns.complete else self.turns.done(t)  # (a finished one is counted)
             current = self.dwell.total - self.dwell.done(t) + max(0.0, rate_left - turning)
         else:
-            current = per_step
-        return open_steps * per_step + current
+            current = per_step(self.step)
+        return open_time + current
 
     def job_text(self) -> str:
         """Counts beside the tiles' symbols (the legend), elapsed and remaining time."""

@@ -51,9 +51,12 @@ def procedure_summary(procedure: Procedure) -> str:
     """One line: positions, dwell, and the table's rate step if any."""
     n = len(procedure.positions)
     text = f"{n} position{'' if n == 1 else 's'} · {procedure.dwell_s:g} s dwells"
-    step = procedure.rate_step
-    if step is not None:
-        text += f" · table ±{step.rate_deg_s:g} °/s"
+    steps = procedure.rate_steps
+    if steps:
+        text += " · table ±" + "/".join(f"{rate:g}" for rate in sorted({s.rate_deg_s for s in steps})) + " °/s"
+        turning = sum(procedure.rate_step_at(i) is not None for i in range(n))
+        if turning < n:
+            text += f" at {turning} of {n} positions"
     return text
 
 
