@@ -79,6 +79,28 @@ class TriadNoise:
                 var = var + (s**2 * c**2 / tau**2) * (2 * x - 3 + 4 * np.exp(-x) - np.exp(-2 * x))
         return np.sqrt(var)
 
+    def bias_variance(self) -> float:
+        """Variance of the bias process (the bank's sum) at any one time, per axis."""
+        return float(np.sum(self.bank()[1] ** 2))
+
+    def point_covariance(self, starts: npt.ArrayLike, durations: npt.ArrayLike, t: float) -> np.ndarray:
+        """Covariance between the means of one axis over windows [start, start+T) that end by
+        ``t`` and the bias process at time ``t``: Σ s² · τ(1 − e^(−T/τ))/T · e^(−(t − start − T)/τ)
+        over the bank (white noise is independent of it). The bias at the end of a calibration
+        is predicted from its windows with this (DESIGN 12)."""
+        if self.rate_random_walk:
+            raise ValueError("point covariance is undefined with rate random walk")
+        a = np.asarray(starts, dtype=float)
+        T = np.asarray(durations, dtype=float)
+        gap = t - (a + T)
+        if np.any(gap < -1e-9):
+            raise ValueError("a window ends after the time the bias is wanted at")
+        gap = np.maximum(gap, 0.0)
+        out = np.zeros(len(a))
+        for c, s in zip(*self.bank()):
+            out += s**2 * c * (1 - np.exp(-T / c)) / T * np.exp(-gap / c)
+        return out
+
     def window_covariance(self, starts: npt.ArrayLike, durations: npt.ArrayLike) -> np.ndarray:
         """Covariance between the means of one axis over non-overlapping windows [start, start+T).
 

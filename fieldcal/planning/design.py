@@ -22,7 +22,7 @@ from fieldcal.procedure.stillness import StillnessSettings
 from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window
 from fieldcal.run.operators import OperatorScript
 from fieldcal.run.runner import TABLE_ACCEL_DEG_S2
-from fieldcal.solvers.crb import angular_rate_bound, specific_force_bound
+from fieldcal.solvers.crb import angular_rate_bound, end_bias_terms, specific_force_bound
 from fieldcal.solvers.solve import TriadModel, average_covariance
 
 
@@ -100,13 +100,43 @@ def window_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: floa
     return out
 
 
+def end_bias_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
+                    models: dict[str, TriadModel], station: Station, rate_hz: float,
+                    end_s: float | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per triad, the σ (solver units, per axis) of the bias at the end of the calibration
+    (``end_s``; default: the end of the last window), the value the unit is used with (DESIGN 12):
+    (as predicted from the windows, the best linear unbiased predictor; as the turn-on
+    constant's estimate, what a solver reporting the constant delivers). nan where the windows
+    cannot tell the parameters apart."""
+    end_s = max(w.start + w.duration for w in windows) if end_s is None else end_s
+    out = {}
+    for name, model in models.items():
+        try:
+            ends = _triad_sigmas(model, windows, attitudes, rate_deg_s, station, rate_hz, end_s)[1]
+        except np.linalg.LinAlgError:
+            out[name] = (np.full(3, np.nan), np.full(3, np.nan))
+            continue
+        with np.errstate(invalid="ignore"):
+            out[name] = (np.sqrt(np.diag(ends.predicted)), np.sqrt(np.diag(ends.constant)))
+    return out
+
+
 def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
-                  station: Station, rate_hz: float) -> np.ndarray:
+                  station: Station, rate_hz: float, end_s: float | None = None):
+    """The 9 σ of a triad's bound; with ``end_s``, (those σ, EndBiasBound at end_s)."""
     up_body = attitudes[:, 2, :]
     theta = params_from_k(model.sensitivity, np.zeros(3))
+
+    def end(used):
+        if end_s is None:
+            return None
+        return end_bias_terms(model.noise, model.sensitivity, [w.start for w in used],
+                              [w.duration for w in used], end_s)
+
     if model.kind == SPECIFIC_FORCE:
-        cov = average_covariance(model, [w for w in windows if w.kind == STATIC], rate_hz)
-        bound = specific_force_bound(theta, up_body, station.gravity, cov)
+        static = [w for w in windows if w.kind == STATIC]
+        cov = average_covariance(model, static, rate_hz)
+        bound = specific_force_bound(theta, up_body, station.gravity, cov, end(static))
     elif model.kind == ANGULAR_RATE:
         # The solver's data order: every +ω window, every −ω window, every static one.
         ordered = [w for kind in (PLUS, MINUS, STATIC) for w in windows if w.kind == kind]
@@ -115,14 +145,18 @@ def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarra
         north_body = attitudes[:, 1, :]
         plus = [w for w in windows if w.kind == PLUS]  # the positions that turn, at their rates
         if not plus:
-            return np.full(9, np.inf)  # no rate step: the scale factors are not determined
+            raise np.linalg.LinAlgError("no rate step: the scale factors are not determined")
         rates = [w.table_rate or np.radians(rate_deg_s) for w in plus]
-        bound = angular_rate_bound(theta, up_body, np.array(rates), north_body,
-                                   EARTH_RATE, station.latitude_rad, cov, [w.position for w in plus])
+        bound = angular_rate_bound(theta, up_body, np.array(rates), north_body, EARTH_RATE,
+                                   station.latitude_rad, cov, [w.position for w in plus], end(ordered))
     else:
         raise ValueError(f"unknown triad kind {model.kind!r}")
+    ends = None
+    if end_s is not None:
+        bound, ends = bound
     with np.errstate(invalid="ignore"):  # a negative variance: the design cannot tell it (nan)
-        return np.sqrt(np.diag(bound))
+        sigmas = np.sqrt(np.diag(bound))
+    return sigmas if end_s is None else (sigmas, ends)
 
 
 def time_breakdown(design: Design, operator: OperatorModel) -> dict[str, float]:
