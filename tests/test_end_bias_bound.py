@@ -77,3 +77,53 @@ def test_with_white_noise_alone_the_end_is_the_turn_on_bias():
     for name, (predicted, constant) in end_bias_sigmas(windows, attitudes, rate, models, station, 250.0).items():
         np.testing.assert_allclose(predicted, turn_on[name][:3], rtol=1e-9)
         np.testing.assert_allclose(constant, turn_on[name][:3], rtol=1e-9)
+
+
+def test_field_18_based_targets_judge_biases_at_the_end_and_take_overrides():
+    """--target field-18[,TRIAD.GROUP=σ]: field-18's σ with the biases' those against the bias at
+    the end of the run (of the constant the solver reports); a group given after it replaces it
+    (in operator units: °/h for a gyro bias); TRIAD.GROUP=σ alone is what it always was."""
+    from drivers.sim.device import paper_mimu
+    from fieldcal.earth import Station
+    from fieldcal.planning.command import judged_at_end, parse_targets, resolve_targets
+    from fieldcal.planning.design import Design, OperatorModel, bound_sigmas, end_bias_sigmas, timeline
+    from fieldcal.procedure.positions import load_procedure
+    from fieldcal.solvers.solve import models_from_truth
+    from fieldcal.units import display_scale
+
+    models = models_from_truth(paper_mimu())
+    station = Station(40.0, 50.0)
+    reference = load_procedure("field-18")
+    step = reference.rate_step
+    design = Design(tuple(p.attitude for p in reference.positions), reference.dwell_s, step.rate_deg_s, step.turns)
+    at_end = bound_sigmas(design, OperatorModel(), models, station, 250.0, bias_at_end=True)
+    turn_on = bound_sigmas(design, OperatorModel(), models, station, 250.0)
+    windows, seconds = timeline(design, OperatorModel())
+    ends = end_bias_sigmas(windows, np.array(design.attitudes), step.rate_deg_s, models, station, 250.0, seconds)
+    for name in models:
+        np.testing.assert_allclose(at_end[name][:3], ends[name][1], rtol=1e-12)
+        np.testing.assert_allclose(at_end[name][3:], turn_on[name][3:], rtol=1e-12)
+        # the bias at the end carries the process's wander the constant does not
+        assert np.all(at_end[name][:3] > turn_on[name][:3])
+
+    assert judged_at_end("field-18") and judged_at_end("field-18, gyroscope.bias=2")
+    assert not judged_at_end("gyroscope.bias=2")
+    assert {n: list(t) for n, t in resolve_targets("field-18", models, at_end).items()} == \
+        {n: list(t) for n, t in at_end.items()}
+    tightened = resolve_targets("field-18,gyroscope.bias=0.5", models, at_end)
+    gyro = models["gyroscope"]
+    np.testing.assert_allclose(tightened["gyroscope"][:3] * display_scale(gyro.kind, gyro.output_unit, 0), 0.5)
+    np.testing.assert_array_equal(tightened["gyroscope"][3:], at_end["gyroscope"][3:])
+    np.testing.assert_array_equal(tightened["accelerometer"], at_end["accelerometer"])
+    alone = resolve_targets("gyroscope.bias=0.5", models, at_end)
+    assert np.all(np.isinf(alone["accelerometer"]))
+    np.testing.assert_array_equal(alone["gyroscope"], parse_targets("gyroscope.bias=0.5", models)["gyroscope"])
+
+
+def test_a_bad_group_after_field_18_is_a_one_line_error(tmp_path, capsys):
+    from fieldcal.cli.main import main
+
+    out = tmp_path / "p.yaml"
+    assert main(["plan", "--config", "sim", "--target", "field-18,magnetometer.bias=1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "TRIAD.GROUP" in err and len(err.splitlines()) == 1 and not out.exists()

@@ -27,9 +27,12 @@ def add_plan_parser(sub) -> argparse.ArgumentParser:
         "Cramér-Rao bound meets the target for every parameter, and write it as a procedure file.")
     parser.add_argument("--config", required=True, help="station config: a name in configs/ or a path")
     parser.add_argument("--target", default="field-18", metavar="TARGET",
-                        help="field-18 (default): every σ no worse than the 18 × 200 s procedure's; "
-                        "or TRIAD.GROUP=σ,... in operator units, GROUP bias (mg, °/h), scale (1) "
-                        "or misalignment (mrad), e.g. accelerometer.bias=0.06,gyroscope.scale=2e-5")
+                        help="field-18 (default): every σ no worse than the 18 × 200 s procedure's, "
+                        "biases judged against the bias at the end of the calibration (the value the "
+                        "unit is used with); field-18,TRIAD.GROUP=σ,... tightens or relaxes groups of "
+                        "it; or TRIAD.GROUP=σ,... alone (biases as turn-on constants), in operator "
+                        "units, GROUP bias (mg, °/h), scale (1) or misalignment (mrad), e.g. "
+                        "accelerometer.bias=0.06,gyroscope.scale=2e-5")
     parser.add_argument("--slack", type=float, default=0.0, metavar="FRACTION",
                         help="allow σ up to (1 + FRACTION) × the target (default 0)")
     parser.add_argument("--margin", type=float, default=0.0, metavar="FRACTION",
@@ -90,6 +93,27 @@ def parse_targets(text: str, models) -> dict[str, np.ndarray]:
     if all(np.all(np.isinf(t)) for t in targets.values()):
         raise ValueError("--target: no σ given; use field-18 or TRIAD.GROUP=σ pairs")
     return targets
+
+
+def resolve_targets(text: str, models, ref_sigmas) -> dict[str, np.ndarray]:
+    """``field-18`` (field-18's σ, ``ref_sigmas``) with any ``TRIAD.GROUP=σ`` after it replacing
+    its groups, or ``TRIAD.GROUP=σ`` pairs alone."""
+    import numpy as np
+
+    if not judged_at_end(text):
+        return parse_targets(text, models)
+    targets = {name: np.array(sigmas, dtype=float) for name, sigmas in ref_sigmas.items()}
+    rest = text.partition(",")[2]
+    if rest.strip():
+        for name, given in parse_targets(rest, models).items():
+            targets[name] = np.where(np.isfinite(given), given, targets[name])
+    return targets
+
+
+def judged_at_end(text: str) -> bool:
+    """A target based on field-18 judges biases against the bias at the end of the calibration
+    (DESIGN 12); a list of TRIAD.GROUP=σ alone keeps the turn-on constants' σ it always meant."""
+    return text.partition(",")[0].strip() == "field-18"
 
 
 def operator_targets(models, limits) -> dict[str, dict[str, float]]:
@@ -180,16 +204,17 @@ def cmd_plan(args) -> int:
     step = reference.rate_step
     ref_design = Design(tuple(p.attitude for p in reference.positions), reference.dwell_s,
                         step.rate_deg_s, step.turns)
-    ref_sigmas = bound_sigmas(ref_design, operator, models, station, rate_hz)
+    at_end = judged_at_end(args.target)
+    ref_sigmas = bound_sigmas(ref_design, operator, models, station, rate_hz, bias_at_end=at_end)
     ref_seconds = operator_time(ref_design, operator)
-    targets = ref_sigmas if args.target == "field-18" else parse_targets(args.target, models)
+    targets = resolve_targets(args.target, models, ref_sigmas)
     limits = {n: t * (1 + args.slack) for n, t in targets.items()}
     planned_to = {n: t / (1 + args.margin) for n, t in limits.items()}  # what the search must reach
     print(f"planning for {config.device.name}: table up to {max_rate:g} °/s, operator "
           f"{operator.place_s:g} s to place + {operator.settle_s:g} s to settle per position",
           file=sys.stderr, flush=True)
     pool = candidates(reference.positions, corners=args.corners)
-    plan = Planner(models, station, rate_hz, operator, planned_to, max_rate).search(pool)
+    plan = Planner(models, station, rate_hz, operator, planned_to, max_rate, bias_at_end=at_end).search(pool)
     meets_reference = all(np.all(ref_sigmas[n] <= t) for n, t in planned_to.items())
     if plan.seconds >= ref_seconds and meets_reference:
         # Nothing shorter meets the target (a tight one against field-18's own σ, whose long span
@@ -228,10 +253,33 @@ def cmd_plan(args) -> int:
             target = limits[name][j]  # the σ enforced: the target with its slack
             shown = "-" if np.isinf(target) else f"{target * scale:.3g}"
             ratio = "-" if np.isinf(target) else f"{plan.sigmas[name][j] / target:.3f}"
-            print(f"| {name} | {pname} | {param_unit(model.kind, model.output_unit, j)} | {shown} | "
+            shown_name = f"{pname} at end" if at_end and j in GROUPS["bias"] else pname
+            print(f"| {name} | {shown_name} | {param_unit(model.kind, model.output_unit, j)} | {shown} | "
                   f"{plan.sigmas[name][j] * scale:.3g} | {ratio} | {ref_sigmas[name][j] * scale:.3g} |")
-    print_time_and_floor(plan, ref_design, ref_seconds, operator, models, planned_to, ref_sigmas)
+    if at_end:
+        print_turn_on_biases(plan, ref_design, operator, models, station, rate_hz)
+    print_time_and_floor(plan, ref_design, ref_seconds, operator, models, planned_to, ref_sigmas, at_end)
     return 0
+
+
+def print_turn_on_biases(plan, ref_design, operator, models, station, rate_hz) -> None:
+    """The gyroscopes' turn-on bias σ, planned and field-18's: solved and reported, but not part
+    of the time target, and the operator is told why in one line."""
+    from fieldcal.model import ANGULAR_RATE
+    from fieldcal.planning.design import bound_sigmas
+    from fieldcal.units import display_scale, param_unit
+
+    gyros = {n: m for n, m in models.items() if m.kind == ANGULAR_RATE}
+    if not gyros:
+        return
+    planned = bound_sigmas(plan.design, operator, gyros, station, rate_hz)
+    reference = bound_sigmas(ref_design, operator, gyros, station, rate_hz)
+    for name, model in gyros.items():
+        scale, unit = display_scale(model.kind, model.output_unit, 0), param_unit(model.kind, model.output_unit, 0)
+        print(f"{name} turn-on bias σ {', '.join(f'{s * scale:.3g}' for s in planned[name][:3])} {unit} "
+              f"(field-18: {', '.join(f'{s * scale:.3g}' for s in reference[name][:3])}): solved and reported, "
+              "not part of the time target, since a MEMS gyro's turn-on bias does not repeat from one "
+              "power-up to the next and every INS re-estimates it at alignment")
 
 
 def check_plan_options(args) -> None:
@@ -305,9 +353,11 @@ def best_bias_ratios(models, ref_sigmas, seconds: float) -> dict[str, float]:
     return out
 
 
-def print_time_and_floor(plan, ref_design, ref_seconds, operator, models, limits, ref_sigmas) -> None:
+def print_time_and_floor(plan, ref_design, ref_seconds, operator, models, limits, ref_sigmas,
+                         at_end: bool = False) -> None:
     """Where the time goes, the least time any procedure needs for the bias targets, and the best
-    bias σ any procedure reaches in a third and a fifth of field-18's time."""
+    bias σ any procedure reaches in a third and a fifth of field-18's time (floors of the turn-on
+    constants: not said when the biases are judged at the end of the calibration)."""
     from fieldcal.planning.design import time_breakdown
 
     print()
@@ -315,6 +365,8 @@ def print_time_and_floor(plan, ref_design, ref_seconds, operator, models, limits
                                    ("field-18", ref_design, ref_seconds)):
         parts = ", ".join(f"{k} {v / 60:.1f}" for k, v in time_breakdown(design, operator).items())
         print(f"{label}: {seconds / 60:.1f} min = {parts} min")
+    if at_end:
+        return
     for name, span in bias_spans(models, limits).items():
         print(f"{name}: its bias σ as planned needs averaging over at least {span / 60:.1f} min "
               f"({span / ref_seconds:.2f}× field-18's time) whatever the positions and dwells: its "

@@ -80,10 +80,25 @@ def operator_time(design: Design, operator: OperatorModel) -> float:
 
 
 def bound_sigmas(design: Design, operator: OperatorModel, models: dict[str, TriadModel],
-                 station: Station, rate_hz: float) -> dict[str, np.ndarray]:
-    """Per triad, the CRB standard deviation of its 9 parameters (solver units)."""
-    windows, _ = timeline(design, operator)
-    return window_sigmas(windows, np.array(design.attitudes), design.rate_deg_s, models, station, rate_hz)
+                 station: Station, rate_hz: float, bias_at_end: bool = False) -> dict[str, np.ndarray]:
+    """Per triad, the CRB standard deviation of its 9 parameters (solver units). ``bias_at_end``:
+    the biases' σ are those of the error against the bias at the end of the calibration (the
+    design's last second), of the turn-on constant's estimate the solver reports (DESIGN 12)."""
+    windows, seconds = timeline(design, operator)
+    attitudes = np.array(design.attitudes)
+    if not bias_at_end:
+        return window_sigmas(windows, attitudes, design.rate_deg_s, models, station, rate_hz)
+    out = {}
+    for name, model in models.items():
+        try:
+            sigmas, ends = _triad_sigmas(model, windows, attitudes, design.rate_deg_s, station, rate_hz, seconds)
+        except np.linalg.LinAlgError:  # too few positions to tell the parameters apart
+            out[name] = np.full(9, np.inf)
+            continue
+        with np.errstate(invalid="ignore"):
+            sigmas[:3] = np.sqrt(np.diag(ends.constant))
+        out[name] = sigmas
+    return out
 
 
 def window_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,

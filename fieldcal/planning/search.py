@@ -129,12 +129,14 @@ class Plan:
 
 class Planner:
     def __init__(self, models: dict[str, TriadModel], station: Station, rate_hz: float,
-                 operator: OperatorModel, targets: dict[str, np.ndarray], max_rate_deg_s: float):
+                 operator: OperatorModel, targets: dict[str, np.ndarray], max_rate_deg_s: float,
+                 bias_at_end: bool = False):
         self.models, self.station, self.rate_hz = models, station, rate_hz
         self.operator, self.targets, self.rate = operator, targets, max_rate_deg_s
+        self.bias_at_end = bias_at_end  # biases judged against the bias at the end (design.bound_sigmas)
 
     def sigmas(self, design: Design) -> dict[str, np.ndarray]:
-        return bound_sigmas(design, self.operator, self.models, self.station, self.rate_hz)
+        return bound_sigmas(design, self.operator, self.models, self.station, self.rate_hz, self.bias_at_end)
 
     def worst_ratio(self, design: Design) -> float:
         """The largest σ/target over every parameter of every triad (nan counts as infinite)."""
