@@ -127,3 +127,19 @@ def test_a_bad_group_after_field_18_is_a_one_line_error(tmp_path, capsys):
     assert main(["plan", "--config", "sim", "--target", "field-18,magnetometer.bias=1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert "TRIAD.GROUP" in err and len(err.splitlines()) == 1 and not out.exists()
+
+
+def test_a_planned_procedure_carries_no_bias_target_the_tui_cannot_measure():
+    """The TUI's tracker shows the turn-on constant's σ; a bias judged at the end of the
+    calibration is another quantity, so its target is not written for it to look met."""
+    from drivers.sim.device import paper_mimu
+    from fieldcal.planning.command import operator_targets
+    from fieldcal.solvers.solve import models_from_truth
+
+    models = models_from_truth(paper_mimu())
+    limits = {name: np.full(9, 1e-4) for name in models}
+    both = operator_targets(models, limits)
+    at_end = operator_targets(models, limits, at_end=True)
+    for name in models:
+        assert {"bias_x", "bias_y", "bias_z"} <= set(both[name])
+        assert set(at_end[name]) == set(both[name]) - {"bias_x", "bias_y", "bias_z"}

@@ -116,9 +116,11 @@ def judged_at_end(text: str) -> bool:
     return text.partition(",")[0].strip() == "field-18"
 
 
-def operator_targets(models, limits) -> dict[str, dict[str, float]]:
+def operator_targets(models, limits, at_end: bool = False) -> dict[str, dict[str, float]]:
     """The finite σ limits per triad and parameter in operator units (4 significant digits), as a
-    planned procedure carries them for the TUI to show against the σ reached."""
+    planned procedure carries them for the TUI to show against the σ reached. ``at_end``: the
+    biases' limits are against the bias at the end of the calibration, which the TUI's σ of the
+    turn-on constant does not measure, so they are left out rather than shown as met."""
     import numpy as np
 
     from fieldcal.model import PARAM_NAMES
@@ -127,7 +129,8 @@ def operator_targets(models, limits) -> dict[str, dict[str, float]]:
     out = {}
     for name, model in models.items():
         row = {p: float(f"{limits[name][j] * display_scale(model.kind, model.output_unit, j):.4g}")
-               for j, p in enumerate(PARAM_NAMES) if np.isfinite(limits[name][j])}
+               for j, p in enumerate(PARAM_NAMES) if np.isfinite(limits[name][j])
+               and not (at_end and j in GROUPS["bias"])}
         if row:
             out[name] = row
     return out
@@ -234,7 +237,7 @@ def cmd_plan(args) -> int:
     out = Path(args.out)
     text = procedure_yaml(plan, out.stem, plan_title(config.device.name, args.target, args.slack),
                           operator, args.target + (f" (+{args.slack:.0%})" if args.slack else ""),
-                          operator_targets(models, limits))
+                          operator_targets(models, limits, at_end))
     parse_procedure(text, out.name)  # what is written loads as an ordinary procedure
     from fieldcal.atomic import write_atomically
     write_atomically(out, text.encode("utf-8"), overwrite=args.force, hint="give --force to replace it",
