@@ -239,7 +239,8 @@ class RunView:
         if self.finished is not None or self.step >= self.total_steps:
             return 0.0
         placing = sum(self.placing_s) / len(self.placing_s) if self.placing_s else PLACING_GUESS_S
-        def per_step(i: int) -> float:
+
+        def per_step(i: int) -> float:  # each position's own rate step, if any
             return self.procedure.dwell_s + 2 * self.rate_step_s(i) + placing
 
         open_time = sum(per_step(i) for i, s in enumerate(self.tiles) if i != self.step and s in (TODO, ACTIVE, WRONG))
