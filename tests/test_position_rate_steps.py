@@ -174,3 +174,44 @@ def test_the_tui_runs_it_as_the_headless_run_does(tmp_path, half_run):
     assert app.outcome.status == "completed" and not app.outcome.unit.failures
     assert app.outcome.parameters.read_bytes() == headless.parameters.read_bytes()
     assert [e.kind for e in app.events] == [e["event"] for e in SessionReader(headless.session).events()]
+
+
+def test_the_bound_gains_from_every_window_and_a_design_may_turn_at_some_positions():
+    """With white noise alone (window times do not matter), information only adds: field-18's 18
+    positions all turning bound every gyro σ at most as the same 18 with rate steps at 9 only, and
+    those at most as the 9 turning positions alone (their 9 static dwells add the Earth rate at
+    free directions, which the bound must take as such, finite). The timeline of a design that
+    turns at 9 of 18 positions saves exactly 9 positions' rate steps."""
+    from dataclasses import replace
+
+    from drivers.sim.device import paper_mimu
+    from fieldcal.planning.design import Design, OperatorModel, bound_sigmas, end_bias_sigmas, timeline
+    from fieldcal.solvers.solve import models_from_truth
+
+    device = {n: replace(t, noise=replace(t.noise, bias_instability=0.0)) for n, t in paper_mimu().items()}
+    gyro = {"gyroscope": models_from_truth(device)["gyroscope"]}
+    attitudes = tuple(p.attitude for p in load_procedure("field-18").positions)
+    odd = tuple(i % 2 == 0 for i in range(18))
+    operator = OperatorModel()
+    every = Design(attitudes, 20.0, 20.0, 1)
+    half = Design(attitudes, 20.0, 20.0, 1, odd)
+    nine = Design(attitudes[::2], 20.0, 20.0, 1)
+    sigmas = [bound_sigmas(d, operator, gyro, STATION, 250.0)["gyroscope"] for d in (every, half, nine)]
+    assert all(np.all(np.isfinite(s)) for s in sigmas)
+    assert np.all(sigmas[0] <= sigmas[1] * (1 + 1e-6)) and np.all(sigmas[1] <= sigmas[2] * (1 + 1e-6))
+    assert np.any(sigmas[1] < 0.99 * sigmas[2])  # the static dwells do add
+    windows, seconds = timeline(half, operator)
+    full_windows, full_seconds = timeline(every, operator)
+    assert len(windows) == 18 + 2 * 9 and len(full_windows) == 3 * 18
+    rate_step = 2 * half.turn_s + operator.ramp_s(20.0) * 4 + 2 * operator.rate_settle_s
+    assert full_seconds - seconds == pytest.approx(9 * rate_step)
+    # With the paper's flicker, the bias at the end for such a design: the predictor no worse
+    # than the constant, and the constant's error no larger than its own σ plus the process's
+    # spread (the triangle inequality for standard deviations).
+    models = models_from_truth(paper_mimu())
+    ends = end_bias_sigmas(windows, np.array(attitudes), 20.0, models, STATION, 250.0)
+    turn_on = bound_sigmas(half, operator, models, STATION, 250.0)
+    for name, (predicted, constant) in ends.items():
+        spread = np.sqrt(models[name].noise.bias_variance()) * np.abs(np.diag(models[name].sensitivity))
+        assert np.all(predicted <= constant * (1 + 1e-6)), name
+        assert np.all(constant <= turn_on[name][:3] + spread), name

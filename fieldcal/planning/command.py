@@ -145,7 +145,8 @@ def procedure_yaml(plan, name: str, title: str, operator, target: str | None = N
            "rate_step": {"rate_deg_s": float(design.rate_deg_s), "turns": int(design.turns),
                          "ramp_s": round(operator.ramp_s(design.rate_deg_s), 3),
                          "settle_s": float(operator.rate_settle_s)},
-           "positions": [{"id": i, "description": c.name, **c.fields}
+           "positions": [{"id": i, "description": c.name, **c.fields,
+                          **({} if design.turns_at(i - 1) else {"rate_step": "none"})}
                          for i, c in enumerate(plan.positions, start=1)]}
     if targets:
         doc["targets"] = targets

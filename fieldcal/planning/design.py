@@ -54,10 +54,15 @@ class Design:
     dwell_s: float
     rate_deg_s: float
     turns: int
+    # Which positions make the rate step (None: every one); the others are a static dwell only.
+    turning: tuple[bool, ...] | None = None
 
     @property
     def turn_s(self) -> float:
         return self.turns * 360.0 / self.rate_deg_s
+
+    def turns_at(self, index: int) -> bool:
+        return self.turning is None or self.turning[index]
 
 
 def timeline(design: Design, operator: OperatorModel) -> tuple[list[Window], float]:
@@ -67,6 +72,9 @@ def timeline(design: Design, operator: OperatorModel) -> tuple[list[Window], flo
     for index in range(len(design.attitudes)):
         t += operator.place_s + operator.settle_s
         windows.append(Window(STATIC, index, t, design.dwell_s))
+        if not design.turns_at(index):  # a static dwell only
+            t += design.dwell_s
+            continue
         t += design.dwell_s + operator.ramp_s(rate) + operator.rate_settle_s
         windows.append(Window(PLUS, index, t, design.turn_s, np.radians(rate)))
         t += design.turn_s + operator.ramp_s(2 * rate) + operator.rate_settle_s

@@ -119,18 +119,33 @@ def angular_rate_bound(theta, axis_body: np.ndarray, table_rate: np.ndarray, nor
     rate = np.broadcast_to(np.asarray(table_rate, dtype=float), (len(turning),))
     vertical, horizontal = earth_rate * np.sin(latitude_rad), earth_rate * np.cos(latitude_rad)
 
+    # A position without a rate step sees only the Earth rate, in a direction its placement
+    # leaves free: two angles about the nominal one (a third would be unidentifiable).
+    resting = np.setdiff1d(np.arange(n), turning)
+    axis_t, north_t = axis_body[turning], north_body[turning]
+    up_r, north_r = axis_body[resting], north_body[resting]
+    north_r = north_r - np.einsum("ij,ij->i", north_r, up_r)[:, None] * up_r
+    earth_r = vertical * up_r + horizontal * north_r / np.linalg.norm(north_r, axis=1, keepdims=True)
+    earth_r /= np.linalg.norm(earth_r, axis=1, keepdims=True)
+    k = len(turning)
+
     def mean(x):
-        theta_, nuis = x[:N_PARAMS], x[N_PARAMS:].reshape(n, 3)
-        d = _perturbed(axis_body, nuis[:, :2])
+        theta_, nuis = x[:N_PARAMS], x[N_PARAMS:N_PARAMS + 3 * k].reshape(k, 3)
+        d = _perturbed(axis_t, nuis[:, :2])
         # Heading: rotate the true north direction about d by the third nuisance angle.
-        north = north_body - np.einsum("ij,ij->i", north_body, d)[:, None] * d
+        north = north_t - np.einsum("ij,ij->i", north_t, d)[:, None] * d
         north /= np.linalg.norm(north, axis=1, keepdims=True)
         north = np.cos(nuis[:, [2]]) * north + np.sin(nuis[:, [2]]) * np.cross(d, north)
-        plus = distort_with(theta_, (rate + vertical)[:, None] * d[turning])
-        minus = distort_with(theta_, (-rate + vertical)[:, None] * d[turning])
-        static = distort_with(theta_, vertical * d + horizontal * north)
+        plus = distort_with(theta_, (rate + vertical)[:, None] * d)
+        minus = distort_with(theta_, (-rate + vertical)[:, None] * d)
+        seen = np.empty((n, 3))
+        seen[turning] = vertical * d + horizontal * north
+        if len(resting):
+            seen[resting] = earth_rate * _perturbed(earth_r, x[N_PARAMS + 3 * k:].reshape(-1, 2))
+        static = distort_with(theta_, seen)
         return np.concatenate([plus.ravel(), minus.ravel(), static.ravel()])
 
-    x0 = np.r_[theta, np.zeros(3 * n)]
-    steps = np.r_[_param_steps(theta, float(np.mean(rate))), np.full(3 * n, 1e-6)]
+    count = 3 * k + 2 * len(resting)
+    x0 = np.r_[theta, np.zeros(count)]
+    steps = np.r_[_param_steps(theta, float(np.mean(rate))), np.full(count, 1e-6)]
     return _bound(mean, x0, steps, covariance, end)
