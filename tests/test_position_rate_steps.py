@@ -215,3 +215,30 @@ def test_the_bound_gains_from_every_window_and_a_design_may_turn_at_some_positio
         spread = np.sqrt(models[name].noise.bias_variance()) * np.abs(np.diag(models[name].sensitivity))
         assert np.all(predicted <= constant * (1 + 1e-6)), name
         assert np.all(constant <= turn_on[name][:3] + spread), name
+
+
+def test_the_planner_leaves_out_the_rate_steps_the_target_does_not_need():
+    """A gyro allowed twice field-18-at-20-s's scale and misalignment σ: rate steps are left out
+    while the target holds, the time falls by exactly the steps left out, and leaving out any one
+    more would miss it; a target with nothing to spare keeps every step."""
+    from drivers.sim.device import paper_mimu
+    from fieldcal.planning.design import Design, OperatorModel, bound_sigmas, operator_time
+    from fieldcal.planning.search import Plan, Planner
+    from fieldcal.solvers.solve import models_from_truth
+
+    gyro = {"gyroscope": models_from_truth(paper_mimu())["gyroscope"]}
+    operator = OperatorModel()
+    design = Design(tuple(p.attitude for p in load_procedure("field-18").positions), 20.0, 20.0, 1)
+    sigmas = bound_sigmas(design, operator, gyro, STATION, 250.0)
+    plan = Plan((), design, operator_time(design, operator), sigmas)
+    loose = Planner(gyro, STATION, 250.0, operator, {"gyroscope": np.r_[np.full(3, np.inf), 2 * sigmas["gyroscope"][3:]]}, 20.0)
+    pruned = loose.turn_where_it_pays(plan)
+    kept = [i for i in range(18) if pruned.design.turns_at(i)]
+    assert 3 <= len(kept) < 18 and loose.worst_ratio(pruned.design) <= 1.0
+    rate_step = 2 * design.turn_s + 4 * operator.ramp_s(20.0) + 2 * operator.rate_settle_s
+    assert plan.seconds - pruned.seconds == pytest.approx((18 - len(kept)) * rate_step)
+    for i in kept:
+        fewer = tuple(pruned.design.turns_at(j) and j != i for j in range(18))
+        assert loose.worst_ratio(Design(design.attitudes, 20.0, 20.0, 1, fewer)) > 1.0
+    tight = Planner(gyro, STATION, 250.0, operator, {"gyroscope": sigmas["gyroscope"] * (1 + 1e-9)}, 20.0)
+    assert tight.turn_where_it_pays(plan) is plan
