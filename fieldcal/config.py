@@ -8,7 +8,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivers.noise import TriadNoise
+from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S, FLICKER_TAU_MAX_RANGE_S, TriadNoise
 from drivers.transport import PortSettings
 from fieldcal.earth import Station
 from fieldcal.model import KINDS
@@ -51,6 +51,9 @@ class SimSettings:
     seed: int = 1
     speed: float = 1.0  # 1 = real time; 0 = as fast as the reader consumes
     raw_counts: bool = False
+    # The simulated unit's flicker: the longest correlation time of its bias process (README,
+    # "Bias instability model"); the station's model of the unit follows it.
+    flicker_tau_max_s: float = DEFAULT_FLICKER_TAU_MAX_S
 
 
 @dataclass(frozen=True)
@@ -108,10 +111,11 @@ def _triads(r: FieldReader, raw, where: str) -> tuple[TriadSpec, ...]:
         m = r.mapping(body, here, ("kind", "unit"), ("noise", "zero", "sensitivity", "lsb", "scale_tempco_ppm_per_k"))
         noise = None
         if "noise" in m:
-            n = r.mapping(m["noise"], f"{here}.noise", ("white",), ("bias_instability",))
+            n = r.mapping(m["noise"], f"{here}.noise", ("white",), ("bias_instability", "flicker_tau_max_s"))
             noise = TriadNoise(white=r.number(n, "white", f"{here}.noise", 1e-12),
                                bias_instability=r.number(n, "bias_instability", f"{here}.noise", 0)
-                               if "bias_instability" in n else 0.0)
+                               if "bias_instability" in n else 0.0,
+                               flicker_tau_max_s=_flicker_tau_max(r, n, f"{here}.noise"))
         specs.append(TriadSpec(name, r.string(m, "kind", here, KINDS), r.string(m, "unit", here),
                                noise=noise, zero=_three(r, m, "zero", here, 0.0, None),
                                sensitivity=_three(r, m, "sensitivity", here, 1.0, 1e-12),
@@ -132,8 +136,15 @@ def _three(r: FieldReader, m: dict, key: str, where: str, default: float, minimu
     return (r.value(value, here, minimum),) * 3
 
 
+def _flicker_tau_max(r: FieldReader, m: dict, where: str) -> float:
+    if "flicker_tau_max_s" not in m:
+        return DEFAULT_FLICKER_TAU_MAX_S
+    return r.bounded(m, "flicker_tau_max_s", where, *FLICKER_TAU_MAX_RANGE_S, "s")
+
+
 def _sim(r: FieldReader, raw, where: str) -> SimSettings:
-    m = r.mapping(raw if raw is not None else {}, where, (), ("imu_protocol", "seed", "speed", "raw_counts"))
+    m = r.mapping(raw if raw is not None else {}, where, (),
+                  ("imu_protocol", "seed", "speed", "raw_counts", "flicker_tau_max_s"))
     seed = m.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         r.fail(f"{where}.seed", "a whole number >= 0", describe(seed))
@@ -142,7 +153,7 @@ def _sim(r: FieldReader, raw, where: str) -> SimSettings:
         r.fail(f"{where}.raw_counts", "true or false", describe(raw_counts))
     protocol = r.string(m, "imu_protocol", where, SIM_IMU_PROTOCOLS, optional=True) or "xsens"
     speed = r.number(m, "speed", where, 0) if "speed" in m else 1.0
-    return SimSettings(protocol, seed, speed, raw_counts)
+    return SimSettings(protocol, seed, speed, raw_counts, _flicker_tau_max(r, m, where))
 
 
 def _device(r: FieldReader, raw, where: str) -> DeviceConfig:

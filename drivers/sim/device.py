@@ -6,10 +6,11 @@ size the paper's Table 5 unit shows in its cross-axis terms.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
-from drivers.noise import TriadNoise
+from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S, TriadNoise
 from drivers.sim.physics import ANGULAR_RATE, SPECIFIC_FORCE, TriadTruth, lower_triangular_k
 
 STANDARD_GRAVITY = 9.80665  # m/s² per g, for mg
@@ -29,8 +30,10 @@ COUNTS_PER_M_S2 = 415.0
 COUNTS_PER_RAD_S = 32768.0 / (400 * DEG)  # ±400 °/s full scale
 
 
-def paper_mimu(raw_counts: bool = False) -> dict[str, TriadTruth]:
-    """Accelerometer, gyroscope and inclinometer triads with paper Table 3 errors."""
+def paper_mimu(raw_counts: bool = False, flicker_tau_max_s: float = DEFAULT_FLICKER_TAU_MAX_S
+               ) -> dict[str, TriadTruth]:
+    """Accelerometer, gyroscope and inclinometer triads with paper Table 3 errors, whose flicker
+    (bias instability) wanders with correlation times up to ``flicker_tau_max_s``."""
     spec = {
         # kind, bias (SI), scale factors, misalignment Δyz, Δzy, Δzx (rad)
         "accelerometer": (SPECIFIC_FORCE, np.array([1.0, 2.0, 3.0]) * MG, [1.0001, 1.0002, 1.0003],
@@ -50,6 +53,7 @@ def paper_mimu(raw_counts: bool = False) -> dict[str, TriadTruth]:
             K = K * sensitivity
             bias = bias * sensitivity + COUNTS_ZERO
             unit, lsb = "count", 1.0
-        triads[name] = TriadTruth(kind=kind, K=K, bias=bias, noise=PAPER_NOISE[name], lsb=lsb,
+        noise = replace(PAPER_NOISE[name], flicker_tau_max_s=flicker_tau_max_s)
+        triads[name] = TriadTruth(kind=kind, K=K, bias=bias, noise=noise, lsb=lsb,
                                   output_unit=unit)
     return triads

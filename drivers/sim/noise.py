@@ -24,7 +24,7 @@ class NoiseGenerator:
         self._rng = rng
         dt = 1.0 / rate_hz
         self._white_sigma = noise.white * np.sqrt(rate_hz)
-        taus, sigmas = flicker_bank(noise.bias_instability) if noise.bias_instability else ((), ())
+        taus, sigmas = noise.bank()
         self._poles = np.exp(-dt / np.asarray(taus))
         self._gains = np.asarray(sigmas) * np.sqrt(1 - self._poles**2)
         # Start each process in its stationary distribution.
@@ -37,6 +37,11 @@ class NoiseGenerator:
 
     def get_state(self) -> dict:
         return {"processes": self._state.tolist(), "walk": self._walk.tolist()}
+
+    def bias_now(self) -> np.ndarray:
+        """The bias process (bank + rate random walk, no white noise) at the last sample drawn,
+        per axis: the bank's own states, so exact."""
+        return self._state.sum(axis=0) + self._walk
 
     def set_state(self, state: dict) -> None:
         self._state = np.array(state["processes"], dtype=float).reshape(-1, 3)
@@ -126,30 +131,38 @@ class InnovationNoise:
         self._rng = rng
         dt = 1.0 / rate_hz
         noises = list(noises)
-        taus = flicker_bank(1.0)[0] if any(n.bias_instability for n in noises) else np.zeros(0)
+        flickering = [n for n in noises if n.bias_instability]
+        if len({n.flicker_tau_max_s for n in flickering}) > 1:
+            raise ValueError("the innovations form shares one flicker bank: give every triad the same "
+                             "flicker_tau_max_s (or draw with the bank)")
+        taus = flickering[0].bank()[0] if flickering else np.zeros(0)
         self._poles = np.exp(-dt / taus) if len(taus) else np.zeros(0)
         count = len(self._poles)
-        gains, sigma_e, starts = [], [], []
+        gains, sigma_e, starts, filtered = [], [], [], []
         for noise in noises:
             r = (noise.white**2) * rate_hz
             if not count or not noise.bias_instability:
                 gains.append(np.zeros(count))
                 sigma_e.append(np.sqrt(r))
                 starts.append(np.zeros((count, count)))
+                filtered.append(0.0)
                 continue
             if r <= 0:
                 raise ValueError("bias instability without white noise has no innovations form")
-            sigmas = flicker_bank(noise.bias_instability)[1]
+            sigmas = noise.bank()[1]
             q = sigmas**2 * (1 - self._poles**2)
             p = _filter_riccati(self._poles, q, r)
             s = float(np.sum(p)) + r  # 1ᵀ P 1 + r
             gains.append(self._poles * p.sum(axis=1) / s)
             sigma_e.append(np.sqrt(s))
+            # Var of the bank's sum given every sample up to now: 1ᵀ(P − P1 1ᵀP / S)1.
+            filtered.append(max(float(np.sum(p)) - float(np.sum(p)) ** 2 / s, 0.0))
             # Stationary law of ŝ: Σ − P, factored by its eigenvectors (it is only semi-definite
             # to rounding for the fast processes that the filter tracks closely).
             vals, vecs = np.linalg.eigh(np.diag(sigmas**2) - p)
             starts.append(vecs * np.sqrt(np.maximum(vals, 0.0)))
         self._gain = np.array(gains).reshape(len(noises), count)  # K (T, P)
+        self._filtered_sigma = np.sqrt(np.array(filtered))[:, None]  # (T, 1)
         self._sigma_e = np.array(sigma_e)[:, None]  # (T, 1)
         # Start each state in its stationary distribution, as the bank does.
         self._start_factor = np.array(starts).reshape(len(noises), count, count)  # (T, P, P)
@@ -159,6 +172,8 @@ class InnovationNoise:
         self._matrices: tuple | None = None
         self._walking = bool(np.any(self._walk_sigma))
         self._block: np.ndarray | None = None  # (T, BLOCK, 3), drawn ahead
+        self._innovations: np.ndarray | None = None  # its e, and the walk's path (for bias_now)
+        self._walk_path: np.ndarray | None = None
         self._offset = 0
         self._block_start = (self._state.copy(), self._walk.copy(), None)
 
@@ -208,7 +223,33 @@ class InnovationNoise:
             self._walk = walk[:, -1]
             out += walk
         self._block = out
+        self._innovations, self._walk_path = e, (walk if self._walking else None)
         self._offset = 0
+
+    def bias_now(self) -> np.ndarray:
+        """The bias process (bank + rate random walk, no white noise) at the last sample drawn,
+        (triads, 3): a draw from its exact law given every sample drawn so far.
+
+        The innovations form does not carry the bank's own states, only their prediction ŝ; the
+        bank's sum at sample k given y[0..k] is normal with mean 1ᵀA⁻¹ŝ[k+1] (the filtered state,
+        as K = A·P1/S) and variance 1ᵀ(P − P1 1ᵀP/S)1. One draw from that law together with the
+        samples is a draw of (samples, bias) from their joint law, which is all a benchmark of
+        "error against the bias at the end of calibration" needs. It is drawn from a jumped copy
+        of the generator, so asking does not change the samples that follow.
+        """
+        state, walk = self._state, self._walk
+        if self._block is not None:
+            # ŝ after the block's first `offset` samples: A^o·ŝ0 + Σ_{q<o} A^(o−1−q)·K·e[q].
+            start, walk_start, _ = self._block_start
+            o = self._offset
+            powers = self._poles[:, None] ** np.arange(o - 1, -1, -1)[None, :]  # (P, o)
+            driven = np.einsum("pq,tqc->tpc", powers, self._innovations[:, :o])
+            state = (self._poles**o)[None, :, None] * start + self._gain[:, :, None] * driven
+            if self._walk_path is not None:
+                walk = self._walk_path[:, o - 1] if o else walk_start
+        filtered = (state / self._poles[None, :, None]).sum(axis=1) if len(self._poles) else np.zeros_like(walk)
+        jumped = np.random.Generator(self._rng.bit_generator.jumped())
+        return filtered + self._filtered_sigma * jumped.standard_normal(walk.shape) + walk
 
     def _bank(self, e: np.ndarray) -> np.ndarray:
         """1ᵀŝ[k] for a block of innovations e (T, BLOCK, 3), by sub-blocks of L samples; carries ŝ.

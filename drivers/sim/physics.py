@@ -149,6 +149,18 @@ class MimuSimulator:
         else:
             self._noise.set_state(state["noise"])
 
+    def bias_now(self) -> dict[str, np.ndarray]:
+        """Each triad's bias at the last sample drawn, in its output units: the constant bias
+        plus K times the bias process (flicker bank and rate random walk, not white noise) —
+        the value a unit calibrated now would be used with. Exact for the "bank" noise model;
+        for "innovations" a draw from its exact law given the samples so far
+        (``InnovationNoise.bias_now``). Asking does not change the samples that follow."""
+        if self.noise_model == "bank":
+            process = {name: gen.bias_now() for name, gen in self._noise.items()}
+        else:
+            process = dict(zip(self.triads, self._noise.bias_now()))
+        return {name: t.bias + t.K @ process[name] for name, t in self.triads.items()}
+
     def advance(self, n: int, attitude: np.ndarray, target_rate: float, max_accel: float) -> SampleChunk:
         """The next n samples with the table driven toward ``target_rate`` (rad/s) at up to
         ``max_accel`` (rad/s²): the step a live, commanded table takes."""

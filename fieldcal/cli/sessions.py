@@ -66,6 +66,7 @@ def cmd_run(args) -> int:
                             skip_steps=tuple(s - 1 for s in args.skip))
     run_spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                        raw_counts=config.device.sim.raw_counts, method=args.method,
+                       flicker_tau_max_s=config.device.sim.flicker_tau_max_s,
                        on_motion=args.on_motion, script=script, operator=operator_option(args),
                        unit_serial=unit_serial(args, config))
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")

@@ -304,6 +304,7 @@ def sim_run(config, procedure, args):
     seed = config.device.sim.seed if args.seed is None else args.seed
     spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                    raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion,
+                   flicker_tau_max_s=config.device.sim.flicker_tau_max_s,
                    operator=operator_option(args), unit_serial=unit_serial(args, config))
     speed = config.device.sim.speed if args.speed is None else args.speed
     return spec, _session_dir(args, procedure.name, f"seed{seed}"), speed
@@ -324,7 +325,7 @@ def live_spec(config, procedure, args):
     from fieldcal.cli.options import operator_option
     from fieldcal.run.runner import RunSpec
 
-    step = procedure.rate_step
+    step = procedure.rate_steps[-1] if procedure.rate_steps else None  # the fastest
     if step is not None:
         if config.table is None:
             raise ValueError(f"{config.path}: no table, and procedure {procedure.name} has rate steps "

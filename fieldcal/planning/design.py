@@ -22,7 +22,7 @@ from fieldcal.procedure.stillness import StillnessSettings
 from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window
 from fieldcal.run.operators import OperatorScript
 from fieldcal.run.runner import TABLE_ACCEL_DEG_S2
-from fieldcal.solvers.crb import angular_rate_bound, specific_force_bound
+from fieldcal.solvers.crb import angular_rate_bound, end_bias_terms, specific_force_bound
 from fieldcal.solvers.solve import TriadModel, average_covariance
 
 
@@ -54,10 +54,15 @@ class Design:
     dwell_s: float
     rate_deg_s: float
     turns: int
+    # Which positions make the rate step (None: every one); the others are a static dwell only.
+    turning: tuple[bool, ...] | None = None
 
     @property
     def turn_s(self) -> float:
         return self.turns * 360.0 / self.rate_deg_s
+
+    def turns_at(self, index: int) -> bool:
+        return self.turning is None or self.turning[index]
 
 
 def timeline(design: Design, operator: OperatorModel) -> tuple[list[Window], float]:
@@ -67,6 +72,9 @@ def timeline(design: Design, operator: OperatorModel) -> tuple[list[Window], flo
     for index in range(len(design.attitudes)):
         t += operator.place_s + operator.settle_s
         windows.append(Window(STATIC, index, t, design.dwell_s))
+        if not design.turns_at(index):  # a static dwell only
+            t += design.dwell_s
+            continue
         t += design.dwell_s + operator.ramp_s(rate) + operator.rate_settle_s
         windows.append(Window(PLUS, index, t, design.turn_s, np.radians(rate)))
         t += design.turn_s + operator.ramp_s(2 * rate) + operator.rate_settle_s
@@ -80,10 +88,25 @@ def operator_time(design: Design, operator: OperatorModel) -> float:
 
 
 def bound_sigmas(design: Design, operator: OperatorModel, models: dict[str, TriadModel],
-                 station: Station, rate_hz: float) -> dict[str, np.ndarray]:
-    """Per triad, the CRB standard deviation of its 9 parameters (solver units)."""
-    windows, _ = timeline(design, operator)
-    return window_sigmas(windows, np.array(design.attitudes), design.rate_deg_s, models, station, rate_hz)
+                 station: Station, rate_hz: float, bias_at_end: bool = False) -> dict[str, np.ndarray]:
+    """Per triad, the CRB standard deviation of its 9 parameters (solver units). ``bias_at_end``:
+    the biases' σ are those of the error against the bias at the end of the calibration (the
+    design's last second), of the turn-on constant's estimate the solver reports (DESIGN 12)."""
+    windows, seconds = timeline(design, operator)
+    attitudes = np.array(design.attitudes)
+    if not bias_at_end:
+        return window_sigmas(windows, attitudes, design.rate_deg_s, models, station, rate_hz)
+    out = {}
+    for name, model in models.items():
+        try:
+            sigmas, ends = _triad_sigmas(model, windows, attitudes, design.rate_deg_s, station, rate_hz, seconds)
+        except np.linalg.LinAlgError:  # too few positions to tell the parameters apart
+            out[name] = np.full(9, np.inf)
+            continue
+        with np.errstate(invalid="ignore"):
+            sigmas[:3] = np.sqrt(np.diag(ends.constant))
+        out[name] = sigmas
+    return out
 
 
 def window_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
@@ -100,25 +123,63 @@ def window_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: floa
     return out
 
 
+def end_bias_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
+                    models: dict[str, TriadModel], station: Station, rate_hz: float,
+                    end_s: float | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per triad, the σ (solver units, per axis) of the bias at the end of the calibration
+    (``end_s``; default: the end of the last window), the value the unit is used with (DESIGN 12):
+    (as predicted from the windows, the best linear unbiased predictor; as the turn-on
+    constant's estimate, what a solver reporting the constant delivers). nan where the windows
+    cannot tell the parameters apart."""
+    end_s = max(w.start + w.duration for w in windows) if end_s is None else end_s
+    out = {}
+    for name, model in models.items():
+        try:
+            ends = _triad_sigmas(model, windows, attitudes, rate_deg_s, station, rate_hz, end_s)[1]
+        except np.linalg.LinAlgError:
+            out[name] = (np.full(3, np.nan), np.full(3, np.nan))
+            continue
+        with np.errstate(invalid="ignore"):
+            out[name] = (np.sqrt(np.diag(ends.predicted)), np.sqrt(np.diag(ends.constant)))
+    return out
+
+
 def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
-                  station: Station, rate_hz: float) -> np.ndarray:
+                  station: Station, rate_hz: float, end_s: float | None = None):
+    """The 9 σ of a triad's bound; with ``end_s``, (those σ, EndBiasBound at end_s)."""
     up_body = attitudes[:, 2, :]
     theta = params_from_k(model.sensitivity, np.zeros(3))
+
+    def end(used):
+        if end_s is None:
+            return None
+        return end_bias_terms(model.noise, model.sensitivity, [w.start for w in used],
+                              [w.duration for w in used], end_s)
+
     if model.kind == SPECIFIC_FORCE:
-        cov = average_covariance(model, [w for w in windows if w.kind == STATIC], rate_hz)
-        bound = specific_force_bound(theta, up_body, station.gravity, cov)
+        static = [w for w in windows if w.kind == STATIC]
+        cov = average_covariance(model, static, rate_hz)
+        bound = specific_force_bound(theta, up_body, station.gravity, cov, end(static))
     elif model.kind == ANGULAR_RATE:
         # The solver's data order: every +ω window, every −ω window, every static one.
         ordered = [w for kind in (PLUS, MINUS, STATIC) for w in windows if w.kind == kind]
         cov = average_covariance(model, ordered, rate_hz)
         # Table angle zero at each static dwell: the heading is a nuisance of the bound.
         north_body = attitudes[:, 1, :]
-        bound = angular_rate_bound(theta, up_body, np.radians(rate_deg_s), north_body,
-                                   EARTH_RATE, station.latitude_rad, cov)
+        plus = [w for w in windows if w.kind == PLUS]  # the positions that turn, at their rates
+        if not plus:
+            raise np.linalg.LinAlgError("no rate step: the scale factors are not determined")
+        rates = [w.table_rate or np.radians(rate_deg_s) for w in plus]
+        bound = angular_rate_bound(theta, up_body, np.array(rates), north_body, EARTH_RATE,
+                                   station.latitude_rad, cov, [w.position for w in plus], end(ordered))
     else:
         raise ValueError(f"unknown triad kind {model.kind!r}")
+    ends = None
+    if end_s is not None:
+        bound, ends = bound
     with np.errstate(invalid="ignore"):  # a negative variance: the design cannot tell it (nan)
-        return np.sqrt(np.diag(bound))
+        sigmas = np.sqrt(np.diag(bound))
+    return sigmas if end_s is None else (sigmas, ends)
 
 
 def time_breakdown(design: Design, operator: OperatorModel) -> dict[str, float]:

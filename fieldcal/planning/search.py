@@ -24,7 +24,7 @@ position could save at most that tenth.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -129,12 +129,14 @@ class Plan:
 
 class Planner:
     def __init__(self, models: dict[str, TriadModel], station: Station, rate_hz: float,
-                 operator: OperatorModel, targets: dict[str, np.ndarray], max_rate_deg_s: float):
+                 operator: OperatorModel, targets: dict[str, np.ndarray], max_rate_deg_s: float,
+                 bias_at_end: bool = False):
         self.models, self.station, self.rate_hz = models, station, rate_hz
         self.operator, self.targets, self.rate = operator, targets, max_rate_deg_s
+        self.bias_at_end = bias_at_end  # biases judged against the bias at the end (design.bound_sigmas)
 
     def sigmas(self, design: Design) -> dict[str, np.ndarray]:
-        return bound_sigmas(design, self.operator, self.models, self.station, self.rate_hz)
+        return bound_sigmas(design, self.operator, self.models, self.station, self.rate_hz, self.bias_at_end)
 
     def worst_ratio(self, design: Design) -> float:
         """The largest σ/target over every parameter of every triad (nan counts as infinite)."""
@@ -164,6 +166,26 @@ class Planner:
             lo, hi = (lo, mid) if meets(mid) else (mid, hi)
         best = self._design(positions, np.ceil(hi), turns)
         return Plan(tuple(positions), best, operator_time(best, self.operator), self.sigmas(best))
+
+    def turn_where_it_pays(self, plan: Plan) -> Plan:
+        """``plan`` with rate steps left out, one position at a time, while the target still
+        holds at its dwell: each time the position whose step costs the least in the worst σ
+        ratio. A gyro with σ to spare (the paper's unit's scale factors and misalignments come
+        out at half field-18's) then turns only where its turns pay."""
+        design = plan.design
+        turning = list(design.turning or (True,) * len(design.attitudes))
+        while sum(turning) > 1:
+            def without(i):
+                return replace(design, turning=tuple(t and j != i for j, t in enumerate(turning)))
+            ratios = {i: self.worst_ratio(without(i)) for i, t in enumerate(turning) if t}
+            drop = min(ratios, key=ratios.get)
+            if ratios[drop] > 1.0:
+                break
+            turning[drop] = False
+            design = without(drop)
+        if design is plan.design:
+            return plan
+        return Plan(plan.positions, design, operator_time(design, self.operator), self.sigmas(design))
 
     def search(self, pool: list[Candidate]) -> Plan:
         """The least-time design over every number of whole turns per rate step: a turn is also

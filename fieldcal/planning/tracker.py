@@ -88,7 +88,8 @@ class TargetTracker:
         return self._standings
 
     def _update(self) -> None:
-        steps = sorted(s for s, w in self.completed.items() if len(w) == 3 or self.procedure.rate_step is None)
+        steps = sorted(s for s, w in self.completed.items()
+                       if len(w) == (1 if self.procedure.rate_step_at(s) is None else 3))
         sigmas = self._sigmas(steps)
         out = []
         for name, model in self.models.items():
@@ -108,9 +109,9 @@ class TargetTracker:
         windows = [Window(w.kind, index[s], w.start, w.duration, w.table_rate)
                    for s in steps for w in self.completed[s]]
         attitudes = np.array([self.procedure.positions[s].attitude for s in steps])
-        rate = self.procedure.rate_step.rate_deg_s if self.procedure.rate_step else 0.0
-        models = self.models if self.procedure.rate_step else \
-            {n: m for n, m in self.models.items() if m.kind != ANGULAR_RATE}
+        turning = [self.procedure.rate_step_at(s) for s in steps if self.procedure.rate_step_at(s) is not None]
+        rate = turning[0].rate_deg_s if turning else 0.0  # (each rate window carries its own)
+        models = self.models if turning else {n: m for n, m in self.models.items() if m.kind != ANGULAR_RATE}
         out = {n: np.full(len(PARAM_NAMES), np.inf) for n in self.models}
         try:
             out.update(window_sigmas(windows, attitudes, rate, models, self.station, self.rate_hz))

@@ -257,8 +257,10 @@ class Engine:
         s = self.settings
         rate = (np.concatenate(self._check_rate).mean(axis=0) - np.array(s.rate_zero)) / np.array(s.rate_sensitivity)
         turning = math.degrees(float(np.linalg.norm(rate)))
-        step = self.procedure.rate_step
-        if step is not None and turning > s.turning_fraction * step.rate_deg_s:
+        # Still turning from a rate step (this position's or the one before): judged against the
+        # slowest rate the procedure turns at.
+        steps = self.procedure.rate_steps
+        if steps and turning > s.turning_fraction * steps[0].rate_deg_s:
             if not self._turning_reported:
                 out.append(ev.TableTurning(float(chunk.t[i - 1]), turning))
                 self._turning_reported = True
@@ -321,15 +323,16 @@ class Engine:
         return j
 
     def _after_static(self, i, t, out) -> int:
-        if self.procedure.rate_step is None:
+        if self.procedure.rate_step_at(self.step) is None:
             return self._complete_step(i, t, out)
         return self._command_rate(+1.0, i, t, out)
 
     @property
     def _rate_step(self) -> RateStep:
-        """The procedure's rate step: the rate phases are entered only for a procedure with one."""
-        assert self.procedure.rate_step is not None
-        return self.procedure.rate_step
+        """This position's rate step: the rate phases are entered only for a position with one."""
+        step = self.procedure.rate_step_at(self.step)
+        assert step is not None
+        return step
 
     def _command_rate(self, sign, i, t, out) -> int:
         self._sign = sign

@@ -67,6 +67,19 @@ class Procedure:
     # A planned procedure's (``fieldcal plan``) σ per parameter, (triad, parameter, σ in the
     # operator units `fieldcal plan` prints), shown against the σ reached while it runs.
     targets: tuple[tuple[str, str, float], ...] = ()
+    # Each position's own rate step (None: static only), when a position gives one (``rate_step:
+    # none`` or ``{rate_deg_s, turns}``); empty: every position takes ``rate_step``.
+    position_steps: tuple[RateStep | None, ...] = ()
+
+    def rate_step_at(self, index: int) -> RateStep | None:
+        """The rate step of the position at ``index`` (None: a static dwell only)."""
+        return self.position_steps[index] if self.position_steps else self.rate_step
+
+    @property
+    def rate_steps(self) -> tuple[RateStep, ...]:
+        """The distinct rate steps the procedure makes, slowest first (empty: static only)."""
+        steps = self.position_steps if self.position_steps else (self.rate_step,)
+        return tuple(sorted({s for s in steps if s is not None}, key=lambda s: (s.rate_deg_s, s.turns)))
 
 
 # A procedure's name becomes part of a session directory's name: a plain file name, so that
@@ -136,8 +149,36 @@ def _text(r: FieldReader, m: dict, key: str, where: str) -> str:
     return value
 
 
+def _rate_step(r: FieldReader, raw, where: str, line: int | None, default: RateStep | None) -> RateStep:
+    """``{rate_deg_s, turns, ramp_s, settle_s}``; at a position, ramp_s and settle_s may be left to
+    the procedure's own rate step."""
+    inherit = ("ramp_s", "settle_s") if default is not None else ()
+    needed = ("rate_deg_s", "turns") + tuple(k for k in ("ramp_s", "settle_s") if k not in inherit)
+    step = r.mapping(raw, where, needed, inherit, line=line)
+
+    def seconds(key):
+        return r.bounded(step, key, where, 0, 600, "s") if key in step else getattr(default, key)
+
+    # Single-axis field tables run 0.1-20 °/s (paper section 4); allow up to gyro full scale.
+    return RateStep(r.bounded(step, "rate_deg_s", where, 0.1, 400, "°/s"), r.whole(step, "turns", where, 1, 100),
+                    seconds("ramp_s"), seconds("settle_s"))
+
+
+def _position_step(r: FieldReader, raw, where: str, default: RateStep | None):
+    """A position's ``rate_step``: ``none`` (a static dwell only) or its own step."""
+    if not isinstance(raw, dict) or "rate_step" not in raw:
+        return default
+    value, line = raw["rate_step"], line_of(raw, "rate_step")
+    if value == "none":
+        return None
+    if not isinstance(value, dict):
+        r.fail(join(where, "rate_step"), "'none' or a mapping {rate_deg_s, turns"
+               + ("}" if default is not None else ", ramp_s, settle_s}"), describe(value), line)
+    return _rate_step(r, value, join(where, "rate_step"), line, default)
+
+
 def _position(r: FieldReader, raw, where: str) -> Position:
-    m = r.mapping(raw, where, ("id",), ("axes", "up", "north", "description"))
+    m = r.mapping(raw, where, ("id",), ("axes", "up", "north", "description", "rate_step"))
     by_up = [k for k in ("up", "north") if k in m]
     if "axes" in m and by_up:
         r.refuse(join(where, by_up[0]), "give either axes or up and north, not both", line_of(m, by_up[0]))
@@ -185,13 +226,10 @@ def parse_procedure(text: str, where: str) -> Procedure:
     parsed = tuple(_position(r, p, f"positions[{i}]") for i, p in enumerate(positions))
     rate_step = None
     if m.get("rate_step") is not None:
-        step = r.mapping(m["rate_step"], "rate_step", ("rate_deg_s", "turns", "ramp_s", "settle_s"),
-                         line=line_of(m, "rate_step"))
-        # Single-axis field tables run 0.1-20 °/s (paper section 4); allow up to gyro full scale.
-        rate_step = RateStep(r.bounded(step, "rate_deg_s", "rate_step", 0.1, 400, "°/s"),
-                             r.whole(step, "turns", "rate_step", 1, 100),
-                             r.bounded(step, "ramp_s", "rate_step", 0, 600, "s"),
-                             r.bounded(step, "settle_s", "rate_step", 0, 600, "s"))
+        rate_step = _rate_step(r, m["rate_step"], "rate_step", line_of(m, "rate_step"), None)
+    position_steps = tuple(_position_step(r, p, f"positions[{i}]", rate_step) for i, p in enumerate(positions))
+    if all(step == rate_step for step in position_steps):
+        position_steps = ()  # every position as the procedure: the plain form
     name = r.string(m, "name", "") if "name" in m else Path(where).stem
     if not NAME_PATTERN.fullmatch(name):
         r.fail("name", "a plain file name: up to 64 letters, digits, '.', '_' or '-', not "
@@ -200,7 +238,8 @@ def parse_procedure(text: str, where: str) -> Procedure:
     return Procedure(name=name, title=_text(r, m, "title", ""),
                      dwell_s=r.bounded(m, "dwell_s", "", 1, 86400, "s"), positions=parsed,
                      rate_step=rate_step, aligned=r.boolean(m, "aligned", "", False), text=text,
-                     adaptive_dwell=r.boolean(m, "adaptive_dwell", "", False), targets=_targets(r, m))
+                     adaptive_dwell=r.boolean(m, "adaptive_dwell", "", False), targets=_targets(r, m),
+                     position_steps=position_steps)
 
 
 def _targets(r: FieldReader, m: dict) -> tuple[tuple[str, str, float], ...]:

@@ -324,8 +324,17 @@ class Conductor:
             truth = {n: v for n, v in truth.items() if n in names}
         return truth
 
+    def _bias_at_end(self) -> dict:
+        """The simulated bench's true biases at the run's last sample, of the triads in truth()."""
+        bias_at_end = getattr(self.bench, "bias_at_end", None)  # a real or replayed bench: none
+        if bias_at_end is None:
+            return {}
+        names = self.truth()
+        return {n: b for n, b in bias_at_end().items() if n in names}
+
     def _outcome(self, status: Status, **kw) -> Outcome:
-        return Outcome(status, self.spec.procedure, truth=self.truth(), session=self.session,
+        return Outcome(status, self.spec.procedure, truth=self.truth(), bias_at_end=self._bias_at_end(),
+                       session=self.session,
                        completed=len(self.engine.records), skipped=len(self.engine.skipped), samples=self.samples, **kw)
 
     def _unfinished(self) -> Outcome:

@@ -43,7 +43,7 @@ class DeviceConnection:
             assert sim is not None  # (the config gives a simulated device its settings)
             table = config.table.protocol if config.table else None
             self.simulated = SimulatedDevices(
-                paper_mimu(raw_counts=sim.raw_counts), config.station.gravity,
+                paper_mimu(raw_counts=sim.raw_counts, flicker_tau_max_s=sim.flicker_tau_max_s), config.station.gravity,
                 math.radians(config.station.latitude_deg), imu_protocol=sim.imu_protocol,
                 table_protocol=table, speed=sim.speed, seed=sim.seed, rate_hz=device.rate_hz)
             self.protocol = sim.imu_protocol

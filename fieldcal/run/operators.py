@@ -49,9 +49,10 @@ class ScriptedOperator(Operator):
         self.bumps_due: list[float] = []
         # A step normally takes its dwell, its rate steps and the handling; ten times that with
         # no step completed means the run cannot make progress (say the unit never settles).
-        rate = procedure.rate_step
-        self.patience_s = 10 * (procedure.dwell_s + script.handling_s + (
-            2 * (rate.turns * 360.0 / rate.rate_deg_s + rate.ramp_s + rate.settle_s) if rate else 0.0))
+        # (the longest rate step of the procedure's)
+        turning = max((2 * (rate.turns * 360.0 / rate.rate_deg_s + rate.ramp_s + rate.settle_s)
+                       for rate in procedure.rate_steps), default=0.0)
+        self.patience_s = 10 * (procedure.dwell_s + script.handling_s + turning)
         self.deadline = self.patience_s
 
     def begin(self, run: Conductor) -> None:

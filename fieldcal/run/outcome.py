@@ -28,6 +28,9 @@ class Outcome:
     procedure: Procedure
     unit: UnitSolution | None = None
     truth: dict = field(default_factory=dict)  # triad -> true parameters (simulation)
+    # triad -> the simulated unit's bias at the last sample of the run, output units: the value
+    # the unit is used with, against which a benchmark judges the solved bias (DESIGN 12)
+    bias_at_end: dict = field(default_factory=dict)
     session: Path | None = None
     parameters: Path | None = None  # the parameter file written (or, in a replay, the recorded one)
     parameter_file: ParameterFile | None = None  # solved in this run

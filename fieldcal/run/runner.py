@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S
 from drivers.sim import MimuSimulator
 from drivers.sim.device import paper_mimu
 from drivers.sim.rotations import rotvec_matrix
@@ -60,6 +61,9 @@ class RunSpec:
     # The simulated unit's serial (--unit-serial, a sim config's device.serial); None: recorded
     # without one. A live device's is its LiveDevice's.
     unit_serial: str | None = None
+    # The simulated unit's longest flicker correlation time (config device.sim.flicker_tau_max_s);
+    # stored in the session only when not the default, which is what sessions before it used.
+    flicker_tau_max_s: float = DEFAULT_FLICKER_TAU_MAX_S
 
     def to_metadata(self) -> dict:
         said = {"operator": self.operator} if self.operator is not None else {}  # older sessions: none
@@ -73,14 +77,17 @@ class RunSpec:
                                 "gravity_m_s2": self.station.gravity_m_s2},
                     "device": {**self.live.to_metadata(), "rate_hz": self.rate_hz, "raw_counts": False},
                     "method": self.method, "on_motion": self.on_motion}
-        device = paper_mimu(self.raw_counts)
+        device = self.device()
+        flicker = ({"flicker_tau_max_s": self.flicker_tau_max_s}
+                   if self.flicker_tau_max_s != DEFAULT_FLICKER_TAU_MAX_S else {})
         return {
             "software": f"fieldcal {__version__}",
             "procedure": {"name": self.procedure.name, "yaml": self.procedure.text},
             "station": {"latitude_deg": self.station.latitude_deg, "height_m": self.station.height_m,
                         "gravity_m_s2": self.station.gravity_m_s2},
             "device": {"name": SIM_DEVICE_NAME, "raw_counts": self.raw_counts,
-                       "rate_hz": self.rate_hz, **({"serial": self.unit_serial} if self.unit_serial else {})},
+                       "rate_hz": self.rate_hz, **({"serial": self.unit_serial} if self.unit_serial else {}),
+                       **flicker},
             "seed": self.seed, "sim_noise": self.sim_noise, "method": self.method, "on_motion": self.on_motion,
             "script": asdict(self.script),
             "simulation_truth": {name: {"kind": t.kind, "K": t.K.tolist(), "bias": t.bias.tolist(),
@@ -116,13 +123,14 @@ class RunSpec:
         script["bump_at_s"] = tuple(script.get("bump_at_s", ()))  # absent before bump_at_s existed
         return cls(**common, seed=meta["seed"], sim_noise=meta.get("sim_noise", "bank"),
                    raw_counts=meta["device"]["raw_counts"], unit_serial=meta["device"].get("serial"),
+                   flicker_tau_max_s=meta["device"].get("flicker_tau_max_s", DEFAULT_FLICKER_TAU_MAX_S),
                    script=OperatorScript(**script))
 
     def device(self):
         """The simulated device's truth."""
         if self.live is not None:
             raise ValueError(f"{self.live.name} is a real device: it has no simulation truth")
-        return paper_mimu(self.raw_counts)
+        return paper_mimu(self.raw_counts, self.flicker_tau_max_s)
 
     @property
     def device_name(self) -> str:
@@ -197,6 +205,10 @@ class SimulatedBench:
 
     def command_table(self, rate_deg_s: float) -> None:
         self.target_deg_s = rate_deg_s
+
+    def bias_at_end(self) -> dict[str, np.ndarray]:
+        """Each triad's true bias at the last sample sent (drivers.sim MimuSimulator.bias_now)."""
+        return self.sim.bias_now()
 
     def close(self) -> None:
         pass

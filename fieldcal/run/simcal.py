@@ -45,10 +45,12 @@ class SimulatedCalibration:
         angle = self.static_table_angles
         north_enu = np.column_stack([np.sin(angle), np.cos(angle), np.zeros_like(angle)])
         north_body = np.einsum("nij,ni->nj", self.plan.attitudes, north_enu)
-        assert self.procedure.rate_step is not None  # (a gyro is calibrated only with rate steps)
-        rate = np.radians(self.procedure.rate_step.rate_deg_s)
+        steps = [self.procedure.rate_step_at(i) for i in range(len(self.procedure.positions))]
+        turning = [i for i, step in enumerate(steps) if step is not None]
+        assert turning  # (a gyro is calibrated only with rate steps)
+        rate = np.radians([steps[i].rate_deg_s for i in turning])
         return angular_rate_bound(theta, up_body, rate, north_body, EARTH_RATE,
-                                  self.station.latitude_rad, self.covariances[name])
+                                  self.station.latitude_rad, self.covariances[name], turning)
 
 
 def run_simulated_calibration(seed: int, procedure: Procedure | str = "field-18",

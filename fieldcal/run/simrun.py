@@ -41,8 +41,8 @@ def plan_procedure(procedure: Procedure, rate_hz: float, rng: np.random.Generato
     """Segments and averaging windows for every position; placement errors unless aligned."""
     segments, windows, attitudes = [], [], []
     t = 0.0
-    step = procedure.rate_step if with_rate_steps else None
     for index, position in enumerate(procedure.positions):
+        step = procedure.rate_step_at(index) if with_rate_steps else None
         attitude = position.attitude
         if not procedure.aligned:
             attitude = placed_attitude(attitude, rng, placement_sigma_deg)

@@ -7,6 +7,8 @@ Earth rate for a gyro dwell). The bound is the 9x9 block of the inverse Fisher i
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from fieldcal.model import N_PARAMS, distort_with
@@ -26,7 +28,36 @@ def _perturbed(d0: np.ndarray, angles: np.ndarray) -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+@dataclass(frozen=True)
+class EndBias:
+    """Where the bias is wanted at the end of the calibration (DESIGN 12): ``cross`` (data × 3)
+    is the covariance of the data's noise with K times the bias process at that time, ``point``
+    (3 × 3) that term's own covariance (``end_bias_terms``)."""
+
+    cross: np.ndarray
+    point: np.ndarray
+
+
+@dataclass(frozen=True)
+class EndBiasBound:
+    """Error covariances (3 × 3, output units) of the bias at the end of the calibration:
+    ``predicted``, of its best linear unbiased predictor from the same data (the constant's
+    estimate plus what the residuals say of the process at the end), and ``constant``, of the
+    turn-on constant's estimate used as it (what a solver that reports the constant delivers)."""
+
+    predicted: np.ndarray
+    constant: np.ndarray
+
+
+def end_bias_terms(noise, sensitivity: np.ndarray, starts, durations, end_s: float) -> EndBias:
+    """``EndBias`` for windows of a triad whose noise (``drivers.noise.TriadNoise``) enters before
+    its K (``sensitivity``): data window-major then axis, as ``average_covariance`` orders it."""
+    kk = sensitivity @ sensitivity.T
+    cross = np.kron(noise.point_covariance(starts, durations, end_s)[:, None], kk)
+    return EndBias(cross, noise.bias_variance() * kk)
+
+
+def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, end: EndBias | None = None):
     cols = []
     for i, h in enumerate(steps):
         dx = np.zeros_like(x0)
@@ -36,7 +67,20 @@ def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray) -
     chol = np.linalg.cholesky(covariance)
     Jw = np.linalg.solve(chol, J)
     info_inv = np.linalg.inv(Jw.T @ Jw)
-    return info_inv[:N_PARAMS, :N_PARAMS] * np.outer(steps[:N_PARAMS], steps[:N_PARAMS])
+    bound = info_inv[:N_PARAMS, :N_PARAMS] * np.outer(steps[:N_PARAMS], steps[:N_PARAMS])
+    if end is None:
+        return bound
+    # Goldberger's BLUP of E·x + (K·bias process at the end), x = steps ⊙ u: with the whitened
+    # cross-covariance Gw, error = V − GwᵀGw + (E − GwᵀJw)·I⁻¹·(E − GwᵀJw)ᵀ. The constant's own
+    # estimate E·I⁻¹·Jwᵀ·w has error E I⁻¹ Eᵀ − E I⁻¹ Jwᵀ Gw − (…)ᵀ + V.
+    Gw = np.linalg.solve(chol, end.cross)
+    E = np.zeros((3, len(x0)))
+    E[np.arange(3), np.arange(3)] = steps[:3]
+    lead = E - Gw.T @ Jw
+    predicted = end.point - Gw.T @ Gw + lead @ info_inv @ lead.T
+    shared = E @ info_inv @ Jw.T @ Gw
+    constant = E @ info_inv @ E.T - shared - shared.T + end.point
+    return bound, EndBiasBound(predicted, constant)
 
 
 def _param_steps(theta: np.ndarray, reference: float) -> np.ndarray:
@@ -44,8 +88,9 @@ def _param_steps(theta: np.ndarray, reference: float) -> np.ndarray:
     return 1e-6 * np.r_[k * reference, k, np.ones(3)]
 
 
-def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance) -> np.ndarray:
-    """Bound for static averages K·g·d_i + b, d_i the true up direction in body axes."""
+def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance, end: EndBias | None = None):
+    """Bound for static averages K·g·d_i + b, d_i the true up direction in body axes; with
+    ``end``, (bound, EndBiasBound)."""
     up_body = np.asarray(up_body, dtype=float)
     n = len(up_body)
 
@@ -55,33 +100,52 @@ def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance)
 
     x0 = np.r_[theta, np.zeros(2 * n)]
     steps = np.r_[_param_steps(theta, gravity), np.full(2 * n, 1e-6)]
-    return _bound(mean, x0, steps, covariance)
+    return _bound(mean, x0, steps, covariance, end)
 
 
 def angular_rate_bound(theta, axis_body: np.ndarray, table_rate: np.ndarray, north_body: np.ndarray,
-                       earth_rate: float, latitude_rad: float, covariance) -> np.ndarray:
+                       earth_rate: float, latitude_rad: float, covariance, turning=None,
+                       end: EndBias | None = None):
     """Bound for per-position +ω, −ω and static averages (data order: all +, all −, all static).
 
     axis_body: true table axis (local up) in body axes per position; north_body: true horizontal
-    direction of the Earth rate in body axes during each static dwell.
+    direction of the Earth rate in body axes during each static dwell; turning: the indices of
+    the positions with a rate step, in order (default: every position), and table_rate one rate
+    for them all or one each. With ``end``, (bound, EndBiasBound).
     """
     axis_body = np.asarray(axis_body, dtype=float)
     n = len(axis_body)
-    rate = np.broadcast_to(np.asarray(table_rate, dtype=float), (n,))
+    turning = np.arange(n) if turning is None else np.asarray(turning, dtype=int)
+    rate = np.broadcast_to(np.asarray(table_rate, dtype=float), (len(turning),))
     vertical, horizontal = earth_rate * np.sin(latitude_rad), earth_rate * np.cos(latitude_rad)
 
+    # A position without a rate step sees only the Earth rate, in a direction its placement
+    # leaves free: two angles about the nominal one (a third would be unidentifiable).
+    resting = np.setdiff1d(np.arange(n), turning)
+    axis_t, north_t = axis_body[turning], north_body[turning]
+    up_r, north_r = axis_body[resting], north_body[resting]
+    north_r = north_r - np.einsum("ij,ij->i", north_r, up_r)[:, None] * up_r
+    earth_r = vertical * up_r + horizontal * north_r / np.linalg.norm(north_r, axis=1, keepdims=True)
+    earth_r /= np.linalg.norm(earth_r, axis=1, keepdims=True)
+    k = len(turning)
+
     def mean(x):
-        theta_, nuis = x[:N_PARAMS], x[N_PARAMS:].reshape(n, 3)
-        d = _perturbed(axis_body, nuis[:, :2])
+        theta_, nuis = x[:N_PARAMS], x[N_PARAMS:N_PARAMS + 3 * k].reshape(k, 3)
+        d = _perturbed(axis_t, nuis[:, :2])
         # Heading: rotate the true north direction about d by the third nuisance angle.
-        north = north_body - np.einsum("ij,ij->i", north_body, d)[:, None] * d
+        north = north_t - np.einsum("ij,ij->i", north_t, d)[:, None] * d
         north /= np.linalg.norm(north, axis=1, keepdims=True)
         north = np.cos(nuis[:, [2]]) * north + np.sin(nuis[:, [2]]) * np.cross(d, north)
         plus = distort_with(theta_, (rate + vertical)[:, None] * d)
         minus = distort_with(theta_, (-rate + vertical)[:, None] * d)
-        static = distort_with(theta_, vertical * d + horizontal * north)
+        seen = np.empty((n, 3))
+        seen[turning] = vertical * d + horizontal * north
+        if len(resting):
+            seen[resting] = earth_rate * _perturbed(earth_r, x[N_PARAMS + 3 * k:].reshape(-1, 2))
+        static = distort_with(theta_, seen)
         return np.concatenate([plus.ravel(), minus.ravel(), static.ravel()])
 
-    x0 = np.r_[theta, np.zeros(3 * n)]
-    steps = np.r_[_param_steps(theta, float(np.mean(rate))), np.full(3 * n, 1e-6)]
-    return _bound(mean, x0, steps, covariance)
+    count = 3 * k + 2 * len(resting)
+    x0 = np.r_[theta, np.zeros(count)]
+    steps = np.r_[_param_steps(theta, float(np.mean(rate))), np.full(count, 1e-6)]
+    return _bound(mean, x0, steps, covariance, end)

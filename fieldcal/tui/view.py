@@ -41,20 +41,21 @@ def duration_words(seconds: float) -> str:
     return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
 
 
-def rate_step_s(procedure: Procedure) -> float:
-    """One rate step (one sign) of a procedure: ramp, settle and the whole turns averaged."""
-    r = procedure.rate_step
+def rate_step_s(procedure: Procedure, index: int = 0) -> float:
+    """One rate step (one sign) of the position at ``index``: ramp, settle and the whole turns
+    averaged; 0 for a position without one."""
+    r = procedure.rate_step_at(index)
     return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
 
 
-def step_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S) -> float:
-    """One position's step: a placement, the dwell and the rate steps both ways."""
-    return placing_s + procedure.dwell_s + 2 * rate_step_s(procedure)
+def step_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S, index: int = 0) -> float:
+    """The step of the position at ``index``: a placement, the dwell and its rate steps both ways."""
+    return placing_s + procedure.dwell_s + 2 * rate_step_s(procedure, index)
 
 
 def job_duration_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S) -> float:
     """The whole job, as the run's own estimate counts it before any step is timed."""
-    return len(procedure.positions) * step_s(procedure, placing_s)
+    return sum(step_s(procedure, placing_s, i) for i in range(len(procedure.positions)))
 
 
 @dataclass
@@ -257,9 +258,10 @@ class RunView:
 
     # --- the whole job -------------------------------------------------------------------
 
-    def rate_step_s(self) -> float:
-        """One rate step (one sign): ramp, settle and the whole turns averaged."""
-        return rate_step_s(self.procedure)
+    def rate_step_s(self, step: int | None = None) -> float:
+        """One rate step (one sign) of a step (default: the current one): ramp, settle and the
+        whole turns averaged; 0 for a position without one."""
+        return rate_step_s(self.procedure, min(self.step if step is None else step, self.total_steps - 1))
 
     def remaining_s(self) -> float:
         """Sample time the open steps still need: dwells and rate steps from the procedure,
@@ -268,16 +270,16 @@ class RunView:
         if self.finished is not None or self.step >= self.total_steps:
             return 0.0
         placing = sum(self.placing_s) / len(self.placing_s) if self.placing_s else PLACING_GUESS_S
-        per_step = step_s(self.procedure, placing)
-        open_steps = sum(s in (TODO, ACTIVE, WRONG) for i, s in enumerate(self.tiles) if i != self.step)
+        open_time = sum(step_s(self.procedure, placing, i)  # each position's own rate step, if any
+                        for i, s in enumerate(self.tiles) if i != self.step and s in (TODO, ACTIVE, WRONG))
         t = self.t
         if self.placed:
-            rate_left = self.rate_step_s() * (2 - self.rates_done) if self.procedure.rate_step else 0.0
+            rate_left = self.rate_step_s() * (2 - self.rates_done)
             turning = 0.0 if self.turns.complete else self.turns.done(t)  # (a finished one is counted)
             current = self.dwell.total - self.dwell.done(t) + max(0.0, rate_left - turning)
         else:
-            current = per_step
-        return open_steps * per_step + current
+            current = step_s(self.procedure, placing, self.step)
+        return open_time + current
 
     def job_text(self) -> str:
         """Counts beside the tiles' symbols (the legend), elapsed and remaining time."""

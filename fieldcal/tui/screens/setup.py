@@ -54,17 +54,24 @@ def procedure_summary(procedure: Procedure) -> str:
     """One line: positions, dwell, and the table's rate step if any."""
     n = len(procedure.positions)
     text = f"{n} position{'' if n == 1 else 's'} · {procedure.dwell_s:g} s dwells"
-    step = procedure.rate_step
-    if step is not None:
-        text += f" · table ±{step.rate_deg_s:g} °/s"
+    steps = procedure.rate_steps
+    if steps:
+        text += " · table ±" + "/".join(f"{rate:g}" for rate in sorted({s.rate_deg_s for s in steps})) + " °/s"
+        turning = sum(procedure.rate_step_at(i) is not None for i in range(n))
+        if turning < n:
+            text += f" at {turning} of {n} positions"
     return text
 
 
 def duration_summary(procedure: Procedure) -> str:
     """The whole job's expected time, and what it is made of."""
-    rate = f" + 2 × {rate_step_s(procedure):.0f} s turning" if procedure.rate_step is not None else ""
-    return (f"whole job ≈ {duration_words(job_duration_s(procedure))}: {len(procedure.positions)} × "
-            f"(≈{PLACING_GUESS_S:.0f} s placing + {procedure.dwell_s:g} s dwell{rate})")
+    n = len(procedure.positions)
+    turning = sum(procedure.rate_step_at(i) is not None for i in range(n))
+    every = turning == n and len(procedure.rate_steps) == 1  # one rate step, at every position
+    rate = f" + 2 × {rate_step_s(procedure):.0f} s turning" if every else ""
+    some = f", turning at {turning} of them" if turning and not every else ""
+    return (f"whole job ≈ {duration_words(job_duration_s(procedure))}: {n} × "
+            f"(≈{PLACING_GUESS_S:.0f} s placing + {procedure.dwell_s:g} s dwell{rate}){some}")
 
 
 def load_spec_choice(path: str | None):
