@@ -65,7 +65,8 @@ def cmd_run(args) -> int:
                             skip_steps=tuple(s - 1 for s in args.skip))
     run_spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                        raw_counts=config.device.sim.raw_counts, method=args.method,
-                       on_motion=args.on_motion, script=script, operator=operator_option(args))
+                       on_motion=args.on_motion, script=script, operator=operator_option(args),
+                       sim_thermal=config.device.sim.thermal)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = Path(args.out) / f"{procedure.name}-seed{seed}-{stamp}"
     args.session_path = directory  # for the interrupted / disk-full message (cli.main)

@@ -286,7 +286,7 @@ def sim_run(config, procedure, args):
     seed = config.device.sim.seed if args.seed is None else args.seed
     spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                    raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion,
-                   operator=operator_option(args))
+                   operator=operator_option(args), sim_thermal=config.device.sim.thermal)
     speed = config.device.sim.speed if args.speed is None else args.speed
     return spec, _session_dir(args, procedure.name, f"seed{seed}"), speed
 
