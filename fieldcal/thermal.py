@@ -14,6 +14,7 @@ fitted on: ``outside`` marks such samples and ``check_range`` refuses them in on
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,3 +135,22 @@ class ThermalModel:
     def __hash__(self) -> int:
         return hash(self.key())
 
+
+
+def truth_about(theta, reference_c: float, bias_terms, scale_drift, new_reference_c: float):
+    """A thermal truth given about ``reference_c`` (the nine PARAM_NAMES values there, the bias
+    terms bₖ and the scale drift s₁) re-centred on ``new_reference_c``, where a fit states its
+    own: (the nine values, the bias terms). With d the shift, b₀' = Σⱼ bⱼ dʲ (b₀ included),
+    bₖ' = Σⱼ≥ₖ C(j, k) bⱼ dʲ⁻ᵏ, and each scale factor times 1 + s₁d; the angles do not move."""
+    terms = np.asarray(bias_terms, dtype=float).reshape(-1, 3)
+    coefficients = np.vstack([np.asarray(theta, dtype=float)[:3], terms])  # b₀ … b_order
+    d = new_reference_c - reference_c
+    j = np.arange(len(coefficients))
+    # shift[k, j] = C(j, k) d^(j−k) for j ≥ k
+    binomial = np.array([[math.comb(int(b), int(a)) if b >= a else 0 for b in j] for a in j], dtype=float)
+    shift = binomial * np.where(j[None, :] >= j[:, None], d ** np.maximum(j[None, :] - j[:, None], 0), 0.0)
+    moved = shift @ coefficients
+    out = np.array(theta, dtype=float)
+    out[:3] = moved[0]
+    out[3:6] = out[3:6] * (1.0 + np.asarray(scale_drift, dtype=float) * d)
+    return out, moved[1:]

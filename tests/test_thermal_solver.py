@@ -65,9 +65,13 @@ def test_a_linear_unit_gets_a_linear_model_and_a_cold_one_none():
     rng = np.random.default_rng(3)
     still = distort_with(THETA, G * UP) + rng.normal(scale=SIGMA, size=(18, 3))
     fit = solve_thermal_norm(StaticNormProblem(still, G), TEMPERATURES, np.full((18, 3), SIGMA))
-    assert fit.calibration.thermal.order == 0
+    model = fit.calibration.thermal
+    assert model.order == 0 and model.scale_drift is not None  # room for the drift: fitted, and found ~0
+    assert np.all(np.abs(model.scale_drift / model.scale_drift_sigma) < 4.0)
+    assert np.all(np.abs(fit.calibration.errors_in_sigma(THETA)) < 4.0)
+    without = solve_thermal_norm(StaticNormProblem(still, G), TEMPERATURES, np.full((18, 3), SIGMA), scale=False)
     plain = solve_norm(StaticNormProblem(still, G), np.full((18, 3), SIGMA), method="lsq")
-    np.testing.assert_allclose(fit.calibration.theta, plain.theta, rtol=0, atol=1e-3 * SIGMA)
+    np.testing.assert_allclose(without.calibration.theta, plain.theta, rtol=0, atol=1e-3 * SIGMA)
 
 
 def test_sigma_is_honest_over_seeds():
@@ -95,21 +99,64 @@ def test_window_temperature_round_trips_and_old_windows_have_none():
     assert "temperature_c" not in WindowRecord.from_dict(old).to_dict()
 
 
-def test_each_window_carries_the_mean_temperature_of_its_samples(tmp_path):
-    from fieldcal.run.runner import RunSpec, open_run, run_headless
+PROFILE = TemperatureProfile("ramp", start_c=10.0, rise_k=30.0, rate_k_per_s=0.05)
+
+
+@pytest.fixture(scope="module")
+def warm_run(tmp_path_factory):
+    """A short field-18 (3 s dwells at 20 Hz) through the conductor, the unit warming 0.05 K/s."""
+    from fieldcal.run.runner import RunSpec, run_headless
 
     text = load_procedure("field-18").text.replace("name: field-18", "name: mini").replace("dwell_s: 200", "dwell_s: 3") \
         .replace("rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}",
                  "rate_step: {rate_deg_s: 60, turns: 1, ramp_s: 3, settle_s: 1}")
-    profile = TemperatureProfile("ramp", start_c=10.0, rise_k=30.0, rate_k_per_s=0.05)
-    thermal = SimThermal(profile, {"accelerometer": ThermalTruth(25.0, np.array([B1]), np.zeros(3))})
+    thermal = SimThermal(PROFILE, {"accelerometer": ThermalTruth(25.0, np.array([B1 * 10]), np.zeros(3))})
     spec = RunSpec(parse_procedure(text, "mini.yaml"), Station(40.0, 50.0), seed=3, rate_hz=20.0,
                    sim_thermal=thermal)
-    run_headless(spec, tmp_path / "run")
-    windows = [w for step in open_run(tmp_path / "run").completed for w in step.windows]
+    directory = tmp_path_factory.mktemp("warm") / "run"
+    return directory, run_headless(spec, directory)
+
+
+def test_each_window_carries_the_mean_temperature_of_its_samples(warm_run):
+    from fieldcal.run.runner import open_run
+
+    windows = [w for step in open_run(warm_run[0]).completed for w in step.windows]
     assert len(windows) == 54
     for w in windows:
         # the window's samples are at start, start + 1/rate, ... (duration · rate of them)
         t = w.start + np.arange(round(w.duration * 20.0)) / 20.0
-        assert w.temperature_c == pytest.approx(profile.at(t).mean(), abs=1e-9)
+        assert w.temperature_c == pytest.approx(PROFILE.at(t).mean(), abs=1e-9)
     assert windows[-1].temperature_c - windows[0].temperature_c > 5.0
+
+
+def test_the_run_prints_the_thermal_model_beside_the_truth(warm_run):
+    import io
+
+    from fieldcal.cli.sessions import _print_result
+
+    outcome = warm_run[1]
+    acc = outcome.unit.solutions["accelerometer"]
+    assert acc.thermal is not None and acc.thermal.order >= 1
+    out = io.StringIO()
+    _print_result(outcome, out)
+    text = out.getvalue()
+    section = text[text.index("accelerometer ("):text.index("gyroscope (")]
+    assert "thermal model about" in section and "b1 x" in section and "mg/K" in section
+    # the true b1 (ten times B1: 3, -5, 8 mg/K) is printed beside the solved one, with error/σ
+    rows = {line.split()[0] + line.split()[1]: line.split() for line in section.splitlines()
+            if line.strip().startswith("b1 ")}
+    assert [rows[f"b1{a}"][6] for a in "xyz"] == ["3", "-5", "8"]
+    assert all(abs(float(rows[f"b1{a}"][8])) < 4.0 for a in "xyz")
+
+
+def test_truth_re_centred_by_hand():
+    from fieldcal.thermal import truth_about
+
+    theta = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 1e-3, 0.0, 0.0])
+    terms = np.array([[0.1] * 3, [0.01] * 3])
+    moved, moved_terms = truth_about(theta, 20.0, terms, [1e-3, 0.0, 0.0], 22.0)
+    # b0' = 1 + 0.1·2 + 0.01·4 = 1.24; b1' = 0.1 + 2·0.01·2 = 0.14; b2' = 0.01; kx' = 2·1.002
+    np.testing.assert_allclose(moved[:3], 1.24)
+    np.testing.assert_allclose(moved_terms, [[0.14] * 3, [0.01] * 3])
+    np.testing.assert_allclose(moved[3:6], [2.004, 2.0, 2.0])
+    np.testing.assert_array_equal(moved[6:], theta[6:])

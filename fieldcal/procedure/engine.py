@@ -140,7 +140,8 @@ def windows_and_averages(records: Iterable[StepRecord]) -> tuple[list[Window], d
     windows, rows = [], []
     for record in sorted(records, key=lambda r: r.step):
         for w in record.windows:
-            windows.append(Window(w.kind, record.step, w.start, w.duration, math.radians(abs(w.rate_deg_s))))
+            windows.append(Window(w.kind, record.step, w.start, w.duration, math.radians(abs(w.rate_deg_s)),
+                                  w.temperature_c))
             rows.append(w.means)
     names = rows[0].keys() if rows else ()
     return windows, {name: np.array([r[name] for r in rows]) for name in names}

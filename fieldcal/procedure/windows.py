@@ -26,6 +26,7 @@ class Window:
     start: float  # s, sample time
     duration: float  # s
     table_rate: float = 0.0  # rad/s, magnitude
+    temperature_c: float | None = None  # the unit's mean temperature over it, when measured
 
 
 @dataclass(frozen=True)

@@ -325,7 +325,9 @@ class Conductor:
         return truth
 
     def _outcome(self, status: Status, **kw) -> Outcome:
+        sim_thermal = getattr(self.spec, "sim_thermal", None)
         return Outcome(status, self.spec.procedure, truth=self.truth(), session=self.session,
+                       thermal_truth=dict(sim_thermal.triads) if sim_thermal is not None else {},
                        completed=len(self.engine.records), skipped=len(self.engine.skipped), samples=self.samples, **kw)
 
     def _unfinished(self) -> Outcome:

@@ -28,6 +28,7 @@ class Outcome:
     procedure: Procedure
     unit: UnitSolution | None = None
     truth: dict = field(default_factory=dict)  # triad -> true parameters (simulation)
+    thermal_truth: dict = field(default_factory=dict)  # triad -> its ThermalTruth (a warming simulation)
     session: Path | None = None
     parameters: Path | None = None  # the parameter file written (or, in a replay, the recorded one)
     parameter_file: ParameterFile | None = None  # solved in this run

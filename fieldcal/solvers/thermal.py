@@ -15,7 +15,9 @@ its bias terms are correlated with b₀ (both move the same averages), so its σ
 
 The order of the bias polynomial is chosen from the data: each order k is kept only if it lowers
 χ² by more than the 99 % point of χ² with 3 degrees of freedom (a likelihood-ratio test per three
-added coefficients), and only while the equations outnumber the unknowns.
+added coefficients), and only while the equations outnumber the unknowns; then the scale drift
+s₁ is fitted at that order whenever the equations still outnumber the unknowns (an accelerometer's
+18 norms on field-18 leave no room beside a quadratic bias; a gyro's 108 do).
 """
 from __future__ import annotations
 
@@ -28,7 +30,8 @@ from scipy.special import chdtrc
 
 from fieldcal.calibration import Calibration, SolverDiagnostics
 from fieldcal.model import N_PARAMS
-from fieldcal.solvers.norm import CalibrationError, Whitener, _natural_scales, _residual_whitener, solve_norm
+from fieldcal.solvers.ellipsoid import DegenerateError
+from fieldcal.solvers.norm import CalibrationError, Whitener, _natural_scales, _residual_whitener
 from fieldcal.thermal import MAX_ORDER, ThermalModel
 
 # χ²₃ 99 % point: scipy.stats.chi2.ppf(0.99, 3) (scipy.stats stays out of the solvers' imports)
@@ -68,11 +71,11 @@ def _corrected(u_points: np.ndarray, dt: np.ndarray, theta, terms, drift) -> np.
 
 
 def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: float | None = None,
-                       max_order: int = MAX_ORDER, scale: bool = False) -> ThermalFit:
+                       max_order: int = MAX_ORDER, scale: bool = True) -> ThermalFit:
     """The joint fit of ``problem`` (a norm problem whose ``data`` are 3-vector averages) with
     the thermal terms; ``temperatures_c`` one per average, in the order of ``problem.data``;
     ``covariance`` as ``solve_norm`` takes it. ``reference_c`` defaults to the mean temperature.
-    ``scale``: also fit s₁ (needs the scale factors seen at several temperatures)."""
+    ``scale``: also fit s₁ at the order chosen when the equations leave room for it."""
     u = np.asarray(problem.data, dtype=float)
     points = u.reshape(-1, 3)
     temperatures = np.asarray(temperatures_c, dtype=float)
@@ -86,14 +89,16 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
     span = max(float(np.ptp(temperatures)), 1e-3)
     if covariance is None:  # the order test weighs χ² against the noise: it needs the noise
         raise ValueError(f"{problem.name}: the thermal fit needs the covariance of the averages")
-    start = solve_norm(problem, covariance, method="lsq")  # no thermal terms: the start, and order 0
-    theta_start = cast(np.ndarray, start.theta)  # (always set once a Calibration is made)
+    try:  # the problem's own first guess: a warm unit's averages may defeat the plain solve
+        theta_start = np.asarray(problem.initial(), dtype=float)
+    except DegenerateError as exc:
+        raise CalibrationError(f"{problem.name}: positions are degenerate: {exc}") from None
     whitener = cast(Whitener, _residual_whitener(problem, theta_start, covariance))
     n_resid = len(problem.residual_labels)
     natural = _natural_scales(problem, theta_start)
     bias_scale = natural[:3]
 
-    def fit(order: int):
+    def fit(order: int, scale: bool):
         p = _layout(order, scale)
         steps = np.r_[natural, np.tile(bias_scale, order) / np.repeat(span ** np.arange(1, order + 1), 3),
                       np.full(3 if scale else 0, 1e-3 / span)]
@@ -105,26 +110,33 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
         x0 = np.r_[theta_start, np.zeros(p - N_PARAMS)]
         res = optimize.least_squares(lambda z: whitened(x0 + z * steps), np.zeros(p), method="lm",
                                      xtol=1e-12, ftol=1e-12)
+        if not res.success:
+            raise CalibrationError(f"{problem.name}: the thermal fit did not converge ({res.message})")
         x = x0 + res.x * steps
         J = _central_jacobian(whitened, x, 1e-6 * steps)
         r = whitened(x)
-        return x, J, float(r @ r), res
+        return (order, scale, x, float(r @ r), J, res)
+
+    def better(candidate, than) -> bool:  # three more coefficients must earn their place
+        return than is None or than[3] - candidate[3] >= ORDER_TEST_CHI2
 
     chosen = None
     chi2_by_order: dict[int, float] = {}
     for order in range(max_order + 1):
-        if n_resid - _layout(order, scale) < 1:
+        if n_resid - _layout(order, False) < 1:
             break
-        x, J, chi2, res = fit(order)
-        if not res.success:
-            raise CalibrationError(f"{problem.name}: the thermal fit did not converge ({res.message})")
-        chi2_by_order[order] = chi2
-        if chosen is not None and chosen[2] - chi2 < ORDER_TEST_CHI2:
+        candidate = fit(order, False)
+        chi2_by_order[order] = candidate[3]
+        if not better(candidate, chosen):
             break
-        chosen = (order, x, chi2, J, res)
+        chosen = candidate
     if chosen is None:
         raise CalibrationError(f"{problem.name}: {n_resid} equations leave no room for a thermal model")
-    order, x, chi2, J, res = chosen
+    if scale and n_resid - _layout(chosen[0], True) >= 1:
+        # Not put to the test: a drift too weak to lower χ² much still pulls K (a warming gyro's
+        # scale factors 5σ off on configs/sim-warmup.yaml), and fitted, it widens K's σ honestly.
+        chosen = fit(chosen[0], True)
+    order, scale, x, chi2, J, res = chosen
     dof = n_resid - _layout(order, scale)
     sv = np.linalg.svd(J, compute_uv=False)
     if not sv[-1] > 1e-10 * sv[0]:
