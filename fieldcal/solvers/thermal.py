@@ -31,7 +31,8 @@ from scipy.special import chdtrc
 from fieldcal.calibration import Calibration, SolverDiagnostics
 from fieldcal.model import N_PARAMS
 from fieldcal.solvers.ellipsoid import DegenerateError
-from fieldcal.solvers.norm import CalibrationError, Whitener, _natural_scales, _residual_whitener
+from fieldcal.solvers.norm import (CalibrationError, Whitener, _forward_jacobian, _natural_scales,
+                                   _residual_whitener, _whitener_of)
 from fieldcal.thermal import MAX_ORDER, ThermalModel
 
 # χ²₃ 99 % point: scipy.stats.chi2.ppf(0.99, 3) (scipy.stats stays out of the solvers' imports)
@@ -54,6 +55,16 @@ def _layout(order: int, scale: bool) -> int:
 def _central_jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
     """∂fun/∂x by central differences, one column per parameter (a few dozen at most)."""
     return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h) for e, h in zip(np.diag(steps), steps)])
+
+
+def _residual_covariance_at(problem, theta: np.ndarray, u: np.ndarray, covariance) -> np.ndarray:
+    """G Σ Gᵀ with G = ∂r/∂u at (θ, u) by forward differences (u: the averages at T_ref)."""
+    cov = covariance.dense() if hasattr(covariance, "dense") else np.asarray(covariance, dtype=float)
+    if cov.shape == (len(u) // 3, 3):  # per-average, per-axis 1σ
+        cov = np.diag(cov.ravel() ** 2)
+    steps = 1e-6 * np.maximum(np.abs(u), np.abs(theta[3:6]).max() * problem.reference_scale)
+    G = _forward_jacobian(lambda x: problem.residuals(theta, x), u, steps)
+    return G @ cov @ G.T
 
 
 def _split(x: np.ndarray, order: int, scale: bool):
@@ -93,12 +104,11 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
         theta_start = np.asarray(problem.initial(), dtype=float)
     except DegenerateError as exc:
         raise CalibrationError(f"{problem.name}: positions are degenerate: {exc}") from None
-    whitener = cast(Whitener, _residual_whitener(problem, theta_start, covariance))
     n_resid = len(problem.residual_labels)
     natural = _natural_scales(problem, theta_start)
     bias_scale = natural[:3]
 
-    def fit(order: int, scale: bool):
+    def fit(order: int, scale: bool, whitener: Whitener):
         p = _layout(order, scale)
         steps = np.r_[natural, np.tile(bias_scale, order) / np.repeat(span ** np.arange(1, order + 1), 3),
                       np.full(3 if scale else 0, 1e-3 / span)]
@@ -120,22 +130,32 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
     def better(candidate, than) -> bool:  # three more coefficients must earn their place
         return than is None or than[3] - candidate[3] >= ORDER_TEST_CHI2
 
-    chosen = None
-    chi2_by_order: dict[int, float] = {}
-    for order in range(max_order + 1):
-        if n_resid - _layout(order, False) < 1:
-            break
-        candidate = fit(order, False)
-        chi2_by_order[order] = candidate[3]
-        if not better(candidate, chosen):
-            break
-        chosen = candidate
-    if chosen is None:
-        raise CalibrationError(f"{problem.name}: {n_resid} equations leave no room for a thermal model")
-    if scale and n_resid - _layout(chosen[0], True) >= 1:
-        # Not put to the test: a drift too weak to lower χ² much still pulls K (a warming gyro's
-        # scale factors 5σ off on configs/sim-warmup.yaml), and fitted, it widens K's σ honestly.
-        chosen = fit(chosen[0], True)
+    def select(whitener: Whitener):
+        chosen = None
+        chi2_by_order: dict[int, float] = {}
+        for order in range(max_order + 1):
+            if n_resid - _layout(order, False) < 1:
+                break
+            candidate = fit(order, False, whitener)
+            chi2_by_order[order] = candidate[3]
+            if not better(candidate, chosen):
+                break
+            chosen = candidate
+        if chosen is None:
+            raise CalibrationError(f"{problem.name}: {n_resid} equations leave no room for a thermal model")
+        if scale and n_resid - _layout(chosen[0], True) >= 1:
+            # Not put to the test: a drift too weak to lower χ² much still pulls K (a warming gyro's
+            # scale factors 5σ off on configs/sim-warmup.yaml), and fitted, it widens K's σ honestly.
+            chosen = fit(chosen[0], True, whitener)
+        return chosen, chi2_by_order
+
+    # The weights are the residuals' covariance G Σ Gᵀ, G = ∂r/∂u at a solution: first at the
+    # problem's guess, then again at the first fit's solution and its averages brought back to
+    # T_ref (a warm gyro's guess may have its bias off by far more than the Earth rate it weighs).
+    chosen, _ = select(cast(Whitener, _residual_whitener(problem, theta_start, covariance)))
+    theta, terms, drift = _split(chosen[2], chosen[0], chosen[1])
+    corrected = _corrected(points, dt, theta, terms, drift)
+    chosen, chi2_by_order = select(_whitener_of(problem, _residual_covariance_at(problem, theta, corrected, covariance)))
     order, scale, x, chi2, J, res = chosen
     dof = n_resid - _layout(order, scale)
     sv = np.linalg.svd(J, compute_uv=False)
