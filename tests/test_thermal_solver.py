@@ -110,7 +110,8 @@ def warm_run(tmp_path_factory):
     text = load_procedure("field-18").text.replace("name: field-18", "name: mini").replace("dwell_s: 200", "dwell_s: 3") \
         .replace("rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}",
                  "rate_step: {rate_deg_s: 60, turns: 1, ramp_s: 3, settle_s: 1}")
-    thermal = SimThermal(PROFILE, {"accelerometer": ThermalTruth(25.0, np.array([B1 * 10]), np.zeros(3))})
+    thermal = SimThermal(PROFILE, {"accelerometer": ThermalTruth(25.0, np.array([B1 * 10]), np.zeros(3)),
+                                   "gyroscope": ThermalTruth(25.0, np.radians([[0.02, -0.05, 0.08]]), np.zeros(3))})
     spec = RunSpec(parse_procedure(text, "mini.yaml"), Station(40.0, 50.0), seed=3, rate_hz=20.0,
                    sim_thermal=thermal)
     directory = tmp_path_factory.mktemp("warm") / "run"
@@ -160,3 +161,15 @@ def test_truth_re_centred_by_hand():
     np.testing.assert_allclose(moved_terms, [[0.14] * 3, [0.01] * 3])
     np.testing.assert_allclose(moved[3:6], [2.004, 2.0, 2.0])
     np.testing.assert_array_equal(moved[6:], theta[6:])
+
+
+def test_a_warm_gyro_is_solved_within_its_sigma(warm_run):
+    # Its bias moves 0.05-0.08 °/s/K over 20 K: far beyond the Earth rate its static norms weigh,
+    # so weights taken at a solution that ignores the warming would be wrong.
+    from fieldcal.report import thermal_truths, worst_error
+
+    outcome = warm_run[1]
+    gyro = outcome.unit.solutions["gyroscope"]
+    assert gyro.thermal is not None and gyro.thermal.order >= 1
+    truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
+    assert worst_error({"gyroscope": gyro}, truths) < 4.0
