@@ -25,6 +25,7 @@ import numpy as np
 
 from fieldcal.model import (ANGLE_TERMS, KINDS, PARAM_NAMES, SI_UNIT, k_from, k_from_params, params_from,
                             params_from_k)
+from fieldcal.thermal import ThermalModel
 from fieldcal.units import group_of, operator_unit
 
 # Norm-method solvers give a lower-triangular K; a file claiming one of these methods with a
@@ -106,6 +107,7 @@ class Calibration:
     residual_labels: tuple[str, ...] | None = None  # one per residual; None: (n, 3) per average
     parameter_names: tuple[str, ...] = PARAM_NAMES
     diagnostics: SolverDiagnostics | None = None  # None when read from a file
+    thermal: ThermalModel | None = None  # bias and scale against temperature; None: not calibrated
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__  # frozen: fill the derived fields once, here
@@ -171,6 +173,9 @@ class Calibration:
         if rms is None or not (math.isfinite(float(rms)) and float(rms) >= 0):
             raise ValueError(f"{self.name}.residual_rms: expected a finite number >= 0, got {rms!r}")
         set_(self, "residual_rms", float(rms))
+        if self.thermal is not None and not isinstance(self.thermal, ThermalModel):
+            raise ValueError(f"{self.name}.thermal: expected a ThermalModel or None, "
+                             f"got {type(self.thermal).__name__}")
 
     # The model ---------------------------------------------------------------------------
 
@@ -205,12 +210,32 @@ class Calibration:
         sigma = np.where(self.sigma > 0, self.sigma, np.nan)
         return (self.theta - self.theta_of(truth)) / sigma
 
-    def calibrate(self, raw) -> np.ndarray:
-        """K⁻¹(raw − bias) for a (3,) or (n, 3) array of raw outputs; SI units out."""
+    def calibrate(self, raw, temperature=None, *, extrapolate: bool = False) -> np.ndarray:
+        """K⁻¹(raw − bias) for a (3,) or (n, 3) array of raw outputs; SI units out.
+
+        With a thermal model, ``temperature`` (°C: a number, or one per row) is required and
+        K(T)⁻¹(raw − bias(T)) is returned; a temperature outside the calibrated range raises
+        ``TemperatureOutOfRange`` unless ``extrapolate``. Without one, ``temperature`` is
+        ignored: the result is exactly that of a calibration from before thermal models."""
         v = np.asarray(raw, dtype=float) - self.bias
         if v.shape[-1:] != (3,) or v.ndim > 2:
             raise ValueError(f"{self.name}: expected a (3,) or (n, 3) array, got shape {np.shape(raw)}")
-        return np.linalg.solve(self.K, v.T).T
+        if self.thermal is None:
+            return np.linalg.solve(self.K, v.T).T
+        if temperature is None:
+            raise ValueError(f"{self.name}: has a thermal model; give the temperature (°C) of the samples")
+        rows = np.atleast_2d(v)
+        t = np.broadcast_to(np.asarray(temperature, dtype=float), (len(rows),)) \
+            if np.ndim(temperature) == 0 else np.asarray(temperature, dtype=float)
+        if t.shape != (len(rows),):
+            raise ValueError(f"{self.name}: expected one temperature per sample ({len(rows)}), "
+                             f"got shape {np.shape(temperature)}")
+        if not extrapolate:
+            self.thermal.check_range(t, self.name)
+        # K(T) = diag(r)·K, so K(T)⁻¹ w = K⁻¹ (w / r): one solve for every sample
+        w = (rows - self.thermal.bias_offset(t)) / self.thermal.scale_ratio(t)
+        out = np.linalg.solve(self.K, w.T).T
+        return out.reshape(v.shape)
 
     # What the parameter file holds -------------------------------------------------------
 
@@ -228,7 +253,8 @@ class Calibration:
 
     def _key(self) -> tuple:
         return (self.name, self.kind, self.output_unit, self.method, self.residual_unit,
-                self.bias.tobytes(), self.K.tobytes(), self.file_sigma.tobytes(), _bits(self.residual_rms))
+                self.bias.tobytes(), self.K.tobytes(), self.file_sigma.tobytes(), _bits(self.residual_rms),
+                None if self.thermal is None else self.thermal.key())
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Calibration):

@@ -7,6 +7,9 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S, FLICKER_TAU_MAX_RANGE_S, TriadNoise
 from drivers.transport import PortSettings
@@ -19,6 +22,9 @@ DEVICE_PROTOCOLS = ("sim", "delimited", "vectornav", "xsens")
 SIM_IMU_PROTOCOLS = ("xsens", "vectornav", "delimited")
 TABLE_PROTOCOLS = ("ascii", "grbl")
 _PARITIES = ("N", "E", "O", "M", "S")
+
+if TYPE_CHECKING:  # the simulator is imported only by a config that simulates a temperature
+    from drivers.sim.thermal import SimThermal, TemperatureProfile
 
 
 class ConfigError(ValueError):
@@ -54,6 +60,9 @@ class SimSettings:
     # The simulated unit's flicker: the longest correlation time of its bias process (README,
     # "Bias instability model"); the station's model of the unit follows it.
     flicker_tau_max_s: float = DEFAULT_FLICKER_TAU_MAX_S
+    # The unit's temperature profile and its triads' thermal truth (drivers.sim.thermal); None:
+    # the unit holds its calibration temperature.
+    thermal: SimThermal | None = None
 
 
 @dataclass(frozen=True)
@@ -144,7 +153,7 @@ def _flicker_tau_max(r: FieldReader, m: dict, where: str) -> float:
 
 def _sim(r: FieldReader, raw, where: str) -> SimSettings:
     m = r.mapping(raw if raw is not None else {}, where, (),
-                  ("imu_protocol", "seed", "speed", "raw_counts", "flicker_tau_max_s"))
+                  ("imu_protocol", "seed", "speed", "raw_counts", "flicker_tau_max_s", "temperature", "thermal"))
     seed = m.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         r.fail(f"{where}.seed", "a whole number >= 0", describe(seed))
@@ -153,7 +162,64 @@ def _sim(r: FieldReader, raw, where: str) -> SimSettings:
         r.fail(f"{where}.raw_counts", "true or false", describe(raw_counts))
     protocol = r.string(m, "imu_protocol", where, SIM_IMU_PROTOCOLS, optional=True) or "xsens"
     speed = r.number(m, "speed", where, 0) if "speed" in m else 1.0
-    return SimSettings(protocol, seed, speed, raw_counts, _flicker_tau_max(r, m, where))
+    thermal = None
+    if "thermal" in m or "temperature" in m:
+        from drivers.sim.thermal import SimThermal
+
+        if "temperature" not in m:
+            r.refuse(f"{where}.temperature", "missing (thermal truth needs a temperature profile)", line_of(m))
+        thermal = SimThermal(_profile(r, m["temperature"], f"{where}.temperature"),
+                             _thermal_truth(r, m.get("thermal", {}), f"{where}.thermal"))
+    return SimSettings(protocol, seed, speed, raw_counts, _flicker_tau_max(r, m, where), thermal)
+
+
+# What each profile takes besides start_c (drivers.sim.thermal.TemperatureProfile).
+_PROFILE_KEYS = {"constant": (), "warmup": ("rise_k", "time_constant_s"),
+                 "ramp": ("rise_k", "rate_k_per_s", "soak_s")}
+_CHAMBER_C = (-60.0, 150.0)  # a chamber's reach: a temperature outside it is a typo
+
+
+def _profile(r: FieldReader, raw, where: str) -> TemperatureProfile:
+    from drivers.sim.thermal import PROFILES, TemperatureProfile
+
+    kind_map = r.mapping(raw, where, ("profile",), ("start_c", "rise_k", "time_constant_s", "rate_k_per_s", "soak_s"))
+    kind = r.string(kind_map, "profile", where, PROFILES)
+    m = r.mapping(raw, where, ("profile", "start_c", *_PROFILE_KEYS[kind][:2]), _PROFILE_KEYS[kind][2:])
+    low, high = _CHAMBER_C
+    start = r.bounded(m, "start_c", where, low, high, "°C")
+    rise = r.bounded(m, "rise_k", where, low - high, high - low, "K") if "rise_k" in m else 0.0
+    if not low <= start + rise <= high:
+        r.fail(f"{where}.rise_k", f"a rise that ends within {low:g} to {high:g} °C", describe(m["rise_k"]))
+    tau = r.bounded(m, "time_constant_s", where, 1.0, 1e6, "s") if "time_constant_s" in m else 0.0
+    rate = r.bounded(m, "rate_k_per_s", where, 1e-6, 10.0, "K/s") if "rate_k_per_s" in m else 0.0
+    soak = r.bounded(m, "soak_s", where, 0.0, 1e6, "s") if "soak_s" in m else 0.0
+    return TemperatureProfile(kind, start, rise, tau, rate, soak)
+
+
+def _thermal_truth(r: FieldReader, raw, where: str) -> dict:
+    from drivers.sim.device import paper_mimu
+    from drivers.sim.thermal import MAX_ORDER, ThermalTruth
+
+    names = tuple(paper_mimu())
+    m = r.mapping(raw, where, (), names)
+    truths = {}
+    for name, body in m.items():
+        here = f"{where}.{name}"
+        t = r.mapping(body, here, ("reference_c",), ("bias_coefficients", "scale_drift"))
+        reference = r.bounded(t, "reference_c", here, *_CHAMBER_C, "°C")
+        rows = t.get("bias_coefficients", [])
+        if not isinstance(rows, list) or len(rows) > MAX_ORDER:
+            r.fail(f"{here}.bias_coefficients", f"a list of up to {MAX_ORDER} rows [x, y, z] (b1, b2, b3)",
+                   describe(rows), line_of(t, "bias_coefficients"))
+        terms = []
+        for k, row in enumerate(rows):
+            if not isinstance(row, list) or len(row) != 3:
+                r.fail(f"{here}.bias_coefficients[{k}]", "a list of 3 numbers (x, y, z)", describe(row),
+                       line_of(t, "bias_coefficients"))
+            terms.append([r.value(v, f"{here}.bias_coefficients[{k}][{i}]") for i, v in enumerate(row)])
+        drift = _three(r, t, "scale_drift", here, 0.0, None)
+        truths[name] = ThermalTruth(reference, np.array(terms, dtype=float).reshape(-1, 3), drift)
+    return truths
 
 
 def _device(r: FieldReader, raw, where: str) -> DeviceConfig:

@@ -91,9 +91,72 @@ def comparison_table(cal, previous) -> str:
 
 
 def worst_error(calibrations: dict, truths: dict) -> float:
-    """The largest |solved − true| / σ over every parameter of every calibration with a truth."""
-    return max((float(np.nanmax(np.abs(cal.errors_in_sigma(truths[name]))))
-                for name, cal in calibrations.items() if truths.get(name) is not None), default=0.0)
+    """The largest |solved − true| / σ over every parameter of every calibration with a truth
+    (its thermal terms too, when the truth is a ``thermal_truths`` pair)."""
+    worst = 0.0
+    for name, cal in calibrations.items():
+        truth = truths.get(name)
+        if truth is None:
+            continue
+        theta, terms = truth if isinstance(truth, tuple) else (truth, None)
+        if theta is not None:
+            worst = max(worst, float(np.nanmax(np.abs(cal.errors_in_sigma(theta)))))
+        if terms is not None and cal.thermal is not None and cal.thermal.order:
+            worst = max(worst, float(np.nanmax(np.abs(_thermal_errors(cal.thermal, terms)))))
+    return worst
+
+
+def thermal_truths(calibrations: dict, truths: dict, thermal: dict) -> dict:
+    """Per triad with a thermal model: (its nine true values, its true bias terms) re-centred on
+    the model's reference temperature (``fieldcal.thermal.truth_about``); a triad of a warming
+    simulation without thermal truth has none (its bias holds still); a real device: {}."""
+    from fieldcal.thermal import truth_about
+
+    out = {}
+    for name, cal in calibrations.items():
+        if cal.thermal is None or truths.get(name) is None:
+            continue
+        t = thermal.get(name)
+        if t is None:
+            out[name] = (truths[name], np.zeros((0, 3)))
+            continue
+        out[name] = truth_about(truths[name], t.reference_c, t.bias_terms, t.scale_drift, cal.thermal.reference_c)
+    return out
+
+
+def _thermal_errors(model, true_terms: np.ndarray) -> np.ndarray:
+    """(solved − true)/σ of each bias term the model fitted (a true term beyond its order is 0)."""
+    true = np.zeros_like(model.bias_terms)
+    k = min(len(true_terms), model.order)
+    true[:k] = true_terms[:k]
+    sigma = np.where(model.bias_terms_sigma > 0, model.bias_terms_sigma, np.nan)
+    return (model.bias_terms - true) / sigma
+
+
+def thermal_table(cal, true_terms: np.ndarray | None = None) -> str:
+    """A thermal model's bias terms ± 1σ (and against the truth re-centred on its reference)."""
+    model = cal.thermal
+    factor, unit = operator_unit(cal.kind, cal.output_unit, BIAS)
+    low, high = model.range_c
+    head = (f"  thermal model about {model.reference_c:.2f} °C, calibrated over {low:.2f} to {high:.2f} °C: "
+            f"bias polynomial of order {model.order}" + (" (the bias holds still)" if not model.order else ""))
+    if model.scale_drift is not None:
+        head += "; scale drift (ppm/K) " + ", ".join(
+            f"{a} {v * 1e6:+.3g} ± {s * 1e6:.2g}" for a, v, s in zip("xyz", model.scale_drift, model.scale_drift_sigma))
+    if not model.order:
+        return head
+    rows = [["term", "solved", "", "±1σ", ""] + (["true", "", "error/σ"] if true_terms is not None else [])]
+    errors = _thermal_errors(model, true_terms) if true_terms is not None else None
+    for k in range(model.order):
+        per = f"{unit}/K" + ("" if k == 0 else "²³"[k - 1])
+        for i, axis in enumerate("xyz"):
+            row = [f"b{k + 1} {axis}", f"{model.bias_terms[k, i] * factor:.5g}", per,
+                   f"{model.bias_terms_sigma[k, i] * factor:.3g}", per]
+            if errors is not None:
+                true = true_terms[k, i] if k < len(true_terms) else 0.0
+                row += [f"{true * factor:.5g}", per, f"{errors[k, i]:+.2f}"]
+            rows.append(row)
+    return head + "\n" + aligned(rows, "lrlrl" + ("rlr" if true_terms is not None else ""))
 
 
 def methods_table(calibrations: dict) -> str:

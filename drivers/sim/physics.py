@@ -16,6 +16,7 @@ from drivers.chunk import SampleChunk
 from drivers.noise import TriadNoise
 from drivers.sim.noise import InnovationNoise, NoiseGenerator
 from drivers.sim.rotations import matrix_rotvec, rotvec_matrix
+from drivers.sim.thermal import SimThermal
 
 SPECIFIC_FORCE = "specific_force"
 ANGULAR_RATE = "angular_rate"
@@ -67,8 +68,14 @@ class MimuSimulator:
     lever_arm: np.ndarray = field(default_factory=lambda: np.array([0.03, 0.02, 0.01]))  # m, body
     seed: int | np.random.SeedSequence = 0  # (anything numpy's default_rng takes)
     noise_model: str = "innovations"  # one of NOISE_MODELS
+    # The unit's temperature and its triads' thermal terms (drivers.sim.thermal); None: the
+    # unit stays at its calibration temperature and its chunks carry none.
+    thermal: SimThermal | None = None
 
     def __post_init__(self) -> None:
+        if self.thermal is not None and set(self.thermal.triads) - set(self.triads):
+            unknown = sorted(set(self.thermal.triads) - set(self.triads))
+            raise ValueError(f"thermal: no triad named {', '.join(unknown)} (have {', '.join(self.triads)})")
         self._rng = np.random.default_rng(self.seed)
         self._make_noise(self.noise_model)
         self._rest_cache: tuple = (None, None)
@@ -250,25 +257,39 @@ class MimuSimulator:
     def _sample_chunk(self, first: int, force: np.ndarray, omega: np.ndarray, n: int | None = None) -> SampleChunk:
         """``n`` samples (default: as many as rows of force and omega; one row serves them all)."""
         t = (first + np.arange(len(force) if n is None else n)) / self.rate_hz
+        temperature, warmed = self._thermal_terms(t)
         if self.noise_model == "innovations":
             # All triads at once: (T, n, 3) noise, each triad's true input, K and bias stacked.
             true = self._stacked(force, omega)
             raw = np.matmul(self._noise.draw(len(t)) + true, self._k_t)
             raw += self._bias
+            for i, (offset, ratio) in warmed.items():
+                raw[i] = (raw[i] - self._bias[i]) * ratio + self._bias[i] + offset
             for i, lsb in self._quantised:
                 raw[i] = np.round(raw[i] / lsb) * lsb
-            return SampleChunk(t=t, triads=dict(zip(self.triads, raw)))
+            return SampleChunk(t=t, triads=dict(zip(self.triads, raw)), temperature=temperature)
         out = {}
         noise = {name: gen.draw(len(t)) for name, gen in self._noise.items()}
-        for name, truth in self.triads.items():
+        for i, (name, truth) in enumerate(self.triads.items()):
             raw = noise[name]
             raw += force if truth.kind == SPECIFIC_FORCE else omega
             raw = raw @ truth.K.T
+            if i in warmed:
+                offset, ratio = warmed[i]
+                raw = raw * ratio + offset
             raw += truth.bias
             if truth.lsb:
                 raw = np.round(raw / truth.lsb) * truth.lsb
             out[name] = raw
-        return SampleChunk(t=t, triads=out)
+        return SampleChunk(t=t, triads=out, temperature=temperature)
+
+    def _thermal_terms(self, t: np.ndarray) -> tuple[np.ndarray | None, dict]:
+        """The temperature at ``t`` and, per warmed triad's index, its (bias offset, K row ratio)."""
+        if self.thermal is None:
+            return None, {}
+        temperature = self.thermal.profile.at(t)
+        return temperature, {i: self.thermal.triads[name].offset_and_ratio(temperature)
+                             for i, name in enumerate(self.triads) if name in self.thermal.triads}
 
 
 def _enu_to_body(v_enu: np.ndarray, attitude: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:

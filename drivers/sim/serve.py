@@ -19,6 +19,7 @@ import numpy as np
 from drivers.chunk import SampleChunk
 from drivers.sim.physics import MimuSimulator, TriadTruth
 from drivers.sim.ports import PtyLink, TcpLink
+from drivers.sim.thermal import SimThermal
 
 SIM_TEMPERATURE_C = 25.0
 
@@ -48,11 +49,13 @@ def make_virtual_table(protocol: str, motion):
 
 def _as_device_sends(chunk: SampleChunk) -> SampleChunk:
     """Add what a real unit sends and the physics does not model (a still magnetometer,
-    temperature, pressure), so every protocol's frames are complete."""
+    temperature unless the simulator's thermal profile gives it, pressure), so every protocol's
+    frames are complete."""
     n = len(chunk)
     triads = dict(chunk.triads)
     triads.setdefault("magnetometer", np.tile([0.2, 0.0, 0.4], (n, 1)))
-    return SampleChunk(t=chunk.t, triads=triads, temperature=np.full(n, SIM_TEMPERATURE_C),
+    return SampleChunk(t=chunk.t, triads=triads, temperature=chunk.temperature if chunk.temperature is not None
+                       else np.full(n, SIM_TEMPERATURE_C),
                        extras={"pressure": np.full(n, 101.325)})
 
 
@@ -60,7 +63,8 @@ class SimulatedDevices:
     def __init__(self, triads: dict[str, TriadTruth], gravity: float, latitude_rad: float,
                  imu_protocol: str = "xsens", table_protocol: str | None = "ascii",
                  transport: str = "pty", speed: float = 1.0, seed: int | np.random.SeedSequence = 1, rate_hz: float = 250.0,
-                 attitude: np.ndarray | None = None, block_s: float = 0.02, on_chunk=None):
+                 attitude: np.ndarray | None = None, block_s: float = 0.02, on_chunk=None,
+                 thermal: SimThermal | None = None):
         from drivers.sim.tables import TableMotion
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport: expected 'pty' or 'tcp', got {transport!r}")
@@ -68,10 +72,10 @@ class SimulatedDevices:
             raise ValueError(f"speed: expected a finite number >= 0 (0 = as fast as read), got {speed}")
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz: expected a finite number > 0, got {rate_hz}")
-        self.simulator = MimuSimulator(triads, gravity=gravity, latitude_rad=latitude_rad,
-                                       rate_hz=rate_hz, seed=seed)
+        # a power cycle starts the unit, and so its warm-up, again
         self._make_simulator = lambda seed: MimuSimulator(triads, gravity=gravity, latitude_rad=latitude_rad,
-                                                          rate_hz=rate_hz, seed=seed)
+                                                          rate_hz=rate_hz, seed=seed, thermal=thermal)
+        self.simulator = self._make_simulator(seed)
         self._make_encoder = lambda: make_encoder(imu_protocol)
         self.encoder = self._make_encoder()
         self._cycles: queue.SimpleQueue = queue.SimpleQueue()  # power cycles asked for, not yet made

@@ -6,17 +6,20 @@ import sys
 from pathlib import Path
 
 from fieldcal.cli.options import procedure_session
-from fieldcal.report import solution_header, solution_table, worst_error
+from fieldcal.report import solution_header, solution_table, thermal_table, thermal_truths, worst_error
 
 
 def _print_result(result, out) -> int:
     if result.aborted:
         print(f"session kept in {result.session}", file=out)
         return 1
+    truths = thermal_truths(result.unit.solutions, result.truth, result.thermal_truth)
     for name, sol in result.unit.solutions.items():
         print(f"\n{solution_header(sol)}", file=out)
-        print(solution_table(sol, result.truth.get(name)), file=out)
-    worst = worst_error(result.unit.solutions, result.truth)
+        print(solution_table(sol, truths.get(name, (result.truth.get(name), None))[0]), file=out)
+        if sol.thermal is not None:
+            print(thermal_table(sol, *truths.get(name, (None, None))[1:]), file=out)
+    worst = worst_error(result.unit.solutions, {n: t[0] for n, t in truths.items()} or result.truth)
     for name, why in result.unit.failures.items():
         print(f"\n{name}: not calibrated: {why}", file=out)
     if result.unit.solutions and result.truth:  # (a real device has no truth)
@@ -68,7 +71,7 @@ def cmd_run(args) -> int:
                        raw_counts=config.device.sim.raw_counts, method=args.method,
                        flicker_tau_max_s=config.device.sim.flicker_tau_max_s,
                        on_motion=args.on_motion, script=script, operator=operator_option(args),
-                       unit_serial=unit_serial(args, config))
+                       unit_serial=unit_serial(args, config), sim_thermal=config.device.sim.thermal)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     directory = Path(args.out) / f"{procedure.name}-seed{seed}-{stamp}"
     args.session_path = directory  # for the interrupted / disk-full message (cli.main)

@@ -305,7 +305,8 @@ def sim_run(config, procedure, args):
     spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                    raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion,
                    flicker_tau_max_s=config.device.sim.flicker_tau_max_s,
-                   operator=operator_option(args), unit_serial=unit_serial(args, config))
+                   operator=operator_option(args), unit_serial=unit_serial(args, config),
+                   sim_thermal=config.device.sim.thermal)
     speed = config.device.sim.speed if args.speed is None else args.speed
     return spec, _session_dir(args, procedure.name, f"seed{seed}"), speed
 

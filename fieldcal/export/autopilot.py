@@ -123,5 +123,42 @@ def px4(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "g
     values = [(f"CAL_ACC0_{a}OFF", float(o)) for a, o in zip("XYZ", acc_off)]
     values += [(f"CAL_ACC0_{a}SCALE", float(s)) for a, s in zip("XYZ", acc_scale)]
     values += [(f"CAL_GYRO0_{a}OFF", float(o)) for a, o in zip("XYZ", gyr_off)]
-    lines += [f"1\t1\t{name}\t{value!r}\t9" for name, value in values]
+    thermal = px4_thermal(parameters, ((rows[0][0], "A"), (rows[1][0], "G")))
+    lines += thermal[0]
+    values += thermal[1]
+    lines += [f"1\t1\t{name}\t{value!r}\t{6 if name.endswith('_ENABLE') else 9}" for name, value in values]
     return "\n".join(lines) + "\n"
+
+
+def px4_thermal(parameters, triads) -> tuple[list[str], list[tuple[str, float]]]:
+    """PX4's thermal compensation (TC_A0_*, TC_G0_*) of the triads that have a thermal model:
+    ([comment lines], [(name, value)]). PX4 subtracts x0 + x1·dT + x2·dT² + x3·dT³ per axis,
+    dT = T − TREF with T held within [TMIN, TMAX], before its CAL_*OFF offset
+    (src/modules/temperature_compensation/TemperatureCompensation.cpp, calc_thermal_offsets_3D;
+    src/lib/sensor_calibration: data − thermal_offset − offset): so x0 = 0 (the offset at TREF
+    is CAL_*OFF) and x1..x3 are the model's bias terms in SI units. PX4 holds no scale drift."""
+    comments: list[str] = []
+    values: list[tuple[str, float]] = []
+    for cal, letter in triads:
+        model = cal.thermal
+        if model is None:
+            continue
+        si = SI_PER_UNIT[cal.kind][cal.output_unit]
+        prefix = f"TC_{letter}0"
+        low, high = model.range_c
+        comments.append(f"# {prefix}: {cal.name}'s thermal model, order {model.order}, about {model.reference_c:.2f} °C "
+                        f"over {low:.2f} to {high:.2f} °C (PX4 holds the offset of the nearer end outside it); "
+                        f"set {prefix}_ID to the sensor's device id (CAL_{'ACC' if letter == 'A' else 'GYRO'}0_ID)")
+        if model.scale_drift is not None:
+            factor, unit = operator_unit(cal.kind, SI_UNIT[cal.kind], BIAS)
+            size, reference = REFERENCE_INPUT.get(cal.kind, _RATE_REFERENCE)
+            worst = float(np.max(np.abs(model.scale_drift))) * max(high - model.reference_c, model.reference_c - low)
+            comments.append(f"#   dropped: scale drift {', '.join(f'{v * 1e6:+.3g}' for v in model.scale_drift)} "
+                            f"ppm/K; worst error {worst * size * factor:.3g} {unit} {reference} over the range")
+        terms = np.zeros((3, 3))
+        terms[:model.order] = model.bias_terms * si
+        values.append((f"TC_{letter}_ENABLE", 1))
+        for k in range(4):
+            values += [(f"{prefix}_X{k}_{i}", float(terms[k - 1, i]) if k else 0.0) for i in range(3)]
+        values += [(f"{prefix}_TREF", model.reference_c), (f"{prefix}_TMIN", low), (f"{prefix}_TMAX", high)]
+    return comments, values

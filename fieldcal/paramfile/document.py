@@ -1,7 +1,8 @@
 """The versioned parameter file a calibration produces (schema ``fieldcal-parameters/1``).
 
 One YAML file per calibration: for each triad the model raw = K·true + b of ``fieldcal.model``
-(bias, scale factors, non-orthogonality angles with their 1σ, and K itself), plus provenance:
+(bias, scale factors, non-orthogonality angles with their 1σ, and K itself; optionally a
+``thermal`` section, versioned on its own, holding ``fieldcal.thermal``'s model), plus provenance:
 software version, procedure, solver method, a hash of the averages that went in, the station's
 gravity, and optionally the device and whether it was simulated.
 
@@ -262,7 +263,24 @@ def _triad_document(t: Calibration) -> dict:
         "K": [_FlowRow(_f(v) for v in row) for row in t.K],
         "residual_rms": {"value": _f(t.residual_rms), "unit": t.residual_unit},
         "method": t.method,
+        **({"thermal": _thermal_document(t)} if t.thermal is not None else {}),
     }
+
+
+# The thermal section's own version: a file without the section is read as before it existed.
+THERMAL_VERSION = 1
+
+
+def _thermal_document(t: Calibration) -> dict:
+    m = t.thermal
+    bias = {"order": m.order, "unit": f"{t.output_unit} per K^k",
+            **{a: _FlowRow(_f(v) for v in m.bias_terms[:, i]) for i, a in enumerate(_AXES)},
+            "sigma": {a: _FlowRow(_f(v) for v in m.bias_terms_sigma[:, i]) for i, a in enumerate(_AXES)}}
+    doc = {"version": THERMAL_VERSION, "reference_temperature_c": _f(m.reference_c),
+           "range_c": {"low": _f(m.range_c[0]), "high": _f(m.range_c[1])}, "bias": bias}
+    if m.scale_drift is not None:
+        doc["scale_factor"] = {**_xyz(m.scale_drift), "unit": "1/K", "sigma": _xyz(m.scale_drift_sigma)}
+    return doc
 
 
 def to_document(pf: ParameterFile) -> dict:

@@ -25,6 +25,7 @@ from fieldcal.paramfile.document import (
     OPERATOR_MAX,
     SCHEMA,
     SOFTWARE,
+    THERMAL_VERSION,
     ParameterFile,
     ParameterFileError,
     Provenance,
@@ -36,12 +37,13 @@ from fieldcal.paramfile.document import (
     unknown_methods,
     valid_operator,
 )
-from fieldcal.validation import MISSING, FieldReader, describe, parse_yaml, read_yaml_file
+from fieldcal.thermal import MAX_ORDER, TEMPERATURE_LIMITS_C, ThermalModel
+from fieldcal.validation import MISSING, FieldReader, describe, line_of, parse_yaml, read_yaml_file
 
 
 def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
     t = r.mapping(raw, where, ("kind", "output_unit", "input_unit", "bias", "scale_factor",
-                               "misalignment", "K", "residual_rms", "method"))
+                               "misalignment", "K", "residual_rms", "method"), ("thermal",))
     kind = r.string(t, "kind", where, allowed=KINDS)
     output_unit = r.string(t, "output_unit", where)
     input_unit = r.string(t, "input_unit", where, allowed=(SI_UNIT[kind],))
@@ -97,13 +99,58 @@ def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
     res = r.mapping(t.get("residual_rms", MISSING), rw, ("value", "unit"))
     rms = r.number(res, "value", rw, minimum=0.0)
     residual_unit = r.string(res, "unit", rw, allowed=residual_units(kind, output_unit, method))
+    thermal = _read_thermal(r, t["thermal"], f"{where}.thermal", output_unit) if "thermal" in t else None
     try:
         return TriadParameters(name=name, kind=kind, output_unit=output_unit, bias=bias, K=K,
                                sigma=np.r_[bias_sigma, scale_sigma, angle_sigma], residual_rms=rms,
-                               method=method, residual_unit=residual_unit)
+                               method=method, residual_unit=residual_unit, thermal=thermal)
     except ValueError as exc:  # should be unreachable: everything above is checked first
         r.fail(where, "a valid triad", str(exc).splitlines()[0])
         raise
+
+
+def _read_thermal(r: FieldReader, raw, where: str, output_unit: str) -> ThermalModel:
+    """A triad's ``thermal`` section (version THERMAL_VERSION), every field checked."""
+    m = r.mapping(raw, where, ("version", "reference_temperature_c", "range_c", "bias"), ("scale_factor",))
+    version = m.get("version")
+    if version != THERMAL_VERSION or isinstance(version, bool):
+        r.fail(f"{where}.version", f"{THERMAL_VERSION} (fieldcal {__version__} reads thermal version "
+               f"{THERMAL_VERSION} only)", describe(version), line_of(m, "version"))
+    low_limit, high_limit = TEMPERATURE_LIMITS_C
+    reference = r.bounded(m, "reference_temperature_c", where, low_limit, high_limit, "°C")
+    rw = f"{where}.range_c"
+    span = r.mapping(m.get("range_c", MISSING), rw, ("low", "high"))
+    low = r.bounded(span, "low", rw, low_limit, high_limit, "°C")
+    high = r.bounded(span, "high", rw, low, high_limit, "°C (not below low)")
+
+    bw = f"{where}.bias"
+    b = r.mapping(m.get("bias", MISSING), bw, ("order", "unit", *_AXES, "sigma"))
+    order = r.whole(b, "order", bw, 0, MAX_ORDER)
+    r.string(b, "unit", bw, allowed=(f"{output_unit} per K^k",))
+
+    def terms(block: dict, here: str, minimum: float | None) -> np.ndarray:
+        columns = []
+        for axis in _AXES:
+            values = block.get(axis, MISSING)
+            if not isinstance(values, list) or len(values) != order:
+                r.fail(f"{here}.{axis}", f"a list of {order} numbers (b1..b{order}; order is {order})",
+                       describe(values), line_of(block, axis))
+            columns.append([r.value(v, f"{here}.{axis}[{k}]", minimum, line_of(block, axis))
+                            for k, v in enumerate(values)])
+        return np.array(columns, dtype=float).reshape(3, order).T
+
+    bias_terms = terms(b, bw, None)
+    bias_sigma = terms(r.mapping(b.get("sigma", MISSING), f"{bw}.sigma", _AXES), f"{bw}.sigma", 0.0)
+    drift = drift_sigma = None
+    if "scale_factor" in m:
+        sw = f"{where}.scale_factor"
+        sf = r.mapping(m["scale_factor"], sw, (*_AXES, "unit", "sigma"))
+        r.string(sf, "unit", sw, allowed=("1/K",))
+        drift = r.vector(sf, _AXES, sw)
+        drift_sigma = r.vector(r.mapping(sf.get("sigma", MISSING), f"{sw}.sigma", _AXES), _AXES,
+                               f"{sw}.sigma", minimum=0.0)
+    return ThermalModel(reference_c=reference, range_c=(low, high), bias_terms=bias_terms,
+                        bias_terms_sigma=bias_sigma, scale_drift=drift, scale_drift_sigma=drift_sigma)
 
 
 def _enum(r: FieldReader, m: dict, key: str, where: str, allowed: Sequence[str]) -> str:

@@ -91,6 +91,8 @@ class _Average:
         # sample passes here, so a fixed dwell does not pay for it).
         self.track_noise = track_noise
         self.diffs: list[tuple[dict[str, np.ndarray], int]] = []
+        # Per block: the sum of the unit's temperature, None when a chunk carries none.
+        self.temperatures: list[float | None] = []
 
     @property
     def n(self) -> int:
@@ -100,6 +102,7 @@ class _Average:
         if hi > lo:
             sums = {name: v[lo:hi].sum(axis=0) for name, v in chunk.triads.items()}
             self.blocks.append((float(chunk.t[lo]), float(chunk.t[hi - 1]), hi - lo, sums))
+            self.temperatures.append(None if chunk.temperature is None else float(chunk.temperature[lo:hi].sum()))
             self._n += hi - lo
             if self.track_noise:
                 self.diffs.append(({name: (np.diff(v[lo:hi], axis=0) ** 2).sum(axis=0)
@@ -108,6 +111,7 @@ class _Average:
     def drop_after(self, t: float) -> None:
         kept = [b[1] < t for b in self.blocks]
         self.blocks = [b for b, k in zip(self.blocks, kept) if k]
+        self.temperatures = [s for s, k in zip(self.temperatures, kept) if k]
         if self.track_noise:
             self.diffs = [d for d, k in zip(self.diffs, kept) if k]
         self._n = sum(b[2] for b in self.blocks)
@@ -118,6 +122,12 @@ class _Average:
         if count < MIN_WINDOW_SAMPLES:
             return None
         return cast(np.ndarray, sum(d[0][name] for d in self.diffs)) / (2.0 * count)  # (diffs: not empty)
+
+    def mean_temperature(self) -> float | None:
+        """The unit's mean temperature over the window (°C); None unless every sample had one."""
+        if not self.temperatures or any(s is None for s in self.temperatures):
+            return None
+        return sum(cast(float, s) for s in self.temperatures) / self.n
 
     def means(self) -> dict[str, list[float]]:
         n = self.n
@@ -130,7 +140,8 @@ def windows_and_averages(records: Iterable[StepRecord]) -> tuple[list[Window], d
     windows, rows = [], []
     for record in sorted(records, key=lambda r: r.step):
         for w in record.windows:
-            windows.append(Window(w.kind, record.step, w.start, w.duration, math.radians(abs(w.rate_deg_s))))
+            windows.append(Window(w.kind, record.step, w.start, w.duration, math.radians(abs(w.rate_deg_s)),
+                                  w.temperature_c))
             rows.append(w.means)
     names = rows[0].keys() if rows else ()
     return windows, {name: np.array([r[name] for r in rows]) for name in names}
@@ -400,7 +411,7 @@ class Engine:
     def _finish_window(self, kind: WindowKind, rate_deg_s: float) -> None:
         blocks = self._average.blocks
         self._windows.append(WindowRecord(kind, blocks[0][0], self._average.n / self.settings.rate_hz,
-                                          rate_deg_s, self._average.means()))
+                                          rate_deg_s, self._average.means(), self._average.mean_temperature()))
         self._average = _Average(self.procedure.adaptive_dwell)
         self._next_progress = 0.0
 

@@ -26,6 +26,7 @@ class Window:
     start: float  # s, sample time
     duration: float  # s
     table_rate: float = 0.0  # rad/s, magnitude
+    temperature_c: float | None = None  # the unit's mean temperature over it, when measured
 
 
 @dataclass(frozen=True)
@@ -37,15 +38,20 @@ class WindowRecord:
     duration: float  # s of averaged samples
     rate_deg_s: float  # commanded table rate (signed; 0 for static)
     means: dict[str, list[float]]  # triad -> mean output over the window
+    # The unit's mean temperature over the window, °C (the thermal fit's abscissa); None when
+    # the device reports none, and in every session written before temperatures were kept.
+    temperature_c: float | None = None
 
     def to_dict(self) -> dict:
+        said = {"temperature_c": self.temperature_c} if self.temperature_c is not None else {}
         return {"kind": str(self.kind), "start": self.start, "duration": self.duration,
-                "rate_deg_s": self.rate_deg_s, "means": {n: list(v) for n, v in self.means.items()}}
+                "rate_deg_s": self.rate_deg_s, "means": {n: list(v) for n, v in self.means.items()}, **said}
 
     @classmethod
     def from_dict(cls, doc: dict) -> WindowRecord:
         return cls(WindowKind(doc["kind"]), float(doc["start"]), float(doc["duration"]),
-                   float(doc["rate_deg_s"]), {n: list(v) for n, v in doc["means"].items()})
+                   float(doc["rate_deg_s"]), {n: list(v) for n, v in doc["means"].items()},
+                   None if doc.get("temperature_c") is None else float(doc["temperature_c"]))
 
     @property
     def end(self) -> float:

@@ -333,8 +333,10 @@ class Conductor:
         return {n: b for n, b in bias_at_end().items() if n in names}
 
     def _outcome(self, status: Status, **kw) -> Outcome:
+        sim_thermal = getattr(self.spec, "sim_thermal", None)
         return Outcome(status, self.spec.procedure, truth=self.truth(), bias_at_end=self._bias_at_end(),
                        session=self.session,
+                       thermal_truth=dict(sim_thermal.triads) if sim_thermal is not None else {},
                        completed=len(self.engine.records), skipped=len(self.engine.skipped), samples=self.samples, **kw)
 
     def _unfinished(self) -> Outcome:

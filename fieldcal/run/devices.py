@@ -45,7 +45,8 @@ class DeviceConnection:
             self.simulated = SimulatedDevices(
                 paper_mimu(raw_counts=sim.raw_counts, flicker_tau_max_s=sim.flicker_tau_max_s), config.station.gravity,
                 math.radians(config.station.latitude_deg), imu_protocol=sim.imu_protocol,
-                table_protocol=table, speed=sim.speed, seed=sim.seed, rate_hz=device.rate_hz)
+                table_protocol=table, speed=sim.speed, seed=sim.seed, rate_hz=device.rate_hz,
+                thermal=sim.thermal)
             self.protocol = sim.imu_protocol
             settings = PortSettings(self.simulated.imu_url)
             self.parser = make_parser(self.protocol)

@@ -31,6 +31,7 @@ class Outcome:
     # triad -> the simulated unit's bias at the last sample of the run, output units: the value
     # the unit is used with, against which a benchmark judges the solved bias (DESIGN 12)
     bias_at_end: dict = field(default_factory=dict)
+    thermal_truth: dict = field(default_factory=dict)  # triad -> its ThermalTruth (a warming simulation)
     session: Path | None = None
     parameters: Path | None = None  # the parameter file written (or, in a replay, the recorded one)
     parameter_file: ParameterFile | None = None  # solved in this run

@@ -20,6 +20,7 @@ from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S
 from drivers.sim import MimuSimulator
 from drivers.sim.device import paper_mimu
 from drivers.sim.rotations import rotvec_matrix
+from drivers.sim.thermal import SimThermal
 from fieldcal import __version__
 from fieldcal.earth import Station
 from fieldcal.procedure.engine import EngineSettings
@@ -64,6 +65,9 @@ class RunSpec:
     # The simulated unit's longest flicker correlation time (config device.sim.flicker_tau_max_s);
     # stored in the session only when not the default, which is what sessions before it used.
     flicker_tau_max_s: float = DEFAULT_FLICKER_TAU_MAX_S
+    # The simulated unit's temperature profile and thermal truth (the config's device.sim); None:
+    # it holds its calibration temperature, as every session before issue 28 did.
+    sim_thermal: SimThermal | None = None
 
     def to_metadata(self) -> dict:
         said = {"operator": self.operator} if self.operator is not None else {}  # older sessions: none
@@ -92,6 +96,7 @@ class RunSpec:
             "script": asdict(self.script),
             "simulation_truth": {name: {"kind": t.kind, "K": t.K.tolist(), "bias": t.bias.tolist(),
                                         "output_unit": t.output_unit} for name, t in device.items()},
+            **({"sim_thermal": self.sim_thermal.to_dict()} if self.sim_thermal is not None else {}),
         }
 
     def session_metadata(self, link: str | None, front_end: str | None = None) -> dict:
@@ -124,7 +129,8 @@ class RunSpec:
         return cls(**common, seed=meta["seed"], sim_noise=meta.get("sim_noise", "bank"),
                    raw_counts=meta["device"]["raw_counts"], unit_serial=meta["device"].get("serial"),
                    flicker_tau_max_s=meta["device"].get("flicker_tau_max_s", DEFAULT_FLICKER_TAU_MAX_S),
-                   script=OperatorScript(**script))
+                   script=OperatorScript(**script),
+                   sim_thermal=SimThermal.from_dict(meta["sim_thermal"]) if "sim_thermal" in meta else None)
 
     def device(self):
         """The simulated device's truth."""
@@ -190,7 +196,7 @@ class SimulatedBench:
         noise_seed, operator_seed = np.random.SeedSequence(spec.seed).spawn(2)
         self.sim = MimuSimulator(spec.device(), gravity=spec.station.gravity,
                                  latitude_rad=spec.station.latitude_rad, rate_hz=spec.rate_hz,
-                                 seed=noise_seed, noise_model=spec.sim_noise)
+                                 seed=noise_seed, noise_model=spec.sim_noise, thermal=spec.sim_thermal)
         self.rng = np.random.default_rng(operator_seed)
         self.attitude = np.eye(3)
         self.target_deg_s = 0.0

@@ -159,6 +159,8 @@ def _problem(data, n_positions: int) -> str | None:
         for key in ("start", "duration", "rate_deg_s"):
             if not _number(w[key]) or key == "duration" and w[key] < 0:
                 return f"{where}.{key} must be a finite number{' >= 0' if key == 'duration' else ''}, got {w[key]!r}"[:200]
+        if "temperature_c" in w and not _number(w["temperature_c"]):
+            return f"{where}.temperature_c must be a finite number (°C), got {w['temperature_c']!r}"[:200]
         means = w["means"]
         if not isinstance(means, dict) or not means:
             return f"{where}.means must be an object of triad means"

@@ -116,10 +116,31 @@ def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, 
                     model, [w for w in windows if w.kind == STATIC], station):
                 problem = replace(problem, use_across=False)
             problems[name], inputs[name] = problem, problem.data
+            temperatures = _temperatures([windows[i] for i in order])
+            if temperatures is not None:
+                from fieldcal.solvers.thermal import solve_thermal_norm
+
+                solutions[name] = solve_thermal_norm(problem, temperatures, covs[name]).calibration
+                continue
             solutions[name] = solve_norm(problem, covs[name], method=method)
         except CalibrationError as exc:
             failures[name] = str(exc)
     return UnitSolution(solutions, failures, problems, covs, inputs)
+
+
+# A span of temperature below which no thermal term is fitted: a unit held within a tenth of a
+# kelvin (the VectorNav's resolution) gives its averages no lever on one.
+THERMAL_MIN_SPAN_K = 0.5
+
+
+def _temperatures(windows: list[Window]) -> np.ndarray | None:
+    """The windows' mean temperatures when every one has one and they span enough to fit a
+    thermal model on (THERMAL_MIN_SPAN_K); else None."""
+    values = [w.temperature_c for w in windows]
+    if not values or any(v is None for v in values):
+        return None
+    temperatures = np.array(values, dtype=float)
+    return temperatures if np.ptp(temperatures) >= THERMAL_MIN_SPAN_K else None
 
 
 def models_from_truth(device) -> dict[str, TriadModel]:

@@ -1,0 +1,183 @@
+"""A triad's thermal model fitted jointly with its norm calibration (issue 28).
+
+Each average u_i of a norm problem (``fieldcal.solvers.problems``) is tagged with the unit's mean
+temperature T_i over its window. The model of ``fieldcal.thermal`` says
+
+    u_i = diag(r_i)·K·a_i + b₀ + o_i,   o_i = Σₖ bₖ ΔT_iᵏ,  r_i = 1 + s₁ΔT_i,  ΔT_i = T_i − T_ref
+
+so the averages the unit would have given at T_ref are u'_i = (u_i − b₀ − o_i)/r_i + b₀, and the
+problem's own residuals of (θ, u') are the joint model's residuals exactly. One least-squares
+solve over θ and the thermal terms together, weighted as the norm solve is (the problem's residual
+covariance at the start), gives their joint covariance: the σ of K and b include what the thermal
+terms take from them, and the thermal terms' σ what the geometry leaves them. Why joint rather
+than a second stage: a second stage on the first stage's residuals would treat θ as exact, and
+its bias terms are correlated with b₀ (both move the same averages), so its σ would be too small.
+
+The order of the bias polynomial is chosen from the data: each order k is kept only if it lowers
+χ² by more than the 99 % point of χ² with 3 degrees of freedom (a likelihood-ratio test per three
+added coefficients), and only while the equations outnumber the unknowns; then the scale drift
+s₁ is fitted at that order whenever the equations still outnumber the unknowns (an accelerometer's
+18 norms on field-18 leave no room beside a quadratic bias; a gyro's 108 do).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import cast
+
+import numpy as np
+from scipy import optimize
+from scipy.special import chdtrc
+
+from fieldcal.calibration import Calibration, SolverDiagnostics
+from fieldcal.model import N_PARAMS
+from fieldcal.solvers.ellipsoid import DegenerateError
+from fieldcal.solvers.norm import (CalibrationError, Whitener, _forward_jacobian, _natural_scales,
+                                   _residual_whitener, _whitener_of)
+from fieldcal.thermal import MAX_ORDER, ThermalModel
+
+# χ²₃ 99 % point: scipy.stats.chi2.ppf(0.99, 3) (scipy.stats stays out of the solvers' imports)
+ORDER_TEST_CHI2 = 11.344866730144373
+_BIRGE_P = 1e-3  # as solve_norm: a χ² this improbable means the scatter, not the model, sets σ
+
+
+@dataclass(frozen=True)
+class ThermalFit:
+    """The joint solution, with χ² per order tried (the evidence for the order chosen)."""
+
+    calibration: Calibration
+    chi2_by_order: dict[int, float]
+
+
+def _layout(order: int, scale: bool) -> int:
+    return N_PARAMS + 3 * order + (3 if scale else 0)
+
+
+def _central_jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """∂fun/∂x by central differences, one column per parameter (a few dozen at most)."""
+    return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h) for e, h in zip(np.diag(steps), steps)])
+
+
+def _residual_covariance_at(problem, theta: np.ndarray, u: np.ndarray, covariance) -> np.ndarray:
+    """G Σ Gᵀ with G = ∂r/∂u at (θ, u) by forward differences (u: the averages at T_ref)."""
+    cov = covariance.dense() if hasattr(covariance, "dense") else np.asarray(covariance, dtype=float)
+    if cov.shape == (len(u) // 3, 3):  # per-average, per-axis 1σ
+        cov = np.diag(cov.ravel() ** 2)
+    steps = 1e-6 * np.maximum(np.abs(u), np.abs(theta[3:6]).max() * problem.reference_scale)
+    G = _forward_jacobian(lambda x: problem.residuals(theta, x), u, steps)
+    return G @ cov @ G.T
+
+
+def _split(x: np.ndarray, order: int, scale: bool):
+    theta = x[:N_PARAMS]
+    terms = x[N_PARAMS:N_PARAMS + 3 * order].reshape(order, 3)
+    drift = x[N_PARAMS + 3 * order:] if scale else np.zeros(3)
+    return theta, terms, drift
+
+
+def _corrected(u_points: np.ndarray, dt: np.ndarray, theta, terms, drift) -> np.ndarray:
+    """The averages at T_ref: (u − b₀ − Σ bₖ ΔTᵏ)/(1 + s₁ΔT) + b₀, flattened."""
+    offset = (dt[:, None] ** np.arange(1, len(terms) + 1)) @ terms
+    b0 = theta[:3]
+    return ((u_points - b0 - offset) / (1.0 + dt[:, None] * drift) + b0).ravel()
+
+
+def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: float | None = None,
+                       max_order: int = MAX_ORDER, scale: bool = True) -> ThermalFit:
+    """The joint fit of ``problem`` (a norm problem whose ``data`` are 3-vector averages) with
+    the thermal terms; ``temperatures_c`` one per average, in the order of ``problem.data``;
+    ``covariance`` as ``solve_norm`` takes it. ``reference_c`` defaults to the mean temperature.
+    ``scale``: also fit s₁ at the order chosen when the equations leave room for it."""
+    u = np.asarray(problem.data, dtype=float)
+    points = u.reshape(-1, 3)
+    temperatures = np.asarray(temperatures_c, dtype=float)
+    if temperatures.shape != (len(points),) or not np.all(np.isfinite(temperatures)):
+        raise ValueError(f"{problem.name}: expected one finite temperature per average ({len(points)}), "
+                         f"got shape {temperatures.shape}")
+    if not 0 <= max_order <= MAX_ORDER:
+        raise ValueError(f"max_order: expected 0 to {MAX_ORDER}, got {max_order}")
+    ref = float(np.mean(temperatures)) if reference_c is None else float(reference_c)
+    dt = temperatures - ref
+    span = max(float(np.ptp(temperatures)), 1e-3)
+    if covariance is None:  # the order test weighs χ² against the noise: it needs the noise
+        raise ValueError(f"{problem.name}: the thermal fit needs the covariance of the averages")
+    try:  # the problem's own first guess: a warm unit's averages may defeat the plain solve
+        theta_start = np.asarray(problem.initial(), dtype=float)
+    except DegenerateError as exc:
+        raise CalibrationError(f"{problem.name}: positions are degenerate: {exc}") from None
+    n_resid = len(problem.residual_labels)
+    natural = _natural_scales(problem, theta_start)
+    bias_scale = natural[:3]
+
+    def fit(order: int, scale: bool, whitener: Whitener):
+        p = _layout(order, scale)
+        steps = np.r_[natural, np.tile(bias_scale, order) / np.repeat(span ** np.arange(1, order + 1), 3),
+                      np.full(3 if scale else 0, 1e-3 / span)]
+
+        def whitened(x):
+            theta, terms, drift = _split(x, order, scale)
+            return whitener(problem.residuals(theta, _corrected(points, dt, theta, terms, drift)))
+
+        x0 = np.r_[theta_start, np.zeros(p - N_PARAMS)]
+        res = optimize.least_squares(lambda z: whitened(x0 + z * steps), np.zeros(p), method="lm",
+                                     xtol=1e-12, ftol=1e-12)
+        if not res.success:
+            raise CalibrationError(f"{problem.name}: the thermal fit did not converge ({res.message})")
+        x = x0 + res.x * steps
+        J = _central_jacobian(whitened, x, 1e-6 * steps)
+        r = whitened(x)
+        return (order, scale, x, float(r @ r), J, res)
+
+    def better(candidate, than) -> bool:  # three more coefficients must earn their place
+        return than is None or than[3] - candidate[3] >= ORDER_TEST_CHI2
+
+    def select(whitener: Whitener):
+        chosen = None
+        chi2_by_order: dict[int, float] = {}
+        for order in range(max_order + 1):
+            if n_resid - _layout(order, False) < 1:
+                break
+            candidate = fit(order, False, whitener)
+            chi2_by_order[order] = candidate[3]
+            if not better(candidate, chosen):
+                break
+            chosen = candidate
+        if chosen is None:
+            raise CalibrationError(f"{problem.name}: {n_resid} equations leave no room for a thermal model")
+        if scale and n_resid - _layout(chosen[0], True) >= 1:
+            # Not put to the test: a drift too weak to lower χ² much still pulls K (a warming gyro's
+            # scale factors 5σ off on configs/sim-warmup.yaml), and fitted, it widens K's σ honestly.
+            chosen = fit(chosen[0], True, whitener)
+        return chosen, chi2_by_order
+
+    # The weights are the residuals' covariance G Σ Gᵀ, G = ∂r/∂u at a solution: first at the
+    # problem's guess, then again at the first fit's solution and its averages brought back to
+    # T_ref (a warm gyro's guess may have its bias off by far more than the Earth rate it weighs).
+    chosen, _ = select(cast(Whitener, _residual_whitener(problem, theta_start, covariance)))
+    theta, terms, drift = _split(chosen[2], chosen[0], chosen[1])
+    corrected = _corrected(points, dt, theta, terms, drift)
+    chosen, chi2_by_order = select(_whitener_of(problem, _residual_covariance_at(problem, theta, corrected, covariance)))
+    order, scale, x, chi2, J, res = chosen
+    dof = n_resid - _layout(order, scale)
+    sv = np.linalg.svd(J, compute_uv=False)
+    if not sv[-1] > 1e-10 * sv[0]:
+        raise CalibrationError(f"{problem.name}: the thermal terms are not determined by these positions "
+                               f"and temperatures (condition number {sv[0] / sv[-1]:.3g})")
+    cov = np.linalg.inv(J.T @ J)
+    scaled = bool(chdtrc(dof, chi2) < _BIRGE_P)
+    if scaled:
+        cov *= chi2 / dof
+    sigma = np.sqrt(np.diag(cov))
+    theta, terms, drift = _split(x, order, scale)
+    _, terms_sigma, drift_sigma = _split(sigma, order, scale)
+    model = ThermalModel(reference_c=ref, range_c=(float(temperatures.min()), float(temperatures.max())),
+                         bias_terms=terms, bias_terms_sigma=terms_sigma,
+                         scale_drift=drift if scale else None, scale_drift_sigma=drift_sigma if scale else None)
+    residuals = problem.residuals(theta, _corrected(points, dt, theta, terms, drift))
+    calibration = Calibration(
+        name=problem.name, kind=problem.kind, output_unit=problem.output_unit, method="lsq",
+        theta=theta, covariance=cov[:N_PARAMS, :N_PARAMS], residuals=residuals,
+        residual_labels=problem.residual_labels, thermal=model,
+        diagnostics=SolverDiagnostics(iterations=int(res.nfev), evaluations=int(res.nfev), converged=True,
+                                      message=str(res.message), search="lsq", chi2=chi2, dof=dof,
+                                      scaled_by_residuals=scaled, condition_number=float(sv[0] / sv[-1])))
+    return ThermalFit(calibration, chi2_by_order)

@@ -1,0 +1,175 @@
+"""The thermal model fitted jointly with the norm calibration (issue 28): each average tagged with
+the unit's mean temperature by the engine, the bias polynomial's order chosen from the data, and
+every parameter (thermal ones included) against the truth in its own σ."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.sim.thermal import SimThermal, TemperatureProfile, ThermalTruth
+from fieldcal.earth import Station
+from fieldcal.model import distort_with
+from fieldcal.procedure.positions import load_procedure, parse_procedure
+from fieldcal.procedure.windows import WindowKind, WindowRecord
+from fieldcal.solvers import StaticNormProblem, solve_norm
+from fieldcal.solvers.thermal import solve_thermal_norm
+
+G = 9.80154
+MG = 9.80665e-3
+UP = np.array([p.up_body for p in load_procedure("field-18").positions])
+THETA = np.r_[np.array([1.0, 2.0, 3.0]) * MG, 1.0001, 1.0002, 1.0003, 2e-4, -3e-4, 4e-4]
+B1 = np.array([0.3, -0.5, 0.8]) * MG  # per K
+B2 = np.array([0.01, 0.0, -0.02]) * MG  # per K²
+TRUTH_REF_C = 25.0
+SIGMA = 7e-5  # m/s², a 200 s average of the paper's accelerometer
+# the unit warming up over field-18: one dwell every 283 s, 20 °C + 13 K (1 − exp(−t/1 h))
+TEMPERATURES = 20.0 + 13.0 * -np.expm1(-(100.0 + 283.0 * np.arange(18)) / 3600.0)
+
+
+def _averages(seed: int, b2=B2) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    dt = TEMPERATURES[:, None] - TRUTH_REF_C
+    return distort_with(THETA, G * UP) + B1 * dt + b2 * dt**2 + rng.normal(scale=SIGMA, size=(18, 3))
+
+
+def _truth_at(ref_c: float, b2=B2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The true b₀, b₁, b₂ about the fit's reference (the polynomial re-centred by hand)."""
+    d = ref_c - TRUTH_REF_C
+    return THETA[:3] + B1 * d + b2 * d**2, B1 + 2 * b2 * d, b2
+
+
+def _z(fit, b2=B2) -> np.ndarray:
+    cal, model = fit.calibration, fit.calibration.thermal
+    b0, b1, b2 = _truth_at(model.reference_c, b2)
+    truth = np.r_[b0, THETA[3:], b1, b2][:9 + 3 * model.order]
+    sigma = np.r_[cal.sigma, model.bias_terms_sigma.ravel()]
+    return (np.r_[cal.theta, model.bias_terms.ravel()] - truth) / sigma
+
+
+def test_joint_fit_recovers_the_truth_with_the_order_it_has():
+    fit = solve_thermal_norm(StaticNormProblem(_averages(1), G), TEMPERATURES, np.full((18, 3), SIGMA))
+    model = fit.calibration.thermal
+    assert model.order == 2 and list(fit.chi2_by_order) == [0, 1, 2]
+    assert model.reference_c == pytest.approx(TEMPERATURES.mean())
+    assert model.range_c == (TEMPERATURES.min(), TEMPERATURES.max())
+    assert np.all(np.abs(_z(fit)) < 4.0)
+    # without the thermal terms the same averages miss the biases by hundreds of σ
+    plain = solve_norm(StaticNormProblem(_averages(1), G), np.full((18, 3), SIGMA), method="lsq")
+    assert plain.diagnostics.chi2 > 1e4 * plain.diagnostics.dof
+
+
+def test_a_linear_unit_gets_a_linear_model_and_a_cold_one_none():
+    linear = solve_thermal_norm(StaticNormProblem(_averages(2, b2=0 * B2), G), TEMPERATURES, np.full((18, 3), SIGMA))
+    assert linear.calibration.thermal.order == 1
+    assert np.all(np.abs(_z(linear, 0 * B2)) < 4.0)
+    rng = np.random.default_rng(3)
+    still = distort_with(THETA, G * UP) + rng.normal(scale=SIGMA, size=(18, 3))
+    fit = solve_thermal_norm(StaticNormProblem(still, G), TEMPERATURES, np.full((18, 3), SIGMA))
+    model = fit.calibration.thermal
+    assert model.order == 0 and model.scale_drift is not None  # room for the drift: fitted, and found ~0
+    assert np.all(np.abs(model.scale_drift / model.scale_drift_sigma) < 4.0)
+    assert np.all(np.abs(fit.calibration.errors_in_sigma(THETA)) < 4.0)
+    without = solve_thermal_norm(StaticNormProblem(still, G), TEMPERATURES, np.full((18, 3), SIGMA), scale=False)
+    plain = solve_norm(StaticNormProblem(still, G), np.full((18, 3), SIGMA), method="lsq")
+    np.testing.assert_allclose(without.calibration.theta, plain.theta, rtol=0, atol=1e-3 * SIGMA)
+
+
+def test_sigma_is_honest_over_seeds():
+    # 40 seeded fits (about a second): each parameter's RMS z, thermal terms included, near 1
+    z = np.array([_z(solve_thermal_norm(StaticNormProblem(_averages(100 + s), G), TEMPERATURES,
+                                        np.full((18, 3), SIGMA))) for s in range(40)])
+    assert z.shape == (40, 15)  # every fit chose the true order
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    assert np.all((rms > 0.7) & (rms < 1.35)), rms.round(2)
+
+
+def test_one_temperature_per_average_is_required():
+    with pytest.raises(ValueError, match="one finite temperature per average"):
+        solve_thermal_norm(StaticNormProblem(_averages(1), G), TEMPERATURES[:-1], np.full((18, 3), SIGMA))
+
+
+# The engine tags each window with the unit's mean temperature -------------------------------
+
+def test_window_temperature_round_trips_and_old_windows_have_none():
+    w = WindowRecord(WindowKind("static"), 1.0, 2.0, 0.0, {"accelerometer": [0.0, 0.0, 9.8]}, 23.5)
+    assert WindowRecord.from_dict(w.to_dict()) == w
+    old = w.to_dict()
+    del old["temperature_c"]
+    assert WindowRecord.from_dict(old).temperature_c is None
+    assert "temperature_c" not in WindowRecord.from_dict(old).to_dict()
+
+
+PROFILE = TemperatureProfile("ramp", start_c=10.0, rise_k=30.0, rate_k_per_s=0.05)
+
+
+@pytest.fixture(scope="module")
+def warm_run(tmp_path_factory):
+    """A short field-18 (3 s dwells at 20 Hz) through the conductor, the unit warming 0.05 K/s."""
+    from fieldcal.run.runner import RunSpec, run_headless
+
+    text = load_procedure("field-18").text.replace("name: field-18", "name: mini").replace("dwell_s: 200", "dwell_s: 3") \
+        .replace("rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}",
+                 "rate_step: {rate_deg_s: 60, turns: 1, ramp_s: 3, settle_s: 1}")
+    thermal = SimThermal(PROFILE, {"accelerometer": ThermalTruth(25.0, np.array([B1 * 10]), np.zeros(3)),
+                                   "gyroscope": ThermalTruth(25.0, np.radians([[0.02, -0.05, 0.08]]), np.zeros(3))})
+    spec = RunSpec(parse_procedure(text, "mini.yaml"), Station(40.0, 50.0), seed=3, rate_hz=20.0,
+                   sim_thermal=thermal)
+    directory = tmp_path_factory.mktemp("warm") / "run"
+    return directory, run_headless(spec, directory)
+
+
+def test_each_window_carries_the_mean_temperature_of_its_samples(warm_run):
+    from fieldcal.run.runner import open_run
+
+    windows = [w for step in open_run(warm_run[0]).completed for w in step.windows]
+    assert len(windows) == 54
+    for w in windows:
+        # the window's samples are at start, start + 1/rate, ... (duration · rate of them)
+        t = w.start + np.arange(round(w.duration * 20.0)) / 20.0
+        assert w.temperature_c == pytest.approx(PROFILE.at(t).mean(), abs=1e-9)
+    assert windows[-1].temperature_c - windows[0].temperature_c > 5.0
+
+
+def test_the_run_prints_the_thermal_model_beside_the_truth(warm_run):
+    import io
+
+    from fieldcal.cli.sessions import _print_result
+
+    outcome = warm_run[1]
+    acc = outcome.unit.solutions["accelerometer"]
+    assert acc.thermal is not None and acc.thermal.order >= 1
+    out = io.StringIO()
+    _print_result(outcome, out)
+    text = out.getvalue()
+    section = text[text.index("accelerometer ("):text.index("gyroscope (")]
+    assert "thermal model about" in section and "b1 x" in section and "mg/K" in section
+    # the true b1 (ten times B1: 3, -5, 8 mg/K) is printed beside the solved one, with error/σ
+    rows = {line.split()[0] + line.split()[1]: line.split() for line in section.splitlines()
+            if line.strip().startswith("b1 ")}
+    assert [rows[f"b1{a}"][6] for a in "xyz"] == ["3", "-5", "8"]
+    assert all(abs(float(rows[f"b1{a}"][8])) < 4.0 for a in "xyz")
+
+
+def test_truth_re_centred_by_hand():
+    from fieldcal.thermal import truth_about
+
+    theta = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 1e-3, 0.0, 0.0])
+    terms = np.array([[0.1] * 3, [0.01] * 3])
+    moved, moved_terms = truth_about(theta, 20.0, terms, [1e-3, 0.0, 0.0], 22.0)
+    # b0' = 1 + 0.1·2 + 0.01·4 = 1.24; b1' = 0.1 + 2·0.01·2 = 0.14; b2' = 0.01; kx' = 2·1.002
+    np.testing.assert_allclose(moved[:3], 1.24)
+    np.testing.assert_allclose(moved_terms, [[0.14] * 3, [0.01] * 3])
+    np.testing.assert_allclose(moved[3:6], [2.004, 2.0, 2.0])
+    np.testing.assert_array_equal(moved[6:], theta[6:])
+
+
+def test_a_warm_gyro_is_solved_within_its_sigma(warm_run):
+    # Its bias moves 0.05-0.08 °/s/K over 20 K: far beyond the Earth rate its static norms weigh,
+    # so weights taken at a solution that ignores the warming would be wrong.
+    from fieldcal.report import thermal_truths, worst_error
+
+    outcome = warm_run[1]
+    gyro = outcome.unit.solutions["gyroscope"]
+    assert gyro.thermal is not None and gyro.thermal.order >= 1
+    truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
+    assert worst_error({"gyroscope": gyro}, truths) < 4.0
