@@ -107,7 +107,7 @@ def test_a_replay_whose_parameter_file_differs_exits_1_and_confirms_nothing(pris
     db = str(tmp_path / "r.sqlite")
     assert main(["replay", str(session), "--quiet", "--registry", db]) == 1
     out = capsys.readouterr().out
-    assert "parameter file DIFFERS from the recorded one" in out
+    assert "parameter file DIFFERS from the run's parameters-001.yaml" in out
     with Registry(db) as registry:
         assert registry.query("SELECT params_path FROM calibrations WHERE source = 'run'") == []
 
