@@ -48,7 +48,7 @@ class SimulatedCalibration:
         steps = [self.procedure.rate_step_at(i) for i in range(len(self.procedure.positions))]
         turning = [i for i, step in enumerate(steps) if step is not None]
         assert turning  # (a gyro is calibrated only with rate steps)
-        rate = np.radians([steps[i].rate_deg_s for i in turning])
+        rate = np.radians([step.rate_deg_s for step in steps if step is not None])  # in turning's order
         return angular_rate_bound(theta, up_body, rate, north_body, EARTH_RATE,
                                   self.station.latitude_rad, self.covariances[name], turning)
 
