@@ -138,8 +138,12 @@ def test_a_position_without_a_description_is_placed_by_its_attitude_at_the_first
     assert placement(None, corner).text == ("place it on a corner: x 35° up towards north, "
                                             "y 35° up towards south-west, z 35° up towards south-east")
     assert placement(None, one("{id: 1, up: z, north: x}")).text == "place it: z must point up, x north"
+    # a description without a heading would leave the operator guessing where x goes (issue 23):
+    # the attitude says it; one that names the heading is said as written
     assert placement(None, one("{id: 1, description: on its back, up: -z, north: x}")).text == \
-        "place it on its back"
+        "place it: z must point down, x north"
+    assert placement(None, one("{id: 1, description: 'on its back, x north', up: -z, north: x}")).text == \
+        "place it on its back, x north"
 
 
 def test_a_wrong_corner_is_named_in_the_procedure_format_words(tmp_path, capsys):
