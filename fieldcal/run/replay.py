@@ -116,12 +116,6 @@ def recorded_parameters(record: RunRecord) -> bytes | None:
     return note.read_bytes() if note is not None else None
 
 
-def replay_matches(record: RunRecord) -> bool:
-    """Does replaying the session give its parameter file (byte for byte in the same numeric
-    environment, within the stated tolerance elsewhere)?"""
-    return replay(record).identical is True
-
-
 def resolve_session(record: RunRecord, method: str | None = None):
     """Solve again from the step averages the session stored (no samples read); (solution, file).
     ``method``: another solver than the session's."""

@@ -4,7 +4,7 @@ from pathlib import Path
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
 from fieldcal.run.runner import OperatorScript, RunSpec, open_run, resume_headless, run_headless
-from fieldcal.run.replay import replay_matches
+from fieldcal.run.replay import replay
 from fieldcal.tui.source import READY, SimSource
 from fieldcal.procedure import events as ev
 
@@ -32,7 +32,7 @@ for line in data.splitlines(keepends=True):
 log.write_bytes(data[:offset]); (out / "headless-resumed" / "parameters.yaml").unlink()
 r = resume_headless(open_run(out / "headless-resumed"))
 assert r.parameters.read_bytes() == expected
-assert replay_matches(open_run(out / "headless-resumed"))
+assert replay(open_run(out / "headless-resumed")).identical is True
 (out / "headless-resumed.expected.yaml").write_bytes(expected)
 
 # B: a TUI simulator run (speed 0), ready at each step, quit while waiting at step 7.
