@@ -15,7 +15,8 @@ from drivers.sim.handheld import simulate_handheld, to_text
 from fieldcal.cli.main import main
 from fieldcal.earth import Station, normal_gravity
 from fieldcal.recording import Recording
-from fieldcal.recording.calibrate import RecordingSettings, calibrate_recording
+from fieldcal.recording.calibrate import calibrate_recording
+from fieldcal.recording.outcome import RecordingSettings
 from fieldcal.recording.place import GRAVITY_SPREAD, UnknownPlace
 
 NOISE = RecordingSettings(noise=dict(PAPER_NOISE))

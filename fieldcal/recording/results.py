@@ -14,7 +14,8 @@ from fieldcal.calibration import CLASSIC_METHOD
 from fieldcal.earth import Station
 from fieldcal.paramfile import ParameterFile
 from fieldcal.recording import Recording
-from fieldcal.recording.calibrate import RecordingCalibration, UnknownPlace
+from fieldcal.recording.outcome import RecordingCalibration
+from fieldcal.recording.place import UnknownPlace
 from fieldcal.report import residual_text, solution_header, solution_table
 
 PROCEDURE = "recording"
