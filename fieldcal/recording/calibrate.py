@@ -36,65 +36,17 @@ from fieldcal.recording.detect import (DetectionError, Poses, SpreadReport, TooF
                                       interval_means, too_short)
 from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
 from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
-from fieldcal.solvers import CalibrationError, solve_norm
+from fieldcal.solvers import CalibrationError
 from fieldcal.solvers.norm import SCREEN
 from fieldcal.calibration import Calibration
-from fieldcal.solvers.problems import StaticNormProblem
 from fieldcal.recording.turns import rate_residuals
-from fieldcal.recording.up_covariance import MeansCovariance, UpCovariance, means_parts
+from fieldcal.recording.up_covariance import UpCovariance, means_parts
 from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, scan_scale, solve_rotations
 from fieldcal.recording.place import UnknownPlace, place_gravity, with_gravity_uncertainty
 from fieldcal.recording.outcome import ALIGNED_FORCE_ONLY_PROTOCOL, ALIGNED_PROTOCOL, FORCE_ONLY_PROTOCOL, NORM_PROTOCOL, RecordingCalibration, RecordingSettings
+from fieldcal.recording.static_solve import calibrated_jacobian, estimated_force_noise, means_covariance, reduced_chi2, solve_static
 
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
-
-
-def _reduced_chi2(solution: Calibration) -> float:
-    return solution.diagnostics.chi2 / max(solution.diagnostics.dof, 1)
-
-
-def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, method=None,
-                  white: Calibration | None = None) -> Calibration:
-    """``method``: the norm solver, settings.method unless given (SCREEN: only the minimum χ²).
-    ``white``: this very problem's solution by ``method`` on white-noise weights when it is at
-    hand (the solve a noise model's weights start from: not done again)."""
-    method = method or settings.method
-    problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
-                                labels=tuple(f"pose {i + 1}" for i in range(len(means))))
-    # White noise: each mean's per-axis 1σ, the (n, 3) form solve_norm weighs without an n×n matrix.
-    solution = white if white is not None else solve_norm(
-        problem, np.sqrt(variance[None, :] / np.diff(intervals, axis=1)), method=method)
-    noise = settings.noise.get(name)
-    if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
-        solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit, parts=True),
-                              method=method)
-    # The noise alone under-states the σ when the poses scatter more than it says (the bias
-    # wanders, the temperature moves the scale, a hand trembles: χ²/dof > 1 says so), with a
-    # noise model as without one: the σ are scaled up by χ²/dof, never down.
-    fit = solution.diagnostics
-    ratio = fit.reduced_chi2 or 1.0
-    if ratio > 1.0 and not fit.scaled_by_residuals:
-        solution = replace(solution, covariance=solution.covariance * ratio, sigma=None,
-                           diagnostics=replace(fit, scaled_by_residuals=True))
-    return solution
-
-
-def _means_covariance(intervals, t, variance, noise, K, unit, parts: bool = False):
-    """Covariance of the flattened pose means (output units): white noise measured over the rest,
-    or, with the device's noise model and scale K, the exact one, bias instability included
-    (``parts``: kept by its parts, a MeansCovariance, as a norm solve weighs it in O(m²))."""
-    counts = np.diff(intervals, axis=1)[:, 0]
-    if noise is None:
-        return np.diag((variance[None, :] / counts[:, None]).ravel())
-    durations = counts * float(np.median(np.diff(t)))
-    if parts:
-        quantised = unit == "count" and not isinstance(noise, MeasuredNoise)
-        own = np.broadcast_to((1.0 / 12.0 / counts if quantised else np.zeros(len(counts)))[:, None], (len(counts), 3))
-        return MeansCovariance(noise.window_covariance(t[intervals[:, 0]], durations), K, own)
-    cov = np.kron(noise.window_covariance(t[intervals[:, 0]], durations), K @ K.T)
-    if unit == "count" and not isinstance(noise, MeasuredNoise):  # quantisation, one count (measured: in it)
-        cov += np.kron(np.diag(1.0 / 12.0 / counts), np.eye(3))
-    return cov
 
 
 def _up_vectors(acc: Calibration, means: np.ndarray, windows: np.ndarray | None,
@@ -106,38 +58,8 @@ def _up_vectors(acc: Calibration, means: np.ndarray, windows: np.ndarray | None,
     norm = np.linalg.norm(a, axis=1)
     u = a / norm[:, None]
     D = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # (P, 3, 3) ∂u/∂a, pose by pose
-    shared = D @ _calibrated_jacobian(acc.theta, means).reshape(len(means), 3, -1)
+    shared = D @ calibrated_jacobian(acc.theta, means).reshape(len(means), 3, -1)
     return u, UpCovariance(D, windows, own, shared, acc.covariance)
-
-
-def _calibrated_jacobian(theta: np.ndarray, means: np.ndarray) -> np.ndarray:
-    """(3m, 9): ∂ calibrate_with(theta, means) / ∂theta, flattened pose by pose (central differences)."""
-    steps = 1e-6 * np.maximum(np.abs(theta), 1e-3)
-    return np.column_stack([((calibrate_with(theta + h * e, means)
-                              - calibrate_with(theta - h * e, means)) / (2 * h)).ravel()
-                            for h, e in zip(steps, np.eye(len(steps)))])
-
-
-def estimated_force_noise(solution: Calibration, means: np.ndarray, intervals: np.ndarray, t: np.ndarray,
-                          variance: np.ndarray, rate_hz: float, gravity: float) -> MeasuredNoise:
-    """A specific-force triad's noise model (SI) from its norm fit on white-noise weights: the
-    white noise of ``variance`` (output units² per sample, per axis), and the bias instability
-    that the pose means' scatter about the fit shows beyond it (``noise_estimate``). A norm
-    residual |a| − g sees a pose's noise along its up direction only, so two poses' flicker
-    is shared as uᵢ·uⱼ."""
-    a = calibrate_with(solution.theta, means)
-    u = a / np.linalg.norm(a, axis=1)[:, None]
-    m = len(means)
-    design = np.einsum("ik,ikp->ip", u, _calibrated_jacobian(solution.theta, means).reshape(m, 3, -1))
-    counts = np.diff(intervals, axis=1)[:, 0]
-    along = np.linalg.solve(solution.K.T, u.T).T  # K⁻ᵀu: an output-unit error's share along up
-    white = (along**2 @ variance) / counts
-    durations = counts / rate_hz
-    flicker = flicker_covariance(t[intervals[:, 0]], durations) * (u @ u.T)
-    b = bias_instability(np.linalg.norm(a, axis=1) - gravity, design, white, flicker, weights=1.0 / white)
-    K_inv = np.linalg.inv(solution.K)
-    white_si = float(np.sqrt(np.trace(K_inv @ np.diag(variance) @ K_inv.T) / 3 / rate_hz))
-    return MeasuredNoise(white=white_si, bias_instability=b)
 
 
 def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
@@ -187,7 +109,7 @@ def _with_estimated_noise(recording: Recording, detection: Detection, choice: Po
     noise = estimated_force_noise(choice.reference_solution, poses.means, poses.intervals, recording.t,
                                   detection.noise.variance, recording.rate_hz, station.gravity)
     settings = replace(settings, noise={**settings.noise, reference: noise})
-    solution = _solve_static(reference, recording.units[reference], poses.means, poses.intervals, recording.t,
+    solution = solve_static(reference, recording.units[reference], poses.means, poses.intervals, recording.t,
                              detection.noise.variance, station.gravity, settings, white=choice.reference_solution)
     return replace(choice, reference_solution=solution), settings
 
@@ -227,7 +149,7 @@ def choose_poses(recording: Recording, detection: Detection, station: Station | 
 
     def solve(poses, method=None):
         try:
-            return _solve_static(reference, unit, poses.means, poses.intervals, recording.t,
+            return solve_static(reference, unit, poses.means, poses.intervals, recording.t,
                                  detection.noise.variance, station.gravity, settings, method)
         except CalibrationError as exc:
             return str(exc)
@@ -243,7 +165,7 @@ def choose_poses(recording: Recording, detection: Detection, station: Station | 
                 screened[key] = solve(candidate.poses)
     solved: dict[bytes, Calibration | str] = {}
     fits = [k for k in dict.fromkeys(k for k in keys if k is not None) if isinstance(screened[k], Calibration)]
-    for key in sorted(fits, key=lambda k: _reduced_chi2(screened[k])):  # stable: the first of equals wins
+    for key in sorted(fits, key=lambda k: reduced_chi2(screened[k])):  # stable: the first of equals wins
         solution = screened[key]
         if solution.diagnostics.search == SCREEN:
             solution = solve(detection.candidates[keys.index(key)].poses)
@@ -257,7 +179,7 @@ def choose_poses(recording: Recording, detection: Detection, station: Station | 
             tried.append((poses.multiple, spread.count, spread.message))
             continue
         sol = solved.get(key, screened[key])
-        tried.append((poses.multiple, spread.count, sol if isinstance(sol, str) else f"χ²/dof {_reduced_chi2(sol):.3g}"))
+        tried.append((poses.multiple, spread.count, sol if isinstance(sol, str) else f"χ²/dof {reduced_chi2(sol):.3g}"))
         if best is None and isinstance(solved.get(key), Calibration):
             best = (candidate, solved[key])
     return PoseChoice(tuple(tried), *(best or ()))
@@ -279,14 +201,14 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
         values = recording.triads[name]
         means, variance = interval_means(values, keep), np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1)
         try:
-            solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
+            solution = solve_static(name, recording.units[name], means, keep, recording.t, variance,
                                      station.gravity, settings)
             if settings.estimate_noise and name not in settings.noise:  # as the reference's
                 noise = estimated_force_noise(solution, means, keep, recording.t, variance, recording.rate_hz,
                                               station.gravity)
                 settings = replace(settings, noise={**settings.noise, name: noise})
                 estimated_names += (name,)
-                solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
+                solution = solve_static(name, recording.units[name], means, keep, recording.t, variance,
                                          station.gravity, settings, white=solution)
             specific_force[name] = solution
         except CalibrationError as exc:
@@ -406,7 +328,7 @@ def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration,
     measured from the recording (None: given, or not estimated)."""
     t, iv = regular_times(recording.t, recording.rate_hz), poses.intervals
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
-    acc_noise = settings.noise.get(acc.name)  # quantisation as _means_covariance counts it
+    acc_noise = settings.noise.get(acc.name)  # quantisation as means_covariance counts it
     quantised = recording.units[acc.name] == "count" and not isinstance(acc_noise, MeasuredNoise)
     up, up_cov = _up_vectors(acc, poses.means, *means_parts(iv, t, acc_var, acc_noise, acc.K, quantised))
     gyro = recording.triads[name]
@@ -473,7 +395,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
         # The nominal scale, from the faces' spread (±g on each axis): raw counts have an offset
         # that the means' norm would count as scale.
         scale = np.diag(np.ptp(means, axis=0) / (2 * station.gravity))
-        covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
+        covariance = means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(
                 name, unit, means, axes, station.gravity, covariance, np.diff(poses.intervals, axis=1)[:, 0],
@@ -494,7 +416,7 @@ def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, det
     # flicker: its shared part cancels in the up, and what its faster part moves between faces
     # is in the faces' χ²/dof, which turn_up_variance scales by (with it, RMS z 0.71-0.74).
     up_noise = settings.noise.get(reference)
-    up_means_cov = _means_covariance(poses.intervals, recording.t, noise.variance, up_noise, acc.K,
+    up_means_cov = means_covariance(poses.intervals, recording.t, noise.variance, up_noise, acc.K,
                                      recording.units[reference])
     for name in detection.rates:
         gyro = recording.triads[name]
