@@ -22,7 +22,7 @@ from pathlib import Path
 import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only before numpy loads)
 
 from fieldcal.earth import Station
-from fieldcal.recording import calibrate
+from fieldcal.recording import calibrate, pose_choice
 from fieldcal.recording.candidates import detect_candidates
 from fieldcal.recording.importer import import_recording
 
@@ -44,8 +44,8 @@ def gyro_step(directory: Path):
     settings = calibrate.RecordingSettings()
     detection = detect_candidates(recording, settings.detector)
     station = calibrate.place_gravity(station)
-    choice = calibrate.choose_poses(recording, detection, station, settings)
-    choice, settings = calibrate._with_estimated_noise(recording, detection, choice, station, settings)
+    choice = pose_choice.choose_poses(recording, detection, station, settings)
+    choice, settings = pose_choice.with_estimated_noise(recording, detection, choice, station, settings)
     name = detection.rates[0]
 
     def step():

@@ -31,20 +31,20 @@ import numpy as np
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
 from fieldcal.recording import Recording
-from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
+from fieldcal.recording.candidates import RATE_UNITS, Detection, detect_candidates
 from fieldcal.recording.detect import (DetectionError, Poses, SpreadReport, TooFewPoses,
                                       interval_means, too_short)
 from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
 from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
 from fieldcal.solvers import CalibrationError
-from fieldcal.solvers.norm import SCREEN
 from fieldcal.calibration import Calibration
 from fieldcal.recording.turns import rate_residuals
 from fieldcal.recording.up_covariance import UpCovariance, means_parts
 from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, scan_scale, solve_rotations
 from fieldcal.recording.place import UnknownPlace, place_gravity, with_gravity_uncertainty
 from fieldcal.recording.outcome import ALIGNED_FORCE_ONLY_PROTOCOL, ALIGNED_PROTOCOL, FORCE_ONLY_PROTOCOL, NORM_PROTOCOL, RecordingCalibration, RecordingSettings
-from fieldcal.recording.static_solve import calibrated_jacobian, estimated_force_noise, means_covariance, reduced_chi2, solve_static
+from fieldcal.recording.static_solve import calibrated_jacobian, estimated_force_noise, means_covariance, solve_static
+from fieldcal.recording.pose_choice import PoseChoice, choose_poses, with_estimated_noise
 
 _SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
 
@@ -83,7 +83,7 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
                           f"{faces}")
     estimated = ()
     if settings.estimate_noise and detection.reference not in settings.noise:
-        choice, settings = _with_estimated_noise(recording, detection, choice, station, settings)
+        choice, settings = with_estimated_noise(recording, detection, choice, station, settings)
         estimated = (detection.reference,)
     return _with_unknown_gravity(solve_triads(recording, detection, choice, station, settings, estimated))
 
@@ -101,19 +101,6 @@ def _with_unknown_gravity(cal: RecordingCalibration) -> RecordingCalibration:
     return replace(cal, specific_force=widened, notes=cal.notes + tuple(notes))
 
 
-def _with_estimated_noise(recording: Recording, detection: Detection, choice: PoseChoice,
-                          station: Station | UnknownPlace, settings: RecordingSettings):
-    """The reference accelerometer's noise model measured from its chosen fit, and its solution
-    again with it; the settings carry the model on to the gyro's up vectors."""
-    reference, poses = detection.reference, choice.best.poses
-    noise = estimated_force_noise(choice.reference_solution, poses.means, poses.intervals, recording.t,
-                                  detection.noise.variance, recording.rate_hz, station.gravity)
-    settings = replace(settings, noise={**settings.noise, reference: noise})
-    solution = solve_static(reference, recording.units[reference], poses.means, poses.intervals, recording.t,
-                             detection.noise.variance, station.gravity, settings, white=choice.reference_solution)
-    return replace(choice, reference_solution=solution), settings
-
-
 def _faces_missing(detection: Detection, min_static_s: float) -> str:
     """For a refusal: when the poses found all lie on faces (a Ferraris session), which of the six
     faces were not found still, and what would help."""
@@ -126,63 +113,6 @@ def _faces_missing(detection: Detection, min_static_s: float) -> str:
     return (f"; for the Ferraris protocol (six faces and a full turn about each axis) {', '.join(missing)} "
             f"{'was' if len(missing) == 1 else 'were'} not found still for {min_static_s:g} s: hold each face "
             "still for longer, or give --min-still S")
-
-
-@dataclass(frozen=True)
-class PoseChoice:
-    """The poses stage's outcome: every multiple's (multiple, distinct poses, χ²/dof or why not),
-    and the best-fitting candidate with its reference accelerometer solution (None: none fits)."""
-
-    tried: tuple[tuple[float, int, str], ...]
-    best: Candidate | None = None
-    reference_solution: Calibration | None = None
-
-
-def choose_poses(recording: Recording, detection: Detection, station: Station | UnknownPlace,
-                 settings: RecordingSettings) -> PoseChoice:
-    """The candidate whose reference accelerometer fits best (smallest χ²/dof), as imu_tk chooses.
-
-    Each distinct set of poses is screened by the least χ² it allows (Gauss-Newton, the same
-    minimum Powell finds, at a fraction of the cost); only the best is solved by the method asked
-    for (the next best if that solve fails), so Powell runs once instead of once per set."""
-    reference, unit = detection.reference, recording.units[detection.reference]
-
-    def solve(poses, method=None):
-        try:
-            return solve_static(reference, unit, poses.means, poses.intervals, recording.t,
-                                 detection.noise.variance, station.gravity, settings, method)
-        except CalibrationError as exc:
-            return str(exc)
-
-    screened: dict[bytes, Calibration | str] = {}  # several multiples often find the same intervals
-    keys = []
-    for candidate in detection.candidates:
-        key = candidate.poses.intervals.tobytes() if candidate.spread.ok else None
-        keys.append(key)
-        if key is not None and key not in screened:
-            screened[key] = solve(candidate.poses, SCREEN)
-            if isinstance(screened[key], str):  # the method asked for says why (or does better)
-                screened[key] = solve(candidate.poses)
-    solved: dict[bytes, Calibration | str] = {}
-    fits = [k for k in dict.fromkeys(k for k in keys if k is not None) if isinstance(screened[k], Calibration)]
-    for key in sorted(fits, key=lambda k: reduced_chi2(screened[k])):  # stable: the first of equals wins
-        solution = screened[key]
-        if solution.diagnostics.search == SCREEN:
-            solution = solve(detection.candidates[keys.index(key)].poses)
-        solved[key] = solution
-        if isinstance(solution, Calibration):
-            break
-    tried, best = [], None
-    for candidate, key in zip(detection.candidates, keys):
-        poses, spread = candidate.poses, candidate.spread
-        if key is None:
-            tried.append((poses.multiple, spread.count, spread.message))
-            continue
-        sol = solved.get(key, screened[key])
-        tried.append((poses.multiple, spread.count, sol if isinstance(sol, str) else f"χ²/dof {reduced_chi2(sol):.3g}"))
-        if best is None and isinstance(solved.get(key), Calibration):
-            best = (candidate, solved[key])
-    return PoseChoice(tuple(tried), *(best or ()))
 
 
 def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
