@@ -1,24 +1,24 @@
-"""Calibrate a unit from a plain recording: detect the poses, solve the accelerometer (and any
-other specific-force triad) by the norm method, then the gyroscope from the rotations between
-poses, with no procedure and no operator.
+"""Calibrate a unit from a plain recording, with no procedure and no operator: the pipeline.
 
-The threshold multiple of the pose detector is chosen as imu_tk chooses it: each multiple's
-poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
-wins; each set is ranked by the least χ² it allows, and only the best is solved by Powell.
-Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
-is more data, though only distinct poses count for the spread. The noise comes from the
-device's noise model when one is given (exact covariance of the pose means, bias instability
-included), else from a model of the same form measured from the recording (``noise_estimate``):
-the white noise of the detector's noise level (the initial rest given by ``--rest``, or the
-recording's quietest windows), the bias instability from how far the pose means scatter about
-the fit beyond it; either way the σ are scaled up by χ²/dof when the fit says the model is not
-all there is. The gyroscope's bias is the mean of
-every pose's still reading less the vertical Earth rate, which the accelerometer's up direction
-fixes; its σ comes from those readings' scatter (the horizontal Earth rate at an unknown heading,
-g-sensitivity, warm-up and other drift), counted over fewer poses when neighbours move together
-(``drift.still_bias``). The horizontal Earth rate also widens each motion's residual, and a
-motion during which the gyro clipped at its range is left out. A gyro reporting raw counts needs no nominal sensitivity: a
-scan over the scale finds the one that makes the motions' rotations fit.
+Its stages, each one call: the recording (imported by ``recording.importer``) is searched for
+still poses at every threshold multiple of the detector (``candidates.detect_candidates``); the
+place gives g and the Earth rate (``place.place_gravity``: an unknown place's g is normal gravity
+at 45°, its spread carried in the σ); the poses are chosen as imu_tk chooses them, the set whose
+reference accelerometer fits best (``pose_choice.choose_poses``), the reference's noise model
+measured from that fit when none is given (``pose_choice.with_estimated_noise``); each triad is
+then solved on them (``solve_triads``): every other specific-force triad by the norm method
+(``static_solve``), each gyro from the rotations between poses (``gyro_solve``). When no
+threshold gives poses enough for the norm method but six of them lie on the faces, the Ferraris
+protocol solves instead (``aligned``). The result, a RecordingCalibration (``outcome``), is what
+``recording.results`` writes as the parameter file.
+
+The noise comes from the device's noise model when one is given (exact covariance of the pose
+means, bias instability included), else from a model of the same form measured from the
+recording (``noise_estimate``); either way the σ are scaled up by χ²/dof when the fit says the
+model is not all there is. The gyroscope's bias is the mean of every pose's still reading less
+the vertical Earth rate, its σ from those readings' scatter (``drift.still_bias``); a gyro
+reporting raw counts needs no nominal sensitivity: a scan over the scale finds the one that makes
+the motions' rotations fit.
 """
 from __future__ import annotations
 
@@ -28,16 +28,16 @@ import numpy as np
 
 from fieldcal.earth import Station
 from fieldcal.recording import Recording
-from fieldcal.recording.candidates import Detection, detect_candidates
-from fieldcal.recording.detect import (TooFewPoses,
-                                      interval_means, too_short)
-from fieldcal.solvers import CalibrationError
-from fieldcal.recording.place import UnknownPlace, place_gravity, with_gravity_uncertainty
-from fieldcal.recording.outcome import FORCE_ONLY_PROTOCOL, NORM_PROTOCOL, RecordingCalibration, RecordingSettings
-from fieldcal.recording.static_solve import estimated_force_noise, solve_static
-from fieldcal.recording.pose_choice import PoseChoice, choose_poses, with_estimated_noise
-from fieldcal.recording.gyro_solve import solve_gyro
 from fieldcal.recording.aligned import aligned_protocol, faces_missing
+from fieldcal.recording.candidates import Detection, detect_candidates
+from fieldcal.recording.detect import TooFewPoses, interval_means, too_short
+from fieldcal.recording.gyro_solve import solve_gyro
+from fieldcal.recording.outcome import (FORCE_ONLY_PROTOCOL, NORM_PROTOCOL, RecordingCalibration,
+                                        RecordingSettings)
+from fieldcal.recording.place import UnknownPlace, place_gravity, with_gravity_uncertainty
+from fieldcal.recording.pose_choice import PoseChoice, choose_poses, with_estimated_noise
+from fieldcal.recording.static_solve import estimated_force_noise, solve_static
+from fieldcal.solvers import CalibrationError
 
 
 def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
@@ -49,21 +49,27 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     detection = detect_candidates(recording, settings.detector)
     station = place_gravity(station)
     choice = choose_poses(recording, detection, station, settings)
-    if choice.best is None:
+    if choice.best is None:  # too few poses for the norm method: the six faces, if they are there
         aligned = aligned_protocol(recording, station, detection, choice.tried, settings)
-        if aligned is not None:
-            return _with_unknown_gravity(aligned)
-        most = max(choice.tried, key=lambda x: x[1])
-        poses = next(c.poses for c in detection.candidates if c.multiple == most[0])
-        faces = faces_missing(detection, settings.detector.min_static_s)
-        raise TooFewPoses(f"no threshold gave usable poses; with the most ({most[1]} at "
-                          f"{most[0]:g}× the noise level): {most[2]}{too_short(poses, settings.detector)}"
-                          f"{faces}")
+        if aligned is None:
+            raise _no_usable_poses(detection, choice, settings)
+        return _with_unknown_gravity(aligned)
     estimated = ()
     if settings.estimate_noise and detection.reference not in settings.noise:
         choice, settings = with_estimated_noise(recording, detection, choice, station, settings)
         estimated = (detection.reference,)
     return _with_unknown_gravity(solve_triads(recording, detection, choice, station, settings, estimated))
+
+
+def _no_usable_poses(detection: Detection, choice: PoseChoice, settings: RecordingSettings) -> TooFewPoses:
+    """The refusal when no threshold's poses fit and they are not the six faces either: the
+    threshold that found the most poses, why they would not do, and what would help."""
+    most = max(choice.tried, key=lambda x: x[1])
+    poses = next(c.poses for c in detection.candidates if c.multiple == most[0])
+    faces = faces_missing(detection, settings.detector.min_static_s)
+    return TooFewPoses(f"no threshold gave usable poses; with the most ({most[1]} at "
+                       f"{most[0]:g}× the noise level): {most[2]}{too_short(poses, settings.detector)}"
+                       f"{faces}")
 
 
 def _with_unknown_gravity(cal: RecordingCalibration) -> RecordingCalibration:
@@ -96,14 +102,14 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
         means, variance = interval_means(values, keep), np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1)
         try:
             solution = solve_static(name, recording.units[name], means, keep, recording.t, variance,
-                                     station.gravity, settings)
+                                    station.gravity, settings)
             if settings.estimate_noise and name not in settings.noise:  # as the reference's
                 noise = estimated_force_noise(solution, means, keep, recording.t, variance, recording.rate_hz,
                                               station.gravity)
                 settings = replace(settings, noise={**settings.noise, name: noise})
                 estimated_names += (name,)
                 solution = solve_static(name, recording.units[name], means, keep, recording.t, variance,
-                                         station.gravity, settings, white=solution)
+                                        station.gravity, settings, white=solution)
             specific_force[name] = solution
         except CalibrationError as exc:
             failures[name] = str(exc)
@@ -123,7 +129,3 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
                                 reference, bias_sigma, turns, used, detection.noise.source, station,
                                 NORM_PROTOCOL if detection.rates else FORCE_ONLY_PROTOCOL,
                                 notes=tuple(notes), estimated_noise=estimated)
-
-
-
-
