@@ -1,7 +1,9 @@
 """The angular-rate triads' solve on the chosen poses: every pose's up vector from the
 accelerometer's solution, the gyro's prior from its still readings (bias less the vertical Earth
 rate, its σ from their scatter; the scale scanned for raw counts), then the rotations between
-poses (fieldcal.solvers.rotation)."""
+poses (fieldcal.solvers.rotation). Neighbouring poses that move together count as fewer
+(``drift.still_bias``); the horizontal Earth rate (an unknown heading's) widens each motion's
+residual, and a motion during which the gyro clipped at its range is left out."""
 from __future__ import annotations
 
 import math

@@ -1,6 +1,8 @@
 """The poses stage: of every threshold's candidate poses, the set whose reference accelerometer
 fits best (smallest χ²/dof), as imu_tk chooses; then, when no noise model is given, the
-reference's noise model measured from that fit and its solution again with it."""
+reference's noise model measured from that fit and its solution again with it. Every static
+interval's mean is an equation, a pose seen twice (a duplicate) as well: it is more data, though
+only distinct poses count for the spread."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace

@@ -1,6 +1,9 @@
 """The specific-force (accelerometer-like) triads' static solve: the norm method on the pose
 means, weighted by white noise or a noise model's exact covariance (bias instability included),
-the σ scaled up by χ²/dof; and the noise model measured from the fit when none is given."""
+the σ scaled up by χ²/dof; and the noise model measured from the fit when none is given: the
+white noise of the detector's noise level (the initial rest given by ``--rest``, or the
+recording's quietest windows), the bias instability from how far the pose means scatter about the
+fit beyond it (``noise_estimate``)."""
 from __future__ import annotations
 
 from dataclasses import replace
