@@ -22,9 +22,10 @@ from pathlib import Path
 import fieldcal  # noqa: F401  (first: its one-BLAS-thread default applies only before numpy loads)
 
 from fieldcal.earth import Station
-from fieldcal.recording import calibrate
+from fieldcal.recording import gyro_solve, place, pose_choice
 from fieldcal.recording.candidates import detect_candidates
 from fieldcal.recording.importer import import_recording
+from fieldcal.recording.outcome import RecordingSettings
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from recording import XSENS_GRAVITY, xsens_files  # noqa: E402
@@ -41,15 +42,15 @@ def gyro_step(directory: Path):
     """A callable running the gyro step exactly as calibrate_recording does, and its result."""
     recording = import_recording(xsens_files(directory), "imu_tk")
     station = Station(45.0, 0.0, XSENS_GRAVITY)  # where it was recorded is not published
-    settings = calibrate.RecordingSettings()
+    settings = RecordingSettings()
     detection = detect_candidates(recording, settings.detector)
-    station = calibrate.place_gravity(station)
-    choice = calibrate.choose_poses(recording, detection, station, settings)
-    choice, settings = calibrate._with_estimated_noise(recording, detection, choice, station, settings)
+    station = place.place_gravity(station)
+    choice = pose_choice.choose_poses(recording, detection, station, settings)
+    choice, settings = pose_choice.with_estimated_noise(recording, detection, choice, station, settings)
     name = detection.rates[0]
 
     def step():
-        return calibrate._solve_gyro(recording, name, choice.best.poses, choice.reference_solution,
+        return gyro_solve.solve_gyro(recording, name, choice.best.poses, choice.reference_solution,
                                      detection.noise.variance, station, settings, choice.best.turns)[0]
     return step
 

@@ -14,8 +14,10 @@ from fieldcal.cli.main import main
 from fieldcal.earth import Station
 from fieldcal.model import calibrate_with, params_from_k, terms_from_k
 from fieldcal.paramfile import load
-from fieldcal.recording.calibrate import (ALIGNED_PROTOCOL, RecordingSettings, UnknownPlace, _solve_static,
-                                          calibrate_recording)
+from fieldcal.recording.calibrate import calibrate_recording
+from fieldcal.recording.outcome import ALIGNED_PROTOCOL, RecordingSettings
+from fieldcal.recording.place import UnknownPlace
+from fieldcal.recording.static_solve import solve_static
 from fieldcal.recording.candidates import detect_candidates
 from fieldcal.recording.detect import DetectionError, DetectorSettings, interval_means, pose_candidates
 from fieldcal.recording.importer import import_recording
@@ -125,9 +127,9 @@ def test_imu_tk_xsens_screening_picks_the_poses_powell_on_every_candidate_would(
     assert len(sets) >= 5  # the case is not vacuous
 
     def fit(poses, method):
-        return _solve_static("accelerometer", recording.units["accelerometer"], poses.means, poses.intervals,
-                             recording.t, detection.noise.variance, cal.place.gravity, RecordingSettings(),
-                             method).diagnostics
+        return solve_static("accelerometer", recording.units["accelerometer"], poses.means, poses.intervals,
+                            recording.t, detection.noise.variance, cal.place.gravity, RecordingSettings(),
+                            method).diagnostics
 
     powell = {key: fit(poses, "powell") for key, poses in sets.items()}
     for key, poses in sets.items():

@@ -19,7 +19,9 @@ from fieldcal.earth import Station, normal_gravity
 from fieldcal.model import params_from_k
 from fieldcal.paramfile import load
 from fieldcal.recording import Recording
-from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
+from fieldcal.recording.calibrate import calibrate_recording
+from fieldcal.recording.outcome import RecordingSettings
+from fieldcal.recording.place import UnknownPlace
 from fieldcal.recording.detect import DetectionError
 
 NOISE = RecordingSettings(noise=dict(PAPER_NOISE))  # what a device config would say
@@ -406,7 +408,7 @@ def test_the_static_solve_without_a_noise_model_has_honest_sigma_over_seeded_dra
     from scipy import stats
 
     from fieldcal.model import distort_with
-    from fieldcal.recording.calibrate import _solve_static
+    from fieldcal.recording.static_solve import solve_static
 
     rng = np.random.default_rng(2626)
     n, per_pose, rate_hz, gravity, white = 18, 100, 100.0, 9.80, 0.02  # m/s² per sample
@@ -420,7 +422,7 @@ def test_the_static_solve_without_a_noise_model_has_honest_sigma_over_seeded_dra
         up = rng.normal(size=(n, 3))
         up /= np.linalg.norm(up, axis=1, keepdims=True)
         means = distort_with(truth, gravity * up) + rng.normal(0.0, white / np.sqrt(per_pose), (n, 3))
-        sol = _solve_static("accelerometer", "m/s^2", means, intervals, t, stated, gravity, RecordingSettings())
+        sol = solve_static("accelerometer", "m/s^2", means, intervals, t, stated, gravity, RecordingSettings())
         z.append((sol.theta - truth) / sol.sigma)
     z = np.array(z)
     expected = stats.chi2(nu).expect(lambda x: min(scatter_over_stated, nu / x))

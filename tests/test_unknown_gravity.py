@@ -15,7 +15,9 @@ from drivers.sim.handheld import simulate_handheld, to_text
 from fieldcal.cli.main import main
 from fieldcal.earth import Station, normal_gravity
 from fieldcal.recording import Recording
-from fieldcal.recording.calibrate import (GRAVITY_SPREAD, RecordingSettings, UnknownPlace, calibrate_recording)
+from fieldcal.recording.calibrate import calibrate_recording
+from fieldcal.recording.outcome import RecordingSettings
+from fieldcal.recording.place import GRAVITY_SPREAD, UnknownPlace
 
 NOISE = RecordingSettings(noise=dict(PAPER_NOISE))
 LATITUDE = 52.0  # the simulated place; its normal gravity is 0.11 % above the default's (45°)

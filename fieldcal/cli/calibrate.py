@@ -92,7 +92,7 @@ TABLE_RATE_MAX_DEG_S = 2000.0  # the widest full scale of MEMS gyros: no turn ab
 def _station(args, config):
     """The station; an UnknownPlace when neither --latitude nor a config says where."""
     from fieldcal.earth import GRAVITY_RANGE_M_S2, HEIGHT_RANGE_M, Station
-    from fieldcal.recording.calibrate import UnknownPlace
+    from fieldcal.recording.place import UnknownPlace
 
     # Each option checked by its own name (Station's own checks name its fields, not the options).
     if args.gravity is not None and not GRAVITY_RANGE_M_S2[0] < args.gravity < GRAVITY_RANGE_M_S2[1]:

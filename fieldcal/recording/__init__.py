@@ -4,10 +4,12 @@ A recording is the unit set down by hand in a dozen or more poses and turned bet
 The pipeline, each stage a function whose typed result the next one takes: ``importer`` turns
 text files into a :class:`Recording` (and a session); ``candidates.detect_candidates`` finds
 every threshold's static poses (``detect``) with the turns split out (``turns``): a
-``Detection``; ``calibrate.choose_poses`` keeps the best accelerometer fit (a ``PoseChoice``);
-``calibrate.solve_triads`` solves each triad (the gyroscope from the rotations between poses,
-``fieldcal.solvers.rotation``) into a ``RecordingCalibration``; ``results.parameter_file`` writes
-it. ``calibrate.calibrate_recording`` runs them for ``fieldcal calibrate``.
+``Detection``; ``pose_choice.choose_poses`` keeps the best accelerometer fit (a ``PoseChoice``);
+``calibrate.solve_triads`` solves each triad (the specific-force ones by the norm method,
+``static_solve``; the gyroscope from the rotations between poses, ``gyro_solve``; six faces too
+few for the norm method: ``aligned``) into a ``RecordingCalibration`` (``outcome``);
+``results.parameter_file`` writes it. ``calibrate.calibrate_recording`` runs them for
+``fieldcal calibrate``.
 """
 from __future__ import annotations
 

@@ -1,241 +1,43 @@
-"""Calibrate a unit from a plain recording: detect the poses, solve the accelerometer (and any
-other specific-force triad) by the norm method, then the gyroscope from the rotations between
-poses, with no procedure and no operator.
+"""Calibrate a unit from a plain recording, with no procedure and no operator: the pipeline.
 
-The threshold multiple of the pose detector is chosen as imu_tk chooses it: each multiple's
-poses are calibrated and the best fit (smallest χ²/dof of the accelerometer's norm equations)
-wins; each set is ranked by the least χ² it allows, and only the best is solved by Powell.
-Every static interval's mean is an equation, a pose seen twice (a duplicate) as well: it
-is more data, though only distinct poses count for the spread. The noise comes from the
-device's noise model when one is given (exact covariance of the pose means, bias instability
-included), else from a model of the same form measured from the recording (``noise_estimate``):
-the white noise of the detector's noise level (the initial rest given by ``--rest``, or the
-recording's quietest windows), the bias instability from how far the pose means scatter about
-the fit beyond it; either way the σ are scaled up by χ²/dof when the fit says the model is not
-all there is. The gyroscope's bias is the mean of
-every pose's still reading less the vertical Earth rate, which the accelerometer's up direction
-fixes; its σ comes from those readings' scatter (the horizontal Earth rate at an unknown heading,
-g-sensitivity, warm-up and other drift), counted over fewer poses when neighbours move together
-(``drift.still_bias``). The horizontal Earth rate also widens each motion's residual, and a
-motion during which the gyro clipped at its range is left out. A gyro reporting raw counts needs no nominal sensitivity: a
-scan over the scale finds the one that makes the motions' rotations fit.
+Its stages, each one call: the recording (imported by ``recording.importer``) is searched for
+still poses at every threshold multiple of the detector (``candidates.detect_candidates``); the
+place gives g and the Earth rate (``place.place_gravity``: an unknown place's g is normal gravity
+at 45°, its spread carried in the σ); the poses are chosen as imu_tk chooses them, the set whose
+reference accelerometer fits best (``pose_choice.choose_poses``), the reference's noise model
+measured from that fit when none is given (``pose_choice.with_estimated_noise``); each triad is
+then solved on them (``solve_triads``): every other specific-force triad by the norm method
+(``static_solve``), each gyro from the rotations between poses (``gyro_solve``). When no
+threshold gives poses enough for the norm method but six of them lie on the faces, the Ferraris
+protocol solves instead (``aligned``). The result, a RecordingCalibration (``outcome``), is what
+``recording.results`` writes as the parameter file.
+
+The noise comes from the device's noise model when one is given (exact covariance of the pose
+means, bias instability included), else from a model of the same form measured from the
+recording (``noise_estimate``); either way the σ are scaled up by χ²/dof when the fit says the
+model is not all there is. The gyroscope's bias is the mean of every pose's still reading less
+the vertical Earth rate, its σ from those readings' scatter (``drift.still_bias``); a gyro
+reporting raw counts needs no nominal sensitivity: a scan over the scale finds the one that makes
+the motions' rotations fit.
 """
 from __future__ import annotations
 
-import math
-from functools import partial
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
-from fieldcal.earth import EARTH_RATE, Station, normal_gravity
-from fieldcal.model import calibrate_with
+from fieldcal.earth import Station
 from fieldcal.recording import Recording
-from fieldcal.recording.candidates import RATE_UNITS, Candidate, Detection, detect_candidates
-from fieldcal.recording.detect import (DetectionError, DetectorSettings, Poses, SpreadReport, TooFewPoses,
-                                      interval_means, too_short)
-from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
-from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
-from fieldcal.solvers import CalibrationError, solve_norm
-from fieldcal.solvers.norm import SCREEN
-from fieldcal.calibration import Calibration
-from fieldcal.solvers.problems import StaticNormProblem
-from fieldcal.recording.turns import rate_residuals
-from fieldcal.recording.up_covariance import MeansCovariance, UpCovariance, means_parts
-from fieldcal.solvers.rotation import Motions, RotationNoise, RotationStart, scan_scale, solve_rotations
-
-_SCAN = np.geomspace(1e-3, 1e6, 73)  # candidate gyro sensitivities (output units per rad/s), 8 a decade
-
-
-# Where nothing tells g: WGS84 normal gravity at 45°, within ±0.3 % of g anywhere people live
-# (9.780 m/s² at the equator to 9.832 at the poles, less up a mountain). A place is as likely
-# anywhere in that band, so its 1σ is the band's half-width over √3. Never the sensor's own norm:
-# the uncalibrated norm at rest holds the very scale error the calibration is to find.
-DEFAULT_LATITUDE_DEG = 45.0
-GRAVITY_SPREAD = 0.003  # relative half-width of the worldwide band
-DEFAULT_GRAVITY_SOURCE = (f"WGS84 normal gravity at {DEFAULT_LATITUDE_DEG:g}° (place unknown: g anywhere is within "
-                          f"±{GRAVITY_SPREAD:.1%} of it, carried in every scale factor's σ; give --latitude "
-                          "(and --height), or --gravity)")
-
-
-@dataclass(frozen=True)
-class UnknownPlace:
-    """A recording whose place is not known: no latitude, so the Earth rate (7.29e-5 rad/s, its
-    direction unknown) is an error term of Ω²/3 per axis instead of a known vertical part.
-    ``gravity``: m/s^2 as given, or None: normal gravity at 45° (see place_gravity), whose
-    relative 1σ ``gravity_relative_sigma`` widens every specific-force scale factor's σ.
-    Written to a parameter file as latitude 0 with this g as a given ("measured") one: a file's
-    gravity source is one of ``fieldcal.earth.GRAVITY_SOURCES`` (see recording.results)."""
-
-    gravity: float | None = None
-    gravity_source: str = "given (--gravity); place unknown"
-    latitude_deg: float = 0.0
-    height_m: float = 0.0
-    gravity_relative_sigma: float = 0.0
-
-    @property
-    def latitude_rad(self) -> float:
-        return 0.0
-
-
-def with_gravity_uncertainty(solution: Calibration, relative_sigma: float) -> tuple[Calibration, str]:
-    """A specific-force triad's solution with g's relative 1σ in its scale factors' σ, and a note
-    when that is most of their σ (else ""). Every scale factor is output per m/s², so a g wrong by
-    a fraction ε moves each by −ε·k and nothing else: to first order the covariance gains
-    σ²·v·vᵀ with v = −k on the scale factors."""
-    if relative_sigma <= 0:
-        return solution, ""
-    v = np.zeros(len(solution.theta))
-    v[3:6] = -solution.theta[3:6]
-    covariance = solution.covariance + relative_sigma**2 * np.outer(v, v)
-    widened = replace(solution, covariance=covariance, sigma=None)
-    own = np.sqrt(np.diag(solution.covariance)[3:6]) / np.abs(solution.theta[3:6])
-    note = ""
-    if np.all(own < relative_sigma):
-        total = float(np.max(widened.sigma[3:6] / np.abs(solution.theta[3:6])))
-        note = (f"{solution.name}: the scale factors' σ ({total:.2%}) is mostly the unknown g's "
-                f"({relative_sigma:.2%}, 1σ of ±{GRAVITY_SPREAD:.1%} worldwide; the fit alone: "
-                f"{float(np.max(own)) * 1e6:.3g} ppm): give --latitude (and --height), or --gravity")
-    return widened, note
-
-
-NORM_PROTOCOL = "hand-held poses: the norm method for the accelerometer, the rotations for the gyro"
-FORCE_ONLY_PROTOCOL = "static poses: the norm method for the accelerometer"
-ALIGNED_PROTOCOL = ("Ferraris: six axis-aligned poses and full turns; the aligned six-position solution for "
-                    "the accelerometer (the norm method needs 9 poses), the turns' ±2π integrals for the gyro")
-ALIGNED_FORCE_ONLY_PROTOCOL = ("six axis-aligned poses: the aligned six-position solution for the accelerometer "
-                               "(the norm method needs 9 poses)")
-
-
-@dataclass(frozen=True)
-class RecordingSettings:
-    """How ``calibrate_recording`` finds the poses and solves the triads."""
-    detector: DetectorSettings = field(default_factory=DetectorSettings)
-    method: str = "powell"  # the specific-force triads' norm solver
-    gyro_method: str = "lsq"
-    estimate_gyro_bias: bool = False  # else the poses' mean (less the vertical Earth rate)
-    # The device's noise per triad (SI), e.g. from its config: pose means then get their exact
-    # covariance, bias instability included. Without it, white noise measured over the rest.
-    noise: dict = field(default_factory=dict)
-    # Turns on a turntable at this rate (°/s) become rate-norm equations for the gyro solve.
-    table_rate_deg_s: float | None = None
-    # Each triad's scale temperature coefficient (ppm/K), e.g. from its device config: the σ of a
-    # Ferraris session's scale factors hold that drift (fieldcal.recording.ferraris.ScaleDrift).
-    scale_tempco_ppm_per_k: dict = field(default_factory=dict)
-    # A triad with no noise model in ``noise``: its white noise and bias instability estimated
-    # from the recording (see noise_estimate); False: white noise alone, as measured.
-    estimate_noise: bool = True
-
-
-@dataclass(frozen=True)
-class RecordingCalibration:
-    """What ``calibrate_recording`` found and solved, and what it did about the data."""
-    poses: Poses
-    spread: SpreadReport
-    tried: tuple[tuple[float, int, str], ...]  # (multiple, distinct poses, χ²/dof or why not)
-    specific_force: dict[str, Calibration]
-    angular_rate: dict[str, Calibration]  # method classic: the Ferraris turns
-    failures: dict[str, str]
-    reference_triad: str
-    gyro_bias_sigma: dict[str, np.ndarray]  # 1σ of each gyro's bias (output units)
-    turns: np.ndarray  # (k, 2) [start, stop) samples of steady turntable turns found
-    table_rate_used: bool = False  # the turns went into the gyro solve as rate equations
-    noise_source: str = "the initial rest"  # where the detector's noise level was measured
-    place: Station | UnknownPlace | None = None  # the station used (gravity filled in when unknown)
-    protocol: str = NORM_PROTOCOL  # which solution was chosen, and why
-    notes: tuple[str, ...] = ()  # what the solve did about the data, for the summary (e.g. clipped motions)
-    estimated_noise: dict = field(default_factory=dict)  # triad -> MeasuredNoise (SI) from the recording
-
-
-def _reduced_chi2(solution: Calibration) -> float:
-    return solution.diagnostics.chi2 / max(solution.diagnostics.dof, 1)
-
-
-def _solve_static(name, unit, means, intervals, t, variance, gravity, settings, method=None,
-                  white: Calibration | None = None) -> Calibration:
-    """``method``: the norm solver, settings.method unless given (SCREEN: only the minimum χ²).
-    ``white``: this very problem's solution by ``method`` on white-noise weights when it is at
-    hand (the solve a noise model's weights start from: not done again)."""
-    method = method or settings.method
-    problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
-                                labels=tuple(f"pose {i + 1}" for i in range(len(means))))
-    # White noise: each mean's per-axis 1σ, the (n, 3) form solve_norm weighs without an n×n matrix.
-    solution = white if white is not None else solve_norm(
-        problem, np.sqrt(variance[None, :] / np.diff(intervals, axis=1)), method=method)
-    noise = settings.noise.get(name)
-    if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
-        solution = solve_norm(problem, _means_covariance(intervals, t, variance, noise, solution.K, unit, parts=True),
-                              method=method)
-    # The noise alone under-states the σ when the poses scatter more than it says (the bias
-    # wanders, the temperature moves the scale, a hand trembles: χ²/dof > 1 says so), with a
-    # noise model as without one: the σ are scaled up by χ²/dof, never down.
-    fit = solution.diagnostics
-    ratio = fit.reduced_chi2 or 1.0
-    if ratio > 1.0 and not fit.scaled_by_residuals:
-        solution = replace(solution, covariance=solution.covariance * ratio, sigma=None,
-                           diagnostics=replace(fit, scaled_by_residuals=True))
-    return solution
-
-
-def _means_covariance(intervals, t, variance, noise, K, unit, parts: bool = False):
-    """Covariance of the flattened pose means (output units): white noise measured over the rest,
-    or, with the device's noise model and scale K, the exact one, bias instability included
-    (``parts``: kept by its parts, a MeansCovariance, as a norm solve weighs it in O(m²))."""
-    counts = np.diff(intervals, axis=1)[:, 0]
-    if noise is None:
-        return np.diag((variance[None, :] / counts[:, None]).ravel())
-    durations = counts * float(np.median(np.diff(t)))
-    if parts:
-        quantised = unit == "count" and not isinstance(noise, MeasuredNoise)
-        own = np.broadcast_to((1.0 / 12.0 / counts if quantised else np.zeros(len(counts)))[:, None], (len(counts), 3))
-        return MeansCovariance(noise.window_covariance(t[intervals[:, 0]], durations), K, own)
-    cov = np.kron(noise.window_covariance(t[intervals[:, 0]], durations), K @ K.T)
-    if unit == "count" and not isinstance(noise, MeasuredNoise):  # quantisation, one count (measured: in it)
-        cov += np.kron(np.diag(1.0 / 12.0 / counts), np.eye(3))
-    return cov
-
-
-def _up_vectors(acc: Calibration, means: np.ndarray, windows: np.ndarray | None,
-                own: np.ndarray) -> tuple[np.ndarray, UpCovariance]:
-    """Every pose's unit up vector (m, 3) and their covariance, by its parts (see
-    recording.up_covariance): each mean's own noise (``windows``, ``own``: ``means_parts``) and
-    the accelerometer calibration's error, which all poses share."""
-    a = calibrate_with(acc.theta, means)
-    norm = np.linalg.norm(a, axis=1)
-    u = a / norm[:, None]
-    D = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # (P, 3, 3) ∂u/∂a, pose by pose
-    shared = D @ _calibrated_jacobian(acc.theta, means).reshape(len(means), 3, -1)
-    return u, UpCovariance(D, windows, own, shared, acc.covariance)
-
-
-def _calibrated_jacobian(theta: np.ndarray, means: np.ndarray) -> np.ndarray:
-    """(3m, 9): ∂ calibrate_with(theta, means) / ∂theta, flattened pose by pose (central differences)."""
-    steps = 1e-6 * np.maximum(np.abs(theta), 1e-3)
-    return np.column_stack([((calibrate_with(theta + h * e, means)
-                              - calibrate_with(theta - h * e, means)) / (2 * h)).ravel()
-                            for h, e in zip(steps, np.eye(len(steps)))])
-
-
-def estimated_force_noise(solution: Calibration, means: np.ndarray, intervals: np.ndarray, t: np.ndarray,
-                          variance: np.ndarray, rate_hz: float, gravity: float) -> MeasuredNoise:
-    """A specific-force triad's noise model (SI) from its norm fit on white-noise weights: the
-    white noise of ``variance`` (output units² per sample, per axis), and the bias instability
-    that the pose means' scatter about the fit shows beyond it (``noise_estimate``). A norm
-    residual |a| − g sees a pose's noise along its up direction only, so two poses' flicker
-    is shared as uᵢ·uⱼ."""
-    a = calibrate_with(solution.theta, means)
-    u = a / np.linalg.norm(a, axis=1)[:, None]
-    m = len(means)
-    design = np.einsum("ik,ikp->ip", u, _calibrated_jacobian(solution.theta, means).reshape(m, 3, -1))
-    counts = np.diff(intervals, axis=1)[:, 0]
-    along = np.linalg.solve(solution.K.T, u.T).T  # K⁻ᵀu: an output-unit error's share along up
-    white = (along**2 @ variance) / counts
-    durations = counts / rate_hz
-    flicker = flicker_covariance(t[intervals[:, 0]], durations) * (u @ u.T)
-    b = bias_instability(np.linalg.norm(a, axis=1) - gravity, design, white, flicker, weights=1.0 / white)
-    K_inv = np.linalg.inv(solution.K)
-    white_si = float(np.sqrt(np.trace(K_inv @ np.diag(variance) @ K_inv.T) / 3 / rate_hz))
-    return MeasuredNoise(white=white_si, bias_instability=b)
+from fieldcal.recording.aligned import aligned_protocol, faces_missing
+from fieldcal.recording.candidates import Detection, detect_candidates
+from fieldcal.recording.detect import TooFewPoses, interval_means, too_short
+from fieldcal.recording.gyro_solve import solve_gyro
+from fieldcal.recording.outcome import (FORCE_ONLY_PROTOCOL, NORM_PROTOCOL, RecordingCalibration,
+                                        RecordingSettings)
+from fieldcal.recording.place import UnknownPlace, place_gravity, with_gravity_uncertainty
+from fieldcal.recording.pose_choice import PoseChoice, choose_poses, with_estimated_noise
+from fieldcal.recording.static_solve import estimated_force_noise, solve_static
+from fieldcal.solvers import CalibrationError
 
 
 def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
@@ -247,21 +49,27 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     detection = detect_candidates(recording, settings.detector)
     station = place_gravity(station)
     choice = choose_poses(recording, detection, station, settings)
-    if choice.best is None:
-        aligned = _aligned_protocol(recording, station, detection, choice.tried, settings)
-        if aligned is not None:
-            return _with_unknown_gravity(aligned)
-        most = max(choice.tried, key=lambda x: x[1])
-        poses = next(c.poses for c in detection.candidates if c.multiple == most[0])
-        faces = _faces_missing(detection, settings.detector.min_static_s)
-        raise TooFewPoses(f"no threshold gave usable poses; with the most ({most[1]} at "
-                          f"{most[0]:g}× the noise level): {most[2]}{too_short(poses, settings.detector)}"
-                          f"{faces}")
+    if choice.best is None:  # too few poses for the norm method: the six faces, if they are there
+        aligned = aligned_protocol(recording, station, detection, choice.tried, settings)
+        if aligned is None:
+            raise _no_usable_poses(detection, choice, settings)
+        return _with_unknown_gravity(aligned)
     estimated = ()
     if settings.estimate_noise and detection.reference not in settings.noise:
-        choice, settings = _with_estimated_noise(recording, detection, choice, station, settings)
+        choice, settings = with_estimated_noise(recording, detection, choice, station, settings)
         estimated = (detection.reference,)
     return _with_unknown_gravity(solve_triads(recording, detection, choice, station, settings, estimated))
+
+
+def _no_usable_poses(detection: Detection, choice: PoseChoice, settings: RecordingSettings) -> TooFewPoses:
+    """The refusal when no threshold's poses fit and they are not the six faces either: the
+    threshold that found the most poses, why they would not do, and what would help."""
+    most = max(choice.tried, key=lambda x: x[1])
+    poses = next(c.poses for c in detection.candidates if c.multiple == most[0])
+    faces = faces_missing(detection, settings.detector.min_static_s)
+    return TooFewPoses(f"no threshold gave usable poses; with the most ({most[1]} at "
+                       f"{most[0]:g}× the noise level): {most[2]}{too_short(poses, settings.detector)}"
+                       f"{faces}")
 
 
 def _with_unknown_gravity(cal: RecordingCalibration) -> RecordingCalibration:
@@ -275,98 +83,6 @@ def _with_unknown_gravity(cal: RecordingCalibration) -> RecordingCalibration:
         widened[name], note = with_gravity_uncertainty(solution, relative)
         notes += [note] if note else []
     return replace(cal, specific_force=widened, notes=cal.notes + tuple(notes))
-
-
-def _with_estimated_noise(recording: Recording, detection: Detection, choice: PoseChoice,
-                          station: Station | UnknownPlace, settings: RecordingSettings):
-    """The reference accelerometer's noise model measured from its chosen fit, and its solution
-    again with it; the settings carry the model on to the gyro's up vectors."""
-    reference, poses = detection.reference, choice.best.poses
-    noise = estimated_force_noise(choice.reference_solution, poses.means, poses.intervals, recording.t,
-                                  detection.noise.variance, recording.rate_hz, station.gravity)
-    settings = replace(settings, noise={**settings.noise, reference: noise})
-    solution = _solve_static(reference, recording.units[reference], poses.means, poses.intervals, recording.t,
-                             detection.noise.variance, station.gravity, settings, white=choice.reference_solution)
-    return replace(choice, reference_solution=solution), settings
-
-
-def _faces_missing(detection: Detection, min_static_s: float) -> str:
-    """For a refusal: when the poses found all lie on faces (a Ferraris session), which of the six
-    faces were not found still, and what would help."""
-    from fieldcal.recording.ferraris import missing_faces
-
-    candidate = max(detection.candidates, key=lambda c: len(c.poses.intervals))
-    missing = missing_faces(candidate.poses.up)
-    if not missing:
-        return ""
-    return (f"; for the Ferraris protocol (six faces and a full turn about each axis) {', '.join(missing)} "
-            f"{'was' if len(missing) == 1 else 'were'} not found still for {min_static_s:g} s: hold each face "
-            "still for longer, or give --min-still S")
-
-
-def place_gravity(station: Station | UnknownPlace) -> Station | UnknownPlace:
-    """The station, an unknown place's g filled in as normal gravity at 45° with its spread."""
-    if not (isinstance(station, UnknownPlace) and station.gravity is None):
-        return station
-    return replace(station, gravity=normal_gravity(DEFAULT_LATITUDE_DEG), gravity_source=DEFAULT_GRAVITY_SOURCE,
-                   gravity_relative_sigma=GRAVITY_SPREAD / math.sqrt(3))
-
-
-@dataclass(frozen=True)
-class PoseChoice:
-    """The poses stage's outcome: every multiple's (multiple, distinct poses, χ²/dof or why not),
-    and the best-fitting candidate with its reference accelerometer solution (None: none fits)."""
-
-    tried: tuple[tuple[float, int, str], ...]
-    best: Candidate | None = None
-    reference_solution: Calibration | None = None
-
-
-def choose_poses(recording: Recording, detection: Detection, station: Station | UnknownPlace,
-                 settings: RecordingSettings) -> PoseChoice:
-    """The candidate whose reference accelerometer fits best (smallest χ²/dof), as imu_tk chooses.
-
-    Each distinct set of poses is screened by the least χ² it allows (Gauss-Newton, the same
-    minimum Powell finds, at a fraction of the cost); only the best is solved by the method asked
-    for (the next best if that solve fails), so Powell runs once instead of once per set."""
-    reference, unit = detection.reference, recording.units[detection.reference]
-
-    def solve(poses, method=None):
-        try:
-            return _solve_static(reference, unit, poses.means, poses.intervals, recording.t,
-                                 detection.noise.variance, station.gravity, settings, method)
-        except CalibrationError as exc:
-            return str(exc)
-
-    screened: dict[bytes, Calibration | str] = {}  # several multiples often find the same intervals
-    keys = []
-    for candidate in detection.candidates:
-        key = candidate.poses.intervals.tobytes() if candidate.spread.ok else None
-        keys.append(key)
-        if key is not None and key not in screened:
-            screened[key] = solve(candidate.poses, SCREEN)
-            if isinstance(screened[key], str):  # the method asked for says why (or does better)
-                screened[key] = solve(candidate.poses)
-    solved: dict[bytes, Calibration | str] = {}
-    fits = [k for k in dict.fromkeys(k for k in keys if k is not None) if isinstance(screened[k], Calibration)]
-    for key in sorted(fits, key=lambda k: _reduced_chi2(screened[k])):  # stable: the first of equals wins
-        solution = screened[key]
-        if solution.diagnostics.search == SCREEN:
-            solution = solve(detection.candidates[keys.index(key)].poses)
-        solved[key] = solution
-        if isinstance(solution, Calibration):
-            break
-    tried, best = [], None
-    for candidate, key in zip(detection.candidates, keys):
-        poses, spread = candidate.poses, candidate.spread
-        if key is None:
-            tried.append((poses.multiple, spread.count, spread.message))
-            continue
-        sol = solved.get(key, screened[key])
-        tried.append((poses.multiple, spread.count, sol if isinstance(sol, str) else f"χ²/dof {_reduced_chi2(sol):.3g}"))
-        if best is None and isinstance(solved.get(key), Calibration):
-            best = (candidate, solved[key])
-    return PoseChoice(tuple(tried), *(best or ()))
 
 
 def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
@@ -385,15 +101,15 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
         values = recording.triads[name]
         means, variance = interval_means(values, keep), np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1)
         try:
-            solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
-                                     station.gravity, settings)
+            solution = solve_static(name, recording.units[name], means, keep, recording.t, variance,
+                                    station.gravity, settings)
             if settings.estimate_noise and name not in settings.noise:  # as the reference's
                 noise = estimated_force_noise(solution, means, keep, recording.t, variance, recording.rate_hz,
                                               station.gravity)
                 settings = replace(settings, noise={**settings.noise, name: noise})
                 estimated_names += (name,)
-                solution = _solve_static(name, recording.units[name], means, keep, recording.t, variance,
-                                         station.gravity, settings, white=solution)
+                solution = solve_static(name, recording.units[name], means, keep, recording.t, variance,
+                                        station.gravity, settings, white=solution)
             specific_force[name] = solution
         except CalibrationError as exc:
             failures[name] = str(exc)
@@ -402,7 +118,7 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
     estimated = {n: settings.noise[n] for n in estimated_names}
     for name in detection.rates:
         try:
-            angular_rate[name], bias_sigma[name], note, noise = _solve_gyro(
+            angular_rate[name], bias_sigma[name], note, noise = solve_gyro(
                 recording, name, poses, acc_solution, detection.noise.variance, station, settings, turns)
             notes += [note] if note else []
             estimated.update({name: noise} if noise is not None else {})
@@ -413,265 +129,3 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
                                 reference, bias_sigma, turns, used, detection.noise.source, station,
                                 NORM_PROTOCOL if detection.rates else FORCE_ONLY_PROTOCOL,
                                 notes=tuple(notes), estimated_noise=estimated)
-
-
-@dataclass(frozen=True)
-class GyroPrior:
-    """What the still poses say about a gyro before its rotation solve: ``scale`` (output units
-    per rad/s, the unit's or scanned for counts), ``bias`` (the mean of every pose's still
-    reading less the vertical Earth rate, see ``drift.still_bias``) and its 1σ ``bias_sigma``
-    (from the readings' scatter, drift counted), ``earth_variance`` (rad²/s² per axis the unknown heading leaves),
-    ``rate_noise`` (angle random walk, rad/√s) and ``rest_variance`` (output units², per axis)."""
-
-    scale: float
-    bias: np.ndarray
-    bias_sigma: np.ndarray
-    earth_variance: float
-    rate_noise: float
-    rest_variance: np.ndarray
-    wander_variance: float = 0.0  # rad²/s² per axis: how far the bias moves from pose to pose beyond the noise
-    estimated_noise: MeasuredNoise | None = None  # measured from the recording when no model was given
-
-
-def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, spans: np.ndarray,
-               station: Station | UnknownPlace, noise=None, estimate: bool = False,
-               motions: Motions | None = None) -> GyroPrior:
-    """``noise``: the gyro's TriadNoise from a device config, if any: its bias instability moves
-    every pose's reading alike, which their scatter cannot show, so it widens the bias's σ.
-    Without one and with ``estimate``, the model is measured from the poses' still readings
-    (see estimated_rate_noise). ``motions``: the solve's, when they hold the recording's own
-    timestamps (the scan then makes the steps the solve integrates, once)."""
-    t, gyro, iv = recording.t, recording.triads[name], poses.intervals
-    counts = np.diff(iv, axis=1)[:, 0]
-    rest = slice(iv[0, 0], iv[0, 1])
-    rest_mean = gyro[rest].mean(axis=0)
-    rest_var = np.var(gyro[rest], axis=0, ddof=1)
-    k = RATE_UNITS.get(recording.units[name])
-    if k is None:  # raw counts: the scale that makes the rotations fit
-        k = scan_scale(t, gyro, spans, up[:-1], up[1:], rest_mean, _SCAN, motions)
-    # Every pose's still reading: each one an estimate of the bias.
-    still, earth_var = _less_earth_rate(interval_means(gyro, iv), up, k, station)
-    # A real gyro's still reading moves between poses (g-sensitivity, warm-up, temperature, bias
-    # random walk): the mean over the poses, its σ from their scatter (see drift.still_bias); never
-    # below what the Earth rate and the white noise alone leave in a mean over independent poses.
-    white = np.mean(rest_var[None, :] / counts[:, None], axis=0) / len(iv)
-    times = 0.5 * (t[iv[:, 0]] + t[iv[:, 1] - 1])
-    b0, bias_sigma = still_bias(still, k**2 * earth_var / len(iv) + white, up, times, 0.5 * (t[0] + t[-1]))
-    # What the model leaves of the readings' scatter beyond the noise and the Earth rate: the bias
-    # wanders (random walk, warm-up's curve) and a motion between poses integrates that too.
-    X, _, residuals = still_fit(still, up, times, 0.5 * (t[0] + t[-1]))
-    wander = 0.0
-    if len(iv) > X.shape[1]:
-        spread = np.sum(residuals**2, axis=0) / (len(iv) - X.shape[1])
-        noise_floor = k**2 * earth_var + np.mean(rest_var[None, :] / counts[:, None], axis=0)
-        wander = float(np.mean(np.maximum(spread - noise_floor, 0.0))) / k**2
-    estimated = None
-    if noise is None and estimate:
-        noise = estimated = estimated_rate_noise(still, up, iv, t, k, rest_var, k**2 * earth_var,
-                                                 recording.rate_hz)
-    if noise is not None and noise.bias_instability:
-        weights = np.full(len(iv), 1.0 / len(iv))
-        model = weights @ noise.window_covariance(t[iv[:, 0]], counts / recording.rate_hz) @ weights
-        bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(k**2 * model - white, 0.0))
-    arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
-    return GyroPrior(k, b0, bias_sigma, earth_var, arw, rest_var, wander, estimated)
-
-
-def _less_earth_rate(still: np.ndarray, up: np.ndarray, scale: float,
-                     station: Station | UnknownPlace) -> tuple[np.ndarray, float]:
-    """The poses' still readings (m, 3) less the vertical Earth rate each sees (``scale``: output
-    units per rad/s), and the variance (rad²/s² per axis) of what is left of the Earth rate."""
-    if isinstance(station, UnknownPlace):  # all of the Earth rate is an error of known size
-        return still, EARTH_RATE**2 / 3
-    sin_lat, cos_lat = math.sin(station.latitude_rad), math.cos(station.latitude_rad)
-    # Unknown heading: the horizontal Earth rate is an error of known size, not a known offset.
-    return still - scale * EARTH_RATE * sin_lat * up, (EARTH_RATE * cos_lat) ** 2 / 2
-
-
-def estimated_rate_noise(still: np.ndarray, up: np.ndarray, intervals: np.ndarray, t: np.ndarray,
-                         scale: float, rest_variance: np.ndarray, earth_variance: float,
-                         rate_hz: float) -> MeasuredNoise:
-    """A gyro's noise model (rad/s) from its poses' ``still`` readings (m, 3, the vertical Earth
-    rate taken off) and their fit (``drift.still_fit``): the white noise of ``rest_variance``
-    (output units² per sample, ``scale`` output units per rad/s) and the bias instability their
-    scatter shows beyond it and beyond the horizontal Earth rate's ``earth_variance`` (output
-    units², a heading's share per pose)."""
-    counts = np.diff(intervals, axis=1)[:, 0]
-    times = 0.5 * (t[intervals[:, 0]] + t[intervals[:, 1] - 1])
-    design, _, residuals = still_fit(still, up, times)
-    white = float(np.mean(rest_variance)) / counts + earth_variance
-    b = bias_instability(residuals, design, white, flicker_covariance(t[intervals[:, 0]], counts / rate_hz))
-    k = abs(scale)
-    return MeasuredNoise(white=float(np.sqrt(np.mean(rest_variance) / rate_hz)) / k, bias_instability=b / k)
-
-
-def _solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration, acc_var: np.ndarray,
-                station: Station, settings: RecordingSettings,
-                turns: np.ndarray) -> tuple[Calibration, np.ndarray, str, MeasuredNoise | None]:
-    """The solution, its bias's 1σ, a note for the summary (or "") and the noise model
-    measured from the recording (None: given, or not estimated)."""
-    t, iv = regular_times(recording.t, recording.rate_hz), poses.intervals
-    spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
-    acc_noise = settings.noise.get(acc.name)  # quantisation as _means_covariance counts it
-    quantised = recording.units[acc.name] == "count" and not isinstance(acc_noise, MeasuredNoise)
-    up, up_cov = _up_vectors(acc, poses.means, *means_parts(iv, t, acc_var, acc_noise, acc.K, quantised))
-    gyro = recording.triads[name]
-    motions = Motions.of(t, gyro, spans, up[:-1], up[1:])
-    prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name),
-                       settings.estimate_noise, motions if t is recording.t else None)
-    extra = None
-    if settings.table_rate_deg_s is not None and len(turns):
-        extra = rate_residuals(gyro, recording.triads[acc.name], acc.theta, turns, settings.table_rate_deg_s,
-                               station, prior.bias, prior.scale, prior.rest_variance)
-    duration = t[spans[:, 1]] - t[spans[:, 0]]
-    # A motion during which the gyro sat at the end of its range integrates to a wrong rotation:
-    # its residual gets a variance of a whole turn, so it weighs nothing (the chain of poses and
-    # their covariance stay as they are).
-    clipped = saturated_spans(gyro, spans + [0, 1])
-    note = ""
-    if clipped.any():
-        note = (f"{name}: {int(clipped.sum())} of {len(spans)} motions left out of the solve: the gyro sat at "
-                "the end of its range (turn more slowly, or set a wider range)")
-    noise = RotationNoise(bias_sigma=prior.bias_sigma, up_covariance=up_cov, rate_noise=prior.rate_noise,
-                          motion_variance=(prior.earth_variance + prior.wander_variance) * duration**2
-                          + np.where(clipped, (2 * math.pi) ** 2, 0.0))
-    solution = solve_rotations(motions,
-                               RotationStart.of(prior.scale, prior.bias, settings.estimate_gyro_bias),
-                               noise, extra, settings.gyro_method, name, recording.units[name])
-    # Held, the bias's σ is bias_sigma (drift and g-sensitivity included); estimated, the fit's.
-    return solution, solution.sigma[:3], note, prior.estimated_noise
-
-
-def _aligned_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
-                      tried, settings: RecordingSettings) -> RecordingCalibration | None:
-    """The Ferraris protocol's solution when some threshold's poses are the six aligned ones
-    (see ``fieldcal.recording.ferraris``); None when none is."""
-    from fieldcal.recording import ferraris
-
-    found = [(c.poses, axes) for c in detection.candidates if (axes := ferraris.aligned_axes(c.poses.up)) is not None]
-    left_out = ""
-    if not found:  # six faces among tilted poses too few for the norm method: the faces alone
-        found = [(_only(c.poses, mask), axes) for c in detection.candidates
-                 if (faces := ferraris.face_poses(c.poses.up)) is not None for mask, axes in [faces]]
-        if not found:
-            return None
-        left_out = "the six faces alone (the norm method needs 9 distinct poses; {} tilted left out)"
-    poses, axes = max(found, key=lambda pa: len(pa[0].intervals))  # the most intervals: more data
-    if left_out:
-        tilted = next(c.poses for c in detection.candidates if c.poses.multiple == poses.multiple)
-        left_out = left_out.format(int(tilted.distinct.sum() - poses.distinct.sum()))
-    reference, noise = detection.reference, detection.noise
-    if detection.rates and noise.gyro_variance is not None:  # a turn's slow start kept in a pose
-        trimmed = ferraris.trim_turning_edges(recording.triads[detection.rates[0]], poses.intervals,
-                                              noise.gyro_variance, recording.rate_hz)
-        means = interval_means(recording.triads[reference], trimmed)
-        poses = replace(poses, intervals=trimmed, means=means)
-    failures: dict[str, str] = {}
-    specific_force, angular_rate, bias_sigma, estimated = {}, {}, {}, {}
-    drift = ferraris.ScaleDrift(recording.t, recording.temperature, settings.scale_tempco_ppm_per_k)
-    for name in detection.forces:
-        values, unit = recording.triads[name], recording.units[name]
-        means = interval_means(values, poses.intervals)
-        # White noise of the detector's level (or this triad's first pose); with the device's
-        # noise model the exact covariance, bias instability included, at the nominal scale.
-        variance = noise.variance if name == reference else np.var(
-            values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
-        # The nominal scale, from the faces' spread (±g on each axis): raw counts have an offset
-        # that the means' norm would count as scale.
-        scale = np.diag(np.ptp(means, axis=0) / (2 * station.gravity))
-        covariance = _means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
-        try:
-            specific_force[name] = ferraris.solve_aligned_accelerometer(
-                name, unit, means, axes, station.gravity, covariance, np.diff(poses.intervals, axis=1)[:, 0],
-                drift=(drift.at(name, poses.intervals), drift.note(name)))
-            if settings.estimate_noise and name not in settings.noise:
-                specific_force[name], estimated[name] = _with_shared_flicker(
-                    specific_force[name], means, poses.intervals, axes, recording.t, variance, recording.rate_hz,
-                    scale)
-        except CalibrationError as exc:
-            if name == reference:
-                raise
-            failures[name] = str(exc)
-    acc = specific_force[reference]
-    up = ferraris.up_vectors(acc, interval_means(recording.triads[reference], poses.intervals))
-    latitude = None if isinstance(station, UnknownPlace) else station.latitude_rad
-    # The covariance of the reference's interval means, where the turn axes' error comes from
-    # (ferraris.turn_up_variance): the config's noise model, else white noise. Not the estimated
-    # flicker: its shared part cancels in the up, and what its faster part moves between faces
-    # is in the faces' χ²/dof, which turn_up_variance scales by (with it, RMS z 0.71-0.74).
-    up_noise = settings.noise.get(reference)
-    up_means_cov = _means_covariance(poses.intervals, recording.t, noise.variance, up_noise, acc.K,
-                                     recording.units[reference])
-    for name in detection.rates:
-        gyro = recording.triads[name]
-        t = regular_times(recording.t, recording.rate_hz)
-        turns = ferraris.find_turns(gyro, recording.rate_hz, poses.intervals, up, RATE_UNITS.get(recording.units[name]),
-                                    t=t)
-        up_variance = ferraris.turn_up_variance(turns, poses.intervals, axes, up_means_cov, acc, station.gravity)
-        solve = partial(ferraris.solve_turns_gyro, name, recording.units[name], gyro, recording.rate_hz,
-                        poses.intervals, axes, turns, latitude, up_sigma=up_variance, t=t,
-                        drift=replace(drift, t=t))
-        try:
-            angular_rate[name] = solve(noise=settings.noise.get(name))
-            if settings.estimate_noise and name not in settings.noise:  # its flicker, then the σ again
-                estimated[name] = ferraris.estimated_turns_noise(
-                    gyro, poses.intervals, axes, t, recording.rate_hz, np.mean(np.abs(np.diag(angular_rate[name].K))))
-                angular_rate[name] = solve(noise=estimated[name])
-            bias_sigma[name] = angular_rate[name].sigma[:3]
-        except DetectionError as exc:
-            failures[name] = str(exc)
-    spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
-                          message="6 distinct poses, each along an axis (Ferraris)")
-    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate)) + (
-        (left_out,) if left_out else ())
-    return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
-                                bias_sigma, np.zeros((0, 2), int), False, noise.source, station,
-                                ALIGNED_PROTOCOL if detection.rates and not left_out else ALIGNED_FORCE_ONLY_PROTOCOL,
-                                notes, estimated_noise=estimated)
-
-
-def _only(poses: Poses, mask: np.ndarray) -> Poses:
-    """The poses of ``mask`` alone."""
-    return replace(poses, intervals=poses.intervals[mask], means=poses.means[mask], up=poses.up[mask],
-                   distinct=poses.distinct[mask])
-
-
-def _with_shared_flicker(solution: Calibration, means: np.ndarray, intervals: np.ndarray, axes: np.ndarray,
-                         t: np.ndarray, variance: np.ndarray, rate_hz: float,
-                         scale: np.ndarray) -> tuple[Calibration, MeasuredNoise]:
-    """A Ferraris accelerometer's solution with its biases' σ widened by the bias instability
-    that all faces share, and the noise model measured for it (SI; ``scale`` the nominal K).
-
-    B is measured within placements (ferraris.placement_runs): a full turn on the table brings
-    the unit back to the attitude it had, so the still intervals before and after it differ by
-    noise alone. A face set down again later is another placement with another tilt: grouped by
-    face, imucal's session put B at 14 mm/s² (its +x placements differ by 8 mm/s²), by placement
-    1.6 mm/s². (The six faces' fit, two degrees of freedom per axis, mostly sees how each face
-    was placed, not the sensor: it put B at 3 mg and every σ at 5 times.) Only the biases
-    change: the faces' scatter already widens every σ (χ²/dof), and what no scatter shows is the
-    part of the flicker all faces share, with the weights the solve gives each interval: each
-    face's first placement (ferraris.first_placements), not every interval on the face. (The
-    whole flicker of each axis's own two faces would count their difference from the others
-    twice, once here and once in χ²/dof: Ferraris Monte Carlo bias RMS z 0.76-0.87, not 0.81-0.91.)"""
-    from fieldcal.recording.ferraris import first_placements, placement_runs
-
-    counts = np.diff(intervals, axis=1)[:, 0]
-    run = placement_runs(axes)
-    placements = (run[:, None] == np.arange(run[-1] + 1)[None, :]).astype(float)  # interval × placement
-    white = float(np.mean(variance)) / counts
-    weights = 1.0 / white
-    root = np.sqrt(weights)[:, None]
-    fitted = placements @ np.linalg.lstsq(placements * root, means * root, rcond=None)[0]
-    flicker = flicker_covariance(t[intervals[:, 0]], counts / rate_hz)
-    b = bias_instability(means - fitted, placements, white, flicker, weights=weights)  # output units
-    # The flicker the six faces' means share, each face its first placement as the solve takes it
-    # (the rest of a bias's flicker, its two faces against the others, is in the faces' scatter).
-    common = first_placements(axes, counts).mean(axis=0)
-    shared = b**2 * float(common @ flicker @ common)
-    covariance = solution.covariance.copy()
-    covariance[:3, :3] += shared * np.eye(3)
-    sigma = solution.sigma.copy()
-    sigma[:3] = np.sqrt(sigma[:3] ** 2 + shared)
-    k = float(np.mean(np.abs(np.diag(scale))))
-    noise = MeasuredNoise(white=float(np.sqrt(np.mean(variance) / rate_hz)) / k, bias_instability=b / k)
-    return replace(solution, covariance=covariance, sigma=sigma), noise

@@ -1,7 +1,7 @@
 """The detect stage of a recording's calibration (import → detect → choose the poses → solve
 each triad → file): the noise level, measured once, then every threshold multiple's static poses,
 the turntable turns the gyro sees split out of them, each with its spread report. The next
-stage (``calibrate.choose_poses``) solves the accelerometer on each and keeps the best fit.
+stage (``pose_choice.choose_poses``) solves the accelerometer on each and keeps the best fit.
 """
 from __future__ import annotations
 

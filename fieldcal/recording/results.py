@@ -14,7 +14,8 @@ from fieldcal.calibration import CLASSIC_METHOD
 from fieldcal.earth import Station
 from fieldcal.paramfile import ParameterFile
 from fieldcal.recording import Recording
-from fieldcal.recording.calibrate import RecordingCalibration, UnknownPlace
+from fieldcal.recording.outcome import RecordingCalibration
+from fieldcal.recording.place import UnknownPlace
 from fieldcal.report import residual_text, solution_header, solution_table
 
 PROCEDURE = "recording"
@@ -33,9 +34,9 @@ def _file_station(station: Station | UnknownPlace) -> Station:
 def place_of(provenance) -> Station | UnknownPlace:
     """The place a recording's parameter file was calibrated for (its provenance), as
     ``_file_station`` wrote it: latitude 0, height 0 and a given g is an unknown place, and that g
-    normal gravity at 45° the default with its worldwide spread (see calibrate.place_gravity)."""
-    from fieldcal.earth import MEASURED
-    from fieldcal.recording.calibrate import DEFAULT_LATITUDE_DEG, normal_gravity
+    normal gravity at 45° the default with its worldwide spread (see place.place_gravity)."""
+    from fieldcal.earth import MEASURED, normal_gravity
+    from fieldcal.recording.place import DEFAULT_LATITUDE_DEG
 
     p = provenance
     if p.gravity_source != MEASURED:

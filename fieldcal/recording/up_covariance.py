@@ -5,7 +5,7 @@ products with the chain of motions cost O(m³) and hundreds of MiB on a long rec
 An up vector u_i = a_i/|a_i| moves by D_i·δa_i (D_i = ∂u/∂a at pose i), and a_i = K⁻¹(mean_i − b)
 by K⁻¹·δmean_i (each mean's noise) and by ∂a_i/∂θ·δθ (the accelerometer calibration's error, which
 every pose shares). With the device's noise model the means' covariance is W ⊗ K·Kᵀ (W the
-window covariance, bias instability included; ``_means_covariance``), so in a it is W_ij·I, plus
+window covariance, bias instability included; ``static_solve.means_covariance``), so in a it is W_ij·I, plus
 each mean's own part (white noise alone, or one count's quantisation).
 """
 from __future__ import annotations
@@ -94,7 +94,7 @@ class MeansCovariance:
 
 def means_parts(intervals: np.ndarray, t: np.ndarray, variance: np.ndarray, noise, K: np.ndarray,
                 quantised: bool) -> tuple[np.ndarray | None, np.ndarray]:
-    """(windows, own) of the pose means' covariance in a = K⁻¹·mean, as ``_means_covariance``
+    """(windows, own) of the pose means' covariance in a = K⁻¹·mean, as ``static_solve.means_covariance``
     makes it in output units: white noise per axis alone (no noise model), else the model's
     window covariance on every axis alike plus, for ``quantised`` raw counts, one count's."""
     counts = np.diff(intervals, axis=1)[:, 0]

@@ -33,7 +33,7 @@ _LINE_TOL_SIGMA = 1e-4
 _STOP_DECREASE = 1e-7
 _BOX_SIGMA = 100.0
 # Not a user's method: the least χ² a set of averages allows, found by Gauss-Newton from the same
-# start, to choose among pose sets (recording.calibrate.choose_poses) before one solve by the
+# start, to choose among pose sets (recording.pose_choice.choose_poses) before one solve by the
 # method asked for. It finds the same minimum as Powell at a quarter of the cost (1.5 ms against
 # 6.9 ms a pose set of imu_tk's recording, the solve's set-up included); scipy's
 # least_squares costs as much as Powell on these problems, and its Levenberg-Marquardt stops
