@@ -95,7 +95,8 @@ class TargetTracker:
         for name, model in self.models.items():
             scale = np.array([display_scale(model.kind, model.output_unit, j) for j in range(len(PARAM_NAMES))])
             sigma = np.where(np.isfinite(sigmas[name]), sigmas[name] * scale, np.inf)  # nan: not told apart
-            ratio = np.where(np.isfinite(self.targets[name]), sigma / self.targets[name], -1.0)
+            targeted = np.isfinite(self.targets[name])  # an untargeted parameter (inf) never leads
+            ratio = np.divide(sigma, self.targets[name], out=np.full(sigma.shape, -1.0), where=targeted)
             j = int(np.argmax(ratio))
             out.append(TriadStanding(name, PARAM_NAMES[j], float(sigma[j]), float(self.targets[name][j]),
                                      param_unit(model.kind, model.output_unit, j)))
