@@ -1,8 +1,8 @@
 """Device ends of virtual serial links: a pseudo-terminal pair, or a TCP socket on 127.0.0.1.
 
 The station opens ``url`` with pyserial exactly as it would a real port. ``unplug()`` and
-``replug()`` simulate a pulled cable: the pty's device end is closed and a new pair created
-behind the same stable symlink (as udev's /dev/serial/by-id links behave), or the TCP
+``replug()`` simulate a pulled cable: the pty's device end is closed and its stable symlink
+removed, and a new pair is created behind the same symlink (as udev's /dev/serial/by-id links behave), or the TCP
 connection is dropped and the listener keeps the same port number.
 """
 from __future__ import annotations
@@ -50,6 +50,10 @@ class PtyLink:
         with self._lock:
             fds = [fd for fd in (self._master, self._slave) if fd is not None]
             self._master = self._slave = None
+        # The link goes with the device, as udev's by-id link does: left pointing at the closed
+        # /dev/pts/N, a station retrying would open whichever process's pty takes that number next.
+        if self.link.is_symlink():
+            self.link.unlink()
         for fd in fds:
             os.close(fd)
 
