@@ -199,6 +199,24 @@ def test_replay_refuses_step_averages_that_are_not_the_samples_averages(pristine
     assert "accelerometer" in err[0] and "differ" in err[0] and "samples" in err[0]
 
 
+@pytest.mark.parametrize("field, change", [("rate_deg_s", 0.5), ("start", 1e-3), ("duration", -1e-3)])
+def test_replay_refuses_a_step_whose_window_was_moved_or_its_rate_changed(pristine_session, tmp_path, capsys,
+                                                                           field, change):
+    """Not only the means: a window's table rate or edges, forged with the CRC recomputed, change
+    what the solvers read (a reviewer's forged rate moved the gyro bias σ from 0.4 to 56 °/h while
+    replay said identical); replay refuses, naming the line and the field."""
+    session = _copy(pristine_session, tmp_path / "s")
+    docs = _lines(session)
+    i = _first_step(docs)
+    window = docs[i]["data"]["windows"][-1]
+    window[field] += change
+    _write(session, docs, crc=True)
+    assert main(["replay", str(session), "--quiet", *_registry(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert f"{session / 'log.jsonl'}: line {i + 1}: " in err[0] and f"logged {field}" in err[0]
+
+
 def test_the_averages_check_passes_an_untouched_session(pristine_session, tmp_path, capsys):
     """The same check on the untouched copy: the averages agree bit for bit (same environment)."""
     session = _copy(pristine_session, tmp_path / "s")

@@ -10,6 +10,8 @@ wrote (byte for byte in the same environment), whatever re-solves wrote after it
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from fieldcal.run.conductor import Conductor, Operator, Reporter
@@ -47,7 +49,22 @@ def check_averages(record: RunRecord, conductor: Conductor) -> None:
                 [(w.kind, tuple(sorted(w.means))) for w in logged.windows]:
             raise SessionError(f"{where}: its windows differ from those the samples give on replay",
                                str(record.directory / LOG), doc.line)
+        if again.position_id != logged.position_id:
+            raise SessionError(f"{where}: its position id {logged.position_id} is not the one the samples give on "
+                               f"replay ({again.position_id}); the step documents are not the samples'",
+                               str(record.directory / LOG), doc.line)
         for i, (a, b) in enumerate(zip(logged.windows, again.windows)):
+            # what the solvers read besides the means: where the window lies, its table rate and
+            # temperature (a forged rate or edge moved the gyro's σ 140-fold while replay vouched)
+            for field in ("start", "duration", "rate_deg_s", "temperature_c"):
+                x, y = getattr(a, field), getattr(b, field)
+                same = x == y if (exact or x is None or y is None) else \
+                    math.isclose(x, y, rel_tol=AVERAGES_RTOL, abs_tol=1e-12)
+                if not same:
+                    raise SessionError(
+                        f"{where}: window {i + 1} ({a.kind}): the logged {field} {x} and the samples' {y} differ; "
+                        "the step document was changed after it was written: refused (restore the session "
+                        "from a copy)", str(record.directory / LOG), doc.line)
             for name in a.means:
                 x, y = np.asarray(a.means[name], float), np.asarray(b.means[name], float)
                 same = np.array_equal(x, y) if exact else np.allclose(x, y, rtol=AVERAGES_RTOL, atol=0.0)
