@@ -11,9 +11,11 @@ raised as the caller's own ValueError subclass.
 from __future__ import annotations
 
 import difflib
+import errno
 import math
 import os
 import re
+import stat
 from typing import Literal, NoReturn, Sequence, overload
 
 import numpy as np
@@ -319,8 +321,16 @@ def read_yaml_text(path: str | os.PathLike, error: type[ValueError], what: str) 
     every failure is one line naming the file."""
     name = os.fspath(path)
     try:
-        with open(path, "rb") as f:
-            note_read(os.fstat(f.fileno()))  # a file this command read is never written over
+        # O_NONBLOCK: a FIFO with no writer would block the open (and the command) for ever
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(fd)
+            if stat.S_ISDIR(st.st_mode):
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), name)
+            if not stat.S_ISREG(st.st_mode):
+                raise error(f"{name}: not a regular file (a FIFO, socket or device): not read as a {what}", name)
+            os.set_blocking(fd, True)
+            note_read(st)  # a file this command read is never written over
             data = f.read(MAX_YAML_BYTES + 1)
     except OSError as exc:
         raise error(f"{name}: cannot read {what} ({exc.strerror or exc})", name) from None

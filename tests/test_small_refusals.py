@@ -83,3 +83,17 @@ def test_export_to_a_closed_stdout_is_one_line(tmp_path):
                           capture_output=False, stderr=subprocess.PIPE, text=True,
                           preexec_fn=lambda: os.close(1))
     assert done.returncode == 2 and done.stderr == "fieldcal: export: standard output is closed: give --out FILE\n"
+
+
+@pytest.mark.parametrize("argv", [["export", "{fifo}", "--format", "json"],
+                                  ["run", "--headless", "--config", "{fifo}"],
+                                  ["run", "--headless", "--procedure", "{fifo}"]])
+def test_a_fifo_given_as_a_yaml_input_is_refused_at_once(tmp_path, capsys, argv):
+    """A FIFO with no writer as a parameter file, config or procedure: one line, never a command
+    blocked for ever in open() (a reviewer's reproduction hung each of these)."""
+    import os
+
+    fifo = tmp_path / "in.yaml"
+    os.mkfifo(fifo)
+    assert main([a.format(fifo=fifo) for a in argv] + (["--out", str(tmp_path / "s")] if argv[0] == "run" else [])) == 2
+    assert f"{fifo}: not a regular file (a FIFO, socket or device)" in _one_line(capsys)
