@@ -217,6 +217,22 @@ def test_replay_refuses_a_step_whose_window_was_moved_or_its_rate_changed(pristi
     assert f"{session / 'log.jsonl'}: line {i + 1}: " in err[0] and f"logged {field}" in err[0]
 
 
+def test_a_step_document_without_windows_is_refused_by_solve_and_resolve(pristine_session, tmp_path, capsys):
+    """A completed step with no window (CRC recomputed): solve once exited 0 and resolve wrote a
+    new current parameter file from it (a reviewer's reproduction); now one line naming the line."""
+    session = _copy(pristine_session, tmp_path / "s")
+    docs = _lines(session)
+    i = _first_step(docs)
+    docs[i]["data"]["windows"] = []
+    _write(session, docs, crc=True)
+    for argv in (["solve", str(session)], ["resolve", str(session), *_registry(tmp_path)]):
+        status = main(argv)
+        captured = capsys.readouterr()
+        assert status != 0, argv
+        assert f"line {i + 1}" in captured.err + captured.out and "'windows' is empty" in captured.err + captured.out
+    assert not (session / "parameters-002.yaml").exists()
+
+
 def test_the_averages_check_passes_an_untouched_session(pristine_session, tmp_path, capsys):
     """The same check on the untouched copy: the averages agree bit for bit (same environment)."""
     session = _copy(pristine_session, tmp_path / "s")

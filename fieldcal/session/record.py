@@ -147,6 +147,8 @@ def _problem(data, n_positions: int) -> str | None:
     windows = data.get("windows")
     if not isinstance(windows, list):
         return "no 'windows' list" if "windows" not in data else "'windows' must be a list"
+    if not windows:  # a completed step averaged at least its static dwell
+        return "'windows' is empty (a completed step has at least one averaged window)"
     for i, w in enumerate(windows):
         where = f"windows[{i}]"
         if not isinstance(w, dict):
