@@ -7,7 +7,6 @@ with a re-solve's file instead of the run's, and forged step averages that repla
 """
 import json
 import re
-import shutil
 import zlib
 from pathlib import Path
 
@@ -16,22 +15,7 @@ import pytest
 
 from fieldcal.cli.main import main
 from fieldcal.paramfile import hash_inputs, load
-from test_registry import QUICK
-
-
-@pytest.fixture(scope="module")
-def pristine_session(tmp_path_factory):
-    """One completed headless run (the simulated MIMU, the quick procedure)."""
-    out = tmp_path_factory.mktemp("runs")
-    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(out), "--seed", "5",
-                 "--registry", str(out / "unused.sqlite")]) == 0
-    [session] = [p for p in out.iterdir() if p.is_dir()]
-    return session
-
-
-def _copy(session: Path, where: Path) -> Path:
-    shutil.copytree(session, where, ignore=shutil.ignore_patterns("lock"))
-    return where
+from test_production import _copy, pristine_session  # noqa: F401 (a module fixture, requested by name)
 
 
 def _lines(session: Path) -> list[dict]:

@@ -62,7 +62,7 @@ def unwritable(tmp_path) -> Path:
 
 
 def one_line(capsys, argv, code=None) -> str:
-    status = main(argv)
+    status = main([str(a) for a in argv])  # (paths given as they are)
     err = capsys.readouterr().err
     assert "Traceback" not in err
     lines = err.strip().splitlines()

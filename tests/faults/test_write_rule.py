@@ -24,18 +24,9 @@ import pytest
 from fieldcal.cli.main import main
 from fieldcal.session.capture import LOG, SAMPLES, SessionReader
 from fieldcal.session.lock import SessionLock
+from test_outputs import one_line
 
 VICTIM = b"the user's own file: never to be written by fieldcal\n"
-
-
-def one_line(capsys, argv, code=None) -> str:
-    status = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = err.strip().splitlines()
-    assert status != 0 and (code is None or status == code), (status, err)
-    assert len(lines) == 1, err
-    return lines[0]
 
 
 def plant(link: Path, victims: Path, content: bytes = VICTIM) -> Path:
