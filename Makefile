@@ -1,4 +1,5 @@
-# Two entry points for a fresh machine (Python 3.11 + pip): `make demo` and `make test`.
+# Two entry points for a fresh machine (Python 3.11 + pip): `make demo` and `make test`; `make docs`
+# builds the guide.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -8,12 +9,12 @@ STAMP := $(VENV)/.installed
 # commit both). The product's own requirements in pyproject.toml stay ranges.
 CONSTRAINTS := constraints.txt
 
-.PHONY: demo test test-fast constraints mutants bench clean
+.PHONY: demo test test-fast docs constraints mutants bench clean
 
 $(STAMP): pyproject.toml $(CONSTRAINTS)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -c $(CONSTRAINTS) -e '.[test]'
+	$(BIN)/pip install --quiet -c $(CONSTRAINTS) -e '.[test,docs]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -29,13 +30,18 @@ test: $(STAMP)
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -n auto --dist loadgroup -m "not slow" $(PYTEST_ARGS)
 
+# The guide (mkdocs.yml, docs/) into site/, strictly: a broken link, a page missing from the nav or
+# any other warning fails. (NO_MKDOCS_2_WARNING: Material's notice about MkDocs 2 on every build.)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 # Regenerate constraints.txt from the newest releases pyproject.toml's ranges allow, in a
 # scratch environment (the working .venv is left alone).
 constraints:
 	rm -rf .venv-constraints
 	$(PYTHON) -m venv .venv-constraints
 	.venv-constraints/bin/pip install --quiet --upgrade pip
-	.venv-constraints/bin/pip install --quiet -e '.[test]'
+	.venv-constraints/bin/pip install --quiet -e '.[test,docs]'
 	{ echo "# Exact versions for the test environment (make test): regenerate with make constraints."; \
 	  .venv-constraints/bin/pip freeze --exclude-editable; } > $(CONSTRAINTS).new
 	mv $(CONSTRAINTS).new $(CONSTRAINTS)
@@ -62,4 +68,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/accuracy.py
 
 clean:
-	rm -rf $(VENV) .venv-constraints $(MUTANTS_VENV) mutants build *.egg-info
+	rm -rf $(VENV) .venv-constraints $(MUTANTS_VENV) mutants build site *.egg-info

@@ -30,7 +30,7 @@ def _lines(session: Path) -> list[dict]:
 
 def _write(session: Path, docs: list[dict], crc: bool = True) -> None:
     """The documents back as log lines, each with a CRC recomputed the writer's way (a forger
-    who read docs/session-format.md), or with none (format 1)."""
+    who read docs/reference/session-format.md), or with none (format 1)."""
     out = []
     for doc in docs:
         body = json.dumps(doc, ensure_ascii=True, separators=(",", ":")).encode("ascii")

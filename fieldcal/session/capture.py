@@ -1,7 +1,7 @@
 """The on-disk session: one calibration run (and its resumptions), captured append-only.
 
 The format (log.jsonl documents, samples.bin records, durability rules, use) is specified in
-docs/session-format.md; change the two together.
+docs/reference/session-format.md; change the two together.
 """
 from __future__ import annotations
 
