@@ -28,6 +28,14 @@ def _sections(parser: argparse.ArgumentParser, words: tuple[str, ...]):
         yield from _sections(sub, (*words, name))
 
 
+def command_parsers() -> dict[tuple[str, ...], argparse.ArgumentParser]:
+    """Every command's parser by its words, ('calibrate',), ('sim', 'serve'), ...: what the page
+    shows, and what tests/test_docs.py checks the commands a page names against."""
+    from fieldcal.cli.main import build_parser
+
+    return dict(_sections(build_parser(), ()))
+
+
 def commands_page() -> str:
     from fieldcal.cli.main import build_parser
 
