@@ -12,8 +12,8 @@ How a page's commands are run (the harness):
   and nothing else puts `fieldcal` on PATH (the test's own venv is taken off it), so a page that
   forgets to activate fails. A failing command names its page, block and line.
 - The working directory is a fresh temporary directory per page, laid out like the checkout for
-  what pages name: `.venv` is a symbolic link to the checkout's (the commands run the code under
-  test), and `configs/`, `procedures/`, `benchmarks/`, `tests/data/real/` and `tests/faults/` are
+  what pages name: `.venv` is a symbolic link to the environment running the tests (the
+  checkout's .venv under `make test`, so the commands run the code under test), and `configs/`, `procedures/`, `benchmarks/`, `tests/data/real/` and `tests/faults/` are
   copies, so a command that writes beside its input cannot touch the checkout. `$XDG_DATA_HOME`
   and `$XDG_CONFIG_HOME` point into it (the unit registry, the TUI's last setup).
 - Not run, still checked: in every block, run or not, each `fieldcal COMMAND` names a command
@@ -207,13 +207,24 @@ def test_readme_is_short_and_its_links_resolve():
     assert not broken, f"README.md links to files that do not exist: {broken}"
 
 
+def test_readme_reaches_a_calibrated_real_recording_in_three_commands_after_set_up():
+    """The issue's promise: after `make demo` and `make test`, at most 3 commands to a calibrated
+    bundled recording (and the command that does it is one the page's test runs)."""
+    commands = []
+    for block in runnable(ROOT / "README.md"):
+        joined = block.text.replace("\\\n", " ")
+        commands += [line.split("#", 1)[0].strip() for line in joined.splitlines() if line.split("#", 1)[0].strip()]
+    first = next(i for i, c in enumerate(commands) if c.startswith("fieldcal calibrate tests/data/real/"))
+    assert first + 1 <= 3, commands[:first + 1]
+
+
 # --------------------------------------------------------------------------------------------
 # Running the blocks
 
 def _page_directory(tmp_path: Path) -> Path:
     work = tmp_path / "page"
     work.mkdir()
-    (work / ".venv").symlink_to(ROOT / ".venv", target_is_directory=True)
+    (work / ".venv").symlink_to(Path(sys.prefix), target_is_directory=True)  # the venv under test
     for name in COPIED:
         shutil.copytree(ROOT / name, work / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     return work
