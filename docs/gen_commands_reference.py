@@ -14,17 +14,20 @@ PAGE = "reference/commands.md"
 HELP_WIDTH = 100  # argparse wraps to $COLUMNS: fixed, so the page is the same on every terminal
 
 
-def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, tuple[argparse.ArgumentParser, str]]:
+    """Each subcommand's parser and its one-line help, as its parent's help lists it."""
     for action in parser._actions:  # argparse keeps its subparsers only here
         if isinstance(action, argparse._SubParsersAction):
-            return dict(action.choices)
+            summaries = {choice.dest: choice.help or "" for choice in action._choices_actions}
+            return {name: (sub, summaries.get(name, "")) for name, sub in action.choices.items()}
     return {}
 
 
 def _sections(parser: argparse.ArgumentParser, words: tuple[str, ...]):
-    """(command words, parser) for every command under ``parser``, depth first, in its order."""
-    for name, sub in _subcommands(parser).items():
-        yield (*words, name), sub
+    """(command words, parser, one-line help) for every command under ``parser``, depth first,
+    in its order."""
+    for name, (sub, summary) in _subcommands(parser).items():
+        yield (*words, name), sub, summary
         yield from _sections(sub, (*words, name))
 
 
@@ -33,7 +36,7 @@ def command_parsers() -> dict[tuple[str, ...], argparse.ArgumentParser]:
     shows, and what tests/test_docs.py checks the commands a page names against."""
     from fieldcal.cli.main import build_parser
 
-    return dict(_sections(build_parser(), ()))
+    return {words: parser for words, parser, _ in _sections(build_parser(), ())}
 
 
 def commands_page() -> str:
@@ -48,8 +51,10 @@ def commands_page() -> str:
                  "This page is generated from the commands' own argument parsers each time the "
                  "guide is built (`docs/gen_commands_reference.py`), so it is always today's.", "",
                  "```text", top.format_help().rstrip(), "```", ""]
-        for words, parser in _sections(top, ()):
+        for words, parser, summary in _sections(top, ()):
             lines += [f"## fieldcal {' '.join(words)}", ""]
+            if summary:
+                lines += [summary[0].upper() + summary[1:] + ".", ""]
             lines += ["```text", parser.format_help().rstrip(), "```", ""]
         return "\n".join(lines)
     finally:
