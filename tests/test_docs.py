@@ -2,7 +2,7 @@
 
 How a page's commands are run (the harness):
 
-- Every fenced block opened by a line "```sh" at the start of a line is a command block; its
+- Every fenced block opened by a line "```sh" (indented in a list item too) is a command block; its
   first line may be "# not run: REASON" (a real serial port, a PostgreSQL URL, a long
   benchmark), and then it is not run, but a marker without a reason fails. Other shell tags
   (bash, shell, console) are refused, so no command can hide from the harness; output goes in
@@ -69,15 +69,15 @@ def fenced_blocks(page: Path) -> list[tuple[str, int, str]]:
     blocks, lines = [], page.read_text(encoding="utf-8").splitlines()
     i = 0
     while i < len(lines):
-        opening = re.match(r"(`{3,}|~{3,})\s*([^\s`]*)", lines[i])
+        opening = re.match(r"( *)(`{3,}|~{3,})\s*([^\s`]*)", lines[i])  # indented in a list item too
         if not opening:
             i += 1
             continue
-        fence, tag, start = opening[1], opening[2].lower(), i + 1
+        indent, fence, tag, start = len(opening[1]), opening[2], opening[3].lower(), i + 1
         i += 1
-        while i < len(lines) and not lines[i].startswith(fence):
+        while i < len(lines) and not lines[i].lstrip().startswith(fence):
             i += 1
-        blocks.append((tag, start + 1, "\n".join(lines[start:i])))
+        blocks.append((tag, start + 1, "\n".join(line[indent:] for line in lines[start:i])))
         i += 1
     return blocks
 
@@ -288,10 +288,11 @@ def test_a_failing_block_fails_the_page_and_a_forgotten_activation_too(tmp_path)
 def test_a_marker_without_a_reason_is_caught_and_one_with_a_reason_skips(tmp_path):
     page = tmp_path / "x.md"
     page.write_text("```sh\n# not run:\nfieldcal tui\n```\n\n```sh\n# not run: a real serial port\n"
-                    "fieldcal monitor --config vn100\n```\n\n```text\nnot a command\n```\n")
-    first, second = sh_blocks(page)
+                    "fieldcal monitor --config vn100\n```\n\n```text\nnot a command\n```\n"
+                    "- a list item:\n\n    ```sh\n    fieldcal units\n    ```\n")
+    first, second, in_a_list = sh_blocks(page)
     assert first.not_run_reason == "" and second.not_run_reason == "a real serial port"
-    assert runnable(page) == []
+    assert runnable(page) == [in_a_list] and in_a_list.text == "fieldcal units"
 
 
 def test_the_option_check_sees_a_stale_option(tmp_path):
