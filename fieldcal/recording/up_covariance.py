@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fieldcal.recording.noise_estimate import window_covariance
+
 
 @dataclass(frozen=True)
 class UpCovariance:
@@ -103,6 +105,6 @@ def means_parts(intervals: np.ndarray, t: np.ndarray, variance: np.ndarray, nois
         own = (K_inv[None] * (variance[None, None, :] / counts[:, None, None])) @ K_inv.T
         return None, own
     durations = counts * float(np.median(np.diff(t)))
-    windows = noise.window_covariance(t[intervals[:, 0]], durations)
+    windows = window_covariance(noise, t[intervals[:, 0]], durations)
     scale = (1.0 / 12.0 / counts) if quantised else np.zeros(len(counts))
     return windows, scale[:, None, None] * (K_inv @ K_inv.T)[None]
