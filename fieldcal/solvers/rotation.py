@@ -482,14 +482,15 @@ def _chained_up_covariance(E, C, up_covariance):
                for c in range(3)).reshape(2 * m, 2 * m)  # (A·U)·Aᵀ
 
 
-def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_variance=None):
-    """(2m, 2m) covariance of the rotation residuals from the direction and rate noise.
+def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_variance=None, out=None):
+    """(2m, 2m) covariance of the rotation residuals from the direction and rate noise (into
+    ``out``, zeros of that shape, when given).
 
     A direction error δ at the start pose reaches the residual as E_endᵀ·Cᵀ·δ, one at the end
     as −E_endᵀ·δ; both are isotropic in the tangent plane. A pose shared by motions i and i+1
     correlates them by −σ²·E_iᵀ·C_{i+1}·E_{i+1}."""
     m = len(E)
-    cov = np.zeros((2 * m, 2 * m))
+    cov = np.zeros((2 * m, 2 * m)) if out is None else out
     if up_sigma is not None:
         s = np.asarray(up_sigma, dtype=float)
         s = np.broadcast_to(s[:, None] if s.ndim == 1 else s, (m, 2))
@@ -671,13 +672,20 @@ def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side
     m, start, steps = len(model.motions.spans), model.start, model.steps
     K_inv0 = model.unpack(model.theta0)[1]
     C = Rotation.from_quat(q_start).as_matrix()
-    cov = _residual_covariance(model.E, C, model.motions.shared, noise.up_sigma, noise.rate_noise,
-                               steps.duration, noise.motion_variance)
+    # One dense matrix, made, factored and inverted in place: on a long recording (2m ≈ 1300 on
+    # imu_tk's joined 16×) each more copy is another 13 MiB at the solve's peak of memory.
+    full = np.zeros((2 * m + n_side,) * 2)
+    cov = full[:2 * m, :2 * m]
+    _residual_covariance(model.E, C, model.motions.shared, noise.up_sigma, noise.rate_noise,
+                         steps.duration, noise.motion_variance, out=cov)
     if noise.up_covariance is not None:  # a matrix, or its parts (one with a chained method)
         chained = getattr(noise.up_covariance, "chained", None)
-        cov += chained(model.E, C) if chained is not None else _chained_up_covariance(
-            model.E, C, np.asarray(noise.up_covariance, dtype=float))
-    cov = np.block([[cov, np.zeros((2 * m, n_side))], [np.zeros((n_side, 2 * m)), np.eye(n_side)]])
+        if chained is not None and n_side == 0:
+            chained(model.E, C, out=full)
+        else:
+            cov += chained(model.E, C) if chained is not None else _chained_up_covariance(
+                model.E, C, np.asarray(noise.up_covariance, dtype=float))
+    full[range(2 * m, 2 * m + n_side), range(2 * m, 2 * m + n_side)] = 1.0
     if noise.bias_sigma is not None and not start.estimate_bias:
         G = J_start[:, :3]
         model_extra = model.extra
@@ -685,12 +693,16 @@ def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side
             def extra(b):
                 return np.atleast_1d(np.asarray(model_extra(K_inv0, b.copy()), dtype=float))
             G = np.vstack([G, _jacobian(extra, start.b0, 1e-6 * np.abs(np.diag(start.K0)))])
-        cov += G @ np.diag(model.sigma_b**2) @ G.T
-    try:
-        L = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        raise CalibrationError(f"{name}: the residual covariance is not positive definite") from None
-    return lapack.dtrtri(L, lower=1)[0]  # L⁻¹, by the triangular inverse: a third of a general one's work
+        full += (G * model.sigma_b**2) @ G.T
+    # LAPACK reads the C-ordered symmetric matrix as its transpose (the same matrix): the upper
+    # factor U there (UᵀU = cov) is L = Uᵀ here, and U's inverse there L⁻¹ here.
+    U, info = lapack.dpotrf(full.T, lower=0, clean=1, overwrite_a=1)
+    if info != 0:
+        raise CalibrationError(f"{name}: the residual covariance is not positive definite")
+    inverse, info = lapack.dtrtri(U, lower=0, overwrite_c=1)
+    if info != 0:
+        raise CalibrationError(f"{name}: the residual covariance is not positive definite")
+    return inverse.T  # L⁻¹, by the triangular inverse: a third of a general one's work
 
 
 _STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the solve
