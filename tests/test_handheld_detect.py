@@ -315,3 +315,24 @@ def test_a_too_short_recording_without_rest_names_the_option():
     rec = recording(1, n_poses=3)
     with pytest.raises(DetectionError, match=r"give --rest S if it starts with S seconds still"):
         noise_level(rec.accelerometer[:2000], rec.rate_hz, DetectorSettings())
+
+
+def test_interval_means_are_each_intervals_own_mean():
+    """interval_means sums intervals in order where they lie (and falls back to the prefix sums
+    for any others): each is the plain mean of its samples, exactly for raw counts, whether the
+    intervals touch, end at the last sample, overlap or come out of order."""
+    from fieldcal.recording.detect import interval_means
+
+    rng = np.random.default_rng(27)
+    counts = rng.integers(30000, 36000, size=(5000, 3)).astype(float)
+    cases = (np.array([[10, 400], [900, 1300], [1300, 1301], [2000, 5000]]),  # touching; to the end
+             np.array([[0, 5000]]), np.array([[3, 9], [20, 4000]]),
+             np.array([[100, 900], [50, 200]]), np.array([[400, 800], [10, 20]]))  # overlapping; out of order
+    for number, intervals in enumerate(cases):
+        expected = np.array([counts[a:b].mean(axis=0) for a, b in intervals])
+        if number < 3:  # in order and apart: summed where they lie, exactly
+            np.testing.assert_array_equal(interval_means(counts, intervals), expected)
+        np.testing.assert_allclose(interval_means(counts, intervals), expected, rtol=1e-12)
+    force = rng.normal(size=(5000, 3)) * 9.8
+    np.testing.assert_allclose(interval_means(force, cases[0]), [force[a:b].mean(axis=0) for a, b in cases[0]],
+                               rtol=1e-12, atol=1e-12)

@@ -236,3 +236,27 @@ def test_the_window_covariance_is_each_terms_masked_sum_bit_for_bit():
     np.testing.assert_array_equal(noise.window_covariance(starts, durations), expected)
     with pytest.raises(ValueError, match="windows overlap"):
         noise.window_covariance(np.array([0.0, 1.0]), np.array([2.0, 2.0]))
+
+
+def test_a_noise_models_window_covariance_from_the_shared_flicker_is_its_own():
+    """The stages of one calibration share the poses' flicker covariance of B = 1 (made once):
+    each noise model's is diag(white²/T) + B²·F, the device model's own to rounding, for any
+    bank length; the shared matrix cannot be changed by a caller, and one with rate random walk
+    is refused as the model refuses it."""
+    from fieldcal.recording.noise_estimate import window_covariance
+
+    rng = np.random.default_rng(27)
+    starts, durations = np.cumsum(rng.uniform(5, 9, 40)), rng.uniform(2, 4, 40)
+    for noise in (TriadNoise(white=1e-3, bias_instability=2e-4), TriadNoise(white=3e-5, bias_instability=4e-6,
+                                                                             flicker_tau_max_s=1e5),
+                  TriadNoise(white=1e-3)):
+        ours = window_covariance(noise, starts, durations)
+        np.testing.assert_allclose(ours, noise.window_covariance(starts, durations), rtol=1e-13, atol=0)
+        ours[0, 0] = -1.0  # the caller's own copy
+        np.testing.assert_allclose(window_covariance(noise, starts, durations),
+                                   noise.window_covariance(starts, durations), rtol=1e-13, atol=0)
+    shared = flicker_covariance(starts, durations)
+    with pytest.raises(ValueError):
+        shared[0, 0] = 0.0
+    with pytest.raises(ValueError, match="rate random walk"):
+        window_covariance(TriadNoise(white=1e-3, bias_instability=2e-4, rate_random_walk=1e-5), starts, durations)

@@ -422,8 +422,24 @@ class PrefixMeans:
 
 
 def interval_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
-    """Mean of ``values`` (n, 3) over each [start, stop) of ``intervals`` (m, 2), vectorised."""
-    return PrefixMeans(values)(intervals)
+    """Mean of ``values`` (n, 3) over each [start, stop) of ``intervals`` (m, 2), vectorised.
+
+    Intervals in order and apart (poses, turns) are summed where they lie, by one reduction
+    over the samples that makes no copy of them; PrefixMeans' cumulative sum, which pays for
+    itself over many queries, would copy and sum all n samples for this one (on imu_tk's
+    recording joined 16×, a third of a second and 40 MiB for the gyro's poses)."""
+    intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
+    values = np.asarray(values)
+    n = len(values)
+    starts, stops = intervals[:, 0], intervals[:, 1]
+    if not len(intervals) or np.any(stops <= starts) or np.any(starts[1:] < stops[:-1]) or starts[0] < 0 \
+            or stops[-1] > n:
+        return PrefixMeans(values)(intervals)
+    # reduceat sums [index_k, index_k+1): at the starts the intervals, at the stops the gaps between
+    # them (a gap of none gives one sample, unused); the last interval runs to its stop or the end.
+    edges = intervals.ravel()
+    sums = np.add.reduceat(values, edges[:-1] if stops[-1] == n else edges, axis=0, dtype=float)[0::2]
+    return sums / (stops - starts)[:, None]
 
 
 def _poses(signals: _EdgeSignals, settings, multiple, zero, sensitivity, intervals, short) -> Poses:

@@ -18,7 +18,8 @@ from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS
 from fieldcal.recording.detect import Poses, interval_means
 from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
-from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
+from fieldcal.recording.noise_estimate import (MeasuredNoise, bias_instability, flicker_covariance,
+                                               window_covariance)
 from fieldcal.recording.outcome import RecordingSettings
 from fieldcal.recording.place import UnknownPlace
 from fieldcal.recording.static_solve import calibrated_jacobian
@@ -99,7 +100,7 @@ def gyro_prior(recording: Recording, name: str, poses: Poses, up: np.ndarray, sp
                                                  recording.rate_hz)
     if noise is not None and noise.bias_instability:
         weights = np.full(len(iv), 1.0 / len(iv))
-        model = weights @ noise.window_covariance(t[iv[:, 0]], counts / recording.rate_hz) @ weights
+        model = weights @ window_covariance(noise, t[iv[:, 0]], counts / recording.rate_hz) @ weights
         bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(k**2 * model - white, 0.0))
     arw = float(np.sqrt(np.mean(rest_var)) / k / math.sqrt(recording.rate_hz))  # rad/√s
     return GyroPrior(k, b0, bias_sigma, earth_var, arw, rest_var, wander, estimated)

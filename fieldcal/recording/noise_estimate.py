@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import gammaln
 
-from drivers.noise import TriadNoise
+from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S, TriadNoise
 
 # The prior on B: density ∝ B^(PRIOR_POWER − 1), i.e. ∝ B^PRIOR_POWER per decade. Chosen on the
 # real-world Monte Carlo (200 recordings, no --config): per decade even (0) leaves a consumer
@@ -46,10 +46,40 @@ class MeasuredNoise(TriadNoise):
     own scatter, the converter's quantisation already in it."""
 
 
-def flicker_covariance(starts: np.ndarray, durations: np.ndarray) -> np.ndarray:
+# The last few window sets' flicker covariance of B = 1: the stages of one calibration (the norm
+# solve's weights, the noise estimates, the gyro's prior and its up vectors' covariance) each ask
+# for the same poses' (m, m) matrix, whose bank of exponentials costs O(m²) each time (on imu_tk's
+# recording joined 16×, 633 poses, five times 30-90 ms).
+_FLICKER_MEMO: dict[tuple[bytes, bytes, float], np.ndarray] = {}
+_FLICKER_MEMO_SIZE = 4
+
+
+def flicker_covariance(starts: np.ndarray, durations: np.ndarray,
+                       tau_max_s: float = DEFAULT_FLICKER_TAU_MAX_S) -> np.ndarray:
     """(m, m) covariance of the means over m windows [start, start + duration) (s) of the bias
-    instability of B = 1 (the device model's bank; scale by B²)."""
-    return TriadNoise(white=0.0, bias_instability=1.0).window_covariance(starts, durations)
+    instability of B = 1 (the device model's bank; scale by B²). Shared, so read-only."""
+    starts, durations = (np.ascontiguousarray(x, dtype=float) for x in (starts, durations))
+    key = (starts.tobytes(), durations.tobytes(), float(tau_max_s))
+    flicker = _FLICKER_MEMO.pop(key, None)
+    if flicker is None:
+        flicker = TriadNoise(white=0.0, bias_instability=1.0, flicker_tau_max_s=tau_max_s).window_covariance(
+            starts, durations)
+        flicker.flags.writeable = False
+        if len(_FLICKER_MEMO) >= _FLICKER_MEMO_SIZE:
+            del _FLICKER_MEMO[next(iter(_FLICKER_MEMO))]
+    _FLICKER_MEMO[key] = flicker  # the most recent last
+    return flicker
+
+
+def window_covariance(noise: TriadNoise, starts: np.ndarray, durations: np.ndarray) -> np.ndarray:
+    """``noise.window_covariance`` from the shared flicker of B = 1: diag(white²/T) + B²·F (the
+    bank's variances are proportional to B²), a new array the caller may change."""
+    if noise.rate_random_walk or not noise.bias_instability:
+        return noise.window_covariance(starts, durations)
+    out = noise.bias_instability**2 * flicker_covariance(starts, durations, noise.flicker_tau_max_s)
+    diagonal = np.arange(len(out))
+    out[diagonal, diagonal] += noise.white**2 / np.asarray(durations, dtype=float)
+    return out
 
 
 def bias_instability(residuals: np.ndarray, design: np.ndarray, white: np.ndarray, flicker: np.ndarray,

@@ -12,7 +12,7 @@ import numpy as np
 
 from fieldcal.calibration import Calibration
 from fieldcal.model import calibrate_with
-from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance
+from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance, window_covariance
 from fieldcal.recording.up_covariance import MeansCovariance
 from fieldcal.solvers import solve_norm
 from fieldcal.solvers.problems import StaticNormProblem
@@ -58,8 +58,8 @@ def means_covariance(intervals, t, variance, noise, K, unit, parts: bool = False
     if parts:
         quantised = unit == "count" and not isinstance(noise, MeasuredNoise)
         own = np.broadcast_to((1.0 / 12.0 / counts if quantised else np.zeros(len(counts)))[:, None], (len(counts), 3))
-        return MeansCovariance(noise.window_covariance(t[intervals[:, 0]], durations), K, own)
-    cov = np.kron(noise.window_covariance(t[intervals[:, 0]], durations), K @ K.T)
+        return MeansCovariance(window_covariance(noise, t[intervals[:, 0]], durations), K, own)
+    cov = np.kron(window_covariance(noise, t[intervals[:, 0]], durations), K @ K.T)
     if unit == "count" and not isinstance(noise, MeasuredNoise):  # quantisation, one count (measured: in it)
         cov += np.kron(np.diag(1.0 / 12.0 / counts), np.eye(3))
     return cov

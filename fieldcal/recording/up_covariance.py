@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fieldcal.recording.noise_estimate import window_covariance
+
 
 @dataclass(frozen=True)
 class UpCovariance:
@@ -43,26 +45,32 @@ class UpCovariance:
         blocks[idx, :, idx, :] += self.D @ self.own @ np.swapaxes(self.D, 1, 2)
         return out + blocks.reshape(3 * m, 3 * m)
 
-    def chained(self, E: np.ndarray, C: np.ndarray) -> np.ndarray:
+    def chained(self, E: np.ndarray, C: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(2m', 2m') covariance of the rotation residuals of the m' = m − 1 motions, motion i
         joining pose i to pose i+1: r_i moves by E_iᵀ·C_iᵀ·δu_i − E_iᵀ·δu_{i+1}
-        (solvers.rotation._chained_up_covariance, there from the dense matrix)."""
+        (solvers.rotation._chained_up_covariance, there from the dense matrix). ``out``: a
+        (2m', 2m') matrix (C order) to add it to, returned: no second dense matrix."""
         k = len(E)
         Et = np.swapaxes(E, 1, 2)
         ends = (Et @ np.swapaxes(C, 1, 2), -Et)  # the motion's map of its start's and its end's δu
         poses = (slice(0, k), slice(1, k + 1))
         Y = [end @ self.D[p] for end, p in zip(ends, poses)]  # (k, 2, 3): of δa at either end
         Z = sum(end @ self.shared[p] for end, p in zip(ends, poses)).reshape(2 * k, -1)
-        out = Z @ self.theta_covariance @ Z.T
+        shared = Z @ self.theta_covariance @ Z.T
+        if out is None:
+            out = shared
+        else:
+            out += shared
+        del shared
+        blocks = out.reshape(k, 2, k, 2)  # a view: each motion's 2×2 block
         if self.windows is not None:
-            blocks = out.reshape(k, 2, k, 2)  # a view: each motion's 2×2 block
             for s in (0, 1):
                 for t in (0, 1):
                     product = (Y[s].reshape(2 * k, 3) @ Y[t].reshape(2 * k, 3).T).reshape(k, 2, k, 2)
                     product *= self.windows[poses[s], poses[t]][:, None, :, None]
                     blocks += product
+                    del product
         # Each pose's own part reaches the motions that touch it: block-tridiagonal.
-        blocks = np.zeros((k, 2, k, 2))
         idx = np.arange(k)
         own = (self.own[:-1], self.own[1:])
         for s in (0, 1):
@@ -70,7 +78,7 @@ class UpCovariance:
         between = Y[1][:-1] @ self.own[1:-1] @ np.swapaxes(Y[0][1:], 1, 2)  # pose i+1: end of i, start of i+1
         blocks[idx[:-1], :, idx[1:], :] += between
         blocks[idx[1:], :, idx[:-1], :] += np.swapaxes(between, 1, 2)
-        return out + blocks.reshape(2 * k, 2 * k)
+        return out
 
 
 @dataclass(frozen=True)
@@ -103,6 +111,6 @@ def means_parts(intervals: np.ndarray, t: np.ndarray, variance: np.ndarray, nois
         own = (K_inv[None] * (variance[None, None, :] / counts[:, None, None])) @ K_inv.T
         return None, own
     durations = counts * float(np.median(np.diff(t)))
-    windows = noise.window_covariance(t[intervals[:, 0]], durations)
+    windows = window_covariance(noise, t[intervals[:, 0]], durations)
     scale = (1.0 / 12.0 / counts) if quantised else np.zeros(len(counts))
     return windows, scale[:, None, None] * (K_inv @ K_inv.T)[None]

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 from scipy import optimize
+from scipy.linalg import blas, lapack
 from scipy.special import chdtrc  # χ² survival function; scipy.stats would cost ~0.4 s to import
 
 from fieldcal.calibration import Calibration, SolverDiagnostics
@@ -79,6 +80,10 @@ class Whitener:
         if self.inverse_sigma is not None:
             return r * self.inverse_sigma
         assert self.inverse_factor is not None  # one of the two is always given
+        if r.ndim == 1 and self.inverse_factor.flags.f_contiguous:
+            # L⁻¹ is lower triangular: its product with one point's residuals (Powell evaluates
+            # one at a time, ~170 of them a solve) reads and multiplies half the matrix.
+            return blas.dtrmv(self.inverse_factor, r, lower=1)
         return r @ self.inverse_factor.T
 
     def matrix(self) -> np.ndarray:
@@ -130,12 +135,14 @@ def _whitener_of(problem, S: np.ndarray) -> Whitener:
         if not np.all(S > 0):
             raise CalibrationError(f"{problem.name}: the covariance of the averages is not positive definite")
         return Whitener(inverse_sigma=1.0 / np.sqrt(S))
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        raise CalibrationError(f"{problem.name}: the covariance of the averages is not positive "
-                               "definite") from None
-    return Whitener(inverse_factor=np.linalg.inv(L))
+    # In Fortran order, factored and inverted in place by LAPACK (the triangular inverse: a third
+    # of a general one's work), L⁻¹ ready for BLAS's triangular product (Whitener.__call__).
+    L, info = lapack.dpotrf(np.asfortranarray(S, dtype=float), lower=1, clean=1, overwrite_a=1)
+    if info == 0:
+        inverse, info = lapack.dtrtri(L, lower=1, overwrite_c=1)
+    if info != 0:
+        raise CalibrationError(f"{problem.name}: the covariance of the averages is not positive definite")
+    return Whitener(inverse_factor=inverse)
 
 
 def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:

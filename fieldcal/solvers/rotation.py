@@ -234,6 +234,42 @@ def _weight_derivatives(A, delta_b, dK, d_delta_b):
 
 
 _BLOCK = 64  # steps composed per block: a span is padded to whole blocks, not to the longest span
+_GROUP_STEPS = 1 << 15  # steps whose integration terms are made at once (their temporaries: ~12 MiB)
+
+
+def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
+    """The integration terms (see _Steps) of consecutive spans [i0, i0 + length] into ``out``
+    (10, _BLOCK, their blocks), padding steps zero (the identity rotation)."""
+    n = len(t)
+    padded = blocks * _BLOCK
+    owner = np.repeat(np.arange(len(i0)), padded)
+    k = np.arange(padded.sum()) - np.repeat(np.cumsum(padded) - padded, padded)
+    k = k.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
+    owner = owner.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
+    valid = k < lengths[owner]
+    j = np.where(valid, i0[owner] + k, i0[owner])  # padding: any real step
+    h = np.where(valid, t[j + 1] - t[j], 0.0)
+    if np.any(h[valid] <= 0):
+        raise ValueError("t must increase within every span")
+    # Each sample of each span once (span by span, i0..i1) with its slope, offset taken off;
+    # a step j reads sample j's row and the next. Read with one more sample each side (the
+    # slopes' stencils): consecutive samples, so each stencil is three shifted slices.
+    read = lengths + 3
+    first_read = np.cumsum(read) - read
+    wide = np.arange(read.sum()) - np.repeat(first_read - i0 + 1, read)  # i0 - 1 .. i1 + 1
+    rates = np.ascontiguousarray((values[np.clip(wide, 0, n - 1)] - offset).T)  # (3, read)
+    table = np.vstack([rates[:, 1:-1], _rate_slopes(values, offset, t, wide, rates)])
+    at = np.where(valid, first_read[owner] + k, first_read[owner])  # column of sample j in table
+    step0, step1 = table[:, at], table[:, at + 1]
+    v0, v1 = step0[:3], step1[:3]
+    w = h * h / 12.0  # h is zero for padding: a zero increment, the identity rotation
+    terms = np.empty((10, len(h)))  # (10, steps), position-major as out
+    # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
+    np.subtract(h / 2 * (v0 + v1), w * (step1[3:] - step0[3:]), out=terms[0:3])
+    terms[3:6] = w * _cross(v0.T, v1.T).T
+    np.multiply(w, v1 - v0, out=terms[6:9])
+    terms[9] = h
+    out[...] = terms.reshape(out.shape)
 _JACOBIAN_BLOCKS = 32  # blocks whose (3, 3, steps) matrices a Jacobian makes at once (~0.15 MiB each)
 
 
@@ -257,42 +293,22 @@ class _Steps:
             raise ValueError(f"spans must be [i0, i1] with 0 <= i0 < i1 < {n}")
         lengths = i1 - i0
         blocks = -(-lengths // _BLOCK)
-        padded = blocks * _BLOCK
-        owner = np.repeat(np.arange(len(spans)), padded)
-        k = np.arange(padded.sum()) - np.repeat(np.cumsum(padded) - padded, padded)
-        # Stored position-major, (_BLOCK, blocks): position p of every block, then p + 1; within
-        # a block the positions are the steps in bit-reversed order (see _compose).
-        k = k.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
-        owner = owner.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
-        valid = k < lengths[owner]
-        j = np.where(valid, i0[owner] + k, i0[owner])  # padding: any real step
-        h = np.where(valid, t[j + 1] - t[j], 0.0)
-        if np.any(h[valid] <= 0):
-            raise ValueError("t must increase within every span")
-        # Each sample of each span once (span by span, i0..i1) with its slope, offset taken off;
-        # a step j reads sample j's row and the next. Read with one more sample each side (the
-        # slopes' stencils): consecutive samples, so each stencil is three shifted slices.
+        first = np.cumsum(blocks) - blocks
         values = np.asarray(values, dtype=float)
         self.offset = offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=float).copy()
-        read = lengths + 3
-        first_read = np.cumsum(read) - read
-        wide = np.arange(read.sum()) - np.repeat(first_read - i0 + 1, read)  # i0 - 1 .. i1 + 1
-        rates = np.ascontiguousarray((values[np.clip(wide, 0, n - 1)] - offset).T)  # (3, read)
-        table = np.vstack([rates[:, 1:-1], _rate_slopes(values, offset, t, wide, rates)])
-        at = np.where(valid, first_read[owner] + k, first_read[owner])  # column of sample j in table
-        step0, step1 = table[:, at], table[:, at + 1]
-        v0, v1 = step0[:3], step1[:3]
-        w = h * h / 12.0  # h is zero for padding: a zero increment, the identity rotation
-        terms = np.empty((10, len(h)))  # (10, steps)
-        # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
-        np.subtract(h / 2 * (v0 + v1), w * (step1[3:] - step0[3:]), out=terms[0:3])
-        terms[3:6] = w * _cross(v0.T, v1.T).T
-        np.multiply(w, v1 - v0, out=terms[6:9])
-        terms[9] = h
-        self.terms = terms
+        # Stored position-major, (_BLOCK, blocks): position p of every block, then p + 1; within
+        # a block the positions are the steps in bit-reversed order (see _compose). Made a group
+        # of spans at a time (some _GROUP_STEPS steps): the dozen per-step temporaries then stay
+        # small, where made for all spans at once they took ~4 times the terms' own memory.
+        terms = np.empty((10, _BLOCK, int(blocks.sum())))
+        group = np.cumsum(blocks) * _BLOCK // _GROUP_STEPS
+        cuts = np.r_[0, np.flatnonzero(np.diff(group)) + 1, len(spans)]
+        for g0, g1 in zip(cuts[:-1], cuts[1:]):
+            part = terms[:, :, first[g0]:first[g0] + blocks[g0:g1].sum()]
+            _span_terms(part, values, t, i0[g0:g1], lengths[g0:g1], blocks[g0:g1], offset)
+        self.terms = terms.reshape(10, -1)  # (10, steps)
         # Each span's blocks, padded to a power of two with an identity block, bit-reversed.
         size = 1 << int(blocks.max() - 1).bit_length()
-        first = np.cumsum(blocks) - blocks
         slot = np.arange(size)
         gather = np.where(slot < blocks[:, None], first[:, None] + slot, blocks.sum())
         self.gather = gather[:, _bit_reversed(size)].T.copy()  # (size, m), as _compose reads it
@@ -466,14 +482,15 @@ def _chained_up_covariance(E, C, up_covariance):
                for c in range(3)).reshape(2 * m, 2 * m)  # (A·U)·Aᵀ
 
 
-def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_variance=None):
-    """(2m, 2m) covariance of the rotation residuals from the direction and rate noise.
+def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_variance=None, out=None):
+    """(2m, 2m) covariance of the rotation residuals from the direction and rate noise (into
+    ``out``, zeros of that shape, when given).
 
     A direction error δ at the start pose reaches the residual as E_endᵀ·Cᵀ·δ, one at the end
     as −E_endᵀ·δ; both are isotropic in the tangent plane. A pose shared by motions i and i+1
     correlates them by −σ²·E_iᵀ·C_{i+1}·E_{i+1}."""
     m = len(E)
-    cov = np.zeros((2 * m, 2 * m))
+    cov = np.zeros((2 * m, 2 * m)) if out is None else out
     if up_sigma is not None:
         s = np.asarray(up_sigma, dtype=float)
         s = np.broadcast_to(s[:, None] if s.ndim == 1 else s, (m, 2))
@@ -655,13 +672,20 @@ def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side
     m, start, steps = len(model.motions.spans), model.start, model.steps
     K_inv0 = model.unpack(model.theta0)[1]
     C = Rotation.from_quat(q_start).as_matrix()
-    cov = _residual_covariance(model.E, C, model.motions.shared, noise.up_sigma, noise.rate_noise,
-                               steps.duration, noise.motion_variance)
+    # One dense matrix, made, factored and inverted in place: on a long recording (2m ≈ 1300 on
+    # imu_tk's joined 16×) each more copy is another 13 MiB at the solve's peak of memory.
+    full = np.zeros((2 * m + n_side,) * 2)
+    cov = full[:2 * m, :2 * m]
+    _residual_covariance(model.E, C, model.motions.shared, noise.up_sigma, noise.rate_noise,
+                         steps.duration, noise.motion_variance, out=cov)
     if noise.up_covariance is not None:  # a matrix, or its parts (one with a chained method)
         chained = getattr(noise.up_covariance, "chained", None)
-        cov += chained(model.E, C) if chained is not None else _chained_up_covariance(
-            model.E, C, np.asarray(noise.up_covariance, dtype=float))
-    cov = np.block([[cov, np.zeros((2 * m, n_side))], [np.zeros((n_side, 2 * m)), np.eye(n_side)]])
+        if chained is not None and n_side == 0:
+            chained(model.E, C, out=full)
+        else:
+            cov += chained(model.E, C) if chained is not None else _chained_up_covariance(
+                model.E, C, np.asarray(noise.up_covariance, dtype=float))
+    full[range(2 * m, 2 * m + n_side), range(2 * m, 2 * m + n_side)] = 1.0
     if noise.bias_sigma is not None and not start.estimate_bias:
         G = J_start[:, :3]
         model_extra = model.extra
@@ -669,12 +693,16 @@ def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side
             def extra(b):
                 return np.atleast_1d(np.asarray(model_extra(K_inv0, b.copy()), dtype=float))
             G = np.vstack([G, _jacobian(extra, start.b0, 1e-6 * np.abs(np.diag(start.K0)))])
-        cov += G @ np.diag(model.sigma_b**2) @ G.T
-    try:
-        L = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        raise CalibrationError(f"{name}: the residual covariance is not positive definite") from None
-    return lapack.dtrtri(L, lower=1)[0]  # L⁻¹, by the triangular inverse: a third of a general one's work
+        full += (G * model.sigma_b**2) @ G.T
+    # LAPACK reads the C-ordered symmetric matrix as its transpose (the same matrix): the upper
+    # factor U there (UᵀU = cov) is L = Uᵀ here, and U's inverse there L⁻¹ here.
+    U, info = lapack.dpotrf(full.T, lower=0, clean=1, overwrite_a=1)
+    if info != 0:
+        raise CalibrationError(f"{name}: the residual covariance is not positive definite")
+    inverse, info = lapack.dtrtri(U, lower=0, overwrite_c=1)
+    if info != 0:
+        raise CalibrationError(f"{name}: the residual covariance is not positive definite")
+    return inverse.T  # L⁻¹, by the triangular inverse: a third of a general one's work
 
 
 _STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the solve
