@@ -178,6 +178,8 @@ class Calibration:
                 set_(self, "sigma", np.sqrt(np.diag(cov)))
         if self.sigma is None:
             raise ValueError(f"{self.name}: give the covariance or sigma")
+        if self.not_calibrated and np.shape(self.sigma) == (p,):  # theirs is NaN: none, checked below
+            set_(self, "sigma", np.where(np.isin(names, self.not_calibrated), 0.0, self.sigma))
         sigma = _readonly(self.sigma, (p,), f"{self.name}.sigma")
         if np.any(sigma < 0):
             raise ValueError(f"{self.name}.sigma: expected values >= 0, got {sigma.tolist()}")
@@ -337,7 +339,7 @@ def with_not_calibrated(cal: Calibration, names, why: str = "") -> Calibration:
             raise ValueError(f"{cal.name}.{n}: a scale factor in {cal.output_unit!r} has no nominal value: "
                              "it cannot be left not calibrated")
         theta[PARAM_NAMES.index(n)] = nominal
-    return replace(cal, theta=theta, K=None, bias=None, sigma=np.nan_to_num(cal.sigma), not_calibrated=marked,
+    return replace(cal, theta=theta, K=None, bias=None, sigma=cal.sigma, not_calibrated=marked,
                    not_calibrated_why=why or cal.not_calibrated_why)
 
 

@@ -68,6 +68,8 @@ def solution_table(cal, truth: np.ndarray | None = None) -> str:
     for j, name in enumerate(cal.parameter_names):
         factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
         row = [label(name), *value_cells(cal.theta[j] * factor, unit), *sigma_cells(cal.sigma[j] * factor, unit)]
+        if name in getattr(cal, "not_calibrated", ()):  # nominal, with no σ: never shown as a σ
+            row[3:5] = ["not calibrated", ""]
         if truth is not None:
             row += [*value_cells(true[j] * factor, unit), f"{errors[j]:+.2f}"]
         rows.append(row)

@@ -37,6 +37,7 @@ from fieldcal.recording.outcome import (FORCE_ONLY_PROTOCOL, NORM_PROTOCOL, Reco
 from fieldcal.recording.place import UnknownPlace, place_gravity, with_gravity_uncertainty
 from fieldcal.recording.pose_choice import PoseChoice, choose_poses, with_estimated_noise
 from fieldcal.recording.static_solve import estimated_force_noise, solve_static
+from fieldcal.recording.submodel import submodel_protocol
 from fieldcal.solvers import CalibrationError
 
 
@@ -51,6 +52,8 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     choice = choose_poses(recording, detection, station, settings)
     if choice.best is None:  # too few poses for the norm method: the six faces, if they are there
         aligned = aligned_protocol(recording, station, detection, choice.tried, settings)
+        if aligned is None:  # what the poses do determine, the rest marked not calibrated
+            aligned = submodel_protocol(recording, station, detection, choice.tried, settings)
         if aligned is None:
             raise _no_usable_poses(detection, choice, settings)
         return _with_unknown_gravity(aligned)

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from fieldcal.calibration import CLASSIC_METHOD
+from fieldcal.calibration import CLASSIC_METHOD, STILL_METHOD
 from fieldcal.earth import Station
 from fieldcal.paramfile import ParameterFile
 from fieldcal.recording import Recording
@@ -143,6 +143,11 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
             lines += ["", f"{name} (the ±2π integrals of {len(sol.residuals)} full turns, the bias from the "
                       "six poses)", solution_table(sol, truths.get(name))]
             continue
+        if sol.method == STILL_METHOD:  # the sub-model's gyro: its bias alone
+            less = "" if isinstance(cal.place, UnknownPlace) else ", less the vertical Earth rate"
+            lines += ["", f"{name} (the bias alone: the mean of {len(cal.poses.intervals)} still poses{less})",
+                      solution_table(sol, truths.get(name))]
+            continue
         rms = math.degrees(sol.residual_rms) * 60
         quality = f"χ²/dof {fit.reduced_chi2:.2f}" if fit.dof else "exact fit"
         bias = ("the poses' mean" + ("" if isinstance(cal.place, UnknownPlace) else
@@ -153,4 +158,7 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
     lines += [f"  note: {note}" for note in cal.notes]
     for name, why in cal.failures.items():
         lines += ["", f"{name}: not calibrated: {why}"]
-    return lines
+    from fieldcal.recording.submodel import summary_line
+
+    partial = summary_line(cal)  # last: what a sub-model solved, what not, what would add it
+    return lines + (["", partial] if partial else [])

@@ -1,0 +1,210 @@
+"""The largest well-determined sub-model (DESIGN principle 13, issue 27), for a recording whose
+poses are too few or too alike for the norm method and are not the six faces either: what the
+data determine is calibrated, the rest marked not calibrated (nominal value, no σ).
+
+The accelerometer: which of its nine parameters the poses determine is read off the Jacobian of
+its norm equations |K⁻¹(m − b)| = g at the nominal model, each row whitened by its pose mean's
+noise along the up direction and each column in its parameter's natural unit (k·g for a bias, k
+for a scale factor, 1 rad for an angle). Its singular directions with 1/s above
+``RANK_FRACTION`` are the combinations the poses leave open; they are held at the nominal model,
+and Gauss-Newton moves the rest (truncated SVD: the minimum-norm step). A parameter is then
+calibrated when both hold:
+
+* its σ, with every other parameter free (the Fisher information of the kept directions, scaled
+  up by χ²/dof), is at most ``WELL_DETERMINED`` of its natural unit, and
+* what the open directions could move it by, were the unit as far from nominal as a consumer
+  MEMS datasheet allows (``PLAUSIBLE_OFFSET`` along each), is within that σ.
+
+Poses near one face only: every direction seen is a cap of the sphere, the bias and scale
+along its axis and the tilt of its rim trade against each other, and nothing may come out; poses
+near the six faces, tilted at random: biases and scale factors, not the angles. No rule says
+which: the Jacobian does.
+
+The gyroscope's bias is the mean of every pose's still reading less the vertical Earth rate
+(``gyro_solve.gyro_prior``, as the full solve's prior); its scale and misalignment need the
+rotations between well-spread poses and are marked. A triad in a device's own units (counts) has
+no nominal scale to leave a scale at: such a recording is not solved here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fieldcal.calibration import STILL_METHOD, Calibration, SolverDiagnostics, nominal_value, with_not_calibrated
+from fieldcal.earth import Station
+from fieldcal.model import ANGULAR_RATE, PARAM_NAMES, SPECIFIC_FORCE
+from fieldcal.recording import Recording
+from fieldcal.recording.candidates import Detection
+from fieldcal.recording.detect import interval_means
+from fieldcal.recording.outcome import SUBMODEL_PROTOCOL, RecordingCalibration, RecordingSettings
+from fieldcal.recording.place import UnknownPlace
+from fieldcal.solvers.problems import StaticNormProblem
+
+# A singular direction known no better than this (natural units) is left at the nominal model:
+# the norm solver's own bound for a parameter the positions do not determine.
+RANK_FRACTION = 0.01
+# A parameter is calibrated when known to this fraction of its natural unit (1 mg-ish for a bias
+# of 1 g, 1000 ppm for a scale factor, 1 mrad for an angle): a tenth of what a consumer MEMS
+# datasheet already promises of the nominal, below which a calibration adds little to it.
+WELL_DETERMINED = 1e-3
+# How far from nominal a consumer unit may be along an open direction (natural units: 1 %).
+PLAUSIBLE_OFFSET = 0.01
+_ITERATIONS = 20
+_STEP_TOL = 1e-9  # natural units: a Gauss-Newton step this small has converged
+GYRO_WHY = ("its scale factors and misalignment need the rotations between 9 or more well-spread poses "
+            "(or the six faces and a full turn about each axis)")
+
+
+def nominal_theta(kind: str, unit: str) -> np.ndarray | None:
+    """The nine parameters of a triad nothing calibrated; None for a device's own unit."""
+    values = [nominal_value(kind, unit, n) for n in PARAM_NAMES]
+    return None if any(v is None for v in values) else np.array(values, dtype=float)
+
+
+def submodel_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
+                      tried, settings: RecordingSettings) -> RecordingCalibration | None:
+    """What the poses of the threshold that found the most determine; None when the recording's
+    triads are not in physical units (no nominal) or nothing at all is determined."""
+    candidate = max(detection.candidates, key=lambda c: (c.spread.count, len(c.poses.intervals)))
+    poses, spread, reference = candidate.poses, candidate.spread, detection.reference
+    if not len(poses.intervals) or any(nominal_theta(recording.kinds[n], recording.units[n]) is None
+                                       for n in (*detection.forces, *detection.rates)):
+        return None
+    add = spread.message.split(": ", 1)[-1] if ": " in spread.message else "add poses"
+    specific_force, failures, notes = {}, {}, []
+    for name in detection.forces:
+        values = recording.triads[name]
+        variance = detection.noise.variance if name == reference else \
+            np.var(values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
+        solution = solve_determined(name, recording.units[name], interval_means(values, poses.intervals),
+                                    np.diff(poses.intervals, axis=1)[:, 0], variance, station.gravity, add)
+        if solution is None:
+            failures[name] = f"the {len(poses.intervals)} poses determine none of its parameters: {add}"
+        else:
+            specific_force[name] = solution
+    angular_rate, bias_sigma = {}, {}
+    up = poses.means / np.linalg.norm(poses.means, axis=1, keepdims=True)  # physical units: zero known
+    for name in detection.rates:
+        angular_rate[name] = still_gyro(recording, name, poses, up, station, settings.noise.get(name))
+        bias_sigma[name] = angular_rate[name].sigma[:3]
+    if detection.rates and isinstance(station, UnknownPlace):
+        notes.append("the gyro's bias holds the Earth rate (up to 15 °/h, its direction unknown) as an error "
+                     "in its σ: give --latitude to take off its vertical part")
+    if not specific_force and not angular_rate:
+        return None
+    return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
+                                bias_sigma, np.zeros((0, 2), int), False, detection.noise.source, station,
+                                SUBMODEL_PROTOCOL, notes=tuple(notes))
+
+
+def solve_determined(name: str, unit: str, means: np.ndarray, counts: np.ndarray, variance: np.ndarray,
+                     gravity: float, add: str) -> Calibration | None:
+    """The specific-force triad's parameters its pose means determine (module doc), the rest
+    nominal and marked; None when none is determined. ``counts``: samples per mean; ``variance``:
+    per-axis white noise of one sample (output units²); ``add``: which poses would add the rest."""
+    theta0 = nominal_theta(SPECIFIC_FORCE, unit)
+    problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
+                                labels=tuple(f"pose {i + 1}" for i in range(len(means))))
+    residuals_at = problem.residual_function(problem.data)
+    up = means / np.linalg.norm(means, axis=1, keepdims=True)
+    weight = 1.0 / np.sqrt((up**2 @ variance) / counts)  # each mean's noise along its up
+    natural = np.r_[theta0[3:6] * gravity, theta0[3:6], np.ones(3)]
+
+    def whitened_jacobian(theta):
+        steps = 1e-6 * natural
+        shifted = theta + np.concatenate([np.diag(steps), -np.diag(steps)])
+        values = residuals_at(shifted) * weight
+        return ((values[:9] - values[9:]) / (2 * steps)[:, None]).T * natural
+
+    _, s, Vt = np.linalg.svd(whitened_jacobian(theta0), full_matrices=True)
+    s = np.r_[s, np.zeros(9 - len(s))]
+    rank = int(np.count_nonzero(s * RANK_FRACTION > 1.0))
+    if rank == 0:
+        return None
+    theta = theta0.copy()
+    for _ in range(_ITERATIONS):  # Gauss-Newton in the kept directions only (truncated SVD)
+        U, s, Vt = np.linalg.svd(whitened_jacobian(theta), full_matrices=True)
+        r = residuals_at(theta) * weight
+        step = Vt[:rank].T @ ((U[:, :rank].T @ -r) / s[:rank])
+        theta = theta + natural * step
+        if np.max(np.abs(step)) < _STEP_TOL:
+            break
+    U, s, Vt = np.linalg.svd(whitened_jacobian(theta), full_matrices=True)
+    r = residuals_at(theta) * weight
+    chi2, dof = float(r @ r), len(means) - rank
+    kept, open_ = Vt[:rank].T, Vt[rank:].T
+    cov_natural = (kept / s[:rank]**2) @ kept.T * max(chi2 / dof if dof > 0 else 1.0, 1.0)
+    sigma_natural = np.sqrt(np.diag(cov_natural))
+    leak = PLAUSIBLE_OFFSET * np.linalg.norm(open_, axis=1)
+    determined = (sigma_natural <= WELL_DETERMINED) & (leak <= sigma_natural)
+    if not determined.any():
+        return None
+    solution = Calibration(name=name, kind=SPECIFIC_FORCE, output_unit=unit, method="lsq", theta=theta,
+                           covariance=cov_natural * np.outer(natural, natural), residuals=residuals_at(theta),
+                           residual_labels=problem.residual_labels,
+                           diagnostics=SolverDiagnostics(search="gauss-newton, the determined directions only",
+                                                         chi2=chi2, dof=dof, scaled_by_residuals=chi2 > dof,
+                                                         condition_number=float(s[0] / s[rank - 1])))
+    unsolved = [n for n, ok in zip(PARAM_NAMES, determined) if not ok]
+    return with_not_calibrated(solution, unsolved, f"{len(means)} poses too few or too alike to determine them: "
+                               f"{add}") if unsolved else solution
+
+
+def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: Station | UnknownPlace,
+               noise=None) -> Calibration:
+    """A gyro's bias alone: the mean of every pose's still reading less the vertical Earth rate
+    (``drift.still_bias`` without the g-sensitivity and drift terms, which poses too alike cannot
+    tell from the bias), its σ from their scatter, never below the white noise's and the unknown
+    Earth rate's share, widened by a config's bias instability; its scale at the unit's own and no
+    misalignment, both marked not calibrated. ``up``: each pose's up vector."""
+    from fieldcal.recording.drift import still_bias
+    from fieldcal.recording.gyro_solve import _less_earth_rate
+
+    gyro, unit, intervals = recording.triads[name], recording.units[name], poses.intervals
+    scale = float(nominal_theta(ANGULAR_RATE, unit)[3])  # output units per rad/s
+    counts = np.diff(intervals, axis=1)[:, 0]
+    still, earth_variance = _less_earth_rate(interval_means(gyro, intervals), up, scale, station)
+    rest_variance = np.var(gyro[intervals[0, 0]:intervals[0, 1]], axis=0, ddof=1)
+    white = np.mean(rest_variance[None, :] / counts[:, None], axis=0) / len(intervals)
+    bias, bias_sigma = still_bias(still, scale**2 * earth_variance / len(intervals) + white)
+    if noise is not None and noise.bias_instability:  # what every pose shares, which no scatter shows
+        weights = np.full(len(intervals), 1.0 / len(intervals))
+        times = recording.t[intervals[:, 0]]
+        model = weights @ noise.window_covariance(times, counts / recording.rate_hz) @ weights
+        bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(scale**2 * model - white, 0.0))
+    theta = np.r_[bias, np.full(3, scale), np.zeros(3)]
+    residuals = still - bias
+    solution = Calibration(name=name, kind=ANGULAR_RATE, output_unit=unit, method=STILL_METHOD, theta=theta,
+                           sigma=np.r_[bias_sigma, np.zeros(6)], residuals=residuals, residual_unit=unit,
+                           residual_rms=float(np.sqrt(np.mean(residuals**2))),
+                           diagnostics=SolverDiagnostics(message="the still poses' mean",
+                                                         dof=max(residuals.size - 3, 0)))
+    return with_not_calibrated(solution, PARAM_NAMES[3:], GYRO_WHY)
+
+
+def summary_line(cal: RecordingCalibration) -> str:
+    """One line: what was calibrated, what was not, and what would add it; "" when every triad
+    is calibrated whole."""
+    from fieldcal.report import label
+
+    solved, unsolved, adds = [], [], []
+    for name, sol in (*cal.specific_force.items(), *cal.angular_rate.items()):
+        if not sol.not_calibrated:
+            continue
+        solved.append(f"{name} {_names(sol.calibrated, label)}")
+        unsolved.append(f"{name} {_names(sol.not_calibrated, label)}")
+        adds.append(f"{name}: {sol.not_calibrated_why.split(': ', 1)[-1]}" if sol.not_calibrated_why else "")
+    unsolved += [name for name in cal.failures]
+    if not solved:
+        return ""
+    return (f"calibrated: {'; '.join(solved)}. NOT calibrated (nominal, no σ): {'; '.join(unsolved)}. "
+            f"To add them: {'; '.join(a for a in adds if a)}")
+
+
+def _names(names, label) -> str:
+    """"bias x, y; scale factor z" from the parameter names, grouped."""
+    groups: dict[str, list[str]] = {}
+    for n in names:
+        group, _, axis = n.rpartition("_") if n.startswith(("bias", "scale")) else ("misalignment", "", n)
+        groups.setdefault(group, []).append(axis if group != "misalignment" else label(n))
+    return ", ".join(f"{'scale factor' if g == 'scale' else g} {'/'.join(axes)}" for g, axes in groups.items())
+

@@ -1,0 +1,158 @@
+"""Calibrate what the data determine (issue 27, DESIGN principle 13): a recording whose poses are
+too few or too alike for the norm method, and not the six faces, gives what they do determine
+(by the rank of the norm equations' Jacobian, not by a rule), the rest marked not calibrated;
+rests alone give the gyro's bias."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from drivers.sim.handheld import simulate_handheld, to_text
+from fieldcal.cli.main import main
+from fieldcal.earth import Station
+from fieldcal.model import PARAM_NAMES, params_from_k
+from fieldcal.paramfile import load
+from fieldcal.recording import Recording
+from fieldcal.recording.calibrate import calibrate_recording
+from fieldcal.recording.detect import DetectionError
+from fieldcal.recording.outcome import SUBMODEL_PROTOCOL, RecordingSettings
+from fieldcal.recording.place import UnknownPlace
+from fieldcal.recording.results import summary_lines
+
+FACES = np.vstack([np.eye(3), -np.eye(3)])
+
+
+def recording_of(sim) -> Recording:
+    return Recording(sim.t, sim.triads, sim.kinds, sim.units)
+
+
+def station_of(sim) -> Station:
+    return Station(sim.latitude_deg, 0.0, sim.gravity)
+
+
+def truth_of(sim, name) -> np.ndarray:
+    """The nine PARAM_NAMES values of the simulated triad (its K's lower triangle named)."""
+    truth = sim.truth[name]
+    return params_from_k(truth.K, truth.bias, full=True)
+
+
+def faces_tilted(seed: int, tilt_deg: float = 20.0) -> np.ndarray:
+    """z up first (the rest), then the other five faces and three faces again, each tilted by
+    ``tilt_deg`` about a random horizontal axis: beyond the Ferraris protocol's 15°, and too
+    alike for the norm method."""
+    rng = np.random.default_rng(seed)
+    ups = []
+    for face in np.r_[2, 0, 1, 3, 4, 5, rng.integers(0, 6, 3)]:
+        across = np.cross(FACES[face], rng.normal(size=3))
+        across /= np.linalg.norm(across)
+        ups.append(np.cos(np.radians(tilt_deg)) * FACES[face] + np.sin(np.radians(tilt_deg)) * across)
+    return np.array(ups)
+
+
+def rests_only(seed: int):
+    return simulate_handheld(seed, n_poses=1, directions=np.array([[0.0, 0.0, 1.0]]), raw_counts=False,
+                             initial_rest_s=60.0)
+
+
+def assert_solved_within_sigma(solution, truth, limit=3.0):
+    """Every calibrated parameter within ``limit`` σ of the truth; every other one nominal, no σ."""
+    z = (solution.theta - truth) / solution.sigma
+    calibrated = np.isin(PARAM_NAMES, solution.calibrated)
+    assert np.all(np.abs(z[calibrated]) < limit), dict(zip(PARAM_NAMES, z))
+    assert np.all(np.isnan(solution.sigma[~calibrated]))
+
+
+@pytest.mark.parametrize("seed", [4, 6])
+def test_rests_only_give_the_gyro_bias_and_mark_the_rest(seed):
+    """One still pose: the accelerometer's norm gives one equation for nine unknowns (nothing is
+    determined: it is not calibrated, saying which poses to add); the gyro's bias is the rest's
+    mean less the vertical Earth rate, within its σ of the truth; its scale and misalignment are
+    marked, nominal."""
+    sim = rests_only(seed)
+    cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+    assert cal.protocol == SUBMODEL_PROTOCOL
+    assert "accelerometer" not in cal.specific_force and "add poses with x up" in cal.failures["accelerometer"]
+    gyro = cal.angular_rate["gyroscope"]
+    assert gyro.calibrated == ("bias_x", "bias_y", "bias_z") and gyro.method == "still"
+    assert_solved_within_sigma(gyro, truth_of(sim, "gyroscope"))
+    np.testing.assert_array_equal(gyro.theta[3:], [1.0, 1.0, 1.0, 0.0, 0.0, 0.0])  # rad/s: nominal
+    line = summary_lines(cal)[-1]
+    assert line.startswith("calibrated: gyroscope bias x/y/z. NOT calibrated (nominal, no σ): gyroscope scale")
+    assert "accelerometer" in line and "rotations between 9 or more well-spread poses" in line
+
+
+def test_rests_only_without_a_place_carry_the_earth_rate_and_say_so():
+    """No latitude: the whole Earth rate (direction unknown) is an error in the bias's σ, wider
+    than with the place known, and a note says so and names --latitude."""
+    sim = rests_only(4)
+    known = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+    unknown = calibrate_recording(recording_of(sim), UnknownPlace(gravity=sim.gravity), RecordingSettings())
+    gyro = unknown.angular_rate["gyroscope"]
+    assert np.all(gyro.sigma[:3] > known.angular_rate["gyroscope"].sigma[:3])
+    assert_solved_within_sigma(gyro, truth_of(sim, "gyroscope"))
+    assert any("Earth rate" in n and "--latitude" in n for n in unknown.notes)
+
+
+@pytest.mark.parametrize("seed", [7, 11])
+def test_poses_too_alike_give_what_the_jacobian_determines_within_sigma(seed):
+    """Faces tilted by 20°, nine poses: too alike for the norm method (refused whole before).
+    What they determine is solved, within 3σ of the truth; the rest is marked; the misalignment
+    needs poses between the axes and is not calibrated (some of it), the x and y biases are."""
+    sim = simulate_handheld(8, n_poses=9, directions=faces_tilted(seed), raw_counts=False)
+    cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+    assert cal.protocol == SUBMODEL_PROTOCOL and "too alike" in cal.spread.message
+    acc = cal.specific_force["accelerometer"]
+    assert {"bias_x", "bias_y"} <= set(acc.calibrated) and 0 < len(acc.not_calibrated) < 9
+    assert set(acc.not_calibrated) & {"delta_yz", "delta_zy", "delta_zx"}  # between the axes: not seen
+    assert_solved_within_sigma(acc, truth_of(sim, "accelerometer"))
+    assert_solved_within_sigma(cal.angular_rate["gyroscope"], truth_of(sim, "gyroscope"))
+    assert "a cube corner up" in acc.not_calibrated_why
+
+
+def test_poses_about_one_face_leave_the_biases_open():
+    """A cone about z up: bias and scale along z trade against each other, and the tilt of the
+    cone's rim against the x and y biases: the Jacobian leaves them open, so they are not
+    calibrated, whatever a fit would give them."""
+    d = np.column_stack([0.5 * np.cos(np.arange(12)), 0.5 * np.sin(np.arange(12)), np.ones(12)])
+    sim = simulate_handheld(8, n_poses=12, directions=d / np.linalg.norm(d, axis=1, keepdims=True),
+                            raw_counts=False)
+    cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+    acc = cal.specific_force.get("accelerometer")
+    if acc is not None:
+        assert {"bias_x", "bias_y", "bias_z", "scale_z"} <= set(acc.not_calibrated)
+        assert_solved_within_sigma(acc, truth_of(sim, "accelerometer"))
+    assert_solved_within_sigma(cal.angular_rate["gyroscope"], truth_of(sim, "gyroscope"))
+
+
+def test_raw_counts_have_no_nominal_and_are_still_refused():
+    """In counts a scale has no nominal value to be left at: too few poses are refused, naming
+    the poses to add, as before."""
+    sim = simulate_handheld(8, n_poses=5, directions=FACES[[4, 0, 1, 5, 3]], raw_counts=True)
+    with pytest.raises(DetectionError, match=r"only 5 distinct poses"):
+        calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+
+
+def _map(tmp_path, sim):
+    """imu_tk's two-file layout in the simulation's physical units."""
+    doc = yaml.safe_load(open("configs/recordings/imu_tk.yaml"))
+    for spec, name in zip(doc["files"], ("accelerometer", "gyroscope")):
+        spec["triads"][name]["unit"] = sim.units[name]
+    path = tmp_path / "physical.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_fieldcal_calibrate_writes_the_marks_and_says_what_was_solved(tmp_path, capsys):
+    """The command writes a parameter file holding the gyro's bias alone, its other parameters
+    marked, says so in one line, and exits 1: the accelerometer is not calibrated."""
+    sim = rests_only(4)
+    acc, gyro = to_text(sim, tmp_path)
+    code = main(["calibrate", str(acc), str(gyro), "--map", str(_map(tmp_path, sim)), "--latitude", "40",
+                 "--out", str(tmp_path / "s"), "--params", str(tmp_path / "p.yaml")])
+    out = capsys.readouterr().out
+    assert code == 1, out
+    assert "calibrated: gyroscope bias x/y/z. NOT calibrated" in out
+    pf = load(tmp_path / "p.yaml")
+    assert pf.names == ("gyroscope",) and pf["gyroscope"].not_calibrated == PARAM_NAMES[3:]
+    assert_solved_within_sigma(pf["gyroscope"], truth_of(sim, "gyroscope"))
