@@ -84,6 +84,9 @@ def comparison_table(cal, previous) -> str:
     before, before_sigma = previous.file_theta, previous.file_sigma
     for j, name in enumerate(PARAM_NAMES):
         factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
+        if name in cal.not_calibrated or name in previous.not_calibrated:  # a nominal: no change to weigh
+            rows.append([label(name), *value_cells(before[j] * factor, unit), "not calibrated", "", "", "", "-"])
+            continue
         change = now[j] - before[j]
         combined = float(np.hypot(now_sigma[j], before_sigma[j]))
         rows.append([label(name), *value_cells(before[j] * factor, unit),

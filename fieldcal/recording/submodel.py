@@ -150,12 +150,13 @@ def solve_determined(name: str, unit: str, means: np.ndarray, counts: np.ndarray
 
 
 def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: Station | UnknownPlace,
-               noise=None) -> Calibration:
+               noise=None, why: str = GYRO_WHY) -> Calibration:
     """A gyro's bias alone: the mean of every pose's still reading less the vertical Earth rate
     (``drift.still_bias`` without the g-sensitivity and drift terms, which poses too alike cannot
     tell from the bias), its σ from their scatter, never below the white noise's and the unknown
     Earth rate's share, widened by a config's bias instability; its scale at the unit's own and no
-    misalignment, both marked not calibrated. ``up``: each pose's up vector."""
+    misalignment, both marked not calibrated (``why``: what would add them). ``up``: each pose's up
+    vector."""
     from fieldcal.recording.drift import still_bias
     from fieldcal.recording.gyro_solve import _less_earth_rate
 
@@ -178,7 +179,7 @@ def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: 
                            residual_rms=float(np.sqrt(np.mean(residuals**2))),
                            diagnostics=SolverDiagnostics(message="the still poses' mean",
                                                          dof=max(residuals.size - 3, 0)))
-    return with_not_calibrated(solution, PARAM_NAMES[3:], GYRO_WHY)
+    return with_not_calibrated(solution, PARAM_NAMES[3:], why)
 
 
 def summary_line(cal: RecordingCalibration) -> str:
