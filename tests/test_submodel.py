@@ -156,3 +156,37 @@ def test_fieldcal_calibrate_writes_the_marks_and_says_what_was_solved(tmp_path, 
     pf = load(tmp_path / "p.yaml")
     assert pf.names == ("gyroscope",) and pf["gyroscope"].not_calibrated == PARAM_NAMES[3:]
     assert_solved_within_sigma(pf["gyroscope"], truth_of(sim, "gyroscope"))
+
+
+def test_imucals_session_without_its_turns_gives_its_gyro_bias_as_imucal_does(tmp_path):
+    """A real file cut down: imucal's Ferraris session with its three turns taken out (six faces
+    and nothing that rotates the gyro). The accelerometer is Ferraris's solution as before; the
+    gyro's scale and misalignment are not calibrated, naming the turns, and its bias, the still
+    faces' mean, is imucal's own b_g (the mean of its six annotated faces) within 3σ."""
+    import gzip
+    import json
+    from pathlib import Path
+
+    imucal = pytest.importorskip("imucal")
+    pd = pytest.importorskip("pandas")
+    from fieldcal.recording.importer import import_recording
+
+    real = Path(__file__).parent / "data" / "real"
+    path = tmp_path / "session.csv"
+    path.write_bytes(gzip.decompress((real / "imucal_ferraris_session.csv.gz").read_bytes()))
+    recording = import_recording([path], "imucal", rate_hz=102.4)
+    sections = json.loads((real / "imucal_ferraris_session_list.json").read_text())
+    keep = np.ones(len(recording.t), bool)
+    for turn in ("x_rot", "y_rot", "z_rot"):
+        keep[sections[turn]["start"]:sections[turn]["end"]] = False
+    cut = Recording(recording.t[keep], {n: v[keep] for n, v in recording.triads.items()}, recording.kinds,
+                    recording.units)
+    cal = calibrate_recording(cut, UnknownPlace(gravity=9.81))
+    assert not cal.failures and cal.specific_force["accelerometer"].calibrated == PARAM_NAMES
+    gyro = cal.angular_rate["gyroscope"]
+    assert gyro.not_calibrated == PARAM_NAMES[3:] and "turn the unit once through 360°" in gyro.not_calibrated_why
+    info = imucal.FerrarisCalibration(grav=9.81).compute(
+        imucal.ferraris_regions_from_section_list(pd.read_csv(path, header=0, index_col=0),
+                                                  pd.read_json(real / "imucal_ferraris_session_list.json").T),
+        sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+    assert np.all(np.abs((gyro.theta[:3] - info.b_g) / gyro.sigma[:3]) < 3.0), (gyro.theta[:3], info.b_g)

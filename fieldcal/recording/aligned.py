@@ -107,7 +107,8 @@ def aligned_protocol(recording: Recording, station: Station | UnknownPlace, dete
             bias_sigma[name] = angular_rate[name].sigma[:3]
     spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
                           message="6 distinct poses, each along an axis (Ferraris)")
-    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate)) + (
+    scaled = [n for n, sol in angular_rate.items() if not sol.not_calibrated]  # a gyro's bias alone has no scale
+    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *scaled)) + (
         (left_out,) if left_out else ())
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
                                 bias_sigma, np.zeros((0, 2), int), False, noise.source, station,
