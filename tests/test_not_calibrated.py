@@ -217,3 +217,20 @@ def test_the_certificate_shows_not_calibrated_for_those_parameters():
     assert "not calibrated (no limit)" in scale_x and "PASS" not in scale_x
     bias_x = next(r for r in rows if r.startswith("<td>bias x"))
     assert "PASS" in bias_x
+
+
+def test_the_registry_indexes_only_calibrated_parameters(tmp_path):
+    """A nominal is nothing of the unit to track: its row is left out (the registry's σ column
+    holds numbers), so a later calibration that does determine it shows no drift from it."""
+    from dataclasses import replace
+
+    from fieldcal.paramfile import save
+    from fieldcal.registry import Registry
+
+    pf = partial_file()
+    pf = replace(pf, provenance=replace(pf.provenance, device_serial="U1"))
+    registry = Registry(tmp_path / "registry.sqlite")
+    assert registry.record(save(pf, tmp_path / "p.yaml"))
+    [entry] = registry.history("U1")
+    assert set(entry["parameters"]) == {("accelerometer", "bias_x"), ("accelerometer", "bias_y"),
+                                        ("gyroscope", "bias_x"), ("gyroscope", "bias_y"), ("gyroscope", "bias_z")}
