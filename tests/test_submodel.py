@@ -66,20 +66,24 @@ def assert_solved_within_sigma(solution, truth, limit=3.0):
 @pytest.mark.parametrize("seed", [4, 6])
 def test_rests_only_give_the_gyro_bias_and_mark_the_rest(seed):
     """One still pose: the accelerometer's norm gives one equation for nine unknowns (nothing is
-    determined: it is not calibrated, saying which poses to add); the gyro's bias is the rest's
+    determined: every parameter marked, saying which poses to add); the gyro's bias is the rest's
     mean less the vertical Earth rate, within its σ of the truth; its scale and misalignment are
     marked, nominal."""
     sim = rests_only(seed)
     cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
     assert cal.protocol == SUBMODEL_PROTOCOL
-    assert "accelerometer" not in cal.specific_force and "add poses with x up" in cal.failures["accelerometer"]
+    acc = cal.specific_force["accelerometer"]
+    assert not cal.failures and acc.calibrated == () and "add poses with x up" in acc.not_calibrated_why
+    np.testing.assert_array_equal(acc.K, np.eye(3))  # m/s^2: nominal
+    assert np.all(np.isnan(acc.sigma))
     gyro = cal.angular_rate["gyroscope"]
     assert gyro.calibrated == ("bias_x", "bias_y", "bias_z") and gyro.method == "still"
     assert_solved_within_sigma(gyro, truth_of(sim, "gyroscope"))
     np.testing.assert_array_equal(gyro.theta[3:], [1.0, 1.0, 1.0, 0.0, 0.0, 0.0])  # rad/s: nominal
     line = summary_lines(cal)[-1]
-    assert line.startswith("calibrated: gyroscope bias x/y/z. NOT calibrated (nominal, no σ): gyroscope scale")
-    assert "accelerometer" in line and "rotations between 9 or more well-spread poses" in line
+    assert line.startswith("calibrated: gyroscope bias x/y/z. NOT calibrated (nominal, no σ): accelerometer (all); "
+                           "gyroscope scale factor x/y/z, misalignment Δyz/Δzy/Δzx. To add them: accelerometer: add poses")
+    assert "accelerometer (all)" in line and "rotations between 9 or more well-spread poses" in line
 
 
 def test_rests_only_without_a_place_carry_the_earth_rate_and_say_so():
@@ -144,18 +148,23 @@ def _map(tmp_path, sim):
 
 
 def test_fieldcal_calibrate_writes_the_marks_and_says_what_was_solved(tmp_path, capsys):
-    """The command writes a parameter file holding the gyro's bias alone, its other parameters
-    marked, says so in one line, and exits 1: the accelerometer is not calibrated."""
+    """The command writes a parameter file holding the gyro's bias alone, every other parameter
+    marked, says so in one line and exits 0 (the largest well-determined model was solved); the
+    file's px4 export holds the gyro's offsets alone."""
     sim = rests_only(4)
     acc, gyro = to_text(sim, tmp_path)
     code = main(["calibrate", str(acc), str(gyro), "--map", str(_map(tmp_path, sim)), "--latitude", "40",
                  "--out", str(tmp_path / "s"), "--params", str(tmp_path / "p.yaml")])
     out = capsys.readouterr().out
-    assert code == 1, out
+    assert code == 0, out
     assert "calibrated: gyroscope bias x/y/z. NOT calibrated" in out
     pf = load(tmp_path / "p.yaml")
-    assert pf.names == ("gyroscope",) and pf["gyroscope"].not_calibrated == PARAM_NAMES[3:]
+    assert pf.names == ("accelerometer", "gyroscope") and pf["accelerometer"].calibrated == ()
+    assert pf["gyroscope"].not_calibrated == PARAM_NAMES[3:]
     assert_solved_within_sigma(pf["gyroscope"], truth_of(sim, "gyroscope"))
+    from fieldcal.export import export
+    written = [line.split("\t")[2] for line in export(pf, "px4").splitlines() if not line.startswith("#")]
+    assert written == ["CAL_GYRO0_XOFF", "CAL_GYRO0_YOFF", "CAL_GYRO0_ZOFF"]
 
 
 def test_imucals_session_without_its_turns_gives_its_gyro_bias_as_imucal_does(tmp_path):

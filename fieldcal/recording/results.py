@@ -136,6 +136,9 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
         header = solution_header(sol)
         if sol.method == CLASSIC_METHOD:  # the Ferraris faces
             header = f"{name} (Ferraris's six-position solution, the faces' norms fitted to g; {residual_text(sol)})"
+        elif sol.not_calibrated:  # a sub-model's: what the poses determined
+            header = (f"{name} (not calibrated: {sol.not_calibrated_why})" if not sol.calibrated else
+                      f"{header[:-1]}; only what the poses determine)")
         lines += ["", header, solution_table(sol, truths.get(name))]
     for name, sol in cal.angular_rate.items():
         fit = sol.diagnostics

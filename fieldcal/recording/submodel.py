@@ -63,7 +63,8 @@ def nominal_theta(kind: str, unit: str) -> np.ndarray | None:
 def submodel_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
                       tried, settings: RecordingSettings) -> RecordingCalibration | None:
     """What the poses of the threshold that found the most determine; None when the recording's
-    triads are not in physical units (no nominal) or nothing at all is determined."""
+    triads are not in physical units (no nominal) or nothing at all is determined. A triad of
+    which nothing is determined is there, every parameter marked (``nothing_determined``)."""
     candidate = max(detection.candidates, key=lambda c: (c.spread.count, len(c.poses.intervals)))
     poses, spread, reference = candidate.poses, candidate.spread, detection.reference
     if not len(poses.intervals) or any(nominal_theta(recording.kinds[n], recording.units[n]) is None
@@ -77,10 +78,9 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
             np.var(values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
         solution = solve_determined(name, recording.units[name], interval_means(values, poses.intervals),
                                     np.diff(poses.intervals, axis=1)[:, 0], variance, station.gravity, add)
-        if solution is None:
-            failures[name] = f"the {len(poses.intervals)} poses determine none of its parameters: {add}"
-        else:
-            specific_force[name] = solution
+        specific_force[name] = solution if solution is not None else nothing_determined(
+            name, recording.units[name], interval_means(values, poses.intervals), station.gravity,
+            f"the {len(poses.intervals)} poses determine none of its parameters: {add}")
     angular_rate, bias_sigma = {}, {}
     up = poses.means / np.linalg.norm(poses.means, axis=1, keepdims=True)  # physical units: zero known
     for name in detection.rates:
@@ -89,7 +89,7 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
     if detection.rates and isinstance(station, UnknownPlace):
         notes.append("the gyro's bias holds the Earth rate (up to 15 °/h, its direction unknown) as an error "
                      "in its σ: give --latitude to take off its vertical part")
-    if not specific_force and not angular_rate:
+    if not any(sol.calibrated for sol in (*specific_force.values(), *angular_rate.values())):
         return None
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
                                 bias_sigma, np.zeros((0, 2), int), False, detection.noise.source, station,
@@ -149,6 +149,18 @@ def solve_determined(name: str, unit: str, means: np.ndarray, counts: np.ndarray
                                f"{add}") if unsolved else solution
 
 
+def nothing_determined(name: str, unit: str, means: np.ndarray, gravity: float, why: str) -> Calibration:
+    """A specific-force triad of which the poses determine nothing: every parameter nominal and
+    marked, so that the file still says so (and apply passes its readings through as read); its
+    residuals the poses' norms at the nominal less g."""
+    theta = nominal_theta(SPECIFIC_FORCE, unit)
+    residuals = StaticNormProblem(means, gravity, name=name, output_unit=unit).residuals(theta, means.ravel())
+    solution = Calibration(name=name, kind=SPECIFIC_FORCE, output_unit=unit, method="lsq", theta=theta,
+                           sigma=np.zeros(9), residuals=residuals,
+                           diagnostics=SolverDiagnostics(message="nothing determined", dof=0))
+    return with_not_calibrated(solution, PARAM_NAMES, why)
+
+
 def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: Station | UnknownPlace,
                noise=None, why: str = GYRO_WHY) -> Calibration:
     """A gyro's bias alone: the mean of every pose's still reading less the vertical Earth rate
@@ -191,8 +203,8 @@ def summary_line(cal: RecordingCalibration) -> str:
     for name, sol in (*cal.specific_force.items(), *cal.angular_rate.items()):
         if not sol.not_calibrated:
             continue
-        solved.append(f"{name} {_names(sol.calibrated, label)}")
-        unsolved.append(f"{name} {_names(sol.not_calibrated, label)}")
+        solved += [f"{name} {_names(sol.calibrated, label)}"] if sol.calibrated else []
+        unsolved.append(f"{name} {_names(sol.not_calibrated, label)}" if sol.calibrated else f"{name} (all)")
         adds.append(f"{name}: {sol.not_calibrated_why.split(': ', 1)[-1]}" if sol.not_calibrated_why else "")
     unsolved += [name for name in cal.failures]
     if not solved:
