@@ -183,5 +183,7 @@ def methods_table(calibrations: dict) -> str:
             j = cal.parameter_names.index(name)
             factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
             row += [*value_cells(cal.theta[j] * factor, unit), *sigma_cells(cal.sigma[j] * factor, unit)]
+            if name in getattr(cal, "not_calibrated", ()):  # nominal, with no σ
+                row[-2:] = ["not calibrated", ""]
         rows.append(row)
     return aligned(rows, "l" + "rlrl" * len(calibrations))
