@@ -42,13 +42,15 @@ from fieldcal.solvers.problems import StaticNormProblem
 # A singular direction known no better than this (natural units) is left at the nominal model:
 # the norm solver's own bound for a parameter the positions do not determine.
 RANK_FRACTION = 0.01
-# A parameter is calibrated when known to this fraction of its natural unit (1 mg-ish for a bias
-# of 1 g, 1000 ppm for a scale factor, 1 mrad for an angle): a tenth of what a consumer MEMS
-# datasheet already promises of the nominal, below which a calibration adds little to it.
-WELL_DETERMINED = 1e-3
+# A parameter is calibrated when known to this fraction of its natural unit, per bias, scale
+# factor and angle: about a tenth of what a consumer MEMS accelerometer's datasheet already
+# promises of the nominal (zero-g offset ±50 mg, sensitivity ±2 %, cross-axis 1-2 %), so 5 mg,
+# 0.2 % and 2 mrad: known less well, a calibration adds little to the nominal.
+WELL_DETERMINED = np.repeat([5e-3, 2e-3, 2e-3], 3)
 # How far from nominal a consumer unit may be along an open direction (natural units: 1 %).
 PLAUSIBLE_OFFSET = 0.01
 _ITERATIONS = 20
+MIN_POSES_FOR_NOISE = 3  # still poses from which a gyro's bias instability is measured
 _STEP_TOL = 1e-9  # natural units: a Gauss-Newton step this small has converged
 GYRO_WHY = ("its scale factors and misalignment need the rotations between 9 or more well-spread poses "
             "(or the six faces and a full turn about each axis)")
@@ -84,7 +86,8 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
     angular_rate, bias_sigma = {}, {}
     up = poses.means / np.linalg.norm(poses.means, axis=1, keepdims=True)  # physical units: zero known
     for name in detection.rates:
-        angular_rate[name] = still_gyro(recording, name, poses, up, station, settings.noise.get(name))
+        angular_rate[name] = still_gyro(recording, name, poses, up, station, settings.noise.get(name),
+                                        estimate=settings.estimate_noise)
         bias_sigma[name] = angular_rate[name].sigma[:3]
     if detection.rates and isinstance(station, UnknownPlace):
         notes.append("the gyro's bias holds the Earth rate (up to 15 °/h, its direction unknown) as an error "
@@ -106,8 +109,11 @@ def solve_determined(name: str, unit: str, means: np.ndarray, counts: np.ndarray
                                 labels=tuple(f"pose {i + 1}" for i in range(len(means))))
     residuals_at = problem.residual_function(problem.data)
     up = means / np.linalg.norm(means, axis=1, keepdims=True)
-    weight = 1.0 / np.sqrt((up**2 @ variance) / counts)  # each mean's noise along its up
     natural = np.r_[theta0[3:6] * gravity, theta0[3:6], np.ones(3)]
+    # Each mean's noise along its up; a noise measured as 0 (a quantised rest) floored far below
+    # anything a converter resolves, so that no weight is infinite.
+    floor = (1e-9 * natural[:3]) ** 2
+    weight = 1.0 / np.sqrt((up**2 @ np.maximum(variance, floor)) / counts)
 
     def whitened_jacobian(theta):
         steps = 1e-6 * natural
@@ -156,17 +162,18 @@ def nothing_determined(name: str, unit: str, means: np.ndarray, gravity: float, 
     theta = nominal_theta(SPECIFIC_FORCE, unit)
     residuals = StaticNormProblem(means, gravity, name=name, output_unit=unit).residuals(theta, means.ravel())
     solution = Calibration(name=name, kind=SPECIFIC_FORCE, output_unit=unit, method="lsq", theta=theta,
-                           sigma=np.zeros(9), residuals=residuals,
+                           covariance=np.zeros((9, 9)), residuals=residuals,
                            diagnostics=SolverDiagnostics(message="nothing determined", dof=0))
     return with_not_calibrated(solution, PARAM_NAMES, why)
 
 
 def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: Station | UnknownPlace,
-               noise=None, why: str = GYRO_WHY) -> Calibration:
+               noise=None, why: str = GYRO_WHY, estimate: bool = True) -> Calibration:
     """A gyro's bias alone: the mean of every pose's still reading less the vertical Earth rate
     (``drift.still_bias`` without the g-sensitivity and drift terms, which poses too alike cannot
     tell from the bias), its σ from their scatter, never below the white noise's and the unknown
-    Earth rate's share, widened by a config's bias instability; its scale at the unit's own and no
+    Earth rate's share, widened by the bias instability of a config's noise model (``noise``) or,
+    with ``estimate`` and poses enough, of one measured from them; its scale at the unit's own and no
     misalignment, both marked not calibrated (``why``: what would add them). ``up``: each pose's up
     vector."""
     from fieldcal.recording.drift import still_bias
@@ -179,6 +186,11 @@ def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: 
     rest_variance = np.var(gyro[intervals[0, 0]:intervals[0, 1]], axis=0, ddof=1)
     white = np.mean(rest_variance[None, :] / counts[:, None], axis=0) / len(intervals)
     bias, bias_sigma = still_bias(still, scale**2 * earth_variance / len(intervals) + white)
+    if noise is None and estimate and len(intervals) >= MIN_POSES_FOR_NOISE:  # measured, as the full solve does
+        from fieldcal.recording.gyro_solve import estimated_rate_noise
+
+        noise = estimated_rate_noise(still, up, intervals, recording.t, scale, rest_variance,
+                                     scale**2 * earth_variance, recording.rate_hz)
     if noise is not None and noise.bias_instability:  # what every pose shares, which no scatter shows
         weights = np.full(len(intervals), 1.0 / len(intervals))
         times = recording.t[intervals[:, 0]]
