@@ -27,6 +27,8 @@ no nominal scale to leave a scale at: such a recording is not solved here.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from fieldcal.calibration import STILL_METHOD, Calibration, SolverDiagnostics, nominal_value, with_not_calibrated
@@ -79,7 +81,8 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
         variance = detection.noise.variance if name == reference else \
             np.var(values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
         solution = solve_determined(name, recording.units[name], interval_means(values, poses.intervals),
-                                    np.diff(poses.intervals, axis=1)[:, 0], variance, station.gravity, add)
+                                    poses.intervals, recording.t, variance, station.gravity, add,
+                                    settings.noise.get(name), recording.rate_hz if settings.estimate_noise else None)
         specific_force[name] = solution if solution is not None else nothing_determined(
             name, recording.units[name], interval_means(values, poses.intervals), station.gravity,
             f"the {len(poses.intervals)} poses determine none of its parameters: {add}")
@@ -99,58 +102,102 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
                                 SUBMODEL_PROTOCOL, notes=tuple(notes))
 
 
-def solve_determined(name: str, unit: str, means: np.ndarray, counts: np.ndarray, variance: np.ndarray,
-                     gravity: float, add: str) -> Calibration | None:
-    """The specific-force triad's parameters its pose means determine (module doc), the rest
-    nominal and marked; None when none is determined. ``counts``: samples per mean; ``variance``:
-    per-axis white noise of one sample (output units²); ``add``: which poses would add the rest."""
-    theta0 = nominal_theta(SPECIFIC_FORCE, unit)
-    problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
-                                labels=tuple(f"pose {i + 1}" for i in range(len(means))))
-    residuals_at = problem.residual_function(problem.data)
-    up = means / np.linalg.norm(means, axis=1, keepdims=True)
-    natural = np.r_[theta0[3:6] * gravity, theta0[3:6], np.ones(3)]
-    # Each mean's noise along its up; a noise measured as 0 (a quantised rest) floored far below
-    # anything a converter resolves, so that no weight is infinite.
-    floor = (1e-9 * natural[:3]) ** 2
-    weight = 1.0 / np.sqrt((up**2 @ np.maximum(variance, floor)) / counts)
+@dataclass(frozen=True)
+class _Fit:
+    """A truncated-SVD fit in natural units: the solution, its covariance (the kept directions
+    only, scaled up by χ²/dof), χ² and dof, the condition number of what was kept, and each
+    parameter's share (norm of its row) in the open directions."""
 
-    def whitened_jacobian(theta):
+    theta: np.ndarray
+    covariance: np.ndarray
+    chi2: float
+    dof: int
+    condition: float
+    open_share: np.ndarray
+
+
+def _truncated_fit(residuals_at, theta0: np.ndarray, natural: np.ndarray, whiten) -> _Fit | None:
+    """Gauss-Newton from the nominal ``theta0`` in the directions the whitened Jacobian keeps
+    (1/s at most RANK_FRACTION of a natural unit), the others held; None when it keeps none.
+    ``whiten``: residuals (m,) or (m, k) to whitened ones."""
+    def jacobian(theta):
         steps = 1e-6 * natural
-        shifted = theta + np.concatenate([np.diag(steps), -np.diag(steps)])
-        values = residuals_at(shifted) * weight
-        return ((values[:9] - values[9:]) / (2 * steps)[:, None]).T * natural
+        values = residuals_at(theta + np.concatenate([np.diag(steps), -np.diag(steps)]))  # (18, m)
+        return whiten(((values[:9] - values[9:]) / (2 * steps)[:, None]).T) * natural
 
-    _, s, Vt = np.linalg.svd(whitened_jacobian(theta0), full_matrices=True)
-    s = np.r_[s, np.zeros(9 - len(s))]
+    _, s, _ = np.linalg.svd(jacobian(theta0))
     rank = int(np.count_nonzero(s * RANK_FRACTION > 1.0))
     if rank == 0:
         return None
     theta = theta0.copy()
-    for _ in range(_ITERATIONS):  # Gauss-Newton in the kept directions only (truncated SVD)
-        U, s, Vt = np.linalg.svd(whitened_jacobian(theta), full_matrices=True)
-        r = residuals_at(theta) * weight
-        step = Vt[:rank].T @ ((U[:, :rank].T @ -r) / s[:rank])
+    for _ in range(_ITERATIONS):
+        U, s, Vt = np.linalg.svd(jacobian(theta), full_matrices=True)
+        step = Vt[:rank].T @ ((U[:, :rank].T @ -whiten(residuals_at(theta))) / s[:rank])
         theta = theta + natural * step
         if np.max(np.abs(step)) < _STEP_TOL:
             break
-    U, s, Vt = np.linalg.svd(whitened_jacobian(theta), full_matrices=True)
-    r = residuals_at(theta) * weight
-    chi2, dof = float(r @ r), len(means) - rank
-    kept, open_ = Vt[:rank].T, Vt[rank:].T
-    cov_natural = (kept / s[:rank]**2) @ kept.T * max(chi2 / dof if dof > 0 else 1.0, 1.0)
-    sigma_natural = np.sqrt(np.diag(cov_natural))
-    leak = PLAUSIBLE_OFFSET * np.linalg.norm(open_, axis=1)
-    determined = (sigma_natural <= WELL_DETERMINED) & (leak <= sigma_natural)
+    _, s, Vt = np.linalg.svd(jacobian(theta), full_matrices=True)
+    r = whiten(residuals_at(theta))
+    chi2, dof = float(r @ r), len(r) - rank
+    kept = Vt[:rank].T
+    covariance = (kept / s[:rank] ** 2) @ kept.T * max(chi2 / dof if dof > 0 else 1.0, 1.0)
+    return _Fit(theta, covariance, chi2, dof, float(s[0] / s[rank - 1]), np.linalg.norm(Vt[rank:].T, axis=1))
+
+
+def _solution(name: str, unit: str, problem: StaticNormProblem, fit: _Fit, natural: np.ndarray) -> Calibration:
+    return Calibration(name=name, kind=SPECIFIC_FORCE, output_unit=unit, method="lsq", theta=fit.theta,
+                       covariance=fit.covariance * np.outer(natural, natural),
+                       residuals=problem.residuals(fit.theta, problem.data), residual_labels=problem.residual_labels,
+                       diagnostics=SolverDiagnostics(search="gauss-newton, the determined directions only",
+                                                     chi2=fit.chi2, dof=fit.dof, scaled_by_residuals=fit.chi2 > fit.dof,
+                                                     condition_number=fit.condition))
+
+
+def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndarray, t: np.ndarray,
+                     variance: np.ndarray, gravity: float, add: str, noise=None,
+                     rate_hz: float | None = None) -> Calibration | None:
+    """The specific-force triad's parameters its pose means determine (module doc), the rest
+    nominal and marked; None when none is determined. ``intervals``: the poses' [start, stop) in
+    samples of ``t``; ``variance``: per-axis white noise of one sample (output units²); ``add``:
+    which poses would add the rest. The means are weighed by their white noise, then, with the
+    device's ``noise`` model (else, given ``rate_hz``, one measured from that fit as the full
+    solve measures it), by their exact covariance, the bias instability all poses share included:
+    white noise alone put the errors at 1.7 times the σ (RMS) on the paper's unit."""
+    from fieldcal.recording.static_solve import estimated_force_noise, means_covariance
+
+    theta0 = nominal_theta(SPECIFIC_FORCE, unit)
+    problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
+                                labels=tuple(f"pose {i + 1}" for i in range(len(means))))
+    residuals_at = problem.residual_function(problem.data)
+    natural = np.r_[theta0[3:6] * gravity, theta0[3:6], np.ones(3)]
+    counts = np.diff(intervals, axis=1)[:, 0]
+    # Each mean's noise along its up; a noise measured as 0 (a quantised rest) floored far below
+    # anything a converter resolves, so that no weight is infinite.
+    variance = np.maximum(variance, (1e-9 * natural[:3]) ** 2)
+    up = means / np.linalg.norm(means, axis=1, keepdims=True)
+    weight = 1.0 / np.sqrt((up**2 @ variance) / counts)
+    fit = _truncated_fit(residuals_at, theta0, natural, lambda r: r * weight.reshape(-1, *([1] * (r.ndim - 1))))
+    if fit is not None and noise is None and rate_hz is not None and len(means) > len(PARAM_NAMES):
+        # (no more means than parameters: no scatter to measure the flicker from; white noise it is)
+        noise = estimated_force_noise(_solution(name, unit, problem, fit, natural), means, intervals, t, variance,
+                                      rate_hz, gravity)
+    if fit is not None and noise is not None:
+        # The residuals' covariance G·Σ·Gᵀ, Σ the means' (a few dozen poses: dense is fine).
+        m = len(means)
+        G = np.zeros((m, 3 * m))
+        G[np.arange(m)[:, None], 3 * np.arange(m)[:, None] + np.arange(3)] = problem.point_gradients(fit.theta)
+        solution = _solution(name, unit, problem, fit, natural)
+        root = np.linalg.cholesky(G @ means_covariance(intervals, t, variance, noise, solution.K, unit) @ G.T)
+        fit = _truncated_fit(residuals_at, theta0, natural,
+                             lambda r: np.linalg.solve(root, r))
+    if fit is None:
+        return None
+    sigma_natural = np.sqrt(np.diag(fit.covariance))
+    determined = (sigma_natural <= WELL_DETERMINED) & (PLAUSIBLE_OFFSET * fit.open_share <= sigma_natural)
     if not determined.any():
         return None
-    solution = Calibration(name=name, kind=SPECIFIC_FORCE, output_unit=unit, method="lsq", theta=theta,
-                           covariance=cov_natural * np.outer(natural, natural), residuals=residuals_at(theta),
-                           residual_labels=problem.residual_labels,
-                           diagnostics=SolverDiagnostics(search="gauss-newton, the determined directions only",
-                                                         chi2=chi2, dof=dof, scaled_by_residuals=chi2 > dof,
-                                                         condition_number=float(s[0] / s[rank - 1])))
     unsolved = [n for n, ok in zip(PARAM_NAMES, determined) if not ok]
+    solution = _solution(name, unit, problem, fit, natural)
     return with_not_calibrated(solution, unsolved, f"{len(means)} poses too few or too alike to determine them: "
                                f"{add}") if unsolved else solution
 
