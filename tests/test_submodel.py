@@ -216,3 +216,14 @@ def test_imucals_session_without_its_turns_gives_its_gyro_bias_as_imucal_does(tm
                                                   pd.read_json(real / "imucal_ferraris_session_list.json").T),
         sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
     assert np.all(np.abs((gyro.theta[:3] - info.b_g) / gyro.sigma[:3]) < 3.0), (gyro.theta[:3], info.b_g)
+
+
+def test_a_norm_solve_its_measured_noise_leaves_degenerate_falls_to_the_sub_model():
+    """These poses pass the norm method's screen on white noise, and its solve again with the
+    noise measured from them found an angle known only to ±0.032 rad: the whole recording was
+    refused ("positions are degenerate"). Now the sub-model takes them, saying why."""
+    sim = simulate_handheld(113, n_poses=9, directions=faces_tilted(113), raw_counts=False)
+    cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+    assert cal.protocol == SUBMODEL_PROTOCOL
+    assert "with its measured noise: accelerometer: positions are degenerate" in cal.tried[-1][2]
+    assert_solved_within_sigma(cal.specific_force["accelerometer"], truth_of(sim, "accelerometer"))
