@@ -2,7 +2,9 @@
 
 One YAML file per calibration: for each triad the model raw = K·true + b of ``fieldcal.model``
 (bias, scale factors, non-orthogonality angles with their 1σ, and K itself; optionally a
-``thermal`` section, versioned on its own, holding ``fieldcal.thermal``'s model), plus provenance:
+``thermal`` section, versioned on its own, holding ``fieldcal.thermal``'s model; and a
+``not_calibrated`` section, versioned on its own, naming the parameters the data did not determine,
+written at their nominal values with a null σ), plus provenance:
 software version, procedure, solver method, a hash of the averages that went in, the station's
 gravity, and optionally the device and whether it was simulated.
 
