@@ -74,7 +74,10 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
     if not len(poses.intervals) or any(nominal_theta(recording.kinds[n], recording.units[n]) is None
                                        for n in (*detection.forces, *detection.rates)):
         return None
+    from fieldcal.recording.aligned import faces_missing
+
     add = spread.message.split(": ", 1)[-1] if ": " in spread.message else "add poses"
+    add += faces_missing(detection, settings.detector.min_static_s)  # a Ferraris session short of a face: which
     specific_force, failures, notes = {}, {}, []
     for name in detection.forces:
         values = recording.triads[name]
