@@ -62,7 +62,8 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     if choice.best is None:  # too few poses for the norm method: the six faces, if they are there
         aligned = aligned_protocol(recording, station, detection, choice.tried, settings)
         if aligned is None:  # what the poses do determine, the rest marked not calibrated
-            aligned = submodel_protocol(recording, station, detection, choice.tried, settings)
+            aligned = submodel_protocol(recording, station, detection, choice.tried, settings,
+                                        faces_missing(detection, settings.detector.min_static_s))
         if aligned is None:
             raise _no_usable_poses(detection, choice, settings)
         return _with_unknown_gravity(aligned)

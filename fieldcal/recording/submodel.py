@@ -65,19 +65,18 @@ def nominal_theta(kind: str, unit: str) -> np.ndarray | None:
 
 
 def submodel_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
-                      tried, settings: RecordingSettings) -> RecordingCalibration | None:
+                      tried, settings: RecordingSettings, faces: str = "") -> RecordingCalibration | None:
     """What the poses of the threshold that found the most determine; None when the recording's
     triads are not in physical units (no nominal) or nothing at all is determined. A triad of
-    which nothing is determined is there, every parameter marked (``nothing_determined``)."""
+    which nothing is determined is there, every parameter marked (``nothing_determined``).
+    ``faces``: what a Ferraris session lacks (``aligned.faces_missing``), for what would add it."""
     candidate = max(detection.candidates, key=lambda c: (c.spread.count, len(c.poses.intervals)))
     poses, spread, reference = candidate.poses, candidate.spread, detection.reference
     if not len(poses.intervals) or any(nominal_theta(recording.kinds[n], recording.units[n]) is None
                                        for n in (*detection.forces, *detection.rates)):
         return None
-    from fieldcal.recording.aligned import faces_missing
-
     add = spread.message.split(": ", 1)[-1] if ": " in spread.message else "add poses"
-    add += faces_missing(detection, settings.detector.min_static_s)  # a Ferraris session short of a face: which
+    add += faces  # a Ferraris session short of a face: which
     specific_force, failures, notes = {}, {}, []
     for name in detection.forces:
         values = recording.triads[name]
