@@ -166,6 +166,7 @@ class Check:
     reasons: tuple[str, ...] = ()  # why it fails; empty: PASS
     drift: float | None = None  # since the previous calibration, operator units
     drift_sigma: float | None = None  # that drift over the combined 1σ of both calibrations
+    calibrated: bool = True  # False: the data did not determine it (nominal value, no σ)
 
     @property
     def passed(self) -> bool:
@@ -200,6 +201,9 @@ def _parameter_check(spec, ts: TriadSpec, cal, i: int, value: float, sigma: floa
                      previous) -> Check:
     name = cal.parameter_names[i]
     limit = ts.limit_for(name)
+    if name in cal.not_calibrated:  # a nominal is no measurement: a limit on it is never passed
+        why = (f"not calibrated: {cal.not_calibrated_why or 'the data did not determine it'}",)
+        return Check(cal.name, name, value, None, unit, why if limit is not None else (), calibrated=False)
     if limit is None:
         return Check(cal.name, name, value, sigma, unit)
     if limit.unit != unit:
@@ -289,6 +293,8 @@ def verdict_lines(verdict: Verdict) -> list[str]:
         drift = "" if c.drift is None else _g(c.drift) + (f" ({c.drift_sigma:+.1f}σ)"
                                                            if c.drift_sigma is not None else "")
         result = "PASS" if c.passed else "FAIL: " + "; ".join(c.reasons)
+        if c.passed and not c.calibrated:
+            result = "not calibrated (no limit)"
         rows.append([c.triad, label(c.parameter), value, c.unit, sigma, c.unit if sigma else "", drift,
                      c.unit if drift else "", result])
     verdict_line = (f"{verdict.product}: {'PASS' if verdict.passed else 'FAIL'} "

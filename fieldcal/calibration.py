@@ -26,7 +26,7 @@ import numpy as np
 from fieldcal.model import (ANGLE_TERMS, KINDS, PARAM_NAMES, SI_UNIT, k_from, k_from_params, params_from,
                             params_from_k)
 from fieldcal.thermal import ThermalModel
-from fieldcal.units import group_of, operator_unit
+from fieldcal.units import SCALE, SI_PER_UNIT, group_of, operator_unit
 
 # Norm-method solvers give a lower-triangular K; a file claiming one of these methods with a
 # non-zero upper triangle has been edited by hand.
@@ -35,8 +35,21 @@ CLASSIC_METHOD = "classic"
 # The gyro calibrated from the rotations between a recording's poses: full K (the gyro-to-
 # accelerometer misalignment included), residuals in rad (direction misfits).
 ROTATION_METHOD = "rotation"
-TRIAD_METHODS = (*LOWER_TRIANGULAR_METHODS, CLASSIC_METHOD, ROTATION_METHOD)
+# A triad's biases from still poses alone (the gyro's from rests; no rotation or pose spread to
+# give its scale or misalignment): the still readings' mean, residuals their scatter about it.
+STILL_METHOD = "still"
+TRIAD_METHODS = (*LOWER_TRIANGULAR_METHODS, CLASSIC_METHOD, ROTATION_METHOD, STILL_METHOD)
 _MAX_CONDITION = 1e12  # K with a larger condition number is treated as singular
+
+
+def nominal_value(kind: str, output_unit: str, parameter: str) -> float | None:
+    """What a parameter is when nothing calibrated it: no bias, no misalignment, the scale of the
+    output unit itself (1 for SI, 1/9.80665 for g); None for a scale in a device's own unit
+    (counts), which has no nominal."""
+    if group_of(parameter) != SCALE:
+        return 0.0
+    si = SI_PER_UNIT[kind].get(output_unit)
+    return None if si is None else 1.0 / si
 
 
 def nearest(value, allowed: Sequence[str]) -> str:
@@ -108,6 +121,10 @@ class Calibration:
     parameter_names: tuple[str, ...] = PARAM_NAMES
     diagnostics: SolverDiagnostics | None = None  # None when read from a file
     thermal: ThermalModel | None = None  # bias and scale against temperature; None: not calibrated
+    # The PARAM_NAMES parameters the data did not determine (issue 27): each at its nominal_value,
+    # its σ NaN (there is none), the file marks them; ``not_calibrated_why``: what would add them.
+    not_calibrated: tuple[str, ...] = ()
+    not_calibrated_why: str = ""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__  # frozen: fill the derived fields once, here
@@ -161,6 +178,8 @@ class Calibration:
                 set_(self, "sigma", np.sqrt(np.diag(cov)))
         if self.sigma is None:
             raise ValueError(f"{self.name}: give the covariance or sigma")
+        if self.not_calibrated and np.shape(self.sigma) == (p,):  # theirs is NaN: none, checked below
+            set_(self, "sigma", np.where(np.isin(names, self.not_calibrated), 0.0, self.sigma))
         sigma = _readonly(self.sigma, (p,), f"{self.name}.sigma")
         if np.any(sigma < 0):
             raise ValueError(f"{self.name}.sigma: expected values >= 0, got {sigma.tolist()}")
@@ -176,6 +195,45 @@ class Calibration:
         if self.thermal is not None and not isinstance(self.thermal, ThermalModel):
             raise ValueError(f"{self.name}.thermal: expected a ThermalModel or None, "
                              f"got {type(self.thermal).__name__}")
+        self._mark_not_calibrated()
+
+    def _mark_not_calibrated(self) -> None:
+        """Check that every parameter marked not calibrated is at its nominal value, and take its
+        σ (and covariance) away: NaN, never a number that would read as a calibrated one's."""
+        marked = tuple(self.not_calibrated)
+        if not marked:
+            object.__setattr__(self, "not_calibrated", ())
+            return
+        unknown = [n for n in marked if n not in PARAM_NAMES]
+        if unknown or self.parameter_names != PARAM_NAMES:
+            raise ValueError(f"{self.name}.not_calibrated: expected names of {', '.join(PARAM_NAMES)}, got "
+                             f"{', '.join(map(repr, unknown or marked))}")
+        marked = tuple(n for n in PARAM_NAMES if n in marked)  # one order everywhere
+        index = [PARAM_NAMES.index(n) for n in marked]
+        for i, n in zip(index, marked):
+            nominal = nominal_value(self.kind, self.output_unit, n)
+            if nominal is None:
+                raise ValueError(f"{self.name}.{n}: a scale factor in {self.output_unit!r} has no nominal value: "
+                                 "it cannot be left not calibrated")
+            if not math.isclose(float(self.theta[i]), nominal, rel_tol=1e-12, abs_tol=1e-15):
+                raise ValueError(f"{self.name}.{n}: not calibrated, so expected its nominal value {nominal!r}, "
+                                 f"got {float(self.theta[i])!r}")
+        sigma = np.array(self.sigma)
+        sigma[index] = np.nan
+        sigma.setflags(write=False)
+        object.__setattr__(self, "sigma", sigma)
+        if self.covariance is not None:
+            cov = np.array(self.covariance)
+            cov[index, :] = np.nan
+            cov[:, index] = np.nan
+            cov.setflags(write=False)
+            object.__setattr__(self, "covariance", cov)
+        object.__setattr__(self, "not_calibrated", marked)
+
+    @property
+    def calibrated(self) -> tuple[str, ...]:
+        """The PARAM_NAMES parameters the data determined (all of them unless some are marked)."""
+        return tuple(n for n in PARAM_NAMES if n not in self.not_calibrated)
 
     # The model ---------------------------------------------------------------------------
 
@@ -254,7 +312,7 @@ class Calibration:
     def _key(self) -> tuple:
         return (self.name, self.kind, self.output_unit, self.method, self.residual_unit,
                 self.bias.tobytes(), self.K.tobytes(), self.file_sigma.tobytes(), _bits(self.residual_rms),
-                None if self.thermal is None else self.thermal.key())
+                None if self.thermal is None else self.thermal.key(), self.not_calibrated, self.not_calibrated_why)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Calibration):
@@ -263,6 +321,26 @@ class Calibration:
 
     def __hash__(self) -> int:
         return hash(self._key())
+
+
+def with_not_calibrated(cal: Calibration, names, why: str = "") -> Calibration:
+    """``cal`` with the PARAM_NAMES parameters ``names`` (besides any marked already) set to their
+    nominal values and marked not calibrated (issue 27): what a sub-model solve did not determine.
+    ``cal`` must be in PARAM_NAMES; its other values and their covariance are kept."""
+    from dataclasses import replace
+
+    marked = tuple(n for n in PARAM_NAMES if n in set(names) | set(cal.not_calibrated))
+    if not marked:
+        return cal
+    theta = np.array(cal.theta)
+    for n in marked:
+        nominal = nominal_value(cal.kind, cal.output_unit, n)
+        if nominal is None:
+            raise ValueError(f"{cal.name}.{n}: a scale factor in {cal.output_unit!r} has no nominal value: "
+                             "it cannot be left not calibrated")
+        theta[PARAM_NAMES.index(n)] = nominal
+    return replace(cal, theta=theta, K=None, bias=None, sigma=cal.sigma, not_calibrated=marked,
+                   not_calibrated_why=why or cal.not_calibrated_why)
 
 
 def operator_values(cal: Calibration) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:

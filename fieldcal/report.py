@@ -68,6 +68,8 @@ def solution_table(cal, truth: np.ndarray | None = None) -> str:
     for j, name in enumerate(cal.parameter_names):
         factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
         row = [label(name), *value_cells(cal.theta[j] * factor, unit), *sigma_cells(cal.sigma[j] * factor, unit)]
+        if name in getattr(cal, "not_calibrated", ()):  # nominal, with no σ: never shown as a σ
+            row[3:5] = ["not calibrated", ""]
         if truth is not None:
             row += [*value_cells(true[j] * factor, unit), f"{errors[j]:+.2f}"]
         rows.append(row)
@@ -82,6 +84,9 @@ def comparison_table(cal, previous) -> str:
     before, before_sigma = previous.file_theta, previous.file_sigma
     for j, name in enumerate(PARAM_NAMES):
         factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
+        if name in cal.not_calibrated or name in previous.not_calibrated:  # a nominal: no change to weigh
+            rows.append([label(name), *value_cells(before[j] * factor, unit), "not calibrated", "", "", "", "-"])
+            continue
         change = now[j] - before[j]
         combined = float(np.hypot(now_sigma[j], before_sigma[j]))
         rows.append([label(name), *value_cells(before[j] * factor, unit),
@@ -178,5 +183,7 @@ def methods_table(calibrations: dict) -> str:
             j = cal.parameter_names.index(name)
             factor, unit = operator_unit(cal.kind, cal.output_unit, group_of(name))
             row += [*value_cells(cal.theta[j] * factor, unit), *sigma_cells(cal.sigma[j] * factor, unit)]
+            if name in getattr(cal, "not_calibrated", ()):  # nominal, with no σ
+                row[-2:] = ["not calibrated", ""]
         rows.append(row)
     return aligned(rows, "l" + "rlrl" * len(calibrations))

@@ -116,6 +116,15 @@ def calibrations_for(parameters, units: dict[str, str], source: str, where: str,
     return tuple(cals), tuple(skipped)
 
 
+def not_calibrated_lines(parameters) -> list[str]:
+    """One line per triad with parameters the data did not determine (issue 27): they hold their
+    nominal values (no bias, no misalignment, the unit's own scale), so K⁻¹(raw − bias) corrects
+    only what was calibrated and passes the rest through as read."""
+    return [f"apply: {t.name}: {', '.join(t.not_calibrated)} not calibrated: applied at their nominal values "
+            f"(no correction); only {', '.join(t.calibrated) or 'nothing'} corrected"
+            for t in parameters.triads if t.not_calibrated]
+
+
 def calibrated_blocks(p: Plan, block_bytes: int = BLOCK_BYTES) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """(t (n,) in s, calibrated (n, 3·triads) in SI units) per block of the file."""
     from fieldcal.apply.text import layout, read_blocks

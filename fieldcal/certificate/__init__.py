@@ -44,7 +44,12 @@ def _result(check) -> str:
     """PASS, FAIL with the reasons, or (no check: a triad the spec does not name) not checked."""
     if check is None:
         return NOT_CHECKED
+    if check.passed and not getattr(check, "calibrated", True):
+        return NOT_CALIBRATED
     return "PASS" if check.passed else "FAIL: " + "; ".join(check.reasons)
+
+
+NOT_CALIBRATED = "not calibrated (no limit)"  # a nominal value, never shown as a PASS
 
 
 def _positions(evidence) -> str:
@@ -116,9 +121,10 @@ def _triad_section(cal, checks: dict, with_results: bool, evidence, spec) -> str
                  header=True)]
     for name, v, s, u in zip(cal.parameter_names, values, sigmas, units):
         cell = [_result(checks.get((cal.name, name)))] if with_results else []
-        styles = [c[:4] if c != NOT_CHECKED else "" for c in cell]  # the PASS or FAIL class
+        styles = [c[:4] if c not in (NOT_CHECKED, NOT_CALIBRATED) else "" for c in cell]  # PASS or FAIL class
         limits = [_limits(ts.limit_for(name) if ts is not None else None, u)] if with_results else []
-        rows.append(_row([label(name), f"{v:.7g}", f"{s:.3g}", u] + limits + cell,
+        shown = f"{s:.3g}" if name not in cal.not_calibrated else "not calibrated"  # nominal: no σ
+        rows.append(_row([label(name), f"{v:.7g}", shown, u] + limits + cell,
                          classes=["", "num", "num", ""] + [""] * len(limits) + styles))
     factor, unit = operator_unit(cal.kind, cal.residual_unit, BIAS)
     residual_check = checks.get((cal.name, "residual"))

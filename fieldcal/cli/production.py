@@ -37,6 +37,10 @@ def cmd_export(args) -> int:
         for loss in diagonal_parameters(parameters, args.format, args.accelerometer, args.gyroscope,
                                         gyro_scale=False)[1]:
             print(f"fieldcal export: {args.format}: {loss.line()}", file=sys.stderr)
+        from fieldcal.export.autopilot import NOT_WRITTEN
+        for line in text.splitlines():  # what the file leaves out for want of a calibration
+            if line.startswith(NOT_WRITTEN):
+                print(f"fieldcal export: {args.format}: {line[2:]}", file=sys.stderr)
     if args.out:
         write_atomically(args.out, text.encode("utf-8"), overwrite=args.force, hint="give --force to replace it",
                          inputs=[args.params])
@@ -120,11 +124,11 @@ def cmd_apply(args) -> int:
         if getattr(args, name) is not None and owner != kind:
             raise ValueError(f"apply: --{name} is for {_APPLY_INPUTS[owner]}, not {_APPLY_INPUTS[kind]}")
     if kind == "live":
-        return _apply_device(args, load(args.params))
+        return _apply_device(args, _said(load(args.params)))
     if kind == "log":
         from fieldcal.apply.logs import apply_log
 
-        parameters = load(args.params)
+        parameters = _said(load(args.params))
         [target] = _apply_targets(args, args.input)
         skipped = []
         _write_csv(target, lambda out: _logged(apply_log(parameters, args.input[0], out, args.topic, args.imu),
@@ -141,7 +145,7 @@ def cmd_apply(args) -> int:
     from fieldcal.apply import apply_file, plan
     from fieldcal.recording.import_map import load_import_map
 
-    plans = plan(load(args.params), load_import_map(args.map), args.input, args.rate)
+    plans = plan(_said(load(args.params)), load_import_map(args.map), args.input, args.rate)
     targets = _apply_targets(args, [p.path for p in plans])
     for p, target in zip(plans, targets):
         for name in p.skipped:
@@ -150,6 +154,16 @@ def cmd_apply(args) -> int:
         _write_csv(target, lambda out, p=p: apply_file(p, out, warn=lambda line: print(
             f"fieldcal {line}", file=sys.stderr)), p.path, args.force)
     return 0
+
+
+def _said(parameters):
+    """``parameters``, once stderr has said which of its parameters are not calibrated and so
+    left uncorrected."""
+    from fieldcal.apply import not_calibrated_lines
+
+    for line in not_calibrated_lines(parameters):
+        print(f"fieldcal {line}", file=sys.stderr)
+    return parameters
 
 
 def _logged(result, skipped: list) -> int:

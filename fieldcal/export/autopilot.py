@@ -104,25 +104,64 @@ def _comments(parameters, fmt: str, losses) -> list[str]:
             *(f"#   {d.line()}" for d in losses)]
 
 
+NOT_WRITTEN = "# not written, not calibrated (the vehicle keeps its own values): "
+
+
+def refuse_not_calibrated(fmt: str, triads, why: str) -> None:
+    """One line refusing a format that holds every term of ``triads`` when one of them has
+    parameters not calibrated (``why``: what the format would do with a nominal)."""
+    marked = [t for t in triads if t.not_calibrated]
+    if marked:
+        t = marked[0]
+        raise ValueError(f"export {fmt}: {t.name}: {', '.join(t.not_calibrated)} not calibrated"
+                         f"{' (' + t.not_calibrated_why + ')' if t.not_calibrated_why else ''}; {why}: export px4, "
+                         "ardupilot (only what is calibrated) or json (the marks kept) instead")
+
+
+def only_calibrated(fmt: str, values) -> tuple[list, list[str]]:
+    """Of ``values`` [(name, value, triad, parameter)], those whose parameter is calibrated, and
+    comment lines naming the others: a flight stack loading a partial file keeps its own value of
+    a parameter not in it, where a nominal written as a value would pass for a calibrated one.
+    One line refuses the export when nothing it would write is calibrated (issue 27)."""
+    kept = [(n, v) for n, v, cal, parameter in values if parameter not in cal.not_calibrated]
+    left = [(n, cal) for n, _, cal, parameter in values if parameter in cal.not_calibrated]
+    if not left:
+        return kept, []
+    if not kept:
+        raise ValueError(f"export {fmt}: none of what {fmt} holds is calibrated in this file "
+                         f"({'; '.join(sorted({c.name + ': ' + c.not_calibrated_why for _, c in left}))})")
+    why = sorted({f"{c.name}: {c.not_calibrated_why}" for _, c in left if c.not_calibrated_why})
+    return kept, [f"{NOT_WRITTEN}{', '.join(n for n, _ in left)}",
+                  *(f"#   {w}" for w in why)]
+
+
+def _diagonal_values(rows, offset: str, scale: str, gyro_offset: str) -> list:
+    """[(name, value, triad, parameter)] of a diagonal format: the accelerometer's offsets and
+    scales, the gyro's offsets (names formatted with the axis letter)."""
+    (acc, acc_off, acc_scale), (gyr, gyr_off, _) = rows
+    values = [(offset.format(a), float(o), acc, f"bias_{a.lower()}") for a, o in zip("XYZ", acc_off)]
+    values += [(scale.format(a), float(k), acc, f"scale_{a.lower()}") for a, k in zip("XYZ", acc_scale)]
+    return values + [(gyro_offset.format(a), float(o), gyr, f"bias_{a.lower()}") for a, o in zip("XYZ", gyr_off)]
+
+
 def ardupilot(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     """A Mission Planner .parm file (NAME,VALUE), offsets in SI units, scales dimensionless."""
     rows, losses = diagonal_parameters(parameters, "ardupilot", accelerometer, gyroscope, gyro_scale=False)
-    (_, acc_off, acc_scale), (_, gyr_off, _) = rows
-    lines = _comments(parameters, "ardupilot", losses)
-    for axis, off, scale in zip("XYZ", acc_off, acc_scale):
-        lines += [f"INS_ACCOFFS_{axis},{float(off)!r}", f"INS_ACCSCAL_{axis},{float(scale)!r}"]
-    lines += [f"INS_GYROFFS_{axis},{float(off)!r}" for axis, off in zip("XYZ", gyr_off)]
+    values, unwritten = only_calibrated("ardupilot", _diagonal_values(
+        rows, "INS_ACCOFFS_{}", "INS_ACCSCAL_{}", "INS_GYROFFS_{}"))
+    order = {f"INS_ACC{p}_{a}": 2 * i + j for i, a in enumerate("XYZ") for j, p in enumerate(("OFFS", "SCAL"))}
+    values.sort(key=lambda nv: order.get(nv[0], 6))  # ArduPilot's offset and scale per axis, as before
+    lines = _comments(parameters, "ardupilot", losses) + unwritten
+    lines += [f"{name},{value!r}" for name, value in values]
     return "\n".join(lines) + "\n"
 
 
 def px4(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     """A QGroundControl parameter file (vehicle, component, name, value, type 9 = float)."""
     rows, losses = diagonal_parameters(parameters, "px4", accelerometer, gyroscope, gyro_scale=False)
-    (_, acc_off, acc_scale), (_, gyr_off, _) = rows
-    lines = _comments(parameters, "px4", losses) + ["# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
-    values = [(f"CAL_ACC0_{a}OFF", float(o)) for a, o in zip("XYZ", acc_off)]
-    values += [(f"CAL_ACC0_{a}SCALE", float(s)) for a, s in zip("XYZ", acc_scale)]
-    values += [(f"CAL_GYRO0_{a}OFF", float(o)) for a, o in zip("XYZ", gyr_off)]
+    values, unwritten = only_calibrated("px4", _diagonal_values(
+        rows, "CAL_ACC0_{}OFF", "CAL_ACC0_{}SCALE", "CAL_GYRO0_{}OFF"))
+    lines = _comments(parameters, "px4", losses) + unwritten + ["# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
     thermal = px4_thermal(parameters, ((rows[0][0], "A"), (rows[1][0], "G")))
     lines += thermal[0]
     values += thermal[1]

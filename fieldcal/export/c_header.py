@@ -18,11 +18,13 @@ def _numbers(values) -> str:
 def c_header(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     """Every triad's arrays; the triads --accelerometer and --gyroscope name (when the file has
     them) must be of those kinds, as firmware takes FIELDCAL_<NAME>_* by the name."""
-    from fieldcal.export.autopilot import check_kind
+    from fieldcal.export.autopilot import check_kind, refuse_not_calibrated
 
     for name, option in ((accelerometer, "--accelerometer"), (gyroscope, "--gyroscope")):
         if name in parameters.names:
             check_kind(parameters, name, option, "c-header")
+    refuse_not_calibrated("c-header", parameters.triads, "firmware would take every term of BIAS and KINV, a "
+                          "nominal among them, as calibrated")
     p = parameters.provenance
     lines = ["/* fieldcal calibration parameters, generated: do not edit.",
              f" * fieldcal {p.software_version}, procedure {p.procedure}, method {p.method},",

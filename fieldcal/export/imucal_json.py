@@ -11,7 +11,7 @@ import json
 
 import numpy as np
 
-from fieldcal.export.autopilot import _triad
+from fieldcal.export.autopilot import _triad, refuse_not_calibrated
 
 # imucal's file format version this writer produces (imucal 2.x reads it).
 IMUCAL_FORMAT_VERSION = "2.0.0"
@@ -26,6 +26,8 @@ def _split(K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def imucal_json(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     acc = _triad(parameters, accelerometer, "--accelerometer", "imucal-json")
     gyr = _triad(parameters, gyroscope, "--gyroscope", "imucal-json")
+    refuse_not_calibrated("imucal-json", (acc, gyr), "imucal's calibration holds every term and has no mark "
+                          "for a nominal one")
     K_a, R_a = _split(acc.K)
     K_g, R_g = _split(gyr.K * _RAD_PER_DEG)  # output units per deg/s
     p = parameters.provenance

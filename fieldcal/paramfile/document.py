@@ -2,7 +2,9 @@
 
 One YAML file per calibration: for each triad the model raw = K·true + b of ``fieldcal.model``
 (bias, scale factors, non-orthogonality angles with their 1σ, and K itself; optionally a
-``thermal`` section, versioned on its own, holding ``fieldcal.thermal``'s model), plus provenance:
+``thermal`` section, versioned on its own, holding ``fieldcal.thermal``'s model; and a
+``not_calibrated`` section, versioned on its own, naming the parameters the data did not determine,
+written at their nominal values with a null σ), plus provenance:
 software version, procedure, solver method, a hash of the averages that went in, the station's
 gravity, and optionally the device and whether it was simulated.
 
@@ -33,6 +35,7 @@ import yaml
 from fieldcal import __version__
 from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
 from fieldcal.calibration import TRIAD_METHODS, Calibration, nearest
+from fieldcal.model import PARAM_NAMES
 
 SCHEMA = "fieldcal-parameters/1"
 SOFTWARE = "fieldcal"
@@ -249,22 +252,40 @@ def _xyz(values) -> dict:
     return {k: _f(v) for k, v in zip(_AXES, values)}
 
 
+def _sigmas(t: Calibration, keys: Sequence[str], values, parameters: Sequence[str]) -> dict:
+    """σ by key; null for a parameter not calibrated (it has none)."""
+    return {k: None if p in t.not_calibrated else _f(v) for k, v, p in zip(keys, values, parameters)}
+
+
 def _triad_document(t: Calibration) -> dict:
     named, sigma = t.file_theta, t.file_sigma
     return {
         "kind": t.kind,
         "output_unit": t.output_unit,
         "input_unit": t.input_unit,
-        "bias": {**_xyz(t.bias), "unit": t.output_unit, "sigma": _xyz(sigma[0:3])},
+        "bias": {**_xyz(t.bias), "unit": t.output_unit, "sigma": _sigmas(t, _AXES, sigma[0:3], PARAM_NAMES[0:3])},
         "scale_factor": {**_xyz(t.scale_factor), "unit": f"{t.output_unit} per {t.input_unit}",
-                         "sigma": _xyz(sigma[3:6])},
+                         "sigma": _sigmas(t, _AXES, sigma[3:6], PARAM_NAMES[3:6])},
         "misalignment": {**{k: _f(v) for k, v in zip(_ANGLES, named[6:9])}, "unit": "rad",
-                         "sigma": {k: _f(v) for k, v in zip(_ANGLES, sigma[6:9])}},
+                         "sigma": _sigmas(t, _ANGLES, sigma[6:9], PARAM_NAMES[6:9])},
         "K": [_FlowRow(_f(v) for v in row) for row in t.K],
         "residual_rms": {"value": _f(t.residual_rms), "unit": t.residual_unit},
         "method": t.method,
+        **({"not_calibrated": _marks_document(t)} if t.not_calibrated else {}),
         **({"thermal": _thermal_document(t)} if t.thermal is not None else {}),
     }
+
+
+# The not_calibrated section's own version (issue 27): a file without it is read as before it
+# existed, every parameter calibrated; a fieldcal from before it refuses a file that has it (an
+# unknown key), so no reader takes a nominal value for a calibrated one.
+MARKS_VERSION = 1
+
+
+def _marks_document(t: Calibration) -> dict:
+    """The parameters the data did not determine: at their nominal values, σ null, and why."""
+    return {"version": MARKS_VERSION, "parameters": list(t.not_calibrated),
+            **({"why": t.not_calibrated_why} if t.not_calibrated_why else {})}
 
 
 # The thermal section's own version: a file without the section is read as before it existed.

@@ -8,12 +8,13 @@ import numpy as np
 
 from fieldcal import __version__
 from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
-from fieldcal.model import KINDS, SI_UNIT, params_from_k
+from fieldcal.model import KINDS, PARAM_NAMES, SI_UNIT, params_from_k
 from fieldcal.calibration import (
     _MAX_CONDITION,
     LOWER_TRIANGULAR_METHODS,
     TRIAD_METHODS,
     nearest,
+    nominal_value,
     residual_units,
 )
 from fieldcal.paramfile.document import (
@@ -22,6 +23,7 @@ from fieldcal.paramfile.document import (
     _AXES,
     _SHA256,
     CONSISTENCY_RTOL,
+    MARKS_VERSION,
     OPERATOR_MAX,
     SCHEMA,
     SOFTWARE,
@@ -43,22 +45,37 @@ from fieldcal.validation import MISSING, FieldReader, describe, line_of, parse_y
 
 def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
     t = r.mapping(raw, where, ("kind", "output_unit", "input_unit", "bias", "scale_factor",
-                               "misalignment", "K", "residual_rms", "method"), ("thermal",))
+                               "misalignment", "K", "residual_rms", "method"), ("not_calibrated", "thermal"))
     kind = r.string(t, "kind", where, allowed=KINDS)
     output_unit = r.string(t, "output_unit", where)
     input_unit = r.string(t, "input_unit", where, allowed=(SI_UNIT[kind],))
+    marked, why = _read_marks(r, t["not_calibrated"], f"{where}.not_calibrated") \
+        if "not_calibrated" in t else ((), "")
 
-    def block(key: str, names: Sequence[str], unit: str) -> tuple[np.ndarray, np.ndarray]:
+    def block(key: str, names: Sequence[str], unit: str, parameters: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
         here = f"{where}.{key}"
         b = r.mapping(t.get(key, MISSING), here, (*names, "unit", "sigma"))
         values = r.vector(b, names, here)
         r.string(b, "unit", here, allowed=(unit,))
         s = r.mapping(b.get("sigma", MISSING), f"{here}.sigma", names)
-        return values, r.vector(s, names, f"{here}.sigma", minimum=0.0)
+        sigma = []
+        for n, p, v in zip(names, parameters, values):
+            if p not in marked:
+                sigma.append(r.number(s, n, f"{here}.sigma", 0.0))
+                continue
+            if s.get(n) is not None:  # a not-calibrated parameter has no σ to give
+                r.fail(f"{here}.sigma.{n}", f"null ({p} is not calibrated)", describe(s.get(n)), line_of(s, n))
+            nominal = nominal_value(kind, output_unit, p)
+            if nominal is None or not _close(v, nominal, _ANGLE_ATOL):
+                r.fail(f"{here}.{n}", f"{nominal!r}, the nominal value ({p} is not calibrated)"
+                       if nominal is not None else f"a calibrated scale ({output_unit!r} has no nominal one)",
+                       repr(float(v)), line_of(b, n))
+            sigma.append(0.0)
+        return values, np.array(sigma)
 
-    bias, bias_sigma = block("bias", _AXES, output_unit)
-    scale, scale_sigma = block("scale_factor", _AXES, f"{output_unit} per {input_unit}")
-    angles, angle_sigma = block("misalignment", _ANGLES, "rad")
+    bias, bias_sigma = block("bias", _AXES, output_unit, PARAM_NAMES[0:3])
+    scale, scale_sigma = block("scale_factor", _AXES, f"{output_unit} per {input_unit}", PARAM_NAMES[3:6])
+    angles, angle_sigma = block("misalignment", _ANGLES, "rad", PARAM_NAMES[6:9])
 
     kw = f"{where}.K"
     rows = t.get("K", MISSING)
@@ -103,10 +120,28 @@ def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
     try:
         return TriadParameters(name=name, kind=kind, output_unit=output_unit, bias=bias, K=K,
                                sigma=np.r_[bias_sigma, scale_sigma, angle_sigma], residual_rms=rms,
-                               method=method, residual_unit=residual_unit, thermal=thermal)
+                               method=method, residual_unit=residual_unit, thermal=thermal,
+                               not_calibrated=marked, not_calibrated_why=why)
     except ValueError as exc:  # should be unreachable: everything above is checked first
         r.fail(where, "a valid triad", str(exc).splitlines()[0])
         raise
+
+
+def _read_marks(r: FieldReader, raw, where: str) -> tuple[tuple[str, ...], str]:
+    """A triad's ``not_calibrated`` section (version MARKS_VERSION): the parameters the data did
+    not determine, and why."""
+    m = r.mapping(raw, where, ("version", "parameters"), ("why",))
+    version = m.get("version")
+    if version != MARKS_VERSION or isinstance(version, bool):
+        r.fail(f"{where}.version", f"{MARKS_VERSION} (fieldcal {__version__} reads not_calibrated version "
+               f"{MARKS_VERSION} only)", describe(version), line_of(m, "version"))
+    names = m.get("parameters", MISSING)
+    if not isinstance(names, list) or not names or any(n not in PARAM_NAMES for n in names) \
+            or len(set(names)) != len(names):
+        r.fail(f"{where}.parameters", f"a list of distinct names of {', '.join(PARAM_NAMES)}", describe(names),
+               line_of(m, "parameters"))
+    why = r.string(m, "why", where, optional=True) or ""
+    return tuple(names), why
 
 
 def _read_thermal(r: FieldReader, raw, where: str, output_unit: str) -> ThermalModel:

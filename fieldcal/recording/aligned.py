@@ -9,6 +9,7 @@ from functools import partial
 import numpy as np
 
 from fieldcal.calibration import Calibration
+from fieldcal.model import ANGULAR_RATE
 from fieldcal.earth import Station
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import RATE_UNITS, Detection
@@ -19,6 +20,7 @@ from fieldcal.recording.outcome import (ALIGNED_FORCE_ONLY_PROTOCOL, ALIGNED_PRO
                                         RecordingSettings)
 from fieldcal.recording.place import UnknownPlace
 from fieldcal.recording.static_solve import means_covariance
+from fieldcal.recording.submodel import nominal_theta, still_gyro
 from fieldcal.solvers import CalibrationError
 
 def aligned_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
@@ -97,11 +99,17 @@ def aligned_protocol(recording: Recording, station: Station | UnknownPlace, dete
                     gyro, poses.intervals, axes, t, recording.rate_hz, np.mean(np.abs(np.diag(angular_rate[name].K))))
                 angular_rate[name] = solve(noise=estimated[name])
             bias_sigma[name] = angular_rate[name].sigma[:3]
-        except DetectionError as exc:
-            failures[name] = str(exc)
+        except DetectionError as exc:  # no turns: the faces' still readings still give the bias
+            if nominal_theta(ANGULAR_RATE, recording.units[name]) is None:  # counts: no nominal scale to leave
+                failures[name] = str(exc)
+                continue
+            angular_rate[name] = still_gyro(recording, name, poses, up, station, settings.noise.get(name), str(exc),
+                                            settings.estimate_noise)
+            bias_sigma[name] = angular_rate[name].sigma[:3]
     spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
                           message="6 distinct poses, each along an axis (Ferraris)")
-    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *angular_rate)) + (
+    scaled = [n for n, sol in angular_rate.items() if not sol.not_calibrated]  # a gyro's bias alone has no scale
+    notes = tuple(f"{name}: {drift.note(name)}" for name in (*specific_force, *scaled)) + (
         (left_out,) if left_out else ())
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
                                 bias_sigma, np.zeros((0, 2), int), False, noise.source, station,

@@ -37,6 +37,7 @@ from fieldcal.recording.outcome import (FORCE_ONLY_PROTOCOL, NORM_PROTOCOL, Reco
 from fieldcal.recording.place import UnknownPlace, place_gravity, with_gravity_uncertainty
 from fieldcal.recording.pose_choice import PoseChoice, choose_poses, with_estimated_noise
 from fieldcal.recording.static_solve import estimated_force_noise, solve_static
+from fieldcal.recording.submodel import submodel_protocol
 from fieldcal.solvers import CalibrationError
 
 
@@ -49,15 +50,23 @@ def calibrate_recording(recording: Recording, station: Station | UnknownPlace,
     detection = detect_candidates(recording, settings.detector)
     station = place_gravity(station)
     choice = choose_poses(recording, detection, station, settings)
+    estimated = ()
+    if choice.best is not None and settings.estimate_noise and detection.reference not in settings.noise:
+        try:
+            choice, settings = with_estimated_noise(recording, detection, choice, station, settings)
+            estimated = (detection.reference,)
+        except CalibrationError as exc:  # its noise model leaves some parameter undetermined
+            choice = replace(choice, best=None, reference_solution=None,
+                             tried=choice.tried + ((choice.best.multiple, choice.best.spread.count,
+                                                    f"with its measured noise: {exc}"),))
     if choice.best is None:  # too few poses for the norm method: the six faces, if they are there
         aligned = aligned_protocol(recording, station, detection, choice.tried, settings)
+        if aligned is None:  # what the poses do determine, the rest marked not calibrated
+            aligned = submodel_protocol(recording, station, detection, choice.tried, settings,
+                                        faces_missing(detection, settings.detector.min_static_s))
         if aligned is None:
             raise _no_usable_poses(detection, choice, settings)
         return _with_unknown_gravity(aligned)
-    estimated = ()
-    if settings.estimate_noise and detection.reference not in settings.noise:
-        choice, settings = with_estimated_noise(recording, detection, choice, station, settings)
-        estimated = (detection.reference,)
     return _with_unknown_gravity(solve_triads(recording, detection, choice, station, settings, estimated))
 
 

@@ -15,6 +15,8 @@ NORM_PROTOCOL = "hand-held poses: the norm method for the accelerometer, the rot
 FORCE_ONLY_PROTOCOL = "static poses: the norm method for the accelerometer"
 ALIGNED_PROTOCOL = ("Ferraris: six axis-aligned poses and full turns; the aligned six-position solution for "
                     "the accelerometer (the norm method needs 9 poses), the turns' ±2π integrals for the gyro")
+SUBMODEL_PROTOCOL = ("the largest well-determined sub-model (the poses are too few or too alike for the norm "
+                     "method): what they determine of each accelerometer, the gyro's bias from the still poses")
 ALIGNED_FORCE_ONLY_PROTOCOL = ("six axis-aligned poses: the aligned six-position solution for the accelerometer "
                                "(the norm method needs 9 poses)")
 

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from fieldcal.calibration import CLASSIC_METHOD
+from fieldcal.calibration import CLASSIC_METHOD, STILL_METHOD
 from fieldcal.earth import Station
 from fieldcal.paramfile import ParameterFile
 from fieldcal.recording import Recording
@@ -136,12 +136,20 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
         header = solution_header(sol)
         if sol.method == CLASSIC_METHOD:  # the Ferraris faces
             header = f"{name} (Ferraris's six-position solution, the faces' norms fitted to g; {residual_text(sol)})"
+        elif sol.not_calibrated:  # a sub-model's: what the poses determined
+            header = (f"{name} (not calibrated: {sol.not_calibrated_why})" if not sol.calibrated else
+                      f"{header[:-1]}; only what the poses determine)")
         lines += ["", header, solution_table(sol, truths.get(name))]
     for name, sol in cal.angular_rate.items():
         fit = sol.diagnostics
         if sol.method == CLASSIC_METHOD:  # the Ferraris turns
             lines += ["", f"{name} (the ±2π integrals of {len(sol.residuals)} full turns, the bias from the "
                       "six poses)", solution_table(sol, truths.get(name))]
+            continue
+        if sol.method == STILL_METHOD:  # the sub-model's gyro: its bias alone
+            less = "" if isinstance(cal.place, UnknownPlace) else ", less the vertical Earth rate"
+            lines += ["", f"{name} (the bias alone: the mean of {len(cal.poses.intervals)} still poses{less})",
+                      solution_table(sol, truths.get(name))]
             continue
         rms = math.degrees(sol.residual_rms) * 60
         quality = f"χ²/dof {fit.reduced_chi2:.2f}" if fit.dof else "exact fit"
@@ -153,4 +161,7 @@ def summary_lines(cal: RecordingCalibration, truths: dict | None = None) -> list
     lines += [f"  note: {note}" for note in cal.notes]
     for name, why in cal.failures.items():
         lines += ["", f"{name}: not calibrated: {why}"]
-    return lines
+    from fieldcal.recording.submodel import summary_line
+
+    partial = summary_line(cal)  # last: what a sub-model solved, what not, what would add it
+    return lines + (["", partial] if partial else [])

@@ -190,6 +190,8 @@ class Registry:
                                      (cid, cal.name, cal.kind, cal.output_unit, cal.residual_rms,
                                       cal.residual_unit))
                 for n, v, s, u in zip(cal.parameter_names, values, sigmas, units):
+                    if n in cal.not_calibrated:  # a nominal, no σ: nothing of the unit to track
+                        continue
                     self.backend.execute("INSERT INTO parameters (calibration_id, triad, name, value, "
                                          "sigma, unit, position) VALUES (?, ?, ?, ?, ?, ?, ?)",
                                          (cid, cal.name, n, float(v), float(s), u, position))

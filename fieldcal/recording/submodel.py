@@ -1,0 +1,284 @@
+"""The largest well-determined sub-model (DESIGN principle 13, issue 27), for a recording whose
+poses are too few or too alike for the norm method and are not the six faces either: what the
+data determine is calibrated, the rest marked not calibrated (nominal value, no σ).
+
+The accelerometer: which of its nine parameters the poses determine is read off the Jacobian of
+its norm equations |K⁻¹(m − b)| = g at the nominal model, each row whitened by its pose mean's
+noise along the up direction and each column in its parameter's natural unit (k·g for a bias, k
+for a scale factor, 1 rad for an angle). Its singular directions with 1/s above
+``RANK_FRACTION`` are the combinations the poses leave open; they are held at the nominal model,
+and Gauss-Newton moves the rest (truncated SVD: the minimum-norm step). A parameter is then
+calibrated when both hold:
+
+* its σ, with every other parameter free (the Fisher information of the kept directions, scaled
+  up by χ²/dof), is at most ``WELL_DETERMINED`` of its natural unit, and
+* what the open directions could move it by, were the unit as far from nominal as a consumer
+  MEMS datasheet allows (``PLAUSIBLE_OFFSET`` along each), is within that σ.
+
+Poses near one face only: every direction seen is a cap of the sphere, the bias and scale
+along its axis and the tilt of its rim trade against each other, and nothing may come out; poses
+near the six faces, tilted at random: biases and scale factors, not the angles. No rule says
+which: the Jacobian does.
+
+The gyroscope's bias is the mean of every pose's still reading less the vertical Earth rate
+(``gyro_solve.gyro_prior``, as the full solve's prior); its scale and misalignment need the
+rotations between well-spread poses and are marked. A triad in a device's own units (counts) has
+no nominal scale to leave a scale at: such a recording is not solved here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fieldcal.calibration import STILL_METHOD, Calibration, SolverDiagnostics, nominal_value, with_not_calibrated
+from fieldcal.earth import Station
+from fieldcal.model import ANGULAR_RATE, PARAM_NAMES, SPECIFIC_FORCE
+from fieldcal.recording import Recording
+from fieldcal.recording.candidates import Detection
+from fieldcal.recording.detect import interval_means
+from fieldcal.recording.outcome import SUBMODEL_PROTOCOL, RecordingCalibration, RecordingSettings
+from fieldcal.recording.place import UnknownPlace
+from fieldcal.solvers.problems import StaticNormProblem
+
+# A singular direction known no better than this (natural units) is left at the nominal model:
+# the norm solver's own bound for a parameter the positions do not determine.
+RANK_FRACTION = 0.01
+# A parameter is calibrated when known to this fraction of its natural unit, per bias, scale
+# factor and angle: about a tenth of what a consumer MEMS accelerometer's datasheet already
+# promises of the nominal (zero-g offset ±50 mg, sensitivity ±2 %, cross-axis 1-2 %), so 5 mg,
+# 0.2 % and 2 mrad: known less well, a calibration adds little to the nominal.
+WELL_DETERMINED = np.repeat([5e-3, 2e-3, 2e-3], 3)
+# How far from nominal a consumer unit may be along an open direction (natural units: 1 %).
+PLAUSIBLE_OFFSET = 0.01
+_ITERATIONS = 20
+MIN_POSES_FOR_NOISE = 3  # still poses from which a gyro's bias instability is measured
+_STEP_TOL = 1e-9  # natural units: a Gauss-Newton step this small has converged
+GYRO_WHY = ("its scale factors and misalignment need the rotations between 9 or more well-spread poses "
+            "(or the six faces and a full turn about each axis)")
+
+
+def nominal_theta(kind: str, unit: str) -> np.ndarray | None:
+    """The nine parameters of a triad nothing calibrated; None for a device's own unit."""
+    values = [nominal_value(kind, unit, n) for n in PARAM_NAMES]
+    return None if any(v is None for v in values) else np.array(values, dtype=float)
+
+
+def submodel_protocol(recording: Recording, station: Station | UnknownPlace, detection: Detection,
+                      tried, settings: RecordingSettings, faces: str = "") -> RecordingCalibration | None:
+    """What the poses of the threshold that found the most determine; None when the recording's
+    triads are not in physical units (no nominal) or nothing at all is determined. A triad of
+    which nothing is determined is there, every parameter marked (``nothing_determined``).
+    ``faces``: what a Ferraris session lacks (``aligned.faces_missing``), for what would add it."""
+    candidate = max(detection.candidates, key=lambda c: (c.spread.count, len(c.poses.intervals)))
+    poses, spread, reference = candidate.poses, candidate.spread, detection.reference
+    if not len(poses.intervals) or any(nominal_theta(recording.kinds[n], recording.units[n]) is None
+                                       for n in (*detection.forces, *detection.rates)):
+        return None
+    add = spread.message.split(": ", 1)[-1] if ": " in spread.message else "add poses"
+    add += faces  # a Ferraris session short of a face: which
+    specific_force, failures, notes = {}, {}, []
+    for name in detection.forces:
+        values = recording.triads[name]
+        variance = detection.noise.variance if name == reference else \
+            np.var(values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
+        solution = solve_determined(name, recording.units[name], interval_means(values, poses.intervals),
+                                    poses.intervals, recording.t, variance, station.gravity, add,
+                                    settings.noise.get(name), recording.rate_hz if settings.estimate_noise else None)
+        specific_force[name] = solution if solution is not None else nothing_determined(
+            name, recording.units[name], interval_means(values, poses.intervals), station.gravity,
+            f"the {len(poses.intervals)} poses determine none of its parameters: {add}")
+    angular_rate, bias_sigma = {}, {}
+    up = poses.means / np.linalg.norm(poses.means, axis=1, keepdims=True)  # physical units: zero known
+    for name in detection.rates:
+        angular_rate[name] = still_gyro(recording, name, poses, up, station, settings.noise.get(name),
+                                        estimate=settings.estimate_noise)
+        bias_sigma[name] = angular_rate[name].sigma[:3]
+    if detection.rates and isinstance(station, UnknownPlace):
+        notes.append("the gyro's bias holds the Earth rate (up to 15 °/h, its direction unknown) as an error "
+                     "in its σ: give --latitude to take off its vertical part")
+    if not any(sol.calibrated for sol in (*specific_force.values(), *angular_rate.values())):
+        return None
+    return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
+                                bias_sigma, np.zeros((0, 2), int), False, detection.noise.source, station,
+                                SUBMODEL_PROTOCOL, notes=tuple(notes))
+
+
+@dataclass(frozen=True)
+class _Fit:
+    """A truncated-SVD fit in natural units: the solution, its covariance (the kept directions
+    only, scaled up by χ²/dof), χ² and dof, the condition number of what was kept, and each
+    parameter's share (norm of its row) in the open directions."""
+
+    theta: np.ndarray
+    covariance: np.ndarray
+    chi2: float
+    dof: int
+    condition: float
+    open_share: np.ndarray
+
+
+def _truncated_fit(residuals_at, theta0: np.ndarray, natural: np.ndarray, whiten) -> _Fit | None:
+    """Gauss-Newton from the nominal ``theta0`` in the directions the whitened Jacobian keeps
+    (1/s at most RANK_FRACTION of a natural unit), the others held; None when it keeps none.
+    ``whiten``: residuals (m,) or (m, k) to whitened ones."""
+    def jacobian(theta):
+        steps = 1e-6 * natural
+        values = residuals_at(theta + np.concatenate([np.diag(steps), -np.diag(steps)]))  # (18, m)
+        return whiten(((values[:9] - values[9:]) / (2 * steps)[:, None]).T) * natural
+
+    _, s, _ = np.linalg.svd(jacobian(theta0))
+    rank = int(np.count_nonzero(s * RANK_FRACTION > 1.0))
+    if rank == 0:
+        return None
+    theta = theta0.copy()
+    for _ in range(_ITERATIONS):
+        U, s, Vt = np.linalg.svd(jacobian(theta), full_matrices=True)
+        step = Vt[:rank].T @ ((U[:, :rank].T @ -whiten(residuals_at(theta))) / s[:rank])
+        theta = theta + natural * step
+        if np.max(np.abs(step)) < _STEP_TOL:
+            break
+    _, s, Vt = np.linalg.svd(jacobian(theta), full_matrices=True)
+    r = whiten(residuals_at(theta))
+    chi2, dof = float(r @ r), len(r) - rank
+    kept = Vt[:rank].T
+    covariance = (kept / s[:rank] ** 2) @ kept.T * max(chi2 / dof if dof > 0 else 1.0, 1.0)
+    return _Fit(theta, covariance, chi2, dof, float(s[0] / s[rank - 1]), np.linalg.norm(Vt[rank:].T, axis=1))
+
+
+def _solution(name: str, unit: str, problem: StaticNormProblem, fit: _Fit, natural: np.ndarray) -> Calibration:
+    return Calibration(name=name, kind=SPECIFIC_FORCE, output_unit=unit, method="lsq", theta=fit.theta,
+                       covariance=fit.covariance * np.outer(natural, natural),
+                       residuals=problem.residuals(fit.theta, problem.data), residual_labels=problem.residual_labels,
+                       diagnostics=SolverDiagnostics(search="gauss-newton, the determined directions only",
+                                                     chi2=fit.chi2, dof=fit.dof, scaled_by_residuals=fit.chi2 > fit.dof,
+                                                     condition_number=fit.condition))
+
+
+def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndarray, t: np.ndarray,
+                     variance: np.ndarray, gravity: float, add: str, noise=None,
+                     rate_hz: float | None = None) -> Calibration | None:
+    """The specific-force triad's parameters its pose means determine (module doc), the rest
+    nominal and marked; None when none is determined. ``intervals``: the poses' [start, stop) in
+    samples of ``t``; ``variance``: per-axis white noise of one sample (output units²); ``add``:
+    which poses would add the rest. The means are weighed by their white noise, then, with the
+    device's ``noise`` model (else, given ``rate_hz``, one measured from that fit as the full
+    solve measures it), by their exact covariance, the bias instability all poses share included:
+    white noise alone put the errors at 1.7 times the σ (RMS) on the paper's unit."""
+    from fieldcal.recording.static_solve import estimated_force_noise, means_covariance
+
+    theta0 = nominal_theta(SPECIFIC_FORCE, unit)
+    problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
+                                labels=tuple(f"pose {i + 1}" for i in range(len(means))))
+    residuals_at = problem.residual_function(problem.data)
+    natural = np.r_[theta0[3:6] * gravity, theta0[3:6], np.ones(3)]
+    counts = np.diff(intervals, axis=1)[:, 0]
+    # Each mean's noise along its up; a noise measured as 0 (a quantised rest) floored far below
+    # anything a converter resolves, so that no weight is infinite.
+    variance = np.maximum(variance, (1e-9 * natural[:3]) ** 2)
+    up = means / np.linalg.norm(means, axis=1, keepdims=True)
+    weight = 1.0 / np.sqrt((up**2 @ variance) / counts)
+    fit = _truncated_fit(residuals_at, theta0, natural, lambda r: r * weight.reshape(-1, *([1] * (r.ndim - 1))))
+    if fit is not None and noise is None and rate_hz is not None and len(means) > len(PARAM_NAMES):
+        # (no more means than parameters: no scatter to measure the flicker from; white noise it is)
+        noise = estimated_force_noise(_solution(name, unit, problem, fit, natural), means, intervals, t, variance,
+                                      rate_hz, gravity)
+    if fit is not None and noise is not None:
+        # The residuals' covariance G·Σ·Gᵀ, Σ the means' (a few dozen poses: dense is fine).
+        m = len(means)
+        G = np.zeros((m, 3 * m))
+        G[np.arange(m)[:, None], 3 * np.arange(m)[:, None] + np.arange(3)] = problem.point_gradients(fit.theta)
+        solution = _solution(name, unit, problem, fit, natural)
+        root = np.linalg.cholesky(G @ means_covariance(intervals, t, variance, noise, solution.K, unit) @ G.T)
+        fit = _truncated_fit(residuals_at, theta0, natural,
+                             lambda r: np.linalg.solve(root, r))
+    if fit is None:
+        return None
+    sigma_natural = np.sqrt(np.diag(fit.covariance))
+    determined = (sigma_natural <= WELL_DETERMINED) & (PLAUSIBLE_OFFSET * fit.open_share <= sigma_natural)
+    if not determined.any():
+        return None
+    unsolved = [n for n, ok in zip(PARAM_NAMES, determined) if not ok]
+    solution = _solution(name, unit, problem, fit, natural)
+    return with_not_calibrated(solution, unsolved, f"{len(means)} poses too few or too alike to determine them: "
+                               f"{add}") if unsolved else solution
+
+
+def nothing_determined(name: str, unit: str, means: np.ndarray, gravity: float, why: str) -> Calibration:
+    """A specific-force triad of which the poses determine nothing: every parameter nominal and
+    marked, so that the file still says so (and apply passes its readings through as read); its
+    residuals the poses' norms at the nominal less g."""
+    theta = nominal_theta(SPECIFIC_FORCE, unit)
+    residuals = StaticNormProblem(means, gravity, name=name, output_unit=unit).residuals(theta, means.ravel())
+    solution = Calibration(name=name, kind=SPECIFIC_FORCE, output_unit=unit, method="lsq", theta=theta,
+                           covariance=np.zeros((9, 9)), residuals=residuals,
+                           diagnostics=SolverDiagnostics(message="nothing determined", dof=0))
+    return with_not_calibrated(solution, PARAM_NAMES, why)
+
+
+def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: Station | UnknownPlace,
+               noise=None, why: str = GYRO_WHY, estimate: bool = True) -> Calibration:
+    """A gyro's bias alone: the mean of every pose's still reading less the vertical Earth rate
+    (``drift.still_bias`` without the g-sensitivity and drift terms, which poses too alike cannot
+    tell from the bias), its σ from their scatter, never below the white noise's and the unknown
+    Earth rate's share, widened by the bias instability of a config's noise model (``noise``) or,
+    with ``estimate`` and poses enough, of one measured from them; its scale at the unit's own and no
+    misalignment, both marked not calibrated (``why``: what would add them). ``up``: each pose's up
+    vector."""
+    from fieldcal.recording.drift import still_bias
+    from fieldcal.recording.gyro_solve import _less_earth_rate
+
+    gyro, unit, intervals = recording.triads[name], recording.units[name], poses.intervals
+    scale = float(nominal_theta(ANGULAR_RATE, unit)[3])  # output units per rad/s
+    counts = np.diff(intervals, axis=1)[:, 0]
+    still, earth_variance = _less_earth_rate(interval_means(gyro, intervals), up, scale, station)
+    rest_variance = np.var(gyro[intervals[0, 0]:intervals[0, 1]], axis=0, ddof=1)
+    white = np.mean(rest_variance[None, :] / counts[:, None], axis=0) / len(intervals)
+    bias, bias_sigma = still_bias(still, scale**2 * earth_variance / len(intervals) + white)
+    if noise is None and estimate and len(intervals) >= MIN_POSES_FOR_NOISE:  # measured, as the full solve does
+        from fieldcal.recording.gyro_solve import estimated_rate_noise
+
+        noise = estimated_rate_noise(still, up, intervals, recording.t, scale, rest_variance,
+                                     scale**2 * earth_variance, recording.rate_hz)
+    if noise is not None and noise.bias_instability:  # what every pose shares, which no scatter shows
+        weights = np.full(len(intervals), 1.0 / len(intervals))
+        times = recording.t[intervals[:, 0]]
+        model = weights @ noise.window_covariance(times, counts / recording.rate_hz) @ weights
+        bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(scale**2 * model - white, 0.0))
+    theta = np.r_[bias, np.full(3, scale), np.zeros(3)]
+    residuals = still - bias
+    solution = Calibration(name=name, kind=ANGULAR_RATE, output_unit=unit, method=STILL_METHOD, theta=theta,
+                           sigma=np.r_[bias_sigma, np.zeros(6)], residuals=residuals, residual_unit=unit,
+                           residual_rms=float(np.sqrt(np.mean(residuals**2))),
+                           diagnostics=SolverDiagnostics(message="the still poses' mean",
+                                                         dof=max(residuals.size - 3, 0)))
+    return with_not_calibrated(solution, PARAM_NAMES[3:], why)
+
+
+def summary_line(cal: RecordingCalibration) -> str:
+    """One line: what was calibrated, what was not, and what would add it; "" when every triad
+    is calibrated whole."""
+    from fieldcal.report import label
+
+    solved, unsolved, adds = [], [], []
+    for name, sol in (*cal.specific_force.items(), *cal.angular_rate.items()):
+        if not sol.not_calibrated:
+            continue
+        solved += [f"{name} {_names(sol.calibrated, label)}"] if sol.calibrated else []
+        unsolved.append(f"{name} {_names(sol.not_calibrated, label)}" if sol.calibrated else f"{name} (all)")
+        adds.append(f"{name}: {sol.not_calibrated_why.split(': ', 1)[-1]}" if sol.not_calibrated_why else "")
+    unsolved += [name for name in cal.failures]
+    if not solved:
+        return ""
+    return (f"calibrated: {'; '.join(solved)}. NOT calibrated (nominal, no σ): {'; '.join(unsolved)}. "
+            f"To add them: {'; '.join(a for a in adds if a)}")
+
+
+def _names(names, label) -> str:
+    """"bias x, y; scale factor z" from the parameter names, grouped."""
+    groups: dict[str, list[str]] = {}
+    for n in names:
+        group, _, axis = n.rpartition("_") if n.startswith(("bias", "scale")) else ("misalignment", "", n)
+        groups.setdefault(group, []).append(axis if group != "misalignment" else label(n))
+    return ", ".join(f"{'scale factor' if g == 'scale' else g} {'/'.join(axes)}" for g, axes in groups.items())
+
