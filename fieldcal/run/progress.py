@@ -8,6 +8,14 @@ def describe(e: ev.Event) -> str | None:
     """One line for an event, or None for events not worth a line of their own."""
     if isinstance(e, ev.StepStarted):
         return f"step {e.step + 1}/{e.total_steps}: position {e.position_id} ({e.description})"
+    if isinstance(e, ev.PositionRecognised):
+        text = f"  recognised position {e.position_id} ({e.description})"
+        if e.chosen:
+            return f"{text}: the operator's choice among positions {', '.join(map(str, e.alike))}"
+        if e.alike:  # the operator may choose another (the terminal UI asks)
+            text += (f"; positions {', '.join(map(str, e.alike))} look the same to gravity: "
+                     f"taking {e.position_id}, the first in procedure order")
+        return text
     if isinstance(e, ev.Still):
         return f"  still, {e.angle_to_expected_deg:.1f}° from the expected orientation: dwelling"
     if isinstance(e, ev.WrongOrientation):

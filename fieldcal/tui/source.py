@@ -335,7 +335,8 @@ class SimSource(Source):
         e = run.engine
         if command in (READY, MISPLACE) and e.phase == PLACE:
             place = e.position if command == READY else wrong_position(e.procedure, e.step)
-            return [Say(f"operator: ready; the simulator carries the unit to position {place.id}"
+            where = f"position {place.id}" if place.id >= 0 else place.description
+            return [Say(f"operator: ready; the simulator carries the unit to {where}"
                         f"{'' if command == READY else ' (the wrong one, on purpose)'}"),
                     Place(place.attitude), Act(ev.READY)]
         if command == READY and e.phase == WRONG:
