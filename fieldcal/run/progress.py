@@ -42,12 +42,26 @@ def describe(e: ev.Event) -> str | None:
     return None
 
 
-def printer(stream, quiet: bool = False):
-    """Print each event's line; if the reader goes away (``| head``), stop printing, not the run."""
+def minutes(seconds: float) -> str:
+    """A time to go as the log says it: '40 s', '12 min'."""
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
+
+
+def printer(stream, quiet: bool = False, time_to_go=None):
+    """Print each event's line; if the reader goes away (``| head``), stop printing, not the run.
+    ``time_to_go`` (a ``fieldcal.run.timetogo.TimeToGo``): each completed step says the time to go."""
     state = {"quiet": quiet}
 
     def report(e: ev.Event) -> None:
         text = describe(e)
+        if time_to_go is not None:
+            time_to_go.apply(e)
+            if isinstance(e, ev.StepComplete) and time_to_go.open:
+                text = f"  position {e.position_id} done: ≈{minutes(time_to_go.remaining_s(e.t))} to go"
+            elif isinstance(e, ev.StepStarted) and time_to_go.procedure.any_order:
+                left = len(time_to_go.open)
+                text = (f"{left} position{'s' if left != 1 else ''} to go, in any order "
+                        f"(next in the list: position {e.position_id}, {e.description})")
         if text is not None and not state["quiet"]:
             try:
                 print(f"[{e.t:7.1f} s] {text}", file=stream, flush=True)
