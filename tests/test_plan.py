@@ -445,3 +445,38 @@ def test_the_time_to_go_is_within_ten_percent_of_the_remaining_sample_time_at_ev
     for t, amount, unit in said:
         remaining = estimates.finish_t - float(t)
         assert float(amount) * (60 if unit == "min" else 1) == pytest.approx(remaining, rel=0.10, abs=30)
+
+
+def test_in_the_tui_a_planned_run_placed_in_a_shuffled_order_needs_no_key_and_rings_at_each_step_end(
+        planned, tmp_path):
+    """Pilot, at 100× virtual real time: the simulator's hands place the unit in a shuffled order
+    and no key is pressed from start to results; the station takes each position where it is,
+    the tiles end all done, the bell rings once per completed step (each step end comes in its
+    own update: 50 s of samples apart, updates every 10 s), and the parameter file is the
+    headless run's of the same seed and script, byte for byte."""
+    import asyncio
+
+    from test_tui import VirtualClock, run_until
+    from fieldcal.run.operators import placing_order
+    from fieldcal.tui import FieldcalApp
+
+    procedure = planned[0]
+    script = OperatorScript(shuffle_seed=7)
+    spec = RunSpec(procedure, DEFAULT_STATION, seed=4, script=script)
+    headless = run_headless(spec, tmp_path / "headless")
+    clock = VirtualClock()
+    bells = []
+
+    async def body():
+        app = FieldcalApp(spec, speed=100, session_dir=tmp_path / "tui", clock=clock, hands=script)
+        app.bell = lambda: bells.append(sum(isinstance(e, ev.StepComplete) for e in app.events))
+        async with app.run_test(size=(100, 40)) as pilot:
+            await run_until(pilot, clock, lambda: app.outcome is not None, step_s=0.05, timeout_s=240)
+            return app, list(app.view.tiles)
+
+    app, tiles = asyncio.run(body())
+    order = [procedure.positions[k].id for k in placing_order(procedure, 7)]
+    assert app.outcome.status == "completed" and tiles == ["done"] * len(procedure.positions)
+    assert [e.position_id for e in app.events if isinstance(e, ev.PositionRecognised)] == order
+    assert bells == list(range(1, len(procedure.positions) + 1))  # one ring at each step's end
+    assert app.outcome.parameters.read_bytes() == headless.parameters.read_bytes()

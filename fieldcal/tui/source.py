@@ -35,7 +35,7 @@ from typing import Protocol
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.engine import PLACE, WAITING_FOR_OPERATOR, WRONG
 from fieldcal.run.conductor import Act, Bump, Conductor, Operator, Place, Say, Subscriber
-from fieldcal.run.operators import wrong_position
+from fieldcal.run.operators import OperatorScript, ScriptedOperator, wrong_position
 from fieldcal.run.outcome import Outcome, Status
 from fieldcal.run.pacing import Pacer
 from fieldcal.tui.readings import RecentSamples, Telemetry
@@ -240,10 +240,14 @@ class SimSource(Source):
     mode = Mode.SIM
 
     def __init__(self, spec, sink: Sink, speed: float, session_dir: Path | None,
-                 clock: Callable[[], float] = time.monotonic, bench=None, resume=None):
+                 clock: Callable[[], float] = time.monotonic, bench=None, resume=None,
+                 hands: OperatorScript | None = None):
         """``resume``: the ``RunRecord`` of the unfinished session in ``session_dir`` to continue
-        after its last completed step (see ``resuming``), not a new one."""
+        after its last completed step (see ``resuming``), not a new one. ``hands``: the simulator
+        places the unit by itself at each step as the headless run's operator would (in a
+        shuffled order, if the script says so and the procedure takes any order): no key."""
         super().__init__(spec, sink, speed, clock)
+        self.hands = ScriptedOperator(hands, spec.procedure) if hands is not None else None
         self.session_dir = Path(session_dir) if session_dir is not None else None
         if resume is not None and self.session_dir is None:
             raise ValueError("resume: which session?")
@@ -323,13 +327,18 @@ class SimSource(Source):
         the operator's hands.)"""
         return run.engine.phase in WAITING_FOR_OPERATOR
 
+    def observe(self, e: ev.Event, run: Conductor) -> None:
+        if self.hands is not None:
+            self.hands.observe(e, run)
+
     def next_moves(self, run: Conductor):
-        command = self._next_command(wait=self._holds_for_keys(run))
+        placing = self.hands.next_moves(run) if self.hands is not None else []
+        command = self._next_command(wait=not placing and self._holds_for_keys(run))
         if command == QUIT:
             self._stop.set()
         if self.stopping:
             return None
-        return [] if command is None else self._moves(command, run)
+        return placing + ([] if command is None else self._moves(command, run))
 
     def _moves(self, command: str, run: Conductor) -> list:
         e = run.engine
