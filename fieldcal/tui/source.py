@@ -49,6 +49,17 @@ FLUSH_S = 0.1  # at most one UI update per this much wall time
 READY, REDO, SKIP, ABORT, UNSKIP = ev.READY, ev.REDO, ev.SKIP, ev.ABORT, ev.UNSKIP
 BUMP, MISPLACE, QUIT = "bump", "misplace", "quit"
 COMMANDS = (READY, REDO, SKIP, ABORT, UNSKIP, BUMP, MISPLACE, QUIT)
+CHOOSE_PREFIX = "choose:"  # and a position id: which of positions gravity cannot tell apart
+
+
+def choose_command(position_id: int) -> str:
+    return f"{CHOOSE_PREFIX}{position_id}"
+
+
+def choice_moves(command: str) -> list:
+    """The moves of a ``choose:ID`` command: the engine takes position ID for the dwell under way."""
+    position_id = int(command.removeprefix(CHOOSE_PREFIX))
+    return [Say(f"operator: the unit is in position {position_id}"), Act(ev.CHOOSE, position_id=position_id)]
 
 
 class Mode(StrEnum):
@@ -109,7 +120,8 @@ class Source(Operator, Subscriber):
     # --- called from the UI thread ----------------------------------------------------------
 
     def send(self, command: str) -> None:
-        if command not in COMMANDS:
+        if command not in COMMANDS and not (command.startswith(CHOOSE_PREFIX)
+                                            and command.removeprefix(CHOOSE_PREFIX).isdigit()):
             raise ValueError(f"command: expected one of {', '.join(COMMANDS)}, got {command!r}")
         self._commands.put(command)
 
@@ -342,6 +354,8 @@ class SimSource(Source):
 
     def _moves(self, command: str, run: Conductor) -> list:
         e = run.engine
+        if command.startswith(CHOOSE_PREFIX):
+            return choice_moves(command)
         if command in (READY, MISPLACE) and e.phase == PLACE:
             place = e.position if command == READY else wrong_position(e.procedure, e.step)
             where = f"position {place.id}" if place.id >= 0 else place.description

@@ -213,6 +213,7 @@ class RunView:
                 self.table_state = "disturbed"
         elif isinstance(e, ev.DwellComplete):
             self.dwell.finish()
+            self.alike = ()  # the choice is taken while the dwell runs
         elif isinstance(e, ev.CommandTable):
             self.table_rate = e.rate_deg_s
             self.table_state = "ramping" if e.rate_deg_s else "stopping"
@@ -362,6 +363,14 @@ class RunView:
             words += f" ({position_words(dataclasses.replace(p, description=''))})"
         return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {words}"
 
+    def choice_text(self) -> str:
+        """The question when gravity cannot tell the remaining positions apart: which one it is."""
+        by_id = {q.id: q for q in self.procedure.positions}
+        options = " · ".join(f"{n}: position {i} ({position_words(by_id[i])})"
+                             for n, i in enumerate(self.alike, start=1))
+        return (f"Positions {', '.join(map(str, self.alike))} look the same to gravity; taken as position "
+                f"{self.position.id}. Which is it? {options}")
+
     def banner(self, sim: bool) -> tuple[str, str]:
         """(instruction for the operator, style class)."""
         if self.finished is not None:
@@ -382,11 +391,17 @@ class RunView:
         if phase == en.PLACE:
             move = placement(self.unit_at, p)
             text = f"Position {p.id}: {move.text}" + ("; r: the simulator does it" if sim else ", then press r")
+            if self.procedure.any_order:  # the station recognises the position: no key
+                left = sum(s in (TODO, ACTIVE, WRONG) for s in self.tiles)
+                text = (f"Any of the {left} remaining positions, e.g. position {p.id}: {move.text}; "
+                        + ("r: the simulator does it" if sim else "taken once still, no key"))
             if move.heading_only and self.unit_at is not None:
                 text += "\nOnly the heading changes, which the check cannot see: check it by eye"
             if self.resumed is not None:
                 return f"{self.resumed.banner}\n{text}", "warn" if self.resumed.warn else "act"
             return text, "act"
+        if phase == en.WRONG and self.procedure.any_order and self.wrong:
+            return f"NO REMAINING POSITION: {self.wrong}", "bad"
         if phase == en.WRONG:
             by_id = {q.id: q for q in self.procedure.positions}
             seen = by_id.get(self.looks_like[0]) if self.looks_like else None
@@ -399,6 +414,8 @@ class RunView:
             return "Hands off: waiting for the unit to be still", "wait"
         if phase == en.CHECKING:
             return "Still: checking the orientation", "wait"
+        if phase == en.DWELL and self.alike:
+            return f"Dwelling: keep the unit still\n{self.choice_text()}", "act"
         if phase == en.DWELL:
             return "Dwelling: keep the unit still", "run"
         if phase == en.RATE_WAIT:
