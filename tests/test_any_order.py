@@ -108,7 +108,7 @@ def test_a_unit_in_no_remaining_position_is_told_which_remain():
     assert wrong.message.endswith("positions 1, 3")
     bench.move()
     bench.still(X_UP, 3)  # back to the one already done: still no remaining position
-    assert "position 2, already done" in of(ev.WrongOrientation, bench.events)[-1].message
+    assert "position 2, done or skipped" in of(ev.WrongOrientation, bench.events)[-1].message
     assert len(e.records) == 1
 
 
@@ -182,3 +182,13 @@ def test_a_bad_any_order_key_is_a_one_line_error(line, message):
     with pytest.raises(ProcedureError) as caught:
         parse_procedure(PROCEDURE.format(any_order=line), "anyorder.yaml")
     assert message in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_shuffle_on_a_procedure_in_a_fixed_order_is_a_one_line_error(tmp_path, capsys):
+    from fieldcal.cli.main import main
+
+    code = main(["run", "--headless", "--config", "sim", "--procedure", "field-18", "--shuffle", "3",
+                 "--out", str(tmp_path)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and "--shuffle" in err and "any_order: true" in err
+    assert list(tmp_path.iterdir()) == []  # refused before any session

@@ -388,7 +388,7 @@ class Engine:
         positions = self.procedure.positions
         looks_like = closest_positions(direction, positions, self.settings.tolerance_deg)
         ids = tuple(p.id for p, _ in looks_like)
-        done = f" (position {', '.join(map(str, ids))}, already done)" if ids else ""
+        done = f" (position {', '.join(map(str, ids))}, done or skipped)" if ids else ""
         remaining = ", ".join(str(positions[k].id) for k in open_steps)
         angle = float(angle_between(direction, self.position.up_body))
         return ev.WrongOrientation(t, self.position.id, ids, angle,
