@@ -480,3 +480,21 @@ def test_in_the_tui_a_planned_run_placed_in_a_shuffled_order_needs_no_key_and_ri
     assert [e.position_id for e in app.events if isinstance(e, ev.PositionRecognised)] == order
     assert bells == list(range(1, len(procedure.positions) + 1))  # one ring at each step's end
     assert app.outcome.parameters.read_bytes() == headless.parameters.read_bytes()
+
+
+def test_a_shuffled_planned_run_resumed_after_a_crash_matches_the_whole_run(planned, tmp_path):
+    """Cut after its fourth step record, the session of a run placed in a shuffled order
+    resumes (the engine waits for the unit to leave the last measured position, the operator
+    goes on with its order) to the whole run's parameter file, byte for byte."""
+    import shutil
+
+    from test_headless import cut_before_step_record
+    from fieldcal.run.runner import resume_headless
+
+    spec = RunSpec(planned[0], DEFAULT_STATION, seed=12, script=OperatorScript(shuffle_seed=9))
+    whole = run_headless(spec, tmp_path / "whole")
+    crashed = tmp_path / "crashed"
+    shutil.copytree(whole.session, crashed)
+    cut_before_step_record(crashed, 4)
+    resumed = resume_headless(open_run(crashed))
+    assert resumed.parameters.read_bytes() == whole.parameters.read_bytes()
