@@ -129,8 +129,9 @@ def test_it_replays_byte_for_byte(half_run):
 
 
 def test_the_time_to_go_counts_each_positions_own_step():
-    """Worked by hand: position 1 turns at ±10 °/s once (2 + 1 + 36 = 39 s a sign), position 2
-    not at all, position 3 at 20 °/s twice (2 + 1 + 36 = 39 s a sign): 20 s dwells, 60 s placing."""
+    """Worked by hand: position 1 turns at ±10 °/s once (2 + 1 + 36 = 39 s up to +10 °/s, the
+    reversal ramping twice as far: 4 + 1 + 36 = 41 s), position 2 not at all, position 3 at 20 °/s
+    twice (39 s and 41 s again): 20 s dwells, a placement each."""
     from fieldcal.procedure import events as ev
     from fieldcal.tui.view import PLACING_GUESS_S, RunView
 
@@ -146,7 +147,7 @@ positions:
     view = RunView(parse_procedure(text, "three.yaml"))
     view.apply(ev.StepStarted(0.0, 0, 1, "z-upward", 3))
     placing = PLACING_GUESS_S
-    assert view.remaining_s() == pytest.approx((20 + 78 + placing) + (20 + placing) + (20 + 78 + placing))
+    assert view.remaining_s() == pytest.approx((20 + 80 + placing) + (20 + placing) + (20 + 80 + placing))
 
 
 def test_the_tui_runs_it_as_the_headless_run_does(tmp_path, half_run):

@@ -60,21 +60,22 @@ rate_step: {rate_deg_s: 10, turns: 1, ramp_s: 2, settle_s: 1}
 
 
 def test_the_time_to_go_counts_dwells_turns_and_this_runs_placements():
-    """Worked by hand: a rate step is 2 s ramp + 1 s settle + 36 s for one turn at 10 °/s = 39 s,
-    two per position; a position is 20 s dwell + 78 s + its placement."""
+    """Worked by hand: the rate step up to +10 °/s is 2 s ramp + 1 s settle + 36 s for one turn =
+    39 s, the reversal to −10 °/s ramps twice as far: 4 + 1 + 36 = 41 s; a position is 20 s dwell
+    + 80 s + its placement."""
     from fieldcal.tui.view import PLACING_GUESS_S
 
     view = RunView(parse_procedure(TWO_WITH_TURNS, "two.yaml"))
     view.apply(ev.StepStarted(0.0, 0, 1, "z-upward", 2))
-    assert view.remaining_s() == pytest.approx(2 * (98 + PLACING_GUESS_S))
+    assert view.remaining_s() == pytest.approx(2 * (100 + PLACING_GUESS_S))
     view.apply(ev.Still(10.0, 2.0))  # placed in 10 s: the next placement is reckoned at 10 s
     view.last_t = 15.0  # 5 s dwelt
-    assert view.remaining_s() == pytest.approx((15 + 78) + (98 + 10))
+    assert view.remaining_s() == pytest.approx((15 + 80) + (100 + 10))
     for e in (ev.DwellComplete(30.0, 20.0), ev.CommandTable(30.0, 10.0), ev.RateSettled(33.0, 10.0, 36.0),
               ev.RateStepComplete(69.0, 10.0)):
         view.apply(e)
-    assert view.remaining_s() == pytest.approx(39 + 108)  # the minus rate step, then position 2
-    assert view.job_text() == "✓0 done  –0 skipped  ▶ now  ·1 to do   1:09 elapsed, ≈2 min to go"
+    assert view.remaining_s() == pytest.approx(41 + 110)  # the minus rate step, then position 2
+    assert view.job_text() == "✓0 done  –0 skipped  ▶ now  ·1 to do   1:09 elapsed, ≈3 min to go"
     view.apply(ev.StepSkipped(69.0, 0, 1))
     view.apply(ev.StepStarted(69.0, 1, 2, "z-upward", 2))
     view.apply(ev.StepComplete(200.0, 1, 2))

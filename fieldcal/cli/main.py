@@ -171,6 +171,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                      help="the operator first puts the unit in a wrong position at step N")
     run.add_argument("--skip", type=int, action="append", default=[], metavar="N",
                      help="the operator skips step N (repeatable)")
+    run.add_argument("--shuffle", type=int, metavar="SEED",
+                     help="the operator places the positions in an order shuffled with SEED (a procedure "
+                          "with any_order: true)")
     run.add_argument("--serial", action="store_true",
                      help="reach the simulated device only through bytes on a pty (Xsens frames, "
                      "ASCII table), as hardware would be; slower, and cannot be resumed")

@@ -41,7 +41,7 @@ def cmd_run(args) -> int:
     from fieldcal.config import load_config
     from fieldcal.procedure.positions import load_procedure
     from fieldcal.run.progress import printer
-    from fieldcal.run.runner import OperatorScript, RunSpec, run_headless
+    from fieldcal.run.runner import OperatorScript, RunSpec, headless_time_to_go, run_headless
 
     from fieldcal.cli.identity import unit_serial
     from fieldcal.cli.options import accept_after, load_spec_option, operator_option
@@ -63,10 +63,13 @@ def cmd_run(args) -> int:
     for value in args.skip:
         if not 1 <= value <= n:
             raise ValueError(f"--skip: expected a step from 1 to {n}, got {value}")
+    if args.shuffle is not None and not procedure.any_order:
+        raise ValueError(f"--shuffle: procedure {procedure.name} takes its positions in order; "
+                         "add 'any_order: true' to it to place them in any order")
     seed = config.device.sim.seed if args.seed is None else args.seed
     script = OperatorScript(bump_step=None if args.bump_step is None else args.bump_step - 1,
                             wrong_step=None if args.wrong_step is None else args.wrong_step - 1,
-                            skip_steps=tuple(s - 1 for s in args.skip))
+                            skip_steps=tuple(s - 1 for s in args.skip), shuffle_seed=args.shuffle)
     run_spec = RunSpec(procedure, config.station, seed=seed, rate_hz=config.device.rate_hz,
                        raw_counts=config.device.sim.raw_counts, method=args.method,
                        flicker_tau_max_s=config.device.sim.flicker_tau_max_s,
@@ -77,7 +80,8 @@ def cmd_run(args) -> int:
     args.session_path = directory  # for the interrupted / disk-full message (cli.main)
     print(f"headless {procedure.name} against {config.device.name}, seed {seed}; session {directory}",
           flush=True)
-    result = run_headless(run_spec, directory, printer(sys.stdout, args.quiet), serial=args.serial)
+    result = run_headless(run_spec, directory, printer(sys.stdout, args.quiet, headless_time_to_go(run_spec)),
+                          serial=args.serial)
     return accept_after(args, spec, result.parameters, _print_result(result, sys.stdout))
 
 

@@ -142,7 +142,7 @@ def procedure_yaml(plan, name: str, title: str, operator, target: str | None = N
 
     design = plan.design
     doc = {"name": name, "title": title, "dwell_s": float(design.dwell_s), "adaptive_dwell": True,
-           "rate_step": {"rate_deg_s": float(design.rate_deg_s), "turns": int(design.turns),
+           "any_order": True, "rate_step": {"rate_deg_s": float(design.rate_deg_s), "turns": int(design.turns),
                          "ramp_s": round(operator.ramp_s(design.rate_deg_s), 3),
                          "settle_s": float(operator.rate_settle_s)},
            "positions": [{"id": i, "description": c.name, **c.fields,
@@ -154,6 +154,7 @@ def procedure_yaml(plan, name: str, title: str, operator, target: str | None = N
             "# target for every parameter. An ordinary procedure file: edit, validate and run it.\n"
             "# adaptive_dwell: each dwell ends once it holds the planned information at the noise\n"
             "# the unit shows (longer if noisier than its model, never below the minimum dwell).\n"
+            "# any_order: place the positions in any order; the station recognises each from gravity.\n"
             "# targets: the σ each parameter must reach, in the units `fieldcal plan` prints them.\n")
     if target is not None:  # in full, whether or not the title has room for it
         head += "# target: " + " ".join(target.split()) + "\n"

@@ -63,6 +63,8 @@ class TargetTracker:
         """Fold one event; True when the σ changed (a position completed or was dropped)."""
         if isinstance(event, ev.StepStarted):
             self._step, self._current, self._rate_window = event.step, [], None
+        elif isinstance(event, ev.PositionRecognised):  # any order: the step the unit is in (no window yet)
+            self._step = event.step
         elif isinstance(event, ev.DwellComplete) and self._step is not None:
             self._current = [w for w in self._current if w.kind != STATIC]  # a dwell done again
             self._current.append(Window(STATIC, self._step, event.t - event.duration_s, event.duration_s))
@@ -118,4 +120,9 @@ class TargetTracker:
             out.update(window_sigmas(windows, attitudes, rate, models, self.station, self.rate_hz))
         except ValueError:  # windows that overlap (a clock step in a device's time): not shown
             pass
+        for name, model in self.models.items():
+            # One norm equation per position for a specific-force triad: fewer positions than
+            # parameters determine nothing, whatever finite number a near-singular inverse gives.
+            if model.kind != ANGULAR_RATE and len(steps) < len(PARAM_NAMES):
+                out[name] = np.full(len(PARAM_NAMES), np.inf)
         return out

@@ -9,6 +9,13 @@ unit stays still (a bump restarts the dwell, or drops the disturbed stretch). Wi
 then commands the table to +ω, waits until the rate is steady, averages whole turns, does the
 same at −ω, and stops the table. The stillness detector is reset when the operator says ready,
 so a run resumed after a crash behaves exactly like an uninterrupted one from that step on.
+
+A procedure with ``any_order`` needs no "ready": from the first chunk after a step ends the engine
+watches by itself, waits until the unit has left the position just measured and is still again,
+recognises which remaining position gravity says it is in, and dwells there (``PositionRecognised``).
+Positions gravity cannot tell apart (the same up direction: a heading, a rate step's presence) are
+taken in procedure order and named in the event; the operator may choose another (``CHOOSE``)
+while the dwell runs. Each step keeps its own index, so the records are as in procedure order.
 """
 from __future__ import annotations
 
@@ -22,10 +29,12 @@ import numpy as np
 
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure, RateStep, position_words
-from fieldcal.procedure.stillness import StillnessDetector, StillnessSettings, check_orientation, gravity_direction
+from fieldcal.procedure.stillness import (StillnessDetector, StillnessSettings, angle_between, check_orientation,
+                                          closest_positions, describe_up, gravity_direction)
 from fieldcal.procedure.windows import MINUS, PLUS, STATIC, StepRecord, Window, WindowKind, WindowRecord
 
 MIN_WINDOW_SAMPLES = 10  # fewer, and the window's spread says little about stillness
+SAME_UP_DEG = 1.0  # positions whose up directions are this close are the same to gravity
 
 
 
@@ -186,6 +195,15 @@ class Engine:
         self._check_rate: list[np.ndarray] = []
         self._turning_reported = False
         self._up = np.array([0.0, 0.0, 1.0])
+        # Any order: where the last completed step's dwell saw gravity (the unit must leave it
+        # before the next recognition), whether it has moved since, the remaining steps gravity
+        # cannot tell from the recognised one, and the operator's choice among them.
+        self._last_up: np.ndarray | None = None
+        self._moved = True
+        self._seen = 0  # samples the stillness detector has had: its first window cannot judge
+        self._table_stops_at = -math.inf  # sample time a stopping table has stopped by
+        self._alike: tuple[int, ...] = ()
+        self._chosen: int | None = None
 
     # --- public -------------------------------------------------------------------------------
 
@@ -202,6 +220,8 @@ class Engine:
         self.records = {r.step: r for r in records}
         self.skipped = set(int(s) for s in skipped)
         self.t = max((w.end for r in self.records.values() for w in r.windows), default=0.0)
+        last = max(self.records.values(), key=lambda r: max(w.end for w in r.windows), default=None)
+        self._last_up = self._rest_direction(last) if last is not None else None
 
     def act(self, action: ev.Action) -> list[ev.Event]:
         if self.phase in (DONE, ABORTED):
@@ -221,22 +241,42 @@ class Engine:
         if action.name == ev.SKIP:
             self.skipped.add(self.step)
             out = self._stop_table() + [ev.StepSkipped(self.t, self.step, self.position.id)]
-            return out + self._enter_step(self._first_open(self.step + 1))
+            return out + self._enter_step(self._next_open(self.step + 1))
         if action.name == ev.READY and self.phase == PLACE:
-            self._detector = StillnessDetector(self.settings.stillness, self.settings.rate_hz,
-                                               self.settings.specific_force, self.settings.angular_rate)
-            self.phase = SETTLING
+            self._watch()
             return [ev.WaitingForStillness(self.t)]
+        if action.name == ev.CHOOSE:
+            return self._choose(action.position_id)
         return []
+
+    def _watch(self) -> None:
+        """Look for the unit to be still (a fresh detector: what it saw before does not count)."""
+        self._detector = StillnessDetector(self.settings.stillness, self.settings.rate_hz,
+                                           self.settings.specific_force, self.settings.angular_rate)
+        self.phase, self._seen = SETTLING, 0
+
+    def _choose(self, position_id: int | None) -> list[ev.Event]:
+        """The operator says which of the positions gravity cannot tell apart the unit is in:
+        taken while the dwell runs (its samples serve either), before any rate step."""
+        steps = [k for k in self._alike if self.procedure.positions[k].id == position_id]
+        if self.phase != DWELL or not steps:
+            return []
+        self.step = self._chosen = steps[0]
+        return [self._recognised(self.t, chosen=True)]
 
     def feed(self, chunk) -> list[ev.Event]:
         if len(chunk) == 0:
             return []
         out: list[ev.Event] = []
+        if self.phase == PLACE and self._detector is None and self.procedure.any_order:
+            self._watch()  # from a chunk's start, so that a resumed run sees what this one does
         still = self._detector.feed(chunk) if self._detector is not None else np.zeros(len(chunk), bool)
         i = 0
-        while i < len(chunk) and self.phase not in (PLACE, DONE, ABORTED):
+        while i < len(chunk) and self.phase not in (DONE, ABORTED) \
+                and not (self.phase == PLACE and self._detector is None):
             i = getattr(self, f"_on_{self.phase}")(chunk, still, i, out)
+        if self._detector is not None:
+            self._seen += len(chunk)
         self.t = float(chunk.t[-1])
         return out
 
@@ -245,12 +285,29 @@ class Engine:
 
     # --- phases: each consumes chunk samples from index i and returns where it stopped ---------
 
+    def _on_place(self, chunk, still, i, out) -> int:
+        """Any order, the unit still where the last step measured it: wait for the operator to move it."""
+        moving = np.flatnonzero(~still[i:])
+        if not len(moving):
+            return len(chunk)
+        self._moved, self.phase = True, SETTLING
+        return i + int(moving[0])
+
     def _on_settling(self, chunk, still, i, out) -> int:
         hits = np.flatnonzero(still[i:])
+        end = i + int(hits[0]) if len(hits) else len(chunk)
+        self._note_motion(chunk, i, end)
         if not len(hits):
             return len(chunk)
         self.phase, self._check = CHECKING, []
-        return i + int(hits[0])
+        return end
+
+    def _note_motion(self, chunk, i: int, end: int) -> None:
+        """Samples i..end are not still: the operator moved the unit, unless they are the stillness
+        detector's first window (not judged yet) or a table still coming to a stop."""
+        judged_from = max(i, self._detector.window_samples - 1 - self._seen if self._detector else i)
+        if end > judged_from and float(chunk.t[end - 1]) >= self._table_stops_at:
+            self._moved = True
 
     def _on_checking(self, chunk, still, i, out) -> int:
         need = max(1, round(self.settings.check_s * self.settings.rate_hz)) - sum(len(c) for c in self._check)
@@ -280,8 +337,12 @@ class Engine:
         self._turning_reported = False
         mean = np.concatenate(self._check).mean(axis=0)
         direction = gravity_direction(mean, zero=np.array(s.sf_zero), sensitivity=np.array(s.sf_sensitivity))
-        check = check_orientation(direction, self.position, self.procedure.positions, s.tolerance_deg)
         t = float(chunk.t[i - 1])
+        if self.procedure.any_order:
+            found = self._recognise(direction, t, out)
+            if found is None:
+                return i
+        check = check_orientation(direction, self.position, self.procedure.positions, s.tolerance_deg)
         if not check.ok:
             self.phase = WRONG
             out.append(ev.WrongOrientation(t, self.position.id, tuple(p.id for p, _ in check.looks_like),
@@ -291,6 +352,48 @@ class Engine:
         self._up = direction  # the table axis in sensor axes, for the sign of the rate steps
         self.phase = DWELL
         return i
+
+    def _open_steps(self) -> list[int]:
+        return [k for k in range(len(self.procedure.positions)) if k not in self.records and k not in self.skipped]
+
+    def _recognise(self, direction: np.ndarray, t: float, out: list) -> int | None:
+        """Any order: make the remaining position the unit is in this step (None: none is, and
+        the phase says what the engine waits for)."""
+        tolerance = self.settings.tolerance_deg
+        if not self._moved and self._last_up is not None \
+                and float(angle_between(direction, self._last_up)) <= tolerance:
+            self.phase = PLACE  # still where the last step was measured: not placed yet
+            return None
+        positions = self.procedure.positions
+        open_steps = self._open_steps()
+        near = closest_positions(direction, [positions[k] for k in open_steps], tolerance)
+        if not near:
+            self.phase = WRONG
+            out.append(self._no_remaining_position(direction, t, open_steps))
+            return None
+        nearest = near[0][0].up_body
+        alike = [k for k in open_steps if float(angle_between(positions[k].up_body, nearest)) <= SAME_UP_DEG]
+        self._alike = tuple(alike)  # (procedure order)
+        step = self._chosen if self._chosen in alike else alike[0]
+        self.step = step
+        out.append(self._recognised(t, chosen=step == self._chosen))
+        return step
+
+    def _recognised(self, t: float, chosen: bool) -> ev.PositionRecognised:
+        p = self.position
+        alike = tuple(self.procedure.positions[k].id for k in self._alike) if len(self._alike) > 1 else ()
+        return ev.PositionRecognised(t, self.step, p.id, position_words(p), alike, chosen)
+
+    def _no_remaining_position(self, direction, t: float, open_steps: list[int]) -> ev.WrongOrientation:
+        positions = self.procedure.positions
+        looks_like = closest_positions(direction, positions, self.settings.tolerance_deg)
+        ids = tuple(p.id for p, _ in looks_like)
+        done = f" (position {', '.join(map(str, ids))}, done or skipped)" if ids else ""
+        remaining = ", ".join(str(positions[k].id) for k in open_steps)
+        angle = float(angle_between(direction, self.position.up_body))
+        return ev.WrongOrientation(t, self.position.id, ids, angle,
+                                   f"the unit is {describe_up(direction)}{done}, like no remaining position; "
+                                   f"place it in one of positions {remaining}")
 
     def _on_wrong(self, chunk, still, i, out) -> int:
         moving = np.flatnonzero(~still[i:])
@@ -382,6 +485,7 @@ class Engine:
             if self._sign > 0:
                 return self._command_rate(-1.0, take, t, out)
             out.append(ev.CommandTable(t, 0.0))
+            self._table_stops_at = t + step.ramp_s + step.settle_s
             return self._complete_step(take, t, out)
         if j < len(chunk):
             out.append(ev.MotionDetected(float(chunk.t[j]), "rate", True))
@@ -415,11 +519,21 @@ class Engine:
         self._average = _Average(self.procedure.adaptive_dwell)
         self._next_progress = 0.0
 
+    def _rest_direction(self, record: StepRecord) -> np.ndarray | None:
+        """Gravity's direction in a completed step's static window (None: it has none)."""
+        s = self.settings
+        static = [w for w in record.windows if w.kind == STATIC and s.specific_force in w.means]
+        if not static:
+            return None
+        return gravity_direction(np.array(static[0].means[s.specific_force]), zero=np.array(s.sf_zero),
+                                 sensitivity=np.array(s.sf_sensitivity))
+
     def _complete_step(self, i, t, out) -> int:
         self.t = t
         self.records[self.step] = StepRecord(self.step, self.position.id, tuple(self._windows))
+        self._last_up = self._rest_direction(self.records[self.step])
         out.append(ev.StepComplete(t, self.step, self.position.id))
-        out.extend(self._enter_step(self._first_open(self.step + 1)))
+        out.extend(self._enter_step(self._next_open(self.step + 1)))
         return i
 
     def _first_open(self, step: int) -> int:
@@ -427,9 +541,16 @@ class Engine:
             step += 1
         return step
 
+    def _next_open(self, step: int) -> int:
+        """The next step to suggest: the first open one from ``step`` on; in any order, else the
+        first open one before it (positions recognised out of order leave earlier ones open)."""
+        found = self._first_open(step)
+        return self._first_open(0) if found >= len(self.procedure.positions) and self.procedure.any_order else found
+
     def _enter_step(self, step: int) -> list[ev.Event]:
         self.step, self._windows, self._average = step, [], _Average(self.procedure.adaptive_dwell)
         self._detector, self._next_progress, self._sign = None, 0.0, 0.0
+        self._moved, self._alike, self._chosen = False, (), None
         if step >= len(self.procedure.positions):
             self.phase = DONE
             return [ev.ProcedureComplete(self.t, len(self.records), len(self.skipped))]

@@ -38,6 +38,19 @@ class PlaceUnit(Event):
 
 
 @dataclass(frozen=True)
+class PositionRecognised(Event):
+    """A procedure taking positions in any order: the unit is still in this remaining position,
+    whose step it now is (its dwell next). ``alike``: the remaining positions gravity cannot tell
+    apart from it (same up direction; this one is the first in procedure order unless the
+    operator chose), which the operator may choose among while the dwell runs."""
+    step: int
+    position_id: int
+    description: str
+    alike: tuple[int, ...] = ()
+    chosen: bool = False  # the operator chose it among ``alike``
+
+
+@dataclass(frozen=True)
 class WaitingForStillness(Event):
     pass
 
@@ -128,23 +141,29 @@ class Solved(Event):
 
 READY, REDO, SKIP, ABORT = "ready", "redo", "skip", "abort"
 UNSKIP = "unskip"  # go back to a skipped position (Engine.skipped_to_return_to says which)
-ACTIONS = (READY, REDO, SKIP, ABORT, UNSKIP)
+CHOOSE = "choose"  # which of positions gravity cannot tell apart the unit is in (with position_id)
+ACTIONS = (READY, REDO, SKIP, ABORT, UNSKIP, CHOOSE)
 
 
 @dataclass(frozen=True)
 class Action:
     name: str  # one of ACTIONS
+    position_id: int | None = None  # CHOOSE's position, and only its
 
     def __post_init__(self) -> None:
         if self.name not in ACTIONS:
             raise ValueError(f"action: expected one of {', '.join(ACTIONS)}, got {self.name!r}")
+        if (self.name == CHOOSE) != (self.position_id is not None):
+            raise ValueError(f"action {self.name}: a position id goes with {CHOOSE!r}, and only with it")
 
     def to_dict(self) -> dict:
-        return {"action": self.name}
+        # (the plain form for every other action: sessions written before CHOOSE read the same)
+        return {"action": self.name} if self.position_id is None else {"action": self.name,
+                                                                       "position_id": self.position_id}
 
 
 def action_from_dict(doc: dict) -> Action:
-    return Action(doc["action"])
+    return Action(doc["action"], doc.get("position_id"))
 
 
 def _snake(name: str) -> str:

@@ -70,6 +70,9 @@ class Procedure:
     # Each position's own rate step (None: static only), when a position gives one (``rate_step:
     # none`` or ``{rate_deg_s, turns}``); empty: every position takes ``rate_step``.
     position_steps: tuple[RateStep | None, ...] = ()
+    # The operator places the positions in any order: the engine recognises which remaining one
+    # the unit is in from gravity and starts its dwell once the unit is still, with no "ready".
+    any_order: bool = False
 
     def rate_step_at(self, index: int) -> RateStep | None:
         """The rate step of the position at ``index`` (None: a static dwell only)."""
@@ -218,7 +221,7 @@ def parse_procedure(text: str, where: str) -> Procedure:
     raw = parse_yaml(text, where, ProcedureError)
     r = FieldReader(where, ProcedureError)
     m = r.mapping(raw, "", ("dwell_s", "positions"), ("name", "title", "rate_step", "aligned", "adaptive_dwell",
-                                                        "targets"),
+                                                        "targets", "any_order"),
                   what="a procedure: a mapping")
     positions = m["positions"]
     if not isinstance(positions, list) or not positions:
@@ -239,7 +242,7 @@ def parse_procedure(text: str, where: str) -> Procedure:
                      dwell_s=r.bounded(m, "dwell_s", "", 1, 86400, "s"), positions=parsed,
                      rate_step=rate_step, aligned=r.boolean(m, "aligned", "", False), text=text,
                      adaptive_dwell=r.boolean(m, "adaptive_dwell", "", False), targets=_targets(r, m),
-                     position_steps=position_steps)
+                     position_steps=position_steps, any_order=r.boolean(m, "any_order", "", False))
 
 
 def _targets(r: FieldReader, m: dict) -> tuple[tuple[str, str, float], ...]:

@@ -50,6 +50,7 @@ class Bench(Protocol):
 class Act:
     name: str  # an engine action (fieldcal.procedure.events.ACTIONS)
     reason: str = ""  # for an abort: why (else the engine's "operator")
+    position_id: int | None = None  # for a choice among positions gravity cannot tell apart
 
 
 @dataclass(frozen=True)
@@ -230,7 +231,7 @@ class Conductor:
 
     def do(self, move: Move) -> None:
         if isinstance(move, Act):
-            self.act(ev.Action(move.name), move.reason)
+            self.act(ev.Action(move.name, move.position_id), move.reason)
         elif isinstance(move, Feed):
             self.feed(move.chunk)
         elif isinstance(move, Say):

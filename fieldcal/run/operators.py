@@ -26,12 +26,40 @@ class OperatorScript:
     # Bump after the first chunk that ends at or after each of these sample times (s): how a
     # headless run repeats the bumps an operator gave in the terminal UI.
     bump_at_s: tuple[float, ...] = ()
+    # Place the positions of a procedure taken in any order in an order shuffled with this seed
+    # (None: procedure order). A procedure in a fixed order is placed in that order regardless.
+    shuffle_seed: int | None = None
+
+
+def placing_order(procedure: Procedure, seed: int | None) -> list[int]:
+    """The steps in the order the scripted operator places them: shuffled with ``seed``, else as listed."""
+    import numpy as np
+
+    steps = list(range(len(procedure.positions)))
+    return steps if seed is None else [int(k) for k in np.random.default_rng(seed).permutation(steps)]
 
 
 def wrong_position(procedure: Procedure, step: int):
-    """A position whose gravity direction is far from the expected one (a plausible mix-up)."""
-    expected = procedure.positions[step].up_body
-    return max(procedure.positions, key=lambda p: -abs(float(p.up_body @ expected)) - 0.01 * p.id)
+    """A position whose gravity direction is far from the expected one (a plausible mix-up).
+
+    In a procedure taken in any order, another planned position is no mistake: the face,
+    edge or corner of the cube farthest from every planned up direction, named by no id."""
+    import numpy as np
+
+    from fieldcal.procedure.positions import Position, attitude_from_up_and_north
+
+    if not procedure.any_order:
+        expected = procedure.positions[step].up_body
+        return max(procedure.positions, key=lambda p: -abs(float(p.up_body @ expected)) - 0.01 * p.id)
+    sums = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) != (0, 0, 0)],
+                    dtype=float)
+    ups = sums / np.linalg.norm(sums, axis=1, keepdims=True)
+    planned = np.array([p.up_body for p in procedure.positions])
+    up = ups[int(np.argmin((ups @ planned.T).max(axis=1)))]  # (argmin: the first of equals)
+    toward = np.eye(3)[int(np.argmin(np.abs(up)))]  # the axis farthest from up has a horizontal part
+    attitude = attitude_from_up_and_north(up, toward)
+    assert attitude is not None
+    return Position(id=-1, description="like no position of the procedure", attitude=attitude)
 
 
 class ScriptedOperator(Operator):
@@ -47,6 +75,8 @@ class ScriptedOperator(Operator):
         self.pending: deque = deque()
         self.bumped = self.wrong_done = False
         self.bumps_due: list[float] = []
+        self.order = placing_order(procedure, script.shuffle_seed)
+        self.placed: set[int] = set()  # steps whose position this operator has placed the unit in
         # A step normally takes its dwell, its rate steps and the handling; ten times that with
         # no step completed means the run cannot make progress (say the unit never settles).
         # (the longest rate step of the procedure's)
@@ -78,14 +108,26 @@ class ScriptedOperator(Operator):
                 self.wrong_done = True
                 self.pending.append(Place(wrong_position(self.procedure, step).attitude))
             else:
-                self.pending.append(Place(engine.position.attitude))
-            self.pending.append(Act(ev.READY))
+                self.pending.append(Place(self._next_position(engine).attitude))
+            if not self.procedure.any_order:  # (in any order, the engine sees the unit placed)
+                self.pending.append(Act(ev.READY))
         elif isinstance(e, ev.WrongOrientation):
-            self.pending.append(Place(engine.position.attitude))
+            self.pending.append(Place(self._next_position(engine).attitude))
         elif isinstance(e, ev.DwellProgress):
             if engine.step == script.bump_step and not self.bumped and e.done_s >= e.total_s / 2:
                 self.bumped = True
                 self.pending.append(Bump())
+
+    def _next_position(self, engine):
+        """Where to put the unit: the engine's step in procedure order; shuffled, the first
+        position of this operator's order it has neither placed nor the engine closed (the
+        engine may have taken a placement for a position gravity cannot tell from it)."""
+        if self.script.shuffle_seed is None or not self.procedure.any_order:
+            return engine.position
+        closed = set(engine.records) | set(engine.skipped)
+        step = next((k for k in self.order if k not in closed and k not in self.placed), engine.step)
+        self.placed.add(step)
+        return self.procedure.positions[step]
 
     def after_chunk(self, chunk, run: Conductor) -> None:
         t = float(chunk.t[-1])
@@ -137,7 +179,7 @@ class ReplayOperator(Operator):
             return [Feed(item)]
         if kind == "action":
             action = ev.action_from_dict(item)
-            return [Say(f"recorded action: {action.name}"), Act(action.name)]
+            return [Say(f"recorded action: {action.name}"), Act(action.name, position_id=action.position_id)]
         self.pacer.hold()
         return [Say("the recorded run was resumed here"), Restart(ResumePoint.from_dict(item))]
 

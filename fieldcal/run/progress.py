@@ -8,6 +8,14 @@ def describe(e: ev.Event) -> str | None:
     """One line for an event, or None for events not worth a line of their own."""
     if isinstance(e, ev.StepStarted):
         return f"step {e.step + 1}/{e.total_steps}: position {e.position_id} ({e.description})"
+    if isinstance(e, ev.PositionRecognised):
+        text = f"  recognised position {e.position_id} ({e.description})"
+        if e.chosen:
+            return f"{text}: the operator's choice among positions {', '.join(map(str, e.alike))}"
+        if e.alike:  # the operator may choose another (the terminal UI asks)
+            text += (f"; positions {', '.join(map(str, e.alike))} look the same to gravity: "
+                     f"taking {e.position_id}, the first in procedure order")
+        return text
     if isinstance(e, ev.Still):
         return f"  still, {e.angle_to_expected_deg:.1f}° from the expected orientation: dwelling"
     if isinstance(e, ev.WrongOrientation):
@@ -34,12 +42,26 @@ def describe(e: ev.Event) -> str | None:
     return None
 
 
-def printer(stream, quiet: bool = False):
-    """Print each event's line; if the reader goes away (``| head``), stop printing, not the run."""
+def minutes(seconds: float) -> str:
+    """A time to go as the log says it: '40 s', '12 min'."""
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
+
+
+def printer(stream, quiet: bool = False, time_to_go=None):
+    """Print each event's line; if the reader goes away (``| head``), stop printing, not the run.
+    ``time_to_go`` (a ``fieldcal.run.timetogo.TimeToGo``): each completed step says the time to go."""
     state = {"quiet": quiet}
 
     def report(e: ev.Event) -> None:
         text = describe(e)
+        if time_to_go is not None:
+            time_to_go.apply(e)
+            if isinstance(e, ev.StepComplete) and time_to_go.open:
+                text = f"  position {e.position_id} done: ≈{minutes(time_to_go.remaining_s(e.t))} to go"
+            elif isinstance(e, ev.StepStarted) and time_to_go.procedure.any_order:
+                left = len(time_to_go.open)
+                text = (f"{left} position{'s' if left != 1 else ''} to go, in any order "
+                        f"(next in the list: position {e.position_id}, {e.description})")
         if text is not None and not state["quiet"]:
             try:
                 print(f"[{e.t:7.1f} s] {text}", file=stream, flush=True)

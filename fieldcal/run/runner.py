@@ -249,6 +249,15 @@ class SimulatedBench:
         self.target_deg_s = float(state["target_deg_s"])
 
 
+def headless_time_to_go(spec: RunSpec):
+    """The time to go of a run by the scripted operator: its placements reckoned, until timed, as
+    its hands' time, the stillness detector's window and the orientation check."""
+    from fieldcal.run.timetogo import TimeToGo
+
+    settings = spec.engine_settings()
+    return TimeToGo(spec.procedure, spec.script.handling_s + settings.stillness.window_s + settings.check_s)
+
+
 def run_headless(spec: RunSpec, out: Path, report=lambda e: None, serial: bool = False) -> Outcome:
     """``serial``: reach the simulated device only through bytes on a pty, as hardware would be."""
     settings = spec.engine_settings()  # bad settings fail before any file

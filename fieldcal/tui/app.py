@@ -53,7 +53,8 @@ class FieldcalApp(App[int]):
 
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
                  replay: RunRecord | None = None, clock=time.monotonic, config=None, setup=None,
-                 resume: RunRecord | None = None, product_spec=None, wall_clock=time.time) -> None:
+                 resume: RunRecord | None = None, product_spec=None, wall_clock=time.time,
+                 hands=None) -> None:
         """``product_spec``: an ``acceptance.ProductSpec``: the results say PASS/FAIL against it,
         and the exit status is 3 (as the headless run's) when a check fails.
 
@@ -63,6 +64,7 @@ class FieldcalApp(App[int]):
 
         ``config``: the station config of a real device (``spec.live``), for its ports.
         ``wall_clock``: the host's Unix time, beside a real device's own clock (resume).
+        ``hands``: an ``OperatorScript``: the simulator places the unit at each step by itself.
 
         ``setup``: instead of a run, ``(initial, make_run)``: the setup screen opens with the
         ``SetupChoice`` ``initial`` (or none), and the operator's choice, resolved to a config and
@@ -85,6 +87,7 @@ class FieldcalApp(App[int]):
         self.mode = "setup"  # until a run is prepared: the source's "sim", "live" or "replay"
         self.product_spec = product_spec
         self.verdict = None  # the results' acceptance.Verdict, when a product spec was given
+        self.hands = hands
         if setup is None:
             self._prepare(spec, session_dir, replay, config, resume)
 
@@ -116,16 +119,20 @@ class FieldcalApp(App[int]):
         else:
             if spec is None:
                 raise ValueError("FieldcalApp: give a RunSpec, or a session to replay")
-            self.source = SimSource(spec, self, self.speed, session_dir, clock)
+            self.source = SimSource(spec, self, self.speed, session_dir, clock, hands=self.hands)
             title = (f"fieldcal · {spec.procedure.name} · simulated MIMU, seed {spec.seed} · "
                      f"{_speed_words(self.speed)}")
         self.spec = self.source.spec
         self.mode = self.source.mode
         settings = self.source.settings
+        # The simulator's own hands place in a known time; a person's placement is a guess.
+        hands_s = None if self.hands is None or self.mode != "sim" else \
+            self.hands.handling_s + settings.stillness.window_s + settings.check_s
         self.view = RunView(self.spec.procedure, tolerance_deg=settings.tolerance_deg,
                             enter_factor=settings.stillness.enter_factor,
                             leave_factor=settings.stillness.leave_factor,
-                            held_while_waiting=self.mode == "sim")
+                            held_while_waiting=self.mode == "sim",
+                            **({"placing_prior_s": hands_s} if hands_s is not None else {}))
         self.procedure_screen = ProcedureScreen(self.view, title, self.mode)
 
     def on_resize(self, event) -> None:

@@ -11,6 +11,8 @@ o   redo this step from the placement; asks first
 a   abort: stop the run for good, the session is kept; asks first
 b   bump the fixture (simulator): a dwell in progress restarts
 w   place the unit in a wrong position on purpose (simulator)
+1-9 which position the unit is in, when the banner asks (positions in any
+    order that gravity cannot tell apart)
 v   the results, once the run has ended; Esc there comes back here
 ?   this help
 q   quit; mid-run it asks first (the unfinished session is kept);
@@ -24,6 +26,8 @@ u   back to the last skipped position; asks first if this step has begun
 o   redo this step from the placement; asks first
 a   abort: stop the run for good (the table stops), the session is kept;
     asks first
+1-9 which position the unit is in, when the banner asks (positions in any
+    order that gravity cannot tell apart)
 v   the results, once the run has ended; Esc there comes back here
 ?   this help
 q   quit (the table stops; the session is kept); mid-run it asks first;

@@ -25,8 +25,8 @@ from fieldcal.run.conductor import Act, Conductor, Restart, Say
 from fieldcal.run.deviceclock import measured_again, power_cycle_banner, step_started_again
 from fieldcal.run.outcome import Status
 from fieldcal.session.record import ResumePoint
-from fieldcal.tui.source import (ABORT, BUMP, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, Note,
-                                 ResumeNote, SimSource, Sink)
+from fieldcal.tui.source import (ABORT, BUMP, CHOOSE_PREFIX, FLUSH_S, MISPLACE, READY, REDO, SKIP, UNSKIP, Mode, Note,
+                                 ResumeNote, SimSource, Sink, choice_moves)
 
 RATE_FRAMES_S = 10.0  # a run waits this long for the frames its device's rate is measured from
 NO_SAMPLES_WARN_S = 3.0  # wall time without a sample before the log says so
@@ -251,6 +251,8 @@ class LiveSource(SimSource):
 
     def _moves(self, command: str, run: Conductor) -> list:
         e = run.engine
+        if command.startswith(CHOOSE_PREFIX):
+            return choice_moves(command)
         if command == READY and e.phase == PLACE:
             return [Say(f"operator: ready, the unit is in position {e.position.id}"), Act(ev.READY)]
         if command == READY and e.phase == WRONG:

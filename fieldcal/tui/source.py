@@ -35,7 +35,7 @@ from typing import Protocol
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.engine import PLACE, WAITING_FOR_OPERATOR, WRONG
 from fieldcal.run.conductor import Act, Bump, Conductor, Operator, Place, Say, Subscriber
-from fieldcal.run.operators import wrong_position
+from fieldcal.run.operators import OperatorScript, ScriptedOperator, wrong_position
 from fieldcal.run.outcome import Outcome, Status
 from fieldcal.run.pacing import Pacer
 from fieldcal.tui.readings import RecentSamples, Telemetry
@@ -49,6 +49,17 @@ FLUSH_S = 0.1  # at most one UI update per this much wall time
 READY, REDO, SKIP, ABORT, UNSKIP = ev.READY, ev.REDO, ev.SKIP, ev.ABORT, ev.UNSKIP
 BUMP, MISPLACE, QUIT = "bump", "misplace", "quit"
 COMMANDS = (READY, REDO, SKIP, ABORT, UNSKIP, BUMP, MISPLACE, QUIT)
+CHOOSE_PREFIX = "choose:"  # and a position id: which of positions gravity cannot tell apart
+
+
+def choose_command(position_id: int) -> str:
+    return f"{CHOOSE_PREFIX}{position_id}"
+
+
+def choice_moves(command: str) -> list:
+    """The moves of a ``choose:ID`` command: the engine takes position ID for the dwell under way."""
+    position_id = int(command.removeprefix(CHOOSE_PREFIX))
+    return [Say(f"operator: the unit is in position {position_id}"), Act(ev.CHOOSE, position_id=position_id)]
 
 
 class Mode(StrEnum):
@@ -109,7 +120,8 @@ class Source(Operator, Subscriber):
     # --- called from the UI thread ----------------------------------------------------------
 
     def send(self, command: str) -> None:
-        if command not in COMMANDS:
+        if command not in COMMANDS and not (command.startswith(CHOOSE_PREFIX)
+                                            and command.removeprefix(CHOOSE_PREFIX).isdigit()):
             raise ValueError(f"command: expected one of {', '.join(COMMANDS)}, got {command!r}")
         self._commands.put(command)
 
@@ -240,10 +252,14 @@ class SimSource(Source):
     mode = Mode.SIM
 
     def __init__(self, spec, sink: Sink, speed: float, session_dir: Path | None,
-                 clock: Callable[[], float] = time.monotonic, bench=None, resume=None):
+                 clock: Callable[[], float] = time.monotonic, bench=None, resume=None,
+                 hands: OperatorScript | None = None):
         """``resume``: the ``RunRecord`` of the unfinished session in ``session_dir`` to continue
-        after its last completed step (see ``resuming``), not a new one."""
+        after its last completed step (see ``resuming``), not a new one. ``hands``: the simulator
+        places the unit by itself at each step as the headless run's operator would (in a
+        shuffled order, if the script says so and the procedure takes any order): no key."""
         super().__init__(spec, sink, speed, clock)
+        self.hands = ScriptedOperator(hands, spec.procedure) if hands is not None else None
         self.session_dir = Path(session_dir) if session_dir is not None else None
         if resume is not None and self.session_dir is None:
             raise ValueError("resume: which session?")
@@ -323,19 +339,27 @@ class SimSource(Source):
         the operator's hands.)"""
         return run.engine.phase in WAITING_FOR_OPERATOR
 
+    def observe(self, e: ev.Event, run: Conductor) -> None:
+        if self.hands is not None:
+            self.hands.observe(e, run)
+
     def next_moves(self, run: Conductor):
-        command = self._next_command(wait=self._holds_for_keys(run))
+        placing = self.hands.next_moves(run) if self.hands is not None else []
+        command = self._next_command(wait=not placing and self._holds_for_keys(run))
         if command == QUIT:
             self._stop.set()
         if self.stopping:
             return None
-        return [] if command is None else self._moves(command, run)
+        return placing + ([] if command is None else self._moves(command, run))
 
     def _moves(self, command: str, run: Conductor) -> list:
         e = run.engine
+        if command.startswith(CHOOSE_PREFIX):
+            return choice_moves(command)
         if command in (READY, MISPLACE) and e.phase == PLACE:
             place = e.position if command == READY else wrong_position(e.procedure, e.step)
-            return [Say(f"operator: ready; the simulator carries the unit to position {place.id}"
+            where = f"position {place.id}" if place.id >= 0 else place.description
+            return [Say(f"operator: ready; the simulator carries the unit to {where}"
                         f"{'' if command == READY else ' (the wrong one, on purpose)'}"),
                     Place(place.attitude), Act(ev.READY)]
         if command == READY and e.phase == WRONG:

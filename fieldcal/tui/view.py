@@ -15,6 +15,7 @@ from fieldcal.procedure.engine import skipped_to_return_to
 from fieldcal.procedure import events as ev
 from fieldcal.procedure.positions import Procedure, position_words
 from fieldcal.run.progress import describe
+from fieldcal.run.timetogo import TimeToGo
 from fieldcal.tui.guidance import names_heading, placement
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.source import Note, ResumeNote
@@ -48,14 +49,10 @@ def rate_step_s(procedure: Procedure, index: int = 0) -> float:
     return 0.0 if r is None else r.ramp_s + r.settle_s + r.turns * 360.0 / r.rate_deg_s
 
 
-def step_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S, index: int = 0) -> float:
-    """The step of the position at ``index``: a placement, the dwell and its rate steps both ways."""
-    return placing_s + procedure.dwell_s + 2 * rate_step_s(procedure, index)
-
-
 def job_duration_s(procedure: Procedure, placing_s: float = PLACING_GUESS_S) -> float:
-    """The whole job, as the run's own estimate counts it before any step is timed."""
-    return sum(step_s(procedure, placing_s, i) for i in range(len(procedure.positions)))
+    """The whole job as the setup screen sums it: a placement, the dwell and both rate steps
+    (each as ``rate_step_s``) per position."""
+    return sum(placing_s + procedure.dwell_s + 2 * rate_step_s(procedure, i) for i in range(len(procedure.positions)))
 
 
 @dataclass
@@ -117,16 +114,23 @@ class RunView:
     carry_from: int | None = None  # r pressed: the simulator carries the unit, from this many samples
     unit_at: object | None = None  # the Position the unit was last found still in
     looks_like: tuple[int, ...] = ()  # a misplaced unit: the ids of the positions it looks like
+    alike: tuple[int, ...] = ()  # any order: positions gravity cannot tell from the one taken
     resumed: ResumeNote | None = None  # a resumed run, until its first unit is placed
     # "elapsed" never goes back: sample time the run's clock went back by (a resume continues
     # from its last completed step, not from where it was quit) is added to it.
     elapsed_offset: float = 0.0
+    # An operator's placement until the run has timed one: a person's guess, or the configured
+    # hands' time when the simulator places the unit by itself.
+    placing_prior_s: float = PLACING_GUESS_S
+    time_to_go: TimeToGo | None = None
     _telemetry_t: float | None = None
 
     def __post_init__(self) -> None:
         if not self.tiles:
             self.tiles = [TODO] * len(self.procedure.positions)
         self.dwell.total = self.procedure.dwell_s
+        if self.time_to_go is None:
+            self.time_to_go = TimeToGo(self.procedure, self.placing_prior_s)
 
     @property
     def total_steps(self) -> int:
@@ -158,9 +162,11 @@ class RunView:
                 self.elapsed_offset = max(self.elapsed_offset, item.elapsed_s - item.t)
             self.tiles = [DONE if step in item.done else SKIPPED if step in item.skipped else TODO
                           for step in range(self.total_steps)]
+            self.time_to_go.resumed(item.done, item.skipped)
         if isinstance(item, Note):
             return f"[{item.t:7.1f} s] {item.text}"
         self._fold(item)
+        self.time_to_go.apply(item)
         text = describe(item)
         if text is None:
             return None
@@ -179,7 +185,11 @@ class RunView:
             self.tiles[e.step] = ACTIVE
             self.dwell, self.turns = Progress(total=self.procedure.dwell_s), Progress()
             self.step_t0, self.placed, self.rates_done = e.t, False, 0
-            self.wrong, self.restarts, self.carrying = None, 0, False
+            self.wrong, self.restarts, self.carrying, self.alike = None, 0, False, ()
+        elif isinstance(e, ev.PositionRecognised):  # any order: the unit is in this one
+            self.tiles = [TODO if s in (ACTIVE, WRONG) else s for s in self.tiles]
+            self.step, self.tiles[e.step] = e.step, ACTIVE
+            self.alike = e.alike if not e.chosen else ()
         elif isinstance(e, ev.WrongOrientation):
             self.wrong, self.looks_like = e.message, e.looks_like
             self.tiles[self.step] = WRONG
@@ -203,6 +213,7 @@ class RunView:
                 self.table_state = "disturbed"
         elif isinstance(e, ev.DwellComplete):
             self.dwell.finish()
+            self.alike = ()  # the choice is taken while the dwell runs
         elif isinstance(e, ev.CommandTable):
             self.table_rate = e.rate_deg_s
             self.table_state = "ramping" if e.rate_deg_s else "stopping"
@@ -264,22 +275,12 @@ class RunView:
         return rate_step_s(self.procedure, min(self.step if step is None else step, self.total_steps - 1))
 
     def remaining_s(self) -> float:
-        """Sample time the open steps still need: dwells and rate steps from the procedure,
-        less what the current step has done, and a placement each, as long as this run's
-        placements took on average (PLACING_GUESS_S until one is timed)."""
+        """Sample time the open steps still need (``fieldcal.run.timetogo``): a placement, a
+        dwell and the rate steps each, from the procedure until this run has timed them, less
+        what the step under way has done."""
         if self.finished is not None or self.step >= self.total_steps:
             return 0.0
-        placing = sum(self.placing_s) / len(self.placing_s) if self.placing_s else PLACING_GUESS_S
-        open_time = sum(step_s(self.procedure, placing, i)  # each position's own rate step, if any
-                        for i, s in enumerate(self.tiles) if i != self.step and s in (TODO, ACTIVE, WRONG))
-        t = self.t
-        if self.placed:
-            rate_left = self.rate_step_s() * (2 - self.rates_done)
-            turning = 0.0 if self.turns.complete else self.turns.done(t)  # (a finished one is counted)
-            current = self.dwell.total - self.dwell.done(t) + max(0.0, rate_left - turning)
-        else:
-            current = step_s(self.procedure, placing, self.step)
-        return open_time + current
+        return self.time_to_go.remaining_s(self.t)
 
     def job_text(self) -> str:
         """Counts beside the tiles' symbols (the legend), elapsed and remaining time."""
@@ -362,6 +363,14 @@ class RunView:
             words += f" ({position_words(dataclasses.replace(p, description=''))})"
         return f"step {self.step + 1} of {self.total_steps} · position {p.id}: {words}"
 
+    def choice_text(self) -> str:
+        """The question when gravity cannot tell the remaining positions apart: which one it is."""
+        by_id = {q.id: q for q in self.procedure.positions}
+        options = " · ".join(f"{n}: position {i} ({position_words(by_id[i])})"
+                             for n, i in enumerate(self.alike, start=1))
+        return (f"Positions {', '.join(map(str, self.alike))} look the same to gravity; taken as position "
+                f"{self.position.id}. Which is it? {options}")
+
     def banner(self, sim: bool) -> tuple[str, str]:
         """(instruction for the operator, style class)."""
         if self.finished is not None:
@@ -382,11 +391,17 @@ class RunView:
         if phase == en.PLACE:
             move = placement(self.unit_at, p)
             text = f"Position {p.id}: {move.text}" + ("; r: the simulator does it" if sim else ", then press r")
+            if self.procedure.any_order:  # the station recognises the position: no key
+                left = sum(s in (TODO, ACTIVE, WRONG) for s in self.tiles)
+                text = (f"Any of the {left} remaining positions, e.g. position {p.id}: {move.text}; "
+                        + ("r: the simulator does it" if sim else "taken once still, no key"))
             if move.heading_only and self.unit_at is not None:
                 text += "\nOnly the heading changes, which the check cannot see: check it by eye"
             if self.resumed is not None:
                 return f"{self.resumed.banner}\n{text}", "warn" if self.resumed.warn else "act"
             return text, "act"
+        if phase == en.WRONG and self.procedure.any_order and self.wrong:
+            return f"NO REMAINING POSITION: {self.wrong}", "bad"
         if phase == en.WRONG:
             by_id = {q.id: q for q in self.procedure.positions}
             seen = by_id.get(self.looks_like[0]) if self.looks_like else None
@@ -399,6 +414,8 @@ class RunView:
             return "Hands off: waiting for the unit to be still", "wait"
         if phase == en.CHECKING:
             return "Still: checking the orientation", "wait"
+        if phase == en.DWELL and self.alike:
+            return f"Dwelling: keep the unit still\n{self.choice_text()}", "act"
         if phase == en.DWELL:
             return "Dwelling: keep the unit still", "run"
         if phase == en.RATE_WAIT:

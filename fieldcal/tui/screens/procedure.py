@@ -40,6 +40,8 @@ class ProcedureScreen(Screen):
         Binding("w", "command('misplace')", "misplace", show=False),
         Binding("v", "results", "results"),
         Binding("q", "ask('quit')", "quit"),
+        # Which of positions gravity cannot tell apart the unit is in (the banner lists them).
+        *(Binding(str(n), f"choose({n})", "which", show=False) for n in range(1, 10)),
     ]
 
     def __init__(self, view: RunView, title: str, mode: str) -> None:
@@ -130,6 +132,8 @@ class ProcedureScreen(Screen):
     # --- keys -------------------------------------------------------------------------------
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if action == "choose":
+            return self.mode != "replay" and 1 <= int(str(parameters[0])) <= len(self.view.alike)
         if action == "results":
             return self.view.finished is not None
         if action not in ("command", "ask") or parameters == ("quit",):
@@ -148,6 +152,12 @@ class ProcedureScreen(Screen):
             view.carrying = True  # said at once: the carrying takes seconds of samples at 1×
             self.refresh_view()
         self.app.send_command(name)
+
+    def action_choose(self, n: int) -> None:
+        """The operator says the unit is in the n-th of the positions gravity cannot tell apart."""
+        from fieldcal.tui.source import choose_command
+
+        self.app.send_command(choose_command(self.view.alike[n - 1]))
 
     async def action_ask(self, name: str) -> None:
         """Abort, skip, redo, quit (and going back, when it drops a step begun) wait for a
