@@ -269,14 +269,16 @@ def mixed_solution(session, spec):
     return solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, spec.method)
 
 
+LATE_AT = 2  # steps completed when the unit's bytes come late (a backlog: they are kept)
 BEFORE_CYCLE = 6  # steps completed when the unit is switched off and on: each axis up and down
 
 
 def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_solves_to_its_new_bias(tmp_path):
-    """VectorNav ASCII, its port open throughout (a powered adapter): the unit is off for 3 s
-    after three steps. The station cannot show it stayed powered, says so, and measures those
-    steps again; the accelerometer solves to this switch-on's bias within its σ, where keeping
-    the three steps from before would be off by many σ."""
+    """VectorNav ASCII, its port open throughout (a powered adapter). After two steps its bytes
+    come 4 s late, all at once (nothing lost): the run goes on at the third, the two kept. After
+    six, the unit is off for 3 s: the station cannot show it stayed powered, says so, and
+    measures those steps again; the accelerometer solves to this switch-on's bias within its σ,
+    where keeping the six steps from before would be off by many σ."""
     from tests.test_tui_resume import _live_app, log_text, vectornav_config as with_vectornav, without_table
     from tests.tui_pilot import run_async, until, waiting_at
     from tests.test_tui import on_results
@@ -293,7 +295,12 @@ def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_
                         lambda: devices.world_time)
         async with app.run_test(size=(80, 24)) as pilot:
             for step in range(BEFORE_CYCLE):
+                if step == LATE_AT:  # the unit runs on; its bytes come 4 s late, all at once
+                    await until(pilot, lambda: waiting_at(app, LATE_AT))
+                    devices.deliver_late(4.0).result(timeout=60)
                 await place(app, pilot, devices, procedure, step)
+                if step == LATE_AT:
+                    late_log = log_text(app)
             await until(pilot, lambda: waiting_at(app, BEFORE_CYCLE))
             devices.power_cycle(8, off_s=3.0).result(timeout=60)
             await until(pilot, lambda: "stayed open" in log_text(app) and waiting_at(app, 0)
@@ -302,10 +309,10 @@ def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_
             for step in range(len(procedure.positions)):
                 await place(app, pilot, devices, procedure, step)
             await until(pilot, lambda: app.outcome is not None and on_results(app))
-            return app, banner, log_text(app)
+            return app, banner, log_text(app), late_log
 
     try:
-        app, banner, log = run()
+        app, banner, log, late_log = run()
         solved = app.outcome.unit.solutions["accelerometer"]
         errors = accelerometer_errors(solved, devices, solved.sigma)
     finally:
@@ -313,6 +320,8 @@ def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_
     assert np.abs(devices.truth["accelerometer"].bias - first_bias).max() > 1.0 * MG  # a new switch-on
     assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
                              f"changed; the {BEFORE_CYCLE} completed steps are measured again")
+    assert "WARNING: no samples from" in late_log  # the station saw the gap,
+    assert "samples never came" not in late_log and "power-cycled" not in late_log  # and kept the steps
     assert "samples never came: it stopped sending, so that it stayed powered cannot be shown" in log
     reader = SessionReader(tmp_path / "session")
     (resume,) = [d["data"] for d in reader.documents("resume")]

@@ -117,6 +117,7 @@ class SimulatedDevices:
         self._make_encoder = lambda: make_encoder(imu_protocol)
         self.encoder = self._make_encoder()
         self._cycles: queue.SimpleQueue = queue.SimpleQueue()  # power cycles asked for, not yet made
+        self._delays: queue.SimpleQueue = queue.SimpleQueue()  # late deliveries asked for, not yet begun
         self._time_lock = threading.Lock()
         self._time_before_cycles = 0.0  # sample time run before the last power cycle, s
         self.motion = TableMotion()
@@ -156,6 +157,16 @@ class SimulatedDevices:
             raise ValueError(f"off_s: expected a finite number >= 0, got {off_s}")
         done: Future = Future()
         self._cycles.put((seed, off_s, done))
+        return done
+
+    def deliver_late(self, seconds: float) -> Future:
+        """The unit runs on, powered, but its bytes reach the port only after ``seconds`` of
+        sample time, all at once (a USB adapter's latency, a hub's hiccup): late, none lost.
+        The future is done once they are written."""
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise ValueError(f"seconds: expected a finite number > 0, got {seconds}")
+        done: Future = Future()
+        self._delays.put((seconds, done))
         return done
 
     @property
@@ -200,6 +211,7 @@ class SimulatedDevices:
         started = time.monotonic()
         sim, motion = self.simulator, self.motion
         pending = None
+        late_until, late = None, []  # a delivery held (``deliver_late``): until then, its bytes
         while not self._stop.is_set():
             if not self._cycles.empty():
                 seed, off_s, cycled = self._cycles.get()
@@ -230,20 +242,33 @@ class SimulatedDevices:
             if self._on_chunk is not None:
                 self._on_chunk(sent)
             data = self.encoder.encode(sent)
+            if not self._delays.empty():
+                seconds, delayed = self._delays.get()
+                late_until, late = sim.time + seconds, [delayed]
             if self.speed > 0:
                 lag = started + sim.time / self.speed - time.monotonic()
                 if lag > 0:
                     self._stop.wait(lag)
+            if late_until is not None and sim.time < late_until:
+                late.append(data)  # sent, and held on the way
+            elif late_until is not None:
+                self._write_all(b"".join(late[1:]) + data)  # all of it at once, nothing lost
+                late[0].set_result(None)
+                late_until, late = None, []
+            elif self.speed > 0:
                 # A real device does not wait for a slow host: what does not fit is lost.
                 self.imu_link.write(data, timeout_s=0.05)
             else:
-                written = 0
-                while written < len(data) and not self._stop.is_set():
-                    sent = self.imu_link.write(data[written:], timeout_s=0.1)
-                    written += sent
-                    if not sent:  # unplugged: wait for the cable rather than spin
-                        self._stop.wait(0.05)
+                self._write_all(data)
             self.samples_sent += len(chunk)
+
+    def _write_all(self, data: bytes) -> None:
+        written = 0
+        while written < len(data) and not self._stop.is_set():
+            sent = self.imu_link.write(data[written:], timeout_s=0.1)
+            written += sent
+            if not sent:  # unplugged: wait for the cable rather than spin
+                self._stop.wait(0.05)
 
     def _table_loop(self) -> None:
         while not self._stop.is_set():

@@ -213,7 +213,10 @@ def measured_again(check: ClockCheck | None, done: int, when: str) -> str:
     step has gyro windows: all completed steps are measured again (the accelerometer's
     turn-on bias, shared the same way by its static norms, is renewed with them).
     A device that cannot say (no counter or time in its frames) may have been cycled: the
-    same, since a calibration mixing two biases is wrong without any sign of it."""
+    same, since a calibration mixing two biases is wrong without any sign of it.
+    The scale factors and misalignments do repeat across a power cycle, so the steps before it
+    could still serve them beside a bias per switch-on; the solvers fit one bias per triad, so
+    until they fit one per switch-on, every step that has windows is measured again."""
     if not done or (check is not None and check.power_cycled is False):
         return ""
     return (f"{_cycled(check)} {when}{f' ({check.reason})' if check is not None else ''}; the gyro's turn-on "
