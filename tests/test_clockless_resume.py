@@ -4,6 +4,7 @@ cycle, a simulated unit that draws a new turn-on bias when power-cycled, and the
 saying what a resume will do."""
 from __future__ import annotations
 
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -179,7 +180,9 @@ def test_the_served_unit_sends_its_new_bias_after_a_power_cycle(tmp_path):
             return np.concatenate([c.triads["accelerometer"] for c in chunks]).mean(axis=0)
 
         def collect(n):
+            deadline = time.monotonic() + 60.0
             while sum(len(c) for c in seen) < n:
+                assert time.monotonic() < deadline, "the unit stopped sending"  # a hang detector
                 port.read(65536)
             taken = list(seen)
             seen.clear()
@@ -187,7 +190,10 @@ def test_the_served_unit_sends_its_new_bias_after_a_power_cycle(tmp_path):
 
         before = mean_of(collect(3000))
         old = devices.truth["accelerometer"].bias
-        devices.power_cycle(9).result(timeout=60)
+        cycled, deadline = devices.power_cycle(9), time.monotonic() + 60.0
+        while not cycled.done():  # (read on: a device served as fast as read waits for its reader)
+            assert time.monotonic() < deadline, "the power cycle never came"  # a hang detector
+            port.read(65536)
         collect(1)  # (what was under way at the cycle)
         after = mean_of(collect(3000))
         new = devices.truth["accelerometer"].bias

@@ -133,9 +133,12 @@ class LiveBench:
         """Do the device's frames carry no clock (no time, no packet counter), and has it a rate
         in host time (not a simulator served as fast as it is read)?"""
         clock = self._clock_at(*stamped[-1]) if stamped else self._fed_clock
+        return clock is not None and clock.time_s is None and clock.counter is None and self._host_speed() > 0
+
+    def _host_speed(self) -> float:
+        """The device's sample time per host time: a simulator's speed, else 1."""
         device = self.config.device
-        speed = device.sim.speed if device.protocol == "sim" and device.sim is not None else 1.0
-        return clock is not None and clock.time_s is None and clock.counter is None and speed > 0
+        return device.sim.speed if device.protocol == "sim" and device.sim is not None else 1.0
 
     def _until_stream_broke(self, held: list, fresh: list) -> list:
         """``_until_restart`` for a device whose frames carry no clock, by its data's continuity
@@ -143,9 +146,7 @@ class LiveBench:
         it is judged; those before a break are handed out, the break judged into
         ``regain_check`` (cannot tell), and the rest held for the next call."""
         if self._stream is None:
-            device = self.config.device
-            speed = device.sim.speed if device.protocol == "sim" and device.sim is not None else 1.0
-            self._stream = ClocklessStream(device.rate_hz * speed)
+            self._stream = ClocklessStream(self.config.device.rate_hz * self._host_speed())
         out, waiting = ([], list(held)) if self._stream_waiting else (list(held), [])
         for i, (arrival, chunk) in enumerate(fresh):
             verdict = self._stream.read(arrival, len(chunk))
