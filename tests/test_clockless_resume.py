@@ -279,46 +279,78 @@ LATE_AT = 2  # steps completed when the unit's bytes come late (a backlog: they 
 BEFORE_CYCLE = 6  # steps completed when the unit is switched off and on: each axis up and down
 
 
-def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_solves_to_its_new_bias(tmp_path):
-    """VectorNav ASCII, its port open throughout (a powered adapter). After two steps its bytes
-    come 4 s late, all at once (nothing lost): the run goes on at the third, the two kept. After
-    six, the unit is off for 3 s: the station cannot show it stayed powered, says so, and
-    measures those steps again; the accelerometer solves to this switch-on's bias within its σ,
-    where keeping the six steps from before would be off by many σ."""
+def run_static_12(tmp_path, devices, cycle: bool):
+    """The operator through ``static_12`` on a VectorNav unit served on a pty, its port open
+    throughout (a powered adapter). After LATE_AT steps its bytes come 4 s late, all at once
+    (nothing lost). With ``cycle``, after BEFORE_CYCLE steps the unit is off for 3 s, and the run
+    is followed from the station's restart of it. The app, the banner after the cycle ("" without
+    one), the whole log and the log just after the late delivery."""
+    from tests.test_tui import on_results
     from tests.test_tui_resume import _live_app, log_text, vectornav_config as with_vectornav, without_table
     from tests.tui_pilot import run_async, until, waiting_at
-    from tests.test_tui import on_results
-    from fieldcal.session.capture import SessionReader
-    from fieldcal.run.runner import open_run
 
-    devices = served_on_pty(5)
     procedure = static_12()
-    first_bias = devices.truth["accelerometer"].bias
 
     @run_async
     async def run():
         app = _live_app(tmp_path, without_table(tmp_path, devices, with_vectornav), procedure,
                         lambda: devices.world_time)
+        banner, late_log = "", ""
         async with app.run_test(size=(80, 24)) as pilot:
-            for step in range(BEFORE_CYCLE):
+            for step in range(BEFORE_CYCLE if cycle else len(procedure.positions)):
                 if step == LATE_AT:  # the unit runs on; its bytes come 4 s late, all at once
                     await until(pilot, lambda: waiting_at(app, LATE_AT))
                     devices.deliver_late(4.0).result(timeout=60)
                 await place(app, pilot, devices, procedure, step)
                 if step == LATE_AT:
                     late_log = log_text(app)
-            await until(pilot, lambda: waiting_at(app, BEFORE_CYCLE))
-            devices.power_cycle(8, off_s=3.0).result(timeout=60)
-            await until(pilot, lambda: "stayed open" in log_text(app) and waiting_at(app, 0)
-                        and app.telemetry.silent_s is None)
-            banner = str(app.screen.query_one("#banner").render())
-            for step in range(len(procedure.positions)):
-                await place(app, pilot, devices, procedure, step)
+            if cycle:
+                await until(pilot, lambda: waiting_at(app, BEFORE_CYCLE))
+                devices.power_cycle(8, off_s=3.0).result(timeout=60)
+                await until(pilot, lambda: "stayed open" in log_text(app) and waiting_at(app, 0)
+                            and app.telemetry.silent_s is None)
+                banner = str(app.screen.query_one("#banner").render())
+                for step in range(len(procedure.positions)):
+                    await place(app, pilot, devices, procedure, step)
             await until(pilot, lambda: app.outcome is not None and on_results(app))
             return app, banner, log_text(app), late_log
 
+    return run()
+
+
+def test_a_clockless_unit_that_stays_powered_keeps_its_steps_through_a_late_delivery_and_solves_to_its_truth(
+        tmp_path):
+    """The unit stays powered; its bytes come 4 s late once (the station sees the silence): the
+    run goes on after the step it had completed, keeping every step, and the accelerometer
+    solves to the truth within its σ."""
+    from fieldcal.session.capture import SessionReader
+
+    devices = served_on_pty(5)
     try:
-        app, banner, log, late_log = run()
+        app, _, log, late_log = run_static_12(tmp_path, devices, cycle=False)
+        solved = app.outcome.unit.solutions["accelerometer"]
+        errors = accelerometer_errors(solved, devices, solved.sigma)
+    finally:
+        devices.stop()
+    assert "WARNING: no samples from" in late_log  # the station saw the gap,
+    assert "samples never came" not in log and "power-cycled" not in log  # and kept the steps
+    reader = SessionReader(tmp_path / "session")
+    assert list(reader.documents("resume")) == [] and [d["step"] for d in reader.steps()] == list(range(12))
+    assert app.outcome.status == "completed" and app.outcome.completed == 12
+    assert np.all(np.abs(errors) < 4.0), errors
+
+
+def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_solves_to_its_new_bias(tmp_path):
+    """As above, and after six steps the unit is off for 3 s: the station cannot show it stayed
+    powered, says so, and measures those steps again; the accelerometer solves to this
+    switch-on's bias within its σ, where keeping the six steps from before would be off by many σ."""
+    from fieldcal.run.runner import open_run
+    from fieldcal.session.capture import SessionReader
+
+    devices = served_on_pty(5)
+    first_bias = devices.truth["accelerometer"].bias
+    try:
+        app, banner, log, late_log = run_static_12(tmp_path, devices, cycle=True)
         solved = app.outcome.unit.solutions["accelerometer"]
         errors = accelerometer_errors(solved, devices, solved.sigma)
     finally:
@@ -384,3 +416,14 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
                              "changed; the 1 completed step is measured again")
     assert "so that it stayed powered cannot be shown" in log
     assert app.outcome.status == "completed" and app.outcome.completed == 2
+
+
+@pytest.mark.parametrize("bad", ["-1", "nan", "inf", "much"])
+def test_sim_serve_refuses_a_turn_on_spread_that_is_no_number_at_least_zero_in_one_line(bad, capsys):
+    from fieldcal.cli.main import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["sim", "serve", "--imu-protocol", "vectornav", "--turn-on-bias-mg", bad])
+    assert exit_.value.code == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()[-1:]
+    assert line.endswith(f"argument --turn-on-bias-mg: expected a number >= 0, got {bad!r}")
