@@ -194,10 +194,11 @@ station: {{latitude_deg: 40.0, height_m: 50.0}}
 
 @run_async
 async def test_the_quit_question_says_when_a_resume_measures_everything_again(tmp_path):
-    """A VectorNav's ASCII frames carry no clock: a resume cannot tell a power cycle and measures
-    every completed position again; an Xsens's carry one: a resume can continue."""
-    for protocol, words in (("vectornav", "this device's frames carry no clock: a resume cannot tell a "
-                                          "power cycle, so it measures every position again"),
+    """A VectorNav's ASCII frames carry no clock: a resume cannot show the unit stayed powered and
+    measures every completed position again (here none is: it starts from the first); an Xsens's
+    carry one: a resume can continue."""
+    for protocol, words in (("vectornav", "this device's frames carry no clock, so a resume cannot show "
+                                          "the unit stayed powered: it starts from the first step."),
                             ("xsens", "a resume continues after the last completed step if the unit "
                                       "stays powered")):
         app, devices = live_app(tmp_path / protocol, protocol)

@@ -13,6 +13,7 @@ import queue
 import threading
 import time
 from concurrent.futures import Future
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -59,12 +60,45 @@ def _as_device_sends(chunk: SampleChunk) -> SampleChunk:
                        extras={"pressure": np.full(n, 101.325)})
 
 
+@dataclass(frozen=True)
+class TurnOnBias:
+    """A MEMS unit's bias repeatability: each switch-on's biases differ from the nominal ones by
+    an offset on the input, 1σ per axis ``gyro_deg_s`` (gyroscope) and ``accel_mg``
+    (accelerometer); a power cycle draws a new one. 0: the biases repeat exactly."""
+
+    gyro_deg_s: float = 0.0
+    accel_mg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("gyro_deg_s", "accel_mg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"turn-on bias {name}: expected a finite number >= 0, got {value}")
+
+    def switched_on(self, triads: dict[str, TriadTruth], seed) -> dict[str, TriadTruth]:
+        """``triads`` with the biases of the switch-on ``seed`` stands for (drawn from its own
+        stream, so the samples that follow are the seed's as without a spread)."""
+        if not (self.gyro_deg_s or self.accel_mg):
+            return triads
+        from drivers.sim.realworld import RealWorld, turn_on
+
+        spread = RealWorld(turn_on_bias_deg_s=self.gyro_deg_s, turn_on_bias_mg=self.accel_mg)
+        entropy, key = (seed.entropy, seed.spawn_key) if isinstance(seed, np.random.SeedSequence) else (seed, ())
+        stream = np.random.SeedSequence(entropy, spawn_key=(*key, TURN_ON_STREAM))
+        return turn_on(dict(triads), spread, np.random.default_rng(stream))
+
+
+TURN_ON_STREAM = 0x7475726E  # "turn": a stream of the seed apart from the noise's
+
+
 class SimulatedDevices:
     def __init__(self, triads: dict[str, TriadTruth], gravity: float, latitude_rad: float,
                  imu_protocol: str = "xsens", table_protocol: str | None = "ascii",
                  transport: str = "pty", speed: float = 1.0, seed: int | np.random.SeedSequence = 1, rate_hz: float = 250.0,
                  attitude: np.ndarray | None = None, block_s: float = 0.02, on_chunk=None,
-                 thermal: SimThermal | None = None):
+                 thermal: SimThermal | None = None, turn_on_bias: TurnOnBias | None = None):
+        """``turn_on_bias``: how far each switch-on's biases fall from ``triads``' (None: not at
+        all, the unit's biases repeat exactly, as every simulator before it had them)."""
         from drivers.sim.tables import TableMotion
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport: expected 'pty' or 'tcp', got {transport!r}")
@@ -72,13 +106,18 @@ class SimulatedDevices:
             raise ValueError(f"speed: expected a finite number >= 0 (0 = as fast as read), got {speed}")
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz: expected a finite number > 0, got {rate_hz}")
-        # a power cycle starts the unit, and so its warm-up, again
-        self._make_simulator = lambda seed: MimuSimulator(triads, gravity=gravity, latitude_rad=latitude_rad,
-                                                          rate_hz=rate_hz, seed=seed, thermal=thermal)
+        # A power cycle starts the unit, and so its warm-up, again, with this switch-on's biases
+        # (drawn from the seed first, so a seed stands for one switch-on: the same seed, the same
+        # biases; the noise that follows is the seed's as before when there is no spread).
+        self.turn_on_bias = turn_on_bias or TurnOnBias()
+        self._make_simulator = lambda seed: MimuSimulator(
+            self.turn_on_bias.switched_on(triads, seed), gravity=gravity, latitude_rad=latitude_rad,
+            rate_hz=rate_hz, seed=seed, thermal=thermal)
         self.simulator = self._make_simulator(seed)
         self._make_encoder = lambda: make_encoder(imu_protocol)
         self.encoder = self._make_encoder()
         self._cycles: queue.SimpleQueue = queue.SimpleQueue()  # power cycles asked for, not yet made
+        self._delays: queue.SimpleQueue = queue.SimpleQueue()  # late deliveries asked for, not yet begun
         self._time_lock = threading.Lock()
         self._time_before_cycles = 0.0  # sample time run before the last power cycle, s
         self.motion = TableMotion()
@@ -107,14 +146,33 @@ class SimulatedDevices:
         self._moves.put((np.asarray(attitude, dtype=float), seconds, shake, done))
         return done
 
-    def power_cycle(self, seed: int) -> Future:
+    def power_cycle(self, seed: int, off_s: float = 0.0) -> Future:
         """The unit switched off and on again with its port left open (a powered adapter, a
-        socket, a unit with its own supply): from its next frame on, its clock and packet counter
-        start from zero and its turn-on biases are ``seed``'s (the simulated table, modelled with the
-        unit, starts again at rest). The future is done once it is."""
+        socket, a unit with its own supply): it sends nothing for ``off_s`` of sample time (the
+        time it was off and booting; 0: an instant restart), then its clock and packet counter
+        start from zero and its turn-on biases are ``seed``'s, drawn from ``turn_on_bias``
+        (the simulated table, modelled with the unit, starts again at rest). The future is done
+        once it is."""
+        if not (math.isfinite(off_s) and off_s >= 0):
+            raise ValueError(f"off_s: expected a finite number >= 0, got {off_s}")
         done: Future = Future()
-        self._cycles.put((seed, done))
+        self._cycles.put((seed, off_s, done))
         return done
+
+    def deliver_late(self, seconds: float) -> Future:
+        """The unit runs on, powered, but its bytes reach the port only after ``seconds`` of
+        sample time, all at once (a USB adapter's latency, a hub's hiccup): late, none lost.
+        The future is done once they are written."""
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise ValueError(f"seconds: expected a finite number > 0, got {seconds}")
+        done: Future = Future()
+        self._delays.put((seconds, done))
+        return done
+
+    @property
+    def truth(self) -> dict[str, TriadTruth]:
+        """The unit's triads as switched on last: their biases are this switch-on's."""
+        return dict(self.simulator.triads)
 
     @property
     def world_time(self) -> float:
@@ -153,11 +211,14 @@ class SimulatedDevices:
         started = time.monotonic()
         sim, motion = self.simulator, self.motion
         pending = None
+        late_until, late = None, []  # a delivery held (``deliver_late``): until then, its bytes
         while not self._stop.is_set():
             if not self._cycles.empty():
-                seed, cycled = self._cycles.get()
+                seed, off_s, cycled = self._cycles.get()
+                if off_s and self.speed > 0:
+                    self._stop.wait(off_s / self.speed)  # switched off: the port open, nothing sent
                 with self._time_lock:
-                    self._time_before_cycles += sim.time
+                    self._time_before_cycles += sim.time + off_s
                     sim = self.simulator = self._make_simulator(seed)
                 self.encoder, started = self._make_encoder(), time.monotonic()
                 cycled.set_result(None)
@@ -181,20 +242,33 @@ class SimulatedDevices:
             if self._on_chunk is not None:
                 self._on_chunk(sent)
             data = self.encoder.encode(sent)
+            if not self._delays.empty():
+                seconds, delayed = self._delays.get()
+                late_until, late = sim.time + seconds, [delayed]
             if self.speed > 0:
                 lag = started + sim.time / self.speed - time.monotonic()
                 if lag > 0:
                     self._stop.wait(lag)
+            if late_until is not None and sim.time < late_until:
+                late.append(data)  # sent, and held on the way
+            elif late_until is not None:
+                self._write_all(b"".join(late[1:]) + data)  # all of it at once, nothing lost
+                late[0].set_result(None)
+                late_until, late = None, []
+            elif self.speed > 0:
                 # A real device does not wait for a slow host: what does not fit is lost.
                 self.imu_link.write(data, timeout_s=0.05)
             else:
-                written = 0
-                while written < len(data) and not self._stop.is_set():
-                    sent = self.imu_link.write(data[written:], timeout_s=0.1)
-                    written += sent
-                    if not sent:  # unplugged: wait for the cable rather than spin
-                        self._stop.wait(0.05)
+                self._write_all(data)
             self.samples_sent += len(chunk)
+
+    def _write_all(self, data: bytes) -> None:
+        written = 0
+        while written < len(data) and not self._stop.is_set():
+            sent = self.imu_link.write(data[written:], timeout_s=0.1)
+            written += sent
+            if not sent:  # unplugged: wait for the cable rather than spin
+                self._stop.wait(0.05)
 
     def _table_loop(self) -> None:
         while not self._stop.is_set():

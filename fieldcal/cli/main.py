@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
@@ -74,11 +75,21 @@ def cmd_monitor(args) -> int:
                        max_seconds=args.seconds)
 
 
+def _at_least_zero(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
 def cmd_sim_serve(args) -> int:
     import time
 
     from drivers.sim.device import paper_mimu
-    from drivers.sim.serve import SimulatedDevices
+    from drivers.sim.serve import SimulatedDevices, TurnOnBias
     from fieldcal.cli.station import station_from_options
     from fieldcal.procedure.positions import load_procedure
 
@@ -90,7 +101,8 @@ def cmd_sim_serve(args) -> int:
         paper_mimu(raw_counts=args.raw_counts), station.gravity, station.latitude_rad,
         imu_protocol=args.imu_protocol, table_protocol=args.table_protocol, transport=args.transport,
         speed=args.speed, seed=args.seed, rate_hz=args.rate,
-        attitude=positions[args.position - 1].attitude)
+        attitude=positions[args.position - 1].attitude,
+        turn_on_bias=TurnOnBias(args.turn_on_bias_deg_s, args.turn_on_bias_mg))
     with devices:
         try:  # from the first line on: a signal right after "serving" is a normal stop too
             print(f"simulated MIMU ({args.imu_protocol}, {args.rate:g} Hz, field-18 position "
@@ -246,6 +258,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     serve.add_argument("--latitude", type=float, default=40.0, help="degrees (default 40)")
     serve.add_argument("--height", type=float, default=50.0, help="m (default 50)")
     serve.add_argument("--raw-counts", action="store_true", help="the unit reports 16-bit counts")
+    serve.add_argument("--turn-on-bias-deg-s", type=_at_least_zero, default=0.0, metavar="SIGMA",
+                       help="gyro bias repeatability, 1σ per axis in °/s: each switch-on (each --seed) "
+                            "draws its own bias (default 0: the biases repeat exactly)")
+    serve.add_argument("--turn-on-bias-mg", type=_at_least_zero, default=0.0, metavar="SIGMA",
+                       help="accelerometer bias repeatability, 1σ per axis in mg (default 0)")
     serve.set_defaults(func=cmd_sim_serve)
 
     from fieldcal.cli.tui import add_tui_parser

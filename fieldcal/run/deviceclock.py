@@ -12,6 +12,12 @@ its clock from zero, so it is behind that (it "went back", or advanced less than
 A clock that wraps (Xsens: SampleTimeFine after 119 h, the 16-bit counter after 65536 frames) is
 compared modulo its period; a counter that wraps too often to be sure, or no clock at all, is
 "cannot tell" (``power_cycled`` None).
+
+A device whose frames carry no clock (VectorNav ASCII) shows that it ran on only by its data's
+continuity while the station holds its port (``ClocklessStream``): every sample it sent arrived,
+late perhaps (a backlog), but none missing. Once the port is closed (the station quit) or lost,
+or the stream broke with it open, that cannot be shown, and every completed step is measured
+again (``measured_again`` says why).
 """
 from __future__ import annotations
 
@@ -118,7 +124,10 @@ def judge_restart(recorded: DeviceClock | None, now: DeviceClock, rate_hz: float
             return ClockCheck(True, f"its packet counter reads {now.counter} where running on it would "
                                     f"read about {round(recorded.counter + advance) % (modulus or 2**63)}")
         return ClockCheck(False, f"its packet counter ran on ({now.counter}, {away:.0f} s after the last step)")
-    return ClockCheck(None, "its frames carry no packet counter or time")
+    return ClockCheck(None, NO_CLOCK)
+
+
+NO_CLOCK = "its frames carry no packet counter or time, so that it stayed powered cannot be shown"
 
 
 def went_back(before: DeviceClock, now: DeviceClock, rate_hz: float) -> ClockCheck | None:
@@ -141,6 +150,55 @@ def went_back(before: DeviceClock, now: DeviceClock, rate_hz: float) -> ClockChe
     return check if check.power_cycled else None
 
 
+SETTLE_S = 1.0  # reads after a stream's gap before its continuity is judged (a backlog drains)
+MEMORY_S = 10.0  # the reads before a gap that its continuity is judged against
+
+
+class ClocklessStream:
+    """The data's continuity of a device whose frames carry no clock, read with its port open.
+
+    Each read's lateness is its arrival less the time its samples took at the device's rate
+    (``rate_hz``, in host time): a read is never early, only late, so the promptest reads lie
+    on the device's own time line. A read after more than SLACK_S without one may be a backlog
+    (the host read late; every sample is there, and the reads after it are prompt again) or a
+    device that sent nothing meanwhile (restarted: the samples it did not send never come, and
+    the promptest reads stay that much later). So ``read`` answers "wait" from such a read on
+    until SETTLE_S of reads after it, then judges: a ``ClockCheck`` (cannot tell) when the
+    promptest reads after it are more than SLACK_S later than those of the MEMORY_S before,
+    else "go". A rate off by the 1 % the rate check allows moves that by 0.1 s over MEMORY_S.
+    A power cycle shorter than SLACK_S (reading latency included) is not seen.
+    """
+
+    def __init__(self, rate_hz: float):
+        self.rate_hz = rate_hz
+        self._samples = 0  # read since the stream was first seen (or last judged broken)
+        self._reads: list[tuple[float, float]] = []  # (arrival, lateness), the last MEMORY_S
+        self._gap: tuple[float, float] | None = None  # (floor before it, arrival after it)
+
+    def read(self, arrival: float, samples: int):
+        """"go", "wait" (hold this read and those after it) or a ClockCheck (the stream broke)."""
+        self._samples += samples
+        last = self._reads[-1][0] if self._reads else None
+        self._reads.append((arrival, arrival - self._samples / self.rate_hz))
+        if self._gap is None:
+            if last is not None and arrival - last > SLACK_S:
+                self._gap = (min(late for _, late in self._reads[:-1]), arrival)
+                return "wait"
+            self._reads = [r for r in self._reads if r[0] >= arrival - MEMORY_S]
+            return "go"
+        floor_before, after = self._gap
+        if arrival - after < SETTLE_S:
+            return "wait"
+        self._gap = None
+        since = [r for r in self._reads if r[0] >= after]
+        missing_s = min(late for _, late in since) - floor_before
+        if missing_s <= SLACK_S:
+            return "go"
+        self._reads = since  # the stream as it goes on from here
+        return ClockCheck(None, f"its frames carry no clock, and {missing_s:.1f} s of its samples never came: "
+                                "it stopped sending, so that it stayed powered cannot be shown")
+
+
 def measured_again(check: ClockCheck | None, done: int, when: str) -> str:
     """Why the ``done`` completed steps are measured again after ``check`` (a device's clock
     judged ``when``: "since the last completed step", "while its port was lost"); "" if they
@@ -155,7 +213,10 @@ def measured_again(check: ClockCheck | None, done: int, when: str) -> str:
     step has gyro windows: all completed steps are measured again (the accelerometer's
     turn-on bias, shared the same way by its static norms, is renewed with them).
     A device that cannot say (no counter or time in its frames) may have been cycled: the
-    same, since a calibration mixing two biases is wrong without any sign of it."""
+    same, since a calibration mixing two biases is wrong without any sign of it.
+    The scale factors and misalignments do repeat across a power cycle, so the steps before it
+    could still serve them beside a bias per switch-on; the solvers fit one bias per triad, so
+    until they fit one per switch-on, every step that has windows is measured again."""
     if not done or (check is not None and check.power_cycled is False):
         return ""
     return (f"{_cycled(check)} {when}{f' ({check.reason})' if check is not None else ''}; the gyro's turn-on "

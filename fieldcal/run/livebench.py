@@ -12,7 +12,7 @@ import time
 from drivers.tables import RateTable, TableError, open_table
 from drivers.transport import PORT_REGAINED
 from fieldcal.config import StationConfig
-from fieldcal.run.deviceclock import DeviceClock, clock_of, judge_restart, went_back
+from fieldcal.run.deviceclock import ClocklessStream, DeviceClock, clock_of, judge_restart, went_back
 from fieldcal.run.devices import DeviceConnection
 
 
@@ -44,6 +44,10 @@ class LiveBench:
         self.regain_check = None  # what the device's clock said when it may have restarted (ClockCheck)
         self.judged_port = ""  # what its port did meanwhile: "was lost", "stayed open"
         self._fed_clock: DeviceClock | None = None  # the device's clock in the last chunk handed out
+        # A device whose frames carry no clock: its data's continuity since the port was opened
+        # (or came back), and whether reads wait for its judgement (``_until_stream_broke``).
+        self._stream: ClocklessStream | None = None
+        self._stream_waiting = False
 
     def start(self) -> LiveBench:
         self.connection.__enter__()
@@ -71,6 +75,7 @@ class LiveBench:
         for pe in port_events:
             if pe.kind == PORT_REGAINED and self._regained_at is None:
                 self._regained_at = pe.t
+                self._stream, self._stream_waiting = None, False  # (the loss is judged as such)
         held, self._pending = self._pending, []  # (first_clock's, or those after a judgement)
         stamped = held + fresh
         if self._regained_at is not None:
@@ -83,6 +88,8 @@ class LiveBench:
                     self._judged(judge_restart(lost_at, self._clock_at(*after[0]), self.config.device.rate_hz),
                                  "was lost")
                 self._regained_at, self._pending = None, after
+        elif self._clockless(held + fresh):
+            stamped = self._until_stream_broke(held, fresh)
         else:
             stamped = held + self._until_restart(self._clock_at(*held[-1]) if held else self._fed_clock, fresh)
         chunks = [c for _, c in stamped]
@@ -121,6 +128,41 @@ class LiveBench:
                     return stamped[:i]
             before = now
         return stamped
+
+    def _clockless(self, stamped: list) -> bool:
+        """Do the device's frames carry no clock (no time, no packet counter), and has it a rate
+        in host time (not a simulator served as fast as it is read)?"""
+        clock = self._clock_at(*stamped[-1]) if stamped else self._fed_clock
+        return clock is not None and clock.time_s is None and clock.counter is None and self._host_speed() > 0
+
+    def _host_speed(self) -> float:
+        """The device's sample time per host time: a simulator's speed, else 1."""
+        device = self.config.device
+        return device.sim.speed if device.protocol == "sim" and device.sim is not None else 1.0
+
+    def _until_stream_broke(self, held: list, fresh: list) -> list:
+        """``_until_restart`` for a device whose frames carry no clock, by its data's continuity
+        (``ClocklessStream``): from a read after a gap in its stream on, the reads are held until
+        it is judged; those before a break are handed out, the break judged into
+        ``regain_check`` (cannot tell), and the rest held for the next call."""
+        if self._stream is None:
+            self._stream = ClocklessStream(self.config.device.rate_hz * self._host_speed())
+        out, waiting = ([], list(held)) if self._stream_waiting else (list(held), [])
+        for i, (arrival, chunk) in enumerate(fresh):
+            verdict = self._stream.read(arrival, len(chunk))
+            if verdict == "go":
+                out, waiting = out + waiting + [(arrival, chunk)], []
+            elif verdict == "wait":
+                waiting.append((arrival, chunk))
+            else:
+                if self.regain_check is None:
+                    self._judged(verdict, "stayed open")
+                for later, c in fresh[i + 1:]:  # (counted: the stream goes on from the break)
+                    self._stream.read(later, len(c))
+                self._pending, self._stream_waiting = waiting + fresh[i:], False
+                return out
+        self._pending, self._stream_waiting = waiting, bool(waiting)
+        return out
 
     def _judged(self, check, port: str) -> None:
         self.regain_check, self.judged_port = check, port

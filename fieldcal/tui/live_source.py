@@ -8,7 +8,10 @@ operator says ready. Everything read is captured: chunks, raw bytes, events and 
 A quit run is resumed (``LiveSource.resuming``) after its last completed step, the operator
 placing the unit again for the next one. Unless the device shows, by its own clock, that it ran
 on meanwhile (``fieldcal.run.deviceclock``), it is taken as power-cycled, and then every
-completed step is measured again; see ``_kept_after``.
+completed step is measured again; see ``_kept_after``. A device whose frames carry no clock
+shows it only by an unbroken stream while the station holds its port: a quit run of one has its
+completed steps measured again, and a break in its stream mid-run restarts the run as a
+regained port does (``_regained``).
 """
 from __future__ import annotations
 
@@ -266,13 +269,18 @@ class LiveSource(SimSource):
 
     def resume_prospect(self) -> str:
         """A resume keeps the completed steps only where the device's clock shows the unit ran on
-        meanwhile (``deviceclock.measured_again``): said so for a device whose frames carry none."""
+        meanwhile (``deviceclock.measured_again``); a device whose frames carry none cannot show
+        it once the station has let go of its port, so those steps are measured again: said
+        with how many, as the resume will say it."""
         if self.session_dir is None:
             return super().resume_prospect()
         clock = self.bench.device_clock  # as last read (the worker thread replaces it whole)
         if clock is None or (clock.time_s is None and clock.counter is None):
-            return ("The session is kept, but this device's frames carry no clock: a resume cannot "
-                    "tell a power cycle, so it measures every position again from the first.")
+            done = len(self.conductor.engine.records) if self.conductor is not None else 0
+            again = (f"it measures the {done} completed step{'s' if done != 1 else ''} again" if done
+                     else "it starts from the first step")
+            return ("The session is kept, but this device's frames carry no clock, so a resume cannot "
+                    f"show the unit stayed powered: {again}.")
         return ("The session is kept: a resume continues after the last completed step if the unit "
                 "stays powered (its clock tells).")
 
