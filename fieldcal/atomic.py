@@ -12,6 +12,12 @@
 * every error names the path the user gave, never the hidden temp file.
 
 ``check_target`` says the same refusals before a command's long work starts.
+
+Directories fieldcal creates (sessions, plot folders) follow the same rule: ``directory_for_files``
+(a folder the user named, whose files each go through the rule), ``new_directory`` (a session's,
+created exclusively) and ``new_named_directory`` (a name fieldcal picks, e.g. by the second:
+the next free one, never one planted before it). A name the user gave that is a link is refused,
+whatever it points at.
 """
 from __future__ import annotations
 
@@ -155,6 +161,90 @@ def open_append(path: str | os.PathLike, *, new: bool = False):
     never through a link."""
     flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | (os.O_EXCL if new else 0)
     return os.fdopen(open_nofollow(path, flags), "ab")
+
+
+# -- directories -------------------------------------------------------------------------------
+
+# Names fieldcal tries after a taken one (``stem-2`` ... ): a planted link or a second run in the
+# same second takes one; more taken than this is no accident.
+NAME_TRIES = 100
+
+
+def _refuse_link_or_file(path: Path, label: str) -> bool:
+    """True if ``path`` is a directory (not a link to one); False if nothing is there."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    except OSError as exc:
+        raise _cannot(path, exc) from None
+    if stat.S_ISLNK(st.st_mode):
+        raise RefusedTarget(f"{label}: is a symbolic link; fieldcal never writes through a link "
+                            "(give the directory it points at, or another path)", path)
+    if not stat.S_ISDIR(st.st_mode):
+        raise RefusedTarget(f"{label}: exists and is not a directory", path)
+    return True
+
+
+def directory_for_files(path: str | os.PathLike, option: str = "") -> Path:
+    """A folder fieldcal writes files in (each through the rule), created with its missing parents
+    if need be. Refused in one line: a link at ``path`` (the user named a link), a file there.
+    Links among the parents are the user's file system's layout and are followed."""
+    p = Path(path)
+    label = f"{option} {p}" if option else str(p)
+    if _refuse_link_or_file(p, label):
+        return p
+    if p.parent != p and not p.parent.exists():
+        directory_for_files(p.parent, option)
+    try:
+        os.mkdir(p)  # never exist_ok: a name taken meanwhile is looked at again, never trusted
+    except FileExistsError:
+        _refuse_link_or_file(p, label)
+    except OSError as exc:
+        raise _cannot(p, exc) from None
+    return p
+
+
+def new_directory(path: str | os.PathLike, *, option: str = "", empty_ok: bool = True) -> Path:
+    """A new session's directory: created by ``os.mkdir``, which fails on any existing name, a
+    link included (dangling or not), so nothing is written through a link planted there. An
+    existing empty directory (not a link) is taken when ``empty_ok`` (the user made it for this);
+    anything else at ``path`` is refused in one line."""
+    p = Path(path)
+    label = f"{option} {p}" if option else str(p)
+    if p.parent != p and not p.parent.exists() and not p.parent.is_symlink():
+        directory_for_files(p.parent)
+    try:
+        os.mkdir(p)
+        return p
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        raise _cannot(p, exc) from None
+    _refuse_link_or_file(p, label)
+    if not empty_ok or any(os.scandir(p)):
+        raise RefusedTarget(f"{label}: already exists and is not empty (a new session needs a new "
+                            "directory; to continue this one, resume it)", p)
+    return p
+
+
+def new_named_directory(base: str | os.PathLike, stem: str, *, option: str = "") -> Path:
+    """A new directory ``base/stem`` that fieldcal names itself (a session named by the second):
+    created exclusively, or the next free ``stem-2``, ``stem-3``... when the name is taken (a
+    second run in the same second, or a link planted at the names to come). ``base`` as in
+    ``directory_for_files``."""
+    base = directory_for_files(base, option)
+    for i in range(1, NAME_TRIES + 1):
+        candidate = base / (stem if i == 1 else f"{stem}-{i}")
+        try:
+            os.mkdir(candidate)
+            return candidate
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise _cannot(candidate, exc) from None
+    raise RefusedTarget(f"{base / stem}: this name and the next {NAME_TRIES - 1} are taken (by links or "
+                        "files planted there?); look at what is in the folder, or give another --out", base / stem)
 
 
 # -- writing -----------------------------------------------------------------------------------

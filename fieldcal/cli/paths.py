@@ -37,6 +37,9 @@ def output_directory(path: str | os.PathLike, flag: str) -> None:
     folder above it, must be a writable directory."""
     p = Path(path)
     _check_names(p, flag)
+    if p.is_symlink():  # the user named a link: never followed, whatever it points at
+        raise ValueError(f"{flag} {p}: is a symbolic link; fieldcal never writes through a link "
+                         "(give the directory it points at, or another path)")
     if p.exists() and not p.is_dir():
         raise ValueError(f"{flag} {p}: is a file, not a directory (name a directory)")
     base = _existing_ancestor(p)

@@ -22,7 +22,8 @@ from typing import Any, Self
 import numpy as np
 
 from drivers.chunk import SampleChunk
-from fieldcal.atomic import WouldOverwrite, check_target, open_append, open_nofollow, write_atomically
+from fieldcal.atomic import (CannotWrite, RefusedTarget, WouldOverwrite, check_target, new_directory, open_append,
+                             open_nofollow, write_atomically)
 from fieldcal.session.lock import SessionLock, is_held
 from fieldcal.session import LOG, SessionError  # noqa: F401 (this module's names too)
 
@@ -551,16 +552,10 @@ class SessionWriter:
         _check_interval(fsync_interval_s)
         d = Path(directory)
         metadata = _data(start_metadata, "start_metadata")
-        if d.exists():
-            if not d.is_dir():
-                raise SessionError(f"{d}: exists and is not a directory", str(d))
-            if any(d.iterdir()):
-                raise SessionError(f"{d}: already exists and is not empty (a new session needs a new "
-                                   "directory; to continue this one, resume it)", str(d))
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise SessionError(f"{d}: cannot create the session directory ({exc.strerror or exc})", str(d)) from None
+        try:  # created exclusively: never a directory, or a link to one, planted at the name
+            new_directory(d)
+        except (CannotWrite, RefusedTarget) as exc:
+            raise SessionError(str(exc), str(d)) from None
         session_lock = SessionLock.acquire(d)  # two runs given the same directory: one is refused
         log = samples = None
         try:
