@@ -266,9 +266,28 @@ def atomic_file(path: str | os.PathLike, *, overwrite: bool = True, hint: str = 
     inputs = tuple(inputs)
     check_target(path, force=overwrite, inputs=inputs, hint=hint, state=state)
     directory = path.parent
-    tmp = directory / f".{path.name}.{secrets.token_hex(6)}.tmp"
+    # The directory is held open from here: the temp file, the last check and the rename all act
+    # in it by fd, so a link or another directory swapped in for it (or for a folder above it) later
+    # cannot move the write elsewhere; the rename replaces whatever is at the name (a link slipped
+    # in after the check included), never writes through it. What is left: a swap between the
+    # check above and this open, a window of microseconds open only to someone who can rename
+    # entries of the folder above, who could write the file there anyway.
+    try:
+        dir_fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError as exc:
+        raise _cannot(path, exc) from None
+    try:
+        yield from _write_in(dir_fd, path, overwrite, hint, inputs, state)
+    finally:
+        os.close(dir_fd)
+
+
+def _write_in(dir_fd: int, path: Path, overwrite: bool, hint: str, inputs: tuple, state: bool):
+    """The body of ``atomic_file``, every name relative to the folder held open as ``dir_fd``."""
+    tmp = f".{path.name}.{secrets.token_hex(6)}.tmp"
     try:  # O_EXCL: never through a link planted at the temp name; umask applies, unlike mkstemp
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666,
+                     dir_fd=dir_fd)
     except OSError as exc:
         raise _cannot(path, exc) from None
     try:
@@ -285,25 +304,29 @@ def atomic_file(path: str | os.PathLike, *, overwrite: bool = True, hint: str = 
             fh.flush()
             os.fsync(fh.fileno())
         check_target(path, force=overwrite, inputs=inputs, hint=hint, state=state)  # again: the work took time
+        names = {"src_dir_fd": dir_fd, "dst_dir_fd": dir_fd}
         if overwrite:
-            os.replace(tmp, path)  # replaces a name, never writes through one
+            os.replace(tmp, path.name, **names)  # replaces a name, never writes through one
         else:
-            os.link(tmp, path)  # FileExistsError if another writer got there first
-            os.unlink(tmp)
+            os.link(tmp, path.name, follow_symlinks=False, **names)  # FileExistsError if the name is taken
+            os.unlink(tmp, dir_fd=dir_fd)
     except _Discard:
-        _unlink(tmp)
+        _unlink(tmp, dir_fd)
         return
     except _Callers as wrapped:  # the caller's own error (reading its input, say): as it was
-        _unlink(tmp)
+        _unlink(tmp, dir_fd)
         raise wrapped.error from None
     except BaseException as exc:
-        _unlink(tmp)
+        _unlink(tmp, dir_fd)
         if isinstance(exc, FileExistsError) and not overwrite:
             raise WouldOverwrite(path, hint) from None
         if isinstance(exc, OSError) and not isinstance(exc, CannotWrite):
             raise _cannot(path, exc) from None
         raise
-    _fsync_directory(directory)
+    try:
+        os.fsync(dir_fd)  # the rename made durable
+    except OSError:
+        pass
 
 
 _WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS)
@@ -333,25 +356,11 @@ def write_atomically(path: str | os.PathLike, data: bytes, *, overwrite: bool = 
     return Path(path)
 
 
-def _unlink(path: Path) -> None:
+def _unlink(path, dir_fd: int | None = None) -> None:
     try:
-        os.unlink(path)
+        os.unlink(path, dir_fd=dir_fd)
     except FileNotFoundError:
         pass
-
-
-def _fsync_directory(directory: Path) -> None:
-    """Make a rename durable; not possible everywhere (e.g. Windows)."""
-    try:
-        dir_fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dir_fd)
-    except OSError:
-        pass
-    finally:
-        os.close(dir_fd)
 
 
 def _cannot(path: Path, exc: OSError) -> CannotWrite:

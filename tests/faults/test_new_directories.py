@@ -122,3 +122,48 @@ def test_a_directory_the_user_names_that_is_a_link_is_refused(capsys, tmp_path, 
                     "(give the directory it points at, or another path)")
     assert list(folder.iterdir()) == [] and not dangling.exists() and victim_file.read_text() == "mine"
     assert os.path.islink(link)
+
+
+# ------------------------------------------------------------------------------------------
+# item 7: a link slipped in after the check
+
+
+def test_a_link_slipped_in_after_the_last_check_is_replaced_not_written_through(tmp_path, monkeypatch):
+    from fieldcal import atomic
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("mine")
+    target = tmp_path / "out" / "p.yaml"
+    target.parent.mkdir()
+    checks = []
+    real_check = atomic.check_target
+
+    def check_then_plant(path, **kw):
+        result = real_check(path, **kw)
+        checks.append(path)
+        if len(checks) == 2:  # the last check before the rename has passed: the attacker's turn
+            Path(path).symlink_to(victim)
+        return result
+
+    monkeypatch.setattr(atomic, "check_target", check_then_plant)
+    atomic.write_atomically(target, b"new\n")
+    assert len(checks) == 2 and victim.read_text() == "mine"
+    assert not target.is_symlink() and target.read_bytes() == b"new\n"
+
+
+def test_a_folder_swapped_for_a_link_during_the_write_does_not_move_the_write(tmp_path):
+    """The folder is held open from the start: the file lands in the folder that was checked,
+    not in the one a link swapped in for it points at."""
+    from fieldcal import atomic
+
+    elsewhere = tmp_path / "victim-folder"
+    elsewhere.mkdir()
+    folder = tmp_path / "out"
+    folder.mkdir()
+    with atomic.atomic_file(folder / "p.yaml") as pending:
+        pending.file.write(b"new\n")
+        folder.rename(tmp_path / "out-moved")
+        folder.symlink_to(elsewhere)
+    assert list(elsewhere.iterdir()) == []
+    assert (tmp_path / "out-moved" / "p.yaml").read_bytes() == b"new\n"
+    assert [p.name for p in (tmp_path / "out-moved").iterdir()] == ["p.yaml"]  # no temp left
