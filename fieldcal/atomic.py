@@ -147,13 +147,29 @@ def open_nofollow(path: str | os.PathLike, flags: int, mode: int = 0o666) -> int
             raise RefusedTarget(f"{p}: not a regular file (a FIFO); not written", p) from None
         raise _cannot(p, exc) from None
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
             raise RefusedTarget(f"{p}: not a regular file (a FIFO, socket or device); not written", p)
+        if flags & (os.O_WRONLY | os.O_RDWR):
+            refuse_other_names(p, st)
         os.set_blocking(fd, True)
     except BaseException:
         os.close(fd)
         raise
     return fd
+
+
+def refuse_other_names(path: str | os.PathLike, st: os.stat_result | None = None) -> None:
+    """A file changed in place (appended to, cut, locked) must have no other name: with a hard
+    link elsewhere, the change would change that file too, outside what fieldcal owns."""
+    try:
+        st = st or os.lstat(path)
+    except FileNotFoundError:
+        return
+    if stat.S_ISREG(st.st_mode) and st.st_nlink > 1:
+        raise RefusedTarget(f"{path}: has {st.st_nlink} names (hard links); fieldcal never changes a file "
+                            "that is also elsewhere (the other name's content would change too): copy the "
+                            "session (cp -r makes separate files) and use the copy", Path(path))
 
 
 def open_append(path: str | os.PathLike, *, new: bool = False):

@@ -82,13 +82,24 @@ def writable_session(directory: str | os.PathLike) -> None:
     except OSError as exc:  # named by the folder, not by the probe's hidden temp name
         raise ValueError(f"{d}: cannot resume: the folder cannot be written ({exc.strerror or exc}); "
                          "nothing was re-run") from None
-    for name in ("log.jsonl", "samples.bin"):
+    from fieldcal.atomic import check_appendable
+    from fieldcal.session.capture import LOG, PARAMETERS, RAW_PREFIX, SAMPLES, TORN_SUFFIX
+
+    appended = [LOG, SAMPLES, *(p.name for p in sorted(d.glob(f"{RAW_PREFIX}*")))]
+    for name in appended:
         if (d / name).exists() or (d / name).is_symlink():
             try:
                 with open_append(d / name):  # opened for appending (never through a link), nothing written
                     pass
             except (OSError, ValueError) as exc:
                 raise ValueError(f"{d}: cannot resume: {exc}; nothing was re-run") from None
+    # and what the resume writes at its end (the current parameter file) or when it cuts a torn
+    # tail: refused now, not after the run (a link at parameters.yaml was refused only then)
+    for name in (PARAMETERS, *(n + TORN_SUFFIX for n in appended)):
+        try:
+            check_appendable(d / name)
+        except ValueError as exc:
+            raise ValueError(f"{d}: cannot resume: {exc}; nothing was re-run") from None
 
 
 def check_paths(args) -> None:

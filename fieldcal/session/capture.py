@@ -23,7 +23,7 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from fieldcal.atomic import (CannotWrite, RefusedTarget, WouldOverwrite, check_target, new_directory, open_append,
-                             open_nofollow, write_atomically)
+                             open_nofollow, refuse_other_names, write_atomically)
 from fieldcal.session.lock import SessionLock, is_held
 from fieldcal.session import LOG, SessionError  # noqa: F401 (this module's names too)
 
@@ -589,6 +589,11 @@ class SessionWriter:
         _check_interval(fsync_interval_s)
         d = Path(directory)
         _session_log(d)
+        for name in (LOG, SAMPLES, *(p.name for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}")))):
+            try:  # before anything is cut or appended
+                refuse_other_names(d / name)
+            except RefusedTarget as exc:
+                raise SessionError(str(exc), str(d / name)) from None
         session_lock = SessionLock.acquire(d)  # before reading: nobody may write while we repair
         try:
             scan = _scan(d, "cut")
