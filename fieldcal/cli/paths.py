@@ -3,7 +3,9 @@ instead of an OSError after a run of an hour (a file given as --out, an unwritab
 a name too long for the file system)."""
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -102,9 +104,92 @@ def writable_session(directory: str | os.PathLike) -> None:
             raise ValueError(f"{d}: cannot resume: {exc}; nothing was re-run") from None
 
 
+# Commands whose output can go to a file instead (--out): they check standard output themselves.
+_OWN_STDOUT_CHECK = ("export", "apply")
+
+
+def stdout_closed() -> bool:
+    """Started with standard output closed (>&-): Python then has no sys.stdout and print() quietly
+    drops everything."""
+    return sys.stdout is None or sys.stdout.closed
+
+
+def flush_stdout() -> None:
+    """Flush standard output now, while a failure can still be said: an OSError naming "standard
+    output" (a full disk, /dev/full), with what is left unwritten sent to /dev/null so that the
+    interpreter's own flush at exit adds no second message."""
+    if stdout_closed():
+        return
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise OSError(exc.errno, exc.strerror, "standard output") from None
+
+
+class _NamedStdout:
+    """Standard output whose write errors name it: print() failing mid-command on a full disk
+    otherwise raises an OSError with no file name, said as a bare "No space left on device"."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, "standard output") from None
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, "standard output") from None
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def stdout_named(command: str):
+    """Within: a failed write to standard output is an OSError naming it (not for the terminal UI,
+    which owns the terminal)."""
+    if command == "tui" or stdout_closed():
+        yield
+        return
+    stream = sys.stdout
+    sys.stdout = _NamedStdout(stream)
+    try:
+        yield
+    finally:
+        if isinstance(sys.stdout, _NamedStdout):
+            sys.stdout = stream
+
+
+def write_stdout(text: str) -> None:
+    """``text`` on standard output, flushed: a failure names standard output (see flush_stdout)."""
+    try:
+        sys.stdout.write(text)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise OSError(exc.errno, exc.strerror, "standard output") from None
+    flush_stdout()
+
+
 def check_paths(args) -> None:
     """The output paths of the parsed command line, before the command runs."""
     command = args.command
+    if command not in _OWN_STDOUT_CHECK and stdout_closed():
+        raise ValueError(f"{command}: standard output is closed (started with >&-?), so what it shows would "
+                         "be lost: send it somewhere (> FILE, or > /dev/null to drop it)")
     # calibrate writes under --out only when it imports text files (a session is calibrated in place)
     imports = command == "calibrate" and not all(Path(r).is_dir() for r in args.recording)
     if command in ("run", "import") or imports or (

@@ -42,7 +42,8 @@ def cmd_export(args) -> int:
                          inputs=[args.params])
         print(f"{args.format} written to {args.out}", file=sys.stderr)
     else:
-        sys.stdout.write(text)
+        from fieldcal.cli.paths import write_stdout
+        write_stdout(text)
     return 0
 
 
