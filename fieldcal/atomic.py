@@ -92,6 +92,23 @@ def _identity(path) -> tuple[int, int] | None:
     return st.st_dev, st.st_ino
 
 
+def file_kind(mode: int) -> str:
+    """What a path that is no regular file is, for a one-line refusal: "a character device"..."""
+    if stat.S_ISREG(mode):
+        return "a file"
+    if stat.S_ISDIR(mode):
+        return "a directory"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode):
+        return "a character device"
+    if stat.S_ISBLK(mode):
+        return "a block device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
 # -- the checks --------------------------------------------------------------------------------
 
 def check_target(path: str | os.PathLike, *, force: bool = False, inputs: Iterable = (),

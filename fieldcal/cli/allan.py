@@ -135,6 +135,10 @@ def _allan(args, source: Path) -> int:
     elif source.is_file():
         records, kinds, rate = _text_record(source, args.kind)
         plot_dir = source.parent
+    elif source.exists():  # /dev/zero, a FIFO: said what it is, never read (a device never ends)
+        from fieldcal.atomic import file_kind
+        raise ValueError(f"{source}: is {file_kind(source.stat().st_mode)}, not a session directory nor a "
+                         "recording file")
     else:
         raise ValueError(f"{source}: no such session directory or file")
     from fieldcal.atomic import check_target, directory_for_files

@@ -22,8 +22,8 @@ from typing import Any, Self
 import numpy as np
 
 from drivers.chunk import SampleChunk
-from fieldcal.atomic import (CannotWrite, RefusedTarget, WouldOverwrite, check_target, new_directory, open_append,
-                             open_nofollow, refuse_other_names, write_atomically)
+from fieldcal.atomic import (CannotWrite, RefusedTarget, WouldOverwrite, check_target, file_kind, new_directory,
+                             open_append, open_nofollow, refuse_other_names, write_atomically)
 from fieldcal.session.lock import SessionLock, is_held
 from fieldcal.session import LOG, SessionError  # noqa: F401 (this module's names too)
 
@@ -435,7 +435,7 @@ def _session_log(d: Path) -> Path:
     if not d.exists():
         raise SessionError(f"{d}: no such session directory", str(d))
     if not d.is_dir():
-        raise SessionError(f"{d}: not a directory", str(d))
+        raise SessionError(f"{d}: is {file_kind(d.stat().st_mode)}, not a directory (a session is one)", str(d))
     log_path = d / LOG
     if not log_path.is_file():
         raise SessionError(f"{d}: not a session directory (no {LOG})", str(d))
