@@ -111,7 +111,7 @@ _OWN_STDOUT_CHECK = ("export", "apply")
 def stdout_closed() -> bool:
     """Started with standard output closed (>&-): Python then has no sys.stdout and print() quietly
     drops everything."""
-    return sys.stdout is None or sys.stdout.closed
+    return sys.stdout is None or getattr(sys.stdout, "closed", False) is True
 
 
 def flush_stdout() -> None:

@@ -282,6 +282,10 @@ class _DocChecker:
         self.count(doc, "crc32", line)
         for key in ("t_first", "t_last"):
             self.field(doc, key, (int, float, type(None)), line, "a number or null")
+        if (doc["t_first"] is None) != (n == 0) or (doc["t_last"] is None) != (n == 0) or (
+                n and not doc["t_first"] <= doc["t_last"]):
+            self.fail(line, f"chunk of {n} samples from t {doc['t_first']!r} to {doc['t_last']!r}: "
+                      "expected the times of its first and last samples (null for none)"[:200])
         if offset != self.samples_end:
             self.fail(line, f"chunk at byte {offset} of {SAMPLES}, expected {self.samples_end} "
                       "(records are contiguous)")
@@ -500,6 +504,12 @@ def _read_record(fh, doc: dict, columns: tuple[Column, ...], path: Path, line: i
         else:
             extras[col.name] = a
     assert t is not None  # (a descriptor's first column is the time: checked by the scan)
+    # The log's span of the chunk is read without the record (the time a resume continues from):
+    # it must be the record's own, not a forged one that the CRC of the line alone would pass.
+    span = (t[0].item(), t[-1].item()) if n else (None, None)
+    if (doc["t_first"], doc["t_last"]) != span:
+        raise SessionError(f"{where}: the log gives its samples t {doc['t_first']!r} .. {doc['t_last']!r} s, "
+                           f"the record holds {span[0]!r} .. {span[1]!r} s", str(path), line)
     return SampleChunk(t=t, triads=triads, temperature=temperature, extras=extras)
 
 
