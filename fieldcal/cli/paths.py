@@ -212,6 +212,8 @@ def check_paths(args) -> None:
     if command == "apply" and args.out and not Path(args.out).is_dir() and not (
             len(args.input or ()) > 1):  # one CSV (several go into a directory)
         output_target(args.out, "--out", args, command_inputs(args))
+    elif command == "apply" and args.out and Path(args.out).is_dir():  # the folder the CSVs go into
+        output_directory(args.out, "--out")
 
 
 def command_inputs(args, output: str = "out") -> list[str]:

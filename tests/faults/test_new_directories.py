@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from faultlib import QUICK, SEED
 from test_outputs import one_line
+from test_write_rule import params_csv  # noqa: F401 (a fixture, fetched by name)
 
 from fieldcal.atomic import NAME_TRIES, RefusedTarget, new_directory, new_named_directory
 from fieldcal.cli.main import main
@@ -167,3 +168,16 @@ def test_a_folder_swapped_for_a_link_during_the_write_does_not_move_the_write(tm
     assert list(elsewhere.iterdir()) == []
     assert (tmp_path / "out-moved" / "p.yaml").read_bytes() == b"new\n"
     assert [p.name for p in (tmp_path / "out-moved").iterdir()] == ["p.yaml"]  # no temp left
+
+
+def test_apply_into_a_folder_that_is_a_link_is_refused(capsys, tmp_path, request):
+    """Several inputs go into the folder --out names: a link to a folder is refused like any other."""
+    params, csv = request.getfixturevalue("params_csv")
+    folder, _ = _victims(tmp_path)
+    link = tmp_path / "link"
+    link.symlink_to(folder)
+    second = tmp_path / "two.csv"
+    second.write_bytes(csv.read_bytes())
+    line = one_line(capsys, ["apply", params, csv, second, "--map", "single-csv", "--out", link], 2)
+    assert line.startswith(f"fieldcal: --out {link}: is a symbolic link; fieldcal never writes through a link")
+    assert list(folder.iterdir()) == []
