@@ -172,3 +172,24 @@ def test_the_non_sample_rule_counts_each_kind(tmp_path):
         f"{path}: 100112 of its first 100122 lines are no sample (60 malformed, 51 text with no number in "
         "the mapped columns, 100001 blank or comments) against 10 samples: not read further; cut the file "
         "to its samples and import that")
+
+
+def test_the_scan_before_a_big_file_is_held_changes_nothing_it_imports(tmp_path, monkeypatch):
+    """A file above PRESCAN_BYTES is parsed once a piece at a time before it is held: the
+    recording and the report are those of a file below it (here the threshold is lowered)."""
+    import numpy as np
+
+    from fieldcal.recording import importer
+
+    path = tmp_path / "logger.csv"
+    path.write_bytes(b"# a comment\n" + _valid_recording_text(3000) + b"x\n1,2\n\n" * 20
+                     + b"30000,1,2,3,4,5,6\n30010,1,2,3,4,5,6")  # and a last line cut off
+    plain = importer.import_with_report([path], "single-csv")
+    monkeypatch.setattr(importer, "PRESCAN_BYTES", 0)
+    monkeypatch.setattr(importer, "FEED_BYTES", 4096)  # many pieces
+    scanned = importer.import_with_report([path], "single-csv")
+    assert scanned[1].files == plain[1].files
+    assert plain[1].files[0].samples == 3001 and plain[1].files[0].malformed == 41  # 40 junk, the cut line
+    np.testing.assert_array_equal(scanned[0].t, plain[0].t)
+    for name in plain[0].triads:
+        np.testing.assert_array_equal(scanned[0].triads[name], plain[0].triads[name])
