@@ -132,3 +132,18 @@ def test_field18_session_states_no_gyro_bias_instability_above_the_simulators(tm
     assert len(stated) + len(bounds) == 3, out
     assert all(v <= 1.5 * simulated for v in stated), out
     assert bounds, out  # a 200 s dwell cannot show this gyro's floor (white/floor crossing ≈ 740 s)
+
+
+def test_a_device_is_named_for_what_it_is(capsys, tmp_path):
+    """Issue 25 (last review, item 6): `allan /dev/zero` said "no such session"; it is there, and
+    a character device. Refused in one line without reading it."""
+    from fieldcal.cli.main import main
+
+    link = tmp_path / "zero"
+    link.symlink_to("/dev/zero")
+    for command in ("allan", "solve"):
+        assert main([command, str(link)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"fieldcal: {link}: is a character device, not a ") and err.count("\n") == 1
+    assert main(["allan", str(tmp_path / "absent")]) == 2
+    assert "no such session directory or file" in capsys.readouterr().err

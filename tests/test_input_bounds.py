@@ -116,3 +116,80 @@ def test_the_nul_end_of_a_text_file_is_not_read(tmp_path, monkeypatch):
     _, report = import_with_report([path], "single-csv")
     assert report.files[0].sha256 == hashlib.sha256(text).hexdigest()
     assert report.files[0].zero_tail == 3 << 20 and report.files[0].samples == 2000
+
+
+def _valid_recording_text(samples: int) -> bytes:
+    rows = "".join(f"{i * 10},{0.01 * i:.3f},0,1000,0.5,0,0\n" for i in range(samples))
+    return ("time_ms,ax_mg,ay_mg,az_mg,gx_dps,gy_dps,gz_dps\n" + rows).encode()
+
+
+@pytest.mark.parametrize("junk, kind", [(b"x\n", "text with no number"), (b"\n", "blank")])
+def test_a_recording_followed_by_200mb_of_junk_lines_is_refused_within_300mb(tmp_path, junk, kind):
+    """Issue 25 (last review): 20 MB of "x" lines after a recording took 5 GB, 100 MB of blank
+    lines 2.5 GB and imported. Here 200 MB+ of either, under the address-space cap: one line
+    saying how many lines of which kind are no sample, and nothing written."""
+    path = tmp_path / "logger.csv"
+    block = junk * ((1 << 21) // len(junk))
+    with open(path, "wb") as f:
+        f.write(_valid_recording_text(20000))
+        for _ in range(100):
+            f.write(block)
+    assert os.path.getsize(path) > 200 << 20
+    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), "--map", "single-csv",
+                          "--out", str(tmp_path / "s")], capture_output=True, text=True,
+                         preexec_fn=_cap_memory, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
+    assert f"{path}: " in out.stderr and "lines are no sample" in out.stderr
+    assert "against 20000 samples" in out.stderr
+    other = int(out.stderr.split(f"{path}: ")[1].split(" of its first")[0])
+    assert other > 100_000  # NON_SAMPLE_FLOOR: refused once past it, not after the whole file
+    assert f"{other} {kind}" in out.stderr or (kind == "blank" and f"{other - 1} blank" in out.stderr)
+    assert not (tmp_path / "s").exists()
+
+
+def test_junk_lines_below_the_floor_are_counted_and_the_samples_imported(tmp_path, capsys):
+    """The rule refuses only many non-sample lines: a recording with a thousand stray lines after
+    it imports, the strays counted as malformed (their count, not every number, on show)."""
+    path = tmp_path / "logger.csv"
+    path.write_bytes(_valid_recording_text(3000) + b"x\n" * 1000 + b"\n" * 500)
+    assert main(["import", str(path), "--map", "single-csv", "--out", str(tmp_path / "s")]) == 0
+    out = capsys.readouterr().out
+    assert "3000 samples of 4501 lines" in out and "1000 malformed lines not used: 3002, 3003" in out
+
+
+def test_the_non_sample_rule_counts_each_kind(tmp_path):
+    """The refusal's counts, worked by hand: 10 samples, then 60 malformed lines (a number and a
+    word), 50 text lines and 100,001 blank lines, with the floor at 100,000."""
+    from fieldcal.recording.errors import RecordingImportError
+    from fieldcal.recording.importer import import_recording
+
+    path = tmp_path / "logger.csv"
+    path.write_bytes(_valid_recording_text(10) + b"1,x,2,3,4,5,6\n" * 60 + b"y\n" * 50 + b"\n" * 100_001)
+    with pytest.raises(RecordingImportError) as err:
+        import_recording([path], "single-csv")
+    assert str(err.value) == (
+        f"{path}: 100112 of its first 100122 lines are no sample (60 malformed, 51 text with no number in "
+        "the mapped columns, 100001 blank or comments) against 10 samples: not read further; cut the file "
+        "to its samples and import that")
+
+
+def test_the_scan_before_a_big_file_is_held_changes_nothing_it_imports(tmp_path, monkeypatch):
+    """A file above PRESCAN_BYTES is parsed once a piece at a time before it is held: the
+    recording and the report are those of a file below it (here the threshold is lowered)."""
+    import numpy as np
+
+    from fieldcal.recording import importer
+
+    path = tmp_path / "logger.csv"
+    path.write_bytes(b"# a comment\n" + _valid_recording_text(3000) + b"x\n1,2\n\n" * 20
+                     + b"30000,1,2,3,4,5,6\n30010,1,2,3,4,5,6")  # and a last line cut off
+    plain = importer.import_with_report([path], "single-csv")
+    monkeypatch.setattr(importer, "PRESCAN_BYTES", 0)
+    monkeypatch.setattr(importer, "FEED_BYTES", 4096)  # many pieces
+    scanned = importer.import_with_report([path], "single-csv")
+    assert scanned[1].files == plain[1].files
+    assert plain[1].files[0].samples == 3001 and plain[1].files[0].malformed == 41  # 40 junk, the cut line
+    np.testing.assert_array_equal(scanned[0].t, plain[0].t)
+    for name in plain[0].triads:
+        np.testing.assert_array_equal(scanned[0].triads[name], plain[0].triads[name])

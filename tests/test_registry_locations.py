@@ -67,3 +67,26 @@ def test_rebuild_does_not_index_a_file_edited_after_calibration(tmp_path, capsys
     with Registry(db) as registry:
         shas = [r[0] for r in registry.query("SELECT params_sha256 FROM calibrations")]
     assert hashlib.sha256(numbered.read_bytes()).hexdigest() not in shas
+
+
+@pytest.mark.parametrize("argv", [["units"], ["history", "A"]])
+def test_a_read_only_command_creates_no_registry(tmp_path, capsys, argv):
+    """Issue 25 (last review, item 5): `units --registry new.sqlite` created an empty database
+    (and its folder) and said "no units"; a mistyped path thus grew registries. Now: one line,
+    nothing created; an existing registry is opened read-only and left byte for byte."""
+    new = tmp_path / "typo" / "new.sqlite"
+    assert main([*argv, "--registry", str(new)]) == 2
+    assert capsys.readouterr().err == (
+        f"fieldcal: registry {new}: no such registry (nothing created: a calibration with --registry, "
+        "or `fieldcal registry rebuild DIR`, makes one)\n")
+    assert not new.parent.exists()
+    empty = tmp_path / "empty.sqlite"
+    empty.touch()  # a file, no tables: no registry either, and left empty
+    assert main([*argv, "--registry", str(empty)]) == 2
+    assert "no such registry (an empty database" in capsys.readouterr().err
+    assert empty.read_bytes() == b""
+    db = tmp_path / "r.sqlite"
+    Registry(db).close()
+    before = db.read_bytes()
+    assert main([*argv, "--registry", str(db)]) in (0, 2)  # no units / no unit A: said, not a new file
+    assert db.read_bytes() == before

@@ -135,9 +135,13 @@ def _allan(args, source: Path) -> int:
     elif source.is_file():
         records, kinds, rate = _text_record(source, args.kind)
         plot_dir = source.parent
+    elif source.exists():  # /dev/zero, a FIFO: said what it is, never read (a device never ends)
+        from fieldcal.atomic import file_kind
+        raise ValueError(f"{source}: is {file_kind(source.stat().st_mode)}, not a session directory nor a "
+                         "recording file")
     else:
         raise ValueError(f"{source}: no such session directory or file")
-    from fieldcal.atomic import check_target
+    from fieldcal.atomic import check_target, directory_for_files
     for name in records:  # every plot refused (a link, an earlier plot without --force) before the work
         if not args.triad or name in args.triad:
             check_target(Path(args.plot_dir or plot_dir) / f"allan-{name}.png", force=args.force)
@@ -154,8 +158,9 @@ def _allan(args, source: Path) -> int:
         note = "" if floor_seen else "; the deviation still falls at the record's end, so a longer record may recommend more"
         print(f"  recommended dwell: {dwell:.0f} s (where the fitted deviation is within "
               f"{100 * (NEAR_MINIMUM - 1):.0f} % of its lowest{note})")
-        folder = Path(args.plot_dir or plot_dir)
-        folder.mkdir(parents=True, exist_ok=True)
+        # a folder the user names is created, never through a link; the default (the session, or
+        # the recording's folder) is the input's own and exists
+        folder = directory_for_files(args.plot_dir, "--plot-dir") if args.plot_dir else Path(plot_dir)
         path = folder / f"allan-{name}.png"
         plot_allan(taus, adev, terms, path, title=f"{name}: Allan deviation", kind=kind, overwrite=args.force)
         print(f"  plot: {path}")

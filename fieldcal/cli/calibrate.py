@@ -146,7 +146,9 @@ def _recording(args, serial: str | None):
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
 
     def save() -> Path:
-        return save_recording(recording, Path(args.out) / f"recording-{first.stem}-{stamp}", report=report)
+        from fieldcal.atomic import new_named_directory
+        directory = new_named_directory(args.out, f"recording-{first.stem}-{stamp}", option="--out")
+        return save_recording(recording, directory, report=report)
 
     return recording, save, summary_lines(recording, report)
 

@@ -343,10 +343,12 @@ def main(argv=None, *, ending_process: bool = False) -> int:
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if catch_sigterm else None
     try:
         from fieldcal.atomic import command_reads
-        from fieldcal.cli.paths import check_paths
-        with command_reads():  # what the command reads, it never writes over
+        from fieldcal.cli.paths import check_paths, flush_stdout, stdout_named
+        with command_reads(), stdout_named(args.command):  # what the command reads, it never writes over
             check_paths(args)
-            return args.func(args)
+            status = args.func(args)
+            flush_stdout()  # a failure to show the result is the command's failure, said now
+            return status
     except ValueError as exc:  # ConfigError, ProcedureError, ParameterFileError, bad arguments
         print(f"fieldcal: {exc}", file=sys.stderr)
         return getattr(exc, "exit_status", 2)  # 1: input read whole but nothing to calibrate from
@@ -354,6 +356,11 @@ def main(argv=None, *, ending_process: bool = False) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as exc:  # disk full, unwritable, removed under us: one line, never a traceback
+        if exc.filename == "standard output":  # what is left unwritten: dropped, not said again at exit
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError, AttributeError):  # a stream with no descriptor (a test's capture)
+                pass
         print(f"fieldcal: {_os_error(exc, args)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -59,10 +59,11 @@ def add_registry_option(parser: argparse.ArgumentParser) -> None:
                         help="refuse a PostgreSQL registry connection without TLS (as sslmode=require)")
 
 
-def open_registry(args):
-    """The registry the command's options name (``Registry``; a context manager)."""
+def open_registry(args, read_only: bool = False):
+    """The registry the command's options name (``Registry``; a context manager). ``read_only``
+    for a command that only reads it: none is created."""
     from fieldcal.registry import Registry
-    return Registry(args.registry, require_tls=args.registry_require_tls)
+    return Registry(args.registry, require_tls=args.registry_require_tls, read_only=read_only)
 
 
 def add_operator_option(parser: argparse.ArgumentParser) -> None:

@@ -3,7 +3,9 @@ instead of an OSError after a run of an hour (a file given as --out, an unwritab
 a name too long for the file system)."""
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -37,6 +39,9 @@ def output_directory(path: str | os.PathLike, flag: str) -> None:
     folder above it, must be a writable directory."""
     p = Path(path)
     _check_names(p, flag)
+    if p.is_symlink():  # the user named a link: never followed, whatever it points at
+        raise ValueError(f"{flag} {p}: is a symbolic link; fieldcal never writes through a link "
+                         "(give the directory it points at, or another path)")
     if p.exists() and not p.is_dir():
         raise ValueError(f"{flag} {p}: is a file, not a directory (name a directory)")
     base = _existing_ancestor(p)
@@ -79,18 +84,112 @@ def writable_session(directory: str | os.PathLike) -> None:
     except OSError as exc:  # named by the folder, not by the probe's hidden temp name
         raise ValueError(f"{d}: cannot resume: the folder cannot be written ({exc.strerror or exc}); "
                          "nothing was re-run") from None
-    for name in ("log.jsonl", "samples.bin"):
+    from fieldcal.atomic import check_appendable
+    from fieldcal.session.capture import LOG, PARAMETERS, RAW_PREFIX, SAMPLES, TORN_SUFFIX
+
+    appended = [LOG, SAMPLES, *(p.name for p in sorted(d.glob(f"{RAW_PREFIX}*")))]
+    for name in appended:
         if (d / name).exists() or (d / name).is_symlink():
             try:
                 with open_append(d / name):  # opened for appending (never through a link), nothing written
                     pass
             except (OSError, ValueError) as exc:
                 raise ValueError(f"{d}: cannot resume: {exc}; nothing was re-run") from None
+    # and what the resume writes at its end (the current parameter file) or when it cuts a torn
+    # tail: refused now, not after the run (a link at parameters.yaml was refused only then)
+    for name in (PARAMETERS, *(n + TORN_SUFFIX for n in appended)):
+        try:
+            check_appendable(d / name)
+        except ValueError as exc:
+            raise ValueError(f"{d}: cannot resume: {exc}; nothing was re-run") from None
+
+
+# Commands whose output can go to a file instead (--out): they check standard output themselves.
+_OWN_STDOUT_CHECK = ("export", "apply")
+
+
+def stdout_closed() -> bool:
+    """Started with standard output closed (>&-): Python then has no sys.stdout and print() quietly
+    drops everything."""
+    return sys.stdout is None or getattr(sys.stdout, "closed", False) is True
+
+
+def flush_stdout() -> None:
+    """Flush standard output now, while a failure can still be said: an OSError naming "standard
+    output" (a full disk, /dev/full), with what is left unwritten sent to /dev/null so that the
+    interpreter's own flush at exit adds no second message."""
+    if stdout_closed():
+        return
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise OSError(exc.errno, exc.strerror, "standard output") from None
+
+
+class _NamedStdout:
+    """Standard output whose write errors name it: print() failing mid-command on a full disk
+    otherwise raises an OSError with no file name, said as a bare "No space left on device"."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, "standard output") from None
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, "standard output") from None
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def stdout_named(command: str):
+    """Within: a failed write to standard output is an OSError naming it (not for the terminal UI,
+    which owns the terminal)."""
+    if command == "tui" or stdout_closed():
+        yield
+        return
+    stream = sys.stdout
+    sys.stdout = _NamedStdout(stream)
+    try:
+        yield
+    finally:
+        if isinstance(sys.stdout, _NamedStdout):
+            sys.stdout = stream
+
+
+def write_stdout(text: str) -> None:
+    """``text`` on standard output, flushed: a failure names standard output (see flush_stdout)."""
+    try:
+        sys.stdout.write(text)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise OSError(exc.errno, exc.strerror, "standard output") from None
+    flush_stdout()
 
 
 def check_paths(args) -> None:
     """The output paths of the parsed command line, before the command runs."""
     command = args.command
+    if command not in _OWN_STDOUT_CHECK and stdout_closed():
+        raise ValueError(f"{command}: standard output is closed (started with >&-?), so what it shows would "
+                         "be lost: send it somewhere (> FILE, or > /dev/null to drop it)")
     # calibrate writes under --out only when it imports text files (a session is calibrated in place)
     imports = command == "calibrate" and not all(Path(r).is_dir() for r in args.recording)
     if command in ("run", "import") or imports or (
@@ -113,6 +212,8 @@ def check_paths(args) -> None:
     if command == "apply" and args.out and not Path(args.out).is_dir() and not (
             len(args.input or ()) > 1):  # one CSV (several go into a directory)
         output_target(args.out, "--out", args, command_inputs(args))
+    elif command == "apply" and args.out and Path(args.out).is_dir():  # the folder the CSVs go into
+        output_directory(args.out, "--out")
 
 
 def command_inputs(args, output: str = "out") -> list[str]:

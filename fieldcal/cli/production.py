@@ -46,7 +46,8 @@ def cmd_export(args) -> int:
                          inputs=[args.params])
         print(f"{args.format} written to {args.out}", file=sys.stderr)
     else:
-        sys.stdout.write(text)
+        from fieldcal.cli.paths import write_stdout
+        write_stdout(text)
     return 0
 
 
@@ -220,7 +221,7 @@ def cmd_units(args) -> int:
     from fieldcal.registry import NO_SERIAL
     from fieldcal.report import aligned
 
-    with open_registry(args) as registry:
+    with open_registry(args, read_only=True) as registry:
         units = registry.units()
     if not units:
         print(f"no units in {registry.where} (fieldcal registry rebuild DIR indexes sessions)")
@@ -240,7 +241,7 @@ def cmd_history(args) -> int:
 
     spec = load_spec(args.spec) if args.spec else None
     unnamed = args.serial == NO_SERIAL  # what `units` lists calibrations without a serial as
-    with open_registry(args) as registry:
+    with open_registry(args, read_only=True) as registry:
         calibrations = registry.history(UNKNOWN if unnamed else args.serial)
     if not calibrations:
         raise ValueError(f"history: no unit with serial {args.serial!r} in {registry.where} "

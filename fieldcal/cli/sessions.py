@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import datetime
 import sys
-from pathlib import Path
 
 from fieldcal.cli.options import procedure_session
 from fieldcal.report import solution_header, solution_table, thermal_table, thermal_truths, worst_error
@@ -76,7 +75,9 @@ def cmd_run(args) -> int:
                        on_motion=args.on_motion, script=script, operator=operator_option(args),
                        unit_serial=unit_serial(args, config), sim_thermal=config.device.sim.thermal)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    directory = Path(args.out) / f"{procedure.name}-seed{seed}-{stamp}"
+    from fieldcal.atomic import new_named_directory
+    # created here, exclusively (the next free name if this second's is taken, by a run or a link)
+    directory = new_named_directory(args.out, f"{procedure.name}-seed{seed}-{stamp}", option="--out")
     args.session_path = directory  # for the interrupted / disk-full message (cli.main)
     print(f"headless {procedure.name} against {config.device.name}, seed {seed}; session {directory}",
           flush=True)

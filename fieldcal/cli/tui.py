@@ -314,8 +314,10 @@ def sim_run(config, procedure, args):
 def _session_dir(args, procedure_name: str, what: str) -> Path | None:
     if args.no_capture:
         return None
+    from fieldcal.atomic import new_named_directory
+
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path(args.out) / f"{procedure_name}-tui-{what}-{stamp}"
+    return new_named_directory(args.out, f"{procedure_name}-tui-{what}-{stamp}", option="--out")
 
 
 def live_spec(config, procedure, args):

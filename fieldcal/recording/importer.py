@@ -47,6 +47,13 @@ MAX_READING = 1e12
 GAP_PERIODS = 5.0  # a step in time longer than this many median periods is a gap
 MIN_OVERLAP = 0.5  # of the shortest file's duration
 FEED_BYTES = 1 << 18  # text parsed at once
+# Lines that are no sample (blank, comment, text, malformed) a file may hold before it is refused
+# for them: past this, once they outnumber the samples read so far. A valid recording followed
+# by megabytes of junk or blank lines (a logger gone wrong) is refused there, in a second,
+# instead of every junk line being kept and parsed line by line (issue 25: 20 MB of "x" lines
+# took 5 GB).
+NON_SAMPLE_FLOOR = 100_000
+PRESCAN_BYTES = 4 << 20  # a bigger text file is scanned for the rule above before it is held
 REUSE_BYTES = 1 << 22  # freed memory malloc keeps for the pieces' temporaries (_let_malloc_keep)
 _CONTROL = re.compile("[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")  # all but tab and CR
 
@@ -154,8 +161,11 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     _let_malloc_keep(REUSE_BYTES)  # before the bytes and the temporaries of the count and the pieces
     try:
         with open(path, "rb") as f:
+            container = is_container(f.read(8))
             # a pre-allocated file's NUL end: not read, not held, said (a container's zeros are its own)
-            size, zeros = (os.fstat(f.fileno()).st_size, 0) if is_container(f.read(8)) else zero_tail(path)
+            size, zeros = (os.fstat(f.fileno()).st_size, 0) if container else zero_tail(path)
+            if not container and size - zeros > PRESCAN_BYTES:
+                _prescan(f, size - zeros, spec, path)  # before the text is held: junk refused in bounded memory
             f.seek(0)
             data = f.read(size - zeros)
     except OSError as exc:
@@ -177,12 +187,13 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     comment = cm.comment.encode("ascii") if cm.comment else None
     unterminated = bool(tail) and not (comment and tail.startswith(comment))
     n_lines = _count_lines(data, cut)
-    parser = DelimitedTextParser(cm, keep_malformed=max(n_lines, 1))  # every line number
+    # Every malformed line's number is needed below: taken after each piece (at most a line a byte),
+    # and the rule on non-sample lines bounds their count.
+    parser = DelimitedTextParser(cm, keep_malformed=max(min(n_lines, FEED_BYTES), 1))
     # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
     # not header lines, in order (the parser returns values, not where they came from).
-    t, triads, candidates = _parse_pieces(parser, data, cut, cm.comment, n_lines)
+    t, triads, candidates, malformed = _parse_pieces(parser, data, cut, cm.comment, n_lines, path)
     n = len(t)
-    malformed = np.array(sorted(parser.malformed_line_numbers), dtype=np.int64)
     rest = np.setdiff1d(candidates, malformed, assume_unique=True) if len(malformed) else candidates
     if len(rest) != n + parser.header_lines:  # cannot happen unless the parser's rules change
         raise RuntimeError(f"{path}: line accounting disagrees with the parser "
@@ -245,19 +256,26 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     return _Parsed(spec, report, t, triads)
 
 
-def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: str | None, n_lines: int):
-    """(t, triads, and the 1-based numbers of the lines that are neither blank nor comments) of
-    data[:cut] (its ``n_lines`` whole lines), fed to the parser in pieces of about FEED_BYTES
-    cut at line ends: the temporaries are some ten times the bytes seen at once, and a piece of
-    whole lines parses as it would within the file. Each piece's results go straight into
-    arrays of the file's size (no list of pieces and its joined copy held at once)."""
+def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: str | None, n_lines: int,
+                  path: str):
+    """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, and of
+    the malformed lines, sorted) of data[:cut] (its ``n_lines`` whole lines), fed to the parser
+    in pieces of about FEED_BYTES cut at line ends: the temporaries are some ten times the bytes
+    seen at once, and a piece of whole lines parses as it would within the file. Each piece's
+    results go straight into arrays of the file's size (no list of pieces and its joined copy
+    held at once). Refused as soon as the lines that are no sample break the NON_SAMPLE_FLOOR rule."""
     content = np.empty(n_lines, dtype=np.int64)
     t, triads = np.empty(n_lines), None  # at most one sample a line
+    malformed = []
     lo, n_content, n = 0, 0, 0
     while lo < cut:  # a loop over pieces, a dozen per MiB
         hi = data.rfind(b"\n", lo, min(lo + FEED_BYTES, cut)) + 1 or data.find(b"\n", lo, cut) + 1
         lines = parser.lines
         chunk = parser.feed(data[lo:hi], 0.0)
+        check_non_samples(parser, path)
+        if parser.malformed_line_numbers:  # taken piece by piece: the parser keeps only so many
+            malformed.append(np.array(parser.malformed_line_numbers, dtype=np.int64))
+            parser.malformed_line_numbers.clear()
         k = 0 if chunk is None else len(chunk.t)
         if chunk is not None:
             if triads is None:
@@ -275,9 +293,42 @@ def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: s
         content[n_content:n_content + len(part)] = part
         n_content += len(part)
         lo = hi
+    malformed = np.sort(np.concatenate(malformed)) if malformed else np.zeros(0, dtype=np.int64)
     if triads is None:
-        return np.zeros(0), {}, content[:n_content]
-    return t[:n], {name: values[:n] for name, values in triads.items()}, content[:n_content]
+        return np.zeros(0), {}, content[:n_content], malformed
+    return t[:n], {name: values[:n] for name, values in triads.items()}, content[:n_content], malformed
+
+
+def check_non_samples(parser: DelimitedTextParser, path: str) -> None:
+    """Refuse, in one line saying how many of which kind, a file whose lines read so far are
+    mostly no sample: more than NON_SAMPLE_FLOOR of them, and more than its samples so far."""
+    samples = parser.counters.frames
+    other = parser.lines - samples
+    if other <= max(NON_SAMPLE_FLOOR, samples):
+        return
+    blank = other - parser.malformed_lines - parser.header_lines
+    raise RecordingImportError(
+        f"{path}: {other} of its first {parser.lines} lines are no sample ({parser.malformed_lines} malformed, "
+        f"{parser.header_lines} text with no number in the mapped columns, {blank} blank or comments) "
+        f"against {samples} samples: not read further; cut the file to its samples and import that", path)
+
+
+def _prescan(f, size: int, spec: FileSpec, path: str) -> None:
+    """Apply the NON_SAMPLE_FLOOR rule to the first ``size`` bytes of ``f`` a piece at a time,
+    keeping nothing: a file of junk is refused before it is held. Parses a big text file twice
+    (the second time held and with line numbers); the first costs a fraction of the import."""
+    head = f.read(HEADER_SEARCH_BYTES)
+    cm = spec.resolve(header_fields(head, spec, path), path) if spec.channel_map is None else spec.channel_map
+    parser = DelimitedTextParser(cm)
+    parser.feed(head, 0.0)
+    done = len(head)
+    while done < size:
+        piece = f.read(min(FEED_BYTES, size - done))
+        if not piece:
+            break
+        done += len(piece)
+        parser.feed(piece, 0.0)
+        check_non_samples(parser, path)
 
 
 def _count_lines(data: bytes, cut: int) -> int:

@@ -88,10 +88,13 @@ class Registry:
     TLS is refused."""
 
     def __init__(self, location: str | os.PathLike | None = None, timeout_s: float = BUSY_TIMEOUT_S,
-                 require_tls: bool = False) -> None:
+                 require_tls: bool = False, read_only: bool = False) -> None:
+        """``read_only``: for a command that only reads (units, history): an SQLite file that does
+        not exist is refused, not created; nothing is migrated."""
         location = default_path() if location is None else location
+        self.read_only = read_only
         self.backend = open_backend(location if isinstance(location, str) else Path(location),
-                                    timeout_s, require_tls)
+                                    timeout_s, require_tls, read_only)
         self.path = getattr(self.backend, "path", None)  # the SQLite file; None on a server
         self.where = self.backend.where  # printable: a password in a URL is hidden
         self.db = self.backend.db
@@ -140,6 +143,14 @@ class Registry:
             have = 0
         if have == SCHEMA_VERSION:
             return
+        if self.read_only:
+            if have == 0:
+                raise RegistryError(f"registry {self.where}: no such registry (an empty database: a calibration "
+                                    "with --registry, or `fieldcal registry rebuild DIR`, makes one)")
+            if have < SCHEMA_VERSION:
+                raise RegistryError(f"registry {self.where}: schema version {have}, older than this fieldcal's "
+                                    f"({SCHEMA_VERSION}); a command that records (fieldcal registry rebuild) "
+                                    "upgrades it")
 
         def migrate():  # one station migrates; the others wait, then find it done
             self.backend.execute("CREATE TABLE IF NOT EXISTS migrations (version INTEGER PRIMARY KEY, "

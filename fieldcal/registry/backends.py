@@ -17,7 +17,7 @@ import sqlite3
 import stat
 import time
 from pathlib import Path
-from urllib.parse import unquote
+from urllib.parse import quote, unquote
 
 POSTGRES_SCHEMES = ("postgresql", "postgres")
 # sslmode values that refuse a connection without TLS (libpq's own words)
@@ -116,19 +116,30 @@ class SqliteBackend:
     kind = "sqlite"
     types = {"id": "INTEGER PRIMARY KEY", "float": "REAL"}
 
-    def __init__(self, path: Path, timeout_s: float) -> None:
+    def __init__(self, path: Path, timeout_s: float, read_only: bool = False) -> None:
         self.path = path
         self.where = str(path)
         _require_database_file(path)
+        if read_only and not (path.exists() or path.is_symlink()):  # a command that only reads makes none
+            raise RegistryError(f"registry {path}: no such registry (nothing created: a calibration with "
+                                "--registry, or `fieldcal registry rebuild DIR`, makes one)")
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
+            if not read_only:
+                path.parent.mkdir(parents=True, exist_ok=True)
             _refuse_links(path)
-            self.db = sqlite3.connect(path, timeout=timeout_s, isolation_level=None)
+            if read_only:  # SQLite's own read-only open: never creates nor changes the database
+                uri = f"file:{quote(os.path.abspath(path))}?mode=ro"
+                self.db = sqlite3.connect(uri, uri=True, timeout=timeout_s, isolation_level=None)
+            else:
+                self.db = sqlite3.connect(path, timeout=timeout_s, isolation_level=None)
         except (OSError, sqlite3.Error) as exc:
             raise RegistryError(f"registry {self.where}: cannot open it ({getattr(exc, 'strerror', None) or exc})") from None
         try:
             self.db.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")
-            self._wal(timeout_s)
+            if read_only:
+                self.db.execute("SELECT 1 FROM sqlite_master LIMIT 1")  # "file is not a database" now
+            else:
+                self._wal(timeout_s)
             self.db.execute("PRAGMA foreign_keys = ON")
         except sqlite3.Error as exc:  # not a database, unreadable
             self.db.close()
@@ -253,7 +264,7 @@ def _require_database_file(path: Path) -> None:
                             f"(e.g. {path / 'registry.sqlite' if stat.S_ISDIR(mode) else 'registry.sqlite'})")
 
 
-def open_backend(location, timeout_s: float, require_tls: bool = False):
+def open_backend(location, timeout_s: float, require_tls: bool = False, read_only: bool = False):
     if isinstance(location, str) and _URL.match(location):
         check_url_scheme(location)
     if is_postgres(location):
@@ -261,4 +272,4 @@ def open_backend(location, timeout_s: float, require_tls: bool = False):
     if require_tls:
         raise RegistryError(f"registry {location}: --registry-require-tls is for a PostgreSQL server "
                             "(postgresql://...); an SQLite file has no connection to protect")
-    return SqliteBackend(Path(location), timeout_s)
+    return SqliteBackend(Path(location), timeout_s, read_only)

@@ -80,18 +80,15 @@ def history_lines(calibrations: list[dict], spec=None, one_unit: bool = True) ->
 
 def plot_history(calibrations: list[dict], serial: str, directory, overwrite: bool = True) -> list:
     """One PNG per triad: each parameter over the calibrations, ± 1σ bars; the paths written."""
-    from pathlib import Path
-
     import io
 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from fieldcal.atomic import check_target, write_atomically
+    from fieldcal.atomic import check_target, directory_for_files, write_atomically
     from fieldcal.report import label
 
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    directory = directory_for_files(directory, "--plot")
     triads = dict.fromkeys(t for t, _ in calibrations[-1]["parameters"])
     for triad in triads:  # every plot refused (a link, an existing file) before any is drawn
         check_target(directory / f"{serial}-{triad}-history.png", force=overwrite, option="--plot")

@@ -22,7 +22,8 @@ from typing import Any, Self
 import numpy as np
 
 from drivers.chunk import SampleChunk
-from fieldcal.atomic import WouldOverwrite, check_target, open_append, open_nofollow, write_atomically
+from fieldcal.atomic import (CannotWrite, RefusedTarget, WouldOverwrite, check_target, file_kind, new_directory,
+                             open_append, open_nofollow, refuse_other_names, write_atomically)
 from fieldcal.session.lock import SessionLock, is_held
 from fieldcal.session import LOG, SessionError  # noqa: F401 (this module's names too)
 
@@ -281,6 +282,10 @@ class _DocChecker:
         self.count(doc, "crc32", line)
         for key in ("t_first", "t_last"):
             self.field(doc, key, (int, float, type(None)), line, "a number or null")
+        if (doc["t_first"] is None) != (n == 0) or (doc["t_last"] is None) != (n == 0) or (
+                n and not doc["t_first"] <= doc["t_last"]):
+            self.fail(line, f"chunk of {n} samples from t {doc['t_first']!r} to {doc['t_last']!r}: "
+                      "expected the times of its first and last samples (null for none)"[:200])
         if offset != self.samples_end:
             self.fail(line, f"chunk at byte {offset} of {SAMPLES}, expected {self.samples_end} "
                       "(records are contiguous)")
@@ -434,7 +439,7 @@ def _session_log(d: Path) -> Path:
     if not d.exists():
         raise SessionError(f"{d}: no such session directory", str(d))
     if not d.is_dir():
-        raise SessionError(f"{d}: not a directory", str(d))
+        raise SessionError(f"{d}: is {file_kind(d.stat().st_mode)}, not a directory (a session is one)", str(d))
     log_path = d / LOG
     if not log_path.is_file():
         raise SessionError(f"{d}: not a session directory (no {LOG})", str(d))
@@ -499,6 +504,12 @@ def _read_record(fh, doc: dict, columns: tuple[Column, ...], path: Path, line: i
         else:
             extras[col.name] = a
     assert t is not None  # (a descriptor's first column is the time: checked by the scan)
+    # The log's span of the chunk is read without the record (the time a resume continues from):
+    # it must be the record's own, not a forged one that the CRC of the line alone would pass.
+    span = (t[0].item(), t[-1].item()) if n else (None, None)
+    if (doc["t_first"], doc["t_last"]) != span:
+        raise SessionError(f"{where}: the log gives its samples t {doc['t_first']!r} .. {doc['t_last']!r} s, "
+                           f"the record holds {span[0]!r} .. {span[1]!r} s", str(path), line)
     return SampleChunk(t=t, triads=triads, temperature=temperature, extras=extras)
 
 
@@ -551,16 +562,10 @@ class SessionWriter:
         _check_interval(fsync_interval_s)
         d = Path(directory)
         metadata = _data(start_metadata, "start_metadata")
-        if d.exists():
-            if not d.is_dir():
-                raise SessionError(f"{d}: exists and is not a directory", str(d))
-            if any(d.iterdir()):
-                raise SessionError(f"{d}: already exists and is not empty (a new session needs a new "
-                                   "directory; to continue this one, resume it)", str(d))
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise SessionError(f"{d}: cannot create the session directory ({exc.strerror or exc})", str(d)) from None
+        try:  # created exclusively: never a directory, or a link to one, planted at the name
+            new_directory(d)
+        except (CannotWrite, RefusedTarget) as exc:
+            raise SessionError(str(exc), str(d)) from None
         session_lock = SessionLock.acquire(d)  # two runs given the same directory: one is refused
         log = samples = None
         try:
@@ -594,6 +599,11 @@ class SessionWriter:
         _check_interval(fsync_interval_s)
         d = Path(directory)
         _session_log(d)
+        for name in (LOG, SAMPLES, *(p.name for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}")))):
+            try:  # before anything is cut or appended
+                refuse_other_names(d / name)
+            except RefusedTarget as exc:
+                raise SessionError(str(exc), str(d / name)) from None
         session_lock = SessionLock.acquire(d)  # before reading: nobody may write while we repair
         try:
             scan = _scan(d, "cut")

@@ -251,12 +251,21 @@ class RunRecord:
         resumes: list[ResumePoint] = []
         skipped: set[int] = set()  # the skips logged so far (old TUI steps did not say)
         names = None
-        for doc in self.reader.documents("step", "checkpoint", "event", "resume"):
+        # A step recorded again must follow what redoes one: the operator's redo (or unskip), or
+        # a resume; a step document repeated with none in between is a copied line, not a redo.
+        recorded_at: dict[int, int] = {}  # step -> line of its last document
+        redone_at = 0  # line of the last redo, unskip or resume
+        for doc in self.reader.documents("step", "checkpoint", "event", "resume", "action"):
             data, line, kind = doc["data"], doc["seq"] + 1, doc["type"]
+            if kind == "action":
+                if isinstance(data, dict) and data.get("action") in ("redo", "unskip"):  # the engine's ev.REDO, ev.UNSKIP
+                    redone_at = line
+                continue
             if kind == "event":
                 if data.get("event") == "step_skipped" and _index(data.get("step"), n_positions):
                     skipped.add(data["step"])
             elif kind == "resume":
+                redone_at = line
                 if data:  # a resume document of a run that was no procedure run has no data
                     why = _resume_problem(data, n_positions)
                     if why is not None:
@@ -273,8 +282,12 @@ class RunRecord:
                         if set(w["means"]) != names:
                             why = f"windows[{i}].means has triads {sorted(w['means'])}, earlier steps {sorted(names)}"
                             break
+                if why is None and data["step"] in recorded_at and recorded_at[data["step"]] > redone_at:
+                    why = (f"step {data['step']} again (recorded at line {recorded_at[data['step']]}) with no "
+                           "redo, unskip or resume before it: a repeated document, not a redo")
                 if why is not None:
                     self._fail(line, f"step document: {why}")
+                recorded_at[data["step"]] = line
                 steps.append(StepDocument(StepRecord.from_dict(data),
                                           tuple(data["skipped"]) if "skipped" in data else tuple(sorted(skipped)),
                                           data.get("bench"), line))
