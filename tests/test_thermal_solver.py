@@ -213,6 +213,90 @@ def test_a_warm_gyro_is_solved_within_its_sigma(warm_run):
     assert worst_error({"gyroscope": gyro}, truths) < 4.0
 
 
+# Whether the thermal model is fitted: a stated setting, said in one line ----------------------
+
+def test_the_thermal_setting_decides_and_the_solve_says_so(warm_run):
+    from dataclasses import replace
+
+    from fieldcal.run.replay import resolve_session
+    from fieldcal.run.runner import open_run
+
+    record = open_run(warm_run[0], log_only=True)
+    assert record.spec.thermal == "auto"  # what the run was given (and every older session did)
+    temperatures = [w.temperature_c for step in record.completed for w in step.windows]
+    span = f"span {max(temperatures) - min(temperatures):.2f} K"
+    auto = warm_run[1].unit
+    assert all(cal.thermal is not None for cal in auto.solutions.values())
+    assert auto.thermal_note.startswith("thermal model fitted (thermal: auto; window temperatures ")
+    assert span in auto.thermal_note
+    for name, cal in auto.solutions.items():
+        assert f"{name} order {cal.thermal.order} + scale drift" in auto.thermal_note
+    off, pf = resolve_session(record, thermal="off")
+    assert all(cal.thermal is None for cal in off.solutions.values())
+    assert off.thermal_note == f"thermal model not fitted (thermal: off; window temperatures " \
+        f"{min(temperatures):.2f} to {max(temperatures):.2f} °C, {span})"
+    assert all(t.thermal is None for t in pf.triads)
+    # the setting is stored with the run, so its resume and replay solve as it did
+    from fieldcal.run.runner import RunSpec
+    stored = RunSpec.from_metadata(replace(record.spec, thermal="off").to_metadata())
+    assert stored.thermal == "off"
+    assert "thermal" not in record.spec.to_metadata()  # auto: the session reads as before
+
+
+def test_auto_needs_the_span_and_on_does_not():
+    from types import SimpleNamespace
+
+    from fieldcal.solvers.solve import THERMAL_MIN_SPAN_K, _temperatures, thermal_statement
+
+    windows = [SimpleNamespace(temperature_c=t) for t in (25.0, 25.1, 25.3)]
+    assert _temperatures(windows, "auto") is None and _temperatures(windows, "off") is None
+    np.testing.assert_array_equal(_temperatures(windows, "on"), [25.0, 25.1, 25.3])
+    assert thermal_statement(windows, {}, "auto") == (
+        "thermal model not fitted (thermal: auto; window temperatures 25.00 to 25.30 °C, span 0.30 K, "
+        f"below the {THERMAL_MIN_SPAN_K} K auto needs)")
+    cold = [SimpleNamespace(temperature_c=None)] * 3  # a device that reports none
+    assert thermal_statement(cold, {}, "auto") is None  # nothing was decided: nothing to say
+    assert thermal_statement(cold, {}, "on") == \
+        "thermal model not fitted (thermal: on), the windows do not all carry a temperature"
+
+
+def test_solve_takes_thermal_off_and_says_so(warm_run, capsys):
+    from fieldcal.cli.main import main
+
+    assert main(["solve", str(warm_run[0]), "--method", "lsq", "--thermal", "off"]) == 0
+    out = capsys.readouterr().out
+    assert "thermal model not fitted (thermal: off; window temperatures" in out
+    assert "thermal model about" not in out
+
+
+@pytest.mark.parametrize("written, means", [("off", "off"), ("on", "on"), ("auto", "auto"), (None, "auto")])
+def test_the_config_says_auto_on_or_off(tmp_path, written, means):
+    from fieldcal.config import load_config
+
+    path = tmp_path / "station.yaml"
+    text = open("configs/sim-warmup.yaml").read()
+    path.write_text(text + (f"thermal: {written}\n" if written else ""))
+    assert load_config(path).thermal == means
+
+
+def test_the_config_offers_the_settings_the_solver_takes():
+    from fieldcal.config import THERMAL_SETTINGS
+    from fieldcal.solvers.methods import THERMAL_MODES
+
+    assert THERMAL_SETTINGS == THERMAL_MODES
+
+
+def test_a_misspelt_thermal_setting_is_one_line_with_the_nearest(tmp_path, capsys):
+    from fieldcal.cli.main import main
+
+    path = tmp_path / "station.yaml"
+    path.write_text(open("configs/sim-warmup.yaml").read() + "thermal: of\n")
+    assert main(["run", "--config", str(path), "--headless", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "thermal: expected auto or on or off (did you mean 'off'?), got 'of'" in err
+    assert str(path) in err and not (tmp_path / "s").exists()
+
+
 def test_sim_warmup_field18_is_honest_per_triad(tmp_path):
     # configs/sim-warmup.yaml's unit warming 10 K through field-18, ten seeds through the conductor
     # (about 25 s of CPU): every parameter, thermal terms included, against the truth re-centred on
