@@ -188,6 +188,25 @@ def test_the_run_prints_the_thermal_model_beside_the_truth(warm_run):
     assert all(abs(float(rows[f"b1{a}"][8])) < 4.0 for a in "xyz")
 
 
+def test_the_largest_error_printed_counts_the_thermal_terms(warm_run):
+    # It was taken over the nine parameters alone, so a thermal term 3σ off went unreported.
+    import io
+
+    from fieldcal.cli.sessions import _print_result
+    from fieldcal.report import _thermal_errors, thermal_truths
+
+    outcome = warm_run[1]
+    truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
+    worst_term = max(float(np.max(np.abs(_thermal_errors(cal.thermal, truths[n][1]))))
+                     for n, cal in outcome.unit.solutions.items() if cal.thermal.order)
+    worst_nine = max(float(np.nanmax(np.abs(cal.errors_in_sigma(truths[n][0]))))
+                     for n, cal in outcome.unit.solutions.items())
+    out = io.StringIO()
+    _print_result(outcome, out)
+    printed = float(out.getvalue().split("largest error against the simulation truth: ")[1].split("σ")[0])
+    assert printed == pytest.approx(max(worst_term, worst_nine), abs=0.006)
+
+
 def test_truth_re_centred_by_hand():
     from fieldcal.thermal import truth_about
 

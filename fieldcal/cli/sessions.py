@@ -19,7 +19,8 @@ def _print_result(result, out) -> int:
         print(solution_table(sol, truths.get(name, (result.truth.get(name), None))[0]), file=out)
         if sol.thermal is not None:
             print(thermal_table(sol, *truths.get(name, (None, None))[1:]), file=out)
-    worst = worst_error(result.unit.solutions, {n: t[0] for n, t in truths.items()} or result.truth)
+    # every triad's truth, and the thermal terms' where a model was fitted
+    worst = worst_error(result.unit.solutions, {**result.truth, **truths})
     if result.unit.thermal_note:
         print(f"\n{result.unit.thermal_note}", file=out)
     for name, why in result.unit.failures.items():
