@@ -293,7 +293,8 @@ def test_the_config_says_auto_on_or_off(tmp_path, written, means):
     from fieldcal.config import load_config
 
     path = tmp_path / "station.yaml"
-    text = open("configs/sim-warmup.yaml").read()
+    text = open("configs/sim-warmup.yaml").read().replace("\nthermal: auto\n", "\n")
+    assert "\nthermal:" not in text  # the shipped setting taken out: absent means absent
     path.write_text(text + (f"thermal: {written}\n" if written else ""))
     assert load_config(path).thermal == means
 
@@ -309,7 +310,7 @@ def test_a_misspelt_thermal_setting_is_one_line_with_the_nearest(tmp_path, capsy
     from fieldcal.cli.main import main
 
     path = tmp_path / "station.yaml"
-    path.write_text(open("configs/sim-warmup.yaml").read() + "thermal: of\n")
+    path.write_text(open("configs/sim-warmup.yaml").read().replace("\nthermal: auto\n", "\n") + "thermal: of\n")
     assert main(["run", "--config", str(path), "--headless", "--out", str(tmp_path / "s")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "thermal: expected auto or on or off (did you mean 'off'?), got 'of'" in err
