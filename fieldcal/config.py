@@ -16,9 +16,11 @@ from drivers.transport import PortSettings
 from fieldcal.earth import Station
 from fieldcal.model import KINDS
 from fieldcal.paths import CONFIGS_DIR, find_named, not_found  # noqa: F401 (CONFIGS_DIR: imported from here)
-from fieldcal.validation import IDENTIFIER, MISSING, FieldReader, describe, line_of, read_yaml_file
+from fieldcal.validation import IDENTIFIER, MISSING, FieldReader, describe, line_of, nearest, read_yaml_file
 
 DEVICE_PROTOCOLS = ("sim", "delimited", "vectornav", "xsens")
+# fieldcal.solvers.methods.THERMAL_MODES (the config sits below the solvers; a test keeps them equal)
+THERMAL_SETTINGS = ("auto", "on", "off")
 SIM_IMU_PROTOCOLS = ("xsens", "vectornav", "delimited")
 TABLE_PROTOCOLS = ("ascii", "grbl")
 _PARITIES = ("N", "E", "O", "M", "S")
@@ -90,6 +92,9 @@ class StationConfig:
     device: DeviceConfig
     station: Station
     table: TableConfig | None = None
+    # Whether the solve fits a thermal model (fieldcal.solvers.methods.THERMAL_MODES); run and tui
+    # take it unless --thermal says otherwise.
+    thermal: str = "auto"
 
 
 def _port(r: FieldReader, raw, where: str) -> PortSettings:
@@ -290,7 +295,23 @@ def load_config(name_or_path: str | os.PathLike) -> StationConfig:
     path = path or given  # a path given: the reader says what is wrong with it
     doc = read_yaml_file(path, ConfigError, "config")
     r = FieldReader(str(path), ConfigError)
-    m = r.mapping(doc, "", ("device", "station"), ("table",))
+    m = r.mapping(doc, "", ("device", "station"), ("table", "thermal"))
     device = _device(r, m["device"], "device")
     return StationConfig(path=str(path), device=device, station=_station(r, m["station"], "station"),
-                         table=_table(r, m.get("table"), "table", device.protocol == "sim"))
+                         table=_table(r, m.get("table"), "table", device.protocol == "sim"),
+                         thermal=_thermal_setting(r, m))
+
+
+def _thermal_setting(r: FieldReader, m: dict) -> str:
+    """The config's ``thermal:`` (auto when absent). YAML 1.1 reads a bare on/off as true/false:
+    taken as the words the user wrote."""
+    if "thermal" not in m:
+        return "auto"
+    value = m["thermal"]
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if value not in THERMAL_SETTINGS:
+        close = nearest(value, THERMAL_SETTINGS)
+        r.fail("thermal", " or ".join(THERMAL_SETTINGS) + (f" (did you mean {close!r}?)" if close else ""),
+               describe(value), line_of(m, "thermal"))
+    return value

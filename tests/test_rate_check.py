@@ -20,7 +20,7 @@ from tests.test_tui import two_positions
 from tests.tui_pilot import run_async, until, waiting_at
 
 STATION = Station(40.0, 50.0)
-OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart")
+OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart", thermal=None)
 
 
 def test_rates_by_hand():

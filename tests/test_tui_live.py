@@ -25,7 +25,7 @@ from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, on_results, run_async,
 from tests.tui_pilot import log_settled
 
 STATION = Station(40.0, 50.0)
-OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart")
+OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart", thermal=None)
 
 
 def live_config(tmp_path, devices: SimulatedDevices, noise: bool = True):

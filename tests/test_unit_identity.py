@@ -175,7 +175,7 @@ def test_the_terminal_ui_takes_the_unit_serial_for_the_simulator_and_a_live_devi
     from fieldcal.cli.tui import live_spec, sim_run
     from fieldcal.config import load_config
 
-    args = types.SimpleNamespace(seed=None, method="auto", on_motion="restart", speed=None, no_capture=True,
+    args = types.SimpleNamespace(seed=None, method="auto", on_motion="restart", thermal=None, speed=None, no_capture=True,
                                  out=str(tmp_path), unit_serial="TUI-1")
     spec, _, _ = sim_run(load_config("sim"), load_procedure("field-18"), args)
     assert spec.device_serial == "TUI-1"

@@ -7,7 +7,7 @@ import os
 import sys
 
 from fieldcal import __version__
-from fieldcal.cli.options import _positive, _seed, _speed, add_run_options
+from fieldcal.cli.options import _positive, _seed, _speed, add_run_options, add_thermal_option
 from fieldcal.solvers.methods import METHODS
 
 MAX_SERVE_RATE_HZ = 4000.0  # the fastest MEMS IMU output rates; above it the simulator cannot keep up
@@ -225,6 +225,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     solve.add_argument("--method", choices=METHODS[1:], action="append",
                        help="powell, lsq or classic (repeatable; default: powell and lsq, or "
                        "classic for an aligned procedure)")
+    add_thermal_option(solve, "the session's")
     solve.set_defaults(func=_lazy("cmd_solve"))
 
     allan = sub.add_parser("allan", help="Allan noise terms, recommended dwell and a plot from a still record",

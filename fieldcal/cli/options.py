@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from fieldcal.exit_status import EXIT_FAILED_SPEC
-from fieldcal.solvers.methods import METHODS
+from fieldcal.solvers.methods import METHODS, THERMAL_MODES
 
 
 def _seed(text: str) -> int:
@@ -173,6 +173,13 @@ def find_sessions(directories, command: str) -> list[Path]:
     return sessions
 
 
+def add_thermal_option(parser: argparse.ArgumentParser, default: str) -> None:
+    """--thermal auto|on|off: whether the solve fits a thermal model (THERMAL_MODES)."""
+    parser.add_argument("--thermal", choices=THERMAL_MODES, help="fit the thermal model beside the "
+                        "calibration: auto (when the window temperatures span 0.5 K or more), on "
+                        f"(whenever they carry a temperature) or off (default: {default})")
+
+
 def add_run_options(parser: argparse.ArgumentParser) -> None:
     """Options shared by everything that runs a procedure (run, tui)."""
     parser.add_argument("--config", default="sim", help="station config (default: sim)")
@@ -182,6 +189,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="sessions", help="where sessions go (default ./sessions)")
     parser.add_argument("--method", choices=METHODS, default="auto",
                         help="solver: auto (default) is classic for an aligned procedure, else powell")
+    add_thermal_option(parser, "the config's thermal setting, else auto")
     parser.add_argument("--on-motion", choices=("restart", "discard"), default="restart",
                         help="a bump during a dwell restarts it (default) or drops only the disturbed part")
     from fieldcal.cli.identity import add_unit_serial_option

@@ -472,5 +472,7 @@ def add_resolve_parser(sub) -> None:
                         help="processes re-solving at once (default 1)")
     parser.add_argument("--method", choices=METHODS[1:], help="solve with this method instead of "
                         "each session's own")
+    from fieldcal.cli.options import add_thermal_option
+    add_thermal_option(parser, "each session's own")
     add_spec_option(parser)
     parser.set_defaults(func=_cmd_resolve)

@@ -27,10 +27,10 @@ class Resolved:
     line: str  # what became of the session, one line
 
 
-def resolve_one(session: str, method: str | None) -> Resolved:
+def resolve_one(session: str, method: str | None, thermal: str | None = None) -> Resolved:
     """Re-solve one session; never raises (a worker's exception would be the batch's)."""
     try:
-        return _resolve(Path(session), method)
+        return _resolve(Path(session), method, thermal)
     except (ValueError, OSError) as exc:  # SessionError, ProcedureError, a file that went away
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     except Exception as exc:  # noqa: BLE001 -- one session's surprise must not stop the batch
@@ -38,7 +38,7 @@ def resolve_one(session: str, method: str | None) -> Resolved:
     return Resolved(session, None, f"FAILED {session}: {reason[:300]}")
 
 
-def _resolve(session: Path, method: str | None) -> Resolved:
+def _resolve(session: Path, method: str | None, thermal: str | None = None) -> Resolved:
     from fieldcal.paramfile import dump
     from fieldcal.run.replay import resolve_session
     from fieldcal.run.runner import open_run
@@ -50,7 +50,7 @@ def _resolve(session: Path, method: str | None) -> Resolved:
     if record.stop_reason != "completed":  # its partial solve would enter the unit's history
         state = f"its run {record.stop_reason}" if record.stopped else "its run did not finish (resume it first)"
         return Resolved(str(session), None, f"FAILED {session}: not re-solved: {state}")
-    unit, pf = resolve_session(record, method)
+    unit, pf = resolve_session(record, method, thermal)
     if pf is None:
         why = "; ".join(f"{n}: {r}" for n, r in unit.failures.items()) or "no completed steps"
         return Resolved(str(session), None, f"FAILED {session}: nothing could be calibrated ({why})")
@@ -101,17 +101,17 @@ def _resolve_recording(session: Path, record, method: str | None) -> Resolved:
                     f"{writer.parameters_written.name} (recording, {len(pf.triads)} triads{failed})")
 
 
-def _results(sessions: list[str], method: str | None, jobs: int):
+def _results(sessions: list[str], method: str | None, jobs: int, thermal: str | None = None):
     """Each session's Resolved, as they finish (in order with one job)."""
     if jobs == 1 or len(sessions) == 1:
-        yield from (resolve_one(s, method) for s in sessions)
+        yield from (resolve_one(s, method, thermal) for s in sessions)
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     # spawn: workers start clean (no copy of a parent's threads or open registry connection)
     with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(resolve_one, s, method): s for s in sessions}
+        futures = {pool.submit(resolve_one, s, method, thermal): s for s in sessions}
         for future in as_completed(futures):
             try:
                 yield future.result()
@@ -145,7 +145,7 @@ def cmd_resolve(args) -> int:
     registry = BatchRecorder(args.registry, warn=lambda text: print(text, file=sys.stderr), source="resolve",
                              require_tls=args.registry_require_tls, rebuild=rebuild)
     failed = spec_failed = 0
-    for done, result in enumerate(_results(sessions, args.method, jobs), start=1):
+    for done, result in enumerate(_results(sessions, args.method, jobs, args.thermal), start=1):
         passed = None
         if result.params is not None and spec is not None:
             try:

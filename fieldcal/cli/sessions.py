@@ -18,7 +18,10 @@ def _print_result(result, out) -> int:
         print(solution_table(sol, truths.get(name, (result.truth.get(name), None))[0]), file=out)
         if sol.thermal is not None:
             print(thermal_table(sol, *truths.get(name, (None, None))[1:]), file=out)
-    worst = worst_error(result.unit.solutions, {n: t[0] for n, t in truths.items()} or result.truth)
+    # every triad's truth, and the thermal terms' where a model was fitted
+    worst = worst_error(result.unit.solutions, {**result.truth, **truths})
+    if result.unit.thermal_note:
+        print(f"\n{result.unit.thermal_note}", file=out)
     for name, why in result.unit.failures.items():
         print(f"\n{name}: not calibrated: {why}", file=out)
     if result.unit.solutions and result.truth:  # (a real device has no truth)
@@ -73,7 +76,8 @@ def cmd_run(args) -> int:
                        raw_counts=config.device.sim.raw_counts, method=args.method,
                        flicker_tau_max_s=config.device.sim.flicker_tau_max_s,
                        on_motion=args.on_motion, script=script, operator=operator_option(args),
-                       unit_serial=unit_serial(args, config), sim_thermal=config.device.sim.thermal)
+                       unit_serial=unit_serial(args, config), sim_thermal=config.device.sim.thermal,
+                       thermal=args.thermal or config.thermal)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     from fieldcal.atomic import new_named_directory
     # created here, exclusively (the next free name if this second's is taken, by a run or a link)
@@ -177,5 +181,5 @@ def cmd_solve(args) -> int:
     if not methods:
         aligned = record.spec.procedure.aligned
         methods = ["classic"] if aligned else ["powell", "lsq"]
-    print(compare_methods(record, methods))
+    print(compare_methods(record, methods, args.thermal))
     return 0

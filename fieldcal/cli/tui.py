@@ -306,7 +306,7 @@ def sim_run(config, procedure, args):
                    raw_counts=config.device.sim.raw_counts, method=args.method, on_motion=args.on_motion,
                    flicker_tau_max_s=config.device.sim.flicker_tau_max_s,
                    operator=operator_option(args), unit_serial=unit_serial(args, config),
-                   sim_thermal=config.device.sim.thermal)
+                   sim_thermal=config.device.sim.thermal, thermal=args.thermal or config.thermal)
     speed = config.device.sim.speed if args.speed is None else args.speed
     return spec, _session_dir(args, procedure.name, f"seed{seed}"), speed
 
@@ -338,4 +338,4 @@ def live_spec(config, procedure, args):
                              f"{config.path}'s table.max_rate_deg_s of {config.table.max_rate_deg_s:g} °/s")
     return RunSpec(procedure, config.station, rate_hz=config.device.rate_hz, method=args.method,
                    on_motion=args.on_motion, live=LiveDevice.from_config(with_unit_serial(config, args)),
-                   operator=operator_option(args))
+                   operator=operator_option(args), thermal=args.thermal or config.thermal)

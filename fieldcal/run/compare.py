@@ -12,18 +12,21 @@ from fieldcal.session import LOG
 from fieldcal.solvers.solve import solve_unit
 
 
-def compare_methods(record, methods: list[str]) -> str:
-    """``record``: a procedure run's ``RunRecord`` (its spec rebuilt)."""
+def compare_methods(record, methods: list[str], thermal: str | None = None) -> str:
+    """``record``: a procedure run's ``RunRecord`` (its spec rebuilt); ``thermal``: another
+    thermal setting than the session's."""
     spec = record.spec
+    thermal = spec.thermal if thermal is None else thermal
     records = record.completed  # the last record of each step (a resumed run redoes one)
     windows, averages = windows_and_averages(records)
     if not windows:
         return f"{record.directory}: no completed steps to solve from"
     models = spec.models()  # the live device's noise models, or the simulator's
-    results = {m: solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, m)
+    results = {m: solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, m, thermal)
                for m in methods}
     lines = [f"{spec.procedure.name}: {len(records)} completed steps, re-solved from their averages "
              f"in {LOG}"]
+    lines += sorted({r.thermal_note for r in results.values() if r.thermal_note})
     for name in models:
         solved = {m: results[m].solutions.get(name) for m in methods}
         lines += [""] + [solution_header(cal) for cal in solved.values() if cal is not None]

@@ -133,12 +133,14 @@ def recorded_parameters(record: RunRecord) -> bytes | None:
     return note.read_bytes() if note is not None else None
 
 
-def resolve_session(record: RunRecord, method: str | None = None):
+def resolve_session(record: RunRecord, method: str | None = None, thermal: str | None = None):
     """Solve again from the step averages the session stored (no samples read); (solution, file).
-    ``method``: another solver than the session's."""
+    ``method``, ``thermal``: another solver, or thermal setting, than the session's."""
     from dataclasses import replace
 
     spec = record.spec
-    conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), Operator())
+    spec = spec if method is None else replace(spec, method=method)
+    spec = spec if thermal is None else replace(spec, thermal=thermal)
+    conductor = Conductor(spec, NoBench(), Operator())
     conductor.engine.restore(record.completed)
     return conductor.solve()

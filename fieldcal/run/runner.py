@@ -68,10 +68,14 @@ class RunSpec:
     # The simulated unit's temperature profile and thermal truth (the config's device.sim); None:
     # it holds its calibration temperature, as every session before issue 28 did.
     sim_thermal: SimThermal | None = None
+    # Whether the solve fits a thermal model (fieldcal.solvers.solve.THERMAL_MODES): stored only
+    # when not auto, which is what every session before the setting did.
+    thermal: str = "auto"
 
     def to_metadata(self) -> dict:
         said = {"operator": self.operator} if self.operator is not None else {}  # older sessions: none
-        return {**self._metadata(), **said}
+        thermal = {"thermal": self.thermal} if self.thermal != "auto" else {}
+        return {**self._metadata(), **said, **thermal}
 
     def _metadata(self) -> dict:
         if self.live is not None:
@@ -119,7 +123,8 @@ class RunSpec:
                              "calibrate it with `fieldcal calibrate SESSION`")
         common = {"procedure": parse_procedure(meta["procedure"]["yaml"], meta["procedure"]["name"]),
                   "station": Station(**meta["station"]), "rate_hz": meta["device"]["rate_hz"],
-                  "method": meta["method"], "on_motion": meta["on_motion"], "operator": meta.get("operator")}
+                  "method": meta["method"], "on_motion": meta["on_motion"], "operator": meta.get("operator"),
+                  "thermal": meta.get("thermal", "auto")}
         if "triads" in meta["device"]:
             from fieldcal.run.livedevice import LiveDevice
             return cls(**common, live=LiveDevice.from_metadata(meta["device"]))

@@ -7,6 +7,9 @@ if TYPE_CHECKING:
     from fieldcal.procedure.positions import Procedure
 
 METHODS = ("auto", "powell", "lsq", "classic")
+# Whether the solve fits a thermal model beside the calibration (fieldcal.solvers.solve): auto
+# when the windows' temperatures span enough to determine it, on whenever they carry one, off never.
+THERMAL_MODES = ("auto", "on", "off")
 
 
 def resolve_method(procedure: Procedure, method: str) -> str:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from drivers.noise import TriadNoise
-from fieldcal.solvers.methods import METHODS, resolve_method  # noqa: F401  (re-exported)
+from fieldcal.solvers.methods import METHODS, THERMAL_MODES, resolve_method  # noqa: F401  (re-exported)
 from fieldcal.solvers.assemble import build_problem, classic_inputs
 from fieldcal.solvers.problems import RateNormProblem
 from fieldcal.earth import Station
@@ -38,6 +38,9 @@ class UnitSolution:
     problems: dict  # triad -> norm problem (field procedures)
     covariances: dict[str, np.ndarray]  # triad -> covariance of the data it was solved from
     inputs: dict[str, np.ndarray]  # triad -> the averages it was solved from, flattened
+    # One line saying whether a thermal model was fitted, why, and its order per triad; None when
+    # the windows carry no temperature and nobody asked for one (``thermal_statement``).
+    thermal_note: str | None = None
 
     def parameter_file(self, procedure: Procedure, method: str, station: Station, **provenance):
         """The parameter file of the solved triads (None if none solved): its ``input_sha256``
@@ -91,8 +94,12 @@ def across_earth_rate_usable(model: TriadModel, static_windows: list[Window], st
 
 def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, np.ndarray],
                models: dict[str, TriadModel], station: Station, rate_hz: float,
-               method: str = "auto") -> UnitSolution:
-    """``averages[name]`` is (len(windows), 3), one row per window, for every triad in models."""
+               method: str = "auto", thermal: str = "auto") -> UnitSolution:
+    """``averages[name]`` is (len(windows), 3), one row per window, for every triad in models.
+    ``thermal`` (THERMAL_MODES): fit the joint thermal model when the windows' temperatures span
+    THERMAL_MIN_SPAN_K (auto), whenever they carry temperatures (on), or never (off)."""
+    if thermal not in THERMAL_MODES:
+        raise ValueError(f"thermal: expected one of {', '.join(THERMAL_MODES)}, got {thermal!r}")
     method = resolve_method(procedure, method)
     ids = [p.id for p in procedure.positions]
     up_body = np.array([p.up_body for p in procedure.positions])
@@ -116,7 +123,7 @@ def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, 
                     model, [w for w in windows if w.kind == STATIC], station):
                 problem = replace(problem, use_across=False)
             problems[name], inputs[name] = problem, problem.data
-            temperatures = _temperatures([windows[i] for i in order])
+            temperatures = _temperatures([windows[i] for i in order], thermal)
             if temperatures is not None:
                 from fieldcal.solvers.thermal import solve_thermal_norm
 
@@ -125,22 +132,41 @@ def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, 
             solutions[name] = solve_norm(problem, covs[name], method=method)
         except CalibrationError as exc:
             failures[name] = str(exc)
-    return UnitSolution(solutions, failures, problems, covs, inputs)
+    return UnitSolution(solutions, failures, problems, covs, inputs, thermal_statement(windows, solutions, thermal))
 
 
-# A span of temperature below which no thermal term is fitted: a unit held within a tenth of a
-# kelvin (the VectorNav's resolution) gives its averages no lever on one.
+# A span of temperature below which no thermal term is fitted unless asked for (thermal: on): a
+# unit held within a tenth of a kelvin (the VectorNav's resolution) gives its averages no lever on one.
 THERMAL_MIN_SPAN_K = 0.5
 
 
-def _temperatures(windows: list[Window]) -> np.ndarray | None:
-    """The windows' mean temperatures when every one has one and they span enough to fit a
-    thermal model on (THERMAL_MIN_SPAN_K); else None."""
+def _temperatures(windows: list[Window], thermal: str = "auto") -> np.ndarray | None:
+    """The windows' mean temperatures when a thermal model is to be fitted on them (every window
+    has one, and ``thermal`` is on, or auto with a span of THERMAL_MIN_SPAN_K); else None."""
     values = [w.temperature_c for w in windows]
-    if not values or any(v is None for v in values):
+    if thermal == "off" or not values or any(v is None for v in values):
         return None
     temperatures = np.array(values, dtype=float)
-    return temperatures if np.ptp(temperatures) >= THERMAL_MIN_SPAN_K else None
+    return temperatures if thermal == "on" or np.ptp(temperatures) >= THERMAL_MIN_SPAN_K else None
+
+
+def thermal_statement(windows: list[Window], solutions: dict, thermal: str) -> str | None:
+    """One line: whether the thermal model was fitted, the setting and the span that decided it,
+    and the order per triad. None: no temperatures and thermal auto (nothing was decided)."""
+    values = [w.temperature_c for w in windows if w.temperature_c is not None]
+    if not values or len(values) < len(windows):
+        if thermal != "on":
+            return None
+        return "thermal model not fitted (thermal: on), the windows do not all carry a temperature"
+    span = float(np.ptp(values))
+    why = f"thermal: {thermal}; window temperatures {min(values):.2f} to {max(values):.2f} °C, span {span:.2f} K"
+    fitted = [f"{name} order {cal.thermal.order}" + (" + scale drift" if cal.thermal.scale_drift is not None else "")
+              for name, cal in solutions.items() if cal.thermal is not None]
+    if fitted:
+        return f"thermal model fitted ({why}): {', '.join(fitted)}"
+    if thermal == "auto" and span < THERMAL_MIN_SPAN_K:
+        why += f", below the {THERMAL_MIN_SPAN_K} K auto needs"
+    return f"thermal model not fitted ({why})"
 
 
 def models_from_truth(device) -> dict[str, TriadModel]:
