@@ -407,7 +407,7 @@ def test_map_document_errors(tmp_path, text, expected):
 def test_shipped_maps_load_by_name_and_unknown_names_list_them():
     assert load_import_map("imu_tk").file_names == ("accelerometer file", "gyroscope file")
     assert load_import_map("single-csv").file_names == ("CSV log",)
-    with pytest.raises(ImportMapError, match=r"^imu-tk: no such import map .*imu_tk, imucal, single-csv"):
+    with pytest.raises(ImportMapError, match=r"^imu-tk: no such import map .*imu_tk, imucal, mpu6050, single-csv"):
         load_import_map("imu-tk")
 
 
