@@ -6,7 +6,9 @@ import sys
 from pathlib import Path
 
 from fieldcal.cli.options import procedure_session
-from fieldcal.report import solution_header, solution_table, thermal_table, thermal_truths, worst_error
+from fieldcal.model import ANGULAR_RATE
+from fieldcal.report import (TURN_ON_BIAS_NOTE, bias_at_end_table, solution_header, solution_table, thermal_table,
+                             thermal_truths, worst_error)
 
 
 def _print_result(result, out) -> int:
@@ -19,6 +21,10 @@ def _print_result(result, out) -> int:
         print(solution_table(sol, truths.get(name, (result.truth.get(name), None))[0]), file=out)
         if sol.thermal is not None:
             print(thermal_table(sol, *truths.get(name, (None, None))[1:]), file=out)
+        if sol.bias_at_end is not None:
+            print(bias_at_end_table(sol, result.bias_at_end.get(name)), file=out)
+            if sol.kind == ANGULAR_RATE:
+                print(f"  {TURN_ON_BIAS_NOTE}", file=out)
     worst = worst_error(result.unit.solutions, {n: t[0] for n, t in truths.items()} or result.truth)
     for name, why in result.unit.failures.items():
         print(f"\n{name}: not calibrated: {why}", file=out)

@@ -264,7 +264,17 @@ def _triad_document(t: Calibration) -> dict:
         "residual_rms": {"value": _f(t.residual_rms), "unit": t.residual_unit},
         "method": t.method,
         **({"thermal": _thermal_document(t)} if t.thermal is not None else {}),
+        **({"bias_at_end": _bias_at_end_document(t)} if t.bias_at_end is not None else {}),
     }
+
+
+def _bias_at_end_document(t: Calibration) -> dict:
+    """The bias at the run's last sample (sample time ``time_s``): the value the unit is used with
+    right after calibration, beside the turn-on constant ``bias`` (a file without the section
+    is read as before it existed)."""
+    end = t.bias_at_end
+    assert end is not None  # (written only when there is one)
+    return {**_xyz(end.value), "unit": t.output_unit, "sigma": _xyz(end.sigma), "time_s": _f(end.time_s)}
 
 
 # The thermal section's own version: a file without the section is read as before it existed.

@@ -300,7 +300,8 @@ class Conductor:
         spec = self.spec
         windows, averages = self.engine.windows_and_averages()
         models = {n: m for n, m in spec.models().items() if n in averages}
-        unit = solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, spec.method)
+        unit = solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, spec.method,
+                          end_s=self.engine.t)
         return unit, unit.parameter_file(spec.procedure, spec.method, spec.station, device_name=spec.device_name,
                                          device_serial=spec.device_serial, simulation=spec.live is None,
                                          operator=spec.operator)
