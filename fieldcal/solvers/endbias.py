@@ -54,6 +54,6 @@ def bias_at_end(problem, calibration: Calibration, noise, sensitivity: np.ndarra
     lead = np.eye(3, len(theta)) + Gw.T @ Jw
     error = end.point - Gw.T @ Gw + lead @ np.linalg.inv(Jw.T @ Jw) @ lead.T
     d = calibration.diagnostics
-    if d is not None and d.scaled_by_residuals and d.dof:
+    if d is not None and d.scaled_by_residuals and d.dof and d.chi2 is not None:
         error = error * (d.chi2 / d.dof)
     return BiasAtEnd(value=theta[:3] + Gw.T @ rw, covariance=error, time_s=end_s)
