@@ -141,4 +141,5 @@ def resolve_session(record: RunRecord, method: str | None = None):
     spec = record.spec
     conductor = Conductor(spec if method is None else replace(spec, method=method), NoBench(), Operator())
     conductor.engine.restore(record.completed)
-    return conductor.solve()
+    # the bias at the end at the run's own last sample (the restored engine knows only its windows)
+    return conductor.solve(record.solved_at)
