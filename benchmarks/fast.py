@@ -286,8 +286,10 @@ def report(ref: MonteCarlo, new: MonteCarlo) -> bool:
         new_err, new_sig = targeted(new, "err", name), targeted(new, "sig", name)
         z = {w: (rms_z(e, s), rms_z(e[:, :3], s[:, :3])) for w, e, s in
              ((ref.procedure, ref_err, ref_sig), (new.procedure, new_err, new_sig))}
-        print(f"\n{name}: RMS z (error / reported σ) of the nine judged, and of the bias at the end alone: "
-              + ", ".join(f"{w} {a:.2f} and {b:.2f}" for w, (a, b) in z.items()))
+        # an RMS z over n honest errors scatters by about 1/√(2n): 0.04 over 50 runs × 9
+        se = 1 / np.sqrt(2 * ref_err.size), 1 / np.sqrt(2 * ref_err[:, :3].size)
+        print(f"\n{name}: RMS z (error / reported σ) of the nine judged (± {se[0]:.2f}), and of the bias at "
+              f"the end alone (± {se[1]:.2f}): " + ", ".join(f"{w} {a:.2f} and {b:.2f}" for w, (a, b) in z.items()))
         z_bad += [f"{name} {w}: RMS z {v:.2f}" for w, pair in z.items() for v in pair
                   if not Z_RANGE[0] <= v <= Z_RANGE[1]]
         ratio, se, sigma_ratio = table(range(9), END_NAMES + PARAM_NAMES[3:], kind, unit, ref_err, ref_sig,
