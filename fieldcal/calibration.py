@@ -101,6 +101,40 @@ def _bits(x: float) -> bytes:
 
 
 @dataclass(frozen=True, eq=False)
+class BiasAtEnd:
+    """The bias at the end of the calibration (DESIGN 12): the triad's bias process at the run's
+    last sample (``time_s``, sample time), the value the unit is used with right after
+    calibration, predicted from the averages (``fieldcal.solvers.endbias``); output units. A
+    parameter file keeps the value and σ; the covariance is the solver's."""
+
+    value: np.ndarray  # (3,)
+    time_s: float
+    sigma: np.ndarray | None = None  # (3,); default from the covariance
+    covariance: np.ndarray | None = None  # (3, 3)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "value", _readonly(self.value, (3,), "bias_at_end"))
+        if self.covariance is not None:
+            set_(self, "covariance", _readonly(self.covariance, (3, 3), "bias_at_end.covariance"))
+            if self.sigma is None:
+                set_(self, "sigma", np.sqrt(np.diag(self.covariance)))
+        if self.sigma is None:
+            raise ValueError("bias_at_end: give the covariance or sigma")
+        sigma = _readonly(self.sigma, (3,), "bias_at_end.sigma")
+        if np.any(sigma < 0):
+            raise ValueError(f"bias_at_end.sigma: expected values >= 0, got {sigma.tolist()}")
+        set_(self, "sigma", sigma)
+        if not (isinstance(self.time_s, (int, float, np.floating)) and math.isfinite(self.time_s)
+                and self.time_s >= 0):
+            raise ValueError(f"bias_at_end.time_s: expected a finite time >= 0, got {self.time_s!r}")
+        set_(self, "time_s", float(self.time_s))
+
+    def key(self) -> tuple:
+        return (self.value.tobytes(), self.sigma.tobytes(), _bits(self.time_s))
+
+
+@dataclass(frozen=True, eq=False)
 class Calibration:
     """One triad's calibration. Give K or theta (the other follows), and the covariance of theta
     or its σ (a parameter file keeps only σ); the residuals or their RMS."""
@@ -125,6 +159,9 @@ class Calibration:
     # its σ NaN (there is none), the file marks them; ``not_calibrated_why``: what would add them.
     not_calibrated: tuple[str, ...] = ()
     not_calibrated_why: str = ""
+    # the bias at the run's last sample, predicted from the averages; None: not estimated (a
+    # file written before it existed, a solver that does not give it)
+    bias_at_end: BiasAtEnd | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__  # frozen: fill the derived fields once, here
@@ -195,6 +232,9 @@ class Calibration:
         if self.thermal is not None and not isinstance(self.thermal, ThermalModel):
             raise ValueError(f"{self.name}.thermal: expected a ThermalModel or None, "
                              f"got {type(self.thermal).__name__}")
+        if self.bias_at_end is not None and not isinstance(self.bias_at_end, BiasAtEnd):
+            raise ValueError(f"{self.name}.bias_at_end: expected a BiasAtEnd or None, "
+                             f"got {type(self.bias_at_end).__name__}")
         self._mark_not_calibrated()
 
     def _mark_not_calibrated(self) -> None:
@@ -312,7 +352,8 @@ class Calibration:
     def _key(self) -> tuple:
         return (self.name, self.kind, self.output_unit, self.method, self.residual_unit,
                 self.bias.tobytes(), self.K.tobytes(), self.file_sigma.tobytes(), _bits(self.residual_rms),
-                None if self.thermal is None else self.thermal.key(), self.not_calibrated, self.not_calibrated_why)
+                None if self.thermal is None else self.thermal.key(), self.not_calibrated, self.not_calibrated_why,
+                None if self.bias_at_end is None else self.bias_at_end.key())
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Calibration):

@@ -187,3 +187,28 @@ def methods_table(calibrations: dict) -> str:
                 row[-2:] = ["not calibrated", ""]
         rows.append(row)
     return aligned(rows, "l" + "rlrl" * len(calibrations))
+
+
+def bias_at_end_table(cal, true_end: np.ndarray | None = None) -> str:
+    """The bias at the end of the calibration ± 1σ per axis (and, in a simulation, its true value
+    and the error in σ), under one line saying what it is; "" when the solve gave none."""
+    end = cal.bias_at_end
+    if end is None:
+        return ""
+    factor, unit = operator_unit(cal.kind, cal.output_unit, BIAS)
+    head = ["parameter", "solved", "", "±1σ", ""] + (["true", "", "error/σ"] if true_end is not None else [])
+    rows = [head]
+    for j, axis in enumerate("xyz"):
+        row = [f"bias {axis} at end", *value_cells(end.value[j] * factor, unit),
+               *sigma_cells(end.sigma[j] * factor, unit)]
+        if true_end is not None:
+            row += [*value_cells(true_end[j] * factor, unit), f"{(end.value[j] - true_end[j]) / end.sigma[j]:+.2f}"]
+        rows.append(row)
+    return (f"  bias at the end of calibration (the bias process at the run's last sample, t = {end.time_s:.1f} s: "
+            "the value the unit is used with; predicted from the averages):\n"
+            + aligned(rows, "lrlrl" + ("rlr" if true_end is not None else "")))
+
+
+TURN_ON_BIAS_NOTE = ("the gyro's turn-on bias (bias x, y, z above) is solved and reported with its σ but is not "
+                     "part of a plan's time target: a MEMS gyro's turn-on bias does not repeat from one "
+                     "power-up to the next and every INS re-estimates it at alignment")

@@ -81,7 +81,8 @@ def test_with_white_noise_alone_the_end_is_the_turn_on_bias():
 
 def test_field_18_based_targets_judge_biases_at_the_end_and_take_overrides():
     """--target field-18[,TRIAD.GROUP=σ]: field-18's σ with the biases' those against the bias at
-    the end of the run (of the constant the solver reports); a group given after it replaces it
+    the end of the run (of the solver's bias_at_end, the best linear unbiased predictor); a group
+    given after it replaces it
     (in operator units: °/h for a gyro bias); TRIAD.GROUP=σ alone is what it always was."""
     from drivers.sim.device import paper_mimu
     from fieldcal.earth import Station
@@ -101,7 +102,7 @@ def test_field_18_based_targets_judge_biases_at_the_end_and_take_overrides():
     windows, seconds = timeline(design, OperatorModel())
     ends = end_bias_sigmas(windows, np.array(design.attitudes), step.rate_deg_s, models, station, 250.0, seconds)
     for name in models:
-        np.testing.assert_allclose(at_end[name][:3], ends[name][1], rtol=1e-12)
+        np.testing.assert_allclose(at_end[name][:3], ends[name][0], rtol=1e-12)
         np.testing.assert_allclose(at_end[name][3:], turn_on[name][3:], rtol=1e-12)
         # the bias at the end carries the process's wander the constant does not
         assert np.all(at_end[name][:3] > turn_on[name][:3])

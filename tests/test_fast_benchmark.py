@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from fieldcal.procedure.positions import load_procedure
 from fieldcal.run.runner import TABLE_ACCEL_DEG_S2, RunSpec, SimulatedBench
@@ -35,3 +36,33 @@ def test_the_noise_at_a_sample_is_the_seeds_whatever_came_before():
     assert not np.allclose(other["gyroscope"], still["gyroscope"])
     plain = samples_after(SimulatedBench(spec), True), samples_after(SimulatedBench(spec), False)
     assert not np.allclose(plain[0]["gyroscope"], plain[1]["gyroscope"])
+
+
+def test_chunks_merge_and_a_procedure_against_itself_is_ratio_one_and_misses_the_time(tmp_path, capsys):
+    """mc in two chunks of seeds, report joining them: the planned procedure against itself has
+    every RMS and σ ratio exactly 1 and operator-time ratio 1, so the time condition is missed
+    (exit 1); chunks of another flicker cut-off or the same seeds twice are refused in one line."""
+    import fast
+
+    planned = str(Path(__file__).parent / "data" / "planned-field-18-sim.yaml")
+    chunks = []
+    for first in (0, 1):
+        out = tmp_path / f"p{first}.npz"
+        assert fast.main(["mc", "--procedure", planned, "--runs", "1", "--first-seed", str(first),
+                          "--out", str(out)]) == 0
+        chunks.append(str(out))
+    capsys.readouterr()
+    assert fast.main(["report", "--reference", *chunks, "--planned", *chunks]) == 1
+    printed = capsys.readouterr().out
+    assert "2 seeds run by both" in printed and "ratio 1.000" in printed
+    rows = [line for line in printed.splitlines() if line.startswith("| ") and "±" in line and "s.e." not in line]
+    assert len(rows) == 3 * 12  # per triad: 9 judged (biases at the end), 3 turn-on biases
+    assert all("| 1.000 ± 0.000 | 1.000 |" in row for row in rows)
+    assert "MISSED operator time ratio 1.000" in printed and "met    worst σ ratio" in printed
+    other = tmp_path / "tau.npz"
+    assert fast.main(["mc", "--procedure", planned, "--runs", "1", "--first-seed", "2",
+                      "--flicker-tau-max", "1e5", "--out", str(other)]) == 0
+    for bad in ([*chunks, str(other)], [chunks[0], chunks[0]]):
+        with pytest.raises(SystemExit) as refused:
+            fast.main(["report", "--reference", *bad, "--planned", chunks[0]])
+        assert "\n" not in str(refused.value) and str(refused.value).startswith("report: ")

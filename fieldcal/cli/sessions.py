@@ -5,7 +5,9 @@ import datetime
 import sys
 
 from fieldcal.cli.options import procedure_session
-from fieldcal.report import solution_header, solution_table, thermal_table, thermal_truths, worst_error
+from fieldcal.model import ANGULAR_RATE
+from fieldcal.report import (TURN_ON_BIAS_NOTE, bias_at_end_table, solution_header, solution_table, thermal_table,
+                             thermal_truths, worst_error)
 
 
 def _print_result(result, out) -> int:
@@ -18,6 +20,10 @@ def _print_result(result, out) -> int:
         print(solution_table(sol, truths.get(name, (result.truth.get(name), None))[0]), file=out)
         if sol.thermal is not None:
             print(thermal_table(sol, *truths.get(name, (None, None))[1:]), file=out)
+        if sol.bias_at_end is not None:
+            print(bias_at_end_table(sol, result.bias_at_end.get(name)), file=out)
+            if sol.kind == ANGULAR_RATE:
+                print(f"  {TURN_ON_BIAS_NOTE}", file=out)
     # every triad's truth, and the thermal terms' where a model was fitted
     worst = worst_error(result.unit.solutions, {**result.truth, **truths})
     if result.unit.thermal_note:

@@ -273,6 +273,7 @@ def _triad_document(t: Calibration) -> dict:
         "method": t.method,
         **({"not_calibrated": _marks_document(t)} if t.not_calibrated else {}),
         **({"thermal": _thermal_document(t)} if t.thermal is not None else {}),
+        **({"bias_at_end": _bias_at_end_document(t)} if t.bias_at_end is not None else {}),
     }
 
 
@@ -286,6 +287,15 @@ def _marks_document(t: Calibration) -> dict:
     """The parameters the data did not determine: at their nominal values, σ null, and why."""
     return {"version": MARKS_VERSION, "parameters": list(t.not_calibrated),
             **({"why": t.not_calibrated_why} if t.not_calibrated_why else {})}
+
+
+def _bias_at_end_document(t: Calibration) -> dict:
+    """The bias at the run's last sample (sample time ``time_s``): the value the unit is used with
+    right after calibration, beside the turn-on constant ``bias`` (a file without the section
+    is read as before it existed)."""
+    end = t.bias_at_end
+    assert end is not None  # (written only when there is one)
+    return {**_xyz(end.value), "unit": t.output_unit, "sigma": _xyz(end.sigma), "time_s": _f(end.time_s)}
 
 
 # The thermal section's own version: a file without the section is read as before it existed.

@@ -11,6 +11,7 @@ from fieldcal.earth import GRAVITY_RANGE_M_S2, GRAVITY_SOURCES, HEIGHT_RANGE_M
 from fieldcal.model import KINDS, PARAM_NAMES, SI_UNIT, params_from_k
 from fieldcal.calibration import (
     _MAX_CONDITION,
+    BiasAtEnd,
     LOWER_TRIANGULAR_METHODS,
     TRIAD_METHODS,
     nearest,
@@ -45,7 +46,7 @@ from fieldcal.validation import MISSING, FieldReader, describe, line_of, parse_y
 
 def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
     t = r.mapping(raw, where, ("kind", "output_unit", "input_unit", "bias", "scale_factor",
-                               "misalignment", "K", "residual_rms", "method"), ("not_calibrated", "thermal"))
+                               "misalignment", "K", "residual_rms", "method"), ("not_calibrated", "thermal", "bias_at_end"))
     kind = r.string(t, "kind", where, allowed=KINDS)
     output_unit = r.string(t, "output_unit", where)
     input_unit = r.string(t, "input_unit", where, allowed=(SI_UNIT[kind],))
@@ -117,11 +118,20 @@ def _read_triad(r: FieldReader, name: str, raw, where: str) -> TriadParameters:
     rms = r.number(res, "value", rw, minimum=0.0)
     residual_unit = r.string(res, "unit", rw, allowed=residual_units(kind, output_unit, method))
     thermal = _read_thermal(r, t["thermal"], f"{where}.thermal", output_unit) if "thermal" in t else None
+    end = None
+    if "bias_at_end" in t:
+        ew = f"{where}.bias_at_end"
+        e = r.mapping(t["bias_at_end"], ew, (*_AXES, "unit", "sigma", "time_s"))
+        r.string(e, "unit", ew, allowed=(output_unit,))
+        end = BiasAtEnd(value=r.vector(e, _AXES, ew),
+                        sigma=r.vector(r.mapping(e.get("sigma", MISSING), f"{ew}.sigma", _AXES), _AXES,
+                                       f"{ew}.sigma", minimum=0.0),
+                        time_s=r.number(e, "time_s", ew, minimum=0.0))
     try:
         return TriadParameters(name=name, kind=kind, output_unit=output_unit, bias=bias, K=K,
                                sigma=np.r_[bias_sigma, scale_sigma, angle_sigma], residual_rms=rms,
                                method=method, residual_unit=residual_unit, thermal=thermal,
-                               not_calibrated=marked, not_calibrated_why=why)
+                               not_calibrated=marked, not_calibrated_why=why, bias_at_end=end)
     except ValueError as exc:  # should be unreachable: everything above is checked first
         r.fail(where, "a valid triad", str(exc).splitlines()[0])
         raise

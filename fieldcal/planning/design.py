@@ -91,7 +91,8 @@ def bound_sigmas(design: Design, operator: OperatorModel, models: dict[str, Tria
                  station: Station, rate_hz: float, bias_at_end: bool = False) -> dict[str, np.ndarray]:
     """Per triad, the CRB standard deviation of its 9 parameters (solver units). ``bias_at_end``:
     the biases' σ are those of the error against the bias at the end of the calibration (the
-    design's last second), of the turn-on constant's estimate the solver reports (DESIGN 12)."""
+    design's last second) of the solver's ``bias_at_end``, the best linear unbiased predictor from
+    the same windows (DESIGN 12; ``fieldcal.solvers.endbias``)."""
     windows, seconds = timeline(design, operator)
     attitudes = np.array(design.attitudes)
     if not bias_at_end:
@@ -104,7 +105,7 @@ def bound_sigmas(design: Design, operator: OperatorModel, models: dict[str, Tria
             out[name] = np.full(9, np.inf)
             continue
         with np.errstate(invalid="ignore"):
-            sigmas[:3] = np.sqrt(np.diag(ends.constant))
+            sigmas[:3] = np.sqrt(np.diag(ends.predicted))
         out[name] = sigmas
     return out
 

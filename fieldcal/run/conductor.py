@@ -294,15 +294,16 @@ class Conductor:
 
     # --- the end ----------------------------------------------------------------------------
 
-    def solve(self):
-        """The unit's solution and parameter file (None if nothing solved) from the completed steps."""
+    def solve(self, end_s: float | None = None):
+        """The unit's solution and parameter file (None if nothing solved) from the completed steps;
+        the bias at the end of calibration at ``end_s`` (default: the last sample fed)."""
         from fieldcal.solvers.solve import solve_unit
 
         spec = self.spec
         windows, averages = self.engine.windows_and_averages()
         models = {n: m for n, m in spec.models().items() if n in averages}
         unit = solve_unit(spec.procedure, windows, averages, models, spec.station, spec.rate_hz, spec.method,
-                          spec.thermal)
+                          spec.thermal, end_s=self.engine.t if end_s is None else end_s)
         return unit, unit.parameter_file(spec.procedure, spec.method, spec.station, device_name=spec.device_name,
                                          device_serial=spec.device_serial, simulation=spec.live is None,
                                          operator=spec.operator)

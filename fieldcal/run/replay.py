@@ -143,4 +143,5 @@ def resolve_session(record: RunRecord, method: str | None = None, thermal: str |
     spec = spec if thermal is None else replace(spec, thermal=thermal)
     conductor = Conductor(spec, NoBench(), Operator())
     conductor.engine.restore(record.completed)
-    return conductor.solve()
+    # the bias at the end at the run's own last sample (the restored engine knows only its windows)
+    return conductor.solve(record.solved_at)

@@ -338,6 +338,17 @@ class RunRecord:
         return [n for n in self.parameter_files if n.line > note.line and n.written_by == "re-solve"]
 
     @property
+    def solved_at(self) -> float | None:
+        """The sample time the run concluded at (its last sample, where its bias at the end of
+        calibration was predicted), as its last ``solved`` event holds it; None: never solved."""
+        at = None
+        for doc in self.reader.documents("event"):
+            event = doc.get("data") or {}
+            if event.get("event") == "solved" and _number(event.get("t")):
+                at = float(event["t"])
+        return at
+
+    @property
     def parameters_path(self) -> Path | None:
         """The current parameter file, if it is there."""
         note = self.current_parameters

@@ -94,10 +94,12 @@ def across_earth_rate_usable(model: TriadModel, static_windows: list[Window], st
 
 def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, np.ndarray],
                models: dict[str, TriadModel], station: Station, rate_hz: float,
-               method: str = "auto", thermal: str = "auto") -> UnitSolution:
+               method: str = "auto", thermal: str = "auto", end_s: float | None = None) -> UnitSolution:
     """``averages[name]`` is (len(windows), 3), one row per window, for every triad in models.
     ``thermal`` (THERMAL_MODES): fit the joint thermal model when the windows' temperatures span
-    THERMAL_MIN_SPAN_K (auto), whenever they carry temperatures (on), or never (off)."""
+    THERMAL_MIN_SPAN_K (auto), whenever they carry temperatures (on), or never (off).
+    ``end_s``: the sample time of the run's last sample; with it, each triad solved by the norm
+    method also reports its bias at that time and its σ (``endbias``, DESIGN 12)."""
     if thermal not in THERMAL_MODES:
         raise ValueError(f"thermal: expected one of {', '.join(THERMAL_MODES)}, got {thermal!r}")
     method = resolve_method(procedure, method)
@@ -130,9 +132,25 @@ def solve_unit(procedure: Procedure, windows: list[Window], averages: dict[str, 
                 solutions[name] = solve_thermal_norm(problem, temperatures, covs[name]).calibration
                 continue
             solutions[name] = solve_norm(problem, covs[name], method=method)
+            if end_s is not None:
+                solutions[name] = _with_bias_at_end(solutions[name], problem, model,
+                                                    [windows[i] for i in order], end_s, covs[name])
         except CalibrationError as exc:
             failures[name] = str(exc)
     return UnitSolution(solutions, failures, problems, covs, inputs, thermal_statement(windows, solutions, thermal))
+
+
+def _with_bias_at_end(calibration, problem, model: TriadModel, windows: list[Window], end_s: float,
+                      covariance: np.ndarray):
+    """The calibration with its bias at the end of the run, when the noise model gives one (a
+    bias process with a stationary covariance: not with rate random walk)."""
+    if model.noise.rate_random_walk:
+        return calibration
+    from fieldcal.solvers.endbias import bias_at_end
+
+    end = bias_at_end(problem, calibration, model.noise, model.sensitivity, [w.start for w in windows],
+                      [w.duration for w in windows], end_s, covariance)
+    return replace(calibration, bias_at_end=end)
 
 
 # A span of temperature below which no thermal term is fitted unless asked for (thermal: on): a
