@@ -55,6 +55,10 @@ FEED_BYTES = 1 << 18  # text parsed at once
 NON_SAMPLE_FLOOR = 100_000
 PRESCAN_BYTES = 4 << 20  # a bigger text file is scanned for the rule above before it is held
 REUSE_BYTES = 1 << 22  # freed memory malloc keeps for the pieces' temporaries (_let_malloc_keep)
+# No recording's line comes near this (a sample is some 100 bytes): a longer line is no recording,
+# and parsed it would take ~6x its length (issue 25: a 150 MB line took 900 MB, or MemoryError).
+LONGEST_LINE = 1 << 16
+LINE_CHECK_BYTES = 1 << 20  # read at once while lines are measured
 _CONTROL = re.compile("[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")  # all but tab and CR
 
 
@@ -164,6 +168,10 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
             container = is_container(f.read(8))
             # a pre-allocated file's NUL end: not read, not held, said (a container's zeros are its own)
             size, zeros = (os.fstat(f.fileno()).st_size, 0) if container else zero_tail(path)
+            if not container:
+                f.seek(0)
+                check_line_lengths(_blocks(f, size - zeros), path)  # before the text is held or parsed
+                f.seek(0)
             if not container and size - zeros > PRESCAN_BYTES:
                 _prescan(f, size - zeros, spec, path)  # before the text is held: junk refused in bounded memory
             f.seek(0)
@@ -175,6 +183,9 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         data = text_of(data, path, spec)
     except ContainerError as exc:
         raise RecordingImportError(str(exc), path) from None
+    if container:  # the text inside: measured as it is, a block at a time (no copy)
+        view = memoryview(data)
+        check_line_lengths((view[lo:lo + LINE_CHECK_BYTES] for lo in range(0, len(data), LINE_CHECK_BYTES)), path)
     cm = spec.resolve(header_fields(data, spec, path), path) if spec.channel_map is None else spec.channel_map
     rate_hz = rate_hz or spec.rate_hz
     if cm.time_column is None and rate_hz is None:
@@ -311,6 +322,46 @@ def check_non_samples(parser: DelimitedTextParser, path: str) -> None:
         f"{path}: {other} of its first {parser.lines} lines are no sample ({parser.malformed_lines} malformed, "
         f"{parser.header_lines} text with no number in the mapped columns, {blank} blank or comments) "
         f"against {samples} samples: not read further; cut the file to its samples and import that", path)
+
+
+def check_line_lengths(blocks, path: str) -> None:
+    """Refuse, in one line naming the line and its length, text with a line longer than
+    LONGEST_LINE. ``blocks``: the text's bytes in order, a block at a time; memory is one block
+    and its newline positions, whatever the lines' lengths."""
+    line, since = 1, 0  # the current line's number, its bytes in earlier blocks
+    for block in blocks:
+        a = np.frombuffer(block, dtype=np.uint8)
+        ends = np.flatnonzero(a == 10)
+        if len(ends):
+            lengths = np.diff(ends, prepend=-1)  # each line's bytes in this block, its "\n" included
+            lengths[0] += since
+            longest = int(np.argmax(lengths))
+            if lengths[longest] - 1 > LONGEST_LINE:
+                _refuse_long_line(path, line + longest, int(lengths[longest]) - 1, complete=True)
+            line += len(ends)
+            since = len(a) - 1 - int(ends[-1])
+        else:
+            since += len(a)
+        if since > LONGEST_LINE:  # no need to read to its end (there may be none)
+            _refuse_long_line(path, line, since, complete=False)
+
+
+def _refuse_long_line(path: str, line: int, length: int, complete: bool) -> None:
+    size = f"{length} bytes long" if complete else f"over {length} bytes long"
+    raise RecordingImportError(
+        f"{path}: line {line} is {size} (a recording's lines are under {LONGEST_LINE} bytes): this is no "
+        "text recording, or it is damaged; cut the file to its samples and import that", path, line)
+
+
+def _blocks(f, size: int):
+    """The first ``size`` bytes of ``f``, LINE_CHECK_BYTES at a time."""
+    done = 0
+    while done < size:
+        block = f.read(min(LINE_CHECK_BYTES, size - done))
+        if not block:
+            return
+        done += len(block)
+        yield block
 
 
 def _prescan(f, size: int, spec: FileSpec, path: str) -> None:
