@@ -198,15 +198,16 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     comment = cm.comment.encode("ascii") if cm.comment else None
     unterminated = bool(tail) and not (comment and tail.startswith(comment))
     n_lines = _count_lines(data, cut)
-    # Every malformed line's number is needed below: taken after each piece (at most a line a byte),
+    # Every malformed and header line's number is needed below: taken after each piece (at most a line a byte),
     # and the rule on non-sample lines bounds their count.
     parser = DelimitedTextParser(cm, keep_malformed=max(min(n_lines, FEED_BYTES), 1))
     # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
     # not header lines, in order (the parser returns values, not where they came from).
-    t, triads, candidates, malformed = _parse_pieces(parser, data, cut, cm.comment, n_lines, path)
+    t, triads, candidates, malformed, headers = _parse_pieces(parser, data, cut, cm.comment, n_lines, path)
     n = len(t)
     rest = np.setdiff1d(candidates, malformed, assume_unique=True) if len(malformed) else candidates
-    if len(rest) != n + parser.header_lines:  # cannot happen unless the parser's rules change
+    # cannot happen unless the parser's rules change
+    if len(rest) != n + parser.header_lines or len(headers) != parser.header_lines:
         raise RuntimeError(f"{path}: line accounting disagrees with the parser "
                            f"({len(rest)} lines for {n} samples and {parser.header_lines} headers)")
     # Where each line is: needed for header and malformed lines only (a clean file has none).
@@ -215,7 +216,6 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         starts = np.r_[0, ends[:-1] + 1]
     else:
         starts = ends = np.zeros(0, dtype=np.int64)
-    headers = _header_lines(data, starts, ends, rest, parser.header_lines, cm)
     lines = np.setdiff1d(rest, headers, assume_unique=True) if len(headers) else rest
     first = lines[0] if n else np.iinfo(np.int64).max
     # Text lines before the first sample are the header and metadata ("Fs,100" does not parse as
@@ -269,24 +269,25 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
 
 def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: str | None, n_lines: int,
                   path: str):
-    """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, and of
-    the malformed lines, sorted) of data[:cut] (its ``n_lines`` whole lines), fed to the parser
+    """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, of the
+    malformed lines and of the lines the parser calls headers, sorted) of data[:cut] (its ``n_lines`` whole lines), fed to the parser
     in pieces of about FEED_BYTES cut at line ends: the temporaries are some ten times the bytes
     seen at once, and a piece of whole lines parses as it would within the file. Each piece's
     results go straight into arrays of the file's size (no list of pieces and its joined copy
     held at once). Refused as soon as the lines that are no sample break the NON_SAMPLE_FLOOR rule."""
     content = np.empty(n_lines, dtype=np.int64)
     t, triads = np.empty(n_lines), None  # at most one sample a line
-    malformed = []
+    malformed, headers = [], []
     lo, n_content, n = 0, 0, 0
     while lo < cut:  # a loop over pieces, a dozen per MiB
         hi = data.rfind(b"\n", lo, min(lo + FEED_BYTES, cut)) + 1 or data.find(b"\n", lo, cut) + 1
         lines = parser.lines
         chunk = parser.feed(data[lo:hi], 0.0)
         check_non_samples(parser, path)
-        if parser.malformed_line_numbers:  # taken piece by piece: the parser keeps only so many
-            malformed.append(np.array(parser.malformed_line_numbers, dtype=np.int64))
-            parser.malformed_line_numbers.clear()
+        for numbers, kept in ((parser.malformed_line_numbers, malformed), (parser.header_line_numbers, headers)):
+            if numbers:  # taken piece by piece: the parser keeps only so many
+                kept.append(np.array(numbers, dtype=np.int64))
+                numbers.clear()
         k = 0 if chunk is None else len(chunk.t)
         if chunk is not None:
             if triads is None:
@@ -305,9 +306,10 @@ def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: s
         n_content += len(part)
         lo = hi
     malformed = np.sort(np.concatenate(malformed)) if malformed else np.zeros(0, dtype=np.int64)
+    headers = np.sort(np.concatenate(headers)) if headers else np.zeros(0, dtype=np.int64)
     if triads is None:
-        return np.zeros(0), {}, content[:n_content], malformed
-    return t[:n], {name: values[:n] for name, values in triads.items()}, content[:n_content], malformed
+        return np.zeros(0), {}, content[:n_content], malformed, headers
+    return t[:n], {name: values[:n] for name, values in triads.items()}, content[:n_content], malformed, headers
 
 
 def check_non_samples(parser: DelimitedTextParser, path: str) -> None:
@@ -447,38 +449,6 @@ def _content_lines(a: np.ndarray, starts: np.ndarray, ends: np.ndarray, comment:
         idx = np.minimum(first[:, None] + np.arange(len(prefix)), len(a) - 1)
         content &= ~((first + len(prefix) <= ends) & (a[idx] == prefix).all(axis=1))
     return np.flatnonzero(content).astype(np.int64) + 1
-
-
-def _header_lines(data: bytes, starts, ends, lines: np.ndarray, count: int, cm) -> np.ndarray:
-    """Which of ``lines`` (sorted 1-based numbers) the parser calls headers, ``count`` of them.
-
-    Usually they lead the file and one check confirms it; otherwise halve the set until each
-    part is all header or none (parses of ever smaller parts: about one whole-file parse per
-    stray line of text after the data)."""
-
-    def headers_in(part: np.ndarray) -> int:
-        # The bytes from the part's first line to its last: the lines between that are not in
-        # ``lines`` are blank, comments or malformed, never headers, so they change no count.
-        parser = DelimitedTextParser(cm)
-        parser.feed(data[starts[part[0] - 1]:ends[part[-1] - 1] + 1], 0.0)
-        return parser.header_lines
-
-    if count == 0:
-        return np.zeros(0, dtype=np.int64)
-    if headers_in(lines[:count]) == count:
-        return lines[:count]
-    return np.concatenate(_split_headers(lines, count, headers_in))
-
-
-def _split_headers(part: np.ndarray, k: int, headers_in) -> list[np.ndarray]:
-    """The parts of ``part`` (holding ``k`` headers) that are all headers, by halving. At module
-    level, not nested: a nested recursive function is a reference cycle that would keep the whole
-    file's bytes (through ``headers_in``) alive until the next garbage collection."""
-    if k == 0 or k == len(part):
-        return [part] if k else []
-    half = len(part) // 2
-    left = headers_in(part[:half])
-    return _split_headers(part[:half], left, headers_in) + _split_headers(part[half:], k - left, headers_in)
 
 
 def _align(parsed: list[_Parsed]) -> tuple[np.ndarray, dict[str, np.ndarray], list[str]]:
