@@ -147,3 +147,36 @@ def test_a_device_is_named_for_what_it_is(capsys, tmp_path):
         assert err.startswith(f"fieldcal: {link}: is a character device, not a ") and err.count("\n") == 1
     assert main(["allan", str(tmp_path / "absent")]) == 2
     assert "no such session directory or file" in capsys.readouterr().err
+
+
+def test_a_text_record_is_checked_as_an_import_is(tmp_path, capsys):
+    """Issue 25 round 4, item 2: allan read the whole file into memory (a 2 GB sparse file or a
+    200 MB csv: MemoryError). Now a file of holes is refused unread, as import refuses it, and a
+    long line or a late bad byte is found a block at a time, named by where it is."""
+    import os
+
+    sparse = tmp_path / "sparse.csv"
+    sparse.write_bytes(b"".join(b"%d,1,2,3\n" % i for i in range(200)))
+    os.truncate(sparse, 2 << 30)
+    assert main(["allan", str(sparse)]) == 2
+    err = capsys.readouterr().err
+    assert f"{sparse}: at least 99% of its 2048 MiB are zeros" in err and err.count("\n") == 1
+    rows = b"".join(b"%d,1,2,3\n" % i for i in range(200_000))  # over a MiB: the check's second block
+    late = tmp_path / "late.csv"
+    late.write_bytes(rows + b"200000,1,2,\xff\n")
+    assert main(["allan", str(late)]) == 2
+    assert f"{late}: not a text record (not UTF-8 at byte {len(rows) + 11};" in capsys.readouterr().err
+    long_line = tmp_path / "long.csv"
+    long_line.write_bytes(b"".join(b"%d,1,2,3\n" % i for i in range(100)) + b"1," * 50_000 + b"\n")
+    assert main(["allan", str(long_line)]) == 2
+    assert f"{long_line}: line 101 is 100000 bytes long" in capsys.readouterr().err
+
+
+def test_a_streamed_text_record_gives_what_the_rows_say(tmp_path, capsys):
+    """Comments, blank lines and a whitespace-separated record read from the file: the rows count
+    as before (the data row named in an error is the n-th row of numbers)."""
+    rows = "".join(f"{i} 1 2 3\n" for i in range(150))
+    path = tmp_path / "rec.txt"
+    path.write_text("# a still record\n\n" + rows + "# a note\n150 nan 2 3\n")
+    assert main(["allan", str(path)]) == 2
+    assert "data row 151 holds nan or inf" in capsys.readouterr().err

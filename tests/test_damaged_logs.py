@@ -152,3 +152,45 @@ def test_a_zero_end_is_said_as_such_not_as_damage(real_bin, real_ulg, tmp_path):
     recording, report = import_log(path)
     assert "its last 300000 bytes are zeros" in report.warnings[0]
     assert _subset_of(recording, import_log(real_ulg)[0])
+
+
+def _message_ends(data: bytes) -> set[int]:
+    """Where each ULog message ends, walked from the 16-byte file header by the format's own rule
+    (a 3-byte header: msg_size uint16 little-endian, msg_type; then msg_size bytes)."""
+    ends, at = set(), 16
+    while at + 3 <= len(data):
+        at += 3 + int.from_bytes(data[at:at + 2], "little")
+        ends.add(at)
+    return ends
+
+
+@pytest.mark.parametrize("fraction", [0.25, 0.5, 0.9, 0.999])
+def test_a_truncated_ulog_says_it_is_damaged(real_ulg, tmp_path, capfd, fraction):
+    """Issue 25 round 4, item 3: a ULog cut short imported as a short clean recording ("595
+    samples of 595 read ... every sample used", exit 0): pyulog stops there without a word."""
+    data = real_ulg.read_bytes()
+    cut = int(len(data) * fraction)
+    assert cut not in _message_ends(data)  # the cut is inside a message (else it would be a whole, shorter log)
+    path = tmp_path / "half.ulg"
+    path.write_bytes(data[:cut])
+    intact, _ = import_log(real_ulg)
+    status, out, err = _import(["import", str(path), "--out", str(tmp_path / "s")], capfd)
+    if status == 2:  # too little left to calibrate from: refused in one line that says why
+        assert err.count("\n") == 1 and "the log ends inside its last message" in err
+        return
+    assert status == 0 and f"WARNING: {path}: DAMAGED" in out
+    assert "the log ends inside its last message (at byte " in out and "cut short?)" in out
+    recording, _ = import_log(path)
+    assert _subset_of(recording, intact) and len(recording.t) < len(intact.t)
+
+
+def test_a_ulog_cut_between_messages_is_no_cut_off_message(real_ulg, tmp_path):
+    """The check is about a message cut in two, not about the log's length: cut exactly at a
+    message's end, the log reads as a whole shorter log."""
+    data = real_ulg.read_bytes()
+    end = max(e for e in _message_ends(data) if e <= len(data) // 2)
+    path = tmp_path / "whole-messages.ulg"
+    path.write_bytes(data[:end])
+    _, report = import_log(path)
+    assert not any("ends inside its last message" in w for w in report.warnings)
+    assert not import_log(real_ulg)[1].warnings  # nor the intact log

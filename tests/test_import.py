@@ -579,3 +579,28 @@ def test_fieldcal_import_reports_a_cut_off_last_line(tmp_path, capsys):
     assert main([str(data), "--map", str(write_map(tmp_path, [ACC])), "--out", str(tmp_path / "s")]) == 0
     out = capsys.readouterr().out
     assert "1 malformed line not used: 4 (line 4 has no line end: cut off mid-write?)" in out
+
+
+def test_stray_text_lines_are_found_in_one_parse(tmp_path, monkeypatch):
+    """Issue 25 round 4, item 5: a text line after every other sample made the import quadratic
+    (13.7 MB: 176 s, 423 MB): the header lines were found again by re-parsing halves of the file
+    per stray line. The parser now says which lines it calls headers as it reads them: every byte
+    is parsed once, and the stray lines are still malformed, by number."""
+    from drivers.protocols.delimited import DelimitedTextParser
+
+    fed = []
+    feed = DelimitedTextParser.feed
+    monkeypatch.setattr(DelimitedTextParser, "feed", lambda self, data, t: fed.append(len(data)) or feed(self, data, t))
+    rows = []
+    for i in range(4000):
+        rows.append(f"{i * 0.01:.3f},1,2,3,4,5,6\n")
+        if i % 2:
+            rows.append("abc\n")
+    path = tmp_path / "interleaved.csv"
+    path.write_text("".join(rows))
+    rec, report = import_with_report([path], "single-csv")
+    assert sum(fed) == path.stat().st_size  # once, not once per halving
+    [file] = report.files
+    assert file.samples == 4000 and file.malformed == 2000 and file.header_lines == 0
+    assert file.malformed_lines == tuple(3 * k + 3 for k in range(10))  # "abc" after samples 2, 4, ...: lines 3, 6, ...
+    np.testing.assert_allclose(rec.t, np.arange(4000) * 1e-5)  # the map reads time in ms

@@ -193,3 +193,61 @@ def test_the_scan_before_a_big_file_is_held_changes_nothing_it_imports(tmp_path,
     np.testing.assert_array_equal(scanned[0].t, plain[0].t)
     for name in plain[0].triads:
         np.testing.assert_array_equal(scanned[0].triads[name], plain[0].triads[name])
+
+
+def _with_long_first_line(path: Path, length: int, samples: bytes) -> Path:
+    """A file that starts with one line of ``length`` "a" bytes, then a valid recording, written
+    a block at a time (the test holds no copy of the long line)."""
+    with open(path, "wb") as f:
+        block = b"a" * (1 << 20)
+        for _ in range(length // len(block)):
+            f.write(block)
+        f.write(b"a" * (length % len(block)) + b"\n" + samples)
+    return path
+
+
+@pytest.mark.parametrize("length", [70_000, 3 << 20])
+def test_a_line_longer_than_any_recording_line_is_refused_naming_it(tmp_path, capsys, length):
+    """Issue 25 round 4, item 1: a recording behind one very long line. The line is measured,
+    not parsed: one line naming the file, the line and its length."""
+    from fieldcal.recording.importer import LONGEST_LINE
+
+    path = _with_long_first_line(tmp_path / "longline.csv", length, _valid_recording_text(100))
+    assert main(["import", str(path), "--map", "single-csv", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{path}: line 1 is " in err
+    # the whole length when the line ends within a block of the check, else the bytes seen so far
+    seen = int(err.split("line 1 is ")[1].split("bytes long")[0].replace("over ", ""))
+    assert seen == length if length < LONGEST_LINE * 2 else LONGEST_LINE < seen < length
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_long_line_after_the_samples_is_found_by_its_number(tmp_path, capsys):
+    path = tmp_path / "logger.csv"
+    path.write_bytes(_valid_recording_text(100) + b"1," * 40_000 + b"\n" + b"1,2,3,4,5,6,7\n")
+    assert main(["import", str(path), "--map", "single-csv", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: line 102 is 80000 bytes long" in err and err.count("\n") == 1
+
+
+def test_a_gzipped_long_line_is_refused_too(tmp_path, capsys):
+    import gzip
+
+    path = tmp_path / "logger.csv.gz"
+    path.write_bytes(gzip.compress(b"x" * 100_000 + b"\n" + _valid_recording_text(100)))
+    assert main(["import", str(path), "--map", "single-csv", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: line 1 is 100000 bytes long" in err and err.count("\n") == 1
+
+
+def test_a_150mb_line_is_refused_within_300mb(tmp_path):
+    """The hostile tester's file: 150 MB of "a", then the samples. Parsed, the line took ~6x its
+    length (MemoryError under this cap); measured a block at a time it costs one block."""
+    path = _with_long_first_line(tmp_path / "longline.csv", 150_000_000, _valid_recording_text(100))
+    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), "--map", "single-csv",
+                          "--out", str(tmp_path / "s")], capture_output=True, text=True,
+                         preexec_fn=_cap_memory, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
+    assert f"{path}: line 1 is over " in out.stderr
+    assert not (tmp_path / "s").exists()

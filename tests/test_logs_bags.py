@@ -274,3 +274,50 @@ def test_each_reader_is_imported_only_for_its_format(jackal, tmp_path, what):
     loaded = set(json.loads(proc.stdout.strip().splitlines()[-1]))
     assert "pymavlink" not in loaded and "pyulog" not in loaded
     assert ("rosbags" in loaded) == (what == "bag")
+
+
+def test_a_bag_of_junk_is_refused_by_its_first_bytes_within_300mb(tmp_path):
+    """Issue 25 round 4, item 4: a .bag of 0xFF bytes was held by rosbags at ~2x its size before
+    it was refused (600 MB: 1.24 GB). Its first bytes are not a bag's: refused there, in one
+    line, under an address-space cap that a reader holding the file would break."""
+    import os
+    import resource
+    import subprocess
+    import sys
+
+    path = tmp_path / "junk.bag"
+    with open(path, "wb") as f:
+        block = b"\xff" * (1 << 20)
+        for _ in range(200):
+            f.write(block)
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (300 << 20, 300 << 20))
+
+    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), "--out", str(tmp_path / "s")],
+                         capture_output=True, text=True, preexec_fn=cap,
+                         env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    assert out.returncode == 2, out.stderr[-2000:]
+    first = bytes([0xFF]) * 13
+    assert out.stderr == (f"fieldcal: {path}: not a readable ROS bag: it does not start with b'#ROSBAG V2.0\\n' "
+                          f"as a ROS 1 bag (version 2.0) does (its first bytes are {first!r})\n")
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("storage, magic", [("sqlite3", b"SQLite format 3\x00"), ("mcap", b"\x89MCAP0\r\n")])
+def test_a_ros2_bag_whose_storage_file_is_junk_is_refused_by_its_first_bytes(jackal, tmp_path, capsys,
+                                                                          storage, magic):
+    from rosbags.convert import convert
+
+    from fieldcal.recording.bags import check_magic
+
+    bag = tmp_path / "ros2"  # a real ROS 2 bag: its storage file starts as its format says
+    convert([jackal], bag, dst_storage=storage, dst_version=8, compress=None, compress_mode="file",
+            default_typestore=None, typestore=get_typestore(Stores.ROS2_HUMBLE), exclude_topics=(),
+            include_topics=(), exclude_msgtypes=(), include_msgtypes=())
+    [file] = [p for p in bag.iterdir() if p.suffix in (".db3", ".mcap")]
+    assert file.read_bytes()[:len(magic)] == magic
+    check_magic(bag)
+    file.write_bytes(b"\xff" * 100_000)
+    err = one_line_error(["import", str(bag), "--out", str(tmp_path / "s")], capsys)
+    assert f"{file}: not a readable ROS bag: it does not start with {magic!r}" in err

@@ -260,8 +260,8 @@ class DelimitedTextParser:
 
     Besides ``counters`` (frames = data lines accepted; discarded_bytes = bytes of header and
     malformed lines; sequence gaps from the counter column): ``lines`` (lines seen),
-    ``header_lines``, ``malformed_lines`` and ``malformed_line_numbers`` (the last
-    ``keep_malformed`` of them, 1-based).
+    ``header_lines``, ``malformed_lines``, and ``malformed_line_numbers`` and
+    ``header_line_numbers`` (the last ``keep_malformed`` of each, 1-based).
     """
 
     def __init__(self, channel_map: ChannelMap, *, max_line_bytes: int = 65536,
@@ -272,6 +272,7 @@ class DelimitedTextParser:
         self.header_lines = 0
         self.malformed_lines = 0
         self.malformed_line_numbers: deque[int] = deque(maxlen=keep_malformed)
+        self.header_line_numbers: deque[int] = deque(maxlen=keep_malformed)
         self.max_line_bytes = int(max_line_bytes)
         self._buf = b""
         self._overlong = False  # dropping the rest of a line longer than max_line_bytes
@@ -450,6 +451,7 @@ class DelimitedTextParser:
             self.counters.discarded_bytes += len(line)
             if self._is_header(line):
                 self.header_lines += 1
+                self.header_line_numbers.append(int(line_no[i]))
             else:
                 self.malformed_lines += 1
                 self.malformed_line_numbers.append(int(line_no[i]))

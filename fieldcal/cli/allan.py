@@ -71,23 +71,27 @@ def _session_records(record) -> tuple[dict[str, np.ndarray], dict[str, str], flo
 
 
 def _text_record(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str, str], float]:
+    """The rows of a text record, read as import reads a recording: refused at once if it is no
+    regular file or mostly zeros, measured a block at a time (UTF-8, line lengths) before numpy
+    reads it from the file, so that memory follows the rows, not the file's bytes."""
     import warnings
 
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a text record (not UTF-8 at byte {exc.start}; expected rows "
-                         "'t, x, y, z')") from None
-    rows = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
-    if not rows:
+    from fieldcal.recording.importer import check_line_lengths
+    from fieldcal.recording.inputs import check_input
+
+    check_input(path, "still record")
+    first_row = _checked_text(path, check_line_lengths)
+    if first_row is None:
         raise ValueError(f"{path}: no data (expected at least 100 rows of 4 numbers 't, x, y, z')")
-    delimiter = "," if "," in rows[0] else None
+    delimiter = "," if "," in first_row else None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # said below in our words, not numpy's
-            table = np.loadtxt(rows, delimiter=delimiter, ndmin=2)
+            table = np.loadtxt(path, delimiter=delimiter, comments="#", ndmin=2, encoding="utf-8")
     except ValueError as exc:
         raise ValueError(f"{path}: expected rows of 4 numbers 't, x, y, z' ({str(exc).splitlines()[0]})") from None
+    if len(table) == 0:
+        raise ValueError(f"{path}: no data (expected at least 100 rows of 4 numbers 't, x, y, z')")
     if table.shape[1] != 4 or len(table) < 100:
         raise ValueError(f"{path}: expected at least 100 rows of 4 numbers 't, x, y, z', "
                          f"got {len(table)} rows of {table.shape[1]}")
@@ -109,6 +113,40 @@ def _text_record(path: Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str
                              f"has {'; '.join(breaks[:3])}{'; ...' if len(breaks) > 3 else ''})")
     name = "gyroscope" if kind == "angular_rate" else "accelerometer"
     return {name: table[longest.start: longest.stop, 1:]}, {name: kind}, longest.rate_hz
+
+
+def _checked_text(path: Path, check_line_lengths) -> str | None:
+    """The first row that is neither blank nor a comment (None: there is none), after the whole
+    file is checked a block at a time: UTF-8, and no line longer than a recording's."""
+    import codecs
+
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    first_row, done = None, 0
+
+    def blocks(f):
+        nonlocal first_row, done
+        while block := f.read(1 << 20):
+            held = len(decoder.getstate()[0])  # the end of the last block, a character cut in two
+            try:
+                text = decoder.decode(block)
+            except UnicodeDecodeError as exc:  # its offset: within the bytes held and this block
+                at = done - held + exc.start
+                raise ValueError(f"{path}: not a text record (not UTF-8 at byte {at}; expected rows "
+                                 "'t, x, y, z')") from None
+            if first_row is None:  # the first block that holds one, usually the first
+                first_row = next((line for line in text.splitlines()[:-1] or text.splitlines()
+                                  if line.strip() and not line.lstrip().startswith("#")), None)
+            done += len(block)
+            yield block
+
+    with open(path, "rb") as f:
+        check_line_lengths(blocks(f), str(path))
+    try:
+        decoder.decode(b"", final=True)
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text record (it ends inside a UTF-8 character; expected rows "
+                         "'t, x, y, z')") from None
+    return first_row
 
 
 def cmd_allan(args) -> int:

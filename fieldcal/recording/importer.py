@@ -55,6 +55,10 @@ FEED_BYTES = 1 << 18  # text parsed at once
 NON_SAMPLE_FLOOR = 100_000
 PRESCAN_BYTES = 4 << 20  # a bigger text file is scanned for the rule above before it is held
 REUSE_BYTES = 1 << 22  # freed memory malloc keeps for the pieces' temporaries (_let_malloc_keep)
+# No recording's line comes near this (a sample is some 100 bytes): a longer line is no recording,
+# and parsed it would take ~6x its length (issue 25: a 150 MB line took 900 MB, or MemoryError).
+LONGEST_LINE = 1 << 16
+LINE_CHECK_BYTES = 1 << 20  # read at once while lines are measured
 _CONTROL = re.compile("[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")  # all but tab and CR
 
 
@@ -164,6 +168,10 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
             container = is_container(f.read(8))
             # a pre-allocated file's NUL end: not read, not held, said (a container's zeros are its own)
             size, zeros = (os.fstat(f.fileno()).st_size, 0) if container else zero_tail(path)
+            if not container:
+                f.seek(0)
+                check_line_lengths(_blocks(f, size - zeros), path)  # before the text is held or parsed
+                f.seek(0)
             if not container and size - zeros > PRESCAN_BYTES:
                 _prescan(f, size - zeros, spec, path)  # before the text is held: junk refused in bounded memory
             f.seek(0)
@@ -175,6 +183,9 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         data = text_of(data, path, spec)
     except ContainerError as exc:
         raise RecordingImportError(str(exc), path) from None
+    if container:  # the text inside: measured as it is, a block at a time (no copy)
+        view = memoryview(data)
+        check_line_lengths((view[lo:lo + LINE_CHECK_BYTES] for lo in range(0, len(data), LINE_CHECK_BYTES)), path)
     cm = spec.resolve(header_fields(data, spec, path), path) if spec.channel_map is None else spec.channel_map
     rate_hz = rate_hz or spec.rate_hz
     if cm.time_column is None and rate_hz is None:
@@ -187,15 +198,16 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     comment = cm.comment.encode("ascii") if cm.comment else None
     unterminated = bool(tail) and not (comment and tail.startswith(comment))
     n_lines = _count_lines(data, cut)
-    # Every malformed line's number is needed below: taken after each piece (at most a line a byte),
+    # Every malformed and header line's number is needed below: taken after each piece (at most a line a byte),
     # and the rule on non-sample lines bounds their count.
     parser = DelimitedTextParser(cm, keep_malformed=max(min(n_lines, FEED_BYTES), 1))
     # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
     # not header lines, in order (the parser returns values, not where they came from).
-    t, triads, candidates, malformed = _parse_pieces(parser, data, cut, cm.comment, n_lines, path)
+    t, triads, candidates, malformed, headers = _parse_pieces(parser, data, cut, cm.comment, n_lines, path)
     n = len(t)
     rest = np.setdiff1d(candidates, malformed, assume_unique=True) if len(malformed) else candidates
-    if len(rest) != n + parser.header_lines:  # cannot happen unless the parser's rules change
+    # cannot happen unless the parser's rules change
+    if len(rest) != n + parser.header_lines or len(headers) != parser.header_lines:
         raise RuntimeError(f"{path}: line accounting disagrees with the parser "
                            f"({len(rest)} lines for {n} samples and {parser.header_lines} headers)")
     # Where each line is: needed for header and malformed lines only (a clean file has none).
@@ -204,7 +216,6 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         starts = np.r_[0, ends[:-1] + 1]
     else:
         starts = ends = np.zeros(0, dtype=np.int64)
-    headers = _header_lines(data, starts, ends, rest, parser.header_lines, cm)
     lines = np.setdiff1d(rest, headers, assume_unique=True) if len(headers) else rest
     first = lines[0] if n else np.iinfo(np.int64).max
     # Text lines before the first sample are the header and metadata ("Fs,100" does not parse as
@@ -258,24 +269,25 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
 
 def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: str | None, n_lines: int,
                   path: str):
-    """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, and of
-    the malformed lines, sorted) of data[:cut] (its ``n_lines`` whole lines), fed to the parser
+    """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, of the
+    malformed lines and of the lines the parser calls headers, sorted) of data[:cut] (its ``n_lines`` whole lines), fed to the parser
     in pieces of about FEED_BYTES cut at line ends: the temporaries are some ten times the bytes
     seen at once, and a piece of whole lines parses as it would within the file. Each piece's
     results go straight into arrays of the file's size (no list of pieces and its joined copy
     held at once). Refused as soon as the lines that are no sample break the NON_SAMPLE_FLOOR rule."""
     content = np.empty(n_lines, dtype=np.int64)
     t, triads = np.empty(n_lines), None  # at most one sample a line
-    malformed = []
+    malformed, headers = [], []
     lo, n_content, n = 0, 0, 0
     while lo < cut:  # a loop over pieces, a dozen per MiB
         hi = data.rfind(b"\n", lo, min(lo + FEED_BYTES, cut)) + 1 or data.find(b"\n", lo, cut) + 1
         lines = parser.lines
         chunk = parser.feed(data[lo:hi], 0.0)
         check_non_samples(parser, path)
-        if parser.malformed_line_numbers:  # taken piece by piece: the parser keeps only so many
-            malformed.append(np.array(parser.malformed_line_numbers, dtype=np.int64))
-            parser.malformed_line_numbers.clear()
+        for numbers, kept in ((parser.malformed_line_numbers, malformed), (parser.header_line_numbers, headers)):
+            if numbers:  # taken piece by piece: the parser keeps only so many
+                kept.append(np.array(numbers, dtype=np.int64))
+                numbers.clear()
         k = 0 if chunk is None else len(chunk.t)
         if chunk is not None:
             if triads is None:
@@ -294,9 +306,10 @@ def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: s
         n_content += len(part)
         lo = hi
     malformed = np.sort(np.concatenate(malformed)) if malformed else np.zeros(0, dtype=np.int64)
+    headers = np.sort(np.concatenate(headers)) if headers else np.zeros(0, dtype=np.int64)
     if triads is None:
-        return np.zeros(0), {}, content[:n_content], malformed
-    return t[:n], {name: values[:n] for name, values in triads.items()}, content[:n_content], malformed
+        return np.zeros(0), {}, content[:n_content], malformed, headers
+    return t[:n], {name: values[:n] for name, values in triads.items()}, content[:n_content], malformed, headers
 
 
 def check_non_samples(parser: DelimitedTextParser, path: str) -> None:
@@ -311,6 +324,46 @@ def check_non_samples(parser: DelimitedTextParser, path: str) -> None:
         f"{path}: {other} of its first {parser.lines} lines are no sample ({parser.malformed_lines} malformed, "
         f"{parser.header_lines} text with no number in the mapped columns, {blank} blank or comments) "
         f"against {samples} samples: not read further; cut the file to its samples and import that", path)
+
+
+def check_line_lengths(blocks, path: str) -> None:
+    """Refuse, in one line naming the line and its length, text with a line longer than
+    LONGEST_LINE. ``blocks``: the text's bytes in order, a block at a time; memory is one block
+    and its newline positions, whatever the lines' lengths."""
+    line, since = 1, 0  # the current line's number, its bytes in earlier blocks
+    for block in blocks:
+        a = np.frombuffer(block, dtype=np.uint8)
+        ends = np.flatnonzero(a == 10)
+        if len(ends):
+            lengths = np.diff(ends, prepend=-1)  # each line's bytes in this block, its "\n" included
+            lengths[0] += since
+            longest = int(np.argmax(lengths))
+            if lengths[longest] - 1 > LONGEST_LINE:
+                _refuse_long_line(path, line + longest, int(lengths[longest]) - 1, complete=True)
+            line += len(ends)
+            since = len(a) - 1 - int(ends[-1])
+        else:
+            since += len(a)
+        if since > LONGEST_LINE:  # no need to read to its end (there may be none)
+            _refuse_long_line(path, line, since, complete=False)
+
+
+def _refuse_long_line(path: str, line: int, length: int, complete: bool) -> None:
+    size = f"{length} bytes long" if complete else f"over {length} bytes long"
+    raise RecordingImportError(
+        f"{path}: line {line} is {size} (a recording's lines are under {LONGEST_LINE} bytes): this is no "
+        "text recording, or it is damaged; cut the file to its samples and import that", path, line)
+
+
+def _blocks(f, size: int):
+    """The first ``size`` bytes of ``f``, LINE_CHECK_BYTES at a time."""
+    done = 0
+    while done < size:
+        block = f.read(min(LINE_CHECK_BYTES, size - done))
+        if not block:
+            return
+        done += len(block)
+        yield block
 
 
 def _prescan(f, size: int, spec: FileSpec, path: str) -> None:
@@ -396,38 +449,6 @@ def _content_lines(a: np.ndarray, starts: np.ndarray, ends: np.ndarray, comment:
         idx = np.minimum(first[:, None] + np.arange(len(prefix)), len(a) - 1)
         content &= ~((first + len(prefix) <= ends) & (a[idx] == prefix).all(axis=1))
     return np.flatnonzero(content).astype(np.int64) + 1
-
-
-def _header_lines(data: bytes, starts, ends, lines: np.ndarray, count: int, cm) -> np.ndarray:
-    """Which of ``lines`` (sorted 1-based numbers) the parser calls headers, ``count`` of them.
-
-    Usually they lead the file and one check confirms it; otherwise halve the set until each
-    part is all header or none (parses of ever smaller parts: about one whole-file parse per
-    stray line of text after the data)."""
-
-    def headers_in(part: np.ndarray) -> int:
-        # The bytes from the part's first line to its last: the lines between that are not in
-        # ``lines`` are blank, comments or malformed, never headers, so they change no count.
-        parser = DelimitedTextParser(cm)
-        parser.feed(data[starts[part[0] - 1]:ends[part[-1] - 1] + 1], 0.0)
-        return parser.header_lines
-
-    if count == 0:
-        return np.zeros(0, dtype=np.int64)
-    if headers_in(lines[:count]) == count:
-        return lines[:count]
-    return np.concatenate(_split_headers(lines, count, headers_in))
-
-
-def _split_headers(part: np.ndarray, k: int, headers_in) -> list[np.ndarray]:
-    """The parts of ``part`` (holding ``k`` headers) that are all headers, by halving. At module
-    level, not nested: a nested recursive function is a reference cycle that would keep the whole
-    file's bytes (through ``headers_in``) alive until the next garbage collection."""
-    if k == 0 or k == len(part):
-        return [part] if k else []
-    half = len(part) // 2
-    left = headers_in(part[:half])
-    return _split_headers(part[:half], left, headers_in) + _split_headers(part[half:], k - left, headers_in)
 
 
 def _align(parsed: list[_Parsed]) -> tuple[np.ndarray, dict[str, np.ndarray], list[str]]:

@@ -96,18 +96,23 @@ def _ulog(path: str):
     from fieldcal.recording.noise import captured_output
 
     try:
-        with captured_output() as noise:  # pyulog prints its warnings on damage: said in one line
-            log = ULog(path, ["sensor_combined", "sensor_accel", "sensor_gyro"])
+        with captured_output() as noise, open(path, "rb") as raw:  # pyulog prints its warnings on damage: said in one line
+            reads = _LastRead(raw)
+            log = ULog(reads, ["sensor_combined", "sensor_accel", "sensor_gyro"])
     except Exception as exc:  # pyulog raises bare exceptions on a damaged file
         raise RecordingImportError(f"{path}: not a readable ULog ({exc})", path) from None
     damage = ()
+    if reads.cut_short is not None:  # pyulog stops there without a word: a short log would pass as whole
+        damage = (f"the log ends inside its last message (at byte {reads.cut_short}; cut off mid-write, or a copy "
+                  "cut short?): the samples after it are missing",)
     if log.file_corruption:
         from fieldcal.recording.inputs import zero_tail
 
         said = noise.summary("pyulog")
         zeros = zero_tail(path)[1]
         why = f" (its last {zeros} bytes are zeros: a pre-allocated file's unused end?)" if zeros > 1024 else ""
-        damage = (f"pyulog found corrupt data in it{why}: messages were skipped" + (f"; {said}" if said else ""),)
+        damage = (f"pyulog found corrupt data in it{why}: messages were skipped" + (f"; {said}" if said else ""),
+                  *damage)
     topics = {(d.name, d.multi_id): d.data for d in log.data_list}
     combined = topics.get(("sensor_combined", 0))
     if combined is not None and len(combined["timestamp"]) >= 2:
@@ -128,6 +133,25 @@ def _ulog(path: str):
     acc = np.column_stack([accel[a] for a in "xyz"]).astype(float)
     gyro = np.column_stack([np.interp(t, tg, rate[a]) for a in "xyz"])
     return t, acc, gyro, "sensor_accel + sensor_gyro (interpolated onto the accelerometer's time)", damage
+
+
+class _LastRead:
+    """The file pyulog reads, watched for how its reading ended. pyulog reads each message as its
+    3-byte header (msg_size, msg_type) and then msg_size bytes, and stops without a word when a read
+    comes back short: at the end of a whole log only the next header's read finds nothing; in a
+    log cut inside a message the header's or the message's read comes back part-filled."""
+
+    def __init__(self, raw):
+        self._raw, self.cut_short = raw, None
+        self.seek, self.tell, self.close = raw.seek, raw.tell, lambda: None  # closed by its owner
+
+    def read(self, size: int = -1) -> bytes:
+        start = self._raw.tell()
+        data = self._raw.read(size)
+        # None unless this read is short and not a header's read that found the end between messages
+        short = len(data) < size and not (size == 3 and not data)
+        self.cut_short = (start if size == 3 else start - 3) if short else None  # where the message starts
+        return data
 
 
 def _recording(path, sha256, kind, topic, t, acc, gyro, notes=(), damage=()) -> tuple[Recording, ImportReport]:
