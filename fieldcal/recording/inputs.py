@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fieldcal.atomic import file_kind
 from fieldcal.recording.errors import RecordingImportError
 
 CHECKED_BYTES = 1 << 20  # below this, no reader takes long whatever the bytes (pymavlink: ~1 s per MB of junk)
@@ -46,21 +47,9 @@ def check_input(path: str | os.PathLike, what: str = "recording") -> None:
                 check_input(entry, what)
         return
     if not stat.S_ISREG(mode):
-        raise RecordingImportError(f"{path}: is {_kind_of(mode)}, not a file: fieldcal reads a {what} "
+        raise RecordingImportError(f"{path}: is {file_kind(mode)}, not a file: fieldcal reads a {what} "
                                    "from a regular file (save the stream to a file and give that)", path)
     check_mostly_zeros(path)
-
-
-def _kind_of(mode: int) -> str:
-    if stat.S_ISFIFO(mode):
-        return "a FIFO (named pipe)"
-    if stat.S_ISCHR(mode):
-        return "a character device"
-    if stat.S_ISBLK(mode):
-        return "a block device"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    return "not a regular file"
 
 
 def check_mostly_zeros(path: str) -> None:
