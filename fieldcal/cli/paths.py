@@ -201,6 +201,9 @@ def check_paths(args) -> None:
         output_target(args.out, "--out", args, command_inputs(args))
     if command == "resume":
         writable_session(args.session)
+    if getattr(args, "registry", None) is not None:  # recorded at the end: refused before the run
+        from fieldcal.registry.backends import check_location
+        check_location(args.registry, require_tls=getattr(args, "registry_require_tls", False))
     if command == "allan" and args.plot_dir:
         output_directory(args.plot_dir, "--plot-dir")
     # files written whole (the rule of fieldcal.atomic), refused before the command's work
