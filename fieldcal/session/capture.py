@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import re
 import struct
@@ -212,6 +213,10 @@ class _DocChecker:
         self.samples_end = 0
         self.raw_ends: dict[str, int] = {}
         self.last_chunk: int | None = None
+        # the last sample time of the run so far: a chunk starts strictly after it (a resume, its
+        # clock restarted or continued from an earlier step, starts a new run of times)
+        self.last_t: float | None = None
+        self.last_t_chunk: int | None = None
 
     def fail(self, line: int, what: str):
         raise SessionError(f"{self.path}: line {line}: {what}", str(self.path), line)
@@ -286,6 +291,15 @@ class _DocChecker:
                 n and not doc["t_first"] <= doc["t_last"]):
             self.fail(line, f"chunk of {n} samples from t {doc['t_first']!r} to {doc['t_last']!r}: "
                       "expected the times of its first and last samples (null for none)"[:200])
+        if n and not (math.isfinite(doc["t_first"]) and math.isfinite(doc["t_last"])):
+            self.fail(line, f"chunk {doc['seq']}: sample time {doc['t_first']!r} .. {doc['t_last']!r} s is "
+                      "not a finite number (forged or damaged times)")
+        if n and self.last_t is not None and not doc["t_first"] > self.last_t:
+            self.fail(line, f"chunk {doc['seq']}: its samples start at t {doc['t_first']!r} s, not after chunk "
+                      f"{self.last_t_chunk}'s last sample at t {self.last_t!r} s (time within a run only "
+                      "increases: forged or damaged times in one of them)")
+        if n:
+            self.last_t, self.last_t_chunk = doc["t_last"], doc["seq"]
         if offset != self.samples_end:
             self.fail(line, f"chunk at byte {offset} of {SAMPLES}, expected {self.samples_end} "
                       "(records are contiguous)")
@@ -309,6 +323,7 @@ class _DocChecker:
 
     def check_resume(self, doc, line):
         self.check_after_chunk(doc, line)
+        self.last_t = None  # a new run of sample times (a power-cycled device's clock restarts)
         repaired = self.field(doc, "repaired", (list,), line, "a list")
         if not all(isinstance(r, str) for r in repaired):
             self.fail(line, "resume document: 'repaired' must be a list of strings")
@@ -510,6 +525,13 @@ def _read_record(fh, doc: dict, columns: tuple[Column, ...], path: Path, line: i
     if (doc["t_first"], doc["t_last"]) != span:
         raise SessionError(f"{where}: the log gives its samples t {doc['t_first']!r} .. {doc['t_last']!r} s, "
                            f"the record holds {span[0]!r} .. {span[1]!r} s", str(path), line)
+    # finite and strictly increasing inside the record (the scan holds the log's spans in order)
+    bad = np.flatnonzero(~np.isfinite(t) | np.r_[False, ~(np.diff(t) > 0)])
+    if bad.size:
+        i = int(bad[0])
+        what = "is not a finite number" if not np.isfinite(t[i]) else f"is not after sample {i - 1}'s {t[i - 1].item()!r} s"
+        raise SessionError(f"{where}: sample {i}'s time {t[i].item()!r} s {what} (time within a chunk only "
+                           "increases: forged or damaged times)", str(path), line)
     return SampleChunk(t=t, triads=triads, temperature=temperature, extras=extras)
 
 
