@@ -152,6 +152,10 @@ class _NamedStdout:
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror, "standard output") from None
 
+    @property
+    def buffer(self):  # the bytes beneath (apply writes its CSV there): its failures named too
+        return _NamedStdout(self._stream.buffer)
+
     def __getattr__(self, name):
         return getattr(self._stream, name)
 
