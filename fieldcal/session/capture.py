@@ -213,10 +213,10 @@ class _DocChecker:
         self.samples_end = 0
         self.raw_ends: dict[str, int] = {}
         self.last_chunk: int | None = None
-        # the last sample time of the run so far: a chunk starts strictly after it (a resume, its
-        # clock restarted or continued from an earlier step, starts a new run of times)
-        self.last_t: float | None = None
-        self.last_t_chunk: int | None = None
+        # per descriptor (one layout, one stream of samples), the last sample time of the run so
+        # far and its chunk: a chunk starts strictly after it (a resume, its clock restarted or
+        # continued from an earlier step, starts a new run of times)
+        self.last_t: dict[int, tuple[float, int]] = {}
 
     def fail(self, line: int, what: str):
         raise SessionError(f"{self.path}: line {line}: {what}", str(self.path), line)
@@ -294,12 +294,13 @@ class _DocChecker:
         if n and not (math.isfinite(doc["t_first"]) and math.isfinite(doc["t_last"])):
             self.fail(line, f"chunk {doc['seq']}: sample time {doc['t_first']!r} .. {doc['t_last']!r} s is "
                       "not a finite number (forged or damaged times)")
-        if n and self.last_t is not None and not doc["t_first"] > self.last_t:
+        last_t, last_chunk = self.last_t.get(d, (-math.inf, None))
+        if n and not doc["t_first"] > last_t:
             self.fail(line, f"chunk {doc['seq']}: its samples start at t {doc['t_first']!r} s, not after chunk "
-                      f"{self.last_t_chunk}'s last sample at t {self.last_t!r} s (time within a run only "
+                      f"{last_chunk}'s last sample at t {last_t!r} s (time within a run only "
                       "increases: forged or damaged times in one of them)")
         if n:
-            self.last_t, self.last_t_chunk = doc["t_last"], doc["seq"]
+            self.last_t[d] = (doc["t_last"], doc["seq"])
         if offset != self.samples_end:
             self.fail(line, f"chunk at byte {offset} of {SAMPLES}, expected {self.samples_end} "
                       "(records are contiguous)")
@@ -323,7 +324,7 @@ class _DocChecker:
 
     def check_resume(self, doc, line):
         self.check_after_chunk(doc, line)
-        self.last_t = None  # a new run of sample times (a power-cycled device's clock restarts)
+        self.last_t = {}  # a new run of sample times (a power-cycled device's clock restarts)
         repaired = self.field(doc, "repaired", (list,), line, "a list")
         if not all(isinstance(r, str) for r in repaired):
             self.fail(line, "resume document: 'repaired' must be a list of strings")
