@@ -129,3 +129,16 @@ def test_forged_sample_times_are_refused(capsys, session_copy, tmp_path, forgery
     assert said in line and "forged or damaged times" in line
     assert str(session_copy) in line and "chunk " in line
     assert not (tmp_path / "c.html").exists()
+
+
+def test_a_step_whose_windows_were_moved_onto_another_is_refused_by_line(capsys, session_copy):
+    """Issue 25, round 4, item 4: a step document whose window was moved to overlap another
+    step's made `solve` say only "fieldcal: windows overlap"; now the session file and the lines."""
+    docs = _docs(session_copy)
+    first, second = [k for k, d in enumerate(docs) if d["type"] == "step"][:2]
+    target = docs[first]["data"]["windows"][0]
+    docs[second]["data"]["windows"][0]["start"] = target["start"] + target["duration"] / 2
+    _write(session_copy, docs)
+    line = one_line(capsys, ["solve", session_copy], 2)
+    assert line.startswith(f"fieldcal: {session_copy / LOG}: line {second + 1}: step document: a window from t")
+    assert f"(step document at line {first + 1})" in line and "overlap" in line
