@@ -97,7 +97,9 @@ def writable_session(directory: str | os.PathLike) -> None:
                 raise ValueError(f"{d}: cannot resume: {exc}; nothing was re-run") from None
     # and what the resume writes at its end (the current parameter file) or when it cuts a torn
     # tail: refused now, not after the run (a link at parameters.yaml was refused only then)
-    for name in (PARAMETERS, *(n + TORN_SUFFIX for n in appended)):
+    from fieldcal.session.lock import LOCK
+
+    for name in (LOCK, PARAMETERS, *(n + TORN_SUFFIX for n in appended)):
         try:
             check_appendable(d / name)
         except ValueError as exc:
