@@ -15,7 +15,7 @@ import threading
 import time
 import zlib
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Self
@@ -607,8 +607,17 @@ class SessionWriter:
             raise
         writer = cls(d, log, samples, None, fsync_interval_s=fsync_interval_s, clock=clock,
                      active=True, repaired=[], session_lock=session_lock)
-        writer._write({"seq": 0, "type": "start", "schema": SCHEMA, "metadata": metadata})
-        writer.sync()
+        try:
+            writer._write({"seq": 0, "type": "start", "schema": SCHEMA, "metadata": metadata})
+            writer.sync()
+        except OSError as exc:
+            if exc.filename is None:  # a buffered write names no file (a full disk): the log it was for
+                exc.filename = str(d / LOG)
+            for fh in (log, samples):  # closed (a flush of what is left fails the same way), unlocked
+                with suppress(OSError):
+                    fh.close()
+            session_lock.release()
+            raise
         _fsync_directory(d)
         return writer
 
