@@ -214,8 +214,9 @@ class _DocChecker:
         self.raw_ends: dict[str, int] = {}
         self.last_chunk: int | None = None
         # per descriptor (one layout, one stream of samples), the last sample time of the run so
-        # far and its chunk: a chunk starts strictly after it (a resume, its clock restarted or
-        # continued from an earlier step, starts a new run of times)
+        # far and its chunk: a chunk starts at or after it (a device without a clock stamps the
+        # frames of one read with one host time); a resume, its clock restarted or continued
+        # from an earlier step, starts a new run of times
         self.last_t: dict[int, tuple[float, int]] = {}
 
     def fail(self, line: int, what: str):
@@ -295,10 +296,10 @@ class _DocChecker:
             self.fail(line, f"chunk {doc['seq']}: sample time {doc['t_first']!r} .. {doc['t_last']!r} s is "
                       "not a finite number (forged or damaged times)")
         last_t, last_chunk = self.last_t.get(d, (-math.inf, None))
-        if n and not doc["t_first"] > last_t:
-            self.fail(line, f"chunk {doc['seq']}: its samples start at t {doc['t_first']!r} s, not after chunk "
-                      f"{last_chunk}'s last sample at t {last_t!r} s (time within a run only "
-                      "increases: forged or damaged times in one of them)")
+        if n and not doc["t_first"] >= last_t:
+            self.fail(line, f"chunk {doc['seq']}: its samples start at t {doc['t_first']!r} s, before chunk "
+                      f"{last_chunk}'s last sample at t {last_t!r} s (time within a run never "
+                      "goes back: forged or damaged times in one of them)")
         if n:
             self.last_t[d] = (doc["t_last"], doc["seq"])
         if offset != self.samples_end:
@@ -526,13 +527,14 @@ def _read_record(fh, doc: dict, columns: tuple[Column, ...], path: Path, line: i
     if (doc["t_first"], doc["t_last"]) != span:
         raise SessionError(f"{where}: the log gives its samples t {doc['t_first']!r} .. {doc['t_last']!r} s, "
                            f"the record holds {span[0]!r} .. {span[1]!r} s", str(path), line)
-    # finite and strictly increasing inside the record (the scan holds the log's spans in order)
-    bad = np.flatnonzero(~np.isfinite(t) | np.r_[False, ~(np.diff(t) > 0)])
+    # finite and never going back inside the record (the scan holds the log's spans in order;
+    # equal times are a clockless device's frames of one read, stamped with one host time)
+    bad = np.flatnonzero(~np.isfinite(t) | np.r_[False, ~(np.diff(t) >= 0)])
     if bad.size:
         i = int(bad[0])
-        what = "is not a finite number" if not np.isfinite(t[i]) else f"is not after sample {i - 1}'s {t[i - 1].item()!r} s"
-        raise SessionError(f"{where}: sample {i}'s time {t[i].item()!r} s {what} (time within a chunk only "
-                           "increases: forged or damaged times)", str(path), line)
+        what = "is not a finite number" if not np.isfinite(t[i]) else f"is before sample {i - 1}'s {t[i - 1].item()!r} s"
+        raise SessionError(f"{where}: sample {i}'s time {t[i].item()!r} s {what} (time within a chunk never "
+                           "goes back: forged or damaged times)", str(path), line)
     return SampleChunk(t=t, triads=triads, temperature=temperature, extras=extras)
 
 
