@@ -197,10 +197,10 @@ def test_an_older_registry_is_migrated_keeping_its_calibrations(tmp_path, regist
         assert registry.record(old, source="replay")
         assert [h["source"] for h in registry.history("OLD")] == ["", "replay"]
 def test_a_broken_registry_warns_and_rebuild_indexes_the_session(tmp_path, capsys):
-    blocker = tmp_path / "not-a-directory"
-    blocker.write_text("")
+    broken = tmp_path / "registry.sqlite"  # a regular file, so not refused up front; no database
+    broken.write_text("not a database\n" * 100)
     argv = ["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path / "s"), "--seed", "8",
-            "--registry", str(blocker / "registry.sqlite")]
+            "--registry", str(broken)]
     assert main(argv) == 0  # the run is complete; only the registry failed
     err = capsys.readouterr().err
     assert "warning: the unit registry" in err and "registry rebuild" in err

@@ -90,3 +90,67 @@ def test_a_read_only_command_creates_no_registry(tmp_path, capsys, argv):
     before = db.read_bytes()
     assert main([*argv, "--registry", str(db)]) in (0, 2)  # no units / no unit A: said, not a new file
     assert db.read_bytes() == before
+
+
+def _bad_registries(tmp_path):
+    """Registry locations that cannot take the record, each with what the refusal must say."""
+    fifo = tmp_path / "fifo.sqlite"
+    os.mkfifo(fifo)
+    victim = tmp_path / "victim.sqlite"
+    victim.write_bytes(b"")
+    link = tmp_path / "link.sqlite"
+    link.symlink_to(victim)
+    return [("mysql://a@b/c", "did you mean postgresql://?"),
+            ("PostgreSQL://line@db.plant/fieldcal", "did you mean postgresql://?"),
+            (str(tmp_path), "is a directory, not an SQLite file"),
+            (str(fifo), "is a FIFO, not an SQLite file"),
+            (str(link), "link"),
+            ("postgresql://line@/fieldcal?host=/run/postgresql&sslmode=require", "unix socket"),
+            ("file:x.db", "an SQLite URI is not a registry location: give the file's path (x.db)"),
+            (str(victim / "registry.sqlite"), f"{victim} is a file, not a directory")]
+
+
+@pytest.mark.parametrize("command", ["run", "calibrate"])
+def test_a_bad_registry_is_refused_before_the_run(tmp_path, monkeypatch, capsys, command):
+    """Issue 25, round 4, item 1: these were found only after the whole run ("warning: the unit
+    registry (...) was not updated", exit 0); now one line, exit 2, and no device work: no session
+    made, nothing calibrated, no ./x.db."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("PGHOST", raising=False)
+    monkeypatch.delenv("PGHOSTADDR", raising=False)
+    session = None
+    if command == "calibrate":  # a finished session, calibrated again in place
+        assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path / "done"),
+                     "--seed", "3"]) == 0
+        [session] = (tmp_path / "done").iterdir()
+        before = sorted(p.name for p in session.iterdir())
+        capsys.readouterr()
+    (tmp_path / "places").mkdir()
+    for registry, said in _bad_registries(tmp_path / "places"):
+        out = tmp_path / "sessions"
+        argv = (["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(out), "--seed", "3"]
+                if command == "run" else ["calibrate", str(session)])
+        assert main([*argv, "--registry", registry]) == 2, registry
+        captured = capsys.readouterr()
+        assert captured.err.startswith("fieldcal: registry ") and said in captured.err, captured.err
+        assert captured.err.count("\n") == 1 and captured.out == ""
+        assert not out.exists()
+        if session is not None:
+            assert sorted(p.name for p in session.iterdir()) == before
+    assert not (tmp_path / "x.db").exists()
+    assert (tmp_path / "places" / "victim.sqlite").read_bytes() == b""
+
+
+def test_a_capitalised_scheme_names_the_nearest_one():
+    """`PostgreSQL://...` reached libpq, whose answer was a raw `missing "=" after ...`."""
+    with pytest.raises(RegistryError, match=r"PostgreSQL:// is not a registry fieldcal speaks \(did you mean "
+                                            r"postgresql://\?\)"):
+        Registry("PostgreSQL://line:s3cret@db.plant/fieldcal")
+
+
+def test_an_sqlite_uri_makes_no_file(tmp_path, monkeypatch):
+    """`file:x.db` was taken by SQLite as a URI and quietly made ./x.db."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(RegistryError, match=r"give the file's path \(x.db\)"):
+        Registry("file:x.db")
+    assert list(tmp_path.iterdir()) == []

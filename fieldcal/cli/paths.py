@@ -97,7 +97,9 @@ def writable_session(directory: str | os.PathLike) -> None:
                 raise ValueError(f"{d}: cannot resume: {exc}; nothing was re-run") from None
     # and what the resume writes at its end (the current parameter file) or when it cuts a torn
     # tail: refused now, not after the run (a link at parameters.yaml was refused only then)
-    for name in (PARAMETERS, *(n + TORN_SUFFIX for n in appended)):
+    from fieldcal.session.lock import LOCK
+
+    for name in (LOCK, PARAMETERS, *(n + TORN_SUFFIX for n in appended)):
         try:
             check_appendable(d / name)
         except ValueError as exc:
@@ -152,6 +154,10 @@ class _NamedStdout:
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror, "standard output") from None
 
+    @property
+    def buffer(self):  # the bytes beneath (apply writes its CSV there): its failures named too
+        return _NamedStdout(self._stream.buffer)
+
     def __getattr__(self, name):
         return getattr(self._stream, name)
 
@@ -201,6 +207,9 @@ def check_paths(args) -> None:
         output_target(args.out, "--out", args, command_inputs(args))
     if command == "resume":
         writable_session(args.session)
+    if getattr(args, "registry", None) is not None:  # recorded at the end: refused before the run
+        from fieldcal.registry.backends import check_location
+        check_location(args.registry, require_tls=getattr(args, "registry_require_tls", False))
     if command == "allan" and args.plot_dir:
         output_directory(args.plot_dir, "--plot-dir")
     # files written whole (the rule of fieldcal.atomic), refused before the command's work

@@ -94,7 +94,7 @@ def check_url_scheme(location: str) -> None:
     import difflib
 
     scheme, rest = location.split("://", 1)
-    if scheme.lower() in POSTGRES_SCHEMES:
+    if scheme in POSTGRES_SCHEMES:  # libpq takes these in lower case only ("PostgreSQL://": a raw parse error)
         return
     nearest = (difflib.get_close_matches(scheme.lower(), POSTGRES_SCHEMES, n=1, cutoff=0.0) or ["postgresql"])[0]
     shown = scheme + redact(f"postgresql://{rest}")[len("postgresql"):]  # a password in it hidden
@@ -131,7 +131,8 @@ class SqliteBackend:
                 uri = f"file:{quote(os.path.abspath(path))}?mode=ro"
                 self.db = sqlite3.connect(uri, uri=True, timeout=timeout_s, isolation_level=None)
             else:
-                self.db = sqlite3.connect(path, timeout=timeout_s, isolation_level=None)
+                # absolute: SQLite built with URI names would read "file:..." as a URI
+                self.db = sqlite3.connect(os.path.abspath(path), timeout=timeout_s, isolation_level=None)
         except (OSError, sqlite3.Error) as exc:
             raise RegistryError(f"registry {self.where}: cannot open it ({getattr(exc, 'strerror', None) or exc})") from None
         try:
@@ -179,6 +180,31 @@ class SqliteBackend:
         self.db.close()
 
 
+def _postgres_tls_mode(url: str, require_tls: bool) -> str | None:
+    """The sslmode a PostgreSQL URL asks for, once the URL is known to parse and its TLS rule to
+    hold for its transport (no connection made)."""
+    where, secret = redact(url), url_password(url)
+    try:
+        import psycopg
+        from psycopg.conninfo import conninfo_to_dict
+    except ImportError:
+        raise RegistryError(f"registry {where}: PostgreSQL needs psycopg: "
+                            "pip install 'fieldcal[postgres]'") from None
+    try:
+        given = conninfo_to_dict(url)
+    except psycopg.Error as exc:
+        raise RegistryError(f"registry {where}: not a PostgreSQL URL: "
+                            f"{_scrub(str(exc), secret).splitlines()[0]}") from None
+    mode = given.get("sslmode") or os.environ.get("PGSSLMODE")
+    sockets = unix_socket_hosts(given)
+    if (require_tls or mode in TLS_MODES) and sockets:  # libpq would connect without TLS
+        why = "--registry-require-tls" if require_tls else f"sslmode={mode}"
+        raise RegistryError(f"registry {where}: {why} asks for TLS, but the connection would go "
+                            f"through the unix socket {sockets[0]}, which has no TLS: give a TCP host "
+                            "(postgresql://USER@HOST/DB), or drop the TLS requirement for a local socket")
+    return mode
+
+
 class PostgresBackend:
     """A PostgreSQL server through psycopg 3 (libpq): explicit transactions, READ COMMITTED;
     concurrent stations are serialised by the unique key (INSERT ... ON CONFLICT) and, while
@@ -189,28 +215,13 @@ class PostgresBackend:
     def __init__(self, url: str, timeout_s: float, require_tls: bool = False) -> None:
         self.where = redact(url)
         secret = url_password(url)
-        try:
-            import psycopg
-            from psycopg.conninfo import conninfo_to_dict
-        except ImportError:
-            raise RegistryError(f"registry {self.where}: PostgreSQL needs psycopg: "
-                                "pip install 'fieldcal[postgres]'") from None
+        mode = _postgres_tls_mode(url, require_tls)  # psycopg there, the URL parsed, TLS possible
+        import psycopg
+
         self._errors = psycopg.Error
         options = {"connect_timeout": max(1, round(timeout_s)), "application_name": "fieldcal",
                    # a TCP peer gone silent is found in about 25 s instead of the system's 2 h
                    "keepalives": 1, "keepalives_idle": 10, "keepalives_interval": 5, "keepalives_count": 3}
-        try:
-            given = conninfo_to_dict(url)
-        except psycopg.Error as exc:
-            raise RegistryError(f"registry {self.where}: not a PostgreSQL URL: "
-                                f"{_scrub(str(exc), secret).splitlines()[0]}") from None
-        mode = given.get("sslmode") or os.environ.get("PGSSLMODE")
-        sockets = unix_socket_hosts(given)
-        if (require_tls or mode in TLS_MODES) and sockets:  # libpq would connect without TLS
-            why = "--registry-require-tls" if require_tls else f"sslmode={mode}"
-            raise RegistryError(f"registry {self.where}: {why} asks for TLS, but the connection would go "
-                                f"through the unix socket {sockets[0]}, which has no TLS: give a TCP host "
-                                "(postgresql://USER@HOST/DB), or drop the TLS requirement for a local socket")
         if require_tls and mode not in TLS_MODES:
             options["sslmode"] = "require"  # a stricter mode the user gave (verify-*) is kept
         try:
@@ -264,12 +275,41 @@ def _require_database_file(path: Path) -> None:
                             f"(e.g. {path / 'registry.sqlite' if stat.S_ISDIR(mode) else 'registry.sqlite'})")
 
 
-def open_backend(location, timeout_s: float, require_tls: bool = False, read_only: bool = False):
+def _check_kind(location, require_tls: bool) -> None:
+    """What every opening checks first: a URL of a scheme fieldcal speaks, no SQLite URI taken
+    for a path, --registry-require-tls only for a server."""
     if isinstance(location, str) and _URL.match(location):
         check_url_scheme(location)
     if is_postgres(location):
-        return PostgresBackend(location, timeout_s, require_tls)
+        return
+    if str(location).startswith("file:"):  # SQLite (built with URI names) would open ./x.db for file:x.db
+        raise RegistryError(f"registry {location}: an SQLite URI is not a registry location: give the "
+                            f"file's path ({str(location)[len('file:'):].split('?')[0] or 'registry.sqlite'})")
     if require_tls:
         raise RegistryError(f"registry {location}: --registry-require-tls is for a PostgreSQL server "
                             "(postgresql://...); an SQLite file has no connection to protect")
+
+
+def check_location(location, require_tls: bool = False) -> None:
+    """Everything about a registry location that can be known without connecting to it, for a
+    command to refuse before its long work: the scheme, the URL and its TLS rule, the kind of the
+    SQLite file, links at it or at its journals, and a folder it could be made in."""
+    _check_kind(location, require_tls)
+    if is_postgres(location):
+        _postgres_tls_mode(location, require_tls)
+        return
+    path = Path(location)
+    for folder in path.parents:  # the nearest existing one: where the file (or its folder) is made
+        if folder.exists() or folder.is_symlink():
+            if not folder.is_dir():
+                raise RegistryError(f"registry {path}: {folder} is a file, not a directory")
+            break
+    _require_database_file(path)
+    _refuse_links(path)
+
+
+def open_backend(location, timeout_s: float, require_tls: bool = False, read_only: bool = False):
+    _check_kind(location, require_tls)
+    if is_postgres(location):
+        return PostgresBackend(location, timeout_s, require_tls)
     return SqliteBackend(Path(location), timeout_s, read_only)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import re
 import struct
@@ -14,7 +15,7 @@ import threading
 import time
 import zlib
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Self
@@ -212,6 +213,11 @@ class _DocChecker:
         self.samples_end = 0
         self.raw_ends: dict[str, int] = {}
         self.last_chunk: int | None = None
+        # per descriptor (one layout, one stream of samples), the last sample time of the run so
+        # far and its chunk: a chunk starts at or after it (a device without a clock stamps the
+        # frames of one read with one host time); a resume, its clock restarted or continued
+        # from an earlier step, starts a new run of times
+        self.last_t: dict[int, tuple[float, int]] = {}
 
     def fail(self, line: int, what: str):
         raise SessionError(f"{self.path}: line {line}: {what}", str(self.path), line)
@@ -286,6 +292,16 @@ class _DocChecker:
                 n and not doc["t_first"] <= doc["t_last"]):
             self.fail(line, f"chunk of {n} samples from t {doc['t_first']!r} to {doc['t_last']!r}: "
                       "expected the times of its first and last samples (null for none)"[:200])
+        if n and not (math.isfinite(doc["t_first"]) and math.isfinite(doc["t_last"])):
+            self.fail(line, f"chunk {doc['seq']}: sample time {doc['t_first']!r} .. {doc['t_last']!r} s is "
+                      "not a finite number (forged or damaged times)")
+        last_t, last_chunk = self.last_t.get(d, (-math.inf, None))
+        if n and not doc["t_first"] >= last_t:
+            self.fail(line, f"chunk {doc['seq']}: its samples start at t {doc['t_first']!r} s, before chunk "
+                      f"{last_chunk}'s last sample at t {last_t!r} s (time within a run never "
+                      "goes back: forged or damaged times in one of them)")
+        if n:
+            self.last_t[d] = (doc["t_last"], doc["seq"])
         if offset != self.samples_end:
             self.fail(line, f"chunk at byte {offset} of {SAMPLES}, expected {self.samples_end} "
                       "(records are contiguous)")
@@ -309,6 +325,7 @@ class _DocChecker:
 
     def check_resume(self, doc, line):
         self.check_after_chunk(doc, line)
+        self.last_t = {}  # a new run of sample times (a power-cycled device's clock restarts)
         repaired = self.field(doc, "repaired", (list,), line, "a list")
         if not all(isinstance(r, str) for r in repaired):
             self.fail(line, "resume document: 'repaired' must be a list of strings")
@@ -510,6 +527,14 @@ def _read_record(fh, doc: dict, columns: tuple[Column, ...], path: Path, line: i
     if (doc["t_first"], doc["t_last"]) != span:
         raise SessionError(f"{where}: the log gives its samples t {doc['t_first']!r} .. {doc['t_last']!r} s, "
                            f"the record holds {span[0]!r} .. {span[1]!r} s", str(path), line)
+    # finite and never going back inside the record (the scan holds the log's spans in order;
+    # equal times are a clockless device's frames of one read, stamped with one host time)
+    bad = np.flatnonzero(~np.isfinite(t) | np.r_[False, ~(np.diff(t) >= 0)])
+    if bad.size:
+        i = int(bad[0])
+        what = "is not a finite number" if not np.isfinite(t[i]) else f"is before sample {i - 1}'s {t[i - 1].item()!r} s"
+        raise SessionError(f"{where}: sample {i}'s time {t[i].item()!r} s {what} (time within a chunk never "
+                           "goes back: forged or damaged times)", str(path), line)
     return SampleChunk(t=t, triads=triads, temperature=temperature, extras=extras)
 
 
@@ -584,8 +609,17 @@ class SessionWriter:
             raise
         writer = cls(d, log, samples, None, fsync_interval_s=fsync_interval_s, clock=clock,
                      active=True, repaired=[], session_lock=session_lock)
-        writer._write({"seq": 0, "type": "start", "schema": SCHEMA, "metadata": metadata})
-        writer.sync()
+        try:
+            writer._write({"seq": 0, "type": "start", "schema": SCHEMA, "metadata": metadata})
+            writer.sync()
+        except OSError as exc:
+            if exc.filename is None:  # a buffered write names no file (a full disk): the log it was for
+                exc.filename = str(d / LOG)
+            for fh in (log, samples):  # closed (a flush of what is left fails the same way), unlocked
+                with suppress(OSError):
+                    fh.close()
+            session_lock.release()
+            raise
         _fsync_directory(d)
         return writer
 

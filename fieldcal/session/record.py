@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fieldcal.procedure.windows import StepRecord
 from fieldcal.session import LOG, SessionError
 from fieldcal.session.capture import PARAMETERS_NUMBERED, SessionReader
@@ -296,8 +298,28 @@ class RunRecord:
                 if bench is not None:
                     steps[-1] = StepDocument(steps[-1].record, steps[-1].skipped, bench, steps[-1].line)
         self.steps, self.resumes = tuple(steps), tuple(resumes)
+        self._refuse_overlapping_windows()
         # the skips since the last resume, less the steps completed since
         self.skipped = tuple(sorted(skipped - {s.record.step for s in steps}))
+
+    def _refuse_overlapping_windows(self) -> None:
+        """The windows a solve averages never share sample time (the solver's covariance of their
+        means needs it, and said only "windows overlap"): one that does is refused naming the
+        step documents of both."""
+        found = [(w.start, w.start + w.duration, doc.line)
+                 for doc in self.completed_documents for w in doc.record.windows]
+        if len(found) < 2:
+            return
+        spans = np.array([(start, end) for start, end, _ in found])
+        order = np.argsort(spans[:, 0], kind="stable")
+        ends_before = np.maximum.accumulate(spans[order, 1])[:-1]
+        clash = np.flatnonzero(spans[order[1:], 0] < ends_before - 1e-9)  # the noise model's tolerance
+        if clash.size:
+            later = int(order[clash[0] + 1])
+            earlier = int(order[:clash[0] + 1][np.argmax(spans[order[:clash[0] + 1], 1])])
+            self._fail(found[later][2], f"step document: a window from t {found[later][0]!r} s overlaps one "
+                       f"to t {found[earlier][1]!r} s (step document at line {found[earlier][2]}): windows "
+                       "of the completed steps never share sample time (changed or forged windows)")
 
     @property
     def completed(self) -> list[StepRecord]:

@@ -20,7 +20,7 @@ import pytest
 
 from fieldcal.cli.main import main
 from fieldcal.procedure.positions import PROCEDURES_DIR
-from fieldcal.session.capture import SessionReader, SessionWriter
+from fieldcal.session.capture import LOG, SessionReader, SessionWriter
 
 SHORT = """name: short
 title: two positions, 3 s each
@@ -261,3 +261,18 @@ def test_a_really_full_disk_then_resume(capsys, quick, small_tmpfs):
     subprocess.run(["mount", "-o", "remount,size=64m", str(small_tmpfs)], check=True)
     assert main(["resume", "--quiet", str(session)]) == 0
     assert SessionReader(session).stopped and (session / "parameters.yaml").is_file()
+
+
+def test_a_full_disk_at_an_imported_sessions_first_line_names_its_log(capsys, tmp_path, small_tmpfs):
+    """Issue 25, round 4, item 2: `calibrate FILES --out FULL` said only "No space left on device"
+    (the session's first line, written before the session is the command's, named no file)."""
+    from drivers.sim.handheld import simulate_handheld, to_text
+
+    acc, gyro = to_text(simulate_handheld(3), tmp_path / "text")
+    with open(small_tmpfs / "filler", "wb", buffering=0) as filler:  # the disk full to its last byte
+        with contextlib.suppress(OSError):
+            while True:
+                filler.write(b"\1" * 4096)
+    line = one_line(capsys, ["calibrate", acc, gyro, "--map", "imu_tk", "--out", small_tmpfs / "cs"], 1)
+    [session] = (small_tmpfs / "cs").iterdir()
+    assert line.startswith(f"fieldcal: {session / LOG}: No space left on device"), line

@@ -76,3 +76,69 @@ def test_a_step_redone_by_the_operator_is_taken(capsys, session_copy):
     docs, _ = _insert_before_the_stop(docs, [redo, docs[first]])
     _write(session_copy, docs)
     assert main(["solve", str(session_copy)]) == 0, capsys.readouterr().err
+
+
+def _forge_times(session, docs, i, change):
+    """Chunk document ``i``'s sample times changed in samples.bin, its record's CRC and its log
+    line (checksum, span) recomputed: a forgery every checksum agrees with."""
+    import zlib
+
+    import numpy as np
+
+    from fieldcal.session.capture import RECORD_HEADER, SAMPLES
+
+    doc = docs[i]
+    with open(session / SAMPLES, "r+b") as fh:
+        fh.seek(doc["offset"])
+        record = bytearray(fh.read(doc["length"]))
+        magic, _, seq, dseq, n, payload = RECORD_HEADER.unpack_from(record)
+        t = change(np.frombuffer(record, "<f8", n, RECORD_HEADER.size).copy())
+        record[RECORD_HEADER.size:RECORD_HEADER.size + 8 * n] = t.astype("<f8").tobytes()
+        crc = zlib.crc32(bytes(record[RECORD_HEADER.size:]))
+        RECORD_HEADER.pack_into(record, 0, magic, crc, seq, dseq, n, payload)
+        fh.seek(doc["offset"])
+        fh.write(record)
+    docs[i] = dict(doc, crc32=crc, t_first=t[0].item(), t_last=t[-1].item())
+    _write(session, docs)
+
+
+def _with_nan(t):
+    t[5] = float("nan")
+    return t
+
+
+@pytest.mark.parametrize("forgery, said", [
+    ("shift", "before chunk"), ("back", "before chunk"), ("copy", "before chunk"),
+    ("nan", "sample 5's time nan s is not a finite number"), ("swap", "is before sample 5's")])
+@pytest.mark.parametrize("command", [["replay", "{S}", "--quiet"], ["certificate", "{S}", "--out", "{W}/c.html"]])
+def test_forged_sample_times_are_refused(capsys, session_copy, tmp_path, forgery, said, command):
+    """Issue 25, round 4, item 3: sample times forged consistently (record, CRC and log agreeing)
+    passed replay ("identical") and certificate. Time is finite and never goes back within a chunk
+    nor from one chunk to the next; the refusal names the file and the chunk."""
+    docs = _docs(session_copy)
+    chunks = [k for k, d in enumerate(docs) if d["type"] == "chunk"]
+    i, previous = chunks[-1], docs[chunks[-2]]  # the last chunk, after every window
+    change = {"shift": lambda t: t + 1000.0, "back": lambda t: t - 2.0,
+              "copy": lambda t: t - (t[0] - previous["t_first"]), "nan": _with_nan,
+              "swap": lambda t: t[[*range(5), 6, 5, *range(7, len(t))]]}[forgery]
+    if forgery == "shift":  # the chunk before the last one: the last then goes back in time
+        i = chunks[-2]
+    _forge_times(session_copy, docs, i, change)
+    argv = [a.replace("{S}", str(session_copy)).replace("{W}", str(tmp_path)) for a in command]
+    line = one_line(capsys, argv, 2)
+    assert said in line and "forged or damaged times" in line
+    assert str(session_copy) in line and "chunk " in line
+    assert not (tmp_path / "c.html").exists()
+
+
+def test_a_step_whose_windows_were_moved_onto_another_is_refused_by_line(capsys, session_copy):
+    """Issue 25, round 4, item 4: a step document whose window was moved to overlap another
+    step's made `solve` say only "fieldcal: windows overlap"; now the session file and the lines."""
+    docs = _docs(session_copy)
+    first, second = [k for k, d in enumerate(docs) if d["type"] == "step"][:2]
+    target = docs[first]["data"]["windows"][0]
+    docs[second]["data"]["windows"][0]["start"] = target["start"] + target["duration"] / 2
+    _write(session_copy, docs)
+    line = one_line(capsys, ["solve", session_copy], 2)
+    assert line.startswith(f"fieldcal: {session_copy / LOG}: line {second + 1}: step document: a window from t")
+    assert f"(step document at line {first + 1})" in line and "overlap" in line

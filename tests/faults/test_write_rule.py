@@ -405,3 +405,17 @@ def test_the_tuis_remembered_setup_is_replaced_but_never_through_a_link(tmp_path
     with pytest.raises(RefusedTarget, match="is a symbolic link"):
         save_last_choice(first, path)
     assert victim.read_bytes() == VICTIM
+
+
+def test_a_lock_link_is_refused_before_resume_says_it_resumes(capsys, tmp_path, session_copy):
+    """Issue 25, round 4, item 5: the link was refused only after `resume` printed "resuming ...
+    after 5 completed steps"; now with the other early checks, before a word of the run."""
+    session = unfinished(session_copy)
+    victim = plant(session / "lock", tmp_path / "victims")
+    status = main(["resume", str(session), "--quiet"])
+    captured = capsys.readouterr()
+    assert status == 2 and captured.out == ""
+    assert captured.err == (f"fieldcal: {session}: cannot resume: {session / 'lock'}: is a symbolic link"
+                            + captured.err.split(": is a symbolic link", 1)[1])
+    assert captured.err.count("\n") == 1 and "nothing was re-run" in captured.err
+    assert victim.read_bytes() == VICTIM
