@@ -251,3 +251,24 @@ def test_a_150mb_line_is_refused_within_300mb(tmp_path):
     assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
     assert f"{path}: line 1 is over " in out.stderr
     assert not (tmp_path / "s").exists()
+
+
+def test_a_dataflash_log_with_an_erased_tail_imports_its_messages_within_300mb(tmp_path):
+    """A hostile tester's find: a real DataFlash log followed by 100 MB of a flash chip's erased
+    0xFF bytes (no message header anywhere in them) was walked byte by byte by DFReader's indexer,
+    minutes and a MemoryError under a 600 MB cap for 200 MB. The indexer now stops after the last
+    message header: the 45 samples import, and the tail is named as not read."""
+    real = unpacked(tmp_path, "pymavlink_test.BIN.gz", "real.BIN")
+    path = tmp_path / "erased.BIN"
+    with open(path, "wb") as f:
+        f.write(real.read_bytes())
+        block = b"\xff" * (1 << 20)
+        for _ in range(100):
+            f.write(block)
+    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), "--out", str(tmp_path / "s")],
+                         capture_output=True, text=True, preexec_fn=_cap_memory,
+                         env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "recording: 45 samples" in out.stdout
+    warning = next(line for line in (out.stdout + out.stderr).splitlines() if "DAMAGED" in line)
+    assert f"the last {os.path.getsize(path) - 65557} of its {os.path.getsize(path)} bytes were not read" in warning

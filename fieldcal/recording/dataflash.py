@@ -47,8 +47,10 @@ def read_dataflash(path: str, instance: int | None = None):
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read it ({exc.strerror or exc})", path) from None
     # A zero end is left out of the index, but for a slack longer than any message: a last message
-    # whose own last bytes are zeros stays whole (DFReader passes that slack over quickly).
-    indexed = min(size, size - zeros + TRAILING_SLACK)
+    # whose own last bytes are zeros stays whole (DFReader passes that slack over quickly). So is
+    # an end with no message header in it at all (a flash chip's erased 0xFF pages, a logger's
+    # fill bytes): DFReader would walk it byte by byte, minutes and hundreds of MB for 200 MB.
+    indexed = min(size, size - zeros + TRAILING_SLACK, _after_last_header(path, size) + TRAILING_SLACK)
     noise = None
     try:
         # DFReader's indexer writes a line per damaged byte to stderr (from C) and its warnings to
@@ -81,6 +83,26 @@ def read_dataflash(path: str, instance: int | None = None):
 
 
 HEADER = b"\xa3\x95"
+
+
+LONGEST_MESSAGE = 256  # bytes: a message's length is one byte of its FMT
+
+
+def _after_last_header(path: str, size: int) -> int:
+    """Where the file's last message can end at the latest: its last message header (A3 95),
+    found from the end backwards a MiB at a time, plus the longest message. 0 with no header."""
+    block = 1 << 20
+    end = size
+    with open(path, "rb") as f:
+        while end > 0:
+            start = max(0, end - block)
+            f.seek(start)
+            chunk = np.frombuffer(f.read(min(size, end + 1) - start), dtype=np.uint8)  # +1: a header across blocks
+            hits = np.flatnonzero((chunk[:-1] == HEADER[0]) & (chunk[1:] == HEADER[1]))
+            if len(hits):
+                return min(size, start + int(hits[-1]) + LONGEST_MESSAGE)
+            end = start
+    return 0
 
 
 def _require_log_start(path: str) -> None:
