@@ -109,6 +109,20 @@ def file_kind(mode: int) -> str:
     return "not a regular file"
 
 
+def _lstat_refusing_a_link(path: Path, label: str, advice: str) -> os.stat_result | None:
+    """``path``'s own status (None: nothing there), refused in one line if it is a link: every
+    write fieldcal makes looks at the name itself, never at what a link points to."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise _cannot(path, exc) from None
+    if stat.S_ISLNK(st.st_mode):
+        raise RefusedTarget(f"{label}: is a symbolic link; fieldcal never writes through a link ({advice})", path)
+    return st
+
+
 # -- the checks --------------------------------------------------------------------------------
 
 def check_target(path: str | os.PathLike, *, force: bool = False, inputs: Iterable = (),
@@ -120,15 +134,9 @@ def check_target(path: str | os.PathLike, *, force: bool = False, inputs: Iterab
     replaced by design: not refused for having been read."""
     p = Path(path)
     label = f"{option} {p}" if option else str(p)
-    try:
-        st = os.lstat(p)
-    except FileNotFoundError:
+    st = _lstat_refusing_a_link(p, label, "remove the link, or give another path")
+    if st is None:
         return p
-    except OSError as exc:
-        raise _cannot(p, exc) from None
-    if stat.S_ISLNK(st.st_mode):
-        raise RefusedTarget(f"{label}: is a symbolic link; fieldcal never writes through a link "
-                            "(remove the link, or give another path)", p)
     if stat.S_ISDIR(st.st_mode):
         raise RefusedTarget(f"{label}: is a directory; give a file name", p)
     if not stat.S_ISREG(st.st_mode):
@@ -205,15 +213,9 @@ NAME_TRIES = 100
 
 def _refuse_link_or_file(path: Path, label: str) -> bool:
     """True if ``path`` is a directory (not a link to one); False if nothing is there."""
-    try:
-        st = os.lstat(path)
-    except FileNotFoundError:
+    st = _lstat_refusing_a_link(path, label, "give the directory it points at, or another path")
+    if st is None:
         return False
-    except OSError as exc:
-        raise _cannot(path, exc) from None
-    if stat.S_ISLNK(st.st_mode):
-        raise RefusedTarget(f"{label}: is a symbolic link; fieldcal never writes through a link "
-                            "(give the directory it points at, or another path)", path)
     if not stat.S_ISDIR(st.st_mode):
         raise RefusedTarget(f"{label}: exists and is not a directory", path)
     return True
