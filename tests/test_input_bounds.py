@@ -29,6 +29,12 @@ def _cap_memory():
     resource.setrlimit(resource.RLIMIT_AS, (MEMORY_CAP, MEMORY_CAP))
 
 
+def import_capped(*args: str) -> subprocess.CompletedProcess:
+    """``fieldcal import ARGS`` in a child whose address space is capped at MEMORY_CAP."""
+    return subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", *args], capture_output=True,
+                          text=True, preexec_fn=_cap_memory, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+
+
 def _sparse(tmp: Path, suffix: str) -> Path:
     """A real file of the format, its first 64 KiB, then holes up to 2 GB (as a copy made with
     truncate, or a pre-allocated logger file on a file system that keeps holes)."""
@@ -43,9 +49,7 @@ def _sparse(tmp: Path, suffix: str) -> Path:
 @pytest.mark.parametrize("suffix", list(REAL))
 def test_a_2gb_sparse_file_is_refused_in_one_line_within_300mb(tmp_path, suffix):
     path = _sparse(tmp_path, suffix)
-    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), *REAL[suffix][1],
-                          "--out", str(tmp_path / "s")], capture_output=True, text=True,
-                         preexec_fn=_cap_memory, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    out = import_capped(str(path), *REAL[suffix][1], "--out", str(tmp_path / "s"))
     assert out.returncode == 2, out.stderr[-2000:]
     assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
     assert f"{path}: at least 99% of its 2048 MiB are zeros" in out.stderr
@@ -135,9 +139,7 @@ def test_a_recording_followed_by_200mb_of_junk_lines_is_refused_within_300mb(tmp
         for _ in range(100):
             f.write(block)
     assert os.path.getsize(path) > 200 << 20
-    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), "--map", "single-csv",
-                          "--out", str(tmp_path / "s")], capture_output=True, text=True,
-                         preexec_fn=_cap_memory, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    out = import_capped(str(path), "--map", "single-csv", "--out", str(tmp_path / "s"))
     assert out.returncode == 2, out.stderr[-2000:]
     assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
     assert f"{path}: " in out.stderr and "lines are no sample" in out.stderr
@@ -244,9 +246,7 @@ def test_a_150mb_line_is_refused_within_300mb(tmp_path):
     """The hostile tester's file: 150 MB of "a", then the samples. Parsed, the line took ~6x its
     length (MemoryError under this cap); measured a block at a time it costs one block."""
     path = _with_long_first_line(tmp_path / "longline.csv", 150_000_000, _valid_recording_text(100))
-    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), "--map", "single-csv",
-                          "--out", str(tmp_path / "s")], capture_output=True, text=True,
-                         preexec_fn=_cap_memory, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    out = import_capped(str(path), "--map", "single-csv", "--out", str(tmp_path / "s"))
     assert out.returncode == 2, out.stderr[-2000:]
     assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
     assert f"{path}: line 1 is over " in out.stderr
@@ -265,9 +265,7 @@ def test_a_dataflash_log_with_an_erased_tail_imports_its_messages_within_300mb(t
         block = b"\xff" * (1 << 20)
         for _ in range(100):
             f.write(block)
-    out = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "import", str(path), "--out", str(tmp_path / "s")],
-                         capture_output=True, text=True, preexec_fn=_cap_memory,
-                         env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    out = import_capped(str(path), "--out", str(tmp_path / "s"))
     assert out.returncode == 0, out.stderr[-2000:]
     assert "recording: 45 samples" in out.stdout
     warning = next(line for line in (out.stdout + out.stderr).splitlines() if "DAMAGED" in line)
