@@ -34,13 +34,18 @@ def recorded_actions(tmp_path) -> list[str]:
     return [a["action"] for a in SessionReader(tmp_path / "s").actions()]
 
 
+async def first_position_done(pilot, app) -> None:
+    """The operator places the first position and the run waits at the second."""
+    await until(pilot, lambda: waiting_at(app, 0))
+    await pilot.press("r")
+    await until(pilot, lambda: waiting_at(app, 1))
+
+
 @run_async
 async def test_ctrl_q_asks_says_what_is_done_and_that_a_resume_continues_and_no_keeps_going(tmp_path):
     app = sim_app(tmp_path)
     async with app.run_test(size=(80, 24)) as pilot:
-        await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("r")
-        await until(pilot, lambda: waiting_at(app, 1))
+        await first_position_done(pilot, app)
         await pilot.press("ctrl+q")
         question = confirm_text(app)
         assert question.startswith("Quit mid-run? 1 of 3 positions done in ")
@@ -48,8 +53,7 @@ async def test_ctrl_q_asks_says_what_is_done_and_that_a_resume_continues_and_no_
         await no_keeps_the_run_going(pilot, app, 1)
         await pilot.press("ctrl+q", "ctrl+q")  # its own key again: yes
         await until(pilot, lambda: not app.is_running)
-    app.source.done.wait(10.0)
-    assert app.source.outcome.status == "stopped"
+    assert app.source.done.wait(10.0) and app.source.outcome.status == "stopped"
     assert recorded_actions(tmp_path) == ["ready", "ready"]
 
 
@@ -98,9 +102,7 @@ async def test_q_asks_and_no_keeps_the_run_going(tmp_path):
 async def test_abort_says_the_work_done_and_that_there_is_no_resume_and_no_keeps_going(tmp_path):
     app = sim_app(tmp_path)
     async with app.run_test(size=(80, 24)) as pilot:
-        await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("r")
-        await until(pilot, lambda: waiting_at(app, 1))
+        await first_position_done(pilot, app)
         await pilot.press("a")
         question = confirm_text(app)
         assert question.startswith("ABORT the run? 1 of 3 positions done in ") and "no resume" in question
@@ -222,9 +224,7 @@ async def test_elapsed_does_not_go_back_after_a_resume(tmp_path):
     it (the unit carried towards the next position) before it was quit: "elapsed" keeps that."""
     app = sim_app(tmp_path)
     async with app.run_test(size=(80, 24)) as pilot:
-        await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("r")
-        await until(pilot, lambda: waiting_at(app, 1))
+        await first_position_done(pilot, app)
         quit_at = app.view.elapsed
         assert quit_at > app.view.placing_s[0]  # (the run has sample time behind it)
         await pilot.press("q", "y")
