@@ -20,3 +20,20 @@ def fieldcal(*argv: str, timeout: float = 300) -> subprocess.CompletedProcess:
 
 def run_argv(out: Path) -> list[str]:
     return ["run", "--headless", "--quiet", "--seed", str(SEED), "--procedure", str(QUICK), "--out", str(out)]
+
+
+def unit_parameter_file(path: Path) -> Path:
+    """A hand-built parameter file at ``path``: an identity accelerometer (g) and gyroscope
+    (rad/s), every σ 1e-6, as the classic method writes one."""
+    import numpy as np
+
+    from fieldcal.calibration import Calibration
+    from fieldcal.earth import Station
+    from fieldcal.paramfile import ParameterFile, save
+
+    triads = [Calibration(name=name, kind=kind, output_unit=unit, method="classic", K=np.eye(3),
+                          bias=np.zeros(3), sigma=np.full(9, 1e-6), residual_rms=0.0)
+              for name, kind, unit in (("accelerometer", "specific_force", "g"),
+                                       ("gyroscope", "angular_rate", "rad/s"))]
+    return save(ParameterFile.build(triads, station=Station(40.0, 50.0), procedure="classic-12",
+                                    method="classic", input_sha256="b" * 64), path)

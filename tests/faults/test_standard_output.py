@@ -13,7 +13,7 @@ import subprocess
 import sys
 
 import pytest
-from faultlib import QUICK, ROOT
+from faultlib import QUICK, ROOT, unit_parameter_file
 
 
 def _fieldcal(argv, stdout, close_stdout=False) -> subprocess.CompletedProcess:
@@ -71,18 +71,8 @@ def test_a_full_stdout_is_named(session_copy, argv):
 def test_apply_to_a_full_stdout_names_it(tmp_path):
     """Issue 25, round 4, item 2: `apply ... > /dev/full` said only "No space left on device" (its
     CSV goes to stdout's byte buffer, which the named stdout did not cover)."""
-    import numpy as np
 
-    from fieldcal.calibration import Calibration
-    from fieldcal.earth import Station
-    from fieldcal.paramfile import ParameterFile, save
-
-    triads = [Calibration(name=name, kind=kind, output_unit=unit, method="classic", K=np.eye(3),
-                          bias=np.zeros(3), sigma=np.full(9, 1e-6), residual_rms=0.0)
-              for name, kind, unit in (("accelerometer", "specific_force", "g"),
-                                       ("gyroscope", "angular_rate", "rad/s"))]
-    params = save(ParameterFile.build(triads, station=Station(40.0, 50.0), procedure="classic-12",
-                                      method="classic", input_sha256="b" * 64), tmp_path / "p.yaml")
+    params = unit_parameter_file(tmp_path / "p.yaml")
     (tmp_path / "in.csv").write_text("time_ms,ax_mg,ay_mg,az_mg,gx_dps,gy_dps,gz_dps\n"
                                      + "".join(f"{10 * i},1,2,1000,0.5,0,0\n" for i in range(2000)))
     with open("/dev/full", "w") as full:

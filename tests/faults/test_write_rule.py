@@ -18,12 +18,12 @@ import os
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from fieldcal.cli.main import main
 from fieldcal.session.capture import LOG, SAMPLES, SessionReader
 from fieldcal.session.lock import SessionLock
+from faultlib import unit_parameter_file
 from test_outputs import one_line
 
 VICTIM = b"the user's own file: never to be written by fieldcal\n"
@@ -65,17 +65,8 @@ def recording_copy(recording, tmp_path) -> Path:
 @pytest.fixture(scope="module")
 def params_csv(tmp_path_factory) -> tuple[Path, Path]:
     """A parameter file and a 50-line CSV for it (the single-csv import map)."""
-    from fieldcal.calibration import Calibration
-    from fieldcal.earth import Station
-    from fieldcal.paramfile import ParameterFile, save
-
     base = tmp_path_factory.mktemp("params")
-    triads = [Calibration(name=name, kind=kind, output_unit=unit, method="classic", K=np.eye(3),
-                          bias=np.zeros(3), sigma=np.full(9, 1e-6), residual_rms=0.0)
-              for name, kind, unit in (("accelerometer", "specific_force", "g"),
-                                       ("gyroscope", "angular_rate", "rad/s"))]
-    params = save(ParameterFile.build(triads, station=Station(40.0, 50.0), procedure="classic-12",
-                                      method="classic", input_sha256="b" * 64), base / "p.yaml")
+    params = unit_parameter_file(base / "p.yaml")
     csv = base / "one.csv"
     csv.write_text("t_ms,ax,ay,az,gx,gy,gz,T\n" + "".join(f"{1000 + 4 * i},{i % 7}.5,{2 * i},-{i % 5},0.1,0.2,0.3,25\n"
                                                              for i in range(50)))
