@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from fieldcal.procedure import events as ev
 from fieldcal.procedure.windows import StepRecord
 from fieldcal.session import LOG, SessionError
 from fieldcal.session.capture import PARAMETERS_NUMBERED, SessionReader
@@ -260,7 +261,7 @@ class RunRecord:
         for doc in self.reader.documents("step", "checkpoint", "event", "resume", "action"):
             data, line, kind = doc["data"], doc["seq"] + 1, doc["type"]
             if kind == "action":
-                if isinstance(data, dict) and data.get("action") in ("redo", "unskip"):  # the engine's ev.REDO, ev.UNSKIP
+                if isinstance(data, dict) and data.get("action") in (ev.REDO, ev.UNSKIP):
                     redone_at = line
                 continue
             if kind == "event":
