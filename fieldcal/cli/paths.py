@@ -131,6 +131,17 @@ def flush_stdout() -> None:
         raise OSError(exc.errno, exc.strerror, "standard output") from None
 
 
+@contextlib.contextmanager
+def _named_standard_output():
+    """An OSError within names "standard output" (a broken pipe stays itself: the reader left)."""
+    try:
+        yield
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, "standard output") from None
+
+
 class _NamedStdout:
     """Standard output whose write errors name it: print() failing mid-command on a full disk
     otherwise raises an OSError with no file name, said as a bare "No space left on device"."""
@@ -139,20 +150,12 @@ class _NamedStdout:
         self._stream = stream
 
     def write(self, text: str) -> int:
-        try:
+        with _named_standard_output():
             return self._stream.write(text)
-        except BrokenPipeError:
-            raise
-        except OSError as exc:
-            raise OSError(exc.errno, exc.strerror, "standard output") from None
 
     def flush(self) -> None:
-        try:
+        with _named_standard_output():
             self._stream.flush()
-        except BrokenPipeError:
-            raise
-        except OSError as exc:
-            raise OSError(exc.errno, exc.strerror, "standard output") from None
 
     @property
     def buffer(self):  # the bytes beneath (apply writes its CSV there): its failures named too
