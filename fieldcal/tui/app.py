@@ -197,9 +197,7 @@ class FieldcalApp(App[int]):
     # --- the source's Sink (called on the worker thread) -----------------------------------
 
     def update(self, items: tuple, telemetry: Telemetry) -> None:
-        if items:
-            self.post_message(RunItems(items))
-        self.post_message(RunTelemetry(telemetry))
+        self.post_message(RunItems(items, telemetry) if items else RunTelemetry(telemetry))
 
     def finished(self, outcome: Outcome) -> None:
         self.post_message(RunFinished(outcome))
@@ -208,7 +206,8 @@ class FieldcalApp(App[int]):
 
     def on_run_items(self, message: RunItems) -> None:
         self.events.extend(i for i in message.items if isinstance(i, ev.Event))
-        self.procedure_screen.add_items(message.items)
+        self.telemetry = message.telemetry
+        self.procedure_screen.add_items(message.items, message.telemetry)
         if self.mode != "replay" and any(isinstance(i, STEP_ENDS) for i in message.items):
             self.bell()  # the operator's turn (the banner says what next): heard from across the bench
 

@@ -8,11 +8,12 @@ from fieldcal.tui.source import Outcome
 
 
 class RunItems(Message):
-    """Engine events and notes, in order; never dropped."""
+    """Engine events and notes, in order; never dropped. They carry the readings of the same
+    moment, so the view never shows an event beside the phase from before it."""
 
-    def __init__(self, items: tuple) -> None:
+    def __init__(self, items: tuple, telemetry: Telemetry) -> None:
         super().__init__()
-        self.items = items
+        self.items, self.telemetry = items, telemetry
 
 
 class RunTelemetry(Message):

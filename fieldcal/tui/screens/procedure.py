@@ -85,7 +85,8 @@ class ProcedureScreen(Screen):
 
     # --- fed by the app ---------------------------------------------------------------------
 
-    def add_items(self, items) -> None:
+    def add_items(self, items, telemetry: Telemetry) -> None:
+        self.view.set_telemetry(telemetry)
         log = self.query_one("#log", EventLog)
         for item in items:
             line = self.view.apply(item)
