@@ -29,6 +29,7 @@ import numpy as np
 from scipy.special import gammaln
 
 from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S, TriadNoise
+from fieldcal.recording.detect import interval_means
 
 # The prior on B: density ∝ B^(PRIOR_POWER − 1), i.e. ∝ B^PRIOR_POWER per decade. Chosen on the
 # real-world Monte Carlo (200 recordings, no --config): per decade even (0) leaves a consumer
@@ -132,3 +133,60 @@ def bias_instability(residuals: np.ndarray, design: np.ndarray, white: np.ndarra
     log_like = log_like + PRIOR_POWER * np.log(b)
     weight = np.exp(log_like - log_like.max())
     return float(np.sqrt(np.sum(weight * b2) / np.sum(weight)))
+
+
+@dataclass(frozen=True)
+class PoseNoise:
+    """What each pose's own samples say of the noise on its mean (output units): ``variance``
+    (m, 3) each pose's per-axis sample variance, and ``bias_instability`` B measured within the
+    poses (see ``within_pose_noise``)."""
+
+    variance: np.ndarray
+    bias_instability: float
+
+    def means_covariance(self, intervals: np.ndarray, t: np.ndarray):
+        """The pose means' covariance by its parts (an ``up_covariance.MeansCovariance``, output
+        units): each mean's own white noise, and the flicker of B every axis alike."""
+        from fieldcal.recording.up_covariance import MeansCovariance
+
+        counts = np.diff(intervals, axis=1)[:, 0]
+        starts = t[intervals[:, 0]]
+        flicker = self.bias_instability**2 * flicker_covariance(starts, t[intervals[:, 1] - 1] - starts)
+        return MeansCovariance(flicker, np.eye(3), self.variance / counts[:, None])
+
+
+WITHIN_POSE_PARTS = 2  # each pose cut in halves: their difference is noise alone, white and flicker
+WITHIN_POSE = ("σ from each pose's own samples (their white noise and the bias instability their halves show), "
+               "not from the fit's residuals: {dof} degrees of freedom are too few to measure the noise by")
+
+
+def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,
+                      parts: int = WITHIN_POSE_PARTS) -> PoseNoise:
+    """The noise of a triad's pose means read from each pose's own samples, for a fit with too
+    few degrees of freedom to measure it by its residuals (at none, they are zero whatever the
+    noise). Each pose ``intervals`` (m, 2) [start, stop) of ``values`` (n, 3) gives its samples'
+    variance, and its ``parts`` equal parts' means, whose scatter about the pose's mean is the
+    noise alone (the pose, the bias and the scale are the same in every part): the white noise,
+    and the faster part of the flicker, which through the flicker model tells B (bias_instability),
+    and B the slow part that every pose shares and that no scatter shows. A drift within a pose
+    (a warm-up) counts as flicker: the σ err on the wide side."""
+    intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
+    m, values = len(intervals), np.asarray(values, dtype=float)
+    counts = np.diff(intervals, axis=1)
+    mean = interval_means(values, intervals)
+    variance = np.maximum(interval_means(values**2, intervals) - mean**2, 0.0) * counts / np.maximum(counts - 1, 1)
+    # A pose read as one value throughout (a quantised rest) has a variance floored far below
+    # anything a converter resolves, so that no weight is infinite.
+    variance = np.maximum(variance, (1e-9 * np.maximum(np.abs(mean), 1.0)) ** 2)
+    edges = intervals[:, :1] + (np.diff(intervals, axis=1) * np.arange(parts + 1)[None, :]) // parts
+    windows = np.column_stack([edges[:, :-1].ravel(), edges[:, 1:].ravel()])
+    means = interval_means(values, windows)
+    design = np.repeat(np.eye(m), parts, axis=0)  # which pose each part is of
+    part_counts = np.diff(windows, axis=1)[:, 0]
+    white = np.repeat(np.mean(variance, axis=1), parts) / part_counts
+    fitted = design @ (np.add.reduceat(means / white[:, None], np.arange(0, m * parts, parts), axis=0)
+                       / np.add.reduceat(1.0 / white, np.arange(0, m * parts, parts))[:, None])
+    # Each part from its first sample to its last: jittered timestamps cannot make them overlap.
+    flicker = flicker_covariance(t[windows[:, 0]], t[windows[:, 1] - 1] - t[windows[:, 0]])
+    b = bias_instability(means - fitted, design, white, flicker, weights=1.0 / white)
+    return PoseNoise(variance=variance, bias_instability=b)

@@ -37,6 +37,7 @@ from fieldcal.model import ANGULAR_RATE, PARAM_NAMES, SPECIFIC_FORCE
 from fieldcal.recording import Recording
 from fieldcal.recording.candidates import Detection
 from fieldcal.recording.detect import interval_means
+from fieldcal.recording.noise_estimate import WITHIN_POSE, MeasuredNoise, PoseNoise, within_pose_noise
 from fieldcal.recording.outcome import SUBMODEL_PROTOCOL, RecordingCalibration, RecordingSettings
 from fieldcal.recording.place import UnknownPlace
 from fieldcal.solvers.problems import StaticNormProblem
@@ -52,6 +53,11 @@ WELL_DETERMINED = np.repeat([5e-3, 2e-3, 2e-3], 3)
 # How far from nominal a consumer unit may be along an open direction (natural units: 1 %).
 PLAUSIBLE_OFFSET = 0.01
 _ITERATIONS = 20
+# Degrees of freedom from which the means' scatter about the fit measures their noise (as the
+# full solve measures it); with fewer, each pose's own samples do (noise_estimate.within_pose_noise).
+SCATTER_DOF = 6
+SIGMA_FROM_SCATTER = ("σ from the noise measured by the poses' scatter about the fit ({dof} degrees of freedom), "
+                      "scaled up by χ²/dof when above 1")
 MIN_POSES_FOR_NOISE = 3  # still poses from which a gyro's bias instability is measured
 _STEP_TOL = 1e-9  # natural units: a Gauss-Newton step this small has converged
 GYRO_WHY = ("its scale factors and misalignment need the rotations between 9 or more well-spread poses "
@@ -77,16 +83,23 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
         return None
     add = spread.message.split(": ", 1)[-1] if ": " in spread.message else "add poses"
     add += faces  # a Ferraris session short of a face: which
-    specific_force, failures, notes = {}, {}, []
+    specific_force, failures, notes, estimated = {}, {}, [], {}
     for name in detection.forces:
         values = recording.triads[name]
+        means = interval_means(values, poses.intervals)
         variance = detection.noise.variance if name == reference else \
             np.var(values[poses.intervals[0, 0]:poses.intervals[0, 1]], axis=0, ddof=1)
-        solution = solve_determined(name, recording.units[name], interval_means(values, poses.intervals),
-                                    poses.intervals, recording.t, variance, station.gravity, add,
-                                    settings.noise.get(name), recording.rate_hz if settings.estimate_noise else None)
+        measure = settings.estimate_noise and name not in settings.noise
+        solution, measured = solve_determined(
+            name, recording.units[name], means, poses.intervals, recording.t, variance, station.gravity, add,
+            settings.noise.get(name), recording.rate_hz if measure else None,
+            within_pose_noise(values, poses.intervals, recording.t) if measure else None)
+        if measured is not None:
+            estimated[name] = measured
+        if solution is not None and solution.diagnostics.message:
+            notes.append(f"{name}: {solution.diagnostics.message}")
         specific_force[name] = solution if solution is not None else nothing_determined(
-            name, recording.units[name], interval_means(values, poses.intervals), station.gravity,
+            name, recording.units[name], means, station.gravity,
             f"the {len(poses.intervals)} poses determine none of its parameters: {add}")
     angular_rate, bias_sigma = {}, {}
     up = poses.means / np.linalg.norm(poses.means, axis=1, keepdims=True)  # physical units: zero known
@@ -101,7 +114,7 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
         return None
     return RecordingCalibration(poses, spread, tuple(tried), specific_force, angular_rate, failures, reference,
                                 bias_sigma, np.zeros((0, 2), int), False, detection.noise.source, station,
-                                SUBMODEL_PROTOCOL, notes=tuple(notes))
+                                SUBMODEL_PROTOCOL, notes=tuple(notes), estimated_noise=estimated)
 
 
 @dataclass(frozen=True)
@@ -116,12 +129,16 @@ class _Fit:
     dof: int
     condition: float
     open_share: np.ndarray
+    scaled: bool = False  # the covariance scaled up by χ²/dof
 
 
-def _truncated_fit(residuals_at, theta0: np.ndarray, natural: np.ndarray, whiten) -> _Fit | None:
+def _truncated_fit(residuals_at, theta0: np.ndarray, natural: np.ndarray, whiten,
+                   scale_by_residuals: bool = True) -> _Fit | None:
     """Gauss-Newton from the nominal ``theta0`` in the directions the whitened Jacobian keeps
     (1/s at most RANK_FRACTION of a natural unit), the others held; None when it keeps none.
-    ``whiten``: residuals (m,) or (m, k) to whitened ones."""
+    ``whiten``: residuals (m,) or (m, k) to whitened ones. ``scale_by_residuals``: the
+    covariance scaled up by χ²/dof when that is above 1 (False: the noise's own, whatever the
+    residuals say)."""
     def jacobian(theta):
         steps = 1e-6 * natural
         values = residuals_at(theta + np.concatenate([np.diag(steps), -np.diag(steps)]))  # (18, m)
@@ -142,29 +159,43 @@ def _truncated_fit(residuals_at, theta0: np.ndarray, natural: np.ndarray, whiten
     r = whiten(residuals_at(theta))
     chi2, dof = float(r @ r), len(r) - rank
     kept = Vt[:rank].T
-    covariance = (kept / s[:rank] ** 2) @ kept.T * max(chi2 / dof if dof > 0 else 1.0, 1.0)
-    return _Fit(theta, covariance, chi2, dof, float(s[0] / s[rank - 1]), np.linalg.norm(Vt[rank:].T, axis=1))
+    ratio = chi2 / dof if dof > 0 and scale_by_residuals else 1.0
+    covariance = (kept / s[:rank] ** 2) @ kept.T * max(ratio, 1.0)
+    return _Fit(theta, covariance, chi2, dof, float(s[0] / s[rank - 1]), np.linalg.norm(Vt[rank:].T, axis=1),
+                ratio > 1.0)
 
 
-def _solution(name: str, unit: str, problem: StaticNormProblem, fit: _Fit, natural: np.ndarray) -> Calibration:
+def _solution(name: str, unit: str, problem: StaticNormProblem, fit: _Fit, natural: np.ndarray,
+              sigma_from: str = "") -> Calibration:
     return Calibration(name=name, kind=SPECIFIC_FORCE, output_unit=unit, method="lsq", theta=fit.theta,
                        covariance=fit.covariance * np.outer(natural, natural),
                        residuals=problem.residuals(fit.theta, problem.data), residual_labels=problem.residual_labels,
                        diagnostics=SolverDiagnostics(search="gauss-newton, the determined directions only",
-                                                     chi2=fit.chi2, dof=fit.dof, scaled_by_residuals=fit.chi2 > fit.dof,
+                                                     message=sigma_from, chi2=fit.chi2, dof=fit.dof,
+                                                     scaled_by_residuals=fit.scaled,
                                                      condition_number=fit.condition))
 
 
 def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndarray, t: np.ndarray,
                      variance: np.ndarray, gravity: float, add: str, noise=None,
-                     rate_hz: float | None = None) -> Calibration | None:
+                     rate_hz: float | None = None, pose_noise: PoseNoise | None = None
+                     ) -> tuple[Calibration | None, MeasuredNoise | None]:
     """The specific-force triad's parameters its pose means determine (module doc), the rest
-    nominal and marked; None when none is determined. ``intervals``: the poses' [start, stop) in
-    samples of ``t``; ``variance``: per-axis white noise of one sample (output units²); ``add``:
-    which poses would add the rest. The means are weighed by their white noise, then, with the
-    device's ``noise`` model (else, given ``rate_hz``, one measured from that fit as the full
-    solve measures it), by their exact covariance, the bias instability all poses share included:
-    white noise alone put the errors at 1.7 times the σ (RMS) on the paper's unit."""
+    nominal and marked (None when none is determined), and the noise model measured for it
+    (None: the device's ``noise`` was given, or none was measured). ``intervals``: the poses'
+    [start, stop) in samples of ``t``; ``variance``: per-axis white noise of one sample (output
+    units²); ``add``: which poses would add the rest.
+
+    The means are weighed by their white noise, then by their exact covariance, the bias
+    instability all poses share included (white noise alone put the errors at 1.7 times the σ
+    (RMS) on the paper's unit): with the device's ``noise`` model; else, given ``rate_hz``, with
+    one measured from the recording: from the means' scatter about the fit when it has
+    SCATTER_DOF degrees of freedom or more, as the full solve measures it, else from what each
+    pose's own samples say (``pose_noise``, ``noise_estimate.within_pose_noise``), and then the
+    σ are not scaled by χ²/dof either. A fit with as many poses as the parameters it determines
+    leaves no residual at all, whatever the noise; with a few more, χ²/dof scatters by a factor
+    of two: either way its σ came out 1.5 times too small (issue 27). The solution's
+    ``diagnostics.message`` says where its σ came from."""
     from fieldcal.recording.static_solve import estimated_force_noise, means_covariance
 
     theta0 = nominal_theta(SPECIFIC_FORCE, unit)
@@ -175,33 +206,44 @@ def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndar
     counts = np.diff(intervals, axis=1)[:, 0]
     # Each mean's noise along its up; a noise measured as 0 (a quantised rest) floored far below
     # anything a converter resolves, so that no weight is infinite.
-    variance = np.maximum(variance, (1e-9 * natural[:3]) ** 2)
+    own = pose_noise.variance if pose_noise is not None else np.broadcast_to(variance, means.shape)
+    own = np.maximum(own, (1e-9 * natural[:3]) ** 2)
     up = means / np.linalg.norm(means, axis=1, keepdims=True)
-    weight = 1.0 / np.sqrt((up**2 @ variance) / counts)
+    weight = 1.0 / np.sqrt(np.sum(up**2 * own, axis=1) / counts)
     fit = _truncated_fit(residuals_at, theta0, natural, lambda r: r * weight.reshape(-1, *([1] * (r.ndim - 1))))
-    if fit is not None and noise is None and rate_hz is not None and len(means) > len(PARAM_NAMES):
-        # (no more means than parameters: no scatter to measure the flicker from; white noise it is)
-        noise = estimated_force_noise(_solution(name, unit, problem, fit, natural), means, intervals, t, variance,
-                                      rate_hz, gravity)
-    if fit is not None and noise is not None:
-        # The residuals' covariance G·Σ·Gᵀ, Σ the means' (a few dozen poses: dense is fine).
-        m = len(means)
-        G = np.zeros((m, 3 * m))
-        G[np.arange(m)[:, None], 3 * np.arange(m)[:, None] + np.arange(3)] = problem.point_gradients(fit.theta)
-        solution = _solution(name, unit, problem, fit, natural)
-        root = np.linalg.cholesky(G @ means_covariance(intervals, t, variance, noise, solution.K, unit) @ G.T)
-        fit = _truncated_fit(residuals_at, theta0, natural,
-                             lambda r: np.linalg.solve(root, r))
     if fit is None:
-        return None
+        return None, None
+    covariance, measured, sigma_from, scale = None, None, "", True
+    if noise is not None:  # the device's model
+        covariance = means_covariance(intervals, t, variance, noise, _solution(name, unit, problem, fit, natural).K,
+                                      unit, parts=True)
+    elif rate_hz is not None and fit.dof >= SCATTER_DOF:  # the scatter measures it, as in the full solve
+        noise = measured = estimated_force_noise(_solution(name, unit, problem, fit, natural), means, intervals, t,
+                                                 variance, rate_hz, gravity)
+        covariance = means_covariance(intervals, t, variance, noise, _solution(name, unit, problem, fit, natural).K,
+                                      unit, parts=True)
+        sigma_from = SIGMA_FROM_SCATTER.format(dof=fit.dof)
+    elif rate_hz is not None and pose_noise is not None:  # too few residuals: the poses' own samples
+        covariance, scale = pose_noise.means_covariance(intervals, t), False
+        k = float(theta0[3])  # output units per SI unit
+        measured = MeasuredNoise(white=float(np.sqrt(np.mean(pose_noise.variance) / rate_hz)) / k,
+                                 bias_instability=pose_noise.bias_instability / k)
+        sigma_from = WITHIN_POSE.format(dof=fit.dof)
+    if covariance is not None:
+        # The residuals' covariance gᵢ·Σᵢⱼ·gⱼᵀ, each residual's gradient in its own mean.
+        residual_covariance = covariance.residual_covariance(problem.point_gradients(fit.theta))
+        root = np.linalg.cholesky(residual_covariance)
+        fit = _truncated_fit(residuals_at, theta0, natural, lambda r: np.linalg.solve(root, r), scale)
+    if fit is None:
+        return None, measured
     sigma_natural = np.sqrt(np.diag(fit.covariance))
     determined = (sigma_natural <= WELL_DETERMINED) & (PLAUSIBLE_OFFSET * fit.open_share <= sigma_natural)
     if not determined.any():
-        return None
+        return None, measured
     unsolved = [n for n, ok in zip(PARAM_NAMES, determined) if not ok]
-    solution = _solution(name, unit, problem, fit, natural)
-    return with_not_calibrated(solution, unsolved, f"{len(means)} poses too few or too alike to determine them: "
-                               f"{add}") if unsolved else solution
+    solution = _solution(name, unit, problem, fit, natural, sigma_from)
+    return (with_not_calibrated(solution, unsolved, f"{len(means)} poses too few or too alike to determine them: "
+                                f"{add}") if unsolved else solution), measured
 
 
 def nothing_determined(name: str, unit: str, means: np.ndarray, gravity: float, why: str) -> Calibration:
