@@ -103,8 +103,10 @@ def aligned_protocol(recording: Recording, station: Station | UnknownPlace, dete
             if nominal_theta(ANGULAR_RATE, recording.units[name]) is None:  # counts: no nominal scale to leave
                 failures[name] = str(exc)
                 continue
-            angular_rate[name] = still_gyro(recording, name, poses, up, station, settings.noise.get(name), str(exc),
-                                            settings.estimate_noise)
+            angular_rate[name], measured = still_gyro(recording, name, poses, up, station, settings.noise.get(name),
+                                                      str(exc), settings.estimate_noise)
+            if measured is not None:
+                estimated[name] = measured
             bias_sigma[name] = angular_rate[name].sigma[:3]
     spread = SpreadReport(count=6, ok=True, missing=[], design=0.0,
                           message="6 distinct poses, each along an axis (Ferraris)")

@@ -155,23 +155,27 @@ class PoseNoise:
         return MeansCovariance(flicker, np.eye(3), self.variance / counts[:, None])
 
 
-WITHIN_POSE_PARTS = 2  # each pose cut in halves: their difference is noise alone, white and flicker
+WITHIN_POSE_PARTS = 2  # each pose cut in halves at least: their difference is noise alone, white and flicker
+WITHIN_POSE_ALL_PARTS = 8  # and in more when the poses are few (a single rest: 8 parts), so that the
+# parts' scatter rules out a B far above the truth: in halves, a single rest's σ were 1.5 times too wide.
 WITHIN_POSE = ("σ from each pose's own samples (their white noise and the bias instability their halves show), "
                "not from the fit's residuals: {dof} degrees of freedom are too few to measure the noise by")
 
 
 def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,
-                      parts: int = WITHIN_POSE_PARTS) -> PoseNoise:
+                      parts: int | None = None) -> PoseNoise:
     """The noise of a triad's pose means read from each pose's own samples, for a fit with too
     few degrees of freedom to measure it by its residuals (at none, they are zero whatever the
     noise). Each pose ``intervals`` (m, 2) [start, stop) of ``values`` (n, 3) gives its samples'
     variance, and its ``parts`` equal parts' means, whose scatter about the pose's mean is the
-    noise alone (the pose, the bias and the scale are the same in every part): the white noise,
+    noise alone (the pose, the bias and the scale are the same in every part; default: halves, more
+    when the poses are few): the white noise,
     and the faster part of the flicker, which through the flicker model tells B (bias_instability),
     and B the slow part that every pose shares and that no scatter shows. A drift within a pose
     (a warm-up) counts as flicker: the σ err on the wide side."""
     intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
     m, values = len(intervals), np.asarray(values, dtype=float)
+    parts = parts or max(WITHIN_POSE_PARTS, math.ceil(WITHIN_POSE_ALL_PARTS / m))
     counts = np.diff(intervals, axis=1)
     mean = interval_means(values, intervals)
     variance = np.maximum(interval_means(values**2, intervals) - mean**2, 0.0) * counts / np.maximum(counts - 1, 1)

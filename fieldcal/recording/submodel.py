@@ -96,7 +96,7 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
             within_pose_noise(values, poses.intervals, recording.t) if measure else None)
         if measured is not None:
             estimated[name] = measured
-        if solution is not None and solution.diagnostics.message:
+        if measured is not None and solution is not None:
             notes.append(f"{name}: {solution.diagnostics.message}")
         specific_force[name] = solution if solution is not None else nothing_determined(
             name, recording.units[name], means, station.gravity,
@@ -104,9 +104,12 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
     angular_rate, bias_sigma = {}, {}
     up = poses.means / np.linalg.norm(poses.means, axis=1, keepdims=True)  # physical units: zero known
     for name in detection.rates:
-        angular_rate[name] = still_gyro(recording, name, poses, up, station, settings.noise.get(name),
-                                        estimate=settings.estimate_noise)
+        angular_rate[name], measured = still_gyro(recording, name, poses, up, station, settings.noise.get(name),
+                                                  estimate=settings.estimate_noise)
         bias_sigma[name] = angular_rate[name].sigma[:3]
+        if measured is not None:
+            estimated[name] = measured
+            notes.append(f"{name}: {angular_rate[name].diagnostics.message}")
     if detection.rates and isinstance(station, UnknownPlace):
         notes.append("the gyro's bias holds the Earth rate (up to 15 °/h, its direction unknown) as an error "
                      "in its σ: give --latitude to take off its vertical part")
@@ -259,42 +262,67 @@ def nothing_determined(name: str, unit: str, means: np.ndarray, gravity: float, 
 
 
 def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: Station | UnknownPlace,
-               noise=None, why: str = GYRO_WHY, estimate: bool = True) -> Calibration:
-    """A gyro's bias alone: the mean of every pose's still reading less the vertical Earth rate
+               noise=None, why: str = GYRO_WHY, estimate: bool = True) -> tuple[Calibration, MeasuredNoise | None]:
+    """A gyro's bias alone, and the noise model measured for it (None: the config's ``noise``
+    given, or none measured): the mean of every pose's still reading less the vertical Earth rate
     (``drift.still_bias`` without the g-sensitivity and drift terms, which poses too alike cannot
-    tell from the bias), its σ from their scatter, never below the white noise's and the unknown
-    Earth rate's share, widened by the bias instability of a config's noise model (``noise``) or,
-    with ``estimate`` and poses enough, of one measured from them; its scale at the unit's own and no
-    misalignment, both marked not calibrated (``why``: what would add them). ``up``: each pose's up
-    vector."""
+    tell from the bias); its scale at the unit's own and no misalignment, both marked not
+    calibrated (``why``: what would add them). ``up``: each pose's up vector.
+
+    Its σ: the unknown Earth rate's share (at a known place the horizontal part, at an unknown
+    heading: on an axis at angle α to the vertical, (Ω·cos φ·sin α)²/2), and with a config's
+    ``noise`` its white noise and bias instability; else, with ``estimate``, a noise model
+    measured: with SCATTER_DOF or more degrees of freedom from the poses' scatter about their
+    mean as the full solve measures it (never below the white noise's share), with fewer from
+    each pose's own samples (``noise_estimate.within_pose_noise``), never from a scatter of so
+    few readings (a single rest has none: its σ were the white noise's alone, 1.7 times too
+    small on a consumer gyro)."""
     from fieldcal.recording.drift import still_bias
     from fieldcal.recording.gyro_solve import _less_earth_rate
 
     gyro, unit, intervals = recording.triads[name], recording.units[name], poses.intervals
     scale = float(nominal_theta(ANGULAR_RATE, unit)[3])  # output units per rad/s
-    counts = np.diff(intervals, axis=1)[:, 0]
+    m, counts = len(intervals), np.diff(intervals, axis=1)[:, 0]
     still, earth_variance = _less_earth_rate(interval_means(gyro, intervals), up, scale, station)
-    rest_variance = np.var(gyro[intervals[0, 0]:intervals[0, 1]], axis=0, ddof=1)
-    white = np.mean(rest_variance[None, :] / counts[:, None], axis=0) / len(intervals)
-    bias, bias_sigma = still_bias(still, scale**2 * earth_variance / len(intervals) + white)
-    if noise is None and estimate and len(intervals) >= MIN_POSES_FOR_NOISE:  # measured, as the full solve does
-        from fieldcal.recording.gyro_solve import estimated_rate_noise
+    # Each pose's share of the Earth rate left (rad²/s², per axis): at a known place the
+    # horizontal part, which an axis along the vertical does not see.
+    earth = np.full((m, 3), earth_variance) if isinstance(station, UnknownPlace) else \
+        earth_variance * (1.0 - np.clip(up, -1.0, 1.0) ** 2)
+    earth_mean = scale**2 * earth.sum(axis=0) / m**2
+    dof = m - 1
+    measured, sigma_from = None, ""
+    if noise is None and estimate and dof < SCATTER_DOF:  # too few readings to scatter: their own samples
+        pose_noise = within_pose_noise(gyro, intervals, recording.t)
+        bias = np.mean(still, axis=0)
+        own = pose_noise.means_covariance(intervals, recording.t)
+        weights = np.full(m, 1.0 / m)
+        bias_sigma = np.sqrt(earth_mean + weights**2 @ own.own + weights @ own.windows @ weights)
+        measured = MeasuredNoise(white=float(np.sqrt(np.mean(pose_noise.variance) / recording.rate_hz)) / abs(scale),
+                                 bias_instability=pose_noise.bias_instability / abs(scale))
+        sigma_from = WITHIN_POSE.format(dof=dof)
+    else:
+        rest_variance = np.var(gyro[intervals[0, 0]:intervals[0, 1]], axis=0, ddof=1)
+        white = np.mean(rest_variance[None, :] / counts[:, None], axis=0) / m
+        bias, bias_sigma = still_bias(still, earth_mean + white)
+        if noise is None and estimate and m >= MIN_POSES_FOR_NOISE:  # measured, as the full solve does
+            from fieldcal.recording.gyro_solve import estimated_rate_noise
 
-        noise = estimated_rate_noise(still, up, intervals, recording.t, scale, rest_variance,
-                                     scale**2 * earth_variance, recording.rate_hz)
-    if noise is not None and noise.bias_instability:  # what every pose shares, which no scatter shows
-        weights = np.full(len(intervals), 1.0 / len(intervals))
-        times = recording.t[intervals[:, 0]]
-        model = weights @ noise.window_covariance(times, counts / recording.rate_hz) @ weights
-        bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(scale**2 * model - white, 0.0))
+            noise = measured = estimated_rate_noise(still, up, intervals, recording.t, scale, rest_variance,
+                                                    scale**2 * earth_variance, recording.rate_hz)
+            sigma_from = SIGMA_FROM_SCATTER.format(dof=dof)
+        if noise is not None and noise.bias_instability:  # what every pose shares, which no scatter shows
+            weights = np.full(m, 1.0 / m)
+            times = recording.t[intervals[:, 0]]
+            model = weights @ noise.window_covariance(times, counts / recording.rate_hz) @ weights
+            bias_sigma = np.sqrt(bias_sigma**2 + np.maximum(scale**2 * model - white, 0.0))
     theta = np.r_[bias, np.full(3, scale), np.zeros(3)]
     residuals = still - bias
     solution = Calibration(name=name, kind=ANGULAR_RATE, output_unit=unit, method=STILL_METHOD, theta=theta,
                            sigma=np.r_[bias_sigma, np.zeros(6)], residuals=residuals, residual_unit=unit,
                            residual_rms=float(np.sqrt(np.mean(residuals**2))),
-                           diagnostics=SolverDiagnostics(message="the still poses' mean",
+                           diagnostics=SolverDiagnostics(message=sigma_from or "the still poses' mean",
                                                          dof=max(residuals.size - 3, 0)))
-    return with_not_calibrated(solution, PARAM_NAMES[3:], why)
+    return with_not_calibrated(solution, PARAM_NAMES[3:], why), measured
 
 
 def summary_line(cal: RecordingCalibration) -> str:
