@@ -114,3 +114,40 @@ def test_a_single_rests_gyro_bias_sigma_match_the_errors():
     rms = float(np.sqrt(np.mean(np.square(z))))
     low, high = rms_bounds(len(z))
     assert low < rms < high, (rms, (low, high))
+
+
+def test_a_real_sub_model_agrees_with_the_full_solve_on_the_same_file(tmp_path):
+    """Real data (imucal's Ferraris session, tests/data/real): cut before its z-down face, five
+    faces are left, too few for the Ferraris protocol and the norm method; the sub-model's
+    accelerometer biases (x and y: both their faces are there) and gyro biases, with their σ from
+    the poses' own samples, agree with the six faces' full solve of the whole file within the
+    combined σ."""
+    import gzip
+    import json
+    from pathlib import Path
+
+    from fieldcal.recording.importer import import_recording
+    from fieldcal.recording.outcome import ALIGNED_PROTOCOL
+    from fieldcal.recording.place import UnknownPlace
+
+    real = Path(__file__).parent / "data" / "real"
+    path = tmp_path / "session.csv"
+    path.write_bytes(gzip.decompress((real / "imucal_ferraris_session.csv.gz").read_bytes()))
+    recording = import_recording([path], "imucal", rate_hz=102.4)
+    full = calibrate_recording(recording, UnknownPlace(gravity=9.81))
+    assert full.protocol == ALIGNED_PROTOCOL
+    before = recording.t < recording.t[json.loads((real / "imucal_ferraris_session_list.json").read_text())
+                                       ["z_a"]["start"]]
+    cut = Recording(recording.t[before], {n: v[before] for n, v in recording.triads.items()}, recording.kinds,
+                    recording.units)
+    sub = calibrate_recording(cut, UnknownPlace(gravity=9.81))
+    assert sub.protocol == SUBMODEL_PROTOCOL
+    pairs = [(full.specific_force["accelerometer"], sub.specific_force["accelerometer"]),
+             (full.angular_rate["gyroscope"], sub.angular_rate["gyroscope"])]
+    assert {"bias_x", "bias_y"} <= set(pairs[0][1].calibrated)
+    for whole, part in pairs:
+        assert part.diagnostics.message.startswith("σ from each pose's own samples"), part.diagnostics.message
+        bias = [PARAM_NAMES.index(n) for n in part.calibrated if n.startswith("bias")]
+        combined = np.hypot(whole.sigma[bias], part.sigma[bias])
+        assert np.all(np.abs(part.theta[bias] - whole.theta[bias]) < combined), (part.theta[bias], whole.theta[bias],
+                                                                                 combined)
