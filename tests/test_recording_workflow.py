@@ -1,5 +1,5 @@
 """The workflow around a recording: `resolve` calibrates imported recordings again (it reported
-them FAILED, exit 1), and a refused `calibrate` leaves no session directory behind."""
+them FAILED, exit 1), and a refused `calibrate` or `import` leaves no session directory behind."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -62,6 +62,32 @@ def test_a_refused_calibrate_leaves_no_session_behind(tmp_path, capsys):
     assert code == 1  # read whole, nothing to calibrate from (the README's exit statuses)
     assert "distinct poses" in capsys.readouterr().err
     assert list(out.iterdir()) == []
+
+
+
+@pytest.mark.parametrize("command", ["import", "calibrate"])
+@pytest.mark.parametrize("name", ["log.bin", "log.ulg", "log.bag", "acc.txt"])
+def test_nuls_fed_to_import_or_calibrate_leave_nothing_at_the_out_path_or_through_a_link(tmp_path, capsys,
+                                                                                          command, name):
+    """A file of NULs, refused in one line (exit 2): nothing is made at a new nested --out (not its
+    parents either), and a link planted at --out is not followed: the folder it points at stays
+    empty and the link stays as it was (issue 25)."""
+    nuls = tmp_path / name
+    nuls.write_bytes(bytes(65536))
+    given = [str(nuls)] + (["--map", "imu_tk"] if name.endswith(".txt") else [])
+    if name.endswith(".txt"):  # the map's two files: both NULs
+        (tmp_path / "gyro.txt").write_bytes(bytes(65536))
+        given.insert(1, str(tmp_path / "gyro.txt"))
+    target = tmp_path / "elsewhere"
+    target.mkdir()
+    link = tmp_path / "planted"
+    link.symlink_to(target, target_is_directory=True)
+    for out in (tmp_path / "new" / "deeper" / "out", link):
+        assert main([command, *given, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and err.startswith("fieldcal: "), err
+    assert not (tmp_path / "new").exists()
+    assert link.is_symlink() and link.readlink() == target and list(target.iterdir()) == []
 
 
 def impossible_join(tmp_path):
