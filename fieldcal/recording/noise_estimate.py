@@ -144,15 +144,11 @@ class PoseNoise:
     variance: np.ndarray
     bias_instability: float
 
-    def means_covariance(self, intervals: np.ndarray, t: np.ndarray):
-        """The pose means' covariance by its parts (an ``up_covariance.MeansCovariance``, output
-        units): each mean's own white noise, and the flicker of B every axis alike."""
-        from fieldcal.recording.up_covariance import MeansCovariance
-
-        counts = np.diff(intervals, axis=1)[:, 0]
+    def flicker(self, intervals: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(m, m): the covariance of the pose means (``intervals`` of ``t``) that the flicker of B
+        makes, every axis alike (output units²)."""
         starts = t[intervals[:, 0]]
-        flicker = self.bias_instability**2 * flicker_covariance(starts, t[intervals[:, 1] - 1] - starts)
-        return MeansCovariance(flicker, np.eye(3), self.variance / counts[:, None])
+        return self.bias_instability**2 * flicker_covariance(starts, t[intervals[:, 1] - 1] - starts)
 
 
 WITHIN_POSE_PARTS = 2  # each pose cut in halves at least: their difference is noise alone, white and flicker

@@ -40,6 +40,7 @@ from fieldcal.recording.detect import interval_means
 from fieldcal.recording.noise_estimate import WITHIN_POSE, MeasuredNoise, PoseNoise, within_pose_noise
 from fieldcal.recording.outcome import SUBMODEL_PROTOCOL, RecordingCalibration, RecordingSettings
 from fieldcal.recording.place import UnknownPlace
+from fieldcal.recording.up_covariance import MeansCovariance
 from fieldcal.solvers.problems import StaticNormProblem
 
 # A singular direction known no better than this (natural units) is left at the nominal model:
@@ -227,7 +228,8 @@ def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndar
                                       unit, parts=True)
         sigma_from = SIGMA_FROM_SCATTER.format(dof=fit.dof)
     elif rate_hz is not None and pose_noise is not None:  # too few residuals: the poses' own samples
-        covariance, scale = pose_noise.means_covariance(intervals, t), False
+        covariance, scale = MeansCovariance(pose_noise.flicker(intervals, t), np.eye(3),
+                                            pose_noise.variance / counts[:, None]), False
         k = float(theta0[3])  # output units per SI unit
         measured = MeasuredNoise(white=float(np.sqrt(np.mean(pose_noise.variance) / rate_hz)) / k,
                                  bias_instability=pose_noise.bias_instability / k)
@@ -294,9 +296,9 @@ def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: 
     if noise is None and estimate and dof < SCATTER_DOF:  # too few readings to scatter: their own samples
         pose_noise = within_pose_noise(gyro, intervals, recording.t)
         bias = np.mean(still, axis=0)
-        own = pose_noise.means_covariance(intervals, recording.t)
         weights = np.full(m, 1.0 / m)
-        bias_sigma = np.sqrt(earth_mean + weights**2 @ own.own + weights @ own.windows @ weights)
+        own = weights**2 @ (pose_noise.variance / counts[:, None])
+        bias_sigma = np.sqrt(earth_mean + own + weights @ pose_noise.flicker(intervals, recording.t) @ weights)
         measured = MeasuredNoise(white=float(np.sqrt(np.mean(pose_noise.variance) / recording.rate_hz)) / abs(scale),
                                  bias_instability=pose_noise.bias_instability / abs(scale))
         sigma_from = WITHIN_POSE.format(dof=dof)
