@@ -154,8 +154,8 @@ class PoseNoise:
 WITHIN_POSE_PARTS = 2  # each pose cut in halves at least: their difference is noise alone, white and flicker
 WITHIN_POSE_ALL_PARTS = 8  # and in more when the poses are few (a single rest: 8 parts), so that the
 # parts' scatter rules out a B far above the truth: in halves, a single rest's σ were 1.5 times too wide.
-WITHIN_POSE = ("σ from each pose's own samples (their white noise and the bias instability their halves show), "
-               "not from the fit's residuals: {dof} degrees of freedom are too few to measure the noise by")
+WITHIN_POSE = ("σ from each pose's own samples (their white noise and the bias instability their parts show), "
+               "not from the fit's residuals (dof {dof}: too few to measure the noise by)")
 
 
 def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,

@@ -197,9 +197,9 @@ def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndar
     SCATTER_DOF degrees of freedom or more, as the full solve measures it, else from what each
     pose's own samples say (``pose_noise``, ``noise_estimate.within_pose_noise``), and then the
     σ are not scaled by χ²/dof either. A fit with as many poses as the parameters it determines
-    leaves no residual at all, whatever the noise; with a few more, χ²/dof scatters by a factor
-    of two: either way its σ came out 1.5 times too small (issue 27). The solution's
-    ``diagnostics.message`` says where its σ came from."""
+    leaves no residual at all, whatever the noise (its σ were the white noise's alone: RMS z 1.7);
+    with a few more, the scatter barely constrains B, which its prior then sets (RMS z 0.45; issue
+    27). The solution's ``diagnostics.message`` says where its σ came from."""
     from fieldcal.recording.static_solve import estimated_force_noise, means_covariance
 
     theta0 = nominal_theta(SPECIFIC_FORCE, unit)
@@ -218,15 +218,12 @@ def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndar
     if fit is None:
         return None, None
     covariance, measured, sigma_from, scale = None, None, "", True
-    if noise is not None:  # the device's model
-        covariance = means_covariance(intervals, t, variance, noise, _solution(name, unit, problem, fit, natural).K,
-                                      unit, parts=True)
-    elif rate_hz is not None and fit.dof >= SCATTER_DOF:  # the scatter measures it, as in the full solve
-        noise = measured = estimated_force_noise(_solution(name, unit, problem, fit, natural), means, intervals, t,
-                                                 variance, rate_hz, gravity)
-        covariance = means_covariance(intervals, t, variance, noise, _solution(name, unit, problem, fit, natural).K,
-                                      unit, parts=True)
+    white = _solution(name, unit, problem, fit, natural)  # on white-noise weights
+    if noise is None and rate_hz is not None and fit.dof >= SCATTER_DOF:  # measured by the scatter, as in a full solve
+        noise = measured = estimated_force_noise(white, means, intervals, t, variance, rate_hz, gravity)
         sigma_from = SIGMA_FROM_SCATTER.format(dof=fit.dof)
+    if noise is not None:  # the device's model, or the one the scatter measured
+        covariance = means_covariance(intervals, t, variance, noise, white.K, unit, parts=True)
     elif rate_hz is not None and pose_noise is not None:  # too few residuals: the poses' own samples
         covariance, scale = MeansCovariance(pose_noise.flicker(intervals, t), np.eye(3),
                                             pose_noise.variance / counts[:, None]), False
