@@ -306,8 +306,10 @@ def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: 
         if noise is None and estimate and m >= MIN_POSES_FOR_NOISE:  # measured, as the full solve does
             from fieldcal.recording.gyro_solve import estimated_rate_noise
 
+            # The Earth rate's share of the scatter, on average over the axes: at a known place
+            # (Ω·cos φ)²/3, not the /2 of a horizontal axis, which took flicker for Earth rate.
             noise = measured = estimated_rate_noise(still, up, intervals, recording.t, scale, rest_variance,
-                                                    scale**2 * earth_variance, recording.rate_hz)
+                                                    scale**2 * float(earth.mean()), recording.rate_hz)
             sigma_from = SIGMA_FROM_SCATTER.format(dof=dof)
         if noise is not None and noise.bias_instability:  # what every pose shares, which no scatter shows
             weights = np.full(m, 1.0 / m)
