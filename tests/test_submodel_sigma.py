@@ -151,3 +151,17 @@ def test_a_real_sub_model_agrees_with_the_full_solve_on_the_same_file(tmp_path):
         combined = np.hypot(whole.sigma[bias], part.sigma[bias])
         assert np.all(np.abs(part.theta[bias] - whole.theta[bias]) < combined), (part.theta[bias], whole.theta[bias],
                                                                                  combined)
+
+
+def test_within_pose_noise_of_poses_too_short_to_cut_is_white_alone():
+    """Poses of one and two samples (a --min-still far below the rate): a pose of one sample has
+    no parts to tell the flicker by (B = 0, its variance floored, never a division by zero); of
+    two, halves of one sample each."""
+    from fieldcal.recording.noise_estimate import within_pose_noise
+
+    values = np.random.default_rng(1).normal(9.8, 0.01, (10, 3))
+    t = np.arange(10) / 100.0
+    single = within_pose_noise(values, np.array([[0, 1], [3, 5]]), t)
+    assert single.bias_instability == 0.0 and np.all(single.variance > 0)
+    pair = within_pose_noise(values, np.array([[0, 2], [3, 5]]), t)
+    assert np.isfinite(pair.bias_instability) and np.all(np.isfinite(pair.flicker(np.array([[0, 2], [3, 5]]), t)))

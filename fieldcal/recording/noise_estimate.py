@@ -147,8 +147,7 @@ class PoseNoise:
     def flicker(self, intervals: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(m, m): the covariance of the pose means (``intervals`` of ``t``) that the flicker of B
         makes, every axis alike (output units²)."""
-        starts = t[intervals[:, 0]]
-        return self.bias_instability**2 * flicker_covariance(starts, t[intervals[:, 1] - 1] - starts)
+        return self.bias_instability**2 * flicker_covariance(t[intervals[:, 0]], _spans(t, intervals))
 
 
 WITHIN_POSE_PARTS = 2  # each pose cut in halves at least: their difference is noise alone, white and flicker
@@ -165,19 +164,21 @@ def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,
     noise). Each pose ``intervals`` (m, 2) [start, stop) of ``values`` (n, 3) gives its samples'
     variance, and its ``parts`` equal parts' means, whose scatter about the pose's mean is the
     noise alone (the pose, the bias and the scale are the same in every part; default: halves, more
-    when the poses are few): the white noise,
-    and the faster part of the flicker, which through the flicker model tells B (bias_instability),
-    and B the slow part that every pose shares and that no scatter shows. A drift within a pose
+    when the poses are few): the white noise, and the faster part of the flicker, which through
+    the flicker model tells B (bias_instability), and B the slow part that every pose shares and
+    that no scatter shows. A drift within a pose
     (a warm-up) counts as flicker: the σ err on the wide side."""
     intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
     m, values = len(intervals), np.asarray(values, dtype=float)
-    parts = parts or max(WITHIN_POSE_PARTS, math.ceil(WITHIN_POSE_ALL_PARTS / m))
     counts = np.diff(intervals, axis=1)
     mean = interval_means(values, intervals)
     variance = np.maximum(interval_means(values**2, intervals) - mean**2, 0.0) * counts / np.maximum(counts - 1, 1)
     # A pose read as one value throughout (a quantised rest) has a variance floored far below
     # anything a converter resolves, so that no weight is infinite.
     variance = np.maximum(variance, (1e-9 * np.maximum(np.abs(mean), 1.0)) ** 2)
+    parts = min(parts or max(WITHIN_POSE_PARTS, math.ceil(WITHIN_POSE_ALL_PARTS / m)), int(counts.min()))
+    if parts < 2:  # a pose of one sample: nothing to tell the flicker by
+        return PoseNoise(variance=variance, bias_instability=0.0)
     edges = intervals[:, :1] + (np.diff(intervals, axis=1) * np.arange(parts + 1)[None, :]) // parts
     windows = np.column_stack([edges[:, :-1].ravel(), edges[:, 1:].ravel()])
     means = interval_means(values, windows)
@@ -186,7 +187,12 @@ def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,
     white = np.repeat(np.mean(variance, axis=1), parts) / part_counts
     fitted = design @ (np.add.reduceat(means / white[:, None], np.arange(0, m * parts, parts), axis=0)
                        / np.add.reduceat(1.0 / white, np.arange(0, m * parts, parts))[:, None])
-    # Each part from its first sample to its last: jittered timestamps cannot make them overlap.
-    flicker = flicker_covariance(t[windows[:, 0]], t[windows[:, 1] - 1] - t[windows[:, 0]])
+    flicker = flicker_covariance(t[windows[:, 0]], _spans(t, windows))
     b = bias_instability(means - fitted, design, white, flicker, weights=1.0 / white)
     return PoseNoise(variance=variance, bias_instability=b)
+
+
+def _spans(t: np.ndarray, windows: np.ndarray) -> np.ndarray:
+    """Each window's duration (s) from its first sample to its last, so that jittered timestamps
+    cannot make neighbours overlap; one sample's period at least."""
+    return np.maximum(t[windows[:, 1] - 1] - t[windows[:, 0]], float(np.median(np.diff(t))) if len(t) > 1 else 1.0)
