@@ -37,8 +37,9 @@ from fieldcal.recording.detect import interval_means
 # good gyro's at 0.4, whose flicker no scatter shows; 0.5 gives 0.84-0.96 for every bias.
 PRIOR_POWER = 0.5
 ESTIMATED = ("no device config (--config): estimated from the recording, the white noise from its still "
-             "windows, the bias instability from how far the pose means scatter beyond it (flicker model, "
-             "whose slow part the biases' σ include)")
+             "windows, the bias instability from how far the pose means scatter beyond it (with too few poses "
+             "for that, each pose's parts; a note says which) (flicker model, whose slow part the biases' σ "
+             "include)")
 
 
 @dataclass(frozen=True)
