@@ -1,6 +1,8 @@
 """The covariance of the poses' up vectors, kept by its parts, so that the rotation solve's
-residual covariance (2 per motion) is made in O(m²) without the dense (3m, 3m) matrix, whose
-products with the chain of motions cost O(m³) and hundreds of MiB on a long recording.
+residual covariance (2 per motion) is whitened in O(m) (``chained_parts``, with the windows'
+covariance by its parts: ``solvers.semiseparable``), or made in O(m²) (``chained``), without the
+dense (3m, 3m) matrix, whose products with the chain of motions cost O(m³) and hundreds of MiB
+on a long recording.
 
 An up vector u_i = a_i/|a_i| moves by D_i·δa_i (D_i = ∂u/∂a at pose i), and a_i = K⁻¹(mean_i − b)
 by K⁻¹·δmean_i (each mean's noise) and by ∂a_i/∂θ·δθ (the accelerometer calibration's error, which
