@@ -99,6 +99,18 @@ def test_the_whitening_by_parts_is_the_dense_cholesky_factors(seed, held):
     np.testing.assert_allclose(structured, dense, rtol=0, atol=1e-9 * np.abs(dense).max())
 
 
+@pytest.mark.parametrize("m", [2, 3, 5])
+@pytest.mark.parametrize("bias_instability", [0.0, 1e-3], ids=["white", "flicker"])
+def test_the_whitening_by_parts_holds_for_the_shortest_chains(m, bias_instability):
+    """Two motions (no block two apart), three (one), and white noise alone (no generators)."""
+    rng, motions = _chain(11, m)
+    starts, T = _windows(rng, m + 1)
+    up = _up_covariance(rng, m, MarkovWindows.of(TriadNoise(white=2e-3, bias_instability=bias_instability), starts, T))
+    noise = RotationNoise(bias_sigma=0.01, rate_noise=1e-3, up_covariance=up)
+    structured, dense = _both(motions, noise, RotationStart.of(1.0, np.zeros(3)))
+    np.testing.assert_allclose(structured, dense, rtol=0, atol=1e-9 * np.abs(dense).max())
+
+
 def test_the_whitening_by_parts_takes_side_residuals_and_shared_pose_directions():
     """Side residuals (a prior on the scale, whitened already) tied to the rotations by the held
     bias; up_sigma's correlation of two motions around one pose; and white noise alone (no
