@@ -222,7 +222,8 @@ def test_a_big_file_is_parsed_once_and_its_arrays_grow_to_what_it_holds(tmp_path
     monkeypatch.setattr(DelimitedTextParser, "feed", counted)
     monkeypatch.setattr(importer, "PRESCAN_BYTES", 0)
     monkeypatch.setattr(importer, "FEED_BYTES", 4096)  # many pieces
-    monkeypatch.setattr(importer, "FIRST_LINES", 100)  # grown several times
+    monkeypatch.setattr(importer, "FIRST_LINES", 100)  # grown several times,
+    monkeypatch.setattr(importer, "SAMPLE_LINE_BYTES", 1 << 20)  # as for lines too short to be samples
     streamed = importer.import_with_report([path], "single-csv")
     assert sum(fed) == text.rfind(b"\n") + 1 and len(fed) > 10  # each whole line once, in pieces
     assert streamed[1].files == plain[1].files

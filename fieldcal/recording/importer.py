@@ -54,7 +54,8 @@ FEED_BYTES = 1 << 18  # text parsed at once
 # took 5 GB).
 NON_SAMPLE_FLOOR = 100_000
 PRESCAN_BYTES = 4 << 20  # a bigger text file is parsed from the file a piece at a time, never held whole
-FIRST_LINES = 1 << 19  # lines the parsed arrays are first made for (32 MiB), grown as samples come
+FIRST_LINES = 1 << 19  # lines the parsed arrays are first made for (32 MiB) when they are short, grown as samples come
+SAMPLE_LINE_BYTES = 16  # lines averaging this long may all be samples: the arrays made for all at once
 REUSE_BYTES = 1 << 22  # freed memory malloc keeps for the pieces' temporaries (_let_malloc_keep)
 # No recording's line comes near this (a sample is some 100 bytes): a longer line is no recording,
 # and parsed it would take ~6x its length (issue 25: a 150 MB line took 900 MB, or MemoryError).
@@ -203,7 +204,8 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     parser = DelimitedTextParser(cm, keep_malformed=max(min(n_lines, FEED_BYTES), 1))
     # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
     # not header lines, in order (the parser returns values, not where they came from).
-    t, triads, candidates, malformed, headers = _parse_pieces(parser, text.pieces(), cm.comment, n_lines, path)
+    t, triads, candidates, malformed, headers = _parse_pieces(parser, text.pieces(), cm.comment, n_lines, path,
+                                                              size - zeros if streamed else len(text.held()))
     if streamed:
         sha256 = text.sha256()
     # A last line with no line end was cut off mid-write (its last number may be cut short): it
@@ -274,7 +276,8 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     return _Parsed(spec, report, t, triads)
 
 
-def _parse_pieces(parser: DelimitedTextParser, pieces, comment: str | None, n_lines: int, path: str):
+def _parse_pieces(parser: DelimitedTextParser, pieces, comment: str | None, n_lines: int, path: str,
+                  text_bytes: int):
     """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, of the
     malformed lines and of the lines the parser calls headers, sorted) of the text's ``n_lines``
     whole lines, fed to the parser in ``pieces`` of whole lines (``_Text.pieces``): the
@@ -282,10 +285,11 @@ def _parse_pieces(parser: DelimitedTextParser, pieces, comment: str | None, n_li
     it would within the file. Each piece's results go straight into arrays of the file's size
     (no list of pieces and its joined copy held at once). Refused as soon as the lines that are
     no sample break the NON_SAMPLE_FLOOR rule."""
-    # Arrays of up to the file's lines, at most one sample a line; made for FIRST_LINES at first
-    # and grown (to twice, at most to the file's lines) as the samples come: a file of 200 MB of
+    # Arrays of up to the file's lines, at most one sample a line: made so at once where the
+    # lines are as long as samples' (``text_bytes`` of text), else for FIRST_LINES at first and
+    # grown (to twice, at most to the file's lines) as the samples come: a file of 200 MB of
     # blank lines has 200 million lines and is refused long before that many would be held.
-    capacity = min(n_lines, FIRST_LINES)
+    capacity = n_lines if n_lines <= text_bytes // SAMPLE_LINE_BYTES else min(n_lines, FIRST_LINES)
     content, t, triads = np.empty(capacity, dtype=np.int64), np.empty(capacity), None
     malformed, headers = [], []
     n_content, n = 0, 0
