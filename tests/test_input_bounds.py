@@ -197,6 +197,41 @@ def test_the_scan_before_a_big_file_is_held_changes_nothing_it_imports(tmp_path,
         np.testing.assert_array_equal(scanned[0].triads[name], plain[0].triads[name])
 
 
+def test_a_big_file_is_parsed_once_and_its_arrays_grow_to_what_it_holds(tmp_path, monkeypatch):
+    """Issue 27: a file above PRESCAN_BYTES was parsed twice (scanned for junk, then held and
+    parsed again: 0.36 of 0.96 s importing imu_tk's recording joined 16×). It is parsed once, a
+    piece at a time from the file: every byte reaches the parser once (counted at the parser),
+    and the arrays made for a few lines and grown give the recording and report of a small file."""
+    import numpy as np
+
+    from drivers.protocols.delimited import DelimitedTextParser
+    from fieldcal.recording import importer
+
+    path = tmp_path / "logger.csv"
+    text = (b"# a comment\n" + _valid_recording_text(3000) + b"x\n1,2\n\n" * 20
+            + b"30000,1,2,3,4,5,6\n30010,1,2,3,4,5,6")  # and a last line cut off
+    path.write_bytes(text)
+    plain = importer.import_with_report([path], "single-csv")
+    fed = []
+    feed = DelimitedTextParser.feed
+
+    def counted(self, data, *args):
+        fed.append(len(data))
+        return feed(self, data, *args)
+
+    monkeypatch.setattr(DelimitedTextParser, "feed", counted)
+    monkeypatch.setattr(importer, "PRESCAN_BYTES", 0)
+    monkeypatch.setattr(importer, "FEED_BYTES", 4096)  # many pieces
+    monkeypatch.setattr(importer, "FIRST_LINES", 100)  # grown several times,
+    monkeypatch.setattr(importer, "SAMPLE_LINE_BYTES", 1 << 20)  # as for lines too short to be samples
+    streamed = importer.import_with_report([path], "single-csv")
+    assert sum(fed) == text.rfind(b"\n") + 1 and len(fed) > 10  # each whole line once, in pieces
+    assert streamed[1].files == plain[1].files
+    np.testing.assert_array_equal(streamed[0].t, plain[0].t)
+    for name in plain[0].triads:
+        np.testing.assert_array_equal(streamed[0].triads[name], plain[0].triads[name])
+
+
 def _with_long_first_line(path: Path, length: int, samples: bytes) -> Path:
     """A file that starts with one line of ``length`` "a" bytes, then a valid recording, written
     a block at a time (the test holds no copy of the long line)."""

@@ -53,7 +53,9 @@ FEED_BYTES = 1 << 18  # text parsed at once
 # instead of every junk line being kept and parsed line by line (issue 25: 20 MB of "x" lines
 # took 5 GB).
 NON_SAMPLE_FLOOR = 100_000
-PRESCAN_BYTES = 4 << 20  # a bigger text file is scanned for the rule above before it is held
+PRESCAN_BYTES = 4 << 20  # a bigger text file is parsed from the file a piece at a time, never held whole
+FIRST_LINES = 1 << 19  # lines the parsed arrays are first made for (32 MiB) when they are short, grown as samples come
+SAMPLE_LINE_BYTES = 16  # lines averaging this long may all be samples: the arrays made for all at once
 REUSE_BYTES = 1 << 22  # freed memory malloc keeps for the pieces' temporaries (_let_malloc_keep)
 # No recording's line comes near this (a sample is some 100 bytes): a longer line is no recording,
 # and parsed it would take ~6x its length (issue 25: a 150 MB line took 900 MB, or MemoryError).
@@ -170,40 +172,46 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
             size, zeros = (os.fstat(f.fileno()).st_size, 0) if container else zero_tail(path)
             if not container:
                 f.seek(0)
-                check_line_lengths(_blocks(f, size - zeros), path)  # before the text is held or parsed
-                f.seek(0)
-            if not container and size - zeros > PRESCAN_BYTES:
-                _prescan(f, size - zeros, spec, path)  # before the text is held: junk refused in bounded memory
+                n_ends = check_line_lengths(_blocks(f, size - zeros), path)  # before the text is held or parsed
+            streamed = not container and size - zeros > PRESCAN_BYTES
             f.seek(0)
-            data = f.read(size - zeros)
+            data = f.read(HEADER_SEARCH_BYTES if streamed else size - zeros)
     except OSError as exc:
         raise RecordingImportError(f"{path}: cannot read {spec.name} ({exc.strerror or exc})", path) from None
-    sha256 = hashlib.sha256(data).hexdigest()  # of the file as it is, compressed or a MAT-file
-    try:
-        data = text_of(data, path, spec)
-    except ContainerError as exc:
-        raise RecordingImportError(str(exc), path) from None
-    if container:  # the text inside: measured as it is, a block at a time (no copy)
-        view = memoryview(data)
-        check_line_lengths((view[lo:lo + LINE_CHECK_BYTES] for lo in range(0, len(data), LINE_CHECK_BYTES)), path)
+    if streamed:  # parsed a piece at a time from the file, never held whole: junk refused in bounded memory
+        text: _Text = _FileText(path, spec.name, size - zeros)
+    else:
+        sha256 = hashlib.sha256(data).hexdigest()  # of the file as it is, compressed or a MAT-file
+        try:
+            data = text_of(data, path, spec)
+        except ContainerError as exc:
+            raise RecordingImportError(str(exc), path) from None
+        if container:  # the text inside: measured as it is, a block at a time (no copy)
+            view = memoryview(data)
+            n_ends = check_line_lengths((view[lo:lo + LINE_CHECK_BYTES] for lo in range(0, len(data), LINE_CHECK_BYTES)),
+                                        path)
+        text = _HeldText(data)
     cm = spec.resolve(header_fields(data, spec, path), path) if spec.channel_map is None else spec.channel_map
+    del data  # the head, or the text (the held source keeps it)
     rate_hz = rate_hz or spec.rate_hz
     if cm.time_column is None and rate_hz is None:
         raise RecordingImportError(f"{path}: {spec.name} has no time column: give its sample rate "
                                    f"(--rate HZ, or rate_hz in the map's {spec.where or 'entry'})", path)
-    # A last line with no line end was cut off mid-write (its last number may be cut short): it
-    # is not parsed, and counts as malformed.
-    cut = data.rfind(b"\n") + 1
-    tail = data[cut:].strip(b" \t\r")
     comment = cm.comment.encode("ascii") if cm.comment else None
-    unterminated = bool(tail) and not (comment and tail.startswith(comment))
-    n_lines = _count_lines(data, cut)
+    n_lines = n_ends
     # Every malformed and header line's number is needed below: taken after each piece (at most a line a byte),
     # and the rule on non-sample lines bounds their count.
     parser = DelimitedTextParser(cm, keep_malformed=max(min(n_lines, FEED_BYTES), 1))
     # Line numbers of the samples: the lines that are not blank, not comments, not malformed and
     # not header lines, in order (the parser returns values, not where they came from).
-    t, triads, candidates, malformed, headers = _parse_pieces(parser, data, cut, cm.comment, n_lines, path)
+    t, triads, candidates, malformed, headers = _parse_pieces(parser, text.pieces(), cm.comment, n_lines, path,
+                                                              size - zeros if streamed else len(text.held()))
+    if streamed:
+        sha256 = text.sha256()
+    # A last line with no line end was cut off mid-write (its last number may be cut short): it
+    # is not parsed, and counts as malformed.
+    tail = text.tail().strip(b" \t\r")
+    unterminated = bool(tail) and not (comment and tail.startswith(comment))
     n = len(t)
     rest = np.setdiff1d(candidates, malformed, assume_unique=True) if len(malformed) else candidates
     # cannot happen unless the parser's rules change
@@ -212,10 +220,12 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
                            f"({len(rest)} lines for {n} samples and {parser.header_lines} headers)")
     # Where each line is: needed for header and malformed lines only (a clean file has none).
     if parser.header_lines or len(malformed):
-        ends = np.flatnonzero(np.frombuffer(data, dtype=np.uint8, count=cut) == 10)
+        data = text.held()
+        ends = np.flatnonzero(np.frombuffer(data, dtype=np.uint8, count=text.cut) == 10)
         starts = np.r_[0, ends[:-1] + 1]
     else:
-        starts = ends = np.zeros(0, dtype=np.int64)
+        data, starts = b"", np.zeros(0, dtype=np.int64)
+        ends = starts
     lines = np.setdiff1d(rest, headers, assume_unique=True) if len(headers) else rest
     first = lines[0] if n else np.iinfo(np.int64).max
     # Text lines before the first sample are the header and metadata ("Fs,100" does not parse as
@@ -226,8 +236,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
                     dtype=bool)
     malformed = np.union1d(malformed[malformed > first], np.concatenate([headers[headers > first], leading[~text]]))
     header_count = int(np.count_nonzero(text))
-    n_ends = n_lines
-    del data, starts, ends, candidates, rest  # the bytes and per-line arrays: not needed from here
+    del data, text, starts, ends, candidates, rest  # the bytes and per-line arrays: not needed from here
     if unterminated:
         malformed = np.r_[malformed, n_ends + 1].astype(np.int64)
     if n < 2:
@@ -267,31 +276,39 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
     return _Parsed(spec, report, t, triads)
 
 
-def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: str | None, n_lines: int,
-                  path: str):
+def _parse_pieces(parser: DelimitedTextParser, pieces, comment: str | None, n_lines: int, path: str,
+                  text_bytes: int):
     """(t, triads, the 1-based numbers of the lines that are neither blank nor comments, of the
-    malformed lines and of the lines the parser calls headers, sorted) of data[:cut] (its ``n_lines`` whole lines), fed to the parser
-    in pieces of about FEED_BYTES cut at line ends: the temporaries are some ten times the bytes
-    seen at once, and a piece of whole lines parses as it would within the file. Each piece's
-    results go straight into arrays of the file's size (no list of pieces and its joined copy
-    held at once). Refused as soon as the lines that are no sample break the NON_SAMPLE_FLOOR rule."""
-    content = np.empty(n_lines, dtype=np.int64)
-    t, triads = np.empty(n_lines), None  # at most one sample a line
+    malformed lines and of the lines the parser calls headers, sorted) of the text's ``n_lines``
+    whole lines, fed to the parser in ``pieces`` of whole lines (``_Text.pieces``): the
+    temporaries are some ten times the bytes seen at once, and a piece of whole lines parses as
+    it would within the file. Each piece's results go straight into arrays of the file's size
+    (no list of pieces and its joined copy held at once). Refused as soon as the lines that are
+    no sample break the NON_SAMPLE_FLOOR rule."""
+    # Arrays of up to the file's lines, at most one sample a line: made so at once where the
+    # lines are as long as samples' (``text_bytes`` of text), else for FIRST_LINES at first and
+    # grown (to twice, at most to the file's lines) as the samples come: a file of 200 MB of
+    # blank lines has 200 million lines and is refused long before that many would be held.
+    capacity = n_lines if n_lines <= text_bytes // SAMPLE_LINE_BYTES else min(n_lines, FIRST_LINES)
+    content, t, triads = np.empty(capacity, dtype=np.int64), np.empty(capacity), None
     malformed, headers = [], []
-    lo, n_content, n = 0, 0, 0
-    while lo < cut:  # a loop over pieces, a dozen per MiB
-        hi = data.rfind(b"\n", lo, min(lo + FEED_BYTES, cut)) + 1 or data.find(b"\n", lo, cut) + 1
+    n_content, n = 0, 0
+    for piece in pieces:  # a dozen per MiB
         lines = parser.lines
-        chunk = parser.feed(data[lo:hi], 0.0)
+        chunk = parser.feed(piece, 0.0)
         check_non_samples(parser, path)
         for numbers, kept in ((parser.malformed_line_numbers, malformed), (parser.header_line_numbers, headers)):
             if numbers:  # taken piece by piece: the parser keeps only so many
                 kept.append(np.array(numbers, dtype=np.int64))
                 numbers.clear()
+        if parser.lines > capacity:  # every line of the piece may be content, and a sample
+            capacity = min(n_lines, max(2 * capacity, parser.lines))
+            content, t = _grown(content, n_content, capacity), _grown(t, n, capacity)
+            triads = None if triads is None else {name: _grown(v, n, capacity) for name, v in triads.items()}
         k = 0 if chunk is None else len(chunk.t)
         if chunk is not None:
             if triads is None:
-                triads = {name: np.empty((n_lines, 3)) for name in chunk.triads}
+                triads = {name: np.empty((capacity, 3)) for name in chunk.triads}
             t[n:n + k] = chunk.t
             for name, values in chunk.triads.items():
                 triads[name][n:n + k] = values
@@ -299,17 +316,109 @@ def _parse_pieces(parser: DelimitedTextParser, data: bytes, cut: int, comment: s
         if k == parser.lines - lines:  # every line a sample: all are content
             part = np.arange(lines + 1, parser.lines + 1, dtype=np.int64)
         else:
-            a = np.frombuffer(data, dtype=np.uint8, count=hi - lo, offset=lo)
+            a = np.frombuffer(piece, dtype=np.uint8)
             end = np.flatnonzero(a == 10)
             part = lines + _content_lines(a, np.r_[0, end[:-1] + 1], end, comment)
         content[n_content:n_content + len(part)] = part
         n_content += len(part)
-        lo = hi
     malformed = np.sort(np.concatenate(malformed)) if malformed else np.zeros(0, dtype=np.int64)
     headers = np.sort(np.concatenate(headers)) if headers else np.zeros(0, dtype=np.int64)
     if triads is None:
         return np.zeros(0), {}, content[:n_content], malformed, headers
     return t[:n], {name: values[:n] for name, values in triads.items()}, content[:n_content], malformed, headers
+
+
+def _grown(values: np.ndarray, used: int, capacity: int) -> np.ndarray:
+    """``values``' first ``used`` rows in an array of ``capacity`` rows."""
+    out = np.empty((capacity,) + values.shape[1:], dtype=values.dtype)
+    out[:used] = values[:used]
+    return out
+
+
+class _Text:
+    """A file's text for ``_parse_pieces``: its whole lines a piece at a time; then where the
+    last line end is (``cut``), what follows it (``tail``) and, when line positions are needed,
+    the text itself (``held``)."""
+
+    cut: int = 0
+
+    def pieces(self):
+        raise NotImplementedError
+
+    def tail(self) -> bytes:
+        raise NotImplementedError
+
+    def held(self) -> bytes:
+        raise NotImplementedError
+
+
+class _HeldText(_Text):
+    """Text already in memory (a small file, or one unpacked from a container)."""
+
+    def __init__(self, data: bytes):
+        self.data = data
+        self.cut = data.rfind(b"\n") + 1
+
+    def pieces(self):
+        data, cut, lo = self.data, self.cut, 0
+        while lo < cut:
+            hi = data.rfind(b"\n", lo, min(lo + FEED_BYTES, cut)) + 1 or data.find(b"\n", lo, cut) + 1
+            yield data[lo:hi]
+            lo = hi
+
+    def tail(self) -> bytes:
+        return self.data[self.cut:]
+
+    def held(self) -> bytes:
+        return self.data
+
+
+class _FileText(_Text):
+    """The first ``size`` bytes of a text file read a piece at a time (FEED_BYTES, cut at line
+    ends), never held whole unless ``held`` is asked for; their SHA-256 made on the way. A big
+    file is so parsed once, where it was scanned for junk first and parsed again once held."""
+
+    def __init__(self, path: str, name: str, size: int):
+        self.path, self.name, self.size = path, name, size
+        self._digest = hashlib.sha256()
+        self._tail = b""
+
+    def pieces(self):
+        carried, done = b"", 0
+        try:
+            with open(self.path, "rb") as f:
+                while done < self.size:
+                    block = f.read(min(FEED_BYTES, self.size - done))
+                    if not block:
+                        break
+                    done += len(block)
+                    self._digest.update(block)
+                    end = block.rfind(b"\n") + 1
+                    if end == 0:  # no line end in this block: the line goes on (LONGEST_LINE bounds it)
+                        carried += block
+                        continue
+                    piece = carried + block[:end]
+                    carried = block[end:]
+                    self.cut += len(piece)
+                    yield piece
+        except OSError as exc:
+            raise RecordingImportError(f"{self.path}: cannot read {self.name} ({exc.strerror or exc})",
+                                       self.path) from None
+        self._tail = carried
+
+    def sha256(self) -> str:
+        return self._digest.hexdigest()
+
+    def tail(self) -> bytes:
+        return self._tail
+
+    def held(self) -> bytes:
+        try:
+            with open(self.path, "rb") as f:
+                return f.read(self.size)
+        except OSError as exc:
+            raise RecordingImportError(f"{self.path}: cannot read {self.name} ({exc.strerror or exc})",
+                                       self.path) from None
 
 
 def check_non_samples(parser: DelimitedTextParser, path: str) -> None:
@@ -326,10 +435,10 @@ def check_non_samples(parser: DelimitedTextParser, path: str) -> None:
         f"against {samples} samples: not read further; cut the file to its samples and import that", path)
 
 
-def check_line_lengths(blocks, path: str) -> None:
+def check_line_lengths(blocks, path: str) -> int:
     """Refuse, in one line naming the line and its length, text with a line longer than
-    LONGEST_LINE. ``blocks``: the text's bytes in order, a block at a time; memory is one block
-    and its newline positions, whatever the lines' lengths."""
+    LONGEST_LINE; else the number of line ends. ``blocks``: the text's bytes in order, a block
+    at a time; memory is one block and its newline positions, whatever the lines' lengths."""
     line, since = 1, 0  # the current line's number, its bytes in earlier blocks
     for block in blocks:
         a = np.frombuffer(block, dtype=np.uint8)
@@ -346,6 +455,7 @@ def check_line_lengths(blocks, path: str) -> None:
             since += len(a)
         if since > LONGEST_LINE:  # no need to read to its end (there may be none)
             _refuse_long_line(path, line, since, complete=False)
+    return line - 1
 
 
 def _refuse_long_line(path: str, line: int, length: int, complete: bool) -> None:
@@ -364,30 +474,6 @@ def _blocks(f, size: int):
             return
         done += len(block)
         yield block
-
-
-def _prescan(f, size: int, spec: FileSpec, path: str) -> None:
-    """Apply the NON_SAMPLE_FLOOR rule to the first ``size`` bytes of ``f`` a piece at a time,
-    keeping nothing: a file of junk is refused before it is held. Parses a big text file twice
-    (the second time held and with line numbers); the first costs a fraction of the import."""
-    head = f.read(HEADER_SEARCH_BYTES)
-    cm = spec.resolve(header_fields(head, spec, path), path) if spec.channel_map is None else spec.channel_map
-    parser = DelimitedTextParser(cm)
-    parser.feed(head, 0.0)
-    done = len(head)
-    while done < size:
-        piece = f.read(min(FEED_BYTES, size - done))
-        if not piece:
-            break
-        done += len(piece)
-        parser.feed(piece, 0.0)
-        check_non_samples(parser, path)
-
-
-def _count_lines(data: bytes, cut: int) -> int:
-    """How many "\n" in data[:cut], a piece at a time (no mask the size of the file)."""
-    return sum(int(np.count_nonzero(np.frombuffer(data, dtype=np.uint8, count=min(FEED_BYTES, cut - lo),
-                                                  offset=lo) == 10)) for lo in range(0, cut, FEED_BYTES))
 
 
 def _let_malloc_keep(size: int) -> None:

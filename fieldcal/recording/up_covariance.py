@@ -1,6 +1,8 @@
 """The covariance of the poses' up vectors, kept by its parts, so that the rotation solve's
-residual covariance (2 per motion) is made in O(m²) without the dense (3m, 3m) matrix, whose
-products with the chain of motions cost O(m³) and hundreds of MiB on a long recording.
+residual covariance (2 per motion) is whitened in O(m) (``chained_parts``, with the windows'
+covariance by its parts: ``solvers.semiseparable``), or made in O(m²) (``chained``), without the
+dense (3m, 3m) matrix, whose products with the chain of motions cost O(m³) and hundreds of MiB
+on a long recording.
 
 An up vector u_i = a_i/|a_i| moves by D_i·δa_i (D_i = ∂u/∂a at pose i), and a_i = K⁻¹(mean_i − b)
 by K⁻¹·δmean_i (each mean's noise) and by ∂a_i/∂θ·δθ (the accelerometer calibration's error, which
@@ -15,16 +17,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from fieldcal.recording.noise_estimate import window_covariance
+from fieldcal.solvers.semiseparable import ChainedPoses, MarkovWindows
 
 
 @dataclass(frozen=True)
 class UpCovariance:
-    """``D`` (m, 3, 3): ∂u/∂a per pose; ``windows`` (m, m) or None: the covariance shared by the
-    three axes of a (W_ij·I); ``own`` (m, 3, 3): each pose's own covariance in a; ``shared``
+    """``D`` (m, 3, 3): ∂u/∂a per pose; ``windows`` (m, m), its parts (``MarkovWindows``: the
+    rotation solve then whitens in O(m), see ``chained_parts``) or None: the covariance shared by
+    the three axes of a (W_ij·I); ``own`` (m, 3, 3): each pose's own covariance in a; ``shared``
     (m, 3, p) with ``theta_covariance`` (p, p): ∂u_i/∂θ and the calibration's covariance."""
 
     D: np.ndarray
-    windows: np.ndarray | None
+    windows: np.ndarray | MarkovWindows | None
     own: np.ndarray
     shared: np.ndarray
     theta_covariance: np.ndarray
@@ -40,7 +44,7 @@ class UpCovariance:
         out = S @ self.theta_covariance @ S.T
         blocks = np.zeros((m, 3, m, 3))
         if self.windows is not None:
-            blocks += self.windows[:, None, :, None] * np.einsum("iac,jbc->iajb", self.D, self.D)
+            blocks += self._dense_windows()[:, None, :, None] * np.einsum("iac,jbc->iajb", self.D, self.D)
         idx = np.arange(m)
         blocks[idx, :, idx, :] += self.D @ self.own @ np.swapaxes(self.D, 1, 2)
         return out + blocks.reshape(3 * m, 3 * m)
@@ -64,10 +68,11 @@ class UpCovariance:
         del shared
         blocks = out.reshape(k, 2, k, 2)  # a view: each motion's 2×2 block
         if self.windows is not None:
+            windows = self._dense_windows()
             for s in (0, 1):
                 for t in (0, 1):
                     product = (Y[s].reshape(2 * k, 3) @ Y[t].reshape(2 * k, 3).T).reshape(k, 2, k, 2)
-                    product *= self.windows[poses[s], poses[t]][:, None, :, None]
+                    product *= windows[poses[s], poses[t]][:, None, :, None]
                     blocks += product
                     del product
         # Each pose's own part reaches the motions that touch it: block-tridiagonal.
@@ -79,6 +84,23 @@ class UpCovariance:
         blocks[idx[:-1], :, idx[1:], :] += between
         blocks[idx[1:], :, idx[:-1], :] += np.swapaxes(between, 1, 2)
         return out
+
+    def chained_parts(self, E: np.ndarray, C: np.ndarray) -> ChainedPoses:
+        """What ``chained`` sums, by its parts (the rotation solve's structured whitening): each
+        motion's maps of δa at its start and end pose, of the calibration's error, and each pose's
+        own part where it reaches the motions that touch it."""
+        k = len(E)
+        Et = np.swapaxes(E, 1, 2)
+        ends = (Et @ np.swapaxes(C, 1, 2), -Et)
+        start, end = ends[0] @ self.D[:-1], ends[1] @ self.D[1:]
+        shared = ends[0] @ self.shared[:-1] + ends[1] @ self.shared[1:]
+        own_diagonal = start @ self.own[:-1] @ np.swapaxes(start, 1, 2) + end @ self.own[1:] @ np.swapaxes(end, 1, 2)
+        own_sub = start[1:] @ self.own[1:-1] @ np.swapaxes(end[:-1], 1, 2)  # pose i+1: start of i+1, end of i
+        return ChainedPoses(start, end, shared.reshape(k, 2, -1), self.theta_covariance, own_diagonal, own_sub,
+                            self.windows)
+
+    def _dense_windows(self) -> np.ndarray:
+        return self.windows.dense() if isinstance(self.windows, MarkovWindows) else np.asarray(self.windows)
 
 
 @dataclass(frozen=True)
@@ -101,16 +123,19 @@ class MeansCovariance:
 
 
 def means_parts(intervals: np.ndarray, t: np.ndarray, variance: np.ndarray, noise, K: np.ndarray,
-                quantised: bool) -> tuple[np.ndarray | None, np.ndarray]:
+                quantised: bool) -> tuple[np.ndarray | MarkovWindows | None, np.ndarray]:
     """(windows, own) of the pose means' covariance in a = K⁻¹·mean, as ``static_solve.means_covariance``
     makes it in output units: white noise per axis alone (no noise model), else the model's
-    window covariance on every axis alike plus, for ``quantised`` raw counts, one count's."""
+    window covariance on every axis alike (by its parts where the windows are in time order)
+    plus, for ``quantised`` raw counts, one count's."""
     counts = np.diff(intervals, axis=1)[:, 0]
     K_inv = np.linalg.inv(K)
     if noise is None:
         own = (K_inv[None] * (variance[None, None, :] / counts[:, None, None])) @ K_inv.T
         return None, own
     durations = counts * float(np.median(np.diff(t)))
-    windows = window_covariance(noise, t[intervals[:, 0]], durations)
+    windows = MarkovWindows.of(noise, t[intervals[:, 0]], durations)
+    if windows is None:
+        windows = window_covariance(noise, t[intervals[:, 0]], durations)
     scale = (1.0 / 12.0 / counts) if quantised else np.zeros(len(counts))
     return windows, scale[:, None, None] * (K_inv @ K_inv.T)[None]

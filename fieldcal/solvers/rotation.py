@@ -53,6 +53,7 @@ from scipy.spatial.transform import Rotation
 from fieldcal.calibration import ROTATION_METHOD, Calibration, SolverDiagnostics
 from fieldcal.model import ANGULAR_RATE, FULL_PARAM_NAMES, k_from_terms, terms_from_k
 from fieldcal.solvers.norm import CalibrationError
+from fieldcal.solvers.semiseparable import BlockSemiseparable
 
 BIAS_NAMES = FULL_PARAM_NAMES[:3]
 METHODS = ("lsq", "powell")
@@ -484,27 +485,37 @@ def _chained_up_covariance(E, C, up_covariance):
 
 def _residual_covariance(E, C, shared, up_sigma, rate_noise, duration, motion_variance=None, out=None):
     """(2m, 2m) covariance of the rotation residuals from the direction and rate noise (into
-    ``out``, zeros of that shape, when given).
+    ``out``, zeros of that shape, when given): ``_independent_parts`` placed."""
+    m = len(E)
+    cov = np.zeros((2 * m, 2 * m)) if out is None else out
+    diagonal, above = _independent_parts(E, C, shared, up_sigma, rate_noise, duration, motion_variance)
+    cov[np.arange(2 * m), np.arange(2 * m)] += diagonal
+    for i in np.flatnonzero(np.any(above != 0, axis=(1, 2))):
+        cov[2 * i:2 * i + 2, 2 * i + 2:2 * i + 4] = above[i]
+        cov[2 * i + 2:2 * i + 4, 2 * i:2 * i + 2] = above[i].T
+    return cov
+
+
+def _independent_parts(E, C, shared, up_sigma, rate_noise, duration, motion_variance=None):
+    """The residual covariance from the direction and rate noise: its diagonal (2m,) and the
+    blocks (m − 1, 2, 2) above it, (i, i+1).
 
     A direction error δ at the start pose reaches the residual as E_endᵀ·Cᵀ·δ, one at the end
     as −E_endᵀ·δ; both are isotropic in the tangent plane. A pose shared by motions i and i+1
     correlates them by −σ²·E_iᵀ·C_{i+1}·E_{i+1}."""
     m = len(E)
-    cov = np.zeros((2 * m, 2 * m)) if out is None else out
+    diagonal, above = np.zeros(2 * m), np.zeros((max(m - 1, 0), 2, 2))
     if up_sigma is not None:
         s = np.asarray(up_sigma, dtype=float)
         s = np.broadcast_to(s[:, None] if s.ndim == 1 else s, (m, 2))
-        cov[np.arange(2 * m), np.arange(2 * m)] += np.repeat(s[:, 0] ** 2 + s[:, 1] ** 2, 2)
-        for i in np.flatnonzero(shared):
-            block = -s[i, 1] * s[i + 1, 0] * E[i].T @ C[i + 1] @ E[i + 1]
-            cov[2 * i:2 * i + 2, 2 * i + 2:2 * i + 4] = block
-            cov[2 * i + 2:2 * i + 4, 2 * i:2 * i + 2] = block.T
-    diagonal = np.arange(2 * m)  # the independent parts: on the diagonal, two per motion
+        diagonal += np.repeat(s[:, 0] ** 2 + s[:, 1] ** 2, 2)
+        i = np.flatnonzero(shared)
+        above[i] = -(s[i, 1] * s[i + 1, 0])[:, None, None] * (np.swapaxes(E[i], 1, 2) @ C[i + 1] @ E[i + 1])
     if rate_noise is not None:  # angle random walk, independent between motions
-        cov[diagonal, diagonal] += np.repeat(rate_noise**2 * duration, 2)
+        diagonal += np.repeat(rate_noise**2 * duration, 2)
     if motion_variance is not None:  # e.g. the horizontal Earth rate, heading unknown
-        cov[diagonal, diagonal] += np.repeat(np.broadcast_to(np.asarray(motion_variance, float), (m,)), 2)
-    return cov
+        diagonal += np.repeat(np.broadcast_to(np.asarray(motion_variance, float), (m,)), 2)
+    return diagonal, above
 
 
 def _jacobian(fun, x, steps, central=True, f0=None):
@@ -663,15 +674,70 @@ def _check_geometry(model: _Residuals, J_start, natural, name) -> np.ndarray:
     return J_rot
 
 
-def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side: int, name: str) -> np.ndarray | None:
-    """Whitening of [rotation residuals, side residuals]: the side ones come whitened, but a fixed
-    bias's error is common to all of them, so it is marginalised over the joint vector
-    (``J_start``, ``q_start``: model.jacobian's at theta0; its first columns are ∂r/∂b)."""
+def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side: int, name: str):
+    """Whitening of [rotation residuals, side residuals] (``whiten @ r``): the side ones come
+    whitened, but a fixed bias's error is common to all of them, so it is marginalised over the
+    joint vector (``J_start``, ``q_start``: model.jacobian's at theta0; its first columns are
+    ∂r/∂b). The covariance's Cholesky factor by its parts in O(m) (``semiseparable``) where the
+    pose directions' covariance comes by its parts (or not at all), else dense."""
     if not noise.given:
         return None
-    m, start, steps = len(model.motions.spans), model.start, model.steps
-    K_inv0 = model.unpack(model.theta0)[1]
     C = Rotation.from_quat(q_start).as_matrix()
+    G = _bias_map(model, J_start, noise) if noise.bias_sigma is not None and not model.start.estimate_bias else None
+    parts = getattr(noise.up_covariance, "chained_parts", None)
+    chained = None if parts is None else parts(model.E, C)
+    if noise.up_covariance is None or (chained is not None and not isinstance(chained.windows, np.ndarray)):
+        structured = _structured_covariance(model, C, noise, chained, G, n_side)
+        try:
+            return structured.factor()
+        except ValueError:
+            raise CalibrationError(f"{name}: the residual covariance is not positive definite") from None
+    return _dense_whitening(model, C, noise, G, n_side, name)
+
+
+def _bias_map(model: _Residuals, J_start, noise: RotationNoise) -> np.ndarray:
+    """∂[rotations, side residuals]/∂b at the start times the held bias's σ: its error, common to
+    every residual, is their covariance's low-rank part G·Σb·Gᵀ."""
+    G = J_start[:, :3]
+    model_extra, start = model.extra, model.start
+    if model_extra is not None:
+        K_inv0 = model.unpack(model.theta0)[1]
+
+        def extra(b):
+            return np.atleast_1d(np.asarray(model_extra(K_inv0, b.copy()), dtype=float))
+        G = np.vstack([G, _jacobian(extra, start.b0, 1e-6 * np.abs(np.diag(start.K0)))])
+    return G * model.sigma_b
+
+
+def _structured_covariance(model: _Residuals, C, noise: RotationNoise, chained, G, n_side: int):
+    """The residual covariance (as ``_dense_whitening`` makes it) as a ``BlockSemiseparable``:
+    one 2×2 block per motion, the side residuals a last block; the pose directions' covariance
+    from ``chained`` (``ChainedPoses``, or None), the held bias's error ``G`` (rows scaled by
+    its σ, or None) a low-rank part of every block."""
+    m, E = len(model.motions.spans), model.E
+    if chained is None:
+        diagonal, sub = np.zeros((m, 2, 2)), np.zeros((m - 1, 2, 2))
+        left, right, decay, low = np.zeros((m, 2, 0)), np.zeros((m, 0, 2)), np.ones((m, 0)), np.zeros((m, 2, 0))
+    else:
+        diagonal, sub, left, right, decay, low = chained.blocks()
+    # _residual_covariance's parts: each motion's own (diagonal) and a shared pose's (up_sigma).
+    independent, above = _independent_parts(E, C, model.motions.shared, noise.up_sigma, noise.rate_noise,
+                                            model.steps.duration, noise.motion_variance)
+    diagonal[:, [0, 1], [0, 1]] += independent.reshape(m, 2)
+    sub += np.swapaxes(above, 1, 2)
+    tail_diagonal, tail_low = np.eye(n_side), np.zeros((n_side, low.shape[2]))
+    if G is not None:
+        bias_low = G[:2 * m].reshape(m, 2, 3)
+        diagonal += bias_low @ np.swapaxes(bias_low, 1, 2)
+        low = np.concatenate([low, bias_low], axis=2)
+        tail_low = np.hstack([tail_low, G[2 * m:]])
+        tail_diagonal = tail_diagonal + G[2 * m:] @ G[2 * m:].T
+    return BlockSemiseparable(diagonal, sub, left, right, decay, low, tail_diagonal, tail_low)
+
+
+def _dense_whitening(model: _Residuals, C, noise: RotationNoise, G, n_side: int, name: str) -> np.ndarray:
+    """L⁻¹ of the dense covariance: for a dense up_covariance (and as the structured one's check)."""
+    m, steps = len(model.motions.spans), model.steps
     # One dense matrix, made, factored and inverted in place: on a long recording (2m ≈ 1300 on
     # imu_tk's joined 16×) each more copy is another 13 MiB at the solve's peak of memory.
     full = np.zeros((2 * m + n_side,) * 2)
@@ -686,14 +752,8 @@ def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side
             cov += chained(model.E, C) if chained is not None else _chained_up_covariance(
                 model.E, C, np.asarray(noise.up_covariance, dtype=float))
     full[range(2 * m, 2 * m + n_side), range(2 * m, 2 * m + n_side)] = 1.0
-    if noise.bias_sigma is not None and not start.estimate_bias:
-        G = J_start[:, :3]
-        model_extra = model.extra
-        if model_extra is not None:
-            def extra(b):
-                return np.atleast_1d(np.asarray(model_extra(K_inv0, b.copy()), dtype=float))
-            G = np.vstack([G, _jacobian(extra, start.b0, 1e-6 * np.abs(np.diag(start.K0)))])
-        full += (G * model.sigma_b**2) @ G.T
+    if G is not None:
+        full += G @ G.T
     # LAPACK reads the C-ordered symmetric matrix as its transpose (the same matrix): the upper
     # factor U there (UᵀU = cov) is L = Uᵀ here, and U's inverse there L⁻¹ here.
     U, info = lapack.dpotrf(full.T, lower=0, clean=1, overwrite_a=1)
