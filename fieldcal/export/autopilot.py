@@ -118,16 +118,17 @@ def refuse_not_calibrated(fmt: str, triads, why: str) -> None:
                          "ardupilot (only what is calibrated) or json (the marks kept) instead")
 
 
-def only_calibrated(fmt: str, values) -> tuple[list, list[str]]:
+def only_calibrated(fmt: str, values, *, more: bool = False) -> tuple[list, list[str]]:
     """Of ``values`` [(name, value, triad, parameter)], those whose parameter is calibrated, and
     comment lines naming the others: a flight stack loading a partial file keeps its own value of
     a parameter not in it, where a nominal written as a value would pass for a calibrated one.
-    One line refuses the export when nothing it would write is calibrated (issue 27)."""
+    One line refuses the export when nothing it would write is calibrated (issue 27), unless
+    ``more``: the format writes something else besides (a thermal model of a PX4 thermal log)."""
     kept = [(n, v) for n, v, cal, parameter in values if parameter not in cal.not_calibrated]
     left = [(n, cal) for n, _, cal, parameter in values if parameter in cal.not_calibrated]
     if not left:
         return kept, []
-    if not kept:
+    if not kept and not more:
         raise ValueError(f"export {fmt}: none of what {fmt} holds is calibrated in this file "
                          f"({'; '.join(sorted({c.name + ': ' + c.not_calibrated_why for _, c in left}))})")
     why = sorted({f"{c.name}: {c.not_calibrated_why}" for _, c in left if c.not_calibrated_why})
@@ -159,10 +160,10 @@ def ardupilot(parameters, *, accelerometer: str = "accelerometer", gyroscope: st
 def px4(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     """A QGroundControl parameter file (vehicle, component, name, value, type 9 = float)."""
     rows, losses = diagonal_parameters(parameters, "px4", accelerometer, gyroscope, gyro_scale=False)
-    values, unwritten = only_calibrated("px4", _diagonal_values(
-        rows, "CAL_ACC0_{}OFF", "CAL_ACC0_{}SCALE", "CAL_GYRO0_{}OFF"))
-    lines = _comments(parameters, "px4", losses) + unwritten + ["# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
     thermal = px4_thermal(parameters, ((rows[0][0], "A"), (rows[1][0], "G")))
+    values, unwritten = only_calibrated("px4", _diagonal_values(
+        rows, "CAL_ACC0_{}OFF", "CAL_ACC0_{}SCALE", "CAL_GYRO0_{}OFF"), more=bool(thermal[1]))
+    lines = _comments(parameters, "px4", losses) + unwritten + ["# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
     lines += thermal[0]
     values += thermal[1]
     lines += [f"1\t1\t{name}\t{value!r}\t{6 if name.endswith('_ENABLE') else 9}" for name, value in values]

@@ -1,0 +1,81 @@
+"""``fieldcal thermal``: a PX4 thermal-calibration log (a cold-soaked board warming on the bench,
+held still) in, each triad's thermal model out (``fieldcal.recording.thermal_log``)."""
+from __future__ import annotations
+
+import argparse
+
+PROCEDURE = "px4-thermal-log"
+
+_EPILOG = """\
+examples:
+  fieldcal thermal warmup.ulg
+      the accelerometer's and gyro's bias against temperature, order and σ per axis
+  fieldcal thermal warmup.ulg --params thermal.yaml
+      also write them as a parameter file; `fieldcal export thermal.yaml --format px4`
+      then writes TC_A0_* and TC_G0_* (and nothing else: one still pose calibrates no
+      offset, scale or misalignment)
+
+Record as PX4's thermal calibration asks: SDLOG_PROFILE's thermal calibration bit
+(2) set, the board cold-soaked, then powered and left still while it warms."""
+
+
+def add_thermal_parser(sub) -> argparse.ArgumentParser:
+    parser = sub.add_parser(
+        "thermal", help="fit each triad's bias against temperature from a PX4 thermal-calibration log",
+        description="Fit the accelerometer's and gyro's bias against temperature from a PX4\n"
+        "thermal-calibration log (sensor_accel and sensor_gyro with their temperatures, the\n"
+        "board still while it warms): per axis a polynomial about the middle of the range,\n"
+        "its order chosen from the data (likelihood-ratio test), each term with its 1σ.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("log", metavar="LOG", help="the PX4 log (.ulg)")
+    parser.add_argument("--instance", type=int, default=0, metavar="N",
+                        help="the sensors' instance (multi_id) in the log (default 0)")
+    parser.add_argument("--params", metavar="FILE", help="also write the thermal models as a parameter file here")
+    parser.add_argument("--force", action="store_true", help="replace the --params file if it exists")
+    parser.set_defaults(func=cmd_thermal)
+    return parser
+
+
+def cmd_thermal(args) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from fieldcal.recording.thermal_log import fit_held_thermal, read_thermal_ulog
+    from fieldcal.report import thermal_table
+    from fieldcal.units import BIAS, operator_unit
+
+    if Path(args.log).suffix.lower() != ".ulg":
+        raise ValueError(f"thermal: {args.log}: expected a PX4 log (.ulg)")
+    if not 0 <= args.instance <= 255:
+        raise ValueError(f"--instance: expected 0..255 (a ULog multi_id), got {args.instance}")
+    if args.params:  # refused before the log is read
+        from fieldcal.session.output import check_output_path
+        check_output_path(args.params, force=args.force, option="--params", inputs=[args.log])
+    triads = read_thermal_ulog(args.log, args.instance)
+    calibrations = []
+    for triad in triads:
+        fit = fit_held_thermal(triad)
+        factor, unit = operator_unit(triad.kind, triad.unit, BIAS)
+        chi2 = ", ".join(f"order {k}: {v:.1f}" for k, v in fit.chi2_by_order.items())
+        device = f", device id {triad.device_id}" if triad.device_id is not None else ""
+        print(f"{triad.name} ({triad.topic} instance {args.instance}{device}): {len(triad.t)} samples over "
+              f"{triad.t[-1] - triad.t[0]:.0f} s in {fit.windows} windows, a window mean's σ "
+              f"{', '.join(f'{s * factor:.3g}' for s in fit.window_sigma)} {unit}; χ² {chi2} "
+              f"({fit.dof} degrees of freedom at the order kept)")
+        print(thermal_table(fit.calibration))
+        calibrations.append(fit.calibration)
+    print("K and the bias itself are not calibrated by one still pose (gravity and the Earth rate are "
+          "in every reading): the model is the change of the bias from its reference temperature.")
+    if args.params:
+        from fieldcal.paramfile import ParameterFile
+        from fieldcal.recording.place import UnknownPlace
+        from fieldcal.recording.results import _file_station
+        from fieldcal.session.output import save_parameter_file
+
+        inputs = [np.r_[t.t, t.temperature_c] for t in triads] + [t.values for t in triads]
+        pf = ParameterFile.from_solutions(calibrations, inputs=inputs, station=_file_station(UnknownPlace()),
+                                          procedure=PROCEDURE, method="lsq")
+        written = save_parameter_file(pf, args.params, force=args.force, option="--params", inputs=[args.log])
+        print(f"parameter file: {written}")
+    return 0
