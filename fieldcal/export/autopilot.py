@@ -148,11 +148,15 @@ def _diagonal_values(rows, offset: str, scale: str, gyro_offset: str) -> list:
 def ardupilot(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     """A Mission Planner .parm file (NAME,VALUE), offsets in SI units, scales dimensionless."""
     rows, losses = diagonal_parameters(parameters, "ardupilot", accelerometer, gyroscope, gyro_scale=False)
+    from fieldcal.export.ardupilot_thermal import ardupilot_thermal
+    thermal, thermal_values = ardupilot_thermal(rows[0][0], rows[1][0])
+    thermal += [line for row in rows for line in scale_drift_dropped(row[0])]
     values, unwritten = only_calibrated("ardupilot", _diagonal_values(
-        rows, "INS_ACCOFFS_{}", "INS_ACCSCAL_{}", "INS_GYROFFS_{}"))
+        rows, "INS_ACCOFFS_{}", "INS_ACCSCAL_{}", "INS_GYROFFS_{}"), more=bool(thermal_values))
     order = {f"INS_ACC{p}_{a}": 2 * i + j for i, a in enumerate("XYZ") for j, p in enumerate(("OFFS", "SCAL"))}
     values.sort(key=lambda nv: order.get(nv[0], 6))  # ArduPilot's offset and scale per axis, as before
-    lines = _comments(parameters, "ardupilot", losses) + unwritten
+    values += thermal_values
+    lines = _comments(parameters, "ardupilot", losses) + unwritten + thermal
     lines += [f"{name},{value!r}" for name, value in values]
     return "\n".join(lines) + "\n"
 
@@ -189,12 +193,7 @@ def px4_thermal(parameters, triads) -> tuple[list[str], list[tuple[str, float]]]
         comments.append(f"# {prefix}: {cal.name}'s thermal model, order {model.order}, about {model.reference_c:.2f} °C "
                         f"over {low:.2f} to {high:.2f} °C (PX4 holds the offset of the nearer end outside it); "
                         f"set {prefix}_ID to the sensor's device id (CAL_{'ACC' if letter == 'A' else 'GYRO'}0_ID)")
-        if model.scale_drift is not None:
-            factor, unit = operator_unit(cal.kind, SI_UNIT[cal.kind], BIAS)
-            size, reference = REFERENCE_INPUT.get(cal.kind, _RATE_REFERENCE)
-            worst = float(np.max(np.abs(model.scale_drift))) * max(high - model.reference_c, model.reference_c - low)
-            comments.append(f"#   dropped: scale drift {', '.join(f'{v * 1e6:+.3g}' for v in model.scale_drift)} "
-                            f"ppm/K; worst error {worst * size * factor:.3g} {unit} {reference} over the range")
+        comments += scale_drift_dropped(cal)
         terms = np.zeros((3, 3))
         terms[:model.order] = model.bias_terms * si
         values.append((f"TC_{letter}_ENABLE", 1))
@@ -202,3 +201,17 @@ def px4_thermal(parameters, triads) -> tuple[list[str], list[tuple[str, float]]]
             values += [(f"{prefix}_X{k}_{i}", float(terms[k - 1, i]) if k else 0.0) for i in range(3)]
         values += [(f"{prefix}_TREF", model.reference_c), (f"{prefix}_TMIN", low), (f"{prefix}_TMAX", high)]
     return comments, values
+
+
+def scale_drift_dropped(cal) -> list[str]:
+    """The comment line naming a thermal model's scale drift, which neither flight stack holds,
+    with the worst error it costs over the calibrated range; [] without one."""
+    model = cal.thermal
+    if model is None or model.scale_drift is None:
+        return []
+    low, high = model.range_c
+    factor, unit = operator_unit(cal.kind, SI_UNIT[cal.kind], BIAS)
+    size, reference = REFERENCE_INPUT.get(cal.kind, _RATE_REFERENCE)
+    worst = float(np.max(np.abs(model.scale_drift))) * max(high - model.reference_c, model.reference_c - low)
+    return [f"#   dropped: scale drift {', '.join(f'{v * 1e6:+.3g}' for v in model.scale_drift)} "
+            f"ppm/K; worst error {worst * size * factor:.3g} {unit} {reference} over the range"]
