@@ -4,9 +4,9 @@ following the simulator's thermal truth (drivers.sim.thermal), written in the UL
 the topics and fields PX4's Tools/process_sensor_caldata.py reads (sensor_accel, sensor_gyro
 with temperature and device_id; sensor_baro, which that script requires).
 
-No public PX4 thermal-calibration log was found (see tests/data/real/README.md), so this log,
-deterministic for its seed, is what PX4's script was run on for the stored oracle
-(tests/data/px4_thermal_oracle.json, made by benchmarks/peers/px4_caldata_oracle.py).
+No public PX4 thermal-calibration log was found (where we looked: "why_synthetic" in
+tests/data/px4_thermal_oracle.json), so this log, deterministic for its seed, is what PX4's
+script was run on for that stored oracle (its "how", "command" and "source" say how).
 """
 from __future__ import annotations
 

@@ -47,7 +47,7 @@ def test_the_fit_recovers_the_simulators_thermal_truth_within_its_sigma(fits, na
     noise = {"accelerometer": 0.02, "gyroscope": 0.002}[name] / np.sqrt(per_window)
     assert np.allclose(fit.window_sigma, noise, rtol=0.25)
     assert fit.dof == 3 * fit.windows - 3 - 3 * model.order  # the pins add nothing to χ²'s freedom
-    assert fit.chi2 / fit.dof < 1.5
+    assert fit.chi2 / fit.dof < 1.5 and not fit.inflated
     low, high = model.range_c
     assert (low, high) == (triad.temperature_c.min(), triad.temperature_c.max())
     assert model.reference_c == pytest.approx((low + high) / 2)  # PX4's TREF
@@ -101,17 +101,20 @@ def test_fieldcal_thermal_writes_a_parameter_file_px4_export_makes_tc_parameters
             assert np.ptp(theirs) > 10 * allowed.max()  # a test that can fail: the change is far beyond it
 
 
-def _log_without(tmp_path, field=None, topic=None, temperature=None):
+def _log_without(tmp_path, field=None, topic=None, temperature=None, z=None):
     t = np.arange(0, 600.0, 0.04)
     stamp = (t * 1e6).astype(np.uint64) + 1
     temp = np.linspace(-5, 30, len(t)) if temperature is None else temperature(t)
+    noise = np.random.default_rng(3).normal(0, 0.01, (3, len(t)))
     columns = {"timestamp": stamp, "timestamp_sample": stamp, "device_id": np.zeros(len(t)),
-               "x": np.zeros(len(t)), "y": np.zeros(len(t)), "z": np.full(len(t), -9.8), "temperature": temp}
+               "x": noise[0], "y": noise[1], "z": noise[2] + (-9.8 if z is None else z(t)), "temperature": temp}
     fields = imu_fields()
     if field:
         fields = [f for f in fields if f[1] != field]
         columns.pop(field)
-    topics = {name: (fields, columns) for name in ("sensor_accel", "sensor_gyro") if name != topic}
+    gyro = {**columns, "z": noise[2] * 0.1}  # still: the gyro's z is no gravity axis
+    topics = {name: (fields, cols) for name, cols in (("sensor_accel", columns), ("sensor_gyro", gyro))
+              if name != topic}
     return write_ulog(tmp_path / "bad.ulg", topics)
 
 
@@ -146,3 +149,14 @@ def test_params_is_refused_before_the_log_is_read_when_it_exists(warmup, tmp_pat
     assert main(["thermal", str(warmup), "--params", str(params)]) == 2
     assert "--force" in capsys.readouterr().err
     assert params.read_text() == "mine\n"
+
+
+def test_a_board_moved_during_the_warm_up_is_kept_with_a_warning_and_wider_sigma(tmp_path, capsys):
+    """Tilted by a few degrees half-way: z reads 1 % less gravity from then on, a step no
+    polynomial in temperature follows. The fit is kept (its σ inflated by the misfit), and said."""
+    log = _log_without(tmp_path, z=lambda t: np.where(t < 300, -9.8, -9.8 * 0.99))
+    assert main(["thermal", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING: accelerometer fits with χ²/dof" in out and "was the board moved" in out
+    assert "σ are widened" in out
+    assert "WARNING: gyroscope" not in out

@@ -64,9 +64,17 @@ def cmd_thermal(args) -> int:
               f"{', '.join(f'{s * factor:.3g}' for s in fit.window_sigma)} {unit}; χ² {chi2} "
               f"({fit.dof} degrees of freedom at the order kept)")
         print(thermal_table(fit.calibration))
+        if fit.inflated:  # kept, its σ widened by the misfit: said, with the likely causes
+            print(f"WARNING: {triad.name} fits with χ²/dof {fit.chi2 / fit.dof:.3g} for the scatter of its window "
+                  f"means: its σ are widened {np.sqrt(fit.chi2 / fit.dof):.2g} times (noise slower than a window, "
+                  "or was the board moved, or did the reading jump, during the warm-up?)")
         calibrations.append(fit.calibration)
     print("K and the bias itself are not calibrated by one still pose (gravity and the Earth rate are "
           "in every reading): the model is the change of the bias from its reference temperature.")
+    ids = [f"TC_{'A' if t.kind == 'specific_force' else 'G'}0_ID = {t.device_id}" for t in triads
+           if t.device_id is not None]
+    if ids:  # the parameter file has no place for PX4's sensor ids; `export --format px4` asks for them
+        print(f"PX4 sensor ids in the log: {', '.join(ids)}")
     if args.params:
         from fieldcal.paramfile import ParameterFile
         from fieldcal.recording.place import UnknownPlace

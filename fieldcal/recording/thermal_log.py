@@ -131,6 +131,7 @@ class HeldThermalFit:
     dof: int
     windows: int
     window_sigma: np.ndarray  # (3,) σ of one window mean, the triad's unit
+    inflated: bool  # χ² improbable for that noise: the σ were widened by √(χ²/dof) (Birge)
 
 
 def fit_held_thermal(triad: TriadLog, reference_c: float | None = None) -> HeldThermalFit:
@@ -165,4 +166,4 @@ def fit_held_thermal(triad: TriadLog, reference_c: float | None = None) -> HeldT
                               not_calibrated=PARAM_NAMES, not_calibrated_why=NOT_CALIBRATED_WHY)
     diagnostics = solved.diagnostics
     return HeldThermalFit(calibration, fit.chi2_by_order, float(diagnostics.chi2), int(diagnostics.dof),
-                          len(means), sigma)
+                          len(means), sigma, bool(diagnostics.scaled_by_residuals))
