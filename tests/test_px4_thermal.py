@@ -160,3 +160,66 @@ def test_a_board_moved_during_the_warm_up_is_kept_with_a_warning_and_wider_sigma
     assert "WARNING: accelerometer fits with χ²/dof" in out and "was the board moved" in out
     assert "σ are widened" in out
     assert "WARNING: gyroscope" not in out
+
+
+def _field_calibration(path, gyro_unit="deg/s", thermal=None):
+    """A field calibration of the unit (a diagonal K, so every term is one PX4 and ArduPilot hold)."""
+    from fieldcal.calibration import Calibration
+    from fieldcal.earth import Station
+    from fieldcal.paramfile import ParameterFile, save
+
+    acc = Calibration(name="accelerometer", kind="specific_force", output_unit="m/s^2", method="powell",
+                      theta=[0.05, -0.08, 0.1, 1.001, 0.999, 1.002, 0, 0, 0], sigma=np.full(9, 1e-4),
+                      residual_rms=0.0, thermal=thermal)
+    gyro = Calibration(name="gyroscope", kind="angular_rate", output_unit=gyro_unit, method="powell",
+                       theta=[0.2, -0.1, 0.05, 1.0, 1.0, 1.0, 0, 0, 0], sigma=np.full(9, 1e-3), residual_rms=0.0)
+    pf = ParameterFile.build((acc, gyro), station=Station(48.0, 500.0), procedure="field-18", method="powell",
+                             input_sha256="0" * 64)
+    save(pf, path)
+    return pf
+
+
+def test_onto_a_field_calibration_keeps_it_and_adds_the_models_about_its_temperature(warmup, tmp_path, capsys):
+    from fieldcal.paramfile import load
+
+    base = _field_calibration(tmp_path / "field.yaml")
+    full = tmp_path / "full.yaml"
+    assert main(["thermal", str(warmup), "--onto", str(tmp_path / "field.yaml"), "--at", "20",
+                 "--params", str(full)]) == 0
+    pf = load(full)
+    assert pf.provenance.procedure == "field-18 + px4-thermal-log"
+    assert pf.provenance.input_sha256 != base.provenance.input_sha256  # the log is among its inputs now
+    for name, truth, si in (("accelerometer", ACCEL_TRUTH, 1.0), ("gyroscope", GYRO_TRUTH, np.pi / 180)):
+        np.testing.assert_array_equal(pf[name].theta, base[name].theta)  # the field calibration as it was
+        model = pf[name].thermal
+        assert model.reference_c == 20.0
+        true = _true_terms(truth, 20.0) / si  # the truth about 20 °C, in the triad's unit (°/s for the gyro)
+        padded = np.vstack([true, np.zeros((model.order - len(true), 3))])
+        assert np.all(np.abs((model.bias_terms - padded) / model.bias_terms_sigma) < 4)
+    capsys.readouterr()
+    assert main(["export", str(full), "--format", "ardupilot"]) == 0
+    text = capsys.readouterr().out
+    assert "INS_ACCOFFS_X,0.05" in text and "INS_TCAL1_ENABLE,1" in text and "INS_ACC1_CALTEMP,20.0" in text
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["--onto", "{field}"], "--onto: give --at, the temperature"),
+    (["--onto", "{field}", "--at", "20"], "--onto: give --params"),
+    (["--onto", "{field}", "--at", "60", "--params", "{out}"], "--at: 60 °C is outside the log's sensor_accel "
+                                                               "temperatures -10.00 to 37.51 °C"),
+    (["--onto", "{counts}", "--at", "20", "--params", "{out}"], "--onto: gyroscope reports in 'count'"),
+    (["--onto", "{warm}", "--at", "20", "--params", "{out}"], "--onto: accelerometer has a thermal model already"),
+])
+def test_onto_refusals_are_one_line(warmup, tmp_path, capsys, argv, said):
+    from fieldcal.thermal import ThermalModel
+
+    _field_calibration(tmp_path / "field.yaml")
+    _field_calibration(tmp_path / "counts.yaml", gyro_unit="count")
+    _field_calibration(tmp_path / "warm.yaml", thermal=ThermalModel(
+        reference_c=20.0, range_c=(10.0, 30.0), bias_terms=[[1e-3, 1e-3, 1e-3]], bias_terms_sigma=[[1e-5] * 3]))
+    paths = {"field": tmp_path / "field.yaml", "counts": tmp_path / "counts.yaml", "warm": tmp_path / "warm.yaml",
+             "out": tmp_path / "out.yaml"}
+    assert main(["thermal", str(warmup), *(a.format(**paths) for a in argv)]) == 2
+    err = capsys.readouterr().err
+    assert said in err and err.count("\n") == 1
+    assert not (tmp_path / "out.yaml").exists()

@@ -14,6 +14,9 @@ examples:
       also write them as a parameter file; `fieldcal export thermal.yaml --format px4`
       then writes TC_A0_* and TC_G0_* (and nothing else: one still pose calibrates no
       offset, scale or misalignment)
+  fieldcal thermal warmup.ulg --onto field.yaml --at 24.5 --params full.yaml
+      the thermal models added to a field calibration made at 24.5 °C: its offsets,
+      scales and misalignments, and how the biases move from there
 
 Record as PX4's thermal calibration asks: SDLOG_PROFILE's thermal calibration bit
 (2) set, the board cold-soaked, then powered and left still while it warms."""
@@ -30,6 +33,12 @@ def add_thermal_parser(sub) -> argparse.ArgumentParser:
     parser.add_argument("log", metavar="LOG", help="the PX4 log (.ulg)")
     parser.add_argument("--instance", type=int, default=0, metavar="N",
                         help="the sensors' instance (multi_id) in the log (default 0)")
+    parser.add_argument("--at", type=float, metavar="C",
+                        help="the reference temperature, °C (default: the middle of the logged range); with "
+                        "--onto, the temperature that file's offsets were calibrated at")
+    parser.add_argument("--onto", metavar="PARAMS",
+                        help="a parameter file (a field calibration of the same unit, at --at °C): the "
+                        "thermal models are added to its accelerometer and gyroscope in --params")
     parser.add_argument("--params", metavar="FILE", help="also write the thermal models as a parameter file here")
     parser.add_argument("--force", action="store_true", help="replace the --params file if it exists")
     parser.set_defaults(func=cmd_thermal)
@@ -49,13 +58,28 @@ def cmd_thermal(args) -> int:
         raise ValueError(f"thermal: {args.log}: expected a PX4 log (.ulg)")
     if not 0 <= args.instance <= 255:
         raise ValueError(f"--instance: expected 0..255 (a ULog multi_id), got {args.instance}")
+    if args.onto is not None and args.at is None:
+        raise ValueError("--onto: give --at, the temperature (°C) that file's offsets were calibrated at: the "
+                         "thermal model moves the biases from there")
+    if args.onto is not None and not args.params:
+        raise ValueError("--onto: give --params, where the file with the thermal models goes")
+    inputs = [args.log] + ([args.onto] if args.onto else [])
     if args.params:  # refused before the log is read
         from fieldcal.session.output import check_output_path
-        check_output_path(args.params, force=args.force, option="--params", inputs=[args.log])
+        check_output_path(args.params, force=args.force, option="--params", inputs=inputs)
+    base = None
+    if args.onto is not None:
+        from fieldcal.paramfile import load
+        base = load(args.onto)
     triads = read_thermal_ulog(args.log, args.instance)
-    calibrations = []
+    calibrations, fits = [], []
     for triad in triads:
-        fit = fit_held_thermal(triad)
+        low, high = float(triad.temperature_c.min()), float(triad.temperature_c.max())
+        if args.at is not None and not low <= args.at <= high:
+            raise ValueError(f"--at: {args.at:g} °C is outside the log's {triad.topic} temperatures {low:.2f} to "
+                             f"{high:.2f} °C (the model does not extrapolate)")
+        fit = fit_held_thermal(triad, reference_c=args.at)
+        fits.append(fit)
         factor, unit = operator_unit(triad.kind, triad.unit, BIAS)
         chi2 = ", ".join(f"order {k}: {v:.1f}" for k, v in fit.chi2_by_order.items())
         device = f", device id {triad.device_id}" if triad.device_id is not None else ""
@@ -79,11 +103,15 @@ def cmd_thermal(args) -> int:
         from fieldcal.paramfile import ParameterFile
         from fieldcal.recording.place import UnknownPlace
         from fieldcal.recording.results import _file_station
+        from fieldcal.recording.thermal_log import onto
         from fieldcal.session.output import save_parameter_file
 
-        inputs = [np.r_[t.t, t.temperature_c] for t in triads] + [t.values for t in triads]
-        pf = ParameterFile.from_solutions(calibrations, inputs=inputs, station=_file_station(UnknownPlace()),
-                                          procedure=PROCEDURE, method="lsq")
-        written = save_parameter_file(pf, args.params, force=args.force, option="--params", inputs=[args.log])
+        data = [np.r_[t.t, t.temperature_c] for t in triads] + [t.values for t in triads]
+        if base is not None:
+            pf = onto(base, fits, PROCEDURE, data)
+        else:
+            pf = ParameterFile.from_solutions(calibrations, inputs=data, station=_file_station(UnknownPlace()),
+                                              procedure=PROCEDURE, method="lsq")
+        written = save_parameter_file(pf, args.params, force=args.force, option="--params", inputs=inputs)
         print(f"parameter file: {written}")
     return 0

@@ -167,3 +167,38 @@ def fit_held_thermal(triad: TriadLog, reference_c: float | None = None) -> HeldT
     diagnostics = solved.diagnostics
     return HeldThermalFit(calibration, fit.chi2_by_order, float(diagnostics.chi2), int(diagnostics.dof),
                           len(means), sigma, bool(diagnostics.scaled_by_residuals))
+
+
+def onto(base, fits: list[HeldThermalFit], procedure: str, log_inputs) -> object:
+    """``base`` (a ParameterFile whose offsets hold at the fits' reference temperature) with each
+    fit's thermal model given to the base's one triad of its kind, in that triad's output unit.
+    One line refuses a base with none or several triads of a kind, one in raw counts, or one
+    that has a thermal model already (it would be replaced unseen)."""
+    from dataclasses import replace
+
+    from fieldcal.paramfile import ParameterFile, hash_inputs
+    from fieldcal.units import SI_PER_UNIT
+
+    triads = list(base.triads)
+    for fit in fits:
+        cal = fit.calibration
+        same = [i for i, t in enumerate(triads) if t.kind == cal.kind]
+        if len(same) != 1:
+            names = ", ".join(triads[i].name for i in same) or "none"
+            raise ValueError(f"--onto: expected one {cal.kind} triad for the log's {cal.name}, the file has {names}")
+        target = triads[same[0]]
+        if target.thermal is not None:
+            raise ValueError(f"--onto: {target.name} has a thermal model already (about "
+                             f"{target.thermal.reference_c:.2f} °C): give a file without one")
+        si = SI_PER_UNIT[target.kind].get(target.output_unit)
+        if si is None:
+            raise ValueError(f"--onto: {target.name} reports in {target.output_unit!r}; the log's {cal.name} is in "
+                             f"{cal.output_unit}: give a calibration of a device reporting physical units")
+        model = cal.thermal
+        model = replace(model, bias_terms=model.bias_terms * (SI_PER_UNIT[cal.kind][cal.output_unit] / si),
+                        bias_terms_sigma=model.bias_terms_sigma * (SI_PER_UNIT[cal.kind][cal.output_unit] / si))
+        triads[same[0]] = replace(target, thermal=model)
+    p = base.provenance
+    digest = hash_inputs(np.frombuffer(bytes.fromhex(p.input_sha256), dtype=np.uint8), *log_inputs)
+    return ParameterFile(triads=tuple(triads),
+                         provenance=replace(p, procedure=f"{p.procedure} + {procedure}", input_sha256=digest))
