@@ -12,7 +12,12 @@ That noise is measured, not assumed: from the second differences of consecutive 
 (d = m₍ᵢ₊₂₎ − 2m₍ᵢ₊₁₎ + mᵢ, whose variance is 6σ² for independent means; a smooth thermal trend
 adds only its curvature), by their median absolute deviation (a bump of the bench does not set
 it). Correlated noise slower than a window remains: the fit's χ² then says so, and its σ are
-inflated by it (``solve_thermal_norm``'s Birge rule).
+inflated by it (``solve_thermal_norm``'s Birge rule). A bias that wanders slowly (a random walk)
+cannot be told from the thermal curve within one monotone warm-up, and at the window scale it
+hides beneath the white noise: the σ are then too small (seeded gyro runs, 2026-11-27: RMS z
+0.96 with white noise alone, 1.4 with a 25 °/h/√h rate random walk, 4.6 at five times that).
+Measuring the walk from the residuals at 1 and 4 windows was tried and dropped: too little of it
+shows there to be measured, while noise alone then widened every σ (RMS z 0.65).
 
 One pose determines none of K, nor the bias itself (gravity and the Earth rate are in every
 reading): each triad comes out with its nine parameters marked not calibrated and its thermal
