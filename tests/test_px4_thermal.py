@@ -223,3 +223,20 @@ def test_onto_refusals_are_one_line(warmup, tmp_path, capsys, argv, said):
     err = capsys.readouterr().err
     assert said in err and err.count("\n") == 1
     assert not (tmp_path / "out.yaml").exists()
+
+
+def test_a_real_px4_log_is_read_by_its_own_fields_and_too_short_a_one_is_one_line(tmp_path, capsys):
+    """PX4's sample log (tests/data/real): sensor_accel and sensor_gyro with x, y, z,
+    temperature and device_id as PX4 writes them, six samples each: read, and refused as too few."""
+    from pyulog import ULog
+    from xsens_logs import unpacked
+
+    log = unpacked(tmp_path, "px4_sample_log_small.ulg.gz", "log.ulg")
+    with pytest.raises(RecordingImportError, match="sensor_accel instance 0 has 6 samples with a finite reading "
+                                                   "and temperature: too few for a thermal fit"):
+        read_thermal_ulog(log)
+    accel = next(d.data for d in ULog(str(log), ["sensor_accel"]).data_list if d.multi_id == 2)
+    assert np.all(np.isfinite(accel["temperature"])) and len(accel["temperature"]) == 6
+    assert main(["thermal", str(log), "--instance", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "sensor_accel instance 2 has 6 samples" in err and err.count("\n") == 1
