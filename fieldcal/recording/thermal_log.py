@@ -26,7 +26,7 @@ model, the change of its bias from T_ref (T_ref: the middle of the logged range,
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -162,7 +162,6 @@ def fit_held_thermal(triad: TriadLog, reference_c: float | None = None) -> HeldT
     fit = solve_thermal_norm(problem, np.r_[temps, np.full(pins, ref)], covariance, reference_c=ref, scale=False)
     solved = fit.calibration
     # The model's range: the samples' (a window mean's temperature is the middle of its window's).
-    from dataclasses import replace
     model = replace(solved.thermal, range_c=(low, high))
     nominal = [nominal_value(triad.kind, triad.unit, p) for p in PARAM_NAMES]
     calibration = Calibration(name=triad.name, kind=triad.kind, output_unit=triad.unit, method="lsq",
@@ -179,8 +178,6 @@ def onto(base, fits: list[HeldThermalFit], procedure: str, log_inputs) -> object
     fit's thermal model given to the base's one triad of its kind, in that triad's output unit.
     One line refuses a base with none or several triads of a kind, one in raw counts, or one
     that has a thermal model already (it would be replaced unseen)."""
-    from dataclasses import replace
-
     from fieldcal.paramfile import ParameterFile, hash_inputs
     from fieldcal.units import SI_PER_UNIT
 
