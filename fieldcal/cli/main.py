@@ -129,7 +129,8 @@ def _lazy(name: str):
 # them is parsed by the top-level parser with that subcommand alone, the same parse and the same
 # messages, without building (and importing) the other thirty-odd commands' parsers.
 _ONE_FUNCTION_PARSERS = {"calibrate": ("fieldcal.cli.calibrate", "add_calibrate_parser"),
-                         "import": ("fieldcal.cli.importing", "add_import_parser")}
+                         "import": ("fieldcal.cli.importing", "add_import_parser"),
+                         "thermal": ("fieldcal.cli.thermal_log", "add_thermal_parser")}
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -272,6 +273,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     from fieldcal.cli.importing import add_import_parser
     add_import_parser(sub)
     add_calibrate_parser(sub)
+    from fieldcal.cli.thermal_log import add_thermal_parser
+    add_thermal_parser(sub)
     from fieldcal.cli.options import add_operator_option, add_registry_option, add_spec_option
     from fieldcal.cli.production import add_production_parsers
     add_spec_option(run)

@@ -204,7 +204,7 @@ def check_paths(args) -> None:
     if command in ("run", "import") or imports or (
             command == "tui" and getattr(args, "go", False) and not getattr(args, "no_capture", False)):
         output_directory(args.out, "--out")
-    if command in ("demo", "calibrate") and getattr(args, "params", None):
+    if command in ("demo", "calibrate", "thermal") and getattr(args, "params", None):
         output_target(args.params, "--params", args, command_inputs(args, output="params"))
     if command == "replay" and args.out:
         output_target(args.out, "--out", args, command_inputs(args))

@@ -118,16 +118,17 @@ def refuse_not_calibrated(fmt: str, triads, why: str) -> None:
                          "ardupilot (only what is calibrated) or json (the marks kept) instead")
 
 
-def only_calibrated(fmt: str, values) -> tuple[list, list[str]]:
+def only_calibrated(fmt: str, values, *, more: bool = False) -> tuple[list, list[str]]:
     """Of ``values`` [(name, value, triad, parameter)], those whose parameter is calibrated, and
     comment lines naming the others: a flight stack loading a partial file keeps its own value of
     a parameter not in it, where a nominal written as a value would pass for a calibrated one.
-    One line refuses the export when nothing it would write is calibrated (issue 27)."""
+    One line refuses the export when nothing it would write is calibrated (issue 27), unless
+    ``more``: the format writes something else besides (a thermal model of a PX4 thermal log)."""
     kept = [(n, v) for n, v, cal, parameter in values if parameter not in cal.not_calibrated]
     left = [(n, cal) for n, _, cal, parameter in values if parameter in cal.not_calibrated]
     if not left:
         return kept, []
-    if not kept:
+    if not kept and not more:
         raise ValueError(f"export {fmt}: none of what {fmt} holds is calibrated in this file "
                          f"({'; '.join(sorted({c.name + ': ' + c.not_calibrated_why for _, c in left}))})")
     why = sorted({f"{c.name}: {c.not_calibrated_why}" for _, c in left if c.not_calibrated_why})
@@ -147,11 +148,15 @@ def _diagonal_values(rows, offset: str, scale: str, gyro_offset: str) -> list:
 def ardupilot(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     """A Mission Planner .parm file (NAME,VALUE), offsets in SI units, scales dimensionless."""
     rows, losses = diagonal_parameters(parameters, "ardupilot", accelerometer, gyroscope, gyro_scale=False)
+    from fieldcal.export.ardupilot_thermal import ardupilot_thermal
+    thermal, thermal_values = ardupilot_thermal(rows[0][0], rows[1][0])
+    thermal += [line for row in rows for line in scale_drift_dropped(row[0])]
     values, unwritten = only_calibrated("ardupilot", _diagonal_values(
-        rows, "INS_ACCOFFS_{}", "INS_ACCSCAL_{}", "INS_GYROFFS_{}"))
+        rows, "INS_ACCOFFS_{}", "INS_ACCSCAL_{}", "INS_GYROFFS_{}"), more=bool(thermal_values))
     order = {f"INS_ACC{p}_{a}": 2 * i + j for i, a in enumerate("XYZ") for j, p in enumerate(("OFFS", "SCAL"))}
     values.sort(key=lambda nv: order.get(nv[0], 6))  # ArduPilot's offset and scale per axis, as before
-    lines = _comments(parameters, "ardupilot", losses) + unwritten
+    values += thermal_values
+    lines = _comments(parameters, "ardupilot", losses) + unwritten + thermal
     lines += [f"{name},{value!r}" for name, value in values]
     return "\n".join(lines) + "\n"
 
@@ -159,10 +164,10 @@ def ardupilot(parameters, *, accelerometer: str = "accelerometer", gyroscope: st
 def px4(parameters, *, accelerometer: str = "accelerometer", gyroscope: str = "gyroscope") -> str:
     """A QGroundControl parameter file (vehicle, component, name, value, type 9 = float)."""
     rows, losses = diagonal_parameters(parameters, "px4", accelerometer, gyroscope, gyro_scale=False)
-    values, unwritten = only_calibrated("px4", _diagonal_values(
-        rows, "CAL_ACC0_{}OFF", "CAL_ACC0_{}SCALE", "CAL_GYRO0_{}OFF"))
-    lines = _comments(parameters, "px4", losses) + unwritten + ["# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
     thermal = px4_thermal(parameters, ((rows[0][0], "A"), (rows[1][0], "G")))
+    values, unwritten = only_calibrated("px4", _diagonal_values(
+        rows, "CAL_ACC0_{}OFF", "CAL_ACC0_{}SCALE", "CAL_GYRO0_{}OFF"), more=bool(thermal[1]))
+    lines = _comments(parameters, "px4", losses) + unwritten + ["# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
     lines += thermal[0]
     values += thermal[1]
     lines += [f"1\t1\t{name}\t{value!r}\t{6 if name.endswith('_ENABLE') else 9}" for name, value in values]
@@ -188,12 +193,7 @@ def px4_thermal(parameters, triads) -> tuple[list[str], list[tuple[str, float]]]
         comments.append(f"# {prefix}: {cal.name}'s thermal model, order {model.order}, about {model.reference_c:.2f} °C "
                         f"over {low:.2f} to {high:.2f} °C (PX4 holds the offset of the nearer end outside it); "
                         f"set {prefix}_ID to the sensor's device id (CAL_{'ACC' if letter == 'A' else 'GYRO'}0_ID)")
-        if model.scale_drift is not None:
-            factor, unit = operator_unit(cal.kind, SI_UNIT[cal.kind], BIAS)
-            size, reference = REFERENCE_INPUT.get(cal.kind, _RATE_REFERENCE)
-            worst = float(np.max(np.abs(model.scale_drift))) * max(high - model.reference_c, model.reference_c - low)
-            comments.append(f"#   dropped: scale drift {', '.join(f'{v * 1e6:+.3g}' for v in model.scale_drift)} "
-                            f"ppm/K; worst error {worst * size * factor:.3g} {unit} {reference} over the range")
+        comments += scale_drift_dropped(cal)
         terms = np.zeros((3, 3))
         terms[:model.order] = model.bias_terms * si
         values.append((f"TC_{letter}_ENABLE", 1))
@@ -201,3 +201,17 @@ def px4_thermal(parameters, triads) -> tuple[list[str], list[tuple[str, float]]]
             values += [(f"{prefix}_X{k}_{i}", float(terms[k - 1, i]) if k else 0.0) for i in range(3)]
         values += [(f"{prefix}_TREF", model.reference_c), (f"{prefix}_TMIN", low), (f"{prefix}_TMAX", high)]
     return comments, values
+
+
+def scale_drift_dropped(cal) -> list[str]:
+    """The comment line naming a thermal model's scale drift, which neither flight stack holds,
+    with the worst error it costs over the calibrated range; [] without one."""
+    model = cal.thermal
+    if model is None or model.scale_drift is None:
+        return []
+    low, high = model.range_c
+    factor, unit = operator_unit(cal.kind, SI_UNIT[cal.kind], BIAS)
+    size, reference = REFERENCE_INPUT.get(cal.kind, _RATE_REFERENCE)
+    worst = float(np.max(np.abs(model.scale_drift))) * max(high - model.reference_c, model.reference_c - low)
+    return [f"#   dropped: scale drift {', '.join(f'{v * 1e6:+.3g}' for v in model.scale_drift)} "
+            f"ppm/K; worst error {worst * size * factor:.3g} {unit} {reference} over the range"]
