@@ -224,3 +224,134 @@ def test_a_wrong_temperature_entry_in_a_map_is_one_line(tmp_path, temperature, m
     with pytest.raises(ImportMapError) as caught:
         load_import_map(_map(tmp_path, f"    temperature: {temperature}\n"))
     assert message in str(caught.value) and "\n" not in str(caught.value)
+
+
+# A config's simulated unit warming on a chamber's ramp, 1 K/s from 20 °C for 10 K (the Xsens
+# frames carry its temperature), with configs/sim-warmup.yaml's thermal truth about 20 °C.
+WARMING_DEVICE = """device:
+  name: simulated MIMU, warming
+  protocol: sim
+  rate_hz: 250
+  sim:
+    imu_protocol: xsens
+    seed: 5
+    speed: 0
+    temperature: {profile: ramp, start_c: 20.0, rise_k: 10.0, rate_k_per_s: 1.0}
+    thermal:
+      accelerometer:
+        reference_c: 20.0
+        bias_coefficients: [[0.002941995, -0.004903325, 0.00784532], [9.8067e-05, 0.0, -0.000196133]]
+        scale_drift: [5.0e-05, -3.0e-05, 4.0e-05]
+      gyroscope:
+        reference_c: 20.0
+        bias_coefficients: [[0.000349066, -0.000872665, 0.001396263]]
+        scale_drift: [2.0e-05, 3.0e-05, -2.0e-05]
+  triads:
+    accelerometer: {kind: specific_force, unit: m/s^2}
+    gyroscope: {kind: angular_rate, unit: rad/s}
+station: {latitude_deg: 40.0, height_m: 50.0}
+"""
+
+
+def _device_truth(tmp_path: Path, high_c: float) -> tuple[Path, Path]:
+    """The warming device's config, and its truth as a parameter file whose thermal model was
+    calibrated over 19.5 °C to ``high_c``."""
+    from drivers.sim.device import paper_mimu
+    from fieldcal.config import load_config
+
+    config = tmp_path / "warming.yaml"
+    config.write_text(WARMING_DEVICE)
+    thermal = load_config(config).device.sim.thermal.triads
+    truth = paper_mimu()
+    cals = [Calibration(name=name, kind=truth[name].kind, output_unit=truth[name].output_unit, method="classic",
+                        K=truth[name].K, bias=truth[name].bias, sigma=np.zeros(9), residual_rms=0.0,
+                        thermal=ThermalModel(reference_c=20.0, range_c=(19.5, high_c),
+                                             bias_terms=thermal[name].bias_terms,
+                                             bias_terms_sigma=np.zeros_like(thermal[name].bias_terms),
+                                             scale_drift=thermal[name].scale_drift, scale_drift_sigma=np.zeros(3)))
+            for name in ("accelerometer", "gyroscope")]
+    pf = ParameterFile.build(cals, station=Station(40.0, 50.0), procedure="simulator truth", method="classic",
+                             input_sha256="0" * 64)
+    return config, save(pf, tmp_path / "truth.yaml")
+
+
+def test_a_warming_live_device_is_corrected_at_the_temperature_its_frames_carry(tmp_path, capsys):
+    """At rest while it warms 10 K: the output is the true specific force and rate within the
+    noise, where the static calibration alone is off by the drift (1.5 mg on average)."""
+    from tests.test_apply_live import assert_true_inputs_within_noise
+
+    config, params = _device_truth(tmp_path, 31.0)
+    out = tmp_path / "live.csv"
+    assert main(["apply", str(params), "--config", str(config), "--samples", "2500", "--out", str(out)]) == 0
+    assert "2500 samples calibrated into" in capsys.readouterr().err
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert_true_inputs_within_noise(table)
+    # the test can fail: what the thermal terms took off, on average over the samples' temperatures
+    profile = TemperatureProfile("ramp", start_c=20.0, rise_k=10.0, rate_k_per_s=1.0)
+    drift = ThermalTruth(20.0, ACC_TRUTH.bias_terms, ACC_TRUTH.scale_drift).offset_and_ratio(profile.at(table[:, 0]))[0]
+    assert np.abs(drift.mean(axis=0)).max() > 0.01  # m/s², against a tolerance of about 0.002
+
+
+def test_a_live_device_warmer_than_the_range_stops_and_keeps_what_it_wrote(tmp_path, capsys):
+    config, params = _device_truth(tmp_path, 24.0)
+    out = tmp_path / "live.csv"
+    assert main(["apply", str(params), "--config", str(config), "--samples", "2500", "--out", str(out)]) != 0
+    err = capsys.readouterr().err
+    [line] = [line for line in err.splitlines() if "outside" in line]
+    assert "outside accelerometer's calibrated range 19.50 to 24.00 °C" in line and line.startswith("fieldcal")
+    assert "refused, the thermal model does not extrapolate" in line
+    # what was streamed before is kept, every sample of it within the range (the ramp passes
+    # 24 °C at t = 4 s); a first read already too warm leaves no file
+    if out.exists():
+        table = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
+        assert f"{len(table)} samples calibrated into" in err and table[:, 0].max() <= 4.0
+    else:
+        assert "\n0 samples calibrated;" in err
+
+
+def _log_recording(temperature_c):
+    """What a log's reader gives (as fieldcal import reads a ULog): SI samples, with or without
+    the unit's temperature, made from known true inputs by the simulator's thermal model."""
+    from fieldcal.recording import Recording
+
+    rng = np.random.default_rng(11)
+    n = 400
+    t_c = _warmup(n)
+    true_acc, true_gyr = rng.normal(size=(n, 3)) * 5.0, rng.normal(size=(n, 3))
+    triads = {"accelerometer": _raw(true_acc, ACC_K, ACC_BIAS, ACC_TRUTH, t_c),
+              "gyroscope": _raw(true_gyr, GYR_K, GYR_BIAS, GYR_TRUTH, t_c)}
+    recording = Recording(t=np.arange(n) * 0.004, triads=triads,
+                          kinds={"accelerometer": "specific_force", "gyroscope": "angular_rate"},
+                          units={"accelerometer": "m/s^2", "gyroscope": "rad/s"},
+                          temperature=None if temperature_c is None else temperature_c(t_c))
+    return recording, true_acc, true_gyr
+
+
+@pytest.mark.parametrize("seen", ["its own", "none", "too warm"])
+def test_a_log_is_corrected_at_its_temperature(tmp_path, capsys, monkeypatch, seen):
+    from fieldcal.recording import importer, logs
+
+    temperature = {"its own": lambda t: t, "none": None, "too warm": lambda t: t + 3.0}[seen]
+    recording, true_acc, true_gyr = _log_recording(temperature)
+    report = importer.ImportReport(map_path="", map_text="", files=(), alignment=(), warnings=())
+    monkeypatch.setattr(logs, "import_log", lambda *_: (recording, report))
+    out = tmp_path / "cal.csv"
+    code = main(["apply", str(_params(tmp_path / "p.yaml")), str(tmp_path / "flight.ulg"), "--out", str(out)])
+    err = capsys.readouterr().err
+    if seen == "too warm":  # refused before a sample is written
+        assert code != 0 and not out.exists()
+        hot = np.count_nonzero(recording.temperature > RANGE_C[1])
+        assert f"{hot} of 400 samples at" in err and "refused" in err and err.count("\n") == 1
+        return
+    assert code == 0
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    if seen == "none":
+        assert "no temperature read, so the thermal model is applied at its reference temperature" in err
+        acc = load(tmp_path / "p.yaml").triad("accelerometer")
+        np.testing.assert_allclose(data[:, 1:4], acc.calibrate(recording.triads["accelerometer"], REFERENCE_C),
+                                   rtol=0, atol=1e-12)
+        assert np.abs(data[:, 1:4] - true_acc).max() > 0.01  # the drift it could not take off
+    else:
+        assert "temperature" not in err
+        np.testing.assert_allclose(data[:, 1:4], true_acc, rtol=0, atol=1e-11)
+        np.testing.assert_allclose(data[:, 4:7], true_gyr, rtol=0, atol=1e-11)
