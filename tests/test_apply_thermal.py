@@ -278,7 +278,7 @@ def _device_truth(tmp_path: Path, high_c: float) -> tuple[Path, Path]:
 def test_a_warming_live_device_is_corrected_at_the_temperature_its_frames_carry(tmp_path, capsys):
     """At rest while it warms 10 K: the output is the true specific force and rate within the
     noise, where the static calibration alone is off by the drift (1.5 mg on average)."""
-    from tests.test_apply_live import assert_true_inputs_within_noise
+    from test_apply_live import assert_true_inputs_within_noise
 
     config, params = _device_truth(tmp_path, 31.0)
     out = tmp_path / "live.csv"
