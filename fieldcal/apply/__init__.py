@@ -7,9 +7,9 @@ read with its line number), every triad the parameter file calibrates is correct
 whole block, and the block is written by polars' CSV writer before the next is read: memory
 stays bounded by the block, whatever the recording's length. A triad with a thermal model is
 corrected at each sample's temperature, read from the map's temperature column
-(:mod:`fieldcal.apply.thermal` says what is done without one, or outside the model's range). Every number is written in the
-fewest digits that read back to the same double (``1.004``, ``-0.12345678901234567``): nothing
-is rounded off. polars is imported only when apply runs.
+(:mod:`fieldcal.apply.thermal`: what is done without one, or outside the model's range). Every
+number is written in the fewest digits that read back to the same double (``1.004``,
+``-0.12345678901234567``): nothing is rounded off. polars is imported only when apply runs.
 """
 from __future__ import annotations
 

@@ -80,8 +80,8 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
     or baud rate on ``err``). A read with samples outside a thermal model's range stops it
     (TemperatureOutside, with ``written``: the samples written before it), unless
     ``hold_temperature_edge``."""
-    from fieldcal.apply.thermal import OutsideCount, TemperatureOutside, at_reference_line, thermal_names
     from drivers.transport import PORT_OPENED
+    from fieldcal.apply.thermal import OutsideCount, TemperatureOutside, at_reference_line, thermal_names
     from fieldcal.run.devicetext import counters_line, no_samples_hint, port_event_line
     from fieldcal.run.devices import DeviceConnection
 
