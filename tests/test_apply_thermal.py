@@ -181,6 +181,7 @@ def test_without_a_temperature_column_the_model_applies_at_its_reference_and_say
     lines = [line for line in capsys.readouterr().err.splitlines() if "thermal" in line]
     assert len(lines) == 1 and "applied at its reference temperature" in lines[0]
     assert "accelerometer at 25.00 °C (calibrated over 19.50 to 31.00 °C)" in lines[0]
+    assert lines[0].endswith("name the temperature column in the map to correct each sample at its own")
     data = np.loadtxt(out, delimiter=",", skiprows=1)
     text = np.loadtxt(path, delimiter=",", skiprows=1)
     acc, gyr = load(params).triads
@@ -347,6 +348,7 @@ def test_a_log_is_corrected_at_its_temperature(tmp_path, capsys, monkeypatch, se
     data = np.loadtxt(out, delimiter=",", skiprows=1)
     if seen == "none":
         assert "no temperature read, so the thermal model is applied at its reference temperature" in err
+        assert "map" not in err  # a log has no map to name a column in
         acc = load(tmp_path / "p.yaml").triad("accelerometer")
         np.testing.assert_allclose(data[:, 1:4], acc.calibrate(recording.triads["accelerometer"], REFERENCE_C),
                                    rtol=0, atol=1e-12)

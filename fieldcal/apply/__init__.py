@@ -201,11 +201,11 @@ def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES, warn=None
     sample is written all the same, in the file's order (apply never drops one); and, for a
     thermal model, that it is applied at its reference temperature (the map names no
     temperature column; said first) or how many samples were held at its range's edge."""
-    from fieldcal.apply.thermal import OutsideCount, at_reference_line, thermal_names
+    from fieldcal.apply.thermal import MAP_HINT, OutsideCount, at_reference_line, thermal_names
 
     names = p.columns()
     if warn is not None and thermal_names(p.calibrations) and not p.file_spec.has_temperature:
-        warn(at_reference_line(p.calibrations, p.path))
+        warn(at_reference_line(p.calibrations, p.path, MAP_HINT))
     outside = OutsideCount()
     blocks = calibrated_blocks(p, block_bytes, outside)
     first = next(blocks, None)  # a file refused at its start (no sample, cut off) writes nothing

@@ -32,13 +32,17 @@ def thermal_names(calibrations) -> list[str]:
     return [c.name for c in calibrations if c.thermal is not None]
 
 
-def at_reference_line(calibrations, source: str) -> str:
-    """One line: ``source`` has no temperature, so each thermal model is applied at its reference."""
+MAP_HINT = "name the temperature column in the map to correct each sample at its own"
+
+
+def at_reference_line(calibrations, source: str, hint: str = "") -> str:
+    """One line: ``source`` has no temperature, so each thermal model is applied at its reference
+    (``hint``: what would give one)."""
     models = [(c.name, c.thermal) for c in calibrations if c.thermal is not None]
     told = "; ".join(f"{name} at {m.reference_c:.2f} °C (calibrated over {m.range_c[0]:.2f} to {m.range_c[1]:.2f} °C)"
                      for name, m in models)
     return (f"apply: {source}: no temperature read, so the thermal model is applied at its reference "
-            f"temperature: {told}; name the temperature column in the map to correct each sample at its own")
+            f"temperature: {told}" + (f"; {hint}" if hint else ""))
 
 
 class TemperatureOutside(ValueError):
