@@ -13,11 +13,17 @@ mrad, the device's own unit where the output is not physical)::
         misalignment: {unit: mrad, min: -20, max: 20}
         bias_z:       {unit: mg, min: -80, max: 80}    # one parameter: overrides its group's keys
         max_residual: {unit: mg, value: 2.0}
+        thermal:                                        # the thermal model's terms (issue 28)
+          bias_drift:  {unit: mg/K, min: -1, max: 1, max_sigma: 0.05}   # b₁ per axis
+          scale_drift: {unit: ppm/K, min: -100, max: 100}               # s₁ per axis
 
 Every limit is optional; a parameter is checked against its group's limits with its own entry's
 keys taking precedence. The unit is required beside every number and must be the unit the
 parameter is shown in, so a spec written for a device reporting in g is never silently applied
-to one reporting in counts. ``evaluate`` is pure: no I/O, no clock.
+to one reporting in counts. A triad with thermal limits and no thermal model in the file fails
+("not calibrated for temperature"): a spec that limits how the unit moves with temperature is not
+met by a calibration that never measured it, as a limit on a parameter left at its nominal value
+is never passed. ``evaluate`` is pure: no I/O, no clock.
 """
 from __future__ import annotations
 
@@ -25,6 +31,8 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from fieldcal.calibration import nearest, operator_values  # noqa: F401 (its home was here)
 from fieldcal.model import FULL_PARAM_NAMES, PARAM_NAMES
@@ -36,7 +44,11 @@ SPEC_SCHEMA = "fieldcal-spec/1"
 GROUPS = {"bias": BIAS, "scale": SCALE, "misalignment": ANGLE}
 PARAMETERS = tuple(dict.fromkeys(PARAM_NAMES + FULL_PARAM_NAMES))
 LIMIT_KEYS = ("min", "max", "max_sigma", "max_drift")
-TRIAD_KEYS = (*GROUPS, *PARAMETERS, "max_residual")
+TRIAD_KEYS = (*GROUPS, *PARAMETERS, "max_residual", "thermal")
+# The thermal model's terms a spec limits: bₖ for k = 1 (bias per K, the bias group's unit per
+# K) and s₁ (scale drift, ppm/K), per axis; no max_drift (a previous file's are not compared).
+THERMAL_KEYS = ("bias_drift", "scale_drift")
+THERMAL_LIMIT_KEYS = ("min", "max", "max_sigma")
 
 
 class SpecError(ValueError):
@@ -71,6 +83,7 @@ class TriadSpec:
     name: str
     limits: dict[str, Limit]  # by group key (bias, scale, misalignment) or parameter name
     max_residual: tuple[float, str] | None = None  # (value, unit)
+    thermal: dict[str, Limit] | None = None  # by THERMAL_KEYS; None: no thermal limits
 
     def limit_for(self, parameter: str) -> Limit | None:
         group = next(k for k, g in GROUPS.items() if g == group_of(parameter))
@@ -105,8 +118,9 @@ def _keys(r: FieldReader, value, where: str, allowed, required=()) -> dict:
     return value
 
 
-def _limit(r: FieldReader, raw, where: str) -> Limit:
-    m = _keys(r, raw, where, ("unit", *LIMIT_KEYS), required=("unit",))
+def _limit(r: FieldReader, raw, where: str, thermal: bool = False) -> Limit:
+    allowed = ("unit", *THERMAL_LIMIT_KEYS) if thermal else ("unit", *LIMIT_KEYS)
+    m = _keys(r, raw, where, allowed, required=("unit",))
     unit = r.string(m, "unit", where)
     values = {k: r.number(m, k, where, minimum=None if k in ("min", "max") else 0.0)
               for k in LIMIT_KEYS if k in m}
@@ -130,13 +144,20 @@ def spec_from_document(doc, path: str = "<spec>") -> ProductSpec:
         if not isinstance(name, str) or not name:
             r.fail("triads", "triad names that are non-empty strings", describe(name))
         t = _keys(r, raw, where, TRIAD_KEYS)
-        limits = {k: _limit(r, v, join(where, k)) for k, v in t.items() if k != "max_residual"}
+        limits = {k: _limit(r, v, join(where, k)) for k, v in t.items() if k not in ("max_residual", "thermal")}
+        thermal = None
+        if "thermal" in t:
+            tw = join(where, "thermal")
+            raw_thermal = _keys(r, t["thermal"], tw, THERMAL_KEYS)
+            if not raw_thermal:
+                r.fail(tw, f"limits on {' or '.join(THERMAL_KEYS)}", "an empty mapping")
+            thermal = {k: _limit(r, v, join(tw, k), thermal=True) for k, v in raw_thermal.items()}
         residual = None
         if "max_residual" in t:
             rw = join(where, "max_residual")
             res = _keys(r, t["max_residual"], rw, ("value", "unit"), required=("value", "unit"))
             residual = (r.number(res, "value", rw, minimum=0.0), r.string(res, "unit", rw))
-        triads.append(TriadSpec(name, limits, residual))
+        triads.append(TriadSpec(name, limits, residual, thermal))
     return ProductSpec(product, tuple(triads), path)
 
 
@@ -230,6 +251,50 @@ def _parameter_check(spec, ts: TriadSpec, cal, i: int, value: float, sigma: floa
     return Check(cal.name, name, value, sigma, unit, tuple(reasons), drift, drift_sigma)
 
 
+NOT_CALIBRATED_FOR_TEMPERATURE = "not calibrated for temperature"
+
+
+def thermal_units(cal) -> dict[str, tuple[float, str]]:
+    """(factor, unit) taking each thermal term from the parameter file's units to the spec's:
+    b₁ in the bias's operator unit per K (mg/K, °/h/K), s₁ (1/K) in ppm/K."""
+    factor, unit = operator_unit(cal.kind, cal.output_unit, BIAS)
+    return {"bias_drift": (factor, f"{unit}/K"), "scale_drift": (1e6, "ppm/K")}
+
+
+def thermal_checks(spec: ProductSpec, ts: TriadSpec, cal) -> list[Check]:
+    """The thermal model's b₁ and s₁ per axis against the spec's thermal limits. No model (or no
+    scale term where s₁ is limited) fails: "not calibrated for temperature". An order-0 model
+    (the fit found no bias term worth its parameters) has b₁ = 0 with no σ: its range limits
+    are checked, not max_sigma."""
+    model, units, checks = cal.thermal, thermal_units(cal), []
+    for key, limit in (ts.thermal or {}).items():
+        factor, unit = units[key]
+        if limit.unit != unit:
+            raise _unit_error(spec, f"triads.{ts.name}.thermal.{key}", limit.unit, unit, cal.name)
+        if model is None or (key == "scale_drift" and model.scale_drift is None):
+            why = (f"{NOT_CALIBRATED_FOR_TEMPERATURE}: the parameter file has no thermal model"
+                   if model is None else f"{NOT_CALIBRATED_FOR_TEMPERATURE}: its thermal model has no scale term")
+            checks.append(Check(cal.name, key, None, None, "", (why,), calibrated=False))
+            continue
+        if key == "bias_drift":
+            values = model.bias_terms[0] if model.order else np.zeros(3)
+            sigmas = model.bias_terms_sigma[0] if model.order else None
+        else:
+            values, sigmas = model.scale_drift, model.scale_drift_sigma
+        for i, axis in enumerate("xyz"):
+            value = float(values[i] * factor)
+            sigma = None if sigmas is None else float(sigmas[i] * factor)
+            reasons = []
+            if limit.min is not None and value < limit.min:
+                reasons.append(f"{_g(value)} {unit} below the minimum {_g(limit.min)} {unit}")
+            if limit.max is not None and value > limit.max:
+                reasons.append(f"{_g(value)} {unit} above the maximum {_g(limit.max)} {unit}")
+            if limit.max_sigma is not None and sigma is not None and sigma > limit.max_sigma:
+                reasons.append(f"σ {_g(sigma)} {unit} above the maximum {_g(limit.max_sigma)} {unit}")
+            checks.append(Check(cal.name, f"{key}_{axis}", value, sigma, unit, tuple(reasons)))
+    return checks
+
+
 def not_the_same_unit(parameters, previous) -> str | None:
     """Why two parameter files cannot be taken as one unit's calibrations (drift is never taken
     across them); None when both name the same serial (and the same model, where both name one)."""
@@ -268,6 +333,8 @@ def evaluate(spec: ProductSpec, parameters, previous=None) -> Verdict:
         for i in range(len(cal.parameter_names)):
             checks.append(_parameter_check(spec, ts, cal, i, float(values[i]), float(sigmas[i]),
                                            units[i], prev))
+        if ts.thermal:
+            checks.extend(thermal_checks(spec, ts, cal))
         if ts.max_residual is not None:
             limit, unit = ts.max_residual
             factor, shown = operator_unit(cal.kind, cal.residual_unit, BIAS)

@@ -5,9 +5,11 @@ Each input file is read ``block_bytes`` at a time by polars' CSV reader
 read with its line number), every triad the parameter file calibrates is corrected as
 ``Calibration.calibrate`` does, K⁻¹(raw − bias) into SI units, by one numpy product over the
 whole block, and the block is written by polars' CSV writer before the next is read: memory
-stays bounded by the block, whatever the recording's length. Every number is written in the
-fewest digits that read back to the same double (``1.004``, ``-0.12345678901234567``): nothing
-is rounded off. polars is imported only when apply runs.
+stays bounded by the block, whatever the recording's length. A triad with a thermal model is
+corrected at each sample's temperature, read from the map's temperature column
+(:mod:`fieldcal.apply.thermal`: what is done without one, or outside the model's range). Every
+number is written in the fewest digits that read back to the same double (``1.004``,
+``-0.12345678901234567``): nothing is rounded off. polars is imported only when apply runs.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ class Plan:
     calibrations: tuple  # Calibration per triad written
     skipped: tuple[str, ...]  # the file's triads the parameter file does not calibrate
     rate_hz: float | None = None  # the sample rate of a file with no time column
+    hold_temperature_edge: bool = False  # correct samples outside a thermal range at its nearest edge
 
     def columns(self) -> list[str]:
         return output_columns(self.calibrations)
@@ -62,10 +65,11 @@ def write_all(out: BinaryIO, data) -> None:
         view = view[out.write(view) or 0:]
 
 
-def plan(parameters, import_map, paths, rate_hz: float | None = None) -> list[Plan]:
+def plan(parameters, import_map, paths, rate_hz: float | None = None,
+         hold_temperature_edge: bool = False) -> list[Plan]:
     """One Plan per input file; one-line errors for a wrong number of files, a triad whose map
     unit is not the unit it was calibrated in, or a file with nothing to calibrate. ``rate_hz``
-    (else the map's) times a file with no time column."""
+    (else the map's) times a file with no time column; ``hold_temperature_edge``: see Plan."""
     if len(paths) != len(import_map.files):
         n = len(import_map.files)
         raise ValueError(f"apply: {import_map.path} expects {n} file{'s' * (n != 1)} "
@@ -78,7 +82,7 @@ def plan(parameters, import_map, paths, rate_hz: float | None = None) -> list[Pl
         _require_regular_file(os.fspath(path))
         cals, skipped = calibrations_for(parameters, spec.units, os.fspath(path), f"{import_map.path}: ",
                                          "give a map with unit {unit!r} (and the matching scale)")
-        plans.append(Plan(os.fspath(path), spec, cals, skipped, rate_hz or spec.rate_hz))
+        plans.append(Plan(os.fspath(path), spec, cals, skipped, rate_hz or spec.rate_hz, hold_temperature_edge))
     return plans
 
 
@@ -125,27 +129,49 @@ def not_calibrated_lines(parameters) -> list[str]:
             for t in parameters.triads if t.not_calibrated]
 
 
-def calibrated_blocks(p: Plan, block_bytes: int = BLOCK_BYTES) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """(t (n,) in s, calibrated (n, 3·triads) in SI units) per block of the file."""
+def calibrated_blocks(p: Plan, block_bytes: int = BLOCK_BYTES,
+                      outside=None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """(t (n,) in s, calibrated (n, 3·triads) in SI units) per block of the file. ``outside``
+    (a ``thermal.OutsideCount``) counts the samples outside a thermal model's range; without
+    ``p.hold_temperature_edge`` the first such sample stops the file (TemperatureOutside, once
+    the rest of the file is counted, for the line to say how many)."""
     from fieldcal.apply.text import layout, read_blocks
+    from fieldcal.apply.thermal import OutsideCount, TemperatureOutside, offsets_and_ratios, thermal_names
 
     if not p.file_spec.has_time and p.rate_hz is None:
         raise ValueError(f"apply: {p.path}: {p.file_spec.name} has no time column: give its sample rate "
                          f"(--rate HZ, or rate_hz in the map's {p.file_spec.where or 'entry'})")
-    lay = layout(p.path, p.file_spec, [c.name for c in p.calibrations])
+    thermal = bool(thermal_names(p.calibrations)) and p.file_spec.has_temperature
+    lay = layout(p.path, p.file_spec, [c.name for c in p.calibrations], temperature=thermal)
     cm = lay.channel_map
     slot = {role: i for i, (role, _) in enumerate(lay.roles)}
     scale, bias, inverse = _affine(p.calibrations, cm, slot)
+    rows = {c.name: [slot[f"{c.name}.{axis}"] for axis in "xyz"] for c in p.calibrations}
+    outside = OutsideCount() if outside is None else outside
     first = 0
-    for v in read_blocks(p.path, lay, block_bytes):
+    blocks = read_blocks(p.path, lay, block_bytes)
+    for v in blocks:
         n = len(v)
         t = _seconds(v[:, slot["time"]], cm.time_scale) if cm.time_column is not None \
             else (first + np.arange(n)) / p.rate_hz
         first += n
+        raw = v * scale - bias
+        outside.samples += n
+        temperature = v[:, slot["temperature"]] * cm.temperature_scale if thermal else None
+        terms = offsets_and_ratios(p.calibrations, rows, len(slot), temperature, p.hold_temperature_edge,
+                                   outside, p.path)
+        if outside.counts and not p.hold_temperature_edge:  # refused: the rest read only to count
+            for rest in blocks:
+                outside.samples += len(rest)
+                offsets_and_ratios(p.calibrations, rows, len(slot), rest[:, slot["temperature"]]
+                                   * cm.temperature_scale, False, outside, p.path)
+            raise TemperatureOutside(outside.line(p.path, p.calibrations, held=False))
+        if terms is not None:  # K(T)⁻¹(raw − bias(T)) = K⁻¹((raw − b₀ − Σbₖ ΔTᵏ) / (1 + s₁ΔT))
+            raw = (raw - terms[0]) / terms[1]
         # einsum's own loop, not BLAS: OpenBLAS spreads a (n, 7)·(7, 6) product over threads
         # that cost 10-25 times its CPU on a busy machine. Computed column by column (the
         # transpose returned is a view), so each output column is contiguous for the writer.
-        yield t, np.einsum("nk,km->mn", v * scale - bias, inverse).T
+        yield t, np.einsum("nk,km->mn", raw, inverse).T
 
 
 def _affine(calibrations, cm, slot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -172,9 +198,16 @@ def _seconds(time: np.ndarray, scale: float) -> np.ndarray:
 def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES, warn=None) -> int:
     """Write ``p``'s calibrated CSV to ``out``; the number of samples written. ``warn(line)``
     (if given) is told once, at the end, how many sample times repeat or go back: every
-    sample is written all the same, in the file's order (apply never drops one)."""
+    sample is written all the same, in the file's order (apply never drops one); and, for a
+    thermal model, that it is applied at its reference temperature (the map names no
+    temperature column; said first) or how many samples were held at its range's edge."""
+    from fieldcal.apply.thermal import MAP_HINT, OutsideCount, at_reference_line, thermal_names
+
     names = p.columns()
-    blocks = calibrated_blocks(p, block_bytes)
+    if warn is not None and thermal_names(p.calibrations) and not p.file_spec.has_temperature:
+        warn(at_reference_line(p.calibrations, p.path, MAP_HINT))
+    outside = OutsideCount()
+    blocks = calibrated_blocks(p, block_bytes, outside)
     first = next(blocks, None)  # a file refused at its start (no sample, cut off) writes nothing
     write_all(out, (",".join(names) + "\n").encode("ascii"))
     n, not_forward, last = 0, 0, None
@@ -183,6 +216,9 @@ def apply_file(p: Plan, out: BinaryIO, block_bytes: int = BLOCK_BYTES, warn=None
         not_forward += int(np.count_nonzero(np.diff(t if last is None else np.r_[last, t]) <= 0))
         last = t[-1] if len(t) else last
         n += len(t)
+    held = outside.line(p.path, p.calibrations, held=True)
+    if held and warn is not None:
+        warn(held)
     if not_forward and warn is not None:
         warn(f"apply: {p.path}: {not_forward} sample time{'s' * (not_forward != 1)} repeat or go back "
              "(t_s not increasing); every sample is written, in the file's order")

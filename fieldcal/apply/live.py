@@ -32,14 +32,23 @@ def device_calibrations(parameters, config) -> tuple[tuple, tuple[str, ...]]:
                             f"{config.path}: {device.name}'s ", "use the config it was calibrated with")
 
 
-def calibrate_chunks(chunks, calibrations) -> tuple[np.ndarray, np.ndarray]:
-    """(t (n,) in s, calibrated (n, 3·triads) in SI units) of a read's chunks, as one block."""
+def calibrate_chunks(chunks, calibrations, hold_temperature_edge: bool = False,
+                     outside=None) -> tuple[np.ndarray, np.ndarray]:
+    """(t (n,) in s, calibrated (n, 3·triads) in SI units) of a read's chunks, as one block; a
+    triad with a thermal model at the chunks' temperatures (``fieldcal.apply.thermal``:
+    ``outside`` counts those outside its range, refused unless ``hold_temperature_edge``)."""
+    from fieldcal.apply.thermal import temperatures_for
+
     missing = sorted({c.name for c in calibrations} - set.intersection(*(set(ch.triads) for ch in chunks)))
     if missing:
         raise ValueError(f"apply: the device sent samples without {', '.join(missing)}: check the "
                          "config's protocol and triads")
     t = np.concatenate([chunk.t for chunk in chunks])
-    values = np.hstack([cal.calibrate(np.concatenate([chunk.triads[cal.name] for chunk in chunks]))
+    temperature = np.concatenate([chunk.temperature for chunk in chunks]) \
+        if all(chunk.temperature is not None for chunk in chunks) else None
+    temperatures, _ = temperatures_for(calibrations, temperature, hold_temperature_edge, "the device", outside)
+    values = np.hstack([cal.calibrate(np.concatenate([chunk.triads[cal.name] for chunk in chunks]),
+                                      temperatures.get(cal.name), extrapolate=True)  # checked or held above
                         for cal in calibrations])
     return t, values
 
@@ -64,11 +73,15 @@ def sample_numbers(counter: np.ndarray, modulus: int | None,
 
 
 def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threading.Event,
-                 max_samples: int | None = None, max_seconds: float | None = None) -> int:
+                 max_samples: int | None = None, max_seconds: float | None = None,
+                 hold_temperature_edge: bool = False) -> int:
     """Stream ``config``'s device, calibrated, to ``out`` until ``stop`` is set (Ctrl-C), or
     ``max_samples`` / ``max_seconds``; the samples written (none: a hint at the port, protocol
-    or baud rate on ``err``)."""
+    or baud rate on ``err``). A read with samples outside a thermal model's range stops it
+    (TemperatureOutside, with ``written``: the samples written before it), unless
+    ``hold_temperature_edge``."""
     from drivers.transport import PORT_OPENED
+    from fieldcal.apply.thermal import OutsideCount, TemperatureOutside, at_reference_line, thermal_names
     from fieldcal.run.devicetext import counters_line, no_samples_hint, port_event_line
     from fieldcal.run.devices import DeviceConnection
 
@@ -76,6 +89,7 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
 
     names = output_columns(calibrations)
     written, opened, device_time, previous = 0, False, None, None
+    outside, told_reference = OutsideCount(), not thermal_names(calibrations)
     with DeviceConnection(config) as conn:
         started = time.monotonic()
         where = conn.simulated.imu_url if conn.simulated else config.device.port.url
@@ -90,7 +104,15 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
                 opened |= event.kind == PORT_OPENED
                 print(port_event_line(event, conn.reader.retry_s), file=err, flush=True)
             if chunks:
-                t, values = calibrate_chunks(chunks, calibrations)
+                if not told_reference and any(chunk.temperature is None for chunk in chunks):
+                    print(f"fieldcal {at_reference_line(calibrations, 'the device')}", file=err, flush=True)
+                    told_reference = True
+                try:
+                    t, values = calibrate_chunks(chunks, calibrations, hold_temperature_edge, outside)
+                except TemperatureOutside as exc:
+                    print(f"{written} samples calibrated; {counters_line(conn.counters)}", file=err, flush=True)
+                    exc.written = written
+                    raise
                 if device_time is None:  # decided by the first frames, kept for the whole output
                     device_time = conn.parser.device_time
                     if not device_time:
@@ -119,6 +141,9 @@ def apply_device(config, calibrations, out: BinaryIO, err: TextIO, stop: threadi
                 written += len(t)
             stop.wait(POLL_S)
         print(f"{written} samples calibrated; {counters_line(conn.counters)}", file=err, flush=True)
+        held = outside.line("the device", calibrations, held=True)
+        if held:
+            print(f"fieldcal {held}", file=err, flush=True)
         if not written:
             print(f"fieldcal: {no_samples_hint(config, opened, conn.reader.bytes_read)}", file=err, flush=True)
     return written

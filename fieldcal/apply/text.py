@@ -100,10 +100,11 @@ def split_fields(cm: ChannelMap, line: bytes) -> list[bytes]:
     return line.split() if cm.delimiter is None else line.split(cm.delimiter.encode("ascii"))
 
 
-def layout(path: str, spec: FileSpec, triads) -> Layout:
+def layout(path: str, spec: FileSpec, triads, temperature: bool = False) -> Layout:
     """Read the start of the file (and its end): the resolved channel map and the first sample;
     TextError for a file with no sample near its start or cut off mid-line. ``triads``: the
-    names of the triads read."""
+    names of the triads read; ``temperature``: read the map's temperature column too (a
+    thermal model needs it; else it is not read, and may hold anything)."""
     with open(path, "rb") as fh:
         head = fh.read(HEADER_SEARCH_BYTES)
         fh.seek(0, 2)
@@ -111,7 +112,8 @@ def layout(path: str, spec: FileSpec, triads) -> Layout:
         fh.seek(max(size - _TAIL_BYTES, 0))
         tail = fh.read()
     cm = spec.resolve(header_fields(head, spec, path), path) if spec.channel_map is None else spec.channel_map
-    roles = tuple((role, c) for role, c in cm.columns if role == "time" or role.rsplit(".", 1)[0] in triads)
+    roles = tuple((role, c) for role, c in cm.columns
+                  if role == "time" or (temperature and role == "temperature") or role.rsplit(".", 1)[0] in triads)
     complete = head if size <= len(head) else head[:head.rfind(b"\n") + 1]
     offset = 0
     for number, line in enumerate(_LINES.findall(complete)[:HEADER_SEARCH_LINES], 1):

@@ -4,7 +4,8 @@ customer; and its PDF where a headless Chromium is installed (``render``).
 
 It states the unit, the station (latitude, height, gravity and where that came from, the
 temperature the device reported), the procedure and method, every parameter ± 1σ in operator
-units (with PASS/FAIL and the reason when a product spec is given), each triad's residual per
+units (with PASS/FAIL and the reason when a product spec is given), a triad's thermal model
+(its range, terms ± 1σ and bias against temperature: ``thermal``), each triad's residual per
 position as a plot, the Allan plots where ``fieldcal allan`` measured them in the session, and
 the parameter file's SHA-256 with whether it is the one the session recorded.
 
@@ -137,6 +138,9 @@ def _triad_section(cal, checks: dict, with_results: bool, evidence, spec) -> str
                f"<table class='triad' data-triad='{escape(cal.name)}'>{''.join(rows)}</table>",
                f"<p class='rms'>residual RMS {cal.residual_rms * factor:.3g} {escape(unit)} "
                f"({escape(cal.method)}){verdict_text}</p>"]
+    from fieldcal.certificate.thermal import thermal_section
+
+    section.append(thermal_section(cal, checks, with_results, ts))
     res = evidence.residuals.get(cal.name) if evidence is not None else None
     if res is not None:
         limit = ts.max_residual[0] if ts is not None and ts.max_residual is not None \

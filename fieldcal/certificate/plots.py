@@ -77,9 +77,43 @@ def residual_svg(res, rms: float | None = None, limit: float | None = None, skip
         fig.tight_layout(pad=0.3)
         out = io.StringIO()
         fig.savefig(out, format="svg", metadata={"Date": None, "Creator": "fieldcal"})
-    text = out.getvalue()
-    svg = text[text.index("<svg"):]  # no XML prolog nor DOCTYPE inside an HTML page
-    # scale with the page: the viewBox stays, the fixed size in pt goes
+    return _inline(out.getvalue())
+
+
+def thermal_svg(temperature_c: np.ndarray, bias: np.ndarray, sigma: np.ndarray, unit: str,
+                reference_c: float) -> str:
+    """A triad's bias against temperature, one panel per axis (their biases differ by more than
+    their drifts): the line and its ±1σ band over the calibrated range, the reference dotted."""
+    import matplotlib
+    from matplotlib.backends.backend_svg import FigureCanvasSVG
+    from matplotlib.figure import Figure
+
+    with matplotlib.rc_context({"svg.fonttype": "none", "svg.hashsalt": "fieldcal-certificate",
+                                "font.size": 8, "axes.titlesize": 8}):
+        fig = Figure(figsize=(WIDTH_IN, HEIGHT_IN))
+        FigureCanvasSVG(fig)
+        for i, axis in enumerate("xyz"):
+            ax = fig.add_subplot(1, 3, i + 1)
+            ax.fill_between(temperature_c, bias[:, i] - sigma[:, i], bias[:, i] + sigma[:, i], color="#4a6fa5",
+                            alpha=0.25, lw=0, label="±1σ")
+            ax.plot(temperature_c, bias[:, i], color="#4a6fa5", lw=1.2, label="bias")
+            ax.axvline(reference_c, color="#444", ls=":", lw=0.9)
+            ax.set_title(f"bias {axis}")
+            ax.set_xlabel("temperature (°C)")
+            if i == 0:
+                ax.set_ylabel(unit)
+            ax.set_xlim(temperature_c[0], temperature_c[-1])
+            ax.grid(True, alpha=0.3)
+        fig.tight_layout(pad=0.3)
+        out = io.StringIO()
+        fig.savefig(out, format="svg", metadata={"Date": None, "Creator": "fieldcal"})
+    return _inline(out.getvalue())
+
+
+def _inline(text: str) -> str:
+    """An SVG file's text as an element of the page: no XML prolog nor DOCTYPE, and a width
+    that scales with the page (the viewBox stays, the fixed size in pt goes)."""
+    svg = text[text.index("<svg"):]
     return re.sub(r'<svg([^>]*?) width="[^"]*" height="[^"]*"', r'<svg\1 width="100%"', svg, count=1)
 
 

@@ -132,8 +132,9 @@ def cmd_apply(args) -> int:
         parameters = _said(load(args.params))
         [target] = _apply_targets(args, args.input)
         skipped = []
-        _write_csv(target, lambda out: _logged(apply_log(parameters, args.input[0], out, args.topic, args.imu),
-                                               skipped), args.input[0], args.force)
+        _write_csv(target, lambda out: _logged(apply_log(parameters, args.input[0], out, args.topic, args.imu,
+                                                         args.hold_temperature_edge, _say), skipped),
+                   args.input[0], args.force)
         for name in skipped:
             print(f"fieldcal apply: {args.input[0]}: triad {name!r} is not in {args.params}: not written",
                   file=sys.stderr)
@@ -146,15 +147,19 @@ def cmd_apply(args) -> int:
     from fieldcal.apply import apply_file, plan
     from fieldcal.recording.import_map import load_import_map
 
-    plans = plan(_said(load(args.params)), load_import_map(args.map), args.input, args.rate)
+    plans = plan(_said(load(args.params)), load_import_map(args.map), args.input, args.rate,
+                 args.hold_temperature_edge)
     targets = _apply_targets(args, [p.path for p in plans])
     for p, target in zip(plans, targets):
         for name in p.skipped:
             print(f"fieldcal apply: {p.path}: triad {name!r} is not in {args.params}: not written",
                   file=sys.stderr)
-        _write_csv(target, lambda out, p=p: apply_file(p, out, warn=lambda line: print(
-            f"fieldcal {line}", file=sys.stderr)), p.path, args.force)
+        _write_csv(target, lambda out, p=p: apply_file(p, out, warn=_say), p.path, args.force)
     return 0
+
+
+def _say(line: str) -> None:
+    print(f"fieldcal {line}", file=sys.stderr)
 
 
 def _said(parameters):
@@ -183,6 +188,7 @@ def _apply_device(args, parameters) -> int:
     import threading
 
     from fieldcal.apply.live import apply_device, device_calibrations
+    from fieldcal.apply.thermal import TemperatureOutside
     from fieldcal.config import load_config
     from fieldcal.session.output import check_output_path
 
@@ -197,20 +203,26 @@ def _apply_device(args, parameters) -> int:
     stop = threading.Event()
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, lambda *_: stop.set()) if in_main else None
+    refused = None
     try:
         if args.out is None:
             written = apply_device(config, calibrations, sys.stdout.buffer, sys.stderr, stop,
-                                   args.samples, args.seconds)
+                                   args.samples, args.seconds, args.hold_temperature_edge)
         else:  # into a partial file, renamed once samples were written: a start that fails
             # (no device, no samples) leaves the file --force would replace as it was
             from fieldcal.atomic import atomic_file
             with atomic_file(args.out, overwrite=args.force, hint="give --force to replace it",
                              inputs=[args.params, args.config]) as pending:
-                written = apply_device(config, calibrations, pending.file, sys.stderr, stop, args.samples,
-                                       args.seconds)
+                try:
+                    written = apply_device(config, calibrations, pending.file, sys.stderr, stop, args.samples,
+                                           args.seconds, args.hold_temperature_edge)
+                except TemperatureOutside as exc:  # the samples streamed before it are kept
+                    written, refused = exc.written, exc
                 pending.keep = bool(written)
             if written:
                 print(f"{written} samples calibrated into {args.out}", file=sys.stderr)
+            if refused is not None:
+                raise refused
     finally:
         if in_main:
             signal.signal(signal.SIGINT, previous)
@@ -389,6 +401,9 @@ def add_production_parsers(sub) -> None:
     apply.add_argument("--force", action="store_true", help="replace existing output files")
     apply.add_argument("--rate", type=float, metavar="HZ",
                        help="sample rate of files with no time column (else rate_hz in the map)")
+    apply.add_argument("--hold-temperature-edge", action="store_true",
+                       help="correct samples outside a thermal model's calibrated temperature range at the "
+                       "range's nearest edge (said in one line; default: refused, never extrapolated)")
     add_log_options(apply)
     apply.add_argument("--samples", type=_positive(int), metavar="N", help="live: stop after N samples")
     apply.add_argument("--seconds", type=_positive(float), metavar="S", help="live: stop after S seconds")

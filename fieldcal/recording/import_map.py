@@ -10,6 +10,9 @@ An import map is a YAML file (``configs/recordings/NAME.yaml``, or any path)::
         comment: "#"                    # prefix of lines to skip (default "#"; null for none)
         time: {column: 0, unit: s}      # 0-based column; unit s, ms, us or ns, or instead
                                         #   scale: seconds per text unit (e.g. 1.0e-4)
+        temperature: {column: 7}        # optional: the unit's temperature, °C (scale: °C per
+                                        #   text unit, e.g. 0.01; default 1), for apply's
+                                        #   thermal model
         # or no time column at all: the samples are 1 / rate_hz apart (or `--rate` at import)
         rate_hz: 100
         variable: acc                   # a MATLAB MAT-file (v4-v7.2): the matrix to read, one
@@ -74,6 +77,11 @@ class FileSpec:
         return (self.channels or {}).get("time_column") is not None if self.channel_map is None \
             else self.channel_map.time_column is not None
 
+    @property
+    def has_temperature(self) -> bool:
+        return (self.channels or {}).get("temperature_column") is not None if self.channel_map is None \
+            else self.channel_map.temperature_column is not None
+
     def resolve(self, header: list[str], path: str) -> ChannelMap:
         """The channel map with each named column replaced by its number in ``header``."""
         if self.channel_map is not None:
@@ -84,6 +92,7 @@ class FileSpec:
             return index[column] if isinstance(column, str) else column
         channels = dict(self.channels)
         channels["time_column"] = number(channels["time_column"])
+        channels["temperature_column"] = number(channels.get("temperature_column"))
         channels["triads"] = {t: dict(body, columns=[number(c) for c in body["columns"]])
                               for t, body in channels["triads"].items()}
         try:
@@ -147,10 +156,13 @@ def parse_import_map(doc, path: str, text: str = "") -> ImportMap:
 
 
 def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
-    m = r.mapping(entry, where, ("triads",), ("name", "delimiter", "comment", "time", "rate_hz", "variable"))
+    m = r.mapping(entry, where, ("triads",), ("name", "delimiter", "comment", "time", "rate_hz", "variable",
+                                              "temperature"))
     name = r.string(m, "name", where, optional=True) or f"file {index + 1}"
     variable = r.string(m, "variable", where, optional=True) or None
     time_column, time_scale = (None, 1.0) if m.get("time") is None else _time(r, m["time"], join(where, "time"))
+    temperature_column, temperature_scale = (None, 1.0) if m.get("temperature") is None \
+        else _temperature(r, m["temperature"], join(where, "temperature"))
     rate_hz = None
     if "rate_hz" in m:
         rate_hz = r.number(m, "rate_hz", where)
@@ -188,14 +200,16 @@ def _file(r: FieldReader, entry, where: str, index: int) -> FileSpec:
                    f"{where}.time.column)", describe(time_column))
 
     channels = {"delimiter": m.get("delimiter", ","), "comment": m.get("comment", "#"),
-                "time_column": time_column, "time_scale": time_scale, "triads": columns}
-    names = tuple(c for c in [time_column] + [c for body in columns.values()
+                "time_column": time_column, "time_scale": time_scale, "triads": columns,
+                "temperature_column": temperature_column, "temperature_scale": temperature_scale}
+    names = tuple(c for c in [time_column, temperature_column] + [c for body in columns.values()
                                              for c in (body["columns"] if isinstance(body["columns"], list) else [])]
                   if isinstance(c, str))
     # Named columns are numbered once the header is read; the rest is checked now, with numbers
     # standing in for the names, by the parser's own validation.
     stand_in = {n: 10_000 + i for i, n in enumerate(dict.fromkeys(names))}
     trial = dict(channels, time_column=stand_in.get(time_column, time_column),
+                 temperature_column=stand_in.get(temperature_column, temperature_column),
                  triads={t: dict(b, columns=[stand_in.get(c, c) if isinstance(c, str) else c for c in b["columns"]]
                                  if isinstance(b["columns"], list) else b["columns"]) for t, b in columns.items()})
     try:  # delimiter, comment, columns and scales are checked by the parser's own validation
@@ -224,4 +238,18 @@ def _time(r: FieldReader, raw, where: str) -> tuple[int, float]:
     scale = r.number(m, "scale", where)
     if scale <= 0:
         r.fail(join(where, "scale"), "a number > 0 (seconds per text unit)", describe(m["scale"]))
+    return column, scale
+
+
+def _temperature(r: FieldReader, raw, where: str) -> tuple[int | str, float]:
+    """The temperature column (a number or its header name) and its scale, °C per text unit."""
+    m = r.mapping(raw, where, ("column",), ("scale",))
+    column = m["column"]
+    named = isinstance(column, str) and column.strip() != ""
+    if not named and (isinstance(column, bool) or not isinstance(column, int) or column < 0):
+        r.fail(join(where, "column"), "a column number (0-based integer >= 0) or its name in the "
+               "header line", describe(column))
+    scale = r.number(m, "scale", where) if "scale" in m else 1.0
+    if not scale > 0:
+        r.fail(join(where, "scale"), "a number > 0 (°C per text unit)", describe(m["scale"]))
     return column, scale

@@ -4,7 +4,9 @@ The source keeps the last stillness window of the specific-force and angular-rat
 once per UI update (not per chunk), turns it into operator units: mean specific force in mg,
 mean rate in °/s, the angle between measured gravity and the expected up of the current
 position, and a quietness figure: the largest per-axis (window std)/(expected σ), the same
-ratio the stillness detector compares with its enter/leave factors.
+ratio the stillness detector compares with its enter/leave factors. Where the device reports
+the unit's temperature, also the latest one and the span seen so far (lowest, highest): a thermal
+calibration (issue 28) needs the unit to warm through a range, and the operator watches it.
 """
 from __future__ import annotations
 
@@ -32,6 +34,8 @@ class Telemetry:
     angle_deg: float | None = None  # measured gravity vs the current position's expected up
     quiet: float | None = None  # max per-axis (window std)/(expected σ); None until a window exists
     silent_s: float | None = None  # a live device: wall time without a sample, once past SILENT_S
+    temperature_c: float | None = None  # the unit's latest temperature, where the device reports one
+    temperature_span_c: tuple[float, float] | None = None  # the lowest and highest seen so far
 
 
 class RecentSamples:
@@ -44,23 +48,33 @@ class RecentSamples:
         self._rate = np.empty((0, 3))
         self._sigma = np.concatenate([np.asarray(settings.stillness.specific_force_sigma, float),
                                       np.asarray(settings.stillness.rate_sigma, float)])
+        self._temperature: float | None = None
+        self._span: tuple[float, float] | None = None
 
     def add(self, chunk) -> None:
         s = self.settings
+        reported = getattr(chunk, "temperature", None)
+        if reported is not None and len(reported) and np.isfinite(reported).any():
+            t = np.asarray(reported, float)[np.isfinite(reported)]
+            self._temperature = float(t[-1])
+            low, high = float(t.min()), float(t.max())
+            self._span = (low, high) if self._span is None else (min(self._span[0], low), max(self._span[1], high))
         if s.specific_force not in chunk.triads or s.angular_rate not in chunk.triads:
             return
         self._sf = np.concatenate([self._sf, np.asarray(chunk.triads[s.specific_force], float)[-self.n:]])[-self.n:]
         self._rate = np.concatenate([self._rate, np.asarray(chunk.triads[s.angular_rate], float)[-self.n:]])[-self.n:]
 
     def readings(self, expected_up: np.ndarray | None) -> dict:
-        """accel_mg, gyro_deg_s, angle_deg and quiet, as far as the samples allow."""
+        """accel_mg, gyro_deg_s, angle_deg, quiet and the temperature, as far as the samples allow."""
         if len(self._sf) == 0:
             return {}
         s = self.settings
+        temperature = {} if self._span is None else {"temperature_c": self._temperature,
+                                                      "temperature_span_c": self._span}
         sf = (self._sf.mean(axis=0) - np.array(s.sf_zero)) / np.array(s.sf_sensitivity)  # m/s²
         rate = (self._rate.mean(axis=0) - np.array(s.rate_zero)) / np.array(s.rate_sensitivity)  # rad/s
         out = {"accel_mg": tuple(float(v) for v in sf / STANDARD_GRAVITY * 1e3),
-               "gyro_deg_s": tuple(float(math.degrees(v)) for v in rate)}
+               "gyro_deg_s": tuple(float(math.degrees(v)) for v in rate), **temperature}
         if expected_up is not None and np.all(np.isfinite(sf)) and np.linalg.norm(sf) > 0:
             direction = gravity_direction(self._sf.mean(axis=0), zero=np.array(s.sf_zero),
                                           sensitivity=np.array(s.sf_sensitivity))

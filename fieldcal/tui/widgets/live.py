@@ -1,4 +1,6 @@
-"""The live panel: readings, angle to the target, stillness, dwell and table progress."""
+"""The live panel: readings, angle to the target, stillness, dwell and table progress; on its
+bottom edge the unit's temperature and its span so far, where the device reports one (the panel
+keeps its height, so 80×24 still holds every row)."""
 from __future__ import annotations
 
 from rich.text import Text
@@ -108,6 +110,15 @@ def rows(view: RunView, bar_width: int = BAR) -> dict[str, Text]:
     return out
 
 
+def temperature_text(view: RunView) -> str:
+    """"23.4 °C · span 20.1 to 23.4 °C (3.3 K)", or "" where the device reports no temperature."""
+    tel = view.telemetry
+    if tel is None or tel.temperature_c is None or tel.temperature_span_c is None:
+        return ""
+    low, high = tel.temperature_span_c
+    return f"{tel.temperature_c:.1f} °C · span {low:.1f} to {high:.1f} °C ({high - low:.1f} K)"
+
+
 class LivePanel(Vertical):
     def compose(self) -> ComposeResult:
         for name in ROWS:
@@ -116,3 +127,4 @@ class LivePanel(Vertical):
     def update(self, view: RunView, bar_width: int = BAR) -> None:
         for name, text in rows(view, bar_width).items():
             self.query_one(f"#live-{name}", Static).update(text)
+        self.border_subtitle = temperature_text(view)
