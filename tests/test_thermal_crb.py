@@ -104,3 +104,35 @@ def test_the_joint_solvers_sigma_meets_the_bound():
     reported = np.r_[fit.calibration.sigma, model.bias_terms_sigma.ravel(), model.scale_drift_sigma]
     assert len(reported) == len(bound) == N_PARAMS + 6
     np.testing.assert_allclose(reported / np.sqrt(np.diag(bound)), 1.0, atol=0.03)
+
+
+def test_a_stationary_triads_order_choice_stays_within_its_sigma():
+    # configs/sim-warmup.yaml's inclinometer does not move with temperature (truth: order 0, no
+    # drift), yet the order test picks order 2 for it in most runs (its omission rule fires on the
+    # noise of a weakly determined quadratic), an exact fit with no χ² to check. Its spread must
+    # still be in its σ: per draw the error's squared Mahalanobis distance under the fit's joint
+    # covariance is χ² with as many degrees of freedom as the fit has parameters, so over the
+    # draws the sum is χ² with their total, however correlated the parameters within a fit
+    # (the 18 z of one exact fit share one weak direction: pooling them as independent draws
+    # scatters far more than χ² of 18 per run says). 60 draws, a few seconds.
+    from scipy.stats import chi2
+
+    from fieldcal.model import distort_with
+
+    noise = TriadNoise(white=0.08 / 60.0, bias_instability=0.06 * MG)  # the paper's inclinometer
+    theta = np.r_[np.array([-1.0, -2.0, -3.0]) * MG, 0.9991, 0.9992, 0.9993, 1.0e-4, 2.5e-4, -2.0e-4]
+    K = k_from_params(theta)
+    cov = np.kron(noise.window_covariance(STARTS, np.full(18, 200.0)), K @ K.T)
+    root = np.linalg.cholesky(cov)
+    total, dof, orders = 0.0, 0, []
+    for seed in range(60):
+        u = distort_with(theta, G * UP) + (root @ np.random.default_rng(300 + seed).normal(size=54)).reshape(18, 3)
+        fit = solve_thermal_norm(StaticNormProblem(u, G), TEMPERATURES, cov)
+        model = fit.calibration.thermal
+        err = np.r_[fit.calibration.theta - theta, model.bias_terms.ravel(), model.scale_drift]
+        total += err @ np.linalg.solve(fit.covariance, err)
+        dof += len(err)
+        orders.append(model.order)
+    assert max(orders) == 2 and min(orders) == 0  # the choice varies with the draw
+    low, high = chi2.ppf([0.001, 0.999], dof)
+    assert low < total < high, (total / dof, dof)
