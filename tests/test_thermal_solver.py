@@ -346,7 +346,7 @@ def test_sim_warmup_field18_is_honest_per_triad(tmp_path):
     # moves with where the estimate lands on it (0.1-7000× the bound at the truth over the
     # thermal benchmark's runs, while the errors stay near the bound). So 10 runs' pooled RMS z
     # scatters far more than χ² of 10×18 draws says (the inclinometer's 1.13 on these seeds,
-    # 1.00 over seeds 1-24), and the pooled bound this test had failed by chance. Per parameter,
+    # 1.00 over seeds 1-24): the pooled bound this test had was near its edge by chance. Per parameter,
     # Σz² over the runs that fitted it is χ² with that many degrees of freedom if σ is honest;
     # its 0.1 % and 99.9 % points, shared out over the parameters of all three triads, bound each.
     count = sum(len(by) for by in z.values())
