@@ -8,9 +8,10 @@ joint thermal model). The same windows are then solved again with thermal off (`
 
 (a) Without the thermal model: per parameter the mean error and RMS error in the reported σ,
     against the truth at the run's mean window temperature (where a constant model is best placed).
-(b) With it: per parameter, thermal terms included, RMS error / Cramér-Rao bound (the bound of the
-    model the solver fitted, at the true orientations, the truth re-centred on the fit's reference
-    and the same white + flicker covariance of the averages: ``fieldcal.solvers.crb.ThermalTerms``),
+(b) With it: per parameter, thermal terms included, the RMS over the runs of error / Cramér-Rao
+    bound (each run's bound of the model the solver fitted, at its true orientations, the truth
+    re-centred on the fit's reference and the same white + flicker covariance of the averages:
+    ``fieldcal.solvers.crb.ThermalTerms``),
     the reported σ / bound per run (median and 5-95 %), and RMS z (error / reported σ) per triad.
 
 Exit 1 when a triad is not solved in some run, when a triad's RMS z leaves [0.90, 1.10], or when a
@@ -158,7 +159,7 @@ def report(results: list[dict], runs: int) -> list[str]:
             cells = f"{np.mean(z[:, j]):+.2f} | {np.sqrt(np.mean(z[:, j] ** 2)):.2f}" if len(z) else "— | —"
             print(f"| {name} | {pname} | {len(z)} of {len(results)} | {cells} |")
     print("\n(b) with the thermal model (thermal: auto), against the truth re-centred on the fit's reference")
-    print("| triad | parameter | runs fitted | RMS error / CRB | reported σ / CRB: median (5-95 %) | RMS z |")
+    print("| triad | parameter | runs fitted | RMS of error / CRB | reported σ / CRB: median (5-95 %) | RMS z |")
     print("|---|---|---|---|---|---|")
     for name in names:
         by: dict[str, list] = {}
@@ -176,8 +177,11 @@ def report(results: list[dict], runs: int) -> list[str]:
                 by.setdefault(p, []).append((err, sig, crb))
         for p, rows in by.items():
             err, sig, crb = np.array(rows).T
-            rms_crb = float(np.sqrt(np.mean(crb**2)))
-            ratio = float(np.sqrt(np.mean(err**2))) / rms_crb
+            # Each run against its own bound: with 18 unknowns on 18 norms (the accelerometer's
+            # and inclinometer's order 2 with the drift) the bound at the truth moves 80-fold
+            # with the placements (its weak direction), and RMS error / RMS bound would be set
+            # by the few runs whose bound is near singular, where no estimator follows it.
+            ratio = float(np.sqrt(np.mean((err / crb) ** 2)))
             se = ratio / np.sqrt(2 * len(err))
             mark = _judge(ratio, se, runs)
             # per run: an exact fit's σ (the information at its estimate) can be far from the
