@@ -65,3 +65,19 @@ def test_within_its_scatter_a_ratio_is_marked_not_failed(capsys):
     assert _judge(0.85, 0.85 / np.sqrt(400), 200) == "~"
     assert _judge(0.80, 0.80 / np.sqrt(400), 200) == "FAIL"
     assert _judge(1.0, 0.05, 200) == ""
+
+
+def test_one_run_meets_the_gyros_bound_and_says_how_the_plain_fit_fares():
+    # One real run of the benchmark (seed 3, a few seconds): the gyroscope's joint fit is
+    # over-determined, so its σ, from the norm residuals' information, is a peer of the bound from
+    # the full model (every +ω, −ω and static average, the table axes and headings as nuisances,
+    # with each average's ΔT in the data's order): they agree to a few per cent, thermal terms
+    # included. The plain fit cannot solve the warm gyro, and its accelerometer's σ are inflated.
+    from thermal import one_run
+
+    result = one_run(3)
+    gyro = result["triads"]["gyroscope"]
+    assert gyro["names"][9:12] == ["b1 x", "b1 y", "b1 z"] and gyro["names"][-3:] == ["s1 x", "s1 y", "s1 z"]
+    np.testing.assert_allclose(gyro["sig"] / gyro["crb"], 1.0, atol=0.03)
+    assert "gyroscope (off)" in result["failures"] and "off_err" not in gyro
+    assert result["triads"]["accelerometer"]["off_inflation"] > 5.0
