@@ -328,7 +328,7 @@ def test_sim_warmup_field18_is_honest_per_triad(tmp_path):
     from fieldcal.run.runner import RunSpec, run_headless
 
     config = load_config("configs/sim-warmup.yaml")
-    z: dict[str, list] = {}
+    z: dict[str, dict[str, list]] = {}  # triad -> parameter -> z of each run that fitted it
     for seed in range(1, 11):
         spec = RunSpec(load_procedure("field-18"), config.station, seed=seed, rate_hz=config.device.rate_hz,
                        sim_thermal=config.device.sim.thermal)
@@ -336,14 +336,24 @@ def test_sim_warmup_field18_is_honest_per_triad(tmp_path):
         truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
         for name, cal in outcome.unit.solutions.items():
             theta, terms = truths[name]
-            z.setdefault(name, []).extend(cal.errors_in_sigma(theta))
-            z[name].extend(_thermal_errors(cal.thermal, terms).ravel())
+            values = np.r_[cal.errors_in_sigma(theta), _thermal_errors(cal.thermal, terms).ravel()]
+            for j, value in enumerate(values):
+                z.setdefault(name, {}).setdefault(f"{j}", []).append(value)
     assert set(z) == {"accelerometer", "gyroscope", "inclinometer"}
-    for name, values in z.items():
-        values = np.array(values)
-        # Σz² of n draws is χ²ₙ if σ is honest: its 0.1 % and 99.9 % points bound it
-        low, high = chi2.ppf([0.001, 0.999], len(values))
-        assert low < np.sum(values**2) < high, (name, np.sqrt(np.mean(values**2)).round(3))
+    # The runs are the independent draws, not the parameters: an exact fit (the inclinometer's
+    # and accelerometer's order 2 with the drift, 18 unknowns on 18 norms) has one weakly
+    # determined direction that all its z share, and its σ, the information at the estimate,
+    # moves with where the estimate lands on it (0.1-7000× the bound at the truth over the
+    # thermal benchmark's runs, while the errors stay near the bound). So 10 runs' pooled RMS z
+    # scatters far more than χ² of 10×18 draws says (the inclinometer's 1.13 on these seeds,
+    # 1.00 over seeds 1-24): the pooled bound this test had was near its edge by chance. Per parameter,
+    # Σz² over the runs that fitted it is χ² with that many degrees of freedom if σ is honest;
+    # its 0.1 % and 99.9 % points, shared out over the parameters of all three triads, bound each.
+    count = sum(len(by) for by in z.values())
+    for name, by in z.items():
+        for j, values in by.items():
+            low, high = chi2.ppf([0.001 / count, 1 - 0.001 / count], len(values))
+            assert low < np.sum(np.square(values)) < high, (name, j, np.sqrt(np.mean(np.square(values))).round(3))
 
 
 def test_a_thermal_soak_recovers_the_truth_within_its_sigma(tmp_path):
@@ -367,3 +377,23 @@ def test_a_thermal_soak_recovers_the_truth_within_its_sigma(tmp_path):
         assert np.all(np.abs(model.scale_drift - truth.scale_drift) < 4.0 * model.scale_drift_sigma)
     acc = outcome.unit.solutions["accelerometer"]
     assert np.all(acc.sigma[:3] < 0.1 * MG)  # field-18 warming 10 K: 0.1-0.4 mg
+
+
+def test_a_warm_gyros_unconverged_order_0_does_not_drop_the_triad(tmp_path):
+    # configs/sim-warmup.yaml seed 34: the gyro's order-0 candidate (its bias moving ~250 Earth
+    # rates over the run) ran out of evaluations in the second weighting pass, and that failed the
+    # whole triad (2 of the thermal benchmark's first 56 runs). It is now no candidate, and the
+    # orders that converge are judged as before.
+    from fieldcal.config import load_config
+    from fieldcal.report import thermal_truths, worst_error
+    from fieldcal.run.runner import RunSpec, run_headless
+
+    config = load_config("configs/sim-warmup.yaml")
+    spec = RunSpec(load_procedure("field-18"), config.station, seed=34, rate_hz=config.device.rate_hz,
+                   sim_thermal=config.device.sim.thermal)
+    outcome = run_headless(spec, tmp_path / "seed34")
+    assert outcome.unit.failures == {}
+    gyro = outcome.unit.solutions["gyroscope"]
+    assert gyro.thermal.order >= 1  # (the truth's is 1)
+    truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
+    assert worst_error({"gyroscope": gyro}, truths) < 4.0

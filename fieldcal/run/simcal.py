@@ -12,7 +12,7 @@ import numpy as np
 
 from drivers.sim import TriadTruth
 from drivers.sim.device import paper_mimu
-from fieldcal.solvers.crb import angular_rate_bound, specific_force_bound
+from fieldcal.solvers.crb import ThermalTerms, angular_rate_bound, specific_force_bound
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import SPECIFIC_FORCE, params_from_k
 from fieldcal.procedure.positions import Procedure, load_procedure
@@ -36,12 +36,16 @@ class SimulatedCalibration:
     failures: dict[str, str]  # triads the procedure could not calibrate, and why
     unit: object = None  # fieldcal.solvers.solve.UnitSolution: all of the above, and the averages used
 
-    def bound(self, name: str) -> np.ndarray:
-        """Cramér-Rao bound (9x9) for one triad at the true parameters and orientations."""
-        truth, theta = self.device[name], self.truth[name]
+    def bound(self, name: str, thermal: ThermalTerms | None = None, theta: np.ndarray | None = None) -> np.ndarray:
+        """Cramér-Rao bound (9x9) for one triad at the true parameters and orientations; with
+        ``thermal`` (the averages' ΔT in the problem's data order), of the thermal model too, at
+        ``theta`` (the truth about the model's reference; default the truth)."""
+        truth = self.device[name]
+        theta = self.truth[name] if theta is None else theta
         up_body = self.plan.attitudes[:, 2, :]
         if truth.kind == SPECIFIC_FORCE:
-            return specific_force_bound(theta, up_body, self.station.gravity, self.covariances[name])
+            return specific_force_bound(theta, up_body, self.station.gravity, self.covariances[name],
+                                        thermal=thermal)
         angle = self.static_table_angles
         north_enu = np.column_stack([np.sin(angle), np.cos(angle), np.zeros_like(angle)])
         north_body = np.einsum("nij,ni->nj", self.plan.attitudes, north_enu)
@@ -50,7 +54,7 @@ class SimulatedCalibration:
         assert turning  # (a gyro is calibrated only with rate steps)
         rate = np.radians([step.rate_deg_s for step in steps if step is not None])  # in turning's order
         return angular_rate_bound(theta, up_body, rate, north_body, EARTH_RATE,
-                                  self.station.latitude_rad, self.covariances[name], turning)
+                                  self.station.latitude_rad, self.covariances[name], turning, thermal=thermal)
 
 
 def run_simulated_calibration(seed: int, procedure: Procedure | str = "field-18",

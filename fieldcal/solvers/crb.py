@@ -4,6 +4,10 @@ The measurement model is the full one, not the norm residuals: each average is
 K·(true input in body axes) + b with Gaussian noise of known covariance, and the body-axis
 direction of each input is unknown (2 angles per position, plus the heading of the horizontal
 Earth rate for a gyro dwell). The bound is the 9x9 block of the inverse Fisher information.
+
+With ``ThermalTerms`` (issue 28) each average is also tagged with its window's temperature and
+the model is the joint fit's (``fieldcal.solvers.thermal``): diag(1 + s₁ΔT)·K·a + b₀ + Σₖ bₖΔTᵏ;
+the bound then covers the nine parameters and the thermal terms, 9 + 3·order (+ 3 with s₁).
 """
 from __future__ import annotations
 
@@ -57,7 +61,49 @@ def end_bias_terms(noise, sensitivity: np.ndarray, starts, durations, end_s: flo
     return EndBias(cross, noise.bias_variance() * kk)
 
 
-def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, end: EndBias | None = None):
+@dataclass(frozen=True)
+class ThermalTerms:
+    """The thermal model a bound is taken for: ``delta_t`` the temperature of each average minus
+    the model's reference (K, one per average in the data's order, as the covariance orders it),
+    the true ``bias_terms`` bₖ (order, 3) and ``scale_drift`` s₁ (3,), or None for a model without
+    the drift. The bound's parameters after the nine: b₁ x, y, z, …, b_order, then s₁ x, y, z."""
+
+    delta_t: np.ndarray
+    bias_terms: np.ndarray
+    scale_drift: np.ndarray | None = None
+
+    @property
+    def count(self) -> int:
+        return np.size(self.bias_terms) + (3 if self.scale_drift is not None else 0)
+
+    def start(self) -> np.ndarray:
+        drift = () if self.scale_drift is None else np.asarray(self.scale_drift, dtype=float)
+        return np.r_[np.asarray(self.bias_terms, dtype=float).ravel(), drift]
+
+    def steps(self, bias_step: np.ndarray) -> np.ndarray:
+        """Difference steps: each term moving the averages about as much as ``bias_step`` does."""
+        span = max(float(np.ptp(self.delta_t)), 1e-3)
+        order = len(np.reshape(self.bias_terms, (-1, 3)))
+        terms = np.tile(bias_step, order) / np.repeat(span ** np.arange(1, order + 1), 3)
+        return np.r_[terms, np.full(3 if self.scale_drift is not None else 0, 1e-6 / span)]
+
+    def apply(self, mean_fn):
+        """``mean_fn`` of x = (θ, nuisances) made a function of x = (θ, thermal terms, nuisances)."""
+        order = len(np.reshape(self.bias_terms, (-1, 3)))
+        dt = np.asarray(self.delta_t, dtype=float)[:, None]
+        powers = dt ** np.arange(1, order + 1)
+
+        def mean(x):
+            theta, terms = x[:N_PARAMS], x[N_PARAMS:N_PARAMS + 3 * order].reshape(order, 3)
+            drift = x[N_PARAMS + 3 * order:N_PARAMS + self.count] if self.scale_drift is not None else 0.0
+            rows = mean_fn(np.r_[theta, x[N_PARAMS + self.count:]]).reshape(-1, 3)
+            return ((rows - theta[:3]) * (1.0 + dt * drift) + theta[:3] + powers @ terms).ravel()
+
+        return mean
+
+
+def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, end: EndBias | None = None,
+           wanted: int = N_PARAMS):
     cols = []
     for i, h in enumerate(steps):
         dx = np.zeros_like(x0)
@@ -67,7 +113,7 @@ def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, e
     chol = np.linalg.cholesky(covariance)
     Jw = np.linalg.solve(chol, J)
     info_inv = np.linalg.inv(Jw.T @ Jw)
-    bound = info_inv[:N_PARAMS, :N_PARAMS] * np.outer(steps[:N_PARAMS], steps[:N_PARAMS])
+    bound = info_inv[:wanted, :wanted] * np.outer(steps[:wanted], steps[:wanted])
     if end is None:
         return bound
     # Goldberger's BLUP of E·x + (K·bias process at the end), x = steps ⊙ u: with the whitened
@@ -88,9 +134,18 @@ def _param_steps(theta: np.ndarray, reference: float) -> np.ndarray:
     return 1e-6 * np.r_[k * reference, k, np.ones(3)]
 
 
-def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance, end: EndBias | None = None):
+def _with_thermal(mean, x0, steps, thermal: ThermalTerms | None, bias_step: np.ndarray):
+    """(mean, x0, steps, parameters wanted) with the thermal terms after the nine, if any."""
+    if thermal is None:
+        return mean, x0, steps, N_PARAMS
+    return (thermal.apply(mean), np.r_[x0[:N_PARAMS], thermal.start(), x0[N_PARAMS:]],
+            np.r_[steps[:N_PARAMS], thermal.steps(bias_step), steps[N_PARAMS:]], N_PARAMS + thermal.count)
+
+
+def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance, end: EndBias | None = None,
+                         thermal: ThermalTerms | None = None):
     """Bound for static averages K·g·d_i + b, d_i the true up direction in body axes; with
-    ``end``, (bound, EndBiasBound)."""
+    ``end``, (bound, EndBiasBound); with ``thermal``, of the thermal model too."""
     up_body = np.asarray(up_body, dtype=float)
     n = len(up_body)
 
@@ -100,18 +155,20 @@ def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance,
 
     x0 = np.r_[theta, np.zeros(2 * n)]
     steps = np.r_[_param_steps(theta, gravity), np.full(2 * n, 1e-6)]
-    return _bound(mean, x0, steps, covariance, end)
+    mean, x0, steps, wanted = _with_thermal(mean, x0, steps, thermal, _param_steps(theta, gravity)[:3])
+    return _bound(mean, x0, steps, covariance, end, wanted)
 
 
 def angular_rate_bound(theta, axis_body: np.ndarray, table_rate: np.ndarray, north_body: np.ndarray,
                        earth_rate: float, latitude_rad: float, covariance, turning=None,
-                       end: EndBias | None = None):
+                       end: EndBias | None = None, thermal: ThermalTerms | None = None):
     """Bound for per-position +ω, −ω and static averages (data order: all +, all −, all static).
 
     axis_body: true table axis (local up) in body axes per position; north_body: true horizontal
     direction of the Earth rate in body axes during each static dwell; turning: the indices of
     the positions with a rate step, in order (default: every position), and table_rate one rate
-    for them all or one each. With ``end``, (bound, EndBiasBound).
+    for them all or one each. With ``end``, (bound, EndBiasBound); with ``thermal`` (its
+    ``delta_t`` in the same data order), of the thermal model too.
     """
     axis_body = np.asarray(axis_body, dtype=float)
     n = len(axis_body)
@@ -148,4 +205,5 @@ def angular_rate_bound(theta, axis_body: np.ndarray, table_rate: np.ndarray, nor
     count = 3 * k + 2 * len(resting)
     x0 = np.r_[theta, np.zeros(count)]
     steps = np.r_[_param_steps(theta, float(np.mean(rate))), np.full(count, 1e-6)]
-    return _bound(mean, x0, steps, covariance, end)
+    mean, x0, steps, wanted = _with_thermal(mean, x0, steps, thermal, steps[:3])
+    return _bound(mean, x0, steps, covariance, end, wanted)
