@@ -40,6 +40,11 @@ def add_plan_parser(sub) -> argparse.ArgumentParser:
                         help="plan every bound this fraction under the target (with its slack), "
                         "for the scatter of the errors a check measures: a Monte Carlo's RMS error "
                         "over N runs scatters by about 1/√(2N) (default 0)")
+    parser.add_argument("--thermal-target", metavar="TARGET",
+                        help="TRIAD.bias_drift=σ (mg/K, °/h/K) or TRIAD.scale_drift=σ (ppm/K) pairs: "
+                        "say how far the unit's temperature must change during the planned run for the "
+                        "joint thermal fit to reach them (a steady warm-up assumed), e.g. "
+                        "accelerometer.bias_drift=0.02,gyroscope.bias_drift=5")
     parser.add_argument("--out", required=True, metavar="FILE.yaml", help="where the procedure goes")
     parser.add_argument("--force", action="store_true", help="replace the --out file if it exists "
                         "(never the --config nor a procedure the plan reads)")
@@ -226,6 +231,10 @@ def cmd_plan(args) -> int:
     ref_sigmas = bound_sigmas(ref_design, operator, models, station, rate_hz, bias_at_end=at_end)
     ref_seconds = operator_time(ref_design, operator)
     targets = resolve_targets(args.target, models, ref_sigmas)
+    thermal_targets = None
+    if args.thermal_target is not None:  # before the search: a typo is told in a second, not minutes
+        from fieldcal.planning.thermal_span import parse_thermal_targets
+        thermal_targets = parse_thermal_targets(args.thermal_target, models)
     limits = {n: t * (1 + args.slack) for n, t in targets.items()}
     planned_to = {n: t / (1 + args.margin) for n, t in limits.items()}  # what the search must reach
     print(f"planning for {config.device.name}: table up to {max_rate:g} °/s, operator "
@@ -281,6 +290,11 @@ def cmd_plan(args) -> int:
                   f"{plan.sigmas[name][j] * scale:.3g} | {ratio} | {ref_sigmas[name][j] * scale:.3g} |")
     if at_end:
         print_turn_on_biases(plan, ref_design, operator, models, station, rate_hz)
+    if thermal_targets is not None:
+        from fieldcal.planning.thermal_span import drift_sigmas_per_kelvin, thermal_lines
+        from fieldcal.solvers.solve import THERMAL_MIN_SPAN_K
+        per_kelvin = drift_sigmas_per_kelvin(plan.design, operator, models, station, rate_hz)
+        print("\n".join(thermal_lines(per_kelvin, thermal_targets, models, THERMAL_MIN_SPAN_K)))
     print_time_and_floor(plan, ref_design, ref_seconds, operator, models, planned_to, ref_sigmas, at_end)
     return 0
 

@@ -1,0 +1,125 @@
+"""The temperature span a planned procedure needs for a thermal target (issue 28).
+
+The joint thermal fit (``fieldcal.solvers.thermal``) determines a triad's bias drift b₁ and scale
+drift s₁ from how the averages move with the unit's temperature during the run, so their σ are
+set by how far the temperature moves, not by the positions alone. For the design's windows and a
+steady warm-up (temperature linear in time from the first second to the last: the thermal model's
+linear part, which a warm-up of a few kelvin mostly is), the Cramér–Rao bound of the thermal
+terms (``fieldcal.solvers.crb.ThermalTerms``) is taken at a 1 K span. At the nominal parameters the
+averages depend on b₁ and s₁ only through ΔT·b₁ and ΔT·s₁, so their σ scale exactly as 1/span: the
+span a target σ needs is σ(1 K) / target. A data-chosen higher order (a curved warm-up) widens them.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fieldcal.earth import EARTH_RATE, Station
+from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, params_from_k
+from fieldcal.planning.design import Design, OperatorModel, timeline
+from fieldcal.procedure.windows import MINUS, PLUS, STATIC
+from fieldcal.solvers.crb import ThermalTerms, angular_rate_bound, specific_force_bound
+from fieldcal.solvers.solve import TriadModel, average_covariance
+
+# The thermal targets' groups: b₁ per axis in the triad's bias unit per kelvin, s₁ in ppm/K.
+THERMAL_GROUPS = ("bias_drift", "scale_drift")
+PPM = 1e-6
+
+
+def drift_sigmas_per_kelvin(design: Design, operator: OperatorModel, models: dict[str, TriadModel],
+                            station: Station, rate_hz: float) -> dict[str, dict[str, np.ndarray]]:
+    """Per triad, the σ (solver units: bias unit per K; s₁ per K) of the bias drift b₁ and the
+    scale drift s₁ of a run of ``design`` whose temperature rises steadily by 1 K from its first
+    second to its last; nan where the design cannot tell the parameters apart."""
+    windows, end_s = timeline(design, operator)
+    attitudes = np.array(design.attitudes)
+    up_body = attitudes[:, 2, :]
+    out = {}
+    for name, model in models.items():
+        theta = params_from_k(model.sensitivity, np.zeros(3))
+        if model.kind == SPECIFIC_FORCE:
+            used = [w for w in windows if w.kind == STATIC]
+        else:  # the solver's data order: every +ω window, every −ω window, every static one
+            used = [w for kind in (PLUS, MINUS, STATIC) for w in windows if w.kind == kind]
+        mid_s = np.array([w.start + w.duration / 2 for w in used])
+        thermal = ThermalTerms(delta_t=mid_s / end_s - 0.5, bias_terms=np.zeros((1, 3)), scale_drift=np.zeros(3))
+        cov = average_covariance(model, used, rate_hz)
+        try:
+            if model.kind == SPECIFIC_FORCE:
+                bound = specific_force_bound(theta, up_body, station.gravity, cov, thermal=thermal)
+            elif model.kind == ANGULAR_RATE:
+                plus = [w for w in windows if w.kind == PLUS]
+                if not plus:
+                    raise np.linalg.LinAlgError("no rate step")
+                rates = np.array([w.table_rate or np.radians(design.rate_deg_s) for w in plus])
+                bound = angular_rate_bound(theta, up_body, rates, attitudes[:, 1, :], EARTH_RATE,
+                                           station.latitude_rad, cov, [w.position for w in plus], thermal=thermal)
+            else:
+                raise ValueError(f"unknown triad kind {model.kind!r}")
+            with np.errstate(invalid="ignore"):
+                sigmas = np.sqrt(np.diag(bound))[9:15]
+        except np.linalg.LinAlgError:
+            sigmas = np.full(6, np.nan)
+        out[name] = {"bias_drift": sigmas[:3], "scale_drift": sigmas[3:]}
+    return out
+
+
+def parse_thermal_targets(text: str, models: dict[str, TriadModel]) -> dict[str, dict[str, float]]:
+    """``TRIAD.bias_drift=σ`` (the triad's bias unit per K: mg/K, °/h/K) and ``TRIAD.scale_drift=σ``
+    (ppm/K) pairs to σ in solver units; one line naming what is wrong otherwise."""
+    from fieldcal.units import display_scale
+
+    targets: dict[str, dict[str, float]] = {}
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        key, _, value = item.partition("=")
+        triad, _, group = key.strip().partition(".")
+        if triad not in models or group not in THERMAL_GROUPS:
+            raise ValueError(f"--thermal-target: expected TRIAD.GROUP=σ with TRIAD one of {', '.join(models)} "
+                             f"and GROUP one of {', '.join(THERMAL_GROUPS)}, got {item!r}")
+        try:
+            sigma = float(value)
+        except ValueError:
+            sigma = -1.0
+        if not (np.isfinite(sigma) and sigma > 0):
+            raise ValueError(f"--thermal-target: {key.strip()}: expected a finite σ > 0, got {value.strip()!r}")
+        model = models[triad]
+        scale = display_scale(model.kind, model.output_unit, 0) if group == "bias_drift" else 1 / PPM
+        targets.setdefault(triad, {})[group] = sigma / scale
+    if not targets:
+        raise ValueError("--thermal-target: no σ given; expected TRIAD.bias_drift=σ or TRIAD.scale_drift=σ pairs")
+    return targets
+
+
+def needed_spans(per_kelvin: dict[str, dict[str, np.ndarray]], targets: dict[str, dict[str, float]]
+                 ) -> dict[str, dict[str, float]]:
+    """Per triad and group, the least temperature span (K) whose worst axis's σ meets the target
+    (inf where the design cannot determine the group at any span)."""
+    out: dict[str, dict[str, float]] = {}
+    for triad, groups in targets.items():
+        for group, target in groups.items():
+            worst = float(np.max(per_kelvin[triad][group]))
+            out.setdefault(triad, {})[group] = worst / target if np.isfinite(worst) else float("inf")
+    return out
+
+
+def thermal_lines(per_kelvin, targets, models, min_span_k: float) -> list[str]:
+    """One line per thermal target: the span it needs, its σ at 1 K, and what is assumed."""
+    from fieldcal.units import display_scale, param_unit
+
+    lines = []
+    for triad, groups in needed_spans(per_kelvin, targets).items():
+        model = models[triad]
+        for group, span in groups.items():
+            if group == "bias_drift":
+                scale, unit = display_scale(model.kind, model.output_unit, 0), param_unit(model.kind, model.output_unit, 0) + "/K"
+            else:
+                scale, unit = 1 / PPM, "ppm/K"
+            target, at_1k = targets[triad][group] * scale, float(np.max(per_kelvin[triad][group])) * scale
+            if not np.isfinite(span):
+                lines.append(f"{triad} {group.replace('_', ' ')} σ {target:.3g} {unit}: this plan cannot "
+                             "determine it at any temperature span")
+                continue
+            lines.append(f"{triad} {group.replace('_', ' ')} σ {target:.3g} {unit} needs the unit's temperature to "
+                         f"change by at least {max(span, min_span_k):.3g} K during the run (σ {at_1k:.3g} {unit} "
+                         "per kelvin of span, worst axis; a steady warm-up and a linear model assumed, a "
+                         "curved one needs more)")
+    return lines
