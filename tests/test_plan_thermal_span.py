@@ -111,6 +111,10 @@ def test_targets_are_read_in_operator_units_and_told_in_them(planned):
     assert lines[0].startswith("accelerometer bias drift σ 0.02 mg/K needs the unit's temperature to change by "
                                f"at least {worst:.3g} K")
     assert "gyroscope scale drift σ 10 ppm/K" in lines[1]
+    # A target met below the span the auto thermal fit starts at: that span, and why
+    loose = {"gyroscope": {"bias_drift": float(np.max(per_kelvin["gyroscope"]["bias_drift"])) / 0.25}}
+    line = thermal_lines(per_kelvin, loose, models, 0.5)[0]
+    assert "at least 0.5 K" in line and "0.25 K would do, but the fit is made from 0.5 K on" in line
 
 
 @pytest.mark.parametrize("text, said", [

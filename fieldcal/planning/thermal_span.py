@@ -118,8 +118,10 @@ def thermal_lines(per_kelvin, targets, models, min_span_k: float) -> list[str]:
                 lines.append(f"{triad} {group.replace('_', ' ')} σ {target:.3g} {unit}: this plan cannot "
                              "determine it at any temperature span")
                 continue
+            floor = (f"; {span:.2g} K would do, but the fit is made from {min_span_k:g} K on (thermal: auto)"
+                     if span < min_span_k else "")
             lines.append(f"{triad} {group.replace('_', ' ')} σ {target:.3g} {unit} needs the unit's temperature to "
                          f"change by at least {max(span, min_span_k):.3g} K during the run (σ {at_1k:.3g} {unit} "
                          "per kelvin of span, worst axis; a steady warm-up and a linear model assumed, a "
-                         "curved one needs more)")
+                         f"curved one needs more{floor})")
     return lines
