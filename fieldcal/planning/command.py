@@ -80,19 +80,10 @@ def parse_targets(text: str, models) -> dict[str, np.ndarray]:
     from fieldcal.model import PARAM_NAMES
     from fieldcal.units import display_scale
 
+    from fieldcal.planning.targets import sigma_pairs
+
     targets = {name: np.full(len(PARAM_NAMES), np.inf) for name in models}
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        key, _, value = item.partition("=")
-        triad, _, group = key.strip().partition(".")
-        if triad not in models or group not in GROUPS:
-            raise ValueError(f"--target: expected TRIAD.GROUP=σ with TRIAD one of {', '.join(models)} "
-                             f"and GROUP one of {', '.join(GROUPS)}, got {item!r}")
-        try:
-            sigma = float(value)
-        except ValueError:
-            sigma = -1.0
-        if not sigma > 0:
-            raise ValueError(f"--target: {key}: expected a σ > 0, got {value!r}")
+    for triad, group, sigma in sigma_pairs(text, models, GROUPS, "--target"):
         model = models[triad]
         for j in GROUPS[group]:
             targets[triad][j] = sigma / display_scale(model.kind, model.output_unit, j)

@@ -66,21 +66,11 @@ def drift_sigmas_per_kelvin(design: Design, operator: OperatorModel, models: dic
 def parse_thermal_targets(text: str, models: dict[str, TriadModel]) -> dict[str, dict[str, float]]:
     """``TRIAD.bias_drift=σ`` (the triad's bias unit per K: mg/K, °/h/K) and ``TRIAD.scale_drift=σ``
     (ppm/K) pairs to σ in solver units; one line naming what is wrong otherwise."""
+    from fieldcal.planning.targets import sigma_pairs
     from fieldcal.units import display_scale
 
     targets: dict[str, dict[str, float]] = {}
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        key, _, value = item.partition("=")
-        triad, _, group = key.strip().partition(".")
-        if triad not in models or group not in THERMAL_GROUPS:
-            raise ValueError(f"--thermal-target: expected TRIAD.GROUP=σ with TRIAD one of {', '.join(models)} "
-                             f"and GROUP one of {', '.join(THERMAL_GROUPS)}, got {item!r}")
-        try:
-            sigma = float(value)
-        except ValueError:
-            sigma = -1.0
-        if not (np.isfinite(sigma) and sigma > 0):
-            raise ValueError(f"--thermal-target: {key.strip()}: expected a finite σ > 0, got {value.strip()!r}")
+    for triad, group, sigma in sigma_pairs(text, models, THERMAL_GROUPS, "--thermal-target"):
         model = models[triad]
         scale = display_scale(model.kind, model.output_unit, 0) if group == "bias_drift" else 1 / PPM
         targets.setdefault(triad, {})[group] = sigma / scale
