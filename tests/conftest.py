@@ -98,7 +98,7 @@ SLOW_LIST = Path(__file__).parent / "slow_tests.txt"
 SLOW_FIXTURES = {"planned"}
 SHARED_FIXTURES = {"planned", "session", "serial_session", "pristine_session", "headless_classic12",
                    "headless_field18", "classic12_session", "solved", "xsens", "ferraris", "imucal_result",
-                   "mishap_run"}
+                   "mishap_run", "mypy_cache"}
 
 
 def slow_test_ids() -> set[str]:
@@ -107,6 +107,10 @@ def slow_test_ids() -> set[str]:
     return {f"tests/{line}" for line in lines if line and not line.startswith("#")}
 
 
+# tryfirst: xdist's own hook (loadgroup) turns each test's xdist_group mark into its node id's
+# "@group" suffix, by which it schedules; run after it, the marks set here came too late and
+# every shared fixture was built on both workers.
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     slow = slow_test_ids()
     for item in items:

@@ -35,7 +35,7 @@ def test_the_predictor_is_the_flat_prior_limit_of_gaussian_conditioning():
     joint = root @ root.T / (m + 3) + 0.1 * np.eye(m + 3)  # (n, f) jointly
     C, G, V = joint[:m, :m], joint[:m, m:], joint[m:, m:]
     steps = np.full(p, 1e-3)
-    bound, end = _bound(lambda x: A @ x, np.zeros(p), steps, C, EndBias(G, V))
+    bound, end = _bound(lambda x: x @ A.T, np.zeros(p), steps, C, EndBias(G, V))
     prior = 1e6
     E = np.zeros((3, p))
     E[:, :3] = np.eye(3)

@@ -25,7 +25,7 @@ def headless(procedure: str, out: Path, capsys) -> tuple[float, object]:
     return float(done.group(1)), load(next(out.glob("*/parameters.yaml")))
 
 
-# The search costs ~25 s of one core on a quiet machine; on one shared by eight engineers' test
+# The search costs ~4 s of one core on a quiet machine (~25 s before 2026-11-27); on one shared by eight engineers' test
 # runs and benchmarks it got a twentieth of a core and outran the suite's 600 s.
 @pytest.mark.timeout(1800)
 def test_the_default_field_18_plan_takes_a_fifth_of_its_time_at_its_scale_and_angle_sigma(tmp_path, capsys):

@@ -76,7 +76,7 @@ station: {{latitude_deg: 40.0}}
     finally:
         writer.stdin.write("done\n")
         writer.stdin.close()
-        writer.wait(timeout=10)
+        writer.wait(timeout=60)
     assert monitor.returncode == 0, err
     table = np.genfromtxt(io.StringIO(out), delimiter=",", names=True)
     acc, gyro = sent_values()

@@ -77,12 +77,16 @@ async def _run_until_held_or_waiting(tmp_path, config):
         return app
 
 
-@pytest.mark.parametrize("protocol, speed, how", [
-    ("vectornav", 1.0, "from the host's arrival times"),  # the repro: no device clock
-    ("xsens", 0.0, "from the device's clock"),  # its SampleTimeFine, however fast it is read
+# The rate said is checked to 1 % where the device's clock gives it; from the host's arrival
+# times it is the host's wall clock, which a loaded machine moves (506.1 Hz was said at load 14,
+# 2026-11-27): there the check is that it is the device's rate, not the config's (250) nor twice
+# it, and the 1 % arithmetic is test_rates_by_hand's, on hand-made arrival times.
+@pytest.mark.parametrize("protocol, speed, how, rel", [
+    ("vectornav", 1.0, "from the host's arrival times", 0.1),  # the repro: no device clock
+    ("xsens", 0.0, "from the device's clock", 0.01),  # its SampleTimeFine, however fast it is read
 ])
 @run_async
-async def test_a_device_at_twice_the_configured_rate_is_held_before_the_first_dwell(tmp_path, protocol, speed, how):
+async def test_a_device_at_twice_the_configured_rate_is_held_before_the_first_dwell(tmp_path, protocol, speed, how, rel):
     devices = served(protocol, 500.0, speed)
     try:
         app = await _run_until_held_or_waiting(tmp_path, config_for(tmp_path, devices, protocol, 250))
@@ -93,7 +97,7 @@ async def test_a_device_at_twice_the_configured_rate_is_held_before_the_first_dw
     message = outcome.message
     assert "\n" not in message and "HELD before the first dwell: the device sends " in message
     sent = float(message.split("the device sends ")[1].split(" Hz")[0])
-    assert sent == pytest.approx(500.0, rel=0.01) and how in message
+    assert sent == pytest.approx(500.0, rel=rel) and how in message
     assert "bench.yaml's device.rate_hz gives 250 Hz" in message
     kinds = [e.kind for e in app.events]
     assert "dwell_progress" not in kinds and "step_complete" not in kinds  # no dwell counted

@@ -17,9 +17,19 @@ ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
 
-def _run(argv: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
+@pytest.fixture(scope="module")
+def mypy_cache(tmp_path_factory) -> Path:
+    """One mypy cache for this module's two mypy runs (one xdist group, conftest.SHARED_FIXTURES):
+    the second checks only what differs, by content hash (mypy's cache takes a module whose path
+    or mtime changed but whose hash did not), where each spent most of ~20 s of CPU on numpy's
+    stubs. Made by this run: nothing written into the checkout, nothing stale."""
+    return tmp_path_factory.mktemp("mypy-cache")
+
+
+def _run(argv: list[str], tmp_path: Path, mypy_cache: Path | None = None) -> subprocess.CompletedProcess:
     # caches in the test's own directory: nothing written into the checkout, nothing stale
-    env = {**os.environ, "RUFF_CACHE_DIR": str(tmp_path / "ruff"), "MYPY_CACHE_DIR": str(tmp_path / "mypy")}
+    env = {**os.environ, "RUFF_CACHE_DIR": str(tmp_path / "ruff"),
+           "MYPY_CACHE_DIR": str(mypy_cache or tmp_path / "mypy")}
     return subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
 
 
@@ -46,13 +56,13 @@ def test_ruff_finds_nothing(tmp_path):
     assert proc.returncode == 0, _said(proc)
 
 
-def test_mypy_finds_no_type_error(tmp_path):
-    proc = _run([sys.executable, "-m", "mypy"], tmp_path)  # the files: pyproject.toml's [tool.mypy]
+def test_mypy_finds_no_type_error(tmp_path, mypy_cache):
+    proc = _run([sys.executable, "-m", "mypy"], tmp_path, mypy_cache)  # the files: pyproject.toml's [tool.mypy]
     assert proc.returncode == 0, _said(proc)
     assert "Success: no issues found" in proc.stdout, _said(proc)
 
 
-def test_each_check_fails_on_what_it_guards(tmp_path):
+def test_each_check_fails_on_what_it_guards(tmp_path, mypy_cache):
     """The checks can fail: a copy of the package with one upward import, one unused import and
     one type error is refused by each tool, naming the line."""
     import shutil
@@ -66,7 +76,7 @@ def test_each_check_fails_on_what_it_guards(tmp_path):
                    "    from fieldcal.session import capture  # a solver reading a session\n"
                    "    return capture  # not an int\n")
     env = {**os.environ, "PYTHONPATH": str(copy), "RUFF_CACHE_DIR": str(tmp_path / "ruff"),
-           "MYPY_CACHE_DIR": str(tmp_path / "mypy")}
+           "MYPY_CACHE_DIR": str(mypy_cache)}
 
     def run(argv):
         return subprocess.run(argv, cwd=copy, env=env, capture_output=True, text=True, timeout=300)

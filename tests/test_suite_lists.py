@@ -31,3 +31,27 @@ def test_every_test_the_slow_list_names_exists():
         if name and name.split("[")[0] not in functions[file]:
             missing.append(node_id)
     assert not missing, f"{SLOW_LIST.name} names tests that do not exist: {missing}"
+
+
+def test_the_users_of_a_shared_fixture_run_as_one_xdist_group(tmp_path):
+    """`make test` (--dist loadgroup) sends a shared module fixture's users to one worker, which
+    builds it once, only if conftest.py's xdist_group marks are there when xdist's own collection
+    hook turns them into node ids' "@group" suffixes (they were not, and test_plan's 66 s plan was
+    built on both workers). Run here on a two-test file with the real conftest.py."""
+    import shutil
+    import subprocess
+    import sys
+
+    shutil.copy(TESTS / "conftest.py", tmp_path / "conftest.py")
+    (tmp_path / SLOW_LIST.name).write_text("# none\n", encoding="utf-8")
+    (tmp_path / "test_grouped.py").write_text(
+        "import pytest\n\n\n@pytest.fixture(scope='module')\ndef solved():\n    return 1\n\n\n"
+        "def test_one(solved):\n    pass\n\n\ndef test_two(solved):\n    pass\n\n\ndef test_alone():\n    pass\n",
+        encoding="utf-8")
+    done = subprocess.run([sys.executable, "-m", "pytest", "-n", "1", "--dist", "loadgroup", "-vv",
+                           "-p", "no:cacheprovider", "test_grouped.py"], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    for name in ("test_one", "test_two"):
+        assert f"PASSED test_grouped.py::{name}@test_grouped.py:solved" in done.stdout, done.stdout
+    assert "PASSED test_grouped.py::test_alone\n" in done.stdout.replace(" \n", "\n"), done.stdout

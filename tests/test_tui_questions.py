@@ -53,7 +53,7 @@ async def test_ctrl_q_asks_says_what_is_done_and_that_a_resume_continues_and_no_
         await no_keeps_the_run_going(pilot, app, 1)
         await pilot.press("ctrl+q", "ctrl+q")  # its own key again: yes
         await until(pilot, lambda: not app.is_running)
-    assert app.source.done.wait(10.0) and app.source.outcome.status == "stopped"
+    assert app.source.done.wait(60.0) and app.source.outcome.status == "stopped"
     assert recorded_actions(tmp_path) == ["ready", "ready"]
 
 
@@ -69,7 +69,7 @@ async def test_ctrl_c_asks_the_same_question_instead_of_telling_to_press_ctrl_q(
         await no_keeps_the_run_going(pilot, app, 0)
         await pilot.press("ctrl+c", "y")
         await until(pilot, lambda: not app.is_running)
-    assert app.source.done.wait(10.0) and app.source.outcome.status == "stopped"
+    assert app.source.done.wait(60.0) and app.source.outcome.status == "stopped"
 
 
 @run_async
@@ -215,7 +215,7 @@ async def test_the_quit_question_says_when_a_resume_measures_everything_again(tm
                 await until(pilot, lambda: not app.is_running)
         finally:
             devices.stop()
-        assert app.source.done.wait(10.0) and app.source.outcome.status == "stopped"
+        assert app.source.done.wait(60.0) and app.source.outcome.status == "stopped"
 
 
 @run_async
@@ -228,7 +228,7 @@ async def test_elapsed_does_not_go_back_after_a_resume(tmp_path):
         quit_at = app.view.elapsed
         assert quit_at > app.view.placing_s[0]  # (the run has sample time behind it)
         await pilot.press("q", "y")
-    assert app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0)
     resumed = FieldcalApp(speed=0, resume=open_run(tmp_path / "s"))
     async with resumed.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(resumed, 1))
@@ -263,7 +263,7 @@ async def test_the_bell_rings_when_a_step_ends_and_the_banner_says_what_next(tmp
         await until(pilot, lambda: waiting_at(app, 2))
         assert len(rings) == 2
         await pilot.press("q", "y")
-    assert app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0)
     replay = FieldcalApp(None, speed=0, replay=open_run(tmp_path / "s"))  # nobody to call: it stays quiet
     replay.bell = lambda: rings.append("replay")
     async with replay.run_test(size=(80, 24)) as pilot:

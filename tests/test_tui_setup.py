@@ -548,7 +548,7 @@ async def test_the_setup_fields_reach_the_run(xdg, tmp_path):
         assert app.product_spec is not None and app.product_spec.path == str(spec_file)
         assert app.source.session_dir.parent == tmp_path / "here"
         await pilot.press("q", "y")
-    assert app.source.done.wait(10.0)
+    assert app.source.done.wait(60.0)
 
 
 def test_a_live_session_is_resumed_on_its_own_devices_config():

@@ -15,21 +15,44 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fieldcal.model import N_PARAMS, distort_with
+from fieldcal.model import N_PARAMS
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b over the last axis (size 3): np.cross's own products and differences, without its
+    axis handling, which took half of `fieldcal plan`'s time."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
 def _tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors perpendicular to each row of d, (n, 3) each."""
     helper = np.where(np.abs(d[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    e1 = np.cross(d, helper)
+    e1 = _cross(d, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    return e1, np.cross(d, e1)
+    return e1, _cross(d, e1)
 
 
-def _perturbed(d0: np.ndarray, angles: np.ndarray) -> np.ndarray:
+def _perturber(d0: np.ndarray):
+    """angles (..., n, 2) -> the unit directions (..., n, 3) ``angles`` away from d0's rows; d0's
+    tangent basis is made once, not at each evaluation of the model."""
     e1, e2 = _tangent_basis(d0)
-    d = d0 + angles[:, [0]] * e1 + angles[:, [1]] * e2
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    def perturbed(angles: np.ndarray) -> np.ndarray:
+        d = d0 + angles[..., [0]] * e1 + angles[..., [1]] * e2
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    return perturbed
+
+
+def _distorted(thetas: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """K·true + b for parameter rows ``thetas`` (m, 9) and inputs ``true`` (m, n, 3): the model
+    of ``fieldcal.model.distort_with``, for every row of a Jacobian's evaluations at once."""
+    b = thetas[:, None, :3]
+    kx, ky, kz, dyz, dzy, dzx = (thetas[:, None, j] for j in range(3, 9))
+    tx, ty, tz = true[..., 0], true[..., 1], true[..., 2]
+    return np.stack([kx * tx, -dyz * ky * tx + ky * ty, dzy * kz * tx - dzx * kz * ty + kz * tz], axis=-1) + b
 
 
 @dataclass(frozen=True)
@@ -88,28 +111,32 @@ class ThermalTerms:
         return np.r_[terms, np.full(3 if self.scale_drift is not None else 0, 1e-6 / span)]
 
     def apply(self, mean_fn):
-        """``mean_fn`` of x = (θ, nuisances) made a function of x = (θ, thermal terms, nuisances)."""
+        """``mean_fn`` of rows x = (θ, nuisances) made a function of rows x = (θ, thermal terms,
+        nuisances) (rows (m, p), as ``_bound`` evaluates them all at once)."""
         order = len(np.reshape(self.bias_terms, (-1, 3)))
         dt = np.asarray(self.delta_t, dtype=float)[:, None]
         powers = dt ** np.arange(1, order + 1)
 
         def mean(x):
-            theta, terms = x[:N_PARAMS], x[N_PARAMS:N_PARAMS + 3 * order].reshape(order, 3)
-            drift = x[N_PARAMS + 3 * order:N_PARAMS + self.count] if self.scale_drift is not None else 0.0
-            rows = mean_fn(np.r_[theta, x[N_PARAMS + self.count:]]).reshape(-1, 3)
-            return ((rows - theta[:3]) * (1.0 + dt * drift) + theta[:3] + powers @ terms).ravel()
+            m = len(x)
+            theta, terms = x[:, :N_PARAMS], x[:, N_PARAMS:N_PARAMS + 3 * order].reshape(m, order, 3)
+            drift = x[:, None, N_PARAMS + 3 * order:N_PARAMS + self.count] if self.scale_drift is not None else 0.0
+            rows = mean_fn(np.concatenate([theta, x[:, N_PARAMS + self.count:]], axis=1)).reshape(m, -1, 3)
+            bias = theta[:, None, :3]
+            return ((rows - bias) * (1.0 + dt[None] * drift) + bias
+                    + np.einsum("nk,mkj->mnj", powers, terms)).reshape(m, -1)
 
         return mean
 
 
 def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, end: EndBias | None = None,
            wanted: int = N_PARAMS):
-    cols = []
-    for i, h in enumerate(steps):
-        dx = np.zeros_like(x0)
-        dx[i] = h
-        cols.append((mean_fn(x0 + dx) - mean_fn(x0 - dx)) / (2 * h))
-    J = np.column_stack(cols) * steps  # derivatives per step: columns of comparable size
+    """``mean_fn`` maps rows of parameters (m, p) to rows of the data's means (m, data): the
+    Jacobian's 2p central differences are one call."""
+    shifts = np.diag(steps)
+    means = mean_fn(np.concatenate([x0 + shifts, x0 - shifts]))
+    p = len(x0)
+    J = ((means[:p] - means[p:]) / (2 * steps)[:, None]).T * steps  # derivatives per step: columns of comparable size
     chol = np.linalg.cholesky(covariance)
     Jw = np.linalg.solve(chol, J)
     info_inv = np.linalg.inv(Jw.T @ Jw)
@@ -148,10 +175,11 @@ def specific_force_bound(theta, up_body: np.ndarray, gravity: float, covariance,
     ``end``, (bound, EndBiasBound); with ``thermal``, of the thermal model too."""
     up_body = np.asarray(up_body, dtype=float)
     n = len(up_body)
+    perturbed = _perturber(up_body)
 
     def mean(x):
-        d = _perturbed(up_body, x[N_PARAMS:].reshape(n, 2))
-        return distort_with(x[:N_PARAMS], gravity * d).ravel()
+        d = perturbed(x[:, N_PARAMS:].reshape(len(x), n, 2))
+        return _distorted(x[:, :N_PARAMS], gravity * d).reshape(len(x), -1)
 
     x0 = np.r_[theta, np.zeros(2 * n)]
     steps = np.r_[_param_steps(theta, gravity), np.full(2 * n, 1e-6)]
@@ -185,22 +213,24 @@ def angular_rate_bound(theta, axis_body: np.ndarray, table_rate: np.ndarray, nor
     earth_r = vertical * up_r + horizontal * north_r / np.linalg.norm(north_r, axis=1, keepdims=True)
     earth_r /= np.linalg.norm(earth_r, axis=1, keepdims=True)
     k = len(turning)
+    turning_axis, resting_earth = _perturber(axis_t), _perturber(earth_r)
 
     def mean(x):
-        theta_, nuis = x[:N_PARAMS], x[N_PARAMS:N_PARAMS + 3 * k].reshape(k, 3)
-        d = _perturbed(axis_t, nuis[:, :2])
+        m = len(x)
+        theta_, nuis = x[:, :N_PARAMS], x[:, N_PARAMS:N_PARAMS + 3 * k].reshape(m, k, 3)
+        d = turning_axis(nuis[..., :2])
         # Heading: rotate the true north direction about d by the third nuisance angle.
-        north = north_t - np.einsum("ij,ij->i", north_t, d)[:, None] * d
-        north /= np.linalg.norm(north, axis=1, keepdims=True)
-        north = np.cos(nuis[:, [2]]) * north + np.sin(nuis[:, [2]]) * np.cross(d, north)
-        plus = distort_with(theta_, (rate + vertical)[:, None] * d)
-        minus = distort_with(theta_, (-rate + vertical)[:, None] * d)
-        seen = np.empty((n, 3))
-        seen[turning] = vertical * d + horizontal * north
+        north = north_t - np.einsum("ij,mij->mi", north_t, d)[..., None] * d
+        north /= np.linalg.norm(north, axis=-1, keepdims=True)
+        north = np.cos(nuis[..., [2]]) * north + np.sin(nuis[..., [2]]) * _cross(d, north)
+        plus = _distorted(theta_, (rate + vertical)[:, None] * d)
+        minus = _distorted(theta_, (-rate + vertical)[:, None] * d)
+        seen = np.empty((m, n, 3))
+        seen[:, turning] = vertical * d + horizontal * north
         if len(resting):
-            seen[resting] = earth_rate * _perturbed(earth_r, x[N_PARAMS + 3 * k:].reshape(-1, 2))
-        static = distort_with(theta_, seen)
-        return np.concatenate([plus.ravel(), minus.ravel(), static.ravel()])
+            seen[:, resting] = earth_rate * resting_earth(x[:, N_PARAMS + 3 * k:].reshape(m, -1, 2))
+        static = _distorted(theta_, seen)
+        return np.concatenate([plus.reshape(m, -1), minus.reshape(m, -1), static.reshape(m, -1)], axis=1)
 
     count = 3 * k + 2 * len(resting)
     x0 = np.r_[theta, np.zeros(count)]
