@@ -87,3 +87,28 @@ def test_prefix_means_are_the_old_sums_bit_for_bit_and_the_means_by_hand():
     assert np.array_equal(PrefixMeans(values)(intervals), old)
     hand = PrefixMeans(np.array([[1.0, 10.0], [2.0, 20.0], [6.0, 60.0]]))
     assert hand(np.array([[0, 3], [1, 3], [2, 3]])).tolist() == [[3.0, 30.0], [4.0, 40.0], [6.0, 60.0]]
+
+
+@pytest.mark.parametrize("to_end", [False, True])
+def test_prefix_means_of_any_intervals_make_no_copy_of_the_samples(to_end):
+    """Overlapping intervals in any order (as every threshold's runs are), the last one ending at
+    the last sample or not: the means of each interval by hand (np.mean, fractional values), made
+    without any allocation the size of the samples (the cumulative sum it replaced was two)."""
+    import tracemalloc
+
+    from fieldcal.recording.detect import PrefixMeans
+
+    rng = np.random.default_rng(4)
+    values = 1.0e4 + rng.normal(0.0, 3.0, (200_000, 3))
+    intervals = np.sort(rng.integers(0, len(values) + 1, (300, 2)), axis=1)
+    intervals = intervals[intervals[:, 1] > intervals[:, 0]]
+    intervals[-1, 1] = len(values) if to_end else len(values) - 7
+    tracemalloc.start()
+    try:
+        got = PrefixMeans(values)(intervals)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    want = np.array([values[a:b].mean(axis=0) for a, b in intervals])
+    assert np.allclose(got, want, rtol=0.0, atol=1e-9)
+    assert peak < values.nbytes / 20
