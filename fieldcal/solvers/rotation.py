@@ -341,6 +341,7 @@ class _Steps:
         A, delta_b = np.asarray(K_inv, dtype=float), np.asarray(delta_b, dtype=float)
         key = A.tobytes() + delta_b.tobytes()
         if self._last is None or self._last[0] != key:
+            self._last = None  # freed before the new one is made: never two at once (30 MiB at 16× imu_tk)
             phi = _weights(A, delta_b).T @ self.terms
             angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
             sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
