@@ -87,3 +87,54 @@ def test_prefix_means_are_the_old_sums_bit_for_bit_and_the_means_by_hand():
     assert np.array_equal(PrefixMeans(values)(intervals), old)
     hand = PrefixMeans(np.array([[1.0, 10.0], [2.0, 20.0], [6.0, 60.0]]))
     assert hand(np.array([[0, 3], [1, 3], [2, 3]])).tolist() == [[3.0, 30.0], [4.0, 40.0], [6.0, 60.0]]
+
+
+@pytest.mark.parametrize("to_end", [False, True])
+def test_prefix_means_of_any_intervals_make_no_copy_of_the_samples(to_end):
+    """Overlapping intervals in any order (as every threshold's runs are), the last one ending at
+    the last sample or not: the means of each interval by hand (np.mean, fractional values), made
+    without any allocation the size of the samples (the cumulative sum it replaced was two)."""
+    import tracemalloc
+
+    from fieldcal.recording.detect import PrefixMeans
+
+    rng = np.random.default_rng(4)
+    values = 1.0e4 + rng.normal(0.0, 3.0, (200_000, 3))
+    intervals = np.sort(rng.integers(0, len(values) + 1, (300, 2)), axis=1)
+    intervals = intervals[intervals[:, 1] > intervals[:, 0]]
+    intervals[-1, 1] = len(values) if to_end else len(values) - 7
+    tracemalloc.start()
+    try:
+        got = PrefixMeans(values)(intervals)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    want = np.array([values[a:b].mean(axis=0) for a, b in intervals])
+    assert np.allclose(got, want, rtol=0.0, atol=1e-9)
+    assert peak < values.nbytes / 20
+
+
+def test_window_variances_are_np_vars_own_steps_without_a_copy_of_the_samples():
+    """Per-window variance and mean bit for bit as the whole-array steps (np.var's), made some
+    windows at a time: nothing the size of the samples is allocated (tracemalloc: no clock)."""
+    import tracemalloc
+
+    from fieldcal.recording.detect import window_variances
+
+    rng = np.random.default_rng(7)
+    values = np.round(rng.normal(33000.0, 30.0, (400_003, 3)))
+    for window in (101, 65_537):
+        k = len(values) // window
+        blocks = values[:k * window].reshape(k, window, 3)
+        means = blocks.sum(axis=1) / window
+        deviations = blocks - means[:, None, :]
+        want = np.einsum("kwd,kwd->kd", deviations, deviations) / window
+        tracemalloc.start()
+        try:
+            variance, mean = window_variances(values, window)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert np.array_equal(variance, want) and np.array_equal(mean, means)
+        np.testing.assert_allclose(variance, blocks.var(axis=1), rtol=1e-12)
+        assert peak < 4 << 20  # two chunks of deviations (~1.5 MiB each) at most, whatever the length

@@ -349,3 +349,24 @@ def test_ferraris_gyro_cross_term_sigma_match_their_errors(config):
     z = np.array([_ferraris_gyro_term_z(seed, settings_of) for seed in range(1, 31)])
     rms = float(np.sqrt(np.mean(z**2)))
     assert 0.87 < rms < 1.15, (rms, np.round(np.sqrt(np.mean(z**2, axis=0)), 2))
+
+
+def test_saturated_spans_read_the_samples_where_they_are():
+    """A rail found in a long recording's gyro without a float copy of it (tracemalloc: the
+    counts' one bool per sample and axis and one axis's median, nothing the size of the
+    samples)."""
+    import tracemalloc
+
+    rng = np.random.default_rng(6)
+    values = np.round(rng.normal(0.0, 200.0, (200_000, 3)))
+    values[150_000:150_040, 1] = 32767.0  # clipped for 40 samples
+    values[10, 1] = -32768.0  # the lowest once: not a rail
+    spans = np.array([[0, 1000], [149_990, 150_010], [150_040, 160_000]])
+    tracemalloc.start()
+    try:
+        clipped = saturated_spans(values, spans)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert clipped.tolist() == [False, True, False]
+    assert peak < 0.6 * values.nbytes  # the clipped axis's median copies that axis alone

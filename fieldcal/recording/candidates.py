@@ -67,10 +67,13 @@ def detect_candidates(recording: Recording, settings: DetectorSettings) -> Detec
     gyro = recording.triads[rates[0]] if rates else None
     noise = noise_level(acc, rate_hz, settings, gyro)  # weights every candidate's pose means
     zero = np.zeros(3) if recording.units[reference] in FORCE_UNITS else None
+    # The poses first, then the turns: the temporaries of each come and go without the other's
+    # (the smoothed rates, n × 3, are made only once the poses are found).
+    every_found = pose_candidates(acc, rate_hz, settings, zero=zero, gyro=gyro, noise=noise)
     if gyro is not None:  # on a turntable the accelerometer is as still as in a pose
         turn_mask, smooth = turning(gyro, acc, rate_hz, noise, settings, RATE_UNITS.get(recording.units[rates[0]]))
     candidates, split_memo = [], {}  # an interval's split, worked out once for every threshold
-    for found in pose_candidates(acc, rate_hz, settings, zero=zero, gyro=gyro, noise=noise):
+    for found in every_found:
         poses, turns = found, np.zeros((0, 2), int)
         if gyro is not None:
             poses, turns = split_poses(found, acc, turn_mask, smooth, rate_hz, settings, zero, split_memo)

@@ -139,8 +139,10 @@ def window_statistic(acc: np.ndarray, rate_hz: float, settings: DetectorSettings
     """(n,) norm of the per-axis variance over the centred window of 2·half + 1 samples; near the
     ends, the nearest full window's value."""
     half = _half_window(rate_hz, settings)
-    var = sliding_std(acc, 2 * half + 1, ddof=0) ** 2
-    stat = np.linalg.norm(var, axis=1)
+    # Squared twice in place (norm's own steps, the same numbers): no n-long temporaries beside it.
+    var = sliding_std(acc, 2 * half + 1, ddof=0)
+    np.square(var, out=var)
+    stat = np.sqrt(np.square(var, out=var).sum(axis=1))
     return np.pad(stat, (half, len(acc) - len(stat) - half), mode="edge")
 
 
@@ -201,10 +203,18 @@ def window_variances(values: np.ndarray, window: int) -> tuple[np.ndarray, np.nd
     k = len(values) // window
     blocks = np.asarray(values[:k * window], dtype=float).reshape(k, window, -1)
     # np.var's own steps (the mean, then the mean square about it, each summed along the window),
-    # without its generic machinery: the same numbers at under half the cost.
+    # without its generic machinery: the same numbers at under half the cost. The deviations are
+    # made some windows at a time (never a copy of all the samples: 20 MiB at 16× imu_tk).
     means = blocks.sum(axis=1) / window
-    deviations = blocks - means[:, None, :]
-    return np.einsum("kwd,kwd->kd", deviations, deviations) / window, means
+    variances = np.empty(means.shape)
+    chunk = max(1, _DEVIATION_SAMPLES // window)
+    for lo in range(0, k, chunk):
+        deviations = blocks[lo:lo + chunk] - means[lo:lo + chunk, None, :]
+        np.einsum("kwd,kwd->kd", deviations, deviations, out=variances[lo:lo + chunk])
+    return variances / window, means
+
+
+_DEVIATION_SAMPLES = 1 << 16  # samples whose deviations window_variances makes at once (~1.5 MiB for 3 axes)
 
 
 def _quietest(variance: np.ndarray, among: np.ndarray) -> np.ndarray:
@@ -331,7 +341,7 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
     rest_n = noise.rest_samples
     levels = np.asarray(multiples, dtype=float)[:, None] * noise.base
     padded = np.zeros((len(levels), n + 2), dtype=bool)
-    padded[:, 1:-1] = signals.stat[None, :] < levels
+    np.less(signals.stat[None, :], levels, out=padded[:, 1:-1])  # in place: no second (levels, n) array
     padded[:, 1:max(rest_n - half, 0) + 1] = True  # noise_level has checked the initial rest: always a pose
     owner, edges = np.nonzero(padded[:, 1:] != padded[:, :-1])  # row by row, each run's start then stop
     runs, owner = edges.reshape(-1, 2), owner[::2]
@@ -402,23 +412,32 @@ def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
 
 
 class PrefixMeans:
-    """Means of ``values`` (n, d) over any [start, stop) rows, from one cumulative sum made once
-    (the first row taken off before summing: raw counts keep their precision)."""
+    """Means of ``values`` (n, d) over any [start, stop) rows (first row taken off: raw counts keep
+    their precision). Each call sums the samples once between consecutive interval ends
+    (np.add.reduceat, no copy of them) and cumulates only those few sums: no n-long cumulative
+    sum is made or kept (on imu_tk's recording joined 16×, 40 MiB at detection's peak for the
+    accelerometer and gyro). On integer-valued samples (raw counts) every sum is exact, so the
+    means are bit for bit those of one cumulative sum over all samples."""
 
     def __init__(self, values: np.ndarray):
-        values = np.asarray(values, dtype=float)
-        self.offset = values[0]
-        # Summed column by column (each column's samples side by side: the sums run along the
-        # samples, not across 3 columns at a time); the same sums, read back as (n + 1, d).
-        deviations = np.ascontiguousarray(values.T)
-        deviations -= self.offset[:, None]
-        columns = np.zeros((values.shape[1], len(values) + 1))
-        np.cumsum(deviations, axis=1, out=columns[:, 1:])
-        self.cums = columns.T
+        self.values = np.asarray(values, dtype=float)
+        self.offset = self.values[0]
 
     def __call__(self, intervals: np.ndarray) -> np.ndarray:
         intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
-        return self.offset + (self.cums[intervals[:, 1]] - self.cums[intervals[:, 0]]) / np.diff(intervals, axis=1)
+        n, d = self.values.shape
+        if not len(intervals):
+            return np.zeros((0, d))
+        cuts, where = np.unique(intervals, return_inverse=True)
+        where = where.reshape(-1, 2)
+        # reduceat sums [cuts[i], cuts[i + 1]), the last index to the end: a last cut at n is
+        # no index (the one before it then runs to n); a last cut below n sums a tail unused.
+        inside = cuts[:-1] if cuts[-1] == n else cuts
+        sums = np.add.reduceat(self.values, inside, axis=0)[:len(cuts) - 1]
+        sums -= np.diff(cuts)[:, None] * self.offset  # about the first row, as the means are taken
+        cums = np.zeros((len(cuts), d))
+        np.cumsum(sums, axis=0, out=cums[1:])
+        return self.offset + (cums[where[:, 1]] - cums[where[:, 0]]) / np.diff(intervals, axis=1)
 
 
 def interval_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
@@ -442,8 +461,7 @@ def interval_means(values: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     return sums / (stops - starts)[:, None]
 
 
-def _poses(signals: _EdgeSignals, settings, multiple, zero, sensitivity, intervals, short) -> Poses:
-    means = signals.means[0](intervals)
+def _poses(settings, multiple, zero, sensitivity, intervals, means, short) -> Poses:
     up = up_directions(means, zero, sensitivity)
     return Poses(intervals=intervals, means=means, up=up,
                  distinct=distinct_poses(up, settings.min_separation_deg), multiple=float(multiple), short_s=short)
@@ -458,8 +476,11 @@ def pose_candidates(acc: np.ndarray, rate_hz: float, settings: DetectorSettings,
     noise = noise_level(acc, rate_hz, settings, gyro) if noise is None else noise
     signals = _EdgeSignals.of(acc, rate_hz, noise, settings, gyro)
     found = _static_intervals(signals, rate_hz, noise, settings.multiples, settings)
-    return [_poses(signals, settings, m, zero, sensitivity, intervals, short)
-            for m, (intervals, short) in zip(settings.multiples, found)]
+    # Every multiple's pose means in one pass over the samples, then split per multiple.
+    counts = np.cumsum([len(intervals) for intervals, _ in found])[:-1]
+    means = np.split(signals.means[0](np.vstack([intervals for intervals, _ in found])), counts)
+    return [_poses(settings, m, zero, sensitivity, intervals, pose_means, short)
+            for m, (intervals, short), pose_means in zip(settings.multiples, found, means)]
 
 
 _AXES = np.vstack([np.eye(3), -np.eye(3)])

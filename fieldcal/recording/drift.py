@@ -80,20 +80,25 @@ def rail_samples(values: np.ndarray) -> np.ndarray:
     recording for MIN_RAIL_RUN or more samples in a row (a clipped converter holds one code),
     that value far from the axis's median (a quarter of its range or more: a still reading that
     happens to be the lowest is not a rail)."""
-    # Each axis's samples side by side (a reduction down a column of an (n, 3) array strides
-    # through memory at a third of the speed), each extreme found once.
-    columns = np.ascontiguousarray(np.asarray(values, dtype=float).T)
-    out = np.zeros(columns.shape[1], dtype=bool)
-    high, low = columns.max(axis=1), columns.min(axis=1)
-    held = [np.count_nonzero(columns == extreme[:, None], axis=1) >= MIN_RAIL_RUN for extreme in (high, low)]
+    # Read where they are, in their own type: no float copy of the samples (a 16× joined imu_tk
+    # recording's gyro: 20 MiB), only one bool per sample and axis for the counts.
+    values = np.asarray(values)
+    out = np.zeros(len(values), dtype=bool)
+    if not len(values):
+        return out
+    high, low = values.max(axis=0), values.min(axis=0)
+    held = [np.count_nonzero(values == extreme, axis=0) >= MIN_RAIL_RUN for extreme in (high, low)]
     if not np.any(held):  # no extreme reached often enough to be a rail (the median is not needed)
         return out
-    median, spread = np.median(columns, axis=1), high - low
+    spread = high.astype(float) - low
+    median = {}  # of the axes that reach an extreme often, each once (a copy of that axis alone)
     for extreme, often in zip((high, low), held):
-        for axis in np.flatnonzero(often & (np.abs(extreme - median) >= 0.25 * spread)):  # three axes at most
-            if spread[axis] == 0:
+        for axis in np.flatnonzero(often):  # three axes at most
+            if axis not in median:
+                median[axis] = float(np.median(values[:, axis]))
+            if spread[axis] == 0 or abs(extreme[axis] - median[axis]) < 0.25 * spread[axis]:
                 continue
-            edges = np.flatnonzero(np.diff(np.r_[0, (columns[axis] == extreme[axis]).astype(np.int8), 0]))
+            edges = np.flatnonzero(np.diff(np.r_[0, (values[:, axis] == extreme[axis]).astype(np.int8), 0]))
             for start, stop in edges.reshape(-1, 2):
                 if stop - start >= MIN_RAIL_RUN:
                     out[start:stop] = True
@@ -102,9 +107,9 @@ def rail_samples(values: np.ndarray) -> np.ndarray:
 
 def saturated_spans(values: np.ndarray, spans: np.ndarray) -> np.ndarray:
     """(k,) bool: the [start, stop) ``spans`` holding a rail sample (see rail_samples)."""
-    rails = np.cumsum(np.r_[0, rail_samples(values).astype(int)])
+    rails = np.flatnonzero(rail_samples(values))  # few: counted per span by where they fall
     spans = np.asarray(spans, dtype=int).reshape(-1, 2)
-    return rails[spans[:, 1]] - rails[spans[:, 0]] > 0
+    return np.searchsorted(rails, spans[:, 1]) > np.searchsorted(rails, spans[:, 0])
 
 
 def regular_times(t: np.ndarray, rate_hz: float) -> np.ndarray:

@@ -41,11 +41,13 @@ STEADY_FRACTION = 0.02  # a turn's rate vector stays within this fraction of its
 MIN_TURN_S = 2.0
 
 
-def _moving_mean(values: np.ndarray, n: int) -> np.ndarray:
-    """Centred mean over n samples (shorter at the ends), per column."""
+def _moving_mean(values: np.ndarray, n: int, offset=0.0) -> np.ndarray:
+    """Centred mean over n samples (shorter at the ends), per column, of ``values`` less
+    ``offset`` (taken off in the sums' own array: no copy of the samples)."""
     length = len(values)
     cums = np.zeros((length + 1, values.shape[1]))
-    np.cumsum(values, axis=0, out=cums[1:])
+    np.subtract(values, offset, out=cums[1:])
+    np.cumsum(cums[1:], axis=0, out=cums[1:])
     before, after = n // 2, n - n // 2  # sample i averages [i - before, i + after), clipped to the data
     if length < n:
         idx = np.arange(length)
@@ -91,7 +93,7 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     sigma = float(np.sqrt(np.mean(noise.gyro_variance)))
     low = max(GATE_SIGMAS * sigma / math.sqrt(n), SHIFT_MULTIPLE * shift)
     high = max(low, math.radians(MIN_TURN_DEG_S) * units_per_rad_s) if units_per_rad_s else low
-    smooth = _moving_mean(gyro - level, n)
+    smooth = _moving_mean(gyro, n, offset=level)
     rate = np.linalg.norm(smooth, axis=1)
     # A turn is a stretch above the high gate, and all of it, down to the low one on either side
     # (its slow start and stop are still motion).

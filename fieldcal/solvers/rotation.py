@@ -271,6 +271,7 @@ def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     np.multiply(w, v1 - v0, out=terms[6:9])
     terms[9] = h
     out[...] = terms.reshape(out.shape)
+_SPAN_GROUP_BLOCKS = 512  # blocks whose compositions are made at once (~4 MiB, see _Steps._forward)
 _JACOBIAN_BLOCKS = 32  # blocks whose (3, 3, steps) matrices a Jacobian makes at once (~0.15 MiB each)
 
 
@@ -314,9 +315,15 @@ class _Steps:
         gather = np.where(slot < blocks[:, None], first[:, None] + slot, blocks.sum())
         self.gather = gather[:, _bit_reversed(size)].T.copy()  # (size, m), as _compose reads it
         self.first_block = first  # each span's first block (they are numbered span by span)
+        self.n_blocks = int(blocks.sum())
+        # Spans integrated together by _forward and jacobian: consecutive ones, about
+        # _SPAN_GROUP_BLOCKS blocks in all (one longer span alone).
+        group = np.cumsum(blocks) // _SPAN_GROUP_BLOCKS
+        cuts = np.r_[0, np.flatnonzero(np.diff(group)) + 1, len(spans)]
+        self.span_groups = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
         self.duration = t[i1] - t[i0]
         self._groups: dict[int, np.ndarray] = {}
-        self._last = None  # (key, _forward's result) of the last K⁻¹, δb integrated
+        self._last = None  # (key, the quaternions) of the last K⁻¹, δb integrated
 
     def _grouped(self, group: int) -> np.ndarray:
         """The terms of ``group`` consecutive steps summed (made once): the storage index is the
@@ -331,25 +338,39 @@ class _Steps:
         to _BLOCK): so many consecutive steps taken as one, their increments summed (a coarse
         integration that leaves out the coning between them: for a scan, not a solve)."""
         if group == 1:
-            return self._forward(K_inv, delta_b)[-1]
+            return self._forward(K_inv, delta_b)
         return self.compose(_weights(np.asarray(K_inv, dtype=float), delta_b).T @ self._grouped(group), group)
 
+    def _levels(self, A, delta_b, g0: int, g1: int):
+        """The composition of spans g0..g1 - 1 (consecutive; their blocks b0..b1 - 1): (phi,
+        sin(θ/2)/θ, cos(θ/2), θ of their steps, the composition's levels inside the blocks and
+        over each span's blocks, those spans' columns of ``gather`` numbered from b0 (the
+        identity block: b1 - b0))."""
+        blocks = self.first_block[g0:g1 + 1] if g1 < len(self.first_block) else \
+            np.r_[self.first_block[g0:g1], self.n_blocks]
+        b0, b1 = int(blocks[0]), int(blocks[-1])
+        c = len(self.terms)
+        terms = self.terms.reshape(c, _BLOCK, -1)[:, :, b0:b1].reshape(c, -1)
+        phi = _weights(A, delta_b).T @ terms
+        angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+        sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
+        cos = np.cos(0.5 * angle)
+        inner = _compose_levels(np.concatenate([phi * sinc, cos[None]]).reshape(4, _BLOCK, -1))
+        top = np.concatenate([inner[-1][:, 0], [[0.0], [0.0], [0.0], [1.0]]], axis=1)  # and identity
+        gather = self.gather[:, g0:g1]
+        local = np.where(gather == self.n_blocks, b1 - b0, gather - b0)
+        return phi, angle, sinc, cos, inner, _compose_levels(top[:, local]), local
+
     def _forward(self, K_inv, delta_b):
-        """(phi, sin(θ/2)/θ, cos(θ/2), the composition's levels inside the blocks and over each
-        span's blocks, the (m, 4) quaternions), as ``compose`` makes them; the last one kept, as a
-        Jacobian is often wanted where the residuals were just evaluated."""
+        """(m, 4) quaternions as ``quaternions``, a group of spans at a time (their compositions
+        made and dropped: on imu_tk's recording joined 16× they took 32 MiB made for all spans
+        at once); the last one kept, as the same point is often asked again."""
         A, delta_b = np.asarray(K_inv, dtype=float), np.asarray(delta_b, dtype=float)
         key = A.tobytes() + delta_b.tobytes()
         if self._last is None or self._last[0] != key:
-            phi = _weights(A, delta_b).T @ self.terms
-            angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-            sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
-            cos = np.cos(0.5 * angle)
-            inner = _compose_levels(np.concatenate([phi * sinc, cos[None]]).reshape(4, _BLOCK, -1))
-            blocks = np.concatenate([inner[-1][:, 0], [[0.0], [0.0], [0.0], [1.0]]], axis=1)  # and identity
-            outer = _compose_levels(blocks[:, self.gather])
-            q = outer[-1][:, 0]
-            self._last = key, (phi, angle, sinc, cos, inner, outer, (q / np.sqrt(np.sum(q * q, axis=0))).T)
+            q = np.concatenate([self._levels(A, delta_b, g0, g1)[5][-1][:, 0]
+                                for g0, g1 in self.span_groups], axis=1)
+            self._last = key, (q / np.sqrt(np.sum(q * q, axis=0))).T
         return self._last[1]
 
     def jacobian(self, K_inv, delta_b, dK, d_delta_b):
@@ -360,28 +381,45 @@ class _Steps:
         Jacobian of the exponential), and a change on step j reaches the span's end rotated by
         S_jᵀ, S_j the product of the steps after j. The S_j come from the products the
         composition made, walked back down its tree (a left child is followed by its right
-        sibling): about one more composition's work for all p directions."""
+        sibling): about one more composition's work for all p directions. A group of spans at a
+        time (see ``_forward``): the compositions of all spans are never held at once."""
         A = np.asarray(K_inv, dtype=float)
-        phi, angle, sinc, cos, inner, outer, q = self._forward(A, delta_b)
+        delta_b = np.asarray(delta_b, dtype=float)
+        quaternions, sums = [], []
+        for g0, g1 in self.span_groups:
+            q, T = self._group_jacobian(A, delta_b, g0, g1)
+            quaternions.append(q)
+            sums.append(T)
+        q = np.concatenate(quaternions, axis=1)
+        q = (q / np.sqrt(np.sum(q * q, axis=0))).T
+        T = np.concatenate(sums).reshape(len(q), 3, 3, -1)
+        dW = _weight_derivatives(A, delta_b, np.asarray(dK, dtype=float), np.asarray(d_delta_b, dtype=float))
+        return q, np.einsum("sabc,kcb->sak", T, dW)
+
+    def _group_jacobian(self, A, delta_b, g0: int, g1: int):
+        """(4, spans) quaternions of spans g0..g1 - 1 (not normalised) and (spans, 9, 10) the
+        sums of B = S·J_r against each step's terms (see ``jacobian``)."""
+        phi, angle, sinc, cos, inner, outer, local = self._levels(A, delta_b, g0, g1)
+        q = outer[-1][:, 0]
         # Back down: each node's S (as a quaternion), the product of everything after it.
         after = np.empty((4, inner[-1].shape[-1] + 1))
         identity = np.array([0.0, 0.0, 0.0, 1.0])
-        after[:, self.gather] = _after(outer, np.broadcast_to(identity[:, None, None], (4, 1, len(q))))
+        after[:, local] = _after(outer, np.broadcast_to(identity[:, None, None], (4, 1, q.shape[1])))
         after = _after(inner, after[:, None, :-1])  # (4, _BLOCK, blocks)
         # B = S·J_r, summed against each step's terms per block: per_block[k, ab, c] = Σ_j B_j[a, b]·t_j[c].
         # Made a few blocks at a time: the (3, 3, steps) matrices are then never all held at once.
         n_blocks = after.shape[-1]
-        terms = self.terms.reshape(len(self.terms), _BLOCK, n_blocks)
+        b0 = int(self.first_block[g0])
+        c = len(self.terms)
+        terms = self.terms.reshape(c, _BLOCK, -1)[:, :, b0:b0 + n_blocks]
         shaped = [x.reshape(x.shape[:-1] + (_BLOCK, n_blocks)) for x in (phi, angle, sinc, cos)]
-        per_block = np.empty((n_blocks, 9, len(self.terms)))
+        per_block = np.empty((n_blocks, 9, c))
         for lo in range(0, n_blocks, _JACOBIAN_BLOCKS):
             part = np.s_[..., lo:lo + _JACOBIAN_BLOCKS]
             B = np.einsum("ab...,bc...->ac...", _matrix(after[part]),
                           _right_jacobians(*(x[part] for x in shaped)), optimize=False)
             per_block[part[1]] = np.matmul(B.reshape(9, _BLOCK, -1).transpose(2, 0, 1), terms[part].transpose(2, 1, 0))
-        T = np.add.reduceat(per_block, self.first_block, axis=0).reshape(len(q), 3, 3, -1)
-        dW = _weight_derivatives(A, delta_b, np.asarray(dK, dtype=float), np.asarray(d_delta_b, dtype=float))
-        return q, np.einsum("sabc,kcb->sak", T, dW)
+        return q, np.add.reduceat(per_block, self.first_block[g0:g1] - b0, axis=0)
 
     def compose(self, phi, group: int = 1):
         """(..., m, 4) quaternions of each span's rotation from its steps' rotation vectors phi
@@ -443,7 +481,8 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
 
     rows = np.arange(0, len(spans), _SCAN_SAMPLE)
     sample = _Steps(raw, t, spans[rows], offset=b0)
-    bound = coarse(sample, scales, rows)  # all at once: a sixth of the steps
+    # A batch of scales at a time, as below (all at once took 32 MiB on imu_tk's recording joined 16×).
+    bound = np.concatenate([coarse(sample, scales[i], rows) for i in batches(np.arange(len(scales)))])
     misfits = np.full(len(scales), np.inf)
     order = np.argsort(bound, kind="stable")
     for start in range(0, len(order), _SCAN_BOUNDED):
