@@ -221,8 +221,10 @@ def test_imucals_session_without_its_turns_gives_its_gyro_bias_as_imucal_does(tm
 def test_a_norm_solve_its_measured_noise_leaves_degenerate_falls_to_the_sub_model():
     """These poses pass the norm method's screen on white noise, and its solve again with the
     noise measured from them found an angle known only to ±0.032 rad: the whole recording was
-    refused ("positions are degenerate"). Now the sub-model takes them, saying why."""
-    sim = simulate_handheld(113, n_poses=9, directions=faces_tilted(113), raw_counts=False)
+    refused ("positions are degenerate"). Now the sub-model takes them, saying why. (Seed 101:
+    of seeds 100-199, those that take this path whatever the last bits of the pose means' sums,
+    which a summation order changes; seed 113, the first one found, was one that does not.)"""
+    sim = simulate_handheld(101, n_poses=9, directions=faces_tilted(101), raw_counts=False)
     cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
     assert cal.protocol == SUBMODEL_PROTOCOL
     assert "with its measured noise: accelerometer: positions are degenerate" in cal.tried[-1][2]
