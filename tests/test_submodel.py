@@ -219,13 +219,29 @@ def test_imucals_session_without_its_turns_gives_its_gyro_bias_as_imucal_does(tm
 
 
 def test_a_norm_solve_its_measured_noise_leaves_degenerate_falls_to_the_sub_model():
-    """These poses pass the norm method's screen on white noise, and its solve again with the
+    """These nine poses pass the norm method's screen on white noise, and its solve again with the
     noise measured from them found an angle known only to ±0.032 rad: the whole recording was
-    refused ("positions are degenerate"). Now the sub-model takes them, saying why. (Seed 101:
-    of seeds 100-199, those that take this path whatever the last bits of the pose means' sums,
-    which a summation order changes; seed 113, the first one found, was one that does not.)"""
-    sim = simulate_handheld(101, n_poses=9, directions=faces_tilted(101), raw_counts=False)
+    refused ("positions are degenerate"); later, on other last bits of the pose means' sums, the
+    norm method took them with σ from a scatter that nine poses of nine parameters do not have.
+    Now an exact fit is not asked for its noise: the sub-model takes the poses, saying why."""
+    sim = simulate_handheld(113, n_poses=9, directions=faces_tilted(113), raw_counts=False)
     cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
     assert cal.protocol == SUBMODEL_PROTOCOL
-    assert "with its measured noise: accelerometer: positions are degenerate" in cal.tried[-1][2]
+    assert "with its measured noise: accelerometer: 9 poses leave the norm fit no degree of freedom" in cal.tried[-1][2]
+    assert_solved_within_sigma(cal.specific_force["accelerometer"], truth_of(sim, "accelerometer"))
+
+
+def test_an_exact_norm_fit_is_not_asked_for_its_noise_and_says_why():
+    """Nine poses leave the norm fit of nine parameters no degree of freedom: its residuals are
+    zero whatever the noise, and measuring the noise from their scatter gave B = nan (a
+    RuntimeWarning), whose solve was refused as "degenerate". The refusal now says why, with no
+    nan on the way, and the sub-model takes the poses with σ from their own samples."""
+    import warnings
+
+    sim = simulate_handheld(118, n_poses=9, directions=faces_tilted(118), raw_counts=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        cal = calibrate_recording(recording_of(sim), station_of(sim), RecordingSettings())
+    assert cal.protocol == SUBMODEL_PROTOCOL
+    assert "9 poses leave the norm fit no degree of freedom: their scatter cannot measure the noise" in cal.tried[-1][2]
     assert_solved_within_sigma(cal.specific_force["accelerometer"], truth_of(sim, "accelerometer"))

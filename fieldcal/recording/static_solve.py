@@ -14,7 +14,7 @@ from fieldcal.calibration import Calibration
 from fieldcal.model import calibrate_with
 from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance, window_covariance
 from fieldcal.recording.up_covariance import MeansCovariance
-from fieldcal.solvers import solve_norm
+from fieldcal.solvers import CalibrationError, solve_norm
 from fieldcal.solvers.problems import StaticNormProblem
 
 def reduced_chi2(solution: Calibration) -> float:
@@ -81,9 +81,14 @@ def estimated_force_noise(solution: Calibration, means: np.ndarray, intervals: n
     that the pose means' scatter about the fit shows beyond it (``noise_estimate``). A norm
     residual |a| − g sees a pose's noise along its up direction only, so two poses' flicker
     is shared as uᵢ·uⱼ."""
+    m = len(means)
+    if solution.diagnostics.dof is not None and solution.diagnostics.dof < 1:
+        # An exact fit's residuals are zero whatever the noise, and the scatter's likelihood is
+        # then undefined (it gave B = nan, whose solve was refused as "degenerate"): say why.
+        raise CalibrationError(f"{solution.name}: {m} poses leave the norm fit no degree of freedom: "
+                               "their scatter cannot measure the noise")
     a = calibrate_with(solution.theta, means)
     u = a / np.linalg.norm(a, axis=1)[:, None]
-    m = len(means)
     design = np.einsum("ik,ikp->ip", u, calibrated_jacobian(solution.theta, means).reshape(m, 3, -1))
     counts = np.diff(intervals, axis=1)[:, 0]
     along = np.linalg.solve(solution.K.T, u.T).T  # K⁻ᵀu: an output-unit error's share along up
