@@ -1,7 +1,7 @@
-"""The verdict as the operator reads it (``verdict_lines``) and where a spec is looked for
-(``load_spec``): a hand-built verdict laid out column by column, and the shipped, missing and
-misnamed spec files with the one line each gives. Asked for by mutation testing (issue 26): every
-cell and branch of the table survived a mutant before."""
+"""The verdict as the operator reads it (``verdict_lines``), where a spec is looked for
+(``load_spec``) and what a SpecError names: a hand-built verdict laid out column by column, the
+shipped, missing and misnamed spec files with the one line each gives. Asked for by mutation
+testing (issue 26): every cell and branch of the table survived a mutant before."""
 import pytest
 
 from fieldcal.acceptance import Check, SpecError, Verdict, evaluate, load_spec, verdict_lines
@@ -79,3 +79,10 @@ def test_drift_is_not_taken_across_units_and_the_note_says_why(serial_now, seria
     verdict = evaluate(limits, today, previous)
     assert verdict.notes == (f"drift not checked: {why}",)
     assert verdict.passed and all(c.drift is None for c in verdict.checks)  # 5 mg apart, not compared
+
+
+def test_a_spec_in_another_unit_names_the_spec_file_and_the_entry():
+    counts = parameter_file(accelerometer([1, 1, 1], unit="count", per_unit=1000.0))
+    with pytest.raises(SpecError) as info:
+        evaluate(spec(bias={"unit": "mg", "max": 4}), counts)
+    assert (info.value.path, info.value.field) == ("spec.yaml", "triads.accelerometer.bias")

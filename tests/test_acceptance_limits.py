@@ -1,0 +1,87 @@
+"""Acceptance limits at their edges, in the device's own unit where every value is exact: a limit
+is met when the value equals it, a parameter with no limit or not calibrated is shown as it is,
+and drift is compared only between two calibrations of one unit. Asked for by mutation testing
+(issue 26): each of these survived a mutant of fieldcal/acceptance.py before."""
+import numpy as np
+import pytest
+
+from fieldcal.acceptance import Limit, SpecError, TriadSpec, evaluate
+from fieldcal.calibration import Calibration, with_not_calibrated
+from test_acceptance import parameter_file, spec
+
+SCALE = 400.0  # counts per m/s²: every bias below is a whole number of counts, exact in binary
+
+
+def counts(bias, sigma=0.5, scale=SCALE):
+    theta = np.r_[bias, [scale] * 3, [0.0] * 3]
+    return Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
+                       theta=theta, sigma=np.r_[[sigma] * 3, [0.25] * 3, [0.0] * 3], residual_rms=1.0)
+
+
+BIAS_LIMITS = {"unit": "count", "min": 32760, "max": 32780, "max_sigma": 0.5, "max_drift": 2}
+
+
+def test_a_value_equal_to_its_limit_meets_it():
+    """At the minimum, at the maximum, σ at its maximum and drifts of ±2 counts against 2: PASS."""
+    today = parameter_file(counts([32760.0, 32780.0, 32770.0]))
+    previous = parameter_file(counts([32758.0, 32782.0, 32770.0]))
+    verdict = evaluate(spec(bias=BIAS_LIMITS), today, previous)
+    biases = [c for c in verdict.checks if c.parameter.startswith("bias")]
+    assert [c.reasons for c in biases] == [(), (), ()] and verdict.passed
+    assert [c.drift for c in biases] == [2.0, -2.0, 0.0]
+    assert biases[0].drift_sigma == pytest.approx(2.0 / np.hypot(0.5, 0.5))
+    assert verdict.notes == ()  # the same unit, a previous calibration: the drift was checked
+
+
+def test_one_count_past_each_limit_fails_it():
+    today = parameter_file(counts([32759.0, 32781.0, 32770.0], sigma=0.75))
+    previous = parameter_file(counts([32759.0, 32781.0, 32767.0]))
+    checks = evaluate(spec(bias=BIAS_LIMITS), today, previous).checks
+    assert [c.reasons for c in checks[:3]] == [
+        ("32759 count below the minimum 32760 count", "σ 0.75 count above the maximum 0.5 count"),
+        ("32781 count above the maximum 32780 count", "σ 0.75 count above the maximum 0.5 count"),
+        ("σ 0.75 count above the maximum 0.5 count",
+         "drifted 3 count since the previous calibration, more than 2 count")]
+
+
+def test_a_parameter_with_no_limit_is_shown_with_its_value_and_sigma():
+    verdict = evaluate(spec(bias=BIAS_LIMITS), parameter_file(counts([32770.0] * 3)))
+    scale_x = next(c for c in verdict.checks if c.parameter == "scale_x")
+    # a scale factor in counts is shown per g (9.80665 m/s²)
+    assert (scale_x.value, scale_x.sigma) == (pytest.approx(SCALE * 9.80665), pytest.approx(0.25 * 9.80665))
+    assert scale_x.reasons == () and scale_x.calibrated
+
+
+@pytest.mark.parametrize("why, reason", [
+    ("", "not calibrated: the data did not determine it"),
+    ("still poses only: add poses with z up", "not calibrated: still poses only: add poses with z up"),
+])
+def test_a_parameter_not_calibrated_fails_its_limit_and_keeps_its_nominal_value(why, reason):
+    cal = with_not_calibrated(counts([32770.0] * 3), ["bias_z", "delta_zx"], why)
+    checks = {c.parameter: c for c in evaluate(spec(bias=BIAS_LIMITS), parameter_file(cal)).checks}
+    bias_z, angle = checks["bias_z"], checks["delta_zx"]
+    assert (bias_z.value, bias_z.sigma, bias_z.reasons, bias_z.calibrated) == (0.0, None, (reason,), False)
+    assert (angle.value, angle.reasons, angle.calibrated) == (0.0, (), False)  # no limit: no failure
+
+
+def test_no_drift_sigma_when_neither_calibration_has_one():
+    today = parameter_file(counts([32772.0] * 3, sigma=0.0))
+    previous = parameter_file(counts([32770.0] * 3, sigma=0.0))
+    bias_x = evaluate(spec(bias=BIAS_LIMITS), today, previous).checks[0]
+    assert (bias_x.drift, bias_x.drift_sigma) == (2.0, None)
+
+
+def test_a_parameters_own_entry_in_another_unit_is_named_with_the_triad():
+    limits = spec(bias=BIAS_LIMITS, bias_x={"unit": "mg", "max": 4})
+    with pytest.raises(SpecError) as info:
+        evaluate(limits, parameter_file(counts([32770.0] * 3)))
+    assert str(info.value) == ("spec.yaml: triads.accelerometer.bias_x.unit: expected 'count' (the unit triad "
+                               "'accelerometer' is shown in), got 'mg'")
+    assert info.value.field == "triads.accelerometer.bias_x"
+
+
+def test_an_entry_in_another_unit_than_its_group_takes_none_of_the_groups_limits():
+    triad = TriadSpec("accelerometer", {"bias": Limit("mg", min=-4.0, max=4.0),
+                                        "bias_x": Limit("count", max_sigma=0.5)})
+    assert triad.limit_for("bias_x") == Limit("count", max_sigma=0.5)
+    assert triad.limit_for("bias_y") == Limit("mg", min=-4.0, max=4.0)
