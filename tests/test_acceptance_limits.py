@@ -5,7 +5,7 @@ and drift is compared only between two calibrations of one unit. Asked for by mu
 import numpy as np
 import pytest
 
-from fieldcal.acceptance import Limit, SpecError, TriadSpec, evaluate
+from fieldcal.acceptance import Check, Limit, SpecError, TriadSpec, evaluate, spec_from_document
 from fieldcal.calibration import Calibration, with_not_calibrated
 from test_acceptance import parameter_file, spec
 
@@ -28,7 +28,7 @@ def test_a_value_equal_to_its_limit_meets_it():
     verdict = evaluate(spec(bias=BIAS_LIMITS), today, previous)
     biases = [c for c in verdict.checks if c.parameter.startswith("bias")]
     assert [c.reasons for c in biases] == [(), (), ()] and verdict.passed
-    assert [c.drift for c in biases] == [2.0, -2.0, 0.0]
+    assert [c.drift for c in biases] == [2.0, -2.0, 0.0] and [c.sigma for c in biases] == [0.5] * 3
     assert biases[0].drift_sigma == pytest.approx(2.0 / np.hypot(0.5, 0.5))
     assert verdict.notes == ()  # the same unit, a previous calibration: the drift was checked
 
@@ -85,3 +85,10 @@ def test_an_entry_in_another_unit_than_its_group_takes_none_of_the_groups_limits
                                         "bias_x": Limit("count", max_sigma=0.5)})
     assert triad.limit_for("bias_x") == Limit("count", max_sigma=0.5)
     assert triad.limit_for("bias_y") == Limit("mg", min=-4.0, max=4.0)
+
+
+def test_a_triad_the_file_lacks_is_one_failed_check_naming_what_the_file_has():
+    doc = {"schema": "fieldcal-spec/1", "product": "p", "triads": {"gyroscope": {"bias": {"unit": "°/h"}}}}
+    verdict = evaluate(spec_from_document(doc), parameter_file(counts([32770.0] * 3)))
+    assert verdict.checks == (Check("gyroscope", "triad", None, None, "",
+                                    ("not in the parameter file (it has accelerometer)",)),)
