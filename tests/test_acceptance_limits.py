@@ -12,10 +12,11 @@ from test_acceptance import parameter_file, spec
 SCALE = 400.0  # counts per m/s²: every bias below is a whole number of counts, exact in binary
 
 
-def counts(bias, sigma=0.5, scale=SCALE):
+def counts(bias, sigma=0.5, scale=SCALE, name="accelerometer", kind="specific_force"):
     theta = np.r_[bias, [scale] * 3, [0.0] * 3]
-    return Calibration(name="accelerometer", kind="specific_force", output_unit="count", method="powell",
-                       theta=theta, sigma=np.r_[[sigma] * 3, [0.25] * 3, [0.0] * 3], residual_rms=1.0)
+    return Calibration(name=name, kind=kind, output_unit="count", method="powell",
+                       theta=theta, sigma=np.r_[[sigma] * 3, [0.25] * 3, [0.0] * 3], residual_rms=1.0,
+                       residual_unit="count")
 
 
 BIAS_LIMITS = {"unit": "count", "min": 32760, "max": 32780, "max_sigma": 0.5, "max_drift": 2}
@@ -92,3 +93,36 @@ def test_a_triad_the_file_lacks_is_one_failed_check_naming_what_the_file_has():
     verdict = evaluate(spec_from_document(doc), parameter_file(counts([32770.0] * 3)))
     assert verdict.checks == (Check("gyroscope", "triad", None, None, "",
                                     ("not in the parameter file (it has accelerometer)",)),)
+
+
+def test_the_spec_checks_every_triad_it_names_and_notes_the_others():
+    """A spec naming a magnetometer first: its check fails, the accelerometer's are still made."""
+    pf = parameter_file(counts([32770.0] * 3), counts([0.0] * 3, name="gyro1", kind="angular_rate"),
+                        counts([0.0] * 3, name="gyro2", kind="angular_rate"))
+    doc = {"schema": "fieldcal-spec/1", "product": "p",
+           "triads": {"magnetometer": {"bias": {"unit": "count"}}, "accelerometer": {"bias": BIAS_LIMITS}}}
+    verdict = evaluate(spec_from_document(doc), pf)
+    assert verdict.checks[0].reasons == ("not in the parameter file (it has accelerometer, gyro1, gyro2)",)
+    assert [c.triad for c in verdict.checks[1:]] == ["accelerometer"] * 9
+    assert verdict.notes == ("drift not checked: no previous calibration of this unit",
+                             "not in the spec, not checked: gyro1, gyro2")
+
+
+def test_a_residual_equal_to_its_limit_meets_it():
+    verdict = evaluate(spec(max_residual={"unit": "count", "value": 1}), parameter_file(counts([32770.0] * 3)))
+    assert verdict.checks[-1] == Check("accelerometer", "residual", 1.0, None, "count", ())
+
+
+def test_a_residual_limit_in_another_unit_names_the_entry_and_the_triad():
+    with pytest.raises(SpecError) as info:
+        evaluate(spec(max_residual={"unit": "mg", "value": 1}), parameter_file(counts([32770.0] * 3)))
+    assert str(info.value) == ("spec.yaml: triads.accelerometer.max_residual.unit: expected 'count' (the unit "
+                               "triad 'accelerometer' is shown in), got 'mg'")
+    assert (info.value.path, info.value.field) == ("spec.yaml", "triads.accelerometer.max_residual")
+
+
+def test_a_unit_that_is_not_a_string_is_named_with_its_entry():
+    with pytest.raises(SpecError) as info:
+        spec(bias={"unit": 5})
+    assert str(info.value) == ("spec.yaml: triads.accelerometer.bias.unit: expected a non-empty string (quote it), "
+                               "got 5")
