@@ -126,3 +126,32 @@ def test_a_unit_that_is_not_a_string_is_named_with_its_entry():
         spec(bias={"unit": 5})
     assert str(info.value) == ("spec.yaml: triads.accelerometer.bias.unit: expected a non-empty string (quote it), "
                                "got 5")
+
+
+def test_a_limit_may_be_negative_or_a_single_value():
+    assert spec(bias={"unit": "mg", "min": -20, "max": -10}).triads[0].limits == {
+        "bias": Limit("mg", min=-20.0, max=-10.0)}
+    assert spec(bias={"unit": "mg", "min": 4, "max": 4}).triads[0].limits == {"bias": Limit("mg", min=4.0, max=4.0)}
+
+
+SCHEMA = {"schema": "fieldcal-spec/1", "product": "p"}
+
+
+@pytest.mark.parametrize("doc, line, field", [
+    ({**SCHEMA, "triads": {"accelerometer": {"bias": 5}}},
+     "triads.accelerometer.bias: expected a mapping, got 5", "triads.accelerometer.bias"),
+    (["x"], "expected a mapping, got a list of 1 item", ""),
+    ({**SCHEMA, "triads": {"accelerometer": {"bias": {"unit": "mg", "maxx": 1}}}},
+     "triads.accelerometer.bias.maxx: expected one of unit, min, max, max_sigma, max_drift, got the unknown key "
+     "'maxx' (nearest: 'max')", "triads.accelerometer.bias.maxx"),
+    (SCHEMA, "triads: expected a value, got nothing (the key is missing)", "triads"),
+    ({**SCHEMA, "triads": {"a": {"max_residual": {"value": 1}}}},
+     "triads.a.max_residual.unit: expected a value, got nothing (the key is missing)", "triads.a.max_residual.unit"),
+    ({**SCHEMA, "triads": {"accelerometer": {"bias": {"unit": "mg", "min": 4, "max": 1}}}},
+     "triads.accelerometer.bias.max: expected a number >= min (4), got 1", "triads.accelerometer.bias.max"),
+])
+def test_a_bad_spec_document_is_one_line_naming_the_field(doc, line, field):
+    """The line names the file, the field, what it must be and what it is."""
+    with pytest.raises(SpecError) as info:
+        spec_from_document(doc, "spec.yaml")
+    assert (str(info.value), info.value.path, info.value.field) == (f"spec.yaml: {line}", "spec.yaml", field)
