@@ -149,9 +149,17 @@ SCHEMA = {"schema": "fieldcal-spec/1", "product": "p"}
      "triads.a.max_residual.unit: expected a value, got nothing (the key is missing)", "triads.a.max_residual.unit"),
     ({**SCHEMA, "triads": {"accelerometer": {"bias": {"unit": "mg", "min": 4, "max": 1}}}},
      "triads.accelerometer.bias.max: expected a number >= min (4), got 1", "triads.accelerometer.bias.max"),
+    ({"schema": "fieldcal-spec/2", "product": "p", "triads": {"a": {}}},
+     "schema: expected 'fieldcal-spec/1', got 'fieldcal-spec/2'", "schema"),
+    ({"schema": "fieldcal-spec/1", "product": 5, "triads": {"a": {}}},
+     "product: expected a non-empty string (quote it), got 5", "product"),
 ])
 def test_a_bad_spec_document_is_one_line_naming_the_field(doc, line, field):
     """The line names the file, the field, what it must be and what it is."""
     with pytest.raises(SpecError) as info:
         spec_from_document(doc, "spec.yaml")
     assert (str(info.value), info.value.path, info.value.field) == (f"spec.yaml: {line}", "spec.yaml", field)
+
+
+def test_a_spec_built_from_a_document_alone_is_named_as_such():
+    assert spec_from_document({**SCHEMA, "triads": {"a": {}}}).path == "<spec>"
