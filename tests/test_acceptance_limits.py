@@ -153,6 +153,12 @@ SCHEMA = {"schema": "fieldcal-spec/1", "product": "p"}
      "schema: expected 'fieldcal-spec/1', got 'fieldcal-spec/2'", "schema"),
     ({"schema": "fieldcal-spec/1", "product": 5, "triads": {"a": {}}},
      "product: expected a non-empty string (quote it), got 5", "product"),
+    ({**SCHEMA, "triads": {}}, "triads: expected a mapping of triad name to limits, got an empty mapping", "triads"),
+    ({**SCHEMA, "triads": ["a"]}, "triads: expected a mapping of triad name to limits, got a list of 1 item", "triads"),
+    ({**SCHEMA, "triads": {5: {}}}, "triads: expected triad names that are non-empty strings, got 5", "triads"),
+    ({**SCHEMA, "triads": {"": {}}}, "triads: expected triad names that are non-empty strings, got ''", "triads"),
+    ({**SCHEMA, "triads": {"a": {"max_residual": 3}}}, "triads.a.max_residual: expected a mapping, got 3",
+     "triads.a.max_residual"),
 ])
 def test_a_bad_spec_document_is_one_line_naming_the_field(doc, line, field):
     """The line names the file, the field, what it must be and what it is."""
