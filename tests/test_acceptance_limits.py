@@ -128,6 +128,10 @@ def test_a_unit_that_is_not_a_string_is_named_with_its_entry():
                                "got 5")
 
 
+def test_a_residual_limit_below_one_is_kept():
+    assert spec(max_residual={"unit": "mg", "value": 0.5}).triads[0].max_residual == (0.5, "mg")
+
+
 def test_a_limit_may_be_negative_or_a_single_value():
     assert spec(bias={"unit": "mg", "min": -20, "max": -10}).triads[0].limits == {
         "bias": Limit("mg", min=-20.0, max=-10.0)}
@@ -159,6 +163,10 @@ SCHEMA = {"schema": "fieldcal-spec/1", "product": "p"}
     ({**SCHEMA, "triads": {"": {}}}, "triads: expected triad names that are non-empty strings, got ''", "triads"),
     ({**SCHEMA, "triads": {"a": {"max_residual": 3}}}, "triads.a.max_residual: expected a mapping, got 3",
      "triads.a.max_residual"),
+    ({**SCHEMA, "triads": {"a": {"max_residual": {"unit": "mg", "value": -1}}}},
+     "triads.a.max_residual.value: expected a number >= 0, got -1", "triads.a.max_residual.value"),
+    ({**SCHEMA, "triads": {"a": {"max_residual": {"unit": 5, "value": 1}}}},
+     "triads.a.max_residual.unit: expected a non-empty string (quote it), got 5", "triads.a.max_residual.unit"),
 ])
 def test_a_bad_spec_document_is_one_line_naming_the_field(doc, line, field):
     """The line names the file, the field, what it must be and what it is."""
