@@ -4,7 +4,8 @@ had no test of its own, and the refusal's text and its upper-triangle check surv
 import numpy as np
 import pytest
 
-from fieldcal.model import FULL_PARAM_NAMES, PARAM_NAMES, k_from, k_from_terms, params_from, params_from_k, terms_from_k
+from fieldcal.model import (FULL_PARAM_NAMES, PARAM_NAMES, calibrate_with, k_from, k_from_terms, params_from,
+                            params_from_k, terms_from_k)
 
 SCALE = (2.0, 3.0, 4.0)
 TERMS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6)  # m_xy, m_xz, m_yx, m_yz, m_zx, m_zy
@@ -53,3 +54,9 @@ def test_a_k_that_is_not_3x3_is_refused_even_when_full():
 def test_an_unknown_parameter_set_is_refused(convert):
     with pytest.raises(ValueError, match=r"unknown parameter set \('bias_x',\)"):
         convert(np.zeros(9), ("bias_x",))
+
+
+def test_integer_counts_and_an_integer_model_calibrate_to_fractions():
+    """A device's counts are integers, and so may be a model written by hand: K⁻¹(raw − b) is not."""
+    theta = np.array([1, 1, 1, 2, 2, 4, 0, 0, 0])
+    np.testing.assert_array_equal(calibrate_with(theta, np.array([[4, 2, 3]])), [[1.5, 0.5, 0.5]])
