@@ -7,8 +7,8 @@ import pytest
 
 from fieldcal.calibration import with_not_calibrated
 from fieldcal.export import export
-from fieldcal.paramfile import to_document
-from test_export import parameter_file, triad
+from fieldcal.paramfile import ParameterFile, to_document
+from test_export import STATION, parameter_file, triad
 
 ZERO = [0.0] * 6
 
@@ -52,3 +52,28 @@ def test_c_header_refuses_a_triad_not_calibrated_saying_what_firmware_would_do()
     assert str(info.value) == ("export c-header: accelerometer: bias_z not calibrated (poses too alike); firmware "
                                "would take every term of BIAS and KINV, a nominal among them, as calibrated: export "
                                "px4, ardupilot (only what is calibrated) or json (the marks kept) instead")
+
+
+def test_the_c_header_of_an_identity_triad_whole():
+    """K = I, bias (0.1, 0, 0): K⁻¹ is the identity, every line as firmware reads it."""
+    pf = parameter_file(accelerometer())
+    assert export(pf, "c-header") == f"""\
+/* fieldcal calibration parameters, generated: do not edit.
+ * fieldcal {pf.provenance.software_version}, procedure classic-12, method classic,
+ * device sim S7, inputs sha256 {"a" * 64}.
+ * Per triad: calibrated[i] = sum_j KINV[i][j] * (raw[j] - BIAS[j]). */
+#ifndef FIELDCAL_CALIBRATION_H
+#define FIELDCAL_CALIBRATION_H
+
+/* accelerometer (specific_force): raw in m/s^2, calibrated in m/s^2 */
+static const double FIELDCAL_ACCELEROMETER_BIAS[3] = {{0.1, 0.0, 0.0}};
+static const double FIELDCAL_ACCELEROMETER_KINV[3][3] = {{{{1.0, 0.0, 0.0}}, {{0.0, 1.0, 0.0}}, {{0.0, 0.0, 1.0}}}};
+
+#endif /* FIELDCAL_CALIBRATION_H */
+"""
+
+
+def test_the_c_header_of_an_unnamed_device_says_so():
+    pf = ParameterFile.build([accelerometer()], station=STATION, procedure="classic-12", method="classic",
+                             input_sha256="a" * 64)
+    assert f" * device ? , inputs sha256 {'a' * 64}." in export(pf, "c-header").splitlines()
