@@ -3,12 +3,14 @@ triad names, and the c-header's refusals asserted whole. Asked for by mutation t
 fieldcal/export (issue 26): each survived a mutant before."""
 import json
 
+import numpy as np
 import pytest
 
 from fieldcal.calibration import with_not_calibrated
 from fieldcal.export import export
+from fieldcal.model import k_from_terms
 from fieldcal.paramfile import ParameterFile, to_document
-from test_export import STATION, parameter_file, triad
+from test_export import ACC_TERMS, GYR_TERMS, STATION, parameter_file, triad
 
 ZERO = [0.0] * 6
 
@@ -77,3 +79,46 @@ def test_the_c_header_of_an_unnamed_device_says_so():
     pf = ParameterFile.build([accelerometer()], station=STATION, procedure="classic-12", method="classic",
                              input_sha256="a" * 64)
     assert f" * device ? , inputs sha256 {'a' * 64}." in export(pf, "c-header").splitlines()
+
+
+def test_imucal_takes_the_exported_json_back_to_the_true_input(tmp_path):
+    """The quick peer check (the simulated one is slow): imucal itself reads the file and turns
+    raw counts made from a known input by a known K and bias back into that input."""
+    from imucal.management import load_calibration_info
+
+    acc = triad("accelerometer", "specific_force", "count", [30.0, -20.0, 10.0], [400.0, 410.0, 390.0], ACC_TERMS)
+    gyr = triad("gyroscope", "angular_rate", "count", [5.0, -3.0, 2.0], [1000.0, 990.0, 1010.0], GYR_TERMS)
+    path = tmp_path / "imu.json"
+    pf = parameter_file(acc, gyr)
+    path.write_text(export(pf, "imucal-json"))
+    rng = np.random.default_rng(3)
+    true_acc, true_gyr = rng.normal(scale=9.8, size=(50, 3)), rng.normal(size=(50, 3))  # m/s², rad/s
+    raw_acc = true_acc @ k_from_terms([400.0, 410.0, 390.0], ACC_TERMS).T + [30.0, -20.0, 10.0]
+    raw_gyr = true_gyr @ k_from_terms([1000.0, 990.0, 1010.0], GYR_TERMS).T + [5.0, -3.0, 2.0]
+    got_acc, got_gyr = load_calibration_info(path).calibrate(raw_acc, raw_gyr, acc_unit="count", gyr_unit="count")
+    np.testing.assert_allclose(got_acc, true_acc, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got_gyr, np.rad2deg(true_gyr), rtol=0, atol=1e-9)  # imucal's gyro is in °/s
+    doc = json.loads(path.read_text())
+    assert (doc["from_acc_unit"], doc["from_gyr_unit"], doc["cal_type"]) == ("count", "count", "Ferraris")
+    assert doc["comment"] == f"fieldcal {pf.provenance.software_version}: classic-12, classic, device sim S7"
+
+
+GYRO = triad("gyroscope", "angular_rate", "rad/s", [0.0] * 3, [1.0] * 3, GYR_TERMS)
+
+
+@pytest.mark.parametrize("triads, line", [
+    ((accelerometer(kind="angular_rate", unit="rad/s"), GYRO),
+     "export imucal-json: --accelerometer accelerometer: that triad is angular_rate in rad/s, not specific_force: "
+     "name the specific_force triad with --accelerometer"),
+    ((accelerometer(), triad("gyroscope", "specific_force", "m/s^2", [0.0] * 3, [1.0] * 3, ZERO)),
+     "export imucal-json: --gyroscope gyroscope: that triad is specific_force in m/s^2, not angular_rate: "
+     "name the angular_rate triad with --gyroscope"),
+    ((accelerometer(), with_not_calibrated(GYRO, ["bias_x"], "rests only")),
+     "export imucal-json: gyroscope: bias_x not calibrated (rests only); imucal's calibration holds every term and "
+     "has no mark for a nominal one: export px4, ardupilot (only what is calibrated) or json (the marks kept) "
+     "instead"),
+])
+def test_imucal_json_refusals_are_one_whole_line(triads, line):
+    with pytest.raises(ValueError) as info:
+        export(parameter_file(*triads), "imucal-json")
+    assert str(info.value) == line
