@@ -122,3 +122,23 @@ def test_imucal_json_refusals_are_one_whole_line(triads, line):
     with pytest.raises(ValueError) as info:
         export(parameter_file(*triads), "imucal-json")
     assert str(info.value) == line
+
+
+def test_what_a_diagonal_format_drops_is_named_term_by_term_with_its_worst_error():
+    """ACC_TERMS and GYR_TERMS by hand: every non-zero term in mrad, the gyro's scale factors other
+    than 1 (its scale is not kept), and the worst error ‖A⁻¹K − I‖₂ at 1 g and at 100 °/s."""
+    from fieldcal.export.autopilot import diagonal_parameters
+
+    acc = triad("accelerometer", "specific_force", "m/s^2", [0.0] * 3, [1.002, 0.998, 1.001], ACC_TERMS)
+    gyr = triad("gyroscope", "angular_rate", "rad/s", [0.0] * 3, [1.01, 0.99, 1.0], GYR_TERMS)
+    _, (acc_loss, gyr_loss) = diagonal_parameters(parameter_file(acc, gyr), "px4", "accelerometer", "gyroscope",
+                                                  gyro_scale=False)
+    assert acc_loss.what == ("m_xy = 1 mrad", "m_xz = -2 mrad", "m_yx = 0.5 mrad", "m_zx = 3 mrad", "m_zy = -1 mrad")
+    assert gyr_loss.what == ("m_xz = 0.2 mrad", "m_zy = -0.1 mrad", "scale_x = 1.0100000", "scale_y = 0.9900000")
+    M = np.zeros((3, 3))
+    M[[0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]] = ACC_TERMS
+    assert acc_loss.error == pytest.approx(np.linalg.svd(M, compute_uv=False)[0] * 1000.0, rel=1e-9)  # mg at 1 g
+    assert (acc_loss.unit, acc_loss.reference, gyr_loss.unit, gyr_loss.reference) == ("mg", "at 1 g", "°/h",
+                                                                                      "at 100 °/s")
+    assert acc_loss.line() == ("accelerometer: dropped m_xy = 1 mrad, m_xz = -2 mrad, m_yx = 0.5 mrad, "
+                               f"m_zx = 3 mrad, m_zy = -1 mrad; worst error {acc_loss.error:.3g} mg at 1 g")
