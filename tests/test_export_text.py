@@ -142,3 +142,10 @@ def test_what_a_diagonal_format_drops_is_named_term_by_term_with_its_worst_error
                                                                                       "at 100 °/s")
     assert acc_loss.line() == ("accelerometer: dropped m_xy = 1 mrad, m_xz = -2 mrad, m_yx = 0.5 mrad, "
                                f"m_zx = 3 mrad, m_zy = -1 mrad; worst error {acc_loss.error:.3g} mg at 1 g")
+
+
+def test_a_triad_name_the_file_lacks_is_refused_naming_those_it_has():
+    with pytest.raises(ValueError) as info:
+        export(parameter_file(accelerometer(), GYRO), "px4", accelerometer="acc")
+    assert str(info.value) == ("export: no triad named 'acc' in the parameter file (it has accelerometer, gyroscope); "
+                               "name it with --accelerometer")
