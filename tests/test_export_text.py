@@ -8,7 +8,7 @@ import pytest
 
 from fieldcal.calibration import with_not_calibrated
 from fieldcal.export import export
-from fieldcal.model import k_from_terms
+from fieldcal.model import PARAM_NAMES, k_from_terms
 from fieldcal.paramfile import ParameterFile, to_document
 from test_export import ACC_TERMS, GYR_TERMS, STATION, parameter_file, triad
 
@@ -149,3 +149,45 @@ def test_a_triad_name_the_file_lacks_is_refused_naming_those_it_has():
         export(parameter_file(accelerometer(), GYRO), "px4", accelerometer="acc")
     assert str(info.value) == ("export: no triad named 'acc' in the parameter file (it has accelerometer, gyroscope); "
                                "name it with --accelerometer")
+
+
+FIRMWARE = ("firmware would take every term of BIAS and KINV, a nominal among them, as calibrated: export px4, "
+            "ardupilot (only what is calibrated) or json (the marks kept) instead")
+
+
+@pytest.mark.parametrize("triads, fmt, options, line", [
+    ((accelerometer("acc1"), accelerometer("acc2"), GYRO), "px4", {"accelerometer": "gyroscope"},
+     "export px4: --accelerometer gyroscope: that triad is angular_rate in rad/s, not specific_force: name the "
+     "specific_force triad with --accelerometer (the file's specific_force triads: acc1, acc2)"),
+    ((accelerometer("acc1"), GYRO), "px4", {"accelerometer": "gyroscope"},
+     "export px4: --accelerometer gyroscope: that triad is angular_rate in rad/s, not specific_force: name the "
+     "specific_force triad with --accelerometer (the file's specific_force triad: acc1)"),
+    ((accelerometer(unit="count"), GYRO), "px4", {},
+     "export px4: triad 'accelerometer' reports in 'count'; px4 takes readings in m/s^2 (calibrate a device "
+     "reporting physical units)"),
+    ((with_not_calibrated(accelerometer(), ["bias_z", "delta_zx"]), GYRO), "c-header", {},
+     f"export c-header: accelerometer: bias_z, delta_zx not calibrated; {FIRMWARE}"),
+    ((with_not_calibrated(accelerometer(), PARAM_NAMES[:6], "a"), with_not_calibrated(GYRO, PARAM_NAMES[:3], "b")),
+     "px4", {}, "export px4: none of what px4 holds is calibrated in this file (accelerometer: a; gyroscope: b)"),
+])
+def test_export_refusals_are_one_whole_line(triads, fmt, options, line):
+    with pytest.raises(ValueError) as info:
+        export(parameter_file(*triads), fmt, **options)
+    assert str(info.value) == line
+
+
+def test_a_kind_check_without_a_format_names_the_command_alone():
+    from fieldcal.export.autopilot import check_kind
+
+    with pytest.raises(ValueError, match=r"^export: --accelerometer gyroscope: that triad is angular_rate"):
+        check_kind(parameter_file(accelerometer(), GYRO), "gyroscope", "--accelerometer", "")
+
+
+def test_the_autopilot_files_first_line_names_the_device_or_says_it_is_unnamed():
+    unnamed = ParameterFile.build([accelerometer(), GYRO], station=STATION, procedure="classic-12",
+                                  method="classic", input_sha256="a" * 64)
+    version = unnamed.provenance.software_version
+    assert export(unnamed, "px4").splitlines()[0] == (f"# px4 calibration of unnamed device by fieldcal {version} "
+                                                      "(classic-12, classic)")
+    assert export(parameter_file(accelerometer(), GYRO), "ardupilot").splitlines()[0] == (
+        f"# ardupilot calibration of sim S7 by fieldcal {version} (classic-12, classic)")
