@@ -169,6 +169,12 @@ FIRMWARE = ("firmware would take every term of BIAS and KINV, a nominal among th
      f"export c-header: accelerometer: bias_z, delta_zx not calibrated; {FIRMWARE}"),
     ((with_not_calibrated(accelerometer(), PARAM_NAMES[:6], "a"), with_not_calibrated(GYRO, PARAM_NAMES[:3], "b")),
      "px4", {}, "export px4: none of what px4 holds is calibrated in this file (accelerometer: a; gyroscope: b)"),
+    ((with_not_calibrated(accelerometer(), PARAM_NAMES[:6], "a"), with_not_calibrated(GYRO, PARAM_NAMES[:3], "b")),
+     "ardupilot", {},
+     "export ardupilot: none of what ardupilot holds is calibrated in this file (accelerometer: a; gyroscope: b)"),
+    ((accelerometer(unit="count"), GYRO), "ardupilot", {},
+     "export ardupilot: triad 'accelerometer' reports in 'count'; ardupilot takes readings in m/s^2 (calibrate a "
+     "device reporting physical units)"),
 ])
 def test_export_refusals_are_one_whole_line(triads, fmt, options, line):
     with pytest.raises(ValueError) as info:
@@ -191,3 +197,12 @@ def test_the_autopilot_files_first_line_names_the_device_or_says_it_is_unnamed()
                                                       "(classic-12, classic)")
     assert export(parameter_file(accelerometer(), GYRO), "ardupilot").splitlines()[0] == (
         f"# ardupilot calibration of sim S7 by fieldcal {version} (classic-12, classic)")
+
+
+def test_ardupilot_writes_each_axis_offset_then_scale_and_the_gyro_offsets_last():
+    gyr = triad("gyroscope", "angular_rate", "rad/s", [0.25, 0.5, 0.75], [1.0] * 3, ZERO)
+    text = export(parameter_file(triad("accelerometer", "specific_force", "m/s^2", [0.1, 0.2, 0.3], [2.0, 4.0, 0.5],
+                                       ZERO), gyr), "ardupilot")
+    assert [line for line in text.splitlines() if not line.startswith("#")] == [
+        "INS_ACCOFFS_X,0.1", "INS_ACCSCAL_X,0.5", "INS_ACCOFFS_Y,0.2", "INS_ACCSCAL_Y,0.25",
+        "INS_ACCOFFS_Z,0.3", "INS_ACCSCAL_Z,2.0", "INS_GYROFFS_X,0.25", "INS_GYROFFS_Y,0.5", "INS_GYROFFS_Z,0.75"]
