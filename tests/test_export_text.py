@@ -206,3 +206,17 @@ def test_ardupilot_writes_each_axis_offset_then_scale_and_the_gyro_offsets_last(
     assert [line for line in text.splitlines() if not line.startswith("#")] == [
         "INS_ACCOFFS_X,0.1", "INS_ACCSCAL_X,0.5", "INS_ACCOFFS_Y,0.2", "INS_ACCSCAL_Y,0.25",
         "INS_ACCOFFS_Z,0.3", "INS_ACCSCAL_Z,2.0", "INS_GYROFFS_X,0.25", "INS_GYROFFS_Y,0.5", "INS_GYROFFS_Z,0.75"]
+
+
+def test_the_px4_file_of_a_diagonal_unit_whole():
+    """Nothing to drop (no terms, the gyro's scale 1): offsets and 1/k as QGroundControl reads them, type 9."""
+    gyr = triad("gyroscope", "angular_rate", "rad/s", [0.25, 0.5, 0.75], [1.0] * 3, ZERO)
+    pf = parameter_file(triad("accelerometer", "specific_force", "m/s^2", [0.1, 0.2, 0.3], [2.0, 4.0, 0.5], ZERO), gyr)
+    rows = [("CAL_ACC0_XOFF", 0.1), ("CAL_ACC0_YOFF", 0.2), ("CAL_ACC0_ZOFF", 0.3), ("CAL_ACC0_XSCALE", 0.5),
+            ("CAL_ACC0_YSCALE", 0.25), ("CAL_ACC0_ZSCALE", 2.0), ("CAL_GYRO0_XOFF", 0.25), ("CAL_GYRO0_YOFF", 0.5),
+            ("CAL_GYRO0_ZOFF", 0.75)]
+    assert export(pf, "px4").splitlines() == [
+        f"# px4 calibration of sim S7 by fieldcal {pf.provenance.software_version} (classic-12, classic)",
+        "# px4 keeps an offset and a diagonal scale per triad; the rest is dropped:",
+        "#   accelerometer: nothing dropped", "#   gyroscope: nothing dropped",
+        "# Vehicle-Id\tComponent-Id\tName\tValue\tType", *(f"1\t1\t{name}\t{value}\t9" for name, value in rows)]
