@@ -220,3 +220,23 @@ def test_the_px4_file_of_a_diagonal_unit_whole():
         "# px4 keeps an offset and a diagonal scale per triad; the rest is dropped:",
         "#   accelerometer: nothing dropped", "#   gyroscope: nothing dropped",
         "# Vehicle-Id\tComponent-Id\tName\tValue\tType", *(f"1\t1\t{name}\t{value}\t9" for name, value in rows)]
+
+
+def test_a_dropped_m_yz_and_a_gyro_scale_of_two_are_named():
+    from fieldcal.export.autopilot import diagonal_parameters
+
+    gyr = triad("gyroscope", "angular_rate", "rad/s", [0.0] * 3, [2.0, 1.0, 1.0], [0.0, 0.0, 0.0, 4e-3, 0.0, 0.0])
+    _, (_, loss) = diagonal_parameters(parameter_file(accelerometer(), gyr), "px4", "accelerometer", "gyroscope",
+                                       gyro_scale=False)
+    assert loss.what == ("m_yz = 4 mrad", "scale_x = 2.0000000")
+
+
+def test_the_imucal_json_of_an_unnamed_device_its_units_and_layout():
+    pf = ParameterFile.build([accelerometer(), GYRO], station=STATION, procedure="classic-12", method="classic",
+                             input_sha256="a" * 64)
+    text = export(pf, "imucal-json")
+    doc = json.loads(text)
+    assert doc["comment"] == f"fieldcal {pf.provenance.software_version}: classic-12, classic, device ?"
+    assert (doc["acc_unit"], doc["gyr_unit"], doc["from_acc_unit"], doc["from_gyr_unit"]) == (
+        "m/s^2", "deg/s", "m/s^2", "rad/s")
+    assert text.splitlines()[1] == '  "acc_unit": "m/s^2",' and text.endswith("}\n")
