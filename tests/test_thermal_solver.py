@@ -379,23 +379,30 @@ def test_a_thermal_soak_recovers_the_truth_within_its_sigma(tmp_path):
     assert np.all(acc.sigma[:3] < 0.1 * MG)  # field-18 warming 10 K: 0.1-0.4 mg
 
 
+def _sim_warmup_run(seed: int, out):
+    """A headless field-18 run on configs/sim-warmup.yaml: (outcome, the thermal truths re-centred)."""
+    from fieldcal.config import load_config
+    from fieldcal.report import thermal_truths
+    from fieldcal.run.runner import RunSpec, run_headless
+
+    config = load_config("configs/sim-warmup.yaml")
+    spec = RunSpec(load_procedure("field-18"), config.station, seed=seed, rate_hz=config.device.rate_hz,
+                   sim_thermal=config.device.sim.thermal)
+    outcome = run_headless(spec, out)
+    return outcome, thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
+
+
 def test_a_warm_gyros_unconverged_order_0_does_not_drop_the_triad(tmp_path):
     # configs/sim-warmup.yaml seed 34: the gyro's order-0 candidate (its bias moving ~250 Earth
     # rates over the run) ran out of evaluations in the second weighting pass, and that failed the
     # whole triad (2 of the thermal benchmark's first 56 runs). It is now no candidate, and the
     # orders that converge are judged as before.
-    from fieldcal.config import load_config
-    from fieldcal.report import thermal_truths, worst_error
-    from fieldcal.run.runner import RunSpec, run_headless
+    from fieldcal.report import worst_error
 
-    config = load_config("configs/sim-warmup.yaml")
-    spec = RunSpec(load_procedure("field-18"), config.station, seed=34, rate_hz=config.device.rate_hz,
-                   sim_thermal=config.device.sim.thermal)
-    outcome = run_headless(spec, tmp_path / "seed34")
+    outcome, truths = _sim_warmup_run(34, tmp_path / "seed34")
     assert outcome.unit.failures == {}
     gyro = outcome.unit.solutions["gyroscope"]
     assert gyro.thermal.order >= 1  # (the truth's is 1)
-    truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
     assert worst_error({"gyroscope": gyro}, truths) < 4.0
 
 
@@ -404,16 +411,10 @@ def test_an_undetermined_exact_fit_gives_way_to_the_lower_order(tmp_path):
     # fit of its 18 norms, and at that run's placements and temperatures its Jacobian is singular
     # (condition number 5e10), which lost the whole triad (1 of the thermal benchmark's 400 runs).
     # An order the windows cannot determine is now no candidate: the order below it is kept.
-    from fieldcal.config import load_config
-    from fieldcal.report import thermal_truths, worst_error
-    from fieldcal.run.runner import RunSpec, run_headless
+    from fieldcal.report import worst_error
 
-    config = load_config("configs/sim-warmup.yaml")
-    spec = RunSpec(load_procedure("field-18"), config.station, seed=380, rate_hz=config.device.rate_hz,
-                   sim_thermal=config.device.sim.thermal)
-    outcome = run_headless(spec, tmp_path / "seed380")
+    outcome, truths = _sim_warmup_run(380, tmp_path / "seed380")
     assert outcome.unit.failures == {}
     inclinometer = outcome.unit.solutions["inclinometer"]
     assert inclinometer.thermal.order < 2 and inclinometer.diagnostics.condition_number < 1e10
-    truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
     assert worst_error({"inclinometer": inclinometer}, truths) < 4.0
