@@ -52,6 +52,9 @@ class ProcedureScreen(Screen):
         self._shown_step: tuple[int, bool] | None = None  # what the cube shows: (step, big)
         self._can_go_back = False
         self.pending: str | None = None  # the action waiting for the operator's confirmation
+        # Log lines and items not yet on the widgets (before the screen is mounted; see _showing)
+        self._unshown: list = []
+        self._unfed: list = []
 
     def compose(self) -> ComposeResult:
         yield Static(self.title_text, id="title")
@@ -73,7 +76,7 @@ class ProcedureScreen(Screen):
         self.query_one("#live").border_title = "live"
         self.query_one("#log").border_title = "events"
         self.query_one("#confirm").display = False
-        self.refresh_view()
+        self._show_items()
 
     def on_resize(self) -> None:
         """A big terminal gives its room to the cube and the live bars, not only to the log."""
@@ -87,24 +90,37 @@ class ProcedureScreen(Screen):
 
     def add_items(self, items, telemetry: Telemetry) -> None:
         self.view.set_telemetry(telemetry)
-        log = self.query_one("#log", EventLog)
-        for item in items:
-            line = self.view.apply(item)
-            if line is not None:
-                log.write(line)
-        for panel in self.query(PlanPanel):
-            panel.feed(items)
-        self.refresh_view()
+        self._unshown.extend(line for item in items if (line := self.view.apply(item)) is not None)
+        self._unfed.extend(items)
+        if self._showing():
+            self._show_items()
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.view.set_telemetry(telemetry)
-        self.refresh_view()
+        if self._showing():
+            self.refresh_view()
 
     def finished(self, status: str) -> None:
         self.view.finished = status
-        self._ask(None)
+        if self._showing():
+            self._ask(None)
+            self.refresh_view()
+            self.refresh_bindings()
+
+    def _showing(self) -> bool:
+        """Whether the widgets are there to update: not before the screen is mounted, nor once the
+        app is closing, when a run's last messages can still arrive (under load CI saw one find no
+        PositionTiles). The view takes every item and reading either way; on_mount shows them."""
+        return self.is_mounted and self.is_attached
+
+    def _show_items(self) -> None:
+        log = self.query_one("#log", EventLog)
+        for line in self._unshown:
+            log.write(line)
+        for panel in self.query(PlanPanel):
+            panel.feed(self._unfed)
+        self._unshown, self._unfed = [], []
         self.refresh_view()
-        self.refresh_bindings()
 
     def refresh_view(self) -> None:
         view = self.view
