@@ -13,6 +13,7 @@ from fieldcal.export import export
 from fieldcal.model import PARAM_NAMES
 from fieldcal.paramfile import ParameterFile
 from fieldcal.thermal import ThermalModel
+from test_thermal_export import without_thermal
 
 REF, LOW, HIGH = 25.0, 15.0, 40.0
 ACC_TERMS = np.array([[3e-3, -5e-3, 8e-3], [1e-4, 0.0, -2e-4], [1e-6, 2e-6, 0.0]])  # m/s² per Kᵏ
@@ -109,11 +110,6 @@ def test_the_common_range_of_both_triads_is_written_and_what_it_cannot_hold_is_s
 
 
 def test_files_without_a_thermal_model_export_to_ardupilot_as_before():
-    pf = _file()
-    plain = ParameterFile(triads=tuple(Calibration(name=t.name, kind=t.kind, output_unit=t.output_unit,
-                                                   method=t.method, theta=t.theta, sigma=t.sigma,
-                                                   residual_rms=0.0) for t in pf.triads),
-                          provenance=pf.provenance)
-    text = export(plain, "ardupilot")
+    text = export(without_thermal(_file()), "ardupilot")
     assert "TCAL" not in text and "CALTEMP" not in text
     assert list(_params(text))[:2] == ["INS_ACCOFFS_X", "INS_ACCSCAL_X"]

@@ -81,10 +81,14 @@ def test_the_scale_drift_px4_cannot_hold_is_named_with_its_cost():
     assert "+50, -30, +40 ppm/K" in line and "worst error 0.75 mg at 1 g" in line
 
 
+def without_thermal(pf: ParameterFile) -> ParameterFile:
+    """``pf``'s calibrations as a file without a thermal model writes them."""
+    return ParameterFile(triads=tuple(Calibration(name=t.name, kind=t.kind, output_unit=t.output_unit,
+                                                  method=t.method, theta=t.theta, sigma=t.sigma,
+                                                  residual_rms=0.0) for t in pf.triads),
+                         provenance=pf.provenance)
+
+
 def test_files_without_a_thermal_model_export_as_before():
-    pf = _file()
-    plain = ParameterFile(triads=tuple(Calibration(name=t.name, kind=t.kind, output_unit=t.output_unit,
-                                                   method=t.method, theta=t.theta, sigma=t.sigma,
-                                                   residual_rms=0.0) for t in pf.triads),
-                          provenance=pf.provenance)
+    plain = without_thermal(_file())
     assert "TC_" not in export(plain, "px4")
