@@ -100,7 +100,7 @@ def bound_sigmas(design: Design, operator: OperatorModel, models: dict[str, Tria
     out = {}
     for name, model in models.items():
         try:
-            sigmas, ends = _triad_sigmas(model, windows, attitudes, design.rate_deg_s, station, rate_hz, seconds)
+            sigmas, ends = triad_sigmas(model, windows, attitudes, design.rate_deg_s, station, rate_hz, seconds)
         except np.linalg.LinAlgError:  # too few positions to tell the parameters apart
             out[name] = np.full(9, np.inf)
             continue
@@ -118,7 +118,7 @@ def window_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: floa
     out = {}
     for name, model in models.items():
         try:
-            out[name] = _triad_sigmas(model, windows, attitudes, rate_deg_s, station, rate_hz)
+            out[name] = triad_sigmas(model, windows, attitudes, rate_deg_s, station, rate_hz)
         except np.linalg.LinAlgError:  # too few positions to tell the parameters apart
             out[name] = np.full(9, np.inf)
     return out
@@ -136,7 +136,7 @@ def end_bias_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: fl
     out = {}
     for name, model in models.items():
         try:
-            ends = _triad_sigmas(model, windows, attitudes, rate_deg_s, station, rate_hz, end_s)[1]
+            ends = triad_sigmas(model, windows, attitudes, rate_deg_s, station, rate_hz, end_s)[1]
         except np.linalg.LinAlgError:
             out[name] = (np.full(3, np.nan), np.full(3, np.nan))
             continue
@@ -145,9 +145,11 @@ def end_bias_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: fl
     return out
 
 
-def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
-                  station: Station, rate_hz: float, end_s: float | None = None):
-    """The 9 σ of a triad's bound; with ``end_s``, (those σ, EndBiasBound at end_s)."""
+def triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray, rate_deg_s: float,
+                 station: Station, rate_hz: float, end_s: float | None = None, thermal=None):
+    """The 9 σ of a triad's bound; with ``end_s``, (those σ, EndBiasBound at end_s). ``thermal``:
+    a function of the windows used, in the solver's data order, to the ``ThermalTerms`` the bound
+    also covers (their σ follow the nine)."""
     up_body = attitudes[:, 2, :]
     theta = params_from_k(model.sensitivity, np.zeros(3))
 
@@ -160,7 +162,8 @@ def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarra
     if model.kind == SPECIFIC_FORCE:
         static = [w for w in windows if w.kind == STATIC]
         cov = average_covariance(model, static, rate_hz)
-        bound = specific_force_bound(theta, up_body, station.gravity, cov, end(static))
+        bound = specific_force_bound(theta, up_body, station.gravity, cov, end(static),
+                                     thermal=thermal(static) if thermal else None)
     elif model.kind == ANGULAR_RATE:
         # The solver's data order: every +ω window, every −ω window, every static one.
         ordered = [w for kind in (PLUS, MINUS, STATIC) for w in windows if w.kind == kind]
@@ -172,7 +175,8 @@ def _triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarra
             raise np.linalg.LinAlgError("no rate step: the scale factors are not determined")
         rates = [w.table_rate or np.radians(rate_deg_s) for w in plus]
         bound = angular_rate_bound(theta, up_body, np.array(rates), north_body, EARTH_RATE,
-                                   station.latitude_rad, cov, [w.position for w in plus], end(ordered))
+                                   station.latitude_rad, cov, [w.position for w in plus], end(ordered),
+                                   thermal=thermal(ordered) if thermal else None)
     else:
         raise ValueError(f"unknown triad kind {model.kind!r}")
     ends = None

@@ -13,12 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from fieldcal.earth import EARTH_RATE, Station
-from fieldcal.model import ANGULAR_RATE, SPECIFIC_FORCE, params_from_k
-from fieldcal.planning.design import Design, OperatorModel, timeline
-from fieldcal.procedure.windows import MINUS, PLUS, STATIC
-from fieldcal.solvers.crb import ThermalTerms, angular_rate_bound, specific_force_bound
-from fieldcal.solvers.solve import TriadModel, average_covariance
+from fieldcal.earth import Station
+from fieldcal.planning.design import Design, OperatorModel, timeline, triad_sigmas
+from fieldcal.solvers.crb import ThermalTerms
+from fieldcal.solvers.solve import TriadModel
 
 # The thermal targets' groups: b₁ per axis in the triad's bias unit per kelvin, s₁ in ppm/K.
 THERMAL_GROUPS = ("bias_drift", "scale_drift")
@@ -32,32 +30,17 @@ def drift_sigmas_per_kelvin(design: Design, operator: OperatorModel, models: dic
     second to its last; nan where the design cannot tell the parameters apart."""
     windows, end_s = timeline(design, operator)
     attitudes = np.array(design.attitudes)
-    up_body = attitudes[:, 2, :]
+
+    def steady_1k(used) -> ThermalTerms:
+        mid_s = np.array([w.start + w.duration / 2 for w in used])
+        return ThermalTerms(delta_t=mid_s / end_s - 0.5, bias_terms=np.zeros((1, 3)), scale_drift=np.zeros(3))
+
     out = {}
     for name, model in models.items():
-        theta = params_from_k(model.sensitivity, np.zeros(3))
-        if model.kind == SPECIFIC_FORCE:
-            used = [w for w in windows if w.kind == STATIC]
-        else:  # the solver's data order: every +ω window, every −ω window, every static one
-            used = [w for kind in (PLUS, MINUS, STATIC) for w in windows if w.kind == kind]
-        mid_s = np.array([w.start + w.duration / 2 for w in used])
-        thermal = ThermalTerms(delta_t=mid_s / end_s - 0.5, bias_terms=np.zeros((1, 3)), scale_drift=np.zeros(3))
-        cov = average_covariance(model, used, rate_hz)
         try:
-            if model.kind == SPECIFIC_FORCE:
-                bound = specific_force_bound(theta, up_body, station.gravity, cov, thermal=thermal)
-            elif model.kind == ANGULAR_RATE:
-                plus = [w for w in windows if w.kind == PLUS]
-                if not plus:
-                    raise np.linalg.LinAlgError("no rate step")
-                rates = np.array([w.table_rate or np.radians(design.rate_deg_s) for w in plus])
-                bound = angular_rate_bound(theta, up_body, rates, attitudes[:, 1, :], EARTH_RATE,
-                                           station.latitude_rad, cov, [w.position for w in plus], thermal=thermal)
-            else:
-                raise ValueError(f"unknown triad kind {model.kind!r}")
-            with np.errstate(invalid="ignore"):
-                sigmas = np.sqrt(np.diag(bound))[9:15]
-        except np.linalg.LinAlgError:
+            sigmas = triad_sigmas(model, windows, attitudes, design.rate_deg_s, station, rate_hz,
+                                  thermal=steady_1k)[9:15]
+        except np.linalg.LinAlgError:  # too few positions, or no rate step for a gyro
             sigmas = np.full(6, np.nan)
         out[name] = {"bias_drift": sigmas[:3], "scale_drift": sigmas[3:]}
     return out
