@@ -20,6 +20,11 @@ $(STAMP): pyproject.toml $(CONSTRAINTS)
 demo: $(STAMP)
 	$(BIN)/fieldcal run --config configs/sim.yaml --procedure field-18 --headless --seed 1
 
+# Bytecode caches (the gitignored __pycache__ folders) are written even where PYTHONDONTWRITEBYTECODE
+# is set: without them every xdist worker compiles and assert-rewrites all the test modules again
+# (4 s of CPU each at every run, half of its start-up) and every CLI subprocess compiles fieldcal.
+test test-fast: export PYTHONDONTWRITEBYTECODE =
+
 # One worker per core (pytest-xdist); `make test PYTEST_ARGS=...` adds options. loadgroup: the
 # tests sharing an expensive module fixture run on one worker, which builds it once (conftest.py).
 test: $(STAMP)
