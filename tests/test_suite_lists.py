@@ -56,3 +56,25 @@ def test_the_users_of_a_shared_fixture_run_as_one_xdist_group(tmp_path):
     for name in ("test_one", "test_two"):
         assert f"PASSED test_grouped.py::{name}@test_grouped.py:solved" in done.stdout, done.stdout
     assert "PASSED test_grouped.py::test_alone\n" in done.stdout.replace(" \n", "\n"), done.stdout
+
+
+def test_every_test_file_keeps_a_fast_test_unless_the_list_names_it_whole():
+    """`make test-fast` covers every module: a file whose every test function the slow list names
+    (without a parameter, so all its cases) has dropped out of the fast loop unnoticed; a file
+    meant to be slow as a whole is named alone. (Tests made slow by their fixture, conftest's
+    SLOW_FIXTURES, are not seen here.)"""
+    listed = [node_id.removeprefix("tests/") for node_id in slow_test_ids()]
+    whole = {entry for entry in listed if "::" not in entry}
+    every_case: dict[str, set[str]] = {}
+    for entry in listed:
+        path, _, name = entry.partition("::")
+        if name and "[" not in name:
+            every_case.setdefault(path, set()).add(name)
+    without_fast = []
+    for file in sorted(TESTS.rglob("test_*.py")):
+        path = file.relative_to(TESTS).as_posix()
+        tests = {name for name in DEF_LINE.findall(file.read_text(encoding="utf-8")) if name.startswith("test")}
+        if path not in whole and tests and tests <= every_case.get(path, set()):
+            without_fast.append(path)
+    assert len(whole) >= 1 and every_case  # the list was read
+    assert not without_fast, f"every test of these files is in {SLOW_LIST.name}: name the file alone, or keep one fast: {without_fast}"
