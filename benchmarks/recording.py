@@ -201,6 +201,20 @@ def scaling(repeats: int) -> None:
             own = r.cpu_s - floor if tool != "imu_tk" else r.cpu_s
             base = first.cpu_s - floor if tool != "imu_tk" else first.cpu_s
             print(f"| {r.label} | {r.cpu_s:.2f} s | {own:.2f} s | {own / base / copies:.2f}× | {r.peak_mib:.0f} MiB |")
+    if "imu_tk 1×" in rows:
+        print("\n".join(joined_side_by_side(rows)))
+
+
+def joined_side_by_side(rows) -> list[str]:
+    """Markdown rows: at each join, fieldcal's and imu_tk's medians from the same rounds and
+    their ratios (process CPU and peak RSS, the import floor included, as each user pays it)."""
+    lines = ["| join | fieldcal CPU | imu_tk CPU | CPU ÷ imu_tk | fieldcal peak RSS | imu_tk peak RSS | RSS ÷ imu_tk |",
+             "|---|---|---|---|---|---|---|"]
+    for copies in JOINS:
+        ours, peer = rows[f"fieldcal calibrate {copies}×"], rows[f"imu_tk {copies}×"]
+        lines.append(f"| {copies}× | {ours.cpu_s:.2f} s | {peer.cpu_s:.2f} s | {ours.cpu_s / peer.cpu_s:.2f}× | "
+                     f"{ours.peak_mib:.0f} MiB | {peer.peak_mib:.0f} MiB | {ours.peak_mib / peer.peak_mib:.3f}× |")
+    return lines
 
 
 def accuracy(runs: int) -> tuple[np.ndarray, np.ndarray]:

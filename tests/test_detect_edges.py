@@ -138,3 +138,15 @@ def test_window_variances_are_np_vars_own_steps_without_a_copy_of_the_samples():
         assert np.array_equal(variance, want) and np.array_equal(mean, means)
         np.testing.assert_allclose(variance, blocks.var(axis=1), rtol=1e-12)
         assert peak < 4 << 20  # two chunks of deviations (~1.5 MiB each) at most, whatever the length
+
+
+def test_row_sums_are_numpys_row_sums_bit_for_bit():
+    """Summed column by column, in numpy's own order: the same bits as ``sum(axis=1)`` on values
+    of every magnitude (the other order, a0 + (a1 + a2), differs in some)."""
+    from fieldcal.recording.detect import row_sums
+
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(100_000, 3)) * 10.0 ** rng.integers(-8, 8, size=(100_000, 3))
+    assert np.array_equal(row_sums(values), values.sum(axis=1))
+    assert not np.array_equal(values[:, 0] + (values[:, 1] + values[:, 2]), values.sum(axis=1))
+    assert np.array_equal(row_sums(values[:, :1]), values[:, 0])

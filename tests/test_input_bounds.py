@@ -305,3 +305,31 @@ def test_a_dataflash_log_with_an_erased_tail_imports_its_messages_within_300mb(t
     assert "recording: 45 samples" in out.stdout
     warning = next(line for line in (out.stdout + out.stderr).splitlines() if "DAMAGED" in line)
     assert f"the last {os.path.getsize(path) - 65557} of its {os.path.getsize(path)} bytes were not read" in warning
+
+
+def test_zero_pages_are_counted_wherever_they_sit_among_text_and_stray_nuls(tmp_path):
+    """The zero count (``_zero_bytes``) against a count of the file's whole zero pages made
+    independently from its bytes: text blocks with no NUL (skipped by one memchr), stray NULs
+    that fill no page, and zero pages written out at the start of a block, across a block's end
+    and inside one, in blocks of several sizes."""
+    import numpy as np
+
+    from fieldcal.recording import inputs
+
+    page, block = inputs.PAGE, inputs.COUNT_BLOCK
+    rng = np.random.default_rng(7)
+    text = (b"0.010000 33108 33329 36429\n" * (3 * block // 27 + 1))[:3 * block]
+    data = bytearray(text)
+    for at in rng.integers(0, len(data), 50):  # stray NULs: no whole page
+        data[at] = 0
+    for first, pages in ((0, 3), (block - 2 * page, 5), (2 * block + 7 * page, 1)):
+        data[first:first + pages * page] = bytes(pages * page)
+    path = tmp_path / "mixed.txt"
+    path.write_bytes(bytes(data))
+    whole = np.frombuffer(bytes(data), dtype=np.uint8).reshape(-1, page)
+    expected = page * int(np.count_nonzero(~whole.any(axis=1)))
+    assert expected == 9 * page
+    # Just below the true count, the count stops at neither early end (the rest could still pass
+    # it; it has not passed it yet) before every zero page is counted.
+    with open(path, "rb", buffering=0) as f:
+        assert inputs._zero_bytes(f, len(data), limit=expected - 0.5) == expected

@@ -136,6 +136,18 @@ def test_rails_are_runs_at_the_extreme_value_not_single_peaks():
     assert not rail_samples(np.ones((10, 3))).any()  # a constant axis is not clipped
 
 
+def test_rails_at_the_recordings_ends_and_extremes_reached_often_but_never_in_a_row():
+    """A joined recording reaches each extreme once per copy, never twice in a row: no rail. Rails
+    that start at the first sample or end at the last are found to their ends."""
+    values = np.tile([[0.0, 0.0, 0.0]], (20, 1)) + 0.01 * (np.arange(20)[:, None] % 4)
+    values[[2, 6, 10, 14, 18], 0] = 9.0  # the top five times, always apart
+    values[0:3, 1] = -7.0  # the bottom from the first sample
+    values[16:20, 2] = 8.0  # the top to the last sample
+    values[5, 2] = -1.0  # its bottom once
+    assert np.flatnonzero(rail_samples(values)).tolist() == [0, 1, 2, 16, 17, 18, 19]
+    assert saturated_spans(values, np.array([[3, 16], [15, 17], [0, 1]])).tolist() == [False, True, True]
+
+
 def test_still_bias_fits_g_sensitivity_and_drift_and_centres_the_drift():
     """Readings = bias + G·up + drift·t exactly: the bias at the centre comes out to rounding,
     whatever the orientations and the drift."""

@@ -142,8 +142,17 @@ def window_statistic(acc: np.ndarray, rate_hz: float, settings: DetectorSettings
     # Squared twice in place (norm's own steps, the same numbers): no n-long temporaries beside it.
     var = sliding_std(acc, 2 * half + 1, ddof=0)
     np.square(var, out=var)
-    stat = np.sqrt(np.square(var, out=var).sum(axis=1))
+    stat = np.sqrt(row_sums(np.square(var, out=var)))
     return np.pad(stat, (half, len(acc) - len(stat) - half), mode="edge")
+
+
+def row_sums(values: np.ndarray) -> np.ndarray:
+    """(n,) sums of the rows of ``values`` (n, d), column by column: the additions, in their
+    order, of ``values.sum(axis=1)`` (which numpy runs d numbers at a time: ~5× slower at d = 3)."""
+    total = values[:, 0].copy()
+    for column in range(1, values.shape[1]):  # d columns: three for a triad
+        total += values[:, column]
+    return total
 
 
 QUIET_PERCENTILE = 10.0  # the quietest windows: within QUIET_SPAN times this percentile

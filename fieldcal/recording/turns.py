@@ -26,7 +26,7 @@ import numpy as np
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
 from fieldcal.recording.detect import (DetectorSettings, NoiseLevel, Poses, distinct_poses, interval_means,
-                                       quiet_windows, true_runs, up_directions)
+                                       quiet_windows, row_sums, true_runs, up_directions)
 
 GATE_SIGMAS = 20.0  # half-second gyro mean this many of its σ from the still level: turning
 SHIFT_MULTIPLE = 5.0  # ... and this many times the quiet windows' typical shift
@@ -94,7 +94,7 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     low = max(GATE_SIGMAS * sigma / math.sqrt(n), SHIFT_MULTIPLE * shift)
     high = max(low, math.radians(MIN_TURN_DEG_S) * units_per_rad_s) if units_per_rad_s else low
     smooth = _moving_mean(gyro, n, offset=level)
-    rate = np.linalg.norm(smooth, axis=1)
+    rate = np.sqrt(row_sums(np.square(smooth)))  # norm's own steps, its rows summed column by column
     # A turn is a stretch above the high gate, and all of it, down to the low one on either side
     # (its slow start and stop are still motion).
     runs = true_runs(rate > low)

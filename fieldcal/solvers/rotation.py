@@ -815,7 +815,11 @@ def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, 
     is in σ units): Gauss–Newton steps on a Jacobian made afresh (``jac(z)``) after a
     step longer than _FAR σ and otherwise kept current by Broyden's rank-one updates (no
     evaluations of their own), each step halved until it lowers the cost. (z, iterations) once
-    a step is below _SEARCH_TOL σ: the polish takes it from there."""
+    a step is below _SEARCH_TOL σ: the polish takes it from there.
+
+    Where a long step would land, the Jacobian is made before fun is asked: solve_rotations'
+    ``jac`` keeps the residuals its integration gives, so fun finds them made (one integration
+    saved per long step taken; a step that fails has cost a Jacobian instead of an evaluation)."""
     z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
     cost = float(r @ r)
     for iteration in range(1, _MAX_ITERATIONS + 1):
@@ -823,6 +827,7 @@ def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, 
         if np.linalg.norm(dz) < _SEARCH_TOL:
             return z, iteration
         for _ in range(8):
+            J_there = jac(z + dz) if np.linalg.norm(dz) > _FAR else None
             r_new = fun(z + dz)
             if float(r_new @ r_new) <= cost:
                 break
@@ -835,8 +840,8 @@ def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, 
             continue
         r_old = r
         z, r, cost, fresh = z + dz, r_new, float(r_new @ r_new), False
-        if np.linalg.norm(dz) > _FAR:  # far from the optimum: the curvature has changed much
-            J = jac(z)
+        if J_there is not None:  # far from the optimum: the curvature has changed much
+            J = J_there
             fresh = True
         else:
             J = J + np.outer(r - r_old - J @ dz, dz) / float(dz @ dz)
@@ -870,7 +875,9 @@ def _polish(whitened, jacobian, theta, natural):
     Jacobians made afresh (``jacobian(theta)``, the covariance's), so that the optimum does not
     depend on the search's approximate Jacobian, until a step is below _STEP_TOL σ. The Jacobian is made afresh
     after a step longer than _POLISH_DONE σ (or one that fails); shorter ones reuse it (chord
-    steps, one evaluation each). The Jacobian returned is the last one made."""
+    steps, one evaluation each). The Jacobian returned is the last one made. After a longer step
+    it is made before the residuals are asked, as in _broyden_gauss_newton (its integration
+    gives them)."""
     r = whitened(theta)
     J, fresh = jacobian(theta) * natural, True
     for _ in range(20):
@@ -878,6 +885,7 @@ def _polish(whitened, jacobian, theta, natural):
         size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
         if size < _STEP_TOL:
             break
+        J_there = jacobian(theta + natural * d) * natural if size > _POLISH_DONE else None
         r_new = whitened(theta + natural * d)
         if float(r_new @ r_new) > float(r @ r):
             if fresh:
@@ -885,8 +893,8 @@ def _polish(whitened, jacobian, theta, natural):
             J, fresh = jacobian(theta) * natural, True
             continue
         theta, r = theta + natural * d, r_new
-        if size > _POLISH_DONE:
-            J, fresh = jacobian(theta) * natural, True
+        if J_there is not None:
+            J, fresh = J_there, True
         else:
             fresh = False
     return theta, r, J
@@ -927,13 +935,14 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     count = [0]
     recent: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # theta: (residuals, whitened)
 
-    def evaluated(theta):
+    def evaluated(theta, rotations=None):
         """The residuals at theta and them whitened; the last few kept, as the search hands its
-        last point to the polish and the polish its optimum to the result."""
+        last point to the polish and the polish its optimum to the result (``rotations``: the
+        rotation residuals at theta when an integration has given them already)."""
         key = theta.tobytes()
         if key not in recent:
             count[0] += 1
-            r = np.r_[model.rotations(theta), model.side(theta)]
+            r = np.r_[model.rotations(theta) if rotations is None else rotations, model.side(theta)]
             if len(recent) >= 4:
                 del recent[next(iter(recent))]
             recent[key] = r, (r if whiten is None else whiten @ r)
@@ -952,8 +961,11 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     Q, R = np.linalg.qr(J0)
     to_theta = natural[:, None] * np.linalg.inv(R)
     def jacobian(theta):
-        """Of whitened: the rotations' exact, the side residuals' by forward differences."""
-        J = model.jacobian(theta)[1][:, 3 - nb:]
+        """Of whitened: the rotations' exact, the side residuals' by forward differences. The
+        rotations its integration gives are kept as evaluated's."""
+        rotations, J, _ = model.jacobian(theta)
+        evaluated(theta, rotations)
+        J = J[:, 3 - nb:]
         if n_side:
             J = np.vstack([J, _jacobian(model.side, theta, fd_steps, central=False)])
         return J if whiten is None else whiten @ J
