@@ -376,7 +376,11 @@ def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_
 
 def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tmp_path):
     """Quit after one step of a VectorNav run: the question says a resume measures the 1
-    completed step again, and the resume does exactly that (same count, same reason)."""
+    completed step again, and the resume does exactly that (same count, same reason): nothing in
+    its frames tells a restart, so the completed step is taken as maybe power-cycled. (This run
+    was also test_tui_resume's "a device whose frames carry no clock is taken as power-cycled":
+    its checks are here, on one real-time run instead of two.)"""
+    from fieldcal.session.capture import SessionReader
     from tests.test_tui_keys import confirm_text
     from tests.test_tui_resume import (SHORT, WorldClock, _first_step, _live_app, _resume,
                                        vectornav_config as with_vectornav, without_table)
@@ -397,6 +401,7 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
             question = confirm_text(app)
             await pilot.press("y")
         assert app.source.done.wait(60.0) and app.source.outcome.status == "stopped"
+        assert f"fieldcal tui --resume {tmp_path / 'session'} --config" in app.source.outcome.message
         return question
 
     @run_async
@@ -406,16 +411,21 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
 
     try:
         question = quit_after_one_step()
+        (first,) = SessionReader(tmp_path / "session").steps()
         app, banner, log = resume()
     finally:
         devices.stop()
+    assert set(first["bench"]["device_clock"]) == {"host_utc"}  # the host's time alone
     assert "1 of 2 positions done" in question
     assert ("this device's frames carry no clock, so a resume cannot show the unit stayed powered: it "
             "measures the 1 completed step again.") in " ".join(question.split())
     assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
                              "changed; the 1 completed step is measured again")
-    assert "so that it stayed powered cannot be shown" in log
+    assert "its frames carry no packet counter or time, so that it stayed powered cannot be shown" in log
     assert app.outcome.status == "completed" and app.outcome.completed == 2
+    (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
+    assert resume["completed_steps"] == [] and resume["dropped"] == [0]
+    assert "may have been power-cycled since" in resume["why"]
 
 
 @pytest.mark.parametrize("bad", ["-1", "nan", "inf", "much"])
