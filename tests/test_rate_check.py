@@ -79,10 +79,11 @@ async def _run_until_held_or_waiting(tmp_path, config):
 
 # The rate said is checked to 1 % where the device's clock gives it; from the host's arrival
 # times it is the host's wall clock, which a loaded machine moves (506.1 Hz was said at load 14,
-# 2026-11-27): there the check is that it is the device's rate, not the config's (250) nor twice
-# it, and the 1 % arithmetic is test_rates_by_hand's, on hand-made arrival times.
+# 2026-11-27; 564.7 Hz at load 13 plus two `yes`, when the simulator, starved, caught up in a
+# burst): there the check is that it is the device's rate, not the config's (250) nor twice it
+# (1000), so within 25 %; the 1 % arithmetic is test_rates_by_hand's, on hand-made arrival times.
 @pytest.mark.parametrize("protocol, speed, how, rel", [
-    ("vectornav", 1.0, "from the host's arrival times", 0.1),  # the repro: no device clock
+    ("vectornav", 1.0, "from the host's arrival times", 0.25),  # the repro: no device clock
     ("xsens", 0.0, "from the device's clock", 0.01),  # its SampleTimeFine, however fast it is read
 ])
 @run_async
