@@ -243,9 +243,13 @@ def served_on_pty(seed: int) -> SimulatedDevices:
 
 async def place(app, pilot, devices, procedure, step: int) -> None:
     """The operator places the unit for ``step`` and says ready; the run goes on past it."""
+    from tests.test_tui_resume import log_text
     from tests.tui_pilot import until, waiting_at
 
-    await until(pilot, lambda: waiting_at(app, step))
+    try:
+        await until(pilot, lambda: waiting_at(app, step))
+    except AssertionError:  # (what the station said instead: a break it judged, a lost port)
+        raise AssertionError(f"the run never waited at step {step}; its log: {log_text(app)[-3000:]}") from None
     devices.carry(procedure.positions[step].attitude, CARRY_S).result(timeout=60)
     await pilot.press("r")
     await until(pilot, lambda: app.outcome is not None or (app.telemetry.step > step and not app.telemetry.waiting)
