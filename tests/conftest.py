@@ -98,7 +98,7 @@ SLOW_LIST = Path(__file__).parent / "slow_tests.txt"
 SLOW_FIXTURES = {"planned"}
 SHARED_FIXTURES = {"planned", "session", "serial_session", "pristine_session", "headless_classic12",
                    "headless_field18", "classic12_session", "solved", "xsens", "ferraris", "imucal_result",
-                   "mishap_run", "mypy_cache"}
+                   "mishap_run", "mypy_cache", "clockless_cycled_run"}
 
 
 def slow_test_ids() -> set[str]:

@@ -215,20 +215,22 @@ def test_a_turn_on_bias_spread_is_a_finite_number_at_least_zero(bad):
 # --- a VectorNav unit on a pty, in the terminal UI --------------------------------------------
 
 def static_12():
-    """Twelve of field-18's positions (each axis up and down, and the six tilted ones) with 2 s
-    dwells and no table: the accelerometer's nine parameters solve, the gyroscope's do not."""
+    """Twelve of field-18's positions (each axis up and down, and the six tilted ones) with 1 s
+    dwells and no table: the accelerometer's nine parameters solve, the gyroscope's do not. (The
+    unit is served in real time; 1 s dwells keep the σ checks' power: see the cycled run's test.)"""
     import yaml
 
     from fieldcal.procedure.positions import load_procedure, parse_procedure
 
     doc = yaml.safe_load(load_procedure("field-18").text)
     doc.pop("rate_step")
-    doc.update(name="static-12", dwell_s=2,
+    doc.update(name="static-12", dwell_s=1,
                positions=[p for p in doc["positions"] if p["id"] in (1, 3, 5, 7, 9, 11, 13, 14, 15, 16, 17, 18)])
     return parse_procedure(yaml.safe_dump(doc, allow_unicode=True), "static-12.yaml")
 
 
 SPREAD = TurnOnBias(gyro_deg_s=0.05, accel_mg=2.0)  # a MEMS unit's bias repeatability, about
+CARRY_S = 0.5  # the operator's hands, in real time: long enough to be seen moving, no longer
 
 
 def served_on_pty(seed: int) -> SimulatedDevices:
@@ -241,10 +243,14 @@ def served_on_pty(seed: int) -> SimulatedDevices:
 
 async def place(app, pilot, devices, procedure, step: int) -> None:
     """The operator places the unit for ``step`` and says ready; the run goes on past it."""
+    from tests.test_tui_resume import log_text
     from tests.tui_pilot import until, waiting_at
 
-    await until(pilot, lambda: waiting_at(app, step))
-    devices.carry(procedure.positions[step].attitude, 1.0).result(timeout=60)
+    try:
+        await until(pilot, lambda: waiting_at(app, step))
+    except AssertionError:  # (what the station said instead: a break it judged, a lost port)
+        raise AssertionError(f"the run never waited at step {step}; its log: {log_text(app)[-3000:]}") from None
+    devices.carry(procedure.positions[step].attitude, CARRY_S).result(timeout=60)
     await pilot.press("r")
     await until(pilot, lambda: app.outcome is not None or (app.telemetry.step > step and not app.telemetry.waiting)
                 or waiting_at(app, step + 1))
@@ -279,104 +285,106 @@ LATE_AT = 2  # steps completed when the unit's bytes come late (a backlog: they 
 BEFORE_CYCLE = 6  # steps completed when the unit is switched off and on: each axis up and down
 
 
-def run_static_12(tmp_path, devices, cycle: bool):
-    """The operator through ``static_12`` on a VectorNav unit served on a pty, its port open
-    throughout (a powered adapter). After LATE_AT steps its bytes come 4 s late, all at once
-    (nothing lost). With ``cycle``, after BEFORE_CYCLE steps the unit is off for 3 s, and the run
-    is followed from the station's restart of it. The app, the banner after the cycle ("" without
-    one), the whole log and the log just after the late delivery."""
+@pytest.fixture(scope="module")
+def clockless_cycled_run(tmp_path_factory):
+    """The operator through ``static_12`` on a VectorNav unit served on a pty in real time, its
+    port open throughout (a powered adapter). After LATE_AT steps its bytes come 4 s late, all at
+    once (nothing lost: longer than the station's 3 s silence warning and ClocklessStream's 2 s
+    slack); after BEFORE_CYCLE steps the unit is off for 3 s (beyond that slack too), and the run
+    is followed from the station's restart of it to its end. One run, for the two tests below:
+    each asserts its own part of it (the late delivery; the power cycle)."""
     from tests.test_tui import on_results
     from tests.test_tui_resume import _live_app, log_text, vectornav_config as with_vectornav, without_table
     from tests.tui_pilot import run_async, until, waiting_at
 
+    tmp_path = tmp_path_factory.mktemp("clockless")
     procedure = static_12()
+    devices = served_on_pty(5)
+    first_bias = devices.truth["accelerometer"].bias
 
     @run_async
     async def run():
         app = _live_app(tmp_path, without_table(tmp_path, devices, with_vectornav), procedure,
                         lambda: devices.world_time)
-        banner, late_log = "", ""
         async with app.run_test(size=(80, 24)) as pilot:
-            for step in range(BEFORE_CYCLE if cycle else len(procedure.positions)):
+            for step in range(BEFORE_CYCLE):
                 if step == LATE_AT:  # the unit runs on; its bytes come 4 s late, all at once
                     await until(pilot, lambda: waiting_at(app, LATE_AT))
                     devices.deliver_late(4.0).result(timeout=60)
                 await place(app, pilot, devices, procedure, step)
                 if step == LATE_AT:
                     late_log = log_text(app)
-            if cycle:
-                await until(pilot, lambda: waiting_at(app, BEFORE_CYCLE))
-                devices.power_cycle(8, off_s=3.0).result(timeout=60)
-                await until(pilot, lambda: "stayed open" in log_text(app) and waiting_at(app, 0)
-                            and app.telemetry.silent_s is None)
-                banner = str(app.screen.query_one("#banner").render())
-                for step in range(len(procedure.positions)):
-                    await place(app, pilot, devices, procedure, step)
+            await until(pilot, lambda: waiting_at(app, BEFORE_CYCLE))
+            devices.power_cycle(8, off_s=3.0).result(timeout=60)
+            await until(pilot, lambda: "stayed open" in log_text(app) and waiting_at(app, 0)
+                        and app.telemetry.silent_s is None)
+            banner = str(app.screen.query_one("#banner").render())
+            for step in range(len(procedure.positions)):
+                await place(app, pilot, devices, procedure, step)
             await until(pilot, lambda: app.outcome is not None and on_results(app))
             return app, banner, log_text(app), late_log
 
-    return run()
-
-
-def test_a_clockless_unit_that_stays_powered_keeps_its_steps_through_a_late_delivery_and_solves_to_its_truth(
-        tmp_path):
-    """The unit stays powered; its bytes come 4 s late once (the station sees the silence): the
-    run goes on after the step it had completed, keeping every step, and the accelerometer
-    solves to the truth within its σ."""
-    from fieldcal.session.capture import SessionReader
-
-    devices = served_on_pty(5)
     try:
-        app, _, log, late_log = run_static_12(tmp_path, devices, cycle=False)
+        app, banner, log, late_log = run()
         solved = app.outcome.unit.solutions["accelerometer"]
         errors = accelerometer_errors(solved, devices, solved.sigma)
     finally:
         devices.stop()
-    assert "WARNING: no samples from" in late_log  # the station saw the gap,
-    assert "samples never came" not in log and "power-cycled" not in log  # and kept the steps
-    reader = SessionReader(tmp_path / "session")
-    assert list(reader.documents("resume")) == [] and [d["step"] for d in reader.steps()] == list(range(12))
-    assert app.outcome.status == "completed" and app.outcome.completed == 12
-    assert np.all(np.abs(errors) < 4.0), errors
+    return SimpleNamespace(session=tmp_path / "session", app=app, banner=banner, log=log, late_log=late_log,
+                           solved=solved, errors=errors, devices=devices, first_bias=first_bias)
 
 
-def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_solves_to_its_new_bias(tmp_path):
-    """As above, and after six steps the unit is off for 3 s: the station cannot show it stayed
-    powered, says so, and measures those steps again; the accelerometer solves to this
-    switch-on's bias within its σ, where keeping the six steps from before would be off by many σ."""
+def test_a_clockless_units_late_delivery_keeps_the_steps_before_it(clockless_cycled_run):
+    """The unit stays powered; its bytes come 4 s late once (the station sees the silence): the
+    run goes on after the step it had completed, keeping every step before it, until the power
+    cycle later drops them all at once."""
+    from fieldcal.session.capture import SessionReader
+
+    run = clockless_cycled_run
+    assert "WARNING: no samples from" in run.late_log  # the station saw the gap,
+    assert "samples never came" not in run.late_log and "power-cycled" not in run.late_log  # and kept the steps:
+    reader = SessionReader(run.session)
+    # the one resume is the power cycle's, and it drops the steps from before the late delivery too
+    (resume,) = [d["data"] for d in reader.documents("resume")]
+    assert resume["dropped"] == list(range(BEFORE_CYCLE)) and set(range(LATE_AT + 1)) <= set(resume["dropped"])
+    assert [d["step"] for d in reader.steps()][:BEFORE_CYCLE] == list(range(BEFORE_CYCLE))  # each measured once
+
+
+def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_solves_to_its_new_bias(
+        clockless_cycled_run):
+    """After six steps the unit is off for 3 s: the station cannot show it stayed powered, says
+    so, and measures those steps again; the accelerometer solves to this switch-on's bias within
+    its σ, where keeping the six steps from before would be off by many σ."""
     from fieldcal.run.runner import open_run
     from fieldcal.session.capture import SessionReader
 
-    devices = served_on_pty(5)
-    first_bias = devices.truth["accelerometer"].bias
-    try:
-        app, banner, log, late_log = run_static_12(tmp_path, devices, cycle=True)
-        solved = app.outcome.unit.solutions["accelerometer"]
-        errors = accelerometer_errors(solved, devices, solved.sigma)
-    finally:
-        devices.stop()
-    assert np.abs(devices.truth["accelerometer"].bias - first_bias).max() > 1.0 * MG  # a new switch-on
-    assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
-                             f"changed; the {BEFORE_CYCLE} completed steps are measured again")
-    assert "WARNING: no samples from" in late_log  # the station saw the gap,
-    assert "samples never came" not in late_log and "power-cycled" not in late_log  # and kept the steps
-    assert "samples never came: it stopped sending, so that it stayed powered cannot be shown" in log
-    reader = SessionReader(tmp_path / "session")
+    run = clockless_cycled_run
+    app, devices = run.app, run.devices
+    assert np.abs(devices.truth["accelerometer"].bias - run.first_bias).max() > 1.0 * MG  # a new switch-on
+    assert run.banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
+                                 f"changed; the {BEFORE_CYCLE} completed steps are measured again")
+    assert "samples never came: it stopped sending, so that it stayed powered cannot be shown" in run.log
+    reader = SessionReader(run.session)
     (resume,) = [d["data"] for d in reader.documents("resume")]
     assert resume["completed_steps"] == [] and resume["dropped"] == list(range(BEFORE_CYCLE))
     assert [d["step"] for d in reader.steps()] == list(range(BEFORE_CYCLE)) + list(range(12))
-    assert app.outcome.status == "completed" and "gyroscope" in app.outcome.unit.failures
-    assert np.all(np.abs(errors) < 4.0), errors
+    assert app.outcome.status == "completed" and app.outcome.completed == 12
+    assert "gyroscope" in app.outcome.unit.failures
+    assert np.all(np.abs(run.errors) < 4.0), run.errors
     # The test can fail: the same session solved with the steps from before the cycle kept.
-    mixed = mixed_solution(tmp_path / "session", open_run(tmp_path / "session").spec)
+    mixed = mixed_solution(run.session, open_run(run.session).spec)
     # (against the σ the honest run reached: the mixed solve's own is swollen by its residuals)
-    mixed_errors = accelerometer_errors(mixed.solutions["accelerometer"], devices, solved.sigma)
+    mixed_errors = accelerometer_errors(mixed.solutions["accelerometer"], devices, run.solved.sigma)
     assert np.abs(mixed_errors).max() > 10.0, mixed_errors
 
 
 def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tmp_path):
     """Quit after one step of a VectorNav run: the question says a resume measures the 1
-    completed step again, and the resume does exactly that (same count, same reason)."""
+    completed step again, and the resume does exactly that (same count, same reason): nothing in
+    its frames tells a restart, so the completed step is taken as maybe power-cycled. (This run
+    was also test_tui_resume's "a device whose frames carry no clock is taken as power-cycled":
+    its checks are here, on one real-time run instead of two.)"""
+    from fieldcal.session.capture import SessionReader
     from tests.test_tui_keys import confirm_text
     from tests.test_tui_resume import (SHORT, WorldClock, _first_step, _live_app, _resume,
                                        vectornav_config as with_vectornav, without_table)
@@ -397,25 +405,31 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
             question = confirm_text(app)
             await pilot.press("y")
         assert app.source.done.wait(60.0) and app.source.outcome.status == "stopped"
+        assert f"fieldcal tui --resume {tmp_path / 'session'} --config" in app.source.outcome.message
         return question
 
     @run_async
     async def resume():
         return await _resume(tmp_path, config, world, 0,
-                             lambda attitude: devices.carry(attitude, 2.0).result(timeout=60))
+                             lambda attitude: devices.carry(attitude, CARRY_S).result(timeout=60))
 
     try:
         question = quit_after_one_step()
+        (first,) = SessionReader(tmp_path / "session").steps()
         app, banner, log = resume()
     finally:
         devices.stop()
+    assert set(first["bench"]["device_clock"]) == {"host_utc"}  # the host's time alone
     assert "1 of 2 positions done" in question
     assert ("this device's frames carry no clock, so a resume cannot show the unit stayed powered: it "
             "measures the 1 completed step again.") in " ".join(question.split())
     assert banner.startswith("CANNOT TELL whether the unit was power-cycled: its gyro turn-on bias may have "
                              "changed; the 1 completed step is measured again")
-    assert "so that it stayed powered cannot be shown" in log
+    assert "its frames carry no packet counter or time, so that it stayed powered cannot be shown" in log
     assert app.outcome.status == "completed" and app.outcome.completed == 2
+    (resume,) = [d["data"] for d in SessionReader(tmp_path / "session").documents("resume")]
+    assert resume["completed_steps"] == [] and resume["dropped"] == [0]
+    assert "may have been power-cycled since" in resume["why"]
 
 
 @pytest.mark.parametrize("bad", ["-1", "nan", "inf", "much"])

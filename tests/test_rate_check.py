@@ -16,7 +16,7 @@ from fieldcal.config import load_config
 from fieldcal.earth import Station
 from fieldcal.run.ratecheck import MeasuredRate, held_line, rate_from_arrivals, rate_from_device_time
 from fieldcal.tui import FieldcalApp
-from tests.test_tui import two_positions
+from tests.test_tui import TWO_POSITIONS, two_positions
 from tests.tui_pilot import run_async, until, waiting_at
 
 STATION = Station(40.0, 50.0)
@@ -79,10 +79,11 @@ async def _run_until_held_or_waiting(tmp_path, config):
 
 # The rate said is checked to 1 % where the device's clock gives it; from the host's arrival
 # times it is the host's wall clock, which a loaded machine moves (506.1 Hz was said at load 14,
-# 2026-11-27): there the check is that it is the device's rate, not the config's (250) nor twice
-# it, and the 1 % arithmetic is test_rates_by_hand's, on hand-made arrival times.
+# 2026-11-27; 564.7 Hz at load 13 plus two `yes`, when the simulator, starved, caught up in a
+# burst): there the check is that it is the device's rate, not the config's (250) nor twice it
+# (1000), so within 25 %; the 1 % arithmetic is test_rates_by_hand's, on hand-made arrival times.
 @pytest.mark.parametrize("protocol, speed, how, rel", [
-    ("vectornav", 1.0, "from the host's arrival times", 0.1),  # the issue's repro: no device clock
+    ("vectornav", 1.0, "from the host's arrival times", 0.25),  # the issue's repro: no device clock
     ("xsens", 0.0, "from the device's clock", 0.01),  # its SampleTimeFine, however fast it is read
 ])
 @run_async
@@ -103,17 +104,22 @@ async def test_a_device_at_twice_the_configured_rate_is_held_before_the_first_dw
     assert "dwell_progress" not in kinds and "step_complete" not in kinds  # no dwell counted
 
 
+# The device is served in real time (its rate is measured in host time): one step of 1 s, all
+# the test needs of a run that goes on, where TWO_POSITIONS' 20 s dwell held a worker 20 s more.
+ONE_SECOND_DWELLS = TWO_POSITIONS.replace("20 s dwells", "1 s dwells").replace("dwell_s: 20", "dwell_s: 1")
+
+
 @run_async
 async def test_at_the_configured_rate_the_run_goes_on_and_says_the_measured_rate(tmp_path):
     devices = served("vectornav", 250.0, 1.0)
     try:
         config = config_for(tmp_path, devices, "vectornav", 250)
-        procedure = two_positions(tmp_path)
+        procedure = two_positions(tmp_path, ONE_SECOND_DWELLS)
         app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config)
         async with app.run_test(size=(80, 24)) as pilot:
             await until(pilot, lambda: waiting_at(app, 0) or app.outcome is not None)
             assert app.outcome is None, app.outcome.message
-            devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
+            devices.carry(procedure.positions[0].attitude, 0.5).result(timeout=60)
             await pilot.press("r")
             await until(pilot, lambda: waiting_at(app, 1) or app.outcome is not None)
             assert app.outcome is None

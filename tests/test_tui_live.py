@@ -22,7 +22,7 @@ from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.cli.tui import live_spec
 from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, on_results, run_async, two_positions, until, waiting_at
-from tests.tui_pilot import log_settled
+from tests.tui_pilot import log_settled, press_and_go_on
 
 STATION = Station(40.0, 50.0)
 OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart", thermal=None)
@@ -60,18 +60,25 @@ def devices():
     served.stop()
 
 
+# TWO_WITH_TURNS with 2 s dwells and 20 °/s turns (the table.max_rate_deg_s default): the same steps
+# in half the samples (each one read from the pty, parsed and fed; a loaded machine took 36 s over
+# TWO_WITH_TURNS' 200 s).
+QUICK_TURNS = (TWO_POSITIONS.replace("20 s dwells", "2 s dwells").replace("dwell_s: 20", "dwell_s: 2")
+               + "rate_step: {rate_deg_s: 20, turns: 1, ramp_s: 2, settle_s: 1}\n")
+
+
 @run_async
 async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp_path, devices):
     config = live_config(tmp_path, devices)
-    procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+    procedure = two_positions(tmp_path, QUICK_TURNS)
     spec = live_spec(config, procedure, OPTIONS)
     app = FieldcalApp(spec, 0, tmp_path / "session", config=config)
     async with app.run_test(size=(80, 24)) as pilot:
         for step, position in enumerate(procedure.positions):
             await until(pilot, lambda step=step: waiting_at(app, step))
             devices.carry(position.attitude, 2.0).result(timeout=60)  # the operator's hands
-            await pilot.press("b")  # a simulator key: refused on a real device
-            await pilot.press("r")
+            # "b", a simulator key: refused on a real device
+            await press_and_go_on(pilot, "b", "r")
         await until(pilot, lambda: on_results(app))
         outcome = app.outcome
     assert outcome.status == "completed" and outcome.completed == 2
@@ -79,16 +86,16 @@ async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp
     kinds = [e.kind for e in app.events]
     assert kinds.count("step_complete") == 2 and "motion_detected" not in kinds
     commands = [e.rate_deg_s for e in app.events if isinstance(e, ev.CommandTable)]
-    assert sorted(commands[:2]) == [-10.0, 10.0] and commands[2] == 0.0
+    assert sorted(commands[:2]) == [-20.0, 20.0] and commands[2] == 0.0
     # The table really turned: half the difference of the two directions' gyro means (free of
     # the gyro bias) has the table's rate as its norm.
     reader = SessionReader(tmp_path / "session")
     for step in reader.steps():
         turns = {w["rate_deg_s"]: np.array(w["means"]["gyroscope"]) for w in step["windows"]
                  if w["rate_deg_s"]}
-        assert sorted(turns) == [-10.0, 10.0]
-        measured = math.degrees(float(np.linalg.norm(turns[10.0] - turns[-10.0]) / 2))
-        assert measured == pytest.approx(10.0, rel=1e-3)
+        assert sorted(turns) == [-20.0, 20.0]
+        measured = math.degrees(float(np.linalg.norm(turns[20.0] - turns[-20.0]) / 2))
+        assert measured == pytest.approx(20.0, rel=1e-3)
     assert reader.start["device"]["serial"] == "SN-42" and "simulation_truth" not in reader.start
     assert sum(1 for _ in reader.raw("imu")) > 0  # the bytes, as read
     # Replayed without the device or its config: the same events, the same verdicts.
@@ -129,7 +136,7 @@ async def test_a_lost_device_is_said_at_once_the_dwell_waits_and_quitting_is_cle
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, 0))
         devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
-        await pilot.press("r")
+        await press_and_go_on(pilot, "r")
         await until(pilot, lambda: app.telemetry.phase != "place" or app.telemetry.step > 0)
         devices.stop()  # the device is gone (a fast simulator may be past the dwell by now)
         await until(pilot, lambda: app.telemetry.silent_s is not None)
@@ -171,7 +178,7 @@ async def test_a_table_whose_port_goes_away_is_said_and_the_run_waits_for_the_op
             await until(pilot, lambda: waiting_at(app, 0))
             table.close()  # the station holds the port open; its far end is gone
             devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
-            await pilot.press("r")
+            await press_and_go_on(pilot, "r")
             await until(pilot, lambda: log_settled(app, "ERROR: table: its port"))
             assert app.outcome is None and not app.source.done.is_set()
             log = " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)

@@ -167,11 +167,11 @@ def live_app(tmp_path, protocol: str):
     from fieldcal.config import load_config
     from tests.test_tui_live import OPTIONS
 
-    # VectorNav ASCII carries no device time: its rate is measured in host time, so it is served in
-    # real time at the config's rate (as fast as read, the run would be held: issue 23's rate check)
-    speed = 1.0 if protocol == "vectornav" else 0
+    # Served in real time. VectorNav ASCII carries no device time: its rate is measured in host
+    # time (as fast as read, the run would be held: issue 23's rate check). An Xsens served as
+    # fast as read floods a run that waits for the operator: each key took the Pilot seconds.
     devices = SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol=protocol,
-                               table_protocol=None, speed=speed, seed=3, rate_hz=200)
+                               table_protocol=None, speed=1.0, seed=3, rate_hz=200)
     devices.start()
     tmp_path.mkdir()
     acc, gyro = PAPER_NOISE["accelerometer"], PAPER_NOISE["gyroscope"]

@@ -446,7 +446,7 @@ async def test_both_ports_are_shown_and_a_port_that_cannot_open_is_named_before_
             await until(pilot, lambda: text_of(app.screen, "#error") != "")
             assert text_of(app.screen, "#error") == \
                 f"table port {missing}: cannot open it: No such file or directory"
-            await type_into(pilot, app.screen, "#port", str(tmp_path / "no-imu"))
+            await paste_into(pilot, app.screen, "#port", str(tmp_path / "no-imu"))
             await pilot.press("ctrl+s")
             await until(pilot, lambda: text_of(app.screen, "#error").startswith("IMU port"))
             assert text_of(app.screen, "#error") == \

@@ -86,6 +86,15 @@ def test_check_with_a_previous_file_of_another_unit_takes_no_drift(tmp_path, cap
     assert "drift since" not in out and "drift not checked: the previous calibration is of unit 'B'" in out
 
 
+def short_field18(tmp_path) -> str:
+    """field-18 with 20 s dwells and 30 °/s turns (test_headless's): every triad solves, from a
+    tenth of the samples, which is all a test of the unit's serial needs of a run."""
+    path = tmp_path / "field-18-short.yaml"
+    path.write_text(load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 20")
+                    .replace("rate_deg_s: 10", "rate_deg_s: 30"), encoding="utf-8")
+    return str(path)
+
+
 def test_the_simulator_keeps_the_serial_given_on_the_command_line_or_in_its_config(tmp_path, capsys):
     """`units` lists the simulated unit by the serial of `--unit-serial`, else of the config's
     device.serial; a run with neither is listed as (none), and `history "(none)"` shows it
@@ -94,7 +103,8 @@ def test_the_simulator_keeps_the_serial_given_on_the_command_line_or_in_its_conf
     config = tmp_path / "sim-serial.yaml"
     text = (CONFIGS_DIR / "sim.yaml").read_text()
     config.write_text(text.replace("  rate_hz: 250\n", "  rate_hz: 250\n  serial: SIM-CONF-7\n", 1))
-    common = ["run", "--headless", "--out", str(tmp_path / "s"), "--quiet", "--registry", str(registry)]
+    common = ["run", "--headless", "--out", str(tmp_path / "s"), "--quiet", "--registry", str(registry),
+              "--procedure", short_field18(tmp_path)]
     assert main([*common, "--config", str(config)]) == 0
     assert main([*common, "--unit-serial", "SIM-ARG-1", "--seed", "2"]) == 0
     assert main([*common, "--seed", "3"]) == 0
@@ -118,6 +128,7 @@ def test_run_spec_keeps_the_serial_through_the_session_metadata():
 def test_resume_refuses_another_units_serial(tmp_path, capsys):
     out = tmp_path / "s"
     assert main(["run", "--headless", "--out", str(out), "--quiet", "--unit-serial", "SIM-5",
+                 "--procedure", short_field18(tmp_path),
                  "--registry", str(tmp_path / "r.sqlite")]) == 0
     session = next(out.iterdir())
     capsys.readouterr()

@@ -24,6 +24,16 @@ async def until(pilot, predicate, timeout_s: float = 120.0) -> None:
         await pilot.pause(0.01)
 
 
+async def press_and_go_on(pilot, *keys: str) -> None:
+    """The operator's ``keys``, posted to the app in order as its terminal driver posts them, for
+    a test that then waits (``until``) for what they do. Pilot.press waits after each key for the
+    process to go idle, up to 2 s a key, which a device served as fast as it is read never lets
+    it: a run waiting for the operator only reads on (measured: 4 s for two keys)."""
+    for key in keys:
+        pilot.app.simulate_key(key)
+    await pilot.pause(0)
+
+
 def waiting_at(app, step: int) -> bool:
     """The run waits for the operator at ``step`` (0-based)."""
     t = app.telemetry
