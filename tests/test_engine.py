@@ -177,7 +177,7 @@ def test_the_stillness_window_needs_ten_samples_and_ten_are_enough():
     from fieldcal.procedure.engine import EngineSettings
     from fieldcal.procedure.stillness import StillnessSettings
 
-    one_second = StillnessSettings(window_s=1.0)
+    one_second = StillnessSettings(specific_force_sigma=2e-3, rate_sigma=1e-4, window_s=1.0)
     assert EngineSettings(rate_hz=10.0, stillness=one_second).rate_hz == 10.0  # 10 samples: enough
     with pytest.raises(ValueError, match=r"rate_hz: 9 Hz gives 9 samples per 1 s stillness window; "
                                          r"at least 10 are needed"):
