@@ -17,7 +17,9 @@ dwell_s: {DWELL_S}
 positions:
   - {{id: 1, description: "z-upward", axes: {{x: east, y: north, z: up}}}}
 """
-CHUNK = 37  # not a divisor of anything the engine counts: windows start and end mid-chunk
+# 37: not a divisor of anything the engine counts, windows start and end mid-chunk; 1000: the
+# whole dwell inside one chunk
+CHUNKS = (37, 1000)
 
 
 def samples(k):
@@ -30,14 +32,14 @@ def samples(k):
     return sf, rate, temperature
 
 
-def run(with_temperature=True):
+def run(with_temperature=True, chunk_n=37):
     engine = Engine(parse_procedure(PROCEDURE, "p.yaml"),
                     EngineSettings(rate_hz=RATE_HZ, stillness=StillnessSettings(specific_force_sigma=2e-3,
                                                                                rate_sigma=1e-4)))
     engine.start()
     engine.act(ev.Action(ev.READY))
-    for first in range(0, 20 * int(RATE_HZ), CHUNK):
-        k = np.arange(first, first + CHUNK)
+    for first in range(0, 20 * int(RATE_HZ), chunk_n):
+        k = np.arange(first, first + chunk_n)
         sf, rate, temperature = samples(k)
         chunk = SampleChunk(k / RATE_HZ, {"accelerometer": sf, "gyroscope": rate},
                             temperature if with_temperature else None)
@@ -46,11 +48,12 @@ def run(with_temperature=True):
     raise AssertionError("the procedure never completed")
 
 
-def test_the_dwell_window_is_the_mean_of_exactly_the_samples_it_says_it_covers():
-    (window,) = run().records[0].windows
+@pytest.mark.parametrize("chunk_n", CHUNKS)
+def test_the_dwell_window_is_the_mean_of_exactly_the_samples_it_says_it_covers(chunk_n):
+    (window,) = run(chunk_n=chunk_n).records[0].windows
     assert window.duration == DWELL_S  # the planned samples, counted at the nominal rate
     first = round(window.start * RATE_HZ)
-    assert first % CHUNK != 0  # (the point: a dwell starting inside a chunk)
+    assert first % chunk_n != 0  # (the point: a dwell starting inside a chunk)
     k = np.arange(first, first + DWELL_S * int(RATE_HZ))
     sf, rate, temperature = samples(k)
     assert window.means["accelerometer"] == pytest.approx(sf.mean(axis=0).tolist(), abs=1e-12)
