@@ -54,4 +54,6 @@ def test_the_solvers_windows_and_means_come_from_the_records_in_step_order():
                        Window(MINUS, 3, 50.0, 2.0, pytest.approx(omega, rel=1e-15), 25.0)]
     assert means["acc"].tolist() == [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]
     assert means["gyro"].tolist() == [[0.0, 0.0, 0.5], [0.0, 0.0, 0.5]]
+    one_window, one_mean = windows_and_averages(records[1:])
+    assert one_window == windows[:1] and one_mean["acc"].tolist() == [[1.0, 2.0, 3.0]]
     assert windows_and_averages([]) == ([], {})
