@@ -171,3 +171,16 @@ def test_too_low_a_sample_rate_is_refused_before_any_file(tmp_path):
     with pytest.raises(ValueError, match="rate_hz: 2 Hz gives 2 samples"):
         run_headless(spec, tmp_path / "s")
     assert not (tmp_path / "s").exists()
+
+
+def test_the_stillness_window_needs_ten_samples_and_ten_are_enough():
+    from fieldcal.procedure.engine import EngineSettings
+    from fieldcal.procedure.stillness import StillnessSettings
+
+    one_second = StillnessSettings(specific_force_sigma=2e-3, rate_sigma=1e-4, window_s=1.0)
+    assert EngineSettings(rate_hz=10.0, stillness=one_second).rate_hz == 10.0  # 10 samples: enough
+    with pytest.raises(ValueError, match=r"rate_hz: 9 Hz gives 9 samples per 1 s stillness window; "
+                                         r"at least 10 are needed"):
+        EngineSettings(rate_hz=9.0, stillness=one_second)
+    with pytest.raises(ValueError, match=r"on_motion: expected 'restart' or 'discard', got 'ignore'"):
+        EngineSettings(rate_hz=10.0, stillness=one_second, on_motion="ignore")
