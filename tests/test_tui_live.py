@@ -22,7 +22,7 @@ from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.cli.tui import live_spec
 from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, on_results, run_async, two_positions, until, waiting_at
-from tests.tui_pilot import log_settled, press_and_go_on
+from tests.tui_pilot import log_settled, placed_and_still, press_and_go_on
 
 STATION = Station(40.0, 50.0)
 OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart", thermal=None)
@@ -77,6 +77,7 @@ async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp
         for step, position in enumerate(procedure.positions):
             await until(pilot, lambda step=step: waiting_at(app, step))
             devices.carry(position.attitude, 2.0).result(timeout=60)  # the operator's hands
+            await until(pilot, lambda: placed_and_still(app))  # and what the station shows
             # "b", a simulator key: refused on a real device
             await press_and_go_on(pilot, "b", "r")
         await until(pilot, lambda: on_results(app))

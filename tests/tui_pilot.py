@@ -40,6 +40,16 @@ def waiting_at(app, step: int) -> bool:
     return t is not None and t.waiting and t.step == step and app.outcome is None
 
 
+def placed_and_still(app, within_deg: float = 2.0, quiet_below: float = 3.0) -> bool:
+    """The station's own readings show the unit at its position's attitude and still over a whole
+    stillness window: every sample of a carry has been read. (A device served as fast as it is
+    read can still hold the carry's motion in the port when the carry's future resolves; a
+    "ready" pressed then sees that motion.)"""
+    t = app.telemetry
+    return (t is not None and t.angle_deg is not None and t.angle_deg < within_deg
+            and t.quiet is not None and t.quiet < quiet_below)
+
+
 def log_settled(app, last: str) -> bool:
     """The procedure screen's event log holds a line with ``last`` and is scrolled to its end
     (the log scrolls after it is written, a frame later on a loaded machine: a snapshot waits)."""
