@@ -205,6 +205,11 @@ def _right_jacobians(phi, angle, sinc, cos):
     return J
 
 
+def _unit(q: np.ndarray) -> np.ndarray:
+    """(4, ...) quaternions scaled to unit norm: a long composition's rounding moves the norm."""
+    return q / np.sqrt(np.sum(q * q, axis=0))
+
+
 def _weights(A, delta_b):
     """(10, 3): a step's rotation vector is this matrix's transpose times its 10 terms (see
     _Steps) for calibrated rates A·(v − δb)."""
@@ -370,7 +375,7 @@ class _Steps:
         if self._last is None or self._last[0] != key:
             q = np.concatenate([self._levels(A, delta_b, g0, g1)[5][-1][:, 0]
                                 for g0, g1 in self.span_groups], axis=1)
-            self._last = key, (q / np.sqrt(np.sum(q * q, axis=0))).T
+            self._last = key, _unit(q).T
         return self._last[1]
 
     def jacobian(self, K_inv, delta_b, dK, d_delta_b):
@@ -391,7 +396,7 @@ class _Steps:
             quaternions.append(q)
             sums.append(T)
         q = np.concatenate(quaternions, axis=1)
-        q = (q / np.sqrt(np.sum(q * q, axis=0))).T
+        q = _unit(q).T
         T = np.concatenate(sums).reshape(len(q), 3, 3, -1)
         dW = _weight_derivatives(A, delta_b, np.asarray(dK, dtype=float), np.asarray(d_delta_b, dtype=float))
         return q, np.einsum("sabc,kcb->sak", T, dW)
@@ -434,7 +439,7 @@ class _Steps:
         identity = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]).reshape((4,) + (1,) * (q.ndim - 1)),
                                    q.shape[:-1] + (1,))
         q = _compose(np.concatenate([q, identity], axis=-1)[..., self.gather])  # (4, ..., m)
-        return np.moveaxis(q / np.sqrt(np.sum(q * q, axis=0)), 0, -1)
+        return np.moveaxis(_unit(q), 0, -1)
 
 
 def integrate(omega, t, spans) -> np.ndarray:
