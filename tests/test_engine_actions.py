@@ -15,9 +15,8 @@ positions:
 
 
 def engine():
-    e = Engine(parse_procedure(THREE, "three.yaml"),
-               EngineSettings(rate_hz=100.0, stillness=StillnessSettings(specific_force_sigma=2e-3, rate_sigma=1e-4)))
-    return e
+    return Engine(parse_procedure(THREE, "three.yaml"),
+                  EngineSettings(rate_hz=100.0, stillness=StillnessSettings(specific_force_sigma=2e-3, rate_sigma=1e-4)))
 
 
 def steps(events):
