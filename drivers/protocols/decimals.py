@@ -101,7 +101,9 @@ def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray |
     if signs != np.count_nonzero(lead_sign) + exponent_signs or (count > _MAX_DIGITS).any():
         return None
     # Every token keeps at least one digit, so the tokens stay where they were, one int each.
-    ints = np.fromstring(digits, dtype=np.int64, sep=" ")
+    # Read as unsigned (the signs are gone, and 18 digits fit either way): numpy 2.4 reads uint64
+    # text some 1.7× faster than int64, the largest single cost of a text recording's import.
+    ints = np.fromstring(digits, dtype=np.uint64, sep=" ").view(np.int64)
     if ints.size != n:
         return None
     if tail is None:
