@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+import hashlib
 import math
 import os
 import re
@@ -283,6 +284,20 @@ def test_hash_inputs_is_deterministic_and_sensitive():
     assert len({h, *others}) == len(others) + 1
     with pytest.raises(TypeError):
         hash_inputs(np.array([object()]))
+
+
+def test_hash_inputs_hashes_its_documented_bytes_of_any_array():
+    """The header and the C-order bytes (tobytes) of each array, whatever its dtype, shape or
+    layout: read in place, the hash is the one the format defines (and old files hold)."""
+    grid = np.arange(24.0).reshape(4, 6)
+    arrays = [grid, grid[:, ::2], grid.T, np.float64(3.5), np.zeros((0, 3)), np.array([True, False]),
+              np.arange(5, dtype=np.int16), np.array(["2026-11-27T19:00"], dtype="datetime64[s]")]
+    expected = hashlib.sha256(b"fieldcal-inputs/1\0")
+    for a in arrays:
+        arr = np.ascontiguousarray(a)
+        expected.update(f"{arr.dtype.str}|{','.join(map(str, arr.shape))}|{arr.nbytes}\0".encode("ascii"))
+        expected.update(arr.tobytes())
+    assert hash_inputs(*arrays) == expected.hexdigest()
 
 
 # ------------------------------------------------------------------------------------------------
