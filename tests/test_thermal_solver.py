@@ -406,15 +406,45 @@ def test_a_warm_gyros_unconverged_order_0_does_not_drop_the_triad(tmp_path):
     assert worst_error({"gyroscope": gyro}, truths) < 4.0
 
 
-def test_an_undetermined_exact_fit_gives_way_to_the_lower_order(tmp_path):
+@pytest.fixture(scope="module")
+def seed380(tmp_path_factory):
+    """configs/sim-warmup.yaml seed 380 through the conductor: (outcome, truths, its directory)."""
+    directory = tmp_path_factory.mktemp("seed380") / "run"
+    return (*_sim_warmup_run(380, directory), directory)
+
+
+def test_an_undetermined_exact_fit_gives_way_to_the_lower_order(seed380):
     # configs/sim-warmup.yaml seed 380: the inclinometer's order 2 with the scale drift is an exact
     # fit of its 18 norms, and at that run's placements and temperatures its Jacobian is singular
     # (condition number 5e10), which lost the whole triad (1 of the thermal benchmark's 400 runs).
     # An order the windows cannot determine is now no candidate: the order below it is kept.
     from fieldcal.report import worst_error
 
-    outcome, truths = _sim_warmup_run(380, tmp_path / "seed380")
+    outcome, truths, _ = seed380
     assert outcome.unit.failures == {}
     inclinometer = outcome.unit.solutions["inclinometer"]
     assert inclinometer.thermal.order < 2 and inclinometer.diagnostics.condition_number < 1e10
     assert worst_error({"inclinometer": inclinometer}, truths) < 4.0
+
+
+def test_the_order_chosen_does_not_hinge_on_the_last_bits(seed380):
+    # The same run's temperatures times 1 ± 1e-13 made the inclinometer take order 2 in 5 of 5
+    # cases: its condition number then fell to 1.5e7-2.4e8, under the 1e10 limit, with bias σ
+    # 10⁵ times order 1's. An order that inflates the lower order's σ so is now no candidate, so
+    # every perturbation (far below any thermometer's resolution) keeps the same order and σ.
+    from fieldcal.procedure.windows import STATIC
+    from fieldcal.run.runner import open_run
+    from fieldcal.solvers.assemble import window_indices
+
+    outcome, _, directory = seed380
+    windows = [w for step in open_run(directory).completed for w in step.windows]
+    temperatures = np.array([windows[i].temperature_c for i in window_indices(windows, STATIC)])
+    problem, covariance = outcome.unit.problems["inclinometer"], outcome.unit.covariances["inclinometer"]
+    solved = outcome.unit.solutions["inclinometer"]
+    # (the windows read back are those the run solved: the same inputs give the same bits)
+    np.testing.assert_array_equal(solve_thermal_norm(problem, temperatures, covariance).calibration.theta,
+                                  solved.theta)
+    for factor in (1 + 1e-13, 1 - 1e-13, 1 + 3e-13, 1 - 3e-13, 1 + 1e-12):
+        perturbed = solve_thermal_norm(problem, temperatures * factor, covariance).calibration
+        assert perturbed.thermal.order == solved.thermal.order, factor
+        np.testing.assert_allclose(perturbed.sigma, solved.sigma, rtol=1e-4)  # (ill-posed: ×10⁵)

@@ -18,8 +18,9 @@ of the bias polynomial is chosen from the data: order k+1 is kept if its three c
 χ² by more than the 99 % point of χ² with 3 degrees of freedom (a likelihood-ratio test), or if
 leaving them out would move any parameter of order k by more than half its σ (a term weak in χ²
 but correlated with the others biases them if omitted), while the unknowns do not outnumber the
-equations: the noise is known, so σ comes from the information, not from the residuals, and an
-exactly determined model (an accelerometer's 18 norms beside a quadratic bias and the drift) has
+equations and do not multiply the σ of the lower order's parameters by more than
+MAX_SIGMA_INFLATION (an order the windows all but leave undetermined). The noise is known, so σ
+comes from the information, not from the residuals, and an exactly determined model (an accelerometer's 18 norms beside a quadratic bias and the drift) has
 honest σ, though no χ² to check them by.
 """
 from __future__ import annotations
@@ -46,6 +47,13 @@ MAX_OMISSION_SHIFT_SIGMA = 0.5
 # The least singular value of the whitened Jacobian, relative to the largest, below which a
 # candidate's parameters are not determined by the windows (an order is then no candidate).
 UNDETERMINED = 1e-10
+# An order whose added terms multiply the σ of a parameter already in the model by more than this
+# is not determined by the windows either (see ``select`` in solve_thermal_norm): on
+# configs/sim-warmup.yaml an order the windows carry inflates them 1.2-8-fold, the ill-posed exact
+# fit of seed 380 10⁵-10⁶-fold. 30 is far from both, and a 30-fold σ is 1/900 of the information:
+# an order that costs the lower one's parameters that much is no calibration of them, whichever
+# way its χ² or the omission rule would lean.
+MAX_SIGMA_INFLATION = 30.0
 _BIRGE_P = 1e-3  # as solve_norm: a χ² this improbable means the scatter, not the model, sets σ
 
 
@@ -78,6 +86,19 @@ def _residual_covariance_at(problem, theta: np.ndarray, u: np.ndarray, covarianc
     steps = 1e-6 * np.maximum(np.abs(u), np.abs(theta[3:6]).max() * problem.reference_scale)
     G = _forward_jacobian(lambda x: problem.residuals(theta, x), u, steps)
     return G @ cov @ G.T
+
+
+def _sigma(jacobian: np.ndarray) -> np.ndarray:
+    """Each parameter's σ, √diag((JᵀJ)⁻¹), from the SVD of the whitened Jacobian itself: forming
+    JᵀJ squares its condition number, and at 10⁸ (an ill-posed candidate) an inverse or pinv of it
+    keeps only the rounding of its weak direction, which made the σ compared depend on the last bits."""
+    _, sv, vt = np.linalg.svd(jacobian, full_matrices=False)
+    return np.sqrt(np.sum((vt / sv[:, None]) ** 2, axis=0))
+
+
+def _shared(order: int, scale: bool) -> np.ndarray:
+    """Where the parameters of (order, scale) sit in the layout of (order + 1, scale)."""
+    return np.r_[np.arange(_layout(order, False)), np.arange(_layout(order + 1, False), _layout(order + 1, scale))]
 
 
 def _split(x: np.ndarray, order: int, scale: bool):
@@ -149,11 +170,16 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
         # (a warming accelerometer's b₂ beside its scale drift on 18 norms): the lower order then
         # carries the omitted term in its biases and scale factors, 4-5σ of its own σ on
         # configs/sim-warmup.yaml. So the lower order must also leave the others where they are.
-        order, with_scale = than[0], than[1]
-        shared = np.r_[np.arange(_layout(order, False)),
-                       np.arange(_layout(order + 1, False), _layout(order + 1, with_scale))]
-        sigma = np.sqrt(np.diag(np.linalg.pinv(than[4].T @ than[4])))
-        return bool(np.max(np.abs(candidate[2][shared] - than[2]) / sigma) > MAX_OMISSION_SHIFT_SIGMA)
+        shared = _shared(than[0], than[1])
+        return bool(np.max(np.abs(candidate[2][shared] - than[2]) / _sigma(than[4])) > MAX_OMISSION_SHIFT_SIGMA)
+
+    def ill_posed(candidate, than) -> bool:
+        """Whether the next order's terms multiply the σ of a lower-order parameter by more than
+        MAX_SIGMA_INFLATION: the windows then leave them all but undetermined."""
+        if than is None:
+            return False
+        inflation = _sigma(candidate[4])[_shared(than[0], than[1])] / _sigma(than[4])
+        return bool(np.max(inflation) > MAX_SIGMA_INFLATION)
 
     # The scale drift is in every candidate when the equations leave room for it at order 0: left
     # out, a warming accelerometer's drift (50 ppm/K, 0.3 mg over 6 K) is no term of the model, so
@@ -183,7 +209,15 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
                     break
                 continue
             sv = np.linalg.svd(candidate[4], compute_uv=False)
-            if not sv[-1] > UNDETERMINED * sv[0]:
+            # Nor is an order the windows all but leave undetermined. The condition number alone
+            # was a knife edge: an exact fit (order 2 and the drift on 18 norms) at some warm-ups'
+            # temperatures (configs/sim-warmup.yaml seed 380) sits at 10⁷-10¹¹ with the last bits
+            # of its inputs, and below 10¹⁰ it was taken, with bias σ 10⁵ times order 1's: the
+            # omission rule of ``better`` keeps any order whose estimates move the lower order's by
+            # more than half a σ, and the estimates of an ill-posed order move by its own huge σ,
+            # so it always did. The σ inflation is what the choice needs to know, it does not hinge
+            # on a rounding (10⁴-10⁵ there, 1.2-8 for an order the windows carry), and it is scale-free.
+            if not sv[-1] > UNDETERMINED * sv[0] or ill_posed(candidate, chosen):
                 # An order the windows cannot determine is no candidate either: an exact fit (order
                 # 2 and the drift on the inclinometer's 18 norms) is singular at some warm-ups'
                 # temperatures (configs/sim-warmup.yaml seed 380, condition 5e10), which failed the
