@@ -1,0 +1,69 @@
+"""solve_norm's search and its messages, each against a hand-worked value or a peer optimiser
+(the mutation run of fieldcal/solvers/norm.py, docs/benchmarks.md, found these unguarded)."""
+import numpy as np
+import pytest
+
+from fieldcal.model import distort_with
+from fieldcal.procedure.positions import load_procedure
+from fieldcal.solvers import CalibrationError, StaticNormProblem, solve_norm
+
+G = 9.80
+UP18 = np.array([p.up_body for p in load_procedure("field-18").positions])
+UP12 = np.array([p.up_body for p in load_procedure("classic-12").positions])
+
+
+def test_degenerate_positions_say_how_many_distinct_axes_they_span():
+    # classic-12 points gravity along +x, +y, +z, -x, -y, -z, twice each: 12 measurements,
+    # and ±x is one axis, so 3 distinct axes.
+    rng = np.random.default_rng(3)
+    truth = np.array([0.01, 0.02, 0.03, 1.0001, 1.0002, 1.0003, 2e-4, -3e-4, 4e-4])
+    means = distort_with(truth, G * UP12) + rng.normal(0, 5e-4, (12, 3))
+    with pytest.raises(CalibrationError) as raised:
+        solve_norm(StaticNormProblem(means, G), np.full((12, 3), 5e-4))
+    assert ("12 measurements point along only 3 distinct axes (10° apart); add positions with an axis "
+            "between the cube faces (paper Table 2, positions 13-18)") in str(raised.value)
+
+
+def field18_accelerometer(seed: int = 7, noise: float = 5e-4) -> StaticNormProblem:
+    rng = np.random.default_rng(seed)
+    truth = np.array([0.3, -0.2, 0.1, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+    up = UP18 + rng.normal(0, 0.03, UP18.shape)
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    return StaticNormProblem(distort_with(truth, G * up) + rng.normal(0, noise, up.shape), G)
+
+
+def test_sigma_scales_with_the_stated_noise_while_the_scatter_agrees_with_it():
+    # Weights 1/c² give the same solution and a covariance c² times as large: stating twice the
+    # noise doubles every σ (and χ² drops to a quarter, still consistent, so nothing is rescaled).
+    problem = field18_accelerometer()
+    stated = solve_norm(problem, np.full((18, 3), 5e-4))
+    doubled = solve_norm(problem, np.full((18, 3), 1e-3))
+    assert not stated.diagnostics.scaled_by_residuals and not doubled.diagnostics.scaled_by_residuals
+    np.testing.assert_allclose(doubled.sigma, 2 * stated.sigma, rtol=1e-4)
+    np.testing.assert_allclose(doubled.diagnostics.chi2, stated.diagnostics.chi2 / 4, rtol=1e-4)
+    np.testing.assert_allclose(doubled.theta, stated.theta, rtol=0, atol=1e-3 * stated.sigma.min())
+
+
+def test_noise_stated_far_below_the_scatter_gives_the_scatters_sigma():
+    # χ² = 100·dof and 400·dof (noise stated 10 and 20 times too small) is far beyond chance: σ then
+    # come from the scatter (Birge), the same whichever too-small noise was stated, and equal to
+    # the honest statement's σ times √(χ²/dof) of that honest solve.
+    problem = field18_accelerometer()
+    honest = solve_norm(problem, np.full((18, 3), 5e-4))
+    tenth, twentieth = (solve_norm(problem, np.full((18, 3), 5e-4 / c)) for c in (10, 20))
+    assert tenth.diagnostics.scaled_by_residuals and twentieth.diagnostics.scaled_by_residuals
+    expected = honest.sigma * np.sqrt(honest.diagnostics.chi2 / honest.diagnostics.dof)
+    np.testing.assert_allclose(tenth.sigma, expected, rtol=1e-4)
+    np.testing.assert_allclose(twentieth.sigma, expected, rtol=1e-4)
+
+
+def test_one_degree_of_freedom_is_enough_to_see_a_scatter_far_beyond_the_stated_noise():
+    # Ten positions, nine unknowns: one degree of freedom (a draw whose honest χ² is 0.71), and
+    # noise stated 100 times too small.
+    problem = field18_accelerometer(seed=3)
+    problem = StaticNormProblem(problem.means[:10], G)
+    honest = solve_norm(problem, np.full((10, 3), 5e-4))
+    understated = solve_norm(problem, np.full((10, 3), 5e-6))
+    assert understated.diagnostics.dof == 1 and understated.diagnostics.scaled_by_residuals
+    np.testing.assert_allclose(understated.sigma,
+                               honest.sigma * np.sqrt(honest.diagnostics.chi2 / honest.diagnostics.dof), rtol=1e-4)
