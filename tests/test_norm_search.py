@@ -2,6 +2,7 @@
 (the mutation run of fieldcal/solvers/norm.py, docs/benchmarks.md, found these unguarded)."""
 import numpy as np
 import pytest
+from scipy import optimize
 
 from fieldcal.model import distort_with
 from fieldcal.procedure.positions import load_procedure
@@ -9,6 +10,8 @@ from fieldcal.solvers import CalibrationError, StaticNormProblem, solve_norm
 
 G = 9.80
 UP18 = np.array([p.up_body for p in load_procedure("field-18").positions])
+# bias (m/s²), scale factors, misalignment angles (rad)
+TRUTH = np.array([0.3, -0.2, 0.1, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
 UP12 = np.array([p.up_body for p in load_procedure("classic-12").positions])
 
 
@@ -26,10 +29,9 @@ def test_degenerate_positions_say_how_many_distinct_axes_they_span():
 
 def field18_accelerometer(seed: int = 7, noise: float = 5e-4) -> StaticNormProblem:
     rng = np.random.default_rng(seed)
-    truth = np.array([0.3, -0.2, 0.1, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
     up = UP18 + rng.normal(0, 0.03, UP18.shape)
     up /= np.linalg.norm(up, axis=1, keepdims=True)
-    return StaticNormProblem(distort_with(truth, G * up) + rng.normal(0, noise, up.shape), G)
+    return StaticNormProblem(distort_with(TRUTH, G * up) + rng.normal(0, noise, up.shape), G)
 
 
 def test_sigma_scales_with_the_stated_noise_while_the_scatter_agrees_with_it():
@@ -67,3 +69,18 @@ def test_one_degree_of_freedom_is_enough_to_see_a_scatter_far_beyond_the_stated_
     assert understated.diagnostics.dof == 1 and understated.diagnostics.scaled_by_residuals
     np.testing.assert_allclose(understated.sigma,
                                honest.sigma * np.sqrt(honest.diagnostics.chi2 / honest.diagnostics.dof), rtol=1e-4)
+
+
+@pytest.mark.parametrize("positions", [18, 10])
+def test_the_screening_search_without_a_noise_model_lands_on_the_least_squares_optimum(positions):
+    # The Gauss-Newton screen (the pose chooser's) measures its steps in σ of the residual scatter
+    # when no noise is stated; scipy's least_squares, started at the truth with tolerances at
+    # rounding, is the peer that says where the unweighted optimum is.
+    problem = field18_accelerometer(seed=3)
+    problem = StaticNormProblem(problem.means[:positions], G)
+    screened = solve_norm(problem, None, method="gauss-newton")
+    peer = optimize.least_squares(lambda th: problem.residuals(th, problem.data), TRUTH,
+                                  x_scale=np.abs(TRUTH) * 1e-4 + 1e-6, xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+    assert screened.method == "lsq" and screened.diagnostics.search == "gauss-newton"
+    assert screened.diagnostics.scaled_by_residuals and screened.diagnostics.dof == positions - 9
+    np.testing.assert_allclose(screened.theta, peer, rtol=0, atol=1e-3 * screened.sigma.min())
