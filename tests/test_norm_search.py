@@ -84,3 +84,35 @@ def test_the_screening_search_without_a_noise_model_lands_on_the_least_squares_o
     assert screened.method == "lsq" and screened.diagnostics.search == "gauss-newton"
     assert screened.diagnostics.scaled_by_residuals and screened.diagnostics.dof == positions - 9
     np.testing.assert_allclose(screened.theta, peer, rtol=0, atol=1e-3 * screened.sigma.min())
+
+
+def test_each_refusal_is_one_line_naming_the_triad_and_the_count():
+    means = field18_accelerometer().means
+    refusals = {
+        "accelerometer: 7 equations for 9 unknowns; add at least 2 more positions":
+            lambda: solve_norm(StaticNormProblem(means[:7], G)),
+        "accelerometer: 9 equations fit exactly and leave no scatter to estimate the uncertainty; "
+        "add a position or give σ": lambda: solve_norm(StaticNormProblem(means[:9], G)),
+        "accelerometer: covariance must be (54, 54) or (18, 3) sigmas, got (4, 4)":
+            lambda: solve_norm(StaticNormProblem(means, G), np.ones((4, 4))),
+        "method: expected one of powell, lsq, got 'newton'":
+            lambda: solve_norm(StaticNormProblem(means, G), method="newton"),
+        "accelerometer: positions are degenerate: all averages are identical":
+            lambda: solve_norm(StaticNormProblem(np.ones((18, 3)), G)),
+    }
+    for message, refused in refusals.items():
+        with pytest.raises(ValueError) as raised:
+            refused()
+        assert str(raised.value) == message
+
+
+@pytest.mark.parametrize("form", ["per-axis sigmas", "full covariance"])
+def test_an_average_without_noise_is_refused_as_a_covariance_not_positive_definite(form):
+    # One average stated exact (σ 0 on every axis): its residual has zero variance and no weight exists.
+    means = field18_accelerometer().means
+    sigmas = np.full((18, 3), 5e-4)
+    sigmas[4] = 0.0
+    covariance = sigmas if form == "per-axis sigmas" else np.diag(sigmas.ravel() ** 2)
+    with pytest.raises(CalibrationError) as raised:
+        solve_norm(StaticNormProblem(means, G), covariance)
+    assert str(raised.value) == "accelerometer: the covariance of the averages is not positive definite"
