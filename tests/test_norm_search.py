@@ -116,3 +116,22 @@ def test_an_average_without_noise_is_refused_as_a_covariance_not_positive_defini
     with pytest.raises(CalibrationError) as raised:
         solve_norm(StaticNormProblem(means, G), covariance)
     assert str(raised.value) == "accelerometer: the covariance of the averages is not positive definite"
+
+
+class _Directions:
+    """What _spread_hint reads of a problem: its measured directions."""
+
+    def __init__(self, *tilts_deg):
+        self.rows = np.array([[0.0, np.sin(np.radians(t)), np.cos(np.radians(t))] for t in tilts_deg])
+
+    def directions(self):
+        return self.rows
+
+
+@pytest.mark.parametrize("tilts_deg, axes", [((0, 10.5), 2), ((0, 9.5), 1), ((0, 10), 1), ((0, 180), 1),
+                                             ((0, 90, 45, 135), 4)])
+def test_the_hint_counts_axes_more_than_ten_degrees_apart(tilts_deg, axes):
+    from fieldcal.solvers.norm import _spread_hint
+
+    assert _spread_hint(_Directions(*tilts_deg)).startswith(
+        f"{len(tilts_deg)} measurements point along only {axes} distinct axes (10° apart)")
