@@ -135,3 +135,11 @@ def test_the_hint_counts_axes_more_than_ten_degrees_apart(tilts_deg, axes):
 
     assert _spread_hint(_Directions(*tilts_deg)).startswith(
         f"{len(tilts_deg)} measurements point along only {axes} distinct axes (10° apart)")
+
+
+def test_the_screen_counts_its_iterations_and_evaluations():
+    # It starts at the linearised optimum, so its first Gauss-Newton step is rounding-small: one
+    # iteration, which evaluates the start, 2 × 9 central differences and the stepped point.
+    for covariance in (None, np.full((18, 3), 5e-4)):
+        screened = solve_norm(field18_accelerometer(), covariance, method="gauss-newton")
+        assert (screened.diagnostics.iterations, screened.diagnostics.evaluations) == (1, 1 + 2 * 9 + 1)
