@@ -143,3 +143,42 @@ def test_the_screen_counts_its_iterations_and_evaluations():
     for covariance in (None, np.full((18, 3), 5e-4)):
         screened = solve_norm(field18_accelerometer(), covariance, method="gauss-newton")
         assert (screened.diagnostics.iterations, screened.diagnostics.evaluations) == (1, 1 + 2 * 9 + 1)
+        assert screened.diagnostics.message == "the Gauss-Newton step is below 1e-4 σ"
+
+
+# Gauss-Newton on problems worked by hand (residuals_of_z takes a stack of points (k, n)).
+def _square(z):  # r = z²: the Jacobian 2z makes every step −z/2, so z halves each iteration
+    return z**2
+
+
+def _arctan(z):  # r = arctan z: from |z| > 1.39 the step −(1 + z²)·arctan z overshoots (χ² grows)
+    return np.arctan(z)
+
+
+def test_gauss_newton_halving_stops_once_a_step_is_below_its_tolerance():
+    from fieldcal.solvers.norm import _gauss_newton
+
+    # From z = 1 the k-th step is 2⁻ᵏ, first below 1e-4 at k = 14 (2¹⁴ = 16384); it is taken.
+    res = _gauss_newton(_square, np.array([1.0]), per_sigma=True, dof=1)
+    assert res.success and res.nit == 14 and res.nfev == 1 + 14 * 3
+    np.testing.assert_allclose(res.x, [2.0**-14], rtol=1e-9)
+
+
+def test_gauss_newton_gives_up_after_twenty_steps():
+    from fieldcal.solvers.norm import _gauss_newton
+
+    # From z = 1000 the 20th step is still 1000·2⁻²⁰ ≈ 1e-3: no convergence, z after 20 halvings.
+    res = _gauss_newton(_square, np.array([1000.0]), per_sigma=True, dof=1)
+    assert not res.success and res.nit == 20 and res.nfev == 1 + 20 * 3
+    assert res.message == "no convergence in 20 Gauss-Newton steps"
+    np.testing.assert_allclose(res.x, [1000.0 * 2.0**-20], rtol=1e-9)
+
+
+def test_gauss_newton_refuses_a_step_that_raises_chi2_and_stays_where_it_was():
+    from fieldcal.solvers.norm import _gauss_newton
+
+    res = _gauss_newton(_arctan, np.array([2.0]), per_sigma=True, dof=1)  # the step lands at -3.53
+    assert not res.success and res.nit == 1 and res.nfev == 1 + 3
+    assert res.message == "a Gauss-Newton step did not lower χ²" and res.x.tolist() == [2.0]
+    converged = _gauss_newton(_arctan, np.array([1.0]), per_sigma=True, dof=1)
+    assert converged.success and abs(converged.x[0]) < 1e-4
