@@ -72,18 +72,20 @@ def test_one_degree_of_freedom_is_enough_to_see_a_scatter_far_beyond_the_stated_
 
 
 @pytest.mark.parametrize("positions", [18, 10])
-def test_the_screening_search_without_a_noise_model_lands_on_the_least_squares_optimum(positions):
-    # The Gauss-Newton screen (the pose chooser's) measures its steps in σ of the residual scatter
-    # when no noise is stated; scipy's least_squares, started at the truth with tolerances at
-    # rounding, is the peer that says where the unweighted optimum is.
+@pytest.mark.parametrize("method", ["gauss-newton", "powell"])
+def test_the_search_without_a_noise_model_lands_on_the_least_squares_optimum(method, positions):
+    # Without a stated noise both searches measure their steps, tolerances and box in σ of the
+    # residual scatter (the Gauss-Newton screen is the pose chooser's); scipy's least_squares,
+    # started at the truth with tolerances at rounding, is the peer that says where the
+    # unweighted optimum is. Ten positions leave one degree of freedom.
     problem = field18_accelerometer(seed=3)
     problem = StaticNormProblem(problem.means[:positions], G)
-    screened = solve_norm(problem, None, method="gauss-newton")
+    solved = solve_norm(problem, None, method=method)
     peer = optimize.least_squares(lambda th: problem.residuals(th, problem.data), TRUTH,
                                   x_scale=np.abs(TRUTH) * 1e-4 + 1e-6, xtol=1e-15, ftol=1e-15, gtol=1e-15).x
-    assert screened.method == "lsq" and screened.diagnostics.search == "gauss-newton"
-    assert screened.diagnostics.scaled_by_residuals and screened.diagnostics.dof == positions - 9
-    np.testing.assert_allclose(screened.theta, peer, rtol=0, atol=1e-3 * screened.sigma.min())
+    assert solved.method == ("lsq" if method == "gauss-newton" else method) and solved.diagnostics.search == method
+    assert solved.diagnostics.scaled_by_residuals and solved.diagnostics.dof == positions - 9
+    np.testing.assert_allclose(solved.theta, peer, rtol=0, atol=1e-3 * solved.sigma.min())
 
 
 def test_each_refusal_is_one_line_naming_the_triad_and_the_count():
