@@ -375,3 +375,14 @@ def test_a_parameter_files_provenance_is_read_from_its_checked_bytes(tmp_path):
     with pytest.raises(ValueError) as refused:
         note(tmp_path, not_parameters).provenance()
     assert str(refused.value).startswith(f"{tmp_path / 'parameters.yaml'}: schema: ")
+
+
+@pytest.mark.parametrize("data, start", [
+    (_win(start="s" * 300), "windows[0].start must be a finite number, got '"),
+    (_win(temperature_c="t" * 300), "windows[0].temperature_c must be a finite number (°C), got '"),
+    (_win(means={"gyroscope": ["m" * 300]}), "windows[0].means.gyroscope must be 3 finite numbers, got ['"),
+])
+def test_a_long_bad_value_is_cut_so_the_line_stays_at_200_characters(tmp_path, data, start):
+    why = refusal(tmp_path, {"type": "step", "data": data})
+    prefix = f"{tmp_path / LOG}: line 2: step document: "
+    assert why.startswith(prefix + start) and len(why) == len(prefix) + 200
