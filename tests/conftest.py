@@ -98,7 +98,9 @@ SLOW_LIST = Path(__file__).parent / "slow_tests.txt"
 SLOW_FIXTURES = {"planned"}
 SHARED_FIXTURES = {"planned", "session", "serial_session", "pristine_session", "headless_classic12",
                    "headless_field18", "classic12_session", "solved", "xsens", "ferraris", "imucal_result",
-                   "mishap_run", "mypy_cache", "clockless_cycled_run"}
+                   "mishap_run", "mypy_cache", "clockless_cycled_run",
+                   # built on both workers in a measured run (0.3-0.7 s of CPU each time)
+                   "warmup", "jackal", "text_files", "recording"}
 
 
 def slow_test_ids() -> set[str]:
