@@ -99,8 +99,11 @@ SLOW_FIXTURES = {"planned"}
 SHARED_FIXTURES = {"planned", "session", "serial_session", "pristine_session", "headless_classic12",
                    "headless_field18", "classic12_session", "solved", "xsens", "ferraris", "imucal_result",
                    "mishap_run", "mypy_cache", "clockless_cycled_run",
-                   # built on both workers in a measured run (0.3-0.7 s of CPU each time)
-                   "warmup", "jackal", "text_files", "recording"}
+                   # built on both workers in a measured run (0.2-2 s of CPU each time)
+                   "warmup", "jackal", "text_files", "recording", "acc_curves", "half_run", "params_csv",
+                   "real_bin", "one_turn_per_rate_step"}
+# Session fixtures shared by several files: their users, whatever the file, run as one group.
+SHARED_ACROSS_FILES = {"quick_session"}
 
 
 def slow_test_ids() -> set[str]:
@@ -120,7 +123,9 @@ def pytest_collection_modifyitems(config, items):
         if item.nodeid in slow or item.nodeid.split("::")[0] in slow or used & SLOW_FIXTURES:
             item.add_marker(pytest.mark.slow)
         shared = sorted(used & SHARED_FIXTURES)
-        if shared:
+        if used & SHARED_ACROSS_FILES:
+            item.add_marker(pytest.mark.xdist_group(sorted(used & SHARED_ACROSS_FILES)[0]))
+        elif shared:
             item.add_marker(pytest.mark.xdist_group(f"{item.nodeid.split('::')[0]}:{shared[0]}"))
 
 
