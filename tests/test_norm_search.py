@@ -184,3 +184,18 @@ def test_gauss_newton_refuses_a_step_that_raises_chi2_and_stays_where_it_was():
     assert res.message == "a Gauss-Newton step did not lower χ²" and res.x.tolist() == [2.0]
     converged = _gauss_newton(_arctan, np.array([1.0]), per_sigma=True, dof=1)
     assert converged.success and abs(converged.x[0]) < 1e-4
+
+
+def test_a_covariance_kept_by_its_parts_weighs_as_its_dense_form():
+    # Means sharing a slow bias (each pair of windows correlated by half their common-mode
+    # variance) plus each its own white noise: the parts' residual covariance, made in O(m²)
+    # without the (3m, 3m) matrix, must give the solve its dense Kronecker form gives.
+    from fieldcal.recording.up_covariance import MeansCovariance
+
+    problem = field18_accelerometer()
+    parts = MeansCovariance(windows=(2e-4) ** 2 * (0.5 + 0.5 * np.eye(18)), K=np.diag([1.02, 0.97, 1.01]),
+                            own=np.full((18, 3), (5e-4) ** 2))
+    by_parts, dense = solve_norm(problem, parts), solve_norm(problem, parts.dense())
+    np.testing.assert_allclose(by_parts.theta, dense.theta, rtol=0, atol=1e-4 * dense.sigma.min())
+    np.testing.assert_allclose(by_parts.sigma, dense.sigma, rtol=1e-6)
+    np.testing.assert_allclose(by_parts.diagnostics.chi2, dense.diagnostics.chi2, rtol=1e-6)
