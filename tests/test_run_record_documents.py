@@ -223,9 +223,9 @@ def test_a_resume_keeps_only_the_completed_steps_it_names_and_its_skips(tmp_path
 def test_an_old_tui_checkpoint_gives_the_step_before_it_its_bench(tmp_path):
     checkpoint = {"type": "checkpoint", "data": {"step": 0, "bench": {"table": "stopped"}}}
     other = {"type": "checkpoint", "data": {"step": 2, "bench": {"table": "turning"}}}
-    rec = record(tmp_path, step(0), checkpoint, step(1), other)
+    rec = record(tmp_path, skipped_event(2), step(0), checkpoint, step(1), other)
     assert [d.bench for d in rec.steps] == [{"table": "stopped"}, None]
-    assert rec.steps[0].line == 2  # the step keeps its own line
+    assert rec.steps[0].line == 3 and rec.steps[0].skipped == (2,)  # the step keeps its line and skips
 
 
 def test_a_checkpoint_never_replaces_a_bench_the_step_document_holds(tmp_path):
