@@ -481,3 +481,32 @@ def test_a_session_the_spec_refuses_is_its_first_line_naming_the_directory(tmp_p
     with pytest.raises(ValueError) as refused:
         RunRecord.open(d, spec_from=spec_from)
     assert type(refused.value) is ValueError and str(refused.value) == f"{d}: {said}"
+
+
+def test_two_windows_that_overlap_by_half_a_second_are_refused(tmp_path):
+    a = step(0, [window(start=0.0, duration=10.0)])
+    b = step(1, [window(start=9.5, duration=5.5)])  # ends after the first: only its start overlaps
+    assert refusal(tmp_path, a, b) == (
+        f"{tmp_path / LOG}: line 3: step document: a window from t 9.5 s overlaps one to t 10.0 s (step "
+        "document at line 2): windows of the completed steps never share sample time (changed or forged windows)")
+
+
+def test_a_window_starting_within_the_tolerance_of_the_last_end_is_accepted(tmp_path):
+    a = step(0, [window(start=0.0, duration=10.0)])
+    b = step(1, [window(start=10.0 - 1e-9, duration=5.0)])  # exactly the tolerance: not an overlap
+    assert len(record(tmp_path, a, b).completed) == 2
+
+
+GOLDEN_SESSION = Path(__file__).parent / "data" / "golden" / "headless-resumed"
+
+
+def test_open_requires_the_sample_data_unless_asked_for_the_log_only(tmp_path):
+    import shutil
+
+    d = tmp_path / "s"
+    shutil.copytree(GOLDEN_SESSION, d)
+    (d / "samples.bin").unlink()  # the log's chunks have no samples now (a copy of the log alone)
+    with pytest.raises(SessionError, match=r"samples.bin: .* but log.jsonl line \d+ refers to it"):
+        RunRecord.open(d)
+    rec = RunRecord.open(d, log_only=True)
+    assert len(rec.parameter_files) >= 1 and rec.n_samples > 0  # the log's count of them
