@@ -51,6 +51,7 @@ def refusal(tmp_path, *docs) -> str:
     with pytest.raises(SessionError) as refused:
         record(tmp_path, *docs)
     assert refused.value.path == str(tmp_path / LOG)
+    assert refused.value.line == int(str(refused.value).split(": line ")[1].split(":")[0])
     return str(refused.value)
 
 
@@ -222,9 +223,9 @@ def test_a_resume_keeps_only_the_completed_steps_it_names_and_its_skips(tmp_path
 def test_an_old_tui_checkpoint_gives_the_step_before_it_its_bench(tmp_path):
     checkpoint = {"type": "checkpoint", "data": {"step": 0, "bench": {"table": "stopped"}}}
     other = {"type": "checkpoint", "data": {"step": 2, "bench": {"table": "turning"}}}
-    rec = record(tmp_path, step(0), checkpoint, step(1), other)
+    rec = record(tmp_path, skipped_event(2), step(0), checkpoint, step(1), other)
     assert [d.bench for d in rec.steps] == [{"table": "stopped"}, None]
-    assert rec.steps[0].line == 2  # the step keeps its own line
+    assert rec.steps[0].line == 3 and rec.steps[0].skipped == (2,)  # the step keeps its line and skips
 
 
 def test_a_checkpoint_never_replaces_a_bench_the_step_document_holds(tmp_path):
@@ -386,3 +387,126 @@ def test_a_long_bad_value_is_cut_so_the_line_stays_at_200_characters(tmp_path, d
     why = refusal(tmp_path, {"type": "step", "data": data})
     prefix = f"{tmp_path / LOG}: line 2: step document: "
     assert why.startswith(prefix + start) and len(why) == len(prefix) + 200
+
+
+def test_the_record_keeps_the_spec_and_how_the_run_ended(tmp_path):
+    log = Log(tmp_path, start())
+    log.torn, log.stopped, log.stop_reason = ["a half-written line"], True, "operator quit"
+    spec = object()
+    rec = RunRecord(log, spec, None)
+    assert rec.spec is spec and rec.directory == tmp_path and rec.reader is log
+    assert rec.torn == ["a half-written line"] and rec.torn is not log.torn
+    assert rec.stopped is True and rec.stop_reason == "operator quit"
+
+
+# --------------------------------------------------------------------------------------------
+# RunRecord.open on a session written by the session writer
+
+
+def _session(tmp_path, *steps) -> Path:
+    from fieldcal.session.capture import SessionWriter
+
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {"procedure": "three positions", "seed": 4})
+    for data in steps:
+        w.step(data)
+    w.stop("done")
+    w.close()
+    return d
+
+
+def _spec(n):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(procedure=SimpleNamespace(positions=list(range(n))))
+
+
+def test_open_checks_the_steps_against_the_spec_the_start_metadata_gives(tmp_path):
+    d = _session(tmp_path, step(0)["data"], step(2)["data"])
+    given = []
+    rec = RunRecord.open(d, spec_from=lambda meta: given.append(meta) or _spec(3))
+    assert given == [{"procedure": "three positions", "seed": 4}]
+    assert [s.record.step for s in rec.steps] == [0, 2] and [s.line for s in rec.steps] == [2, 3]
+    assert rec.stopped and rec.stop_reason == "done" and rec.torn == []
+    assert rec.start == {"procedure": "three positions", "seed": 4}
+    assert rec.start_document["schema"] == "fieldcal-session/2"
+    assert [doc["seq"] for doc in rec.documents("step")] == [1, 2]
+    assert rec.n_samples == 0 and rec.raw_names == [] and list(rec.chunks()) == []
+    assert list(rec.replay_items()) == [] and list(rec.replay_items(("step",))) != []
+    with pytest.raises(SessionError, match=r"line 3: step document: 'step' must be a position index from 0 to 1, got 2"):
+        RunRecord.open(d, spec_from=lambda meta: _spec(2))
+
+
+def test_open_without_a_spec_reads_no_steps(tmp_path):
+    d = _session(tmp_path, step(0)["data"])
+    for rec in (RunRecord.open(d), RunRecord.open(d, log_only=True), RunRecord.open(d, spec_from=lambda meta: None)):
+        assert rec.spec is None and rec.steps == () and rec.skipped == ()
+
+
+@pytest.mark.parametrize("error", [KeyError, TypeError, AttributeError])
+def test_metadata_that_is_no_procedure_runs_is_one_line_at_line_1(tmp_path, error):
+    d = _session(tmp_path)
+
+    def spec_from(meta):
+        raise error("procedure")
+
+    with pytest.raises(SessionError) as refused:
+        RunRecord.open(d, spec_from=spec_from)
+    said = "'procedure'" if error is KeyError else "procedure"
+    assert str(refused.value) == (f"{d / LOG}: line 1: the start document's metadata is not a procedure run's "
+                                  f"({error.__name__}: {said})")
+    assert refused.value.path == str(d / LOG) and refused.value.line == 1
+
+
+def test_a_long_reason_is_cut_at_300_characters(tmp_path):
+    d = _session(tmp_path)
+
+    def spec_from(meta):
+        raise TypeError("x" * 400)
+
+    with pytest.raises(SessionError) as refused:
+        RunRecord.open(d, spec_from=spec_from)
+    assert str(refused.value) == (f"{d / LOG}: line 1: the start document's metadata is not a procedure run's "
+                                  "(TypeError: " + "x" * 400)[:300]
+
+
+@pytest.mark.parametrize("message, said", [("a recording session, not a procedure run\nsee fieldcal calibrate",
+                                            "a recording session, not a procedure run"), ("", "")])
+def test_a_session_the_spec_refuses_is_its_first_line_naming_the_directory(tmp_path, message, said):
+    d = _session(tmp_path)
+
+    def spec_from(meta):
+        raise ValueError(message)
+
+    with pytest.raises(ValueError) as refused:
+        RunRecord.open(d, spec_from=spec_from)
+    assert type(refused.value) is ValueError and str(refused.value) == f"{d}: {said}"
+
+
+def test_two_windows_that_overlap_by_half_a_second_are_refused(tmp_path):
+    a = step(0, [window(start=0.0, duration=10.0)])
+    b = step(1, [window(start=9.5, duration=5.5)])  # ends after the first: only its start overlaps
+    assert refusal(tmp_path, a, b) == (
+        f"{tmp_path / LOG}: line 3: step document: a window from t 9.5 s overlaps one to t 10.0 s (step "
+        "document at line 2): windows of the completed steps never share sample time (changed or forged windows)")
+
+
+def test_a_window_starting_within_the_tolerance_of_the_last_end_is_accepted(tmp_path):
+    a = step(0, [window(start=0.0, duration=10.0)])
+    b = step(1, [window(start=10.0 - 1e-9, duration=5.0)])  # exactly the tolerance: not an overlap
+    assert len(record(tmp_path, a, b).completed) == 2
+
+
+GOLDEN_SESSION = Path(__file__).parent / "data" / "golden" / "headless-resumed"
+
+
+def test_open_requires_the_sample_data_unless_asked_for_the_log_only(tmp_path):
+    import shutil
+
+    d = tmp_path / "s"
+    shutil.copytree(GOLDEN_SESSION, d)
+    (d / "samples.bin").unlink()  # the log's chunks have no samples now (a copy of the log alone)
+    with pytest.raises(SessionError, match=r"samples.bin: .* but log.jsonl line \d+ refers to it"):
+        RunRecord.open(d)
+    rec = RunRecord.open(d, log_only=True)
+    assert len(rec.parameter_files) >= 1 and rec.n_samples > 0  # the log's count of them
