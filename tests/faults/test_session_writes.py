@@ -31,7 +31,10 @@ def test_resume_refuses_a_linked_parameter_file_before_rerunning_anything(capsys
 
 @pytest.mark.parametrize("name", [LOG, SAMPLES])
 @pytest.mark.parametrize("command", ["resume", "calibrate"])
-def test_a_session_file_with_a_second_name_is_never_appended_to(capsys, tmp_path, request, name, command):
+def test_a_session_file_with_a_second_name_is_never_appended_to(capsys, tmp_path, request, name, command,
+                                                               quick_session):
+    # (quick_session named here, though taken through session_copy below: conftest.py then runs
+    # this test on the worker that holds the one quick run, instead of making another)
     session = (unfinished(request.getfixturevalue("session_copy")) if command == "resume"
                else request.getfixturevalue("recording_copy"))
     other = tmp_path / "elsewhere" / name
