@@ -16,6 +16,11 @@ How a page's commands are run (the harness):
   checkout's .venv under `make test`, so the commands run the code under test), and `configs/`, `procedures/`, `benchmarks/`, `tests/data/real/` and `tests/faults/` are
   copies, so a command that writes beside its input cannot touch the checkout. `$XDG_DATA_HOME`
   and `$XDG_CONFIG_HOME` point into it (the unit registry, the TUI's last setup).
+- A page running `fieldcal` twice or more has each command forked from one interpreter that
+  imported fieldcal, numpy and scipy once in the page's directory and environment
+  (tests/command_forks.py): still a process of its own with the caller's arguments, environment,
+  directory and streams, without the 0.6-0.8 s of imports each fresh one pays. Only the venv
+  under test's `fieldcal` goes that way; not on PATH is still "command not found".
 - Not run, still checked: in every block, run or not, each `fieldcal COMMAND` names a command
   the parser has and each `--option` after it is one of that command's.
 
@@ -25,6 +30,7 @@ README.md keeps to 150 lines and its links resolve, and the site builds with mkd
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import os
 import re
@@ -36,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from command_forks import forked_fieldcal
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md")])
@@ -241,8 +248,8 @@ def _environment(tmp_path: Path) -> dict[str, str]:
     return env
 
 
-def _script(blocks: list[Block]) -> str:
-    parts = ["set -eo pipefail"]
+def _script(blocks: list[Block], prelude: str = "") -> str:
+    parts = ["set -eo pipefail", prelude]
     for block in blocks:
         parts.append(f"echo '>>> {block.where()}' >&2")
         parts.append(block.text)
@@ -259,8 +266,12 @@ def test_every_command_block_of_a_page_runs(page, tmp_path):
     if not blocks:
         return  # every block says why it is not run (checked above)
     work = _page_directory(tmp_path)
-    done = subprocess.run(["bash", "-c", _script(blocks)], cwd=work, env=_environment(tmp_path),
-                          capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=540)
+    env = _environment(tmp_path)
+    with contextlib.ExitStack() as stack:
+        commands = sum(1 for block in blocks for _ in _fieldcal_invocations(block.text))
+        prelude = stack.enter_context(forked_fieldcal(work, env)) if commands >= 2 else ""
+        done = subprocess.run(["bash", "-c", _script(blocks, prelude)], cwd=work, env=env,
+                              capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=540)
     if done.returncode != 0:
         started = re.findall(r"^>>> (\S+)$", done.stderr, re.MULTILINE)
         pytest.fail(f"{page.relative_to(ROOT)}: the block at {started[-1] if started else '?'} "
@@ -283,6 +294,36 @@ def test_a_failing_block_fails_the_page_and_a_forgotten_activation_too(tmp_path)
     fake.write_text("```sh\n. .venv/bin/activate\n```\n\n```sh\nfieldcal --version\n```\n")
     done = subprocess.run(["bash", "-c", _script(runnable(fake))], cwd=work, env=env, capture_output=True, text=True)
     assert done.returncode == 0 and done.stdout.startswith("fieldcal ")
+
+
+def test_a_forked_fieldcal_says_and_exits_as_the_script_does(tmp_path):
+    """The harness's forks (tests/command_forks.py) against the venv's own `fieldcal` script: the
+    same output through a pipe, the same exit statuses and messages, and still "command not
+    found" before the page activates the venv."""
+    work = _page_directory(tmp_path)
+    env = _environment(tmp_path)
+    page = tmp_path / "x.md"
+    page.write_text("```sh\n. .venv/bin/activate\nfieldcal --version | tr a-z A-Z\n"
+                    "fieldcal units || echo \"units: $?\"\n"
+                    "fieldcal check no-such.yaml 2>&1 || echo \"check: $?\"\n"
+                    "fieldcal no-such-command 2>&1 | tail -1 || echo \"usage: $?\"\n```\n")
+
+    def run(script: str):
+        return subprocess.run(["bash", "-c", script], cwd=work, env=env, capture_output=True, text=True,
+                              stdin=subprocess.DEVNULL)
+
+    script = run(_script(runnable(page)))
+    with forked_fieldcal(work, env) as prelude:  # one server for the three runs: 0.8 s of imports
+        forked = run(_script(runnable(page), prelude))
+        not_activated = run(prelude + "\nfieldcal --version\n")
+        # and the forks did run the commands: without the server's socket, the same page fails
+        Path(re.search(r" call (\S+)", prelude)[1]).unlink()
+        unserved = run(_script(runnable(page), prelude))
+    assert (forked.returncode, forked.stdout) == (script.returncode, script.stdout) == (0, script.stdout)
+    assert script.stdout.startswith("FIELDCAL ") and "units: 2\n" in script.stdout and "check: 2\n" in script.stdout, \
+        script.stdout
+    assert not_activated.returncode == 127 and "command not found" in not_activated.stderr
+    assert unserved.returncode != 0 and not unserved.stdout
 
 
 def test_a_marker_without_a_reason_is_caught_and_one_with_a_reason_skips(tmp_path):

@@ -72,6 +72,12 @@ def rms_bounds(draw_count: int, p: float = 1e-3) -> tuple[float, float]:
     return float(np.sqrt(low / draw_count)), float(np.sqrt(high / draw_count))
 
 
+# The draws (accelerometer_z's cache) are per process: the tests that read the same ones run on one
+# xdist worker (--dist loadgroup), which simulates and calibrates them once (42 recordings, 2.8 s).
+SHARES_THE_DRAWS = pytest.mark.xdist_group("test_submodel_sigma.py:draws")
+
+
+@SHARES_THE_DRAWS
 @pytest.mark.parametrize("case, dofs", [("dof 0", range(0, 1)), ("dof 1-3", range(1, 4)),
                                         ("large dof", range(10, 100))])
 def test_sub_model_sigma_without_a_config_match_the_errors(case, dofs):
@@ -85,6 +91,7 @@ def test_sub_model_sigma_without_a_config_match_the_errors(case, dofs):
     assert low < rms < high, (case, rms, (low, high))
 
 
+@SHARES_THE_DRAWS
 def test_the_output_says_where_the_sigma_came_from():
     """Below SCATTER_DOF the σ come from the poses' own samples, and the solution says so with
     its dof; from SCATTER_DOF on, from the scatter about the fit."""
