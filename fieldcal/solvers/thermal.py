@@ -18,9 +18,8 @@ of the bias polynomial is chosen from the data: order k+1 is kept if its three c
 χ² by more than the 99 % point of χ² with 3 degrees of freedom (a likelihood-ratio test), or if
 leaving them out would move any parameter of order k by more than half its σ (a term weak in χ²
 but correlated with the others biases them if omitted), while the unknowns do not outnumber the
-equations and do not multiply the σ of the lower order's parameters by more than
-MAX_SIGMA_INFLATION (an order the windows all but leave undetermined). The noise is known, so σ
-comes from the information, not from the residuals, and an exactly determined model (an accelerometer's 18 norms beside a quadratic bias and the drift) has
+equations: the noise is known, so σ comes from the information, not from the residuals, and an
+exactly determined model (an accelerometer's 18 norms beside a quadratic bias and the drift) has
 honest σ, though no χ² to check them by.
 """
 from __future__ import annotations
@@ -47,13 +46,6 @@ MAX_OMISSION_SHIFT_SIGMA = 0.5
 # The least singular value of the whitened Jacobian, relative to the largest, below which a
 # candidate's parameters are not determined by the windows (an order is then no candidate).
 UNDETERMINED = 1e-10
-# An order whose added terms multiply the σ of a parameter already in the model by more than this
-# is not determined by the windows either (see ``select`` in solve_thermal_norm): on
-# configs/sim-warmup.yaml an order the windows carry inflates them 1.2-8-fold, the ill-posed exact
-# fit of seed 380 10⁵-10⁶-fold. 30 is far from both, and a 30-fold σ is 1/900 of the information:
-# an order that costs the lower one's parameters that much is no calibration of them, whichever
-# way its χ² or the omission rule would lean.
-MAX_SIGMA_INFLATION = 30.0
 _BIRGE_P = 1e-3  # as solve_norm: a χ² this improbable means the scatter, not the model, sets σ
 
 
@@ -74,16 +66,8 @@ def _layout(order: int, scale: bool) -> int:
 
 
 def _central_jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """∂fun/∂x by central differences; fun takes a stack of points (..., n), as ``_whitened`` does."""
-    values = fun(np.vstack([x + np.diag(steps), x - np.diag(steps)]))
-    return ((values[:len(x)] - values[len(x):]) / (2 * steps[:, None])).T
-
-
-def _minpack_steps(z: np.ndarray) -> np.ndarray:
-    """The forward-difference steps MINPACK's lmdif takes (scipy's method="lm" without jac=):
-    √ε·|z|, or √ε where z is 0, so the Jacobian given it is the one it would have made itself."""
-    h = np.sqrt(np.finfo(float).eps) * np.abs(z)
-    return np.where(h == 0.0, np.sqrt(np.finfo(float).eps), h)
+    """∂fun/∂x by central differences, one column per parameter (a few dozen at most)."""
+    return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h) for e, h in zip(np.diag(steps), steps)])
 
 
 def _residual_covariance_at(problem, theta: np.ndarray, u: np.ndarray, covariance) -> np.ndarray:
@@ -96,34 +80,18 @@ def _residual_covariance_at(problem, theta: np.ndarray, u: np.ndarray, covarianc
     return G @ cov @ G.T
 
 
-def _sigma(jacobian: np.ndarray) -> np.ndarray:
-    """Each parameter's σ, √diag((JᵀJ)⁻¹), from the SVD of the whitened Jacobian itself: forming
-    JᵀJ squares its condition number, and at 10⁸ (an ill-posed candidate) an inverse or pinv of it
-    keeps only the rounding of its weak direction, which made the σ compared depend on the last bits."""
-    _, sv, vt = np.linalg.svd(jacobian, full_matrices=False)
-    return np.sqrt(np.sum((vt / sv[:, None]) ** 2, axis=0))
-
-
-def _shared(order: int, scale: bool) -> np.ndarray:
-    """Where the parameters of (order, scale) sit in the layout of (order + 1, scale)."""
-    return np.r_[np.arange(_layout(order, False)), np.arange(_layout(order + 1, False), _layout(order + 1, scale))]
-
-
 def _split(x: np.ndarray, order: int, scale: bool):
-    """θ (..., 9), the bias terms (..., order, 3) and the drift (..., 3) of parameters x (..., p)."""
-    theta = x[..., :N_PARAMS]
-    terms = x[..., N_PARAMS:N_PARAMS + 3 * order].reshape(x.shape[:-1] + (order, 3))
-    drift = x[..., N_PARAMS + 3 * order:] if scale else np.zeros(x.shape[:-1] + (3,))
+    theta = x[:N_PARAMS]
+    terms = x[N_PARAMS:N_PARAMS + 3 * order].reshape(order, 3)
+    drift = x[N_PARAMS + 3 * order:] if scale else np.zeros(3)
     return theta, terms, drift
 
 
 def _corrected(u_points: np.ndarray, dt: np.ndarray, theta, terms, drift) -> np.ndarray:
-    """The averages at T_ref: (u − b₀ − Σ bₖ ΔTᵏ)/(1 + s₁ΔT) + b₀, flattened (..., 3n): over a
-    stack of parameter vectors at once, so a Jacobian's columns are one evaluation."""
-    offset = (dt[:, None] ** np.arange(1, terms.shape[-2] + 1)) @ terms
-    b0 = theta[..., None, :3]
-    corrected = (u_points - b0 - offset) / (1.0 + dt[:, None] * drift[..., None, :]) + b0
-    return corrected.reshape(corrected.shape[:-2] + (-1,))
+    """The averages at T_ref: (u − b₀ − Σ bₖ ΔTᵏ)/(1 + s₁ΔT) + b₀, flattened."""
+    offset = (dt[:, None] ** np.arange(1, len(terms) + 1)) @ terms
+    b0 = theta[:3]
+    return ((u_points - b0 - offset) / (1.0 + dt[:, None] * drift) + b0).ravel()
 
 
 def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: float | None = None,
@@ -163,15 +131,8 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
             return whitener(problem.residuals(theta, _corrected(points, dt, theta, terms, drift)))
 
         x0 = np.r_[theta_start, np.zeros(p - N_PARAMS)]
-
-        def scaled(z):
-            return whitened(x0 + z * steps)
-
-        # MINPACK's own differences evaluate one column at a time, 15-21 Python calls per
-        # Jacobian; the same differences over the stack of perturbed vectors are one (3.5× less
-        # CPU for the whole fit), and the same Jacobian to rounding.
-        res = optimize.least_squares(scaled, np.zeros(p), method="lm", xtol=1e-12, ftol=1e-12,
-                                     jac=lambda z: _forward_jacobian(scaled, z, _minpack_steps(z)))
+        res = optimize.least_squares(lambda z: whitened(x0 + z * steps), np.zeros(p), method="lm",
+                                     xtol=1e-12, ftol=1e-12)
         if not res.success:
             return res.message
         x = x0 + res.x * steps
@@ -188,16 +149,11 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
         # (a warming accelerometer's b₂ beside its scale drift on 18 norms): the lower order then
         # carries the omitted term in its biases and scale factors, 4-5σ of its own σ on
         # configs/sim-warmup.yaml. So the lower order must also leave the others where they are.
-        shared = _shared(than[0], than[1])
-        return bool(np.max(np.abs(candidate[2][shared] - than[2]) / _sigma(than[4])) > MAX_OMISSION_SHIFT_SIGMA)
-
-    def ill_posed(candidate, than) -> bool:
-        """Whether the next order's terms multiply the σ of a lower-order parameter by more than
-        MAX_SIGMA_INFLATION: the windows then leave them all but undetermined."""
-        if than is None:
-            return False
-        inflation = _sigma(candidate[4])[_shared(than[0], than[1])] / _sigma(than[4])
-        return bool(np.max(inflation) > MAX_SIGMA_INFLATION)
+        order, with_scale = than[0], than[1]
+        shared = np.r_[np.arange(_layout(order, False)),
+                       np.arange(_layout(order + 1, False), _layout(order + 1, with_scale))]
+        sigma = np.sqrt(np.diag(np.linalg.pinv(than[4].T @ than[4])))
+        return bool(np.max(np.abs(candidate[2][shared] - than[2]) / sigma) > MAX_OMISSION_SHIFT_SIGMA)
 
     # The scale drift is in every candidate when the equations leave room for it at order 0: left
     # out, a warming accelerometer's drift (50 ppm/K, 0.3 mg over 6 K) is no term of the model, so
@@ -227,15 +183,7 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
                     break
                 continue
             sv = np.linalg.svd(candidate[4], compute_uv=False)
-            # Nor is an order the windows all but leave undetermined. The condition number alone
-            # was a knife edge: an exact fit (order 2 and the drift on 18 norms) at some warm-ups'
-            # temperatures (configs/sim-warmup.yaml seed 380) sits at 10⁷-10¹¹ with the last bits
-            # of its inputs, and below 10¹⁰ it was taken, with bias σ 10⁵ times order 1's: the
-            # omission rule of ``better`` keeps any order whose estimates move the lower order's by
-            # more than half a σ, and the estimates of an ill-posed order move by its own huge σ,
-            # so it always did. The σ inflation is what the choice needs to know, it does not hinge
-            # on a rounding (10⁴-10⁵ there, 1.2-8 for an order the windows carry), and it is scale-free.
-            if not sv[-1] > UNDETERMINED * sv[0] or ill_posed(candidate, chosen):
+            if not sv[-1] > UNDETERMINED * sv[0]:
                 # An order the windows cannot determine is no candidate either: an exact fit (order
                 # 2 and the drift on the inclinometer's 18 norms) is singular at some warm-ups'
                 # temperatures (configs/sim-warmup.yaml seed 380, condition 5e10), which failed the
