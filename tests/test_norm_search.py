@@ -199,3 +199,25 @@ def test_a_covariance_kept_by_its_parts_weighs_as_its_dense_form():
     np.testing.assert_allclose(by_parts.theta, dense.theta, rtol=0, atol=1e-4 * dense.sigma.min())
     np.testing.assert_allclose(by_parts.sigma, dense.sigma, rtol=1e-6)
     np.testing.assert_allclose(by_parts.diagnostics.chi2, dense.diagnostics.chi2, rtol=1e-6)
+
+
+def test_a_gyros_covariance_kept_by_its_parts_weighs_as_its_dense_form():
+    # A gyro's norm residuals have no per-average gradient (point_gradients): its parts are made
+    # dense, and must weigh as the dense form given directly.
+    from fieldcal.recording.up_covariance import MeansCovariance
+    from fieldcal.solvers import RateNormProblem
+
+    rng = np.random.default_rng(5)
+    up = UP18 + rng.normal(0, 0.03, UP18.shape)
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    rate, earth, vertical = np.radians(10), 7.292115e-5, 7.292115e-5 * np.sin(np.radians(40))
+    truth = np.array([1e-3, -2e-3, 5e-4, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+    noise = 5e-6
+    plus = distort_with(truth, (rate + vertical) * up) + rng.normal(0, noise, up.shape)
+    minus = distort_with(truth, (vertical - rate) * up) + rng.normal(0, noise, up.shape)
+    problem = RateNormProblem(plus, minus, rate, np.empty((0, 3)), np.empty(0, int), earth, vertical)
+    parts = MeansCovariance(windows=(2e-6) ** 2 * (0.5 + 0.5 * np.eye(36)), K=np.diag([1.02, 0.97, 1.01]),
+                            own=np.full((36, 3), noise**2))
+    by_parts, dense = solve_norm(problem, parts), solve_norm(problem, parts.dense())
+    np.testing.assert_allclose(by_parts.theta, dense.theta, rtol=0, atol=1e-6 * dense.sigma.min())
+    np.testing.assert_allclose(by_parts.sigma, dense.sigma, rtol=1e-9)
