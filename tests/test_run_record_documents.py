@@ -289,6 +289,8 @@ def test_each_parameter_file_is_the_runs_or_a_re_solves_by_where_the_log_notes_i
     assert rec.current_parameters is notes[3] and rec.run_parameters is notes[2]
     assert rec.resolved_after(notes[0]) == [notes[1], notes[3]]
     assert rec.resolved_after(notes[2]) == [notes[3]]
+    assert rec.resolved_after(notes[1]) == [notes[3]]  # not itself
+    assert notes[1].sha256 == hashlib.sha256(b"parameters-002.yaml").hexdigest()
     assert rec.parameters_path is None  # the current one is not there
     assert [n.exists for n in notes] == [True, True, True, False]
 
@@ -403,13 +405,15 @@ def test_the_record_keeps_the_spec_and_how_the_run_ended(tmp_path):
 # RunRecord.open on a session written by the session writer
 
 
-def _session(tmp_path, *steps) -> Path:
+def _session(tmp_path, *steps, raw: bytes = b"") -> Path:
     from fieldcal.session.capture import SessionWriter
 
     d = tmp_path / "s"
     w = SessionWriter.create(d, {"procedure": "three positions", "seed": 4})
     for data in steps:
         w.step(data)
+    if raw:
+        w.write_raw("imu", 1.5, raw)
     w.stop("done")
     w.close()
     return d
@@ -422,7 +426,7 @@ def _spec(n):
 
 
 def test_open_checks_the_steps_against_the_spec_the_start_metadata_gives(tmp_path):
-    d = _session(tmp_path, step(0)["data"], step(2)["data"])
+    d = _session(tmp_path, step(0)["data"], step(2)["data"], raw=b"\x01\x02 device bytes")
     given = []
     rec = RunRecord.open(d, spec_from=lambda meta: given.append(meta) or _spec(3))
     assert given == [{"procedure": "three positions", "seed": 4}]
@@ -431,7 +435,8 @@ def test_open_checks_the_steps_against_the_spec_the_start_metadata_gives(tmp_pat
     assert rec.start == {"procedure": "three positions", "seed": 4}
     assert rec.start_document["schema"] == "fieldcal-session/2"
     assert [doc["seq"] for doc in rec.documents("step")] == [1, 2]
-    assert rec.n_samples == 0 and rec.raw_names == [] and list(rec.chunks()) == []
+    assert rec.n_samples == 0 and list(rec.chunks()) == []
+    assert rec.raw_names == ["imu"] and list(rec.raw("imu")) == [(1.5, b"\x01\x02 device bytes")]
     assert list(rec.replay_items()) == [] and list(rec.replay_items(("step",))) != []
     with pytest.raises(SessionError, match=r"line 3: step document: 'step' must be a position index from 0 to 1, got 2"):
         RunRecord.open(d, spec_from=lambda meta: _spec(2))
