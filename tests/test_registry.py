@@ -3,7 +3,9 @@ several processes writing at once losing nothing, a writer killed mid-write leav
 row, and a registry failure never failing a run; on SQLite and on a real PostgreSQL server
 (tests/postgres_server.py starts one; without its binaries those variants are skipped)."""
 import hashlib
+import itertools
 import multiprocessing
+import signal
 import sqlite3
 from pathlib import Path
 
@@ -145,16 +147,19 @@ def test_processes_writing_at_once_lose_nothing(tmp_path, registry_at):
 
 
 def _endless_writer(db, files, first_done):
+    """Records ``files``, then new ones for ever: only the kill ends it, wherever it lands."""
     with Registry(db) as registry:
         for i, f in enumerate(files):
             registry.record(f)
             if i == 4:
                 first_done.set()
+        for i in itertools.count(len(files)):
+            registry.record(unit_file(files[0].parent / f"k-{i}.yaml", f"K{i}", [i, 0.0, 0.0]))
 
 
 def test_a_writer_killed_mid_write_leaves_no_partial_calibration(tmp_path, registry_at):
-    # 100 files: the writer is killed just after its 5th with 95 still to write (at a few ms each,
-    # far more than the kill takes to land); 300 spent 10 s of wall writing files it never reached.
+    # The writer never ends by itself (100 files, then new ones), so the kill lands while it
+    # writes; 300 files made in advance spent 10 s of wall on files it never reached.
     files = [unit_file(tmp_path / f"k-{i}.yaml", f"K{i}", [i, 0.0, 0.0]) for i in range(100)]
     ctx = multiprocessing.get_context("spawn")
     first_done = ctx.Event()
@@ -163,14 +168,14 @@ def test_a_writer_killed_mid_write_leaves_no_partial_calibration(tmp_path, regis
     assert first_done.wait(120)
     proc.kill()  # SIGKILL, wherever it is: between or inside transactions
     proc.join(60)
+    assert proc.exitcode == -signal.SIGKILL  # it was still writing: the kill ended it
     with Registry(registry_at) as registry:  # opens (SQLite: recovers the WAL) and can be written
         if registry.backend.kind == "sqlite":
             assert registry.query("PRAGMA integrity_check")[0][0] == "ok"
         rows = _calibration_rows(registry)
         assert len(rows) >= 5  # the five it said it had recorded, at least
-        index = {str(f.resolve()): i for i, f in enumerate(files)}
-        # each whole and right, none partial
-        assert rows == {path: (pytest.approx(float(index[path])), 9, 1) for path in rows}
+        # each whole and right (file k-i holds bias i), none partial
+        assert rows == {path: (pytest.approx(float(Path(path).stem.split("-")[1])), 9, 1) for path in rows}
         # still writable: a few files the killed writer did not reach and a new one are recorded
         # now (recording all 300 of the earlier version, one transaction each, spent 12 s of wall)
         later = [f for f in files if str(f.resolve()) not in rows][:3] + [
