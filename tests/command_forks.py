@@ -43,15 +43,20 @@ def _receive(connection: socket.socket) -> tuple[dict, list[int]]:
     standard descriptors."""
     fds = array.array("i")
     data = b""
-    while not data.endswith(b"\n"):
-        chunk, ancillary, _, _ = connection.recvmsg(1 << 20, socket.CMSG_SPACE(3 * fds.itemsize))
-        if not chunk:
-            raise EOFError("the caller went away before its request was whole")
-        for level, kind, payload in ancillary:
-            if level == socket.SOL_SOCKET and kind == socket.SCM_RIGHTS:
-                fds.frombytes(payload[: len(payload) - len(payload) % fds.itemsize])
-        data += chunk
-    return json.loads(data), list(fds)
+    try:
+        while not data.endswith(b"\n"):
+            chunk, ancillary, _, _ = connection.recvmsg(1 << 20, socket.CMSG_SPACE(3 * fds.itemsize))
+            for level, kind, payload in ancillary:
+                if level == socket.SOL_SOCKET and kind == socket.SCM_RIGHTS:
+                    fds.frombytes(payload[: len(payload) - len(payload) % fds.itemsize])
+            if not chunk:
+                raise EOFError("the caller went away before its request was whole")
+            data += chunk
+        return json.loads(data), list(fds)
+    except BaseException:
+        for fd in fds:  # not left open in the server
+            os.close(fd)
+        raise
 
 
 def _become_the_command(request: dict, fds: list[int], connection: socket.socket) -> None:
@@ -69,6 +74,7 @@ def _become_the_command(request: dict, fds: list[int], connection: socket.socket
     sys.stdout = open(1, "w", buffering=1 if os.isatty(1) else -1, closefd=False)
     sys.stderr = open(2, "w", buffering=1, errors="backslashreplace", closefd=False)
     sys.argv = request["argv"]
+    sys.path[0] = os.path.dirname(sys.argv[0])  # as the console script starts: its own folder, not tests/
     status = 1
     try:
         from fieldcal.cli.main import run
@@ -82,14 +88,16 @@ def _become_the_command(request: dict, fds: list[int], connection: socket.socket
         traceback.print_exc()
     finally:
         import atexit
+        import threading
+        code = status & 0xFF if isinstance(status, int) else 1
+        threading._shutdown()  # non-daemon threads joined, as at an interpreter's exit
         atexit._run_exitfuncs()
         for stream in (sys.stdout, sys.stderr):
-            try:
+            with contextlib.suppress(OSError, ValueError):
                 stream.flush()
-            except OSError:
-                pass
-        connection.sendall(STATUS.pack(status & 0xFF))
-        os._exit(status & 0xFF)
+        with contextlib.suppress(OSError):  # the caller may be gone
+            connection.sendall(STATUS.pack(code))
+        os._exit(code)
 
 
 def serve(path: str) -> None:
@@ -115,8 +123,11 @@ def serve(path: str) -> None:
                 continue
             pid = os.fork()
             if pid == 0:
-                listener.close()
-                _become_the_command(request, fds, connection)
+                try:
+                    listener.close()
+                    _become_the_command(request, fds, connection)
+                finally:  # never back into this loop (nor its finally, which kills the forks)
+                    os._exit(NO_STATUS)
             forks.add(pid)
             for fd in fds:
                 os.close(fd)
@@ -144,7 +155,14 @@ def _reap(forks: set[int], options: int) -> None:
 
 
 def call(path: str, argv: list[str]) -> int:
-    """`fieldcal ARGV` through the server: its exit status, after it has ended."""
+    """`fieldcal ARGV` through the server: its exit status, after it has ended. A caller with a
+    standard descriptor closed (`>&-`) runs the real script instead: the socket opened here would
+    take that descriptor's number and be sent as the command's stream."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            os.execv(argv[0], argv)
     connection = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     connection.connect(path)
     request = json.dumps({"argv": argv, "env": dict(os.environ), "cwd": os.getcwd()}).encode() + b"\n"
@@ -166,8 +184,9 @@ def forked_fieldcal(directory: Path, env: dict[str, str]) -> Iterator[str]:
     with tempfile.TemporaryDirectory(prefix="fc-forks-") as where:  # short: a socket path is <= 107 bytes
         path = os.path.join(where, "socket")
         # One BLAS thread in the server: OpenBLAS's pool of threads, carried into a fork, spins
-        # (a plan took 72 s of CPU forked, 7 s as its own process); the commands' results do not
-        # depend on it, and two test workers on two cores leave no core for a second thread.
+        # (a plan took 72 s of CPU forked, 7 s as its own process). One thread is also what the
+        # fieldcal command itself sets before numpy loads (fieldcal/__init__.py), so the forks
+        # compute as the script does.
         server = subprocess.Popen([sys.executable, __file__, "serve", path], cwd=directory,
                                   env={**env, "OPENBLAS_NUM_THREADS": "1"},
                                   stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True)
