@@ -1,5 +1,7 @@
 """solve_norm's search and its messages, each against a hand-worked value or a peer optimiser
 (the mutation run of fieldcal/solvers/norm.py, docs/benchmarks.md, found these unguarded)."""
+import math
+
 import numpy as np
 import pytest
 from scipy import optimize
@@ -124,7 +126,9 @@ class _Directions:
     """What _spread_hint reads of a problem: its measured directions."""
 
     def __init__(self, *tilts_deg):
-        self.rows = np.array([[0.0, np.sin(np.radians(t)), np.cos(np.radians(t))] for t in tilts_deg])
+        # math's sin and cos, as _spread_hint's threshold is math.cos(math.radians(10)): the 10°
+        # case then sits on the edge to the bit on any machine (numpy's SIMD cos may differ by an ulp)
+        self.rows = np.array([[0.0, math.sin(math.radians(t)), math.cos(math.radians(t))] for t in tilts_deg])
 
     def directions(self):
         return self.rows
