@@ -20,8 +20,23 @@ async def until(pilot, predicate, timeout_s: float = 120.0) -> None:
     # 30 s was seen once while CI's two workers and other jobs shared the 2 cores.
     deadline = time.monotonic() + timeout_s
     while not predicate():
-        assert time.monotonic() < deadline, "the UI did not get there in time"
+        assert time.monotonic() < deadline, f"the UI did not get there in time; {what_it_shows(pilot.app)}"
         await pilot.pause(0.01)
+
+
+def what_it_shows(app) -> str:
+    """The state a hang leaves, for the failure's message: the banner, the run's phase and the
+    last lines of the event log (a held rate, a silent device and a stuck step read differently)."""
+    parts = [f"telemetry {getattr(app, 'telemetry', None)!r}"]
+    for selector in ("#banner", "#log"):
+        try:
+            widget = app.screen.query_one(selector)
+        except Exception:  # another screen, or not mounted: say what there is
+            continue
+        lines = getattr(widget, "lines", None)
+        text = " | ".join(line.text for line in lines[-5:]) if lines is not None else str(widget.render())
+        parts.append(f"{selector}: {text}")
+    return "; ".join(parts)
 
 
 async def press_and_go_on(pilot, *keys: str) -> None:
