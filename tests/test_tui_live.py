@@ -62,9 +62,15 @@ def devices():
 
 # TWO_WITH_TURNS with 2 s dwells and 20 °/s turns (the table.max_rate_deg_s default): the same steps
 # in half the samples (each one read from the pty, parsed and fed; a loaded machine took 36 s over
-# TWO_WITH_TURNS' 200 s).
+# TWO_WITH_TURNS' 200 s). The second position is upside down, not the first turned about the
+# vertical: "placed and still" must tell the carry's samples from the last step's, and a turn about
+# gravity leaves the tilt as it was (then "ready" could be pressed before the station had read the
+# carry, which it then saw as motion: 1 run in 6, 2026-11-27).
 QUICK_TURNS = (TWO_POSITIONS.replace("20 s dwells", "2 s dwells").replace("dwell_s: 20", "dwell_s: 2")
+               .replace('{id: 2, description: "z-upward, x-north, y-west", axes: {x: north, y: west, z: up}}',
+                        '{id: 2, description: "z-downward, x-north, y-east", axes: {x: north, y: east, z: down}}')
                + "rate_step: {rate_deg_s: 20, turns: 1, ramp_s: 2, settle_s: 1}\n")
+assert "z: down" in QUICK_TURNS
 
 
 @run_async
