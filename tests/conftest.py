@@ -122,9 +122,9 @@ def pytest_collection_modifyitems(config, items):
         used = set(getattr(item, "fixturenames", ()))
         if item.nodeid in slow or item.nodeid.split("::")[0] in slow or used & SLOW_FIXTURES:
             item.add_marker(pytest.mark.slow)
-        shared = sorted(used & SHARED_FIXTURES)
-        if used & SHARED_ACROSS_FILES:
-            item.add_marker(pytest.mark.xdist_group(sorted(used & SHARED_ACROSS_FILES)[0]))
+        shared, across = sorted(used & SHARED_FIXTURES), sorted(used & SHARED_ACROSS_FILES)
+        if across:
+            item.add_marker(pytest.mark.xdist_group(across[0]))
         elif shared:
             item.add_marker(pytest.mark.xdist_group(f"{item.nodeid.split('::')[0]}:{shared[0]}"))
 
