@@ -403,6 +403,12 @@ def test_snapshot_setup_screen(snap_compare, monkeypatch):
         await paste_into(pilot, app.setup, "#operator", "AB")
         await pilot.press("ctrl+s")
         await until(pilot, lambda: text_of(app.setup, "#error") != "")
+        # The focused field's cursor blinks every 0.5 s of the wall clock: on a loaded machine the
+        # picture was taken in either phase (a failed make test, 2026-11-27). A steady cursor
+        # shows it always.
+        for field in app.setup.query(Input):
+            field.cursor_blink = False
+        await pilot.pause()
 
     assert snap_compare(app, terminal_size=SIZE, run_before=with_an_error)
 
