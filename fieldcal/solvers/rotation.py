@@ -41,6 +41,7 @@ that knows the latitude can pass its horizontal part as ``motion_variance``) and
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -327,8 +328,21 @@ class _Steps:
         cuts = np.r_[0, np.flatnonzero(np.diff(group)) + 1, len(spans)]
         self.span_groups = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
         self.duration = t[i1] - t[i0]
-        self._groups: dict[int, np.ndarray] = {}
+        self.block = _BLOCK  # steps per block (fewer in a ``coarse`` copy)
+        self._groups: dict = {}  # the grouped terms by group, the coarse copies
         self._last = None  # (key, the quaternions) of the last K⁻¹, δb integrated
+
+    def coarse(self, group: int) -> "_Steps":
+        """These spans with ``group`` consecutive steps taken as one (their terms summed, see
+        ``quaternions``): blocks of _BLOCK // group steps, the spans' blocks as here, so that
+        ``jacobian`` and ``quaternions`` work alike on a group-th of the steps. Made once."""
+        key = ("coarse", group)
+        if key not in self._groups:
+            steps = copy.copy(self)
+            steps.terms, steps.block = self._grouped(group), _BLOCK // group
+            steps._groups, steps._last = {}, None
+            self._groups[key] = steps
+        return self._groups[key]
 
     def _grouped(self, group: int) -> np.ndarray:
         """The terms of ``group`` consecutive steps summed (made once): the storage index is the
@@ -355,12 +369,12 @@ class _Steps:
             np.r_[self.first_block[g0:g1], self.n_blocks]
         b0, b1 = int(blocks[0]), int(blocks[-1])
         c = len(self.terms)
-        terms = self.terms.reshape(c, _BLOCK, -1)[:, :, b0:b1].reshape(c, -1)
+        terms = self.terms.reshape(c, self.block, -1)[:, :, b0:b1].reshape(c, -1)
         phi = _weights(A, delta_b).T @ terms
         angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
         sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
         cos = np.cos(0.5 * angle)
-        inner = _compose_levels(np.concatenate([phi * sinc, cos[None]]).reshape(4, _BLOCK, -1))
+        inner = _compose_levels(np.concatenate([phi * sinc, cos[None]]).reshape(4, self.block, -1))
         top = np.concatenate([inner[-1][:, 0], [[0.0], [0.0], [0.0], [1.0]]], axis=1)  # and identity
         gather = self.gather[:, g0:g1]
         local = np.where(gather == self.n_blocks, b1 - b0, gather - b0)
@@ -410,20 +424,22 @@ class _Steps:
         after = np.empty((4, inner[-1].shape[-1] + 1))
         identity = np.array([0.0, 0.0, 0.0, 1.0])
         after[:, local] = _after(outer, np.broadcast_to(identity[:, None, None], (4, 1, q.shape[1])))
-        after = _after(inner, after[:, None, :-1])  # (4, _BLOCK, blocks)
+        after = _after(inner, after[:, None, :-1])  # (4, self.block, blocks)
         # B = S·J_r, summed against each step's terms per block: per_block[k, ab, c] = Σ_j B_j[a, b]·t_j[c].
         # Made a few blocks at a time: the (3, 3, steps) matrices are then never all held at once.
         n_blocks = after.shape[-1]
         b0 = int(self.first_block[g0])
         c = len(self.terms)
-        terms = self.terms.reshape(c, _BLOCK, -1)[:, :, b0:b0 + n_blocks]
-        shaped = [x.reshape(x.shape[:-1] + (_BLOCK, n_blocks)) for x in (phi, angle, sinc, cos)]
+        block = self.block
+        terms = self.terms.reshape(c, block, -1)[:, :, b0:b0 + n_blocks]
+        shaped = [x.reshape(x.shape[:-1] + (block, n_blocks)) for x in (phi, angle, sinc, cos)]
         per_block = np.empty((n_blocks, 9, c))
-        for lo in range(0, n_blocks, _JACOBIAN_BLOCKS):
-            part = np.s_[..., lo:lo + _JACOBIAN_BLOCKS]
+        chunk = _JACOBIAN_BLOCKS * _BLOCK // block  # as many steps at once in a coarse copy
+        for lo in range(0, n_blocks, chunk):
+            part = np.s_[..., lo:lo + chunk]
             B = np.einsum("ab...,bc...->ac...", _matrix(after[part]),
                           _right_jacobians(*(x[part] for x in shaped)), optimize=False)
-            per_block[part[1]] = np.matmul(B.reshape(9, _BLOCK, -1).transpose(2, 0, 1), terms[part].transpose(2, 1, 0))
+            per_block[part[1]] = np.matmul(B.reshape(9, block, -1).transpose(2, 0, 1), terms[part].transpose(2, 1, 0))
         return q, np.add.reduceat(per_block, self.first_block[g0:g1] - b0, axis=0)
 
     def compose(self, phi, group: int = 1):
@@ -675,18 +691,19 @@ class _Residuals:
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
-    def jacobian(self, theta, bias=None):
+    def jacobian(self, theta, bias=None, coarse: bool = False):
         """(rotations as ``rotations``, their (2m, 12) Jacobian over bias_x..z, scale_x..z and
         the six angles, whether the bias is estimated or held, exact (see _Steps.jacobian), and
-        the motions' quaternions)."""
+        the motions' quaternions). ``coarse``: all three of the coarse integration's
+        (``_Steps.coarse(_SEARCH_GROUP)``), for the search only."""
         nb = self.nb
         b, K_inv = self.unpack(theta)
         scale, angles = theta[nb:nb + 3], theta[nb + 3:]
         dK = np.zeros((12, 3, 3))
         dK[3:6] = [k_from_terms(e, angles) for e in np.eye(3)]  # K is linear in each group
         dK[6:] = [k_from_terms(scale, e) - np.diag(scale) for e in np.eye(6)]
-        q, D = self.steps.jacobian(K_inv, (b if bias is None else bias) - self.steps.offset, dK,
-                                   np.eye(12, 3))
+        steps = self.steps.coarse(_SEARCH_GROUP) if coarse else self.steps
+        q, D = steps.jacobian(K_inv, (b if bias is None else bias) - self.steps.offset, dK, np.eye(12, 3))
         turned = _rotate_back(q, self.motions.up_start)
         r = np.einsum("mi,mik->mk", turned - self.motions.up_end, self.E).ravel()
         # Cᵀ·u moves by (Cᵀ·u) × δψ when C becomes C·exp(δψ×).
@@ -813,6 +830,7 @@ _STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the
 _SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
 _MAX_ITERATIONS = 100
 _FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
+_SEARCH_GROUP = 8  # steps taken as one by the search's Jacobians (_Steps.coarse; 1: exact ones)
 
 
 def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
@@ -822,9 +840,10 @@ def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, 
     evaluations of their own), each step halved until it lowers the cost. (z, iterations) once
     a step is below _SEARCH_TOL σ: the polish takes it from there.
 
-    Where a long step would land, the Jacobian is made before fun is asked: solve_rotations'
-    ``jac`` keeps the residuals its integration gives, so fun finds them made (one integration
-    saved per long step taken; a step that fails has cost a Jacobian instead of an evaluation)."""
+    Where a long step would land, the Jacobian is made before fun is asked (a ``jac`` that
+    integrates exactly can keep the residuals it gives for fun; solve_rotations' search asks
+    the coarse integration's, about a sixth of an exact Jacobian's work and less than one
+    evaluation's, so a step that fails costs little more than its evaluation)."""
     z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
     cost = float(r @ r)
     for iteration in range(1, _MAX_ITERATIONS + 1):
@@ -965,17 +984,22 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
     Q, R = np.linalg.qr(J0)
     to_theta = natural[:, None] * np.linalg.inv(R)
-    def jacobian(theta):
-        """Of whitened: the rotations' exact, the side residuals' by forward differences. The
-        rotations its integration gives are kept as evaluated's."""
-        rotations, J, _ = model.jacobian(theta)
-        evaluated(theta, rotations)
+    def jacobian(theta, coarse=False):
+        """Of whitened: the rotations' exact (``coarse``: the coarse integration's, for the
+        search), the side residuals' by forward differences. The rotations an exact
+        integration gives are kept as evaluated's."""
+        rotations, J, _ = model.jacobian(theta, coarse=coarse)
+        if not coarse:
+            evaluated(theta, rotations)
         J = J[:, 3 - nb:]
         if n_side:
             J = np.vstack([J, _jacobian(model.side, theta, fd_steps, central=False)])
         return J if whiten is None else whiten @ J
 
-    theta, converged, message, iterations = _search(whitened, jacobian, theta0, to_theta, Q, method)
+    # The search only finds the way: its Jacobians from the coarse integration (an eighth of the
+    # steps); the polish's, whose optimum and covariance are the result, exact.
+    theta, converged, message, iterations = _search(whitened, lambda theta: jacobian(theta, coarse=_SEARCH_GROUP > 1),
+                                                    theta0, to_theta, Q, method)
     if not converged:
         raise CalibrationError(f"{name}: {method} did not converge ({message})")
     theta, r_w, J = _polish(whitened, jacobian, theta, natural)
