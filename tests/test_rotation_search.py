@@ -76,3 +76,30 @@ def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_o
     truth = np.r_[obs["b"], obs["k"], obs["M"]]
     assert np.all(np.abs(sol.theta - truth) < 4 * sol.sigma)
 
+
+
+def test_the_scan_integrates_every_motion_exactly_no_more_than_twice(monkeypatch):
+    """The grid's best coarse scale and its two neighbours are told apart exactly; each
+    neighbour's misfit over every sixth motion bounds its whole one from below, so not all three
+    are integrated over every motion. The choice is the exhaustive exact scan's (as
+    test_rotation_solver's scan test checks on more recordings)."""
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(3), **GRADES["counts"])
+    scales = np.geomspace(1e-3, 1e6, 73)
+    whole = []
+    forward = _Steps._forward
+
+    def counted(self, *args):
+        whole.append(len(self.duration) == len(rec.spans))
+        return forward(self, *args)
+
+    monkeypatch.setattr(_Steps, "_forward", counted)
+    up = obs["up"]
+    found = rotation.scan_scale(rec.t, obs["raw"], rec.spans, up[:-1], up[1:], obs["b0"], scales)
+    assert 1 <= sum(whole) <= 2 and len(whole) >= 4, whole
+
+    def misfit(k):
+        q = Rotation.from_quat(rotation.integrate((obs["raw"] - obs["b0"]) / k, rec.t, rec.spans))
+        return np.sum((q.inv().apply(up[:-1]) - up[1:]) ** 2)
+
+    assert found == scales[np.argmin([misfit(k) for k in scales])]

@@ -473,7 +473,7 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
     """The k of ``scales`` (sorted, a few dozen) whose K = k·I best carries every motion's start
     direction onto its end (least sum of squared misfits): a raw-count gyro's sensitivity, the
     start of its solve. The best k by a coarse integration, then the best of it and its two
-    neighbours by the exact one.
+    neighbours by the exact one (bounded as below).
 
     The misfit is a sum over the motions of squares, so every _SCAN_SAMPLE-th motion's share is
     a lower bound of it: all k are integrated over those motions, and over all motions only in
@@ -515,9 +515,21 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
         misfits = np.concatenate([coarse(steps, scales[i]) for i in batches(np.arange(len(scales)))])
     best = int(np.argmin(misfits))
     near = scales[max(best - 1, 0):best + 2]
-    exact = [np.sum((_rotate_back(steps.quaternions(np.eye(3) / k, np.zeros(3)), up_s) - up_e) ** 2)
-             for k in near]
-    return float(near[int(np.argmin(exact))])
+
+    def exact(steps, k, rows=slice(None)):
+        return float(np.sum((_rotate_back(steps.quaternions(np.eye(3) / k, np.zeros(3)), up_s[rows]) - up_e[rows])
+                            ** 2))
+
+    # The neighbours' exact misfits bounded from below as the coarse ones are: each over the
+    # sampled motions, then over all only while its bound is below the least found (mostly the
+    # first alone: neighbours on the grid are a third apart in scale).
+    lower = [exact(sample, k, rows) for k in near]
+    found = np.full(len(near), np.inf)
+    for i in np.argsort(lower, kind="stable"):
+        if lower[i] > np.min(found) * (1 + 1e-9):
+            break
+        found[i] = exact(steps, near[i])
+    return float(near[int(np.argmin(found))])
 
 
 def _tangent_bases(up):
