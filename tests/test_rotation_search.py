@@ -78,6 +78,33 @@ def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_o
 
 
 
+def test_a_steps_terms_are_the_hand_worked_ones_at_their_bit_reversed_places():
+    """A rate linear in time, ω = a + b·t, on uneven steps, two spans (the second over 64 steps,
+    so two blocks): its slope is b everywhere (so no Hermite correction), and step j's terms are
+    h/2·(ω_j + ω_{j+1}), h²/12·ω_j × ω_{j+1}, h²/12·(ω_{j+1} − ω_j) and h, at position
+    bit-reversed(k mod 64) of block k // 64 of its span (k the step's index in the span);
+    padding steps are zero."""
+    t = np.cumsum(np.r_[0.0, 0.01 + 0.002 * np.sin(np.arange(199))])
+    a, b = np.array([0.3, -0.2, 0.1]), np.array([0.5, 0.25, -1.0])
+    omega = a + t[:, None] * b
+    spans = np.array([[3, 40], [50, 150]])
+    steps = _Steps(omega, t, spans)
+    terms = steps.terms.reshape(10, rotation._BLOCK, -1)
+    reversed_ = rotation._bit_reversed(rotation._BLOCK)
+    first_block = [0, 1]
+    seen = np.zeros(terms.shape[1:], dtype=bool)
+    for s, (i0, i1) in enumerate(spans):
+        for k in range(i1 - i0):
+            j = i0 + k
+            h = t[j + 1] - t[j]
+            expected = np.r_[h / 2 * (omega[j] + omega[j + 1]), h * h / 12 * np.cross(omega[j], omega[j + 1]),
+                             h * h / 12 * (omega[j + 1] - omega[j]), h]
+            place = reversed_[k % rotation._BLOCK], first_block[s] + k // rotation._BLOCK
+            np.testing.assert_allclose(terms[(slice(None),) + place], expected, rtol=1e-12, atol=1e-15)
+            seen[place] = True
+    assert np.all(terms[:, ~seen] == 0.0) and seen.sum() == 137
+
+
 def test_the_scan_integrates_every_motion_exactly_no_more_than_twice(monkeypatch):
     """The grid's best coarse scale and its two neighbours are told apart exactly; each
     neighbour's misfit over every sixth motion bounds its whole one from below, so not all three

@@ -246,37 +246,43 @@ _GROUP_STEPS = 1 << 15  # steps whose integration terms are made at once (their 
 
 def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     """The integration terms (see _Steps) of consecutive spans [i0, i0 + length] into ``out``
-    (10, _BLOCK, their blocks), padding steps zero (the identity rotation)."""
+    (10, _BLOCK, their blocks), padding steps zero (the identity rotation). Made in time order
+    over the samples read (shifted slices, no gathers) and placed once at the steps' positions."""
     n = len(t)
-    padded = blocks * _BLOCK
-    owner = np.repeat(np.arange(len(i0)), padded)
-    k = np.arange(padded.sum()) - np.repeat(np.cumsum(padded) - padded, padded)
-    k = k.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
-    owner = owner.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
-    valid = k < lengths[owner]
-    j = np.where(valid, i0[owner] + k, i0[owner])  # padding: any real step
-    h = np.where(valid, t[j + 1] - t[j], 0.0)
-    if np.any(h[valid] <= 0):
-        raise ValueError("t must increase within every span")
     # Each sample of each span once (span by span, i0..i1) with its slope, offset taken off;
     # a step j reads sample j's row and the next. Read with one more sample each side (the
     # slopes' stencils): consecutive samples, so each stencil is three shifted slices.
     read = lengths + 3
     first_read = np.cumsum(read) - read
     wide = np.arange(read.sum()) - np.repeat(first_read - i0 + 1, read)  # i0 - 1 .. i1 + 1
-    rates = np.ascontiguousarray((values[np.clip(wide, 0, n - 1)] - offset).T)  # (3, read)
-    table = np.vstack([rates[:, 1:-1], _rate_slopes(values, offset, t, wide, rates)])
-    at = np.where(valid, first_read[owner] + k, first_read[owner])  # column of sample j in table
-    step0, step1 = table[:, at], table[:, at + 1]
+    clipped = np.clip(wide, 0, n - 1)
+    rates = np.ascontiguousarray((values[clipped] - offset).T)  # (3, read)
+    table = np.vstack([rates[:, 1:-1], _rate_slopes(values, offset, t, wide, rates)])  # column c: wide[c + 1]
+    # Every pair of neighbouring columns as a step: those that straddle two spans are made and
+    # not placed (three a span).
+    step0, step1 = table[:, :-1], table[:, 1:]
+    times = t[clipped]
+    h = times[2:-1] - times[1:-2]
     v0, v1 = step0[:3], step1[:3]
-    w = h * h / 12.0  # h is zero for padding: a zero increment, the identity rotation
-    terms = np.empty((10, len(h)))  # (10, steps), position-major as out
+    w = h * h / 12.0
+    terms = np.empty((10, len(h)))  # (10, columns) in time order
     # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
     np.subtract(h / 2 * (v0 + v1), w * (step1[3:] - step0[3:]), out=terms[0:3])
     terms[3:6] = w * _cross(v0.T, v1.T).T
     np.multiply(w, v1 - v0, out=terms[6:9])
     terms[9] = h
-    out[...] = terms.reshape(out.shape)
+    # Step k of span s: column first_read[s] + k of the table; block first[s] + k // _BLOCK, at
+    # the bit-reversed position of k % _BLOCK in it (see _compose).
+    span = np.repeat(np.arange(len(i0)), lengths)
+    k = np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    column = first_read[span] + k
+    if np.any(h[column] <= 0):
+        raise ValueError("t must increase within every span")
+    first = np.cumsum(blocks) - blocks
+    out[...] = 0.0
+    out[:, _bit_reversed(_BLOCK)[k % _BLOCK], first[span] + k // _BLOCK] = terms[:, column]
+
+
 _SPAN_GROUP_BLOCKS = 512  # blocks whose compositions are made at once (~4 MiB, see _Steps._forward)
 _JACOBIAN_BLOCKS = 32  # blocks whose (3, 3, steps) matrices a Jacobian makes at once (~0.15 MiB each)
 
