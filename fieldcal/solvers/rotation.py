@@ -241,7 +241,6 @@ def _weight_derivatives(A, delta_b, dK, d_delta_b):
 
 
 _BLOCK = 64  # steps composed per block: a span is padded to whole blocks, not to the longest span
-_GROUP_STEPS = 1 << 15  # steps whose integration terms are made at once (their temporaries: ~12 MiB)
 
 
 def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
@@ -310,17 +309,21 @@ class _Steps:
         first = np.cumsum(blocks) - blocks
         values = np.asarray(values, dtype=float)
         self.offset = offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=float).copy()
-        # Stored position-major, (_BLOCK, blocks): position p of every block, then p + 1; within
-        # a block the positions are the steps in bit-reversed order (see _compose). Made a group
-        # of spans at a time (some _GROUP_STEPS steps): the dozen per-step temporaries then stay
-        # small, where made for all spans at once they took ~4 times the terms' own memory.
-        terms = np.empty((10, _BLOCK, int(blocks.sum())))
-        group = np.cumsum(blocks) * _BLOCK // _GROUP_STEPS
+        # Spans integrated together by _forward and jacobian: consecutive ones, about
+        # _SPAN_GROUP_BLOCKS blocks in all (one longer span alone).
+        group = np.cumsum(blocks) // _SPAN_GROUP_BLOCKS
         cuts = np.r_[0, np.flatnonzero(np.diff(group)) + 1, len(spans)]
-        for g0, g1 in zip(cuts[:-1], cuts[1:]):
-            part = terms[:, :, first[g0]:first[g0] + blocks[g0:g1].sum()]
+        self.span_groups = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
+        # Stored position-major, (_BLOCK, blocks): position p of every block, then p + 1; within
+        # a block the positions are the steps in bit-reversed order (see _compose). One array a
+        # group of spans (``parts``), made one at a time: the dozen per-step temporaries then stay
+        # small (made for all spans at once they took ~4 times the terms' own memory), and each
+        # integration reads a group's terms in place (as slices of one array they were copied).
+        self.parts = []
+        for g0, g1 in self.span_groups:
+            part = np.empty((10, _BLOCK, int(blocks[g0:g1].sum())))
             _span_terms(part, values, t, i0[g0:g1], lengths[g0:g1], blocks[g0:g1], offset)
-        self.terms = terms.reshape(10, -1)  # (10, steps)
+            self.parts.append(part)
         # Each span's blocks, padded to a power of two with an identity block, bit-reversed.
         size = 1 << int(blocks.max() - 1).bit_length()
         slot = np.arange(size)
@@ -328,11 +331,6 @@ class _Steps:
         self.gather = gather[:, _bit_reversed(size)].T.copy()  # (size, m), as _compose reads it
         self.first_block = first  # each span's first block (they are numbered span by span)
         self.n_blocks = int(blocks.sum())
-        # Spans integrated together by _forward and jacobian: consecutive ones, about
-        # _SPAN_GROUP_BLOCKS blocks in all (one longer span alone).
-        group = np.cumsum(blocks) // _SPAN_GROUP_BLOCKS
-        cuts = np.r_[0, np.flatnonzero(np.diff(group)) + 1, len(spans)]
-        self.span_groups = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
         self.duration = t[i1] - t[i0]
         self.block = _BLOCK  # steps per block (fewer in a ``coarse`` copy)
         self._groups: dict = {}  # the grouped terms by group, the coarse copies
@@ -345,17 +343,31 @@ class _Steps:
         key = ("coarse", group)
         if key not in self._groups:
             steps = copy.copy(self)
-            steps.terms, steps.block = self._grouped(group), _BLOCK // group
+            steps.parts, steps.block = self._grouped_parts(group), _BLOCK // group
             steps._groups, steps._last = {}, None
             self._groups[key] = steps
         return self._groups[key]
 
+    @property
+    def terms(self) -> np.ndarray:
+        """(10, steps) all the terms, position-major over all blocks (a new array)."""
+        return np.concatenate(self.parts, axis=2).reshape(len(self.parts[0]), -1)
+
+    def _grouped_parts(self, group: int) -> list[np.ndarray]:
+        """Each part's terms of ``group`` consecutive steps summed (made once): the storage
+        index is the bit-reversed time, so a group's steps are those that differ only in its
+        high bits."""
+        key = ("parts", group)
+        if key not in self._groups:
+            self._groups[key] = [part.reshape(len(part), group, self.block // group, -1).sum(axis=1)
+                                 for part in self.parts]
+        return self._groups[key]
+
     def _grouped(self, group: int) -> np.ndarray:
-        """The terms of ``group`` consecutive steps summed (made once): the storage index is the
-        bit-reversed time, so a group's steps are those that differ only in its high bits."""
+        """(10, steps / group) the ``_grouped_parts``, position-major over all blocks (made once)."""
         if group not in self._groups:
-            c = len(self.terms)
-            self._groups[group] = self.terms.reshape(c, group, -1).sum(axis=1)
+            parts = self._grouped_parts(group)
+            self._groups[group] = np.concatenate(parts, axis=2).reshape(len(parts[0]), -1)
         return self._groups[group]
 
     def quaternions(self, K_inv, delta_b, group: int = 1):
@@ -366,16 +378,17 @@ class _Steps:
             return self._forward(K_inv, delta_b)
         return self.compose(_weights(np.asarray(K_inv, dtype=float), delta_b).T @ self._grouped(group), group)
 
-    def _levels(self, A, delta_b, g0: int, g1: int):
-        """The composition of spans g0..g1 - 1 (consecutive; their blocks b0..b1 - 1): (phi,
+    def _levels(self, A, delta_b, index: int):
+        """The composition of span group ``index``, spans g0..g1 - 1 (consecutive; their blocks
+        b0..b1 - 1, its part of the terms): (phi,
         sin(θ/2)/θ, cos(θ/2), θ of their steps, the composition's levels inside the blocks and
         over each span's blocks, those spans' columns of ``gather`` numbered from b0 (the
         identity block: b1 - b0))."""
+        g0, g1 = self.span_groups[index]
         blocks = self.first_block[g0:g1 + 1] if g1 < len(self.first_block) else \
             np.r_[self.first_block[g0:g1], self.n_blocks]
         b0, b1 = int(blocks[0]), int(blocks[-1])
-        c = len(self.terms)
-        terms = self.terms.reshape(c, self.block, -1)[:, :, b0:b1].reshape(c, -1)
+        terms = self.parts[index].reshape(len(self.parts[index]), -1)
         phi = _weights(A, delta_b).T @ terms
         angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
         sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
@@ -393,8 +406,8 @@ class _Steps:
         A, delta_b = np.asarray(K_inv, dtype=float), np.asarray(delta_b, dtype=float)
         key = A.tobytes() + delta_b.tobytes()
         if self._last is None or self._last[0] != key:
-            q = np.concatenate([self._levels(A, delta_b, g0, g1)[5][-1][:, 0]
-                                for g0, g1 in self.span_groups], axis=1)
+            q = np.concatenate([self._levels(A, delta_b, index)[5][-1][:, 0]
+                                for index in range(len(self.span_groups))], axis=1)
             self._last = key, _unit(q).T
         return self._last[1]
 
@@ -411,8 +424,8 @@ class _Steps:
         A = np.asarray(K_inv, dtype=float)
         delta_b = np.asarray(delta_b, dtype=float)
         quaternions, sums = [], []
-        for g0, g1 in self.span_groups:
-            q, T = self._group_jacobian(A, delta_b, g0, g1)
+        for index in range(len(self.span_groups)):
+            q, T = self._group_jacobian(A, delta_b, index)
             quaternions.append(q)
             sums.append(T)
         q = np.concatenate(quaternions, axis=1)
@@ -421,10 +434,11 @@ class _Steps:
         dW = _weight_derivatives(A, delta_b, np.asarray(dK, dtype=float), np.asarray(d_delta_b, dtype=float))
         return q, np.einsum("sabc,kcb->sak", T, dW)
 
-    def _group_jacobian(self, A, delta_b, g0: int, g1: int):
+    def _group_jacobian(self, A, delta_b, index: int):
         """(4, spans) quaternions of spans g0..g1 - 1 (not normalised) and (spans, 9, 10) the
         sums of B = S·J_r against each step's terms (see ``jacobian``)."""
-        phi, angle, sinc, cos, inner, outer, local = self._levels(A, delta_b, g0, g1)
+        g0, g1 = self.span_groups[index]
+        phi, angle, sinc, cos, inner, outer, local = self._levels(A, delta_b, index)
         q = outer[-1][:, 0]
         # Back down: each node's S (as a quaternion), the product of everything after it.
         after = np.empty((4, inner[-1].shape[-1] + 1))
@@ -435,9 +449,9 @@ class _Steps:
         # Made a few blocks at a time: the (3, 3, steps) matrices are then never all held at once.
         n_blocks = after.shape[-1]
         b0 = int(self.first_block[g0])
-        c = len(self.terms)
         block = self.block
-        terms = self.terms.reshape(c, block, -1)[:, :, b0:b0 + n_blocks]
+        terms = self.parts[index]
+        c = len(terms)
         shaped = [x.reshape(x.shape[:-1] + (block, n_blocks)) for x in (phi, angle, sinc, cos)]
         per_block = np.empty((n_blocks, 9, c))
         chunk = _JACOBIAN_BLOCKS * _BLOCK // block  # as many steps at once in a coarse copy
