@@ -353,22 +353,22 @@ class _Steps:
         """(10, steps) all the terms, position-major over all blocks (a new array)."""
         return np.concatenate(self.parts, axis=2).reshape(len(self.parts[0]), -1)
 
-    def _grouped_parts(self, group: int) -> list[np.ndarray]:
-        """Each part's terms of ``group`` consecutive steps summed (made once): the storage
-        index is the bit-reversed time, so a group's steps are those that differ only in its
-        high bits."""
-        key = ("parts", group)
-        if key not in self._groups:
-            self._groups[key] = [part.reshape(len(part), group, self.block // group, -1).sum(axis=1)
-                                 for part in self.parts]
-        return self._groups[key]
-
     def _grouped(self, group: int) -> np.ndarray:
-        """(10, steps / group) the ``_grouped_parts``, position-major over all blocks (made once)."""
+        """The terms of ``group`` consecutive steps summed (made once), (10, steps / group)
+        position-major over all blocks: the storage index is the bit-reversed time, so a
+        group's steps are those that differ only in its high bits."""
         if group not in self._groups:
-            parts = self._grouped_parts(group)
-            self._groups[group] = np.concatenate(parts, axis=2).reshape(len(parts[0]), -1)
+            c = len(self.parts[0])
+            self._groups[group] = np.concatenate(
+                [part.reshape(c, group, self.block // group, -1).sum(axis=1) for part in self.parts],
+                axis=2).reshape(c, -1)
         return self._groups[group]
+
+    def _grouped_parts(self, group: int) -> list[np.ndarray]:
+        """``_grouped`` by the span groups' blocks: views, no copy (a coarse copy's parts)."""
+        whole = self._grouped(group).reshape(len(self.parts[0]), self.block // group, -1)
+        ends = np.cumsum([part.shape[-1] for part in self.parts])
+        return [whole[:, :, end - part.shape[-1]:end] for part, end in zip(self.parts, ends)]
 
     def quaternions(self, K_inv, delta_b, group: int = 1):
         """(m, 4) quaternions of each span's rotation, scalar last. ``group`` (a power of two up
