@@ -35,7 +35,9 @@ The search runs in coordinates whitened by the Jacobian at K0, b0 (as in norm.py
 (k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is exact
 (``_Steps.jacobian``: the per-step right Jacobian of the exponential, carried to each span's end
 by walking the composition's tree back down), about three integrations' work for all twelve
-parameters where differences took one integration per parameter. Not modelled: Earth rate
+parameters where differences took one integration per parameter; the search's (which only find
+the way to the polish) are the exact Jacobians of the coarse integration, eight steps as one
+(``_Steps.coarse``), a sixth of that work. Not modelled: Earth rate
 (≤ 2e-4 rad over a 3 s motion: below consumer MEMS noise, not below a tactical gyro's; a caller
 that knows the latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 """
