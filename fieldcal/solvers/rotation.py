@@ -35,12 +35,15 @@ The search runs in coordinates whitened by the Jacobian at K0, b0 (as in norm.py
 (k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is exact
 (``_Steps.jacobian``: the per-step right Jacobian of the exponential, carried to each span's end
 by walking the composition's tree back down), about three integrations' work for all twelve
-parameters where differences took one integration per parameter. Not modelled: Earth rate
+parameters where differences took one integration per parameter; the search's (which only find
+the way to the polish) are the exact Jacobians of the coarse integration, eight steps as one
+(``_Steps.coarse``), a sixth of that work. Not modelled: Earth rate
 (≤ 2e-4 rad over a 3 s motion: below consumer MEMS noise, not below a tactical gyro's; a caller
 that knows the latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -240,42 +243,47 @@ def _weight_derivatives(A, delta_b, dK, d_delta_b):
 
 
 _BLOCK = 64  # steps composed per block: a span is padded to whole blocks, not to the longest span
-_GROUP_STEPS = 1 << 15  # steps whose integration terms are made at once (their temporaries: ~12 MiB)
 
 
 def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     """The integration terms (see _Steps) of consecutive spans [i0, i0 + length] into ``out``
-    (10, _BLOCK, their blocks), padding steps zero (the identity rotation)."""
+    (10, _BLOCK, their blocks), padding steps zero (the identity rotation). Made in time order
+    over the samples read (shifted slices, no gathers) and placed once at the steps' positions."""
     n = len(t)
-    padded = blocks * _BLOCK
-    owner = np.repeat(np.arange(len(i0)), padded)
-    k = np.arange(padded.sum()) - np.repeat(np.cumsum(padded) - padded, padded)
-    k = k.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
-    owner = owner.reshape(-1, _BLOCK)[:, _bit_reversed(_BLOCK)].T.ravel()
-    valid = k < lengths[owner]
-    j = np.where(valid, i0[owner] + k, i0[owner])  # padding: any real step
-    h = np.where(valid, t[j + 1] - t[j], 0.0)
-    if np.any(h[valid] <= 0):
-        raise ValueError("t must increase within every span")
     # Each sample of each span once (span by span, i0..i1) with its slope, offset taken off;
     # a step j reads sample j's row and the next. Read with one more sample each side (the
     # slopes' stencils): consecutive samples, so each stencil is three shifted slices.
     read = lengths + 3
     first_read = np.cumsum(read) - read
     wide = np.arange(read.sum()) - np.repeat(first_read - i0 + 1, read)  # i0 - 1 .. i1 + 1
-    rates = np.ascontiguousarray((values[np.clip(wide, 0, n - 1)] - offset).T)  # (3, read)
-    table = np.vstack([rates[:, 1:-1], _rate_slopes(values, offset, t, wide, rates)])
-    at = np.where(valid, first_read[owner] + k, first_read[owner])  # column of sample j in table
-    step0, step1 = table[:, at], table[:, at + 1]
+    clipped = np.clip(wide, 0, n - 1)
+    rates = np.ascontiguousarray((values[clipped] - offset).T)  # (3, read)
+    table = np.vstack([rates[:, 1:-1], _rate_slopes(values, offset, t, wide, rates)])  # column c: wide[c + 1]
+    # Every pair of neighbouring columns as a step: those that straddle two spans are made and
+    # not placed (three a span).
+    step0, step1 = table[:, :-1], table[:, 1:]
+    times = t[clipped]
+    h = times[2:-1] - times[1:-2]
     v0, v1 = step0[:3], step1[:3]
-    w = h * h / 12.0  # h is zero for padding: a zero increment, the identity rotation
-    terms = np.empty((10, len(h)))  # (10, steps), position-major as out
+    w = h * h / 12.0
+    terms = np.empty((10, len(h)))  # (10, columns) in time order
     # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
     np.subtract(h / 2 * (v0 + v1), w * (step1[3:] - step0[3:]), out=terms[0:3])
     terms[3:6] = w * _cross(v0.T, v1.T).T
     np.multiply(w, v1 - v0, out=terms[6:9])
     terms[9] = h
-    out[...] = terms.reshape(out.shape)
+    # Step k of span s: column first_read[s] + k of the table; block first[s] + k // _BLOCK, at
+    # the bit-reversed position of k % _BLOCK in it (see _compose).
+    span = np.repeat(np.arange(len(i0)), lengths)
+    k = np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    column = first_read[span] + k
+    if np.any(h[column] <= 0):
+        raise ValueError("t must increase within every span")
+    first = np.cumsum(blocks) - blocks
+    out[...] = 0.0
+    out[:, _bit_reversed(_BLOCK)[k % _BLOCK], first[span] + k // _BLOCK] = terms[:, column]
+
+
 _SPAN_GROUP_BLOCKS = 512  # blocks whose compositions are made at once (~4 MiB, see _Steps._forward)
 _JACOBIAN_BLOCKS = 32  # blocks whose (3, 3, steps) matrices a Jacobian makes at once (~0.15 MiB each)
 
@@ -303,17 +311,21 @@ class _Steps:
         first = np.cumsum(blocks) - blocks
         values = np.asarray(values, dtype=float)
         self.offset = offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=float).copy()
-        # Stored position-major, (_BLOCK, blocks): position p of every block, then p + 1; within
-        # a block the positions are the steps in bit-reversed order (see _compose). Made a group
-        # of spans at a time (some _GROUP_STEPS steps): the dozen per-step temporaries then stay
-        # small, where made for all spans at once they took ~4 times the terms' own memory.
-        terms = np.empty((10, _BLOCK, int(blocks.sum())))
-        group = np.cumsum(blocks) * _BLOCK // _GROUP_STEPS
+        # Spans integrated together by _forward and jacobian: consecutive ones, about
+        # _SPAN_GROUP_BLOCKS blocks in all (one longer span alone).
+        group = np.cumsum(blocks) // _SPAN_GROUP_BLOCKS
         cuts = np.r_[0, np.flatnonzero(np.diff(group)) + 1, len(spans)]
-        for g0, g1 in zip(cuts[:-1], cuts[1:]):
-            part = terms[:, :, first[g0]:first[g0] + blocks[g0:g1].sum()]
+        self.span_groups = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
+        # Stored position-major, (_BLOCK, blocks): position p of every block, then p + 1; within
+        # a block the positions are the steps in bit-reversed order (see _compose). One array a
+        # group of spans (``parts``), made one at a time: the dozen per-step temporaries then stay
+        # small (made for all spans at once they took ~4 times the terms' own memory), and each
+        # integration reads a group's terms in place (as slices of one array they were copied).
+        self.parts = []
+        for g0, g1 in self.span_groups:
+            part = np.empty((10, _BLOCK, int(blocks[g0:g1].sum())))
             _span_terms(part, values, t, i0[g0:g1], lengths[g0:g1], blocks[g0:g1], offset)
-        self.terms = terms.reshape(10, -1)  # (10, steps)
+            self.parts.append(part)
         # Each span's blocks, padded to a power of two with an identity block, bit-reversed.
         size = 1 << int(blocks.max() - 1).bit_length()
         slot = np.arange(size)
@@ -321,22 +333,44 @@ class _Steps:
         self.gather = gather[:, _bit_reversed(size)].T.copy()  # (size, m), as _compose reads it
         self.first_block = first  # each span's first block (they are numbered span by span)
         self.n_blocks = int(blocks.sum())
-        # Spans integrated together by _forward and jacobian: consecutive ones, about
-        # _SPAN_GROUP_BLOCKS blocks in all (one longer span alone).
-        group = np.cumsum(blocks) // _SPAN_GROUP_BLOCKS
-        cuts = np.r_[0, np.flatnonzero(np.diff(group)) + 1, len(spans)]
-        self.span_groups = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
         self.duration = t[i1] - t[i0]
-        self._groups: dict[int, np.ndarray] = {}
+        self.block = _BLOCK  # steps per block (fewer in a ``coarse`` copy)
+        self._groups: dict = {}  # the grouped terms by group, the coarse copies
         self._last = None  # (key, the quaternions) of the last K⁻¹, δb integrated
 
+    def coarse(self, group: int) -> "_Steps":
+        """These spans with ``group`` consecutive steps taken as one (their terms summed, see
+        ``quaternions``): blocks of _BLOCK // group steps, the spans' blocks as here, so that
+        ``jacobian`` and ``quaternions`` work alike on a group-th of the steps. Made once."""
+        key = ("coarse", group)
+        if key not in self._groups:
+            steps = copy.copy(self)
+            steps.parts, steps.block = self._grouped_parts(group), _BLOCK // group
+            steps._groups, steps._last = {}, None
+            self._groups[key] = steps
+        return self._groups[key]
+
+    @property
+    def terms(self) -> np.ndarray:
+        """(10, steps) all the terms, position-major over all blocks (a new array)."""
+        return np.concatenate(self.parts, axis=2).reshape(len(self.parts[0]), -1)
+
     def _grouped(self, group: int) -> np.ndarray:
-        """The terms of ``group`` consecutive steps summed (made once): the storage index is the
-        bit-reversed time, so a group's steps are those that differ only in its high bits."""
+        """The terms of ``group`` consecutive steps summed (made once), (10, steps / group)
+        position-major over all blocks: the storage index is the bit-reversed time, so a
+        group's steps are those that differ only in its high bits."""
         if group not in self._groups:
-            c = len(self.terms)
-            self._groups[group] = self.terms.reshape(c, group, -1).sum(axis=1)
+            c = len(self.parts[0])
+            self._groups[group] = np.concatenate(
+                [part.reshape(c, group, self.block // group, -1).sum(axis=1) for part in self.parts],
+                axis=2).reshape(c, -1)
         return self._groups[group]
+
+    def _grouped_parts(self, group: int) -> list[np.ndarray]:
+        """``_grouped`` by the span groups' blocks: views, no copy (a coarse copy's parts)."""
+        whole = self._grouped(group).reshape(len(self.parts[0]), self.block // group, -1)
+        ends = np.cumsum([part.shape[-1] for part in self.parts])
+        return [whole[:, :, end - part.shape[-1]:end] for part, end in zip(self.parts, ends)]
 
     def quaternions(self, K_inv, delta_b, group: int = 1):
         """(m, 4) quaternions of each span's rotation, scalar last. ``group`` (a power of two up
@@ -346,21 +380,22 @@ class _Steps:
             return self._forward(K_inv, delta_b)
         return self.compose(_weights(np.asarray(K_inv, dtype=float), delta_b).T @ self._grouped(group), group)
 
-    def _levels(self, A, delta_b, g0: int, g1: int):
-        """The composition of spans g0..g1 - 1 (consecutive; their blocks b0..b1 - 1): (phi,
+    def _levels(self, A, delta_b, index: int):
+        """The composition of span group ``index``, spans g0..g1 - 1 (consecutive; their blocks
+        b0..b1 - 1, its part of the terms): (phi,
         sin(θ/2)/θ, cos(θ/2), θ of their steps, the composition's levels inside the blocks and
         over each span's blocks, those spans' columns of ``gather`` numbered from b0 (the
         identity block: b1 - b0))."""
+        g0, g1 = self.span_groups[index]
         blocks = self.first_block[g0:g1 + 1] if g1 < len(self.first_block) else \
             np.r_[self.first_block[g0:g1], self.n_blocks]
         b0, b1 = int(blocks[0]), int(blocks[-1])
-        c = len(self.terms)
-        terms = self.terms.reshape(c, _BLOCK, -1)[:, :, b0:b1].reshape(c, -1)
+        terms = self.parts[index].reshape(len(self.parts[index]), -1)
         phi = _weights(A, delta_b).T @ terms
         angle = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
         sinc = np.sin(0.5 * angle) / np.maximum(angle, 1e-300)  # sin(θ/2)/θ
         cos = np.cos(0.5 * angle)
-        inner = _compose_levels(np.concatenate([phi * sinc, cos[None]]).reshape(4, _BLOCK, -1))
+        inner = _compose_levels(np.concatenate([phi * sinc, cos[None]]).reshape(4, self.block, -1))
         top = np.concatenate([inner[-1][:, 0], [[0.0], [0.0], [0.0], [1.0]]], axis=1)  # and identity
         gather = self.gather[:, g0:g1]
         local = np.where(gather == self.n_blocks, b1 - b0, gather - b0)
@@ -373,8 +408,8 @@ class _Steps:
         A, delta_b = np.asarray(K_inv, dtype=float), np.asarray(delta_b, dtype=float)
         key = A.tobytes() + delta_b.tobytes()
         if self._last is None or self._last[0] != key:
-            q = np.concatenate([self._levels(A, delta_b, g0, g1)[5][-1][:, 0]
-                                for g0, g1 in self.span_groups], axis=1)
+            q = np.concatenate([self._levels(A, delta_b, index)[5][-1][:, 0]
+                                for index in range(len(self.span_groups))], axis=1)
             self._last = key, _unit(q).T
         return self._last[1]
 
@@ -391,8 +426,8 @@ class _Steps:
         A = np.asarray(K_inv, dtype=float)
         delta_b = np.asarray(delta_b, dtype=float)
         quaternions, sums = [], []
-        for g0, g1 in self.span_groups:
-            q, T = self._group_jacobian(A, delta_b, g0, g1)
+        for index in range(len(self.span_groups)):
+            q, T = self._group_jacobian(A, delta_b, index)
             quaternions.append(q)
             sums.append(T)
         q = np.concatenate(quaternions, axis=1)
@@ -401,29 +436,32 @@ class _Steps:
         dW = _weight_derivatives(A, delta_b, np.asarray(dK, dtype=float), np.asarray(d_delta_b, dtype=float))
         return q, np.einsum("sabc,kcb->sak", T, dW)
 
-    def _group_jacobian(self, A, delta_b, g0: int, g1: int):
+    def _group_jacobian(self, A, delta_b, index: int):
         """(4, spans) quaternions of spans g0..g1 - 1 (not normalised) and (spans, 9, 10) the
         sums of B = S·J_r against each step's terms (see ``jacobian``)."""
-        phi, angle, sinc, cos, inner, outer, local = self._levels(A, delta_b, g0, g1)
+        g0, g1 = self.span_groups[index]
+        phi, angle, sinc, cos, inner, outer, local = self._levels(A, delta_b, index)
         q = outer[-1][:, 0]
         # Back down: each node's S (as a quaternion), the product of everything after it.
         after = np.empty((4, inner[-1].shape[-1] + 1))
         identity = np.array([0.0, 0.0, 0.0, 1.0])
         after[:, local] = _after(outer, np.broadcast_to(identity[:, None, None], (4, 1, q.shape[1])))
-        after = _after(inner, after[:, None, :-1])  # (4, _BLOCK, blocks)
+        after = _after(inner, after[:, None, :-1])  # (4, self.block, blocks)
         # B = S·J_r, summed against each step's terms per block: per_block[k, ab, c] = Σ_j B_j[a, b]·t_j[c].
         # Made a few blocks at a time: the (3, 3, steps) matrices are then never all held at once.
         n_blocks = after.shape[-1]
         b0 = int(self.first_block[g0])
-        c = len(self.terms)
-        terms = self.terms.reshape(c, _BLOCK, -1)[:, :, b0:b0 + n_blocks]
-        shaped = [x.reshape(x.shape[:-1] + (_BLOCK, n_blocks)) for x in (phi, angle, sinc, cos)]
+        block = self.block
+        terms = self.parts[index]
+        c = len(terms)
+        shaped = [x.reshape(x.shape[:-1] + (block, n_blocks)) for x in (phi, angle, sinc, cos)]
         per_block = np.empty((n_blocks, 9, c))
-        for lo in range(0, n_blocks, _JACOBIAN_BLOCKS):
-            part = np.s_[..., lo:lo + _JACOBIAN_BLOCKS]
+        chunk = _JACOBIAN_BLOCKS * _BLOCK // block  # as many steps at once in a coarse copy
+        for lo in range(0, n_blocks, chunk):
+            part = np.s_[..., lo:lo + chunk]
             B = np.einsum("ab...,bc...->ac...", _matrix(after[part]),
                           _right_jacobians(*(x[part] for x in shaped)), optimize=False)
-            per_block[part[1]] = np.matmul(B.reshape(9, _BLOCK, -1).transpose(2, 0, 1), terms[part].transpose(2, 1, 0))
+            per_block[part[1]] = np.matmul(B.reshape(9, block, -1).transpose(2, 0, 1), terms[part].transpose(2, 1, 0))
         return q, np.add.reduceat(per_block, self.first_block[g0:g1] - b0, axis=0)
 
     def compose(self, phi, group: int = 1):
@@ -457,7 +495,7 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
     """The k of ``scales`` (sorted, a few dozen) whose K = k·I best carries every motion's start
     direction onto its end (least sum of squared misfits): a raw-count gyro's sensitivity, the
     start of its solve. The best k by a coarse integration, then the best of it and its two
-    neighbours by the exact one.
+    neighbours by the exact one (bounded as below).
 
     The misfit is a sum over the motions of squares, so every _SCAN_SAMPLE-th motion's share is
     a lower bound of it: all k are integrated over those motions, and over all motions only in
@@ -499,9 +537,21 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
         misfits = np.concatenate([coarse(steps, scales[i]) for i in batches(np.arange(len(scales)))])
     best = int(np.argmin(misfits))
     near = scales[max(best - 1, 0):best + 2]
-    exact = [np.sum((_rotate_back(steps.quaternions(np.eye(3) / k, np.zeros(3)), up_s) - up_e) ** 2)
-             for k in near]
-    return float(near[int(np.argmin(exact))])
+
+    def exact(steps, k, rows=slice(None)):
+        return float(np.sum((_rotate_back(steps.quaternions(np.eye(3) / k, np.zeros(3)), up_s[rows]) - up_e[rows])
+                            ** 2))
+
+    # The neighbours' exact misfits bounded from below as the coarse ones are: each over the
+    # sampled motions, then over all only while its bound is below the least found (mostly the
+    # first alone: neighbours on the grid are a third apart in scale).
+    lower = [exact(sample, k, rows) for k in near]
+    found = np.full(len(near), np.inf)
+    for i in np.argsort(lower, kind="stable"):
+        if lower[i] > np.min(found) * (1 + 1e-9):
+            break
+        found[i] = exact(steps, near[i])
+    return float(near[int(np.argmin(found))])
 
 
 def _tangent_bases(up):
@@ -675,18 +725,19 @@ class _Residuals:
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
-    def jacobian(self, theta, bias=None):
+    def jacobian(self, theta, bias=None, coarse: bool = False):
         """(rotations as ``rotations``, their (2m, 12) Jacobian over bias_x..z, scale_x..z and
         the six angles, whether the bias is estimated or held, exact (see _Steps.jacobian), and
-        the motions' quaternions)."""
+        the motions' quaternions). ``coarse``: all three of the coarse integration's
+        (``_Steps.coarse(_SEARCH_GROUP)``), for the search only."""
         nb = self.nb
         b, K_inv = self.unpack(theta)
         scale, angles = theta[nb:nb + 3], theta[nb + 3:]
         dK = np.zeros((12, 3, 3))
         dK[3:6] = [k_from_terms(e, angles) for e in np.eye(3)]  # K is linear in each group
         dK[6:] = [k_from_terms(scale, e) - np.diag(scale) for e in np.eye(6)]
-        q, D = self.steps.jacobian(K_inv, (b if bias is None else bias) - self.steps.offset, dK,
-                                   np.eye(12, 3))
+        steps = self.steps.coarse(_SEARCH_GROUP) if coarse else self.steps
+        q, D = steps.jacobian(K_inv, (b if bias is None else bias) - self.steps.offset, dK, np.eye(12, 3))
         turned = _rotate_back(q, self.motions.up_start)
         r = np.einsum("mi,mik->mk", turned - self.motions.up_end, self.E).ravel()
         # Cᵀ·u moves by (Cᵀ·u) × δψ when C becomes C·exp(δψ×).
@@ -813,6 +864,7 @@ _STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the
 _SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
 _MAX_ITERATIONS = 100
 _FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
+_SEARCH_GROUP = 8  # steps taken as one by the search's Jacobians (_Steps.coarse; 1: exact ones)
 
 
 def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
@@ -822,9 +874,10 @@ def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, 
     evaluations of their own), each step halved until it lowers the cost. (z, iterations) once
     a step is below _SEARCH_TOL σ: the polish takes it from there.
 
-    Where a long step would land, the Jacobian is made before fun is asked: solve_rotations'
-    ``jac`` keeps the residuals its integration gives, so fun finds them made (one integration
-    saved per long step taken; a step that fails has cost a Jacobian instead of an evaluation)."""
+    Where a long step would land, the Jacobian is made before fun is asked (a ``jac`` that
+    integrates exactly can keep the residuals it gives for fun; solve_rotations' search asks
+    the coarse integration's, about a sixth of an exact Jacobian's work and less than one
+    evaluation's, so a step that fails costs little more than its evaluation)."""
     z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
     cost = float(r @ r)
     for iteration in range(1, _MAX_ITERATIONS + 1):
@@ -965,17 +1018,22 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
     Q, R = np.linalg.qr(J0)
     to_theta = natural[:, None] * np.linalg.inv(R)
-    def jacobian(theta):
-        """Of whitened: the rotations' exact, the side residuals' by forward differences. The
-        rotations its integration gives are kept as evaluated's."""
-        rotations, J, _ = model.jacobian(theta)
-        evaluated(theta, rotations)
+    def jacobian(theta, coarse=False):
+        """Of whitened: the rotations' exact (``coarse``: the coarse integration's, for the
+        search), the side residuals' by forward differences. The rotations an exact
+        integration gives are kept as evaluated's."""
+        rotations, J, _ = model.jacobian(theta, coarse=coarse)
+        if not coarse:
+            evaluated(theta, rotations)
         J = J[:, 3 - nb:]
         if n_side:
             J = np.vstack([J, _jacobian(model.side, theta, fd_steps, central=False)])
         return J if whiten is None else whiten @ J
 
-    theta, converged, message, iterations = _search(whitened, jacobian, theta0, to_theta, Q, method)
+    # The search only finds the way: its Jacobians from the coarse integration (an eighth of the
+    # steps); the polish's, whose optimum and covariance are the result, exact.
+    theta, converged, message, iterations = _search(whitened, lambda theta: jacobian(theta, coarse=_SEARCH_GROUP > 1),
+                                                    theta0, to_theta, Q, method)
     if not converged:
         raise CalibrationError(f"{name}: {method} did not converge ({message})")
     theta, r_w, J = _polish(whitened, jacobian, theta, natural)

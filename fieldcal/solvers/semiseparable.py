@@ -165,6 +165,9 @@ class SemiseparableWhitener:
         self.matrix, self.inverse_diagonal, self.gains, self.tail_inverse = matrix, inverse_diagonal, gains, tail_inverse
         n, b = matrix.diagonal.shape[:2]
         self.shape = (n * b + matrix.tail_size,) * 2
+        # L_i⁻¹ times the state's left generator, every block's at once: the substitution's
+        # loop then makes one product with the state a block (x_i = L_i⁻¹r_i − (L_i⁻¹p_i)·f).
+        self.inverse_left = np.matmul(inverse_diagonal, matrix.state_left)  # (n, b, r)
 
     def __matmul__(self, r: np.ndarray) -> np.ndarray:
         S = self.matrix
@@ -172,14 +175,22 @@ class SemiseparableWhitener:
         vector = r.ndim == 1
         R = r.reshape(len(r), -1)
         n, b = S.diagonal.shape[:2]
+        g = S.sizes[0]
         x = np.empty_like(R)
-        f = np.zeros((S.state_size, R.shape[1]))
-        left, inverse, gains = S.state_left, self.inverse_diagonal, self.gains
+        blocks = x[:n * b].reshape(n, b, -1)
+        np.matmul(self.inverse_diagonal, R[:n * b].reshape(n, b, -1), out=blocks)  # L_i⁻¹r_i, all at once
+        f, carried = np.zeros((S.state_size, R.shape[1])), np.empty((S.state_size, R.shape[1]))
+        inverse_left, gains, decay = self.inverse_left, self.gains, S.decay[:, :, None]
         for i in range(n):
-            rows = slice(i * b, (i + 1) * b)
-            x[rows] = inverse[i] @ (R[rows] - left[i] @ f)
-            f = S.transition(f, i)
-            f += gains[i] @ x[rows]
+            xi = blocks[i]
+            xi -= inverse_left[i] @ f
+            # carried = a_i·f + gains_i·x_i, a_i as BlockSemiseparable.transition, in place
+            np.multiply(decay[i], f[:g], out=carried[:g])
+            carried[:g] += f[g:2 * g]
+            carried[g:2 * g + b] = 0.0
+            carried[2 * g + b:] = f[2 * g + b:]
+            carried += gains[i] @ xi
+            f, carried = carried, f
         if S.tail_size:
             tail = slice(n * b, None)
             x[tail] = self.tail_inverse @ (R[tail] - S._tail_low() @ f[S.low_slots])
