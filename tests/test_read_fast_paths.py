@@ -1,0 +1,52 @@
+"""The read side's fast paths against the careful code they stand in for: the same answer, or
+the same one-line refusal, on irregular inputs (Hypothesis), the careful path taken whenever the
+fast one is not sure."""
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fieldcal.recording import importer
+from fieldcal.recording.errors import RecordingImportError
+
+SHORT = 40  # LONGEST_LINE for these tests: lines near it are cheap to make
+
+
+def _line_check(text: bytes, cuts: list[int]):
+    """check_line_lengths on ``text`` fed in blocks cut at ``cuts``: its count, or its refusal."""
+    bounds = [0, *sorted({c % (len(text) + 1) for c in cuts}), len(text)]
+    blocks = [text[lo:hi] for lo, hi in zip(bounds, bounds[1:]) if hi > lo]
+    try:
+        return importer.check_line_lengths(iter(blocks), "f.txt")
+    except RecordingImportError as exc:
+        return str(exc), exc.line
+
+
+lines_near_the_bound = st.lists(st.integers(0, 2 * SHORT + 3), max_size=12).map(
+    lambda lengths: b"".join(b"x" * n + b"\n" for n in lengths))
+
+
+@settings(max_examples=300)
+@given(text=st.builds(bytes.__add__, lines_near_the_bound, st.binary(max_size=2 * SHORT).map(
+    lambda b: b.replace(b"\n", b""))), cuts=st.lists(st.integers(0, 10_000), max_size=6))
+def test_the_line_length_check_counts_and_refuses_as_the_careful_count(text, cuts):
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(importer, "LONGEST_LINE", SHORT)
+        fast = _line_check(text, cuts)
+        patch.setattr(importer, "_last_end_if_short_lines", lambda block, since: None)
+        assert fast == _line_check(text, cuts)
+
+
+def test_the_line_length_check_takes_the_fast_path_on_short_lines(monkeypatch):
+    """A text of short lines is counted without listing its line ends (the careful path is not
+    taken), and a long line still takes the careful path, which names it."""
+    monkeypatch.setattr(importer, "LONGEST_LINE", SHORT)
+    careful = []
+    exact = importer._last_end_if_short_lines
+    monkeypatch.setattr(importer, "_last_end_if_short_lines",
+                        lambda block, since: careful.append(r := exact(block, since)) or r)
+    assert importer.check_line_lengths(iter([b"1 2 3\n" * 100, b"4 5\n6"]), "f.txt") == 101
+    assert None not in careful
+    with pytest.raises(RecordingImportError, match="f.txt: line 3 is 41 bytes long"):
+        importer.check_line_lengths(iter([b"1\n2\n", b"x" * 41 + b"\n"]), "f.txt")
