@@ -50,3 +50,38 @@ def test_the_line_length_check_takes_the_fast_path_on_short_lines(monkeypatch):
     assert None not in careful
     with pytest.raises(RecordingImportError, match="f.txt: line 3 is 41 bytes long"):
         importer.check_line_lengths(iter([b"1\n2\n", b"x" * 41 + b"\n"]), "f.txt")
+
+
+def test_calibrate_writes_its_parameter_file_through_the_writer_that_saved_the_session(tmp_path, monkeypatch,
+                                                                                     capsys):
+    """The session calibrate has just written is not reopened, nor its samples read back and
+    checked again, to add the parameter file: it holds the recording bit for bit, then the
+    stop, then the parameters (the same bytes as --params)."""
+    import numpy as np
+
+    from drivers.sim.handheld import simulate_handheld, to_text
+    from fieldcal.cli.importing import read_recording
+    from fieldcal.cli.main import main
+    from fieldcal.recording.store import load_recording
+    from fieldcal.session.capture import SessionWriter
+    from fieldcal.session.record import RunRecord
+
+    files = to_text(simulate_handheld(6), tmp_path / "text")
+
+    def no_reopening(*args, **kwargs):
+        raise AssertionError("the new session was reopened")
+
+    monkeypatch.setattr(SessionWriter, "append_to", no_reopening)
+    out = tmp_path / "sessions"
+    assert main(["calibrate", *map(str, files), "--map", "imu_tk", "--latitude", "40", "--out", str(out),
+                 "--params", str(tmp_path / "p.yaml")]) == 0
+    capsys.readouterr()
+    (session,) = out.iterdir()
+    assert (session / "parameters-001.yaml").read_bytes() == (tmp_path / "p.yaml").read_bytes()
+    assert (session / "parameters.yaml").read_bytes() == (tmp_path / "p.yaml").read_bytes()
+    types = [d["type"] for d in RunRecord.open(session).documents()]
+    assert types[-2:] == ["stop", "parameters"]
+    stored, (read, _) = load_recording(session), read_recording(files, "imu_tk")
+    np.testing.assert_array_equal(stored.t, read.t)
+    for name, values in read.triads.items():
+        assert stored.triads[name].tobytes() == values.tobytes()
