@@ -561,7 +561,7 @@ def _numbers_of_block(text: bytes, nlines: int, T: int, digits=None, run_start=N
     """(nlines, T) from blank-separated ``text`` (blanks and number bytes only), or None unless
     it holds exactly that many finite numbers. Plain decimals take plain_decimals' fast exact
     path; anything else one fromstring call (strtod), which reads plain decimals the same."""
-    flat = plain_decimals(text, digits, run_start, run_stop)
+    flat = plain_decimals(text, digits, run_start, run_stop, T)
     if flat is not None and flat.size == nlines * T:
         return flat.reshape(nlines, T)
     try:
