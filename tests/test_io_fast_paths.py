@@ -85,3 +85,30 @@ def test_calibrate_writes_its_parameter_file_through_the_writer_that_saved_the_s
     np.testing.assert_array_equal(stored.t, read.t)
     for name, values in read.triads.items():
         assert stored.triads[name].tobytes() == values.tobytes()
+
+
+def test_calibrate_on_text_files_does_not_import_the_session_reader(tmp_path):
+    """Calibrating text files writes a session and never reads one: the reader of every kind of
+    session and the procedure events it reads stay unloaded; given the session it wrote,
+    calibrate reads it, so loads them (the names are real)."""
+    import json
+    import subprocess
+    import sys
+
+    from drivers.sim.handheld import simulate_handheld, to_text
+
+    files = to_text(simulate_handheld(3), tmp_path / "text")
+    reader = {"fieldcal.session.record", "fieldcal.procedure.events"}
+    loaded = []
+    for argv in (["calibrate", *map(str, files), "--map", "imu_tk", "--gravity", "9.80", "--out",
+                  str(tmp_path / "sessions"), "--registry", str(tmp_path / "registry.sqlite")],
+                 ["calibrate", "SESSION", "--gravity", "9.80", "--registry", str(tmp_path / "registry.sqlite")]):
+        if "SESSION" in argv:
+            (session,) = (tmp_path / "sessions").iterdir()
+            argv[1] = str(session)
+        body = (f"import json, sys\nfrom fieldcal.cli.main import main\nassert main({argv!r}) == 0\n"
+                "print(json.dumps(sorted(sys.modules)))\n")
+        proc = subprocess.run([sys.executable, "-c", body], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        loaded.append(set(json.loads(proc.stdout.strip().splitlines()[-1])))
+    assert not loaded[0] & reader and reader <= loaded[1]

@@ -20,7 +20,6 @@ from drivers.chunk import SampleChunk
 from fieldcal import __version__
 from fieldcal.recording import Recording
 from fieldcal.session.capture import SessionWriter
-from fieldcal.session.record import RunRecord
 
 KIND = "recording"
 STOP_REASON = "imported"
@@ -110,6 +109,10 @@ def _sha256_or_none(path: str) -> str | None:
 
 def load_recording(directory: str | os.PathLike) -> Recording:
     """The recording saved in ``directory``; a one-line error for anything else."""
+    # Here, not above: the reader of every kind of session (and the procedure events it reads)
+    # is some 20 ms of imports that calibrate on text files, which only writes one, never needs.
+    from fieldcal.session.record import RunRecord
+
     reader = RunRecord.open(directory)  # SessionError (one line) if it is no session at all
     meta = reader.start
     where = str(reader.directory)
