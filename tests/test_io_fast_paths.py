@@ -112,3 +112,25 @@ def test_calibrate_on_text_files_does_not_import_the_session_reader(tmp_path):
         assert proc.returncode == 0, proc.stderr
         loaded.append(set(json.loads(proc.stdout.strip().splitlines()[-1])))
     assert not loaded[0] & reader and reader <= loaded[1]
+
+
+@settings(max_examples=150)
+@given(order=st.permutations(range(6)), scales=st.lists(st.sampled_from([1.0, 0.001, 9.80665, -1.0]), min_size=3,
+                                                         max_size=3))
+def test_the_parsers_columns_are_the_texts_times_their_scale_however_they_sit(order, scales):
+    """Time, a triad and the temperature in any columns (side by side or not), scaled or not:
+    each is the text's column times its scale, bit for bit, as float() and a product give it."""
+    import numpy as np
+
+    from drivers.protocols.delimited import ChannelMap, DelimitedTextParser, TriadColumns
+
+    rows = [[f"{i}.{k}{i % 7}" for k in range(6)] for i in range(1, 30)]
+    time_scale, triad_scale, temperature_scale = abs(scales[0]), scales[1], scales[2]  # time runs forward
+    cm = ChannelMap(triads={"a": TriadColumns(tuple(order[1:4]), scale=triad_scale)}, delimiter=None,
+                    time_column=order[0], time_scale=time_scale, temperature_column=order[4],
+                    temperature_scale=temperature_scale)
+    chunk = DelimitedTextParser(cm).feed(("".join(" ".join(r) + "\n" for r in rows)).encode(), 0.0)
+    text = np.array([[float(x) for x in r] for r in rows])
+    assert chunk.t.tobytes() == (text[:, order[0]] * time_scale).tobytes()
+    assert chunk.triads["a"].tobytes() == (text[:, list(order[1:4])] * triad_scale).tobytes()
+    assert chunk.temperature.tobytes() == (text[:, order[4]] * temperature_scale).tobytes()

@@ -472,12 +472,11 @@ class DelimitedTextParser:
 
     def _chunk(self, v: np.ndarray, t_host: float) -> SampleChunk:
         cm, slot, n = self.map, self._slot, len(v)
-        t = v[:, slot["time"]] * cm.time_scale if cm.time_column is not None else np.full(n, float(t_host))
-        triads = {name: v[:, [slot[f"{name}.{ax}"] for ax in "xyz"]] * tc.scale
-                  for name, tc in cm.triads.items()}
+        t = _scaled(v, [slot["time"]], cm.time_scale)[:, 0] if cm.time_column is not None else np.full(n, float(t_host))
+        triads = {name: _scaled(v, [slot[f"{name}.{ax}"] for ax in "xyz"], tc.scale) for name, tc in cm.triads.items()}
         temperature = None
         if cm.temperature_column is not None:
-            temperature = v[:, slot["temperature"]] * cm.temperature_scale
+            temperature = _scaled(v, [slot["temperature"]], cm.temperature_scale)[:, 0]
         extras = {}
         if cm.counter_column is not None:
             counter = v[:, slot["counter"]]
@@ -497,6 +496,16 @@ class DelimitedTextParser:
         self.counters.sequence_gaps += int(jump.sum())
         self.counters.missing_frames += int(np.where(jump & (d > 1), d - 1, 0).sum())
         self._last_counter = int(c[-1])
+
+
+def _scaled(v: np.ndarray, columns: list[int], scale: float) -> np.ndarray:
+    """``v[:, columns] * scale``, with no copy that is not needed: columns side by side are a
+    view, and a scale of 1 no product (x * 1.0 is x, bit for bit): a recording's text in counts
+    or SI units is then copied once, into the recording's arrays, not three times on the way."""
+    lo = columns[0]
+    side_by_side = columns == list(range(lo, lo + len(columns)))
+    picked = v[:, lo:lo + len(columns)] if side_by_side else v[:, columns]
+    return picked if scale == 1.0 else picked * scale
 
 
 def _parse_spans(a: np.ndarray, spans: np.ndarray):
