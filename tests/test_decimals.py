@@ -178,3 +178,15 @@ def test_rows_of_short_fields_read_as_float_does_with_or_without_the_rows_hint(c
 @pytest.mark.parametrize("data", [b"+.\n", b"-.\n", b"-\n", b".\n", b"1.5 -.\n2.5 7\n"])
 def test_a_token_with_no_digit_is_refused_on_the_short_path_too(data):
     assert plain_decimals(data, fields=2 if data.count(b"\n") == 2 else 1) is None
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=80).map(lambda b: b + b"\n"))
+def test_blank_runs_are_the_solid_runs_of_the_blank_mask(data):
+    from drivers.protocols.decimals import blank_runs, solid_runs
+
+    a = np.frombuffer(data, dtype=np.uint8)
+    blank, start, stop = blank_runs(a)
+    expected = solid_runs(a <= 32)
+    assert blank.tolist() == (a <= 32).tolist()
+    assert start.tolist() == expected[0].tolist() and stop.tolist() == expected[1].tolist()

@@ -24,7 +24,7 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from drivers.protocols.base import ParserCounters
-from drivers.protocols.decimals import plain_decimals, plain_digits, solid_runs
+from drivers.protocols.decimals import blank_runs, plain_decimals, plain_digits, solid_runs
 
 _LF, _CR, _SP, _TAB = 10, 13, 32, 9
 _NUMERIC_BYTES = b"0123456789+-.eE,"
@@ -353,8 +353,11 @@ class DelimitedTextParser:
         # Only blanks and number bytes (the usual file): the blanks are the bytes up to 32.
         digits = plain_digits(block) if self._runs_only else None  # None: not plain
         plain = digits is not None
-        blank = a <= _SP if plain else (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
-        run_start, run_stop = solid_runs(blank)  # runs of non-blank bytes: [run_start[i], run_stop[i])
+        if plain:  # runs of non-blank bytes: [run_start[i], run_stop[i])
+            blank, run_start, run_stop = blank_runs(a)
+        else:
+            blank = (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
+            run_start, run_stop = solid_runs(blank)
         if plain and not head_dropped:
             values = _clean_lines(block, digits, nlines, run_start, run_stop, self._need)
             if values is not None:
