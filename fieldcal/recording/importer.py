@@ -397,7 +397,9 @@ class _FileText(_Text):
                     if end == 0:  # no line end in this block: the line goes on (LONGEST_LINE bounds it)
                         carried += block
                         continue
-                    piece = carried + block[:end]
+                    # one copy of the line's head and the block's whole lines (slicing, then
+                    # adding, made two)
+                    piece = b"".join((carried, memoryview(block)[:end])) if end < len(block) or carried else block
                     carried = block[end:]
                     self.cut += len(piece)
                     yield piece
