@@ -134,3 +134,24 @@ def test_the_parsers_columns_are_the_texts_times_their_scale_however_they_sit(or
     assert chunk.t.tobytes() == (text[:, order[0]] * time_scale).tobytes()
     assert chunk.triads["a"].tobytes() == (text[:, list(order[1:4])] * triad_scale).tobytes()
     assert chunk.temperature.tobytes() == (text[:, order[4]] * temperature_scale).tobytes()
+
+
+def test_an_imported_recordings_rate_is_its_first_files_median_rate_bit_for_bit(tmp_path, monkeypatch):
+    """The recording on the first file's timestamps takes that file's median rate, found once
+    while it was read: the same bits as the median over the recording's own steps."""
+    import numpy as np
+
+    from drivers.sim.handheld import simulate_handheld, to_text
+    from fieldcal.recording import Recording
+    from fieldcal.recording.importer import import_recording
+
+    files = to_text(simulate_handheld(3), tmp_path)
+    medians = []
+    median = np.median
+    monkeypatch.setattr(np, "median", lambda *a, **k: medians.append(1) or median(*a, **k))
+    recording = import_recording(files, "imu_tk")
+    found = len(medians)
+    rate = recording.rate_hz
+    assert len(medians) == found  # not computed again
+    fresh = Recording(t=recording.t.copy(), triads=recording.triads, kinds=recording.kinds, units=recording.units)
+    assert np.float64(rate).tobytes() == np.float64(fresh.rate_hz).tobytes()

@@ -140,6 +140,8 @@ def import_with_report(paths, import_map: ImportMap | str | os.PathLike,
     recording = Recording(t=t, triads=triads, kinds=kinds, units=units, sources=tuple(paths),
                           malformed={p.report.path: (p.report.malformed, p.report.malformed_lines)
                                      for p in parsed})
+    if t is parsed[0].t:  # the first file's timestamps as they are: its median rate is the recording's, found once
+        recording.__dict__["rate_hz"] = parsed[0].report.rate_hz  # (the cached_property's own slot)
     report = ImportReport(map_path=im.path, map_text=im.text, files=tuple(p.report for p in parsed),
                           alignment=tuple(alignment), warnings=warnings)
     return recording, report
