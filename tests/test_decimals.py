@@ -159,7 +159,7 @@ def rows_of_fields(draw):
     return fields, rows
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(rows_of_fields(), st.sampled_from([" ", "\t", "  "]))
 def test_rows_of_short_fields_read_as_float_does_with_or_without_the_rows_hint(case, blank):
     """The rows hint (the points' field found, not searched) changes nothing: the same values as
