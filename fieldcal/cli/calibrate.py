@@ -115,10 +115,10 @@ def _station(args, config):
 
 def _recording(args, serial: str | None):
     """(recording, session directory, import summary lines); for files, the session directory is
-    a function that writes the session and returns its writer, still open for the parameter file:
-    called once the calibration has succeeded, so that a refused one leaves nothing behind. ``serial``: the unit's, as given
-    (--unit-serial, the config's), kept in a session imported here; checked against the serial an
-    imported session was given."""
+    a function that writes the session and returns its writer, still open for the parameter
+    file: called once the calibration has succeeded, so that a refused one leaves nothing behind.
+    ``serial``: the unit's, as given (--unit-serial, the config's), kept in a session imported
+    here; checked against the serial an imported session was given."""
     from fieldcal.recording.store import load_recording
 
     from fieldcal.recording.logs import LOG_NAMES, log_format
