@@ -135,3 +135,58 @@ def test_the_whitespace_parser_reads_awkward_numbers_as_float_does():
         chunk = DelimitedTextParser(cm).feed(("\n".join("  ".join(r) for r in rows) + "\n").encode(), 0.0)
         assert bits(chunk.triads["a"]) == bits([[float(x) for x in r[1:]] for r in rows])
         assert bits(chunk.t) == bits([float(r[0]) for r in rows])
+
+
+@st.composite
+def rows_of_fields(draw):
+    """Rows of the same number of short tokens, a point in one field of every row (the usual
+    log: time then counts), and now and then a row that breaks the pattern: a point in another
+    field or none, two points, a lone sign or point, a long token."""
+    fields = draw(st.integers(1, 5))
+    with_point = draw(st.integers(0, fields - 1))
+    number = st.builds(lambda sign, whole, frac: f"{sign}{whole}", st.sampled_from(["", "-", "+"]),
+                       st.text("0123456789", min_size=1, max_size=7), st.none())
+    fixed = st.builds(lambda sign, whole, frac: f"{sign}{whole}.{frac}", st.sampled_from(["", "-", "+"]),
+                      st.text("0123456789", max_size=6), st.text("0123456789", max_size=7))
+    odd = st.sampled_from(["-", ".", "+.", "-.5", "5.", "1.2.3", "1..2", "--1", "1-2", "0.1234567890123456",
+                           "1234567890123456", "12345.678901234", "-0", "-0.0", "007"])
+    rows = []
+    for _ in range(draw(st.integers(1, 8))):
+        row = [draw(fixed if k == with_point else number) for k in range(fields)]
+        if draw(st.integers(0, 5)) == 0:
+            row[draw(st.integers(0, fields - 1))] = draw(odd | fixed | number)
+        rows.append(row)
+    return fields, rows
+
+
+@settings(max_examples=200, deadline=None)
+@given(rows_of_fields(), st.sampled_from([" ", "\t", "  "]))
+def test_rows_of_short_fields_read_as_float_does_with_or_without_the_rows_hint(case, blank):
+    """The rows hint (the points' field found, not searched) changes nothing: the same values as
+    without it and as float(), bit for bit, or None for the same texts."""
+    fields, rows = case
+    data = "".join(blank.join(row) + "\n" for row in rows).encode("ascii")
+    hinted, plain = plain_decimals(data, fields=fields), plain_decimals(data)
+    assert (hinted is None) == (plain is None)
+    tokens = [t for row in rows for t in row]
+    if all(PLAIN_DECIMAL.fullmatch(t) for t in tokens) and max(map(len, tokens)) <= 15:
+        assert hinted is not None and bits(hinted) == bits([float(t) for t in tokens])
+    if plain is not None:
+        assert bits(hinted) == bits(plain)
+
+
+@pytest.mark.parametrize("data", [b"+.\n", b"-.\n", b"-\n", b".\n", b"1.5 -.\n2.5 7\n"])
+def test_a_token_with_no_digit_is_refused_on_the_short_path_too(data):
+    assert plain_decimals(data, fields=2 if data.count(b"\n") == 2 else 1) is None
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=80).map(lambda b: b + b"\n"))
+def test_blank_runs_are_the_solid_runs_of_the_blank_mask(data):
+    from drivers.protocols.decimals import blank_runs, solid_runs
+
+    a = np.frombuffer(data, dtype=np.uint8)
+    blank, start, stop = blank_runs(a)
+    expected = solid_runs(a <= 32)
+    assert blank.tolist() == (a <= 32).tolist()
+    assert start.tolist() == expected[0].tolist() and stop.tolist() == expected[1].tolist()

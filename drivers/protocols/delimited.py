@@ -24,7 +24,7 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from drivers.protocols.base import ParserCounters
-from drivers.protocols.decimals import plain_decimals, plain_digits, solid_runs
+from drivers.protocols.decimals import blank_runs, plain_decimals, plain_digits, solid_runs
 
 _LF, _CR, _SP, _TAB = 10, 13, 32, 9
 _NUMERIC_BYTES = b"0123456789+-.eE,"
@@ -353,8 +353,11 @@ class DelimitedTextParser:
         # Only blanks and number bytes (the usual file): the blanks are the bytes up to 32.
         digits = plain_digits(block) if self._runs_only else None  # None: not plain
         plain = digits is not None
-        blank = a <= _SP if plain else (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
-        run_start, run_stop = solid_runs(blank)  # runs of non-blank bytes: [run_start[i], run_stop[i])
+        if plain:  # runs of non-blank bytes: [run_start[i], run_stop[i])
+            blank, run_start, run_stop = blank_runs(a)
+        else:
+            blank = (a == _SP) | (a == _TAB) | (a == _CR) | (a == _LF)
+            run_start, run_stop = solid_runs(blank)
         if plain and not head_dropped:
             values = _clean_lines(block, digits, nlines, run_start, run_stop, self._need)
             if values is not None:
@@ -472,12 +475,11 @@ class DelimitedTextParser:
 
     def _chunk(self, v: np.ndarray, t_host: float) -> SampleChunk:
         cm, slot, n = self.map, self._slot, len(v)
-        t = v[:, slot["time"]] * cm.time_scale if cm.time_column is not None else np.full(n, float(t_host))
-        triads = {name: v[:, [slot[f"{name}.{ax}"] for ax in "xyz"]] * tc.scale
-                  for name, tc in cm.triads.items()}
+        t = _scaled(v, [slot["time"]], cm.time_scale)[:, 0] if cm.time_column is not None else np.full(n, float(t_host))
+        triads = {name: _scaled(v, [slot[f"{name}.{ax}"] for ax in "xyz"], tc.scale) for name, tc in cm.triads.items()}
         temperature = None
         if cm.temperature_column is not None:
-            temperature = v[:, slot["temperature"]] * cm.temperature_scale
+            temperature = _scaled(v, [slot["temperature"]], cm.temperature_scale)[:, 0]
         extras = {}
         if cm.counter_column is not None:
             counter = v[:, slot["counter"]]
@@ -497,6 +499,16 @@ class DelimitedTextParser:
         self.counters.sequence_gaps += int(jump.sum())
         self.counters.missing_frames += int(np.where(jump & (d > 1), d - 1, 0).sum())
         self._last_counter = int(c[-1])
+
+
+def _scaled(v: np.ndarray, columns: list[int], scale: float) -> np.ndarray:
+    """``v[:, columns] * scale``, with no copy that is not needed: columns side by side are a
+    view, and a scale of 1 no product (x * 1.0 is x, bit for bit): a recording's text in counts
+    or SI units is then copied once, into the recording's arrays, not three times on the way."""
+    lo = columns[0]
+    side_by_side = columns == list(range(lo, lo + len(columns)))
+    picked = v[:, lo:lo + len(columns)] if side_by_side else v[:, columns]
+    return picked if scale == 1.0 else picked * scale
 
 
 def _parse_spans(a: np.ndarray, spans: np.ndarray):
@@ -561,7 +573,7 @@ def _numbers_of_block(text: bytes, nlines: int, T: int, digits=None, run_start=N
     """(nlines, T) from blank-separated ``text`` (blanks and number bytes only), or None unless
     it holds exactly that many finite numbers. Plain decimals take plain_decimals' fast exact
     path; anything else one fromstring call (strtod), which reads plain decimals the same."""
-    flat = plain_decimals(text, digits, run_start, run_stop)
+    flat = plain_decimals(text, digits, run_start, run_stop, T)
     if flat is not None and flat.size == nlines * T:
         return flat.reshape(nlines, T)
     try:

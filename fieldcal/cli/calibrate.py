@@ -115,10 +115,10 @@ def _station(args, config):
 
 def _recording(args, serial: str | None):
     """(recording, session directory, import summary lines); for files, the session directory is
-    a function that writes the session and returns its directory: called once the calibration
-    has succeeded, so that a refused one leaves nothing behind. ``serial``: the unit's, as given
-    (--unit-serial, the config's), kept in a session imported here; checked against the serial an
-    imported session was given."""
+    a function that writes the session and returns its writer, still open for the parameter
+    file: called once the calibration has succeeded, so that a refused one leaves nothing behind.
+    ``serial``: the unit's, as given (--unit-serial, the config's), kept in a session imported
+    here; checked against the serial an imported session was given."""
     from fieldcal.recording.store import load_recording
 
     from fieldcal.recording.logs import LOG_NAMES, log_format
@@ -136,7 +136,7 @@ def _recording(args, serial: str | None):
             recording = replace(recording, unit_serial=serial)
         return recording, first, []
     from fieldcal.cli.importing import read_recording, summary_lines
-    from fieldcal.recording.store import save_recording
+    from fieldcal.recording.store import write_recording
 
     if args.map is None and not (len(args.recording) == 1 and log_format(first)):
         raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
@@ -145,10 +145,10 @@ def _recording(args, serial: str | None):
     recording = replace(recording, unit_serial=serial)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
 
-    def save() -> Path:
+    def save():
         from fieldcal.atomic import new_named_directory
         directory = new_named_directory(args.out, f"recording-{first.stem}-{stamp}", option="--out")
-        return save_recording(recording, directory, report=report)
+        return write_recording(recording, directory, report=report)
 
     return recording, save, summary_lines(recording, report)
 
@@ -209,8 +209,10 @@ def cmd_calibrate(args) -> int:
     station = cal.place
     pf = parameter_file(cal, recording, station, device_name=config.device.name if config else None,
                         operator=operator, device_serial=recording.unit_serial)
-    directory = directory() if callable(directory) else directory  # files: their session, now
-    writer = SessionWriter.append_to(directory)  # refused if another fieldcal is writing it
+    # Files: their session, written now, its writer kept open for the parameter file; an imported
+    # session is reopened (refused if another fieldcal is writing it).
+    writer = directory() if callable(directory) else SessionWriter.append_to(directory)
+    directory = writer.directory
     try:
         writer.write_parameters(pf)  # parameters-NNN.yaml: an earlier calibration is kept
     finally:

@@ -140,6 +140,8 @@ def import_with_report(paths, import_map: ImportMap | str | os.PathLike,
     recording = Recording(t=t, triads=triads, kinds=kinds, units=units, sources=tuple(paths),
                           malformed={p.report.path: (p.report.malformed, p.report.malformed_lines)
                                      for p in parsed})
+    if t is parsed[0].t:  # the first file's timestamps as they are: its median rate is the recording's, found once
+        recording.__dict__["rate_hz"] = parsed[0].report.rate_hz  # (the cached_property's own slot)
     report = ImportReport(map_path=im.path, map_text=im.text, files=tuple(p.report for p in parsed),
                           alignment=tuple(alignment), warnings=warnings)
     return recording, report
@@ -397,7 +399,9 @@ class _FileText(_Text):
                     if end == 0:  # no line end in this block: the line goes on (LONGEST_LINE bounds it)
                         carried += block
                         continue
-                    piece = carried + block[:end]
+                    # one copy of the line's head and the block's whole lines (slicing, then
+                    # adding, made two)
+                    piece = b"".join((carried, memoryview(block)[:end])) if end < len(block) or carried else block
                     carried = block[end:]
                     self.cut += len(piece)
                     yield piece
@@ -442,8 +446,14 @@ def check_line_lengths(blocks, path: str) -> int:
     line, since = 1, 0  # the current line's number, its bytes in earlier blocks
     for block in blocks:
         a = np.frombuffer(block, dtype=np.uint8)
-        ends = np.flatnonzero(a == 10)
-        if len(ends):
+        last = _last_end_if_short_lines(block, since)
+        if last is not None:  # the usual text: its line ends counted, not listed
+            if last >= 0:
+                line += int(np.count_nonzero(a == 10))
+                since = len(a) - 1 - last
+            else:
+                since += len(a)
+        elif len(ends := np.flatnonzero(a == 10)):
             lengths = np.diff(ends, prepend=-1)  # each line's bytes in this block, its "\n" included
             lengths[0] += since
             longest = int(np.argmax(lengths))
@@ -456,6 +466,25 @@ def check_line_lengths(blocks, path: str) -> int:
         if since > LONGEST_LINE:  # no need to read to its end (there may be none)
             _refuse_long_line(path, line, since, complete=False)
     return line - 1
+
+
+def _last_end_if_short_lines(block, since: int) -> int | None:
+    """Where the last line end of ``block`` is (-1: none) when no line that ends in it is longer
+    than LONGEST_LINE (``since``: bytes of its first line in earlier blocks); None when one may
+    be, for the exact count to find it. From each line end, the last one at most LONGEST_LINE
+    bytes on must exist: a step of a few dozen ``rfind`` calls per MiB (C's memrchr), not an
+    array of every line end's position."""
+    text = block if isinstance(block, bytes) else bytes(block)
+    first = text.find(b"\n", 0, max(LONGEST_LINE - since + 1, 0))
+    last = text.rfind(b"\n")
+    if first < 0:  # no line end, or the first line too long: the exact count decides
+        return -1 if last < 0 and since + len(text) <= LONGEST_LINE else None
+    end = first
+    while end < last:
+        end = text.rfind(b"\n", end + 1, end + LONGEST_LINE + 1)
+        if end < 0:
+            return None
+    return last
 
 
 def _refuse_long_line(path: str, line: int, length: int, complete: bool) -> None:

@@ -20,7 +20,6 @@ from drivers.chunk import SampleChunk
 from fieldcal import __version__
 from fieldcal.recording import Recording
 from fieldcal.session.capture import SessionWriter
-from fieldcal.session.record import RunRecord
 
 KIND = "recording"
 STOP_REASON = "imported"
@@ -41,6 +40,16 @@ def save_recording(recording: Recording, directory: str | os.PathLike,
     what the import did; without it the sources are hashed now, if they are still there.
     ``metadata_extra`` adds keys to the start metadata (a key it would replace is an error).
     """
+    writer = write_recording(recording, directory, metadata_extra, report=report)
+    writer.close()
+    return writer.directory
+
+
+def write_recording(recording: Recording, directory: str | os.PathLike,
+                    metadata_extra: Mapping | None = None, *, report=None) -> SessionWriter:
+    """As save_recording, but the session's writer is returned still open, the import stopped:
+    what is written next (the calibration's parameter file) goes through it, the session neither
+    reopened nor its samples read back and checked again (``SessionWriter.append_to``)."""
     metadata = recording_metadata(recording, report)
     for key, value in (metadata_extra or {}).items():
         if key in metadata:
@@ -54,9 +63,10 @@ def save_recording(recording: Recording, directory: str | os.PathLike,
                                      triads={name: v[i:i + CHUNK_SAMPLES]
                                              for name, v in recording.triads.items()}))
         writer.stop(STOP_REASON, {"n_samples": n})
-    finally:
+    except BaseException:
         writer.close()
-    return writer.directory
+        raise
+    return writer
 
 
 def recording_metadata(recording: Recording, report=None) -> dict:
@@ -99,6 +109,10 @@ def _sha256_or_none(path: str) -> str | None:
 
 def load_recording(directory: str | os.PathLike) -> Recording:
     """The recording saved in ``directory``; a one-line error for anything else."""
+    # Here, not above: the reader of every kind of session (and the procedure events it reads)
+    # is some 20 ms of imports that calibrate on text files, which only writes one, never needs.
+    from fieldcal.session.record import RunRecord
+
     reader = RunRecord.open(directory)  # SessionError (one line) if it is no session at all
     meta = reader.start
     where = str(reader.directory)
