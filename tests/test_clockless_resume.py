@@ -337,7 +337,9 @@ def clockless_cycled_run(tmp_path_factory):
             return app, banner, log_text(app), late_log
 
     try:
-        app, banner, log, late_log = run()
+        with pytest.MonkeyPatch.context() as patch:
+            on_world_time(patch, lambda: devices.world_time)  # (continuous across the power cycle)
+            app, banner, log, late_log = run()
         solved = app.outcome.unit.solutions["accelerometer"]
         errors = accelerometer_errors(solved, devices, solved.sigma)
     finally:
