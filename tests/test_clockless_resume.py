@@ -256,6 +256,18 @@ async def place(app, pilot, devices, procedure, step: int) -> None:
                 or waiting_at(app, step + 1))
 
 
+def on_world_time(monkeypatch, world) -> None:
+    """The station stamps each read's arrival with ``world`` (the served unit's sample time) as
+    its wall clock already is (tests/test_tui_resume.py's WorldClock), not with the host's
+    monotonic clock. The unit is served from a thread of the test's own process, in real time by
+    that clock: on a loaded machine the thread can fall behind it, every read is then late, and
+    the rate measured from the arrivals falls more than 1 % short, which holds the run before its
+    first dwell (the resumed run never reached its first step once, under two `yes`). A real
+    unit's bytes keep their time whatever the host does; in the unit's own time they do here,
+    and the rate check still measures them (from arrivals: VectorNav frames carry no clock)."""
+    monkeypatch.setattr("fieldcal.run.devices.time", SimpleNamespace(monotonic=world))
+
+
 def accelerometer_errors(solution, devices, sigma) -> np.ndarray:
     """(solved − true) / ``sigma`` of the accelerometer's nine parameters, the truth being the
     unit's scale factors and misalignments and its bias now (this switch-on's, as used: DESIGN 12)."""
@@ -325,7 +337,9 @@ def clockless_cycled_run(tmp_path_factory):
             return app, banner, log_text(app), late_log
 
     try:
-        app, banner, log, late_log = run()
+        with pytest.MonkeyPatch.context() as patch:
+            on_world_time(patch, lambda: devices.world_time)  # (continuous across the power cycle)
+            app, banner, log, late_log = run()
         solved = app.outcome.unit.solutions["accelerometer"]
         errors = accelerometer_errors(solved, devices, solved.sigma)
     finally:
@@ -378,7 +392,7 @@ def test_a_clockless_unit_power_cycled_with_its_port_open_is_measured_again_and_
     assert np.abs(mixed_errors).max() > 10.0, mixed_errors
 
 
-def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tmp_path):
+def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tmp_path, monkeypatch):
     """Quit after one step of a VectorNav run: the question says a resume measures the 1
     completed step again, and the resume does exactly that (same count, same reason): nothing in
     its frames tells a restart, so the completed step is taken as maybe power-cycled. (This run
@@ -393,6 +407,7 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
 
     devices = served_on_pty(5)
     world = WorldClock(devices)
+    on_world_time(monkeypatch, world)
     procedure = two_positions(tmp_path, SHORT)
     config = without_table(tmp_path, devices, with_vectornav)
 

@@ -317,23 +317,17 @@ def test_a_misspelt_thermal_setting_is_one_line_with_the_nearest(tmp_path, capsy
     assert str(path) in err and not (tmp_path / "s").exists()
 
 
-def test_sim_warmup_field18_is_honest_per_triad(tmp_path):
+def test_sim_warmup_field18_is_honest_per_triad():
     # configs/sim-warmup.yaml's unit warming 10 K through field-18, ten seeds through the conductor
-    # (about 25 s of CPU): every parameter, thermal terms included, against the truth re-centred on
+    # with no session recorded (a quarter less CPU than recording ten): every parameter, thermal terms included, against the truth re-centred on
     # the fit's reference. The accelerometer's RMS z was 2.06 while its drift went unfitted.
     from scipy.stats import chi2
 
-    from fieldcal.config import load_config
-    from fieldcal.report import _thermal_errors, thermal_truths
-    from fieldcal.run.runner import RunSpec, run_headless
+    from fieldcal.report import _thermal_errors
 
-    config = load_config("configs/sim-warmup.yaml")
     z: dict[str, dict[str, list]] = {}  # triad -> parameter -> z of each run that fitted it
     for seed in range(1, 11):
-        spec = RunSpec(load_procedure("field-18"), config.station, seed=seed, rate_hz=config.device.rate_hz,
-                       sim_thermal=config.device.sim.thermal)
-        outcome = run_headless(spec, tmp_path / f"seed{seed}")
-        truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
+        outcome, truths = _sim_warmup_run(seed)  # (no session: these checks read none)
         for name, cal in outcome.unit.solutions.items():
             theta, terms = truths[name]
             values = np.r_[cal.errors_in_sigma(theta), _thermal_errors(cal.thermal, terms).ravel()]
@@ -356,18 +350,18 @@ def test_sim_warmup_field18_is_honest_per_triad(tmp_path):
             assert low < np.sum(np.square(values)) < high, (name, j, np.sqrt(np.mean(np.square(values))).round(3))
 
 
-def test_a_thermal_soak_recovers_the_truth_within_its_sigma(tmp_path):
+def test_a_thermal_soak_recovers_the_truth_within_its_sigma():
     # procedures/thermal-soak.yaml (nine faces, three passes) in configs/sim-chamber.yaml's ramp
     # (18 to 32 °C): every parameter, thermal terms and scale drift included, within 4σ of the
     # truth, and the accelerometer's biases far better determined than a 10 K warm-up leaves them.
     from fieldcal.config import load_config
     from fieldcal.report import thermal_truths, worst_error
-    from fieldcal.run.runner import RunSpec, run_headless
+    from fieldcal.run.runner import RunSpec
 
     config = load_config("configs/sim-chamber.yaml")
     spec = RunSpec(load_procedure("procedures/thermal-soak.yaml"), config.station, seed=4,
                    rate_hz=config.device.rate_hz, sim_thermal=config.device.sim.thermal)
-    outcome = run_headless(spec, tmp_path / "soak")
+    outcome = _unrecorded_run(spec)  # (no session: these checks read none)
     assert set(outcome.unit.solutions) == {"accelerometer", "gyroscope", "inclinometer"}
     truths = thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
     assert worst_error(outcome.unit.solutions, truths) < 4.0
@@ -379,8 +373,9 @@ def test_a_thermal_soak_recovers_the_truth_within_its_sigma(tmp_path):
     assert np.all(acc.sigma[:3] < 0.1 * MG)  # field-18 warming 10 K: 0.1-0.4 mg
 
 
-def _sim_warmup_run(seed: int, out):
-    """A headless field-18 run on configs/sim-warmup.yaml: (outcome, the thermal truths re-centred)."""
+def _sim_warmup_run(seed: int, out=None):
+    """A headless field-18 run on configs/sim-warmup.yaml: (outcome, the thermal truths re-centred).
+    ``out``: the session's directory; None: none recorded (``_unrecorded_run``)."""
     from fieldcal.config import load_config
     from fieldcal.report import thermal_truths
     from fieldcal.run.runner import RunSpec, run_headless
@@ -388,18 +383,29 @@ def _sim_warmup_run(seed: int, out):
     config = load_config("configs/sim-warmup.yaml")
     spec = RunSpec(load_procedure("field-18"), config.station, seed=seed, rate_hz=config.device.rate_hz,
                    sim_thermal=config.device.sim.thermal)
-    outcome = run_headless(spec, out)
+    outcome = _unrecorded_run(spec) if out is None else run_headless(spec, out)
     return outcome, thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
 
 
-def test_a_warm_gyros_unconverged_order_0_does_not_drop_the_triad(tmp_path):
+def _unrecorded_run(spec):
+    """``run_headless(spec, ...)``'s outcome, to the bit, through the same conductor, bench and
+    scripted operator with no session recorded: for checks that read none (writing one is a third
+    of a warm-up run's CPU)."""
+    from fieldcal.run.conductor import Conductor
+    from fieldcal.run.operators import ScriptedOperator
+    from fieldcal.run.runner import SimulatedBench
+
+    return Conductor(spec, SimulatedBench(spec), ScriptedOperator(spec.script, spec.procedure)).run()
+
+
+def test_a_warm_gyros_unconverged_order_0_does_not_drop_the_triad():
     # configs/sim-warmup.yaml seed 34: the gyro's order-0 candidate (its bias moving ~250 Earth
     # rates over the run) ran out of evaluations in the second weighting pass, and that failed the
     # whole triad (2 of the thermal benchmark's first 56 runs). It is now no candidate, and the
     # orders that converge are judged as before.
     from fieldcal.report import worst_error
 
-    outcome, truths = _sim_warmup_run(34, tmp_path / "seed34")
+    outcome, truths = _sim_warmup_run(34)
     assert outcome.unit.failures == {}
     gyro = outcome.unit.solutions["gyroscope"]
     assert gyro.thermal.order >= 1  # (the truth's is 1)

@@ -77,17 +77,18 @@ async def test_the_results_say_the_verdicts_and_the_skipped_positions_first():
 
 @run_async
 async def test_the_results_summary_of_a_solved_run_names_the_worst_residual(tmp_path):
-    """field-18 (short dwells): each triad solved, with its worst position's residual."""
+    """field-18 (short dwells): each triad solved, with its worst position's residual. The run
+    headless, its results screen that of its replay: the same screen as at the end of the live
+    run (FieldcalApp.show_results), without the 18 steps' keys and frames."""
     from fieldcal.procedure.positions import load_procedure
+    from fieldcal.run.runner import open_run, run_headless
     from fieldcal.tui.widgets.residuals import per_position
 
     procedure = parse_procedure(load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 20"),
                                 "field-18-short.yaml")
-    app = FieldcalApp(RunSpec(procedure, STATION, seed=5), speed=0, session_dir=None)
+    run = run_headless(RunSpec(procedure, STATION, seed=5), tmp_path / "session")
+    app = FieldcalApp(None, speed=0, replay=open_run(run.session))
     async with app.run_test(size=(120, 40)) as pilot:
-        for step in range(len(procedure.positions)):
-            await until(pilot, lambda step=step: waiting_at(app, step))
-            await pilot.press("r")
         await until(pilot, lambda: isinstance(app.screen, ResultsScreen) and bool(app.screen.query("#verdicts")))
         await pilot.pause()
         text = str(app.screen.query_one("#verdicts").render())
@@ -95,6 +96,7 @@ async def test_the_results_summary_of_a_solved_run_names_the_worst_residual(tmp_
         assert bodies and all(b.has_class("wide") for b in bodies)  # residuals beside the table
         assert len({b.query_one(".residuals").region.x for b in bodies}) == 1
         assert all(b.query_one(".residuals").region.x > b.query_one(".table").region.right for b in bodies)
+    assert set(app.outcome.unit.solutions) == {"accelerometer", "gyroscope", "inclinometer"}
     for name, sol in app.outcome.unit.solutions.items():
         rows, unit = per_position(sol)
         worst = max(rows, key=lambda r: abs(r[1]))[0]

@@ -64,13 +64,24 @@ def result_of(table: str, parameter: str) -> str:
     return row.rsplit("  ", 1)[-1].strip()
 
 
+@pytest.fixture(scope="module")
+def paper5_first_calibration(tmp_path_factory):
+    """field-18 (short) of the unit PAPER-5, seed 5, headless: the session whose results screen
+    the spec's test replays, and the previous calibration in the drift test."""
+    sessions = tmp_path_factory.mktemp("sessions")
+    return run_headless(RunSpec(field18_short(), STATION, seed=5, unit_serial="PAPER-5"), sessions / "first")
+
+
 @run_async
-async def test_results_say_pass_or_fail_per_triad_and_parameter_with_the_reason(tmp_path):
+async def test_results_say_pass_or_fail_per_triad_and_parameter_with_the_reason(paper5_first_calibration):
+    """The results screen of a replayed run: the same screen, verdicts and exit status as at the
+    end of the live run (FieldcalApp.show_results, action_quit), without the 18 steps' keys and
+    frames (test_tui.py's runs reach this screen live)."""
     spec = spec_from_document(SPEC, "spec.yaml")
-    app = FieldcalApp(RunSpec(field18_short(), STATION, seed=5), speed=0, session_dir=tmp_path / "s",
-                      product_spec=spec)
+    app = FieldcalApp(None, speed=0, replay=open_run(paper5_first_calibration.session), product_spec=spec)
     async with app.run_test(size=(120, 40)) as pilot:
-        await finish(pilot, app)
+        await until(pilot, lambda: app.outcome is not None and on_results(app))
+        await pilot.pause()
         headline = rendered(app, "#headline")
         summary = rendered(app, "#verdicts")
         heads = [str(w.render()) for w in app.screen.query(".triad-head")]
@@ -102,15 +113,15 @@ async def test_results_say_pass_or_fail_per_triad_and_parameter_with_the_reason(
 
 
 @run_async
-async def test_results_flag_the_drift_since_the_units_previous_calibration(tmp_path):
+async def test_results_flag_the_drift_since_the_units_previous_calibration(paper5_first_calibration):
     """A second calibration of the same (simulated) unit beside the first: each bias's drift is
     the difference of the two files, flagged where it exceeds the spec's max_drift."""
     from fieldcal.paramfile import load
 
     procedure = field18_short()
-    sessions = tmp_path / "sessions"
     # the same unit: the same serial (two serial-less runs are never compared: issue 23)
-    first = run_headless(RunSpec(procedure, STATION, seed=5, unit_serial="PAPER-5"), sessions / "first")
+    first = paper5_first_calibration
+    sessions = first.session.parent
     before = load(first.parameters)["accelerometer"]
     spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "paper MIMU", "triads": {
         "accelerometer": {"bias": {"unit": "mg", "max_drift": 0.001}}}}, "drift.yaml")

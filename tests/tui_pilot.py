@@ -27,7 +27,7 @@ async def until(pilot, predicate, timeout_s: float = 120.0) -> None:
 def what_it_shows(app) -> str:
     """The state a hang leaves, for the failure's message: the banner, the run's phase and the
     last lines of the event log (a held rate, a silent device and a stuck step read differently)."""
-    parts = [f"telemetry {getattr(app, 'telemetry', None)!r}"]
+    parts = [f"screen {type(app.screen).__name__}; telemetry {getattr(app, 'telemetry', None)!r}"]
     for selector in ("#banner", "#log"):
         try:
             widget = app.screen.query_one(selector)
