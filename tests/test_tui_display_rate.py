@@ -68,7 +68,7 @@ async def test_readings_within_the_display_period_wait_for_its_end_and_the_last_
 
 
 @run_async
-async def test_the_operators_turn_and_the_runs_end_are_shown_at_once():
+async def test_the_operators_turn_a_new_instruction_and_the_runs_end_are_shown_at_once():
     clock = Clock()
     app = ScreenApp(clock)
     async with app.run_test(size=(80, 24)) as pilot:
@@ -77,5 +77,9 @@ async def test_the_operators_turn_and_the_runs_end_are_shown_at_once():
         screen.set_telemetry(reading(1.0, 11.0))
         screen.set_telemetry(reading(1.1, 22.0, waiting=True))  # same instant: the turn comes
         assert "+22.0" in accel_row(screen)
+        # same instant: the banner's instruction changes (the device falls silent)
+        silent = Telemetry(**{**reading(1.2, 33.0, waiting=True).__dict__, "silent_s": 3.0})
+        screen.set_telemetry(silent)
+        assert str(screen.query_one("#banner").render()).startswith("NO SAMPLES from the device for 3 s")
         screen.finished("aborted")  # same instant: the end
         assert str(screen.query_one("#banner").render()) == "Aborted: the session is kept"

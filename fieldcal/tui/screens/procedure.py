@@ -56,6 +56,7 @@ class ProcedureScreen(Screen):
         super().__init__()
         self.clock = clock
         self._painted_at = -float("inf")  # the clock at the last repaint
+        self._painted_turn: tuple | None = None  # and the operator's turn it showed (_shown_turn)
         self._repaint_timer: Timer | None = None  # the repaint put off to the end of DISPLAY_S
         self.view = view
         self.title_text = title
@@ -106,16 +107,14 @@ class ProcedureScreen(Screen):
     # --- fed by the app ---------------------------------------------------------------------
 
     def add_items(self, items, telemetry: Telemetry) -> None:
-        urgent = self._turn_changes(telemetry)
         self.view.set_telemetry(telemetry)
         self._unshown.extend(line for item in items if (line := self.view.apply(item)) is not None)
         self._unfed.extend(items)
-        self._repaint(urgent)
+        self._repaint()
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
-        urgent = self._turn_changes(telemetry)
         self.view.set_telemetry(telemetry)
-        self._repaint(urgent)
+        self._repaint()
 
     def finished(self, status: str) -> None:
         self.view.finished = status
@@ -132,20 +131,20 @@ class ProcedureScreen(Screen):
 
     # --- the display rate -------------------------------------------------------------------
 
-    def _turn_changes(self, telemetry: Telemetry) -> bool:
-        """Whether the run starts or stops waiting for the operator: shown at once, not at the
-        display rate (the operator acts on it, and tests wait for it)."""
-        shown = self.view.telemetry
-        return shown is None or shown.waiting != telemetry.waiting
+    def _shown_turn(self) -> tuple:
+        """What the operator acts on: the step, whether the run waits for them, and the banner."""
+        tel = self.view.telemetry
+        return (self.view.step, tel is not None and tel.waiting, self.view.banner(sim=self.mode == "sim"))
 
-    def _repaint(self, urgent: bool) -> None:
-        """Show what the view holds now, or, within DISPLAY_S of the last repaint, once that
-        period is over (a timer: the last readings are always shown). Only the repaint waits:
-        the view, the app's events and telemetry take every batch as it comes."""
+    def _repaint(self) -> None:
+        """Show what the view holds now if the operator's turn or instruction changed (they act
+        on it, and tests wait for it) or DISPLAY_S has passed since the last repaint; else at the
+        end of that period (a timer: the last readings are always shown). Only the repaint
+        waits: the view, the app's events and telemetry take every batch as it comes."""
         if not self._showing():
             return
         wait = self._painted_at + DISPLAY_S - self.clock()
-        if urgent or wait <= 0:
+        if wait <= 0 or self._shown_turn() != self._painted_turn:
             self._show_items()
         elif self._repaint_timer is None:
             self._repaint_timer = self.set_timer(wait, self._repaint_due, name="repaint")
@@ -169,12 +168,12 @@ class ProcedureScreen(Screen):
     def refresh_view(self) -> None:
         """Show the view: each widget only when its text changes, and a re-layout of the screen
         only for those whose height follows their text (the step, the banner, the cube)."""
-        self._painted_at = self.clock()
+        self._painted_at, self._painted_turn = self.clock(), self._shown_turn()
         view = self.view
         self._tiles.update(view.tiles)
         show(self._job, view.job_text(), fixed_size=True)  # one line (#job), changing every reading
         show(self._step, view.step_text())
-        text, style = view.banner(sim=self.mode == "sim")
+        text, style = self._painted_turn[2]  # view.banner()
         show(self._banner, text)
         self._banner.set_classes(style)
         big = self.has_class("big")
