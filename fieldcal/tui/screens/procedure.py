@@ -30,8 +30,9 @@ BIG = (110, 34)  # columns and rows from which the cube and the live bars grow
 # Pressed again: confirmed. Redo is on o, away from s and a (a slip between neighbours asks anyway).
 CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u", "redo": "o"}
 # Readings, bars and the log are repainted at most this often (wall clock): a person reads no
-# faster, and each repaint costs a re-layout and re-render of the screen. The operator's turn,
-# the end of the run and the keys' own effects are shown at once.
+# faster, and each repaint costs a re-layout and re-render of the screen. The operator's turn, a
+# new step or instruction (the banner), the end of the run and the keys' own effects are shown
+# at once.
 DISPLAY_S = 0.25
 
 
@@ -85,7 +86,7 @@ class ProcedureScreen(Screen):
         yield TooSmall()
 
     def on_mount(self) -> None:
-        # Found once: refresh_view runs for every batch of readings (up to ten a second).
+        # Found once: refresh_view runs several times a second during a run.
         self._job, self._step, self._banner, self._cube = (
             self.query_one(f"#{name}", Static) for name in ("job", "step", "banner", "cube"))
         self._tiles, self._live, self._log = (self.query_one(PositionTiles), self.query_one(LivePanel),
