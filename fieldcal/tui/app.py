@@ -133,7 +133,7 @@ class FieldcalApp(App[int]):
                             leave_factor=settings.stillness.leave_factor,
                             held_while_waiting=self.mode == "sim",
                             **({"placing_prior_s": hands_s} if hands_s is not None else {}))
-        self.procedure_screen = ProcedureScreen(self.view, title, self.mode)
+        self.procedure_screen = ProcedureScreen(self.view, title, self.mode, clock=clock)
 
     def on_resize(self, event) -> None:
         self.set_class(event.size.width < MIN_COLUMNS or event.size.height < MIN_ROWS, "-too-small")

@@ -1,6 +1,7 @@
 """The procedure screen: tiles, step, instruction, cube, live panel and the event log."""
 from __future__ import annotations
 
+import time
 from typing import ClassVar
 
 from textual import events
@@ -8,6 +9,7 @@ from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal
 from textual.screen import Screen
+from textual.timer import Timer
 from textual.widgets import Footer, Static
 
 from fieldcal.procedure.engine import PLACE
@@ -15,6 +17,7 @@ from fieldcal.tui.widgets.cube import top_view
 from fieldcal.tui.widgets.eventlog import EventLog
 from fieldcal.tui.widgets.live import LivePanel
 from fieldcal.tui.widgets.plan import PlanPanel
+from fieldcal.tui.widgets.shown import show
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.widgets.tiles import PositionTiles
 from fieldcal.tui.widgets.toosmall import TooSmall
@@ -26,6 +29,11 @@ QUIT_KEYS = ("ctrl+q", "ctrl+c")  # the app's: they ask as q does, and answer it
 BIG = (110, 34)  # columns and rows from which the cube and the live bars grow
 # Pressed again: confirmed. Redo is on o, away from s and a (a slip between neighbours asks anyway).
 CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u", "redo": "o"}
+# Readings, bars and the log are repainted at most this often (wall clock): a person reads no
+# faster, and each repaint costs a re-layout and re-render of the screen. The operator's turn, a
+# new step or instruction (the banner), the end of the run and the keys' own effects are shown
+# at once.
+DISPLAY_S = 0.25
 
 
 class ProcedureScreen(Screen):
@@ -44,8 +52,13 @@ class ProcedureScreen(Screen):
         *(Binding(str(n), f"choose({n})", "which", show=False) for n in range(1, 10)),
     ]
 
-    def __init__(self, view: RunView, title: str, mode: str) -> None:
+    def __init__(self, view: RunView, title: str, mode: str, clock=time.monotonic) -> None:
+        """``clock``: the wall clock the display rate is counted on (the app's)."""
         super().__init__()
+        self.clock = clock
+        self._painted_at = -float("inf")  # the clock at the last repaint
+        self._painted_turn: tuple | None = None  # and the operator's turn it showed (_shown_turn)
+        self._repaint_timer: Timer | None = None  # the repaint put off to the end of DISPLAY_S
         self.view = view
         self.title_text = title
         self.mode = mode  # "sim" or "replay"
@@ -73,6 +86,12 @@ class ProcedureScreen(Screen):
         yield TooSmall()
 
     def on_mount(self) -> None:
+        # Found once: refresh_view runs several times a second during a run.
+        self._job, self._step, self._banner, self._cube = (
+            self.query_one(f"#{name}", Static) for name in ("job", "step", "banner", "cube"))
+        self._tiles, self._live, self._log = (self.query_one(PositionTiles), self.query_one(LivePanel),
+                                              self.query_one("#log", EventLog))
+        self._plan = self.query(PlanPanel).first() if self.query(PlanPanel) else None
         self.query_one("#live").border_title = "live"
         self.query_one("#log").border_title = "events"
         self.query_one("#confirm").display = False
@@ -92,19 +111,17 @@ class ProcedureScreen(Screen):
         self.view.set_telemetry(telemetry)
         self._unshown.extend(line for item in items if (line := self.view.apply(item)) is not None)
         self._unfed.extend(items)
-        if self._showing():
-            self._show_items()
+        self._repaint()
 
     def set_telemetry(self, telemetry: Telemetry) -> None:
         self.view.set_telemetry(telemetry)
-        if self._showing():
-            self.refresh_view()
+        self._repaint()
 
     def finished(self, status: str) -> None:
         self.view.finished = status
         if self._showing():
             self._ask(None)
-            self.refresh_view()
+            self._show_items()
             self.refresh_bindings()
 
     def _showing(self) -> bool:
@@ -113,34 +130,62 @@ class ProcedureScreen(Screen):
         PositionTiles). The view takes every item and reading either way; on_mount shows them."""
         return self.is_mounted and self.is_attached
 
+    # --- the display rate -------------------------------------------------------------------
+
+    def _shown_turn(self) -> tuple:
+        """What the operator acts on: the step, whether the run waits for them, and the banner."""
+        tel = self.view.telemetry
+        return (self.view.step, tel is not None and tel.waiting, self.view.banner(sim=self.mode == "sim"))
+
+    def _repaint(self) -> None:
+        """Show what the view holds now if the operator's turn or instruction changed (they act
+        on it, and tests wait for it) or DISPLAY_S has passed since the last repaint; else at the
+        end of that period (a timer: the last readings are always shown). Only the repaint
+        waits: the view, the app's events and telemetry take every batch as it comes."""
+        if not self._showing():
+            return
+        wait = self._painted_at + DISPLAY_S - self.clock()
+        if wait <= 0 or self._shown_turn() != self._painted_turn:
+            self._show_items()
+        elif self._repaint_timer is None:
+            self._repaint_timer = self.set_timer(wait, self._repaint_due, name="repaint")
+
+    def _repaint_due(self) -> None:
+        self._repaint_timer = None
+        if self._showing():
+            self._show_items()
+
     def _show_items(self) -> None:
-        log = self.query_one("#log", EventLog)
-        for line in self._unshown:
-            log.write(line)
-        for panel in self.query(PlanPanel):
-            panel.feed(self._unfed)
+        if self._repaint_timer is not None:
+            self._repaint_timer.stop()
+            self._repaint_timer = None
+        if self._unshown:
+            self._log.write_lines(self._unshown)
+        if self._plan is not None:
+            self._plan.feed(self._unfed)
         self._unshown, self._unfed = [], []
         self.refresh_view()
 
     def refresh_view(self) -> None:
+        """Show the view: each widget only when its text changes, and a re-layout of the screen
+        only for those whose height follows their text (the step, the banner, the cube)."""
+        self._painted_at, self._painted_turn = self.clock(), self._shown_turn()
         view = self.view
-        self.query_one(PositionTiles).update(view.tiles)
-        self.query_one("#job", Static).update(view.job_text())
-        self.query_one("#step", Static).update(view.step_text())
-        text, style = view.banner(sim=self.mode == "sim")
-        banner = self.query_one("#banner", Static)
-        banner.update(text)
-        banner.set_classes(style)
+        self._tiles.update(view.tiles)
+        show(self._job, view.job_text(), fixed_size=True)  # one line (#job), changing every reading
+        show(self._step, view.step_text())
+        text, style = self._painted_turn[2]  # view.banner()
+        show(self._banner, text)
+        self._banner.set_classes(style)
         big = self.has_class("big")
         if (view.step, big) != self._shown_step and view.step < view.total_steps:
             self._shown_step = (view.step, big)
-            cube = self.query_one("#cube", Static)
-            cube.update("\n".join(top_view(view.position, large=big)))
-            cube.border_title = f"position {view.position.id}"
-        self.query_one(LivePanel).update(view, bar_width=32 if big else 16)
+            self._cube.update("\n".join(top_view(view.position, large=big)))
+            self._cube.border_title = f"position {view.position.id}"
+        self._live.update(view, bar_width=32 if big else 16)
         running = view.finished is None and view.step < view.total_steps
-        for panel in self.query(PlanPanel):
-            panel.show(view.remaining_s() if running else None)
+        if self._plan is not None:
+            self._plan.show(view.remaining_s() if running else None)
         can_go_back = view.unskip_target() is not None
         if can_go_back != self._can_go_back:  # the footer offers u only when it can act
             self._can_go_back = can_go_back

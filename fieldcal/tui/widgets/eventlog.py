@@ -11,6 +11,16 @@ from textual.widgets import RichLog
 
 
 class EventLog(RichLog):
+    def write_lines(self, lines) -> None:
+        """Write ``lines`` and scroll to the end at once, in the frame that shows them: RichLog's
+        own scroll after each line waits for the next refresh, which cost a second and a third
+        repaint of the whole log (and its scrollbar) for every batch. Before the log's size is
+        known the writes wait, and on_resize scrolls once they are made."""
+        for line in lines:
+            self.write(line, scroll_end=False)
+        if self.auto_scroll:
+            self.scroll_end(animate=False, immediate=True, x_axis=False)
+
     def on_resize(self, event: Resize) -> None:  # (RichLog's own on_resize runs as well)
         if self.auto_scroll:
             self.scroll_end(animate=False, immediate=False, x_axis=False)

@@ -9,6 +9,7 @@ from textual.containers import Vertical
 from textual.widgets import Static
 
 from fieldcal.tui.widgets.bars import bar
+from fieldcal.tui.widgets.shown import show
 from fieldcal.tui.view import RunView
 
 ROWS = ("accel", "gyro", "target", "still", "dwell", "table", "turns")
@@ -120,11 +121,14 @@ def temperature_text(view: RunView) -> str:
 
 
 class LivePanel(Vertical):
+    def __init__(self, **kw) -> None:
+        super().__init__(**kw)
+        self._rows = {name: Static("", id=f"live-{name}", classes="live-row") for name in ROWS}
+
     def compose(self) -> ComposeResult:
-        for name in ROWS:
-            yield Static("", id=f"live-{name}", classes="live-row")
+        yield from self._rows.values()
 
     def update(self, view: RunView, bar_width: int = BAR) -> None:
         for name, text in rows(view, bar_width).items():
-            self.query_one(f"#live-{name}", Static).update(text)
+            show(self._rows[name], text, fixed_size=True)  # a row is one line (.live-row), its text cut
         self.border_subtitle = temperature_text(view)

@@ -1,0 +1,85 @@
+"""The procedure screen's display rate: readings are repainted at most once per DISPLAY_S of
+the app's clock (a human reads no faster; each repaint re-lays-out and re-renders the screen),
+the operator's turn and the run's end at once, and what the screen holds (its view) takes every
+batch as it comes. The clock is injected: no wall-clock quantity decides anything here."""
+from __future__ import annotations
+
+from textual.app import App
+
+from tui_pilot import run_async, until
+from fieldcal.procedure.engine import DWELL, PLACE
+from fieldcal.procedure.positions import load_procedure
+from fieldcal.tui.readings import Telemetry
+from fieldcal.tui.screens.procedure import DISPLAY_S, ProcedureScreen
+from fieldcal.tui.view import RunView
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class ScreenApp(App[None]):
+    """Only the procedure screen, fed by the test as the app feeds it from a run."""
+
+    def __init__(self, clock: Clock) -> None:
+        super().__init__()
+        self.screen_under_test = ProcedureScreen(RunView(load_procedure("field-18")), "title", "replay", clock=clock)
+
+    def on_mount(self) -> None:
+        self.push_screen(self.screen_under_test)
+
+
+def reading(t: float, x_mg: float, waiting: bool = False) -> Telemetry:
+    return Telemetry(t=t, step=0, phase=PLACE if waiting else DWELL, waiting=waiting, samples=int(t * 100),
+                     accel_mg=(x_mg, 0.0, 1000.0), gyro_deg_s=(0.0, 0.0, 0.0), angle_deg=0.5, quiet=1.0)
+
+
+def accel_row(screen: ProcedureScreen) -> str:
+    return str(screen.query_one("#live-accel").render())
+
+
+@run_async
+async def test_readings_within_the_display_period_wait_for_its_end_and_the_last_is_shown():
+    clock = Clock()
+    app = ScreenApp(clock)
+    async with app.run_test(size=(80, 24)) as pilot:
+        screen = app.screen_under_test
+        await until(pilot, lambda: screen.is_mounted)
+        screen.set_telemetry(reading(1.0, 11.0, waiting=True))  # the first: at once
+        assert "+11.0" in accel_row(screen)
+        screen.set_telemetry(reading(1.1, 22.0))  # the operator's turn ends: at once
+        assert "+22.0" in accel_row(screen)
+
+        clock.now += DISPLAY_S / 2  # within the period: the view has it, the screen not yet
+        screen.set_telemetry(reading(1.2, 33.0))
+        screen.set_telemetry(reading(1.3, 44.0))
+        assert screen.view.telemetry.accel_mg[0] == 44.0
+        assert "+22.0" in accel_row(screen)
+        # the end of the period (a timer): the last of them, not each
+        await until(pilot, lambda: "+44.0" in accel_row(screen))
+
+        clock.now += DISPLAY_S  # a period later: at once again
+        screen.set_telemetry(reading(1.4, 55.0))
+        assert "+55.0" in accel_row(screen)
+
+
+@run_async
+async def test_the_operators_turn_a_new_instruction_and_the_runs_end_are_shown_at_once():
+    clock = Clock()
+    app = ScreenApp(clock)
+    async with app.run_test(size=(80, 24)) as pilot:
+        screen = app.screen_under_test
+        await until(pilot, lambda: screen.is_mounted)
+        screen.set_telemetry(reading(1.0, 11.0))
+        screen.set_telemetry(reading(1.1, 22.0, waiting=True))  # same instant: the turn comes
+        assert "+22.0" in accel_row(screen)
+        # same instant: the banner's instruction changes (the device falls silent)
+        silent = Telemetry(**{**reading(1.2, 33.0, waiting=True).__dict__, "silent_s": 3.0})
+        screen.set_telemetry(silent)
+        assert str(screen.query_one("#banner").render()).startswith("NO SAMPLES from the device for 3 s")
+        screen.finished("aborted")  # same instant: the end
+        assert str(screen.query_one("#banner").render()) == "Aborted: the session is kept"
