@@ -225,3 +225,39 @@ def test_a_gyros_covariance_kept_by_its_parts_weighs_as_its_dense_form():
     by_parts, dense = solve_norm(problem, parts), solve_norm(problem, parts.dense())
     np.testing.assert_allclose(by_parts.theta, dense.theta, rtol=0, atol=1e-6 * dense.sigma.min())
     np.testing.assert_allclose(by_parts.sigma, dense.sigma, rtol=1e-9)
+
+
+def test_axis_aligned_positions_are_refused_by_their_geometry_before_any_search():
+    # classic-12's six directions leave a singular value some 1e-6 of the largest (the module's
+    # comment); the geometry check (ratio 1e-4) refuses them, naming a condition number above 1e4,
+    # not the σ check after the search.
+    rng = np.random.default_rng(3)
+    means = distort_with(TRUTH, G * UP12) + rng.normal(0, 5e-4, (12, 3))
+    with pytest.raises(CalibrationError) as raised:
+        solve_norm(StaticNormProblem(means, G), np.full((12, 3), 5e-4))
+    message = str(raised.value)
+    assert message.startswith("accelerometer: positions are degenerate (condition number ")
+    assert float(message.split("condition number ")[1].split(")")[0]) > 1e4
+
+
+def test_a_parameter_known_worse_than_a_hundredth_of_its_scale_is_refused_naming_it():
+    # Noise-free averages (χ² 0: nothing rescaled) solved with a stated noise: every σ is
+    # proportional to it. At 1 mm/s² all are far below 1 % of their natural unit (k·g for a bias,
+    # k for a scale factor, 1 rad for an angle); stated so that the worst reaches 1.5 %, the solve
+    # must refuse, naming that parameter, its σ in its unit, and the geometry's condition number
+    # (which the noise does not change).
+    means = distort_with(TRUTH, G * UP18)
+    small = solve_norm(StaticNormProblem(means, G), np.full((18, 3), 1e-3))
+    natural = np.r_[TRUTH[3:6] * G, TRUTH[3:6], np.ones(3)]
+    relative = small.sigma / natural
+    worst = int(np.argmax(relative))
+    factor = 0.015 / relative[worst]
+    with pytest.raises(CalibrationError) as raised:
+        solve_norm(StaticNormProblem(means, G), np.full((18, 3), 1e-3 * factor))
+    from fieldcal.model import PARAM_NAMES
+
+    message = str(raised.value)
+    assert message.startswith(
+        f"accelerometer: positions are degenerate: {PARAM_NAMES[worst]} is determined only to ±0.015 of its "
+        f"scale (condition number {small.diagnostics.condition_number:.3g}); 18 measurements point along only ")
+    assert message.endswith("add positions with an axis between the cube faces (paper Table 2, positions 13-18)")
