@@ -56,3 +56,13 @@ def test_averages_on_a_hyperboloid_are_not_an_ellipsoid(fit):
     with pytest.raises(DegenerateError) as raised:
         fit(points)
     assert str(raised.value) == "the averages do not lie on an ellipsoid (shape matrix not positive definite)"
+
+
+def test_averages_within_a_tenth_of_a_nanometre_of_a_plane_count_as_planar():
+    # Rounding-level flatness: the rank's tolerance (1e-9 per average of the normalised design)
+    # sees these 1e-10 departures from the plane as none, so the same five coefficients.
+    z = 0.4 + 1e-10 * np.random.default_rng(1).standard_normal(8)
+    nearly = np.c_[np.cos(ANGLES), 0.7 * np.sin(ANGLES), z]
+    with pytest.raises(DegenerateError) as raised:
+        fit_offset_ellipsoid(nearly, 1.0)
+    assert str(raised.value) == "the averages determine only 5 of the 9 ellipsoid coefficients"
