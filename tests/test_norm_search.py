@@ -261,3 +261,14 @@ def test_a_parameter_known_worse_than_a_hundredth_of_its_scale_is_refused_naming
         f"accelerometer: positions are degenerate: {PARAM_NAMES[worst]} is determined only to ±0.015 of its "
         f"scale (condition number {small.diagnostics.condition_number:.3g}); 18 measurements point along only ")
     assert message.endswith("add positions with an axis between the cube faces (paper Table 2, positions 13-18)")
+
+
+def test_nine_positions_with_a_stated_noise_are_solved_with_sigma_from_that_noise_alone():
+    # Nine equations, nine unknowns: no scatter is left (χ² ~ 0 on 0 degrees of freedom), so σ
+    # can only come from the stated noise, proportional to it, and nothing is rescaled.
+    problem = StaticNormProblem(field18_accelerometer(seed=3).means[:9], G)
+    stated = solve_norm(problem, np.full((9, 3), 5e-5))  # (at 5e-4 an angle is known only to 1.4 %)
+    doubled = solve_norm(problem, np.full((9, 3), 1e-4))
+    assert stated.diagnostics.dof == 0 and not stated.diagnostics.scaled_by_residuals
+    assert np.all(np.isfinite(stated.sigma)) and stated.diagnostics.chi2 < 1e-6
+    np.testing.assert_allclose(doubled.sigma, 2 * stated.sigma, rtol=1e-4)
