@@ -58,7 +58,7 @@ def test_averages_on_a_hyperboloid_are_not_an_ellipsoid(fit):
     assert str(raised.value) == "the averages do not lie on an ellipsoid (shape matrix not positive definite)"
 
 
-def test_averages_within_a_tenth_of_a_nanometre_of_a_plane_count_as_planar():
+def test_averages_off_a_plane_by_rounding_alone_count_as_planar():
     # Rounding-level flatness: the rank's tolerance (1e-9 per average of the normalised design)
     # sees these 1e-10 departures from the plane as none, so the same five coefficients.
     z = 0.4 + 1e-10 * np.random.default_rng(1).standard_normal(8)
@@ -66,3 +66,6 @@ def test_averages_within_a_tenth_of_a_nanometre_of_a_plane_count_as_planar():
     with pytest.raises(DegenerateError) as raised:
         fit_offset_ellipsoid(nearly, 1.0)
     assert str(raised.value) == "the averages determine only 5 of the 9 ellipsoid coefficients"
+    with pytest.raises(DegenerateError) as raised:  # and rate steps 1e-10 off a plane through zero
+        fit_centred_ellipsoid(np.c_[nearly[:, :2], z - 0.4], np.ones(8))
+    assert str(raised.value) == "the rate steps determine only 3 of the 6 ellipsoid coefficients"
