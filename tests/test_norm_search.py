@@ -272,3 +272,23 @@ def test_nine_positions_with_a_stated_noise_are_solved_with_sigma_from_that_nois
     assert stated.diagnostics.dof == 0 and not stated.diagnostics.scaled_by_residuals
     assert np.all(np.isfinite(stated.sigma)) and stated.diagnostics.chi2 < 1e-6
     np.testing.assert_allclose(doubled.sigma, 2 * stated.sigma, rtol=1e-4)
+
+
+def test_a_gyros_per_axis_sigmas_weigh_as_their_diagonal_covariance():
+    # A gyro's residuals have no per-average gradient, so per-axis σ (n, 3) are made the diagonal
+    # covariance whose variances they are (σ², each its own): the same solve as that matrix given.
+    from fieldcal.solvers import RateNormProblem
+
+    rng = np.random.default_rng(6)
+    up = UP18 + rng.normal(0, 0.03, UP18.shape)
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    rate, earth, vertical = np.radians(10), 7.292115e-5, 7.292115e-5 * np.sin(np.radians(40))
+    truth = np.array([1e-3, -2e-3, 5e-4, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+    sigmas = 5e-6 * rng.uniform(0.5, 2.0, (36, 3))
+    plus = distort_with(truth, (rate + vertical) * up) + rng.normal(0, 1.0, up.shape) * sigmas[:18]
+    minus = distort_with(truth, (vertical - rate) * up) + rng.normal(0, 1.0, up.shape) * sigmas[18:]
+    problem = RateNormProblem(plus, minus, rate, np.empty((0, 3)), np.empty(0, int), earth, vertical)
+    per_axis, dense = solve_norm(problem, sigmas), solve_norm(problem, np.diag(sigmas.ravel() ** 2))
+    np.testing.assert_allclose(per_axis.theta, dense.theta, rtol=0, atol=1e-6 * dense.sigma.min())
+    np.testing.assert_allclose(per_axis.sigma, dense.sigma, rtol=1e-9)
+    np.testing.assert_allclose(per_axis.diagnostics.chi2, dense.diagnostics.chi2, rtol=1e-9)
