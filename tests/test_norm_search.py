@@ -225,3 +225,70 @@ def test_a_gyros_covariance_kept_by_its_parts_weighs_as_its_dense_form():
     by_parts, dense = solve_norm(problem, parts), solve_norm(problem, parts.dense())
     np.testing.assert_allclose(by_parts.theta, dense.theta, rtol=0, atol=1e-6 * dense.sigma.min())
     np.testing.assert_allclose(by_parts.sigma, dense.sigma, rtol=1e-9)
+
+
+def test_axis_aligned_positions_are_refused_by_their_geometry_before_any_search():
+    # classic-12's six directions leave a singular value some 1e-6 of the largest (the module's
+    # comment); the geometry check (ratio 1e-4) refuses them, naming a condition number above 1e4,
+    # not the σ check after the search.
+    rng = np.random.default_rng(3)
+    means = distort_with(TRUTH, G * UP12) + rng.normal(0, 5e-4, (12, 3))
+    with pytest.raises(CalibrationError) as raised:
+        solve_norm(StaticNormProblem(means, G), np.full((12, 3), 5e-4))
+    message = str(raised.value)
+    assert message.startswith("accelerometer: positions are degenerate (condition number ")
+    assert float(message.split("condition number ")[1].split(")")[0]) > 1e4
+
+
+def test_a_parameter_known_worse_than_a_hundredth_of_its_scale_is_refused_naming_it():
+    # Noise-free averages (χ² 0: nothing rescaled) solved with a stated noise: every σ is
+    # proportional to it. At 1 mm/s² all are far below 1 % of their natural unit (k·g for a bias,
+    # k for a scale factor, 1 rad for an angle); stated so that the worst reaches 1.5 %, the solve
+    # must refuse, naming that parameter, its σ in its unit, and the geometry's condition number
+    # (which the noise does not change).
+    means = distort_with(TRUTH, G * UP18)
+    small = solve_norm(StaticNormProblem(means, G), np.full((18, 3), 1e-3))
+    natural = np.r_[TRUTH[3:6] * G, TRUTH[3:6], np.ones(3)]
+    relative = small.sigma / natural
+    worst = int(np.argmax(relative))
+    factor = 0.015 / relative[worst]
+    with pytest.raises(CalibrationError) as raised:
+        solve_norm(StaticNormProblem(means, G), np.full((18, 3), 1e-3 * factor))
+    from fieldcal.model import PARAM_NAMES
+
+    message = str(raised.value)
+    assert message.startswith(
+        f"accelerometer: positions are degenerate: {PARAM_NAMES[worst]} is determined only to ±0.015 of its "
+        f"scale (condition number {small.diagnostics.condition_number:.3g}); 18 measurements point along only ")
+    assert message.endswith("add positions with an axis between the cube faces (paper Table 2, positions 13-18)")
+
+
+def test_nine_positions_with_a_stated_noise_are_solved_with_sigma_from_that_noise_alone():
+    # Nine equations, nine unknowns: no scatter is left (χ² ~ 0 on 0 degrees of freedom), so σ
+    # can only come from the stated noise, proportional to it, and nothing is rescaled.
+    problem = StaticNormProblem(field18_accelerometer(seed=3).means[:9], G)
+    stated = solve_norm(problem, np.full((9, 3), 5e-5))  # (at 5e-4 an angle is known only to 1.4 %)
+    doubled = solve_norm(problem, np.full((9, 3), 1e-4))
+    assert stated.diagnostics.dof == 0 and not stated.diagnostics.scaled_by_residuals
+    assert np.all(np.isfinite(stated.sigma)) and stated.diagnostics.chi2 < 1e-6
+    np.testing.assert_allclose(doubled.sigma, 2 * stated.sigma, rtol=1e-4)
+
+
+def test_a_gyros_per_axis_sigmas_weigh_as_their_diagonal_covariance():
+    # A gyro's residuals have no per-average gradient, so per-axis σ (n, 3) are made the diagonal
+    # covariance whose variances they are (σ², each its own): the same solve as that matrix given.
+    from fieldcal.solvers import RateNormProblem
+
+    rng = np.random.default_rng(6)
+    up = UP18 + rng.normal(0, 0.03, UP18.shape)
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    rate, earth, vertical = np.radians(10), 7.292115e-5, 7.292115e-5 * np.sin(np.radians(40))
+    truth = np.array([1e-3, -2e-3, 5e-4, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+    sigmas = 5e-6 * rng.uniform(0.5, 2.0, (36, 3))
+    plus = distort_with(truth, (rate + vertical) * up) + rng.normal(0, 1.0, up.shape) * sigmas[:18]
+    minus = distort_with(truth, (vertical - rate) * up) + rng.normal(0, 1.0, up.shape) * sigmas[18:]
+    problem = RateNormProblem(plus, minus, rate, np.empty((0, 3)), np.empty(0, int), earth, vertical)
+    per_axis, dense = solve_norm(problem, sigmas), solve_norm(problem, np.diag(sigmas.ravel() ** 2))
+    np.testing.assert_allclose(per_axis.theta, dense.theta, rtol=0, atol=1e-6 * dense.sigma.min())
+    np.testing.assert_allclose(per_axis.sigma, dense.sigma, rtol=1e-9)
+    np.testing.assert_allclose(per_axis.diagnostics.chi2, dense.diagnostics.chi2, rtol=1e-9)
