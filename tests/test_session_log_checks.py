@@ -1,0 +1,163 @@
+"""The session log's checks, one refusal at a time, on logs built by hand from the format.
+
+Each log here is written from docs/reference/session-format.md's definition (canonical JSON, its
+CRC-32 appended as the last key), not by the writer, so every check behind the checksum is
+reached with exactly the document it refuses; the expected refusal is written out word for word.
+"""
+from __future__ import annotations
+
+import json
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fieldcal.session.capture import LOG, SessionError, SessionReader, SessionWriter, to_plain
+
+START = {"seq": 0, "type": "start", "schema": "fieldcal-session/2", "metadata": {}}
+DESCRIPTOR = {"seq": 1, "type": "descriptor",
+              "columns": [{"name": "t", "role": "time", "dtype": "<f8"},
+                          {"name": "accelerometer", "role": "triad", "dtype": "<f4"}]}
+
+
+def _line(doc) -> bytes:
+    """One log line as the format defines it (not the writer's code)."""
+    body = json.dumps(doc, separators=(",", ":")).encode("ascii")
+    return body[:-1] + b',"crc":%d}\n' % zlib.crc32(body)
+
+
+def forge(directory: Path, *docs, start=START) -> Path:
+    """A session directory whose log holds the start document and then ``docs``, with seqs
+    (bytes: a line as it is)."""
+    directory.mkdir()
+    lines = [_line(start)]
+    for i, doc in enumerate(docs, start=1):
+        lines.append(doc if isinstance(doc, bytes) else _line(doc if "seq" in doc else {"seq": i, **doc}))
+    (directory / LOG).write_bytes(b"".join(lines))
+    return directory
+
+
+def refusal(directory: Path) -> tuple[str, int | None]:
+    """What reading the session says, without the log's path, and the line the error names."""
+    with pytest.raises(SessionError) as exc:
+        SessionReader(directory, log_only=True)
+    text = str(exc.value)
+    prefix = f"{directory / LOG}: "
+    assert text.startswith(prefix) and "\n" not in text
+    return text[len(prefix):], exc.value.line
+
+
+def chunk_doc(n=2, offset=0, t_first=0.0, t_last=0.004, **kw):
+    # a record of n samples of <f8 time and a <f4 triad: 40-byte header + 8n and 12n, each to 8 bytes
+    length = 40 + -(-8 * n // 8) * 8 + -(-12 * n // 8) * 8
+    return {"type": "chunk", "descriptor": 1, "offset": offset, "length": length, "n": n,
+            "t_first": t_first if n else None, "t_last": t_last if n else None, "crc32": 0, **kw}
+
+
+LONG = "x" * 400
+
+CASES = {
+    # every document
+    "seq skipped": ([{"seq": 2, "type": "event", "after_chunk": None, "data": {}}],
+                    "line 2: expected seq 1, got 2", 2),
+    "seq a bool": ([{"seq": True, "type": "event", "after_chunk": None, "data": {}}],
+                   "line 2: expected seq 1, got True", 2),
+    "unknown type": ([{"type": "blob"}], "line 2: unknown document type 'blob'", 2),
+    "second start": ([{"type": "start", "schema": "fieldcal-session/2", "metadata": {}}],
+                     "line 2: a second start document", 2),
+    # after_chunk documents, stop and resume
+    "event after no chunk": ([{"type": "action", "after_chunk": 3, "data": {}}],
+                             "line 2: action document: after_chunk 3 but the last chunk before it is None", 2),
+    "event without after_chunk": ([{"type": "step", "data": {}}],
+                                  "line 2: step document: after_chunk None but the last chunk before it is None", 2),
+    "event data a list": ([{"type": "event", "after_chunk": None, "data": []}],
+                          "line 2: event document: 'data' must be an object, got []", 2),
+    "event without data": ([{"type": "checkpoint", "after_chunk": None}],
+                           "line 2: checkpoint document without 'data'", 2),
+    "stop without reason": ([{"type": "stop", "data": {}}], "line 2: stop document without 'reason'", 2),
+    "stop reason a number": ([{"type": "stop", "reason": 5, "data": {}}],
+                             "line 2: stop document: 'reason' must be a string, got 5", 2),
+    "stop data a string": ([{"type": "stop", "reason": "aborted", "data": "x"}],
+                           "line 2: stop document: 'data' must be an object, got 'x'", 2),
+    "resume repaired a string": ([{"type": "stop", "reason": "aborted", "data": {}},
+                                  {"type": "resume", "after_chunk": None, "repaired": "x", "data": {}}],
+                                 "line 3: resume document: 'repaired' must be a list, got 'x'", 3),
+    "resume repaired numbers": ([{"type": "resume", "after_chunk": None, "repaired": [1], "data": {}}],
+                                "line 2: resume document: 'repaired' must be a list of strings", 2),
+    "resume after the wrong chunk": ([{"type": "resume", "after_chunk": 0, "repaired": [], "data": {}}],
+                                     "line 2: resume document: after_chunk 0 but the last chunk before it is None", 2),
+    # raw
+    "raw name": ([{"type": "raw", "name": "../x", "t": 0, "offset": 0, "length": 1, "crc32": 0}],
+                 "line 2: raw document: bad stream name '../x'", 2),
+    "raw name a number": ([{"type": "raw", "name": 7, "t": 0, "offset": 0, "length": 1, "crc32": 0}],
+                          "line 2: raw document: 'name' must be a string, got 7", 2),
+    "raw t a bool": ([{"type": "raw", "name": "imu", "t": True, "offset": 0, "length": 1, "crc32": 0}],
+                     "line 2: raw document: 't' must be a number, got True", 2),
+    "raw t missing": ([{"type": "raw", "name": "imu", "offset": 0, "length": 1, "crc32": 0}],
+                      "line 2: raw document without 't'", 2),
+    "raw offset negative": ([{"type": "raw", "name": "imu", "t": 0.5, "offset": -1, "length": 1, "crc32": 0}],
+                            "line 2: raw document: 'offset' must be an integer >= 0, got -1", 2),
+    "raw length a float": ([{"type": "raw", "name": "imu", "t": 0.5, "offset": 0, "length": 1.0, "crc32": 0}],
+                           "line 2: raw document: 'length' must be an integer >= 0, got 1.0", 2),
+    "raw crc missing": ([{"type": "raw", "name": "imu", "t": 0.5, "offset": 0, "length": 1}],
+                        "line 2: raw document without 'crc32'", 2),
+    "raw gap": ([{"type": "raw", "name": "imu", "t": 0.5, "offset": 0, "length": 3, "crc32": 0},
+                 {"type": "raw", "name": "gps", "t": 0.6, "offset": 0, "length": 5, "crc32": 0},
+                 {"type": "raw", "name": "imu", "t": 0.7, "offset": 4, "length": 1, "crc32": 0}],
+                "line 4: raw 'imu' at byte 4, expected 3 (records are contiguous)", 4),
+    # parameters
+    "parameters name": ([{"type": "parameters", "file": "a/b.yaml", "sha256": "0" * 64}],
+                        "line 2: parameters document: bad file name 'a/b.yaml'", 2),
+    "parameters no name": ([{"type": "parameters", "sha256": "0" * 64}],
+                           "line 2: parameters document without 'file'", 2),
+    "parameters sha short": ([{"type": "parameters", "file": "p.yaml", "sha256": "0" * 63}],
+                             f"line 2: parameters document: bad sha256 '{'0' * 63}'", 2),
+    "parameters sha upper": ([{"type": "parameters", "file": "p.yaml", "sha256": "A" * 64}],
+                             f"line 2: parameters document: bad sha256 '{'A' * 64}'", 2),
+    "parameters sha a list": ([{"type": "parameters", "file": "p.yaml", "sha256": []}],
+                              "line 2: parameters document: 'sha256' must be a SHA-256 hex digest, got []", 2),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_each_malformed_document_is_refused_in_one_line_naming_its_line(tmp_path, case):
+    docs, said, line = CASES[case]
+    assert refusal(forge(tmp_path / "s", *docs)) == (said, line)
+
+
+def test_a_line_that_is_no_object_is_refused_in_a_version_1_log(tmp_path):
+    """(a version 2 line ends with its checksum, so only a version 1 log can hold one)"""
+    start = {**START, "schema": "fieldcal-session/1"}
+    assert refusal(forge(tmp_path / "s", b"[1, 2]\n", start=start)) == ("line 2: expected a JSON object, got list", 2)
+    assert refusal(forge(tmp_path / "v2", b"[1, 2]\n")) == (
+        'line 2 (byte 86): damaged: no checksum ("crc") at the end of the line; the session is not repaired '
+        "automatically (restore it from a copy)", 2)
+
+
+def test_a_well_formed_hand_built_log_reads(tmp_path):
+    """The negative control: the same building blocks, valid, read without complaint."""
+    d = forge(tmp_path / "s", {"type": "event", "after_chunk": None, "data": {"k": 1}},
+              {"type": "raw", "name": "imu", "t": 0.5, "offset": 0, "length": 3, "crc32": 0},
+              {"type": "raw", "name": "imu", "t": 0.7, "offset": 3, "length": 1, "crc32": 0},
+              {"type": "parameters", "file": "parameters-001.yaml", "sha256": "0123456789abcdef" * 4},
+              {"type": "stop", "reason": "aborted", "data": {}},
+              {"type": "resume", "after_chunk": None, "repaired": ["x"], "data": {}})
+    r = SessionReader(d, log_only=True)
+    assert [doc["type"] for doc in r.documents()] == ["start", "event", "raw", "raw", "parameters", "stop", "resume"]
+    assert r.events() == [{"k": 1}] and not r.stopped
+
+
+# --------------------------------------------------------------------------------------------
+# to_plain
+
+
+def test_to_plain_keeps_bools_bools_and_names_where_a_bad_value_is():
+    for value in (True, False, None):
+        assert to_plain(value) is value
+    assert to_plain([np.bool_(True), np.int16(-3), np.float32(0.5), (1, "a")]) == [True, -3, 0.5, [1, "a"]]
+    assert [type(x) for x in to_plain([np.bool_(False), np.uint8(7), np.float64(2.5), True])] == [bool, int, float, bool]
+    with pytest.raises(TypeError, match=r"^data: keys must be strings, got 1$"):
+        to_plain({1: 2})
+    with pytest.raises(TypeError, match=r"^data\.a\[1\]: a set is not JSON-able"):
+        to_plain({"a": [0, {3}]})
