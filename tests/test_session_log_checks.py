@@ -117,6 +117,114 @@ CASES = {
                              f"line 2: parameters document: bad sha256 '{'A' * 64}'", 2),
     "parameters sha a list": ([{"type": "parameters", "file": "p.yaml", "sha256": []}],
                               "line 2: parameters document: 'sha256' must be a SHA-256 hex digest, got []", 2),
+    # descriptors (line 2)
+    "descriptor without columns": ([{"type": "descriptor"}], "line 2: descriptor document without 'columns'", 2),
+    "columns an object": ([{"type": "descriptor", "columns": {}}],
+                          "line 2: descriptor document: 'columns' must be a list, got {}", 2),
+    "column with another key": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": "<f8", "x": 1}]}],
+                                "line 2: descriptor column 0: expected name, role and dtype, got "
+                                "{'name': 't', 'role': 'time', 'dtype': '<f8', 'x': 1}", 2),
+    "column of an unknown role": ([{"type": "descriptor", "columns": [{"name": "t", "role": "clock", "dtype": "<f8"}]}],
+                                  "line 2: descriptor column 0: expected name, role and dtype, got "
+                                  "{'name': 't', 'role': 'clock', 'dtype': '<f8'}", 2),
+    "column name a number": ([{"type": "descriptor", "columns": [{"name": 1, "role": "time", "dtype": "<f8"}]}],
+                             "line 2: descriptor column 0: expected name, role and dtype, got "
+                             "{'name': 1, 'role': 'time', 'dtype': '<f8'}", 2),
+    "column dtype a number": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": 8}]}],
+                              "line 2: descriptor column 0: expected name, role and dtype, got "
+                              "{'name': 't', 'role': 'time', 'dtype': 8}", 2),
+    "column a list": ([{"type": "descriptor", "columns": [["t", "time", "<f8"]]}],
+                      "line 2: descriptor column 0: expected name, role and dtype, got ['t', 'time', '<f8']", 2),
+    "big-endian": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": "<f8"},
+                                                       {"name": "a", "role": "triad", "dtype": ">f4"}]}],
+                   "line 2: descriptor column 1: not a little-endian numeric dtype: '>f4'", 2),
+    "dtype not in numpy's own spelling": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": "f8"}]}],
+                                          "line 2: descriptor column 0: not a little-endian numeric dtype: 'f8'", 2),
+    "text dtype": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": "<U4"}]}],
+                   "line 2: descriptor column 0: not a little-endian numeric dtype: '<U4'", 2),
+    "no dtype at all": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": "nonsense"}]}],
+                        "line 2: descriptor column 0: not a little-endian numeric dtype: 'nonsense'", 2),
+    "a column twice": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": "<f8"},
+                                                           {"name": "a", "role": "triad", "dtype": "<f4"},
+                                                           {"name": "a", "role": "triad", "dtype": "<f8"}]}],
+                       "line 2: descriptor column 2: 'a' appears twice", 2),
+    "no columns": ([{"type": "descriptor", "columns": []}],
+                   "line 2: descriptor: expected the time column first and at most one temperature", 2),
+    "time not first": ([{"type": "descriptor", "columns": [{"name": "a", "role": "triad", "dtype": "<f4"},
+                                                           {"name": "t", "role": "time", "dtype": "<f8"}]}],
+                       "line 2: descriptor: expected the time column first and at most one temperature", 2),
+    "two times": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": "<f8"},
+                                                      {"name": "u", "role": "time", "dtype": "<f8"}]}],
+                  "line 2: descriptor: expected the time column first and at most one temperature", 2),
+    "two temperatures": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": "<f8"},
+                                                             {"name": "a", "role": "temperature", "dtype": "<f4"},
+                                                             {"name": "b", "role": "temperature", "dtype": "<f4"}]}],
+                         "line 2: descriptor: expected the time column first and at most one temperature", 2),
+    # chunks (line 3, after DESCRIPTOR)
+    "unknown descriptor": ([DESCRIPTOR, chunk_doc(descriptor=5)],
+                           "line 3: chunk refers to descriptor 5, which is not an earlier descriptor", 3),
+    "descriptor a string": ([DESCRIPTOR, chunk_doc(descriptor="1")],
+                            "line 3: chunk document: 'descriptor' must be a descriptor's seq, got '1'", 3),
+    "n negative": ([DESCRIPTOR, chunk_doc(n=-1, t_first=None, t_last=None)],
+                   "line 3: chunk document: 'n' must be an integer >= 0, got -1", 3),
+    "offset a bool": ([DESCRIPTOR, chunk_doc(offset=False)],
+                      "line 3: chunk document: 'offset' must be an integer >= 0, got False", 3),
+    "length missing": ([DESCRIPTOR, {k: v for k, v in chunk_doc().items() if k != "length"}],
+                       "line 3: chunk document without 'length'", 3),
+    "crc negative": ([DESCRIPTOR, chunk_doc(crc32=-2)],
+                     "line 3: chunk document: 'crc32' must be an integer >= 0, got -2", 3),
+    "t_last a string": ([DESCRIPTOR, chunk_doc(t_last="1")],
+                        "line 3: chunk document: 't_last' must be a number or null, got '1'", 3),
+    "t_first missing": ([DESCRIPTOR, {k: v for k, v in chunk_doc().items() if k != "t_first"}],
+                        "line 3: chunk document without 't_first'", 3),
+    "samples without times": ([DESCRIPTOR, chunk_doc(t_first=None)],
+                              "line 3: chunk of 2 samples from t None to 0.004: expected the times of its "
+                              "first and last samples (null for none)", 3),
+    "no samples with a time": ([DESCRIPTOR, {**chunk_doc(n=0), "t_last": 1.5}],
+                               "line 3: chunk of 0 samples from t None to 1.5: expected the times of its "
+                               "first and last samples (null for none)", 3),
+    "times reversed": ([DESCRIPTOR, chunk_doc(t_first=1.0, t_last=0.5)],
+                       "line 3: chunk of 2 samples from t 1.0 to 0.5: expected the times of its "
+                       "first and last samples (null for none)", 3),
+    "infinite first time": ([DESCRIPTOR, chunk_doc(t_first=-np.inf, t_last=1.0)],
+                            "line 3: chunk 2: sample time -inf .. 1.0 s is not a finite number (forged or "
+                            "damaged times)", 3),
+    "infinite last time": ([DESCRIPTOR, chunk_doc(t_first=0.0, t_last=np.inf)],
+                           "line 3: chunk 2: sample time 0.0 .. inf s is not a finite number (forged or "
+                           "damaged times)", 3),
+    "time goes back": ([DESCRIPTOR, chunk_doc(), chunk_doc(offset=80, t_first=0.002, t_last=0.006)],
+                       "line 4: chunk 3: its samples start at t 0.002 s, before chunk 2's last sample at "
+                       "t 0.004 s (time within a run never goes back: forged or damaged times in one of them)", 4),
+    "records not contiguous": ([DESCRIPTOR, chunk_doc(offset=8)],
+                               "line 3: chunk at byte 8 of samples.bin, expected 0 (records are contiguous)", 3),
+    "the second record not after the first": ([DESCRIPTOR, chunk_doc(), chunk_doc(offset=72, t_first=1.0, t_last=2.0)],
+                                              "line 4: chunk at byte 72 of samples.bin, expected 80 (records are "
+                                              "contiguous)", 4),
+    # 2 samples: a 40-byte header, 2 x 8 bytes of time, 2 x 3 x 4 of triad: 80, not 88
+    "record length": ([DESCRIPTOR, chunk_doc(length=88)],
+                      "line 3: chunk of 2 samples has length 88, its descriptor needs 80", 3),
+    # 3 samples: 40 + 24 + 36 padded to 40: 104
+    "record length unpadded": ([DESCRIPTOR, chunk_doc(n=3, length=100)],
+                               "line 3: chunk of 3 samples has length 100, its descriptor needs 104", 3),
+    # long values are cut so the line stays short
+    "long type": ([{"type": LONG}], "line 2: " + ("unknown document type '" + LONG)[:200], 2),
+    "long seq": ([{"seq": LONG, "type": "event"}], "line 2: " + ("expected seq 1, got '" + LONG)[:200], 2),
+    "long after_chunk": ([{"type": "event", "after_chunk": LONG, "data": {}}],
+                         "line 2: " + ("event document: after_chunk '" + LONG)[:200], 2),
+    "long reason": ([{"type": "stop", "reason": [LONG], "data": {}}],
+                    "line 2: " + ("stop document: 'reason' must be a string, got ['" + LONG)[:300], 2),
+    "long raw name": ([{"type": "raw", "name": LONG, "t": 0, "offset": 0, "length": 1, "crc32": 0}],
+                      "line 2: " + ("raw document: bad stream name '" + LONG)[:200], 2),
+    "long file name": ([{"type": "parameters", "file": LONG, "sha256": "0" * 64}],
+                       "line 2: " + ("parameters document: bad file name '" + LONG)[:200], 2),
+    "long sha": ([{"type": "parameters", "file": "p.yaml", "sha256": LONG}],
+                 "line 2: " + ("parameters document: bad sha256 '" + LONG)[:200], 2),
+    "long column": ([{"type": "descriptor", "columns": [{"name": LONG, "role": "x", "dtype": "<f8"}]}],
+                    "line 2: " + ("descriptor column 0: expected name, role and dtype, got {'name': '" + LONG)[:200], 2),
+    "long dtype": ([{"type": "descriptor", "columns": [{"name": "t", "role": "time", "dtype": LONG}]}],
+                   "line 2: " + ("descriptor column 0: not a little-endian numeric dtype: '" + LONG)[:200], 2),
+    "long chunk times": ([DESCRIPTOR, chunk_doc(t_first=None, t_last=LONG)],
+                         "line 3: " + ("chunk document: 't_last' must be a number or null, got '" + LONG)[:300], 3),
 }
 
 
@@ -135,6 +243,27 @@ def test_a_line_that_is_no_object_is_refused_in_a_version_1_log(tmp_path):
         "automatically (restore it from a copy)", 2)
 
 
+START_CASES = {
+    "another format": ({**START, "schema": "other/9"}, "line 1: expected a start document of schema "
+                       "'fieldcal-session/2' (or 'fieldcal-session/1'), got 'other/9'"),
+    "no schema": ({"seq": 0, "type": "start", "metadata": {}}, "line 1: expected a start document of schema "
+                  "'fieldcal-session/2' (or 'fieldcal-session/1'), got None"),
+    "long schema": ({**START, "schema": LONG}, "line 1: " + ("expected a start document of schema "
+                    "'fieldcal-session/2' (or 'fieldcal-session/1'), got '" + LONG)[:200]),
+    "metadata a list": ({**START, "metadata": []}, "line 1: start document: 'metadata' must be an object, got []"),
+    "no metadata": ({"seq": 0, "type": "start", "schema": "fieldcal-session/2"},
+                    "line 1: start document without 'metadata'"),
+    "an event first": ({"seq": 0, "type": "event", "after_chunk": None, "data": {}},
+                       "line 1: the first document must be the start document, and only the first"),
+}
+
+
+@pytest.mark.parametrize("case", START_CASES)
+def test_each_malformed_start_document_is_refused_at_line_1(tmp_path, case):
+    start, said = START_CASES[case]
+    assert refusal(forge(tmp_path / "s", start=start)) == (said, 1)
+
+
 def test_a_well_formed_hand_built_log_reads(tmp_path):
     """The negative control: the same building blocks, valid, read without complaint."""
     d = forge(tmp_path / "s", {"type": "event", "after_chunk": None, "data": {"k": 1}},
@@ -146,6 +275,27 @@ def test_a_well_formed_hand_built_log_reads(tmp_path):
     r = SessionReader(d, log_only=True)
     assert [doc["type"] for doc in r.documents()] == ["start", "event", "raw", "raw", "parameters", "stop", "resume"]
     assert r.events() == [{"k": 1}] and not r.stopped
+
+
+def test_chunk_times_may_repeat_restart_after_a_resume_and_run_apart_per_layout(tmp_path):
+    """What the time checks must let through: equal times (a clockless device's frames of one
+    read), a chunk of no samples, a resume's new run of times, a second layout's own times."""
+    other = {"seq": 5, "type": "descriptor",
+             "columns": [{"name": "t", "role": "time", "dtype": "<i8"}, {"name": "t", "role": "extra", "dtype": "|u1"},
+                         {"name": "c", "role": "temperature", "dtype": "<f2"}]}
+    docs = [DESCRIPTOR, chunk_doc(t_first=1.0, t_last=2.0),                       # line 3, bytes 0-80
+            chunk_doc(offset=80, t_first=2.0, t_last=2.0),                        # 4: starts at the last time
+            chunk_doc(n=0, offset=160, length=40),                                # 5: no samples
+            other,                                                                 # 6
+            {**chunk_doc(offset=200, t_first=0.5, t_last=0.7), "descriptor": 5,   # 7: 40 + 16 + 8 + 8
+             "length": 72},
+            chunk_doc(n=3, offset=272, length=104, t_first=2.0, t_last=3.0),      # 8: after line 4's 2.0
+            {"type": "stop", "reason": "aborted", "data": {}},
+            {"type": "resume", "after_chunk": 7, "repaired": [], "data": {}},
+            chunk_doc(offset=376, t_first=0.0, t_last=0.5)]                       # 11: the clock restarted
+    r = SessionReader(forge(tmp_path / "s", *docs), log_only=True)
+    assert [d["seq"] for d in r.documents("chunk")] == [2, 3, 4, 6, 7, 10]
+    assert r.n_chunks == 6 and r.n_samples == 2 + 2 + 0 + 2 + 3 + 2
 
 
 # --------------------------------------------------------------------------------------------
