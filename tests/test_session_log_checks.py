@@ -7,6 +7,7 @@ reached with exactly the document it refuses; the expected refusal is written ou
 from __future__ import annotations
 
 import json
+import struct
 import zlib
 from pathlib import Path
 
@@ -311,3 +312,99 @@ def test_to_plain_keeps_bools_bools_and_names_where_a_bad_value_is():
         to_plain({1: 2})
     with pytest.raises(TypeError, match=r"^data\.a\[1\]: a set is not JSON-able"):
         to_plain({"a": [0, {3}]})
+
+
+# --------------------------------------------------------------------------------------------
+# Sample records, packed by hand from the format: "<4sIQQQQ" (magic FCS1, CRC-32 of the payload,
+# chunk seq, descriptor seq, n, payload bytes), then one block per column, each padded to 8 bytes
+
+
+FULL = {"seq": 1, "type": "descriptor",
+        "columns": [{"name": "t", "role": "time", "dtype": "<f8"}, {"name": "acc", "role": "triad", "dtype": "<f4"},
+                    {"name": "temperature", "role": "temperature", "dtype": "<f4"},
+                    {"name": "status", "role": "extra", "dtype": "|u1"}]}
+T = [0.0, 0.004]
+ACC = [[1.0, 2.0, 3.0], [4.0, 5.0, -6.5], [0.25, 0.0, 9.0]]
+TEMP = [21.5, 21.75, 22.0]
+STATUS = [7, 255, 0]
+
+
+def _record(t=T, seq=2, descriptor=1, magic=b"FCS1", n=None, crc=None, payload_size=None):
+    k = len(t)
+    blocks = [np.array(t, "<f8").tobytes(), np.array(ACC[:k], "<f4").tobytes(),
+              np.array(TEMP[:k], "<f4").tobytes(), np.array(STATUS[:k], "|u1").tobytes()]
+    payload = b"".join(b + bytes(-len(b) % 8) for b in blocks)  # 2 samples: 16 + 24 + 8 + 8 = 56 bytes
+    n = len(t) if n is None else n
+    crc = zlib.crc32(payload) if crc is None else crc
+    header = struct.pack("<4sIQQQQ", magic, crc, seq, descriptor, n, len(payload) if payload_size is None else payload_size)
+    return header + payload, zlib.crc32(payload)
+
+
+def forge_with_record(directory: Path, record: bytes, crc: int, t_first=T[0], t_last=T[-1], n=2) -> Path:
+    doc = {"type": "chunk", "descriptor": 1, "offset": 0, "length": len(record), "n": n, "t_first": t_first,
+           "t_last": t_last, "crc32": crc}
+    forge(directory, FULL, doc)
+    (directory / "samples.bin").write_bytes(record)
+    return directory
+
+
+def test_a_record_packed_by_hand_reads_as_its_columns(tmp_path):
+    d = forge_with_record(tmp_path / "s", *_record())
+    (chunk,) = SessionReader(d).chunks()
+    assert len((d / "samples.bin").read_bytes()) == 96
+    assert chunk.t.tolist() == T and chunk.t.dtype == np.dtype("<f8")
+    assert list(chunk.triads) == ["acc"] and chunk.triads["acc"].tolist() == ACC[:2]
+    assert chunk.triads["acc"].shape == (2, 3)
+    assert chunk.temperature.tolist() == TEMP[:2] and chunk.temperature.dtype == np.dtype("<f4")
+    assert list(chunk.extras) == ["status"] and chunk.extras["status"].tolist() == STATUS[:2]
+    assert [kind for kind, _ in SessionReader(d).replay_items(("chunk", "descriptor"))] == ["descriptor", "chunk"]
+
+
+def _read_refusal(d: Path) -> str:
+    with pytest.raises(SessionError) as exc:
+        list(SessionReader(d).chunks())
+    assert exc.value.line == 3 and exc.value.path == str(d / "samples.bin")
+    text = str(exc.value)
+    where = f"{d / 'samples.bin'}: chunk 2 at byte 0 (log line 3): "
+    assert text.startswith(where)
+    return text[len(where):]
+
+
+def test_each_forged_record_is_refused_naming_the_chunk_its_byte_and_its_log_line(tmp_path):
+    record, crc = _record()
+    assert _read_refusal(forge_with_record(tmp_path / "magic", *_record(magic=b"FCS2"))) == "bad record magic b'FCS2'"
+    assert _read_refusal(forge_with_record(tmp_path / "seq", *_record(seq=9))) == (
+        "the record header (seq 9, descriptor 1, n 2, 56 bytes) does not match the log")
+    assert _read_refusal(forge_with_record(tmp_path / "dseq", *_record(descriptor=0))) == (
+        "the record header (seq 2, descriptor 0, n 2, 56 bytes) does not match the log")
+    assert _read_refusal(forge_with_record(tmp_path / "n", *_record(n=3))) == (
+        "the record header (seq 2, descriptor 1, n 3, 56 bytes) does not match the log")
+    assert _read_refusal(forge_with_record(tmp_path / "size", *_record(payload_size=48))) == (
+        "the record header (seq 2, descriptor 1, n 2, 48 bytes) does not match the log")
+    # the header's CRC is the log's but not the payload's, or the payload's but not the log's
+    assert _read_refusal(forge_with_record(tmp_path / "crc", _record(crc=crc ^ 1)[0], crc ^ 1)) == (
+        "checksum mismatch (corrupt data)")
+    assert _read_refusal(forge_with_record(tmp_path / "logcrc", record, crc ^ 1)) == "checksum mismatch (corrupt data)"
+    flipped = bytearray(record)
+    flipped[40 + 17] ^= 0x10
+    assert _read_refusal(forge_with_record(tmp_path / "flip", bytes(flipped), crc)) == "checksum mismatch (corrupt data)"
+    assert _read_refusal(forge_with_record(tmp_path / "span", record, crc, t_last=0.005)) == (
+        "the log gives its samples t 0.0 .. 0.005 s, the record holds 0.0 .. 0.004 s")
+    assert _read_refusal(forge_with_record(tmp_path / "first", record, crc, t_first=-1.0)) == (
+        "the log gives its samples t -1.0 .. 0.004 s, the record holds 0.0 .. 0.004 s")
+
+
+def test_times_inside_a_record_are_finite_and_never_go_back(tmp_path):
+    def with_times(name, t):
+        return forge_with_record(tmp_path / name, *_record(t=t), t_first=t[0], t_last=t[-1], n=len(t))
+
+    assert _read_refusal(with_times("back", [0.5, 0.25, 0.75])) == (
+        "sample 1's time 0.25 s is before sample 0's 0.5 s (time within a chunk never goes back: forged or "
+        "damaged times)")
+    assert _read_refusal(with_times("back2", [0.25, 0.75, 0.5])) == (
+        "sample 2's time 0.5 s is before sample 1's 0.75 s (time within a chunk never goes back: forged or "
+        "damaged times)")
+    assert _read_refusal(with_times("nan", [0.5, float("nan"), 0.75])) == (
+        "sample 1's time nan s is not a finite number (time within a chunk never goes back: forged or damaged times)")
+    (chunk,) = SessionReader(with_times("equal", [0.5, 0.5, 0.75])).chunks()  # one read of a clockless device
+    assert chunk.t.tolist() == [0.5, 0.5, 0.75]
