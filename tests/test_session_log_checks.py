@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fieldcal.session.capture import LOG, SessionError, SessionReader, SessionWriter, to_plain
+from drivers.chunk import SampleChunk
+from fieldcal.session.capture import LOG, SessionError, SessionReader, SessionStateError, SessionWriter, to_plain
 
 START = {"seq": 0, "type": "start", "schema": "fieldcal-session/2", "metadata": {}}
 DESCRIPTOR = {"seq": 1, "type": "descriptor",
@@ -408,3 +409,111 @@ def test_times_inside_a_record_are_finite_and_never_go_back(tmp_path):
         "sample 1's time nan s is not a finite number (time within a chunk never goes back: forged or damaged times)")
     (chunk,) = SessionReader(with_times("equal", [0.5, 0.5, 0.75])).chunks()  # one read of a clockless device
     assert chunk.t.tolist() == [0.5, 0.5, 0.75]
+
+
+# --------------------------------------------------------------------------------------------
+# The writer's refusals of calls out of order or with bad arguments: each one line, word for word
+
+
+def _chunk(t0=0.0, n=2):
+    return SampleChunk(t=t0 + np.arange(n) * 0.004, triads={"acc": np.zeros((n, 3))})
+
+
+def test_calls_out_of_order_are_refused_naming_the_session_and_what_to_do(tmp_path):
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    with pytest.raises(SessionStateError) as exc:
+        w.resume()
+    assert str(exc.value) == f"{d}: cannot resume: the run is still active"
+    w.stop("aborted")
+    for call, kind in ((lambda: w.chunk(_chunk()), "chunk"), (lambda: w.event({}), "event"),
+                       (lambda: w.action({}), "action"), (lambda: w.step({}), "step"),
+                       (lambda: w.checkpoint({}), "checkpoint"), (lambda: w.stop("aborted"), "stop")):
+        with pytest.raises(SessionStateError) as exc:
+            call()
+        assert str(exc.value) == (f"{d}: cannot write {kind!r}: no active run (after stop() or append_to(), "
+                                  "call resume() first)")
+    with pytest.raises(SessionStateError) as exc:
+        w.resume(mid_run=True)
+    assert str(exc.value) == f"{d}: cannot resume mid-run: no active run"
+    w.write_raw("imu", 1.0, b"x")  # raw reads and parameters need no active run
+    assert w.resume({"why": "test"}) == 3 and w.active
+    assert w.resume({"why": "power cycle"}, mid_run=True) == 4 and w.active
+    w.close()
+    with pytest.raises(SessionStateError) as exc:
+        w.event({})
+    assert str(exc.value) == f"{d}: the session writer is closed"
+    r = SessionReader(d)
+    assert [(doc["type"], doc.get("data")) for doc in r.documents()] == [
+        ("start", None), ("stop", {}), ("raw", None), ("resume", {"why": "test"}), ("resume", {"why": "power cycle"})]
+    assert [doc["after_chunk"] for doc in r.documents("resume")] == [None, None]
+
+
+def test_bad_arguments_are_refused_before_anything_is_written(tmp_path):
+    d = tmp_path / "s"
+    for bad in (-1, True, "1", None, float("nan")):
+        with pytest.raises(ValueError) as exc:
+            SessionWriter.create(d, {}, fsync_interval_s=bad)
+        assert str(exc.value) == f"fsync_interval_s: expected a number >= 0, got {bad!r}"
+    assert not d.exists()
+    w = SessionWriter.create(d, {}, fsync_interval_s=0)
+    for reason in ("", None, 3):
+        with pytest.raises(ValueError) as exc:
+            w.stop(reason)
+        assert str(exc.value) == f"stop reason: expected a non-empty string, got {reason!r}"
+    for name in ("", "-x", "a/b", "x" * 65, 5):
+        with pytest.raises(ValueError) as exc:
+            w.write_raw(name, 0.0, b"")
+        assert str(exc.value) == ("raw stream name: expected letters, digits, '_', '.', '-' (at most 64), "
+                                  f"got {name!r}")
+    for t in (True, "0", None):
+        with pytest.raises(TypeError):
+            w.write_raw("imu", t, b"")
+    with pytest.raises(TypeError) as exc:
+        w.write_raw("imu", True, b"")
+    assert str(exc.value) == "raw t: expected a number, got True"
+    for filename in ("log.jsonl", "samples.bin", "parameters.yaml", "raw-x.bin", "a/b.yaml", "", 7):
+        with pytest.raises(ValueError) as exc:
+            w.write_parameters(None, filename)
+        assert str(exc.value) == f"parameter file name: expected a plain file name, got {filename!r}"
+    with pytest.raises(ValueError) as exc:
+        w.chunk(SampleChunk(t=np.zeros((2, 1)), triads={}))
+    assert str(exc.value) == "chunk t: expected 1 dimension(s), got shape (2, 1)"
+    with pytest.raises(TypeError) as exc:
+        w.chunk(SampleChunk(t=np.zeros(2), triads={}, extras={"flag": np.array(["a", "b"])}))
+    assert str(exc.value) == "chunk channel 'flag': expected a numeric array, got dtype <U1"
+    w.write_raw("imu", np.float32(0.5), memoryview(b"ab"))
+    w.write_raw("imu", 2, bytearray(b"c"))
+    w.close()
+    r = SessionReader(d)
+    assert [doc["type"] for doc in r.documents()] == ["start", "raw", "raw"]  # the refused calls wrote nothing
+    assert list(r.raw("imu")) == [(0.5, b"ab"), (2, b"c")] and list(r.raw("gps")) == []
+    with pytest.raises(ValueError) as exc:
+        list(r.documents("chunk", "blob"))
+    assert str(exc.value) == ("unknown document type 'blob' (known: start, descriptor, chunk, event, action, step, "
+                              "checkpoint, stop, resume, raw, parameters)")
+    with pytest.raises(ValueError) as exc:
+        list(r.replay_items(("chunks",)))
+    assert str(exc.value).startswith("unknown document type 'chunks' (known: start, descriptor, ")
+
+
+def test_a_refused_resume_leaves_the_writer_usable(tmp_path):
+    """Refusing a resume writes nothing, so it must not mark the writer failed (which refuses every
+    later write until append_to): the mid-run resume of a stopped run, the resume of a completed one."""
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w.stop("completed")
+    with pytest.raises(SessionStateError):
+        w.resume(mid_run=True)
+    with pytest.raises(SessionError) as exc:
+        w.resume()
+    assert str(exc.value) == (f"{d / LOG}: line 2: this session completed; a completed session is never resumed "
+                              "(replay it, or run again into a new directory)") and exc.value.line == 2
+    assert w.write_raw("imu", 1.0, b"x") == 2
+    w.close()
+    w = SessionWriter.append_to(d)
+    with pytest.raises(SessionError):
+        w.resume()
+    assert w.write_raw("imu", 2.0, b"y") == 3
+    w.close()
+    assert list(SessionReader(d).raw("imu")) == [(1.0, b"x"), (2.0, b"y")]
