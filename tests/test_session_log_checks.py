@@ -7,6 +7,7 @@ reached with exactly the document it refuses; the expected refusal is written ou
 from __future__ import annotations
 
 import json
+import os
 import struct
 import zlib
 from pathlib import Path
@@ -517,3 +518,82 @@ def test_a_refused_resume_leaves_the_writer_usable(tmp_path):
     assert w.write_raw("imu", 2.0, b"y") == 3
     w.close()
     assert list(SessionReader(d).raw("imu")) == [(1.0, b"x"), (2.0, b"y")]
+
+
+# --------------------------------------------------------------------------------------------
+# What stands where a data file should be, and bytes beyond what the log indexes
+
+
+def _one_chunk_one_read(d: Path) -> Path:
+    w = SessionWriter.create(d, {})
+    w.chunk(_chunk())  # line 3 (after the descriptor)
+    w.write_raw("imu", 1.0, b"abc")  # line 4
+    w.close()
+    return d
+
+
+@pytest.mark.parametrize("name, line", [("samples.bin", 3), ("raw-imu.bin", 4)])
+def test_what_stands_where_a_logged_data_file_should_be_is_named(tmp_path, name, line):
+    d = _one_chunk_one_read(tmp_path / "s")
+    path = d / name
+    path.unlink()
+    cases = {"missing": lambda: None, "a directory, not a file": path.mkdir,
+             "a FIFO, not a file": lambda: os.mkfifo(path),
+             f"a link to {str(d / 'gone')!r}, which does not exist": lambda: path.symlink_to(d / "gone"),
+             "a character device (a link to /dev/null), not a file": lambda: path.symlink_to("/dev/null")}
+    for what, make in cases.items():
+        make()
+        for opener in (SessionReader, SessionWriter.append_to):
+            with pytest.raises(SessionError) as exc:
+                opener(d)
+            assert str(exc.value) == f"{path}: {what}, but log.jsonl line {line} refers to it", what
+            assert exc.value.line == line and exc.value.path == str(path)
+        if path.is_dir() and not path.is_symlink():
+            path.rmdir()
+        elif os.path.lexists(path):
+            path.unlink()
+    if name == "samples.bin":  # without it, the log alone still reads
+        assert SessionReader(d, log_only=True).n_chunks == 1
+
+
+def test_bytes_beyond_the_log_are_named_per_file(tmp_path):
+    d = _one_chunk_one_read(tmp_path / "s")
+    with open(d / "raw-imu.bin", "ab") as fh:
+        fh.write(b"de")  # a read whose log line was lost
+    (d / "raw-gps.bin").write_bytes(b"x")  # a stream whose first log line was lost
+    with open(d / LOG, "ab") as fh:
+        fh.write(b'{"seq"')
+    assert SessionReader(d).torn == [
+        f"log.jsonl: ignored a torn last line (6 bytes at byte {(d / LOG).stat().st_size - 6})",
+        "raw-gps.bin: ignored 1 byte after the last logged read (from byte 0)",
+        "raw-imu.bin: ignored 2 bytes after the last logged read (from byte 3)"]
+    w = SessionWriter.append_to(d)
+    assert w.repaired[1:] == ["raw-gps.bin: cut 1 byte after the last logged read (from byte 0) (kept in raw-gps.bin.torn)",
+                              "raw-imu.bin: cut 2 bytes after the last logged read (from byte 3) (kept in raw-imu.bin.torn)"]
+    w.close()
+    assert (d / "raw-imu.bin").read_bytes() == b"abc" and (d / "raw-imu.bin.torn").read_bytes() == b"de"
+    assert (d / "raw-gps.bin").read_bytes() == b"" and (d / "raw-gps.bin.torn").read_bytes() == b"x"
+
+
+def test_samples_beyond_the_log_must_be_the_next_record_or_its_start(tmp_path):
+    """Only what a crash could leave: a prefix of the one record written before its log line."""
+    d = _one_chunk_one_read(tmp_path / "s")
+    end = (d / "samples.bin").stat().st_size  # 80: one record of 2 samples
+
+    def refused(tail: bytes) -> str:
+        (d / "samples.bin").write_bytes((d / "samples.bin").read_bytes()[:end] + tail)
+        with pytest.raises(SessionError) as exc:
+            SessionReader(d)
+        prefix = f"{d / 'samples.bin'}: damaged: {len(tail)} bytes from byte {end} on are not indexed by log.jsonl, and "
+        assert str(exc.value).startswith(prefix)
+        assert str(exc.value).endswith(" (the log was cut short or the file damaged; restore it from a copy)")
+        return str(exc.value)[len(prefix):-len(" (the log was cut short or the file damaged; restore it from a copy)")]
+
+    header = struct.pack("<4sIQQQQ", b"FCS1", 0, 4, 1, 2, 40)  # seq 4: after start, descriptor, chunk, raw
+    assert refused(b"FCS2") == "they do not start with a record header"
+    assert refused(struct.pack("<4sIQ", b"FCS1", 0, 5)) == "they hold chunk 5, not the next one (4)"
+    assert refused(header + bytes(41)) == "they are more than one unlogged record"
+    for tail in (b"F", header[:15], header, header + bytes(40)):  # the next record (seq 5), or a prefix of it
+        (d / "samples.bin").write_bytes((d / "samples.bin").read_bytes()[:end] + tail)
+        assert SessionReader(d).torn == [f"samples.bin: ignored {len(tail)} byte{'s' if len(tail) > 1 else ''} "
+                                         f"after the last logged chunk (from byte {end})"]

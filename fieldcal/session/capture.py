@@ -389,8 +389,10 @@ def _scan(directory: str | os.PathLike, verb: str, live: bool = False, log_only:
     except OSError as exc:
         raise SessionError(f"{log_path}: cannot read ({exc.strerror or exc})", str(log_path)) from None
     samples_size = 0 if log_only else _file_size(d / SAMPLES)
+    # regular files only: a dangling link or a directory at a raw file's name is no raw stream
+    # (named as what it is when the log refers to it, below), not a traceback or 4096 bytes
     raw_sizes = {} if log_only else {p.name[len(RAW_PREFIX):-len(RAW_SUFFIX)]: p.stat().st_size
-                                     for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}"))}
+                                     for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}")) if p.is_file()}
 
     complete = data.rfind(b"\n") + 1
     checker = _DocChecker(log_path)
