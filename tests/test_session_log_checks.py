@@ -483,6 +483,14 @@ def test_bad_arguments_are_refused_before_anything_is_written(tmp_path):
     with pytest.raises(TypeError) as exc:
         w.chunk(SampleChunk(t=np.zeros(2), triads={}, extras={"flag": np.array(["a", "b"])}))
     assert str(exc.value) == "chunk channel 'flag': expected a numeric array, got dtype <U1"
+    for call, said in ((lambda: w.step([1, 2]), "step: expected a dict, got a list"),
+                       (lambda: w.stop("aborted", "why"), "stop: expected a dict, got a str"),
+                       (lambda: SessionWriter.create(tmp_path / "t", (("a", 1),)),
+                        "start_metadata: expected a dict, got a tuple")):
+        with pytest.raises(TypeError) as exc:
+            call()
+        assert str(exc.value) == said
+    assert not (tmp_path / "t").exists()
     w.write_raw("imu", np.float32(0.5), memoryview(b"ab"))
     w.write_raw("imu", 2, bytearray(b"c"))
     w.close()
