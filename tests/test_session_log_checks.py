@@ -605,3 +605,63 @@ def test_samples_beyond_the_log_must_be_the_next_record_or_its_start(tmp_path):
         (d / "samples.bin").write_bytes((d / "samples.bin").read_bytes()[:end] + tail)
         assert SessionReader(d).torn == [f"samples.bin: ignored {len(tail)} byte{'s' if len(tail) > 1 else ''} "
                                          f"after the last logged chunk (from byte {end})"]
+
+
+# --------------------------------------------------------------------------------------------
+# The reader's views, and the rules of a cut
+
+
+def test_the_readers_views_of_a_session(tmp_path):
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {"unit": "A1"})
+    w.chunk(_chunk())
+    w.action({"a": 1})
+    w.step({"s": 1})
+    w.checkpoint({"c": 1})
+    w.stop("aborted", {"why": "test"})
+    w.resume({"r": 1})
+    w.event({"e": 1})
+    w.close()
+    r = SessionReader(d)
+    assert r.start == {"unit": "A1"} and r.start_document["schema"] == "fieldcal-session/2"
+    assert (r.actions(), r.steps(), r.events()) == ([{"a": 1}], [{"s": 1}], [{"e": 1}])
+    assert (r.stopped, r.stop_reason) == (False, None) and r.parameters_path is None
+    items = list(r.replay_items(("descriptor", "action", "checkpoint", "stop", "resume")))
+    assert [kind for kind, _ in items] == ["descriptor", "action", "checkpoint", "stop", "resume"]
+    assert items[0][1]["columns"][0] == {"name": "t", "role": "time", "dtype": "<f8"}  # a document without data: itself
+    assert [item for _, item in items[1:]] == [{"a": 1}, {"c": 1}, {"why": "test"}, {"r": 1}]
+    assert [kind for kind, _ in r.replay_items()] == ["chunk", "action"]  # what re-feeding an engine needs
+
+
+def test_the_parameter_file_is_the_last_noted_and_only_if_it_is_there(tmp_path):
+    from fieldcal.earth import Station
+    from fieldcal.paramfile import ParameterFile, TriadParameters, hash_inputs
+
+    triad = TriadParameters(name="accelerometer", kind="specific_force", output_unit="m/s^2", bias=np.zeros(3),
+                            K=np.eye(3), sigma=np.full(9, 1e-4), residual_rms=1e-3, method="powell")
+    pf = ParameterFile.build([triad], station=Station(latitude_deg=48.15, height_m=520.0), procedure="field-18",
+                             method="powell", input_sha256=hash_inputs(np.zeros(3)))
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w.write_parameters(pf)
+    w.write_parameters(pf, "mine.yaml")
+    w.close()
+    assert SessionReader(d).parameters_path == d / "mine.yaml"
+    (d / "mine.yaml").unlink()
+    assert SessionReader(d).parameters_path is None  # noted, but not there
+
+
+def test_a_cut_keeps_its_copy_beside_the_earlier_ones_and_stops_at_999(tmp_path):
+    d = _one_chunk_one_read(tmp_path / "s")
+    log = (d / LOG).read_bytes()
+    (d / "log.jsonl.torn").write_bytes(b"1")
+    for n in range(2, 999):
+        (d / f"log.jsonl.torn-{n}").write_bytes(b"n")
+    (d / LOG).write_bytes(log + b'{"a')
+    SessionWriter.append_to(d).close()  # the 999th copy is the last there may be
+    assert (d / "log.jsonl.torn-999").read_bytes() == b'{"a' and (d / LOG).read_bytes() == log
+    (d / LOG).write_bytes(log + b'{"b')
+    with pytest.raises(SessionError) as exc:
+        SessionWriter.append_to(d)
+    assert str(exc.value) == f"{d / LOG}: too many earlier .torn copies beside it"
+    assert (d / LOG).read_bytes() == log + b'{"b'  # nothing cut without a copy
