@@ -586,7 +586,8 @@ def test_bytes_beyond_the_log_are_named_per_file(tmp_path):
 def test_samples_beyond_the_log_must_be_the_next_record_or_its_start(tmp_path):
     """Only what a crash could leave: a prefix of the one record written before its log line."""
     d = _one_chunk_one_read(tmp_path / "s")
-    end = (d / "samples.bin").stat().st_size  # 80: one record of 2 samples
+    end = (d / "samples.bin").stat().st_size
+    assert end == 40 + 2 * 8 + 2 * 3 * 8  # one record: the header, 2 times, 2 float64 triad rows
 
     def refused(tail: bytes) -> str:
         (d / "samples.bin").write_bytes((d / "samples.bin").read_bytes()[:end] + tail)
@@ -665,3 +666,18 @@ def test_a_cut_keeps_its_copy_beside_the_earlier_ones_and_stops_at_999(tmp_path)
         SessionWriter.append_to(d)
     assert str(exc.value) == f"{d / LOG}: too many earlier .torn copies beside it"
     assert (d / LOG).read_bytes() == log + b'{"b'  # nothing cut without a copy
+
+
+def test_bytes_beyond_the_log_of_a_session_being_written_are_a_write_in_progress(tmp_path):
+    """While a writer holds the lock, what follows the last logged record is its next write, not
+    damage: a reader lists it; once the writer is gone the same bytes are refused."""
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w.chunk(_chunk())
+    w.sync()
+    with open(d / "samples.bin", "ab") as fh:  # after one record: 40 + 2 x 8 (time) + 2 x 3 x 8 (triad) = 104
+        fh.write(b"partial")
+    assert SessionReader(d).torn == ["samples.bin: ignored 7 bytes after the last logged chunk (from byte 104)"]
+    w.close()
+    with pytest.raises(SessionError, match="they do not start with a record header"):
+        SessionReader(d)
