@@ -681,3 +681,61 @@ def test_bytes_beyond_the_log_of_a_session_being_written_are_a_write_in_progress
     w.close()
     with pytest.raises(SessionError, match="they do not start with a record header"):
         SessionReader(d)
+
+
+def _log_docs(d: Path) -> list[dict]:
+    """The log's documents read as plain JSON, each line's CRC checked and dropped (the format)."""
+    out = []
+    for line in (d / LOG).read_bytes().splitlines():
+        doc = json.loads(line)
+        crc = doc.pop("crc")
+        assert zlib.crc32(line[:line.rindex(b',"crc":')] + b"}") == crc
+        out.append(doc)
+    return out
+
+
+def test_the_documents_the_writer_writes_field_by_field(tmp_path):
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {"unit": "A1"})
+    acc = SampleChunk(t=np.array([1.0, 1.5]), triads={"acc": np.zeros((2, 3), "<f4")})
+    w.chunk(acc)
+    w.event({"e": 1})
+    w.chunk(SampleChunk(t=np.array([2.0]), triads={"acc": np.zeros((1, 3), "<f4")}, temperature=np.array([20.0])))
+    w.chunk(SampleChunk(t=np.zeros(0), triads={"acc": np.zeros((0, 3), "<f4")}))
+    w.write_raw("imu", 2.5, b"abcd")
+    w.stop("aborted")
+    w.close()
+    w = SessionWriter.append_to(d)
+    w.resume()
+    w.chunk(acc)  # a layout the session already has: no new descriptor
+    w.close()
+    time_col, acc_col = {"name": "t", "role": "time", "dtype": "<f8"}, {"name": "acc", "role": "triad", "dtype": "<f4"}
+    got = _log_docs(d)
+    crcs = [doc.pop("crc32", None) for doc in got]
+    assert got == [
+        {"seq": 0, "type": "start", "schema": "fieldcal-session/2", "metadata": {"unit": "A1"}},
+        {"seq": 1, "type": "descriptor", "columns": [time_col, acc_col]},
+        # 40 + 2 x 8 + 2 x 3 x 4 = 80 bytes
+        {"seq": 2, "type": "chunk", "descriptor": 1, "offset": 0, "length": 80, "n": 2, "t_first": 1.0, "t_last": 1.5},
+        {"seq": 3, "type": "event", "after_chunk": 2, "data": {"e": 1}},
+        {"seq": 4, "type": "descriptor",
+         "columns": [time_col, acc_col, {"name": "temperature", "role": "temperature", "dtype": "<f8"}]},
+        # 40 + 8 + 12 padded to 16 + 8 = 72
+        {"seq": 5, "type": "chunk", "descriptor": 4, "offset": 80, "length": 72, "n": 1, "t_first": 2.0, "t_last": 2.0},
+        {"seq": 6, "type": "chunk", "descriptor": 1, "offset": 152, "length": 40, "n": 0, "t_first": None,
+         "t_last": None},
+        {"seq": 7, "type": "raw", "name": "imu", "t": 2.5, "offset": 0, "length": 4},
+        {"seq": 8, "type": "stop", "reason": "aborted", "data": {}},
+        {"seq": 9, "type": "resume", "after_chunk": 6, "repaired": [], "data": {}},
+        {"seq": 10, "type": "chunk", "descriptor": 1, "offset": 192, "length": 80, "n": 2, "t_first": 1.0,
+         "t_last": 1.5}]
+    samples = (d / "samples.bin").read_bytes()
+    assert len(samples) == 272
+    for doc, crc in zip(got, crcs):
+        if doc["type"] == "chunk":
+            record = samples[doc["offset"]:doc["offset"] + doc["length"]]
+            assert struct.unpack_from("<4sIQQQQ", record) == (b"FCS1", crc, doc["seq"], doc["descriptor"], doc["n"],
+                                                             doc["length"] - 40)
+            assert zlib.crc32(record[40:]) == crc
+    assert crcs[7] == zlib.crc32(b"abcd")
+    assert samples[192 + 40:192 + 56] == np.array([1.0, 1.5], "<f8").tobytes()
