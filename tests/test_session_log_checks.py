@@ -739,3 +739,14 @@ def test_the_documents_the_writer_writes_field_by_field(tmp_path):
             assert zlib.crc32(record[40:]) == crc
     assert crcs[7] == zlib.crc32(b"abcd")
     assert samples[192 + 40:192 + 56] == np.array([1.0, 1.5], "<f8").tobytes()
+
+
+def test_a_samples_file_cut_after_the_reader_opened_the_session_is_named_when_read(tmp_path):
+    d = forge_with_record(tmp_path / "s", *_record())
+    r = SessionReader(d)  # a snapshot: the file was whole then
+    with open(d / "samples.bin", "r+b") as fh:
+        fh.truncate(90)
+    with pytest.raises(SessionError) as exc:
+        list(r.chunks())
+    assert str(exc.value) == f"{d / 'samples.bin'}: chunk 2 at byte 0 (log line 3): the file ends inside the record"
+    assert exc.value.line == 3
