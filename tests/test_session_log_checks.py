@@ -749,4 +749,4 @@ def test_a_samples_file_cut_after_the_reader_opened_the_session_is_named_when_re
     with pytest.raises(SessionError) as exc:
         list(r.chunks())
     assert str(exc.value) == f"{d / 'samples.bin'}: chunk 2 at byte 0 (log line 3): the file ends inside the record"
-    assert exc.value.line == 3
+    assert exc.value.line == 3 and exc.value.path == str(d / "samples.bin")
