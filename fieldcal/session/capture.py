@@ -389,8 +389,10 @@ def _scan(directory: str | os.PathLike, verb: str, live: bool = False, log_only:
     except OSError as exc:
         raise SessionError(f"{log_path}: cannot read ({exc.strerror or exc})", str(log_path)) from None
     samples_size = 0 if log_only else _file_size(d / SAMPLES)
+    # regular files only: a dangling link or a directory at a raw file's name is no raw stream
+    # (named as what it is when the log refers to it, below), not a traceback or 4096 bytes
     raw_sizes = {} if log_only else {p.name[len(RAW_PREFIX):-len(RAW_SUFFIX)]: p.stat().st_size
-                                     for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}"))}
+                                     for p in sorted(d.glob(f"{RAW_PREFIX}*{RAW_SUFFIX}")) if p.is_file()}
 
     complete = data.rfind(b"\n") + 1
     checker = _DocChecker(log_path)
@@ -800,19 +802,22 @@ class SessionWriter:
 
         A session whose run completed is never resumed (SessionError naming its stop line)."""
         payload = _data({} if data is None else data, "resume")
-        with self._writing("resume mid-run" if mid_run else "resume"):
+        kind = "resume mid-run" if mid_run else "resume"
+        with self._lock:  # refused before _writing: a call that writes nothing does not fail the writer
+            self._require(kind)
             if mid_run and not self._active:
                 raise SessionStateError(f"{self.directory}: cannot resume mid-run: no active run")
             if self._completed_line is not None:
                 raise SessionError(f"{self.directory / LOG}: line {self._completed_line}: this session "
                                    "completed; a completed session is never resumed (replay it, or run "
                                    "again into a new directory)", str(self.directory / LOG), self._completed_line)
-            seq = self._write({"seq": self._seq, "type": "resume", "after_chunk": self._last_chunk,
-                               "repaired": list(self.repaired), "data": payload})
-            self.repaired = []
-            self._active = True
-            self.sync()
-            return seq
+            with self._writing(kind):
+                seq = self._write({"seq": self._seq, "type": "resume", "after_chunk": self._last_chunk,
+                                   "repaired": list(self.repaired), "data": payload})
+                self.repaired = []
+                self._active = True
+                self.sync()
+                return seq
 
     def write_raw(self, name: str, t: float, data: bytes) -> int:
         """Raw bytes from a live device with their host arrival time, into ``raw-<name>.bin``.
