@@ -104,11 +104,19 @@ def test_a_unit_in_no_remaining_position_is_told_which_remain():
     bench.move()
     out = bench.still(Y_DOWN, 3)
     [wrong] = of(ev.WrongOrientation, out)
-    assert e.phase == WRONG and "like no remaining position" in wrong.message
-    assert wrong.message.endswith("positions 1, 3")
+    assert e.phase == WRONG
+    # Suggested: position 3 (z up), the first open step after the done one; y down is 90° from it
+    # and like no position at all.
+    assert (wrong.position_id, wrong.looks_like) == (3, ())
+    assert wrong.angle_deg == pytest.approx(90.0, abs=0.5)
+    assert wrong.message == "the unit is y-downward, like no remaining position; place it in one of positions 1, 3"
     bench.move()
     bench.still(X_UP, 3)  # back to the one already done: still no remaining position
-    assert "position 2, done or skipped" in of(ev.WrongOrientation, bench.events)[-1].message
+    again = of(ev.WrongOrientation, bench.events)[-1]
+    assert (again.position_id, again.looks_like) == (3, (2,))
+    assert again.angle_deg == pytest.approx(90.0, abs=0.5)
+    assert again.message == ("the unit is x-upward (position 2, done or skipped), like no remaining position; "
+                             "place it in one of positions 1, 3")
     assert len(e.records) == 1
 
 
