@@ -66,3 +66,10 @@ def test_a_ratio_just_above_the_leave_factor_makes_the_unit_moving():
 def test_a_sigma_that_is_not_a_number_is_refused_naming_the_setting(value):
     with pytest.raises(ValueError, match="^specific_force_sigma: expected a positive number or three"):
         StillnessSettings(specific_force_sigma=value, rate_sigma=1.0)
+
+
+def test_a_sigma_per_axis_keeps_each_axis_its_own():
+    settings = StillnessSettings(specific_force_sigma=(1.0, 2.0, 3.0), rate_sigma=[0.5, 0.25, 0.125])
+    assert settings.specific_force_sigma == (1.0, 2.0, 3.0)
+    assert settings.rate_sigma == (0.5, 0.25, 0.125)
+    assert StillnessSettings(specific_force_sigma=2, rate_sigma=1).specific_force_sigma == (2.0, 2.0, 2.0)
