@@ -73,3 +73,95 @@ def test_a_sigma_per_axis_keeps_each_axis_its_own():
     assert settings.specific_force_sigma == (1.0, 2.0, 3.0)
     assert settings.rate_sigma == (0.5, 0.25, 0.125)
     assert StillnessSettings(specific_force_sigma=2, rate_sigma=1).specific_force_sigma == (2.0, 2.0, 2.0)
+
+
+def test_from_noise_carries_the_white_noise_through_each_row_of_a_full_scale_factor():
+    # White 0.1 per √Hz at 100 Hz: 1.0 per sample; output axis i sees it times |row i of K|.
+    k = [[2.0, 0.0, 0.0], [0.0, 3.0, 4.0], [0.0, 0.0, -1.0]]
+    s = StillnessSettings.from_noise(0.1, 0.01, 100.0, k_sf=k, k_rate=[-2.0, 1.0, 0.5], lsb_rate=0.6)
+    np.testing.assert_allclose(s.specific_force_sigma, (2.0, 5.0, 1.0), rtol=1e-12)
+    # 0.01·√100 = 0.1 times |k|, widened by 0.6²/12 = 0.03.
+    np.testing.assert_allclose(s.rate_sigma, np.sqrt(np.array([0.2, 0.1, 0.05]) ** 2 + 0.03), rtol=1e-12)
+    with pytest.raises(ValueError, match="^rate_hz: expected a positive rate, got 0"):
+        StillnessSettings.from_noise(0.1, 0.01, 0.0)
+
+
+def test_a_detector_refuses_a_window_of_fewer_than_two_samples_or_no_rate():
+    settings = StillnessSettings(specific_force_sigma=1.0, rate_sigma=1.0, window_s=0.3)
+    with pytest.raises(ValueError, match=r"^window_s=0.3 s at 4 Hz is 1 sample\(s\); need at least 2$"):
+        StillnessDetector(settings, 4.0)
+    assert StillnessDetector(settings, 5.0).window_samples == 2  # round(1.5): 2
+    with pytest.raises(ValueError, match="^rate_hz: expected a positive rate, got -1"):
+        StillnessDetector(settings, -1.0)
+
+
+def test_last_ratios_are_each_triads_window_std_over_sigma_and_reset_forgets():
+    settings = StillnessSettings(specific_force_sigma=(1.0, 1.0, 2.0), rate_sigma=0.5, window_s=WINDOW_S)
+    detector = StillnessDetector(settings, RATE_HZ)
+    t = np.arange(4) / RATE_HZ
+    accel = np.array([[0.0, 5.0, 0.0], [0.0, 5.0, 0.0], [0.0, 5.0, 0.0], [0.0, 5.0, 2.0]])
+    gyro = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    first = SampleChunk(t=t[:2], triads={"accelerometer": accel[:2], "gyroscope": gyro[:2]})
+    detector.feed(first)
+    assert all(np.isnan(v).all() for v in detector.last_ratios.values())  # no full window yet
+    detector.feed(SampleChunk(t=t[2:], triads={"accelerometer": accel[2:], "gyroscope": gyro[2:]}))
+    ratios = detector.last_ratios
+    assert set(ratios) == {"accelerometer", "gyroscope"}
+    # Last window, rows 1-3: accel z (0, 0, 2)/2 has std 1/√3; gyro x (0, -1, 0)/0.5 has std 2/√3.
+    np.testing.assert_allclose(ratios["accelerometer"], [0.0, 0.0, 1 / np.sqrt(3)], atol=1e-12)
+    np.testing.assert_allclose(ratios["gyroscope"], [2 / np.sqrt(3), 0.0, 0.0], atol=1e-12)
+    assert detector.still  # every ratio below 2
+    detector.reset()
+    assert not detector.still and np.isnan(detector.last_ratios["gyroscope"]).all()
+    assert not detector.feed(first).any()  # as new: the window starts again
+
+
+# --------------------------------------------------------------------------------- orientation
+
+THREE_ALIKE = """name: alike
+dwell_s: 5
+positions:
+  - {id: 4, axes: {x: east, y: north, z: up}}
+  - {id: 7, axes: {x: north, y: west, z: up}}
+  - {id: 9, axes: {x: west, y: south, z: up}}
+  - {id: 11, axes: {x: up, y: north, z: west}}
+"""
+
+
+def test_describe_up_names_the_axes_above_ten_degrees_highest_first():
+    from fieldcal.procedure.stillness import describe_up
+
+    assert describe_up([0.0, 0.0, -3.0]) == "z-downward"
+    assert describe_up([-1.0, 0.0, 0.2]) == "x-downward"  # 78.7° below the horizontal
+    assert describe_up([1.0, 0.0, 1.0]) == "x-upward 45°, z-upward 45°"  # a tie keeps axis order
+    assert describe_up([0.1, -1.0, 0.5]) == "y-downward 63°, z-upward 26°"  # asin(0.5/√1.26); x at 5°: left out
+
+
+def test_gravity_direction_takes_off_the_zero_and_divides_by_the_sensitivity():
+    from fieldcal.procedure.stillness import gravity_direction
+
+    np.testing.assert_allclose(gravity_direction([12.0, 10.0, 13.0], zero=10.0, sensitivity=(2.0, 1.0, 3.0)),
+                               [1 / np.sqrt(2), 0.0, 1 / np.sqrt(2)], atol=1e-15)
+    for bad in ([10.0, 10.0, 10.0], [np.nan, 0.0, 1.0]):
+        with pytest.raises(ValueError, match="^specific force has no direction"):
+            gravity_direction(bad, zero=(10.0, 10.0, 10.0) if bad[0] == 10.0 else None)
+
+
+def test_three_positions_sharing_up_are_listed_and_an_upside_down_unit_tilts_about_the_first_level_axis():
+    from fieldcal.procedure.positions import parse_procedure
+    from fieldcal.procedure.stillness import check_orientation
+
+    positions = parse_procedure(THREE_ALIKE, "alike.yaml").positions
+    x_up = positions[3]
+    check = check_orientation([0.0, 0.0, 1.0], x_up, positions)
+    assert check.message.startswith("position 11 expects x-upward, y-north, z-west, but the unit looks like "
+                                    "position 4, 7 or 9 (z-upward), 90° away; ")
+    assert check.message.endswith("tilt it 90° about the body -y axis (right-hand rule) until x points up")
+    assert check.tilt_axis == (0.0, -1.0, 0.0)
+    ok = check_orientation([0.0, 0.0, 1.0], positions[0], positions)
+    assert ok.ok and ok.angle_deg == 0.0 and ok.tilt_axis == (0.0, 0.0, 0.0)
+    assert ok.message == "position 4 (z-upward, x-east, y-north): orientation ok, 0° from the expected up direction"
+    # Upside down: every level axis would do; the one nearest level, x, in procedure-file order.
+    flipped = check_orientation([0.0, 0.0, -1.0], positions[0], positions)
+    assert flipped.tilt_axis == (1.0, 0.0, 0.0) and flipped.angle_deg == 180.0
+    assert "tilt it 180° about the body x axis" in flipped.message
