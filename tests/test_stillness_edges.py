@@ -165,3 +165,30 @@ def test_three_positions_sharing_up_are_listed_and_an_upside_down_unit_tilts_abo
     flipped = check_orientation([0.0, 0.0, -1.0], positions[0], positions)
     assert flipped.tilt_axis == (1.0, 0.0, 0.0) and flipped.angle_deg == 180.0
     assert "tilt it 180° about the body x axis" in flipped.message
+
+
+@pytest.mark.parametrize("kw, refused", [
+    ({"window_s": -1.0}, "window_s: expected a positive duration"),
+    ({"window_s": float("inf")}, "window_s: expected a positive duration"),
+    ({"enter_factor": 0.0}, "enter_factor: expected a positive number"),
+    ({"enter_factor": float("inf"), "leave_factor": float("inf")}, "enter_factor: expected a positive number"),
+    ({"leave_factor": float("inf")}, r"leave_factor: expected a number >= enter_factor \(2\)"),
+    ({"max_gap_s": 0.0}, "max_gap_s: expected a positive duration"),
+    ({"rate_sigma": 0.0}, "rate_sigma: expected a positive number or three"),
+])
+def test_each_setting_out_of_range_is_refused_by_name(kw, refused):
+    with pytest.raises(ValueError, match="^" + refused):
+        StillnessSettings(**{"specific_force_sigma": 1.0, "rate_sigma": 1.0, **kw})
+
+
+def test_the_edges_of_the_settings_that_are_allowed():
+    s = StillnessSettings(specific_force_sigma=1.0, rate_sigma=1.0, enter_factor=2.5, leave_factor=2.5)
+    assert (s.enter_factor, s.leave_factor) == (2.5, 2.5)  # no hysteresis: allowed
+    # from_noise: no quantisation unless given; other keywords reach the settings; any rate > 0.
+    plain = StillnessSettings.from_noise(0.1, 0.01, 0.25, window_s=8.0)
+    assert plain.rate_sigma == (0.005, 0.005, 0.005) and plain.specific_force_sigma == (0.05, 0.05, 0.05)
+    assert plain.window_s == 8.0
+    slow = StillnessDetector(plain, 0.25)  # 8 s at 0.25 Hz: two samples
+    assert (slow.rate_hz, slow.window_samples) == (0.25, 2)
+    with pytest.raises(ValueError, match="^rate_hz: expected a positive rate, got 0"):
+        StillnessDetector(plain, 0.0)
