@@ -192,3 +192,21 @@ def test_the_edges_of_the_settings_that_are_allowed():
     assert (slow.rate_hz, slow.window_samples) == (0.25, 2)
     with pytest.raises(ValueError, match="^rate_hz: expected a positive rate, got 0"):
         StillnessDetector(plain, 0.0)
+
+
+def test_a_window_decided_on_the_first_sample_of_a_steady_chunk_holds_for_the_chunk():
+    # Moving at the end of the first chunk (windows holding the 9); the second chunk's first
+    # window is all zeros (ratio 0: still), then two windows of ratio 1/√3, between the factors.
+    out = run([0.0, 0.0, 9.0, 0.0, 0.0, 0.0, 1.0, 0.0], [5, 3], enter=0.5, leave=1.5)
+    np.testing.assert_array_equal(out, [False] * 5 + [True] * 3)
+
+
+def test_last_ratios_are_unknown_again_right_after_a_gap():
+    settings = StillnessSettings(specific_force_sigma=1.0, rate_sigma=1.0, window_s=WINDOW_S)
+    detector = StillnessDetector(settings, RATE_HZ, angular_rate=None)
+    [first] = chunks([0.0, 1.0, 0.0, 1.0], [4])
+    detector.feed(first)
+    assert np.isfinite(detector.last_ratios["accelerometer"]).all()
+    after_gap = SampleChunk(t=np.array([5.0, 5.1]), triads={"accelerometer": np.zeros((2, 3))})
+    assert not detector.feed(after_gap).any()
+    assert np.isnan(detector.last_ratios["accelerometer"]).all()  # two samples since the gap: no window
