@@ -25,16 +25,16 @@ def settings(on_motion="restart"):
 
 
 def dwell_end(seed, bias=(0.0, 0.0, 0.0), noise_factor=1.0, adaptive=True, seconds=200,
-              bump_at=None, on_motion="restart"):
+              bump_at=None, on_motion="restart", chunk_s=1):
     """(sample seconds averaged, sample time the dwell ended), feeding a still unit (z up) in
-    one-second chunks; ``bump_at``: a half-second knock in that second."""
+    chunks of ``chunk_s`` seconds; ``bump_at``: a half-second knock in that second."""
     engine = Engine(parse_procedure(PROCEDURE.format(adaptive=str(adaptive).lower()), "p.yaml"),
                     settings(on_motion))
     engine.start()
     engine.act(ev.Action(ev.READY))
     rng = np.random.default_rng(seed)
-    n = int(RATE_HZ)
-    for k in range(seconds):
+    n = int(RATE_HZ * chunk_s)
+    for k in range(seconds // chunk_s):
         t = (k * n + np.arange(n)) / RATE_HZ
         sf = np.array([0.0, 0.0, 9.8]) + np.array(bias) + noise_factor * SF_WHITE * rng.standard_normal((n, 3))
         rate = noise_factor * RATE_WHITE * rng.standard_normal((n, 3))
@@ -88,3 +88,10 @@ def test_a_bumped_dwell_ends_later_with_the_same_information(on_motion):
     # The knock's samples never count, nor does their spread judge the noise level.
     assert bumped_end > quiet_end
     assert bumped_s == pytest.approx(quiet_s, rel=0.05)
+
+
+def test_a_dwell_judges_the_noise_on_the_chunk_it_is_in():
+    # Half the expected noise: a quarter of the variance, so a quarter of the planned 30 s, 7.5 s
+    # (above the 5 s floor); the whole dwell lies in one 60-second chunk, whose own samples set it.
+    duration, _ = dwell_end(3, noise_factor=0.5, seconds=60, chunk_s=60)
+    assert duration == pytest.approx(7.5, abs=0.5)
