@@ -210,3 +210,13 @@ def test_last_ratios_are_unknown_again_right_after_a_gap():
     after_gap = SampleChunk(t=np.array([5.0, 5.1]), triads={"accelerometer": np.zeros((2, 3))})
     assert not detector.feed(after_gap).any()
     assert np.isnan(detector.last_ratios["accelerometer"]).all()  # two samples since the gap: no window
+
+
+def test_a_gap_after_a_steady_chunk_restarts_the_window():
+    settings = StillnessSettings(specific_force_sigma=1.0, rate_sigma=1.0, window_s=WINDOW_S)
+    detector = StillnessDetector(settings, RATE_HZ, angular_rate=None)
+    first, steady = chunks([0.0] * 6, [4, 2])
+    assert detector.feed(first).tolist() == [False, False, True, True]
+    assert detector.feed(steady).all()  # a full window before it, no gap: the steady path
+    after_gap = SampleChunk(t=np.array([3.0, 3.1, 3.2]), triads={"accelerometer": np.zeros((3, 3))})
+    assert detector.feed(after_gap).tolist() == [False, False, True]  # 2.5 s unseen: a new window
