@@ -95,3 +95,24 @@ def test_a_dwell_judges_the_noise_on_the_chunk_it_is_in():
     # (above the 5 s floor); the whole dwell lies in one 60-second chunk, whose own samples set it.
     duration, _ = dwell_end(3, noise_factor=0.5, seconds=60, chunk_s=60)
     assert duration == pytest.approx(7.5, abs=0.5)
+
+
+def test_a_planned_dwell_reports_progress_every_ten_seconds_of_samples_and_not_at_its_end():
+    engine = Engine(parse_procedure(PROCEDURE.format(adaptive="false"), "p.yaml"), settings())
+    engine.start()
+    engine.act(ev.Action(ev.READY))
+    rng = np.random.default_rng(4)
+    n = int(RATE_HZ)
+    events = []
+    for k in range(40):
+        t = (k * n + np.arange(n)) / RATE_HZ
+        sf = np.array([0.0, 0.0, 9.8]) + SF_WHITE * rng.standard_normal((n, 3))
+        events += engine.feed(SampleChunk(t, {"accelerometer": sf, "gyroscope": RATE_WHITE * rng.standard_normal((n, 3))}))
+    [start] = [e.t for e in events if isinstance(e, ev.Still)]
+    [end] = [e.t for e in events if isinstance(e, ev.DwellComplete)]
+    progress = [e for e in events if isinstance(e, ev.DwellProgress)]
+    assert [(p.done_s, p.total_s) for p in progress] == [(10.0, 30.0), (20.0, 30.0)]
+    # Each reported once its ten seconds of samples are in: in the chunk (1 s) where they were.
+    for p in progress:
+        assert start + p.done_s - 0.01 <= p.t < start + p.done_s + 1.0
+    assert end == pytest.approx(start + 30.0, abs=0.02)

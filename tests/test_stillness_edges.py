@@ -142,6 +142,9 @@ def test_gravity_direction_takes_off_the_zero_and_divides_by_the_sensitivity():
 
     np.testing.assert_allclose(gravity_direction([12.0, 10.0, 13.0], zero=10.0, sensitivity=(2.0, 1.0, 3.0)),
                                [1 / np.sqrt(2), 0.0, 1 / np.sqrt(2)], atol=1e-15)
+    # Several means at once: each row its own unit vector.
+    np.testing.assert_allclose(gravity_direction([[0.0, 3.0, 4.0], [0.0, 0.0, -2.0]]),
+                               [[0.0, 0.6, 0.8], [0.0, 0.0, -1.0]], atol=1e-15)
     for bad in ([10.0, 10.0, 10.0], [np.nan, 0.0, 1.0]):
         with pytest.raises(ValueError, match="^specific force has no direction"):
             gravity_direction(bad, zero=(10.0, 10.0, 10.0) if bad[0] == 10.0 else None)
@@ -220,3 +223,10 @@ def test_a_gap_after_a_steady_chunk_restarts_the_window():
     assert detector.feed(steady).all()  # a full window before it, no gap: the steady path
     after_gap = SampleChunk(t=np.array([3.0, 3.1, 3.2]), triads={"accelerometer": np.zeros((3, 3))})
     assert detector.feed(after_gap).tolist() == [False, False, True]  # 2.5 s unseen: a new window
+
+
+def test_angle_between_two_vectors_is_a_plain_float():
+    from fieldcal.procedure.stillness import angle_between
+
+    angle = angle_between([1, 0, 0], [1, 1, 0])
+    assert type(angle) is float and angle == pytest.approx(45.0, abs=1e-12)
