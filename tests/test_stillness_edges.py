@@ -230,3 +230,23 @@ def test_angle_between_two_vectors_is_a_plain_float():
 
     angle = angle_between([1, 0, 0], [1, 1, 0])
     assert type(angle) is float and angle == pytest.approx(45.0, abs=1e-12)
+
+
+def test_a_tilt_about_no_named_axis_is_given_by_its_components():
+    from fieldcal.procedure.positions import parse_procedure
+    from fieldcal.procedure.stillness import check_orientation, closest_positions
+
+    positions = parse_procedure(THREE_ALIKE, "alike.yaml").positions
+    # Up measured along (0.1, 0.5, 1): 27° from z (atan(√0.26)); the tilt axis z × m, normalised,
+    # is (-0.5, 0.1, 0)/√0.26, within 10° of no axis or diagonal.
+    check = check_orientation([0.1, 0.5, 1.0], positions[0], positions)
+    np.testing.assert_allclose(check.tilt_axis, np.array([-0.5, 0.1, 0.0]) / np.sqrt(0.26), atol=1e-12)
+    assert check.message == ("position 4 expects z-upward, x-east, y-north, but the unit is z-upward 63°, "
+                             "y-upward 26°, like no position, 27° away; tilt it 27° about the body "
+                             "(-0.98, 0.20, 0.00) axis (right-hand rule) until z points up")
+    # x up turned over: the nearest level body axis to x's up is y.
+    assert check_orientation([-1.0, 0.0, 0.0], positions[3], positions).tilt_axis == (0.0, 1.0, 0.0)
+    # The default tolerance is 15°: 15.5° from z up is no position.
+    tilted = [np.sin(np.radians(15.5)), 0.0, np.cos(np.radians(15.5))]
+    assert closest_positions(tilted, positions) == []
+    assert [p.id for p, _ in closest_positions(tilted, positions, tolerance_deg=16.0)] == [4, 7, 9]
