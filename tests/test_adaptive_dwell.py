@@ -97,18 +97,27 @@ def test_a_dwell_judges_the_noise_on_the_chunk_it_is_in():
     assert duration == pytest.approx(7.5, abs=0.5)
 
 
-def test_a_planned_dwell_reports_progress_every_ten_seconds_of_samples_and_not_at_its_end():
+@pytest.mark.parametrize("bump_at", [None, 8])
+def test_a_planned_dwell_reports_progress_every_ten_seconds_of_samples_and_not_at_its_end(bump_at):
     engine = Engine(parse_procedure(PROCEDURE.format(adaptive="false"), "p.yaml"), settings())
     engine.start()
     engine.act(ev.Action(ev.READY))
     rng = np.random.default_rng(4)
     n = int(RATE_HZ)
     events = []
-    for k in range(40):
+    for k in range(50):
         t = (k * n + np.arange(n)) / RATE_HZ
         sf = np.array([0.0, 0.0, 9.8]) + SF_WHITE * rng.standard_normal((n, 3))
+        if k == bump_at:  # a knock in the first half of second 8: the dwell starts again after it
+            sf[:n // 2] += 0.5 * np.sin(np.arange(n // 2))[:, None]
         events += engine.feed(SampleChunk(t, {"accelerometer": sf, "gyroscope": RATE_WHITE * rng.standard_normal((n, 3))}))
-    [start] = [e.t for e in events if isinstance(e, ev.Still)]
+    motion = [e for e in events if isinstance(e, ev.MotionDetected)]
+    if bump_at is not None:
+        [knock] = motion
+        assert (knock.phase, knock.restarted) == ("dwell", True) and 8.0 <= knock.t < 8.5
+    else:
+        assert motion == []
+    start = [e.t for e in events if isinstance(e, ev.Still)][-1]
     [end] = [e.t for e in events if isinstance(e, ev.DwellComplete)]
     progress = [e for e in events if isinstance(e, ev.DwellProgress)]
     assert [(p.done_s, p.total_s) for p in progress] == [(10.0, 30.0), (20.0, 30.0)]
@@ -116,3 +125,5 @@ def test_a_planned_dwell_reports_progress_every_ten_seconds_of_samples_and_not_a
     for p in progress:
         assert start + p.done_s - 0.01 <= p.t < start + p.done_s + 1.0
     assert end == pytest.approx(start + 30.0, abs=0.02)
+    [window] = engine.records[0].windows
+    assert (window.kind, window.rate_deg_s, window.duration) == ("static", 0.0, 30.0)
