@@ -250,3 +250,25 @@ def test_a_tilt_about_no_named_axis_is_given_by_its_components():
     tilted = [np.sin(np.radians(15.5)), 0.0, np.cos(np.radians(15.5))]
     assert closest_positions(tilted, positions) == []
     assert [p.id for p, _ in closest_positions(tilted, positions, tolerance_deg=16.0)] == [4, 7, 9]
+
+
+def test_a_corner_turned_over_and_a_passing_tilt_still_get_their_tilt_axis():
+    from fieldcal.procedure.positions import parse_procedure
+    from fieldcal.procedure.stillness import check_orientation
+
+    corner = parse_procedure("dwell_s: 5\npositions:\n  - {id: 1, up: x+y+z, north: x}\n", "c.yaml").positions
+    flipped = check_orientation([-1.0, -1.0, -1.0], corner[0], corner, tolerance_deg=5.0)
+    assert flipped.ok is False and flipped.looks_like == ()
+    # x, the first axis nearest level, less its part along up: (1, 0, 0) - (1, 1, 1)/3.
+    np.testing.assert_allclose(flipped.tilt_axis, np.array([2.0, -1.0, -1.0]) / np.sqrt(6.0), atol=1e-12)
+    # 10° off, within the tolerance: ok, and the way to level it still given: up measured towards
+    # +x, so turn about e × m = z × x = +y.
+    near = check_orientation([np.sin(np.radians(10.0)), 0.0, np.cos(np.radians(10.0))],
+                             parse_procedure(THREE_ALIKE, "alike.yaml").positions[0],
+                             parse_procedure(THREE_ALIKE, "alike.yaml").positions, tolerance_deg=12.0)
+    assert near.ok is True and [p.id for p, _ in near.looks_like] == [4, 7, 9]
+    np.testing.assert_allclose(near.tilt_axis, [0.0, 1.0, 0.0], atol=1e-12)
+    strict = check_orientation([np.sin(np.radians(10.0)), 0.0, np.cos(np.radians(10.0))],
+                               parse_procedure(THREE_ALIKE, "alike.yaml").positions[0],
+                               parse_procedure(THREE_ALIKE, "alike.yaml").positions, tolerance_deg=8.0)
+    assert strict.ok is False and strict.looks_like == ()
