@@ -25,16 +25,16 @@ def settings(on_motion="restart"):
 
 
 def dwell_end(seed, bias=(0.0, 0.0, 0.0), noise_factor=1.0, adaptive=True, seconds=200,
-              bump_at=None, on_motion="restart"):
+              bump_at=None, on_motion="restart", chunk_s=1):
     """(sample seconds averaged, sample time the dwell ended), feeding a still unit (z up) in
-    one-second chunks; ``bump_at``: a half-second knock in that second."""
+    chunks of ``chunk_s`` seconds; ``bump_at``: a half-second knock in that second."""
     engine = Engine(parse_procedure(PROCEDURE.format(adaptive=str(adaptive).lower()), "p.yaml"),
                     settings(on_motion))
     engine.start()
     engine.act(ev.Action(ev.READY))
     rng = np.random.default_rng(seed)
-    n = int(RATE_HZ)
-    for k in range(seconds):
+    n = int(RATE_HZ * chunk_s)
+    for k in range(seconds // chunk_s):
         t = (k * n + np.arange(n)) / RATE_HZ
         sf = np.array([0.0, 0.0, 9.8]) + np.array(bias) + noise_factor * SF_WHITE * rng.standard_normal((n, 3))
         rate = noise_factor * RATE_WHITE * rng.standard_normal((n, 3))
@@ -88,3 +88,42 @@ def test_a_bumped_dwell_ends_later_with_the_same_information(on_motion):
     # The knock's samples never count, nor does their spread judge the noise level.
     assert bumped_end > quiet_end
     assert bumped_s == pytest.approx(quiet_s, rel=0.05)
+
+
+def test_a_dwell_judges_the_noise_on_the_chunk_it_is_in():
+    # Half the expected noise: a quarter of the variance, so a quarter of the planned 30 s, 7.5 s
+    # (above the 5 s floor); the whole dwell lies in one 60-second chunk, whose own samples set it.
+    duration, _ = dwell_end(3, noise_factor=0.5, seconds=60, chunk_s=60)
+    assert duration == pytest.approx(7.5, abs=0.5)
+
+
+@pytest.mark.parametrize("bump_at", [None, 8])
+def test_a_planned_dwell_reports_progress_every_ten_seconds_of_samples_and_not_at_its_end(bump_at):
+    engine = Engine(parse_procedure(PROCEDURE.format(adaptive="false"), "p.yaml"), settings())
+    engine.start()
+    engine.act(ev.Action(ev.READY))
+    rng = np.random.default_rng(4)
+    n = int(RATE_HZ)
+    events = []
+    for k in range(50):
+        t = (k * n + np.arange(n)) / RATE_HZ
+        sf = np.array([0.0, 0.0, 9.8]) + SF_WHITE * rng.standard_normal((n, 3))
+        if k == bump_at:  # a knock in the first half of second 8: the dwell starts again after it
+            sf[:n // 2] += 0.5 * np.sin(np.arange(n // 2))[:, None]
+        events += engine.feed(SampleChunk(t, {"accelerometer": sf, "gyroscope": RATE_WHITE * rng.standard_normal((n, 3))}))
+    motion = [e for e in events if isinstance(e, ev.MotionDetected)]
+    if bump_at is not None:
+        [knock] = motion
+        assert (knock.phase, knock.restarted) == ("dwell", True) and 8.0 <= knock.t < 8.5
+    else:
+        assert motion == []
+    start = [e.t for e in events if isinstance(e, ev.Still)][-1]
+    [end] = [e.t for e in events if isinstance(e, ev.DwellComplete)]
+    progress = [e for e in events if isinstance(e, ev.DwellProgress)]
+    assert [(p.done_s, p.total_s) for p in progress] == [(10.0, 30.0), (20.0, 30.0)]
+    # Each reported once its ten seconds of samples are in: in the chunk (1 s) where they were.
+    for p in progress:
+        assert start + p.done_s - 0.01 <= p.t < start + p.done_s + 1.0
+    assert end == pytest.approx(start + 30.0, abs=0.02)
+    [window] = engine.records[0].windows
+    assert (window.kind, window.rate_deg_s, window.duration) == ("static", 0.0, 30.0)

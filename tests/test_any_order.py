@@ -57,10 +57,10 @@ class Bench:
         return out
 
 
-def engine(any_order=True) -> Engine:
+def engine(any_order=True, **settings_kw) -> Engine:
     text = PROCEDURE.format(any_order=f"any_order: {str(any_order).lower()}")
     settings = EngineSettings(rate_hz=RATE_HZ, stillness=StillnessSettings(specific_force_sigma=SF_WHITE,
-                                                                           rate_sigma=RATE_WHITE))
+                                                                           rate_sigma=RATE_WHITE), **settings_kw)
     e = Engine(parse_procedure(text, "anyorder.yaml"), settings)
     e.start()
     return e
@@ -104,12 +104,37 @@ def test_a_unit_in_no_remaining_position_is_told_which_remain():
     bench.move()
     out = bench.still(Y_DOWN, 3)
     [wrong] = of(ev.WrongOrientation, out)
-    assert e.phase == WRONG and "like no remaining position" in wrong.message
-    assert wrong.message.endswith("positions 1, 3")
+    assert e.phase == WRONG
+    assert 12.0 <= wrong.t <= 14.99  # told while it lay still in y down (the last three seconds fed)
+    # Suggested: position 3 (z up), the first open step after the done one; y down is 90° from it
+    # and like no position at all.
+    assert (wrong.position_id, wrong.looks_like) == (3, ())
+    assert wrong.angle_deg == pytest.approx(90.0, abs=0.5)
+    assert wrong.message == "the unit is y-downward, like no remaining position; place it in one of positions 1, 3"
     bench.move()
     bench.still(X_UP, 3)  # back to the one already done: still no remaining position
-    assert "position 2, done or skipped" in of(ev.WrongOrientation, bench.events)[-1].message
+    again = of(ev.WrongOrientation, bench.events)[-1]
+    assert (again.position_id, again.looks_like) == (3, (2,))
+    assert again.angle_deg == pytest.approx(90.0, abs=0.5)
+    assert again.message == ("the unit is x-upward (position 2, done or skipped), like no remaining position; "
+                             "place it in one of positions 1, 3")
     assert len(e.records) == 1
+
+
+def test_the_orientation_tolerance_decides_recognition_and_the_looks_like_list():
+    # 10° off x up: position 2 at the default 15°, no position at a 5° tolerance.
+    tilted = (np.cos(np.radians(10.0)), 0.0, np.sin(np.radians(10.0)))
+    e = engine(tolerance_deg=5.0)
+    bench = Bench(e)
+    bench.move()
+    out = bench.still(tilted, 3)
+    assert of(ev.PositionRecognised, out) == []
+    [wrong] = of(ev.WrongOrientation, out)
+    assert wrong.looks_like == () and "like no remaining position" in wrong.message
+    wide = engine()
+    bench = Bench(wide)
+    bench.move()
+    assert [r.position_id for r in of(ev.PositionRecognised, bench.still(tilted, 3))] == [2]
 
 
 def test_positions_gravity_cannot_tell_apart_are_named_taken_in_procedure_order_and_chosen_by_the_operator():
@@ -119,10 +144,15 @@ def test_positions_gravity_cannot_tell_apart_are_named_taken_in_procedure_order_
     out = bench.still(Z_UP, 2)
     [first] = of(ev.PositionRecognised, out)
     assert (first.position_id, first.alike, first.chosen) == (1, (1, 3), False)
+    # Recognised while the unit lay still: within the two still seconds just fed (t 2.00-3.99 s).
+    assert 2.0 <= first.t <= 3.99
+    assert first.description == "z-upward, x-east, y-north"  # position 1's axes, in the files' words
     assert e.phase == DWELL
     assert e.act(ev.Action(ev.CHOOSE, position_id=2)) == []  # not among the alike: refused
     [chosen] = e.act(ev.Action(ev.CHOOSE, position_id=3))
     assert (chosen.step, chosen.position_id, chosen.chosen) == (2, 3, True)
+    assert chosen.t == 3.99  # the choice is made at the engine's time: the last sample fed
+    assert chosen.description == "z-upward, x-north, y-west"
     bench.still(Z_UP, 8)
     assert e.records[2].position_id == 3 and 0 not in e.records
     # The other heading: the same up direction, after the operator turned the unit.

@@ -47,7 +47,10 @@ if TYPE_CHECKING:
 
 
 def _per_axis(value, name: str) -> tuple[float, float, float]:
-    arr = np.broadcast_to(np.asarray(value, dtype=float), (3,))
+    try:
+        arr = np.broadcast_to(np.asarray(value, dtype=float), (3,))
+    except (TypeError, ValueError):  # a word, two numbers: numpy's message would not name the setting
+        arr = np.full(3, np.nan)
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         raise ValueError(f"{name}: expected a positive number or three, got {value!r}")
     return float(arr[0]), float(arr[1]), float(arr[2])
