@@ -175,20 +175,15 @@ class SemiseparableWhitener:
         vector = r.ndim == 1
         R = r.reshape(len(r), -1)
         n, b = S.diagonal.shape[:2]
-        g = S.sizes[0]
         x = np.empty_like(R)
         blocks = x[:n * b].reshape(n, b, -1)
         np.matmul(self.inverse_diagonal, R[:n * b].reshape(n, b, -1), out=blocks)  # L_i⁻¹r_i, all at once
         f, carried = np.zeros((S.state_size, R.shape[1])), np.empty((S.state_size, R.shape[1]))
-        inverse_left, gains, decay = self.inverse_left, self.gains, S.decay[:, :, None]
+        inverse_left, gains = self.inverse_left, self.gains
         for i in range(n):
             xi = blocks[i]
             xi -= inverse_left[i] @ f
-            # carried = a_i·f + gains_i·x_i, a_i as BlockSemiseparable.transition, in place
-            np.multiply(decay[i], f[:g], out=carried[:g])
-            carried[:g] += f[g:2 * g]
-            carried[g:2 * g + b] = 0.0
-            carried[2 * g + b:] = f[2 * g + b:]
+            S.transition(f, i, out=carried)  # carried = a_i·f + gains_i·x_i, with no new array
             carried += gains[i] @ xi
             f, carried = carried, f
         if S.tail_size:
@@ -255,12 +250,14 @@ class BlockSemiseparable:
         g, b, c = self.sizes
         return slice(2 * g + b, 2 * g + b + c)
 
-    def transition(self, f: np.ndarray, i: int) -> np.ndarray:
+    def transition(self, f: np.ndarray, i: int, out: np.ndarray | None = None) -> np.ndarray:
         """a_i·f for a state f (r, …): the carried generators decay from block i−1 to i and take
-        in the waiting one; the waiting slot and the neighbour slot empty; the low rank stays."""
+        in the waiting one; the waiting slot and the neighbour slot empty; the low rank stays.
+        ``out``: where to put it (not f itself), for a loop that keeps two states."""
         g, b, c = self.sizes
-        out = np.empty_like(f)
-        out[:g] = self.decay[i].reshape((g,) + (1,) * (f.ndim - 1)) * f[:g] + f[g:2 * g]
+        out = np.empty_like(f) if out is None else out
+        np.multiply(self.decay[i].reshape((g,) + (1,) * (f.ndim - 1)), f[:g], out=out[:g])
+        out[:g] += f[g:2 * g]
         out[g:2 * g + b] = 0.0
         out[2 * g + b:] = f[2 * g + b:]
         return out
