@@ -61,7 +61,7 @@ def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray |
     """The numbers of ``text`` in order, or None unless each is a plain decimal in the fast path.
 
     ``text`` ends with a blank; ``digits``: ``plain_digits(text)``, ``start``/``stop``: its
-    tokens, ``solid_runs(bytes <= 32)`` (each computed if not given); ``fields``: the tokens
+    tokens, ``blank_runs(bytes)`` (each computed if not given); ``fields``: the tokens
     come in rows of so many (a block of lines of that many fields), a hint that lets a file
     whose one field with a point is the same in every row skip the search for the points."""
     if text[-1:] not in (b" ", b"\t", b"\r", b"\n"):
@@ -72,7 +72,7 @@ def plain_decimals(text: bytes, digits: bytes | None = None, start: np.ndarray |
             return None
     a = np.frombuffer(text, dtype=np.uint8)
     if start is None or stop is None:
-        start, stop = solid_runs(a <= 32)
+        _, start, stop = blank_runs(a)  # (text ends with a blank, as blank_runs needs)
     n = len(start)
     if n == 0:
         return np.zeros(0)
