@@ -205,21 +205,35 @@ def test_a_covariance_kept_by_its_parts_weighs_as_its_dense_form():
     np.testing.assert_allclose(by_parts.diagnostics.chi2, dense.diagnostics.chi2, rtol=1e-6)
 
 
+def _tilted_up(rng):
+    """field-18's up directions, each tilted by some 2° at random (a hand-placed unit)."""
+    up = UP18 + rng.normal(0, 0.03, UP18.shape)
+    return up / np.linalg.norm(up, axis=1, keepdims=True)
+
+
+def _rate_problem(up, plus_noise, minus_noise):
+    """A gyro's norm problem: turned at +10 °/s and -10 °/s about each ``up`` at 40° latitude,
+    read through GYRO_TRUTH, with the noise given added to each turn's averages."""
+    from fieldcal.solvers import RateNormProblem
+
+    rate, earth, vertical = np.radians(10), 7.292115e-5, 7.292115e-5 * np.sin(np.radians(40))
+    plus = distort_with(GYRO_TRUTH, (rate + vertical) * up) + plus_noise
+    minus = distort_with(GYRO_TRUTH, (vertical - rate) * up) + minus_noise
+    return RateNormProblem(plus, minus, rate, np.empty((0, 3)), np.empty(0, int), earth, vertical)
+
+
+GYRO_TRUTH = np.array([1e-3, -2e-3, 5e-4, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+
+
 def test_a_gyros_covariance_kept_by_its_parts_weighs_as_its_dense_form():
     # A gyro's norm residuals have no per-average gradient (point_gradients): its parts are made
     # dense, and must weigh as the dense form given directly.
     from fieldcal.recording.up_covariance import MeansCovariance
-    from fieldcal.solvers import RateNormProblem
 
     rng = np.random.default_rng(5)
-    up = UP18 + rng.normal(0, 0.03, UP18.shape)
-    up /= np.linalg.norm(up, axis=1, keepdims=True)
-    rate, earth, vertical = np.radians(10), 7.292115e-5, 7.292115e-5 * np.sin(np.radians(40))
-    truth = np.array([1e-3, -2e-3, 5e-4, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+    up = _tilted_up(rng)
     noise = 5e-6
-    plus = distort_with(truth, (rate + vertical) * up) + rng.normal(0, noise, up.shape)
-    minus = distort_with(truth, (vertical - rate) * up) + rng.normal(0, noise, up.shape)
-    problem = RateNormProblem(plus, minus, rate, np.empty((0, 3)), np.empty(0, int), earth, vertical)
+    problem = _rate_problem(up, rng.normal(0, noise, up.shape), rng.normal(0, noise, up.shape))
     parts = MeansCovariance(windows=(2e-6) ** 2 * (0.5 + 0.5 * np.eye(36)), K=np.diag([1.02, 0.97, 1.01]),
                             own=np.full((36, 3), noise**2))
     by_parts, dense = solve_norm(problem, parts), solve_norm(problem, parts.dense())
@@ -277,17 +291,12 @@ def test_nine_positions_with_a_stated_noise_are_solved_with_sigma_from_that_nois
 def test_a_gyros_per_axis_sigmas_weigh_as_their_diagonal_covariance():
     # A gyro's residuals have no per-average gradient, so per-axis σ (n, 3) are made the diagonal
     # covariance whose variances they are (σ², each its own): the same solve as that matrix given.
-    from fieldcal.solvers import RateNormProblem
 
     rng = np.random.default_rng(6)
-    up = UP18 + rng.normal(0, 0.03, UP18.shape)
-    up /= np.linalg.norm(up, axis=1, keepdims=True)
-    rate, earth, vertical = np.radians(10), 7.292115e-5, 7.292115e-5 * np.sin(np.radians(40))
-    truth = np.array([1e-3, -2e-3, 5e-4, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+    up = _tilted_up(rng)
     sigmas = 5e-6 * rng.uniform(0.5, 2.0, (36, 3))
-    plus = distort_with(truth, (rate + vertical) * up) + rng.normal(0, 1.0, up.shape) * sigmas[:18]
-    minus = distort_with(truth, (vertical - rate) * up) + rng.normal(0, 1.0, up.shape) * sigmas[18:]
-    problem = RateNormProblem(plus, minus, rate, np.empty((0, 3)), np.empty(0, int), earth, vertical)
+    problem = _rate_problem(up, rng.normal(0, 1.0, up.shape) * sigmas[:18],
+                            rng.normal(0, 1.0, up.shape) * sigmas[18:])
     per_axis, dense = solve_norm(problem, sigmas), solve_norm(problem, np.diag(sigmas.ravel() ** 2))
     np.testing.assert_allclose(per_axis.theta, dense.theta, rtol=0, atol=1e-6 * dense.sigma.min())
     np.testing.assert_allclose(per_axis.sigma, dense.sigma, rtol=1e-9)
