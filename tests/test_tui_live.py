@@ -82,8 +82,8 @@ async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp
     async with app.run_test(size=(80, 24)) as pilot:
         for step, position in enumerate(procedure.positions):
             await until(pilot, lambda step=step: waiting_at(app, step))
-            devices.carry(position.attitude, 2.0).result(timeout=60)  # the operator's hands
-            await until(pilot, lambda: placed_and_still(app))  # and what the station shows
+            carried_until = devices.carry(position.attitude, 2.0).result(timeout=60)  # the operator's hands
+            await until(pilot, lambda: placed_and_still(app, carried_until))  # and what the station shows
             # "b", a simulator key: refused on a real device
             await press_and_go_on(pilot, "b", "r")
         await until(pilot, lambda: on_results(app))

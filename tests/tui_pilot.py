@@ -55,13 +55,18 @@ def waiting_at(app, step: int) -> bool:
     return t is not None and t.waiting and t.step == step and app.outcome is None
 
 
-def placed_and_still(app, within_deg: float = 2.0, quiet_below: float = 3.0) -> bool:
+def placed_and_still(app, carried_until: float, within_deg: float = 2.0, quiet_below: float = 3.0) -> bool:
     """The station's own readings show the unit at its position's attitude and still over a whole
-    stillness window: every sample of a carry has been read. (A device served as fast as it is
-    read can still hold the carry's motion in the port when the carry's future resolves; a
-    "ready" pressed then sees that motion.)"""
+    stillness window read after ``carried_until``, the sample time of the carry's last sample
+    (what ``SimulatedDevices.carry`` resolves to). (A device served as fast as it is read can
+    still hold the carry's motion in the port when the carry's future resolves; a "ready"
+    pressed then sees that motion. And a carry that turns the unit about the vertical leaves the
+    tilt as it was: the window read before the carry already looks placed and still, which made
+    CI's run of 2026-11-27 see motion after "still" in the first step.)"""
     t = app.telemetry
-    return (t is not None and t.angle_deg is not None and t.angle_deg < within_deg
+    if t is None or t.t < carried_until + app.spec.engine_settings().stillness.window_s:
+        return False
+    return (t.angle_deg is not None and t.angle_deg < within_deg
             and t.quiet is not None and t.quiet < quiet_below)
 
 
