@@ -1,16 +1,20 @@
-"""The procedure screen's display rate: readings are repainted at most once per DISPLAY_S of
-the app's clock (a human reads no faster; each repaint re-lays-out and re-renders the screen),
-the operator's turn and the run's end at once, and what the screen holds (its view) takes every
-batch as it comes. The clock is injected: no wall-clock quantity decides anything here."""
+"""The procedure screen's display rate: readings, and a banner that only says how the run goes,
+are repainted at most once per DISPLAY_S of the app's clock (a human reads no faster; each
+repaint re-lays-out and re-renders the screen); the operator's turn, a banner that asks for
+something or reports a fault, a fault event and the run's end at once; and what the screen holds
+(its view) takes every batch as it comes. The clock is injected: no wall-clock quantity decides
+anything here."""
 from __future__ import annotations
 
 from textual.app import App
 
 from tui_pilot import run_async, until
-from fieldcal.procedure.engine import DWELL, PLACE
+from fieldcal.procedure import events as ev
+from fieldcal.procedure.engine import DWELL, PLACE, RATE_WAIT, SETTLING, WRONG
 from fieldcal.procedure.positions import load_procedure
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.screens.procedure import DISPLAY_S, ProcedureScreen
+from fieldcal.tui.source import Note
 from fieldcal.tui.view import RunView
 
 
@@ -33,13 +37,22 @@ class ScreenApp(App[None]):
         self.push_screen(self.screen_under_test)
 
 
-def reading(t: float, x_mg: float, waiting: bool = False) -> Telemetry:
-    return Telemetry(t=t, step=0, phase=PLACE if waiting else DWELL, waiting=waiting, samples=int(t * 100),
-                     accel_mg=(x_mg, 0.0, 1000.0), gyro_deg_s=(0.0, 0.0, 0.0), angle_deg=0.5, quiet=1.0)
+def reading(t: float, x_mg: float, waiting: bool = False, phase: str | None = None) -> Telemetry:
+    return Telemetry(t=t, step=0, phase=phase or (PLACE if waiting else DWELL), waiting=waiting,
+                     samples=int(t * 100), accel_mg=(x_mg, 0.0, 1000.0), gyro_deg_s=(0.0, 0.0, 0.0),
+                     angle_deg=0.5, quiet=1.0)
 
 
 def accel_row(screen: ProcedureScreen) -> str:
     return str(screen.query_one("#live-accel").render())
+
+
+def banner(screen: ProcedureScreen) -> str:
+    return str(screen.query_one("#banner").render())
+
+
+def log_text(screen: ProcedureScreen) -> str:
+    return "\n".join(line.text for line in screen.query_one("#log").lines)
 
 
 @run_async
@@ -83,3 +96,61 @@ async def test_the_operators_turn_a_new_instruction_and_the_runs_end_are_shown_a
         assert str(screen.query_one("#banner").render()).startswith("NO SAMPLES from the device for 3 s")
         screen.finished("aborted")  # same instant: the end
         assert str(screen.query_one("#banner").render()) == "Aborted: the session is kept"
+
+
+@run_async
+async def test_a_banner_that_only_says_how_the_run_goes_waits_for_the_display_period_like_the_readings():
+    clock = Clock()
+    app = ScreenApp(clock)
+    async with app.run_test(size=(80, 24)) as pilot:
+        screen = app.screen_under_test
+        await until(pilot, lambda: screen.is_mounted)
+        screen.set_telemetry(reading(1.0, 11.0))  # the first: at once
+        assert banner(screen) == "Dwelling: keep the unit still"
+
+        clock.now += DISPLAY_S / 2  # within the period: the dwell ends and the table starts
+        screen.add_items([ev.DwellComplete(1.1, 20.0), ev.CommandTable(1.1, 30.0)], reading(1.1, 22.0, phase=RATE_WAIT))
+        assert screen.view.banner(sim=False)[0] == "Table turning to +30.0 °/s: waiting until steady"
+        assert banner(screen) == "Dwelling: keep the unit still"  # the screen: not yet
+        assert "+11.0" in accel_row(screen)
+        assert "dwell complete" not in log_text(screen).lower()  # the log waits with them
+        # the end of the period (a timer): banner, readings and log together
+        await until(pilot, lambda: banner(screen).startswith("Table turning to +30.0 °/s"))
+        assert "+22.0" in accel_row(screen)
+
+
+@run_async
+async def test_a_banner_that_asks_or_reports_a_fault_and_a_fault_event_are_shown_at_once():
+    clock = Clock()
+    app = ScreenApp(clock)
+    async with app.run_test(size=(80, 24)) as pilot:
+        screen = app.screen_under_test
+        await until(pilot, lambda: screen.is_mounted)
+        screen.set_telemetry(reading(1.0, 11.0))
+        assert banner(screen) == "Dwelling: keep the unit still"
+
+        # within the period, the run not waiting for the operator (a live unit is checked again
+        # once still): a wrong position, which the banner reports (its style "bad"), at once
+        clock.now += DISPLAY_S / 4
+        screen.set_telemetry(reading(1.1, 22.0, phase=WRONG))
+        assert banner(screen).startswith("WRONG POSITION")
+        assert "+22.0" in accel_row(screen)
+
+        # the same instant: the position corrected, the banner no longer asks: at once too (the
+        # screen must not ask for what is done)
+        screen.set_telemetry(reading(1.2, 33.0))
+        assert banner(screen) == "Dwelling: keep the unit still"
+        # within the period: a bump's motion, whose banner ("hands off") is the same as a
+        # placement's, is a fault: shown at once, with the restarted dwell and its log line
+        clock.now += DISPLAY_S / 4
+        screen.add_items([ev.MotionDetected(1.3, "dwell", True)], reading(1.3, 44.0, phase=SETTLING))
+        assert banner(screen) == "Hands off: waiting for the unit to be still"
+        assert "↺1" in str(screen.query_one("#live-dwell").render())
+        assert "motion" in log_text(screen).lower()
+
+        # an error the operator must act on (a table that did not turn) comes as a note: at once
+        clock.now += DISPLAY_S / 4
+        screen.add_items([Note(1.4, "ERROR: table: no reply; skip this step (s) or abort (a)")],
+                         reading(1.4, 55.0, phase=SETTLING))
+        assert "ERROR: table: no reply" in log_text(screen)
+        assert "+55.0" in accel_row(screen)

@@ -24,6 +24,15 @@ TODO, ACTIVE, DONE, SKIPPED, WRONG = "todo", "active", "done", "skipped", "wrong
 # Each tile's state as a symbol too, for a monochrome or colour-blind operator.
 SYMBOLS = {DONE: "✓", SKIPPED: "–", ACTIVE: "▶", WRONG: "▶", TODO: "·"}
 PLACING_GUESS_S = 30.0  # an operator's placement, until the run has timed one
+# The banner's styles (its CSS classes) that only say how the run goes: "wait" (hands off,
+# checking, carrying) and "run" (dwelling, the table's rate steps). The procedure screen may show
+# a change among them a moment late (its display rate); the others at once: "act" asks the
+# operator for something, "bad" and "warn" report a fault, "ok" the end.
+PROGRESS_STYLES = frozenset({"wait", "run"})
+# Events that report a fault, shown at once whatever the banner then says (a bump's motion leaves
+# the same "hands off" banner as a placement does); and a source's "ERROR: ..." note (a table
+# that failed to turn: the operator skips or aborts).
+FAULT_EVENTS = (ev.MotionDetected, ev.WrongOrientation, ev.Aborted)
 
 
 def clock_text(seconds: float) -> str:
@@ -123,6 +132,7 @@ class RunView:
     # hands' time when the simulator places the unit by itself.
     placing_prior_s: float = PLACING_GUESS_S
     time_to_go: TimeToGo | None = None
+    faults: int = 0  # fault events and error notes so far (FAULT_EVENTS): each is shown at once
     _telemetry_t: float | None = None
 
     def __post_init__(self) -> None:
@@ -163,6 +173,8 @@ class RunView:
             self.tiles = [DONE if step in item.done else SKIPPED if step in item.skipped else TODO
                           for step in range(self.total_steps)]
             self.time_to_go.resumed(item.done, item.skipped)
+        if isinstance(item, FAULT_EVENTS) or (isinstance(item, Note) and item.text.startswith("ERROR")):
+            self.faults += 1
         if isinstance(item, Note):
             return f"[{item.t:7.1f} s] {item.text}"
         self._fold(item)

@@ -21,7 +21,7 @@ from fieldcal.tui.widgets.shown import show
 from fieldcal.tui.readings import Telemetry
 from fieldcal.tui.widgets.tiles import PositionTiles
 from fieldcal.tui.widgets.toosmall import TooSmall
-from fieldcal.tui.view import RunView
+from fieldcal.tui.view import PROGRESS_STYLES, RunView
 
 OPERATOR_ACTIONS = ("ready", "redo", "skip", "abort", "unskip")
 SIM_ACTIONS = ("bump", "misplace")
@@ -29,10 +29,11 @@ QUIT_KEYS = ("ctrl+q", "ctrl+c")  # the app's: they ask as q does, and answer it
 BIG = (110, 34)  # columns and rows from which the cube and the live bars grow
 # Pressed again: confirmed. Redo is on o, away from s and a (a slip between neighbours asks anyway).
 CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u", "redo": "o"}
-# Readings, bars and the log are repainted at most this often (wall clock): a person reads no
-# faster, and each repaint costs a re-layout and re-render of the screen. The operator's turn, a
-# new step or instruction (the banner), the end of the run and the keys' own effects are shown
-# at once.
+# Readings, bars, the log and a banner that only says how the run goes (settling, dwelling, the
+# table: view.PROGRESS_STYLES) are repainted at most this often (wall clock): a person reads no
+# faster, and each repaint costs a re-layout and re-render of the screen. A new step, the
+# operator's turn, a banner that asks for something or reports a fault, a fault event (motion, a
+# wrong position, an error), the end of the run and the keys' own effects are shown at once.
 DISPLAY_S = 0.25
 
 
@@ -57,7 +58,7 @@ class ProcedureScreen(Screen):
         super().__init__()
         self.clock = clock
         self._painted_at = -float("inf")  # the clock at the last repaint
-        self._painted_turn: tuple | None = None  # and the operator's turn it showed (_shown_turn)
+        self._painted_turn: tuple | None = None  # and the operator's turn it showed (_turn)
         self._repaint_timer: Timer | None = None  # the repaint put off to the end of DISPLAY_S
         self.view = view
         self.title_text = title
@@ -132,20 +133,26 @@ class ProcedureScreen(Screen):
 
     # --- the display rate -------------------------------------------------------------------
 
-    def _shown_turn(self) -> tuple:
-        """What the operator acts on: the step, whether the run waits for them, and the banner."""
-        tel = self.view.telemetry
-        return (self.view.step, tel is not None and tel.waiting, self.view.banner(sim=self.mode == "sim"))
+    def _banner_now(self) -> tuple[str, str]:
+        return self.view.banner(sim=self.mode == "sim")
+
+    def _turn(self, banner: tuple[str, str]) -> tuple:
+        """What the operator acts on or must know of at once: the step, whether the run waits for
+        them, the banner when it asks for something or reports a fault (None while it only says
+        how the run goes), and the faults so far."""
+        view, tel = self.view, self.view.telemetry
+        asks = None if banner[1] in PROGRESS_STYLES else banner
+        return view.step, tel is not None and tel.waiting, asks, view.faults
 
     def _repaint(self) -> None:
-        """Show what the view holds now if the operator's turn or instruction changed (they act
-        on it, and tests wait for it) or DISPLAY_S has passed since the last repaint; else at the
-        end of that period (a timer: the last readings are always shown). Only the repaint
-        waits: the view, the app's events and telemetry take every batch as it comes."""
+        """Show what the view holds now if the operator's turn changed (_turn: they act on it,
+        and tests wait for it) or DISPLAY_S has passed since the last repaint; else at the end
+        of that period (a timer: the last readings and banner are always shown). Only the
+        repaint waits: the view, the app's events and telemetry take every batch as it comes."""
         if not self._showing():
             return
         wait = self._painted_at + DISPLAY_S - self.clock()
-        if wait <= 0 or self._shown_turn() != self._painted_turn:
+        if wait <= 0 or self._turn(self._banner_now()) != self._painted_turn:
             self._show_items()
         elif self._repaint_timer is None:
             self._repaint_timer = self.set_timer(wait, self._repaint_due, name="repaint")
@@ -169,12 +176,13 @@ class ProcedureScreen(Screen):
     def refresh_view(self) -> None:
         """Show the view: each widget only when its text changes, and a re-layout of the screen
         only for those whose height follows their text (the step, the banner, the cube)."""
-        self._painted_at, self._painted_turn = self.clock(), self._shown_turn()
+        banner = self._banner_now()
+        self._painted_at, self._painted_turn = self.clock(), self._turn(banner)
         view = self.view
         self._tiles.update(view.tiles)
         show(self._job, view.job_text(), fixed_size=True)  # one line (#job), changing every reading
         show(self._step, view.step_text())
-        text, style = self._painted_turn[2]  # view.banner()
+        text, style = banner
         show(self._banner, text)
         self._banner.set_classes(style)
         big = self.has_class("big")
