@@ -29,12 +29,16 @@ class Clock:
 class ScreenApp(App[None]):
     """Only the procedure screen, fed by the test as the app feeds it from a run."""
 
-    def __init__(self, clock: Clock) -> None:
+    def __init__(self, clock: Clock, mode: str = "replay") -> None:
         super().__init__()
-        self.screen_under_test = ProcedureScreen(RunView(load_procedure("field-18")), "title", "replay", clock=clock)
+        self.screen_under_test = ProcedureScreen(RunView(load_procedure("field-18")), "title", mode, clock=clock)
+        self.sent: list[str] = []  # the operator's commands, which the app sends to the run
 
     def on_mount(self) -> None:
         self.push_screen(self.screen_under_test)
+
+    def send_command(self, name: str) -> None:
+        self.sent.append(name)
 
 
 def reading(t: float, x_mg: float, waiting: bool = False, phase: str | None = None) -> Telemetry:
@@ -154,3 +158,25 @@ async def test_a_banner_that_asks_or_reports_a_fault_and_a_fault_event_are_shown
                          reading(1.4, 55.0, phase=SETTLING))
         assert "ERROR: table: no reply" in log_text(screen)
         assert "+55.0" in accel_row(screen)
+
+
+@run_async
+async def test_the_end_of_the_operators_turn_that_a_key_has_shown_waits_for_the_display_period():
+    """r in a simulated run says the carry at once; the run going on after it (no longer
+    waiting, no question asked) is nothing new for the operator: it waits like the readings."""
+    clock = Clock()
+    app = ScreenApp(clock, mode="sim")
+    async with app.run_test(size=(80, 24)) as pilot:
+        screen = app.screen_under_test
+        await until(pilot, lambda: screen.is_mounted)
+        screen.set_telemetry(reading(1.0, 11.0, waiting=True))  # the operator's turn: at once
+        assert banner(screen).startswith("Position 1: ")
+        await pilot.press("r")
+        assert app.sent == ["ready"]
+        assert banner(screen).startswith("The simulator is carrying the unit into position 1")
+
+        screen.set_telemetry(reading(1.1, 22.0, phase=PLACE))  # the run goes on, the same instant
+        assert not screen.view.telemetry.waiting
+        assert "+11.0" in accel_row(screen)
+        await until(pilot, lambda: "+22.0" in accel_row(screen))
+        assert banner(screen).startswith("The simulator is carrying the unit into position 1")

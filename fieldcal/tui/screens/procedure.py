@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import time
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 from textual import events
 from textual.app import ComposeResult
@@ -37,6 +37,24 @@ CONFIRM_KEYS = {"skip": "s", "abort": "a", "quit": "q", "unskip": "u", "redo": "
 DISPLAY_S = 0.25
 
 
+class Turn(NamedTuple):
+    """What the operator acts on or must know of at once (the screen shows a change of it at once)."""
+
+    step: int
+    waiting: bool  # the run waits for the operator
+    asks: tuple[str, str] | None  # the banner when it asks for something or reports a fault
+    faults: int  # fault events so far (view.faults)
+
+    def news_since(self, painted: Turn | None) -> bool:
+        """Whether this turn differs from the one ``painted`` in what must be shown at once. The
+        end of the operator's turn alone is not: the key that ended it showed its effect (the
+        simulator's carry), and a banner that asked changes with it (``asks``)."""
+        if painted is None:
+            return True
+        return (self.step != painted.step or (self.waiting and not painted.waiting)
+                or self.asks != painted.asks or self.faults != painted.faults)
+
+
 class ProcedureScreen(Screen):
     CSS_PATH = "procedure.tcss"
     BINDINGS: ClassVar[list[BindingType]] = [
@@ -58,7 +76,7 @@ class ProcedureScreen(Screen):
         super().__init__()
         self.clock = clock
         self._painted_at = -float("inf")  # the clock at the last repaint
-        self._painted_turn: tuple | None = None  # and the operator's turn it showed (_turn)
+        self._painted_turn: Turn | None = None  # and the operator's turn it showed
         self._repaint_timer: Timer | None = None  # the repaint put off to the end of DISPLAY_S
         self.view = view
         self.title_text = title
@@ -136,23 +154,20 @@ class ProcedureScreen(Screen):
     def _banner_now(self) -> tuple[str, str]:
         return self.view.banner(sim=self.mode == "sim")
 
-    def _turn(self, banner: tuple[str, str]) -> tuple:
-        """What the operator acts on or must know of at once: the step, whether the run waits for
-        them, the banner when it asks for something or reports a fault (None while it only says
-        how the run goes), and the faults so far."""
+    def _turn(self, banner: tuple[str, str]) -> Turn:
         view, tel = self.view, self.view.telemetry
-        asks = None if banner[1] in PROGRESS_STYLES else banner
-        return view.step, tel is not None and tel.waiting, asks, view.faults
+        return Turn(view.step, tel is not None and tel.waiting,
+                    None if banner[1] in PROGRESS_STYLES else banner, view.faults)
 
     def _repaint(self) -> None:
-        """Show what the view holds now if the operator's turn changed (_turn: they act on it,
+        """Show what the view holds now if the operator's turn changed (Turn: they act on it,
         and tests wait for it) or DISPLAY_S has passed since the last repaint; else at the end
         of that period (a timer: the last readings and banner are always shown). Only the
         repaint waits: the view, the app's events and telemetry take every batch as it comes."""
         if not self._showing():
             return
         wait = self._painted_at + DISPLAY_S - self.clock()
-        if wait <= 0 or self._turn(self._banner_now()) != self._painted_turn:
+        if wait <= 0 or self._turn(self._banner_now()).news_since(self._painted_turn):
             self._show_items()
         elif self._repaint_timer is None:
             self._repaint_timer = self.set_timer(wait, self._repaint_due, name="repaint")

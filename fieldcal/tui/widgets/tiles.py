@@ -55,8 +55,8 @@ class PositionTiles(Vertical):
         for i, state in enumerate(states):
             if state != self._states[i]:
                 tile = self.query_one(f"#tile-{i}", Static)
-                tile.remove_class(*STATES)
-                tile.add_class(state)
+                # One change of classes: each restyles the tile (Textual applies the CSS at once).
+                tile.set_classes(tile.classes - set(STATES) | {state})
                 tile.update(self.label(i, state))
         self._states = list(states)
 
