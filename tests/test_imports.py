@@ -184,3 +184,47 @@ def test_the_binary_protocols_classes_are_still_names_of_drivers_protocols():
                                 "VectorNavParser, VectorNavEncoder, PARSERS\n"
                                 "assert PARSERS['xsens'] is XsensMtData2Parser")
     assert "drivers.protocols.xsens" in modules and "drivers.protocols.vectornav" in modules
+
+
+def test_live_runs_and_recordings_load_scipy_optimize_only_for_a_search():
+    """The norm method imports scipy.optimize when its search (Powell, least_squares) runs, not
+    with the solver modules: importing the live engine's and the recording path's modules does
+    not load it, nor scipy.spatial (the rotation solver's weighting imports it when it weighs)."""
+    modules, _ = _modules_after("import fieldcal.procedure.engine, fieldcal.solvers.solve, "
+                                "fieldcal.recording.calibrate, fieldcal.run.livedevice, fieldcal.tui.app")
+    assert "fieldcal.solvers.norm" in modules and "fieldcal.solvers.rotation" in modules  # not vacuous
+    assert not [m for m in modules if m.startswith(("scipy.optimize", "scipy.spatial"))]
+
+
+def test_a_recording_solved_without_a_search_does_not_import_scipy_optimize(tmp_path):
+    """Rests only (the largest well-determined sub-model: the gyro's bias) are calibrated without
+    scipy.optimize's import (~0.2 s of CPU); a hand-held recording with poses enough, whose
+    accelerometer Powell's method solves, does import it (the case is not vacuous). The
+    recordings are simulated here and calibrated in a fresh interpreter."""
+    import numpy as np
+
+    from drivers.sim.handheld import simulate_handheld
+
+    sims = {"rests": simulate_handheld(4, n_poses=1, directions=np.array([[0.0, 0.0, 1.0]]), raw_counts=False,
+                                       initial_rest_s=60.0),
+            "poses": simulate_handheld(3)}
+    for name, sim in sims.items():
+        np.savez(tmp_path / f"{name}.npz", t=sim.t, **sim.triads)
+        (tmp_path / f"{name}.json").write_text(json.dumps([sim.kinds, sim.units, sim.latitude_deg, sim.gravity]))
+    body = (f"import numpy as np\n"
+            f"from fieldcal.earth import Station\n"
+            f"from fieldcal.recording import Recording\n"
+            f"from fieldcal.recording.calibrate import calibrate_recording\n"
+            f"from fieldcal.recording.outcome import RecordingSettings\n"
+            f"for name in ('rests', 'poses'):\n"
+            f"    arrays = np.load({str(tmp_path)!r} + f'/{{name}}.npz')\n"
+            f"    kinds, units, latitude, gravity = json.load(open({str(tmp_path)!r} + f'/{{name}}.json'))\n"
+            f"    triads = {{k: arrays[k] for k in kinds}}\n"
+            f"    cal = calibrate_recording(Recording(arrays['t'], triads, kinds, units),\n"
+            f"                              Station(latitude, 0.0, gravity), RecordingSettings())\n"
+            f"    print(name, cal.protocol.split(':')[0], 'scipy.optimize' in sys.modules)\n")
+    _, proc = _modules_after(body)
+    said = dict((line.split(" ", 1)[0], line) for line in proc.stdout.splitlines()[:-1])
+    assert said["rests"].startswith("rests the largest well-determined sub-model") and \
+        said["rests"].endswith(" False"), said
+    assert said["poses"].startswith("poses hand-held poses") and said["poses"].endswith(" True"), said

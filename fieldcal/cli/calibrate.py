@@ -162,6 +162,10 @@ def cmd_calibrate(args) -> int:
         # (thousands of calls); at the depth of fieldcal's own import chain they crossed one some
         # 900 times (an mmap, a munmap and a page fault each); from here, some 40 (strace).
         import scipy.linalg  # noqa: F401
+        # The norm method's search imports scipy.optimize when it runs (solvers.norm), which every
+        # recording with poses enough for the full model does; imported here, its objects are
+        # frozen with the rest (imported at the search, later collections scan them: ~8 ms).
+        import scipy.optimize  # noqa: F401
         from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
         from fieldcal.recording.detect import DetectorSettings
         from fieldcal.recording.results import MISFIT_CAUSES, misfits, noise_lines, parameter_file, summary_lines
