@@ -8,11 +8,11 @@ Speed: each tool is its own process, timed from process start to parameter file;
 all of them alike), after one run of each that caches the bytecode (as an installed package has
 it); medians of ``--repeats`` rounds, the peak RSS the largest. Beside them: imu_tk (C++, Ceres,
 built by ``benchmarks/peers/build_imu_tk.sh``, skipped with a line when not built), the floor
-any Python calibration with Powell pays (``import numpy, scipy.optimize``), and ``import
-imucal`` (imucal cannot read this recording); with ``--baseline REV``, fieldcal as of that git
-revision beside this tree's, both launched alike (the change's own effect). Printed: each one's
-CPU, wall and peak RSS, its ratio to imu_tk's, the date and the load average; then both tools'
-results side by side.
+any Python calibration with Powell pays (``FLOOR``: numpy and scipy.optimize, imported as
+`fieldcal calibrate` imports them), and ``import imucal`` (imucal cannot read this recording);
+with ``--baseline REV``, fieldcal as of that git revision beside this tree's, both launched
+alike (the change's own effect). Printed: each one's CPU, wall and peak RSS, its ratio to
+imu_tk's, the date and the load average; then both tools' results side by side.
 
 Accuracy (``--runs N``): N seeded simulated recordings (the default 20 poses); per parameter the
 RMS of (solved - true) / reported σ, and the share of |error| beyond 3σ (0.27 % for a Gaussian).
@@ -81,6 +81,18 @@ def joined_xsens(directory: Path, copies: int) -> list[Path]:
 
 
 IMU_TK_OUT = Path(__file__).parent / "out" / "imu_tk"  # benchmarks/peers/build_imu_tk.sh builds here
+# What every `fieldcal calibrate` imports before its own modules, imported as it imports them:
+# numpy and scipy.optimize (the accelerometer's Powell search; scipy.optimize's __init__ loads
+# every solver, scipy.linalg, scipy.special and scipy.spatial with it), after fieldcal's
+# one-BLAS-thread default (fieldcal/__init__.py), with the cyclic collector paused and what they
+# made frozen (cli.startup.imports_uncollected), so that the collection at exit skips it too.
+# A bare `python -c 'import numpy, scipy.optimize'` costs 1.4× that (0.572 against 0.398 s CPU,
+# medians of 11 alternating runs, 2026-11-28 00:52 UTC, load 16): OpenBLAS's threads, the
+# collections during the import and ~0.1 s of collection at exit that calibrate does not pay;
+# as the floor it understated calibrate's own CPU (CPU − floor) by ~0.17 s.
+FLOOR_IMPORTS = ("from fieldcal.cli.startup import imports_uncollected\n"
+                 "with imports_uncollected():\n    import numpy, scipy.optimize")
+FLOOR = "python -c 'import numpy, scipy.optimize' as calibrate imports them"
 
 
 def commands(files: list[Path], work: Path) -> dict[str, list[str]]:
@@ -94,7 +106,7 @@ def commands(files: list[Path], work: Path) -> dict[str, list[str]]:
         "--registry", str(work / "registry.sqlite")]}
     if (IMU_TK_OUT / "imu_tk_calib").exists():
         out["imu_tk (C++, Ceres)"] = [str(IMU_TK_OUT / "imu_tk_calib"), *map(str, files), str(work / "imu_tk")]
-    out["python -c 'import numpy, scipy.optimize'"] = [sys.executable, "-c", "import numpy, scipy.optimize"]
+    out[FLOOR] = [sys.executable, "-c", FLOOR_IMPORTS]
     if importlib.util.find_spec("imucal") is not None:  # benchmark only, never a product dependency
         out["python -c 'import imucal' (cannot read this recording)"] = [sys.executable, "-c", "import imucal"]
     return out
@@ -164,7 +176,6 @@ def speed(repeats: int, baseline: str | None = None) -> None:
 
 
 JOINS = (1, 4, 16)
-FLOOR = "python -c 'import numpy, scipy.optimize'"
 
 
 def scaling(repeats: int) -> None:
@@ -173,7 +184,7 @@ def scaling(repeats: int) -> None:
     against the recording's (1.00× is linear)."""
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        argv: dict[str, list[str]] = {FLOOR: [sys.executable, "-c", "import numpy, scipy.optimize"]}
+        argv: dict[str, list[str]] = {FLOOR: [sys.executable, "-c", FLOOR_IMPORTS]}
         for copies in JOINS:
             files = joined_xsens(work, copies)
             argv[f"fieldcal calibrate {copies}×"] = [

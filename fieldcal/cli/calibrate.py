@@ -156,12 +156,16 @@ def _recording(args, serial: str | None):
 def cmd_calibrate(args) -> int:
     from fieldcal.cli.startup import imports_uncollected
 
-    with imports_uncollected():  # numpy and scipy.optimize: see imports_uncollected
+    with imports_uncollected():  # numpy, scipy.linalg and fieldcal's modules: see imports_uncollected
         # scipy first, from here: CPython 3.11 grows the frame stack in 16 KiB chunks, mapped and
         # unmapped as calls cross a chunk's end. scipy's import runs numpy.f2py's module body
         # (thousands of calls); at the depth of fieldcal's own import chain they crossed one some
         # 900 times (an mmap, a munmap and a page fault each); from here, some 40 (strace).
         import scipy.linalg  # noqa: F401
+        # Not scipy.optimize: the norm method's search imports it when it runs (solvers.norm).
+        # A Ferraris session or a sub-model is solved without it (~0.13 s CPU of 0.63, 20 MiB); a
+        # full recording pays its import at the search, where the later collections scan its
+        # objects, not frozen here (~1 % of a 1x run).
         from fieldcal.recording.calibrate import RecordingSettings, UnknownPlace, calibrate_recording
         from fieldcal.recording.detect import DetectorSettings
         from fieldcal.recording.results import MISFIT_CAUSES, misfits, noise_lines, parameter_file, summary_lines

@@ -11,7 +11,7 @@ _frozen = False  # imports_uncollected froze objects that thaw has not yet given
 def imports_uncollected():
     """Run the imports inside with the cyclic collector paused, then freeze what they made.
 
-    numpy, scipy.optimize and fieldcal's modules make some 47,000 long-lived tracked objects
+    numpy, scipy and fieldcal's modules make some 47,000 long-lived tracked objects
     (functions, classes, dicts); the collections their allocations trigger scan them again and
     again: about 50 ms of a `fieldcal calibrate` run (generation 2 alone 25 ms), for no garbage.
     Frozen (``gc.freeze``: every object tracked at that moment), later collections skip them.

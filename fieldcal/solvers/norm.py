@@ -8,9 +8,9 @@ conjugate and raw-count devices (b ≈ 32768, k ≈ 415 count per m/s²) need no
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
-from scipy import optimize
 from scipy.linalg import blas, lapack
 from scipy.special import chdtrc  # χ² survival function; scipy.stats would cost ~0.4 s to import
 
@@ -202,6 +202,7 @@ def solve_norm(problem, covariance=None, method: str = "powell") -> Calibration:
                             per_sigma=whitener is not None, dof=n_resid - N_PARAMS)
         iterations, evaluations = int(res.nit), int(res.nfev)
     else:
+        from scipy import optimize  # only the searches that use it pay for its import (see _powell)
         res = optimize.least_squares(lambda z: whitened(from_z(z)), np.zeros(N_PARAMS), method="lm",
                                      xtol=1e-12, ftol=1e-12)
         iterations, evaluations = int(res.nfev), int(res.nfev)
@@ -255,18 +256,23 @@ def _powell(residuals_of_z, z_start: np.ndarray, per_sigma: bool, dof: int):
     options = {"direc": sigma_z * np.eye(N_PARAMS), "xtol": _LINE_TOL_SIGMA, "maxfev": 5000,
                "ftol": _STOP_DECREASE / max(f_start / scale, 1.0)}
     box = np.column_stack([z_start - _BOX_SIGMA * sigma_z, z_start + _BOX_SIGMA * sigma_z])
+    # scipy.optimize is imported here, not with the module: ~0.2 s of CPU beyond scipy.linalg and
+    # scipy.special, which what solves without a search (a sub-model, rests only; the live engine
+    # until it solves) does not pay.
+    from scipy import optimize
     res = optimize.minimize(chi2, z_start, method="Powell", bounds=box, options=options)
     if res.success and np.max(np.abs(res.x - z_start)) > 0.5 * _BOX_SIGMA * sigma_z:
         res = optimize.minimize(chi2, res.x, method="Powell", options=options)
     return res
 
 
-def _gauss_newton(residuals_of_z, z: np.ndarray, per_sigma: bool, dof: int) -> optimize.OptimizeResult:
+def _gauss_newton(residuals_of_z, z: np.ndarray, per_sigma: bool, dof: int) -> SimpleNamespace:
     """Gauss-Newton on ‖r(z)‖² from z (residuals_of_z takes a stack of points), the Jacobian by
     central differences in one evaluation of the stack. Fails (success False) when a step does
     not lower χ² or the steps do not shrink below _SCREEN_STEP_SIGMA (solve_norm then raises
     CalibrationError, and choose_poses solves that set by the method asked for instead). The unit
-    of σ in z as in _powell."""
+    of σ in z as in _powell. Its result has the fields solve_norm reads of scipy's OptimizeResult
+    (x, success, nit, nfev, message), without importing scipy.optimize for a search it does not use."""
     r = residuals_of_z(z)
     f = float(r @ r)
     sigma_z = 1.0 if per_sigma or dof <= 0 or f <= 0 else math.sqrt(f / dof)
@@ -279,14 +285,14 @@ def _gauss_newton(residuals_of_z, z: np.ndarray, per_sigma: bool, dof: int) -> o
         f_new = float(r_new @ r_new)
         evaluations += 2 * len(z) + 1
         if np.max(np.abs(step)) < _SCREEN_STEP_SIGMA * sigma_z:  # χ² then changes by rounding only
-            return optimize.OptimizeResult(x=z + step if f_new <= f else z, success=True, nit=iteration,
-                                           nfev=evaluations, message="the Gauss-Newton step is below 1e-4 σ")
+            return SimpleNamespace(x=z + step if f_new <= f else z, success=True, nit=iteration,
+                                   nfev=evaluations, message="the Gauss-Newton step is below 1e-4 σ")
         if not f_new <= f * (1 + 1e-9):
-            return optimize.OptimizeResult(x=z, success=False, nit=iteration, nfev=evaluations,
-                                           message="a Gauss-Newton step did not lower χ²")
+            return SimpleNamespace(x=z, success=False, nit=iteration, nfev=evaluations,
+                                   message="a Gauss-Newton step did not lower χ²")
         z, r, f = z + step, r_new, f_new
-    return optimize.OptimizeResult(x=z, success=False, nit=_SCREEN_ITERATIONS, nfev=evaluations,
-                                   message=f"no convergence in {_SCREEN_ITERATIONS} Gauss-Newton steps")
+    return SimpleNamespace(x=z, success=False, nit=_SCREEN_ITERATIONS, nfev=evaluations,
+                           message=f"no convergence in {_SCREEN_ITERATIONS} Gauss-Newton steps")
 
 
 def _spread_hint(problem) -> str:

@@ -51,7 +51,6 @@ from typing import Callable
 import numpy as np
 from scipy.special import chdtrc  # χ² survival function; scipy.stats would cost ~0.4 s to import
 from scipy.linalg import lapack
-from scipy.spatial.transform import Rotation
 
 from fieldcal.calibration import ROTATION_METHOD, Calibration, SolverDiagnostics
 from fieldcal.model import ANGULAR_RATE, FULL_PARAM_NAMES, k_from_terms, terms_from_k
@@ -777,6 +776,8 @@ def _whitening(model: _Residuals, J_start, q_start, noise: RotationNoise, n_side
     pose directions' covariance comes by its parts (or not at all), else dense."""
     if not noise.given:
         return None
+    from scipy.spatial.transform import Rotation  # only a weighted solve pays for scipy.spatial's import
+
     C = Rotation.from_quat(q_start).as_matrix()
     G = _bias_map(model, J_start, noise) if noise.bias_sigma is not None and not model.start.estimate_bias else None
     parts = getattr(noise.up_covariance, "chained_parts", None)
