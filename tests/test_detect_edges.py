@@ -74,6 +74,24 @@ def test_distinct_poses_is_its_definition(seed):
     assert 0 < got.sum() < len(up)
 
 
+def test_distinct_poses_of_a_long_repeated_recording_are_its_definition():
+    """A few poses held again and again (a long recording, or one joined to itself): the loop
+    goes from one distinct pose to the next, and the far repeats, the last pose and a recording
+    whose every pose is distinct come out as the definition says."""
+    rng = np.random.default_rng(8)
+    centres = rng.normal(size=(12, 3))
+    centres /= np.linalg.norm(centres, axis=1)[:, None]
+    up = np.tile(centres, (30, 1)) + rng.normal(0.0, 0.02, (360, 3))
+    up = np.vstack([up, -centres[:1]])  # a last pose unlike any before it
+    up /= np.linalg.norm(up, axis=1)[:, None]
+    got = distinct_poses(up, 10.0)
+    assert got.tolist() == distinct_by_definition(up, 10.0)
+    assert got[-1] and got.sum() <= 13
+    spread = up[got]
+    assert distinct_poses(spread, 10.0).all()  # every pose distinct: each one visited
+    assert distinct_poses(up[:1], 10.0).tolist() == [True]
+
+
 def test_prefix_means_are_the_old_sums_bit_for_bit_and_the_means_by_hand():
     from fieldcal.recording.detect import PrefixMeans
 

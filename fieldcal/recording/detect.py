@@ -414,9 +414,13 @@ def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     cos_min = math.cos(math.radians(min_separation_deg))
     close = up @ up.T > cos_min  # every pair at once; the choice below is in order
     distinct = np.ones(len(up), dtype=bool)
-    for i in range(len(up)):  # a loop over poses, not samples: each distinct one rules out the later close ones
-        if distinct[i]:
-            distinct[i + 1:] &= ~close[i + 1:, i]  # row k, column i: as the order written
+    i = 0
+    # A loop over the distinct poses alone (a long recording repeats a few dozen poses hundreds of
+    # times): each rules out the later close ones, and the next one left is distinct.
+    while i < len(up):
+        distinct[i + 1:] &= ~close[i + 1:, i]  # row k, column i: as the order written
+        later = distinct[i + 1:]
+        i = i + 1 + int(np.argmax(later)) if later.any() else len(up)
     return distinct
 
 
