@@ -338,6 +338,28 @@ class _EdgeSignals:
         return np.hstack([m(intervals) for m in self.means])
 
 
+def _level_edges(stat: np.ndarray, levels: np.ndarray, still_head: int) -> tuple[np.ndarray, np.ndarray]:
+    """(owner, edges): the runs of stat < level for every level, each run's start then stop
+    (sample indices, stop exclusive), level by level in the order given, each level's in time
+    order; the first ``still_head`` samples below every level. Each sample's rank among the
+    sorted levels (how many are at or below it) is read once; a level's runs start or stop only
+    where the rank moves across it, so the levels are looked at there alone, not at every
+    sample (ten thresholds: ten n-long comparisons and their edges)."""
+    n = len(stat)
+    order = np.argsort(levels, kind="stable")
+    rank = np.full(n + 2, len(levels), dtype=np.intp)  # a sample beyond either end: below none
+    rank[1:-1] = np.searchsorted(levels[order], stat, side="right")  # NaN: at the end, below none
+    rank[1:min(still_head, n) + 1] = 0
+    at = np.flatnonzero(rank[1:] != rank[:-1])  # between samples at - 1 and at
+    low, high = np.minimum(rank[at], rank[at + 1]), np.maximum(rank[at], rank[at + 1])
+    crossed = high - low  # the sorted levels low..high - 1 start or stop a run there
+    first = np.cumsum(crossed) - crossed
+    level = np.repeat(low - first, crossed) + np.arange(int(crossed.sum()))
+    owner, edges = order[level], np.repeat(at, crossed)
+    by_level = np.lexsort((edges, owner))
+    return owner[by_level], edges[by_level]
+
+
 def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, multiples,
                       settings: DetectorSettings) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per threshold multiple: the static intervals, and the durations (s) of the still stretches
@@ -348,11 +370,9 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
     n = len(columns[0])
     half = _half_window(rate_hz, settings)
     rest_n = noise.rest_samples
-    levels = np.asarray(multiples, dtype=float)[:, None] * noise.base
-    padded = np.zeros((len(levels), n + 2), dtype=bool)
-    np.less(signals.stat[None, :], levels, out=padded[:, 1:-1])  # in place: no second (levels, n) array
-    padded[:, 1:max(rest_n - half, 0) + 1] = True  # noise_level has checked the initial rest: always a pose
-    owner, edges = np.nonzero(padded[:, 1:] != padded[:, :-1])  # row by row, each run's start then stop
+    levels = np.asarray(multiples, dtype=float) * noise.base
+    # noise_level has checked the initial rest: always a pose
+    owner, edges = _level_edges(signals.stat, levels, max(rest_n - half, 0))
     runs, owner = edges.reshape(-1, 2), owner[::2]
     min_n = _samples(settings.min_static_s, rate_hz)
     long_enough = ((runs[:, 0] == 0) & (rest_n > 0)) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)
