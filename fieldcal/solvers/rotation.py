@@ -63,6 +63,7 @@ METHODS = ("lsq", "powell")
 _MOTION_MARGIN = 2  # motions beyond ceil(n_params / 2): some scatter to judge the fit by
 _GEOMETRY_RATIO = 1e-3  # smallest / largest singular value of the Jacobian in natural units
 _DEGENERATE_FRACTION = 0.01  # σ above this fraction of a parameter's natural unit: undetermined
+_GEOMETRY_MARGIN = 10.0  # a coarse Jacobian this near _GEOMETRY_RATIO: the geometry told by the exact one
 
 
 def _cross(a, b):
@@ -717,6 +718,11 @@ class _Residuals:
         bias = theta[:3] if self.estimate_bias else self.start.b0
         return bias, np.linalg.inv(k_from_terms(theta[nb:nb + 3], theta[nb + 3:]))
 
+    def quaternions(self, theta):
+        """(m, 4) the motions' rotations at theta (the integration ``rotations`` makes, kept)."""
+        b, K_inv = self.unpack(theta)
+        return self.steps.quaternions(K_inv, b - self.steps.offset)
+
     def rotations(self, theta, bias=None):
         """2 per motion, rad: Cᵀ·up_start − up_end in the end pose's tangent basis (bias: instead
         of theta's)."""
@@ -753,12 +759,16 @@ class _Residuals:
         return np.concatenate(parts) if parts else np.zeros(0)
 
 
-def _check_geometry(model: _Residuals, J_start, natural, name) -> np.ndarray:
+def _check_geometry(model: _Residuals, J_start, natural, name, exact: Callable | None = None) -> np.ndarray:
     """The rotation residuals' Jacobian at the start (natural units: it scales the search) from
-    ``J_start`` (model.jacobian's at theta0); CalibrationError when the motions leave some
-    parameter (nearly) without effect."""
+    ``J_start`` (model.jacobian's at theta0, maybe the coarse one's); CalibrationError when the
+    motions leave some parameter (nearly) without effect. ``exact``: the exact Jacobian at theta0,
+    asked for when the coarse one's geometry is near the bound or past it, so that the verdict
+    and the parameters it names are the exact Jacobian's."""
     J_rot = J_start[:, 3 - model.nb:] * natural
     sv, V = np.linalg.svd(J_rot, full_matrices=False)[1:]
+    if exact is not None and sv[-1] < _GEOMETRY_MARGIN * _GEOMETRY_RATIO * sv[0]:
+        return _check_geometry(model, exact(), natural, name)
     weak = sv < _GEOMETRY_RATIO * sv[0]
     if np.any(weak):
         loose = [model.names[i] for i in np.unique(np.argmax(np.abs(V[weak]), axis=1))]
@@ -987,8 +997,12 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
     natural = np.r_[np.abs(k0)[:nb] / model.steps.duration.mean(), np.abs(k0), np.ones(6)]
     fd_steps = 1e-7 * natural
-    r_start, J_start, q_start = model.jacobian(theta0)
-    J_rot = _check_geometry(model, J_start, natural, name)
+    # The start's Jacobian only weighs the residuals (the held bias's share, G) and points the
+    # search: the coarse integration's, as the search's own (a sixth of the exact one's work);
+    # its residuals and rotations, which the search and the whitening start from, exact.
+    J_start = model.jacobian(theta0, coarse=_SEARCH_GROUP > 1)[1]
+    r_start, q_start = model.rotations(theta0), model.quaternions(theta0)
+    J_rot = _check_geometry(model, J_start, natural, name, lambda: model.jacobian(theta0)[1])
     whiten = _whitening(model, J_start, q_start, noise, n_side, name)
     count = [0]
     recent: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # theta: (residuals, whitened)
