@@ -267,7 +267,9 @@ def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     h = times[2:-1] - times[1:-2]
     v0, v1 = step0[:3], step1[:3]
     w = h * h / 12.0
-    terms = np.empty((10, len(h)))  # (10, columns) in time order
+    padded = np.empty((10, len(h) + 1))  # (10, columns) in time order, and a zero column: the padding's
+    padded[:, -1] = 0.0
+    terms = padded[:, :-1]
     # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
     np.subtract(h / 2 * (v0 + v1), w * (step1[3:] - step0[3:]), out=terms[0:3])
     terms[3:6] = w * _cross(v0.T, v1.T).T
@@ -281,8 +283,13 @@ def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     if np.any(h[column] <= 0):
         raise ValueError("t must increase within every span")
     first = np.cumsum(blocks) - blocks
-    out[...] = 0.0
-    out[:, _bit_reversed(_BLOCK)[k % _BLOCK], first[span] + k // _BLOCK] = terms[:, column]
+    # Each place's column (the zero one where a span is padded), then all of them gathered in
+    # place order: a scatter of the (10, steps) terms to their places cost three times as much.
+    source = np.full(out[0].size, len(h))
+    source[_bit_reversed(_BLOCK)[k % _BLOCK] * out.shape[2] + first[span] + k // _BLOCK] = column
+    places = out.view()
+    places.shape = (len(out), -1)  # out's own memory (an error, not a copy, were it not one block)
+    np.take(padded, source, axis=1, out=places)
 
 
 _SPAN_GROUP_BLOCKS = 512  # blocks whose compositions are made at once (~4 MiB, see _Steps._forward)
