@@ -110,11 +110,15 @@ def bias_instability(residuals: np.ndarray, design: np.ndarray, white: np.ndarra
     # rᵀWr has mean tr(QΣ) for noise of covariance Σ, linear in the white and flicker parts.
     # Q = W − U P Uᵀ with U = WX and P = (XᵀWX)⁺ (P·XᵀWX·P = P): rank p off a diagonal, so Q·F
     # costs O(m²p), not the O(m³) of a dense product.
+    U = w[:, None] * X
+    P = np.linalg.pinv(X.T @ U)
+    Q = np.diag(w) - U @ P @ U.T
     observed = float(np.sum(w[:, None] * residuals**2))
-    mean_white, mean_flicker, var_terms = _scatter_moments(w, X, white, flicker)
-    mean_white, mean_flicker, var_terms = d * mean_white, d * mean_flicker, 2 * d * var_terms
+    QW, QF = Q * white[None, :], w[:, None] * flicker - U @ (P @ (U.T @ flicker))
+    mean_white, mean_flicker = d * float(np.trace(QW)), d * float(np.trace(QF))
     if mean_flicker <= 0:
         return 0.0
+    var_terms = 2 * d * np.array([np.sum(QW * QW.T), 2 * np.sum(QW * QF.T), np.sum(QF * QF.T)])
     # B from a thousandth to a thousand times the white noise of a pose's mean: far below, the
     # flicker changes nothing; far above, the scatter would show it.
     typical = math.sqrt(float(np.mean(white)))
@@ -130,34 +134,6 @@ def bias_instability(residuals: np.ndarray, design: np.ndarray, white: np.ndarra
     log_like = log_like + PRIOR_POWER * np.log(b)
     weight = np.exp(log_like - log_like.max())
     return float(np.sqrt(np.sum(weight * b2) / np.sum(weight)))
-
-
-def _scatter_moments(w: np.ndarray, X: np.ndarray, white: np.ndarray,
-                     flicker: np.ndarray) -> tuple[float, float, np.ndarray]:
-    """One column's tr(QD), tr(QF) and [tr(QDQD), 2·tr(QDQF), tr(QFQF)] for Q = W − H,
-    H = U·P·Uᵀ (U = WX, P = (XᵀWX)⁺), D = diag(white), F = ``flicker`` (symmetric). Each trace
-    is expanded over Q's diagonal and rank-p parts, so that F meets only m×p matrices: one
-    product F·U and one pass over F² (on imu_tk's recording joined 16×, 633 poses, the m×m
-    products QD, QF and their transposes took ten passes over m² numbers)."""
-    U = w[:, None] * X
-    P = np.linalg.pinv(X.T @ U)
-    h = np.einsum("ip,ip->i", U @ P, U)  # diag(H)
-    FU = flicker @ U
-    F_diagonal = np.diagonal(flicker)
-    M_D, M_F = U.T @ (white[:, None] * U), U.T @ FU  # UᵀDU, UᵀFU
-    PD, PF = P @ M_D, P @ M_F
-    wd = w * white
-    mean_white = float(np.sum((w - h) * white))
-    mean_flicker = float(w @ F_diagonal - np.trace(PF))
-    # tr(QDQD) = tr(WDWD) − 2·tr(WDHD) + tr(HDHD)
-    white_white = float(np.sum(wd * wd) - 2 * np.sum(wd * white * h) + np.sum(PD * PD.T))
-    # tr(QDQF) = tr(WDWF) − 2·tr(P·Uᵀ·F·WD·U) + tr(HDHF)
-    white_flicker = float(np.sum(w * wd * F_diagonal) - 2 * np.sum(P * (FU.T @ (wd[:, None] * U)))
-                          + np.sum(PD * PF.T))
-    # tr(QFQF) = Σ wᵢwⱼFᵢⱼ² − 2·tr(P·(FU)ᵀ·W·FU) + tr(HFHF)
-    flicker_flicker = float(w @ np.square(flicker) @ w - 2 * np.sum(P * (FU.T @ (w[:, None] * FU)))
-                            + np.sum(PF * PF.T))
-    return mean_white, mean_flicker, np.array([white_white, 2 * white_flicker, flicker_flicker])
 
 
 @dataclass(frozen=True)
