@@ -89,7 +89,8 @@ class NoiseLevel:
     and the gyroscope's per-axis variance when one was given. ``rest_samples``: the initial rest
     that is a pose whatever the threshold (0 without ``--rest``); ``source``: where the level was
     measured, for the summary. ``quiet``: over the non-overlapping windows, the quietest ones it
-    was measured in (see quiet_windows; None: measured over the initial rest)."""
+    was measured in (see quiet_windows; None: measured over the initial rest); ``quiet_gyro_means``
+    the gyroscope's means over those windows, made with its variances (the turns' still level)."""
 
     variance: np.ndarray
     base: float
@@ -97,6 +98,7 @@ class NoiseLevel:
     rest_samples: int = 0
     source: str = "the initial rest"
     quiet: np.ndarray | None = field(default=None, compare=False, repr=False)
+    quiet_gyro_means: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -258,17 +260,18 @@ def quiet_noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSetting
     if not (math.isfinite(base) and base > 0):
         raise DetectionError("accelerometer shows no noise at all in its quietest windows: check that "
                              "the file holds live samples")
-    gyro_variance = None
+    gyro_variance = gyro_means = None
     if gyro is not None:
         # A turntable turns with the accelerometer still: of its quiet windows, the gyro's quietest.
-        windows = window_variances(gyro, window)[0]
+        windows, gyro_means = window_variances(gyro, window)
+        gyro_means = gyro_means[quiet]
         gyro_variance = windows[_quietest(windows, quiet)].mean(axis=0) * window / (window - 1)
         if not np.all(gyro_variance > 0):
             raise DetectionError("gyroscope shows no noise on some axis in the quietest windows: check "
                                  "that the file holds live samples")
     return NoiseLevel(variance=variance, base=base, gyro_variance=gyro_variance, rest_samples=0,
                       source=f"the quietest {settings.window_s:g} s windows ({int(quiet.sum())} of {len(quiet)})",
-                      quiet=quiet)
+                      quiet=quiet, quiet_gyro_means=gyro_means)
 
 
 def true_runs(mask: np.ndarray) -> np.ndarray:

@@ -69,9 +69,11 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     level). ``units_per_rad_s``: the gyro's output unit per rad/s when known (not for counts)."""
     n = max(1, round(0.5 * rate_hz))
     window = 2 * max(1, round(settings.window_s * rate_hz) // 2) + 1
-    quiet = noise.quiet if noise.quiet is not None else quiet_windows(acc, rate_hz, settings)
-    whole = len(gyro) // window * window  # the windows' means (as window_variances sums them); no variances
-    means = (np.asarray(gyro[:whole], dtype=float).reshape(-1, window, gyro.shape[1]).sum(axis=1) / window)[quiet]
+    means = noise.quiet_gyro_means  # made with the noise level's variances, when it was measured so
+    if means is None:
+        quiet = noise.quiet if noise.quiet is not None else quiet_windows(acc, rate_hz, settings)
+        whole = len(gyro) // window * window  # the windows' means (as window_variances sums them); no variances
+        means = (np.asarray(gyro[:whole], dtype=float).reshape(-1, window, gyro.shape[1]).sum(axis=1) / window)[quiet]
     level = np.median(means, axis=0)
     distance = np.linalg.norm(means - level, axis=1)
     shift = float(np.median(distance)) if len(distance) else 0.0
