@@ -357,3 +357,27 @@ def test_the_turns_still_level_reads_the_gyro_means_the_noise_level_made():
     np.testing.assert_array_equal(mask, own_mask)
     np.testing.assert_array_equal(smooth, own_smooth)
     assert mask.any() and not mask.all()
+
+
+def test_every_thresholds_split_shares_one_count_of_turning_samples():
+    """split_poses keeps the turn mask's running count in the memo every threshold's call shares:
+    made once, it is the count by hand, and a threshold split with it is the one split afresh
+    (an interval is touched when it holds a turning sample)."""
+    from fieldcal.recording.detect import noise_level, pose_candidates
+    from fieldcal.recording.turns import _TURNING_SAMPLES, split_poses, turning
+
+    sim = simulate_handheld(6, n_poses=12)
+    acc, gyro, settings = sim.accelerometer, sim.gyroscope, DetectorSettings()
+    noise = noise_level(acc, sim.rate_hz, settings, gyro)
+    found = pose_candidates(acc, sim.rate_hz, settings, gyro=gyro, noise=noise)
+    mask, smooth = turning(gyro, acc, sim.rate_hz, noise, settings)
+    memo: dict = {}
+    shared = [split_poses(f, acc, mask, smooth, sim.rate_hz, settings, None, memo) for f in found]
+    count = memo[_TURNING_SAMPLES]
+    assert count[0] == 0 and np.array_equal(np.diff(count), mask.astype(int))
+    for f, (poses, turns) in zip(found, shared):
+        fresh, fresh_turns = split_poses(f, acc, mask, smooth, sim.rate_hz, settings)
+        np.testing.assert_array_equal(poses.intervals, fresh.intervals)
+        np.testing.assert_array_equal(turns, fresh_turns)
+        held = [not mask[a:b].any() for a, b in f.intervals]  # by hand: no turning sample inside
+        assert all(tuple(iv) in map(tuple, poses.intervals) for iv, ok in zip(f.intervals.tolist(), held) if ok)
