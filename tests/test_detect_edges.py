@@ -74,6 +74,58 @@ def test_distinct_poses_is_its_definition(seed):
     assert 0 < got.sum() < len(up)
 
 
+def test_distinct_poses_of_a_long_repeated_recording_are_its_definition():
+    """A few poses held again and again (a long recording, or one joined to itself): the loop
+    goes from one distinct pose to the next, and the far repeats, the last pose and a recording
+    whose every pose is distinct come out as the definition says."""
+    rng = np.random.default_rng(8)
+    centres = rng.normal(size=(12, 3))
+    centres /= np.linalg.norm(centres, axis=1)[:, None]
+    up = np.tile(centres, (30, 1)) + rng.normal(0.0, 0.02, (360, 3))
+    up = np.vstack([up, -centres[:1]])  # a last pose unlike any before it
+    up /= np.linalg.norm(up, axis=1)[:, None]
+    got = distinct_poses(up, 10.0)
+    assert got.tolist() == distinct_by_definition(up, 10.0)
+    assert got[-1] and got.sum() <= 13
+    spread = up[got]
+    assert distinct_poses(spread, 10.0).all()  # every pose distinct: each one visited
+    assert distinct_poses(up[:1], 10.0).tolist() == [True]
+
+
+def runs_by_definition(stat, levels, still_head):
+    """Each level's runs of stat < level, the first still_head samples in them, level by level."""
+    owners, edges = [], []
+    for j, level in enumerate(levels):
+        below = np.r_[False, stat < level, False]
+        below[1:still_head + 1] = True
+        change = np.flatnonzero(below[1:] != below[:-1])
+        owners.append(np.full(len(change), j))
+        edges.append(change)
+    return np.concatenate(owners), np.concatenate(edges)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_every_thresholds_runs_from_the_ranks_are_each_thresholds_own(seed):
+    """The runs below each threshold, found where a sample's rank among the thresholds moves,
+    are those of comparing every sample with every threshold: thresholds out of order and
+    repeated, a statistic on a threshold exactly, NaN (never still), a still head."""
+    from fieldcal.recording.detect import _level_edges
+
+    rng = np.random.default_rng(seed)
+    stat = np.exp(rng.normal(0.0, 1.0, 3000))
+    stat[rng.integers(0, 3000, 30)] = np.nan
+    levels = np.array([2.0, 0.5, 1.0, 8.0, 1.0, 3.0])
+    stat[rng.integers(0, 3000, 30)] = levels[rng.integers(0, len(levels), 30)]
+    for head in (0, 1, 137):
+        got = _level_edges(stat, levels, head)
+        want = runs_by_definition(stat, levels, head)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+    assert len(_level_edges(np.full(5, np.nan), levels, 0)[1]) == 0
+    owner, edges = _level_edges(np.zeros(5), levels, 0)  # still throughout: one run a threshold
+    assert owner.tolist() == [0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5] and edges.tolist() == [0, 5] * 6
+
+
 def test_prefix_means_are_the_old_sums_bit_for_bit_and_the_means_by_hand():
     from fieldcal.recording.detect import PrefixMeans
 

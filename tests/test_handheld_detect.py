@@ -336,3 +336,48 @@ def test_interval_means_are_each_intervals_own_mean():
     force = rng.normal(size=(5000, 3)) * 9.8
     np.testing.assert_allclose(interval_means(force, cases[0]), [force[a:b].mean(axis=0) for a, b in cases[0]],
                                rtol=1e-12, atol=1e-12)
+
+
+def test_the_turns_still_level_reads_the_gyro_means_the_noise_level_made():
+    """The quietest windows' gyro means, made once by the noise level with the gyro's variances,
+    are each window's mean by hand; the turning mask and smoothed rates from them are those the
+    turns' own means give (a noise level measured without them, over an initial rest)."""
+    from fieldcal.recording.detect import noise_level
+    from fieldcal.recording.turns import turning
+
+    sim = simulate_handheld(6, n_poses=12)
+    acc, gyro, settings = sim.accelerometer, sim.gyroscope, DetectorSettings()
+    noise = noise_level(acc, sim.rate_hz, settings, gyro)
+    window = 2 * max(1, round(settings.window_s * sim.rate_hz) // 2) + 1
+    quiet_starts = np.flatnonzero(noise.quiet) * window
+    by_hand = np.array([gyro[s:s + window].mean(axis=0) for s in quiet_starts])
+    np.testing.assert_allclose(noise.quiet_gyro_means, by_hand, rtol=1e-12, atol=1e-9 * np.abs(by_hand).max())
+    mask, smooth = turning(gyro, acc, sim.rate_hz, noise, settings)
+    own_mask, own_smooth = turning(gyro, acc, sim.rate_hz, replace(noise, quiet_gyro_means=None), settings)
+    np.testing.assert_array_equal(mask, own_mask)
+    np.testing.assert_array_equal(smooth, own_smooth)
+    assert mask.any() and not mask.all()
+
+
+def test_every_thresholds_split_shares_one_count_of_turning_samples():
+    """split_poses keeps the turn mask's running count in the memo every threshold's call shares:
+    made once, it is the count by hand, and a threshold split with it is the one split afresh
+    (an interval is touched when it holds a turning sample)."""
+    from fieldcal.recording.detect import noise_level, pose_candidates
+    from fieldcal.recording.turns import _TURNING_SAMPLES, split_poses, turning
+
+    sim = simulate_handheld(6, n_poses=12)
+    acc, gyro, settings = sim.accelerometer, sim.gyroscope, DetectorSettings()
+    noise = noise_level(acc, sim.rate_hz, settings, gyro)
+    found = pose_candidates(acc, sim.rate_hz, settings, gyro=gyro, noise=noise)
+    mask, smooth = turning(gyro, acc, sim.rate_hz, noise, settings)
+    memo: dict = {}
+    shared = [split_poses(f, acc, mask, smooth, sim.rate_hz, settings, None, memo) for f in found]
+    count = memo[_TURNING_SAMPLES]
+    assert count[0] == 0 and np.array_equal(np.diff(count), mask.astype(int))
+    for f, (poses, turns) in zip(found, shared):
+        fresh, fresh_turns = split_poses(f, acc, mask, smooth, sim.rate_hz, settings)
+        np.testing.assert_array_equal(poses.intervals, fresh.intervals)
+        np.testing.assert_array_equal(turns, fresh_turns)
+        held = [not mask[a:b].any() for a, b in f.intervals]  # by hand: no turning sample inside
+        assert all(tuple(iv) in map(tuple, poses.intervals) for iv, ok in zip(f.intervals.tolist(), held) if ok)

@@ -183,6 +183,10 @@ def test_regular_times_take_out_jitter_and_keep_gaps_and_clock_rate():
     assert np.max(np.abs(jittered - grid)) > 1.9e-3
     uneven = np.cumsum(rng.uniform(0.005, 0.015, 1000))  # no grid at all: kept as they are
     np.testing.assert_array_equal(regular_times(uneven, 100.0), uneven)
+    doubled = np.sort(np.r_[jittered, jittered[400] + 1e-4])  # two samples on one point of the grid
+    assert regular_times(doubled, 100.0) is doubled
+    regular = 3.0 + np.arange(1000) * 0.01  # already a grid: kept to the last bit
+    assert regular_times(regular, 100.0) is regular
 
 
 def scale_errors_in_sigma(sim, settings: RecordingSettings, temperature=None):

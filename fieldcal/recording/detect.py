@@ -89,7 +89,8 @@ class NoiseLevel:
     and the gyroscope's per-axis variance when one was given. ``rest_samples``: the initial rest
     that is a pose whatever the threshold (0 without ``--rest``); ``source``: where the level was
     measured, for the summary. ``quiet``: over the non-overlapping windows, the quietest ones it
-    was measured in (see quiet_windows; None: measured over the initial rest)."""
+    was measured in (see quiet_windows; None: measured over the initial rest); ``quiet_gyro_means``
+    the gyroscope's means over those windows, made with its variances (the turns' still level)."""
 
     variance: np.ndarray
     base: float
@@ -97,6 +98,7 @@ class NoiseLevel:
     rest_samples: int = 0
     source: str = "the initial rest"
     quiet: np.ndarray | None = field(default=None, compare=False, repr=False)
+    quiet_gyro_means: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -258,17 +260,18 @@ def quiet_noise_level(acc: np.ndarray, rate_hz: float, settings: DetectorSetting
     if not (math.isfinite(base) and base > 0):
         raise DetectionError("accelerometer shows no noise at all in its quietest windows: check that "
                              "the file holds live samples")
-    gyro_variance = None
+    gyro_variance = gyro_means = None
     if gyro is not None:
         # A turntable turns with the accelerometer still: of its quiet windows, the gyro's quietest.
-        windows = window_variances(gyro, window)[0]
+        windows, gyro_means = window_variances(gyro, window)
+        gyro_means = gyro_means[quiet]
         gyro_variance = windows[_quietest(windows, quiet)].mean(axis=0) * window / (window - 1)
         if not np.all(gyro_variance > 0):
             raise DetectionError("gyroscope shows no noise on some axis in the quietest windows: check "
                                  "that the file holds live samples")
     return NoiseLevel(variance=variance, base=base, gyro_variance=gyro_variance, rest_samples=0,
                       source=f"the quietest {settings.window_s:g} s windows ({int(quiet.sum())} of {len(quiet)})",
-                      quiet=quiet)
+                      quiet=quiet, quiet_gyro_means=gyro_means)
 
 
 def true_runs(mask: np.ndarray) -> np.ndarray:
@@ -338,6 +341,28 @@ class _EdgeSignals:
         return np.hstack([m(intervals) for m in self.means])
 
 
+def _level_edges(stat: np.ndarray, levels: np.ndarray, still_head: int) -> tuple[np.ndarray, np.ndarray]:
+    """(owner, edges): the runs of stat < level for every level, each run's start then stop
+    (sample indices, stop exclusive), level by level in the order given, each level's in time
+    order; the first ``still_head`` samples below every level. Each sample's rank among the
+    sorted levels (how many are at or below it) is read once; a level's runs start or stop only
+    where the rank moves across it, so the levels are looked at there alone, not at every
+    sample (ten thresholds: ten n-long comparisons and their edges)."""
+    n = len(stat)
+    order = np.argsort(levels, kind="stable")
+    rank = np.full(n + 2, len(levels), dtype=np.intp)  # a sample beyond either end: below none
+    rank[1:-1] = np.searchsorted(levels[order], stat, side="right")  # NaN: at the end, below none
+    rank[1:min(still_head, n) + 1] = 0
+    at = np.flatnonzero(rank[1:] != rank[:-1])  # between samples at - 1 and at
+    low, high = np.minimum(rank[at], rank[at + 1]), np.maximum(rank[at], rank[at + 1])
+    crossed = high - low  # the sorted levels low..high - 1 start or stop a run there
+    first = np.cumsum(crossed) - crossed
+    level = np.repeat(low - first, crossed) + np.arange(int(crossed.sum()))
+    owner, edges = order[level], np.repeat(at, crossed)
+    by_level = np.lexsort((edges, owner))
+    return owner[by_level], edges[by_level]
+
+
 def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, multiples,
                       settings: DetectorSettings) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per threshold multiple: the static intervals, and the durations (s) of the still stretches
@@ -348,11 +373,9 @@ def _static_intervals(signals: _EdgeSignals, rate_hz: float, noise: NoiseLevel, 
     n = len(columns[0])
     half = _half_window(rate_hz, settings)
     rest_n = noise.rest_samples
-    levels = np.asarray(multiples, dtype=float)[:, None] * noise.base
-    padded = np.zeros((len(levels), n + 2), dtype=bool)
-    np.less(signals.stat[None, :], levels, out=padded[:, 1:-1])  # in place: no second (levels, n) array
-    padded[:, 1:max(rest_n - half, 0) + 1] = True  # noise_level has checked the initial rest: always a pose
-    owner, edges = np.nonzero(padded[:, 1:] != padded[:, :-1])  # row by row, each run's start then stop
+    levels = np.asarray(multiples, dtype=float) * noise.base
+    # noise_level has checked the initial rest: always a pose
+    owner, edges = _level_edges(signals.stat, levels, max(rest_n - half, 0))
     runs, owner = edges.reshape(-1, 2), owner[::2]
     min_n = _samples(settings.min_static_s, rate_hz)
     long_enough = ((runs[:, 0] == 0) & (rest_n > 0)) | (runs[:, 1] - runs[:, 0] + 2 * half >= min_n)
@@ -414,9 +437,13 @@ def distinct_poses(up: np.ndarray, min_separation_deg: float) -> np.ndarray:
     cos_min = math.cos(math.radians(min_separation_deg))
     close = up @ up.T > cos_min  # every pair at once; the choice below is in order
     distinct = np.ones(len(up), dtype=bool)
-    for i in range(len(up)):  # a loop over poses, not samples: each distinct one rules out the later close ones
-        if distinct[i]:
-            distinct[i + 1:] &= ~close[i + 1:, i]  # row k, column i: as the order written
+    i = 0
+    # A loop over the distinct poses alone (a long recording repeats a few dozen poses hundreds of
+    # times): each rules out the later close ones, and the next one left is distinct.
+    while i < len(up):
+        distinct[i + 1:] &= ~close[i + 1:, i]  # row k, column i: as the order written
+        later = distinct[i + 1:]
+        i = i + 1 + int(np.argmax(later)) if later.any() else len(up)
     return distinct
 
 

@@ -132,13 +132,19 @@ def regular_times(t: np.ndarray, rate_hz: float) -> np.ndarray:
         return t
     step = 1.0 / rate_hz
     index = np.round((t - t[0]) / step)
+    t_mean = t.mean()
+    t_centred = t - t_mean  # the same in both fits: made once (each pass over n numbers counts at 16×)
+    scratch = np.empty_like(t)
     for _ in range(2):  # the grid's line, refitted once the indices are known
-        centred = index - index.mean()  # least squares in closed form (np.polyfit's SVD costs ~10×)
-        slope = float(centred @ (t - t.mean()) / (centred @ centred))
-        offset = float(t.mean() - slope * index.mean())
-        index = np.round((t - offset) / slope)
+        index_mean = index.mean()
+        centred = np.subtract(index, index_mean, out=scratch)  # least squares in closed form (np.polyfit's SVD costs ~10×)
+        slope = float(centred @ t_centred / (centred @ centred))
+        offset = float(t_mean - slope * index_mean)
+        index = np.round(np.divide(np.subtract(t, offset, out=index), slope, out=index), out=index)
+    if np.any(np.diff(index) <= 0):
+        return t  # two samples on one point of the grid: not a jittered grid (kept to the last bit)
     grid = offset + slope * index
     off_grid = np.max(np.abs(t - grid))
-    if np.any(np.diff(index) <= 0) or off_grid > 0.25 * slope or off_grid < 1e-3 * slope:
+    if off_grid > 0.25 * slope or off_grid < 1e-3 * slope:
         return t  # not a jittered grid, or already a regular one (kept to the last bit)
     return grid

@@ -69,9 +69,11 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     level). ``units_per_rad_s``: the gyro's output unit per rad/s when known (not for counts)."""
     n = max(1, round(0.5 * rate_hz))
     window = 2 * max(1, round(settings.window_s * rate_hz) // 2) + 1
-    quiet = noise.quiet if noise.quiet is not None else quiet_windows(acc, rate_hz, settings)
-    whole = len(gyro) // window * window  # the windows' means (as window_variances sums them); no variances
-    means = (np.asarray(gyro[:whole], dtype=float).reshape(-1, window, gyro.shape[1]).sum(axis=1) / window)[quiet]
+    means = noise.quiet_gyro_means  # made with the noise level's variances, when it was measured so
+    if means is None:
+        quiet = noise.quiet if noise.quiet is not None else quiet_windows(acc, rate_hz, settings)
+        whole = len(gyro) // window * window  # the windows' means (as window_variances sums them); no variances
+        means = (np.asarray(gyro[:whole], dtype=float).reshape(-1, window, gyro.shape[1]).sum(axis=1) / window)[quiet]
     level = np.median(means, axis=0)
     distance = np.linalg.norm(means - level, axis=1)
     shift = float(np.median(distance)) if len(distance) else 0.0
@@ -106,19 +108,26 @@ def turning(gyro: np.ndarray, acc: np.ndarray, rate_hz: float, noise: NoiseLevel
     return mask, smooth
 
 
+_TURNING_SAMPLES = "turning samples"  # split_poses' memo: the mask's running count (an interval's key is (a, b))
+
+
 def split_poses(poses: Poses, acc: np.ndarray, turn_mask: np.ndarray, smooth: np.ndarray,
                 rate_hz: float, settings: DetectorSettings, zero=None,
                 memo: dict | None = None) -> tuple[Poses, np.ndarray]:
     """The poses without the turning samples (pieces shorter than min_static_s dropped) and the
     steady turns found inside static intervals ((k, 2) [start, stop)). ``memo``: a dict kept
     across calls with the same mask, smooth rates and settings (every threshold's poses): an
-    interval's pieces and turns, worked out once (the thresholds share most intervals)."""
-    turning_samples = np.r_[0, np.cumsum(turn_mask)]
+    interval's pieces and turns, worked out once (the thresholds share most intervals), and the
+    count of turning samples before each sample (an n-long sum: on imu_tk's recording joined
+    16×, ten of them took as long as the rest of the split)."""
+    memo = {} if memo is None else memo
+    turning_samples = memo.get(_TURNING_SAMPLES)
+    if turning_samples is None:
+        turning_samples = memo[_TURNING_SAMPLES] = np.r_[0, np.cumsum(turn_mask)]
     touched = turning_samples[poses.intervals[:, 1]] > turning_samples[poses.intervals[:, 0]]
     if not touched.any():  # the usual case, no interval holds a turning sample: all at once
         return poses, np.zeros((0, 2), int)
     pieces, turns = [], []
-    memo = {} if memo is None else memo
     for (a, b), touches in zip(poses.intervals.tolist(), touched):  # a loop over poses
         if not touches:
             pieces.append((a, b))

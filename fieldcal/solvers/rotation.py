@@ -62,6 +62,7 @@ METHODS = ("lsq", "powell")
 _MOTION_MARGIN = 2  # motions beyond ceil(n_params / 2): some scatter to judge the fit by
 _GEOMETRY_RATIO = 1e-3  # smallest / largest singular value of the Jacobian in natural units
 _DEGENERATE_FRACTION = 0.01  # σ above this fraction of a parameter's natural unit: undetermined
+_GEOMETRY_MARGIN = 10.0  # a coarse Jacobian this near _GEOMETRY_RATIO: the geometry told by the exact one
 
 
 def _cross(a, b):
@@ -265,7 +266,9 @@ def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     h = times[2:-1] - times[1:-2]
     v0, v1 = step0[:3], step1[:3]
     w = h * h / 12.0
-    terms = np.empty((10, len(h)))  # (10, columns) in time order
+    padded = np.empty((10, len(h) + 1))  # (10, columns) in time order, and a zero column: the padding's
+    padded[:, -1] = 0.0
+    terms = padded[:, :-1]
     # Cubic Hermite rule: trapezoid minus h²/12 times the change of dω/dt over the step.
     np.subtract(h / 2 * (v0 + v1), w * (step1[3:] - step0[3:]), out=terms[0:3])
     terms[3:6] = w * _cross(v0.T, v1.T).T
@@ -279,8 +282,13 @@ def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     if np.any(h[column] <= 0):
         raise ValueError("t must increase within every span")
     first = np.cumsum(blocks) - blocks
-    out[...] = 0.0
-    out[:, _bit_reversed(_BLOCK)[k % _BLOCK], first[span] + k // _BLOCK] = terms[:, column]
+    # Each place's column (the zero one where a span is padded), then all of them gathered in
+    # place order: a scatter of the (10, steps) terms to their places cost three times as much.
+    source = np.full(out[0].size, len(h))
+    source[_bit_reversed(_BLOCK)[k % _BLOCK] * out.shape[2] + first[span] + k // _BLOCK] = column
+    places = out.view()
+    places.shape = (len(out), -1)  # out's own memory (an error, not a copy, were it not one block)
+    np.take(padded, source, axis=1, out=places)
 
 
 _SPAN_GROUP_BLOCKS = 512  # blocks whose compositions are made at once (~4 MiB, see _Steps._forward)
@@ -716,6 +724,11 @@ class _Residuals:
         bias = theta[:3] if self.estimate_bias else self.start.b0
         return bias, np.linalg.inv(k_from_terms(theta[nb:nb + 3], theta[nb + 3:]))
 
+    def quaternions(self, theta):
+        """(m, 4) the motions' rotations at theta (the integration ``rotations`` makes, kept)."""
+        b, K_inv = self.unpack(theta)
+        return self.steps.quaternions(K_inv, b - self.steps.offset)
+
     def rotations(self, theta, bias=None):
         """2 per motion, rad: Cᵀ·up_start − up_end in the end pose's tangent basis (bias: instead
         of theta's)."""
@@ -752,12 +765,16 @@ class _Residuals:
         return np.concatenate(parts) if parts else np.zeros(0)
 
 
-def _check_geometry(model: _Residuals, J_start, natural, name) -> np.ndarray:
+def _check_geometry(model: _Residuals, J_start, natural, name, exact: Callable | None = None) -> np.ndarray:
     """The rotation residuals' Jacobian at the start (natural units: it scales the search) from
-    ``J_start`` (model.jacobian's at theta0); CalibrationError when the motions leave some
-    parameter (nearly) without effect."""
+    ``J_start`` (model.jacobian's at theta0, maybe the coarse one's); CalibrationError when the
+    motions leave some parameter (nearly) without effect. ``exact``: the exact Jacobian at theta0,
+    asked for when the coarse one's geometry is near the bound or past it, so that the verdict
+    and the parameters it names are the exact Jacobian's."""
     J_rot = J_start[:, 3 - model.nb:] * natural
     sv, V = np.linalg.svd(J_rot, full_matrices=False)[1:]
+    if exact is not None and sv[-1] < _GEOMETRY_MARGIN * _GEOMETRY_RATIO * sv[0]:
+        return _check_geometry(model, exact(), natural, name)
     weak = sv < _GEOMETRY_RATIO * sv[0]
     if np.any(weak):
         loose = [model.names[i] for i in np.unique(np.argmax(np.abs(V[weak]), axis=1))]
@@ -988,8 +1005,12 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
     natural = np.r_[np.abs(k0)[:nb] / model.steps.duration.mean(), np.abs(k0), np.ones(6)]
     fd_steps = 1e-7 * natural
-    r_start, J_start, q_start = model.jacobian(theta0)
-    J_rot = _check_geometry(model, J_start, natural, name)
+    # The start's Jacobian only weighs the residuals (the held bias's share, G) and points the
+    # search: the coarse integration's, as the search's own (a sixth of the exact one's work);
+    # its residuals and rotations, which the search and the whitening start from, exact.
+    J_start = model.jacobian(theta0, coarse=_SEARCH_GROUP > 1)[1]
+    r_start, q_start = model.rotations(theta0), model.quaternions(theta0)
+    J_rot = _check_geometry(model, J_start, natural, name, lambda: model.jacobian(theta0)[1])
     whiten = _whitening(model, J_start, q_start, noise, n_side, name)
     count = [0]
     recent: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # theta: (residuals, whitened)
