@@ -2,7 +2,6 @@
 and skipped), replays, resumed runs and terminal-UI sessions recorded, and a small simulated
 production line (units with serials, some out of spec, one drifting) in the registry, listed by
 ``units`` and flagged by ``history``."""
-import re
 import shutil
 from pathlib import Path
 
@@ -17,14 +16,10 @@ from fieldcal.paramfile import load
 from fieldcal.procedure.positions import load_procedure
 from fieldcal.registry import Registry
 from fieldcal.registry.simulated_line import DRIFT_MG, OUT_OF_SPEC_BIAS_MG, plan_line, run_line
+from brisk_quick import brisk_quick
 from test_registry import QUICK
 
 SPEC = Path(__file__).parents[1] / "configs" / "specs" / "paper-mimu.yaml"
-
-
-# The quick procedure with its rate steps at 60 °/s (one turn: 6 s a way, not 36 s): a session of
-# 645 s, not 1565 s, read again by every replay, re-solve and certificate of the tests that use it.
-BRISK_RATE_STEP = "rate_step: {rate_deg_s: 60, turns: 1, ramp_s: 0.5, settle_s: 0.5}"
 
 
 @pytest.fixture(scope="module")
@@ -32,10 +27,7 @@ def pristine_session(tmp_path_factory):
     """One completed headless run (the simulated MIMU, the quick procedure with brisk rate
     steps), recorded nowhere."""
     out = tmp_path_factory.mktemp("runs")
-    text = Path(QUICK).read_text(encoding="utf-8")
-    assert text.count("\nrate_step: ") == 1
-    brisk = tmp_path_factory.mktemp("procedure") / "quick.yaml"
-    brisk.write_text(re.sub(r"\nrate_step: [^\n]*\n", f"\n{BRISK_RATE_STEP}\n", text), encoding="utf-8")
+    brisk = brisk_quick(tmp_path_factory.mktemp("procedure"))
     assert main(["run", "--headless", "--quiet", "--procedure", str(brisk), "--out", str(out), "--seed", "5",
                  "--registry", str(out / "unused.sqlite")]) == 0
     [session] = [p for p in out.iterdir() if p.is_dir()]
