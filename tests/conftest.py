@@ -36,6 +36,9 @@ class ExactRun:
     truth: dict  # name -> true parameters
     device: dict
     angles: np.ndarray
+    # name -> Cholesky factor of covariances[name], made at the first draw: the statistical tests
+    # draw hundreds of problems, and factoring the gyro's covariance each time took most of their CPU
+    roots: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
 
     def problem(self, name, rng=None, **overrides):
         """The triad's problem with averages drawn from their exact distribution."""
@@ -43,7 +46,9 @@ class ExactRun:
         means = self.means[name].copy()
         order = self.orders[name]
         if rng is not None:
-            noise = np.linalg.cholesky(self.covariances[name]) @ rng.standard_normal(3 * len(order))
+            if name not in self.roots:
+                self.roots[name] = np.linalg.cholesky(self.covariances[name])
+            noise = self.roots[name] @ rng.standard_normal(3 * len(order))
             means[order] += noise.reshape(-1, 3)
         problem, _ = build_problem(name, truth.kind, truth.output_unit, list(self.plan.windows),
                                    means, DEFAULT_STATION, field18_ids())
