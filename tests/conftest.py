@@ -5,6 +5,12 @@ import dataclasses
 from functools import lru_cache
 from pathlib import Path
 
+# Before numpy: fieldcal's package sets OpenBLAS to one thread, which only counts when set before
+# numpy loads. xdist's workers inherit it from the controller's environment; without this a
+# `pytest -n 0` process ran threaded BLAS, whose spinning threads took 0.15 s of CPU for a 162x162
+# Cholesky factor on the loaded 2-core machine (0.15 ms on one thread).
+import fieldcal  # noqa: F401,I001
+
 import numpy as np
 import pytest
 from hypothesis import settings as hypothesis_settings
