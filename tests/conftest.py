@@ -5,6 +5,12 @@ import dataclasses
 from functools import lru_cache
 from pathlib import Path
 
+# Before numpy: fieldcal's package sets OpenBLAS to one thread, which only counts when set before
+# numpy loads. xdist's workers inherit it from the controller's environment; without this a
+# `pytest -n 0` process ran threaded BLAS, whose spinning threads took 0.15 s of CPU for a 162x162
+# Cholesky factor on the loaded 2-core machine (0.15 ms on one thread).
+import fieldcal  # noqa: F401,I001
+
 import numpy as np
 import pytest
 from hypothesis import settings as hypothesis_settings
@@ -36,6 +42,9 @@ class ExactRun:
     truth: dict  # name -> true parameters
     device: dict
     angles: np.ndarray
+    # name -> Cholesky factor of covariances[name], made at the first draw: the statistical tests
+    # draw hundreds of problems, and factoring the gyro's covariance each time took most of their CPU
+    roots: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
 
     def problem(self, name, rng=None, **overrides):
         """The triad's problem with averages drawn from their exact distribution."""
@@ -43,12 +52,20 @@ class ExactRun:
         means = self.means[name].copy()
         order = self.orders[name]
         if rng is not None:
-            noise = np.linalg.cholesky(self.covariances[name]) @ rng.standard_normal(3 * len(order))
+            if name not in self.roots:
+                self.roots[name] = np.linalg.cholesky(self.covariances[name])
+            noise = self.roots[name] @ rng.standard_normal(3 * len(order))
             means[order] += noise.reshape(-1, 3)
-        ids = [p.id for p in load_procedure("field-18").positions]
         problem, _ = build_problem(name, truth.kind, truth.output_unit, list(self.plan.windows),
-                                   means, DEFAULT_STATION, ids)
+                                   means, DEFAULT_STATION, field18_ids())
         return dataclasses.replace(problem, **overrides) if overrides else problem
+
+
+@lru_cache(maxsize=1)
+def field18_ids() -> tuple:
+    """field-18's position ids, its file parsed once: a parse is 8 ms, and the statistical tests
+    draw a problem hundreds of times (test_efficiency's 250 draws spent 2 s of their 5 s on it)."""
+    return tuple(p.id for p in load_procedure("field-18").positions)
 
 
 @lru_cache(maxsize=4)
@@ -57,7 +74,7 @@ def exact_run(seed: int = 7, raw_counts: bool = False) -> ExactRun:
     silent = {n: dataclasses.replace(t, noise=TriadNoise(white=0.0), lsb=0.0) for n, t in noisy.items()}
     plan = plan_procedure(load_procedure("field-18"), 250.0, np.random.default_rng(seed))
     means, angles = simulate_averages(plan, silent, DEFAULT_STATION, 250.0, seed=seed)
-    ids = [p.id for p in load_procedure("field-18").positions]
+    ids = field18_ids()
     covs, orders = {}, {}
     for name, truth in noisy.items():
         _, order = build_problem(name, truth.kind, truth.output_unit, list(plan.windows), means[name],

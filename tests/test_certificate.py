@@ -18,7 +18,14 @@ from fieldcal.paramfile import load
 from fieldcal.units import BIAS, operator_unit
 from fieldcal.run.runner import open_run
 
-QUICK = str(Path(__file__).parent / "faults" / "quick.yaml")
+from brisk_quick import brisk_quick
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory) -> str:
+    """The quick procedure with brisk rate steps (brisk_quick): every session here is read again
+    by each certificate, and none of their checks is about the rate steps' speed."""
+    return str(brisk_quick(tmp_path_factory.mktemp("procedure")))
 
 
 class Page(HTMLParser):
@@ -64,9 +71,9 @@ def assert_self_contained(page: Page) -> None:
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
+def session(tmp_path_factory, quick):
     root = tmp_path_factory.mktemp("cert")
-    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(root / "s"),
+    assert main(["run", "--headless", "--quiet", "--procedure", quick, "--out", str(root / "s"),
                  "--seed", "12", "--registry", str(root / "r.sqlite"), "--unit-serial", "PAPER-12",
                  "--operator", "Ada Bench"]) == 0
     [directory] = (root / "s").iterdir()
@@ -128,11 +135,11 @@ def test_the_certificates_headline_says_pass_only_when_every_check_passes(tmp_pa
 
 
 @pytest.fixture(scope="module")
-def serial_session(tmp_path_factory):
+def serial_session(tmp_path_factory, quick):
     """A run through the Xsens byte stream on a pty (its frames carry the simulated device's
     temperature), step 5 skipped, and `fieldcal allan` run on the session afterwards."""
     root = tmp_path_factory.mktemp("cert-serial")
-    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(root / "s"),
+    assert main(["run", "--headless", "--quiet", "--procedure", quick, "--out", str(root / "s"),
                  "--seed", "4", "--serial", "--skip", "5", "--registry", str(root / "r.sqlite")]) == 0
     [directory] = (root / "s").iterdir()
     assert main(["allan", str(directory)]) == 0
@@ -278,13 +285,13 @@ def test_a_browser_that_fails_leaves_the_page_and_no_pdf(tmp_path, session, caps
     assert out.is_file() and sorted(p.name for p in tmp_path.iterdir()) == ["bin", "cert.html"]
 
 
-def test_certificate_checks_the_drift_since_the_units_previous_calibration(tmp_path, session):
+def test_certificate_checks_the_drift_since_the_units_previous_calibration(tmp_path, session, quick):
     """A second calibration of the unit beside the first: the page names the earlier file and
     fails every bias whose change between the two files exceeds the spec's max_drift."""
     import shutil
 
     shutil.copytree(session, tmp_path / "earlier")
-    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path),
+    assert main(["run", "--headless", "--quiet", "--procedure", quick, "--out", str(tmp_path),
                  "--seed", "13", "--registry", str(tmp_path / "r.sqlite"), "--unit-serial", "PAPER-12"]) == 0
     [today] = [d for d in tmp_path.iterdir() if d.name.startswith("quick-")]
     spec = tmp_path / "spec.yaml"
@@ -302,13 +309,13 @@ def test_certificate_checks_the_drift_since_the_units_previous_calibration(tmp_p
                                         "more than 0.001 mg")
 
 
-def test_no_drift_on_the_certificate_of_a_unit_without_a_serial(tmp_path, session):
+def test_no_drift_on_the_certificate_of_a_unit_without_a_serial(tmp_path, session, quick):
     """Issue 23: beside an earlier calibration, a run of a unit without a serial said "serial not
     given" and then "Drift since" that other file. Such a unit is compared with nothing."""
     import shutil
 
     shutil.copytree(session, tmp_path / "earlier")
-    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path),
+    assert main(["run", "--headless", "--quiet", "--procedure", quick, "--out", str(tmp_path),
                  "--seed", "13", "--registry", str(tmp_path / "r.sqlite")]) == 0
     [today] = [d for d in tmp_path.iterdir() if d.name.startswith("quick-")]
     spec = tmp_path / "spec.yaml"
@@ -368,7 +375,7 @@ def test_certificate_states_when_who_where_and_each_limit_beside_its_value(tmp_p
         "the spec's maximum RMS, 1 mg, is above this scale" in text
 
 
-def test_certificate_counts_the_steps_the_parameter_file_was_solved_from_not_those_measured_again(tmp_path):
+def test_certificate_counts_the_steps_the_parameter_file_was_solved_from_not_those_measured_again(tmp_path, quick):
     """A run that starts over mid-way (a live device power-cycled: ``Restart``) keeps the old step
     documents in its log; the certificate counts only the steps on record, and the skips made
     after the restart, as the run's own engine ended with them."""
@@ -384,7 +391,7 @@ def test_certificate_counts_the_steps_the_parameter_file_was_solved_from_not_tho
     from fieldcal.certificate.evidence import gather
     from fieldcal.session.capture import SessionReader
 
-    procedure = load_procedure(QUICK)
+    procedure = load_procedure(quick)
     spec = RunSpec(procedure, Station(40.0, 50.0), seed=3)
 
     class PowerCycledAfterTwoSteps(ScriptedOperator):

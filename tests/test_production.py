@@ -16,6 +16,7 @@ from fieldcal.paramfile import load
 from fieldcal.procedure.positions import load_procedure
 from fieldcal.registry import Registry
 from fieldcal.registry.simulated_line import DRIFT_MG, OUT_OF_SPEC_BIAS_MG, plan_line, run_line
+from brisk_quick import brisk_quick
 from test_registry import QUICK
 
 SPEC = Path(__file__).parents[1] / "configs" / "specs" / "paper-mimu.yaml"
@@ -23,9 +24,11 @@ SPEC = Path(__file__).parents[1] / "configs" / "specs" / "paper-mimu.yaml"
 
 @pytest.fixture(scope="module")
 def pristine_session(tmp_path_factory):
-    """One completed headless run (the simulated MIMU, the quick procedure), recorded nowhere."""
+    """One completed headless run (the simulated MIMU, the quick procedure with brisk rate
+    steps), recorded nowhere."""
     out = tmp_path_factory.mktemp("runs")
-    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(out), "--seed", "5",
+    brisk = brisk_quick(tmp_path_factory.mktemp("procedure"))
+    assert main(["run", "--headless", "--quiet", "--procedure", str(brisk), "--out", str(out), "--seed", "5",
                  "--registry", str(out / "unused.sqlite")]) == 0
     [session] = [p for p in out.iterdir() if p.is_dir()]
     return session
