@@ -190,3 +190,99 @@ def test_blank_runs_are_the_solid_runs_of_the_blank_mask(data):
     expected = solid_runs(a <= 32)
     assert blank.tolist() == (a <= 32).tolist()
     assert start.tolist() == expected[0].tolist() and stop.tolist() == expected[1].tolist()
+
+
+# Fixed-width lines (fixed_width_decimals): read by columns, the same bits as float().
+FIXED = [b"0.029840 33108 33329 36429\n1.039857 33096 33336 36437\n",  # imu_tk's layout, savetxt("%.6f %d")
+         b"-1.50 +2 -0.00\n12.50 -3 +9.99\n",  # a sign or a digit leads a field
+         b".5 5.\r\n.7 8.\r\n",  # no digit before or after the point; CRLF
+         b"-0.000\t7\n+1.250\t8\n",  # tab, -0
+         b"  123456789012345  -1.0000000000001\n  999999999999999  +9.9999999999999\n"]  # 15 columns
+NOT_FIXED = [b"1 2\n1  2\n",  # the separators move
+             b"1.5 2\n15. 2\n",  # the point moves
+             b"1e5 2\n1e6 3\n", b"1-2\n1-3\n", b"1+2\n1+3\n",  # an exponent, a sign inside
+             b"- 1\n- 2\n", b"+. 1\n-. 2\n",  # a sign or point with no digit
+             b"1234567890123456\n", b"1.2.3\n", b"ab\ncd\n", b"#1\n#2\n", b"\n\n",
+             b"1 2\n3\x0b4\n", b"1 2\n3\x004\n", b"1 2\n3 4", b"1 2\n3 4\n5\n"]
+
+
+@pytest.mark.parametrize("data", FIXED)
+def test_fixed_width_lines_are_read_by_columns_as_float_does(data):
+    from drivers.protocols.decimals import fixed_width_decimals
+
+    lines = data.decode().splitlines()
+    got = fixed_width_decimals(data, len(lines))
+    assert got is not None and got.shape == (len(lines), len(lines[0].split()))
+    assert bits(got.ravel()) == bits([float(t) for t in data.split()])
+    assert np.signbit(got.ravel()).tolist() == [t.startswith(b"-") for t in data.split()]
+
+
+@pytest.mark.parametrize("data", NOT_FIXED)
+def test_lines_not_alike_or_not_plain_are_left_to_the_token_reader(data):
+    from drivers.protocols.decimals import fixed_width_decimals
+
+    assert fixed_width_decimals(data, data.count(b"\n")) is None
+
+
+@st.composite
+def fixed_width_rows(draw):
+    """Rows of fields each written to its own fixed width (as a logger's printf does): digits
+    before and after a point at fixed places, a sign or a digit first, now and then a byte of
+    another kind somewhere (a letter, a second point, an exponent, a blank)."""
+    fields = [(draw(st.integers(0, 7)), draw(st.integers(-1, 8)), draw(st.booleans()))
+              for _ in range(draw(st.integers(1, 5)))]  # digits before the point, after it (-1: none), signed
+    rows = []
+    for _ in range(draw(st.integers(1, 6))):
+        row = []
+        for whole, after, signed in fields:
+            lead = draw(st.sampled_from("-+0123456789")) if signed else ""
+            text = lead + draw(st.text("0123456789", min_size=whole, max_size=whole))
+            if after >= 0:
+                text += "." + draw(st.text("0123456789", min_size=after, max_size=after))
+            row.append(text or "0")
+        line = draw(st.sampled_from([" ", "\t", "  "])).join(row)
+        if draw(st.integers(0, 6)) == 0 and line:
+            at = draw(st.integers(0, len(line) - 1))
+            line = line[:at] + draw(st.sampled_from(["x", ".", "e", " ", "-"])) + line[at + 1:]
+        rows.append(line)
+    return rows
+
+
+@settings(max_examples=400, deadline=None)
+@given(fixed_width_rows(), st.sampled_from(["\n", "\r\n"]))
+def test_fixed_width_rows_are_float_bit_for_bit_or_left_to_the_token_reader(rows, end):
+    """Whatever the rows: None, or every token as float() reads it, bit for bit; and rows of
+    one layout with only plain decimals of at most 15 digits are always read by columns."""
+    from drivers.protocols.decimals import fixed_width_decimals
+
+    data = "".join(row + end for row in rows).encode("ascii")
+    got = fixed_width_decimals(data, len(rows))
+    tokens = data.split()
+    plain = all(PLAIN_DECIMAL.fullmatch(t.decode()) and b"e" not in t for t in tokens)
+    if got is not None:
+        assert plain and bits(got.ravel()) == bits([float(t) for t in tokens])
+    alike = len({len(r) for r in rows}) == 1 and len({tuple(i for i, c in enumerate(r) if c in " \t.")
+                                                          for r in rows}) == 1
+    if plain and alike and all(len(t.replace(b".", b"").lstrip(b"+-")) <= 15 for t in tokens) \
+            and all(len(t) > 1 or t.isdigit() for t in tokens) and not any(t in (b"+.", b"-.") for t in tokens):
+        assert got is not None
+
+
+def test_the_whitespace_parser_reads_fixed_width_lines_by_columns_as_token_by_token(monkeypatch):
+    """A block of alike lines takes the column reader (counted); its chunk is the one the token
+    reader makes of the same text, bit for bit, and float()'s."""
+    import drivers.protocols.delimited as delimited
+
+    rows = [f"{0.01 * i:9.6f} {33000 + 7 * i:5d} {-1.25 * (i % 3):+.3f} {i % 10}" for i in range(200)]
+    data = ("\n".join(rows) + "\n").encode()
+    assert len({len(r) for r in rows}) == 1
+    cm = ChannelMap(triads={"a": (1, 2, 3)}, delimiter=None, time_column=0)
+    calls = []
+    by_columns = delimited.fixed_width_decimals
+    monkeypatch.setattr(delimited, "fixed_width_decimals", lambda *a: calls.append(1) or by_columns(*a))
+    fixed = DelimitedTextParser(cm).feed(data, 0.0)
+    monkeypatch.setattr(delimited, "fixed_width_decimals", lambda *a: None)
+    tokens = DelimitedTextParser(cm).feed(data, 0.0)
+    assert calls == [1]
+    assert bits(fixed.t) == bits(tokens.t) == bits([float(r.split()[0]) for r in rows])
+    assert bits(fixed.triads["a"]) == bits(tokens.triads["a"]) == bits([[float(x) for x in r.split()[1:]] for r in rows])
