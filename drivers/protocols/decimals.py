@@ -19,6 +19,8 @@ the caller then uses the general, slower conversion. Nothing here guesses.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 _EXACT_POWERS = 10.0 ** np.arange(23)  # 10^0 .. 10^22: exact in binary64 (5^22 < 2^53)
@@ -209,6 +211,7 @@ def _token_of_each(positions: np.ndarray, start: np.ndarray, stop: np.ndarray):
 # bytes by arithmetic, with no token search and no text-to-number conversion.
 _SEPARATOR = np.zeros(256, dtype=bool)
 _SEPARATOR[[9, 13, 32]] = True  # tab, CR, space: the blanks plain_digits lets through (LF ends a line)
+_LAYOUT_CLASSES = bytes(32 if _SEPARATOR[b] else _POINT if b == _POINT else 48 for b in range(256))  # " ", ".", "0"
 _WRAPPED_PLUS, _WRAPPED_MINUS = (_PLUS - 48) % 256, (_MINUS - 48) % 256  # a sign less "0", as uint8
 _FIXED_DIGITS = 15  # a field's digits: its integer below 10^15 < 2^53, exact as a double
 _PRODUCTS_PER_CALL = 1 << 17  # rows × digit columns × fields in one matmul: below OpenBLAS's
@@ -233,7 +236,7 @@ def fixed_width_decimals(text: bytes, nlines: int) -> np.ndarray | None:
     lines = np.frombuffer(text, dtype=np.uint8).reshape(nlines, width)
     if not (lines[:, -1] == 10).all():  # and so the only line ends: nlines is their count
         return None
-    layout = _fixed_layout(lines[0, :-1].tobytes())
+    layout = _fixed_layout(lines[0, :-1].tobytes().translate(_LAYOUT_CLASSES))
     if layout is None:
         return None
     separators, points, digit_columns, weights, fraction, signed, signed_fields = layout
@@ -266,8 +269,10 @@ def fixed_width_decimals(text: bytes, nlines: int) -> np.ndarray | None:
     return values
 
 
+@functools.lru_cache(maxsize=64)  # a file's pieces share a layout or a few: worked out once each
 def _fixed_layout(line: bytes):
-    """Where a fixed-width line's separators, points and digits are, from the line itself: the
+    """Where a fixed-width line's separators, points and digits are, from its byte classes
+    (``_LAYOUT_CLASSES``: the pieces of one file share them, and so the layout): the
     separator and point columns, the digit columns with the weight of each in its field
     (columns × fields, 10^k in the field's column), each field's digits after its point, and
     the digit columns (and their fields) that may hold a sign instead. None if a field has
