@@ -262,7 +262,7 @@ def fixed_width_rows(draw):
     return rows
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(fixed_width_rows(), st.sampled_from(["\n", "\r\n"]))
 def test_fixed_width_rows_are_float_bit_for_bit_or_left_to_the_token_reader(rows, end):
     """Whatever the rows: None, or every token as float() reads it, bit for bit; and rows of
@@ -302,7 +302,7 @@ def test_the_whitespace_parser_reads_fixed_width_lines_by_columns_as_token_by_to
     assert bits(fixed.triads["a"]) == bits(tokens.triads["a"]) == bits([[float(x) for x in r.split()[1:]] for r in rows])
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from("ef"), st.integers(0, 9), st.integers(0, 4)), min_size=1, max_size=4),
        st.lists(st.lists(st.floats(-1e8, 1e8), min_size=4, max_size=4), min_size=1, max_size=6),
        st.none() | st.tuples(st.integers(0, 10_000), st.sampled_from(" -+.e5")))
