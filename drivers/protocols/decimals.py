@@ -307,13 +307,15 @@ def fixed_width_decimals(text: bytes, nlines: int) -> np.ndarray | None:
 @functools.lru_cache(maxsize=64)  # a file's pieces share a layout or a few: worked out once each
 def _fixed_layout(line: bytes):
     """How to read lines laid out as ``line``, given as its byte classes (``_LAYOUT_CLASSES``:
-    the pieces of one file share them, and so the layout): the classes each column forbids; the
-    weight of each column in its group (columns × groups, 10^k in the group's column, 0 in the
-    others and for every column that is no digit; a group is a field's mantissa, or an
-    exponent, the fields' mantissas first); each field's digits after its point; the fields
-    with an exponent; the columns that may hold a sign or a blank instead of a digit, and their
-    groups. None for a field with two points or letters, a point after its letter, a mantissa of
-    no digit column or more than 15, an exponent of no digit or more than 3."""
+    the pieces of one file share them, and so the layout): the separator, point and letter
+    columns; the digit columns and the weight of each in its group (digit columns × groups,
+    10^k in the group's column; a group is a field's mantissa, or an exponent, the fields'
+    mantissas first); each field's digits after its point; the fields without and with an
+    exponent; which digit columns may hold a sign instead (by index), their groups, and which
+    of them a blank too; the blanks before fields that may hold a sign, their fields, and the
+    index of each such field's own sign-capable first column (-1: none). None for a field with
+    two points or letters, a point after its letter, a mantissa of no digit column or more
+    than 15, an exponent of no digit or more than 3."""
     row = np.frombuffer(line, dtype=np.uint8)
     separator = _SEPARATOR[row]
     edges = np.flatnonzero(np.diff(np.concatenate([[1], separator.view(np.int8), [1]])))
