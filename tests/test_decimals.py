@@ -190,3 +190,148 @@ def test_blank_runs_are_the_solid_runs_of_the_blank_mask(data):
     expected = solid_runs(a <= 32)
     assert blank.tolist() == (a <= 32).tolist()
     assert start.tolist() == expected[0].tolist() and stop.tolist() == expected[1].tolist()
+
+
+# Fixed-width lines (fixed_width_decimals): read by columns, the same bits as float().
+FIXED = [b"0.029840 33108 33329 36429\n1.039857 33096 33336 36437\n",  # imu_tk's layout, savetxt("%.6f %d")
+         b"-1.50 +2 -0.00\n12.50 -3 +9.99\n",  # a sign or a digit leads a field
+         b".5 5.\r\n.7 8.\r\n",  # no digit before or after the point; CRLF
+         b"-0.000\t7\n+1.250\t8\n",  # tab, -0
+         b"  123456789012345  -1.0000000000001\n  999999999999999  +9.9999999999999\n",  # 15 columns
+         b"   2.9840000e-02   3.3108000e+04\n   3.9857000e-02  -3.3096000E+04\n",  # imu_tk's own, %15.7e
+         b"1e5 2.5E-3 -.5e+1\n2e6 7.5e22 +.7e-9\n", b"1.e0\n2.e9\n",
+         b"-1.5e+00 -2\n 1.5e+00  3\n",  # right-aligned: a blank where the first line has a sign
+         b"  1.5e+00   2\n -1.5e+00  -3\n"]  # ... and a sign where it has a blank
+NOT_FIXED = [b"1 2\n1  2\n",  # the separators move
+             b"1.5 2\n15. 2\n",  # the point moves
+             b"1-2\n1-3\n", b"1+2\n1+3\n", b"1e5-\n1e5-\n",  # a sign inside
+             b"1e+\n2e+\n", b"1e.5\n2e.5\n", b"e5\ne6\n", b"1e1e1\n", b"1e1234\n",  # no exponent digit...
+             b"1.0e30\n1.0e22\n", b"1.5e-23\n1.5e-22\n",  # beyond exact scaling
+             b"  -1\n --1\n", b"  -1\n -+1\n", b"1  -5\n1 - 5\n", b"-12\n  2\n",  # two signs, a sign apart
+             b"1e+5\n1e 5\n", b"1  5\n1 25\n", b"1  5\n1 x5\n",  # a blank in an exponent; a digit, a letter in a blank
+             b"- 1\n- 2\n", b"+. 1\n-. 2\n",  # a sign or point with no digit
+             b"1234567890123456\n", b"1.2.3\n", b"ab\ncd\n", b"#1\n#2\n", b"\n\n",
+             b"1 2\n3\x0b4\n", b"1 2\n3\x004\n", b"1 2\n3 4", b"1 2\n3 4\n5\n"]
+
+
+@pytest.mark.parametrize("data", FIXED)
+def test_fixed_width_lines_are_read_by_columns_as_float_does(data):
+    from drivers.protocols.decimals import fixed_width_decimals
+
+    lines = data.decode().splitlines()
+    got = fixed_width_decimals(data, len(lines))
+    assert got is not None and got.shape == (len(lines), len(lines[0].split()))
+    assert bits(got.ravel()) == bits([float(t) for t in data.split()])
+    assert np.signbit(got.ravel()).tolist() == [t.startswith(b"-") for t in data.split()]
+
+
+@pytest.mark.parametrize("data", NOT_FIXED)
+def test_lines_not_alike_or_not_plain_are_left_to_the_token_reader(data):
+    from drivers.protocols.decimals import fixed_width_decimals
+
+    assert fixed_width_decimals(data, data.count(b"\n")) is None
+
+
+@st.composite
+def fixed_width_rows(draw):
+    """Rows of fields each written to its own fixed width (as a logger's printf does): digits
+    before and after a point at fixed places, a sign or a digit first, now and then a byte of
+    another kind somewhere (a letter, a second point, an exponent, a blank); exponents of
+    fixed width in some fields."""
+    fields = [(draw(st.integers(0, 7)), draw(st.integers(-1, 8)), draw(st.booleans()), draw(st.integers(-1, 2)))
+              for _ in range(draw(st.integers(1, 5)))]  # digits before the point, after it (-1: none), signed,
+    # exponent digits (-1: no exponent)
+    rows = []
+    for _ in range(draw(st.integers(1, 6))):
+        row = []
+        for whole, after, signed, exponent in fields:
+            lead = draw(st.sampled_from("-+0123456789")) if signed else ""
+            text = lead + draw(st.text("0123456789", min_size=whole, max_size=whole))
+            if after >= 0:
+                text += "." + draw(st.text("0123456789", min_size=after, max_size=after))
+            text = text or "0"
+            if exponent >= 0:
+                text += draw(st.sampled_from("eE")) + draw(st.sampled_from("+-0123456789")) + draw(
+                    st.text("0123456789", min_size=exponent, max_size=exponent))
+            row.append(text)
+        line = draw(st.sampled_from([" ", "\t", "  "])).join(row)
+        if draw(st.integers(0, 6)) == 0 and line:
+            at = draw(st.integers(0, len(line) - 1))
+            line = line[:at] + draw(st.sampled_from(["x", ".", "e", " ", "-"])) + line[at + 1:]
+        rows.append(line)
+    return rows
+
+
+@settings(max_examples=200, deadline=None)
+@given(fixed_width_rows(), st.sampled_from(["\n", "\r\n"]))
+def test_fixed_width_rows_are_float_bit_for_bit_or_left_to_the_token_reader(rows, end):
+    """Whatever the rows: None, or every token as float() reads it, bit for bit; and rows of
+    one layout with only plain decimals of at most 15 digits are always read by columns."""
+    from drivers.protocols.decimals import fixed_width_decimals
+
+    data = "".join(row + end for row in rows).encode("ascii")
+    got = fixed_width_decimals(data, len(rows))
+    tokens = data.split()
+    plain = all(PLAIN_DECIMAL.fullmatch(t.decode()) for t in tokens)
+    if got is not None:
+        assert plain and bits(got.ravel()) == bits([float(t) for t in tokens])
+    plain = plain and not any(b"e" in t.lower() for t in tokens)  # (an exponent may be beyond exact scaling)
+    alike = len({r.replace("\t", " ").translate(str.maketrans("0123456789+-", "0" * 12)) for r in rows}) == 1
+    if plain and alike and all(len(t.replace(b".", b"").lstrip(b"+-")) <= 15 for t in tokens) \
+            and all(len(t) > 1 or t.isdigit() for t in tokens) and not any(t in (b"+.", b"-.") for t in tokens):
+        assert got is not None
+
+
+def test_the_whitespace_parser_reads_fixed_width_lines_by_columns_as_token_by_token(monkeypatch):
+    """A block of alike lines takes the column reader (counted); its chunk is the one the token
+    reader makes of the same text, bit for bit, and float()'s."""
+    import drivers.protocols.delimited as delimited
+
+    rows = [f"{0.01 * i:9.6f} {33000 + 7 * i:5d} {-1.25 * (i % 3):+.3f} {i % 10}" for i in range(200)]
+    data = ("\n".join(rows) + "\n").encode()
+    assert len({len(r) for r in rows}) == 1
+    cm = ChannelMap(triads={"a": (1, 2, 3)}, delimiter=None, time_column=0)
+    calls = []
+    by_columns = delimited.fixed_width_decimals
+    monkeypatch.setattr(delimited, "fixed_width_decimals", lambda *a: calls.append(1) or by_columns(*a))
+    fixed = DelimitedTextParser(cm).feed(data, 0.0)
+    monkeypatch.setattr(delimited, "fixed_width_decimals", lambda *a: None)
+    tokens = DelimitedTextParser(cm).feed(data, 0.0)
+    assert calls == [1]
+    assert bits(fixed.t) == bits(tokens.t) == bits([float(r.split()[0]) for r in rows])
+    assert bits(fixed.triads["a"]) == bits(tokens.triads["a"]) == bits([[float(x) for x in r.split()[1:]] for r in rows])
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from("ef"), st.integers(0, 9), st.integers(0, 4)), min_size=1, max_size=4),
+       st.lists(st.lists(st.floats(-1e8, 1e8), min_size=4, max_size=4), min_size=1, max_size=6),
+       st.none() | st.tuples(st.integers(0, 10_000), st.sampled_from(" -+.e5")))
+def test_printf_right_aligned_rows_are_read_as_float_does(formats, rows, damage):
+    """Rows as printf writes them right-aligned ("%15.7e", "%12.4f": a negative number's sign
+    in the blank a positive one leaves) are read, bit for bit as float(); a byte changed
+    anywhere gives float()'s bits or None, never other numbers."""
+    from drivers.protocols.decimals import fixed_width_decimals
+
+    lines = [" ".join(f"{v:>{8 + pad + digits}.{digits}{kind}}" for (kind, digits, pad), v in zip(formats, row))
+             for row in rows]
+    data = bytearray("".join(line + "\n" for line in lines).encode("ascii"))
+    if damage is not None and len(data) > 1:
+        at = damage[0] % (len(data) - 1)
+        data[at] = 10 if data[at] == 10 else ord(damage[1])
+    data = bytes(data)
+    got = fixed_width_decimals(data, data.count(b"\n"))
+    if got is not None:
+        assert bits(got.ravel()) == bits([float(t) for t in data.split()])
+    elif damage is None and len({line.translate(_SIGN_AS_BLANK) for line in lines}) == 1:  # one layout
+        assert not all(_exactly_scaled(t.decode()) for t in data.split())
+
+
+_SIGN_AS_BLANK = str.maketrans("0123456789+-", "0000000000  ")
+
+
+def _exactly_scaled(token: str) -> bool:
+    """At most 15 mantissa columns (a sign counted: other lines may have a digit there) and a
+    power of ten within ±22: Clinger's exact case, as the column reader takes it."""
+    mantissa, _, exponent = token.lower().partition("e")
+    whole, _, fraction = mantissa.partition(".")
+    return len(whole + fraction) <= 15 and abs(int(exponent or 0) - len(fraction)) <= 22

@@ -19,6 +19,8 @@ the caller then uses the general, slower conversion. Nothing here guesses.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 _EXACT_POWERS = 10.0 ** np.arange(23)  # 10^0 .. 10^22: exact in binary64 (5^22 < 2^53)
@@ -202,3 +204,172 @@ def _token_of_each(positions: np.ndarray, start: np.ndarray, stop: np.ndarray):
     if len(token) > 1 and (token[1:] <= token[:-1]).any():
         return None
     return token
+
+
+# Fixed-width lines: the columns of the first line say where every line's blanks, points,
+# exponent letters and digits are; each line is then checked against that layout and its numbers
+# made from its digit bytes by arithmetic, with no token search and no text-to-number conversion.
+_SEPARATOR = np.zeros(256, dtype=bool)
+_SEPARATOR[[9, 13, 32]] = True  # tab, CR, space: the blanks plain_digits lets through (LF ends a line)
+_LETTER = ord("e")
+_PAD = _SEPARATOR.copy()
+_PAD[[_PLUS, _MINUS]] = True  # the blank before a right-aligned field: a sign or a blank
+_LAYOUT_CLASSES = bytes(32 if _SEPARATOR[b] else b if b in (_POINT, _LETTER) else _LETTER if b == ord("E")
+                        else _MINUS if b == _PLUS else b if b == _MINUS else 48
+                        for b in range(256))  # " ", ".", "e", "-" or "0": all a layout depends on
+_WRAPPED_PLUS, _WRAPPED_MINUS = (_PLUS - 48) % 256, (_MINUS - 48) % 256  # a sign less "0", as uint8
+_FIXED_DIGITS = 15  # a mantissa's columns: its integer below 10^15 < 2^53, exact as a double
+_EXPONENT_DIGITS = 3
+_PRODUCTS_PER_CALL = 1 << 17  # rows × columns × groups in one matmul: below OpenBLAS's threshold
+# for threads (2^18), whose waiting would cost CPU for nothing on a product this small
+
+
+def fixed_width_decimals(text: bytes, nlines: int) -> np.ndarray | None:
+    """(nlines, fields) numbers of ``text``, ``nlines`` lines each ending in LF, when its lines
+    are alike: all the same length, their separators (space, tab, CR), points and exponent
+    letters in the same columns as the first line's, every other byte a digit, or a sign where
+    one may stand (first in a mantissa or an exponent of two columns or more; in a right-aligned
+    field's blank, as printf's ``%15.7e`` puts it), at most 15 mantissa columns and 3 exponent
+    digits a field, each value within Clinger's exact range. The usual fixed-format log
+    (``%.6f`` times, counts of so many digits, ``%15.7e``). Else None: the caller reads the text
+    token by token; nothing here guesses.
+
+    A field's mantissa digits make one integer, exactly (products of a digit and a power of ten,
+    and their sums, are integers below 2^53: every double operation on them is exact); scaled
+    by 10^(exponent - digits after its point), a power of at most 22 and so exact, in one
+    correctly rounded multiplication or division, the value is bit for bit the one strtod
+    reads (as plain_decimals' exact path)."""
+    width = len(text) // nlines if nlines else 0
+    if width < 2 or width * nlines != len(text):
+        return None
+    layout = _fixed_layout(text[:width - 1].translate(_LAYOUT_CLASSES))
+    if layout is None:
+        return None
+    (separators, points, letters, digit_columns, weights, fraction, plain_fields, exponent_fields, leads,
+     lead_groups, blank_leads, pads, padded, pad_lead) = layout
+    lines = np.frombuffer(text, dtype=np.uint8).reshape(nlines, width)
+    # Each column's bytes of a class it allows (each kind of column by one gather: a few
+    # columns each; a digit column's by the digits' values, below).
+    if not ((lines[:, -1] == 10).all() and _SEPARATOR[lines[:, separators]].all()  # LF: the only line ends
+            and (lines[:, points] == _POINT).all() and ((lines[:, letters] | 32) == _LETTER).all()
+            and _PAD[lines[:, pads]].all()):
+        return None
+    digits = lines[:, digit_columns]  # a copy, made digits' values in place: any other byte wraps above 9
+    digits -= 48
+    # A sign (or, right-aligned, a blank) where a group's first digit may be adds nothing to it;
+    # a sign in the blank before a field (no digit column) nothing either; both is no number ("- 1").
+    held, pad = digits[:, leads], lines[:, pads]
+    no_digit, pad_sign = held > 9, pad > 32
+    minus = None
+    if no_digit.any() or pad_sign.any():
+        sign = (held == _WRAPPED_MINUS) | (held == _WRAPPED_PLUS)
+        if (no_digit & ~sign & ~(_SEPARATOR[(held + 48) & 255] & blank_leads)).any():
+            return None
+        linked = pad_lead >= 0
+        if (pad_sign[:, linked] & no_digit[:, pad_lead[linked]]).any():
+            return None
+        minus = np.zeros((nlines, weights.shape[1]), dtype=bool)
+        minus[:, lead_groups] = held == _WRAPPED_MINUS
+        minus[:, padded] |= pad == _MINUS
+        held[no_digit] = 0
+        digits[:, leads] = held
+    if digits.max() > 9:
+        return None
+    floats = digits.astype(np.float64)
+    groups = np.empty((nlines, weights.shape[1]))  # each mantissa's integer, then each exponent
+    step = max(1, _PRODUCTS_PER_CALL // weights.size)
+    for lo in range(0, nlines, step):  # blocks of rows, a few per piece of text
+        np.matmul(floats[lo:lo + step], weights, out=groups[lo:lo + step])
+    if minus is not None:
+        np.negative(groups, out=groups, where=minus)  # -0 stays -0.0, as strtod reads it
+    values = groups[:, :len(fraction)]
+    if len(exponent_fields) == 0:
+        if fraction.any():
+            values /= _EXACT_POWERS[fraction]
+        return values
+    if fraction[plain_fields].any():
+        values[:, plain_fields] /= _EXACT_POWERS[fraction[plain_fields]]
+    power = (groups[:, len(fraction):] - fraction[exponent_fields]).astype(np.int64)
+    if not (np.abs(power) <= 22).all():
+        return None
+    mantissa = values[:, exponent_fields]
+    up = power >= 0
+    if up.all():
+        values[:, exponent_fields] = mantissa * _EXACT_POWERS[power]
+    elif not up.any():
+        values[:, exponent_fields] = mantissa / _EXACT_POWERS[-power]
+    else:
+        values[:, exponent_fields] = np.where(up, mantissa * _EXACT_POWERS[np.maximum(power, 0)],
+                                              mantissa / _EXACT_POWERS[np.maximum(-power, 0)])
+    return values
+
+
+@functools.lru_cache(maxsize=64)  # a file's pieces share a layout or a few: worked out once each
+def _fixed_layout(line: bytes):
+    """How to read lines laid out as ``line``, given as its byte classes (``_LAYOUT_CLASSES``:
+    the pieces of one file share them, and so the layout): the separator, point and letter
+    columns; the digit columns and the weight of each in its group (digit columns × groups,
+    10^k in the group's column; a group is a field's mantissa, or an exponent, the fields'
+    mantissas first); each field's digits after its point; the fields without and with an
+    exponent; which digit columns may hold a sign instead (by index), their groups, and which
+    of them a blank too; the blanks before fields that may hold a sign, their fields, and the
+    index of each such field's own sign-capable first column (-1: none). None for a field with
+    two points or letters, a point after its letter, a mantissa of no digit column or more
+    than 15, an exponent of no digit or more than 3."""
+    row = np.frombuffer(line, dtype=np.uint8)
+    separator = _SEPARATOR[row]
+    edges = np.flatnonzero(np.diff(np.concatenate([[1], separator.view(np.int8), [1]])))
+    start, stop = edges[0::2], edges[1::2]
+    fields = len(start)
+    if fields == 0:
+        return None
+    point, letter = np.flatnonzero(row == _POINT), np.flatnonzero(row == _LETTER)
+    point_field = np.searchsorted(start, point, side="right") - 1
+    letter_field = np.searchsorted(start, letter, side="right") - 1
+    if (np.diff(point_field) == 0).any() or (np.diff(letter_field) == 0).any():
+        return None
+    mantissa_stop = stop.copy()
+    mantissa_stop[letter_field] = letter
+    if (point >= mantissa_stop[point_field]).any():  # a point in an exponent
+        return None
+    columns = np.flatnonzero((row == 48) | (row == _MINUS))  # digit columns (a sign here: one that may be a digit)
+    field = np.searchsorted(start, columns, side="right") - 1
+    in_exponent = columns > mantissa_stop[field]
+    exponent_group = np.full(fields, -1)
+    exponent_group[letter_field] = fields + np.arange(len(letter))
+    group = np.where(in_exponent, exponent_group[field], field)
+    count = np.bincount(group, minlength=fields + len(letter))
+    if ((count == 0).any() or (count[:fields] > _FIXED_DIGITS).any()
+            or (count[fields:] > _EXPONENT_DIGITS).any()):
+        return None
+    order = np.argsort(group, kind="stable")  # the columns by group (each exponent after all mantissas)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])  # each group's first column, by rank
+    rank = np.empty(len(columns), dtype=np.int64)
+    rank[order] = np.arange(len(columns))
+    power = count[group] - 1 - (rank - first[group])
+    weights = np.zeros((len(row), len(count)))
+    weights[columns, group] = _EXACT_POWERS[power]
+    fraction = np.zeros(fields, dtype=np.int64)
+    fraction[point_field] = mantissa_stop[point_field] - point - 1
+    # A sign may stand first in a mantissa or an exponent of two columns or more, where other
+    # lines have a digit ("-1.5" and "12.5"; a mantissa that starts with a point has none).
+    # Right-aligned fields ("  1.5e+00" and " -1.5e+00") have it where other lines have a
+    # blank: the blank before a field when one more blank (or the line's start) keeps it apart
+    # from the field before, and the first column of a field that starts with a sign after a
+    # blank or at the line's start (a blank there: a digit column fewer for that line).
+    lead = (power == count[group] - 1) & (count[group] >= 2) & ((columns == start[field]) | in_exponent)
+    signed_start = lead & ~in_exponent & (row[columns] == _MINUS) & (
+        (columns == 0) | separator[np.maximum(columns - 1, 0)])
+    padded = np.flatnonzero((start >= 1) & separator[np.maximum(start - 1, 0)]
+                            & ((start == 1) | separator[np.maximum(start - 2, 0)]))
+    mantissa_leads = np.flatnonzero(lead & ~in_exponent)
+    pad_lead = np.full(len(padded), -1)  # which of the leads is the first column of a padded field's mantissa
+    has = np.isin(padded, field[mantissa_leads])
+    pad_lead[has] = np.searchsorted(np.flatnonzero(lead),
+                                    mantissa_leads[np.searchsorted(field[mantissa_leads], padded[has])])
+    exponent_fields = np.flatnonzero(exponent_group >= 0)
+    return (np.setdiff1d(np.flatnonzero(separator), start[padded] - 1), point, letter, columns, weights[columns],
+            fraction, np.setdiff1d(np.arange(fields), exponent_fields), exponent_fields, np.flatnonzero(lead),
+            group[lead], signed_start[lead], start[padded] - 1, padded, pad_lead)
+
+

@@ -24,7 +24,8 @@ import numpy as np
 
 from drivers.chunk import SampleChunk
 from drivers.protocols.base import ParserCounters
-from drivers.protocols.decimals import blank_runs, plain_decimals, plain_digits, solid_runs
+from drivers.protocols.decimals import (blank_runs, fixed_width_decimals, plain_decimals, plain_digits,
+                                        solid_runs)
 
 _LF, _CR, _SP, _TAB = 10, 13, 32, 9
 _NUMERIC_BYTES = b"0123456789+-.eE,"
@@ -349,6 +350,10 @@ class DelimitedTextParser:
         if self._clean_delim is not None and not head_dropped:  # (needs none of the blank runs below)
             values = _clean_delimited(block, a, np.flatnonzero(a == _LF), self._clean_delim, self._need)
             if values is not None:
+                return self._whole_block(values, t_host)
+        if self._runs_only and not head_dropped:  # lines all alike (a fixed-format log): by columns
+            values = fixed_width_decimals(block, nlines)
+            if values is not None and values.shape[1] >= self._need:
                 return self._whole_block(values, t_host)
         # Only blanks and number bytes (the usual file): the blanks are the bytes up to 32.
         digits = plain_digits(block) if self._runs_only else None  # None: not plain
