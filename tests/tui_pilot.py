@@ -58,6 +58,20 @@ async def press_and_go_on(pilot, *keys: str) -> None:
     await pilot.pause(0)
 
 
+async def ask(pilot, key: str) -> str:
+    """Press ``key`` (as ``press_and_go_on``) and wait for the question it asks: its text. (A live
+    device read all the time never lets Pilot.press see the process idle: 2 s a key.)"""
+    await press_and_go_on(pilot, key)
+    await until(pilot, lambda: question_asked(pilot.app) != "")
+    return question_asked(pilot.app)
+
+
+def question_asked(app) -> str:
+    """The text of the question the screen's confirm bar asks ("" if none)."""
+    bars = app.screen.query("#confirm")
+    return str(bars.first().render()) if bars and bars.first().display else ""
+
+
 def waiting_at(app, step: int) -> bool:
     """The run waits for the operator at ``step`` (0-based)."""
     t = app.telemetry
