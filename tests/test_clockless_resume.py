@@ -139,6 +139,28 @@ def test_the_bench_hands_out_a_backlog_without_a_judgement(tmp_path):
     assert checks == [] and handed == [a for a, _ in reads]
 
 
+def test_the_silence_said_is_counted_by_the_silence_clock_not_the_hosts(tmp_path):
+    """A unit served in its own time (``silence_clock``): 3 s of its time without a sample are
+    said once, however little or much host time passed (here none)."""
+    from fieldcal.run.livebench import LiveBench
+
+    unit_time = [0.0]
+    bench = LiveBench(vectornav_config(tmp_path), clock=lambda: 0.0, silence_s=3.0,
+                      silence_clock=lambda: unit_time[0])
+    bench.connection = Port([(0.1, 10)])
+    said = []
+    bench.say = said.append
+    assert len(bench.next_chunks()) == 1 and bench.last_sample_wall == 0.0  # samples came at its 0 s
+    unit_time[0] = 2.9
+    assert bench.next_chunks() == [] and said == []
+    unit_time[0] = 3.1
+    bench.next_chunks()
+    unit_time[0] = 9.0
+    bench.next_chunks()
+    assert said == ["WARNING: no samples from /dev/null for 3 s (cable, power, baud rate, or the device's "
+                    "output settings?)"]
+
+
 # --- the simulated unit's turn-on bias --------------------------------------------------------
 
 def served(seed: int, spread: TurnOnBias | None, seen: list | None = None) -> SimulatedDevices:
@@ -206,6 +228,37 @@ def test_the_served_unit_sends_its_new_bias_after_a_power_cycle(tmp_path):
     np.testing.assert_allclose(after - before, moved, atol=0.3 * MG)
 
 
+def test_a_unit_that_waits_for_its_reader_runs_at_most_a_block_ahead_of_what_was_read():
+    """``waits_for_reader``: read a little at a time, the unit's time (``world_time``) runs a
+    block of samples ahead of the samples read (served as fast as read without it, the port's
+    buffer fills and the unit runs seconds ahead)."""
+    import serial
+
+    from drivers.protocols import make_parser
+    from fieldcal.earth import Station
+
+    station = Station(40.0, 50.0)
+    devices = SimulatedDevices(paper_mimu(), station.gravity, station.latitude_rad, imu_protocol="vectornav",
+                               table_protocol=None, speed=0, seed=3, rate_hz=RATE, waits_for_reader=True)
+    port = serial.Serial(devices.imu_url, timeout=1.0)
+    parser, parsed, ahead = make_parser("vectornav"), 0, []
+    try:
+        devices.start()
+        while parsed < 20 * RATE:  # (each read waits for its bytes, up to the port's timeout)
+            chunk = parser.feed(port.read(500), 0.0)
+            parsed += len(chunk) if chunk is not None else 0
+            ahead.append(devices.world_time - parsed / RATE)
+    finally:
+        devices.stop()
+        port.close()
+    # A block ahead (and a sentence split between reads): 0.52 s here; served without waiting,
+    # the port's buffer full, 2.2 s. More now and then: the kernel shows a block written to the
+    # pty's reader a moment later, and a loaded one later than ``_until_read`` looks (1.3 s was
+    # seen once at load 20), so the typical read is judged.
+    block_s = devices._block / RATE
+    assert float(np.median(ahead)) <= block_s + 2 / RATE, sorted(ahead)[len(ahead) // 2:]
+
+
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
 def test_a_turn_on_bias_spread_is_a_finite_number_at_least_zero(bad):
     with pytest.raises(ValueError, match="turn-on bias gyro_deg_s: expected a finite number >= 0"):
@@ -217,7 +270,7 @@ def test_a_turn_on_bias_spread_is_a_finite_number_at_least_zero(bad):
 def static_12():
     """Twelve of field-18's positions (each axis up and down, and the six tilted ones) with 1 s
     dwells and no table: the accelerometer's nine parameters solve, the gyroscope's do not. (The
-    unit is served in real time; 1 s dwells keep the σ checks' power: see the cycled run's test.)"""
+    unit is served at CLOCKLESS_SPEED; 1 s dwells keep the σ checks' power: see the cycled run's test.)"""
     import yaml
 
     from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -230,28 +283,35 @@ def static_12():
 
 
 SPREAD = TurnOnBias(gyro_deg_s=0.05, accel_mg=2.0)  # a MEMS unit's bias repeatability, about
-CARRY_S = 0.5  # the operator's hands, in real time: long enough to be seen moving, no longer
+CARRY_S = 0.5  # the operator's hands, in the unit's time: long enough to be seen moving, no longer
+# The unit's time per wall time. The station reads the unit's time as its clock (its reads'
+# arrivals, the rate check, the silence: ``on_world_time``, ``silence_clock``) and the unit waits
+# for its reader, so the station sees the same stream at any speed or load; faster than 3 the
+# one process (unit, station and screen) runs out of its one core (the GIL) anyway.
+CLOCKLESS_SPEED = 3.0
 
 
 def served_on_pty(seed: int) -> SimulatedDevices:
-    """A VectorNav unit sending in real time (its rate is measured in host time) at 250 Hz."""
+    """A VectorNav unit sending at 250 Hz of its own time, CLOCKLESS_SPEED times wall time (its
+    rate is measured from its reads' arrivals, stamped in its own time: ``on_world_time``)."""
     from tests.test_tui_live import STATION
 
     return SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol="vectornav",
-                            table_protocol=None, speed=1.0, seed=seed, rate_hz=250, turn_on_bias=SPREAD).start()
+                            table_protocol=None, speed=CLOCKLESS_SPEED, seed=seed, rate_hz=250,
+                            turn_on_bias=SPREAD, waits_for_reader=True).start()
 
 
 async def place(app, pilot, devices, procedure, step: int) -> None:
     """The operator places the unit for ``step`` and says ready; the run goes on past it."""
     from tests.test_tui_resume import log_text
-    from tests.tui_pilot import until, waiting_at
+    from tests.tui_pilot import press_and_go_on, until, waiting_at
 
     try:
         await until(pilot, lambda: waiting_at(app, step))
     except AssertionError:  # (what the station said instead: a break it judged, a lost port)
         raise AssertionError(f"the run never waited at step {step}; its log: {log_text(app)[-3000:]}") from None
     devices.carry(procedure.positions[step].attitude, CARRY_S).result(timeout=60)
-    await pilot.press("r")
+    await press_and_go_on(pilot, "r")  # (and waited for by what it does)
     await until(pilot, lambda: app.outcome is not None or (app.telemetry.step > step and not app.telemetry.waiting)
                 or waiting_at(app, step + 1))
 
@@ -259,12 +319,13 @@ async def place(app, pilot, devices, procedure, step: int) -> None:
 def on_world_time(monkeypatch, world) -> None:
     """The station stamps each read's arrival with ``world`` (the served unit's sample time) as
     its wall clock already is (tests/test_tui_resume.py's WorldClock), not with the host's
-    monotonic clock. The unit is served from a thread of the test's own process, in real time by
-    that clock: on a loaded machine the thread can fall behind it, every read is then late, and
-    the rate measured from the arrivals falls more than 1 % short, which holds the run before its
-    first dwell (the resumed run never reached its first step once, under two `yes`). A real
-    unit's bytes keep their time whatever the host does; in the unit's own time they do here,
-    and the rate check still measures them (from arrivals: VectorNav frames carry no clock)."""
+    monotonic clock. The unit is served from a thread of the test's own process, faster than
+    real time by that clock: on a loaded machine the thread can fall behind it, every read is
+    then late, and the rate measured from the arrivals falls more than 1 % short, which holds
+    the run before its first dwell (the resumed run never reached its first step once, under two
+    `yes`). A real unit's bytes keep their time whatever the host does; in the unit's own time
+    they do here, and the rate check still measures them (from arrivals: VectorNav frames carry
+    no clock). The app is given the same time as its ``silence_clock``."""
     monkeypatch.setattr("fieldcal.run.devices.time", SimpleNamespace(monotonic=world))
 
 
@@ -294,13 +355,17 @@ def mixed_solution(session, spec):
 
 
 LATE_AT = 2  # steps completed when the unit's bytes come late (a backlog: they are kept)
+# How late, in the unit's time: beyond the station's 3 s silence warning and ClocklessStream's 2 s
+# slack, and by enough that the station, polling for samples on a loaded machine, is sure to look
+# while the silence is past 3 s (at 4 s, 1/3 s of wall time at CLOCKLESS_SPEED: missed at load 20).
+LATE_S = 10.0
 BEFORE_CYCLE = 6  # steps completed when the unit is switched off and on: each axis up and down
 
 
 @pytest.fixture(scope="module")
 def clockless_cycled_run(tmp_path_factory):
-    """The operator through ``static_12`` on a VectorNav unit served on a pty in real time, its
-    port open throughout (a powered adapter). After LATE_AT steps its bytes come 4 s late, all at
+    """The operator through ``static_12`` on a VectorNav unit served on a pty (at CLOCKLESS_SPEED), its
+    port open throughout (a powered adapter). After LATE_AT steps its bytes come LATE_S late, all at
     once (nothing lost: longer than the station's 3 s silence warning and ClocklessStream's 2 s
     slack); after BEFORE_CYCLE steps the unit is off for 3 s (beyond that slack too), and the run
     is followed from the station's restart of it to its end. One run, for the two tests below:
@@ -317,12 +382,12 @@ def clockless_cycled_run(tmp_path_factory):
     @run_async
     async def run():
         app = _live_app(tmp_path, without_table(tmp_path, devices, with_vectornav), procedure,
-                        lambda: devices.world_time)
+                        lambda: devices.world_time, silence_clock=lambda: devices.world_time)
         async with app.run_test(size=(80, 24)) as pilot:
             for step in range(BEFORE_CYCLE):
-                if step == LATE_AT:  # the unit runs on; its bytes come 4 s late, all at once
+                if step == LATE_AT:  # the unit runs on; its bytes come LATE_S late, all at once
                     await until(pilot, lambda: waiting_at(app, LATE_AT))
-                    devices.deliver_late(4.0).result(timeout=60)
+                    devices.deliver_late(LATE_S).result(timeout=60)
                 await place(app, pilot, devices, procedure, step)
                 if step == LATE_AT:
                     late_log = log_text(app)
@@ -349,7 +414,7 @@ def clockless_cycled_run(tmp_path_factory):
 
 
 def test_a_clockless_units_late_delivery_keeps_the_steps_before_it(clockless_cycled_run):
-    """The unit stays powered; its bytes come 4 s late once (the station sees the silence): the
+    """The unit stays powered; its bytes come LATE_S late once (the station sees the silence): the
     run goes on after the step it had completed, keeping every step before it, until the power
     cycle later drops them all at once."""
     from fieldcal.session.capture import SessionReader
@@ -399,11 +464,10 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
     was also test_tui_resume's "a device whose frames carry no clock is taken as power-cycled":
     its checks are here, on one real-time run instead of two.)"""
     from fieldcal.session.capture import SessionReader
-    from tests.test_tui_keys import confirm_text
     from tests.test_tui_resume import (SHORT, WorldClock, _first_step, _live_app, _resume,
                                        vectornav_config as with_vectornav, without_table)
     from tests.test_tui import two_positions
-    from tests.tui_pilot import run_async
+    from tests.tui_pilot import ask, run_async
 
     devices = served_on_pty(5)
     world = WorldClock(devices)
@@ -413,11 +477,10 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
 
     @run_async
     async def quit_after_one_step():
-        app = _live_app(tmp_path, config, procedure, world)
+        app = _live_app(tmp_path, config, procedure, world, silence_clock=world)
         async with app.run_test(size=(80, 24)) as pilot:
             await _first_step(app, pilot, devices, procedure)
-            await pilot.press("ctrl+q")
-            question = confirm_text(app)
+            question = await ask(pilot, "ctrl+q")
             await pilot.press("y")
         assert app.source.done.wait(60.0) and app.source.outcome.status == "stopped"
         assert f"fieldcal tui --resume {tmp_path / 'session'} --config" in app.source.outcome.message
@@ -426,7 +489,7 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
     @run_async
     async def resume():
         return await _resume(tmp_path, config, world, 0,
-                             lambda attitude: devices.carry(attitude, CARRY_S).result(timeout=60))
+                             lambda attitude: devices.carry(attitude, CARRY_S).result(timeout=60), world)
 
     try:
         question = quit_after_one_step()

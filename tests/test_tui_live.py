@@ -5,6 +5,7 @@ captures the session, and the capture replays to the same result."""
 from __future__ import annotations
 
 import math
+import threading
 import types
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.cli.tui import live_spec
 from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, on_results, run_async, two_positions, until, waiting_at
-from tests.tui_pilot import log_settled, placed_and_still, press_and_go_on
+from tests.tui_pilot import log_settled, placed_and_still, press_and_go_on, what_it_shows
 
 STATION = Station(40.0, 50.0)
 OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart", thermal=None)
@@ -196,3 +197,43 @@ async def test_a_table_whose_port_goes_away_is_said_and_the_run_waits_for_the_op
     finally:
         table.close()
     assert app.source.outcome.status == "aborted"
+
+
+@run_async
+async def test_devices_lost_as_the_table_command_goes_out_are_said_and_the_run_waits(tmp_path, devices):
+    """The unit's and the table's cables pulled just as the table is commanded: between the
+    command's write and pyserial's flush of it, whose tcdrain then raises termios.error, not an
+    OSError. The run must not end in an error (it did: the first test's CI failure of 2026-11-28,
+    on the results screen at the rate step's first command); the station says the table's port
+    failed and that no samples come, and waits for the operator."""
+    config = live_config(tmp_path, devices)
+    procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+    app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config)
+    pulled = threading.Event()
+    async with app.run_test(size=(80, 24)) as pilot:
+        await until(pilot, lambda: waiting_at(app, 0))
+        port = app.source.bench.table._io.port  # the table's pyserial port, as the station opened it
+        written, real_write, real_flush = [], port.write, port.flush
+
+        def write(data):
+            written.append(bytes(data))
+            return real_write(data)
+
+        def flush():
+            if written[-1].startswith(b"RATE") and not pulled.is_set():
+                pulled.set()
+                devices.stop()  # both cables, after the command's bytes went out and before the flush
+            return real_flush()
+
+        port.write, port.flush = write, flush
+        devices.carry(procedure.positions[0].attitude, 2.0).result(timeout=60)
+        await press_and_go_on(pilot, "r")
+        await until(pilot, lambda: app.outcome is not None or log_settled(app, "ERROR: table: its port"))
+        assert app.outcome is None, what_it_shows(app)
+        assert pulled.is_set() and app.telemetry.step == 0 and app.telemetry.phase in ("rate_wait", "rate_average")
+        await until(pilot, lambda: app.telemetry.silent_s is not None)
+        text, style = app.screen.view.banner(sim=False)
+        assert text.startswith("NO SAMPLES from the device") and style == "bad"
+        await pilot.press("q", "y")
+    assert app.source.done.wait(60.0), "the run's thread never ended"
+    assert app.source.outcome.status == "stopped"  # the session can be resumed

@@ -3,7 +3,7 @@ lost, and "no" keeps the run going (Textual's Pilot). Enter on the setup screen 
 next field; only the start key (or button) starts."""
 from __future__ import annotations
 
-from tui_pilot import run_async, until, waiting_at
+from tui_pilot import ask, press_and_go_on, question_asked, run_async, until, waiting_at
 from fieldcal.procedure import events as ev
 from fieldcal.run.runner import RunSpec, open_run
 from fieldcal.tui import FieldcalApp
@@ -157,7 +157,7 @@ def test_redo_skip_and_back_say_how_much_of_the_step_they_drop():
     assert view.work_words() == "1 of 3 positions done in 2 min"  # 92 s, rounded to minutes
 
 
-def live_app(tmp_path, protocol: str):
+def live_app(tmp_path, protocol: str, monkeypatch):
     """The UI on a simulated device served on a pty in ``protocol``, with no table."""
     import pytest
 
@@ -165,13 +165,17 @@ def live_app(tmp_path, protocol: str):
     from drivers.sim.serve import SimulatedDevices
     from fieldcal.cli.tui import live_spec
     from fieldcal.config import load_config
+    from tests.test_clockless_resume import CLOCKLESS_SPEED, on_world_time
     from tests.test_tui_live import OPTIONS
 
-    # Served in real time. VectorNav ASCII carries no device time: its rate is measured in host
-    # time (as fast as read, the run would be held: issue 23's rate check). An Xsens served as
-    # fast as read floods a run that waits for the operator: each key took the Pilot seconds.
+    # VectorNav ASCII carries no device time: its rate is measured from its reads' arrivals (as
+    # fast as read, the run would be held: issue 23's rate check), stamped here in the unit's own
+    # time, which waits for the station's reads (as test_clockless_resume's units). An Xsens
+    # served as fast as read floods a run that waits for the operator: each key took the Pilot seconds.
     devices = SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol=protocol,
-                               table_protocol=None, speed=1.0, seed=3, rate_hz=200)
+                               table_protocol=None, speed=CLOCKLESS_SPEED, seed=3, rate_hz=200,
+                               waits_for_reader=True)
+    on_world_time(monkeypatch, lambda: devices.world_time)
     devices.start()
     tmp_path.mkdir()
     acc, gyro = PAPER_NOISE["accelerometer"], PAPER_NOISE["gyroscope"]
@@ -195,7 +199,7 @@ station: {{latitude_deg: 40.0, height_m: 50.0}}
 
 
 @run_async
-async def test_the_quit_question_says_when_a_resume_measures_everything_again(tmp_path):
+async def test_the_quit_question_says_when_a_resume_measures_everything_again(tmp_path, monkeypatch):
     """A VectorNav's ASCII frames carry no clock: a resume cannot show the unit stayed powered and
     measures every completed position again (here none is: it starts from the first); an Xsens's
     carry one: a resume can continue."""
@@ -203,15 +207,18 @@ async def test_the_quit_question_says_when_a_resume_measures_everything_again(tm
                                           "the unit stayed powered: it starts from the first step."),
                             ("xsens", "a resume continues after the last completed step if the unit "
                                       "stays powered")):
-        app, devices = live_app(tmp_path / protocol, protocol)
+        app, devices = live_app(tmp_path / protocol, protocol, monkeypatch)
         try:
             async with app.run_test(size=(80, 24)) as pilot:
                 await until(pilot, lambda: waiting_at(app, 0) and app.source.bench.device_clock is not None)
-                await pilot.press("ctrl+q")
-                assert words in confirm_text(app), protocol
-                await pilot.press("n")
+                # (keys and their effect waited for: a device read all the time never lets
+                # Pilot.press see the process idle, 2 s a key)
+                assert words in await ask(pilot, "ctrl+q"), protocol
+                await press_and_go_on(pilot, "n")
+                await until(pilot, lambda: question_asked(app) == "")
                 assert app.is_running and waiting_at(app, 0)
-                await pilot.press("q", "q")
+                await ask(pilot, "q")
+                await press_and_go_on(pilot, "q")
                 await until(pilot, lambda: not app.is_running)
         finally:
             devices.stop()

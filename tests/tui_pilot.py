@@ -25,12 +25,21 @@ async def until(pilot, predicate, timeout_s: float = 120.0) -> None:
 
 
 def what_it_shows(app) -> str:
-    """The state a hang leaves, for the failure's message: the banner, the run's phase and the
-    last lines of the event log (a held rate, a silent device and a stuck step read differently)."""
+    """The state a hang leaves, for the failure's message: the banner, the run's phase, the last
+    lines of the event log (a held rate, a silent device and a stuck step read differently) and,
+    once the run has ended, how (its status and message: an error says which) with the log's
+    last lines as the procedure screen kept them behind the results."""
     parts = [f"screen {type(app.screen).__name__}; telemetry {getattr(app, 'telemetry', None)!r}"]
-    for selector in ("#banner", "#log"):
+    outcome = getattr(app, "outcome", None)
+    if outcome is not None:
+        parts.append(f"the run ended: {outcome.status}: {outcome.message or '(no message)'}")
+    screens = [app.screen]
+    behind = getattr(app, "procedure_screen", None)
+    if behind is not None and behind is not app.screen:
+        screens.append(behind)
+    for screen, selector in [(s, sel) for s in screens for sel in ("#banner", "#log")]:
         try:
-            widget = app.screen.query_one(selector)
+            widget = screen.query_one(selector)
         except Exception:  # another screen, or not mounted: say what there is
             continue
         lines = getattr(widget, "lines", None)
@@ -47,6 +56,20 @@ async def press_and_go_on(pilot, *keys: str) -> None:
     for key in keys:
         pilot.app.simulate_key(key)
     await pilot.pause(0)
+
+
+async def ask(pilot, key: str) -> str:
+    """Press ``key`` (as ``press_and_go_on``) and wait for the question it asks: its text. (A live
+    device read all the time never lets Pilot.press see the process idle: 2 s a key.)"""
+    await press_and_go_on(pilot, key)
+    await until(pilot, lambda: question_asked(pilot.app) != "")
+    return question_asked(pilot.app)
+
+
+def question_asked(app) -> str:
+    """The text of the question the screen's confirm bar asks ("" if none)."""
+    bars = app.screen.query("#confirm")
+    return str(bars.first().render()) if bars and bars.first().display else ""
 
 
 def waiting_at(app, step: int) -> bool:

@@ -75,6 +75,21 @@ class PtyLink:
                 break
         return written
 
+    def unread(self) -> int:
+        """Bytes written and not yet read by the station (0 while unplugged)."""
+        import fcntl
+        import struct
+        import termios
+
+        with self._lock:
+            fd = self._slave  # (its input queue is what the station has not read)
+            if fd is None:
+                return 0
+            try:
+                return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+            except OSError:
+                return 0
+
     def read(self, timeout_s: float = 0.05) -> bytes:
         with self._lock:
             fd = self._master

@@ -96,9 +96,15 @@ class SimulatedDevices:
                  imu_protocol: str = "xsens", table_protocol: str | None = "ascii",
                  transport: str = "pty", speed: float = 1.0, seed: int | np.random.SeedSequence = 1, rate_hz: float = 250.0,
                  attitude: np.ndarray | None = None, block_s: float = 0.02, on_chunk=None,
-                 thermal: SimThermal | None = None, turn_on_bias: TurnOnBias | None = None):
+                 thermal: SimThermal | None = None, turn_on_bias: TurnOnBias | None = None,
+                 waits_for_reader: bool = False):
         """``turn_on_bias``: how far each switch-on's biases fall from ``triads``' (None: not at
-        all, the unit's biases repeat exactly, as every simulator before it had them)."""
+        all, the unit's biases repeat exactly, as every simulator before it had them).
+        ``waits_for_reader``: the unit goes on only once the station has read what it sent
+        (a pty's link; never losing bytes that do not fit), and so its time (``world_time``)
+        runs a block or two at most ahead of what the station has read: a test whose station stamps
+        its reads with the unit's time sees the same stream at any ``speed``, however loaded
+        the host. (A real device waits for nobody.)"""
         from drivers.sim.tables import TableMotion
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport: expected 'pty' or 'tcp', got {transport!r}")
@@ -126,6 +132,7 @@ class SimulatedDevices:
         self.imu_link = link()
         self.table_link = link() if self.table else None
         self.speed = speed
+        self.waits_for_reader = waits_for_reader
         self.attitude = np.eye(3) if attitude is None else np.asarray(attitude, dtype=float)
         # Real time: small blocks, like a device's steady trickle. Faster: blocks grow with speed,
         # so the simulator's per-block overhead does not cap the rate (as fast as read: 0.5 s).
@@ -255,11 +262,13 @@ class SimulatedDevices:
                 self._write_all(b"".join(late[1:]) + data)  # all of it at once, nothing lost
                 late[0].set_result(None)
                 late_until, late = None, []
-            elif self.speed > 0:
+            elif self.speed > 0 and not self.waits_for_reader:
                 # A real device does not wait for a slow host: what does not fit is lost.
                 self.imu_link.write(data, timeout_s=0.05)
             else:
                 self._write_all(data)
+                if self.waits_for_reader:
+                    self._until_read()
             self.samples_sent += len(chunk)
 
     def _write_all(self, data: bytes) -> None:
@@ -269,6 +278,16 @@ class SimulatedDevices:
             written += sent
             if not sent:  # unplugged: wait for the cable rather than spin
                 self._stop.wait(0.05)
+
+    def _until_read(self) -> None:
+        """Until the station has read every byte written (``waits_for_reader``), or the devices
+        stop. A pty shows bytes just written to its reader a moment later (the kernel pushes them
+        on from a work queue): nothing unread is believed only when seen twice 2 ms apart."""
+        unread = getattr(self.imu_link, "unread", None)
+        empty_seen = 0
+        while unread is not None and empty_seen < 2 and not self._stop.is_set():
+            empty_seen = empty_seen + 1 if unread() == 0 else 0
+            self._stop.wait(0.002)
 
     def _table_loop(self) -> None:
         while not self._stop.is_set():

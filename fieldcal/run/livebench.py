@@ -15,24 +15,34 @@ from fieldcal.config import StationConfig
 from fieldcal.run.deviceclock import ClocklessStream, DeviceClock, clock_of, judge_restart, went_back
 from fieldcal.run.devices import DeviceConnection
 
+try:  # pyserial's flush (tcdrain) on a port gone under it raises termios.error, not an OSError
+    # (pyserial issue 417): a cable pulled between a command's write and its flush
+    from termios import error as _TermiosError
+    PORT_FAILURES: tuple[type[BaseException], ...] = (OSError, _TermiosError)
+except ImportError:  # no termios (Windows): pyserial raises SerialException (an OSError) there
+    PORT_FAILURES = (OSError,)
+
 
 class LiveBench:
     # A table that refuses a command is the operator's to deal with (skip the step or abort).
     recoverable_errors = (ValueError, TableError)
 
     def __init__(self, config: StationConfig, tap=None, clock=time.monotonic, silence_s: float = 3.0,
-                 wall_clock=time.time):
+                 wall_clock=time.time, silence_clock=None):
         """``tap(t, data)`` receives every byte read from the IMU port (the session's raw capture);
-        ``silence_s`` of wall time without a sample is reported once. ``wall_clock``: the host's
-        Unix time, recorded beside the device's own clock (``device_clock``)."""
+        ``silence_s`` without a sample is reported once, measured by ``silence_clock`` (default:
+        ``clock``, the host's time; a test serving a simulated unit passes the unit's own time, so
+        that the silence said is the unit's whatever the load on the host). ``wall_clock``: the
+        host's Unix time, recorded beside the device's own clock (``device_clock``)."""
         self.config = config
         self.connection = DeviceConnection(config, tap=tap)
         self.table: RateTable | None = None
         self.url = config.device.port.url if config.device.port else "(simulated)"
         self.say = lambda text: None
         self.clock = clock
+        self.silence_clock = clock if silence_clock is None else silence_clock
         self.silence_s = silence_s
-        self._last_sample_wall = clock()
+        self._last_sample_wall = self.silence_clock()
         self._silent_reported = False
         self._trouble_reported = (0, 0, 0)
         self.wall_clock = wall_clock
@@ -51,7 +61,7 @@ class LiveBench:
 
     def start(self) -> LiveBench:
         self.connection.__enter__()
-        self._last_sample_wall = self.clock()
+        self._last_sample_wall = self.silence_clock()
         table = self.config.table
         if table is not None and table.port is not None:
             p = table.port
@@ -98,7 +108,7 @@ class LiveBench:
         for pe in port_events:
             detail = f": {pe.message}" if pe.message and pe.message != self.url else ""
             self.say(f"port {self.url}: {pe.kind}{f' after {pe.gap_s:.1f} s' if pe.gap_s else ''}{detail}")
-        now = self.clock()
+        now = self.silence_clock()
         if chunks or self._pending:  # (frames held back after a regain came too: not a silence)
             self._last_sample_wall, self._silent_reported = now, False
         elif now - self._last_sample_wall > self.silence_s and not self._silent_reported:
@@ -246,7 +256,7 @@ class LiveBench:
 
     @property
     def last_sample_wall(self) -> float:
-        """The wall time (``clock``) at which samples last came (or the port was opened)."""
+        """The time (``silence_clock``) at which samples last came (or the port was opened)."""
         return self._last_sample_wall
 
     @property
@@ -261,7 +271,7 @@ class LiveBench:
                 self.table.stop()
             else:
                 self.table.set_rate(rate_deg_s)
-        except OSError as exc:  # its port is gone (unplugged, powered off): the operator's to deal with
+        except PORT_FAILURES as exc:  # its port is gone (unplugged, powered off): the operator's to deal with
             table = self.config.table
             assert table is not None and table.port is not None  # (self.table was opened on it)
             raise TableError(f"its port {table.port.url} failed ({exc}): is the table "

@@ -54,7 +54,7 @@ class FieldcalApp(App[int]):
     def __init__(self, spec=None, speed: float = 10.0, session_dir: Path | None = None,
                  replay: RunRecord | None = None, clock=time.monotonic, config=None, setup=None,
                  resume: RunRecord | None = None, product_spec=None, wall_clock=time.time,
-                 hands=None) -> None:
+                 hands=None, silence_clock=None) -> None:
         """``product_spec``: an ``acceptance.ProductSpec``: the results say PASS/FAIL against it,
         and the exit status is 3 (as the headless run's) when a check fails.
 
@@ -64,6 +64,8 @@ class FieldcalApp(App[int]):
 
         ``config``: the station config of a real device (``spec.live``), for its ports.
         ``wall_clock``: the host's Unix time, beside a real device's own clock (resume).
+        ``silence_clock``: what a real device's silence is measured in (default ``clock``; see
+        ``LiveSource``).
         ``hands``: an ``OperatorScript``: the simulator places the unit at each step by itself.
 
         ``setup``: instead of a run, ``(initial, make_run)``: the setup screen opens with the
@@ -79,6 +81,7 @@ class FieldcalApp(App[int]):
         self.speed = float(speed)
         self.clock = clock
         self.wall_clock = wall_clock
+        self.silence_clock = silence_clock
         self.source: Source | None = None
         self.outcome: Outcome | None = None
         self.events: list[ev.Event] = []  # every engine event shown, in order (for tests)
@@ -100,7 +103,7 @@ class FieldcalApp(App[int]):
             if config is None:
                 raise ValueError(f"{resume}: a live device's session: resuming it needs the station config "
                                  "of that device (its ports)")
-            self.source = LiveSource.resuming(resume, config, self, clock, self.wall_clock)
+            self.source = LiveSource.resuming(resume, config, self, clock, self.wall_clock, self.silence_clock)
             live = self.source.spec.live
             title = (f"fieldcal · {self.source.spec.procedure.name} · resuming {resume.directory.name} · "
                      f"{live.name} on {config.device.port.url}")
@@ -114,7 +117,8 @@ class FieldcalApp(App[int]):
         elif spec is not None and spec.live is not None:
             from fieldcal.tui.live_source import LiveSource
 
-            self.source = LiveSource(spec, config, self, session_dir, clock, wall_clock=self.wall_clock)
+            self.source = LiveSource(spec, config, self, session_dir, clock, wall_clock=self.wall_clock,
+                                     silence_clock=self.silence_clock)
             title = f"fieldcal · {spec.procedure.name} · {spec.live.name} on {spec.live.url}"
         else:
             if spec is None:

@@ -42,15 +42,21 @@ class LiveSource(SimSource):
 
     def __init__(self, spec, config, sink: Sink, session_dir: Path | None,
                  clock: Callable[[], float] = time.monotonic, resume=None,
-                 wall_clock: Callable[[], float] = time.time):
+                 wall_clock: Callable[[], float] = time.time,
+                 silence_clock: Callable[[], float] | None = None):
         """``resume``: the ``RunRecord`` of the unfinished live session in ``session_dir`` to
         continue (``resuming``).
-        ``wall_clock``: the host's Unix time, against which the device's clock is judged."""
+        ``wall_clock``: the host's Unix time, against which the device's clock is judged.
+        ``silence_clock``: what the device's silence is measured in (``SILENT_S``,
+        ``NO_SAMPLES_WARN_S``); default ``clock``. A test serving a simulated unit faster than
+        real time passes the unit's own time, so that a silence is the unit's, never the host's
+        load."""
         from fieldcal.run.livebench import LiveBench
 
         self.config = config
+        self.silence_clock = clock if silence_clock is None else silence_clock
         bench = LiveBench(config, tap=self._capture_raw, clock=clock, silence_s=NO_SAMPLES_WARN_S,
-                          wall_clock=wall_clock)
+                          wall_clock=wall_clock, silence_clock=self.silence_clock)
         super().__init__(spec, sink, 0.0, session_dir, clock, bench=bench, resume=resume)
         self._caught_up = False  # everything read so far has been fed (then silence is the device's)
         self.clock_check = None  # a resumed run: what the device's clock said (deviceclock.ClockCheck)
@@ -60,14 +66,16 @@ class LiveSource(SimSource):
 
     @classmethod
     def resuming(cls, record, config, sink: Sink, clock: Callable[[], float] = time.monotonic,
-                 wall_clock: Callable[[], float] = time.time) -> LiveSource:
+                 wall_clock: Callable[[], float] = time.time,
+                 silence_clock: Callable[[], float] | None = None) -> LiveSource:
         """Continue the unfinished live session of ``record`` (its ``RunRecord``) on the device
         of ``config`` (its ports; the device must be the session's): the run's spec is the session's."""
         spec = record.spec
         if spec.live is None:
             raise ValueError(f"{record.directory}: a simulated session; LiveSource resumes a live device's")
         check_same_device(spec.live, config, record.directory)
-        return cls(spec, config, sink, record.directory, clock, resume=record, wall_clock=wall_clock)
+        return cls(spec, config, sink, record.directory, clock, resume=record, wall_clock=wall_clock,
+                   silence_clock=silence_clock)
 
     def _capture_raw(self, t: float, data: bytes) -> None:
         """Called on the port's reader thread (the session writer is thread-safe)."""
@@ -239,7 +247,7 @@ class LiveSource(SimSource):
         telemetry = super().telemetry()
         # Silent only once everything read has been fed: a batch that takes a while to feed (a
         # loaded station) is not a device that stopped.
-        silent = self.clock() - self.bench.last_sample_wall
+        silent = self.silence_clock() - self.bench.last_sample_wall
         return replace(telemetry, silent_s=silent) \
             if self.conductor is not None and self._caught_up and silent > SILENT_S \
             else telemetry
