@@ -1,7 +1,7 @@
 """`make mutants`: generate mutmut's mutants of the core, run them module by module, print a table.
 
     python tools/mutation/run.py [--modules 'procedure/positions.py session/*'] [--first N]
-                                [--again survived] [--report]
+                                [--names FILE] [--again survived] [--report]
 
 Run from the repository's top with the mutation environment's Python (.venv-mutants). Each module
 runs in one pytest process (inprocess.py) over the quick tests tests.toml lists for it, niced, with
@@ -135,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--modules", default="", help="globs under fieldcal/, by spaces or commas (default: all)")
     parser.add_argument("--first", type=int, default=0, help="run only a module's first N mutants")
+    parser.add_argument("--names", type=Path, help="run only the mutants this file names (one a line)")
     parser.add_argument("--again", choices=("survived", "all"), help="run these again")
     parser.add_argument("--report", action="store_true", help="only print the table of the kept verdicts")
     parser.add_argument("--floor", type=float, default=10.0, help="least CPU seconds a test may take")
@@ -163,6 +164,9 @@ def main(argv: list[str] | None = None) -> int:
             verdicts = read_verdicts(module)
             again = {"survived": ("survived",), "all": ("survived", "no tests") + KILLED}.get(args.again or "", ())
             selected = names[:args.first] if args.first else names
+            if args.names:
+                listed = set(args.names.read_text(encoding="utf-8").split())
+                selected = [n for n in selected if n in listed]
             todo = [n for n in selected if n not in verdicts or verdicts[n][0] in again]
             if todo:
                 run_module(module, todo, tests, args.floor)
