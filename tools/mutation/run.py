@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     if wanted and not chosen:
         sys.exit(f"tools/mutation/run.py: --modules {args.modules!r} names no mutated module "
                  f"(they are: {', '.join(modules)})")
-    rows, unlisted = [], []
+    rows, unlisted, survivors = [], [], []
     for module in chosen:
         names, tests = modules[module], tests_for(module, listing)
         if not tests:
@@ -170,10 +170,17 @@ def main(argv: list[str] | None = None) -> int:
             todo = [n for n in selected if n not in verdicts or verdicts[n][0] in again]
             if todo:
                 run_module(module, todo, tests, args.floor)
-        rows.append((module, tally(names, read_verdicts(module), equivalent)))
+        verdicts = read_verdicts(module)
+        rows.append((module, tally(names, verdicts, equivalent)))
+        survivors += [n for n in names if verdicts.get(n, ("",))[0] == "survived" and n not in equivalent]
     print(table(rows))
     total: Counter = sum((counts for _, counts in rows), Counter())
     print(summary(total))
+    if survivors:
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        (RESULTS / "survivors.txt").write_text("\n".join(survivors) + "\n", encoding="utf-8")
+        print(f"{len(survivors)} survivors not listed as equivalent: {RESULTS / 'survivors.txt'} "
+              f"(`.venv-mutants/bin/mutmut show NAME` prints one's change)")
     if unlisted:
         print(f"no tests listed in tools/mutation/tests.toml, not run: {', '.join(unlisted)}")
     return 0
