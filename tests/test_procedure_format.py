@@ -245,3 +245,25 @@ def test_a_position_in_words():
     # body x 45° up towards east, z 45° up towards west: y level (north), x and z not
     tilted = np.array([[1 / R2, 0, -1 / R2], [0, 1, 0], [1 / R2, 0, 1 / R2]])
     assert position_words(position(tilted)) == "x+z upward, y-north"
+
+
+def test_the_top_level_is_a_mapping_of_the_formats_keys():
+    assert str(refusal("- 1\n")) == \
+        "p.yaml: expected a procedure: a mapping with keys dwell_s, positions, got a list of 1 item"
+    assert str(refusal("positions:\n  - {id: 1, up: z, north: x}\n")) == \
+        "p.yaml: dwell_s: missing (a required key) (line 1)"
+    assert str(refusal("dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\nspeed: 3\n")) == (
+        "p.yaml: speed: unknown key 'speed'; the keys are dwell_s, positions, name, title, rate_step, aligned, "
+        "adaptive_dwell, targets, any_order (line 4)")
+
+
+def test_an_unknown_procedure_name_is_the_errors_path(tmp_path, monkeypatch):
+    from fieldcal.procedure.positions import load_procedure
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ProcedureError) as caught:
+        load_procedure("no-such-procedure")
+    assert (caught.value.path, caught.value.field) == ("no-such-procedure", "")
+    (tmp_path / "mine.yaml").write_text("dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\n")
+    assert load_procedure("mine").name == "mine"  # NAME.yaml here, found by its bare name
+    assert load_procedure(tmp_path / "mine.yaml").dwell_s == 10

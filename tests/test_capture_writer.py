@@ -1,0 +1,50 @@
+"""The session writer's and reader's edges that whole runs do not show (session/capture.py's
+mutants from `SessionWriter.create` on): its defaults, the paths its refusals name, each checked
+against the files on disk or the format's own words."""
+from __future__ import annotations
+
+import os
+
+import pytest
+
+import fieldcal.session.capture as capture
+from fieldcal.session import SessionError
+from fieldcal.session.capture import SessionWriter
+
+
+def _fsyncs(monkeypatch) -> list[int]:
+    synced: list[int] = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(capture.os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+    return synced
+
+
+def test_by_default_the_writer_syncs_once_a_second(tmp_path, monkeypatch):
+    synced = _fsyncs(monkeypatch)
+    now = [50.0]
+    w = SessionWriter.create(tmp_path / "s", {}, clock=lambda: now[0])  # the default interval
+    synced.clear()
+    now[0] = 50.999
+    w.event({"kind": "x"})
+    assert synced == []
+    now[0] = 51.0
+    w.event({"kind": "y"})
+    assert len(synced) == 2  # samples, then the log: one second after the last sync
+    w.close()
+
+
+def test_a_directory_that_cannot_be_a_new_session_is_the_errors_path(tmp_path):
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "notes.txt").write_text("the operator's")
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.create(used, {})
+    assert caught.value.path == str(used)
+    assert str(caught.value) == (f"{used}: already exists and is not empty (a new session needs a new "
+                                 "directory; to continue this one, resume it)")
+    assert (used / "notes.txt").read_text() == "the operator's" and sorted(os.listdir(used)) == ["notes.txt"]
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.create(a_file, {})
+    assert (str(caught.value), caught.value.path) == (f"{a_file}: exists and is not a directory", str(a_file))
