@@ -267,3 +267,20 @@ def test_an_unknown_procedure_name_is_the_errors_path(tmp_path, monkeypatch):
     (tmp_path / "mine.yaml").write_text("dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\n")
     assert load_procedure("mine").name == "mine"  # NAME.yaml here, found by its bare name
     assert load_procedure(tmp_path / "mine.yaml").dwell_s == 10
+
+
+@pytest.mark.parametrize("up, got", [("x+w", "'x+w'"), ("x+x", "'x+x'"), ("3", "3"), ("'-x-y-z-x'", "'-x-y-z-x'")])
+def test_a_body_direction_that_is_no_signed_sum_of_distinct_axes_is_refused(up, got):
+    assert str(refusal(f"dwell_s: 10\npositions:\n  - {{id: 1, up: {up}, north: y}}\n")) == (
+        "p.yaml: positions[0].up: expected a body direction like 'z', '-x', 'x-y' or 'x+y+z' (each axis at "
+        f"most once), got {got} (line 3)")
+
+
+def test_north_is_refused_by_its_own_field_and_line():
+    text = "dwell_s: 10\npositions:\n  - id: 1\n    up: z\n    north: {north}\n"
+    assert str(refusal(text.format(north="w"))) == (
+        "p.yaml: positions[0].north: expected a body direction like 'z', '-x', 'x-y' or 'x+y+z' (each axis at "
+        "most once), got 'w' (line 5)")
+    assert str(refusal(text.format(north="-z"))) == (
+        "p.yaml: positions[0].north: '-z' is along up ('z'), so it has no horizontal part to point north; "
+        "name another body direction (line 5)")
