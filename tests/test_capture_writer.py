@@ -48,3 +48,17 @@ def test_a_directory_that_cannot_be_a_new_session_is_the_errors_path(tmp_path):
     with pytest.raises(SessionError) as caught:
         SessionWriter.create(a_file, {})
     assert (str(caught.value), caught.value.path) == (f"{a_file}: exists and is not a directory", str(a_file))
+
+
+def test_a_log_that_cannot_be_opened_is_one_line_and_leaves_the_directory_unlocked(tmp_path, monkeypatch):
+    from fieldcal.session.lock import SessionLock
+
+    def refuse(path, new=False):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(capture, "open_append", refuse)
+    d = tmp_path / "s"
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.create(d, {})
+    assert (str(caught.value), caught.value.path) == (f"{d}: cannot write the session (Permission denied)", str(d))
+    SessionLock.acquire(d).release()  # not left held by the refused writer
