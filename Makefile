@@ -58,7 +58,8 @@ constraints:
 # both of which change between releases. tools/mutation/run.py runs each module's mutants in one
 # niced pytest process against the quick tests tools/mutation/tests.toml lists, keeps the verdicts
 # in mutants/results/ (a second run only reports) and prints a table against the 90 % goal.
-# MODULES='procedure/positions.py session/*' runs some; AGAIN=survived re-runs their survivors.
+# MODULES='procedure/positions.py session/*' runs some; AGAIN=survived re-runs their survivors;
+# JOBS=3 runs a module in 3 niced processes (on a busy machine each niced one gets a small share).
 MUTANTS_VENV := .venv-mutants
 MUTMUT := mutmut==3.8.1
 $(MUTANTS_VENV)/.installed: pyproject.toml $(CONSTRAINTS)
@@ -67,7 +68,7 @@ $(MUTANTS_VENV)/.installed: pyproject.toml $(CONSTRAINTS)
 	touch $@
 
 mutants: $(MUTANTS_VENV)/.installed
-	$(MUTANTS_VENV)/bin/python tools/mutation/run.py --modules '$(MODULES)' $(if $(AGAIN),--again $(AGAIN))
+	$(MUTANTS_VENV)/bin/python tools/mutation/run.py --modules '$(MODULES)' $(if $(AGAIN),--again $(AGAIN)) $(if $(JOBS),--jobs $(JOBS))
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/startup.py

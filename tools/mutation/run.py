@@ -1,7 +1,7 @@
 """`make mutants`: generate mutmut's mutants of the core, run them module by module, print a table.
 
     python tools/mutation/run.py [--modules 'procedure/positions.py session/*'] [--first N]
-                                [--names FILE] [--again survived] [--report]
+                                [--names FILE] [--again survived] [--jobs N] [--report]
 
 Run from the repository's top with the mutation environment's Python (.venv-mutants). Each module
 runs in one pytest process (inprocess.py) over the quick tests tests.toml lists for it, niced, with
@@ -23,6 +23,7 @@ import sys
 import tempfile
 import tomllib
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -139,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--names", type=Path, help="run only the mutants this file names (one a line)")
     parser.add_argument("--again", choices=("survived", "all"), help="run these again")
     parser.add_argument("--report", action="store_true", help="only print the table of the kept verdicts")
+    parser.add_argument("--jobs", type=int, default=1, help="pytest processes per module, each on a slice")
     parser.add_argument("--floor", type=float, default=10.0, help="least CPU seconds a test may take")
     args = parser.parse_args(argv)
     if not Path("pyproject.toml").exists():
@@ -169,8 +171,9 @@ def main(argv: list[str] | None = None) -> int:
                 listed = set(args.names.read_text(encoding="utf-8").split())
                 selected = [n for n in selected if n in listed]
             todo = [n for n in selected if n not in verdicts or verdicts[n][0] in again]
-            if todo:
-                run_module(module, todo, tests, args.floor)
+            parts = [todo[i * len(todo) // args.jobs:(i + 1) * len(todo) // args.jobs] for i in range(args.jobs)]
+            with ThreadPoolExecutor(args.jobs) as pool:  # neighbours stay together: their killers are shared
+                list(pool.map(lambda part: run_module(module, part, tests, args.floor), filter(None, parts)))
         verdicts = read_verdicts(module)
         rows.append((module, tally(names, verdicts, equivalent)))
         survivors += [n for n in names if verdicts.get(n, ("",))[0] == "survived" and n not in equivalent]
