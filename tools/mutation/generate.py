@@ -7,6 +7,8 @@ data folders (`also_copy`) are copied afresh, so new tests are seen.
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 
 # mutmut 3.8's internals (pinned in the Makefile): they moved between 3.x releases.
@@ -18,9 +20,10 @@ from mutmut.utils.file_utils import copy_also_copy_files, copy_src_dir
 def generate(processes: int = 2) -> None:
     set_mutant_under_test("mutant_generation")  # what `mutmut run` sets while it writes mutants
     os.makedirs("mutants", exist_ok=True)
-    copy_src_dir()
-    copy_also_copy_files()
-    stats = create_mutants(processes)
+    with contextlib.redirect_stdout(io.StringIO()):  # mutmut names every file it copies (forked workers too)
+        copy_src_dir()
+        copy_also_copy_files()
+        stats = create_mutants(processes)
     print(f"mutants: {stats.mutated} files mutated afresh, {stats.unmodified} unchanged, "
           f"{stats.ignored} copied as they are")
 
