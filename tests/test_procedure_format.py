@@ -89,31 +89,31 @@ def test_a_title_and_a_description_are_text_of_at_most_200_characters():
                 f"{'d' * 200}}}\n")
     assert ok.title == "t" * 200 and ok.positions[0].description == "d" * 200
     assert parsed("dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\n").title == ""
-    error = refusal(f"title: {'t' * 201}\ndwell_s: 10\npositions:\n  - {{id: 1, up: z, north: x}}\n")
-    assert str(error) == f"p.yaml: title: expected text of at most 200 characters, got '{'t' * 57}'... (line 1)"
+    error = refusal(f"dwell_s: 10\ntitle: {'t' * 201}\npositions:\n  - {{id: 1, up: z, north: x}}\n")
+    assert str(error) == f"p.yaml: title: expected text of at most 200 characters, got '{'t' * 57}'... (line 2)"
     assert error.field == "title"
-    error = refusal("dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x, description: [a]}\n")
+    error = refusal("dwell_s: 10\npositions:\n  - id: 1\n    up: z\n    north: x\n    description: [a]\n")
     assert str(error) == ("p.yaml: positions[0].description: expected text of at most 200 characters, "
-                          "got a list of 1 item (line 3)")
+                          "got a list of 1 item (line 6)")
 
 
 def test_the_name_is_the_files_stem_or_a_plain_file_name_of_64_characters():
     body = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\n"
     assert parsed(body, "some/dir/my-run.yaml").name == "my-run"
-    assert parsed(f"name: {'a' * 64}\n" + body).name == "a" * 64
+    assert parsed(body + f"name: {'a' * 64}\n").name == "a" * 64
     for name, got in (("b" * 65, f"'{'b' * 57}'..."), ("'.hidden'", "'.hidden'"), ("'../x'", "'../x'")):
-        assert str(refusal(f"name: {name}\n" + body)) == (
+        assert str(refusal(body + f"name: {name}\n")) == (
             "p.yaml: name: expected a plain file name: up to 64 letters, digits, '.', '_' or '-', not "
-            f"starting with '.' (it names the session directory), got {got} (line 1)")
+            f"starting with '.' (it names the session directory), got {got} (line 4)")
 
 
 @pytest.mark.parametrize("dwell, ok", [(1, True), (86400, True), (0.99, False), (86401, False)])
 def test_a_dwell_is_from_1_s_to_a_day(dwell, ok):
-    text = f"dwell_s: {dwell}\npositions:\n  - {{id: 1, up: z, north: x}}\n"
+    text = f"positions:\n  - {{id: 1, up: z, north: x}}\ndwell_s: {dwell}\n"
     if ok:
         assert parsed(text).dwell_s == dwell
     else:
-        assert str(refusal(text)) == f"p.yaml: dwell_s: expected a number from 1 to 86400 s, got {dwell} (line 1)"
+        assert str(refusal(text)) == f"p.yaml: dwell_s: expected a number from 1 to 86400 s, got {dwell} (line 3)"
 
 
 def test_the_switches_are_false_unless_set_and_the_text_is_kept():
@@ -127,12 +127,12 @@ def test_the_switches_are_false_unless_set_and_the_text_is_kept():
 
 @pytest.mark.parametrize("ident, ok", [(0, True), (1000000, True), (-1, False), (1000001, False)])
 def test_a_position_id_is_a_whole_number_up_to_a_million(ident, ok):
-    text = f"dwell_s: 10\npositions:\n  - {{id: {ident}, up: z, north: x}}\n"
+    text = f"dwell_s: 10\npositions:\n  - up: z\n    north: x\n    id: {ident}\n"
     if ok:
         assert parsed(text).positions[0].id == ident
     else:
         assert str(refusal(text)) == \
-            f"p.yaml: positions[0].id: expected a whole number from 0 to 1000000, got {ident} (line 3)"
+            f"p.yaml: positions[0].id: expected a whole number from 0 to 1000000, got {ident} (line 5)"
 
 
 def test_the_positions_must_be_a_non_empty_list():
@@ -142,8 +142,8 @@ def test_the_positions_must_be_a_non_empty_list():
         "p.yaml: positions: expected a non-empty list, got a mapping (line 2)"
 
 
-STEPPED = ("dwell_s: 10\nrate_step: {{rate_deg_s: {rate}, turns: {turns}, ramp_s: {ramp}, settle_s: {settle}}}\n"
-           "positions:\n  - {{id: 1, up: z, north: x}}\n")
+STEPPED = ("dwell_s: 10\nrate_step:\n  rate_deg_s: {rate}\n  turns: {turns}\n  ramp_s: {ramp}\n  settle_s: {settle}\n"
+           "positions:\n  - {{id: 1, up: z, north: x}}\n")  # each key on its own line: 3 to 6
 
 
 def test_a_rate_step_at_its_edges_and_beyond():
@@ -151,13 +151,13 @@ def test_a_rate_step_at_its_edges_and_beyond():
     assert p.rate_step == RateStep(0.1, 1, 0.0, 600.0)
     assert parsed(STEPPED.format(rate=400, turns=100, ramp=600, settle=0)).rate_step == RateStep(400.0, 100, 600.0, 0.0)
     for values, message in (
-            (dict(rate=0.09, turns=1, ramp=1, settle=1), "rate_step.rate_deg_s: expected a number from 0.1 to 400 °/s, got 0.09"),
-            (dict(rate=401, turns=1, ramp=1, settle=1), "rate_step.rate_deg_s: expected a number from 0.1 to 400 °/s, got 401"),
-            (dict(rate=10, turns=0, ramp=1, settle=1), "rate_step.turns: expected a whole number from 1 to 100, got 0"),
-            (dict(rate=10, turns=101, ramp=1, settle=1), "rate_step.turns: expected a whole number from 1 to 100, got 101"),
-            (dict(rate=10, turns=1, ramp=601, settle=1), "rate_step.ramp_s: expected a number from 0 to 600 s, got 601"),
-            (dict(rate=10, turns=1, ramp=1, settle=-1), "rate_step.settle_s: expected a number from 0 to 600 s, got -1")):
-        assert str(refusal(STEPPED.format(**values))) == f"p.yaml: {message} (line 2)"
+            (dict(rate=0.09, turns=1, ramp=1, settle=1), "rate_step.rate_deg_s: expected a number from 0.1 to 400 °/s, got 0.09 (line 3)"),
+            (dict(rate=401, turns=1, ramp=1, settle=1), "rate_step.rate_deg_s: expected a number from 0.1 to 400 °/s, got 401 (line 3)"),
+            (dict(rate=10, turns=0, ramp=1, settle=1), "rate_step.turns: expected a whole number from 1 to 100, got 0 (line 4)"),
+            (dict(rate=10, turns=101, ramp=1, settle=1), "rate_step.turns: expected a whole number from 1 to 100, got 101 (line 4)"),
+            (dict(rate=10, turns=1, ramp=601, settle=1), "rate_step.ramp_s: expected a number from 0 to 600 s, got 601 (line 5)"),
+            (dict(rate=10, turns=1, ramp=1, settle=-1), "rate_step.settle_s: expected a number from 0 to 600 s, got -1 (line 6)")):
+        assert str(refusal(STEPPED.format(**values))) == f"p.yaml: {message}"
 
 
 def test_a_position_takes_the_procedures_ramp_and_settle_unless_it_gives_its_own():
@@ -175,9 +175,9 @@ def test_a_position_takes_the_procedures_ramp_and_settle_unless_it_gives_its_own
 
 
 def test_without_a_procedure_step_a_positions_own_needs_every_key():
-    text = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x, rate_step: 5}\n"
+    text = "dwell_s: 10\npositions:\n  - id: 1\n    up: z\n    north: x\n    rate_step: 5\n"
     assert str(refusal(text)) == ("p.yaml: positions[0].rate_step: expected 'none' or a mapping {rate_deg_s, "
-                                  "turns, ramp_s, settle_s}, got 5 (line 3)")
+                                  "turns, ramp_s, settle_s}, got 5 (line 6)")
     same = parsed("dwell_s: 10\nrate_step: {rate_deg_s: 10, turns: 1, ramp_s: 3, settle_s: 4}\npositions:\n"
                   "  - {id: 1, up: z, north: x, rate_step: {rate_deg_s: 10, turns: 1}}\n")
     assert same.position_steps == ()  # every position as the procedure: the plain form
@@ -271,9 +271,10 @@ def test_an_unknown_procedure_name_is_the_errors_path(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("up, got", [("x+w", "'x+w'"), ("x+x", "'x+x'"), ("3", "3"), ("'-x-y-z-x'", "'-x-y-z-x'")])
 def test_a_body_direction_that_is_no_signed_sum_of_distinct_axes_is_refused(up, got):
-    assert str(refusal(f"dwell_s: 10\npositions:\n  - {{id: 1, up: {up}, north: y}}\n")) == (
+    # block style: up's own line (4) is not the position's (3)
+    assert str(refusal(f"dwell_s: 10\npositions:\n  - id: 1\n    up: {up}\n    north: y\n")) == (
         "p.yaml: positions[0].up: expected a body direction like 'z', '-x', 'x-y' or 'x+y+z' (each axis at "
-        f"most once), got {got} (line 3)")
+        f"most once), got {got} (line 4)")
 
 
 def test_north_is_refused_by_its_own_field_and_line():
