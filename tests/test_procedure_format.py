@@ -82,6 +82,17 @@ def test_north_needs_a_horizontal_part_of_a_tenth(sine, usable):
         assert attitude[1] == pytest.approx([1, 0, 0], abs=1e-12)  # north row: body x, made unit
 
 
+def test_a_horizontal_part_of_exactly_a_tenth_is_enough_and_any_length_of_north_will_do():
+    # (1, 0, √99) is 10 long: its unit vector's horizontal part is 1/10 exactly
+    level = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    assert attitude_from_up_and_north(np.array([0, 0, 1.0]), np.array([1.0, 0, math.sqrt(99)])) == \
+        pytest.approx(level, abs=1e-15)
+    # a short one (0.22 long) mostly horizontal, and a long one: only the direction counts
+    assert attitude_from_up_and_north(np.array([0, 0, 1.0]), np.array([0.2, 0, 0.1])) == pytest.approx(level, abs=1e-15)
+    assert attitude_from_up_and_north(np.array([0, 0, 1.0]), np.array([40.0, 0, 300.0])) == \
+        pytest.approx(level, abs=1e-15)
+
+
 # -- texts, steps, bounds ---------------------------------------------------------------------
 
 def test_a_title_and_a_description_are_text_of_at_most_200_characters():
