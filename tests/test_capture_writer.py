@@ -62,3 +62,21 @@ def test_a_log_that_cannot_be_opened_is_one_line_and_leaves_the_directory_unlock
         SessionWriter.create(d, {})
     assert (str(caught.value), caught.value.path) == (f"{d}: cannot write the session (Permission denied)", str(d))
     SessionLock.acquire(d).release()  # not left held by the refused writer
+
+
+def test_a_raw_write_with_a_bad_time_or_name_is_refused_before_any_byte(tmp_path):
+    w = SessionWriter.create(tmp_path / "s", {})
+    log_before = (tmp_path / "s" / capture.LOG).read_bytes()
+    with pytest.raises(TypeError) as caught:
+        w.write_raw("imu", object(), b"\x01\x02")
+    assert str(caught.value) == ("t: a object is not JSON-able (use dicts with string keys, lists, strings, numbers, "
+                                 "bools, None, numpy arrays)")
+    with pytest.raises(TypeError) as caught:
+        w.write_raw("imu", True, b"\x01\x02")
+    assert str(caught.value) == "raw t: expected a number, got True"
+    with pytest.raises(ValueError) as caught:
+        w.write_raw("../imu", 1.0, b"\x01\x02")
+    assert str(caught.value) == "raw stream name: expected letters, digits, '_', '.', '-' (at most 64), got '../imu'"
+    assert sorted(p.name for p in (tmp_path / "s").iterdir() if p.name.startswith("raw")) == []
+    assert (tmp_path / "s" / capture.LOG).read_bytes() == log_before
+    w.close()
