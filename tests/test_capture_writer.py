@@ -80,3 +80,33 @@ def test_a_raw_write_with_a_bad_time_or_name_is_refused_before_any_byte(tmp_path
     assert sorted(p.name for p in (tmp_path / "s").iterdir() if p.name.startswith("raw")) == []
     assert (tmp_path / "s" / capture.LOG).read_bytes() == log_before
     w.close()
+
+
+def test_a_raw_streams_file_is_opened_once_and_its_bytes_follow_each_other(tmp_path, monkeypatch):
+    """A live device writes thousands of pieces: a descriptor each would run the process out."""
+    opened = []
+    real_open_append = capture.open_append
+    monkeypatch.setattr(capture, "open_append", lambda path, **kw: (opened.append(path.name), real_open_append(path, **kw))[1])
+    w = SessionWriter.create(tmp_path / "s", {})
+    for i in range(3):
+        w.write_raw("imu", float(i), bytes([i, 255 - i]))
+    w.close()
+    assert opened.count("raw-imu.bin") == 1
+    assert (tmp_path / "s" / "raw-imu.bin").read_bytes() == b"\x00\xff\x01\xfe\x02\xfd"
+
+
+def test_a_log_found_in_the_new_directory_is_refused_as_a_session_already(tmp_path, monkeypatch):
+    """new_directory refuses a directory that is not empty; a log appearing between that and the
+    writer's own open (another process) is still refused, in words."""
+    real_new_directory = capture.new_directory
+
+    def racing(d):
+        real_new_directory(d)
+        (d / capture.LOG).write_text("")
+
+    monkeypatch.setattr(capture, "new_directory", racing)
+    d = tmp_path / "s"
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.create(d, {})
+    assert (str(caught.value), caught.value.path) == (
+        f"{d}: already a session (a new session needs a new directory; to continue this one, resume it)", str(d))
