@@ -110,3 +110,19 @@ def test_a_log_found_in_the_new_directory_is_refused_as_a_session_already(tmp_pa
         SessionWriter.create(d, {})
     assert (str(caught.value), caught.value.path) == (
         f"{d}: already a session (a new session needs a new directory; to continue this one, resume it)", str(d))
+
+
+def test_a_named_parameter_file_is_never_written_over(tmp_path):
+    from tests.test_session import _parameter_file
+
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w.stop("imported")
+    w.write_parameters(_parameter_file(0.01), "cal.yaml")
+    first = (d / "cal.yaml").read_bytes()
+    log_before = (d / capture.LOG).read_bytes()
+    with pytest.raises(ValueError) as caught:
+        w.write_parameters(_parameter_file(0.02), "cal.yaml")
+    assert str(caught.value) == f"{d / 'cal.yaml'}: already exists; not overwritten (a session's files are never overwritten)"
+    assert (d / "cal.yaml").read_bytes() == first and (d / capture.LOG).read_bytes() == log_before
+    w.close()
