@@ -1,7 +1,7 @@
 """`make mutants`: generate mutmut's mutants of the core, run them module by module, print a table.
 
     python tools/mutation/run.py [--modules 'procedure/positions.py session/*'] [--first N]
-                                [--names FILE] [--again survived] [--jobs N] [--report]
+                                [--names FILE] [--tests FILES] [--again survived] [--jobs N] [--report]
 
 Run from the repository's top with the mutation environment's Python (.venv-mutants). Each module
 runs in one pytest process (inprocess.py) over the quick tests tests.toml lists for it, niced, with
@@ -31,6 +31,12 @@ MUTANTS = Path("mutants")
 RESULTS = MUTANTS / "results"
 GOAL = 0.90
 KILLED = ("killed", "timeout")
+RUNNING: set[subprocess.Popen] = set()  # the batches' pytest processes, stopped with this one
+
+
+def _stop(signum, frame):
+    for process in list(RUNNING):
+        process.terminate()  # each batch's thread then deletes its scratch
 
 
 def core_modules() -> dict[str, list[str]]:
@@ -92,7 +98,10 @@ def run_module(module: str, names: list[str], tests: list[str], floor: float) ->
         print(f"{module}: {len(names)} mutants against {' '.join(t.removeprefix('tests/') for t in tests)}",
               flush=True)
         with open(scratch / "pytest.log", "w", encoding="utf-8") as log:
-            subprocess.run(command, cwd=MUTANTS, env=env, stdout=log, stderr=subprocess.STDOUT, check=False)
+            process = subprocess.Popen(command, cwd=MUTANTS, env=env, stdout=log, stderr=subprocess.STDOUT)
+            RUNNING.add(process)
+            process.wait()
+            RUNNING.discard(process)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
@@ -140,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--names", type=Path, help="run only the mutants this file names (one a line)")
     parser.add_argument("--again", choices=("survived", "all"), help="run these again")
     parser.add_argument("--report", action="store_true", help="only print the table of the kept verdicts")
+    parser.add_argument("--tests", default="", help="test files (under tests/) to run instead of tests.toml's: "
+                        "a quick first pass, its survivors then run again against the listed ones")
     parser.add_argument("--jobs", type=int, default=1, help="pytest processes per module, each on a slice")
     parser.add_argument("--floor", type=float, default=10.0, help="least CPU seconds a test may take")
     args = parser.parse_args(argv)
@@ -160,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
     rows, unlisted, survivors = [], [], []
     for module in chosen:
         names, tests = modules[module], tests_for(module, listing)
+        if args.tests and tests:
+            tests = [f"tests/{name}" for name in args.tests.replace(",", " ").split()]
         if not tests:
             unlisted.append(module)
             continue
@@ -191,5 +204,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(143))  # still delete the batch's scratch
+    signal.signal(signal.SIGTERM, _stop)
     sys.exit(main())
