@@ -119,10 +119,13 @@ def test_a_named_parameter_file_is_never_written_over(tmp_path):
     w = SessionWriter.create(d, {})
     w.stop("imported")
     w.write_parameters(_parameter_file(0.01), "cal.yaml")
+    assert w.parameters_written == d / "cal.yaml"  # what calibrate and resolve report as theirs
     first = (d / "cal.yaml").read_bytes()
     log_before = (d / capture.LOG).read_bytes()
     with pytest.raises(ValueError) as caught:
         w.write_parameters(_parameter_file(0.02), "cal.yaml")
     assert str(caught.value) == f"{d / 'cal.yaml'}: already exists; not overwritten (a session's files are never overwritten)"
     assert (d / "cal.yaml").read_bytes() == first and (d / capture.LOG).read_bytes() == log_before
+    w.write_parameters(_parameter_file(0.03))
+    assert w.parameters_written == d / "parameters-001.yaml"  # the numbered file, not parameters.yaml
     w.close()
