@@ -129,3 +129,15 @@ def test_a_named_parameter_file_is_never_written_over(tmp_path):
     w.write_parameters(_parameter_file(0.03))
     assert w.parameters_written == d / "parameters-001.yaml"  # the numbered file, not parameters.yaml
     w.close()
+
+
+def test_a_resumes_data_that_is_no_mapping_is_refused_naming_the_resume(tmp_path):
+    w = SessionWriter.create(tmp_path / "s", {})
+    w.stop("aborted")
+    log_before = (tmp_path / "s" / capture.LOG).read_bytes()
+    with pytest.raises(TypeError) as caught:
+        w.resume([1, 2])
+    assert str(caught.value) == "resume: expected a dict, got a list"
+    assert (tmp_path / "s" / capture.LOG).read_bytes() == log_before
+    w.resume({"why": "power came back"})  # the writer is not failed by the refusal
+    w.close()
