@@ -141,3 +141,35 @@ def test_a_resumes_data_that_is_no_mapping_is_refused_naming_the_resume(tmp_path
     assert (tmp_path / "s" / capture.LOG).read_bytes() == log_before
     w.resume({"why": "power came back"})  # the writer is not failed by the refusal
     w.close()
+
+
+def test_a_log_that_appears_as_the_writer_opens_it_is_not_appended_to(tmp_path, monkeypatch):
+    """Another process creating the log at the very moment: the writer's exclusive open refuses."""
+    real_open_append = capture.open_append
+
+    def racing(path, **kw):
+        if path.name == capture.LOG:
+            path.write_bytes(b"another writer's line\n")
+        return real_open_append(path, **kw)
+
+    monkeypatch.setattr(capture, "open_append", racing)
+    d = tmp_path / "s"
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.create(d, {})
+    assert str(caught.value) == f"{d}: cannot write the session ({d / capture.LOG}: cannot write (File exists))"
+    assert (d / capture.LOG).read_bytes() == b"another writer's line\n"
+
+
+def test_an_active_or_completed_run_is_not_resumed(tmp_path):
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    with pytest.raises(capture.SessionStateError) as caught:
+        w.resume()
+    assert str(caught.value) == f"{d}: cannot resume: the run is still active"
+    w.stop("completed")  # line 2, after the start document
+    with pytest.raises(SessionError) as caught:
+        w.resume()
+    assert str(caught.value) == (f"{d / capture.LOG}: line 2: this session completed; a completed session is "
+                                 "never resumed (replay it, or run again into a new directory)")
+    assert (caught.value.path, caught.value.line) == (str(d / capture.LOG), 2)
+    w.close()
