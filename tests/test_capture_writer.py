@@ -143,21 +143,23 @@ def test_a_resumes_data_that_is_no_mapping_is_refused_naming_the_resume(tmp_path
     w.close()
 
 
-def test_a_log_that_appears_as_the_writer_opens_it_is_not_appended_to(tmp_path, monkeypatch):
-    """Another process creating the log at the very moment: the writer's exclusive open refuses."""
+@pytest.mark.parametrize("name", [capture.LOG, capture.SAMPLES])
+def test_a_file_that_appears_as_the_writer_opens_it_is_not_appended_to(tmp_path, monkeypatch, name):
+    """Another process creating the log or the samples file at the very moment: the writer's
+    exclusive open refuses."""
     real_open_append = capture.open_append
 
     def racing(path, **kw):
-        if path.name == capture.LOG:
-            path.write_bytes(b"another writer's line\n")
+        if path.name == name:
+            path.write_bytes(b"another writer's bytes\n")
         return real_open_append(path, **kw)
 
     monkeypatch.setattr(capture, "open_append", racing)
     d = tmp_path / "s"
     with pytest.raises(SessionError) as caught:
         SessionWriter.create(d, {})
-    assert str(caught.value) == f"{d}: cannot write the session ({d / capture.LOG}: cannot write (File exists))"
-    assert (d / capture.LOG).read_bytes() == b"another writer's line\n"
+    assert str(caught.value) == f"{d}: cannot write the session ({d / name}: cannot write (File exists))"
+    assert (d / name).read_bytes() == b"another writer's bytes\n"
 
 
 def test_an_active_or_completed_run_is_not_resumed(tmp_path):
