@@ -175,3 +175,17 @@ def test_an_active_or_completed_run_is_not_resumed(tmp_path):
                                  "never resumed (replay it, or run again into a new directory)")
     assert (caught.value.path, caught.value.line) == (str(d / capture.LOG), 2)
     w.close()
+
+
+def test_a_full_disk_at_the_start_names_the_log_and_leaves_the_directory_unlocked(tmp_path, monkeypatch):
+    from fieldcal.session.lock import SessionLock
+
+    def full(self):
+        raise OSError(28, "No space left on device")  # a buffered write's error names no file
+
+    monkeypatch.setattr(SessionWriter, "sync", full)
+    d = tmp_path / "s"
+    with pytest.raises(OSError) as caught:
+        SessionWriter.create(d, {})
+    assert (caught.value.errno, caught.value.filename) == (28, str(d / capture.LOG))
+    SessionLock.acquire(d).release()

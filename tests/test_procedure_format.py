@@ -296,3 +296,9 @@ def test_north_is_refused_by_its_own_field_and_line():
     assert str(refusal(text.format(north="-z"))) == (
         "p.yaml: positions[0].north: '-z' is along up ('z'), so it has no horizontal part to point north; "
         "name another body direction (line 5)")
+
+
+def test_a_rate_step_that_is_no_mapping_is_refused_at_its_line():
+    text = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\nrate_step: 5\n"
+    assert str(refusal(text)) == \
+        "p.yaml: rate_step: expected a mapping with keys rate_deg_s, turns, ramp_s, settle_s, got 5 (line 4)"
