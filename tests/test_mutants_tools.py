@@ -53,9 +53,13 @@ def test_verdicts_are_read_back_with_a_later_line_overriding_an_earlier_one(tmp_
     path.write_text("#STATS 3.0 s of CPU over 4 tests\n"
                     "a\tsurvived\t\t3\t0.2\n"
                     "b\tkilled\ttests/test_x.py::test_y\t1\t0.1\n"
-                    "a\tkilled\ttests/test_new.py::test_z\t1\t0.0\n", encoding="utf-8")
+                    "a\tkilled\ttests/test_new.py::test_z\t1\t0.0\n"
+                    "c\tsurvived\t\t2\t0.1\n"
+                    "c\tno tests\t\t0\t0.0\n"  # re-run against a file that does not reach it
+                    "d\tno tests\t\t0\t0.0\n", encoding="utf-8")
     assert run.read_verdicts("procedure/positions.py") == {
-        "a": ("killed", "tests/test_new.py::test_z"), "b": ("killed", "tests/test_x.py::test_y")}
+        "a": ("killed", "tests/test_new.py::test_z"), "b": ("killed", "tests/test_x.py::test_y"),
+        "c": ("survived", ""), "d": ("no tests", "")}
     assert run.read_verdicts("model.py") == {}
 
 

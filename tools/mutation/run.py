@@ -62,14 +62,16 @@ def results_path(module: str) -> Path:
 
 
 def read_verdicts(module: str) -> dict[str, tuple[str, str]]:
-    """name -> (verdict, killing test); the last line for a name wins (a re-run)."""
-    verdicts = {}
+    """name -> (verdict, killing test); the last line for a name wins (a re-run), but "no tests"
+    from a re-run against other files than its first run's leaves the earlier verdict."""
+    verdicts: dict[str, tuple[str, str]] = {}
     path = results_path(module)
     if path.exists():
         for line in path.read_text(encoding="utf-8").splitlines():
             fields = line.split("\t")
             if len(fields) >= 3 and not line.startswith("#"):
-                verdicts[fields[0]] = (fields[1], fields[2])
+                if fields[1] != "no tests" or fields[0] not in verdicts:
+                    verdicts[fields[0]] = (fields[1], fields[2])
     return verdicts
 
 
