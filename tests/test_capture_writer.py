@@ -189,3 +189,29 @@ def test_a_full_disk_at_the_start_names_the_log_and_leaves_the_directory_unlocke
         SessionWriter.create(d, {})
     assert (caught.value.errno, caught.value.filename) == (28, str(d / capture.LOG))
     SessionLock.acquire(d).release()
+
+
+class _CloseFails:
+    """A file whose close's last flush fails (a full disk), as the writer's files can."""
+
+    def __init__(self, fh):
+        self._fh = fh
+
+    def __getattr__(self, name):
+        return getattr(self._fh, name)
+
+    def close(self):
+        self._fh.close()
+        raise OSError(28, "No space left on device")
+
+
+def test_a_close_that_fails_on_a_healthy_writer_is_said_and_still_unlocks(tmp_path):
+    from fieldcal.session.lock import SessionLock
+
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w._samples = _CloseFails(w._samples)
+    with pytest.raises(OSError) as caught:
+        w.close()
+    assert caught.value.errno == 28 and w.closed
+    SessionLock.acquire(d).release()
