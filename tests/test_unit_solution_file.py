@@ -28,7 +28,7 @@ def test_the_file_names_the_method_asked_for(aligned, asked, written):
         failures={}, problems={}, covariances={},
         inputs={"accelerometer": np.zeros(3), "gyroscope": np.ones(3)})
     pf = unit.parameter_file(procedure, asked, Station(latitude_deg=48.15, height_m=520.0), device_name="unit-7")
-    assert pf.method == written  # not "classic+powell", the triads' own mix
-    assert pf.device_name == "unit-7"
+    assert pf.provenance.method == written  # not "classic+powell", the triads' own mix
+    assert pf.provenance.device_name == "unit-7"
     assert UnitSolution(solutions={}, failures={"gyroscope": "no rate step"}, problems={}, covariances={},
                         inputs={}).parameter_file(procedure, asked, Station(48.15, 520.0)) is None
