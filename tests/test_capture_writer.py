@@ -184,6 +184,9 @@ def test_a_full_disk_at_the_start_names_the_log_and_leaves_the_directory_unlocke
         raise OSError(28, "No space left on device")  # a buffered write's error names no file
 
     monkeypatch.setattr(SessionWriter, "sync", full)
+    real_open_append = capture.open_append
+    # their closes fail the same way (what is left to flush): the first error is the one said
+    monkeypatch.setattr(capture, "open_append", lambda path, **kw: _CloseFails(real_open_append(path, **kw)))
     d = tmp_path / "s"
     with pytest.raises(OSError) as caught:
         SessionWriter.create(d, {})
@@ -215,3 +218,15 @@ def test_a_close_that_fails_on_a_healthy_writer_is_said_and_still_unlocks(tmp_pa
         w.close()
     assert caught.value.errno == 28 and w.closed
     SessionLock.acquire(d).release()
+
+
+def test_a_session_file_with_a_second_name_is_not_appended_to(tmp_path):
+    d = tmp_path / "s"
+    SessionWriter.create(d, {}).close()
+    os.link(d / capture.LOG, tmp_path / "elsewhere.jsonl")
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.append_to(d)
+    assert str(caught.value) == (
+        f"{d / capture.LOG}: has 2 names (hard links); fieldcal never changes a file that is also elsewhere (the "
+        "other name's content would change too): copy the session (cp -r makes separate files) and use the copy")
+    assert caught.value.path == str(d / capture.LOG)

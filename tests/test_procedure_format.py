@@ -302,3 +302,20 @@ def test_a_rate_step_that_is_no_mapping_is_refused_at_its_line():
     text = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\nrate_step: 5\n"
     assert str(refusal(text)) == \
         "p.yaml: rate_step: expected a mapping with keys rate_deg_s, turns, ramp_s, settle_s, got 5 (line 4)"
+
+
+@pytest.mark.parametrize("key", ["aligned", "adaptive_dwell", "any_order"])
+def test_a_switch_is_true_or_false_unquoted(key):
+    text = f"dwell_s: 10\npositions:\n  - {{id: 1, up: z, north: x}}\n{key}: 'yes'\n"
+    assert str(refusal(text)) == f"p.yaml: {key}: expected true or false (unquoted), got 'yes' (line 4)"
+
+
+def test_a_procedure_file_without_a_suffix_is_read_where_it_is(tmp_path, monkeypatch):
+    from fieldcal.procedure.positions import load_procedure
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine").write_text("dwell_s: 12\npositions:\n  - {id: 1, up: z, north: x}\n")
+    assert load_procedure("mine").dwell_s == 12  # the file named, not a search for mine.yaml
+    with pytest.raises(ProcedureError) as caught:
+        load_procedure("gone.yaml")  # a suffix: a path, never a shipped name
+    assert caught.value.path == "gone.yaml" and "no such procedure" not in str(caught.value)
