@@ -230,3 +230,20 @@ def test_a_session_file_with_a_second_name_is_not_appended_to(tmp_path):
         f"{d / capture.LOG}: has 2 names (hard links); fieldcal never changes a file that is also elsewhere (the "
         "other name's content would change too): copy the session (cp -r makes separate files) and use the copy")
     assert caught.value.path == str(d / capture.LOG)
+
+
+def test_a_damaged_record_found_before_appending_names_the_samples_file(tmp_path):
+    from tests.test_session import small_chunk
+
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w.chunk(small_chunk(0))  # seq 2, after the start document and the chunk's descriptor: log line 3
+    w.stop("aborted")
+    w.close()
+    samples = bytearray((d / capture.SAMPLES).read_bytes())
+    samples[:4] = b"XXXX"  # the record's magic
+    (d / capture.SAMPLES).write_bytes(bytes(samples))
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.append_to(d)
+    assert str(caught.value) == f"{d / capture.SAMPLES}: chunk 2 at byte 0 (log line 3): bad record magic b'XXXX'"
+    assert (caught.value.path, caught.value.line) == (str(d / capture.SAMPLES), 3)
