@@ -318,4 +318,10 @@ def test_a_procedure_file_without_a_suffix_is_read_where_it_is(tmp_path, monkeyp
     assert load_procedure("mine").dwell_s == 12  # the file named, not a search for mine.yaml
     with pytest.raises(ProcedureError) as caught:
         load_procedure("gone.yaml")  # a suffix: a path, never a shipped name
-    assert caught.value.path == "gone.yaml" and "no such procedure" not in str(caught.value)
+    assert (str(caught.value), caught.value.path) == ("gone.yaml: cannot read procedure (No such file or directory)",
+                                                      "gone.yaml")
+
+
+def test_axes_with_up_and_north_is_refused_at_the_first_of_them():
+    text = "dwell_s: 10\npositions:\n  - id: 1\n    axes: {x: north, y: west, z: up}\n    up: z\n    north: x\n"
+    assert str(refusal(text)) == "p.yaml: positions[0].up: give either axes or up and north, not both (line 5)"
