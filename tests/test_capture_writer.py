@@ -247,3 +247,32 @@ def test_a_damaged_record_found_before_appending_names_the_samples_file(tmp_path
         SessionWriter.append_to(d)
     assert str(caught.value) == f"{d / capture.SAMPLES}: chunk 2 at byte 0 (log line 3): bad record magic b'XXXX'"
     assert (caught.value.path, caught.value.line) == (str(d / capture.SAMPLES), 3)
+
+
+def test_a_corrupt_raw_read_is_named_by_its_file_byte_and_log_line(tmp_path):
+    from fieldcal.session.capture import SessionReader
+
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+    w.write_raw("imu", 0.5, b"ab")  # log line 2
+    w.write_raw("imu", 0.7, b"cd")  # log line 3, at byte 2
+    w.close()
+    (d / "raw-imu.bin").write_bytes(b"abcX")
+    reads = SessionReader(d).raw("imu")
+    assert next(reads) == (0.5, b"ab")
+    with pytest.raises(SessionError) as caught:
+        next(reads)
+    assert str(caught.value) == f"{d / 'raw-imu.bin'}: read at byte 2 (log line 3): checksum mismatch (corrupt data)"
+    assert (caught.value.path, caught.value.line) == (str(d / "raw-imu.bin"), 3)
+
+
+def test_a_session_that_cannot_be_written_is_refused_before_anything_is_cut(tmp_path, monkeypatch):
+    d = tmp_path / "s"
+    SessionWriter.create(d, {}).close()
+    (d / capture.LOG).write_bytes((d / capture.LOG).read_bytes() + b'{"torn')
+    before = {p.name: p.read_bytes() for p in d.iterdir()}
+    monkeypatch.setattr(capture, "_writable", lambda directory: False)  # as a user without write permission
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.append_to(d)
+    assert (str(caught.value), caught.value.path) == (f"{d}: cannot write to this session (no permission)", str(d))
+    assert {p.name: p.read_bytes() for p in d.iterdir()} == before
