@@ -276,3 +276,19 @@ def test_a_session_that_cannot_be_written_is_refused_before_anything_is_cut(tmp_
         SessionWriter.append_to(d)
     assert (str(caught.value), caught.value.path) == (f"{d}: cannot write to this session (no permission)", str(d))
     assert {p.name: p.read_bytes() for p in d.iterdir()} == before
+
+
+def test_a_session_whose_log_cannot_be_opened_for_appending_is_one_line_and_unlocked(tmp_path, monkeypatch):
+    from fieldcal.session.lock import SessionLock
+
+    d = tmp_path / "s"
+    SessionWriter.create(d, {}).close()
+
+    def refuse(path, new=False):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(capture, "open_append", refuse)
+    with pytest.raises(SessionError) as caught:
+        SessionWriter.append_to(d)
+    assert (str(caught.value), caught.value.path) == (f"{d}: cannot write to this session (Permission denied)", str(d))
+    SessionLock.acquire(d).release()

@@ -325,3 +325,12 @@ def test_a_procedure_file_without_a_suffix_is_read_where_it_is(tmp_path, monkeyp
 def test_axes_with_up_and_north_is_refused_at_the_first_of_them():
     text = "dwell_s: 10\npositions:\n  - id: 1\n    axes: {x: north, y: west, z: up}\n    up: z\n    north: x\n"
     assert str(refusal(text)) == "p.yaml: positions[0].up: give either axes or up and north, not both (line 5)"
+
+
+def test_a_triads_targets_are_a_mapping_of_its_parameters():
+    body = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\ntargets:\n"
+    assert str(refusal(body + "  accelerometer:\n    scael_x: 1\n")) == (
+        "p.yaml: targets.accelerometer.scael_x: unknown key 'scael_x'; did you mean 'scale_x'? (line 6)")
+    assert str(refusal(body + "  accelerometer: 5\n")) == (
+        "p.yaml: targets.accelerometer: expected a mapping with keys bias_x, bias_y, bias_z, scale_x, scale_y, "
+        "scale_z, delta_yz, delta_zy, delta_zx, got 5 (line 5)")
