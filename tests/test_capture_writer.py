@@ -292,3 +292,28 @@ def test_a_session_whose_log_cannot_be_opened_for_appending_is_one_line_and_unlo
         SessionWriter.append_to(d)
     assert (str(caught.value), caught.value.path) == (f"{d}: cannot write to this session (Permission denied)", str(d))
     SessionLock.acquire(d).release()
+
+
+def test_after_a_write_breaks_off_every_write_is_refused_saying_how_to_go_on(tmp_path):
+    d = tmp_path / "s"
+    w = SessionWriter.create(d, {})
+
+    class Full:
+        def __init__(self, fh):
+            self._fh = fh
+
+        def __getattr__(self, name):
+            return getattr(self._fh, name)
+
+        def write(self, data):
+            raise OSError(28, "No space left on device")
+
+    w._log = Full(w._log)
+    with pytest.raises(OSError):
+        w.event({"kind": "x"})
+    with pytest.raises(capture.SessionStateError) as caught:
+        w.event({"kind": "y"})
+    assert str(caught.value) == (f"{d}: an earlier write failed ([Errno 28] No space left on device); close() "
+                                 "and continue with append_to(), which cuts any partial record")
+    w._log = w._log._fh
+    w.close()
