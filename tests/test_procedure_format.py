@@ -331,6 +331,11 @@ def test_a_triads_targets_are_a_mapping_of_its_parameters():
     body = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\ntargets:\n"
     assert str(refusal(body + "  accelerometer:\n    scael_x: 1\n")) == (
         "p.yaml: targets.accelerometer.scael_x: unknown key 'scael_x'; did you mean 'scale_x'? (line 6)")
-    assert str(refusal(body + "  accelerometer: 5\n")) == (
+    assert str(refusal(body + "  gyroscope: {bias_x: 1}\n  accelerometer: 5\n")) == (
         "p.yaml: targets.accelerometer: expected a mapping with keys bias_x, bias_y, bias_z, scale_x, scale_y, "
-        "scale_z, delta_yz, delta_zy, delta_zx, got 5 (line 5)")
+        "scale_z, delta_yz, delta_zy, delta_zx, got 5 (line 6)")
+
+
+def test_a_position_without_axes_or_up_and_north_is_refused_at_its_line():
+    text = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\n  - {id: 2}\n"
+    assert str(refusal(text)) == "p.yaml: positions[1].axes: missing (axes, or up and north) (line 4)"
