@@ -32,3 +32,20 @@ def test_the_file_names_the_method_asked_for(aligned, asked, written):
     assert pf.provenance.device_name == "unit-7"
     assert UnitSolution(solutions={}, failures={"gyroscope": "no rate step"}, problems={}, covariances={},
                         inputs={}).parameter_file(procedure, asked, Station(48.15, 520.0)) is None
+
+
+def test_the_averages_covariance_adds_each_windows_quantisation_to_its_noise():
+    """By hand: white noise 0.1 per √Hz gives a 2 s and a 4 s window a variance of 0.01/2 and
+    0.01/4 per axis, times K Kᵀ = 4 I: 0.02 and 0.01; a step of 0.06 adds 0.06²/12 = 3e-4 per
+    sample, over 200 and 400 samples at 100 Hz: 1.5e-6 and 7.5e-7. Nothing across windows or axes."""
+    from fieldcal.procedure.windows import STATIC, Window
+    from fieldcal.solvers.solve import TriadModel, average_covariance
+    from drivers.noise import TriadNoise
+
+    windows = [Window(STATIC, 0, 0.0, 2.0), Window(STATIC, 1, 10.0, 4.0)]
+    model = TriadModel("specific_force", "m/s^2", TriadNoise(white=0.1), 2.0 * np.eye(3), lsb=0.06)
+    expected = np.diag([0.02 + 1.5e-6] * 3 + [0.01 + 7.5e-7] * 3)
+    np.testing.assert_allclose(average_covariance(model, windows, 100.0), expected, rtol=1e-12, atol=1e-18)
+    without = TriadModel("specific_force", "m/s^2", TriadNoise(white=0.1), 2.0 * np.eye(3))
+    np.testing.assert_allclose(average_covariance(without, windows, 100.0), np.diag([0.02] * 3 + [0.01] * 3),
+                               rtol=1e-12, atol=1e-18)
