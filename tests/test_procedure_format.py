@@ -339,3 +339,31 @@ def test_a_triads_targets_are_a_mapping_of_its_parameters():
 def test_a_position_without_axes_or_up_and_north_is_refused_at_its_line():
     text = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\n  - {id: 2}\n"
     assert str(refusal(text)) == "p.yaml: positions[1].axes: missing (axes, or up and north) (line 4)"
+
+
+def test_axes_that_are_no_mapping_of_x_y_z_are_refused_at_their_line():
+    base = "dwell_s: 10\npositions:\n  - id: 1\n    axes: {axes}\n"
+    assert str(refusal(base.format(axes="5"))) == \
+        "p.yaml: positions[0].axes: expected a mapping with keys x, y, z, got 5 (line 4)"
+    assert str(refusal(base.format(axes="{x: north, y: west, w: up}"))) == \
+        "p.yaml: positions[0].axes.w: unknown key 'w'; the keys are x, y, z (line 4)"
+
+
+def test_a_sigma_target_is_a_number_above_zero_at_its_own_line():
+    body = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\ntargets:\n  accelerometer:\n    scale_x: 1\n"
+    assert str(refusal(body + "    bias_x: a\n")) == \
+        "p.yaml: targets.accelerometer.bias_x: expected a number >= 0, got 'a' (line 7)"
+    assert str(refusal(body + "    bias_x: -1\n")) == \
+        "p.yaml: targets.accelerometer.bias_x: expected a number >= 0, got -1 (line 7)"
+    assert str(refusal(body + "    bias_x: 0\n")) == "p.yaml: targets.accelerometer.bias_x: expected a σ > 0, got 0 (line 7)"
+
+
+def test_a_name_that_is_no_text_is_refused():
+    body = "dwell_s: 10\npositions:\n  - {id: 1, up: z, north: x}\n"
+    assert str(refusal(body + "name: 5\n")) == "p.yaml: name: expected a non-empty string (quote it), got 5 (line 4)"
+
+
+@pytest.mark.parametrize("v, side", [((3, 10, 0), "north"), ((0.02, 0.1, 0), "north"), ((0.05, 0.1, 0), "north-east")])
+def test_the_compass_side_is_of_the_direction_whatever_its_length(v, side):
+    """(3, 10) and (0.02, 0.1): an east part 0.29 and 0.196 of the length; (0.05, 0.1): 0.45."""
+    assert compass_side(v) == side
