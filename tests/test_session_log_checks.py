@@ -665,6 +665,7 @@ def test_a_cut_keeps_its_copy_beside_the_earlier_ones_and_stops_at_999(tmp_path)
     with pytest.raises(SessionError) as exc:
         SessionWriter.append_to(d)
     assert str(exc.value) == f"{d / LOG}: too many earlier .torn copies beside it"
+    assert exc.value.path == str(d / LOG)
     assert (d / LOG).read_bytes() == log + b'{"b'  # nothing cut without a copy
 
 
