@@ -295,6 +295,12 @@ def _raise_terminated(signum, frame):
     raise Terminated
 
 
+def _raise_interrupted(signum, frame):
+    """Ctrl-C as fieldcal's own handler, not whatever the process had (issue 26: a host that had
+    replaced the interpreter's default handler turned an operator's Ctrl-C into a run that went on)."""
+    raise KeyboardInterrupt
+
+
 def _session(args):
     """The session directory the command was writing, if any."""
     return getattr(args, "session_path", None) or (args.session if args.command == "resume" else None)
@@ -342,9 +348,12 @@ def main(argv=None, *, ending_process: bool = False) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv[0] if argv else None).parse_args(argv)
     # The terminal UI restores the terminal on its own way out; everything else unwinds on
-    # SIGTERM as on Ctrl-C, closing its files and saying where its session is.
+    # SIGTERM as on Ctrl-C, closing its files and saying where its session is. Ctrl-C is caught
+    # by fieldcal's own handler too, unless the process was started ignoring it (a background job).
     catch_sigterm = threading.current_thread() is threading.main_thread() and args.command != "tui"
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if catch_sigterm else None
+    catch_sigint = catch_sigterm and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
+    previous_sigint = signal.signal(signal.SIGINT, _raise_interrupted) if catch_sigint else None
     try:
         from fieldcal.atomic import command_reads
         from fieldcal.cli.paths import check_paths, flush_stdout, stdout_named
@@ -379,6 +388,8 @@ def main(argv=None, *, ending_process: bool = False) -> int:
             thaw()  # what a command froze for its own run (imports_uncollected), collectable again
         if catch_sigterm:  # None: a handler not set from Python; the default is what it did
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+        if catch_sigint:
+            signal.signal(signal.SIGINT, signal.SIG_DFL if previous_sigint is None else previous_sigint)
 
 
 if __name__ == "__main__":

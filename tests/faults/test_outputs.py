@@ -239,6 +239,51 @@ def test_a_stopped_run_says_where_its_session_is(capsys, monkeypatch, tmp_path, 
     assert main(["resume", "--quiet", str(session)]) == 1 and SessionReader(session).stopped
 
 
+@contextlib.contextmanager
+def sigint_handled_by(handler):
+    """The process's SIGINT handler is ``handler`` within (a host program's, or one that earlier
+    code in this process left), the previous one afterwards."""
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_stops_a_run_whatever_handler_the_process_had(capsys, monkeypatch, tmp_path, short):
+    """Issue 26: `run` relied on the interpreter's default SIGINT handler. With another in place,
+    Ctrl-C after the first step went to it and the run went on to its end: "status 1, nothing on
+    stderr", as a loaded whole-suite run once saw. fieldcal's own handler takes it now."""
+    taken_by_host = []
+
+    def host(signum, frame):
+        taken_by_host.append(signum)
+    _signal_after_first_step(monkeypatch, signal.SIGINT)
+    out = tmp_path / "out"
+    with sigint_handled_by(host):
+        line = one_line(capsys, ["run", "--headless", "--quiet", "--procedure", str(short), "--out", str(out)], 130)
+        assert signal.getsignal(signal.SIGINT) is host  # main() put the host's handler back
+    (session,) = out.iterdir()
+    assert line == (f"fieldcal: interrupted; the session in {session} is consistent up to its last "
+                    f"completed step: continue it with: fieldcal resume {session}")
+    assert taken_by_host == []
+    monkeypatch.undo()
+    assert main(["resume", "--quiet", str(session)]) == 1 and SessionReader(session).stopped
+
+
+def test_a_run_started_ignoring_sigint_keeps_ignoring_it(capsys, monkeypatch, tmp_path, short):
+    """A background job of a script is started with SIGINT ignored, so that the script's Ctrl-C
+    leaves it running: fieldcal does not take that back."""
+    _signal_after_first_step(monkeypatch, signal.SIGINT)
+    out = tmp_path / "out"
+    with sigint_handled_by(signal.SIG_IGN):
+        status = main(["run", "--headless", "--quiet", "--procedure", str(short), "--out", str(out)])
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    (session,) = out.iterdir()
+    assert status == 1 and capsys.readouterr().err == ""  # ran to its end (short calibrates nothing)
+    assert SessionReader(session).stopped
+
+
 @pytest.fixture
 def small_tmpfs(tmp_path):
     """A 1 MB tmpfs (root only): a real full disk; the test grows it to free space."""
