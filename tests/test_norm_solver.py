@@ -315,29 +315,3 @@ def test_the_per_average_whitening_is_the_dense_one(form):
         ref = optimize.least_squares(lambda th: weight @ problem.residuals(th, problem.data), solved.theta,
                                      x_scale=solved.sigma, xtol=1e-15, ftol=1e-15, gtol=1e-15)
         assert np.all(np.abs(solved.theta - ref.x) < 1e-3 * solved.sigma)
-
-
-def test_a_correlated_whitener_makes_the_covariance_the_identity_one_point_or_a_stack():
-    """The whitening of correlated residuals keeps the covariance's Cholesky factor and solves
-    against it: whitened, the covariance itself becomes the identity (the definition of
-    whitening), and a stack of points is whitened row by row as one point is."""
-    from fieldcal.solvers.norm import _whitener_of
-
-    rng = np.random.default_rng(5)
-    m = 60
-    A = rng.normal(size=(m, m))
-    S = A @ A.T + 0.1 * np.eye(m)
-
-    class Named:
-        name = "accelerometer"
-
-    whiten = _whitener_of(Named(), S)
-    white = whiten(whiten(S).T)  # L⁻¹ S L⁻ᵀ
-    np.testing.assert_allclose(white, np.eye(m), atol=1e-9)
-    r = rng.normal(size=(2, 3, m))
-    stacked = whiten(r)
-    for i, j in np.ndindex(2, 3):
-        np.testing.assert_allclose(stacked[i, j], whiten(r[i, j]), rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(whiten.matrix() @ S @ whiten.matrix().T, np.eye(m), atol=1e-9)
-    with pytest.raises(CalibrationError, match="accelerometer: the covariance of the averages is not positive"):
-        _whitener_of(Named(), S - 2 * np.eye(m) * np.linalg.eigvalsh(S)[0] - np.eye(m))
