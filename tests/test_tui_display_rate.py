@@ -6,6 +6,8 @@ something or reports a fault, a fault event and the run's end at once; and what 
 anything here."""
 from __future__ import annotations
 
+import contextlib
+
 from textual.app import App
 
 from tui_pilot import run_async, until
@@ -41,6 +43,18 @@ class ScreenApp(App[None]):
         self.sent.append(name)
 
 
+@contextlib.asynccontextmanager
+async def mounted_screen(mode: str = "replay"):
+    """The procedure screen alone at 80×24, mounted, on a clock the test moves:
+    (app, pilot, screen, clock)."""
+    clock = Clock()
+    app = ScreenApp(clock, mode)
+    async with app.run_test(size=(80, 24)) as pilot:
+        screen = app.screen_under_test
+        await until(pilot, lambda: screen.is_mounted)
+        yield app, pilot, screen, clock
+
+
 def reading(t: float, x_mg: float, waiting: bool = False, phase: str | None = None) -> Telemetry:
     return Telemetry(t=t, step=0, phase=phase or (PLACE if waiting else DWELL), waiting=waiting,
                      samples=int(t * 100), accel_mg=(x_mg, 0.0, 1000.0), gyro_deg_s=(0.0, 0.0, 0.0),
@@ -61,11 +75,7 @@ def log_text(screen: ProcedureScreen) -> str:
 
 @run_async
 async def test_readings_within_the_display_period_wait_for_its_end_and_the_last_is_shown():
-    clock = Clock()
-    app = ScreenApp(clock)
-    async with app.run_test(size=(80, 24)) as pilot:
-        screen = app.screen_under_test
-        await until(pilot, lambda: screen.is_mounted)
+    async with mounted_screen() as (app, pilot, screen, clock):
         screen.set_telemetry(reading(1.0, 11.0, waiting=True))  # the first: at once
         assert "+11.0" in accel_row(screen)
         screen.set_telemetry(reading(1.1, 22.0))  # the operator's turn ends: at once
@@ -86,11 +96,7 @@ async def test_readings_within_the_display_period_wait_for_its_end_and_the_last_
 
 @run_async
 async def test_the_operators_turn_a_new_instruction_and_the_runs_end_are_shown_at_once():
-    clock = Clock()
-    app = ScreenApp(clock)
-    async with app.run_test(size=(80, 24)) as pilot:
-        screen = app.screen_under_test
-        await until(pilot, lambda: screen.is_mounted)
+    async with mounted_screen() as (app, pilot, screen, clock):
         screen.set_telemetry(reading(1.0, 11.0))
         screen.set_telemetry(reading(1.1, 22.0, waiting=True))  # same instant: the turn comes
         assert "+22.0" in accel_row(screen)
@@ -104,11 +110,7 @@ async def test_the_operators_turn_a_new_instruction_and_the_runs_end_are_shown_a
 
 @run_async
 async def test_a_banner_that_only_says_how_the_run_goes_waits_for_the_display_period_like_the_readings():
-    clock = Clock()
-    app = ScreenApp(clock)
-    async with app.run_test(size=(80, 24)) as pilot:
-        screen = app.screen_under_test
-        await until(pilot, lambda: screen.is_mounted)
+    async with mounted_screen() as (app, pilot, screen, clock):
         screen.set_telemetry(reading(1.0, 11.0))  # the first: at once
         assert banner(screen) == "Dwelling: keep the unit still"
 
@@ -125,11 +127,7 @@ async def test_a_banner_that_only_says_how_the_run_goes_waits_for_the_display_pe
 
 @run_async
 async def test_a_banner_that_asks_or_reports_a_fault_and_a_fault_event_are_shown_at_once():
-    clock = Clock()
-    app = ScreenApp(clock)
-    async with app.run_test(size=(80, 24)) as pilot:
-        screen = app.screen_under_test
-        await until(pilot, lambda: screen.is_mounted)
+    async with mounted_screen() as (app, pilot, screen, clock):
         screen.set_telemetry(reading(1.0, 11.0))
         assert banner(screen) == "Dwelling: keep the unit still"
 
@@ -164,11 +162,7 @@ async def test_a_banner_that_asks_or_reports_a_fault_and_a_fault_event_are_shown
 async def test_the_end_of_the_operators_turn_that_a_key_has_shown_waits_for_the_display_period():
     """r in a simulated run says the carry at once; the run going on after it (no longer
     waiting, no question asked) is nothing new for the operator: it waits like the readings."""
-    clock = Clock()
-    app = ScreenApp(clock, mode="sim")
-    async with app.run_test(size=(80, 24)) as pilot:
-        screen = app.screen_under_test
-        await until(pilot, lambda: screen.is_mounted)
+    async with mounted_screen(mode="sim") as (app, pilot, screen, clock):
         screen.set_telemetry(reading(1.0, 11.0, waiting=True))  # the operator's turn: at once
         assert banner(screen).startswith("Position 1: ")
         await pilot.press("r")
