@@ -180,17 +180,10 @@ class SemiseparableWhitener:
         np.matmul(self.inverse_diagonal, R[:n * b].reshape(n, b, -1), out=blocks)  # L_i⁻¹r_i, all at once
         f, carried = np.zeros((S.state_size, R.shape[1])), np.empty((S.state_size, R.shape[1]))
         inverse_left, gains = self.inverse_left, self.gains
-        # S.transition's steps written out (a call, a reshape and a tuple less a block, on 633
-        # blocks nine times a gyro solve): the same operations in the same order.
-        g, b, _ = S.sizes
-        decay, low = S.decay[:, :, None], 2 * g + b
         for i in range(n):
             xi = blocks[i]
             xi -= inverse_left[i] @ f
-            np.multiply(decay[i], f[:g], out=carried[:g])  # carried = a_i·f + gains_i·x_i, with no new array
-            carried[:g] += f[g:2 * g]
-            carried[g:low] = 0.0
-            carried[low:] = f[low:]
+            S.transition(f, i, out=carried)  # carried = a_i·f + gains_i·x_i, with no new array
             carried += gains[i] @ xi
             f, carried = carried, f
         if S.tail_size:
