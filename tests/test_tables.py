@@ -48,6 +48,27 @@ def grbl_table(port):
 # -- ASCII driver ------------------------------------------------------------------------------
 
 
+def test_a_port_gone_between_a_commands_write_and_its_flush_fails_as_an_oserror():
+    """pyserial's flush (tcdrain) on a pty whose far end closed raises termios.error, not an
+    OSError (pyserial issue 417): the driver says it as every other port gone, an OSError with
+    the same errno, which the station turns into "its port failed" (a pulled cable as the table
+    started ended the run with termios.error, 2026-11-28)."""
+    termios = pytest.importorskip("termios")
+
+    class PortGoneAtFlush:
+        timeout = None
+
+        def write(self, data):
+            return len(data)
+
+        def flush(self):
+            raise termios.error(5, "Input/output error")
+
+    with pytest.raises(OSError) as info:
+        ascii_table(PortGoneAtFlush()).set_rate(10.0)
+    assert info.value.errno == 5 and isinstance(info.value.__cause__, termios.error)
+
+
 def test_ascii_identify():
     with expected_protocol(ascii_table, [(b"ID?\n", b"ID FCT-1 1.0.0\r\n")]) as t:
         assert t.identify() == "FCT-1 1.0.0"

@@ -19,6 +19,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
 
+try:  # pyserial's flush (tcdrain) on a port gone under it raises termios.error, not an OSError
+    # (pyserial issue 417): a cable pulled between a command's write and its flush
+    from termios import error as _TermiosError
+    _PORT_GONE: tuple[type[BaseException], ...] = (_TermiosError,)
+except ImportError:  # no termios (Windows): pyserial raises SerialException (an OSError) there
+    _PORT_GONE = ()
+
 Status = Literal["idle", "accelerating", "steady", "fault"]
 STATUSES: tuple[str, ...] = ("idle", "accelerating", "steady", "fault")
 
@@ -142,7 +149,10 @@ class LinePort:
         self.port.write(data)
         flush = getattr(self.port, "flush", None)
         if flush is not None:
-            flush()
+            try:
+                flush()
+            except _PORT_GONE as exc:  # an OSError, as every other failure of a port gone
+                raise OSError(*exc.args) from exc
 
     def _read_raw_line(self) -> bytes:
         read_until = getattr(self.port, "read_until", None)

@@ -15,13 +15,6 @@ from fieldcal.config import StationConfig
 from fieldcal.run.deviceclock import ClocklessStream, DeviceClock, clock_of, judge_restart, went_back
 from fieldcal.run.devices import DeviceConnection
 
-try:  # pyserial's flush (tcdrain) on a port gone under it raises termios.error, not an OSError
-    # (pyserial issue 417): a cable pulled between a command's write and its flush
-    from termios import error as _TermiosError
-    PORT_FAILURES: tuple[type[BaseException], ...] = (OSError, _TermiosError)
-except ImportError:  # no termios (Windows): pyserial raises SerialException (an OSError) there
-    PORT_FAILURES = (OSError,)
-
 
 class LiveBench:
     # A table that refuses a command is the operator's to deal with (skip the step or abort).
@@ -271,7 +264,7 @@ class LiveBench:
                 self.table.stop()
             else:
                 self.table.set_rate(rate_deg_s)
-        except PORT_FAILURES as exc:  # its port is gone (unplugged, powered off): the operator's to deal with
+        except OSError as exc:  # its port is gone (unplugged, powered off; drivers.tables says so as an OSError)
             table = self.config.table
             assert table is not None and table.port is not None  # (self.table was opened on it)
             raise TableError(f"its port {table.port.url} failed ({exc}): is the table "
