@@ -551,11 +551,18 @@ NOT_A_NUMBER = ["abc", "1.5", None, True, False, math.nan, math.inf, -math.inf, 
 NOT_A_MAPPING = ["abc", 1.5, None, True, [], [1.0, 2.0, 3.0]]
 
 
+@pytest.fixture(scope="module")
+def pf_document(pf) -> dict:
+    """pf's file as YAML reads it, parsed once: each example below breaks a deep copy (parsing it
+    again in each, from a new dump, was half of the test's CPU)."""
+    return yaml.safe_load(dump(pf))
+
+
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
-def test_any_broken_field_is_named(pf, tmp_path_factory, data):
+def test_any_broken_field_is_named(pf_document, tmp_path_factory, data):
     """Delete any required key or give any node a value of the wrong type: one line naming it."""
-    doc = yaml.safe_load(dump(pf))
+    doc = copy.deepcopy(pf_document)
     nodes = list(_nodes(doc))
     keys, value = data.draw(st.sampled_from(nodes), label="node")
     if isinstance(value, bool):
