@@ -23,6 +23,7 @@ from fieldcal.registry.drift import drifts
 from fieldcal.units import STANDARD_GRAVITY
 
 from postgres_server import postgres_server  # noqa: F401 -- the fixture
+from brisk_quick import brisk_quick
 
 MG = STANDARD_GRAVITY * 1e-3
 QUICK = str(Path(__file__).parent / "faults" / "quick.yaml")
@@ -208,7 +209,8 @@ def test_an_older_registry_is_migrated_keeping_its_calibrations(tmp_path, regist
 def test_a_broken_registry_warns_and_rebuild_indexes_the_session(tmp_path, capsys):
     broken = tmp_path / "registry.sqlite"  # a regular file, so not refused up front; no database
     broken.write_text("not a database\n" * 100)
-    argv = ["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(tmp_path / "s"), "--seed", "8",
+    brisk = str(brisk_quick(tmp_path))  # quick.yaml with brisk rate steps: none of this checks their speed
+    argv = ["run", "--headless", "--quiet", "--procedure", brisk, "--out", str(tmp_path / "s"), "--seed", "8",
             "--registry", str(broken)]
     assert main(argv) == 0  # the run is complete; only the registry failed
     err = capsys.readouterr().err

@@ -9,7 +9,8 @@ from fieldcal.cli.main import main
 from fieldcal.registry import Registry, record_safely
 from fieldcal.registry.backends import RegistryError, redact
 from postgres_server import SUPERUSER, postgres_server, postgres_tls_server  # noqa: F401 -- the fixtures
-from test_registry import QUICK, unit_file
+from brisk_quick import brisk_quick
+from test_registry import unit_file
 
 
 @pytest.mark.parametrize("url, printed", [
@@ -95,7 +96,8 @@ def test_a_run_with_a_password_in_the_url_writes_it_nowhere(postgres_server, dat
     monkeypatch.delenv("PGPASSWORD", raising=False)
     url = postgres_server.tcp_url(database, postgres_server.password)
     out = tmp_path / "sessions"
-    assert main(["run", "--headless", "--quiet", "--procedure", QUICK, "--out", str(out), "--seed", "3",
+    brisk = str(brisk_quick(tmp_path))  # quick.yaml with brisk rate steps: none of this checks their speed
+    assert main(["run", "--headless", "--quiet", "--procedure", brisk, "--out", str(out), "--seed", "3",
                  "--registry", url]) == 0
     printed = capsys.readouterr()
     assert main(["units", "--registry", url]) == 0
