@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.protocols.delimited import DelimitedTextParser
-from fieldcal.recording import Recording
+from fieldcal.recording import Recording, remember_period
 from fieldcal.recording.errors import RecordingImportError
 from fieldcal.recording.containers import ContainerError, is_container, text_of
 from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
@@ -275,6 +275,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         t_first=float(t[0]), t_last=float(t[-1]),
         gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
         largest_gap_line=int(lines[widest + 1]), cut_off=unterminated, zero_tail=zeros)
+    remember_period(t, period)  # the recording's rate and its stages' sample period, found once
     return _Parsed(spec, report, t, triads)
 
 
