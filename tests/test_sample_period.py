@@ -21,6 +21,18 @@ def test_the_period_is_the_median_step_and_is_worked_out_once_per_timestamps_arr
     assert sample_period(same_values) == 1.5 and medians == [5]  # another array: its own
 
 
+def test_the_period_keeps_no_timestamps_alive():
+    import gc
+    import weakref
+
+    t = np.arange(1000) * 0.01
+    gone = weakref.ref(t)
+    assert sample_period(t) == pytest.approx(0.01)
+    del t
+    gc.collect()
+    assert gone() is None
+
+
 def test_an_imported_recordings_rate_and_period_take_no_second_median(tmp_path, monkeypatch):
     steps = np.tile([0.01, 0.0101, 0.0099, 0.01], 50)  # jittered 100 Hz; median 0.01
     t = 3.0 + np.r_[0.0, np.cumsum(steps)]

@@ -13,15 +13,16 @@ few for the norm method: ``aligned``) into a ``RecordingCalibration`` (``outcome
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
 
-# (timestamps, length, median step) of the last few timestamps arrays asked for or read (one per
-# file of a recording), held so that each one's id stays its own.
-_PERIOD_MEMO: list[tuple[np.ndarray, int, float]] = []
+# (a weak reference to the timestamps, their length, their median step) of the last few arrays
+# asked for or read: weak, so that no recording's timestamps are kept alive for it.
+_PERIOD_MEMO: list[tuple[weakref.ref, int, float]] = []
 _PERIOD_MEMO_SIZE = 4
 
 
@@ -32,7 +33,7 @@ def sample_period(t: np.ndarray) -> float:
     every sample (on imu_tk's recording joined 16×, 7 ms each time, four times), now once per
     timestamps array (the importer hands over its own, ``remember_period``)."""
     for held, length, period in _PERIOD_MEMO:
-        if held is t and length == len(t):
+        if held() is t and length == len(t):
             return period
     period = float(np.median(np.diff(t)))
     remember_period(t, period)
@@ -41,7 +42,8 @@ def sample_period(t: np.ndarray) -> float:
 
 def remember_period(t: np.ndarray, period: float) -> None:
     """``period`` is float(np.median(np.diff(t))), found by whoever made ``t``."""
-    _PERIOD_MEMO[:] = [(t, len(t), period)] + [entry for entry in _PERIOD_MEMO if entry[0] is not t][:_PERIOD_MEMO_SIZE - 1]
+    kept = [entry for entry in _PERIOD_MEMO if entry[0]() is not None and entry[0]() is not t]
+    _PERIOD_MEMO[:] = [(weakref.ref(t), len(t), period)] + kept[:_PERIOD_MEMO_SIZE - 1]
 
 
 @dataclass(frozen=True)
