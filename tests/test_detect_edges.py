@@ -174,8 +174,9 @@ def test_window_variances_are_np_vars_own_steps_without_a_copy_of_the_samples():
     from fieldcal.recording.detect import window_variances
 
     rng = np.random.default_rng(7)
-    values = np.round(rng.normal(33000.0, 30.0, (400_003, 3)))
-    for window in (101, 65_537):
+    counts = np.round(rng.normal(33000.0, 30.0, (400_003, 3)))
+    si = rng.normal(9.81, 0.03, (400_003, 3))  # not integers: the order of the additions shows in the bits
+    for values, window in ((counts, 101), (counts, 65_537), (si, 101), (si, 1201), (si[:3000], 1000)):
         k = len(values) // window
         blocks = values[:k * window].reshape(k, window, 3)
         means = blocks.sum(axis=1) / window

@@ -216,13 +216,27 @@ def window_variances(values: np.ndarray, window: int) -> tuple[np.ndarray, np.nd
     # np.var's own steps (the mean, then the mean square about it, each summed along the window),
     # without its generic machinery: the same numbers at under half the cost. The deviations are
     # made some windows at a time (never a copy of all the samples: 20 MiB at 16× imu_tk).
-    means = blocks.sum(axis=1) / window
+    means = window_sums(blocks) / window
     variances = np.empty(means.shape)
     chunk = max(1, _DEVIATION_SAMPLES // window)
     for lo in range(0, k, chunk):
         deviations = blocks[lo:lo + chunk] - means[lo:lo + chunk, None, :]
         np.einsum("kwd,kwd->kd", deviations, deviations, out=variances[lo:lo + chunk])
     return variances / window, means
+
+
+def window_sums(blocks: np.ndarray) -> np.ndarray:
+    """(k, d) sums of ``blocks`` (k, w, d) over its windows' w rows: ``blocks.sum(axis=1)``'s
+    additions in its order (the first row, then each next one added), made as w additions over
+    every window at once, where numpy's reduction adds d numbers at a time (at d = 3 on imu_tk's
+    recording joined 16×: 6.7 ms instead of 14). A few long windows: numpy's own, the same bits."""
+    k, w = blocks.shape[:2]
+    if w > k:  # w additions of few numbers each: no faster
+        return blocks.sum(axis=1)
+    total = blocks[:, 0, :].copy()
+    for row in range(1, w):  # the rows of a window (a second's samples), each over every window
+        total += blocks[:, row, :]
+    return total
 
 
 _DEVIATION_SAMPLES = 1 << 16  # samples whose deviations window_variances makes at once (~1.5 MiB for 3 axes)

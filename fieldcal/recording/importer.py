@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.protocols.delimited import DelimitedTextParser
-from fieldcal.recording import Recording
+from fieldcal.recording import Recording, remember_period
 from fieldcal.recording.errors import RecordingImportError
 from fieldcal.recording.containers import ContainerError, is_container, text_of
 from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
@@ -107,6 +107,7 @@ class _Parsed:
     report: FileReport
     t: np.ndarray
     triads: dict[str, np.ndarray]
+    period: float  # the median step of t
 
 
 def import_recording(paths, import_map: ImportMap | str | os.PathLike, rate_hz: float | None = None) -> Recording:
@@ -142,6 +143,7 @@ def import_with_report(paths, import_map: ImportMap | str | os.PathLike,
                                      for p in parsed})
     if t is parsed[0].t:  # the first file's timestamps as they are: its median rate is the recording's, found once
         recording.__dict__["rate_hz"] = parsed[0].report.rate_hz  # (the cached_property's own slot)
+        remember_period(t, parsed[0].period)  # and its stages' sample period (only the recording's t is held)
     report = ImportReport(map_path=im.path, map_text=im.text, files=tuple(p.report for p in parsed),
                           alignment=tuple(alignment), warnings=warnings)
     return recording, report
@@ -275,7 +277,7 @@ def _read(path: str, spec: FileSpec, rate_hz: float | None = None) -> _Parsed:
         t_first=float(t[0]), t_last=float(t[-1]),
         gaps=int(np.count_nonzero(dt > GAP_PERIODS * period)), largest_gap_s=float(dt[widest]),
         largest_gap_line=int(lines[widest + 1]), cut_off=unterminated, zero_tail=zeros)
-    return _Parsed(spec, report, t, triads)
+    return _Parsed(spec, report, t, triads, period)
 
 
 def _parse_pieces(parser: DelimitedTextParser, pieces, comment: str | None, n_lines: int, path: str,

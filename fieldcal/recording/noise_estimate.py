@@ -29,6 +29,7 @@ import numpy as np
 from scipy.special import gammaln
 
 from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S, TriadNoise
+from fieldcal.recording import sample_period
 from fieldcal.recording.detect import interval_means
 
 # The prior on B: density ∝ B^(PRIOR_POWER − 1), i.e. ∝ B^PRIOR_POWER per decade. Chosen on the
@@ -196,4 +197,4 @@ def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,
 def _spans(t: np.ndarray, windows: np.ndarray) -> np.ndarray:
     """Each window's duration (s) from its first sample to its last, so that jittered timestamps
     cannot make neighbours overlap; one sample's period at least."""
-    return np.maximum(t[windows[:, 1] - 1] - t[windows[:, 0]], float(np.median(np.diff(t))) if len(t) > 1 else 1.0)
+    return np.maximum(t[windows[:, 1] - 1] - t[windows[:, 0]], sample_period(t) if len(t) > 1 else 1.0)

@@ -12,6 +12,7 @@ import numpy as np
 
 from fieldcal.calibration import Calibration
 from fieldcal.model import calibrate_with
+from fieldcal.recording import sample_period
 from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance, window_covariance
 from fieldcal.recording.up_covariance import MeansCovariance
 from fieldcal.solvers import CalibrationError, solve_norm
@@ -54,7 +55,7 @@ def means_covariance(intervals, t, variance, noise, K, unit, parts: bool = False
     counts = np.diff(intervals, axis=1)[:, 0]
     if noise is None:
         return np.diag((variance[None, :] / counts[:, None]).ravel())
-    durations = counts * float(np.median(np.diff(t)))
+    durations = counts * sample_period(t)
     if parts:
         quantised = unit == "count" and not isinstance(noise, MeasuredNoise)
         own = np.broadcast_to((1.0 / 12.0 / counts if quantised else np.zeros(len(counts)))[:, None], (len(counts), 3))

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fieldcal.recording import sample_period
 from fieldcal.recording.noise_estimate import window_covariance
 from fieldcal.solvers.semiseparable import ChainedPoses, MarkovWindows
 
@@ -133,7 +134,7 @@ def means_parts(intervals: np.ndarray, t: np.ndarray, variance: np.ndarray, nois
     if noise is None:
         own = (K_inv[None] * (variance[None, None, :] / counts[:, None, None])) @ K_inv.T
         return None, own
-    durations = counts * float(np.median(np.diff(t)))
+    durations = counts * sample_period(t)
     windows = MarkovWindows.of(noise, t[intervals[:, 0]], durations)
     if windows is None:
         windows = window_covariance(noise, t[intervals[:, 0]], durations)
