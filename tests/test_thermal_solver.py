@@ -485,3 +485,16 @@ def test_an_accelerometers_fold_is_kept_with_sigma_the_last_bits_do_not_move(see
         perturbed = solve_thermal_norm(problem, temperatures * factor, covariance).calibration
         assert perturbed.thermal.order == 2, factor
         np.testing.assert_allclose(perturbed.sigma, solved.sigma, rtol=0.1)
+
+
+def test_the_observed_information_of_a_hand_worked_fold():
+    # r(x) = (x₀² + c, x₁ − 2): the data (−c, 2) lie outside what x₀² can reach, so least squares
+    # stops at x = (0, 2), where J = [[0, 0], [0, 1]] is singular. The Hessian of ½|r|² there is
+    # JᵀJ + Σ rᵢ∇²rᵢ = [[2c, 0], [0, 1]]: x₀ is determined by the curvature alone.
+    from fieldcal.solvers.thermal import _observed_information
+
+    c = 0.3
+    x = np.array([0.0, 2.0])
+    J = np.array([[0.0, 0.0], [0.0, 1.0]])
+    information = _observed_information(lambda z: np.array([z[0] ** 2 + c, z[1] - 2.0]), x, J, np.array([1e-4, 1e-4]))
+    np.testing.assert_allclose(information, [[2 * c, 0.0], [0.0, 1.0]], rtol=0, atol=1e-8)
