@@ -363,14 +363,28 @@ class _Steps:
         return np.concatenate(self.parts, axis=2).reshape(len(self.parts[0]), -1)
 
     def _grouped(self, group: int) -> np.ndarray:
-        """The terms of ``group`` consecutive steps summed (made once), (10, steps / group)
+        """The terms of ``group`` consecutive steps as one step (made once), (10, steps / group)
         position-major over all blocks: the storage index is the bit-reversed time, so a
-        group's steps are those that differ only in its high bits."""
+        group's steps are those that differ only in its high bits (in time order at the
+        bit-reversed high bits). Their terms summed, and the coning between them too: the
+        product of their exponentials is that of Σφ_i + ½·Σ_{i<j} φ_i × φ_j to second order
+        (Baker–Campbell–Hausdorff), and with φ_i = A·(V_i − h_i·δb) (V_i the integral of v)
+        φ_i × φ_j = det(A)·Kᵀ·(V_i × V_j + (h_i·V_j − h_j·V_i) × δb): the coning terms' and the
+        bias cross terms' form, so it is added to theirs."""
         if group not in self._groups:
             c = len(self.parts[0])
-            self._groups[group] = np.concatenate(
-                [part.reshape(c, group, self.block // group, -1).sum(axis=1) for part in self.parts],
-                axis=2).reshape(c, -1)
+            order = _bit_reversed(group)  # the group's steps in time order
+            parts = []
+            for part in self.parts:
+                steps = part.reshape(c, group, self.block // group, -1)
+                summed = steps.sum(axis=1)
+                V, h = steps[0:3, order], steps[9, order]
+                before_V = np.cumsum(V, axis=1) - V  # Σ_{i<j} V_i, for each j
+                before_h = np.cumsum(h, axis=0) - h
+                summed[3:6] += 0.5 * np.sum(_cross(np.moveaxis(before_V, 0, -1), np.moveaxis(V, 0, -1)), axis=0).transpose(2, 0, 1)
+                summed[6:9] += 0.5 * np.sum(before_h * V - h * before_V, axis=1)
+                parts.append(summed)
+            self._groups[group] = np.concatenate(parts, axis=2).reshape(c, -1)
         return self._groups[group]
 
     def _grouped_parts(self, group: int) -> list[np.ndarray]:
