@@ -73,21 +73,29 @@ def test_steps_taken_as_one_keep_the_coning_between_them():
 def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_optimum(monkeypatch, estimate_bias):
     """Started at the nominal sensitivity (2 % off, 0.9° of misalignment: hundreds of σ), the
     solve makes one exact Jacobian, the polish's (the covariance), and the start's (it whitens
-    and points the search) and the search's on the coarse steps; the solution is the one exact
-    Jacobians throughout reach, within a thousandth of a σ, covariance alike."""
+    and points the search) and the search's on the coarse steps, whose integration alone gives
+    the search's residuals: the exact one is asked only by the polish, a step or two. The
+    solution is the one exact Jacobians throughout reach, within a thousandth of a σ,
+    covariance alike."""
     rec = hand_recording(11)
     obs = observe(rec, np.random.default_rng(11), **GRADES["counts"])
-    made = []
-    jacobian = _Steps.jacobian
+    made, integrated = [], []
+    jacobian, forward = _Steps.jacobian, _Steps._forward
 
     def counted(self, *args):
         made.append(self.block)
         return jacobian(self, *args)
 
+    def counted_forward(self, *args):
+        integrated.append(self.block)
+        return forward(self, *args)
+
     monkeypatch.setattr(_Steps, "jacobian", counted)
+    monkeypatch.setattr(_Steps, "_forward", counted_forward)
     sol = solve(rec, obs, estimate_bias=estimate_bias)
     coarse_block = rotation._BLOCK // rotation._SEARCH_GROUP
     assert made.count(rotation._BLOCK) == 1 and made.count(coarse_block) >= 2, made
+    assert integrated.count(rotation._BLOCK) <= 2, integrated  # the polish's chord steps
 
     monkeypatch.setattr(rotation, "_SEARCH_GROUP", 1)
     made.clear()

@@ -35,9 +35,11 @@ The search runs in coordinates whitened by the Jacobian at K0, b0 (as in norm.py
 (k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is exact
 (``_Steps.jacobian``: the per-step right Jacobian of the exponential, carried to each span's end
 by walking the composition's tree back down), about three integrations' work for all twelve
-parameters where differences took one integration per parameter; the search's (which only find
-the way to the polish) are the exact Jacobians of the coarse integration, eight steps as one
-(``_Steps.coarse``), a sixth of that work. Not modelled: Earth rate
+parameters where differences took one integration per parameter; the search (which only finds
+the way to the polish) integrates coarsely, four steps as one with the coning between them
+(``_Steps.coarse``): its residuals and their exact Jacobians, which that integration gives
+too, at about a quarter of the exact Jacobian's work; its optimum is within a few hundredths of
+a σ of the exact one, so the polish makes one exact Jacobian. Not modelled: Earth rate
 (≤ 2e-4 rad over a 3 s motion: below consumer MEMS noise, not below a tactical gyro's; a caller
 that knows the latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 """
@@ -743,11 +745,12 @@ class _Residuals:
         b, K_inv = self.unpack(theta)
         return self.steps.quaternions(K_inv, b - self.steps.offset)
 
-    def rotations(self, theta, bias=None):
+    def rotations(self, theta, bias=None, coarse: bool = False):
         """2 per motion, rad: Cᵀ·up_start − up_end in the end pose's tangent basis (bias: instead
-        of theta's)."""
+        of theta's; ``coarse``: the coarse integration's, as ``jacobian``'s)."""
         b, K_inv = self.unpack(theta)
-        q = self.steps.quaternions(K_inv, (b if bias is None else bias) - self.steps.offset)
+        steps = self.steps.coarse(_SEARCH_GROUP) if coarse else self.steps
+        q = steps.quaternions(K_inv, (b if bias is None else bias) - self.steps.offset)
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
@@ -896,7 +899,7 @@ _STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the
 _SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
 _MAX_ITERATIONS = 100
 _FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
-_SEARCH_GROUP = 8  # steps taken as one by the search's Jacobians (_Steps.coarse; 1: exact ones)
+_SEARCH_GROUP = 4  # steps taken as one by the search's Jacobians (_Steps.coarse; 1: exact ones)
 
 
 def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
@@ -907,9 +910,9 @@ def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, 
     a step is below _SEARCH_TOL σ: the polish takes it from there.
 
     Where a long step would land, the Jacobian is made before fun is asked (a ``jac`` that
-    integrates exactly can keep the residuals it gives for fun; solve_rotations' search asks
-    the coarse integration's, about a sixth of an exact Jacobian's work and less than one
-    evaluation's, so a step that fails costs little more than its evaluation)."""
+    integrates can keep the residuals it gives for fun; solve_rotations' search asks the
+    coarse integration's, about a quarter of an exact Jacobian's work, so a step that fails
+    costs little more than its evaluation)."""
     z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
     cost = float(r @ r)
     for iteration in range(1, _MAX_ITERATIONS + 1):
@@ -968,8 +971,8 @@ def _polish(whitened, jacobian, theta, natural):
     steps, one evaluation each). The Jacobian returned is the last one made. After a longer step
     it is made before the residuals are asked, as in _broyden_gauss_newton (its integration
     gives them)."""
-    r = whitened(theta)
     J, fresh = jacobian(theta) * natural, True
+    r = whitened(theta)
     for _ in range(20):
         d = -np.linalg.lstsq(J, r, rcond=None)[0]
         size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
@@ -1019,24 +1022,27 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
     natural = np.r_[np.abs(k0)[:nb] / model.steps.duration.mean(), np.abs(k0), np.ones(6)]
     fd_steps = 1e-7 * natural
-    # The start's Jacobian only weighs the residuals (the held bias's share, G) and points the
-    # search: the coarse integration's, as the search's own (a sixth of the exact one's work);
-    # its residuals and rotations, which the search and the whitening start from, exact.
-    J_start = model.jacobian(theta0, coarse=_SEARCH_GROUP > 1)[1]
-    r_start, q_start = model.rotations(theta0), model.quaternions(theta0)
+    # The search only finds the way: its residuals and Jacobians are the coarse integration's
+    # (a quarter of the steps, the coning between them kept; a coarse Jacobian gives the
+    # residuals too), the start's as well: they weigh the residuals (the held bias's share
+    # G, the poses' rotations C, at the start, not at the optimum) and point the search. The
+    # polish's, whose optimum and covariance are the result, are exact.
+    coarse = _SEARCH_GROUP > 1
+    r_start, J_start, q_start = model.jacobian(theta0, coarse=coarse)
     J_rot = _check_geometry(model, J_start, natural, name, lambda: model.jacobian(theta0)[1])
     whiten = _whitening(model, J_start, q_start, noise, n_side, name)
     count = [0]
-    recent: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # theta: (residuals, whitened)
+    recent: dict[tuple[bool, bytes], tuple[np.ndarray, np.ndarray]] = {}  # (coarse, theta): (residuals, whitened)
 
-    def evaluated(theta, rotations=None):
-        """The residuals at theta and them whitened; the last few kept, as the search hands its
-        last point to the polish and the polish its optimum to the result (``rotations``: the
-        rotation residuals at theta when an integration has given them already)."""
-        key = theta.tobytes()
+    def evaluated(theta, rotations=None, coarse=False):
+        """The residuals at theta and them whitened (``coarse``: the coarse integration's); the
+        last few kept, as the search's Jacobians give their residuals and the polish its optimum
+        to the result (``rotations``: the rotation residuals at theta when an integration has
+        given them already)."""
+        key = coarse, theta.tobytes()
         if key not in recent:
             count[0] += 1
-            r = np.r_[model.rotations(theta) if rotations is None else rotations, model.side(theta)]
+            r = np.r_[model.rotations(theta, coarse=coarse) if rotations is None else rotations, model.side(theta)]
             if len(recent) >= 4:
                 del recent[next(iter(recent))]
             recent[key] = r, (r if whiten is None else whiten @ r)
@@ -1045,8 +1051,7 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     def whitened(theta):
         return evaluated(theta)[1]
 
-    r_start = np.r_[r_start, model.side(theta0)]  # the Jacobian's integration gave the start's
-    recent[theta0.tobytes()] = r_start, (r_start if whiten is None else whiten @ r_start)
+    evaluated(theta0, r_start, coarse)  # the search starts from the start's Jacobian's residuals
 
     J_side = _jacobian(model.side, theta0, fd_steps) * natural if n_side else np.zeros((0, p))
     J0 = np.vstack([J_rot, J_side])
@@ -1056,19 +1061,17 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     to_theta = natural[:, None] * np.linalg.inv(R)
     def jacobian(theta, coarse=False):
         """Of whitened: the rotations' exact (``coarse``: the coarse integration's, for the
-        search), the side residuals' by forward differences. The rotations an exact
-        integration gives are kept as evaluated's."""
+        search), the side residuals' by forward differences. The rotations its integration
+        gives are kept as evaluated's."""
         rotations, J, _ = model.jacobian(theta, coarse=coarse)
-        if not coarse:
-            evaluated(theta, rotations)
+        evaluated(theta, rotations, coarse)
         J = J[:, 3 - nb:]
         if n_side:
             J = np.vstack([J, _jacobian(model.side, theta, fd_steps, central=False)])
         return J if whiten is None else whiten @ J
 
-    # The search only finds the way: its Jacobians from the coarse integration (an eighth of the
-    # steps); the polish's, whose optimum and covariance are the result, exact.
-    theta, converged, message, iterations = _search(whitened, lambda theta: jacobian(theta, coarse=_SEARCH_GROUP > 1),
+    theta, converged, message, iterations = _search(lambda theta: evaluated(theta, coarse=coarse)[1],
+                                                    lambda theta: jacobian(theta, coarse=coarse),
                                                     theta0, to_theta, Q, method)
     if not converged:
         raise CalibrationError(f"{name}: {method} did not converge ({message})")
