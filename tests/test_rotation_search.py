@@ -69,6 +69,30 @@ def test_steps_taken_as_one_keep_the_coning_between_them():
     assert (shifted.inv() * coarse).magnitude()[0] < 1e-6
 
 
+def test_a_coarse_steps_terms_are_the_double_sum_over_its_steps_in_time_order():
+    """Made by pairing neighbours (log2(group) passes), a coarse step's terms are its group's
+    terms summed plus ½·Σ_{i<j} of V_i × V_j (coning) and of h_i·V_j − h_j·V_i (bias cross),
+    i before j in time: here summed pair by pair in a loop over one block's 64 steps, read at
+    their bit-reversed places."""
+    rng = np.random.default_rng(4)
+    t = np.cumsum(np.r_[0.0, 0.01 + 0.002 * rng.random(80)])
+    omega = rng.normal(size=(81, 3))
+    steps = _Steps(omega, t, np.array([[5, 69]]))  # 64 steps: one whole block
+    fine = steps.terms[:, rotation._bit_reversed(rotation._BLOCK)]  # (10, 64) in time order
+    for group in (2, 4, 8, 16):
+        coarse = steps.coarse(group).terms  # (10, 64 / group) at bit-reversed places
+        in_time = coarse[:, rotation._bit_reversed(rotation._BLOCK // group)]
+        for g in range(rotation._BLOCK // group):
+            members = fine[:, g * group:(g + 1) * group]
+            expected = members.sum(axis=1)
+            for i in range(group):
+                for j in range(i + 1, group):
+                    V_i, V_j, h_i, h_j = members[0:3, i], members[0:3, j], members[9, i], members[9, j]
+                    expected[3:6] += 0.5 * np.cross(V_i, V_j)
+                    expected[6:9] += 0.5 * (h_i * V_j - h_j * V_i)
+            np.testing.assert_allclose(in_time[:, g], expected, rtol=1e-12, atol=1e-15)
+
+
 @pytest.mark.parametrize("estimate_bias", [False, True], ids=["bias-held", "bias-free"])
 def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_optimum(monkeypatch, estimate_bias):
     """Started at the nominal sensitivity (2 % off, 0.9° of misalignment: hundreds of σ), the

@@ -293,6 +293,27 @@ def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     np.take(padded, source, axis=1, out=places)
 
 
+def _paired(terms: np.ndarray) -> np.ndarray:
+    """(10, P, ...) the terms of steps at P positions in bit-reversed time order (see _compose)
+    -> (10, P/2, ...): each two neighbouring steps as one, positions p and p + P/2 (the first
+    the earlier), again in bit-reversed order. Their terms summed, and the coning between them:
+    the product of their exponentials is that of φ_a + φ_b + ½·φ_a × φ_b to second order
+    (Baker–Campbell–Hausdorff), and with φ = A·(V − h·δb) (V the integral of v)
+    φ_a × φ_b = det(A)·Kᵀ·(V_a × V_b + (h_a·V_b − h_b·V_a) × δb): the coning terms' and the
+    bias cross terms' form, so it adds to theirs. Pairing pairs keeps every cross product of a
+    group's steps, earlier × later: ½·Σ_{i<j} φ_i × φ_j."""
+    half = terms.shape[1] // 2
+    a, b = terms[:, :half], terms[:, half:]
+    out = a + b
+    (ax, ay, az), (bx, by, bz) = a[0:3], b[0:3]
+    out[3] += 0.5 * (ay * bz - az * by)
+    out[4] += 0.5 * (az * bx - ax * bz)
+    out[5] += 0.5 * (ax * by - ay * bx)
+    out[6:9] += 0.5 * (a[9] * b[0:3] - b[9] * a[0:3])
+    return out
+
+
+_KEPT_GROUP = 4  # steps taken as one from which a coarse level is kept (the search's and the scan's)
 _SPAN_GROUP_BLOCKS = 512  # blocks whose compositions are made at once (~4 MiB, see _Steps._forward)
 _JACOBIAN_BLOCKS = 32  # blocks whose (3, 3, steps) matrices a Jacobian makes at once (~0.15 MiB each)
 
@@ -365,28 +386,22 @@ class _Steps:
         return np.concatenate(self.parts, axis=2).reshape(len(self.parts[0]), -1)
 
     def _grouped(self, group: int) -> np.ndarray:
-        """The terms of ``group`` consecutive steps as one step (made once), (10, steps / group)
-        position-major over all blocks: the storage index is the bit-reversed time, so a
-        group's steps are those that differ only in its high bits (in time order at the
-        bit-reversed high bits). Their terms summed, and the coning between them too: the
-        product of their exponentials is that of Σφ_i + ½·Σ_{i<j} φ_i × φ_j to second order
-        (Baker–Campbell–Hausdorff), and with φ_i = A·(V_i − h_i·δb) (V_i the integral of v)
-        φ_i × φ_j = det(A)·Kᵀ·(V_i × V_j + (h_i·V_j − h_j·V_i) × δb): the coning terms' and the
-        bias cross terms' form, so it is added to theirs."""
+        """The terms of ``group`` consecutive steps as one step, (10, steps / group)
+        position-major over all blocks: their terms summed, and the coning between them too
+        (see ``_paired``), made by pairing neighbours log2(group) times; this level and those
+        of _KEPT_GROUP steps and more on the way are kept (the search's and the scan's: a level
+        is made from the largest kept one below it)."""
         if group not in self._groups:
             c = len(self.parts[0])
-            order = _bit_reversed(group)  # the group's steps in time order
-            parts = []
-            for part in self.parts:
-                steps = part.reshape(c, group, self.block // group, -1)
-                summed = steps.sum(axis=1)
-                V, h = steps[0:3, order], steps[9, order]
-                before_V = np.cumsum(V, axis=1) - V  # Σ_{i<j} V_i, for each j
-                before_h = np.cumsum(h, axis=0) - h
-                summed[3:6] += 0.5 * np.sum(_cross(np.moveaxis(before_V, 0, -1), np.moveaxis(V, 0, -1)), axis=0).transpose(2, 0, 1)
-                summed[6:9] += 0.5 * np.sum(before_h * V - h * before_V, axis=1)
-                parts.append(summed)
-            self._groups[group] = np.concatenate(parts, axis=2).reshape(c, -1)
+            known = max((g for g in self._groups if isinstance(g, int) and group % g == 0), default=1)
+            made = [self._groups[known].reshape(c, self.block // known, -1)] if known > 1 else self.parts
+            size = known
+            while size < group:
+                made, size = [_paired(terms) for terms in made], 2 * size
+                if (size >= _KEPT_GROUP or size == group) and size not in self._groups:
+                    self._groups[size] = np.concatenate(made, axis=2).reshape(c, -1) if len(made) > 1 \
+                        else made[0].reshape(c, -1)
+                    made = [self._groups[size].reshape(c, self.block // size, -1)]
         return self._groups[group]
 
     def _grouped_parts(self, group: int) -> list[np.ndarray]:
