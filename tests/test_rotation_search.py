@@ -159,6 +159,31 @@ def test_a_steps_terms_are_the_hand_worked_ones_at_their_bit_reversed_places():
     assert np.all(terms[:, ~seen] == 0.0) and seen.sum() == 137
 
 
+def test_a_subset_of_the_steps_is_what_its_spans_make_from_the_samples():
+    """The scan bounds its misfits on every sixth motion: those spans' steps copied out of all
+    the motions' are the steps made anew from the samples of those spans alone, term for term,
+    grouped and placed alike, and integrate to the same rotations. Spans of one to five blocks,
+    enough of them for several span groups."""
+    rng = np.random.default_rng(6)
+    lengths = rng.integers(20, 300, 400)
+    starts = np.cumsum(lengths + 5) - lengths
+    n = int(starts[-1] + lengths[-1] + 3)
+    t = np.cumsum(np.r_[0.0, 0.01 + 0.001 * rng.random(n - 1)])
+    raw = rng.normal(size=(n, 3))
+    spans = np.column_stack([starts, starts + lengths])
+    steps = _Steps(raw, t, spans, offset=np.array([0.1, -0.2, 0.3]))
+    assert len(steps.span_groups) > 2
+    for rows in (np.arange(0, 400, 6), np.array([3]), np.array([0, 1, 2, 399])):
+        subset = steps.subset(rows)
+        fresh = _Steps(raw, t, spans[rows], offset=np.array([0.1, -0.2, 0.3]))
+        np.testing.assert_array_equal(subset.terms, fresh.terms)
+        assert subset.span_groups == fresh.span_groups
+        np.testing.assert_array_equal(subset.gather, fresh.gather)
+        np.testing.assert_array_equal(subset.duration, fresh.duration)
+        A, delta_b = np.diag([1.1, 0.9, 1.0]), np.array([0.01, 0.0, -0.02])
+        np.testing.assert_array_equal(subset.quaternions(A, delta_b), fresh.quaternions(A, delta_b))
+
+
 def test_the_scan_integrates_every_motion_exactly_no_more_than_twice(monkeypatch):
     """The grid's best coarse scale and its two neighbours are told apart exactly; each
     neighbour's misfit over every sixth motion bounds its whole one from below, so not all three
