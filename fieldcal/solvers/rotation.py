@@ -1085,21 +1085,36 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
         given them already)."""
         key = coarse, theta.tobytes()
         if key not in recent:
-            count[0] += 1
             r = np.r_[model.rotations(theta, coarse=coarse) if rotations is None else rotations, model.side(theta)]
-            if len(recent) >= 4:
-                del recent[next(iter(recent))]
-            recent[key] = r, (r if whiten is None else whiten @ r)
+            keep(key, r, r if whiten is None else whiten @ r)
         return recent[key]
+
+    def keep(key, r, r_whitened):
+        count[0] += 1
+        if len(recent) >= 4:
+            del recent[next(iter(recent))]
+        recent[key] = r, r_whitened
 
     def whitened(theta):
         return evaluated(theta)[1]
 
-    evaluated(theta0, r_start, coarse)  # the search starts from the start's Jacobian's residuals
+    def whitened_with(theta, rotations, coarse, J):
+        """J (of the residuals at theta) whitened, and the residuals with it, kept as
+        evaluated's when they are not yet: one pass of the whitener for both (a pass is a few
+        ms on imu_tk's recording joined 16×, most of it its loop over the blocks, whatever the
+        columns)."""
+        key = coarse, theta.tobytes()
+        if whiten is None or key in recent:
+            evaluated(theta, rotations, coarse)
+            return J if whiten is None else whiten @ J
+        r = np.r_[rotations, model.side(theta)]
+        both = whiten @ np.column_stack([r, J])
+        keep(key, r, both[:, 0])
+        return both[:, 1:]
 
     J_side = _jacobian(model.side, theta0, fd_steps) * natural if n_side else np.zeros((0, p))
-    J0 = np.vstack([J_rot, J_side])
-    J0 = J0 if whiten is None else whiten @ J0
+    # The search starts from the start's Jacobian's residuals.
+    J0 = whitened_with(theta0, r_start, coarse, np.vstack([J_rot, J_side]))
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
     Q, R = np.linalg.qr(J0)
     to_theta = natural[:, None] * np.linalg.inv(R)
@@ -1108,11 +1123,10 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
         search), the side residuals' by forward differences. The rotations its integration
         gives are kept as evaluated's."""
         rotations, J, _ = model.jacobian(theta, coarse=coarse)
-        evaluated(theta, rotations, coarse)
         J = J[:, 3 - nb:]
         if n_side:
             J = np.vstack([J, _jacobian(model.side, theta, fd_steps, central=False)])
-        return J if whiten is None else whiten @ J
+        return whitened_with(theta, rotations, coarse, J)
 
     theta, converged, message, iterations = _search(lambda theta: evaluated(theta, coarse=coarse)[1],
                                                     lambda theta: jacobian(theta, coarse=coarse),
