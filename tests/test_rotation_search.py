@@ -96,11 +96,12 @@ def test_a_coarse_steps_terms_are_the_double_sum_over_its_steps_in_time_order():
 @pytest.mark.parametrize("estimate_bias", [False, True], ids=["bias-held", "bias-free"])
 def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_optimum(monkeypatch, estimate_bias):
     """Started at the nominal sensitivity (2 % off, 0.9° of misalignment: hundreds of σ), the
-    solve makes one exact Jacobian, the polish's (the covariance), and the start's (it whitens
-    and points the search) and the search's on the coarse steps, whose integration alone gives
-    the search's residuals: the exact one is asked only by the polish, a step or two. The
-    solution is the one exact Jacobians throughout reach, within a thousandth of a σ,
-    covariance alike."""
+    solve makes one Jacobian of pairs of steps, the polish's (the covariance), and the start's
+    (it whitens and points the search) and the search's on the coarse steps, whose integration
+    alone gives the search's residuals: the exact integration is asked only by the polish, a
+    step or two, and no exact Jacobian at all. The solution is the one exact Jacobians
+    throughout reach, within a thousandth of a σ, covariance alike; with an exact Jacobian in
+    the polish alone, within 1e-5 σ."""
     rec = hand_recording(11)
     obs = observe(rec, np.random.default_rng(11), **GRADES["counts"])
     made, integrated = [], []
@@ -118,8 +119,16 @@ def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_o
     monkeypatch.setattr(_Steps, "_forward", counted_forward)
     sol = solve(rec, obs, estimate_bias=estimate_bias)
     coarse_block = rotation._BLOCK // rotation._SEARCH_GROUP
-    assert made.count(rotation._BLOCK) == 1 and made.count(coarse_block) >= 2, made
-    assert integrated.count(rotation._BLOCK) <= 2, integrated  # the polish's chord steps
+    pairs_block = rotation._BLOCK // rotation._POLISH_GROUP
+    assert made.count(pairs_block) == 1 and made.count(coarse_block) >= 2 and rotation._BLOCK not in made, made
+    assert integrated.count(rotation._BLOCK) <= 3, integrated  # the polish's start and chord steps
+
+    monkeypatch.setattr(rotation, "_POLISH_GROUP", 1)
+    made.clear()
+    exact_polish = solve(rec, obs, estimate_bias=estimate_bias)
+    assert made.count(rotation._BLOCK) == 1, made
+    assert np.all(np.abs(sol.theta - exact_polish.theta) < 1e-5 * exact_polish.sigma)
+    np.testing.assert_allclose(sol.sigma, exact_polish.sigma, rtol=1e-5)
 
     monkeypatch.setattr(rotation, "_SEARCH_GROUP", 1)
     made.clear()

@@ -32,10 +32,12 @@ gyro-to-accelerometer rotation is estimated too. Calibrated rate = K⁻¹(raw �
   residual variance (``scaled_by_residuals``), as it is when χ² is implausible (Birge).
 
 The search runs in coordinates whitened by the Jacobian at K0, b0 (as in norm.py), so raw counts
-(k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is exact
-(``_Steps.jacobian``: the per-step right Jacobian of the exponential, carried to each span's end
-by walking the composition's tree back down), about three integrations' work for all twelve
-parameters where differences took one integration per parameter; the search (which only finds
+(k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is the exact
+one of its integration (``_Steps.jacobian``: the per-step right Jacobian of the exponential,
+carried to each span's end by walking the composition's tree back down), about three
+integrations' work for all twelve parameters where differences took one integration per
+parameter; the polish's, whose residuals are the exact integration's, takes two steps as one with
+their coning (``_POLISH_GROUP``: half the work, within 1e-6 of the exact Jacobian); the search (which only finds
 the way to the polish) integrates coarsely, four steps as one with the coning between them
 (``_Steps.coarse``): its residuals and their exact Jacobians, which that integration gives
 too, at about a quarter of the exact Jacobian's work; its optimum is within a few hundredths of
@@ -789,27 +791,27 @@ class _Residuals:
         b, K_inv = self.unpack(theta)
         return self.steps.quaternions(K_inv, b - self.steps.offset)
 
-    def rotations(self, theta, bias=None, coarse: bool = False):
+    def rotations(self, theta, bias=None, group: int = 1):
         """2 per motion, rad: Cᵀ·up_start − up_end in the end pose's tangent basis (bias: instead
-        of theta's; ``coarse``: the coarse integration's, as ``jacobian``'s)."""
+        of theta's; ``group``: so many steps as one, as ``jacobian``'s)."""
         b, K_inv = self.unpack(theta)
-        steps = self.steps.coarse(_SEARCH_GROUP) if coarse else self.steps
+        steps = self.steps.coarse(group) if group > 1 else self.steps
         q = steps.quaternions(K_inv, (b if bias is None else bias) - self.steps.offset)
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
-    def jacobian(self, theta, bias=None, coarse: bool = False):
+    def jacobian(self, theta, bias=None, group: int = 1):
         """(rotations as ``rotations``, their (2m, 12) Jacobian over bias_x..z, scale_x..z and
         the six angles, whether the bias is estimated or held, exact (see _Steps.jacobian), and
-        the motions' quaternions). ``coarse``: all three of the coarse integration's
-        (``_Steps.coarse(_SEARCH_GROUP)``), for the search only."""
+        the motions' quaternions). ``group`` > 1: all three of the coarse integration's
+        (``_Steps.coarse(group)``): the search's and the polish's Jacobians."""
         nb = self.nb
         b, K_inv = self.unpack(theta)
         scale, angles = theta[nb:nb + 3], theta[nb + 3:]
         dK = np.zeros((12, 3, 3))
         dK[3:6] = [k_from_terms(e, angles) for e in np.eye(3)]  # K is linear in each group
         dK[6:] = [k_from_terms(scale, e) - np.diag(scale) for e in np.eye(6)]
-        steps = self.steps.coarse(_SEARCH_GROUP) if coarse else self.steps
+        steps = self.steps.coarse(group) if group > 1 else self.steps
         q, D = steps.jacobian(K_inv, (b if bias is None else bias) - self.steps.offset, dK, np.eye(12, 3))
         turned = _rotate_back(q, self.motions.up_start)
         r = np.einsum("mi,mik->mk", turned - self.motions.up_end, self.E).ravel()
@@ -944,6 +946,10 @@ _SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see
 _MAX_ITERATIONS = 100
 _FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
 _SEARCH_GROUP = 4  # steps taken as one by the search's Jacobians (_Steps.coarse; 1: exact ones)
+# Steps taken as one by the polish's Jacobians, whose residuals are the exact integration's: two
+# with their coning are within 1e-6 of the exact Jacobian (imu_tk's recording, 1x and 16x), so
+# the optimum they lead to is the exact one's within 1e-6 σ, for half the work; 1: exact ones.
+_POLISH_GROUP = 2
 
 
 def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
@@ -1071,21 +1077,21 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # residuals too), the start's as well: they weigh the residuals (the held bias's share
     # G, the poses' rotations C, at the start, not at the optimum) and point the search. The
     # polish's, whose optimum and covariance are the result, are exact.
-    coarse = _SEARCH_GROUP > 1
-    r_start, J_start, q_start = model.jacobian(theta0, coarse=coarse)
+    coarse = _SEARCH_GROUP
+    r_start, J_start, q_start = model.jacobian(theta0, group=coarse)
     J_rot = _check_geometry(model, J_start, natural, name, lambda: model.jacobian(theta0)[1])
     whiten = _whitening(model, J_start, q_start, noise, n_side, name)
     count = [0]
-    recent: dict[tuple[bool, bytes], tuple[np.ndarray, np.ndarray]] = {}  # (coarse, theta): (residuals, whitened)
+    recent: dict[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] = {}  # (group, theta): (residuals, whitened)
 
-    def evaluated(theta, rotations=None, coarse=False):
-        """The residuals at theta and them whitened (``coarse``: the coarse integration's); the
-        last few kept, as the search's Jacobians give their residuals and the polish its optimum
-        to the result (``rotations``: the rotation residuals at theta when an integration has
-        given them already)."""
-        key = coarse, theta.tobytes()
+    def evaluated(theta, rotations=None, group=1):
+        """The residuals at theta and them whitened (``group`` > 1: the coarse integration's);
+        the last few kept, as the search's Jacobians give their residuals and the polish its
+        optimum to the result (``rotations``: the rotation residuals at theta when an
+        integration has given them already)."""
+        key = group, theta.tobytes()
         if key not in recent:
-            r = np.r_[model.rotations(theta, coarse=coarse) if rotations is None else rotations, model.side(theta)]
+            r = np.r_[model.rotations(theta, group=group) if rotations is None else rotations, model.side(theta)]
             keep(key, r, r if whiten is None else whiten @ r)
         return recent[key]
 
@@ -1098,14 +1104,14 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     def whitened(theta):
         return evaluated(theta)[1]
 
-    def whitened_with(theta, rotations, coarse, J):
+    def whitened_with(theta, rotations, group, J):
         """J (of the residuals at theta) whitened, and the residuals with it, kept as
         evaluated's when they are not yet: one pass of the whitener for both (a pass is a few
         ms on imu_tk's recording joined 16×, most of it its loop over the blocks, whatever the
         columns)."""
-        key = coarse, theta.tobytes()
+        key = group, theta.tobytes()
         if whiten is None or key in recent:
-            evaluated(theta, rotations, coarse)
+            evaluated(theta, rotations, group)
             return J if whiten is None else whiten @ J
         r = np.r_[rotations, model.side(theta)]
         both = whiten @ np.column_stack([r, J])
@@ -1118,22 +1124,22 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
     Q, R = np.linalg.qr(J0)
     to_theta = natural[:, None] * np.linalg.inv(R)
-    def jacobian(theta, coarse=False):
-        """Of whitened: the rotations' exact (``coarse``: the coarse integration's, for the
-        search), the side residuals' by forward differences. The rotations its integration
-        gives are kept as evaluated's."""
-        rotations, J, _ = model.jacobian(theta, coarse=coarse)
+    def jacobian(theta, group):
+        """Of whitened: the rotations' (those of the integration ``group`` steps as one: the
+        search's coarse one, or the polish's pairs), the side residuals' by forward
+        differences. The rotations its integration gives are kept as evaluated's."""
+        rotations, J, _ = model.jacobian(theta, group=group)
         J = J[:, 3 - nb:]
         if n_side:
             J = np.vstack([J, _jacobian(model.side, theta, fd_steps, central=False)])
-        return whitened_with(theta, rotations, coarse, J)
+        return whitened_with(theta, rotations, group, J)
 
-    theta, converged, message, iterations = _search(lambda theta: evaluated(theta, coarse=coarse)[1],
-                                                    lambda theta: jacobian(theta, coarse=coarse),
+    theta, converged, message, iterations = _search(lambda theta: evaluated(theta, group=coarse)[1],
+                                                    lambda theta: jacobian(theta, coarse),
                                                     theta0, to_theta, Q, method)
     if not converged:
         raise CalibrationError(f"{name}: {method} did not converge ({message})")
-    theta, r_w, J = _polish(whitened, jacobian, theta, natural)
+    theta, r_w, J = _polish(whitened, lambda theta: jacobian(theta, _POLISH_GROUP), theta, natural)
     evaluations = count[0]
     chi2, dof = float(r_w @ r_w), len(r_w) - p
     sv = np.linalg.svd(J, compute_uv=False)
