@@ -340,7 +340,6 @@ class _Steps:
             raise ValueError(f"spans must be [i0, i1] with 0 <= i0 < i1 < {n}")
         lengths = i1 - i0
         blocks = -(-lengths // _BLOCK)
-        first = np.cumsum(blocks) - blocks
         values = np.asarray(values, dtype=float)
         self.offset = offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=float).copy()
         # Spans integrated together by _forward and jacobian: consecutive ones, about
