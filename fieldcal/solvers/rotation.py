@@ -315,7 +315,29 @@ def _paired(terms: np.ndarray) -> np.ndarray:
     return out
 
 
-_KEPT_GROUP = 4  # steps taken as one from which a coarse level is kept (the search's and the scan's)
+_KEPT_GROUP = 4  # steps taken as one: the coarse level kept (the search's)
+
+
+class _PairedParts:
+    """A coarse copy's parts (``_Steps.parts``, one a span group) made from the steps' own when
+    read, ``group`` steps as one (see ``_paired``): only the last one read is kept."""
+
+    def __init__(self, parts: list, group: int):
+        self.parts, self.group, self._last = parts, group, (-1, None)
+
+    def __len__(self) -> int:
+        return len(self.parts)
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        if self._last[0] != index:
+            terms, size = self.parts[index], 1
+            while size < self.group:
+                terms, size = _paired(terms), 2 * size
+            self._last = index, terms
+        return self._last[1]
+
+    def __iter__(self):
+        return (self[index] for index in range(len(self)))
 _SPAN_GROUP_BLOCKS = 512  # blocks whose compositions are made at once (~4 MiB, see _Steps._forward)
 _JACOBIAN_BLOCKS = 32  # blocks whose (3, 3, steps) matrices a Jacobian makes at once (~0.15 MiB each)
 
@@ -401,38 +423,46 @@ class _Steps:
     def coarse(self, group: int) -> "_Steps":
         """These spans with ``group`` consecutive steps taken as one (their terms summed, see
         ``quaternions``): blocks of _BLOCK // group steps, the spans' blocks as here, so that
-        ``jacobian`` and ``quaternions`` work alike on a group-th of the steps. Made once."""
+        ``jacobian`` and ``quaternions`` work alike on a group-th of the steps. Made once for
+        _KEPT_GROUP steps and more (the search's); fewer (the polish's pairs, asked once a
+        solve) each time, their terms made span group by span group as they are read (made
+        whole, they were 11 MiB more at the solve's peak on imu_tk's recording joined 16×)."""
         key = ("coarse", group)
-        if key not in self._groups:
-            steps = copy.copy(self)
-            steps.parts, steps.block = self._grouped_parts(group), _BLOCK // group
-            steps._groups, steps._last = {}, None
+        if key in self._groups:
+            return self._groups[key]
+        steps = copy.copy(self)
+        steps.block, steps._groups, steps._last = _BLOCK // group, {}, None
+        if group >= _KEPT_GROUP:
+            steps.parts = self._grouped_parts(group)
             self._groups[key] = steps
-        return self._groups[key]
+        else:
+            steps.parts = _PairedParts(self.parts, group)
+        return steps
 
     @property
     def terms(self) -> np.ndarray:
         """(10, steps) all the terms, position-major over all blocks (a new array)."""
-        return np.concatenate(self.parts, axis=2).reshape(len(self.parts[0]), -1)
+        return np.concatenate(list(self.parts), axis=2).reshape(len(self.parts[0]), -1)
 
     def _grouped(self, group: int) -> np.ndarray:
         """The terms of ``group`` consecutive steps as one step, (10, steps / group)
         position-major over all blocks: their terms summed, and the coning between them too
-        (see ``_paired``), made by pairing neighbours log2(group) times; this level and those
-        of _KEPT_GROUP steps and more on the way are kept (the search's and the scan's: a level
-        is made from the largest kept one below it)."""
-        if group not in self._groups:
-            c = len(self.parts[0])
-            known = max((g for g in self._groups if isinstance(g, int) and group % g == 0), default=1)
-            made = [self._groups[known].reshape(c, self.block // known, -1)] if known > 1 else self.parts
-            size = known
-            while size < group:
-                made, size = [_paired(terms) for terms in made], 2 * size
-                if (size >= _KEPT_GROUP or size == group) and size not in self._groups:
-                    self._groups[size] = np.concatenate(made, axis=2).reshape(c, -1) if len(made) > 1 \
-                        else made[0].reshape(c, -1)
-                    made = [self._groups[size].reshape(c, self.block // size, -1)]
-        return self._groups[group]
+        (see ``_paired``), made by pairing neighbours log2(group) times; the level of
+        _KEPT_GROUP steps is kept (the search's; the scan's, twice as coarse, is made from it)."""
+        if group in self._groups:
+            return self._groups[group]
+        c = len(self.parts[0])
+        known = max((g for g in self._groups if isinstance(g, int) and group % g == 0), default=1)
+        made = [self._groups[known].reshape(c, self.block // known, -1)] if known > 1 else self.parts
+        size = known
+        while size < group:
+            made, size = [_paired(terms) for terms in made], 2 * size
+            if size == _KEPT_GROUP or size == group:
+                whole = np.concatenate(made, axis=2) if len(made) > 1 else made[0]
+                if size == _KEPT_GROUP:
+                    self._groups[size] = whole.reshape(c, -1)
+                made = [whole]
+        return made[0].reshape(c, -1)
 
     def _grouped_parts(self, group: int) -> list[np.ndarray]:
         """``_grouped`` by the span groups' blocks: views, no copy (a coarse copy's parts)."""
@@ -580,9 +610,13 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
         steps = _Steps(raw, t, spans, offset=b0)
     up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
 
+    grouped: dict = {}  # the coarse terms of each steps (made once here: they are not kept)
+
     def coarse(steps, k, rows=slice(None)):
         # K⁻¹ = I/k, no bias change: a step's phi is ∫v/k + coning/k², for a batch of k at once.
-        terms = steps._grouped(_SCAN_GROUP)
+        if id(steps) not in grouped:
+            grouped[id(steps)] = steps._grouped(_SCAN_GROUP)
+        terms = grouped[id(steps)]
         q = steps.compose(terms[None, 0:3] / k[:, None, None] + terms[None, 3:6] / k[:, None, None] ** 2,
                           _SCAN_GROUP)
         return np.sum((_rotate_back(q, up_s[rows]) - up_e[rows]) ** 2, axis=(1, 2))
