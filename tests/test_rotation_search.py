@@ -93,6 +93,28 @@ def test_a_coarse_steps_terms_are_the_double_sum_over_its_steps_in_time_order():
             np.testing.assert_allclose(in_time[:, g], expected, rtol=1e-12, atol=1e-15)
 
 
+def test_the_pairs_are_made_as_they_are_read_and_not_kept():
+    """The polish's pairs of steps (asked once a solve) are made span group by span group as
+    they are read, the last one alone held, and nothing of them kept with the steps; they are
+    the whole level's terms, and integrate and differentiate as its own copy does."""
+    rng = np.random.default_rng(9)
+    lengths = rng.integers(100, 400, 300)
+    starts = np.cumsum(lengths + 5) - lengths
+    n = int(starts[-1] + lengths[-1] + 3)
+    t = np.cumsum(np.r_[0.0, 0.01 * np.ones(n - 1)])
+    steps = _Steps(rng.normal(size=(n, 3)), t, np.column_stack([starts, starts + lengths]))
+    assert len(steps.span_groups) > 2
+    pairs = steps.coarse(2)
+    assert steps.coarse(2) is not pairs and not any(key in steps._groups for key in (2, ("coarse", 2)))
+    assert sum(1 for _ in pairs.parts) == len(steps.parts)
+    whole = steps._grouped(2).reshape(10, rotation._BLOCK // 2, -1)
+    read = np.concatenate([pairs.parts[i] for i in range(len(steps.parts))], axis=2)
+    np.testing.assert_array_equal(read, whole)
+    assert pairs.parts._last[0] == len(steps.parts) - 1  # the last one read, alone
+    A, delta_b = np.diag([1.1, 0.9, 1.0]), np.array([0.01, 0.0, -0.02])
+    np.testing.assert_array_equal(pairs.quaternions(A, delta_b), steps.quaternions(A, delta_b, group=2))
+
+
 @pytest.mark.parametrize("estimate_bias", [False, True], ids=["bias-held", "bias-free"])
 def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_optimum(monkeypatch, estimate_bias):
     """Started at the nominal sensitivity (2 % off, 0.9° of misalignment: hundreds of σ), the
