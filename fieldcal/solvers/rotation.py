@@ -322,8 +322,9 @@ class _PairedParts:
     """A coarse copy's parts (``_Steps.parts``, one a span group) made from the steps' own when
     read, ``group`` steps as one (see ``_paired``): only the last one read is kept."""
 
-    def __init__(self, parts: list, group: int):
-        self.parts, self.group, self._last = parts, group, (-1, None)
+    def __init__(self, parts: "list[np.ndarray] | _PairedParts", group: int):
+        self.parts, self.group = parts, group
+        self._last: tuple[int, np.ndarray] = (-1, np.zeros(0))
 
     def __len__(self) -> int:
         return len(self.parts)
@@ -374,11 +375,12 @@ class _Steps:
         # group of spans (``parts``), made one at a time: the dozen per-step temporaries then stay
         # small (made for all spans at once they took ~4 times the terms' own memory), and each
         # integration reads a group's terms in place (as slices of one array they were copied).
-        self.parts = []
+        parts = []
         for g0, g1 in self.span_groups:
             part = np.empty((10, _BLOCK, int(blocks[g0:g1].sum())))
             _span_terms(part, values, t, i0[g0:g1], lengths[g0:g1], blocks[g0:g1], offset)
-            self.parts.append(part)
+            parts.append(part)
+        self.parts: list[np.ndarray] | _PairedParts = parts  # the pairs' of a coarse copy made when read
         self._place(blocks)
         self.duration = t[i1] - t[i0]
         self.block = _BLOCK  # steps per block (fewer in a ``coarse`` copy)
