@@ -248,28 +248,36 @@ def test_a_subset_of_the_steps_is_what_its_spans_make_from_the_samples():
         np.testing.assert_array_equal(subset.quaternions(A, delta_b), fresh.quaternions(A, delta_b))
 
 
-def test_the_scan_integrates_every_motion_exactly_no_more_than_twice(monkeypatch):
-    """The grid's best coarse scale and its two neighbours are told apart exactly; each
-    neighbour's misfit over every sixth motion bounds its whole one from below, so not all three
-    are integrated over every motion. The choice is the exhaustive exact scan's (as
-    test_rotation_solver's scan test checks on more recordings)."""
+def test_the_scan_integrates_exactly_the_best_and_only_the_neighbours_that_contend(monkeypatch):
+    """The grid's best coarse scale is integrated exactly over every motion; how far its coarse
+    misfit is from that tells how far the neighbours' may be, so a neighbour a grid step away
+    (a third in scale) is no contender and is not integrated, one a hair away is. Either way
+    the choice is the exhaustive exact scan's (as test_rotation_solver's scan test checks on
+    more recordings)."""
     rec = hand_recording(3)
     obs = observe(rec, np.random.default_rng(3), **GRADES["counts"])
-    scales = np.geomspace(1e-3, 1e6, 73)
     whole = []
     forward = _Steps._forward
 
     def counted(self, *args):
-        whole.append(len(self.duration) == len(rec.spans))
+        whole.append(len(self.duration) == len(rec.spans) and self.block == rotation._BLOCK)
         return forward(self, *args)
 
     monkeypatch.setattr(_Steps, "_forward", counted)
     up = obs["up"]
-    found = rotation.scan_scale(rec.t, obs["raw"], rec.spans, up[:-1], up[1:], obs["b0"], scales)
-    assert 1 <= sum(whole) <= 2 and len(whole) >= 4, whole
 
     def misfit(k):
         q = Rotation.from_quat(rotation.integrate((obs["raw"] - obs["b0"]) / k, rec.t, rec.spans))
         return np.sum((q.inv().apply(up[:-1]) - up[1:]) ** 2)
 
+    scales = np.geomspace(1e-3, 1e6, 73)
+    found = rotation.scan_scale(rec.t, obs["raw"], rec.spans, up[:-1], up[1:], obs["b0"], scales)
+    assert whole.count(True) == 1, whole
     assert found == scales[np.argmin([misfit(k) for k in scales])]
+    # A neighbour a hair from the best (1e-7 in scale): a contender, integrated exactly too.
+    k = np.mean(obs["k"])
+    tight = np.array([0.5 * k, k, k * (1 + 1e-7), 2 * k])
+    whole.clear()
+    found = rotation.scan_scale(rec.t, obs["raw"], rec.spans, up[:-1], up[1:], obs["b0"], tight)
+    assert whole.count(True) == 2, whole
+    assert found == tight[np.argmin([misfit(k) for k in tight])]
