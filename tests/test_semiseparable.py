@@ -165,3 +165,24 @@ def test_the_recursion_on_random_blocks_is_the_dense_cholesky():
     expected = np.linalg.solve(np.linalg.cholesky(S), x)
     np.testing.assert_allclose(whitener @ x, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
     np.testing.assert_allclose(whitener @ x[:, 0], expected[:, 0], rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
+def test_a_blocks_inverse_factor_is_numpys_and_a_singular_block_is_named():
+    """The factor's 2×2 blocks (a motion's two residual components) in closed form: L⁻¹ as
+    numpy's inv(cholesky) gives it, L⁻¹·S·L⁻ᵀ the identity, for blocks from near-singular to
+    wide; a 3×3 goes through numpy; a block that is not positive definite is named."""
+    from fieldcal.solvers.semiseparable import _inverse_cholesky
+
+    rng = np.random.default_rng(8)
+    for size, spread in ((2, 1.0), (2, 1e-6), (2, 1e6), (3, 1.0)):
+        A = rng.normal(size=(size, size))
+        S = A @ A.T + spread * np.eye(size)
+        inverse = _inverse_cholesky(S, 0)
+        np.testing.assert_allclose(inverse, np.linalg.inv(np.linalg.cholesky(S)), rtol=1e-10,
+                                   atol=1e-12 * np.abs(inverse).max())
+        np.testing.assert_allclose(inverse @ S @ inverse.T, np.eye(size), atol=1e-9)
+        assert np.all(np.triu(inverse, 1) == 0.0)
+    for singular in (np.array([[1.0, 1.0], [1.0, 1.0]]), np.array([[0.0, 0.0], [0.0, 1.0]]),
+                     np.array([[1.0, 2.0], [2.0, 1.0]]), np.diag([1.0, -1.0, 1.0])):
+        with pytest.raises(ValueError, match="not positive definite at block 7"):
+            _inverse_cholesky(singular, 7)

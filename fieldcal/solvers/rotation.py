@@ -32,12 +32,16 @@ gyro-to-accelerometer rotation is estimated too. Calibrated rate = K⁻¹(raw �
   residual variance (``scaled_by_residuals``), as it is when χ² is implausible (Birge).
 
 The search runs in coordinates whitened by the Jacobian at K0, b0 (as in norm.py), so raw counts
-(k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is exact
-(``_Steps.jacobian``: the per-step right Jacobian of the exponential, carried to each span's end
-by walking the composition's tree back down), about three integrations' work for all twelve
-parameters where differences took one integration per parameter; the search's (which only find
-the way to the polish) are the exact Jacobians of the coarse integration, eight steps as one
-(``_Steps.coarse``), a sixth of that work. Not modelled: Earth rate
+(k ≈ 1877, b ≈ 32768) and SI outputs converge alike. Every Jacobian of the rotations is the exact
+one of its integration (``_Steps.jacobian``: the per-step right Jacobian of the exponential,
+carried to each span's end by walking the composition's tree back down), about three
+integrations' work for all twelve parameters where differences took one integration per
+parameter; the polish's, whose residuals are the exact integration's, takes two steps as one with
+their coning (``_POLISH_GROUP``: half the work, within 1e-6 of the exact Jacobian); the search (which only finds
+the way to the polish) integrates coarsely, four steps as one with the coning between them
+(``_Steps.coarse``): its residuals and their exact Jacobians, which that integration gives
+too, at about a quarter of the exact Jacobian's work; its optimum is within a few hundredths of
+a σ of the exact one, so the polish makes one exact Jacobian. Not modelled: Earth rate
 (≤ 2e-4 rad over a 3 s motion: below consumer MEMS noise, not below a tactical gyro's; a caller
 that knows the latitude can pass its horizontal part as ``motion_variance``) and bias drift.
 """
@@ -291,6 +295,50 @@ def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     np.take(padded, source, axis=1, out=places)
 
 
+def _paired(terms: np.ndarray) -> np.ndarray:
+    """(10, P, ...) the terms of steps at P positions in bit-reversed time order (see _compose)
+    -> (10, P/2, ...): each two neighbouring steps as one, positions p and p + P/2 (the first
+    the earlier), again in bit-reversed order. Their terms summed, and the coning between them:
+    the product of their exponentials is that of φ_a + φ_b + ½·φ_a × φ_b to second order
+    (Baker–Campbell–Hausdorff), and with φ = A·(V − h·δb) (V the integral of v)
+    φ_a × φ_b = det(A)·Kᵀ·(V_a × V_b + (h_a·V_b − h_b·V_a) × δb): the coning terms' and the
+    bias cross terms' form, so it adds to theirs. Pairing pairs keeps every cross product of a
+    group's steps, earlier × later: ½·Σ_{i<j} φ_i × φ_j."""
+    half = terms.shape[1] // 2
+    a, b = terms[:, :half], terms[:, half:]
+    out = a + b
+    (ax, ay, az), (bx, by, bz) = a[0:3], b[0:3]
+    out[3] += 0.5 * (ay * bz - az * by)
+    out[4] += 0.5 * (az * bx - ax * bz)
+    out[5] += 0.5 * (ax * by - ay * bx)
+    out[6:9] += 0.5 * (a[9] * b[0:3] - b[9] * a[0:3])
+    return out
+
+
+_KEPT_GROUP = 4  # steps taken as one: the coarse level kept (the search's)
+
+
+class _PairedParts:
+    """A coarse copy's parts (``_Steps.parts``, one a span group) made from the steps' own when
+    read, ``group`` steps as one (see ``_paired``): only the last one read is kept."""
+
+    def __init__(self, parts: "list[np.ndarray] | _PairedParts", group: int):
+        self.parts, self.group = parts, group
+        self._last: tuple[int, np.ndarray] = (-1, np.zeros(0))
+
+    def __len__(self) -> int:
+        return len(self.parts)
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        if self._last[0] != index:
+            terms, size = self.parts[index], 1
+            while size < self.group:
+                terms, size = _paired(terms), 2 * size
+            self._last = index, terms
+        return self._last[1]
+
+    def __iter__(self):
+        return (self[index] for index in range(len(self)))
 _SPAN_GROUP_BLOCKS = 512  # blocks whose compositions are made at once (~4 MiB, see _Steps._forward)
 _JACOBIAN_BLOCKS = 32  # blocks whose (3, 3, steps) matrices a Jacobian makes at once (~0.15 MiB each)
 
@@ -315,7 +363,6 @@ class _Steps:
             raise ValueError(f"spans must be [i0, i1] with 0 <= i0 < i1 < {n}")
         lengths = i1 - i0
         blocks = -(-lengths // _BLOCK)
-        first = np.cumsum(blocks) - blocks
         values = np.asarray(values, dtype=float)
         self.offset = offset = np.zeros(3) if offset is None else np.asarray(offset, dtype=float).copy()
         # Spans integrated together by _forward and jacobian: consecutive ones, about
@@ -328,11 +375,21 @@ class _Steps:
         # group of spans (``parts``), made one at a time: the dozen per-step temporaries then stay
         # small (made for all spans at once they took ~4 times the terms' own memory), and each
         # integration reads a group's terms in place (as slices of one array they were copied).
-        self.parts = []
+        parts = []
         for g0, g1 in self.span_groups:
             part = np.empty((10, _BLOCK, int(blocks[g0:g1].sum())))
             _span_terms(part, values, t, i0[g0:g1], lengths[g0:g1], blocks[g0:g1], offset)
-            self.parts.append(part)
+            parts.append(part)
+        self.parts: list[np.ndarray] | _PairedParts = parts  # the pairs' of a coarse copy made when read
+        self._place(blocks)
+        self.duration = t[i1] - t[i0]
+        self.block = _BLOCK  # steps per block (fewer in a ``coarse`` copy)
+        self._groups: dict = {}  # the grouped terms by group, the coarse copies
+        self._last = None  # (key, the quaternions) of the last K⁻¹, δb integrated
+
+    def _place(self, blocks: np.ndarray) -> None:
+        """Where each span's ``blocks`` are (numbered span by span) and how they compose."""
+        first = np.cumsum(blocks) - blocks
         # Each span's blocks, padded to a power of two with an identity block, bit-reversed.
         size = 1 << int(blocks.max() - 1).bit_length()
         slot = np.arange(size)
@@ -340,38 +397,74 @@ class _Steps:
         self.gather = gather[:, _bit_reversed(size)].T.copy()  # (size, m), as _compose reads it
         self.first_block = first  # each span's first block (they are numbered span by span)
         self.n_blocks = int(blocks.sum())
-        self.duration = t[i1] - t[i0]
-        self.block = _BLOCK  # steps per block (fewer in a ``coarse`` copy)
-        self._groups: dict = {}  # the grouped terms by group, the coarse copies
-        self._last = None  # (key, the quaternions) of the last K⁻¹, δb integrated
+
+    def subset(self, rows: np.ndarray) -> "_Steps":
+        """The steps of spans ``rows`` (increasing) alone, as made anew from the samples (the
+        same terms, span groups and places) but with their blocks copied out of these: for a
+        sixth of the spans, a seventh of that work."""
+        rows = np.asarray(rows, dtype=int)
+        blocks = np.diff(np.r_[self.first_block, self.n_blocks])
+        starts = self.first_block[[g0 for g0, _ in self.span_groups]]  # each part's first block
+        group = np.cumsum(blocks[rows]) // _SPAN_GROUP_BLOCKS  # as __init__ groups them
+        cuts = np.r_[0, np.flatnonzero(np.diff(group)) + 1, len(rows)]
+        steps = copy.copy(self)
+        steps.parts = []
+        for c0, c1 in zip(cuts[:-1], cuts[1:]):
+            mine = rows[c0:c1]
+            index = np.repeat(self.first_block[mine] - (np.cumsum(blocks[mine]) - blocks[mine]), blocks[mine]) \
+                + np.arange(blocks[mine].sum())  # their blocks, numbered as here
+            owner = np.searchsorted(starts, index, side="right") - 1
+            pieces = [self.parts[o][:, :, index[owner == o] - starts[o]] for o in np.unique(owner)]
+            steps.parts.append(np.concatenate(pieces, axis=2) if len(pieces) > 1 else pieces[0])
+        steps.span_groups = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
+        steps._place(blocks[rows])
+        steps.duration = self.duration[rows]
+        steps._groups, steps._last = {}, None
+        return steps
 
     def coarse(self, group: int) -> "_Steps":
         """These spans with ``group`` consecutive steps taken as one (their terms summed, see
         ``quaternions``): blocks of _BLOCK // group steps, the spans' blocks as here, so that
-        ``jacobian`` and ``quaternions`` work alike on a group-th of the steps. Made once."""
+        ``jacobian`` and ``quaternions`` work alike on a group-th of the steps. Made once for
+        _KEPT_GROUP steps and more (the search's); fewer (the polish's pairs, asked once a
+        solve) each time, their terms made span group by span group as they are read (made
+        whole, they were 11 MiB more at the solve's peak on imu_tk's recording joined 16×)."""
         key = ("coarse", group)
-        if key not in self._groups:
-            steps = copy.copy(self)
-            steps.parts, steps.block = self._grouped_parts(group), _BLOCK // group
-            steps._groups, steps._last = {}, None
+        if key in self._groups:
+            return self._groups[key]
+        steps = copy.copy(self)
+        steps.block, steps._groups, steps._last = _BLOCK // group, {}, None
+        if group >= _KEPT_GROUP:
+            steps.parts = self._grouped_parts(group)
             self._groups[key] = steps
-        return self._groups[key]
+        else:
+            steps.parts = _PairedParts(self.parts, group)
+        return steps
 
     @property
     def terms(self) -> np.ndarray:
         """(10, steps) all the terms, position-major over all blocks (a new array)."""
-        return np.concatenate(self.parts, axis=2).reshape(len(self.parts[0]), -1)
+        return np.concatenate(list(self.parts), axis=2).reshape(len(self.parts[0]), -1)
 
     def _grouped(self, group: int) -> np.ndarray:
-        """The terms of ``group`` consecutive steps summed (made once), (10, steps / group)
-        position-major over all blocks: the storage index is the bit-reversed time, so a
-        group's steps are those that differ only in its high bits."""
-        if group not in self._groups:
-            c = len(self.parts[0])
-            self._groups[group] = np.concatenate(
-                [part.reshape(c, group, self.block // group, -1).sum(axis=1) for part in self.parts],
-                axis=2).reshape(c, -1)
-        return self._groups[group]
+        """The terms of ``group`` consecutive steps as one step, (10, steps / group)
+        position-major over all blocks: their terms summed, and the coning between them too
+        (see ``_paired``), made by pairing neighbours log2(group) times; the level of
+        _KEPT_GROUP steps is kept (the search's; the scan's, twice as coarse, is made from it)."""
+        if group in self._groups:
+            return self._groups[group]
+        c = len(self.parts[0])
+        known = max((g for g in self._groups if isinstance(g, int) and group % g == 0), default=1)
+        made = [self._groups[known].reshape(c, self.block // known, -1)] if known > 1 else self.parts
+        size = known
+        while size < group:
+            made, size = [_paired(terms) for terms in made], 2 * size
+            if size == _KEPT_GROUP or size == group:
+                whole = np.concatenate(made, axis=2) if len(made) > 1 else made[0]
+                if size == _KEPT_GROUP:
+                    self._groups[size] = whole.reshape(c, -1)
+                made = [whole]
+        return made[0].reshape(c, -1)
 
     def _grouped_parts(self, group: int) -> list[np.ndarray]:
         """``_grouped`` by the span groups' blocks: views, no copy (a coarse copy's parts)."""
@@ -495,14 +588,17 @@ def integrate(omega, t, spans) -> np.ndarray:
 _SCAN_GROUP = 8  # steps taken as one by the coarse scan (0.08 s at 100 Hz)
 _SCAN_BATCH = 8  # candidate scales integrated at once (their temporaries: a few MiB)
 _SCAN_SAMPLE = 6  # every so many motions bound every scale's misfit from below (see scan_scale)
-_SCAN_BOUNDED = 4  # scales integrated at once over all motions, in the order of their bounds
+_SCAN_BOUNDED = 2  # scales integrated at once over all motions, in the order of their bounds
+_SCAN_MARGIN = 100.0  # a neighbour this many times the coarse error off the best: no contender
 
 
 def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | None = None) -> float:
     """The k of ``scales`` (sorted, a few dozen) whose K = k·I best carries every motion's start
     direction onto its end (least sum of squared misfits): a raw-count gyro's sensitivity, the
-    start of its solve. The best k by a coarse integration, then the best of it and its two
-    neighbours by the exact one (bounded as below).
+    start of its solve. The best k by a coarse integration (eight steps as one, their coning
+    kept), then the best of it and those of its two neighbours whose coarse misfit is not far
+    beyond its own, judged by how far its coarse misfit is from its exact one (see below), by
+    the exact integration.
 
     The misfit is a sum over the motions of squares, so every _SCAN_SAMPLE-th motion's share is
     a lower bound of it: all k are integrated over those motions, and over all motions only in
@@ -519,9 +615,13 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
         steps = _Steps(raw, t, spans, offset=b0)
     up_s, up_e = np.asarray(up_start, dtype=float), np.asarray(up_end, dtype=float)
 
+    grouped: dict = {}  # the coarse terms of each steps (made once here: they are not kept)
+
     def coarse(steps, k, rows=slice(None)):
         # K⁻¹ = I/k, no bias change: a step's phi is ∫v/k + coning/k², for a batch of k at once.
-        terms = steps._grouped(_SCAN_GROUP)
+        if id(steps) not in grouped:
+            grouped[id(steps)] = steps._grouped(_SCAN_GROUP)
+        terms = grouped[id(steps)]
         q = steps.compose(terms[None, 0:3] / k[:, None, None] + terms[None, 3:6] / k[:, None, None] ** 2,
                           _SCAN_GROUP)
         return np.sum((_rotate_back(q, up_s[rows]) - up_e[rows]) ** 2, axis=(1, 2))
@@ -530,7 +630,7 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
         return np.array_split(index, -(-len(index) // _SCAN_BATCH))
 
     rows = np.arange(0, len(spans), _SCAN_SAMPLE)
-    sample = _Steps(raw, t, spans[rows], offset=b0)
+    sample = steps.subset(rows)
     # A batch of scales at a time, as below (all at once took 32 MiB on imu_tk's recording joined 16×).
     bound = np.concatenate([coarse(sample, scales[i], rows) for i in batches(np.arange(len(scales)))])
     misfits = np.full(len(scales), np.inf)
@@ -543,22 +643,24 @@ def scan_scale(t, raw, spans, up_start, up_end, b0, scales, motions: Motions | N
     if not np.all(np.isfinite(bound)) or np.any(np.isnan(misfits)):  # no bound: every k
         misfits = np.concatenate([coarse(steps, scales[i]) for i in batches(np.arange(len(scales)))])
     best = int(np.argmin(misfits))
-    near = scales[max(best - 1, 0):best + 2]
 
     def exact(steps, k, rows=slice(None)):
         return float(np.sum((_rotate_back(steps.quaternions(np.eye(3) / k, np.zeros(3)), up_s[rows]) - up_e[rows])
                             ** 2))
 
-    # The neighbours' exact misfits bounded from below as the coarse ones are: each over the
-    # sampled motions, then over all only while its bound is below the least found (mostly the
-    # first alone: neighbours on the grid are a third apart in scale).
-    lower = [exact(sample, k, rows) for k in near]
-    found = np.full(len(near), np.inf)
-    for i in np.argsort(lower, kind="stable"):
-        if lower[i] > np.min(found) * (1 + 1e-9):
-            break
-        found[i] = exact(steps, near[i])
-    return float(near[int(np.argmin(found))])
+    # The best's exact misfit tells how far the coarse integration is off (relative); a
+    # neighbour's moves by about as much (its remainder grows as k⁻³: 2.4 times a grid step
+    # down), so only a neighbour whose coarse misfit, or its bound, is within _SCAN_MARGIN times
+    # that of the best's is integrated exactly too (on imu_tk's recording, 1x and 16x, the
+    # neighbours' misfits are 19 % and more above the best's, the coarse error 4e-4).
+    exact_best = exact(steps, scales[best])
+    error = abs(exact_best / misfits[best] - 1)
+    found = {best: exact_best}
+    for i in range(max(best - 1, 0), min(best + 2, len(scales))):
+        coarse_misfit = misfits[i] if np.isfinite(misfits[i]) else bound[i]  # not integrated: its bound
+        if i != best and coarse_misfit <= misfits[best] * (1 + _SCAN_MARGIN * error):
+            found[i] = exact(steps, scales[i])
+    return float(scales[min(found, key=lambda i: (found[i], i))])
 
 
 def _tangent_bases(up):
@@ -729,26 +831,27 @@ class _Residuals:
         b, K_inv = self.unpack(theta)
         return self.steps.quaternions(K_inv, b - self.steps.offset)
 
-    def rotations(self, theta, bias=None):
+    def rotations(self, theta, bias=None, group: int = 1):
         """2 per motion, rad: Cᵀ·up_start − up_end in the end pose's tangent basis (bias: instead
-        of theta's)."""
+        of theta's; ``group``: so many steps as one, as ``jacobian``'s)."""
         b, K_inv = self.unpack(theta)
-        q = self.steps.quaternions(K_inv, (b if bias is None else bias) - self.steps.offset)
+        steps = self.steps.coarse(group) if group > 1 else self.steps
+        q = steps.quaternions(K_inv, (b if bias is None else bias) - self.steps.offset)
         return np.einsum("mi,mik->mk", _rotate_back(q, self.motions.up_start) - self.motions.up_end,
                          self.E).ravel()
 
-    def jacobian(self, theta, bias=None, coarse: bool = False):
+    def jacobian(self, theta, bias=None, group: int = 1):
         """(rotations as ``rotations``, their (2m, 12) Jacobian over bias_x..z, scale_x..z and
         the six angles, whether the bias is estimated or held, exact (see _Steps.jacobian), and
-        the motions' quaternions). ``coarse``: all three of the coarse integration's
-        (``_Steps.coarse(_SEARCH_GROUP)``), for the search only."""
+        the motions' quaternions). ``group`` > 1: all three of the coarse integration's
+        (``_Steps.coarse(group)``): the search's and the polish's Jacobians."""
         nb = self.nb
         b, K_inv = self.unpack(theta)
         scale, angles = theta[nb:nb + 3], theta[nb + 3:]
         dK = np.zeros((12, 3, 3))
         dK[3:6] = [k_from_terms(e, angles) for e in np.eye(3)]  # K is linear in each group
         dK[6:] = [k_from_terms(scale, e) - np.diag(scale) for e in np.eye(6)]
-        steps = self.steps.coarse(_SEARCH_GROUP) if coarse else self.steps
+        steps = self.steps.coarse(group) if group > 1 else self.steps
         q, D = steps.jacobian(K_inv, (b if bias is None else bias) - self.steps.offset, dK, np.eye(12, 3))
         turned = _rotate_back(q, self.motions.up_start)
         r = np.einsum("mi,mik->mk", turned - self.motions.up_end, self.E).ravel()
@@ -882,7 +985,11 @@ _STEP_TOL = 1e-6  # σ (of the parameters): a polishing step this short ends the
 _SEARCH_TOL = 1e-2  # σ: a search step this short hands over to the polish (see _POLISH_DONE)
 _MAX_ITERATIONS = 100
 _FAR = 30.0  # σ: after a longer step the Jacobian is made afresh, after a shorter one updated
-_SEARCH_GROUP = 8  # steps taken as one by the search's Jacobians (_Steps.coarse; 1: exact ones)
+_SEARCH_GROUP = 4  # steps taken as one by the search's Jacobians (_Steps.coarse; 1: exact ones)
+# Steps taken as one by the polish's Jacobians, whose residuals are the exact integration's: two
+# with their coning are within 1e-6 of the exact Jacobian (imu_tk's recording, 1x and 16x), so
+# the optimum they lead to is the exact one's within 1e-6 σ, for half the work; 1: exact ones.
+_POLISH_GROUP = 2
 
 
 def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, int]:
@@ -893,9 +1000,9 @@ def _broyden_gauss_newton(fun, jac, p: int, Q: np.ndarray) -> tuple[np.ndarray, 
     a step is below _SEARCH_TOL σ: the polish takes it from there.
 
     Where a long step would land, the Jacobian is made before fun is asked (a ``jac`` that
-    integrates exactly can keep the residuals it gives for fun; solve_rotations' search asks
-    the coarse integration's, about a sixth of an exact Jacobian's work and less than one
-    evaluation's, so a step that fails costs little more than its evaluation)."""
+    integrates can keep the residuals it gives for fun; solve_rotations' search asks the
+    coarse integration's, about a quarter of an exact Jacobian's work, so a step that fails
+    costs little more than its evaluation)."""
     z, r, J, fresh = np.zeros(p), fun(np.zeros(p)), Q.copy(), True
     cost = float(r @ r)
     for iteration in range(1, _MAX_ITERATIONS + 1):
@@ -954,8 +1061,8 @@ def _polish(whitened, jacobian, theta, natural):
     steps, one evaluation each). The Jacobian returned is the last one made. After a longer step
     it is made before the residuals are asked, as in _broyden_gauss_newton (its integration
     gives them)."""
-    r = whitened(theta)
     J, fresh = jacobian(theta) * natural, True
+    r = whitened(theta)
     for _ in range(20):
         d = -np.linalg.lstsq(J, r, rcond=None)[0]
         size = np.linalg.norm(J @ d)  # σ: the whitened residuals change by as much
@@ -1005,60 +1112,74 @@ def solve_rotations(motions: Motions, start: RotationStart, noise: RotationNoise
     # Natural units: a bias turning the mean motion by 1 rad, relative scale, 1 rad of angle.
     natural = np.r_[np.abs(k0)[:nb] / model.steps.duration.mean(), np.abs(k0), np.ones(6)]
     fd_steps = 1e-7 * natural
-    # The start's Jacobian only weighs the residuals (the held bias's share, G) and points the
-    # search: the coarse integration's, as the search's own (a sixth of the exact one's work);
-    # its residuals and rotations, which the search and the whitening start from, exact.
-    J_start = model.jacobian(theta0, coarse=_SEARCH_GROUP > 1)[1]
-    r_start, q_start = model.rotations(theta0), model.quaternions(theta0)
+    # The search only finds the way: its residuals and Jacobians are the coarse integration's
+    # (a quarter of the steps, the coning between them kept; a coarse Jacobian gives the
+    # residuals too), the start's as well: they weigh the residuals (the held bias's share
+    # G, the poses' rotations C, at the start, not at the optimum) and point the search. The
+    # polish's, whose optimum and covariance are the result, are exact.
+    coarse = _SEARCH_GROUP
+    r_start, J_start, q_start = model.jacobian(theta0, group=coarse)
     J_rot = _check_geometry(model, J_start, natural, name, lambda: model.jacobian(theta0)[1])
     whiten = _whitening(model, J_start, q_start, noise, n_side, name)
     count = [0]
-    recent: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # theta: (residuals, whitened)
+    recent: dict[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] = {}  # (group, theta): (residuals, whitened)
 
-    def evaluated(theta, rotations=None):
-        """The residuals at theta and them whitened; the last few kept, as the search hands its
-        last point to the polish and the polish its optimum to the result (``rotations``: the
-        rotation residuals at theta when an integration has given them already)."""
-        key = theta.tobytes()
+    def evaluated(theta, rotations=None, group=1):
+        """The residuals at theta and them whitened (``group`` > 1: the coarse integration's);
+        the last few kept, as the search's Jacobians give their residuals and the polish its
+        optimum to the result (``rotations``: the rotation residuals at theta when an
+        integration has given them already)."""
+        key = group, theta.tobytes()
         if key not in recent:
-            count[0] += 1
-            r = np.r_[model.rotations(theta) if rotations is None else rotations, model.side(theta)]
-            if len(recent) >= 4:
-                del recent[next(iter(recent))]
-            recent[key] = r, (r if whiten is None else whiten @ r)
+            r = np.r_[model.rotations(theta, group=group) if rotations is None else rotations, model.side(theta)]
+            keep(key, r, r if whiten is None else whiten @ r)
         return recent[key]
+
+    def keep(key, r, r_whitened):
+        count[0] += 1
+        if len(recent) >= 4:
+            del recent[next(iter(recent))]
+        recent[key] = r, r_whitened
 
     def whitened(theta):
         return evaluated(theta)[1]
 
-    r_start = np.r_[r_start, model.side(theta0)]  # the Jacobian's integration gave the start's
-    recent[theta0.tobytes()] = r_start, (r_start if whiten is None else whiten @ r_start)
+    def whitened_with(theta, rotations, group, J):
+        """J (of the residuals at theta) whitened, and the residuals with it, kept as
+        evaluated's when they are not yet: one pass of the whitener for both (a pass is a few
+        ms on imu_tk's recording joined 16×, most of it its loop over the blocks, whatever the
+        columns)."""
+        key = group, theta.tobytes()
+        if whiten is None or key in recent:
+            evaluated(theta, rotations, group)
+            return J if whiten is None else whiten @ J
+        r = np.r_[rotations, model.side(theta)]
+        both = whiten @ np.column_stack([r, J])
+        keep(key, r, both[:, 0])
+        return both[:, 1:]
 
     J_side = _jacobian(model.side, theta0, fd_steps) * natural if n_side else np.zeros((0, p))
-    J0 = np.vstack([J_rot, J_side])
-    J0 = J0 if whiten is None else whiten @ J0
+    # The search starts from the start's Jacobian's residuals.
+    J0 = whitened_with(theta0, r_start, coarse, np.vstack([J_rot, J_side]))
     # Search in z, theta = theta0 + natural·R⁻¹z with J0 = QR: locally ‖r‖² ≈ ‖z − z*‖².
     Q, R = np.linalg.qr(J0)
     to_theta = natural[:, None] * np.linalg.inv(R)
-    def jacobian(theta, coarse=False):
-        """Of whitened: the rotations' exact (``coarse``: the coarse integration's, for the
-        search), the side residuals' by forward differences. The rotations an exact
-        integration gives are kept as evaluated's."""
-        rotations, J, _ = model.jacobian(theta, coarse=coarse)
-        if not coarse:
-            evaluated(theta, rotations)
+    def jacobian(theta, group):
+        """Of whitened: the rotations' (those of the integration ``group`` steps as one: the
+        search's coarse one, or the polish's pairs), the side residuals' by forward
+        differences. The rotations its integration gives are kept as evaluated's."""
+        rotations, J, _ = model.jacobian(theta, group=group)
         J = J[:, 3 - nb:]
         if n_side:
             J = np.vstack([J, _jacobian(model.side, theta, fd_steps, central=False)])
-        return J if whiten is None else whiten @ J
+        return whitened_with(theta, rotations, group, J)
 
-    # The search only finds the way: its Jacobians from the coarse integration (an eighth of the
-    # steps); the polish's, whose optimum and covariance are the result, exact.
-    theta, converged, message, iterations = _search(whitened, lambda theta: jacobian(theta, coarse=_SEARCH_GROUP > 1),
+    theta, converged, message, iterations = _search(lambda theta: evaluated(theta, group=coarse)[1],
+                                                    lambda theta: jacobian(theta, coarse),
                                                     theta0, to_theta, Q, method)
     if not converged:
         raise CalibrationError(f"{name}: {method} did not converge ({message})")
-    theta, r_w, J = _polish(whitened, jacobian, theta, natural)
+    theta, r_w, J = _polish(whitened, lambda theta: jacobian(theta, _POLISH_GROUP), theta, natural)
     evaluations = count[0]
     chi2, dof = float(r_w @ r_w), len(r_w) - p
     sv = np.linalg.svd(J, compute_uv=False)

@@ -26,6 +26,7 @@ numpy only; no I/O.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -287,22 +288,22 @@ class BlockSemiseparable:
         M = np.zeros((r, r))  # Σ over earlier blocks of their gains carried to this block
         inverse = np.empty((n, b, b))
         gains = np.empty((n, r, b))
+        aM, aMp = np.empty((r, r)), np.empty((r, b))  # a·M and a·M·pᵀ, made in place each block
         for j in range(n):
             p, q = self.state_left[j], self.state_right[j]
             pM = p @ M
-            L = _cholesky(self.diagonal[j] - pM @ p.T, j)
-            inverse[j] = np.linalg.inv(L)
-            aMp = self.transition(pM.T, j)  # a_j·M·pᵀ (M symmetric)
+            inverse[j] = _inverse_cholesky(self.diagonal[j] - pM @ p.T, j)
+            self.transition(pM.T, j, out=aMp)  # a_j·M·pᵀ (M symmetric)
             h = (q - aMp) @ inverse[j].T
             gains[j] = h
-            M = self.transition(self.transition(M, j).T, j)  # a·M·aᵀ
+            self.transition(M, j, out=aM)
+            self.transition(aM.T, j, out=M.T)  # a·M·aᵀ, into M: (a·(a·M)ᵀ)ᵀ
             M += h @ h.T
         tail_inverse = np.zeros((0, 0))
         if self.tail_size:
             p = self._tail_low()
             low = self.low_slots
-            L = _cholesky(self.tail_diagonal - p @ M[low, low] @ p.T, n)
-            tail_inverse = np.linalg.inv(L)
+            tail_inverse = _inverse_cholesky(self.tail_diagonal - p @ M[low, low] @ p.T, n)
         return SemiseparableWhitener(self, inverse, gains, tail_inverse)
 
 
@@ -312,8 +313,23 @@ def _decayed(S: BlockSemiseparable, i: int, j: int) -> np.ndarray:
     return factor[:, None] * S.right[j]
 
 
-def _cholesky(block: np.ndarray, index: int) -> np.ndarray:
+def _inverse_cholesky(block: np.ndarray, index: int) -> np.ndarray:
+    """L⁻¹ for the lower Cholesky factor L of ``block``; ValueError when it is not positive
+    definite. A 2×2 block (a rotation residual's two components, one a block on a chain of
+    hundreds) in closed form: numpy's cholesky and inv cost some 20 µs a call, most of the
+    factor's time, for a few flops."""
+    if block.shape == (2, 2):
+        (a, _), (c, d) = block.tolist()
+        if not a > 0.0:
+            raise ValueError(f"not positive definite at block {index}")
+        l11 = math.sqrt(a)
+        l21 = c / l11
+        rest = d - l21 * l21
+        if not rest > 0.0:
+            raise ValueError(f"not positive definite at block {index}")
+        l22 = math.sqrt(rest)
+        return np.array([[1.0 / l11, 0.0], [-l21 / (l11 * l22), 1.0 / l22]])
     try:
-        return np.linalg.cholesky(block)
+        return np.linalg.inv(np.linalg.cholesky(block))
     except np.linalg.LinAlgError:
         raise ValueError(f"not positive definite at block {index}") from None
