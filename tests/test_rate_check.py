@@ -119,7 +119,7 @@ async def test_at_the_configured_rate_the_run_goes_on_and_says_the_measured_rate
     from tests.test_clockless_resume import CLOCKLESS_SPEED, on_world_time
 
     devices = served("vectornav", 250.0, CLOCKLESS_SPEED, waits_for_reader=True)
-    on_world_time(monkeypatch, lambda: devices.world_time)
+    on_world_time(monkeypatch, devices.arrival_time)
     try:
         config = config_for(tmp_path, devices, "vectornav", 250)
         procedure = two_positions(tmp_path, ONE_SECOND_DWELLS)
