@@ -4,6 +4,7 @@ cycle, a simulated unit that draws a new turn-on bias when power-cycled, and the
 saying what a resume will do."""
 from __future__ import annotations
 
+import threading
 import time
 from types import SimpleNamespace
 
@@ -228,6 +229,53 @@ def test_the_served_unit_sends_its_new_bias_after_a_power_cycle(tmp_path):
     np.testing.assert_allclose(after - before, moved, atol=0.3 * MG)
 
 
+def test_a_late_delivery_given_a_release_is_held_past_its_seconds_until_released_and_loses_nothing():
+    """``deliver_late(seconds, released)``: well past ``seconds`` of the unit's time its bytes are
+    still held (the delivery not done) until ``released`` is set; then every sample sent comes."""
+    import serial
+
+    from drivers.protocols import make_parser
+    from fieldcal.earth import Station
+
+    station, sent, past = Station(40.0, 50.0), [], threading.Event()
+    held_from: list[float] = []
+
+    def on_chunk(chunk):
+        sent.append(len(chunk))
+        if held_from and chunk.t[-1] > held_from[0] + 2.0:  # (a block past the hold's 0.5 s, and more)
+            past.set()
+
+    devices = SimulatedDevices(paper_mimu(), station.gravity, station.latitude_rad, imu_protocol="vectornav",
+                               table_protocol=None, speed=50, seed=3, rate_hz=RATE, waits_for_reader=True,
+                               on_chunk=on_chunk)
+    port = serial.Serial(devices.imu_url, timeout=0.05)
+    parser, parsed = make_parser("vectornav"), 0
+
+    def read_until(done, what: str) -> None:
+        nonlocal parsed
+        deadline = time.monotonic() + 60.0
+        while not done():
+            assert time.monotonic() < deadline, what  # a hang detector
+            chunk = parser.feed(port.read(65536), 0.0)
+            parsed += len(chunk) if chunk is not None else 0
+
+    try:
+        devices.start()
+        read_until(lambda: parsed >= RATE, "the unit never sent")
+        released = threading.Event()
+        held_from.append(devices.world_time)
+        delivered = devices.deliver_late(0.5, released)
+        read_until(past.is_set, "the unit's time never went past the hold")
+        assert not delivered.done()  # held past its seconds: not released yet
+        released.set()
+        read_until(delivered.done, "the held bytes never came")  # (read on: they fill the port)
+        read_until(lambda: parsed >= sum(sent[:-1]), "samples held were lost")  # (the last may be under way)
+    finally:
+        devices.stop()
+        port.close()
+    assert parsed > RATE + 2.0 * RATE  # the held seconds came too
+
+
 def test_a_unit_that_waits_for_its_reader_runs_at_most_a_block_ahead_of_what_was_read():
     """``waits_for_reader``: read a little at a time, the unit's time (``world_time``) runs a
     block of samples ahead of the samples read (served as fast as read without it, the port's
@@ -259,6 +307,47 @@ def test_a_unit_that_waits_for_its_reader_runs_at_most_a_block_ahead_of_what_was
     assert float(np.median(ahead)) <= block_s + 2 / RATE, sorted(ahead)[len(ahead) // 2:]
 
 
+def test_a_read_stamped_with_the_units_arrival_time_is_stamped_before_the_unit_goes_on():
+    """``arrival_time``: a unit that waits for its reader also waits for the stamp of the read
+    that emptied the port, so that read's stamp is the time of its own last sample, however
+    long the reader takes between its read and its stamp (here it gives the unit time to run
+    on each time). Going on at once, the unit's time was a block (0.5 s) past such a read's."""
+    import serial
+
+    from drivers.protocols import make_parser
+    from drivers.transport import read_available
+    from fieldcal.earth import Station
+
+    station, made = Station(40.0, 50.0), threading.Event()
+    devices = SimulatedDevices(paper_mimu(), station.gravity, station.latitude_rad, imu_protocol="vectornav",
+                               table_protocol=None, speed=0, seed=3, rate_hz=RATE, waits_for_reader=True,
+                               on_chunk=lambda chunk: made.set())
+    port = serial.Serial(devices.imu_url, timeout=0.05)
+    parser, parsed, reads = make_parser("vectornav"), 0, []  # reads: (stamp, samples parsed by then)
+    try:
+        devices.start()
+        deadline = time.monotonic() + 60.0
+        while parsed < 5 * RATE:
+            assert time.monotonic() < deadline, "the unit stopped sending"  # a hang detector
+            data = read_available(port)  # (as the station's reader: what has come, no more)
+            if not data:
+                continue
+            made.clear()
+            made.wait(0.02)  # a slow reader: the unit's next block, if it does not wait for the stamp
+            stamp = devices.arrival_time()
+            chunk = parser.feed(data, stamp)
+            parsed += len(chunk) if chunk is not None else 0
+            reads.append((stamp, parsed))
+    finally:
+        devices.stop()
+        port.close()
+    last_of_each = {stamp: n for stamp, n in reads}  # the read that took a block's last sample
+    blocks = sorted(last_of_each.items())[2:]  # (the unit waits from the first stamp on: not the first blocks)
+    assert len(blocks) >= 8, reads
+    # its stamp is its last sample's time: the unit's time had not gone on (a sentence split off: 1 sample)
+    assert all(0 <= stamp - n / RATE <= 1.01 / RATE for stamp, n in blocks), [b for b in blocks if not 0 <= b[0] - b[1] / RATE <= 1.01 / RATE]
+
+
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
 def test_a_turn_on_bias_spread_is_a_finite_number_at_least_zero(bad):
     with pytest.raises(ValueError, match="turn-on bias gyro_deg_s: expected a finite number >= 0"):
@@ -286,9 +375,10 @@ SPREAD = TurnOnBias(gyro_deg_s=0.05, accel_mg=2.0)  # a MEMS unit's bias repeata
 CARRY_S = 0.5  # the operator's hands, in the unit's time: long enough to be seen moving, no longer
 # The unit's time per wall time. The station reads the unit's time as its clock (its reads'
 # arrivals, the rate check, the silence: ``on_world_time``, ``silence_clock``) and the unit waits
-# for its reader, so the station sees the same stream at any speed or load; faster than 3 the
-# one process (unit, station and screen) runs out of its one core (the GIL) anyway.
-CLOCKLESS_SPEED = 3.0
+# for its reader, so the station sees the same stream at any speed or load. The cycled run at 3x
+# took 28 s of wall for 8.2 s of CPU (the rest waiting for its unit's time); at 10x, 10 s for 4.6 s
+# (bigger blocks, fewer of them); at 20x and 40x, 8 and 7.5 s: the process is then mostly busy.
+CLOCKLESS_SPEED = 10.0
 
 
 def served_on_pty(seed: int) -> SimulatedDevices:
@@ -325,7 +415,9 @@ def on_world_time(monkeypatch, world) -> None:
     the run before its first dwell (the resumed run never reached its first step once, under two
     `yes`). A real unit's bytes keep their time whatever the host does; in the unit's own time
     they do here, and the rate check still measures them (from arrivals: VectorNav frames carry
-    no clock). The app is given the same time as its ``silence_clock``."""
+    no clock). The app is given the same time as its ``silence_clock``. ``world``: the unit's
+    ``SimulatedDevices.arrival_time``, with which a unit that waits for its reader also waits
+    for each stamp (else it may run a block ahead of a late-stamped read)."""
     monkeypatch.setattr("fieldcal.run.devices.time", SimpleNamespace(monotonic=world))
 
 
@@ -355,18 +447,19 @@ def mixed_solution(session, spec):
 
 
 LATE_AT = 2  # steps completed when the unit's bytes come late (a backlog: they are kept)
-# How late, in the unit's time: beyond the station's 3 s silence warning and ClocklessStream's 2 s
-# slack, and by enough that the station, polling for samples on a loaded machine, is sure to look
-# while the silence is past 3 s (at 4 s, 1/3 s of wall time at CLOCKLESS_SPEED: missed at load 20).
-LATE_S = 10.0
+# How late at least, in the unit's time: beyond ClocklessStream's 2 s slack; and the bytes are held
+# until the station has said the silence (past its 3 s warning). A fixed lateness left the station
+# a window of wall time to look in (1/3 s at 4 s late: missed at load 20), which any speed shortens.
+LATE_S = 4.0
+SILENCE_WARNING = "WARNING: no samples from"
 BEFORE_CYCLE = 6  # steps completed when the unit is switched off and on: each axis up and down
 
 
 @pytest.fixture(scope="module")
 def clockless_cycled_run(tmp_path_factory):
     """The operator through ``static_12`` on a VectorNav unit served on a pty (at CLOCKLESS_SPEED), its
-    port open throughout (a powered adapter). After LATE_AT steps its bytes come LATE_S late, all at
-    once (nothing lost: longer than the station's 3 s silence warning and ClocklessStream's 2 s
+    port open throughout (a powered adapter). After LATE_AT steps its bytes come late, all at once
+    (nothing lost: held past the station's 3 s silence warning, beyond ClocklessStream's 2 s
     slack); after BEFORE_CYCLE steps the unit is off for 3 s (beyond that slack too), and the run
     is followed from the station's restart of it to its end. One run, for the two tests below:
     each asserts its own part of it (the late delivery; the power cycle)."""
@@ -385,9 +478,14 @@ def clockless_cycled_run(tmp_path_factory):
                         lambda: devices.world_time, silence_clock=lambda: devices.world_time)
         async with app.run_test(size=(80, 24)) as pilot:
             for step in range(BEFORE_CYCLE):
-                if step == LATE_AT:  # the unit runs on; its bytes come LATE_S late, all at once
+                if step == LATE_AT:  # the unit runs on; its bytes come late, all at once
                     await until(pilot, lambda: waiting_at(app, LATE_AT))
-                    devices.deliver_late(LATE_S).result(timeout=60)
+                    warned, released = log_text(app).count(SILENCE_WARNING), threading.Event()
+                    delivered = devices.deliver_late(LATE_S, released)
+                    # held until the station has said the silence, however long a loaded host takes
+                    await until(pilot, lambda: log_text(app).count(SILENCE_WARNING) > warned)
+                    released.set()
+                    delivered.result(timeout=60)
                 await place(app, pilot, devices, procedure, step)
                 if step == LATE_AT:
                     late_log = log_text(app)
@@ -403,7 +501,7 @@ def clockless_cycled_run(tmp_path_factory):
 
     try:
         with pytest.MonkeyPatch.context() as patch:
-            on_world_time(patch, lambda: devices.world_time)  # (continuous across the power cycle)
+            on_world_time(patch, devices.arrival_time)  # (continuous across the power cycle)
             app, banner, log, late_log = run()
         solved = app.outcome.unit.solutions["accelerometer"]
         errors = accelerometer_errors(solved, devices, solved.sigma)
@@ -414,13 +512,13 @@ def clockless_cycled_run(tmp_path_factory):
 
 
 def test_a_clockless_units_late_delivery_keeps_the_steps_before_it(clockless_cycled_run):
-    """The unit stays powered; its bytes come LATE_S late once (the station sees the silence): the
+    """The unit stays powered; its bytes come late once (held until the station says the silence): the
     run goes on after the step it had completed, keeping every step before it, until the power
     cycle later drops them all at once."""
     from fieldcal.session.capture import SessionReader
 
     run = clockless_cycled_run
-    assert "WARNING: no samples from" in run.late_log  # the station saw the gap,
+    assert SILENCE_WARNING in run.late_log  # the station saw the gap,
     assert "samples never came" not in run.late_log and "power-cycled" not in run.late_log  # and kept the steps:
     reader = SessionReader(run.session)
     # the one resume is the power cycle's, and it drops the steps from before the late delivery too
@@ -471,7 +569,7 @@ def test_the_quit_question_of_a_clockless_unit_says_what_its_resume_then_does(tm
 
     devices = served_on_pty(5)
     world = WorldClock(devices)
-    on_world_time(monkeypatch, world)
+    on_world_time(monkeypatch, devices.arrival_time)
     procedure = two_positions(tmp_path, SHORT)
     config = without_table(tmp_path, devices, with_vectornav)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import re
 
-from tui_pilot import run_async, until, waiting_at
+from tui_pilot import ask, press_and_go_on, run_async, until, waiting_at
 from fieldcal.earth import Station
 from fieldcal.run.runner import RunSpec
 from fieldcal.tui import FieldcalApp
@@ -60,11 +60,14 @@ async def test_after_an_abort_mid_dwell_the_panel_holds_nothing_that_looks_curre
                       session_dir=None)
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("r")
+        # (keys posted, each waited for by what it does: a run in real time never lets Pilot.press
+        # see the process idle, 2 s a key: 4.8 of this test's 5.9 s were that wait)
+        await press_and_go_on(pilot, "r")
         await until(pilot, lambda: app.telemetry.phase == "dwell")
-        await pilot.press("a", "a")
+        await ask(pilot, "a")
+        await press_and_go_on(pilot, "a")
         await until(pilot, lambda: on_results(app))
-        await pilot.press("escape")  # back to the run
+        await pilot.press("escape")  # back to the run (ended: the process goes idle)
         await until(pilot, lambda: not on_results(app))
         lines = {name: text.plain for name, text in rows(app.screen.view).items()}
         assert lines["dwell"].endswith("— (run aborted)") and "left" not in lines["dwell"]

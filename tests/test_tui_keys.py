@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from tui_pilot import run_async, until, waiting_at
+from tui_pilot import ask, press_and_go_on, run_async, until, waiting_at
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import parse_procedure
 from fieldcal.run.operators import OperatorScript
@@ -129,13 +129,15 @@ async def test_going_back_from_a_step_begun_asks_first(tmp_path):
                       session_dir=None)  # real time: the dwell is still running when u comes
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, 0))
-        await pilot.press("s", "s")
+        # (keys posted, each waited for by what it does: a run in real time never lets Pilot.press
+        # see the process idle, 2 s a key: 4.6 of this test's 6.1 s were that wait)
+        await ask(pilot, "s")
+        await press_and_go_on(pilot, "s")
         await until(pilot, lambda: waiting_at(app, 1))
-        await pilot.press("r")
+        await press_and_go_on(pilot, "r")
         await until(pilot, lambda: app.telemetry.phase not in ("place", "settling"))
-        await pilot.press("u")
-        assert "Back to position 1? Position 2's progress is lost" in confirm_text(app)
-        await pilot.press("u")
+        assert "Back to position 1? Position 2's progress is lost" in await ask(pilot, "u")
+        await press_and_go_on(pilot, "u")
         await until(pilot, lambda: waiting_at(app, 0))
         assert app.screen.view.tiles == ["active", "todo", "todo"]
 

@@ -175,7 +175,7 @@ def live_app(tmp_path, protocol: str, monkeypatch):
     devices = SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol=protocol,
                                table_protocol=None, speed=CLOCKLESS_SPEED, seed=3, rate_hz=200,
                                waits_for_reader=True)
-    on_world_time(monkeypatch, lambda: devices.world_time)
+    on_world_time(monkeypatch, devices.arrival_time)
     devices.start()
     tmp_path.mkdir()
     acc, gyro = PAPER_NOISE["accelerometer"], PAPER_NOISE["gyroscope"]

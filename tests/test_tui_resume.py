@@ -136,11 +136,6 @@ def serve(seed: int, protocol: str = "xsens", speed: float = SPEED, waits_for_re
                             waits_for_reader=waits_for_reader).start()
 
 
-# VectorNav ASCII carries no device time: its rate is measured in host time, so it is served in
-# real time at the config's rate (faster, the run is held before its first dwell: issue 23).
-VECTORNAV_SPEED = 1.0
-
-
 @pytest.fixture
 def served():
     devices = [serve(3)]
@@ -504,14 +499,15 @@ async def test_a_unit_whose_frames_carry_no_clock_has_its_steps_measured_again_a
     reads' arrivals are stamped in the unit's time, as test_clockless_resume's: the rate check
     and the stream's continuity then hold on a loaded machine whose starved simulator falls
     behind the host's clock.)"""
-    from tests.test_clockless_resume import on_world_time
+    from tests.test_clockless_resume import CLOCKLESS_SPEED, on_world_time
 
     # The unit goes on only once the station has read what it sent (waits_for_reader): stamped in
     # the unit's time but served from a starved thread that runs ahead of the reads, the arrivals
     # measured 246.5 Hz (-1.4 %) under two `yes` (CI rehearsal, 2026-11-28 02:20 UTC) and the run
-    # was held before its first dwell.
-    devices = serve(5, "vectornav", VECTORNAV_SPEED, waits_for_reader=True)
-    on_world_time(monkeypatch, lambda: devices.world_time)
+    # was held before its first dwell. So stamped, it runs at CLOCKLESS_SPEED as the other
+    # VectorNav runs (in real time it waited 10 s of its 13 s).
+    devices = serve(5, "vectornav", CLOCKLESS_SPEED, waits_for_reader=True)
+    on_world_time(monkeypatch, devices.arrival_time)
     try:
         app, banner, log = await _step_one_then(tmp_path, devices, WorldClock(devices), two_positions(tmp_path, SHORT),
                                                 _cable_pulled(devices), 0, vectornav_config)

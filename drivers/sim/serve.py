@@ -89,6 +89,7 @@ class TurnOnBias:
 
 
 TURN_ON_STREAM = 0x7475726E  # "turn": a stream of the seed apart from the noise's
+PTY_PIECE = 4000  # bytes: within a pty's 4096-byte input buffer (Linux's N_TTY_BUF_SIZE)
 
 
 class SimulatedDevices:
@@ -126,6 +127,10 @@ class SimulatedDevices:
         self._delays: queue.SimpleQueue = queue.SimpleQueue()  # late deliveries asked for, not yet begun
         self._time_lock = threading.Lock()
         self._time_before_cycles = 0.0  # sample time run before the last power cycle, s
+        # Pieces written by ``_write_read`` (counted before each is written), and how many had
+        # been when a stamp (``arrival_time``) last found nothing unread: None until one has.
+        self._pieces_written = 0
+        self._stamped_pieces: int | None = None
         self.motion = TableMotion()
         self.table = make_virtual_table(table_protocol, self.motion) if table_protocol else None
         link = PtyLink if transport == "pty" else TcpLink
@@ -166,14 +171,19 @@ class SimulatedDevices:
         self._cycles.put((seed, off_s, done))
         return done
 
-    def deliver_late(self, seconds: float) -> Future:
+    def deliver_late(self, seconds: float, released: threading.Event | None = None) -> Future:
         """The unit runs on, powered, but its bytes reach the port only after ``seconds`` of
         sample time, all at once (a USB adapter's latency, a hub's hiccup): late, none lost.
-        The future is done once they are written."""
+        ``released``: held, beyond ``seconds``, until that event is set too (a test that must
+        see the station notice the silence first: the unit's time goes on meanwhile at
+        ``speed``, however long a loaded host takes to look). The future is done once they are
+        written."""
         if not (math.isfinite(seconds) and seconds > 0):
             raise ValueError(f"seconds: expected a finite number > 0, got {seconds}")
+        if released is not None and self.speed == 0:  # (held samples are made as fast as the CPU can)
+            raise ValueError("deliver_late(released=): the unit needs a speed > 0 to run on while held")
         done: Future = Future()
-        self._delays.put((seconds, done))
+        self._delays.put((seconds, released, done))
         return done
 
     @property
@@ -186,6 +196,23 @@ class SimulatedDevices:
         """The sample time run since the devices started, across power cycles, s."""
         with self._time_lock:
             return self._time_before_cycles + self.simulator.time
+
+    def arrival_time(self) -> float:
+        """``world_time``, for a station that stamps each read's arrival with the unit's time
+        (a test's): called by its reader right after a read. Once it is used (from the first
+        stamp on: the first block or two may not wait for theirs), a unit that
+        ``waits_for_reader`` goes on only after a stamp was taken with every byte it wrote read,
+        so each read that empties the port is stamped with the time of its last sample, however
+        late the reader's thread comes to take it: the promptest reads, which a rate from
+        arrivals and a stream's continuity go by, lie on the unit's time line. (Going on at
+        once, the unit could run a block ahead before the stamp: at 0.2 s blocks a loaded run
+        measured 232.8 Hz of a 250 Hz unit over the rate check's 3 s.)"""
+        pieces, now = self._pieces_written, self.world_time
+        if getattr(self.imu_link, "unread", lambda: 0)() == 0:  # this read took the last byte written
+            self._stamped_pieces = pieces
+        elif self._stamped_pieces is None:  # the first stamp: from now on the unit waits for them
+            self._stamped_pieces = 0
+        return now
 
     @property
     def imu_url(self) -> str:
@@ -218,7 +245,7 @@ class SimulatedDevices:
         started = time.monotonic()
         sim, motion = self.simulator, self.motion
         pending = None
-        late_until, late = None, []  # a delivery held (``deliver_late``): until then, its bytes
+        late_until, release, late = None, None, []  # a delivery held (``deliver_late``): until then, its bytes
         while not self._stop.is_set():
             if not self._cycles.empty():
                 seed, off_s, cycled = self._cycles.get()
@@ -250,26 +277,37 @@ class SimulatedDevices:
                 self._on_chunk(sent)
             data = self.encoder.encode(sent)
             if not self._delays.empty():
-                seconds, delayed = self._delays.get()
+                seconds, release, delayed = self._delays.get()
                 late_until, late = sim.time + seconds, [delayed]
             if self.speed > 0:
                 lag = started + sim.time / self.speed - time.monotonic()
                 if lag > 0:
                     self._stop.wait(lag)
-            if late_until is not None and sim.time < late_until:
+            if late_until is not None and (sim.time < late_until or (release is not None and not release.is_set())):
                 late.append(data)  # sent, and held on the way
             elif late_until is not None:
-                self._write_all(b"".join(late[1:]) + data)  # all of it at once, nothing lost
+                self._write_read(b"".join(late[1:]) + data)  # all of it at once, nothing lost
                 late[0].set_result(None)
-                late_until, late = None, []
+                late_until, release, late = None, None, []
             elif self.speed > 0 and not self.waits_for_reader:
                 # A real device does not wait for a slow host: what does not fit is lost.
                 self.imu_link.write(data, timeout_s=0.05)
             else:
-                self._write_all(data)
-                if self.waits_for_reader:
-                    self._until_read()
+                self._write_read(data)
             self.samples_sent += len(chunk)
+
+    def _write_read(self, data: bytes) -> None:
+        """Write ``data``; a unit that ``waits_for_reader`` writes it a pty's input buffer at a time
+        (PTY_PIECE), each piece once the one before was read (and stamped: ``_until_read``). A
+        larger write waits in the kernel for room: a read that took the first 4 KB then saw the
+        port empty, and the unit went on before the read that took the rest was stamped."""
+        if not self.waits_for_reader:
+            self._write_all(data)
+            return
+        for start in range(0, len(data), PTY_PIECE):
+            self._pieces_written += 1  # (before: a stamp of its read must count it)
+            self._write_all(data[start:start + PTY_PIECE])
+            self._until_read()
 
     def _write_all(self, data: bytes) -> None:
         written = 0
@@ -280,13 +318,19 @@ class SimulatedDevices:
                 self._stop.wait(0.05)
 
     def _until_read(self) -> None:
-        """Until the station has read every byte written (``waits_for_reader``), or the devices
-        stop. A pty shows bytes just written to its reader a moment later (the kernel pushes them
-        on from a work queue): nothing unread is believed only when seen twice 2 ms apart."""
+        """Until the station has read every byte written (``waits_for_reader``) and, once it
+        stamps its reads with ``arrival_time``, stamped the read that took the last of them; or
+        the devices stop. A pty shows bytes just written to its reader a moment later (the kernel
+        pushes them on from a work queue): nothing unread is believed only when seen twice 2 ms
+        apart. (No byte is written meanwhile, so the read that empties the port is stamped with
+        nothing unread: the wait ends.)"""
         unread = getattr(self.imu_link, "unread", None)
         empty_seen = 0
-        while unread is not None and empty_seen < 2 and not self._stop.is_set():
+        while unread is not None and not self._stop.is_set():
             empty_seen = empty_seen + 1 if unread() == 0 else 0
+            stamped = self._stamped_pieces
+            if empty_seen >= 2 and (stamped is None or stamped >= self._pieces_written):
+                return
             self._stop.wait(0.002)
 
     def _table_loop(self) -> None:
