@@ -134,9 +134,17 @@ class Planner:
         self.models, self.station, self.rate_hz = models, station, rate_hz
         self.operator, self.targets, self.rate = operator, targets, max_rate_deg_s
         self.bias_at_end = bias_at_end  # biases judged against the bias at the end (design.bound_sigmas)
+        # The bound of each design evaluated: the search asks again for some (a dwell found by
+        # the bisection, then its plan; a design the drops and the turn choice both reach).
+        self._bounds: dict[tuple, dict[str, np.ndarray]] = {}
 
     def sigmas(self, design: Design) -> dict[str, np.ndarray]:
-        return bound_sigmas(design, self.operator, self.models, self.station, self.rate_hz, self.bias_at_end)
+        key = (tuple(np.asarray(a, dtype=float).tobytes() for a in design.attitudes), design.dwell_s, design.rate_deg_s,
+               design.turns, design.turning)
+        if key not in self._bounds:
+            self._bounds[key] = bound_sigmas(design, self.operator, self.models, self.station, self.rate_hz,
+                                             self.bias_at_end)
+        return {name: sigma.copy() for name, sigma in self._bounds[key].items()}
 
     def worst_ratio(self, design: Design) -> float:
         """The largest σ/target over every parameter of every triad (nan counts as infinite)."""
