@@ -426,13 +426,15 @@ def _scan(directory: str | os.PathLike, verb: str, live: bool = False, log_only:
 
     # Data the log indexes must all be there: a crash writes the data before the log line, so a
     # log that points past the end of a file is damage (the file was cut or replaced), never a tail.
+    samples_path = d / SAMPLES
+    samples_is_file = not log_only and samples_path.is_file()  # asked once, not at each of its chunks
     for i, doc in enumerate(() if log_only else docs):
         kind = doc["type"]
         if kind not in ("chunk", "raw"):
             continue
-        path = d / SAMPLES if kind == "chunk" else raw_path(d, doc["name"])
+        path = samples_path if kind == "chunk" else raw_path(d, doc["name"])
         size = samples_size if kind == "chunk" else raw_sizes.get(doc["name"])
-        if kind == "chunk" and not path.is_file() or size is None:
+        if kind == "chunk" and not samples_is_file or size is None:
             raise SessionError(f"{path}: {_not_a_file(path)}, but {LOG} line {i + 1} refers to it", str(path), i + 1)
         end = doc["offset"] + doc["length"]
         if end > size:
