@@ -41,36 +41,70 @@ class Evidence:
     allan: tuple[Path, ...] = ()  # PNGs, one per triad
 
 
-def session_temperature(reader) -> Temperature | None:
-    """Range and mean of the temperature column, None when the device reports none."""
-    low, high, total, n = np.inf, -np.inf, 0.0, 0
-    for chunk in reader.chunks():
+class _TemperatureRange:
+    """Range and running sum of the temperature column, chunk by chunk in the session's order."""
+
+    def __init__(self) -> None:
+        self.low, self.high, self.total, self.n = np.inf, -np.inf, 0.0, 0
+        self.complete = False  # every chunk of the session added
+
+    def add(self, chunk) -> None:
         t = chunk.temperature
         if t is None or not t.size:
-            continue
+            return
         t = t[np.isfinite(t)]
         if t.size:
-            low, high = min(low, float(t.min())), max(high, float(t.max()))
-            total, n = total + float(t.sum()), n + t.size
-    return Temperature(low, high, total / n, n) if n else None
+            self.low, self.high = min(self.low, float(t.min())), max(self.high, float(t.max()))
+            self.total, self.n = self.total + float(t.sum()), self.n + t.size
+
+    def result(self) -> Temperature | None:
+        return Temperature(self.low, self.high, self.total / self.n, self.n) if self.n else None
 
 
-def replayed_residuals(record) -> tuple[dict[str, PositionResiduals], str]:
+def session_temperature(reader) -> Temperature | None:
+    """Range and mean of the temperature column, None when the device reports none."""
+    found = _TemperatureRange()
+    for chunk in reader.chunks():
+        found.add(chunk)
+    return found.result()
+
+
+def _noting_temperature(items, found: _TemperatureRange):
+    """The replay's items unchanged, each chunk's temperature noted on the way past."""
+    for kind, item in items:
+        if kind == "chunk":
+            found.add(item)
+        yield kind, item
+    found.complete = True
+
+
+def replayed_residuals(record, temperature: _TemperatureRange | None = None
+                       ) -> tuple[dict[str, PositionResiduals], str]:
     """Each solved triad's residual per position from replaying the session (``record``: its
     ``RunRecord``); and a note that says whether the replay reproduces the run's parameter file.
     A session the replay refuses (its step averages not its samples', damaged data) is refused
-    here too: a SessionError, never a certificate with a note."""
+    here too: a SessionError, never a certificate with a note. ``temperature``: given, it notes
+    every chunk the replay reads and, after a replay that stopped before the end of the capture,
+    the chunks left (the session's samples are read once, not again for the temperature); it is
+    complete unless the replay failed."""
     from fieldcal.residuals import per_position
+    from fieldcal.run.operators import ReplayOperator
     from fieldcal.run.replay import replay
     from fieldcal.session import SessionError
 
+    operator = ReplayOperator(record)
+    if temperature is not None:
+        operator.items = _noting_temperature(operator.items, temperature)
     try:
-        outcome = replay(record)
+        outcome = replay(record, operator)
     except SessionError:
         raise
     except (ValueError, OSError) as exc:
         why = str(exc).splitlines()[0]
         return {}, f"residuals per position not available: re-solving the session failed ({why})"
+    if temperature is not None:
+        for _ in operator.items:  # the rest of the capture, if the replay stopped before its end
+            pass
     if outcome.unit is None or not outcome.unit.solutions:
         return {}, "residuals per position not available: re-solving the session solved no triad"
     found = {}
@@ -101,6 +135,9 @@ def gather(record) -> Evidence:
     positions = record.spec.procedure.positions
     # The steps the parameter file was solved from: not those a resume dropped (measured again)
     done = {s.record.step for s in record.steps}
-    found, note = replayed_residuals(record)
-    return Evidence(found, note, session_temperature(record), tuple(positions[i].id for i in record.skipped),
+    temperature = _TemperatureRange()
+    found, note = replayed_residuals(record, temperature)
+    # A failed replay read only part of the capture: the temperature then reads it whole.
+    return Evidence(found, note, temperature.result() if temperature.complete else session_temperature(record),
+                    tuple(positions[i].id for i in record.skipped),
                     len(done), allan)
