@@ -143,15 +143,16 @@ def test_the_estimate_of_all_weights_each_module_by_its_mutants():
     sampled = Counter(mutants=50, killed=38, timeout=2, survived=10, population=300)
     rate, low, high = run.weighted_estimate([("a.py", whole), ("b.py", sampled)])
     assert rate == pytest.approx((100 * 0.9 + 300 * 0.8) / 400)
-    # ñ = 50 + z² = 53.8415, p̃ = (40 + z²/2)/ñ = 0.77860; variance (300/400)²·p̃(1 − p̃)/ñ·(250/299)
-    assert (rate - low, high - rate) == pytest.approx((0.076056, 0.076056), abs=1e-6)
+    # ñ = 50 + z² = 53.84146, p̃ = (40 + z²/2)/ñ = 0.778596: centre 0.25·0.9 + 0.75·p̃ = 0.808947,
+    # half-width z·√((300/400)²·p̃(1 − p̃)/ñ·(250/299)) = 0.076056
+    assert (low, high) == pytest.approx((0.808947 - 0.076056, 0.808947 + 0.076056), abs=2e-6)
     assert run.weighted_estimate([("a.py", whole)]) == (0.9, 0.9, 0.9)
     assert run.weighted_estimate([("a.py", Counter(mutants=5, population=50, **{"not run": 5}))]) is None
     lines = run.table([("a.py", whole), ("b.py", sampled)]).splitlines()
     assert lines[0].split()[-4:] == ["sampled", "95", "%", "interval"]
     assert lines[1].endswith("all       (all run)")
     assert lines[2].split()[-5:] == ["80.0", "50", "of", "300", "67.0–88.8"]
-    assert lines[3].split()[-5:] == ["82.5", "150", "of", "400", "74.9–90.1"]
+    assert lines[3].split()[-5:] == ["82.5", "150", "of", "400", "73.3–88.5"]
     assert lines[3].startswith("all, weighted")
 
 
@@ -185,6 +186,8 @@ def test_a_sampled_run_runs_the_drawn_mutants_once_then_only_reports(tmp_path, m
     row = again.splitlines()[1].split()
     assert row[:9] == ["solvers/crb.py", "3", "2", "0", "1", "0", "0", "0", "66.7"]
     assert row[9:] == ["3", "of", "10", "20.8–93.9"]  # Wilson's, for 2 of 3
+    # the estimate's: ñ = 3 + z² = 6.84146, p̃ = (2 + z²/2)/ñ = 0.57308, half z·√(p̃(1 − p̃)/ñ·7/9) = 0.32688
+    assert again.splitlines()[2].split()[-1] == "24.6–90.0"
     assert "sampled: 66.7 % of these modules' 10 mutants estimated killed" in again
     with pytest.raises(SystemExit) as stop:
         run.main(["--sample", "-1"])

@@ -117,9 +117,11 @@ def wilson_interval(killed: int, run: int, z: float = Z95) -> tuple[float, float
 
 def weighted_estimate(rows: list[tuple[str, Counter]], z: float = Z95) -> tuple[float, float, float] | None:
     """The kill rate of all the rows' mutants, estimated from samples: each module's sampled rate
-    weighted by its number of mutants (a stratified sample), with a normal 95 % interval from each
-    module's Agresti-Coull variance times its finite-population correction (a module run whole
-    adds no uncertainty). None when no row has a mutant run."""
+    weighted by its number of mutants (a stratified sample), and a 95 % interval: the modules'
+    Agresti-Coull centres and variances, weighted alike, each variance times its finite-population
+    correction (a module run whole adds no uncertainty, and its own rate is its centre). For one
+    sampled module that is the Agresti-Coull interval (fpc aside), which holds Wilson's. Returns
+    (estimate, low, high); None when no row has a mutant run."""
     strata = [(c["population"] or c["mutants"], c["mutants"] - c["not run"], c["killed"] + c["timeout"])
               for _, c in rows]
     strata = [(size, run, killed) for size, run, killed in strata if run]
@@ -127,14 +129,15 @@ def weighted_estimate(rows: list[tuple[str, Counter]], z: float = Z95) -> tuple[
         return None
     total = sum(size for size, _, _ in strata)
     rate = sum(size * killed / run for size, run, killed in strata) / total
-    variance = 0.0
+    centre = variance = 0.0
     for size, run, killed in strata:
         tilde_n = run + z * z
-        tilde_p = (killed + z * z / 2) / tilde_n
+        tilde_p = (killed + z * z / 2) / tilde_n if run < size else killed / run
         unsampled = (size - run) / (size - 1) if size > 1 else 0.0
+        centre += size / total * tilde_p
         variance += (size / total) ** 2 * tilde_p * (1 - tilde_p) / tilde_n * unsampled
     half = z * math.sqrt(variance)
-    return rate, max(0.0, rate - half), min(1.0, rate + half)
+    return rate, max(0.0, centre - half), min(1.0, centre + half)
 
 
 def run_module(module: str, names: list[str], tests: list[str], floor: float) -> None:
