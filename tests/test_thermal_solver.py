@@ -58,6 +58,20 @@ def test_joint_fit_recovers_the_truth_with_the_order_it_has():
     assert plain.diagnostics.chi2 > 1e4 * plain.diagnostics.dof
 
 
+def test_the_joint_covariance_holds_every_sigma_and_its_condition_is_the_jacobians():
+    """The fit's joint covariance (JᵀJ)⁻¹ (times χ²/dof when Birge-scaled): the nine's block is the
+    calibration's, its diagonal the thermal terms' σ², and its condition number the square of the
+    Jacobian's, which the diagnostics state (scaling leaves a condition number as it is)."""
+    fit = solve_thermal_norm(StaticNormProblem(_averages(1), G), TEMPERATURES, np.full((18, 3), SIGMA))
+    cal, model = fit.calibration, fit.calibration.thermal
+    count = 9 + 3 * model.order + (3 if model.scale_drift is not None else 0)
+    assert fit.covariance.shape == (count, count)
+    np.testing.assert_allclose(fit.covariance[:9, :9], cal.covariance, rtol=1e-12)
+    sigma = np.sqrt(np.diag(fit.covariance))
+    np.testing.assert_allclose(sigma[9:9 + 3 * model.order], model.bias_terms_sigma.ravel(), rtol=1e-12)
+    assert cal.diagnostics.condition_number ** 2 == pytest.approx(np.linalg.cond(fit.covariance), rel=1e-6)
+
+
 def test_a_linear_unit_and_a_cold_one_get_terms_found_near_zero():
     linear = solve_thermal_norm(StaticNormProblem(_averages(2, b2=0 * B2), G), TEMPERATURES, np.full((18, 3), SIGMA))
     # 18 norms cannot tell a quadratic term from the drift and the linear one well enough to drop
