@@ -90,3 +90,23 @@ def test_the_thermal_statement_word_for_word():
     assert thermal_statement(_windows(20.0, None), {}, "auto") is None
     assert thermal_statement(_windows(20.0, None), {}, "on") == (
         "thermal model not fitted (thermal: on), the windows do not all carry a temperature")
+
+
+def test_a_field_run_is_solved_by_the_method_asked_for_with_its_bias_at_the_end():
+    procedure = load_procedure("field-18")
+    device = {"accelerometer": paper_mimu()["accelerometer"]}
+    plan = plan_procedure(procedure, RATE_HZ, np.random.default_rng(3), with_rate_steps=False)
+    means, _ = simulate_averages(plan, device, DEFAULT_STATION, RATE_HZ, seed=3)
+    end_s = plan.windows[-1].start + plan.windows[-1].duration
+    result = solve_unit(procedure, plan.windows, means, models_from_truth(device), DEFAULT_STATION, RATE_HZ,
+                        method="lsq", end_s=end_s)
+    sol = result.solutions["accelerometer"]
+    assert sol.diagnostics.search == "lsq"  # not the procedure's default, Powell
+    truth = device["accelerometer"]
+    assert np.all(np.abs(sol.bias - truth.bias) < 5 * sol.sigma[:3])
+    assert sol.bias_at_end is not None and sol.bias_at_end.time_s == end_s
+    assert np.all(np.isfinite(sol.bias_at_end.sigma)) and np.all(sol.bias_at_end.sigma > 0)
+    # without end_s: no bias at the end
+    plain = solve_unit(procedure, plan.windows, means, models_from_truth(device), DEFAULT_STATION, RATE_HZ)
+    assert plain.solutions["accelerometer"].bias_at_end is None
+    assert plain.solutions["accelerometer"].diagnostics.search == "powell"
