@@ -113,3 +113,29 @@ def test_six_position_sigma_is_the_scatter_of_its_closed_form_over_noise_draws()
     spread = np.std(_parameters(K, bias), axis=0, ddof=1)
     np.testing.assert_allclose(sol.sigma, spread, rtol=0.1)
     np.testing.assert_allclose(np.sqrt(np.diag(sol.covariance)), spread, rtol=0.1)
+
+
+def test_residuals_are_in_the_output_unit_and_a_covariance_of_the_wrong_size_is_one_line():
+    inputs = G * FACES
+    means = inputs @ K_TRUE.T + B_TRUE + PATTERN[:, None] * 0.5
+    sol = solve_classic(means, inputs, "accelerometer", "specific_force", output_unit="counts")
+    assert sol.residual_unit == "counts"
+    six, _ = solve_six_position(means, G, "accelerometer", "specific_force", "counts", np.eye(18))
+    assert six.residual_unit == "counts"
+    with pytest.raises(ValueError, match=r"^accel: covariance must be \(18, 18\), got \(17, 17\)$"):
+        solve_classic(means, inputs, "accel", "specific_force", covariance=np.eye(17))
+
+
+def test_faces_too_far_from_a_six_position_run_keep_the_closed_form():
+    """Faces whose norms miss g by 5 %: fitting them would move K's diagonal by 5 %, beyond the 1 %
+    a second-order correction may: the closed form is returned as it was."""
+    from fieldcal.solvers.classic import fit_face_norms
+
+    faces = G * FACES @ K_TRUE.T + B_TRUE
+    K0, b0 = np.diag(np.diag(K_TRUE)) / 1.0, B_TRUE.copy()
+    K, bias = fit_face_norms(K0, b0, faces, 1.05 * G)
+    np.testing.assert_array_equal(K, K0)
+    np.testing.assert_array_equal(bias, b0)
+    K, bias = fit_face_norms(K0, b0, faces, 1.001 * G)  # 0.1 %: fitted, each face's norm g
+    calibrated = (faces - bias) @ np.linalg.inv(K).T
+    np.testing.assert_allclose(np.linalg.norm(calibrated, axis=1), 1.001 * G, rtol=1e-12)

@@ -113,3 +113,17 @@ def test_bad_averages_are_refused_naming_the_triad_and_what_is_wrong():
     with pytest.raises(ValueError, match=r"^gyro one-way rate averages: contains NaN or infinite values$"):
         RateNormProblem(np.empty((0, 3)), np.empty((0, 3)), np.empty(0), np.empty((0, 3)), np.empty(0, int),
                         EARTH, 0.0, name="gyro", single=[[np.inf, 0.0, 0.0]], single_rate=[0.5])
+
+
+def test_a_problems_own_refusals_word_for_word():
+    from fieldcal.solvers.problems import StaticNormProblem
+
+    problem = _problem()
+    with pytest.raises(ValueError, match=r"^gyroscope: table rates must be positive \(the sign is in \+/-\)$"):
+        RateNormProblem(problem.plus, problem.minus, 0.0, problem.static, [2, -1], EARTH, VERTICAL)
+    # one pairing for two dwells (every index below the six steps): refused all the same
+    with pytest.raises(ValueError, match=r"^gyroscope: static_step must give a rate step index or -1 per dwell$"):
+        RateNormProblem(problem.plus, problem.minus, OMEGA, problem.static, [2], EARTH, VERTICAL)
+    still = StaticNormProblem([[0.0, 0.0, 9.8], [9.8, 0.0, 0.0]], 9.8)
+    assert isinstance(still.means, np.ndarray) and still.means.shape == (2, 3)
+    np.testing.assert_array_equal(still.data, [0.0, 0.0, 9.8, 9.8, 0.0, 0.0])

@@ -186,3 +186,13 @@ def test_the_blocks_dense_matrix_is_the_one_built_from_its_definition(with_tail_
     # L⁻¹·S·L⁻ᵀ = I for L the factor
     inverse = whitener.matrix_dense()
     np.testing.assert_allclose(inverse @ S @ inverse.T, np.eye(len(S)), atol=1e-10)
+
+
+def test_a_block_that_is_not_positive_definite_is_named_by_its_index():
+    parts, _ = _random_blocks(np.random.default_rng(9))
+    diagonal = parts.diagonal.copy()
+    diagonal[4] = -np.eye(2)  # blocks 0-3 factor; block 4 cannot
+    broken = BlockSemiseparable(diagonal, parts.sub, parts.left, parts.right, parts.decay, parts.low,
+                                parts.tail_diagonal, parts.tail_low)
+    with pytest.raises(ValueError, match=r"^not positive definite at block 4$"):
+        broken.factor()

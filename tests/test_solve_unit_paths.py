@@ -110,3 +110,16 @@ def test_a_field_run_is_solved_by_the_method_asked_for_with_its_bias_at_the_end(
     plain = solve_unit(procedure, plan.windows, means, models_from_truth(device), DEFAULT_STATION, RATE_HZ)
     assert plain.solutions["accelerometer"].bias_at_end is None
     assert plain.solutions["accelerometer"].diagnostics.search == "powell"
+
+
+def test_a_misspelt_thermal_setting_is_refused_naming_the_three():
+    procedure = load_procedure("field-18")
+    with pytest.raises(ValueError, match=r"^thermal: expected one of auto, on, off, got 'warm'$"):
+        solve_unit(procedure, [], {}, {}, DEFAULT_STATION, RATE_HZ, thermal="warm")
+
+
+def test_without_static_dwells_the_across_axis_earth_rate_is_not_ruled_out():
+    from fieldcal.solvers.solve import across_earth_rate_usable
+
+    model = models_from_truth(paper_mimu())["gyroscope"]
+    assert across_earth_rate_usable(model, [], DEFAULT_STATION) is True
