@@ -138,6 +138,8 @@ def test_a_drifting_accelerometer_is_honest_over_seeds():
 def test_one_temperature_per_average_is_required():
     with pytest.raises(ValueError, match="one finite temperature per average"):
         solve_thermal_norm(StaticNormProblem(_averages(1), G), TEMPERATURES[:-1], np.full((18, 3), SIGMA))
+    with pytest.raises(ValueError, match=r"^max_order: expected 0 to 3, got 4$"):
+        solve_thermal_norm(StaticNormProblem(_averages(1), G), TEMPERATURES, np.full((18, 3), SIGMA), max_order=4)
 
 
 # The engine tags each window with the unit's mean temperature -------------------------------
