@@ -485,3 +485,17 @@ def test_the_order_chosen_does_not_hinge_on_the_last_bits(seed380):
         assert perturbed.thermal.order == solved.thermal.order, factor
         np.testing.assert_allclose(perturbed.sigma, solved.sigma, rtol=1e-4)  # (ill-posed: ×10⁵)
 
+
+
+def test_the_averages_brought_back_to_the_reference_temperature_by_hand():
+    """(u − b₀ − b₁ΔT − b₂ΔT²)/(1 + s₁ΔT) + b₀: a unit 2 K warm, its scale 1 % and 2 % up per kelvin on x and y."""
+    from fieldcal.solvers.thermal import _corrected
+
+    u = np.array([[1.1, 2.2, 3.3], [0.5, 0.5, 0.5]])
+    theta = np.r_[0.1, 0.2, 0.3, np.ones(3), np.zeros(3)]
+    terms = np.array([[0.01, 0.0, 0.0], [0.0, 0.001, 0.0]])  # b₁ on x, b₂ on y
+    drift = np.array([0.01, 0.02, 0.0])
+    got = _corrected(u, np.array([2.0, 0.0]), theta, terms, drift).reshape(2, 3)
+    np.testing.assert_allclose(got[0], [(1.1 - 0.1 - 0.02) / 1.02 + 0.1, (2.2 - 0.2 - 0.004) / 1.04 + 0.2, 3.3],
+                               rtol=1e-14)
+    np.testing.assert_allclose(got[1], u[1], rtol=1e-14)  # at the reference: unchanged
