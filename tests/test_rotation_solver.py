@@ -335,6 +335,10 @@ def test_bad_inputs_say_what_is_wrong():
         solve(rec, obs, sigmas=False, extra_residuals=lambda K_inv, b: np.zeros(1))
     with pytest.raises(ValueError, match="method"):
         solve(rec, obs, method="newton")
+    m = len(rec.spans)  # the chained poses' covariance is (3m + 3)², m motions
+    with pytest.raises(ValueError, match=rf"^up_covariance: expected a \({3 * m + 3}, {3 * m + 3}\) matrix for {m} "
+                       r"chained motions, and no up_sigma with it$"):
+        solve(rec, obs, sigmas=False, up_covariance=np.eye(3 * m))
     with pytest.raises(ValueError, match="dominant diagonal"):
         solve_gyro_rotations(rec.t, obs["raw"], rec.spans, obs["up"][:-1], obs["up"][1:],
                              K0=np.eye(3)[[1, 0, 2]], b0=0.0)
