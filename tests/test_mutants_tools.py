@@ -6,9 +6,11 @@ from __future__ import annotations
 import importlib.util
 import json
 import subprocess
+import sys
 import textwrap
 from collections import Counter
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -104,6 +106,92 @@ def test_naming_a_module_that_is_not_mutated_is_one_line(tmp_path, monkeypatch, 
     out = capsys.readouterr().out.splitlines()
     assert out[1].split() == ["model.py", "1", "0", "0", "0", "0", "0", "1", "-"]
     assert out[-1] == "no mutant run yet"
+
+
+def test_a_sample_is_drawn_the_same_in_another_process_and_a_larger_one_holds_it():
+    names = [f"fieldcal.solvers.crb.x_f__mutmut_{i}" for i in range(1, 201)]
+    small = run.sample_of("solvers/crb.py", names, 20)
+    assert len(small) == 20 and small == sorted(small, key=names.index)  # drawn, in file order
+    larger = run.sample_of("solvers/crb.py", names, 60)
+    assert set(small) < set(larger) and len(larger) == 60
+    assert run.sample_of("solvers/thermal.py", names, 20) != small  # each module its own draw
+    assert run.sample_of("solvers/crb.py", names, 500) == names
+    # a str seed is hashed by SHA-512, not by hash(): another process with another hash seed
+    script = ("import importlib.util, json, sys; spec = importlib.util.spec_from_file_location('r', sys.argv[1]); "
+              "r = importlib.util.module_from_spec(spec); spec.loader.exec_module(r); "
+              "print(json.dumps(r.sample_of('solvers/crb.py', json.loads(sys.argv[2]), 20)))")
+    other = subprocess.run([sys.executable, "-c", script, str(TOOLS / "run.py"), json.dumps(names)],
+                           capture_output=True, text=True, check=True, env={"PYTHONHASHSEED": "12345"})
+    assert json.loads(other.stdout) == small
+
+
+def test_the_wilson_interval_against_hand_worked_values_and_scipy():
+    # 9 of 10: centre (0.9 + z²/20)/(1 + z²/10) = 0.78898, half z/(1 + z²/10)·√(0.009 + z²/400) = 0.19314
+    assert run.wilson_interval(9, 10) == pytest.approx((0.59585, 0.98212), abs=1e-5)
+    # all killed: the upper end is 1 and the lower one n/(n + z²)
+    assert run.wilson_interval(20, 20) == pytest.approx((20 / (20 + 1.959963984540054 ** 2), 1.0))
+    assert run.wilson_interval(0, 0) == (0.0, 1.0)
+    from scipy.stats import binomtest
+
+    for killed, tried in ((9, 10), (57, 60), (60, 60), (0, 7), (71, 100)):
+        peer = binomtest(killed, tried).proportion_ci(method="wilson")
+        assert run.wilson_interval(killed, tried) == pytest.approx((peer.low, peer.high), abs=1e-9)
+
+
+def test_the_estimate_of_all_weights_each_module_by_its_mutants():
+    whole = Counter(mutants=100, killed=90, survived=10)  # run whole: no sampling error
+    sampled = Counter(mutants=50, killed=38, timeout=2, survived=10, population=300)
+    rate, low, high = run.weighted_estimate([("a.py", whole), ("b.py", sampled)])
+    assert rate == pytest.approx((100 * 0.9 + 300 * 0.8) / 400)
+    # ñ = 50 + z² = 53.84146, p̃ = (40 + z²/2)/ñ = 0.778596: centre 0.25·0.9 + 0.75·p̃ = 0.808947,
+    # half-width z·√((300/400)²·p̃(1 − p̃)/ñ·(250/299)) = 0.076056
+    assert (low, high) == pytest.approx((0.808947 - 0.076056, 0.808947 + 0.076056), abs=2e-6)
+    assert run.weighted_estimate([("a.py", whole)]) == (0.9, 0.9, 0.9)
+    assert run.weighted_estimate([("a.py", Counter(mutants=5, population=50, **{"not run": 5}))]) is None
+    lines = run.table([("a.py", whole), ("b.py", sampled)]).splitlines()
+    assert lines[0].split()[-4:] == ["sampled", "95", "%", "interval"]
+    assert lines[1].endswith("all       (all run)")
+    assert lines[2].split()[-5:] == ["80.0", "50", "of", "300", "67.0–88.8"]
+    assert lines[3].split()[-5:] == ["82.5", "150", "of", "400", "73.3–88.5"]
+    assert lines[3].startswith("all, weighted")
+
+
+def test_a_sampled_run_runs_the_drawn_mutants_once_then_only_reports(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "pyproject.toml").write_text("")
+    (tmp_path / "mutants" / "fieldcal" / "solvers").mkdir(parents=True)
+    names = [f"fieldcal.solvers.crb.x_f__mutmut_{i}" for i in range(1, 11)]
+    (tmp_path / "mutants" / "fieldcal" / "solvers" / "crb.py.meta").write_text(
+        json.dumps({"exit_code_by_key": dict.fromkeys(names)}))
+    monkeypatch.setitem(sys.modules, "generate", SimpleNamespace(generate=lambda: None))  # mutmut's, not here
+    runs = []
+
+    def run_module(module, todo, tests, floor):
+        runs.append(list(todo))
+        lines = "".join(f"{name}\t{'survived' if name == todo[0] else 'killed'}\tt\t1\t0.1\n" for name in todo)
+        run.RESULTS.mkdir(parents=True, exist_ok=True)
+        with open(run.results_path(module), "a", encoding="utf-8") as out:
+            out.write(lines)
+
+    monkeypatch.setattr(run, "run_module", run_module)
+    monkeypatch.setattr(run, "HERE", tmp_path)
+    (tmp_path / "tests.toml").write_text('"solvers/crb.py" = ["test_crb.py"]\n')
+    assert run.main(["--sample", "3"]) == 0
+    assert runs == [run.sample_of("solvers/crb.py", names, 3)]
+    first = capsys.readouterr().out
+    assert run.main(["--sample", "3"]) == 0
+    assert len(runs) == 1  # every drawn mutant has its verdict: nothing run again
+    again = capsys.readouterr().out
+    assert again == first
+    row = again.splitlines()[1].split()
+    assert row[:9] == ["solvers/crb.py", "3", "2", "0", "1", "0", "0", "0", "66.7"]
+    assert row[9:] == ["3", "of", "10", "20.8–93.9"]  # Wilson's, for 2 of 3
+    # the estimate's: ñ = 3 + z² = 6.84146, p̃ = (2 + z²/2)/ñ = 0.57308, half z·√(p̃(1 − p̃)/ñ·7/9) = 0.32688
+    assert again.splitlines()[2].split()[-1] == "24.6–90.0"
+    assert "sampled: 66.7 % of these modules' 10 mutants estimated killed" in again
+    with pytest.raises(SystemExit) as stop:
+        run.main(["--sample", "-1"])
+    assert str(stop.value) == "tools/mutation/run.py: --sample -1: a number of mutants, 1 or more (0: all)"
 
 
 @pytest.mark.skipif(not MUTANTS_PYTHON.exists(), reason="the mutation environment .venv-mutants is built by "

@@ -216,6 +216,9 @@ def test_noise_free_recovery_is_exact(grade, estimate_bias):
     assert np.sqrt(np.mean(sol.residuals**2)) < 1e-7
     # The K0 start is 2 % and 0.9° off: the solver moved, far.
     assert np.max(np.abs(np.diag(sol.K) / obs["nominal"] - 1)) > 1e-3
+    iterations = sol.diagnostics.iterations
+    assert 0 < iterations < 100 and sol.diagnostics.converged
+    assert sol.diagnostics.message == f"Gauss-Newton (Broyden): steps below 0.01 sigma after {iterations} iterations"
 
 
 @pytest.mark.parametrize("grade", GRADES)
@@ -332,6 +335,10 @@ def test_bad_inputs_say_what_is_wrong():
         solve(rec, obs, sigmas=False, extra_residuals=lambda K_inv, b: np.zeros(1))
     with pytest.raises(ValueError, match="method"):
         solve(rec, obs, method="newton")
+    m = len(rec.spans)  # the chained poses' covariance is (3m + 3)², m motions
+    with pytest.raises(ValueError, match=rf"^up_covariance: expected a \({3 * m + 3}, {3 * m + 3}\) matrix for {m} "
+                       r"chained motions, and no up_sigma with it$"):
+        solve(rec, obs, sigmas=False, up_covariance=np.eye(3 * m))
     with pytest.raises(ValueError, match="dominant diagonal"):
         solve_gyro_rotations(rec.t, obs["raw"], rec.spans, obs["up"][:-1], obs["up"][1:],
                              K0=np.eye(3)[[1, 0, 2]], b0=0.0)
@@ -562,3 +569,12 @@ def test_the_rotations_and_their_jacobian_of_many_spans_are_made_a_group_at_a_ti
     np.testing.assert_array_equal(q, q_whole)
     np.testing.assert_array_equal(D, D_whole)
     np.testing.assert_array_equal(steps.quaternions(K_inv, delta_b), q_whole)
+
+
+def test_a_start_holds_the_bias_unless_asked_to_estimate_it():
+    from fieldcal.solvers.rotation import RotationStart
+
+    held = RotationStart.of(1.0, [1e-3, 0.0, -2e-3])
+    assert held.estimate_bias is False
+    np.testing.assert_array_equal(held.b0, [1e-3, 0.0, -2e-3])
+    assert RotationStart.of(1.0, 0.0, estimate_bias=True).estimate_bias is True

@@ -139,14 +139,13 @@ def test_a_covariance_that_is_not_positive_definite_is_named():
         _whitening(model, J, q, RotationNoise(rate_noise=1e-3, up_covariance=broken), 0, "gyro")
 
 
-def test_the_recursion_on_random_blocks_is_the_dense_cholesky():
-    """The block recursion alone, on random generators, decays, neighbour blocks, low rank and a
-    tail: S built entry by entry here from its definition, factored densely."""
-    rng = np.random.default_rng(5)
+def _random_blocks(rng, with_tail_low=True):
+    """Random generators, decays, neighbour blocks, low rank and a tail, and S built entry by entry
+    from its definition (a tail without tail_low: no cross terms)."""
     n, b, g, c, t = 11, 2, 5, 3, 3
     left, right = rng.normal(size=(n, b, g)), rng.normal(size=(n, g, b))
     decay, low = rng.uniform(0.2, 1.0, (n, g)), rng.normal(size=(n, b, c))
-    sub, tail_low = rng.normal(size=(n - 1, b, b)), rng.normal(size=(t, c))
+    sub, tail_low = rng.normal(size=(n - 1, b, b)), rng.normal(size=(t, c)) if with_tail_low else np.zeros((t, c))
     N = n * b + t
     S = np.zeros((N, N))
     for i in range(n):
@@ -160,7 +159,18 @@ def test_the_recursion_on_random_blocks_is_the_dense_cholesky():
     S = S + S.T
     S += (np.abs(np.linalg.eigvalsh(S)).max() + 1.0) * np.eye(N)
     diagonal = np.array([S[i * b:i * b + b, i * b:i * b + b] for i in range(n)])
-    whitener = BlockSemiseparable(diagonal, sub, left, right, decay, low, S[n * b:, n * b:], tail_low).factor()
+    parts = BlockSemiseparable(diagonal, sub, left, right, decay, low, S[n * b:, n * b:],
+                               tail_low if with_tail_low else None)
+    return parts, S
+
+
+def test_the_recursion_on_random_blocks_is_the_dense_cholesky():
+    """The block recursion alone, on random generators, decays, neighbour blocks, low rank and a
+    tail: S built entry by entry here from its definition, factored densely."""
+    rng = np.random.default_rng(5)
+    parts, S = _random_blocks(rng)
+    N = len(S)
+    whitener = parts.factor()
     x = rng.normal(size=(N, 4))
     expected = np.linalg.solve(np.linalg.cholesky(S), x)
     np.testing.assert_allclose(whitener @ x, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
@@ -186,3 +196,24 @@ def test_a_blocks_inverse_factor_is_numpys_and_a_singular_block_is_named():
                      np.array([[1.0, 2.0], [2.0, 1.0]]), np.diag([1.0, -1.0, 1.0])):
         with pytest.raises(ValueError, match="not positive definite at block 7"):
             _inverse_cholesky(singular, 7)
+
+
+@pytest.mark.parametrize("with_tail_low", [True, False])
+def test_the_blocks_dense_matrix_is_the_one_built_from_its_definition(with_tail_low):
+    parts, S = _random_blocks(np.random.default_rng(8), with_tail_low)
+    np.testing.assert_allclose(parts.dense(), S, rtol=1e-13, atol=1e-13 * np.abs(S).max())
+    whitener = parts.factor()
+    assert whitener.shape == S.shape
+    # L⁻¹·S·L⁻ᵀ = I for L the factor
+    inverse = whitener.matrix_dense()
+    np.testing.assert_allclose(inverse @ S @ inverse.T, np.eye(len(S)), atol=1e-10)
+
+
+def test_a_block_that_is_not_positive_definite_is_named_by_its_index():
+    parts, _ = _random_blocks(np.random.default_rng(9))
+    diagonal = parts.diagonal.copy()
+    diagonal[4] = -np.eye(2)  # blocks 0-3 factor; block 4 cannot
+    broken = BlockSemiseparable(diagonal, parts.sub, parts.left, parts.right, parts.decay, parts.low,
+                                parts.tail_diagonal, parts.tail_low)
+    with pytest.raises(ValueError, match=r"^not positive definite at block 4$"):
+        broken.factor()

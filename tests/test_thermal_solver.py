@@ -58,6 +58,20 @@ def test_joint_fit_recovers_the_truth_with_the_order_it_has():
     assert plain.diagnostics.chi2 > 1e4 * plain.diagnostics.dof
 
 
+def test_the_joint_covariance_holds_every_sigma_and_its_condition_is_the_jacobians():
+    """The fit's joint covariance (JᵀJ)⁻¹ (times χ²/dof when Birge-scaled): the nine's block is the
+    calibration's, its diagonal the thermal terms' σ², and its condition number the square of the
+    Jacobian's, which the diagnostics state (scaling leaves a condition number as it is)."""
+    fit = solve_thermal_norm(StaticNormProblem(_averages(1), G), TEMPERATURES, np.full((18, 3), SIGMA))
+    cal, model = fit.calibration, fit.calibration.thermal
+    count = 9 + 3 * model.order + (3 if model.scale_drift is not None else 0)
+    assert fit.covariance.shape == (count, count)
+    np.testing.assert_allclose(fit.covariance[:9, :9], cal.covariance, rtol=1e-12)
+    sigma = np.sqrt(np.diag(fit.covariance))
+    np.testing.assert_allclose(sigma[9:9 + 3 * model.order], model.bias_terms_sigma.ravel(), rtol=1e-12)
+    assert cal.diagnostics.condition_number ** 2 == pytest.approx(np.linalg.cond(fit.covariance), rel=1e-6)
+
+
 def test_a_linear_unit_and_a_cold_one_get_terms_found_near_zero():
     linear = solve_thermal_norm(StaticNormProblem(_averages(2, b2=0 * B2), G), TEMPERATURES, np.full((18, 3), SIGMA))
     # 18 norms cannot tell a quadratic term from the drift and the linear one well enough to drop
@@ -124,6 +138,8 @@ def test_a_drifting_accelerometer_is_honest_over_seeds():
 def test_one_temperature_per_average_is_required():
     with pytest.raises(ValueError, match="one finite temperature per average"):
         solve_thermal_norm(StaticNormProblem(_averages(1), G), TEMPERATURES[:-1], np.full((18, 3), SIGMA))
+    with pytest.raises(ValueError, match=r"^max_order: expected 0 to 3, got 4$"):
+        solve_thermal_norm(StaticNormProblem(_averages(1), G), TEMPERATURES, np.full((18, 3), SIGMA), max_order=4)
 
 
 # The engine tags each window with the unit's mean temperature -------------------------------
@@ -497,3 +513,17 @@ def test_the_observed_information_of_a_hand_worked_fold():
     J = np.array([[0.0, 0.0], [0.0, 1.0]])
     information = _observed_information(lambda z: np.array([z[0] ** 2 + c, z[1] - 2.0]), x, J, np.array([1e-4, 1e-4]))
     np.testing.assert_allclose(information, [[2 * c, 0.0], [0.0, 1.0]], rtol=0, atol=1e-8)
+
+
+def test_the_averages_brought_back_to_the_reference_temperature_by_hand():
+    """(u − b₀ − b₁ΔT − b₂ΔT²)/(1 + s₁ΔT) + b₀: a unit 2 K warm, its scale 1 % and 2 % up per kelvin on x and y."""
+    from fieldcal.solvers.thermal import _corrected
+
+    u = np.array([[1.1, 2.2, 3.3], [0.5, 0.5, 0.5]])
+    theta = np.r_[0.1, 0.2, 0.3, np.ones(3), np.zeros(3)]
+    terms = np.array([[0.01, 0.0, 0.0], [0.0, 0.001, 0.0]])  # b₁ on x, b₂ on y
+    drift = np.array([0.01, 0.02, 0.0])
+    got = _corrected(u, np.array([2.0, 0.0]), theta, terms, drift).reshape(2, 3)
+    np.testing.assert_allclose(got[0], [(1.1 - 0.1 - 0.02) / 1.02 + 0.1, (2.2 - 0.2 - 0.004) / 1.04 + 0.2, 3.3],
+                               rtol=1e-14)
+    np.testing.assert_allclose(got[1], u[1], rtol=1e-14)  # at the reference: unchanged

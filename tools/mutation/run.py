@@ -1,6 +1,6 @@
 """`make mutants`: generate mutmut's mutants of the core, run them module by module, print a table.
 
-    python tools/mutation/run.py [--modules 'procedure/positions.py session/*'] [--first N]
+    python tools/mutation/run.py [--modules 'procedure/positions.py session/*'] [--first N] [--sample N]
                                 [--names FILE] [--tests FILES] [--again survived] [--jobs N] [--report]
 
 Run from the repository's top with the mutation environment's Python (.venv-mutants). Each module
@@ -9,13 +9,19 @@ its own --basetemp, deleted after it. Verdicts are kept in mutants/results/<modu
 run runs only the mutants without one (so it reports at once when all have one); `--again
 survived` runs a module's survivors again (after adding tests for them). tools/mutation/equivalent.txt
 lists the survivors sorted out as equivalent, each with its reason.
+
+`--sample N` runs N of each module's mutants, drawn with a fixed seed (the same N each time, and the
+first N of a larger draw, so a second run only reports and a larger one adds to it); the table then
+says "sampled N of M" and gives each kill rate with its 95 % Wilson score interval.
 """
 from __future__ import annotations
 
 import argparse
 import fnmatch
 import json
+import math
 import os
+import random
 import shutil
 import signal
 import subprocess
@@ -31,6 +37,8 @@ MUTANTS = Path("mutants")
 RESULTS = MUTANTS / "results"
 GOAL = 0.90
 KILLED = ("killed", "timeout")
+SAMPLE_SEED = "fieldcal mutants"  # with the module's path: each module its own fixed draw
+Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile: a two-sided 95 % interval
 RUNNING: set[subprocess.Popen] = set()  # the batches' pytest processes, stopped with this one
 
 
@@ -87,6 +95,51 @@ def read_equivalent(path: Path) -> dict[str, str]:
     return equivalent
 
 
+def sample_of(module: str, names: list[str], size: int) -> list[str]:
+    """`size` of a module's mutants, in file order, drawn by a fixed shuffle of them all: the same
+    for the same mutants, and a larger sample holds every smaller one."""
+    order = list(names)
+    random.Random(f"{SAMPLE_SEED} {module}").shuffle(order)  # a str seed is hashed by SHA-512: stable
+    drawn = set(order[:size])
+    return [name for name in names if name in drawn]
+
+
+def wilson_interval(killed: int, run: int, z: float = Z95) -> tuple[float, float]:
+    """The Wilson score interval of a proportion killed/run (closed form: the mutation environment
+    need not have scipy); it stays inside [0, 1] and is not empty when all or none were killed."""
+    if not run:
+        return 0.0, 1.0
+    rate, z2 = killed / run, z * z
+    centre = (rate + z2 / (2 * run)) / (1 + z2 / run)
+    half = z / (1 + z2 / run) * math.sqrt(rate * (1 - rate) / run + z2 / (4 * run * run))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def weighted_estimate(rows: list[tuple[str, Counter]], z: float = Z95) -> tuple[float, float, float] | None:
+    """The kill rate of all the rows' mutants, estimated from samples: each module's sampled rate
+    weighted by its number of mutants (a stratified sample), and a 95 % interval: the modules'
+    Agresti-Coull centres and variances, weighted alike, each variance times its finite-population
+    correction (a module run whole adds no uncertainty, and its own rate is its centre). For one
+    sampled module that is the Agresti-Coull interval (fpc aside), which holds Wilson's. Returns
+    (estimate, low, high); None when no row has a mutant run."""
+    strata = [(c["population"] or c["mutants"], c["mutants"] - c["not run"], c["killed"] + c["timeout"])
+              for _, c in rows]
+    strata = [(size, run, killed) for size, run, killed in strata if run]
+    if not strata:
+        return None
+    total = sum(size for size, _, _ in strata)
+    rate = sum(size * killed / run for size, run, killed in strata) / total
+    centre = variance = 0.0
+    for size, run, killed in strata:
+        tilde_n = run + z * z
+        tilde_p = (killed + z * z / 2) / tilde_n if run < size else killed / run
+        unsampled = (size - run) / (size - 1) if size > 1 else 0.0
+        centre += size / total * tilde_p
+        variance += (size / total) ** 2 * tilde_p * (1 - tilde_p) / tilde_n * unsampled
+    half = z * math.sqrt(variance)
+    return rate, max(0.0, centre - half), min(1.0, centre + half)
+
+
 def run_module(module: str, names: list[str], tests: list[str], floor: float) -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     scratch = Path(tempfile.mkdtemp(prefix="fieldcal-mutants-"))
@@ -108,8 +161,12 @@ def run_module(module: str, names: list[str], tests: list[str], floor: float) ->
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-def tally(names: list[str], verdicts: dict[str, tuple[str, str]], equivalent: dict[str, str]) -> Counter:
+def tally(names: list[str], verdicts: dict[str, tuple[str, str]], equivalent: dict[str, str],
+          population: int = 0) -> Counter:
+    """The verdicts of `names`; `population`, when they are a sample, is the module's number of mutants."""
     counts: Counter = Counter(mutants=len(names))
+    if population:
+        counts["population"] = population
     for name in names:
         verdict = verdicts.get(name, ("not run", ""))[0]
         if verdict == "survived" and name in equivalent:
@@ -119,16 +176,36 @@ def tally(names: list[str], verdicts: dict[str, tuple[str, str]], equivalent: di
 
 
 def table(rows: list[tuple[str, Counter]]) -> str:
+    """One line a module and one for them all; when some were sampled, also each module's "sampled
+    N of M" and its kill rate's 95 % Wilson interval (of all the rows: the weighted estimate's)."""
     columns = ("mutants", "killed", "timeout", "survived", "equivalent", "no tests", "not run")
-    lines = [f"{'module':<28}" + "".join(f"{c:>11}" for c in columns) + f"{'killed %':>10}"]
+    sampled = any(counts["population"] for _, counts in rows)
+    lines = [f"{'module':<28}" + "".join(f"{c:>11}" for c in columns) + f"{'killed %':>10}"
+             + (f"{'sampled':>16}{'95 % interval':>16}" if sampled else "")]
     total: Counter = Counter()
-    for module, counts in rows + [("all listed", None)]:
+    for module, counts in rows + [("all, weighted" if sampled else "all listed", None)]:
         counts = total if counts is None else counts
         if counts is not total:
             total.update(counts)
         run = counts["mutants"] - counts["not run"]
-        rate = f"{100 * (counts['killed'] + counts['timeout']) / run:.1f}" if run else "-"
-        lines.append(f"{module:<28}" + "".join(f"{counts[c]:>11}" for c in columns) + f"{rate:>10}")
+        killed = counts["killed"] + counts["timeout"]
+        rate = f"{100 * killed / run:.1f}" if run else "-"
+        line = f"{module:<28}" + "".join(f"{counts[c]:>11}" for c in columns) + f"{rate:>10}"
+        if sampled:
+            low, high = wilson_interval(killed, run)
+            if counts is total:
+                of = f"{counts['mutants']} of {sum(c['population'] or c['mutants'] for _, c in rows)}"
+                estimate = weighted_estimate(rows)
+                rate_weighted = "-" if estimate is None else f"{100 * estimate[0]:.1f}"
+                low, high = (0.0, 1.0) if estimate is None else estimate[1:]
+                line = line[:-10] + f"{rate_weighted:>10}"  # each module's rate weighted by its mutants
+            else:
+                of = f"{counts['mutants']} of {counts['population']}" if counts["population"] else "all"
+            interval = f"{100 * low:.1f}–{100 * high:.1f}" if run else "-"
+            if counts is not total and not counts["population"] and not counts["not run"]:
+                interval = "(all run)"  # no sampling error: the rate is the module's own
+            line += f"{of:>16}{interval:>16}"
+        lines.append(line)
     return "\n".join(lines)
 
 
@@ -148,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--modules", default="", help="globs under fieldcal/, by spaces or commas (default: all)")
     parser.add_argument("--first", type=int, default=0, help="run only a module's first N mutants")
+    parser.add_argument("--sample", type=int, default=0, help="run only N of each module's mutants, a fixed "
+                        "random draw, and give each kill rate with its 95 %% interval")
     parser.add_argument("--names", type=Path, help="run only the mutants this file names (one a line)")
     parser.add_argument("--again", choices=("survived", "all"), help="run these again")
     parser.add_argument("--report", action="store_true", help="only print the table of the kept verdicts")
@@ -156,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=1, help="pytest processes per module, each on a slice")
     parser.add_argument("--floor", type=float, default=10.0, help="least CPU seconds a test may take")
     args = parser.parse_args(argv)
+    if args.sample < 0:
+        sys.exit(f"tools/mutation/run.py: --sample {args.sample}: a number of mutants, 1 or more (0: all)")
     if not Path("pyproject.toml").exists():
         sys.exit("tools/mutation/run.py: run it from the repository's top folder")
     listing = tomllib.loads((HERE / "tests.toml").read_text(encoding="utf-8"))
@@ -173,6 +254,9 @@ def main(argv: list[str] | None = None) -> int:
     rows, unlisted, survivors = [], [], []
     for module in chosen:
         names, tests = modules[module], tests_for(module, listing)
+        population = len(names) if args.sample and args.sample < len(names) else 0
+        if population:
+            names = sample_of(module, names, args.sample)
         if args.tests and tests:
             tests = [f"tests/{name}" for name in args.tests.replace(",", " ").split()]
         if not tests:
@@ -190,11 +274,17 @@ def main(argv: list[str] | None = None) -> int:
             with ThreadPoolExecutor(args.jobs) as pool:  # neighbours stay together: their killers are shared
                 list(pool.map(lambda part: run_module(module, part, tests, args.floor), filter(None, parts)))
         verdicts = read_verdicts(module)
-        rows.append((module, tally(names, verdicts, equivalent)))
+        rows.append((module, tally(names, verdicts, equivalent, population)))
         survivors += [n for n in names if verdicts.get(n, ("",))[0] == "survived" and n not in equivalent]
     print(table(rows))
     total: Counter = sum((counts for _, counts in rows), Counter())
     print(summary(total))
+    estimate = weighted_estimate(rows) if total["population"] else None
+    if estimate:
+        print(f"sampled: {100 * estimate[0]:.1f} % of these modules' "
+              f"{sum(c['population'] or c['mutants'] for _, c in rows)} mutants estimated killed "
+              f"(95 % interval {100 * estimate[1]:.1f}–{100 * estimate[2]:.1f}; each module's Wilson "
+              f"interval in the table)")
     if survivors:
         RESULTS.mkdir(parents=True, exist_ok=True)
         (RESULTS / "survivors.txt").write_text("\n".join(survivors) + "\n", encoding="utf-8")
