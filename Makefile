@@ -25,7 +25,8 @@ demo: $(STAMP)
 # (4 s of CPU each at every run, half of its start-up) and every CLI subprocess compiles fieldcal.
 test test-fast: export PYTHONDONTWRITEBYTECODE =
 
-# One worker per core (pytest-xdist); `make test PYTEST_ARGS=...` adds options. loadgroup: the
+# One worker per core and one more (pytest-xdist `-n auto`: tests/conftest.py says why); `make test
+# PYTEST_ARGS=...` adds options. loadgroup: the
 # tests sharing an expensive module fixture run on one worker, which builds it once (conftest.py).
 test: $(STAMP)
 	$(BIN)/python -m pytest -n auto --dist loadgroup $(PYTEST_ARGS)
