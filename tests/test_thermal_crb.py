@@ -138,3 +138,29 @@ def test_a_stationary_triads_order_choice_stays_within_its_sigma():
     assert max(orders) == 2 and min(orders) == 0  # the choice varies with the draw
     low, high = chi2.ppf([0.001, 0.999], dof)
     assert low < total < high, (total / dof, dof)
+
+
+def _gyro_bound(delta_t, thermal=True):
+    """The gyro bound of field-18 (every position turned at 10 °/s, then resting), white noise,
+    with a linear thermal bias over the averages' temperatures ``delta_t`` (all +, all −, all static)."""
+    from fieldcal.solvers.crb import angular_rate_bound
+
+    helper = np.where(np.abs(UP[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    north = np.cross(UP, helper)
+    north /= np.linalg.norm(north, axis=1, keepdims=True)
+    terms = ThermalTerms(delta_t, np.array([[2e-6, -1e-6, 3e-6]])) if thermal else None
+    return angular_rate_bound(THETA, UP, np.radians(10.0), north, 7.292115e-5, np.radians(45.0),
+                              (1e-5) ** 2 * np.eye(3 * 54), thermal=terms)
+
+
+def test_the_gyro_bound_of_a_thermal_bias_scales_with_the_temperatures_unit():
+    # b₁·Δt is the same model as (b₁/2)·(2Δt): doubling every Δt must halve b₁'s σ exactly and
+    # leave the nine parameters' bound as it was (a reparametrisation, not new information),
+    # while the bias term still costs the biases information against the plain bound.
+    delta_t = np.r_[TEMPERATURES, TEMPERATURES + 0.5, TEMPERATURES + 1.0] - REF_C
+    bound, doubled = _gyro_bound(delta_t), _gyro_bound(2 * delta_t)
+    plain = _gyro_bound(delta_t, thermal=False)
+    assert bound.shape == doubled.shape == (12, 12)
+    np.testing.assert_allclose(doubled[:9, :9], bound[:9, :9], rtol=1e-6, atol=1e-9 * np.abs(bound).max())
+    np.testing.assert_allclose(np.sqrt(np.diag(doubled)[9:]), 0.5 * np.sqrt(np.diag(bound)[9:]), rtol=1e-6)
+    assert np.all(np.diag(bound)[:3] > np.diag(plain)[:3])
