@@ -217,3 +217,16 @@ def test_a_block_that_is_not_positive_definite_is_named_by_its_index():
                                 parts.tail_diagonal, parts.tail_low)
     with pytest.raises(ValueError, match=r"^not positive definite at block 4$"):
         broken.factor()
+
+
+def test_chained_poses_with_dense_windows_refuse_blocks_by_name():
+    """A dense window covariance has no Markov generators to put into a BlockSemiseparable:
+    ``blocks`` refuses it in words (its caller then takes the dense path)."""
+    from fieldcal.solvers.semiseparable import ChainedPoses
+
+    k = 2
+    chained = ChainedPoses(start=np.ones((k, 2, 1)), end=np.ones((k, 2, 1)), shared=np.zeros((k, 2, 9)),
+                           theta_covariance=np.eye(9), own_diagonal=np.tile(np.eye(2), (k, 1, 1)),
+                           own_sub=np.zeros((k - 1, 2, 2)), windows=np.eye(k + 1))
+    with pytest.raises(ValueError, match="^dense windows have no generators$"):
+        chained.blocks()
