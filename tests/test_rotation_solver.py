@@ -578,3 +578,24 @@ def test_a_start_holds_the_bias_unless_asked_to_estimate_it():
     assert held.estimate_bias is False
     np.testing.assert_array_equal(held.b0, [1e-3, 0.0, -2e-3])
     assert RotationStart.of(1.0, 0.0, estimate_bias=True).estimate_bias is True
+
+
+def test_the_residual_covariance_is_the_hand_placed_direction_noise():
+    """Motions sharing a pose correlate by −σ_end,i·σ_start,i+1·E_iᵀ·C_{i+1}·E_{i+1} (the block
+    above the diagonal, its transpose below), each motion's own residuals by σ_start² + σ_end²;
+    the same whether made afresh or into given zeros."""
+    from fieldcal.solvers.rotation import _residual_covariance
+
+    rng = np.random.default_rng(3)
+    m = 3
+    E = rng.normal(size=(m, 3, 2))
+    C = Rotation.random(m, random_state=4).as_matrix()
+    shared = np.array([True, False])  # motions 0 and 1 share a pose; 1 and 2 do not
+    sigma = np.array([[1e-3, 2e-3], [3e-3, 4e-3], [5e-3, 6e-3]])  # (start, end) per motion
+    expected = np.diag(np.repeat(sigma[:, 0] ** 2 + sigma[:, 1] ** 2, 2))
+    expected[0:2, 2:4] = -sigma[0, 1] * sigma[1, 0] * (E[0].T @ C[1] @ E[1])
+    expected[2:4, 0:2] = expected[0:2, 2:4].T
+    made = _residual_covariance(E, C, shared, sigma, None, np.ones(m))
+    into = _residual_covariance(E, C, shared, sigma, None, np.ones(m), out=np.zeros((2 * m, 2 * m)))
+    np.testing.assert_allclose(made, expected, rtol=1e-12, atol=1e-20)
+    np.testing.assert_allclose(into, expected, rtol=1e-12, atol=1e-20)
