@@ -599,3 +599,17 @@ def test_the_residual_covariance_is_the_hand_placed_direction_noise():
     into = _residual_covariance(E, C, shared, sigma, None, np.ones(m), out=np.zeros((2 * m, 2 * m)))
     np.testing.assert_allclose(made, expected, rtol=1e-12, atol=1e-20)
     np.testing.assert_allclose(into, expected, rtol=1e-12, atol=1e-20)
+
+
+def test_the_residuals_are_the_rotations_misfit_in_radians():
+    """Each residual takes the direction noise of its two poses, σ² + σ² per tangent component
+    (the angle random walk adds little here): the reported residuals are radians of that size,
+    not the whitened ones (about 1). Each iteration evaluates the model at least once more."""
+    rec = hand_recording(3)
+    obs = observe(rec, np.random.default_rng(7), **GRADES["counts"])
+    sol = solve(rec, obs, estimate_bias=True)
+    assert len(sol.residuals) == 2 * len(rec.spans)
+    rms = np.sqrt(np.mean(sol.residuals**2))
+    assert 0.5 * math.sqrt(2) * UP_SIGMA < rms < 2 * math.sqrt(2) * UP_SIGMA
+    fit = sol.diagnostics
+    assert fit.evaluations > fit.iterations > 0
