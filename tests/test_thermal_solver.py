@@ -527,3 +527,49 @@ def test_the_averages_brought_back_to_the_reference_temperature_by_hand():
     np.testing.assert_allclose(got[0], [(1.1 - 0.1 - 0.02) / 1.02 + 0.1, (2.2 - 0.2 - 0.004) / 1.04 + 0.2, 3.3],
                                rtol=1e-14)
     np.testing.assert_allclose(got[1], u[1], rtol=1e-14)  # at the reference: unchanged
+
+
+def _candidate(J=None, information=None, fold=False):
+    """The fields ``_undetermined`` reads of a candidate fit: J (4), the information (6), fold (7)."""
+    return (None, None, None, None, J, None, information, fold)
+
+
+def test_an_undetermined_candidate_says_its_condition_number_and_whether_at_a_fold():
+    from fieldcal.solvers.thermal import _undetermined
+
+    # A solution: J's singular values 2 and 2e-12, condition number 1e12 (beyond 1/UNDETERMINED).
+    assert _undetermined(_candidate(J=np.diag([2.0, 2e-12]))) == "condition number 1e+12"
+    assert _undetermined(_candidate(J=np.diag([2.0, 2e-9]))) is None
+    # A fold: the observed information's eigenvalues 4 and 4e-24 are J's squared, so the same
+    # condition number √(4/4e-24) = 1e12; a negative eigenvalue (a saddle) has none finite.
+    assert _undetermined(_candidate(information=np.diag([4.0, 4e-24]), fold=True)) == "condition number 1e+12, at a fold"
+    assert _undetermined(_candidate(information=np.diag([4.0, -1.0]), fold=True)) == "condition number inf, at a fold"
+    assert _undetermined(_candidate(information=np.diag([4.0, 4e-18]), fold=True)) is None
+
+
+def test_the_thermal_fit_without_a_covariance_is_refused_by_name():
+    u = G * UP / np.linalg.norm(UP, axis=1, keepdims=True)
+    with pytest.raises(ValueError, match="^accelerometer: the thermal fit needs the covariance of the averages$"):
+        solve_thermal_norm(StaticNormProblem(u, G, name="accelerometer"), TEMPERATURES, None)
+
+
+def test_a_covariance_given_by_its_parts_is_the_dense_one():
+    # Any covariance with .dense() (the windows' Markov parts, a block-semiseparable one) is taken
+    # as its dense matrix: the residuals' covariance the same as from that matrix given itself.
+    from fieldcal.solvers.thermal import _residual_covariance_at
+
+    class ByParts:
+        def __init__(self, dense):
+            self._dense = dense
+
+        def dense(self):
+            return self._dense
+
+    rng = np.random.default_rng(2)
+    root = rng.normal(size=(54, 54)) * SIGMA
+    cov = root @ root.T
+    u = G * UP / np.linalg.norm(UP, axis=1, keepdims=True)
+    problem = StaticNormProblem(u, G)
+    expected = _residual_covariance_at(problem, THETA, u.ravel(), cov)
+    np.testing.assert_array_equal(_residual_covariance_at(problem, THETA, u.ravel(), ByParts(cov)), expected)
+    assert expected.shape == (18, 18) and np.all(np.linalg.eigvalsh(expected) > 0)
