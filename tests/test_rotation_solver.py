@@ -613,3 +613,20 @@ def test_the_residuals_are_the_rotations_misfit_in_radians():
     assert 0.5 * math.sqrt(2) * UP_SIGMA < rms < 2 * math.sqrt(2) * UP_SIGMA
     fit = sol.diagnostics
     assert fit.evaluations > fit.iterations > 0
+
+
+def test_a_weak_geometry_names_its_parameter_and_condition_number():
+    """A hand-made Jacobian whose third column moves the rotations 1e-9 as much as the others:
+    refused, naming that parameter and the condition number σ_max/σ_min = 1e9."""
+    from types import SimpleNamespace
+
+    from fieldcal.solvers.rotation import _check_geometry
+
+    model = SimpleNamespace(nb=3, names=("bias_x", "scale_y", "m_xz"))
+    J = np.vstack([np.diag([1.0, 1.0, 1e-9]), np.zeros((1, 3))])
+    with pytest.raises(CalibrationError) as refused:
+        _check_geometry(model, J, np.ones(3), "gyro")
+    assert str(refused.value) == ("gyro: the motions do not span enough rotation axes: m_xz barely change the "
+                                  "rotations (condition number 1e+09); turn the unit about other axes")
+    sound = np.vstack([np.diag([1.0, 2.0, 3.0]), np.zeros((1, 3))])  # condition number 3: taken
+    np.testing.assert_array_equal(_check_geometry(model, sound, np.full(3, 2.0), "gyro"), 2.0 * sound)
