@@ -314,6 +314,11 @@ def test_extra_residuals_are_applied():
     assert np.all(sol.sigma[3:6] < 1e-6) and len(fit.extra_residuals) == 3
     assert fit.dof == plain_fit.dof + 3 and fit.chi2 > plain_fit.chi2 + 100
     assert np.array_equal(calls[-1], obs["b0"])  # the fixed bias is what the callable sees
+    # With the bias estimated under its rest prior as well: the prior's three equations pay for
+    # the bias's three unknowns and the extra three add theirs (the side block is all six).
+    both = solve(rec, obs, extra_residuals=prior, estimate_bias=True)
+    assert both.diagnostics.dof == plain_fit.dof + 3 and len(both.diagnostics.extra_residuals) == 6
+    assert np.all(np.abs(both.scale_factor - target) < 1e-6)
 
 
 def test_powell_agrees_with_least_squares():
