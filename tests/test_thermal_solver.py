@@ -573,3 +573,23 @@ def test_a_covariance_given_by_its_parts_is_the_dense_one():
     expected = _residual_covariance_at(problem, THETA, u.ravel(), cov)
     np.testing.assert_array_equal(_residual_covariance_at(problem, THETA, u.ravel(), ByParts(cov)), expected)
     assert expected.shape == (18, 18) and np.all(np.linalg.eigvalsh(expected) > 0)
+
+
+def test_at_one_temperature_no_thermal_term_is_determined():
+    # Every average at 30 °C: a bias term or a scale drift times Δt = 0 moves nothing, so order 1
+    # is undetermined and the order-0 fit stands, the plain solve's calibration; with the drift in
+    # every candidate, none is determined and the fit refuses, naming the last one's infinite
+    # condition (order 2 and the drift: 18 unknowns for 18 norms, an exact fit, so a fold).
+    u = _averages(1)
+    same = np.full(18, 30.0)
+    fit = solve_thermal_norm(StaticNormProblem(u, G), same, np.full((18, 3), SIGMA), scale=False)
+    plain = solve_norm(StaticNormProblem(u, G), np.full((18, 3), SIGMA), method="lsq")
+    assert fit.calibration.thermal.order == 0 and fit.calibration.thermal.scale_drift is None
+    assert list(fit.chi2_by_order) == [0]
+    assert np.all(np.abs(fit.calibration.theta - plain.theta) < 0.1 * plain.sigma)
+    assert fit.calibration.diagnostics.evaluations == fit.calibration.diagnostics.iterations > 0
+    from fieldcal.solvers import CalibrationError
+
+    with pytest.raises(CalibrationError, match=r"^accelerometer: the thermal terms are not determined by these "
+                       r"positions and temperatures \(condition number inf, at a fold\)$"):
+        solve_thermal_norm(StaticNormProblem(u, G, name="accelerometer"), same, np.full((18, 3), SIGMA))
