@@ -217,6 +217,13 @@ def test_a_block_that_is_not_positive_definite_is_named_by_its_index():
                                 parts.tail_diagonal, parts.tail_low)
     with pytest.raises(ValueError, match=r"^not positive definite at block 4$"):
         broken.factor()
+    # The tail (the side equations after the n blocks) is block n when it cannot be factored.
+    n, t = len(parts.diagonal), len(parts.tail_diagonal)
+    assert t > 0
+    bad_tail = BlockSemiseparable(parts.diagonal, parts.sub, parts.left, parts.right, parts.decay, parts.low,
+                                  -np.eye(t), parts.tail_low)
+    with pytest.raises(ValueError, match=rf"^not positive definite at block {n}$"):
+        bad_tail.factor()
 
 
 def test_chained_poses_with_dense_windows_refuse_blocks_by_name():
