@@ -327,7 +327,11 @@ def test_a_read_stamped_with_the_units_arrival_time_is_stamped_before_the_unit_g
     try:
         devices.start()
         deadline = time.monotonic() + 60.0
-        while parsed < 5 * RATE:
+        # Ten whole blocks after the first two, however many the unit wrote before the first stamp
+        # (a loaded host let it write three blocks first, and five seconds of samples then held
+        # only seven more: 2026-11-28, .ci/run under two `yes`); the last stamp's block may be
+        # read only in part, so one more
+        while len({stamp for stamp, _ in reads}) < 2 + 10 + 1:
             assert time.monotonic() < deadline, "the unit stopped sending"  # a hang detector
             data = read_available(port)  # (as the station's reader: what has come, no more)
             if not data:
@@ -342,8 +346,7 @@ def test_a_read_stamped_with_the_units_arrival_time_is_stamped_before_the_unit_g
         devices.stop()
         port.close()
     last_of_each = {stamp: n for stamp, n in reads}  # the read that took a block's last sample
-    blocks = sorted(last_of_each.items())[2:]  # (the unit waits from the first stamp on: not the first blocks)
-    assert len(blocks) >= 8, reads
+    blocks = sorted(last_of_each.items())[2:-1]  # (the unit waits from the first stamp on: not the first blocks)
     # its stamp is its last sample's time: the unit's time had not gone on (a sentence split off: 1 sample)
     assert all(0 <= stamp - n / RATE <= 1.01 / RATE for stamp, n in blocks), [b for b in blocks if not 0 <= b[0] - b[1] / RATE <= 1.01 / RATE]
 
