@@ -115,17 +115,9 @@ def test_the_pairs_are_made_as_they_are_read_and_not_kept():
     np.testing.assert_array_equal(pairs.quaternions(A, delta_b), steps.quaternions(A, delta_b, group=2))
 
 
-@pytest.mark.parametrize("estimate_bias", [False, True], ids=["bias-held", "bias-free"])
-def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_optimum(monkeypatch, estimate_bias):
-    """Started at the nominal sensitivity (2 % off, 0.9° of misalignment: hundreds of σ), the
-    solve makes one Jacobian of pairs of steps, the polish's (the covariance), and the start's
-    (it whitens and points the search) and the search's on the coarse steps, whose integration
-    alone gives the search's residuals: the exact integration is asked only by the polish, a
-    step or two, and no exact Jacobian at all. The solution is the one exact Jacobians
-    throughout reach, within a thousandth of a σ, covariance alike; with an exact Jacobian in
-    the polish alone, within 1e-5 σ."""
-    rec = hand_recording(11)
-    obs = observe(rec, np.random.default_rng(11), **GRADES["counts"])
+def _count_steps(monkeypatch) -> tuple[list[int], list[int]]:
+    """The block (samples taken as one step) of every Jacobian the solve makes and of every
+    integration it runs, in order, as two lists filled while it runs."""
     made, integrated = [], []
     jacobian, forward = _Steps.jacobian, _Steps._forward
 
@@ -139,6 +131,21 @@ def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_o
 
     monkeypatch.setattr(_Steps, "jacobian", counted)
     monkeypatch.setattr(_Steps, "_forward", counted_forward)
+    return made, integrated
+
+
+@pytest.mark.parametrize("estimate_bias", [False, True], ids=["bias-held", "bias-free"])
+def test_the_search_takes_only_coarse_jacobians_and_lands_on_the_exact_searchs_optimum(monkeypatch, estimate_bias):
+    """Started at the nominal sensitivity (2 % off, 0.9° of misalignment: hundreds of σ), the
+    solve makes one Jacobian of pairs of steps, the polish's (the covariance), and the start's
+    (it whitens and points the search) and the search's on the coarse steps, whose integration
+    alone gives the search's residuals: the exact integration is asked only by the polish, a
+    step or two, and no exact Jacobian at all. The solution is the one exact Jacobians
+    throughout reach, within a thousandth of a σ, covariance alike; with an exact Jacobian in
+    the polish alone, within 1e-5 σ."""
+    rec = hand_recording(11)
+    obs = observe(rec, np.random.default_rng(11), **GRADES["counts"])
+    made, integrated = _count_steps(monkeypatch)
     sol = solve(rec, obs, estimate_bias=estimate_bias)
     coarse_block = rotation._BLOCK // rotation._SEARCH_GROUP
     pairs_block = rotation._BLOCK // rotation._POLISH_GROUP
@@ -172,24 +179,15 @@ def test_each_jacobian_and_its_residuals_take_one_pass_of_the_whitener(monkeypat
 
     rec = hand_recording(11)
     obs = observe(rec, np.random.default_rng(11), **GRADES["counts"])
-    passes, made, integrated = [], [], []
-    whiten, jacobian, forward = SemiseparableWhitener.__matmul__, _Steps.jacobian, _Steps._forward
+    passes = []
+    whiten = SemiseparableWhitener.__matmul__
 
     def counted_pass(self, r):
         passes.append(np.ndim(r))
         return whiten(self, r)
 
-    def counted(self, *args):
-        made.append(self.block)
-        return jacobian(self, *args)
-
-    def counted_forward(self, *args):
-        integrated.append(self.block)
-        return forward(self, *args)
-
     monkeypatch.setattr(SemiseparableWhitener, "__matmul__", counted_pass)
-    monkeypatch.setattr(_Steps, "jacobian", counted)
-    monkeypatch.setattr(_Steps, "_forward", counted_forward)
+    made, integrated = _count_steps(monkeypatch)
     sol = solve(rec, obs)
     assert passes.count(2) == len(made) and passes.count(1) == len(integrated), (passes, made, integrated)
     truth = np.r_[obs["b"], obs["k"], obs["M"]]
