@@ -85,7 +85,8 @@ def test_certificate_holds_every_parameter_and_the_verdict(tmp_path, capsys, ses
     spec.write_text("schema: fieldcal-spec/1\nproduct: paper MIMU\ntriads:\n"
                     "  accelerometer: {bias: {unit: mg, min: -10, max: 2.5}}\n")
     out = tmp_path / "cert.html"
-    assert main(["certificate", str(session), "--spec", str(spec), "--out", str(out)]) == 3
+    # the HTML page alone (--no-pdf): the PDF is test_certificate_in_a_real_headless_chromium's
+    assert main(["certificate", str(session), "--spec", str(spec), "--out", str(out), "--no-pdf"]) == 3
     page = Page(out.read_text(encoding="utf-8"))
     assert_self_contained(page)
     facts = dict(page.tables[0][1])
@@ -109,8 +110,8 @@ def test_certificate_holds_every_parameter_and_the_verdict(tmp_path, capsys, ses
     assert results["bias z"].startswith("FAIL: ") and "above the maximum 2.5 mg" in results["bias z"]
     assert all(r == "PASS" for name, r in results.items() if name != "bias z")
     # written again only with --force
-    assert main(["certificate", str(session), "--out", str(out)]) == 2
-    assert main(["certificate", str(session), "--out", str(out), "--force"]) == 0
+    assert main(["certificate", str(session), "--out", str(out), "--no-pdf"]) == 2
+    assert main(["certificate", str(session), "--out", str(out), "--force", "--no-pdf"]) == 0
     assert "Acceptance" not in dict(Page(out.read_text(encoding="utf-8")).tables[0][1])
 
 
@@ -123,7 +124,8 @@ def test_the_certificates_headline_says_pass_only_when_every_check_passes(tmp_pa
     for bias_max, status, headline in ((10, 0, "PASS"), (2.9, 3, "FAIL")):
         spec.write_text("schema: fieldcal-spec/1\nproduct: gauge\ntriads:\n"
                         f"  accelerometer: {{bias: {{unit: mg, min: -10, max: {bias_max}}}}}\n")
-        assert main(["certificate", str(session), "--spec", str(spec), "--out", str(out), "--force"]) == status
+        assert main(["certificate", str(session), "--spec", str(spec), "--out", str(out), "--force",
+                     "--no-pdf"]) == status
         page = Page(out.read_text(encoding="utf-8"))
         assert dict(page.tables[0][1])["Acceptance"] == f"{headline} against gauge"
         badges = [a["class"] for tag, a in page.attrs if tag == "span" and "verdict" in a.get("class", "")]
