@@ -133,7 +133,9 @@ SHARED_FIXTURES = {"planned", "session", "serial_session", "pristine_session", "
                    "mishap_run", "mypy_cache", "clockless_cycled_run",
                    # built on both workers in a measured run (0.2-2 s of CPU each time)
                    "warmup", "jackal", "text_files", "recording", "acc_curves", "half_run", "params_csv",
-                   "real_bin", "one_turn_per_rate_step", "seed380", "paper5_first_calibration"}
+                   "real_bin", "one_turn_per_rate_step", "seed380", "paper5_first_calibration",
+                   # test_wheel's built and installed wheel: built on two workers, 4.3 s of CPU each
+                   "installed"}
 # Session fixtures shared by several files: their users, whatever the file, run as one group.
 SHARED_ACROSS_FILES = {"quick_session"}
 
