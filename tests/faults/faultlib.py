@@ -18,8 +18,9 @@ def fieldcal(*argv: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return proc
 
 
-def run_argv(out: Path) -> list[str]:
-    return ["run", "--headless", "--quiet", "--seed", str(SEED), "--procedure", str(QUICK), "--out", str(out)]
+def run_argv(out: Path, procedure: Path) -> list[str]:
+    """The run of the shared session (conftest.py quick_session: ``procedure`` is its quick_procedure)."""
+    return ["run", "--headless", "--quiet", "--seed", str(SEED), "--procedure", str(procedure), "--out", str(out)]
 
 
 def unit_parameter_file(path: Path) -> Path:

@@ -76,12 +76,16 @@ def proc_wait(proc: subprocess.Popen, seconds: float) -> None:
         pass
 
 
-def test_a_resume_while_the_run_is_writing_is_refused_and_the_run_is_unharmed(tmp_path, quick_session):
+def test_a_resume_while_the_run_is_writing_is_refused_and_the_run_is_unharmed(tmp_path, quick_procedure,
+                                                                            quick_session):
     """Issue 16 item 1: `run --out X & resume X/...` left runs of NUL bytes in log.jsonl."""
-    run = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", *run_argv(tmp_path / "out")], cwd=ROOT,
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    run = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", *run_argv(tmp_path / "out", quick_procedure)],
+                           cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         session = _wait_for_log(tmp_path / "out", run, 20_000)
+        # stopped mid-run (SIGSTOP), its lock held: the second writers below meet a run that is
+        # writing however fast it would have finished (no race with the run's end)
+        run.send_signal(signal.SIGSTOP)
         second = fieldcal("resume", session, "--quiet")
         assert second.returncode == 2
         message = one_line_error(second.stderr)
@@ -91,6 +95,7 @@ def test_a_resume_while_the_run_is_writing_is_refused_and_the_run_is_unharmed(tm
         into = fieldcal("replay", session, "--out", session / "parameters.yaml", "--force")
         assert into.returncode == 2 and "would be written into the session" in one_line_error(into.stderr)
     finally:
+        run.send_signal(signal.SIGCONT)  # (a no-op once the run has ended)
         assert run.wait(timeout=300) == 0, run.stderr.read()
     assert b"\x00" not in (session / LOG).read_bytes()
     assert (session / "parameters.yaml").read_bytes() == (quick_session / "parameters.yaml").read_bytes()
@@ -214,12 +219,13 @@ def _kill_when(proc: subprocess.Popen, log: Path, size: int) -> None:
     proc.wait(timeout=60)
 
 
-def test_sigkill_in_run_and_in_resume_then_resume_gives_the_same_parameter_file(tmp_path, quick_session):
+def test_sigkill_in_run_and_in_resume_then_resume_gives_the_same_parameter_file(tmp_path, quick_procedure,
+                                                                                quick_session):
     full = (quick_session / LOG).stat().st_size
     rng = np.random.default_rng(16)
     first, second = sorted(rng.uniform(0.15, 0.85, size=2))
-    run = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", *run_argv(tmp_path / "out")], cwd=ROOT,
-                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    run = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", *run_argv(tmp_path / "out", quick_procedure)],
+                           cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     session = _wait_for_log(tmp_path / "out", run, 1)
     _kill_when(run, session / LOG, int(first * full))
     assert not (session / "parameters.yaml").exists()
