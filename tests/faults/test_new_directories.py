@@ -77,7 +77,7 @@ def test_an_empty_folder_the_user_made_is_taken_and_a_full_one_refused(tmp_path)
         new_directory(made, empty_ok=False)  # created by another: not taken, even empty
 
 
-def test_run_headless_skips_links_planted_at_its_session_names(capsys, tmp_path, monkeypatch):
+def test_run_headless_skips_links_planted_at_its_session_names(capsys, tmp_path, monkeypatch, quick_procedure):
     """The attack of the review: links at this second's session name and the next; the run's
     session goes to the next free name, and nothing lands in the linked folder."""
     from fieldcal.cli import sessions
@@ -93,10 +93,10 @@ def test_run_headless_skips_links_planted_at_its_session_names(capsys, tmp_path,
     folder, dangling = _victims(tmp_path)
     out = tmp_path / "out"
     out.mkdir()
-    name = f"{QUICK.stem}-seed{SEED}-{now:%Y%m%d-%H%M%S}"
+    name = f"{quick_procedure.stem}-seed{SEED}-{now:%Y%m%d-%H%M%S}"
     (out / name).symlink_to(folder)
     (out / f"{name}-2").symlink_to(dangling)
-    assert main(["run", "--headless", "--quiet", "--seed", str(SEED), "--procedure", str(QUICK),
+    assert main(["run", "--headless", "--quiet", "--seed", str(SEED), "--procedure", str(quick_procedure),
                  "--out", str(out)]) == 0
     assert f"session {out / f'{name}-3'}" in capsys.readouterr().out
     SessionReader(out / f"{name}-3")
