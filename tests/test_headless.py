@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fieldcal.cli.main import main
 from fieldcal.earth import Station
 from fieldcal.paramfile import dump
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -119,12 +120,11 @@ def _session_after_steps(session_root: Path, count: int):
 def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
     procedure = tmp_path / "field-18-short.yaml"
     procedure.write_text(SHORT_TEXT)
-    argv = [sys.executable, "-m", "fieldcal.cli.main", "run", "--headless", "--seed", "41", "--quiet",
-            "--bump-step", "9", "--procedure", str(procedure)]
-    whole = subprocess.run(argv + ["--out", str(tmp_path / "whole")], capture_output=True, text=True,
-                           timeout=300)
-    assert whole.returncode == 0, whole.stdout + whole.stderr
-    proc = subprocess.Popen(argv + ["--out", str(tmp_path / "killed")], stdout=subprocess.DEVNULL)
+    run = ["run", "--headless", "--seed", "41", "--quiet", "--bump-step", "9", "--procedure", str(procedure)]
+    # the uninterrupted run is only the reference: the same command, in this process
+    assert main(run + ["--out", str(tmp_path / "whole")]) == 0
+    proc = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", *run, "--out", str(tmp_path / "killed")],
+                            stdout=subprocess.DEVNULL)
     try:
         session = _wait_for(lambda: _session_after_steps(tmp_path / "killed", 7), proc)
         # mid-step: wait for samples of the next step to be written, then kill
@@ -137,9 +137,7 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
         proc.wait()
     assert proc.returncode == -signal.SIGKILL
     assert not (session / "parameters.yaml").exists()
-    resumed = subprocess.run([sys.executable, "-m", "fieldcal.cli.main", "resume", str(session), "--quiet"],
-                             capture_output=True, text=True, timeout=300)
-    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert main(["resume", str(session), "--quiet"]) == 0  # what it reads is on disk: in this process
     uninterrupted = next((tmp_path / "whole").glob("*/parameters.yaml")).read_bytes()
     assert (session / "parameters.yaml").read_bytes() == uninterrupted
     # And the resumed session replays to the same file too.
