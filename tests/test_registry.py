@@ -3,42 +3,24 @@ several processes writing at once losing nothing, a writer killed mid-write leav
 row, and a registry failure never failing a run; on SQLite and on a real PostgreSQL server
 (tests/postgres_server.py starts one; without its binaries those variants are skipped)."""
 import hashlib
-import itertools
 import multiprocessing
 import signal
 import sqlite3
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from fieldcal.acceptance import spec_from_document
-from fieldcal.calibration import Calibration
 from fieldcal.cli.main import main
-from fieldcal.earth import Station
-from fieldcal.model import k_from_params
-from fieldcal.paramfile import ParameterFile, save
 from fieldcal.registry import SCHEMA_VERSION, Registry
 from fieldcal.registry.drift import drifts
-from fieldcal.units import STANDARD_GRAVITY
 
 from postgres_server import postgres_server  # noqa: F401 -- the fixture
+# in a module of their own: the writers run in spawned processes (registry_writers says why)
+from registry_writers import endless_writer, unit_file, writer
 from brisk_quick import brisk_quick
 
-MG = STANDARD_GRAVITY * 1e-3
 QUICK = str(Path(__file__).parent / "faults" / "quick.yaml")
-
-
-def unit_file(path, serial, bias_mg, sigma_mg=0.03):
-    theta = np.r_[np.array(bias_mg) * MG, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
-    cal = Calibration(name="accelerometer", kind="specific_force", output_unit="m/s^2", method="powell",
-                      K=k_from_params(theta), bias=theta[:3],
-                      sigma=np.r_[[sigma_mg * MG] * 3, [1e-5] * 6], residual_rms=1e-4)
-    pf = ParameterFile.build((cal,), station=Station(40.0, 50.0), procedure="field-18", method="powell",
-                             input_sha256=hashlib.sha256(str((serial, bias_mg)).encode()).hexdigest(),
-                             device_name="MIMU-9", device_serial=serial)
-    return save(pf, path)
-
 
 SPEC = spec_from_document({"schema": "fieldcal-spec/1", "product": "MIMU-9", "triads": {
     "accelerometer": {"bias": {"unit": "mg", "max_drift": 1.0}}}}, "spec.yaml")
@@ -106,13 +88,6 @@ def test_a_file_that_is_no_registry_is_one_line(tmp_path, capsys):
     assert capsys.readouterr().err == f"fieldcal: registry {tmp_path / 'notes.txt'}: file is not a database\n"
 
 
-def _writer(db, files, go):
-    assert go.wait(60), "the parent never said go"  # (a failed assert: exit code 1, which the parent checks)
-    with Registry(db) as registry:  # the first to open an empty registry migrates it
-        for f in files:
-            registry.record(f)
-
-
 def _calibration_rows(registry) -> dict[str, tuple]:
     """{parameter file: (its bias_x in mg, parameter rows, triad rows)} of every calibration."""
     return {path: (bias_x, n_params, n_triads) for path, bias_x, n_params, n_triads in registry.query(
@@ -127,7 +102,7 @@ def test_processes_writing_at_once_lose_nothing(tmp_path, registry_at):
              for w in range(4)]  # every writer also records the same five files: each kept once
     ctx = multiprocessing.get_context("spawn")
     go = ctx.Event()
-    procs = [ctx.Process(target=_writer, args=(registry_at, f, go)) for f in files]
+    procs = [ctx.Process(target=writer, args=(registry_at, f, go)) for f in files]
     for p in procs:
         p.start()
     go.set()  # all open the empty registry, migrate it and write together
@@ -147,24 +122,13 @@ def test_processes_writing_at_once_lose_nothing(tmp_path, registry_at):
     assert rows == expected
 
 
-def _endless_writer(db, files, first_done):
-    """Records ``files``, then new ones for ever: only the kill ends it, wherever it lands."""
-    with Registry(db) as registry:
-        for i, f in enumerate(files):
-            registry.record(f)
-            if i == 4:
-                first_done.set()
-        for i in itertools.count(len(files)):
-            registry.record(unit_file(files[0].parent / f"k-{i}.yaml", f"K{i}", [i, 0.0, 0.0]))
-
-
 def test_a_writer_killed_mid_write_leaves_no_partial_calibration(tmp_path, registry_at):
     # The writer never ends by itself (100 files, then new ones), so the kill lands while it
     # writes; 300 files made in advance spent 10 s of wall on files it never reached.
     files = [unit_file(tmp_path / f"k-{i}.yaml", f"K{i}", [i, 0.0, 0.0]) for i in range(100)]
     ctx = multiprocessing.get_context("spawn")
     first_done = ctx.Event()
-    proc = ctx.Process(target=_endless_writer, args=(registry_at, files, first_done))
+    proc = ctx.Process(target=endless_writer, args=(registry_at, files, first_done))
     proc.start()
     assert first_done.wait(120)
     proc.kill()  # SIGKILL, wherever it is: between or inside transactions
