@@ -43,8 +43,11 @@ def installed(tmp_path_factory) -> Path:
         copy(CHECKOUT / name, source / name, **({"ignore": shutil.ignore_patterns("__pycache__")}
                                                 if (CHECKOUT / name).is_dir() else {}))
     dist = tmp_path_factory.mktemp("dist")
-    # sdist, then the wheel from the unpacked sdist: MANIFEST.in must carry the shipped files too
-    built = _run([sys.executable, "-m", "build", "--outdir", dist, source], cwd=source)
+    # sdist, then the wheel from the unpacked sdist: MANIFEST.in must carry the shipped files too.
+    # Without isolation: by the setuptools of this environment (the `test` extra holds the version
+    # [build-system] requires; build checks it), not one fetched from the index into a fresh
+    # environment for each of the two builds (2.4 s of this fixture's 3.6 s of CPU, and a network)
+    built = _run([sys.executable, "-m", "build", "--no-isolation", "--outdir", dist, source], cwd=source)
     assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
     (wheel,) = dist.glob("fieldcal-*.whl")
 
