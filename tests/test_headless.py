@@ -3,7 +3,10 @@ resume, and byte-identical replay.
 
 The runs use field-18's 18 positions with 20 s dwells and 30 °/s turns (a tenth of the samples
 of the paper's 200 s and 10 °/s): every behaviour tested here is the same, and the reported σ
-grows to match, so the 3σ checks mean what they meant."""
+grows to match, so the 3σ checks mean what they meant. The accuracy, skip, in-process resume and
+pty runs take the same positions with 4 s dwells and 60 °/s turns (tests/brisk_quick.py: 161 k
+samples, not 265 k); the timing of mishaps in a dwell and the SIGKILL of a running child keep the
+20 s dwells."""
 import os
 import signal
 import subprocess
@@ -34,6 +37,14 @@ def spec(seed, **script):
     return RunSpec(SHORT, STATION, seed=seed, script=OperatorScript(**script))
 
 
+def brisk_spec(directory: Path, seed, **script):
+    """``spec`` with field-18's positions, 4 s dwells and 60 °/s turns (its procedure file written
+    into ``directory``)."""
+    from brisk_quick import brisk_quick
+
+    return RunSpec(load_procedure(brisk_quick(directory)), STATION, seed=seed, script=OperatorScript(**script))
+
+
 @pytest.fixture(scope="module")
 def mishap_run(tmp_path_factory):
     """One run with a bump in step 3 and a wrong placement in step 5."""
@@ -47,7 +58,7 @@ def mishap_run(tmp_path_factory):
 def test_every_parameter_within_four_sigma(tmp_path, seed):
     # 27 parameters a run: a 3σ bound would fail one run in fourteen by chance alone (it held
     # for these seeds only by the luck of the simulator's random stream); 4σ fails one in 600.
-    result = run_headless(spec(seed), tmp_path / "s")
+    result = run_headless(brisk_spec(tmp_path, seed), tmp_path / "s")
     assert not result.unit.failures
     for name, sol in result.unit.solutions.items():
         z = (sol.theta - result.truth[name]) / sol.sigma
@@ -79,14 +90,14 @@ def test_a_wrong_position_is_caught_and_named(mishap_run):
 
 
 def test_skipped_positions_still_solve_if_enough_remain(tmp_path):
-    result = run_headless(spec(31, skip_steps=(4, 9)), tmp_path / "s")
+    result = run_headless(brisk_spec(tmp_path, 31, skip_steps=(4, 9)), tmp_path / "s")
     assert set(result.unit.solutions) == {"accelerometer", "gyroscope", "inclinometer"}
     steps = SessionReader(result.session).steps()
     assert sorted(s["step"] for s in steps) == [s for s in range(18) if s not in (4, 9)]
 
 
 def test_too_few_positions_say_how_many_more(tmp_path):
-    result = run_headless(spec(32, skip_steps=tuple(range(7, 18))), tmp_path / "s")
+    result = run_headless(brisk_spec(tmp_path, 32, skip_steps=tuple(range(7, 18))), tmp_path / "s")
     assert "add at least 2 more positions" in result.unit.failures["accelerometer"]
 
 
@@ -148,13 +159,9 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
 
 def test_the_same_run_through_a_serial_device_on_a_pty(tmp_path):
     """Xsens frames on a pty read through pyserial and our parser; the table by its ASCII driver.
-    field-18's positions with 4 s dwells and 60 °/s turns (brisk_quick): every frame is encoded,
-    written, read and parsed, so the samples are what this run costs, and the path is the same
-    for fewer of them (194 k, not 292 k)."""
-    from brisk_quick import brisk_quick
-
-    brisk = load_procedure(brisk_quick(tmp_path))
-    result = run_headless(RunSpec(brisk, STATION, seed=51), tmp_path / "s", serial=True)
+    Every frame is encoded, written, read and parsed, so the samples are what this run costs
+    (brisk_spec: 194 k, not 292 k)."""
+    result = run_headless(brisk_spec(tmp_path, 51), tmp_path / "s", serial=True)
     assert result.unit is not None, (result.status, result.message)
     assert not result.unit.failures and set(result.unit.solutions) == {"accelerometer", "gyroscope"}
     for name, sol in result.unit.solutions.items():
@@ -180,7 +187,7 @@ def test_resume_at_awkward_crash_points_twice_still_matches(tmp_path):
 
     from fieldcal.run.runner import resume_headless
 
-    whole = run_headless(spec(61, bump_step=6, skip_steps=(9,)), tmp_path / "whole")
+    whole = run_headless(brisk_spec(tmp_path, 61, bump_step=6, skip_steps=(9,)), tmp_path / "whole")
     expected = whole.parameters.read_bytes()
     crashed = tmp_path / "crashed"
     shutil.copytree(whole.session, crashed)
