@@ -138,13 +138,14 @@ def test_procedure_numbers_are_bounded(capsys, tmp_path, field, value, message):
 
 @pytest.fixture(scope="module")
 def short_field18_session(tmp_path_factory):
-    """A headless field-18 run with 20 s dwells (everything solves in seconds of simulation)."""
+    """A headless run of field-18's positions with 4 s dwells and 60 °/s turns (tests/brisk_quick.py:
+    everything solves, in 645 s of simulation)."""
+    from brisk_quick import brisk_quick
     from fieldcal.earth import Station
-    from fieldcal.procedure.positions import load_procedure, parse_procedure
+    from fieldcal.procedure.positions import load_procedure
     from fieldcal.run.runner import RunSpec, run_headless
 
-    procedure = parse_procedure(load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 20"),
-                                "field-18-short.yaml")
+    procedure = load_procedure(brisk_quick(tmp_path_factory.mktemp("procedure")))
     spec = RunSpec(procedure, Station(40.0, 50.0), seed=5)
     return spec, run_headless(spec, tmp_path_factory.mktemp("solve") / "session")
 
