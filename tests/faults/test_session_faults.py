@@ -21,7 +21,7 @@ import pytest
 from fieldcal.cli.main import main
 from fieldcal.session.capture import LOG, SAMPLES, SessionReader
 
-from faultlib import ROOT, fieldcal, run_argv
+from faultlib import ROOT, run_argv
 
 
 def cli(capsys, *argv) -> tuple[int, str, str]:
@@ -77,23 +77,24 @@ def proc_wait(proc: subprocess.Popen, seconds: float) -> None:
 
 
 def test_a_resume_while_the_run_is_writing_is_refused_and_the_run_is_unharmed(tmp_path, quick_procedure,
-                                                                            quick_session):
+                                                                            quick_session, capsys):
     """Issue 16 item 1: `run --out X & resume X/...` left runs of NUL bytes in log.jsonl."""
     run = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", *run_argv(tmp_path / "out", quick_procedure)],
                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         session = _wait_for_log(tmp_path / "out", run, 20_000)
         # stopped mid-run (SIGSTOP), its lock held: the second writers below meet a run that is
-        # writing however fast it would have finished (no race with the run's end)
+        # writing however fast it would have finished (no race with the run's end). They are
+        # this process: the writer they meet is the other one.
         run.send_signal(signal.SIGSTOP)
-        second = fieldcal("resume", session, "--quiet")
-        assert second.returncode == 2
-        message = one_line_error(second.stderr)
+        code, _, err = cli(capsys, "resume", session, "--quiet")
+        assert code == 2
+        message = one_line_error(err)
         assert message.startswith(f"fieldcal: {session}: another fieldcal is writing this session (pid {run.pid} on ")
         assert ", started 20" in message
         # and the second writer of a replay: never into a session
-        into = fieldcal("replay", session, "--out", session / "parameters.yaml", "--force")
-        assert into.returncode == 2 and "would be written into the session" in one_line_error(into.stderr)
+        code, _, err = cli(capsys, "replay", session, "--out", session / "parameters.yaml", "--force")
+        assert code == 2 and "would be written into the session" in one_line_error(err)
     finally:
         run.send_signal(signal.SIGCONT)  # (a no-op once the run has ended)
         assert run.wait(timeout=300) == 0, run.stderr.read()
@@ -220,7 +221,7 @@ def _kill_when(proc: subprocess.Popen, log: Path, size: int) -> None:
 
 
 def test_sigkill_in_run_and_in_resume_then_resume_gives_the_same_parameter_file(tmp_path, quick_procedure,
-                                                                                quick_session):
+                                                                                quick_session, capsys):
     full = (quick_session / LOG).stat().st_size
     rng = np.random.default_rng(16)
     first, second = sorted(rng.uniform(0.15, 0.85, size=2))
@@ -232,13 +233,14 @@ def test_sigkill_in_run_and_in_resume_then_resume_gives_the_same_parameter_file(
     resume = subprocess.Popen([sys.executable, "-m", "fieldcal.cli.main", "resume", str(session), "--quiet"],
                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     _kill_when(resume, session / LOG, int(second * full))
-    final = fieldcal("resume", session, "--quiet")
-    assert final.returncode == 0, final.stdout + final.stderr
+    # the two processes killed, the rest in this one: what it reads is on disk
+    code, out, err = cli(capsys, "resume", session, "--quiet")
+    assert code == 0, out + err
     assert (session / "parameters.yaml").read_bytes() == (quick_session / "parameters.yaml").read_bytes()
-    replay = fieldcal("replay", session, "--quiet")
-    assert replay.returncode == 0 and "identical to the run's parameters-001.yaml" in replay.stdout
-    again = fieldcal("resume", session)
-    assert again.returncode == 2 and "a completed session is never resumed" in one_line_error(again.stderr)
+    code, out, _ = cli(capsys, "replay", session, "--quiet")
+    assert code == 0 and "identical to the run's parameters-001.yaml" in out
+    code, _, err = cli(capsys, "resume", session)
+    assert code == 2 and "a completed session is never resumed" in one_line_error(err)
 
 
 # --------------------------------------------------------------------------------------------
