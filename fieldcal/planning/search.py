@@ -153,9 +153,11 @@ class Planner:
         return {name: sigma.copy() for name, sigma in self._bounds[key].items()}
 
     def worst_ratio(self, design: Design) -> float:
-        """The largest σ/target over every parameter of every triad (nan counts as infinite)."""
+        """The largest σ/target over every parameter of every triad (nan counts as infinite: an
+        undetermined parameter, σ inf, fails even an untargeted one's target of inf)."""
         sig = self.sigmas(design)
-        ratios = np.concatenate([sig[n] / t for n, t in self.targets.items()])
+        with np.errstate(invalid="ignore"):  # inf / inf
+            ratios = np.concatenate([sig[n] / t for n, t in self.targets.items()])
         return float(np.max(np.nan_to_num(ratios, nan=np.inf)))
 
     def _design(self, positions, dwell: float, turns: int) -> Design:
