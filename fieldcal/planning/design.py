@@ -22,7 +22,7 @@ from fieldcal.procedure.stillness import StillnessSettings
 from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window
 from fieldcal.run.operators import OperatorScript
 from fieldcal.run.runner import TABLE_ACCEL_DEG_S2
-from fieldcal.solvers.crb import angular_rate_bound, end_bias_terms, specific_force_bound
+from fieldcal.solvers.crb import KroneckerCovariance, angular_rate_bound, end_bias_terms, specific_force_bound
 from fieldcal.solvers.solve import TriadModel, average_covariance
 
 
@@ -159,15 +159,22 @@ def triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray
         return end_bias_terms(model.noise, model.sensitivity, [w.start for w in used],
                               [w.duration for w in used], end_s)
 
+    def covariance(used):
+        """``average_covariance``, as its Kronecker factors where it has them (no quantisation)."""
+        if model.lsb:
+            return average_covariance(model, used, rate_hz)
+        return KroneckerCovariance(model.noise.window_covariance([w.start for w in used], [w.duration for w in used]),
+                                   model.sensitivity @ model.sensitivity.T)
+
     if model.kind == SPECIFIC_FORCE:
         static = [w for w in windows if w.kind == STATIC]
-        cov = average_covariance(model, static, rate_hz)
+        cov = covariance(static)
         bound = specific_force_bound(theta, up_body, station.gravity, cov, end(static),
                                      thermal=thermal(static) if thermal else None)
     elif model.kind == ANGULAR_RATE:
         # The solver's data order: every +ω window, every −ω window, every static one.
         ordered = [w for kind in (PLUS, MINUS, STATIC) for w in windows if w.kind == kind]
-        cov = average_covariance(model, ordered, rate_hz)
+        cov = covariance(ordered)
         # Table angle zero at each static dwell: the heading is a nuisance of the bound.
         north_body = attitudes[:, 1, :]
         plus = [w for w in windows if w.kind == PLUS]  # the positions that turn, at their rates

@@ -129,6 +129,41 @@ class ThermalTerms:
         return mean
 
 
+@dataclass(frozen=True)
+class KroneckerCovariance:
+    """The covariance C ⊗ M of data ordered window-major then axis: ``windows`` C (n × n), one
+    axis's covariance between the window means, and ``axes`` M (3 × 3), K·Kᵀ (noise entering
+    before K, the same on every axis: ``fieldcal.solvers.solve.average_covariance`` without
+    quantisation). Its Cholesky factor is Lc ⊗ Lm: two small factorisations instead of one of
+    3n × 3n, and the whitening two triangular solves on the reshaped data."""
+
+    windows: np.ndarray
+    axes: np.ndarray
+
+    def whiten(self, rhs: np.ndarray) -> np.ndarray:
+        """(Lc ⊗ Lm)⁻¹ · rhs for rhs (3n, k)."""
+        from scipy.linalg import solve_triangular
+
+        n, k = len(self.windows), rhs.shape[1]
+        by_window = solve_triangular(np.linalg.cholesky(self.windows), rhs.reshape(n, 3 * k), lower=True,
+                                     check_finite=False)
+        by_axis = by_window.reshape(n, 3, k).transpose(1, 0, 2).reshape(3, n * k)
+        out = solve_triangular(np.linalg.cholesky(self.axes), by_axis, lower=True, check_finite=False)
+        return out.reshape(3, n, k).transpose(1, 0, 2).reshape(3 * n, k)
+
+
+def _whiten(covariance, rhs: np.ndarray) -> np.ndarray:
+    """L⁻¹ · rhs, L the Cholesky factor of ``covariance`` (a matrix or a KroneckerCovariance),
+    by forward substitution (np.linalg.solve would factor the triangle again by LU, a cubic cost
+    that was a fifth of `fieldcal plan`'s CPU). Imported here: crb reaches paths (the solvers'
+    end bias) that need no whitening."""
+    if isinstance(covariance, KroneckerCovariance):
+        return covariance.whiten(rhs)
+    from scipy.linalg import solve_triangular
+
+    return solve_triangular(np.linalg.cholesky(covariance), rhs, lower=True, check_finite=False)
+
+
 # The rank rule: which parameters the data determine. Judged on the whitened Jacobian with its
 # columns scaled to unit length (each parameter's information on its own is then 1, whatever its
 # unit), whose singular values s say how much the data see of each direction of the parameters.
@@ -207,7 +242,7 @@ def _undetermined_to_inf(matrix: np.ndarray, undetermined: np.ndarray) -> np.nda
     return out
 
 
-def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, end: EndBias | None = None,
+def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance, end: EndBias | None = None,
            wanted: int = N_PARAMS):
     """``mean_fn`` maps rows of parameters (m, p) to rows of the data's means (m, data): the
     Jacobian's 2p central differences are one call. A parameter the data cannot tell apart
@@ -216,15 +251,8 @@ def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, e
     means = mean_fn(np.concatenate([x0 + shifts, x0 - shifts]))
     p = len(x0)
     J = ((means[:p] - means[p:]) / (2 * steps)[:, None]).T * steps  # derivatives per step: columns of comparable size
-    # Whitened by forward substitution on the Cholesky factor (scipy's triangular solve), J and
-    # the cross-covariance in one call: np.linalg.solve would factor the triangle again by LU, a
-    # cubic cost that was a fifth of `fieldcal plan`'s CPU. Imported here: crb reaches paths
-    # (the solvers' end bias) that need no whitening.
-    from scipy.linalg import solve_triangular
-
-    chol = np.linalg.cholesky(covariance)
-    rhs = J if end is None else np.concatenate([J, end.cross], axis=1)
-    whitened = solve_triangular(chol, rhs, lower=True, check_finite=False)
+    # J and the cross-covariance whitened in one call
+    whitened = _whiten(covariance, J if end is None else np.concatenate([J, end.cross], axis=1))
     Jw = whitened[:, :len(x0)]
     information = _information(Jw)
     info_inv = information.inverse
