@@ -206,19 +206,20 @@ class _Information:
 
 def _information(Jw: np.ndarray) -> _Information:
     """``_Information`` of the whitened Jacobian ``Jw`` (data × p) under the rank rule above."""
-    from scipy.linalg import solve_triangular
+    from scipy.linalg import lapack
 
     p = Jw.shape[1]
     scale = np.linalg.norm(Jw, axis=0)
     scale = np.where(scale > 0, scale, 1.0)  # a parameter the data never see: a zero column, null
     unit = Jw / scale
-    try:
-        root = np.linalg.cholesky(unit.T @ unit)
-        root_inv = solve_triangular(root, np.eye(p), lower=True, check_finite=False)
-        if np.sum(root_inv**2) <= _CHOLESKY_TRACE:  # the trace of the inverse, ‖L⁻¹‖²_F
-            return _Information((root_inv.T @ root_inv) / np.outer(scale, scale), scale, np.zeros((0, p)), 0.0)
-    except np.linalg.LinAlgError:  # not numerically positive definite: the decomposition decides
-        pass
+    # LAPACK's Cholesky factor and the inverse from it (potrf, potri: the lower triangle), a
+    # quarter of the time of a triangular solve on the identity and its product.
+    root, failed = lapack.dpotrf(unit.T @ unit, lower=1)
+    if not failed:  # else not numerically positive definite: the decomposition decides
+        lower, failed = lapack.dpotri(root, lower=1)
+        inverse = np.tril(lower) + np.tril(lower, -1).T
+        if not failed and np.trace(inverse) <= _CHOLESKY_TRACE:
+            return _Information(inverse / np.outer(scale, scale), scale, np.zeros((0, p)), 0.0)
     _, s, vt = np.linalg.svd(unit)  # vt (p × p): directions past the rank have no s, that is 0
     s = np.r_[s, np.zeros(p - len(s))]
     seen = s > RANK_TOL * s[0]
