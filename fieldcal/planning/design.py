@@ -130,8 +130,8 @@ def end_bias_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: fl
     """Per triad, the σ (solver units, per axis) of the bias at the end of the calibration
     (``end_s``; default: the end of the last window), the value the unit is used with (DESIGN 12):
     (as predicted from the windows, the best linear unbiased predictor; as the turn-on
-    constant's estimate, what a solver reporting the constant delivers). nan where the windows
-    cannot tell the parameters apart."""
+    constant's estimate, what a solver reporting the constant delivers). inf (or nan) where the
+    windows cannot tell the parameters apart (``fieldcal.solvers.crb``'s rank rule)."""
     end_s = max(w.start + w.duration for w in windows) if end_s is None else end_s
     out = {}
     for name, model in models.items():
@@ -189,7 +189,7 @@ def triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray
     ends = None
     if end_s is not None:
         bound, ends = bound
-    with np.errstate(invalid="ignore"):  # a negative variance: the design cannot tell it (nan)
+    with np.errstate(invalid="ignore"):  # undetermined: inf by crb's rank rule (nan: a negative variance)
         sigmas = np.sqrt(np.diag(bound))
     return sigmas if end_s is None else (sigmas, ends)
 
