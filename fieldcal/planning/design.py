@@ -22,7 +22,7 @@ from fieldcal.procedure.stillness import StillnessSettings
 from fieldcal.procedure.windows import MINUS, PLUS, STATIC, Window
 from fieldcal.run.operators import OperatorScript
 from fieldcal.run.runner import TABLE_ACCEL_DEG_S2
-from fieldcal.solvers.crb import angular_rate_bound, end_bias_terms, specific_force_bound
+from fieldcal.solvers.crb import KroneckerCovariance, angular_rate_bound, end_bias_terms, specific_force_bound
 from fieldcal.solvers.solve import TriadModel, average_covariance
 
 
@@ -130,8 +130,8 @@ def end_bias_sigmas(windows: list[Window], attitudes: np.ndarray, rate_deg_s: fl
     """Per triad, the σ (solver units, per axis) of the bias at the end of the calibration
     (``end_s``; default: the end of the last window), the value the unit is used with (DESIGN 12):
     (as predicted from the windows, the best linear unbiased predictor; as the turn-on
-    constant's estimate, what a solver reporting the constant delivers). nan where the windows
-    cannot tell the parameters apart."""
+    constant's estimate, what a solver reporting the constant delivers). inf (or nan) where the
+    windows cannot tell the parameters apart (``fieldcal.solvers.crb``'s rank rule)."""
     end_s = max(w.start + w.duration for w in windows) if end_s is None else end_s
     out = {}
     for name, model in models.items():
@@ -159,15 +159,22 @@ def triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray
         return end_bias_terms(model.noise, model.sensitivity, [w.start for w in used],
                               [w.duration for w in used], end_s)
 
+    def covariance(used):
+        """``average_covariance``, as its Kronecker factors where it has them (no quantisation)."""
+        if model.lsb:
+            return average_covariance(model, used, rate_hz)
+        return KroneckerCovariance(model.noise.window_covariance([w.start for w in used], [w.duration for w in used]),
+                                   model.sensitivity @ model.sensitivity.T)
+
     if model.kind == SPECIFIC_FORCE:
         static = [w for w in windows if w.kind == STATIC]
-        cov = average_covariance(model, static, rate_hz)
+        cov = covariance(static)
         bound = specific_force_bound(theta, up_body, station.gravity, cov, end(static),
                                      thermal=thermal(static) if thermal else None)
     elif model.kind == ANGULAR_RATE:
         # The solver's data order: every +ω window, every −ω window, every static one.
         ordered = [w for kind in (PLUS, MINUS, STATIC) for w in windows if w.kind == kind]
-        cov = average_covariance(model, ordered, rate_hz)
+        cov = covariance(ordered)
         # Table angle zero at each static dwell: the heading is a nuisance of the bound.
         north_body = attitudes[:, 1, :]
         plus = [w for w in windows if w.kind == PLUS]  # the positions that turn, at their rates
@@ -182,7 +189,7 @@ def triad_sigmas(model: TriadModel, windows: list[Window], attitudes: np.ndarray
     ends = None
     if end_s is not None:
         bound, ends = bound
-    with np.errstate(invalid="ignore"):  # a negative variance: the design cannot tell it (nan)
+    with np.errstate(invalid="ignore"):  # undetermined: inf by crb's rank rule (nan: a negative variance)
         sigmas = np.sqrt(np.diag(bound))
     return sigmas if end_s is None else (sigmas, ends)
 

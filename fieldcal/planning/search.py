@@ -37,6 +37,7 @@ MIN_DWELL_S = 5.0  # a dwell needs a few stillness windows to be recognised as o
 MAX_DWELL_S = 1200.0
 MAX_TURNS = 3
 PATIENCE = 2  # pair removals in a row that save no time before the search stops dropping
+ABOVE_ONE = float(np.nextafter(1.0, 2.0))  # a worst ratio reaching it misses the target (> 1)
 
 
 @dataclass(frozen=True)
@@ -140,23 +141,59 @@ class Planner:
         self.models, self.station, self.rate_hz = models, station, rate_hz
         self.operator, self.targets, self.rate = operator, targets, max_rate_deg_s
         self.bias_at_end = bias_at_end  # biases judged against the bias at the end (design.bound_sigmas)
-        # The bound of each design evaluated: the search asks again for some (a dwell found by
-        # the bisection, then its plan; a design the drops and the turn choice both reach).
+        # The bound of each design evaluated, per triad: the search asks again for some (a dwell
+        # found by the bisection, then its plan; a design the drops and the turn choice both
+        # reach), and a comparison may need only some triads' (``worst_ratio``'s ``enough``).
         self._bounds: dict[tuple, dict[str, np.ndarray]] = {}
+        self._lead: str | None = None  # the triad that last decided a comparison: asked first
 
-    def sigmas(self, design: Design) -> dict[str, np.ndarray]:
+    def _bounded(self, design: Design, names) -> dict[str, np.ndarray]:
+        """The cached σ of ``names`` (triads) for ``design``, bounding those not yet known."""
         key = (tuple(np.asarray(a, dtype=float).tobytes() for a in design.attitudes), design.dwell_s, design.rate_deg_s,
                design.turns, design.turning)
-        if key not in self._bounds:
-            self._bounds[key] = bound_sigmas(design, self.operator, self.models, self.station, self.rate_hz,
-                                             self.bias_at_end)
-        return {name: sigma.copy() for name, sigma in self._bounds[key].items()}
+        known = self._bounds.setdefault(key, {})
+        missing = {name: self.models[name] for name in names if name not in known}
+        if missing:
+            known.update(bound_sigmas(design, self.operator, missing, self.station, self.rate_hz, self.bias_at_end))
+        return known
 
-    def worst_ratio(self, design: Design) -> float:
-        """The largest σ/target over every parameter of every triad (nan counts as infinite)."""
-        sig = self.sigmas(design)
-        ratios = np.concatenate([sig[n] / t for n, t in self.targets.items()])
-        return float(np.max(np.nan_to_num(ratios, nan=np.inf)))
+    def sigmas(self, design: Design) -> dict[str, np.ndarray]:
+        known = self._bounded(design, self.models)
+        return {name: known[name].copy() for name in self.models}
+
+    def worst_ratio(self, design: Design, enough: float = np.inf) -> float:
+        """The largest σ/target over every parameter of every triad (nan counts as infinite: an
+        undetermined parameter, σ inf, fails even an untargeted one's target of inf); or, as soon
+        as one triad's reaches ``enough``, that triad's largest, a value ≥ ``enough`` that is all a
+        caller asking "below ``enough``?" needs: the other triads' bounds are not taken. The
+        triad that was the worst last time is asked first (the same one binds design after
+        design)."""
+        names = list(self.targets)
+        if self._lead in self.targets:
+            names.remove(self._lead)
+            names.insert(0, self._lead)
+        worst, worst_name = -np.inf, names[0]
+        for name in names:
+            with np.errstate(invalid="ignore"):  # inf / inf
+                ratios = self._bounded(design, (name,))[name] / self.targets[name]
+            ratio = float(np.max(np.nan_to_num(ratios, nan=np.inf)))
+            if ratio > worst:
+                worst, worst_name = ratio, name
+            if worst >= enough:
+                break
+        self._lead = worst_name
+        return worst
+
+    def _least(self, designs, enough: float = np.inf) -> tuple[int, float]:
+        """(index, worst ratio) of the first of ``designs`` with the smallest worst ratio, as
+        ``min`` would pick it: each design is bounded only as far as it can still beat the best so
+        far (nor past ``enough``, when a best at or above it is of no use to the caller)."""
+        best_index, best = 0, np.inf
+        for index, design in enumerate(designs):
+            ratio = self.worst_ratio(design, min(best, enough))
+            if ratio < best:
+                best_index, best = index, ratio
+        return best_index, best
 
     def _design(self, positions, dwell: float, turns: int) -> Design:
         return Design(tuple(p.attitude for p in positions), float(dwell), self.rate, turns)
@@ -165,7 +202,7 @@ class Planner:
         """The shortest whole-second dwell (not below ``at_least``) at which ``positions`` meet
         the target, if any within MAX_DWELL_S."""
         def meets(dwell):
-            return bool(positions) and self.worst_ratio(self._design(positions, dwell, turns)) <= 1.0
+            return bool(positions) and self.worst_ratio(self._design(positions, dwell, turns), ABOVE_ONE) <= 1.0
         lo = max(MIN_DWELL_S, float(np.floor(at_least)))
         if meets(lo):
             hi = lo
@@ -191,10 +228,11 @@ class Planner:
         while sum(turning) > 1:
             def without(i):
                 return replace(design, turning=tuple(t and j != i for j, t in enumerate(turning)))
-            ratios = {i: self.worst_ratio(without(i)) for i, t in enumerate(turning) if t}
-            drop = min(ratios, key=ratios.get)
-            if ratios[drop] > 1.0:
+            stepping = [i for i, t in enumerate(turning) if t]
+            least, ratio = self._least([without(i) for i in stepping], ABOVE_ONE)
+            if ratio > 1.0:
                 break
+            drop = stepping[least]
             turning[drop] = False
             design = without(drop)
         if design is plan.design:
@@ -218,10 +256,8 @@ class Planner:
             return None
         best, idle = current, 0
         while len(pairs) > 1 and idle < PATIENCE:
-            def loss(i):
-                kept = [c for j, pair in enumerate(pairs) if j != i for c in pair]
-                return self.worst_ratio(self._design(kept, current.design.dwell_s, turns))
-            drop = min(range(len(pairs)), key=loss)
+            drop, _ = self._least([self._design([c for j, pair in enumerate(pairs) if j != i for c in pair],
+                                                current.design.dwell_s, turns) for i in range(len(pairs))])
             pairs = pairs[:drop] + pairs[drop + 1:]
             current = self.shortest([c for pair in pairs for c in pair], turns, current.design.dwell_s)
             if current is None:

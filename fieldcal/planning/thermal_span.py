@@ -27,7 +27,7 @@ def drift_sigmas_per_kelvin(design: Design, operator: OperatorModel, models: dic
                             station: Station, rate_hz: float) -> dict[str, dict[str, np.ndarray]]:
     """Per triad, the σ (solver units: bias unit per K; s₁ per K) of the bias drift b₁ and the
     scale drift s₁ of a run of ``design`` whose temperature rises steadily by 1 K from its first
-    second to its last; nan where the design cannot tell the parameters apart."""
+    second to its last; inf or nan where the design cannot tell the parameters apart."""
     windows, end_s = timeline(design, operator)
     attitudes = np.array(design.attitudes)
 

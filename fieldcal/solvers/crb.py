@@ -129,26 +129,136 @@ class ThermalTerms:
         return mean
 
 
-def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, end: EndBias | None = None,
+@dataclass(frozen=True)
+class KroneckerCovariance:
+    """The covariance C ⊗ M of data ordered window-major then axis: ``windows`` C (n × n), one
+    axis's covariance between the window means, and ``axes`` M (3 × 3), K·Kᵀ (noise entering
+    before K, the same on every axis: ``fieldcal.solvers.solve.average_covariance`` without
+    quantisation). Its Cholesky factor is Lc ⊗ Lm: two small factorisations instead of one of
+    3n × 3n, and the whitening two triangular solves on the reshaped data."""
+
+    windows: np.ndarray
+    axes: np.ndarray
+
+    def whiten(self, rhs: np.ndarray) -> np.ndarray:
+        """(Lc ⊗ Lm)⁻¹ · rhs for rhs (3n, k)."""
+        from scipy.linalg import solve_triangular
+
+        n, k = len(self.windows), rhs.shape[1]
+        by_window = solve_triangular(np.linalg.cholesky(self.windows), rhs.reshape(n, 3 * k), lower=True,
+                                     check_finite=False)
+        by_axis = by_window.reshape(n, 3, k).transpose(1, 0, 2).reshape(3, n * k)
+        out = solve_triangular(np.linalg.cholesky(self.axes), by_axis, lower=True, check_finite=False)
+        return out.reshape(3, n, k).transpose(1, 0, 2).reshape(3 * n, k)
+
+
+def _whiten(covariance, rhs: np.ndarray) -> np.ndarray:
+    """L⁻¹ · rhs, L the Cholesky factor of ``covariance`` (a matrix or a KroneckerCovariance),
+    by forward substitution (np.linalg.solve would factor the triangle again by LU, a cubic cost
+    that was a fifth of `fieldcal plan`'s CPU). Imported here: crb reaches paths (the solvers'
+    end bias) that need no whitening."""
+    if isinstance(covariance, KroneckerCovariance):
+        return covariance.whiten(rhs)
+    from scipy.linalg import solve_triangular
+
+    return solve_triangular(np.linalg.cholesky(covariance), rhs, lower=True, check_finite=False)
+
+
+# The rank rule: which parameters the data determine. Judged on the whitened Jacobian with its
+# columns scaled to unit length (each parameter's information on its own is then 1, whatever its
+# unit), whose singular values s say how much the data see of each direction of the parameters.
+# A direction with s below RANK_TOL of the largest is one the data do not see: its information is
+# numerically nil, not small. The threshold sits two decades above what rounding puts on such a
+# direction (JACOBIAN_ROUNDING: the central differences' relative error, ε over the 1e-6 step;
+# the near-singular designs of a planned run's first positions show them at 1e-11 to 1e-16) and
+# three below the weakest direction a design does determine (a gyro's misalignments seen through
+# the Earth rate alone, ~3e-5 at a planned run's sixth position).
+RANK_TOL = 1e-8
+JACOBIAN_ROUNDING = 2e-10
+# When the equilibrated information's inverse has a trace under this, its smallest eigenvalue is
+# above 1/trace (so every s/s_max ≥ 1/sqrt(p·1e10), well over RANK_TOL) and the inverse from its
+# Cholesky factor is accurate; otherwise the singular value decomposition decides and inverts.
+_CHOLESKY_TRACE = 1e10
+
+
+@dataclass(frozen=True)
+class _Information:
+    """The inverse of the information (in the Jacobian's per-step units) where it is defined:
+    ``inverse`` (p × p) is the Moore-Penrose one on the directions the data see; ``null`` (k × p,
+    rows) the directions they do not, in the unit-column coordinates ``scale`` gives (y = scale ⊙ u),
+    and ``tolerance`` the share of a functional in them that rounding alone can put there."""
+
+    inverse: np.ndarray
+    scale: np.ndarray
+    null: np.ndarray
+    tolerance: float
+
+    def undetermined(self, rows: np.ndarray) -> np.ndarray:
+        """Which linear functionals (rows (m, p) on the per-step parameters) the data cannot tell:
+        those with more than ``tolerance`` of their (unit-coordinate) length in a null direction."""
+        if not len(self.null):
+            return np.zeros(len(rows), dtype=bool)
+        unit = rows / self.scale
+        length = np.sum(unit**2, axis=1)
+        share = np.sum((unit @ self.null.T) ** 2, axis=1)
+        return share > self.tolerance * np.where(length > 0, length, 1.0)
+
+
+def _information(Jw: np.ndarray) -> _Information:
+    """``_Information`` of the whitened Jacobian ``Jw`` (data × p) under the rank rule above."""
+    from scipy.linalg import lapack
+
+    p = Jw.shape[1]
+    scale = np.linalg.norm(Jw, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)  # a parameter the data never see: a zero column, null
+    unit = Jw / scale
+    # LAPACK's Cholesky factor and the inverse from it (potrf, potri: the lower triangle), a
+    # quarter of the time of a triangular solve on the identity and its product.
+    root, failed = lapack.dpotrf(unit.T @ unit, lower=1)
+    if not failed:  # else not numerically positive definite: the decomposition decides
+        lower, failed = lapack.dpotri(root, lower=1)
+        inverse = np.tril(lower) + np.tril(lower, -1).T
+        if not failed and np.trace(inverse) <= _CHOLESKY_TRACE:
+            return _Information(inverse / np.outer(scale, scale), scale, np.zeros((0, p)), 0.0)
+    _, s, vt = np.linalg.svd(unit)  # vt (p × p): directions past the rank have no s, that is 0
+    s = np.r_[s, np.zeros(p - len(s))]
+    seen = s > RANK_TOL * s[0]
+    kept = vt[seen] / s[seen, None]
+    # Wedin: the null directions found lean into the seen ones by at most the rounding over the
+    # gap to the smallest seen s, so a functional truly outside them shows at most its square.
+    gap = s[seen][-1] / s[0] if seen.any() else 1.0
+    return _Information((kept.T @ kept) / np.outer(scale, scale), scale, vt[~seen],
+                        (JACOBIAN_ROUNDING / gap) ** 2)
+
+
+def _undetermined_to_inf(matrix: np.ndarray, undetermined: np.ndarray) -> np.ndarray:
+    """``matrix`` (a covariance) with what the data cannot tell blanked: those rows and columns
+    nan, their variances inf (σ infinite: not yet determined)."""
+    if not undetermined.any():
+        return matrix
+    out = matrix.copy()
+    out[undetermined, :] = np.nan
+    out[:, undetermined] = np.nan
+    out[undetermined, undetermined] = np.inf
+    return out
+
+
+def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance, end: EndBias | None = None,
            wanted: int = N_PARAMS):
     """``mean_fn`` maps rows of parameters (m, p) to rows of the data's means (m, data): the
-    Jacobian's 2p central differences are one call."""
+    Jacobian's 2p central differences are one call. A parameter the data cannot tell apart
+    (the rank rule above) has an infinite variance, never a large finite one."""
     shifts = np.diag(steps)
     means = mean_fn(np.concatenate([x0 + shifts, x0 - shifts]))
     p = len(x0)
     J = ((means[:p] - means[p:]) / (2 * steps)[:, None]).T * steps  # derivatives per step: columns of comparable size
-    # Whitened by forward substitution on the Cholesky factor (scipy's triangular solve), J and
-    # the cross-covariance in one call: np.linalg.solve would factor the triangle again by LU, a
-    # cubic cost that was a fifth of `fieldcal plan`'s CPU. Imported here: crb reaches paths
-    # (the solvers' end bias) that need no whitening.
-    from scipy.linalg import solve_triangular
-
-    chol = np.linalg.cholesky(covariance)
-    rhs = J if end is None else np.concatenate([J, end.cross], axis=1)
-    whitened = solve_triangular(chol, rhs, lower=True, check_finite=False)
+    # J and the cross-covariance whitened in one call
+    whitened = _whiten(covariance, J if end is None else np.concatenate([J, end.cross], axis=1))
     Jw = whitened[:, :len(x0)]
-    info_inv = np.linalg.inv(Jw.T @ Jw)
-    bound = info_inv[:wanted, :wanted] * np.outer(steps[:wanted], steps[:wanted])
+    information = _information(Jw)
+    info_inv = information.inverse
+    bound = _undetermined_to_inf(info_inv[:wanted, :wanted] * np.outer(steps[:wanted], steps[:wanted]),
+                                 information.undetermined(np.eye(p)[:wanted]))
     if end is None:
         return bound
     # Goldberger's BLUP of E·x + (K·bias process at the end), x = steps ⊙ u: with the whitened
@@ -161,7 +271,8 @@ def _bound(mean_fn, x0: np.ndarray, steps: np.ndarray, covariance: np.ndarray, e
     predicted = end.point - Gw.T @ Gw + lead @ info_inv @ lead.T
     shared = E @ info_inv @ Jw.T @ Gw
     constant = E @ info_inv @ E.T - shared - shared.T + end.point
-    return bound, EndBiasBound(predicted, constant)
+    return bound, EndBiasBound(_undetermined_to_inf(predicted, information.undetermined(lead)),
+                               _undetermined_to_inf(constant, information.undetermined(E)))
 
 
 def _param_steps(theta: np.ndarray, reference: float) -> np.ndarray:
