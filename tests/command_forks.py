@@ -36,6 +36,8 @@ READY = "ready"
 NO_STATUS = 70  # the forked command died without saying its status (killed by a signal)
 LENGTH_BYTES = STATUS_BYTES = 4  # a request's length before it, a status after the command: big-endian
 END_FORKS = "end-forks"  # the request that ends the commands still running (a page is over)
+# and is answered with the CPU its commands took, in ms: a measurement of the suite (per-test
+# CPU from getrusage) counts a shared server's forks only when the server ends, not per page.
 
 
 def _receive(connection) -> tuple[dict, list[int]]:
@@ -123,10 +125,11 @@ def serve(path: str) -> None:
     listener.listen(16)
     print(READY, flush=True)  # what the starter waits for: imports done, socket listening
     forks: set[int] = set()
+    spent = [0.0]  # CPU seconds of the forks waited for since the last END_FORKS
     try:
         while True:
             connection, _ = listener.accept()
-            _reap(forks, os.WNOHANG)
+            _reap(forks, os.WNOHANG, spent)
             try:
                 request, fds = _receive(connection)
             except (EOFError, ValueError, OSError):
@@ -135,8 +138,9 @@ def serve(path: str) -> None:
             if request == END_FORKS:
                 for fd in fds:
                     os.close(fd)
-                _end(forks)
-                connection.sendall((0).to_bytes(STATUS_BYTES, "big"))
+                _end(forks, spent)
+                connection.sendall(round(spent[0] * 1000).to_bytes(STATUS_BYTES, "big", signed=True))
+                spent[0] = 0.0
                 connection.close()
                 continue
             pid = os.fork()
@@ -153,14 +157,14 @@ def serve(path: str) -> None:
     finally:
         # Every fork waited for, so their CPU time is the server's children's, and so that of
         # the process that started it, once it has waited for the server.
-        _end(forks)
+        _end(forks, [0.0])
 
 
 def _stop(signum, frame):
     raise SystemExit(0)
 
 
-def _end(forks: set[int]) -> None:
+def _end(forks: set[int], spent: list[float]) -> None:
     """Each fork still running ended (a page's bash stopped by its timeout, a command left in
     the background), and every one waited for."""
     import contextlib
@@ -169,16 +173,20 @@ def _end(forks: set[int]) -> None:
     for pid in forks:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
-    _reap(forks, 0)
+    _reap(forks, 0, spent)
 
 
-def _reap(forks: set[int], options: int) -> None:
+def _reap(forks: set[int], options: int, spent: list[float]) -> None:
+    """The forks that have ended waited for, and their CPU (their own children's included, as
+    the kernel counts a process waited for) added to SPENT[0]."""
     import contextlib
 
     for pid in list(forks):
         with contextlib.suppress(ChildProcessError):
-            if os.waitpid(pid, options)[0] == 0:
+            done, _, usage = os.wait4(pid, options)
+            if done == 0:
                 continue  # still running
+            spent[0] += usage.ru_utime + usage.ru_stime
         forks.discard(pid)
 
 
@@ -253,10 +261,12 @@ class CommandServer:
                 f"  if [[ $real -ef {script} ]]; then {call} \"$real\" \"$@\"; else \"$real\" \"$@\"; fi\n"
                 f"}}")
 
-    def end_forks(self) -> None:
-        """End the commands still running (a page is over) and wait for them."""
-        status = _ask(self.socket_path, END_FORKS)
-        assert status == 0, f"the fork server did not end its forks (status {status})"
+    def end_forks(self) -> float:
+        """End the commands still running (a page is over) and wait for them: the CPU seconds of
+        the commands forked since the last call."""
+        milliseconds = _ask(self.socket_path, END_FORKS)
+        assert milliseconds >= 0, f"the fork server did not end its forks (status {milliseconds})"
+        return milliseconds / 1000
 
     def close(self) -> None:
         self._server.terminate()  # it ends its forks, waits for them, then ends

@@ -282,8 +282,8 @@ def test_every_command_block_of_a_page_runs(page, tmp_path, request):
         done = subprocess.run(["bash", "-c", _script(blocks, server.prelude() if server else "")], cwd=work, env=env,
                               capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=540)
     finally:
-        if server:
-            server.end_forks()
+        if server:  # the commands' CPU, which the test process's own (getrusage) no longer holds
+            request.node.user_properties.append(("commands_cpu_s", server.end_forks()))
     if done.returncode != 0:
         started = re.findall(r"^>>> (\S+)$", done.stderr, re.MULTILINE)
         pytest.fail(f"{page.relative_to(ROOT)}: the block at {started[-1] if started else '?'} "
@@ -339,7 +339,9 @@ def test_a_forked_fieldcal_says_and_exits_as_the_script_does(tmp_path, command_s
 
 def test_one_server_forks_each_page_s_command_in_that_page_s_directory_and_environment(tmp_path, command_server):
     """The server every page shares was started elsewhere: each fork still works where its page
-    is (a relative path) and reads the page's own environment (its XDG folders)."""
+    is (a relative path) and reads the page's own environment (its XDG folders); and the CPU its
+    commands took is counted once, when the page is over."""
+    command_server.end_forks()  # the commands of the tests before this one
     said = {}
     for name in ("first", "second"):
         page = tmp_path / name
@@ -353,6 +355,8 @@ def test_one_server_forks_each_page_s_command_in_that_page_s_directory_and_envir
         assert f"registry {tmp_path / name / 'xdg_data_home'}/fieldcal/registry.sqlite: no such registry" in said[name]
     assert "registry here.sqlite: file is not a database" in said["first"]
     assert "registry here.sqlite: file is not a database" not in said["second"], said["second"]
+    assert command_server.end_forks() > 0  # the four commands' CPU
+    assert command_server.end_forks() == 0  # none since
 
 
 def test_a_marker_without_a_reason_is_caught_and_one_with_a_reason_skips(tmp_path):
