@@ -263,8 +263,9 @@ def runnable(page: Path) -> list[Block]:
 @pytest.fixture(scope="session")
 def command_server(tmp_path_factory):
     """The fork server of every page this test process runs: its imports (0.4-0.5 s of CPU) paid
-    once, not once per page. Started in a directory of its own, with the pages' environment but
-    their XDG folders: a fork takes its page's directory and environment before it runs anything."""
+    once, not once per page. Started in a directory of its own, with an environment like the
+    pages' (not their XDG folders): a fork takes its page's directory and environment before it
+    runs anything."""
     with CommandServer(tmp_path_factory.mktemp("forks"), _environment(tmp_path_factory.getbasetemp())) as server:
         yield server
 
@@ -345,7 +346,8 @@ def test_one_server_forks_each_page_s_command_in_that_page_s_directory_and_envir
     said = {}
     for name in ("first", "second"):
         page = tmp_path / name
-        work = _page_directory(page.mkdir() or page)
+        page.mkdir()
+        work = _page_directory(page)
         (work / "here.sqlite").write_text("not a registry" if name == "first" else "")
         script = (f"{command_server.prelude()}\n. .venv/bin/activate\n"
                   "fieldcal units 2>&1 || true\nfieldcal units --registry here.sqlite 2>&1 || true\n")
