@@ -115,7 +115,11 @@ def serve(path: str) -> None:
     import socket
 
     for name in PRELOADED:
-        __import__(name)
+        try:
+            __import__(name)
+        except ModuleNotFoundError as exc:  # a module moved or renamed: the forks import what they use
+            if exc.name != name:
+                raise
     # The imports' objects out of the collector's sight: a collection in a fork would otherwise
     # write to every one of them and so copy all the server's memory, in every fork.
     gc.freeze()
