@@ -16,11 +16,12 @@ How a page's commands are run (the harness):
   checkout's .venv under `make test`, so the commands run the code under test), and `configs/`, `procedures/`, `benchmarks/`, `tests/data/real/` and `tests/faults/` are
   copies, so a command that writes beside its input cannot touch the checkout. `$XDG_DATA_HOME`
   and `$XDG_CONFIG_HOME` point into it (the unit registry, the TUI's last setup).
-- A page running `fieldcal` twice or more has each command forked from one interpreter that
-  imported fieldcal, numpy and scipy once in the page's directory and environment
-  (tests/command_forks.py): still a process of its own with the caller's arguments, environment,
-  directory and streams, without the 0.6-0.8 s of imports each fresh one pays. Only the venv
-  under test's `fieldcal` goes that way; not on PATH is still "command not found".
+- Each `fieldcal` command of a page is forked from one interpreter that imported fieldcal, numpy
+  and scipy once for all the pages a test process runs (tests/command_forks.py): still a process
+  of its own with the caller's arguments, environment, directory and streams, without the
+  0.4-0.5 s of imports each fresh one pays; a command still running when its page ends is ended
+  then. Only the venv under test's `fieldcal` goes that way; not on PATH is still "command not
+  found".
 - Not run, still checked: in every block, run or not, each `fieldcal COMMAND` names a command
   the parser has and each `--option` after it is one of that command's.
 
@@ -30,7 +31,6 @@ README.md keeps to 150 lines and its links resolve, and the site builds with mkd
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib.util
 import os
 import re
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from command_forks import forked_fieldcal
+from command_forks import CommandServer
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md")])
@@ -260,18 +260,31 @@ def runnable(page: Path) -> list[Block]:
     return [b for b in sh_blocks(page) if b.not_run_reason is None]
 
 
+@pytest.fixture(scope="session")
+def command_server(tmp_path_factory):
+    """The fork server of every page this test process runs: its imports (0.4-0.5 s of CPU) paid
+    once, not once per page. Started in a directory of its own, with an environment like the
+    pages' (not their XDG folders): a fork takes its page's directory and environment before it
+    runs anything."""
+    with CommandServer(tmp_path_factory.mktemp("forks"), _environment(tmp_path_factory.getbasetemp())) as server:
+        yield server
+
+
 @pytest.mark.parametrize("page", PAGES, ids=PAGE_IDS)
-def test_every_command_block_of_a_page_runs(page, tmp_path):
+def test_every_command_block_of_a_page_runs(page, tmp_path, request):
     blocks = runnable(page)
     if not blocks:
         return  # every block says why it is not run (checked above)
     work = _page_directory(tmp_path)
     env = _environment(tmp_path)
-    with contextlib.ExitStack() as stack:
-        commands = sum(1 for block in blocks for _ in _fieldcal_invocations(block.text))
-        prelude = stack.enter_context(forked_fieldcal(work, env)) if commands >= 2 else ""
-        done = subprocess.run(["bash", "-c", _script(blocks, prelude)], cwd=work, env=env,
+    commands = sum(1 for block in blocks for _ in _fieldcal_invocations(block.text))
+    server = request.getfixturevalue("command_server") if commands else None
+    try:
+        done = subprocess.run(["bash", "-c", _script(blocks, server.prelude() if server else "")], cwd=work, env=env,
                               capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=540)
+    finally:
+        if server:  # the commands' CPU, which the test process's own (getrusage) no longer holds
+            request.node.user_properties.append(("commands_cpu_s", server.end_forks()))
     if done.returncode != 0:
         started = re.findall(r"^>>> (\S+)$", done.stderr, re.MULTILINE)
         pytest.fail(f"{page.relative_to(ROOT)}: the block at {started[-1] if started else '?'} "
@@ -296,7 +309,7 @@ def test_a_failing_block_fails_the_page_and_a_forgotten_activation_too(tmp_path)
     assert done.returncode == 0 and done.stdout.startswith("fieldcal ")
 
 
-def test_a_forked_fieldcal_says_and_exits_as_the_script_does(tmp_path):
+def test_a_forked_fieldcal_says_and_exits_as_the_script_does(tmp_path, command_server):
     """The harness's forks (tests/command_forks.py) against the venv's own `fieldcal` script: the
     same output through a pipe, the same exit statuses and messages, and still "command not
     found" before the page activates the venv."""
@@ -313,17 +326,39 @@ def test_a_forked_fieldcal_says_and_exits_as_the_script_does(tmp_path):
                               stdin=subprocess.DEVNULL)
 
     script = run(_script(runnable(page)))
-    with forked_fieldcal(work, env) as prelude:  # one server for the three runs: 0.8 s of imports
-        forked = run(_script(runnable(page), prelude))
-        not_activated = run(prelude + "\nfieldcal --version\n")
-        # and the forks did run the commands: without the server's socket, the same page fails
-        Path(re.search(r" call (\S+)", prelude)[1]).unlink()
-        unserved = run(_script(runnable(page), prelude))
+    prelude = command_server.prelude()
+    forked = run(_script(runnable(page), prelude))
+    not_activated = run(prelude + "\nfieldcal --version\n")
+    # and the forks did run the commands: with another socket than the server's, the same page fails
+    unserved = run(_script(runnable(page), command_server.prelude(str(tmp_path / "no-server"))))
     assert (forked.returncode, forked.stdout) == (script.returncode, script.stdout) == (0, script.stdout)
     assert script.stdout.startswith("FIELDCAL ") and "units: 2\n" in script.stdout and "check: 2\n" in script.stdout, \
         script.stdout
     assert not_activated.returncode == 127 and "command not found" in not_activated.stderr
     assert unserved.returncode != 0 and not unserved.stdout
+
+
+def test_one_server_forks_each_page_s_command_in_that_page_s_directory_and_environment(tmp_path, command_server):
+    """The server every page shares was started elsewhere: each fork still works where its page
+    is (a relative path) and reads the page's own environment (its XDG folders); and the CPU its
+    commands took is counted once, when the page is over."""
+    command_server.end_forks()  # the commands of the tests before this one
+    said = {}
+    for name in ("first", "second"):
+        page = tmp_path / name
+        page.mkdir()
+        work = _page_directory(page)
+        (work / "here.sqlite").write_text("not a registry" if name == "first" else "")
+        script = (f"{command_server.prelude()}\n. .venv/bin/activate\n"
+                  "fieldcal units 2>&1 || true\nfieldcal units --registry here.sqlite 2>&1 || true\n")
+        said[name] = subprocess.run(["bash", "-c", script], cwd=work, env=_environment(page), capture_output=True,
+                                    text=True, stdin=subprocess.DEVNULL).stdout
+    for name in ("first", "second"):
+        assert f"registry {tmp_path / name / 'xdg_data_home'}/fieldcal/registry.sqlite: no such registry" in said[name]
+    assert "registry here.sqlite: file is not a database" in said["first"]
+    assert "registry here.sqlite: file is not a database" not in said["second"], said["second"]
+    assert command_server.end_forks() > 0  # the four commands' CPU
+    assert command_server.end_forks() == 0  # none since
 
 
 def test_a_marker_without_a_reason_is_caught_and_one_with_a_reason_skips(tmp_path):
