@@ -389,29 +389,35 @@ def test_a_thermal_soak_recovers_the_truth_within_its_sigma():
     assert np.all(acc.sigma[:3] < 0.1 * MG)  # field-18 warming 10 K: 0.1-0.4 mg
 
 
-def _sim_warmup_run(seed: int, out=None):
-    """A headless field-18 run on configs/sim-warmup.yaml: (outcome, the thermal truths re-centred).
-    ``out``: the session's directory; None: none recorded (``_unrecorded_run``)."""
+def _sim_warmup_run(seed: int, windows: list | None = None):
+    """A headless field-18 run on configs/sim-warmup.yaml with no session recorded
+    (``_unrecorded_run``): (outcome, the thermal truths re-centred). ``windows``: a list to
+    receive the engine's windows, in the order the solve read them."""
     from fieldcal.config import load_config
     from fieldcal.report import thermal_truths
-    from fieldcal.run.runner import RunSpec, run_headless
+    from fieldcal.run.runner import RunSpec
 
     config = load_config("configs/sim-warmup.yaml")
     spec = RunSpec(load_procedure("field-18"), config.station, seed=seed, rate_hz=config.device.rate_hz,
                    sim_thermal=config.device.sim.thermal)
-    outcome = _unrecorded_run(spec) if out is None else run_headless(spec, out)
+    outcome = _unrecorded_run(spec, windows)
     return outcome, thermal_truths(outcome.unit.solutions, outcome.truth, outcome.thermal_truth)
 
 
-def _unrecorded_run(spec):
+def _unrecorded_run(spec, windows: list | None = None):
     """``run_headless(spec, ...)``'s outcome, to the bit, through the same conductor, bench and
     scripted operator with no session recorded: for checks that read none (writing one is a third
-    of a warm-up run's CPU)."""
+    of a warm-up run's CPU). ``windows``: a list to receive the engine's windows (what the solve
+    read, as a recorded session's completed steps hold them)."""
     from fieldcal.run.conductor import Conductor
     from fieldcal.run.operators import ScriptedOperator
     from fieldcal.run.runner import SimulatedBench
 
-    return Conductor(spec, SimulatedBench(spec), ScriptedOperator(spec.script, spec.procedure)).run()
+    conductor = Conductor(spec, SimulatedBench(spec), ScriptedOperator(spec.script, spec.procedure))
+    outcome = conductor.run()
+    if windows is not None:
+        windows.extend(conductor.engine.windows_and_averages()[0])
+    return outcome
 
 
 def _least_squares_failing_at(monkeypatch, sizes: set[int]) -> None:
@@ -468,10 +474,10 @@ def test_an_order_whose_fit_does_not_converge_is_no_candidate(monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def seed380(tmp_path_factory):
-    """configs/sim-warmup.yaml seed 380 through the conductor: (outcome, truths, its directory)."""
-    directory = tmp_path_factory.mktemp("seed380") / "run"
-    return (*_sim_warmup_run(380, directory), directory)
+def seed380():
+    """configs/sim-warmup.yaml seed 380 through the conductor: (outcome, truths, the engine's windows)."""
+    windows: list = []
+    return (*_sim_warmup_run(380, windows), windows)
 
 
 def test_an_undetermined_exact_fit_gives_way_to_the_lower_order(seed380):
@@ -492,17 +498,16 @@ def _inclinometer_inputs(seed380, name="inclinometer"):
     """Seed 380's inclinometer (or ``name``) problem, its static windows' temperatures, covariance
     and solution."""
     from fieldcal.procedure.windows import STATIC
-    from fieldcal.run.runner import open_run
     from fieldcal.solvers.assemble import window_indices
 
-    outcome, _, directory = seed380
-    windows = [w for step in open_run(directory).completed for w in step.windows]
+    outcome, _, windows = seed380
     temperatures = np.array([windows[i].temperature_c for i in window_indices(windows, STATIC)])
     return (outcome.unit.problems[name], temperatures, outcome.unit.covariances[name], outcome.unit.solutions[name])
 
 
 def test_the_windows_read_back_give_the_runs_own_inclinometer_solution(seed380):
-    # the last-bits test below perturbs these inputs: they must be exactly the ones the run solved
+    # the last-bits tests below perturb these inputs (the engine's windows, as a recorded session
+    # holds them): they must be exactly the ones the run solved
     problem, temperatures, covariance, solved = _inclinometer_inputs(seed380)
     np.testing.assert_array_equal(solve_thermal_norm(problem, temperatures, covariance).calibration.theta,
                                   solved.theta)
