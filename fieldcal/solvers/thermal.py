@@ -128,13 +128,28 @@ def _forward_jacobian_of_lm(fun, z: np.ndarray) -> np.ndarray:
 
 
 def _residual_covariance_at(problem, theta: np.ndarray, u: np.ndarray, covariance) -> np.ndarray:
-    """G Σ Gᵀ with G = ∂r/∂u at (θ, u) by forward differences (u: the averages at T_ref)."""
+    """G Σ Gᵀ with G = ∂r/∂u at (θ, u) by forward differences (u: the averages at T_ref): (m, m), or
+    its diagonal (m,) when that is all there is."""
     cov = covariance.dense() if hasattr(covariance, "dense") else np.asarray(covariance, dtype=float)
-    if cov.shape == (len(u) // 3, 3):  # per-average, per-axis 1σ
-        cov = np.diag(cov.ravel() ** 2)
+    variances = cov.ravel() ** 2 if cov.shape == (len(u) // 3, 3) else None  # per-average, per-axis 1σ
     steps = 1e-6 * np.maximum(np.abs(u), np.abs(theta[3:6]).max() * problem.reference_scale)
     G = _forward_jacobian(lambda x: problem.residuals(theta, x), u, steps)
-    return G @ cov @ G.T
+    if variances is not None and G.shape[0] == G.shape[1] and not np.any(G[~np.eye(len(G), dtype=bool)]):
+        # each residual moves with one number of the data (a held pose's u − c): G Σ Gᵀ is the
+        # diagonal (m,), the same numbers without two m³ products (m = 606 for 200 windows)
+        g = np.diag(G)
+        return (g * variances) * g
+    return G @ (np.diag(variances) if variances is not None else cov) @ G.T
+
+
+def _one_by_one(whitener: Whitener) -> Whitener:
+    """The same whitening, by one scale per residual when L⁻¹ is diagonal: a held pose's residuals
+    (u − c, ``fieldcal.solvers.held``) each move with one number of the data, and the m×m products
+    were most of its fit's CPU (606 residuals for a PX4 log's 200 windows); the same numbers."""
+    factor = whitener.inverse_factor
+    if factor is None or np.any(factor[~np.eye(len(factor), dtype=bool)]):
+        return whitener
+    return Whitener(inverse_sigma=np.diag(factor).copy())
 
 
 def _split(x: np.ndarray, order: int, scale: bool):
@@ -288,10 +303,11 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
     # The weights are the residuals' covariance G Σ Gᵀ, G = ∂r/∂u at a solution: first at the
     # problem's guess, then again at the first fit's solution and its averages brought back to
     # T_ref (a warm gyro's guess may have its bias off by far more than the Earth rate it weighs).
-    chosen, _ = select(cast(Whitener, _residual_whitener(problem, theta_start, covariance)))
+    chosen, _ = select(_one_by_one(cast(Whitener, _residual_whitener(problem, theta_start, covariance))))
     theta, terms, drift = _split(chosen[2], chosen[0], chosen[1])
     corrected = _corrected(points, dt, theta, terms, drift)
-    chosen, chi2_by_order = select(_whitener_of(problem, _residual_covariance_at(problem, theta, corrected, covariance)))
+    chosen, chi2_by_order = select(_one_by_one(_whitener_of(problem, _residual_covariance_at(problem, theta, corrected,
+                                                                                          covariance))))
     order, scale, x, chi2, J, res, information, fold = chosen
     dof = n_resid - _layout(order, scale)
     why = _undetermined(chosen)
