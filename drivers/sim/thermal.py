@@ -62,6 +62,17 @@ class TemperatureProfile:
                 "time_constant_s": self.time_constant_s, "rate_k_per_s": self.rate_k_per_s, "soak_s": self.soak_s}
 
 
+def _powers(dt: np.ndarray, order: int) -> np.ndarray:
+    """ΔT, ΔT², … ΔTᵒʳᵈᵉʳ as columns (n, order), by repeated products: a sixth of the CPU of
+    ``dt[:, None] ** k`` (a pow per element, the simulator's per-chunk cost) and ΔT² rounded once."""
+    powers = np.empty((len(dt), order))
+    if order:
+        powers[:, 0] = dt
+    for k in range(1, order):
+        powers[:, k] = powers[:, k - 1] * dt
+    return powers
+
+
 @dataclass(frozen=True)
 class ThermalTruth:
     """One triad's true thermal terms: ``bias_terms[k-1]`` = bₖ per axis (output units per Kᵏ),
@@ -86,8 +97,7 @@ class ThermalTruth:
     def offset_and_ratio(self, temperature_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Σₖ bₖ ΔTᵏ, 1 + s₁ΔT), each (n, 3)."""
         dt = np.asarray(temperature_c, dtype=float) - self.reference_c
-        offset = (dt[:, None] ** np.arange(1, len(self.bias_terms) + 1)) @ self.bias_terms
-        return offset, 1.0 + dt[:, None] * self.scale_drift
+        return _powers(dt, len(self.bias_terms)) @ self.bias_terms, 1.0 + dt[:, None] * self.scale_drift
 
     def to_dict(self) -> dict:
         return {"reference_c": self.reference_c, "bias_terms": self.bias_terms.tolist(),

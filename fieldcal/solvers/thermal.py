@@ -58,6 +58,7 @@ UNDETERMINED = 1e-10
 # fit found leaves 1e-23 to 1e-21 (benchmarks/thermal.py seeds 101-149), a fold 0.1 to 1.2.
 EXACT_FIT_CHI2 = 1e-6
 _BIRGE_P = 1e-3  # as solve_norm: a χ² this improbable means the scatter, not the model, sets σ
+_SQRT_EPS = float(np.sqrt(np.finfo(float).eps))  # scipy's relative step of '2-point' differences
 
 
 @dataclass(frozen=True)
@@ -78,20 +79,17 @@ def _layout(order: int, scale: bool) -> int:
 
 def _observed_information(fun, x: np.ndarray, J: np.ndarray, steps: np.ndarray) -> np.ndarray:
     """The Hessian of ½χ² at x, JᵀJ + Σᵢ rᵢ∇²rᵢ (the second term by second differences of r(x)·r):
-    at a fold JᵀJ is singular and the residuals' curvature along the fold determines the estimate."""
+    at a fold JᵀJ is singular and the residuals' curvature along the fold determines the estimate.
+    ``fun`` takes a stack of points: the 4 per pair of parameters are evaluated in one call."""
     r = fun(x)
     p = len(x)
     E = np.diag(steps)
-
-    def weighted(dx):
-        return float(r @ fun(x + dx))
-
+    j, k = np.triu_indices(p)
+    # the four corners of each pair's square: +j+k, +j−k, −j+k, −j−k
+    corners = np.stack([E[j] + E[k], E[j] - E[k], E[k] - E[j], -E[j] - E[k]])
+    weighted = (fun(x + corners.reshape(-1, p)) @ r).reshape(4, -1)
     curvature = np.empty((p, p))
-    for j in range(p):
-        for k in range(j, p):
-            curvature[j, k] = curvature[k, j] = (
-                weighted(E[j] + E[k]) - weighted(E[j] - E[k]) - weighted(E[k] - E[j]) + weighted(-E[j] - E[k])
-            ) / (4 * steps[j] * steps[k])
+    curvature[j, k] = curvature[k, j] = (weighted[0] - weighted[1] - weighted[2] + weighted[3]) / (4 * steps[j] * steps[k])
     return J.T @ J + curvature
 
 
@@ -112,32 +110,65 @@ def _undetermined(candidate) -> str | None:
 
 
 def _central_jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """∂fun/∂x by central differences, one column per parameter (a few dozen at most)."""
-    return np.column_stack([(fun(x + e) - fun(x - e)) / (2 * h) for e, h in zip(np.diag(steps), steps)])
+    """∂fun/∂x by central differences, one column per parameter; ``fun`` takes a stack of points
+    and evaluates all 2p of them in one call."""
+    shifts = np.diag(steps)
+    values = fun(np.concatenate([x + shifts, x - shifts]))
+    return ((values[:len(steps)] - values[len(steps):]) / (2 * steps)[:, None]).T
+
+
+def _forward_jacobian_of_lm(fun, z: np.ndarray) -> np.ndarray:
+    """The Jacobian scipy's least_squares takes by its default '2-point' differences (its step
+    rule: √ε·max(1, |z|), signed as z, its step z + h − z), its p + 1 points evaluated in one call
+    of ``fun`` on their stack instead of one call each (the Levenberg-Marquardt iterations' cost)."""
+    h = _SQRT_EPS * np.where(z >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(z))
+    shifted = z + np.diag(h)
+    values = fun(np.vstack([z, shifted]))
+    return ((values[1:] - values[0]) / (np.diag(shifted) - z)[:, None]).T
 
 
 def _residual_covariance_at(problem, theta: np.ndarray, u: np.ndarray, covariance) -> np.ndarray:
-    """G Σ Gᵀ with G = ∂r/∂u at (θ, u) by forward differences (u: the averages at T_ref)."""
+    """G Σ Gᵀ with G = ∂r/∂u at (θ, u) by forward differences (u: the averages at T_ref): (m, m), or
+    its diagonal (m,) when that is all there is."""
     cov = covariance.dense() if hasattr(covariance, "dense") else np.asarray(covariance, dtype=float)
-    if cov.shape == (len(u) // 3, 3):  # per-average, per-axis 1σ
-        cov = np.diag(cov.ravel() ** 2)
+    variances = cov.ravel() ** 2 if cov.shape == (len(u) // 3, 3) else None  # per-average, per-axis 1σ
     steps = 1e-6 * np.maximum(np.abs(u), np.abs(theta[3:6]).max() * problem.reference_scale)
     G = _forward_jacobian(lambda x: problem.residuals(theta, x), u, steps)
-    return G @ cov @ G.T
+    if variances is not None and G.shape[0] == G.shape[1] and not np.any(G[~np.eye(len(G), dtype=bool)]):
+        # each residual moves with one number of the data (a held pose's u − c): G Σ Gᵀ is the
+        # diagonal (m,), the same numbers without two m³ products (m = 606 for 200 windows)
+        g = np.diag(G)
+        return (g * variances) * g
+    return G @ (np.diag(variances) if variances is not None else cov) @ G.T
+
+
+def _one_by_one(whitener: Whitener) -> Whitener:
+    """The same whitening, by one scale per residual when L⁻¹ is diagonal: a held pose's residuals
+    (u − c, ``fieldcal.solvers.held``) each move with one number of the data, and the m×m products
+    were most of its fit's CPU (606 residuals for a PX4 log's 200 windows); the same numbers."""
+    factor = whitener.inverse_factor
+    if factor is None or np.any(factor[~np.eye(len(factor), dtype=bool)]):
+        return whitener
+    return Whitener(inverse_sigma=np.diag(factor).copy())
 
 
 def _split(x: np.ndarray, order: int, scale: bool):
-    theta = x[:N_PARAMS]
-    terms = x[N_PARAMS:N_PARAMS + 3 * order].reshape(order, 3)
-    drift = x[N_PARAMS + 3 * order:] if scale else np.zeros(3)
+    """θ, the bias terms (order, 3) and the drift (3,) of x, or of each row of a stack x (..., p)."""
+    theta = x[..., :N_PARAMS]
+    terms = x[..., N_PARAMS:N_PARAMS + 3 * order].reshape(*x.shape[:-1], order, 3)
+    drift = x[..., N_PARAMS + 3 * order:] if scale else np.zeros(3)
     return theta, terms, drift
 
 
-def _corrected(u_points: np.ndarray, dt: np.ndarray, theta, terms, drift) -> np.ndarray:
-    """The averages at T_ref: (u − b₀ − Σ bₖ ΔTᵏ)/(1 + s₁ΔT) + b₀, flattened."""
-    offset = (dt[:, None] ** np.arange(1, len(terms) + 1)) @ terms
-    b0 = theta[:3]
-    return ((u_points - b0 - offset) / (1.0 + dt[:, None] * drift) + b0).ravel()
+def _corrected(u_points: np.ndarray, dt: np.ndarray, theta, terms, drift, powers=None) -> np.ndarray:
+    """The averages at T_ref: (u − b₀ − Σ bₖ ΔTᵏ)/(1 + s₁ΔT) + b₀, flattened (per row of a stack
+    of θ, terms and drift); ``powers``: ΔTᵏ (n, order), worked out once per fit."""
+    if powers is None:
+        powers = dt[:, None] ** np.arange(1, terms.shape[-2] + 1)
+    offset = powers @ terms
+    b0 = theta[..., None, :3]
+    corrected = (u_points - b0 - offset) / (1.0 + dt[:, None] * drift[..., None, :]) + b0
+    return corrected.reshape(*corrected.shape[:-2], -1)
 
 
 def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: float | None = None,
@@ -172,13 +203,19 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
         steps = np.r_[natural, np.tile(bias_scale, order) / np.repeat(span ** np.arange(1, order + 1), 3),
                       np.full(3 if scale else 0, 1e-3 / span)]
 
-        def whitened(x):
+        powers = dt[:, None] ** np.arange(1, order + 1)
+
+        def whitened(x):  # x (p,) or a stack (k, p)
             theta, terms, drift = _split(x, order, scale)
-            return whitener(problem.residuals(theta, _corrected(points, dt, theta, terms, drift)))
+            return whitener(problem.residuals(theta, _corrected(points, dt, theta, terms, drift, powers)))
 
         x0 = np.r_[theta_start, np.zeros(p - N_PARAMS)]
-        res = optimize.least_squares(lambda z: whitened(x0 + z * steps), np.zeros(p), method="lm",
-                                     xtol=1e-12, ftol=1e-12)
+
+        def whitened_z(z):
+            return whitened(x0 + z * steps)
+
+        res = optimize.least_squares(whitened_z, np.zeros(p), jac=lambda z: _forward_jacobian_of_lm(whitened_z, z),
+                                     method="lm", xtol=1e-12, ftol=1e-12)
         if not res.success:
             return res.message
         x = x0 + res.x * steps
@@ -266,10 +303,11 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
     # The weights are the residuals' covariance G Σ Gᵀ, G = ∂r/∂u at a solution: first at the
     # problem's guess, then again at the first fit's solution and its averages brought back to
     # T_ref (a warm gyro's guess may have its bias off by far more than the Earth rate it weighs).
-    chosen, _ = select(cast(Whitener, _residual_whitener(problem, theta_start, covariance)))
+    chosen, _ = select(_one_by_one(cast(Whitener, _residual_whitener(problem, theta_start, covariance))))
     theta, terms, drift = _split(chosen[2], chosen[0], chosen[1])
     corrected = _corrected(points, dt, theta, terms, drift)
-    chosen, chi2_by_order = select(_whitener_of(problem, _residual_covariance_at(problem, theta, corrected, covariance)))
+    chosen, chi2_by_order = select(_one_by_one(_whitener_of(problem, _residual_covariance_at(problem, theta, corrected,
+                                                                                          covariance))))
     order, scale, x, chi2, J, res, information, fold = chosen
     dof = n_resid - _layout(order, scale)
     why = _undetermined(chosen)
