@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fieldcal.procedure.sliding import sliding_std
+from fieldcal.procedure.sliding import sliding_std, sliding_variance_by_column
 
 
 class DetectionError(ValueError):
@@ -141,11 +141,19 @@ def window_statistic(acc: np.ndarray, rate_hz: float, settings: DetectorSettings
     """(n,) norm of the per-axis variance over the centred window of 2·half + 1 samples; near the
     ends, the nearest full window's value."""
     half = _half_window(rate_hz, settings)
-    # Squared twice in place (norm's own steps, the same numbers): no n-long temporaries beside it.
-    var = sliding_std(acc, 2 * half + 1, ddof=0)
-    np.square(var, out=var)
-    stat = np.sqrt(row_sums(np.square(var, out=var)))
-    return np.pad(stat, (half, len(acc) - len(stat) - half), mode="edge")
+    var = sliding_variance_by_column(acc, 2 * half + 1, ddof=0)  # (axes, windows): each axis contiguous
+    stat = np.empty(len(acc))
+    if not var.shape[1]:  # shorter than one window: no value to extend (as np.pad refused)
+        raise ValueError(f"window_statistic: {len(acc)} samples, fewer than a window of {2 * half + 1}")
+    # The norm over axes made in place in the statistic's middle, the ends then filled with the
+    # nearest full window's value: no copy of it, nor an n-long temporary per step.
+    body = stat[half:half + var.shape[1]]
+    np.square(var[0], out=body)
+    for axis in var[1:]:  # three axes
+        body += np.square(axis, out=axis)
+    np.sqrt(body, out=body)
+    stat[:half], stat[half + var.shape[1]:] = body[0], body[-1]
+    return stat
 
 
 def row_sums(values: np.ndarray) -> np.ndarray:
