@@ -133,7 +133,7 @@ def _recording(args, serial: str | None):
             raise ValueError(f"calibrate: {first} was imported as unit {recording.unit_serial!r}, not {serial!r} "
                              "(--unit-serial, or the --config's device.serial)")
         if serial is not None and recording.unit_serial is None:
-            recording = replace(recording, unit_serial=serial)
+            recording = recording.replaced(unit_serial=serial)
         return recording, first, []
     from fieldcal.cli.importing import read_recording, summary_lines
     from fieldcal.recording.store import write_recording
@@ -142,7 +142,7 @@ def _recording(args, serial: str | None):
         raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
                          f"path); or give one session directory from `fieldcal import`, or {LOG_NAMES}")
     recording, report = read_recording(args.recording, args.map, args.rate, args.topic, args.imu)
-    recording = replace(recording, unit_serial=serial)
+    recording = recording.replaced(unit_serial=serial)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
 
     def save():
