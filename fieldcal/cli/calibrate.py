@@ -154,7 +154,7 @@ def _recording(args, serial: str | None):
 
 
 def cmd_calibrate(args) -> int:
-    from fieldcal.cli.startup import imports_uncollected
+    from fieldcal.cli.startup import imports_uncollected, reuse_freed_memory
 
     with imports_uncollected():  # numpy, scipy.linalg and fieldcal's modules: see imports_uncollected
         # scipy first, from here: CPython 3.11 grows the frame stack in 16 KiB chunks, mapped and
@@ -194,6 +194,7 @@ def cmd_calibrate(args) -> int:
         check_output_path(args.params, force=args.force, option="--params")
     started = time.perf_counter()
     from fieldcal.cli.identity import unit_serial
+    reuse_freed_memory()  # before the samples and the calibration's temporaries come and go
     recording, directory, imported = _recording(args, unit_serial(args, config))
     for line in imported:
         print(line)
