@@ -201,7 +201,8 @@ FIXED = [b"0.029840 33108 33329 36429\n1.039857 33096 33336 36437\n",  # imu_tk'
          b"   2.9840000e-02   3.3108000e+04\n   3.9857000e-02  -3.3096000E+04\n",  # imu_tk's own, %15.7e
          b"1e5 2.5E-3 -.5e+1\n2e6 7.5e22 +.7e-9\n", b"1.e0\n2.e9\n",
          b"-1.5e+00 -2\n 1.5e+00  3\n",  # right-aligned: a blank where the first line has a sign
-         b"  1.5e+00   2\n -1.5e+00  -3\n"]  # ... and a sign where it has a blank
+         b"  1.5e+00   2\n -1.5e+00  -3\n",  # ... and a sign where it has a blank
+         b"1.5e+00 2.25 3 -0.5\n2.5e-01 7.75 4 +1.0\n"]  # an exponent, fractions and a count: each field its own scale
 NOT_FIXED = [b"1 2\n1  2\n",  # the separators move
              b"1.5 2\n15. 2\n",  # the point moves
              b"1-2\n1-3\n", b"1+2\n1+3\n", b"1e5-\n1e5-\n",  # a sign inside

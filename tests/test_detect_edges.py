@@ -203,3 +203,28 @@ def test_row_sums_are_numpys_row_sums_bit_for_bit():
     assert np.array_equal(row_sums(values), values.sum(axis=1))
     assert not np.array_equal(values[:, 0] + (values[:, 1] + values[:, 2]), values.sum(axis=1))
     assert np.array_equal(row_sums(values[:, :1]), values[:, 0])
+
+
+def window_statistic_by_definition(acc, half):
+    """At sample i the norm over axes of the per-axis variance of samples i - half..i + half;
+    within half a window of either end, the nearest full window's."""
+    out = []
+    for i in range(len(acc)):  # a loop over samples: the definition
+        centre = min(max(i, half), len(acc) - 1 - half)
+        out.append(np.linalg.norm(acc[centre - half:centre + half + 1].var(axis=0)))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("n, rate_hz", [(60, 20.0), (400, 100.0)])
+def test_window_statistic_is_its_definition(n, rate_hz):
+    from fieldcal.recording.detect import DetectorSettings, _half_window, window_statistic
+
+    rng = np.random.default_rng(n)
+    acc = 32768.0 + rng.normal(0.0, 2.0, (n, 3))  # raw counts about mid-scale
+    acc[n // 3:n // 2] += rng.normal(0.0, 300.0, (n // 2 - n // 3, 3))  # a motion
+    settings = DetectorSettings()
+    half = _half_window(rate_hz, settings)
+    got = window_statistic(acc, rate_hz, settings)
+    np.testing.assert_allclose(got, window_statistic_by_definition(acc, half), rtol=1e-9)
+    with pytest.raises(ValueError, match="fewer than a window"):
+        window_statistic(acc[:2 * half], rate_hz, settings)

@@ -47,3 +47,15 @@ def test_inputs_worked_in_small_pieces_give_every_window(monkeypatch, m, n):
     x = 1000.0 + rng.standard_normal((m, 2))
     truth = sliding_window_view(x, n, axis=0).std(axis=-1, ddof=1)
     np.testing.assert_allclose(sliding_std(x, n), truth, rtol=1e-9)
+
+
+@pytest.mark.parametrize("m, n", [(64, 2), (97, 16), (33, 33), (40, 24)])
+def test_variance_by_column_is_every_window_variance(monkeypatch, m, n):
+    monkeypatch.setattr(sliding, "_PIECE_ROWS", 16)  # many pieces
+    rng = np.random.default_rng(m + n)
+    x = 32768.0 + rng.standard_normal((m, 3)) * [1.0, 5.0, 0.1]
+    truth = sliding_window_view(x, n, axis=0).var(axis=-1, ddof=0)  # (windows, columns)
+    got = sliding.sliding_variance_by_column(x, n, ddof=0)
+    assert got.shape == (3, m - n + 1)
+    np.testing.assert_allclose(got, truth.T, rtol=1e-9)
+    assert sliding.sliding_variance_by_column(x[: n - 1], n).shape == (3, 0)

@@ -284,11 +284,9 @@ def fixed_width_decimals(text: bytes, nlines: int) -> np.ndarray | None:
         np.negative(groups, out=groups, where=minus)  # -0 stays -0.0, as strtod reads it
     values = groups[:, :len(fraction)]
     if len(exponent_fields) == 0:
-        if fraction.any():
-            values /= _EXACT_POWERS[fraction]
+        _scaled_down(values, fraction, np.arange(len(fraction)))
         return values
-    if fraction[plain_fields].any():
-        values[:, plain_fields] /= _EXACT_POWERS[fraction[plain_fields]]
+    _scaled_down(values, fraction, plain_fields)
     power = (groups[:, len(fraction):] - fraction[exponent_fields]).astype(np.int64)
     if not (np.abs(power) <= 22).all():
         return None
@@ -302,6 +300,19 @@ def fixed_width_decimals(text: bytes, nlines: int) -> np.ndarray | None:
         values[:, exponent_fields] = np.where(up, mantissa * _EXACT_POWERS[np.maximum(power, 0)],
                                               mantissa / _EXACT_POWERS[np.maximum(-power, 0)])
     return values
+
+
+def _scaled_down(values: np.ndarray, fraction: np.ndarray, fields: np.ndarray) -> None:
+    """values[:, f] /= 10^fraction[f] in place for the ``fields`` with digits after a point; a
+    field of none (counts) is left as it is (x / 1 is x: the same bits), not divided (a log of
+    a time and three counts: a quarter of the divisions, a column at a time)."""
+    fields = np.asarray(fields, dtype=np.intp)
+    fields = fields[fraction[fields] > 0]
+    if len(fields) == len(fraction):
+        values /= _EXACT_POWERS[fraction]
+        return
+    for field in fields.tolist():  # a loop over a line's fields, not its samples
+        values[:, field] /= _EXACT_POWERS[fraction[field]]
 
 
 @functools.lru_cache(maxsize=64)  # a file's pieces share a layout or a few: worked out once each

@@ -133,7 +133,7 @@ def _recording(args, serial: str | None):
             raise ValueError(f"calibrate: {first} was imported as unit {recording.unit_serial!r}, not {serial!r} "
                              "(--unit-serial, or the --config's device.serial)")
         if serial is not None and recording.unit_serial is None:
-            recording = replace(recording, unit_serial=serial)
+            recording = recording.replaced(unit_serial=serial)
         return recording, first, []
     from fieldcal.cli.importing import read_recording, summary_lines
     from fieldcal.recording.store import write_recording
@@ -142,7 +142,7 @@ def _recording(args, serial: str | None):
         raise ValueError("calibrate: text files need --map (a name in configs/recordings or a YAML "
                          f"path); or give one session directory from `fieldcal import`, or {LOG_NAMES}")
     recording, report = read_recording(args.recording, args.map, args.rate, args.topic, args.imu)
-    recording = replace(recording, unit_serial=serial)
+    recording = recording.replaced(unit_serial=serial)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
 
     def save():
@@ -154,7 +154,7 @@ def _recording(args, serial: str | None):
 
 
 def cmd_calibrate(args) -> int:
-    from fieldcal.cli.startup import imports_uncollected
+    from fieldcal.cli.startup import imports_uncollected, reuse_freed_memory
 
     with imports_uncollected():  # numpy, scipy.linalg and fieldcal's modules: see imports_uncollected
         # scipy first, from here: CPython 3.11 grows the frame stack in 16 KiB chunks, mapped and
@@ -194,6 +194,7 @@ def cmd_calibrate(args) -> int:
         check_output_path(args.params, force=args.force, option="--params")
     started = time.perf_counter()
     from fieldcal.cli.identity import unit_serial
+    reuse_freed_memory()  # before the samples and the calibration's temporaries come and go
     recording, directory, imported = _recording(args, unit_serial(args, config))
     for line in imported:
         print(line)

@@ -90,8 +90,7 @@ def cmd_import(args) -> int:
         raise RecordingImportError(f"--rate: expected a sample rate above 0 Hz, got {args.rate:g}")
     recording, report = read_recording(args.files, args.map, args.rate, args.topic, args.imu)
     if args.unit_serial is not None:
-        from dataclasses import replace
-        recording = replace(recording, unit_serial=args.unit_serial)
+        recording = recording.replaced(unit_serial=args.unit_serial)
     try:
         directory = save_recording(recording, out, report=report)
     except OSError as exc:

@@ -28,18 +28,46 @@ def sliding_std(values, n: int, ddof: int = 1) -> np.ndarray:
     if m < n:
         return np.empty((0, c))
     out = np.empty((m - n + 1, c))
-    step = max(1, _PIECE_ROWS // n) * n
-    for first in range(0, m - n + 1, step):
-        rows = x[first:first + step + n - 1]
+    for first, rows in _pieces(x, n):
         out[first:first + len(rows) - n + 1] = _window_var(rows, n, ddof)
     return np.sqrt(out, out=out)
+
+
+def sliding_variance_by_column(values: np.ndarray, n: int, ddof: int = 1) -> np.ndarray:
+    """(c, m - n + 1): the variance of every window of ``n`` consecutive rows of ``values`` (m, c),
+    as ``sliding_std`` squared, laid out a column's windows side by side (as they are made): a
+    caller that combines the columns (the recording detector's norm over axes) reads each one
+    contiguously, with no square root taken and squared again."""
+    x = np.asarray(values, dtype=float)
+    if x.ndim == 1:
+        x = x[:, None]
+    if n < 2:
+        raise ValueError(f"window of {n} samples: need at least 2")
+    m, c = x.shape
+    out = np.empty((c, max(m - n + 1, 0)))
+    for first, rows in _pieces(x, n):
+        out[:, first:first + len(rows) - n + 1] = _window_var_by_column(rows, n, ddof)
+    return out
+
+
+def _pieces(x: np.ndarray, n: int):
+    """(first window, its rows): x's windows of n rows, about _PIECE_ROWS rows' worth at a time."""
+    step = max(1, _PIECE_ROWS // n) * n
+    for first in range(0, len(x) - n + 1, step):
+        yield first, x[first:first + step + n - 1]
 
 
 _PIECE_ROWS = 1 << 14
 
 
 def _window_var(x: np.ndarray, n: int, ddof: int) -> np.ndarray:
-    """Variance of every window of n rows of x (at least n rows), by blocks of n rows."""
+    """(m - n + 1, c): variance of every window of n rows of x (m, c; at least n rows)."""
+    return _window_var_by_column(x, n, ddof).T
+
+
+def _window_var_by_column(x: np.ndarray, n: int, ddof: int) -> np.ndarray:
+    """(c, m - n + 1): variance of every window of n rows of x (m, c; at least n rows), by blocks
+    of n rows."""
     m, c = x.shape
     blocks_n = -(-m // n)
     # Worked column by column (x transposed: each column's samples side by side), so that every
@@ -78,4 +106,4 @@ def _window_var(x: np.ndarray, n: int, ddof: int) -> np.ndarray:
     s1 /= n
     s2 -= s1
     s2 /= n - ddof
-    return np.maximum(s2, 0.0, out=s2).T
+    return np.maximum(s2, 0.0, out=s2)

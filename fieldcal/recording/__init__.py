@@ -13,37 +13,17 @@ few for the norm method: ``aligned``) into a ``RecordingCalibration`` (``outcome
 """
 from __future__ import annotations
 
-import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
 
 
-# (a weak reference to the timestamps, their length, their median step) of the last few arrays
-# asked for or read: weak, so that no recording's timestamps are kept alive for it.
-_PERIOD_MEMO: list[tuple[weakref.ref, int, float]] = []
-_PERIOD_MEMO_SIZE = 4
-
-
-def sample_period(t: np.ndarray) -> float:
-    """The median step of the timestamps ``t`` (s, at least two). The stages that turn a pose's
-    sample count into seconds (the noise-weighted solve, the up vectors' covariance, the poses'
-    spans) and a Recording's rate each ask for it of the same timestamps: a diff and a median of
-    every sample (on imu_tk's recording joined 16×, 7 ms each time, four times), now once per
-    timestamps array (the importer hands over its own, ``remember_period``)."""
-    for held, length, period in _PERIOD_MEMO:
-        if held() is t and length == len(t):
-            return period
-    period = float(np.median(np.diff(t)))
-    remember_period(t, period)
-    return period
-
-
-def remember_period(t: np.ndarray, period: float) -> None:
-    """``period`` is float(np.median(np.diff(t))), found by whoever made ``t``."""
-    kept = [entry for entry in _PERIOD_MEMO if entry[0]() is not None and entry[0]() is not t]
-    _PERIOD_MEMO[:] = [(weakref.ref(t), len(t), period)] + kept[:_PERIOD_MEMO_SIZE - 1]
+def median_step(t: np.ndarray) -> float:
+    """The median step of the timestamps ``t`` (s, at least two): a diff and a median of every
+    sample (7 ms on imu_tk's recording joined 16×). A Recording's is its ``period_s``, found
+    once; the stages that turn sample counts into seconds are handed it."""
+    return float(np.median(np.diff(t)))
 
 
 @dataclass(frozen=True)
@@ -77,9 +57,25 @@ class Recording:
             raise ValueError(f"recording: temperature has shape {np.shape(self.temperature)}, expected ({n},)")
 
     @cached_property  # a median over every sample: asked for by each stage, computed once
+    def period_s(self) -> float:
+        """The median sample step (s); 0 with fewer than two samples. The importer gives the one
+        it found while reading (no second median)."""
+        return median_step(self.t) if len(self.t) > 1 else 0.0
+
+    @cached_property
     def rate_hz(self) -> float:
         """The median sample rate."""
-        return 1.0 / sample_period(self.t) if len(self.t) > 1 else 0.0
+        return 1.0 / self.period_s if len(self.t) > 1 else 0.0
+
+    def replaced(self, **changes) -> "Recording":
+        """``dataclasses.replace``, its period and rate kept when the timestamps stay the same
+        array (a serial number added: no median of every sample again)."""
+        new = replace(self, **changes)
+        if new.t is self.t:
+            for name in ("period_s", "rate_hz"):  # the cached_properties' own slots, where found
+                if name in self.__dict__:
+                    new.__dict__[name] = self.__dict__[name]
+        return new
 
     @property
     def duration_s(self) -> float:

@@ -60,7 +60,8 @@ def aligned_protocol(recording: Recording, station: Station | UnknownPlace, dete
         # The nominal scale, from the faces' spread (±g on each axis): raw counts have an offset
         # that the means' norm would count as scale.
         scale = np.diag(np.ptp(means, axis=0) / (2 * station.gravity))
-        covariance = means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit)
+        covariance = means_covariance(poses.intervals, recording.t, variance, settings.noise.get(name), scale, unit,
+                                      period=recording.period_s)
         try:
             specific_force[name] = ferraris.solve_aligned_accelerometer(
                 name, unit, means, axes, station.gravity, covariance, np.diff(poses.intervals, axis=1)[:, 0],
@@ -82,7 +83,7 @@ def aligned_protocol(recording: Recording, station: Station | UnknownPlace, dete
     # is in the faces' χ²/dof, which turn_up_variance scales by (with it, RMS z 0.71-0.74).
     up_noise = settings.noise.get(reference)
     up_means_cov = means_covariance(poses.intervals, recording.t, noise.variance, up_noise, acc.K,
-                                    recording.units[reference])
+                                    recording.units[reference], period=recording.period_s)
     for name in detection.rates:
         gyro = recording.triads[name]
         t = regular_times(recording.t, recording.rate_hz)

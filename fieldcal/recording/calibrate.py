@@ -111,14 +111,14 @@ def solve_triads(recording: Recording, detection: Detection, choice: PoseChoice,
         means, variance = interval_means(values, keep), np.var(values[keep[0, 0]:keep[0, 1]], axis=0, ddof=1)
         try:
             solution = solve_static(name, recording.units[name], means, keep, recording.t, variance,
-                                    station.gravity, settings)
+                                    station.gravity, settings, period=recording.period_s)
             if settings.estimate_noise and name not in settings.noise:  # as the reference's
                 noise = estimated_force_noise(solution, means, keep, recording.t, variance, recording.rate_hz,
                                               station.gravity)
                 settings = replace(settings, noise={**settings.noise, name: noise})
                 estimated_names += (name,)
                 solution = solve_static(name, recording.units[name], means, keep, recording.t, variance,
-                                        station.gravity, settings, white=solution)
+                                        station.gravity, settings, white=solution, period=recording.period_s)
             specific_force[name] = solution
         except CalibrationError as exc:
             failures[name] = str(exc)

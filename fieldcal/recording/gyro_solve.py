@@ -14,7 +14,7 @@ import numpy as np
 from fieldcal.calibration import Calibration
 from fieldcal.earth import EARTH_RATE, Station
 from fieldcal.model import calibrate_with
-from fieldcal.recording import Recording
+from fieldcal.recording import Recording, median_step
 from fieldcal.recording.candidates import RATE_UNITS
 from fieldcal.recording.detect import Poses, interval_means
 from fieldcal.recording.drift import regular_times, saturated_spans, still_bias, still_fit
@@ -146,7 +146,9 @@ def solve_gyro(recording: Recording, name: str, poses: Poses, acc: Calibration, 
     spans = np.column_stack([iv[:-1, 1] - 1, iv[1:, 0]])
     acc_noise = settings.noise.get(acc.name)  # quantisation as means_covariance counts it
     quantised = recording.units[acc.name] == "count" and not isinstance(acc_noise, MeasuredNoise)
-    up, up_cov = _up_vectors(acc, poses.means, *means_parts(iv, t, acc_var, acc_noise, acc.K, quantised))
+    period = recording.period_s if t is recording.t else median_step(t)  # the jitter taken out: the grid's
+    up, up_cov = _up_vectors(acc, poses.means, *means_parts(iv, t, acc_var, acc_noise, acc.K, quantised,
+                                                           period=period))
     gyro = recording.triads[name]
     motions = Motions.of(t, gyro, spans, up[:-1], up[1:])
     prior = gyro_prior(recording, name, poses, up, spans, station, settings.noise.get(name),

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.protocols.delimited import DelimitedTextParser
-from fieldcal.recording import Recording, remember_period
+from fieldcal.recording import Recording
 from fieldcal.recording.errors import RecordingImportError
 from fieldcal.recording.containers import ContainerError, is_container, text_of
 from fieldcal.recording.import_map import FileSpec, ImportMap, load_import_map
@@ -142,8 +142,8 @@ def import_with_report(paths, import_map: ImportMap | str | os.PathLike,
                           malformed={p.report.path: (p.report.malformed, p.report.malformed_lines)
                                      for p in parsed})
     if t is parsed[0].t:  # the first file's timestamps as they are: its median rate is the recording's, found once
-        recording.__dict__["rate_hz"] = parsed[0].report.rate_hz  # (the cached_property's own slot)
-        remember_period(t, parsed[0].period)  # and its stages' sample period (only the recording's t is held)
+        recording.__dict__["rate_hz"] = parsed[0].report.rate_hz  # (the cached_properties' own slots)
+        recording.__dict__["period_s"] = parsed[0].period  # and the period its stages are handed
     report = ImportReport(map_path=im.path, map_text=im.text, files=tuple(p.report for p in parsed),
                           alignment=tuple(alignment), warnings=warnings)
     return recording, report

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.special import gammaln
 
 from drivers.noise import DEFAULT_FLICKER_TAU_MAX_S, TriadNoise
-from fieldcal.recording import sample_period
+from fieldcal.recording import median_step
 from fieldcal.recording.detect import interval_means
 
 # The prior on B: density ∝ B^(PRIOR_POWER − 1), i.e. ∝ B^PRIOR_POWER per decade. Chosen on the
@@ -146,10 +146,10 @@ class PoseNoise:
     variance: np.ndarray
     bias_instability: float
 
-    def flicker(self, intervals: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """(m, m): the covariance of the pose means (``intervals`` of ``t``) that the flicker of B
-        makes, every axis alike (output units²)."""
-        return self.bias_instability**2 * flicker_covariance(t[intervals[:, 0]], _spans(t, intervals))
+    def flicker(self, intervals: np.ndarray, t: np.ndarray, period: float) -> np.ndarray:
+        """(m, m): the covariance of the pose means (``intervals`` of ``t``, whose median step is
+        ``period``) that the flicker of B makes, every axis alike (output units²)."""
+        return self.bias_instability**2 * flicker_covariance(t[intervals[:, 0]], _spans(t, intervals, period))
 
 
 WITHIN_POSE_PARTS = 2  # each pose cut in halves at least: their difference is noise alone, white and flicker
@@ -160,7 +160,7 @@ WITHIN_POSE = ("σ from each pose's own samples (their white noise and the bias 
 
 
 def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,
-                      parts: int | None = None) -> PoseNoise:
+                      parts: int | None = None, *, period: float | None = None) -> PoseNoise:
     """The noise of a triad's pose means read from each pose's own samples, for a fit with too
     few degrees of freedom to measure it by its residuals (at none, they are zero whatever the
     noise). Each pose ``intervals`` (m, 2) [start, stop) of ``values`` (n, 3) gives its samples'
@@ -169,7 +169,8 @@ def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,
     when the poses are few): the white noise, and the faster part of the flicker, which through
     the flicker model tells B (bias_instability), and B the slow part that every pose shares and
     that no scatter shows. A drift within a pose
-    (a warm-up) counts as flicker: the σ err on the wide side."""
+    (a warm-up) counts as flicker: the σ err on the wide side. ``period``: the median step of
+    ``t`` (a Recording's ``period_s``), found again when not given."""
     intervals = np.asarray(intervals, dtype=int).reshape(-1, 2)
     m, values = len(intervals), np.asarray(values, dtype=float)
     counts = np.diff(intervals, axis=1)
@@ -189,12 +190,13 @@ def within_pose_noise(values: np.ndarray, intervals: np.ndarray, t: np.ndarray,
     white = np.repeat(np.mean(variance, axis=1), parts) / part_counts
     fitted = design @ (np.add.reduceat(means / white[:, None], np.arange(0, m * parts, parts), axis=0)
                        / np.add.reduceat(1.0 / white, np.arange(0, m * parts, parts))[:, None])
-    flicker = flicker_covariance(t[windows[:, 0]], _spans(t, windows))
+    period = (median_step(t) if len(t) > 1 else 1.0) if period is None else period
+    flicker = flicker_covariance(t[windows[:, 0]], _spans(t, windows, period))
     b = bias_instability(means - fitted, design, white, flicker, weights=1.0 / white)
     return PoseNoise(variance=variance, bias_instability=b)
 
 
-def _spans(t: np.ndarray, windows: np.ndarray) -> np.ndarray:
+def _spans(t: np.ndarray, windows: np.ndarray, period: float) -> np.ndarray:
     """Each window's duration (s) from its first sample to its last, so that jittered timestamps
-    cannot make neighbours overlap; one sample's period at least."""
-    return np.maximum(t[windows[:, 1] - 1] - t[windows[:, 0]], sample_period(t) if len(t) > 1 else 1.0)
+    cannot make neighbours overlap; one sample's ``period`` at least."""
+    return np.maximum(t[windows[:, 1] - 1] - t[windows[:, 0]], period)

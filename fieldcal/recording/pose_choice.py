@@ -39,7 +39,8 @@ def choose_poses(recording: Recording, detection: Detection, station: Station | 
     def solve(poses, method=None):
         try:
             return solve_static(reference, unit, poses.means, poses.intervals, recording.t,
-                                detection.noise.variance, station.gravity, settings, method)
+                                detection.noise.variance, station.gravity, settings, method,
+                                period=recording.period_s)
         except CalibrationError as exc:
             return str(exc)
 
@@ -83,5 +84,6 @@ def with_estimated_noise(recording: Recording, detection: Detection, choice: Pos
                                   detection.noise.variance, recording.rate_hz, station.gravity)
     settings = replace(settings, noise={**settings.noise, reference: noise})
     solution = solve_static(reference, recording.units[reference], poses.means, poses.intervals, recording.t,
-                            detection.noise.variance, station.gravity, settings, white=choice.reference_solution)
+                            detection.noise.variance, station.gravity, settings, white=choice.reference_solution,
+                            period=recording.period_s)
     return replace(choice, reference_solution=solution), settings

@@ -12,7 +12,7 @@ import numpy as np
 
 from fieldcal.calibration import Calibration
 from fieldcal.model import calibrate_with
-from fieldcal.recording import sample_period
+from fieldcal.recording import median_step
 from fieldcal.recording.noise_estimate import MeasuredNoise, bias_instability, flicker_covariance, window_covariance
 from fieldcal.recording.up_covariance import MeansCovariance
 from fieldcal.solvers import CalibrationError, solve_norm
@@ -23,10 +23,11 @@ def reduced_chi2(solution: Calibration) -> float:
 
 
 def solve_static(name, unit, means, intervals, t, variance, gravity, settings, method=None,
-                 white: Calibration | None = None) -> Calibration:
+                 white: Calibration | None = None, *, period: float | None = None) -> Calibration:
     """``method``: the norm solver, settings.method unless given (SCREEN: only the minimum χ²).
     ``white``: this very problem's solution by ``method`` on white-noise weights when it is at
-    hand (the solve a noise model's weights start from: not done again)."""
+    hand (the solve a noise model's weights start from: not done again). ``period``: the
+    median step of ``t`` (a Recording's ``period_s``), found again when not given."""
     method = method or settings.method
     problem = StaticNormProblem(means, gravity, name=name, output_unit=unit,
                                 labels=tuple(f"pose {i + 1}" for i in range(len(means))))
@@ -35,8 +36,9 @@ def solve_static(name, unit, means, intervals, t, variance, gravity, settings, m
         problem, np.sqrt(variance[None, :] / np.diff(intervals, axis=1)), method=method)
     noise = settings.noise.get(name)
     if noise is not None:  # bias instability correlates the pose means; its covariance needs the scale
-        solution = solve_norm(problem, means_covariance(intervals, t, variance, noise, solution.K, unit, parts=True),
-                              method=method)
+        period = median_step(t) if period is None else period
+        solution = solve_norm(problem, means_covariance(intervals, t, variance, noise, solution.K, unit, parts=True,
+                                                        period=period), method=method)
     # The noise alone under-states the σ when the poses scatter more than it says (the bias
     # wanders, the temperature moves the scale, a hand trembles: χ²/dof > 1 says so), with a
     # noise model as without one: the σ are scaled up by χ²/dof, never down.
@@ -48,14 +50,15 @@ def solve_static(name, unit, means, intervals, t, variance, gravity, settings, m
     return solution
 
 
-def means_covariance(intervals, t, variance, noise, K, unit, parts: bool = False):
+def means_covariance(intervals, t, variance, noise, K, unit, parts: bool = False, *, period: float):
     """Covariance of the flattened pose means (output units): white noise measured over the rest,
     or, with the device's noise model and scale K, the exact one, bias instability included
-    (``parts``: kept by its parts, a MeansCovariance, as a norm solve weighs it in O(m²))."""
+    (``parts``: kept by its parts, a MeansCovariance, as a norm solve weighs it in O(m²)).
+    ``period``: the median step of ``t`` (s), a pose's sample count times it its duration."""
     counts = np.diff(intervals, axis=1)[:, 0]
     if noise is None:
         return np.diag((variance[None, :] / counts[:, None]).ravel())
-    durations = counts * sample_period(t)
+    durations = counts * period
     if parts:
         quantised = unit == "count" and not isinstance(noise, MeasuredNoise)
         own = np.broadcast_to((1.0 / 12.0 / counts if quantised else np.zeros(len(counts)))[:, None], (len(counts), 3))

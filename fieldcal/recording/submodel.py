@@ -94,7 +94,8 @@ def submodel_protocol(recording: Recording, station: Station | UnknownPlace, det
         solution, measured = solve_determined(
             name, recording.units[name], means, poses.intervals, recording.t, variance, station.gravity, add,
             settings.noise.get(name), recording.rate_hz if measure else None,
-            within_pose_noise(values, poses.intervals, recording.t) if measure else None)
+            within_pose_noise(values, poses.intervals, recording.t, period=recording.period_s) if measure else None,
+            period=recording.period_s)
         if measured is not None:
             estimated[name] = measured
         if measured is not None and solution is not None:
@@ -182,12 +183,12 @@ def _solution(name: str, unit: str, problem: StaticNormProblem, fit: _Fit, natur
 
 def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndarray, t: np.ndarray,
                      variance: np.ndarray, gravity: float, add: str, noise=None,
-                     rate_hz: float | None = None, pose_noise: PoseNoise | None = None
+                     rate_hz: float | None = None, pose_noise: PoseNoise | None = None, *, period: float
                      ) -> tuple[Calibration | None, MeasuredNoise | None]:
     """The specific-force triad's parameters its pose means determine (module doc), the rest
     nominal and marked (None when none is determined), and the noise model measured for it
     (None: the device's ``noise`` was given, or none was measured). ``intervals``: the poses'
-    [start, stop) in samples of ``t``; ``variance``: per-axis white noise of one sample (output
+    [start, stop) in samples of ``t``, whose median step is ``period`` (s); ``variance``: per-axis white noise of one sample (output
     units²); ``add``: which poses would add the rest.
 
     The means are weighed by their white noise, then by their exact covariance, the bias
@@ -223,9 +224,9 @@ def solve_determined(name: str, unit: str, means: np.ndarray, intervals: np.ndar
         noise = measured = estimated_force_noise(white, means, intervals, t, variance, rate_hz, gravity)
         sigma_from = SIGMA_FROM_SCATTER.format(dof=fit.dof)
     if noise is not None:  # the device's model, or the one the scatter measured
-        covariance = means_covariance(intervals, t, variance, noise, white.K, unit, parts=True)
+        covariance = means_covariance(intervals, t, variance, noise, white.K, unit, parts=True, period=period)
     elif rate_hz is not None and pose_noise is not None:  # too few residuals: the poses' own samples
-        covariance, scale = MeansCovariance(pose_noise.flicker(intervals, t), np.eye(3),
+        covariance, scale = MeansCovariance(pose_noise.flicker(intervals, t, period), np.eye(3),
                                             pose_noise.variance / counts[:, None]), False
         k = float(theta0[3])  # output units per SI unit
         measured = MeasuredNoise(white=float(np.sqrt(np.mean(pose_noise.variance) / rate_hz)) / k,
@@ -291,11 +292,11 @@ def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: 
     dof = m - 1
     measured, sigma_from = None, ""
     if noise is None and estimate and dof < SCATTER_DOF:  # too few readings to scatter: their own samples
-        pose_noise = within_pose_noise(gyro, intervals, recording.t)
+        pose_noise = within_pose_noise(gyro, intervals, recording.t, period=recording.period_s)
         bias = np.mean(still, axis=0)
         weights = np.full(m, 1.0 / m)
         own = weights**2 @ (pose_noise.variance / counts[:, None])
-        bias_sigma = np.sqrt(earth_mean + own + weights @ pose_noise.flicker(intervals, recording.t) @ weights)
+        bias_sigma = np.sqrt(earth_mean + own + weights @ pose_noise.flicker(intervals, recording.t, recording.period_s) @ weights)
         measured = MeasuredNoise(white=float(np.sqrt(np.mean(pose_noise.variance) / recording.rate_hz)) / abs(scale),
                                  bias_instability=pose_noise.bias_instability / abs(scale))
         sigma_from = WITHIN_POSE.format(dof=dof)
@@ -313,7 +314,8 @@ def still_gyro(recording: Recording, name: str, poses, up: np.ndarray, station: 
             # B as the poses' own samples show it too, the larger kept: a scatter of a few readings,
             # the Earth rate's share taken off, often under-shows a consumer gyro's flicker (RMS z
             # 1.21-1.41 on 9-14 poses; with the larger, 0.92-1.07).
-            within = within_pose_noise(gyro, intervals, recording.t).bias_instability / abs(scale)
+            within = within_pose_noise(gyro, intervals, recording.t, period=recording.period_s).bias_instability \
+                / abs(scale)
             noise = measured = replace(scattered, bias_instability=max(scattered.bias_instability, within))
             sigma_from = SIGMA_FROM_SCATTER.format(dof=dof)
         if noise is not None and noise.bias_instability:  # what every pose shares, which no scatter shows

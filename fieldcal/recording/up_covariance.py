@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fieldcal.recording import sample_period
 from fieldcal.recording.noise_estimate import window_covariance
 from fieldcal.solvers.semiseparable import ChainedPoses, MarkovWindows
 
@@ -124,17 +123,17 @@ class MeansCovariance:
 
 
 def means_parts(intervals: np.ndarray, t: np.ndarray, variance: np.ndarray, noise, K: np.ndarray,
-                quantised: bool) -> tuple[np.ndarray | MarkovWindows | None, np.ndarray]:
+                quantised: bool, *, period: float) -> tuple[np.ndarray | MarkovWindows | None, np.ndarray]:
     """(windows, own) of the pose means' covariance in a = K⁻¹·mean, as ``static_solve.means_covariance``
     makes it in output units: white noise per axis alone (no noise model), else the model's
     window covariance on every axis alike (by its parts where the windows are in time order)
-    plus, for ``quantised`` raw counts, one count's."""
+    plus, for ``quantised`` raw counts, one count's. ``period``: the median step of ``t`` (s)."""
     counts = np.diff(intervals, axis=1)[:, 0]
     K_inv = np.linalg.inv(K)
     if noise is None:
         own = (K_inv[None] * (variance[None, None, :] / counts[:, None, None])) @ K_inv.T
         return None, own
-    durations = counts * sample_period(t)
+    durations = counts * period
     windows = MarkovWindows.of(noise, t[intervals[:, 0]], durations)
     if windows is None:
         windows = window_covariance(noise, t[intervals[:, 0]], durations)

@@ -292,7 +292,9 @@ def _span_terms(out, values, t, i0, lengths, blocks, offset) -> None:
     source[_bit_reversed(_BLOCK)[k % _BLOCK] * out.shape[2] + first[span] + k // _BLOCK] = column
     places = out.view()
     places.shape = (len(out), -1)  # out's own memory (an error, not a copy, were it not one block)
-    np.take(padded, source, axis=1, out=places)
+    # mode "clip" (every index is in range): with the default "raise", numpy gathers into a
+    # buffer and copies it to ``out`` (so that an error leaves it untouched), ~2.5× the cost.
+    np.take(padded, source, axis=1, out=places, mode="clip")
 
 
 def _paired(terms: np.ndarray) -> np.ndarray:

@@ -179,14 +179,21 @@ class SemiseparableWhitener:
         x = np.empty_like(R)
         blocks = x[:n * b].reshape(n, b, -1)
         np.matmul(self.inverse_diagonal, R[:n * b].reshape(n, b, -1), out=blocks)  # L_i⁻¹r_i, all at once
-        f, carried = np.zeros((S.state_size, R.shape[1])), np.empty((S.state_size, R.shape[1]))
+        f = np.zeros((S.state_size, R.shape[1]))
         inverse_left, gains = self.inverse_left, self.gains
+        # S.transition done in place on the one state, written out: the loop runs once a block
+        # (hundreds, several passes a solve), where a call and two arrays a block cost more than
+        # its few flops. The same operations on the same numbers: the low rank, kept, is not copied.
+        g, b, _ = S.sizes
+        carried, waiting, neighbour = f[:g], f[g:2 * g], f[g:2 * g + b]
+        decay = S.decay[:, :, None]
         for i in range(n):
             xi = blocks[i]
             xi -= inverse_left[i] @ f
-            S.transition(f, i, out=carried)  # carried = a_i·f + gains_i·x_i, with no new array
-            carried += gains[i] @ xi
-            f, carried = carried, f
+            carried *= decay[i]  # f = a_i·f + gains_i·x_i
+            carried += waiting
+            neighbour.fill(0.0)
+            f += gains[i] @ xi
         if S.tail_size:
             tail = slice(n * b, None)
             x[tail] = self.tail_inverse @ (R[tail] - S._tail_low() @ f[S.low_slots])
