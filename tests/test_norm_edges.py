@@ -4,7 +4,6 @@ kept by its parts never made dense; Powell's box, its second search and a start 
 zero-residual minimum; Gauss-Newton's stopping rule in σ of the solution and its refusal of a step
 that raises χ²; the search's start at the Gauss-Newton step (the mutation sample of
 fieldcal/solvers/norm.py of 2026-11-28, docs/benchmarks.md, found these unguarded)."""
-import math
 from types import SimpleNamespace
 
 import numpy as np
