@@ -276,3 +276,16 @@ def test_a_resumed_run_starts_at_the_first_step_neither_done_nor_skipped():
     assert three.start()[0].step == 1
     three.restore([done], skipped=[1])
     assert three.start()[0].step == 2
+
+
+def test_a_resumed_any_order_run_takes_the_unit_to_rest_where_the_last_measured_step_was():
+    # Step 0 (z up) measured last, at 20 s; step 1 (x up) before it, at 10 s: the unit left z up
+    # is still where it was measured, not placed anywhere new, whatever the steps' order.
+    e = Engine(parse_procedure(Z_UP.format(extra="any_order: true") + "  - {id: 3, axes: {x: north, y: up, z: east}}\n",
+                               "three.yaml"),
+               EngineSettings(rate_hz=RATE_HZ, stillness=StillnessSettings(specific_force_sigma=2e-3, rate_sigma=1e-4)))
+    e.restore([StepRecord(0, 1, (WindowRecord(STATIC, 15.0, 5.0, 0.0, {"accelerometer": [0.0, 0.0, G]}),)),
+               StepRecord(1, 2, (WindowRecord(STATIC, 5.0, 5.0, 0.0, {"accelerometer": [G, 0.0, 0.0]}),))])
+    e.start()
+    out = feed(e, (0.0, 0.0, G), (0.0, 0.0, 0.0), 3, first=2000)
+    assert e.phase == PLACE and not any(x.kind == "wrong_orientation" for x in out)
