@@ -4,6 +4,7 @@ kept by its parts never made dense; Powell's box, its second search and a start 
 zero-residual minimum; Gauss-Newton's stopping rule in σ of the solution and its refusal of a step
 that raises χ²; the search's start at the Gauss-Newton step (the mutation sample of
 fieldcal/solvers/norm.py of 2026-11-28, docs/benchmarks.md, found these unguarded)."""
+import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -157,3 +158,49 @@ def test_sigmas_given_in_single_precision_are_squared_in_double():
     single = SIGMAS.astype(np.float32)
     weights = norm._residual_whitener(problem, IDENTITY, single).matrix()
     np.testing.assert_array_equal(weights, norm._residual_whitener(problem, IDENTITY, single.astype(float)).matrix())
+
+
+def test_gauss_newton_from_a_start_with_no_residual_stays_there():
+    # Unweighted and already at a zero-residual minimum: no scatter to measure σ by, so the steps
+    # are taken in the residuals' own unit, and the first one is nothing.
+    start = np.linspace(-1.0, 1.0, 9)
+    res = norm._gauss_newton(lambda z: z - start, start.copy(), per_sigma=False, dof=3)
+    assert res.success is True
+    np.testing.assert_array_equal(res.x, start)
+
+
+def test_a_covariance_by_its_parts_that_is_not_positive_definite_is_refused_in_one_line():
+    # Windows of variance −1e-6: no covariance at all. The refusal names the triad.
+    up = np.array([p.up_body for p in load_procedure("field-18").positions])
+    negative = MeansCovariance(-1e-6 * np.eye(18), np.eye(3), np.zeros((18, 3)))
+    with pytest.raises(norm.CalibrationError) as raised:
+        solve_norm(StaticNormProblem(G * up, G), negative)
+    assert str(raised.value) == "accelerometer: the covariance of the averages is not positive definite"
+
+
+def test_a_solve_warns_of_nothing():
+    # Every option given to scipy's Powell is one it knows (an unknown one is an OptimizeWarning
+    # on the operator's terminal, and its limit silently another).
+    up = np.array([p.up_body for p in load_procedure("field-18").positions])
+    problem = StaticNormProblem(distort_with(np.array([0.3, -0.2, 0.1, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015]),
+                                             G * up) + np.random.default_rng(2).normal(0, 5e-4, up.shape), G)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for method in ("powell", "lsq", norm.SCREEN):
+            solve_norm(problem, np.full((18, 3), 5e-4), method)
+            solve_norm(problem, None, method)
+
+
+@pytest.mark.parametrize("repeats", [1, 16])
+def test_positions_tilted_a_hair_from_the_cube_faces_are_refused_on_their_geometry_however_often_measured(repeats):
+    # The six faces and each tilted by 1e-4 rad towards the next axis: the spread is nothing, and
+    # measuring every position 16 times over does not change the directions, so the refusal
+    # (and its condition number) is the same either way.
+    faces = np.vstack([np.eye(3), -np.eye(3)])
+    directions = np.vstack([faces, faces + 1e-4 * np.roll(faces, 1, axis=1)])
+    directions = np.repeat(directions / np.linalg.norm(directions, axis=1, keepdims=True), repeats, axis=0)
+    truth = np.array([0.3, -0.2, 0.1, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+    with pytest.raises(norm.CalibrationError) as raised:
+        solve_norm(StaticNormProblem(distort_with(truth, G * directions), G), np.full(directions.shape, 5e-4))
+    assert str(raised.value).startswith("accelerometer: positions are degenerate (condition number 2.05e+04); "
+                                        f"{12 * repeats} measurements point along only 3 distinct axes")
