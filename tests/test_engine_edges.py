@@ -289,3 +289,19 @@ def test_a_resumed_any_order_run_takes_the_unit_to_rest_where_the_last_measured_
     e.start()
     out = feed(e, (0.0, 0.0, G), (0.0, 0.0, 0.0), 3, first=2000)
     assert e.phase == PLACE and not any(x.kind == "wrong_orientation" for x in out)
+
+
+def test_a_table_found_turning_again_after_it_stopped_is_reported_again():
+    # Turning at 90 °/s when first still: reported; stopped: still, the dwell starts; a bump, and
+    # the table found turning at the next check: reported a second time.
+    b = Bench(engine(RATE_STEP))
+    b.e.start()
+    b.e.act(ev.Action(ev.READY))
+    for _ in range(3):
+        b.second(QUARTER_TURN)
+    b.until("still", 0.0)
+    b.second(0.0, sf=np.tile([0.0, 0.0, G], (100, 1)) + np.sin(np.arange(1, 101) / 2.0)[:, None])
+    for _ in range(3):
+        b.second(QUARTER_TURN)
+    assert [x.kind for x in b.events if x.kind in ("table_turning", "still", "motion_detected")] \
+        == ["table_turning", "still", "motion_detected", "table_turning"]

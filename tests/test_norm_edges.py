@@ -191,16 +191,32 @@ def test_a_solve_warns_of_nothing():
             solve_norm(problem, None, method)
 
 
+@pytest.mark.parametrize("counts_per_si", [1.0, 415.0])
 @pytest.mark.parametrize("repeats", [1, 16])
-def test_positions_tilted_a_hair_from_the_cube_faces_are_refused_on_their_geometry_however_often_measured(repeats):
+def test_positions_tilted_a_hair_from_the_cube_faces_are_refused_on_their_geometry_however_often_measured(
+        repeats, counts_per_si):
     # The six faces and each tilted by 1e-4 rad towards the next axis: the spread is nothing, and
     # measuring every position 16 times over does not change the directions, so the refusal
-    # (and its condition number) is the same either way.
+    # (and its condition number) is the same either way; and the same in raw counts (415 a m/s²
+    # around 32768) as in m/s², the geometry being the same.
     faces = np.vstack([np.eye(3), -np.eye(3)])
     directions = np.vstack([faces, faces + 1e-4 * np.roll(faces, 1, axis=1)])
     directions = np.repeat(directions / np.linalg.norm(directions, axis=1, keepdims=True), repeats, axis=0)
     truth = np.array([0.3, -0.2, 0.1, 1.02, 0.97, 1.01, 0.01, -0.02, 0.015])
+    if counts_per_si != 1.0:
+        truth = np.r_[32768.0 + counts_per_si * truth[:3], counts_per_si * truth[3:6], truth[6:]]
     with pytest.raises(norm.CalibrationError) as raised:
-        solve_norm(StaticNormProblem(distort_with(truth, G * directions), G), np.full(directions.shape, 5e-4))
+        solve_norm(StaticNormProblem(distort_with(truth, G * directions), G),
+                   np.full(directions.shape, 5e-4 * counts_per_si))
     assert str(raised.value).startswith("accelerometer: positions are degenerate (condition number 2.05e+04); "
                                         f"{12 * repeats} measurements point along only 3 distinct axes")
+
+
+def test_gauss_newton_gives_up_after_its_twenty_steps():
+    # r = z²⁰: Newton's step takes z to 0.95 z, never a step below 1e-4 from z = 1 in 20 steps
+    # (the 20th is 0.05·0.95¹⁹ = 0.019), each lowering χ²: no convergence, and the last z kept.
+    res = norm._gauss_newton(lambda z: np.asarray(z, dtype=float) ** 20, np.array([1.0]), per_sigma=True, dof=0)
+    assert res.success is False and res.nit == 20
+    assert res.message == "no convergence in 20 Gauss-Newton steps"
+    assert res.x[0] == pytest.approx(0.95 ** 20, rel=1e-3)
+
