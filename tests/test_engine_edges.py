@@ -305,3 +305,41 @@ def test_a_table_found_turning_again_after_it_stopped_is_reported_again():
         b.second(QUARTER_TURN)
     assert [x.kind for x in b.events if x.kind in ("table_turning", "still", "motion_detected")] \
         == ["table_turning", "still", "motion_detected", "table_turning"]
+
+
+def test_a_step_starts_by_naming_its_position_in_the_files_words():
+    # Position 1 has no description: its attitude in the procedure files' words.
+    e = engine()
+    assert [(x.kind, x.description) for x in e.start()] == [("step_started", "z-upward, x-east, y-north"),
+                                                            ("place_unit", "z-upward, x-east, y-north")]
+
+
+def in_small_chunks(e: Engine, sf: np.ndarray, first: int) -> list[ev.Event]:
+    """sf (n, 3) fed ten samples a chunk (a quiet gyro), from sample `first` on."""
+    out = []
+    for k in range(0, len(sf), 10):
+        out += e.feed(SampleChunk(np.arange(first + k, first + k + 10) / RATE_HZ,
+                                  {"accelerometer": sf[k:k + 10], "gyroscope": np.zeros((10, 3))}))
+    return out
+
+
+def test_a_unit_lifted_during_the_check_and_put_back_counts_as_moved_however_small_the_chunks():
+    # Any order, resumed where step 0 (z up) rested: still 1.2 s (the first second is the
+    # detector's first window, then the check begins), lifted for 0.2 s, put back: moved, so the
+    # position is judged, and z up is no remaining position.
+    e = resumed_any_order(15.0)
+    z_up = np.tile([0.0, 0.0, G], (120, 1))
+    lifted = np.array([0.0, 0.0, G]) + np.sin(np.arange(1, 21) / 2.0)[:, None] * np.ones(3)
+    out = in_small_chunks(e, np.vstack([z_up, lifted, np.tile([0.0, 0.0, G], (300, 1))]), first=600)
+    assert [x.looks_like for x in out if x.kind == "wrong_orientation"] == [(1,)]
+
+
+def test_the_rest_of_a_resumed_raw_count_step_is_taken_without_its_zero():
+    # Counts: 400 a m/s² around 32768 on every axis. Step 0 rested z up (32768 + 400·g on z);
+    # the unit still there is where it was measured: waiting to be placed, no complaint.
+    e = engine("any_order: true", sf_sigma=0.8, sf_zero=(32768.0,) * 3, sf_sensitivity=(400.0,) * 3)
+    counts = 32768.0 + 400.0 * np.array([0.0, 0.0, G])
+    e.restore([StepRecord(0, 1, (WindowRecord(STATIC, 0.0, 5.0, 0.0, {"accelerometer": counts.tolist()}),))])
+    e.start()
+    out = feed(e, counts, (0.0, 0.0, 0.0), 3, first=600)
+    assert e.phase == PLACE and not any(x.kind == "wrong_orientation" for x in out)
