@@ -343,3 +343,43 @@ def test_the_rest_of_a_resumed_raw_count_step_is_taken_without_its_zero():
     e.start()
     out = feed(e, counts, (0.0, 0.0, 0.0), 3, first=600)
     assert e.phase == PLACE and not any(x.kind == "wrong_orientation" for x in out)
+
+
+def test_still_and_the_dwell_are_stamped_with_their_last_samples():
+    # Noiseless from sample 0: still from sample 99 (the first full 1 s window), the 0.5 s check
+    # is samples 99..148, the 5 s dwell 149..648.
+    e = engine()
+    e.start()
+    e.act(ev.Action(ev.READY))
+    out = feed(e, (0.0, 0.0, G), (0.0, 0.0, 0.0), 8)
+    assert [(x.kind, x.t) for x in out if x.kind in ("still", "dwell_complete")] == [("still", 1.48),
+                                                                                    ("dwell_complete", 6.48)]
+    assert e.records[0].windows[0].start == 1.49
+
+
+def test_a_raw_count_gyro_at_its_zero_is_a_table_at_rest():
+    # The gyro reads 32768 counts at rest, 1000 a rad/s: a table at rest, not one turning.
+    e = engine(RATE_STEP, rate_zero=(32768.0,) * 3, rate_sensitivity=(1000.0,) * 3)
+    e.start()
+    e.act(ev.Action(ev.READY))
+    out = feed(e, (0.0, 0.0, G), (32768.0,) * 3, 3)
+    assert [x.kind for x in out if x.kind in ("still", "table_turning")] == ["still"]
+
+
+def test_a_unit_moved_while_the_table_is_still_stopping_is_moved():
+    # Recognised as left where step 0 was measured, then lifted before the table's stop time
+    # (ramp 3 s + settle 2 s) is over and put back: the lift was the operator's, and z up is no
+    # remaining position.
+    b = stopped_table_any_order()
+    stopped_at = next(x.t for x in b.events if x.kind == "step_complete")
+    for _ in range(3):
+        if b.e.phase == PLACE and b.e._detector is not None:  # judged: still where it was measured
+            break
+        b.second(0.0)
+    assert b.e.phase == PLACE and b.e._detector is not None
+    lift = np.tile([0.0, 0.0, G], (100, 1)) + np.sin(np.arange(1, 101) / 2.0)[:, None]
+    assert b.k / RATE_HZ + 1.0 < stopped_at + 5.0  # (the point: all of the lift before the stop time)
+    b.second(0.0, sf=lift)
+    for _ in range(3):
+        b.second(0.0)
+    assert [x.looks_like for x in b.events if x.kind == "wrong_orientation"] == [(1,)]

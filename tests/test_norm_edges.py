@@ -34,7 +34,9 @@ def test_independent_averages_give_the_hand_worked_residual_variances():
 
 
 def test_a_problem_without_gradients_gets_the_same_variances_by_differences():
-    problem = StaticNormProblem(MEANS, G)
+    # The averages off the sphere by 0.1 %, −0.1 %, 0.05 % (residuals of some 0.01 m/s², not
+    # zero): each gradient is still its average's direction, the variances as worked above.
+    problem = StaticNormProblem(MEANS * np.array([[1.001], [0.999], [1.0005]]), G)
     hidden = SimpleNamespace(residuals=problem.residuals, reference_scale=problem.reference_scale)
     covariance = norm._residual_covariance(hidden, IDENTITY, problem.data, SIGMAS)
     np.testing.assert_allclose(np.diag(covariance), VARIANCES, rtol=1e-5)
@@ -71,6 +73,7 @@ def counting_minimize(monkeypatch) -> list:
     real = scipy.optimize.minimize
 
     def minimize(fun, x0, **kw):
+        assert kw.get("method", "").lower() == "powell"  # each search is Powell's
         calls.append(kw.get("bounds") is not None)
         return real(fun, x0, **kw)
 
@@ -81,8 +84,9 @@ def counting_minimize(monkeypatch) -> list:
 def test_powell_searches_again_without_its_box_only_when_it_ends_near_the_edge(monkeypatch):
     # χ² = |z − c|², 1σ a unit of z: the box is ±100σ around the start.
     calls = counting_minimize(monkeypatch)
-    near = np.arange(9) * 0.3  # the minimum within 2.4σ of the start
-    res = norm._powell(lambda z: z - near, np.zeros(9), per_sigma=True, dof=5)
+    start = np.full(9, 60.0)
+    near = start + np.arange(9) * 0.3  # the minimum within 2.4σ of the start
+    res = norm._powell(lambda z: z - near, start, per_sigma=True, dof=5)
     np.testing.assert_allclose(res.x, near, atol=1e-3)
     assert calls == [True]  # one bounded search
     calls.clear()
@@ -220,3 +224,12 @@ def test_gauss_newton_gives_up_after_its_twenty_steps():
     assert res.message == "no convergence in 20 Gauss-Newton steps"
     assert res.x[0] == pytest.approx(0.95 ** 20, rel=1e-3)
 
+
+def test_gauss_newton_with_one_degree_of_freedom_takes_sigma_from_the_scatter():
+    # r(z) = 1e-3·(z² − 4, 1), dof 1: σ in z is √(χ²/1) = 1e-3·√26 at z = 3, the tolerance 5.1e-7;
+    # Newton's steps −0.83, −0.16, −6.4e-3, −1.0e-5 go on to −2.5e-11, which ends it at 2.
+    res = norm._gauss_newton(lambda z: 1e-3 * np.concatenate([np.asarray(z)[..., :1] ** 2 - 4.0,
+                                                              np.ones(np.shape(z)[:-1] + (1,))], axis=-1),
+                             np.array([3.0]), per_sigma=False, dof=1)
+    assert res.success is True and res.nit == 5
+    assert abs(res.x[0] - 2.0) < 1e-12
