@@ -237,10 +237,10 @@ def test_a_bump_while_the_turns_are_averaged_restarts_them():
     assert again.t > bump_at / RATE_HZ and complete.t - again.t == pytest.approx(3.99, abs=1e-9)
 
 
-def stopped_table_any_order() -> Bench:
+def stopped_table_any_order(rate_step: str = RATE_STEP) -> Bench:
     """Any order, z up: the one step measured with its rate step, the table then slowing from
-    −90 °/s to a stop in one second (its ramp_s is 3, settle_s 2)."""
-    b = Bench(engine(f"any_order: true\n{RATE_STEP}"))
+    −90 °/s to a stop in one second (RATE_STEP's ramp_s is 3, settle_s 2)."""
+    b = Bench(engine(f"any_order: true\n{rate_step}"))
     b.e.start()
     b.until("dwell_complete", 0.0)
     b.until("rate_step_complete", QUARTER_TURN)
@@ -367,19 +367,24 @@ def test_a_raw_count_gyro_at_its_zero_is_a_table_at_rest():
 
 
 def test_a_unit_moved_while_the_table_is_still_stopping_is_moved():
-    # Recognised as left where step 0 was measured, then lifted before the table's stop time
-    # (ramp 3 s + settle 2 s) is over and put back: the lift was the operator's, and z up is no
-    # remaining position.
-    b = stopped_table_any_order()
+    # Recognised as left where step 0 was measured, then lifted from the last sample of a second
+    # on, for 0.3 s, and put back, all (the detector's window after it included) well before the
+    # table's stop time (ramp 3 s + settle 8 s) is over: the lift was the operator's, and z up,
+    # once it is still again, is no remaining position.
+    b = stopped_table_any_order("rate_step: {rate_deg_s: 90, turns: 1, ramp_s: 3, settle_s: 8}")
     stopped_at = next(x.t for x in b.events if x.kind == "step_complete")
     for _ in range(3):
         if b.e.phase == PLACE and b.e._detector is not None:  # judged: still where it was measured
             break
         b.second(0.0)
     assert b.e.phase == PLACE and b.e._detector is not None
-    lift = np.tile([0.0, 0.0, G], (100, 1)) + np.sin(np.arange(1, 101) / 2.0)[:, None]
-    assert b.k / RATE_HZ + 1.0 < stopped_at + 5.0  # (the point: all of the lift before the stop time)
-    b.second(0.0, sf=lift)
+    lifted_from = (b.k + 99) / RATE_HZ
+    lift = np.tile([0.0, 0.0, G], (200, 1))
+    lift[99:129] += np.sin(np.arange(1, 31) / 2.0)[:, None]
+    b.second(0.0, sf=lift[:100])
+    b.second(0.0, sf=lift[100:])
+    assert b.k / RATE_HZ + 1.0 < stopped_at + 11.0  # (the point: the lift and its window before the stop time)
     for _ in range(3):
         b.second(0.0)
-    assert [x.looks_like for x in b.events if x.kind == "wrong_orientation"] == [(1,)]
+    wrong = [x for x in b.events if x.kind == "wrong_orientation"]
+    assert [x.looks_like for x in wrong] == [(1,)] and wrong[0].t > lifted_from + 0.3
