@@ -432,3 +432,23 @@ def test_window_var_gives_each_windows_variance_by_definition(m, n, ddof):
     # variance (a window across the step), exactly 0 where a window holds one value
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9 * expected.max())
     assert np.array_equal(got == 0.0, expected == 0.0)
+
+
+def test_a_chunk_whose_squares_overflow_is_judged_as_when_fed_whole():
+    """Finite samples so large that their squares overflow (the window ratios come out NaN) right
+    after a bump: the steady path, which tells a chunk still throughout by its largest ratio, must
+    keep the state (moving) as the detector fed everything at once does, not call them still."""
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((4 * N, 6)) * np.repeat([0.02, 0.001], 3)
+    x[3 * N - 10:3 * N, 0] += 1.0  # a bump at the end of the third chunk: moving
+    x[3 * N:] = 1e200 * rng.standard_normal((N, 6))
+    chunk = made(x[:, :3], x[:, 3:])
+    settings = StillnessSettings(specific_force_sigma=0.02, rate_sigma=0.001)
+    with np.errstate(over="ignore", invalid="ignore"):
+        assert np.isfinite(x[3 * N:].sum()) and not np.isfinite((x[3 * N:] ** 2).sum())
+        whole = detect(chunk, settings)
+        det = StillnessDetector(settings, RATE)
+        pieces = [det.feed(c) for c in split(chunk, [N] * 4)]
+    assert pieces[1].all() and not pieces[2][-1]  # still, then the bump, on the steady path
+    assert not pieces[3].any()  # NaN ratios decide nothing: still moving
+    np.testing.assert_array_equal(np.concatenate(pieces), whole)

@@ -107,15 +107,16 @@ class _Average:
     def n(self) -> int:
         return self._n
 
-    def add(self, chunk, lo: int, hi: int) -> None:
+    def add(self, chunk, lo: int, hi: int, diffs: tuple[dict[str, np.ndarray], int] | None = None) -> None:
+        """Samples lo:hi of a chunk; ``diffs``: their ``stretch_diffs`` when the caller has them
+        already (the adaptive dwell judges the noise of a stretch before adding it)."""
         if hi > lo:
             sums = {name: v[lo:hi].sum(axis=0) for name, v in chunk.triads.items()}
             self.blocks.append((float(chunk.t[lo]), float(chunk.t[hi - 1]), hi - lo, sums))
             self.temperatures.append(None if chunk.temperature is None else float(chunk.temperature[lo:hi].sum()))
             self._n += hi - lo
             if self.track_noise:
-                self.diffs.append(({name: (np.diff(v[lo:hi], axis=0) ** 2).sum(axis=0)
-                                    for name, v in chunk.triads.items()}, hi - lo - 1))
+                self.diffs.append(stretch_diffs(chunk, lo, hi) if diffs is None else diffs)
 
     def drop_after(self, t: float) -> None:
         kept = [b[1] < t for b in self.blocks]
@@ -125,12 +126,14 @@ class _Average:
             self.diffs = [d for d, k in zip(self.diffs, kept) if k]
         self._n = sum(b[2] for b in self.blocks)
 
-    def white_variance(self, name: str) -> np.ndarray | None:
-        """Per-axis per-sample white-noise variance of a triad so far (None: too few samples)."""
-        count = sum(d[1] for d in self.diffs)
+    def white_variance(self, name: str, ahead: tuple[dict[str, np.ndarray], int] | None = None) -> np.ndarray | None:
+        """Per-axis per-sample white-noise variance of a triad so far (None: too few samples);
+        with ``ahead``, as if the stretch of those ``stretch_diffs`` had been added too."""
+        diffs = self.diffs if ahead is None else [*self.diffs, ahead]
+        count = sum(d[1] for d in diffs)
         if count < MIN_WINDOW_SAMPLES:
             return None
-        return cast(np.ndarray, sum(d[0][name] for d in self.diffs)) / (2.0 * count)  # (diffs: not empty)
+        return cast(np.ndarray, sum(d[0][name] for d in diffs)) / (2.0 * count)  # (diffs: not empty)
 
     def mean_temperature(self) -> float | None:
         """The unit's mean temperature over the window (°C); None unless every sample had one."""
@@ -142,6 +145,11 @@ class _Average:
         n = self.n
         names = self.blocks[0][3].keys()
         return {name: (cast(np.ndarray, sum(b[3][name] for b in self.blocks)) / n).tolist() for name in names}
+
+
+def stretch_diffs(chunk, lo: int, hi: int) -> tuple[dict[str, np.ndarray], int]:
+    """Per triad, the sum of squared sample-to-sample differences over samples lo:hi, and their count."""
+    return {name: (np.diff(v[lo:hi], axis=0) ** 2).sum(axis=0) for name, v in chunk.triads.items()}, hi - lo - 1
 
 
 def windows_and_averages(records: Iterable[StepRecord]) -> tuple[list[Window], dict[str, np.ndarray]]:
@@ -406,15 +414,15 @@ class Engine:
         s = self.settings
         target = round(self.procedure.dwell_s * s.rate_hz)
         j = self._still_until(still, i, len(chunk))
+        ahead = None
         if self.procedure.adaptive_dwell:
             # The noise level is judged on all the still samples of this chunk, then the dwell
             # takes what that level calls for: the rule sees only time and noise, never the mean.
-            probe = _Average(track_noise=True)
-            probe.blocks, probe.diffs = list(self._average.blocks), list(self._average.diffs)
-            probe.add(chunk, i, j)
-            target = adaptive_dwell_samples(target, self._noise_ratio(probe), s)
+            # Their differences, once: added with the samples when the dwell takes them all.
+            ahead = stretch_diffs(chunk, i, j) if j > i else None
+            target = adaptive_dwell_samples(target, self._noise_ratio(self._average, ahead), s)
         take = min(j, max(i, i + target - self._average.n))
-        self._average.add(chunk, i, take)
+        self._average.add(chunk, i, take, ahead if take == j else None)
         done_s = self._average.n / s.rate_hz
         while done_s >= self._next_progress + s.progress_every_s and self._average.n < target:
             self._next_progress += s.progress_every_s
@@ -469,6 +477,7 @@ class Engine:
         out.append(ev.RateSettled(float(chunk.t[start]), self._sign * step.rate_deg_s,
                                   step.turns * 360.0 / step.rate_deg_s))
         self.phase = RATE_AVERAGE
+        self._average = _Average()  # (empty here) a rate window's noise is never judged: no differences
         return start
 
     def _on_rate_average(self, chunk, still, i, out) -> int:
@@ -495,13 +504,14 @@ class Engine:
 
     # --- helpers ----------------------------------------------------------------------------
 
-    def _noise_ratio(self, average: _Average) -> float | None:
-        """Measured / expected white-noise variance, the worse of the two stillness triads."""
+    def _noise_ratio(self, average: _Average, ahead=None) -> float | None:
+        """Measured / expected white-noise variance, the worse of the two stillness triads (with
+        ``ahead``: as if that stretch's ``stretch_diffs`` were in the average)."""
         s = self.settings
         ratios = []
         for name, sigma in ((s.specific_force, s.stillness.specific_force_sigma),
                             (s.angular_rate, s.stillness.rate_sigma)):
-            measured = average.white_variance(name)
+            measured = average.white_variance(name, ahead)
             if measured is None:
                 return None
             ratios.append(float(np.mean(measured / np.square(sigma))))

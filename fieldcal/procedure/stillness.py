@@ -248,10 +248,13 @@ class StillnessDetector:
         no bad sample (nearly every chunk): every window is valid; the same answer, fewer steps."""
         N = self.window_samples
         ratios = _trailing_std(x, N)  # n rows: the window ending at each new sample
-        quiet = np.all(ratios < self.settings.enter_factor, axis=1)
-        if quiet.all():  # still throughout (a dwell)
-            out = quiet
+        if ratios.max() < self.settings.enter_factor:
+            # Still throughout (a dwell, most chunks of a run): one reduction over the whole
+            # array instead of a row-by-row one (np.all along rows of 6 costs ~5× as much). A NaN
+            # ratio fails the test here and goes the general way, as it fails "quiet" there.
+            out = np.ones(n, dtype=bool)
         else:
+            quiet = np.all(ratios < self.settings.enter_factor, axis=1)
             decisive = quiet | np.any(ratios > self.settings.leave_factor, axis=1)
             last = np.maximum.accumulate(np.where(decisive, np.arange(n), -1))
             out = np.where(last >= 0, quiet[np.maximum(last, 0)], self._still)

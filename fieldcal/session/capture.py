@@ -5,6 +5,7 @@ docs/reference/session-format.md; change the two together.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -96,10 +97,14 @@ def to_plain(value: Any, where: str = "data") -> Any:
                     "(use dicts with string keys, lists, strings, numbers, bools, None, numpy arrays)")
 
 
+# Built once: json.dumps with any option builds an encoder per call, and a run writes a line per chunk.
+_ENCODER = json.JSONEncoder(ensure_ascii=True, separators=(",", ":"), allow_nan=True)
+
+
 def _dumps(doc: dict) -> bytes:
     """One log line: the document's canonical JSON with ``"crc"`` (CRC-32 of that JSON) appended
     as its last key, so a reader checks the bytes exactly as written, without re-serialising."""
-    body = json.dumps(doc, ensure_ascii=True, separators=(",", ":"), allow_nan=True).encode("ascii")
+    body = _ENCODER.encode(doc).encode("ascii")
     return body[:-1] + b',"crc":%d}\n' % zlib.crc32(body)
 
 
@@ -169,7 +174,13 @@ def _chunk_columns(chunk: SampleChunk) -> list[tuple[Column, np.ndarray]]:
     if chunk.temperature is not None:
         cols.append(("temperature", TEMPERATURE, _column_array(chunk.temperature, "temperature", 1)))
     cols += [(str(name), EXTRA, _column_array(v, f"channel {name!r}", 1)) for name, v in chunk.extras.items()]
-    return [(Column(name, role, a.dtype), a) for name, role, a in cols]
+    return [(_column(name, role, a.dtype), a) for name, role, a in cols]
+
+
+@functools.lru_cache(maxsize=256)
+def _column(name: str, role: str, dtype: np.dtype) -> Column:
+    """The Column of a name, role and dtype, made once: every chunk of a run asks for the same few."""
+    return Column(name, role, dtype)
 
 
 # --------------------------------------------------------------------------------------------
