@@ -64,8 +64,8 @@ def devices():
 
 
 # TWO_WITH_TURNS with 2 s dwells and 60 °/s turns (live_config's table.max_rate_deg_s): the same
-# steps in a fifth of the samples (each one read from the pty, parsed and fed; a loaded machine took
-# 36 s over TWO_WITH_TURNS' 200 s; at 20 °/s a whole run's worker spent 8.1 s of CPU on it). The second position is upside down, not the first turned about the
+# steps in a fraction of the samples (each one read from the pty, parsed and fed; a loaded machine
+# took 36 s over TWO_WITH_TURNS' 200 s). The second position is upside down, not the first turned about the
 # vertical: "placed and still" must tell the carry's samples from the last step's, and a turn about
 # gravity leaves the tilt as it was (then "ready" could be pressed before the station had read the
 # carry, which it then saw as motion: 1 run in 6, 2026-11-27).
@@ -182,7 +182,7 @@ async def test_a_table_whose_port_goes_away_is_said_and_the_run_waits_for_the_op
         path = Path(config.path)
         path.write_text(path.read_text().replace(devices.table_url, table.url))
         config = load_config(path)
-        procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+        procedure = two_positions(tmp_path, QUICK_TURNS)
         app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config)
         async with app.run_test(size=(80, 24)) as pilot:
             await until(pilot, lambda: waiting_at(app, 0))
@@ -211,7 +211,7 @@ async def test_devices_lost_as_the_table_command_goes_out_are_said_and_the_run_w
     on the results screen at the rate step's first command); the station says the table's port
     failed and that no samples come, and waits for the operator."""
     config = live_config(tmp_path, devices)
-    procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+    procedure = two_positions(tmp_path, QUICK_TURNS)
     app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config)
     pulled = threading.Event()
     async with app.run_test(size=(80, 24)) as pilot:
