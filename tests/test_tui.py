@@ -3,6 +3,7 @@
 same screens, and snapshots of the procedure and results screens at 80x24."""
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -75,7 +76,10 @@ async def press_ready_through(pilot, app: FieldcalApp) -> None:
 
 @pytest.fixture(scope="module")
 def headless_field18(tmp_path_factory):
-    spec = RunSpec(field18_short(), STATION, seed=5)
+    """The whole of field-18 (golden-mini: 3 s dwells at 20 Hz, every triad solved): what the
+    runs through the keys are compared with. (field18_short's 265,000 samples at 250 Hz, read
+    and shown at speed 0, took 2.7 s of CPU a run; the comparison is byte for byte either way.)"""
+    spec = _golden_mini_spec(5)
     return spec, run_headless(spec, tmp_path_factory.mktemp("headless") / "session")
 
 
@@ -131,10 +135,14 @@ async def run_until(pilot, clock: VirtualClock, predicate, step_s: float, timeou
 
 @run_async
 async def test_a_field18_run_with_a_wrong_position_and_a_bump_equals_the_headless_run(tmp_path):
-    """The whole of field-18 through the keys, at 10x virtual real time (one-second chunks, as
-    headless): position 4 first placed wrongly, position 8 bumped mid-dwell. A headless run of
-    the same seed whose operator does the same gives the same parameter file."""
-    spec = RunSpec(field18_short(), STATION, seed=6)
+    """The whole of field-18 through the keys (golden-mini's turns at 20 Hz, with 20 s dwells:
+    the engine says a dwell's progress every 10 s, and the bump waits for half of it), at 10x
+    virtual real time (one-second chunks, as headless): position 4 first placed wrongly,
+    position 8 bumped mid-dwell. A headless run of the same seed whose operator does the same
+    gives the same parameter file."""
+    text = _golden_mini_spec(6).procedure.text.replace("dwell_s: 3", "dwell_s: 20")
+    assert "dwell_s: 20" in text
+    spec = RunSpec(parse_procedure(text, "golden-mini-20s.yaml"), STATION, seed=6, rate_hz=20.0)
     clock = VirtualClock()
     app = FieldcalApp(spec, speed=10, session_dir=tmp_path / "session", clock=clock)
     wrong_step, bump_step = 3, 7
@@ -169,7 +177,8 @@ async def test_a_field18_run_with_a_wrong_position_and_a_bump_equals_the_headles
     assert len(motion) == 1 and motion[0].phase == "dwell" and motion[0].restarted
 
     script = OperatorScript(wrong_step=wrong_step, bump_at_s=tuple(app.source.bump_times))
-    headless = run_headless(RunSpec(spec.procedure, STATION, seed=6, script=script), tmp_path / "headless")
+    headless = run_headless(RunSpec(spec.procedure, STATION, seed=6, rate_hz=20.0, script=script),
+                            tmp_path / "headless")
     assert kinds == [e["event"] for e in SessionReader(headless.session).events()]
     for name, sol in outcome.unit.solutions.items():
         assert np.array_equal(sol.theta, headless.unit.solutions[name].theta), name
@@ -314,7 +323,7 @@ async def test_the_results_show_the_previous_calibration_of_the_same_unit(tmp_pa
     save(replace(first, provenance=replace(first.provenance, device_serial="PAPER-7")), earlier / "parameters.yaml")
     (sessions / "damaged").mkdir()
     (sessions / "damaged" / "parameters.yaml").write_text("schema: nonsense\n")
-    app = FieldcalApp(RunSpec(spec.procedure, STATION, seed=7, unit_serial="PAPER-7"), speed=0,
+    app = FieldcalApp(dataclasses.replace(spec, seed=7, unit_serial="PAPER-7"), speed=0,
                       session_dir=sessions / "today")
     async with app.run_test(size=(100, 40)) as pilot:
         await press_ready_through(pilot, app)
