@@ -4,6 +4,7 @@ since the unit's previous calibration), as words and marks that read in monochro
 status 3 when a check fails; snapshots at 80×24 and 120×40."""
 from __future__ import annotations
 
+import dataclasses
 import re
 import shutil
 from pathlib import Path
@@ -118,14 +119,17 @@ async def test_results_flag_the_drift_since_the_units_previous_calibration(paper
     the difference of the two files, flagged where it exceeds the spec's max_drift."""
     from fieldcal.paramfile import load
 
-    procedure = field18_short()
-    # the same unit: the same serial (two serial-less runs are never compared: issue 23)
+    from tests.test_tui import _golden_mini_spec
+
+    # the same unit: the same serial (two serial-less runs are never compared: issue 23); the
+    # second calibration field-18 as golden-mini (3 s dwells at 20 Hz: a TUI run of a tenth of
+    # the CPU of field18_short's 265,000 samples; its noisier biases drift the more)
     first = paper5_first_calibration
     sessions = first.session.parent
     before = load(first.parameters)["accelerometer"]
     spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "paper MIMU", "triads": {
         "accelerometer": {"bias": {"unit": "mg", "max_drift": 0.001}}}}, "drift.yaml")
-    app = FieldcalApp(RunSpec(procedure, STATION, seed=7, unit_serial="PAPER-5"), speed=0,
+    app = FieldcalApp(dataclasses.replace(_golden_mini_spec(7), unit_serial="PAPER-5"), speed=0,
                       session_dir=sessions / "second", product_spec=spec)
     async with app.run_test(size=(120, 40)) as pilot:
         await finish(pilot, app)
@@ -146,8 +150,9 @@ async def test_a_spec_that_does_not_fit_the_unit_is_said_and_the_results_still_s
     exit status is the run's."""
     spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "other", "triads": {
         "accelerometer": {"bias": {"unit": "m/s^2", "max": 1.0}}}}, "other.yaml")
-    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 20")
-    app = FieldcalApp(RunSpec(parse_procedure(text, "c.yaml"), STATION, seed=5), speed=0,
+    # (classic-12 with 3 s dwells at 20 Hz: what is checked is the spec, not the numbers)
+    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 3")
+    app = FieldcalApp(RunSpec(parse_procedure(text, "c.yaml"), STATION, seed=5, rate_hz=20.0), speed=0,
                       session_dir=None, product_spec=spec)
     async with app.run_test(size=(80, 24)) as pilot:
         await finish(pilot, app)
