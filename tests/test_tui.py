@@ -88,10 +88,12 @@ def headless_classic12(tmp_path_factory):
     """classic-12 with 20 s dwells: solved by linear least squares, whose results agree across
     processors and BLAS builds to ~1e-15, far below the digits a screen shows (unlike Powell's
     search path), so a snapshot of its results is not numerically fragile."""
-    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 20")
+    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 3")
     # The noise drawn the old way ("bank"), whose stream stays as it is for the sessions it
-    # wrote: the snapshot's simulated digits do not move with the default generator.
-    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank")
+    # wrote: the snapshot's simulated digits do not move with the default generator. (3 s dwells
+    # at 20 Hz: the snapshot shows hand-built numbers, and no figure of the session's length.)
+    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank",
+                   rate_hz=20.0)
     return spec, run_headless(spec, tmp_path_factory.mktemp("classic") / "session")
 
 

@@ -166,9 +166,11 @@ async def test_a_spec_that_does_not_fit_the_unit_is_said_and_the_results_still_s
 def classic12_session(tmp_path_factory):
     """classic-12, 20 s dwells: linear least squares, whose digits agree across machines far
     below what the screen shows (see tests/test_tui.py), so its results snapshot is not fragile."""
-    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 20")
+    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 3")
     # sim_noise="bank": the noise stream the snapshots were drawn with (see tests/test_tui.py).
-    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank")
+    # (3 s dwells at 20 Hz: the snapshots show hand-built numbers, no figure of the session's length.)
+    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank",
+                   rate_hz=20.0)
     return run_headless(spec, tmp_path_factory.mktemp("classic") / "session").session
 
 
