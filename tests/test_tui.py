@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tui_pilot import (log_settled, run_async, show_hand_built_readings, show_hand_built_results, until,
+from tui_pilot import (log_settled, press_and_go_on, run_async, show_hand_built_readings, show_hand_built_results, until,
                         waiting_at)
 from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
@@ -67,10 +67,12 @@ def on_results(app: FieldcalApp) -> bool:
 
 
 async def press_ready_through(pilot, app: FieldcalApp) -> None:
-    """Press r at every PlaceUnit until the run ends on the results screen."""
+    """Press r at every PlaceUnit until the run ends on the results screen. (Each r waited for
+    by what it does, the run at the next step, not by Pilot.press's waits for an idle process
+    while the run measures the step: 0.1-0.2 s a key, 18 keys a run.)"""
     for step in range(len(app.spec.procedure.positions)):
         await until(pilot, lambda step=step: waiting_at(app, step))
-        await pilot.press("r")
+        await press_and_go_on(pilot, "r")
     await until(pilot, lambda: app.outcome is not None and on_results(app))
 
 
@@ -397,7 +399,7 @@ async def test_a_run_quit_half_way_resumes_in_the_tui_to_the_uninterrupted_run(t
     async with app.run_test(size=(80, 24)) as pilot:
         for step in range(7):
             await until(pilot, lambda step=step: waiting_at(app, step))
-            await pilot.press("r")
+            await press_and_go_on(pilot, "r")  # (as press_ready_through)
         await until(pilot, lambda: waiting_at(app, 7))
         await pilot.press("q", "y")
     assert app.source.done.wait(60.0), "the run's thread never ended"
@@ -419,7 +421,7 @@ async def test_a_run_quit_half_way_resumes_in_the_tui_to_the_uninterrupted_run(t
 async def press_ready_from(pilot, app: FieldcalApp, first: int) -> None:
     for step in range(first, len(app.spec.procedure.positions)):
         await until(pilot, lambda step=step: waiting_at(app, step))
-        await pilot.press("r")
+        await press_and_go_on(pilot, "r")  # (as press_ready_through)
     await until(pilot, lambda: app.outcome is not None and on_results(app))
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tui_pilot import run_async, show_hand_built_results, until, waiting_at
+from tui_pilot import press_and_go_on, run_async, show_hand_built_results, until, waiting_at
 from fieldcal.acceptance import spec_from_document
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -49,7 +49,7 @@ def on_results(app) -> bool:
 async def finish(pilot, app) -> None:
     for step in range(len(app.spec.procedure.positions)):
         await until(pilot, lambda step=step: waiting_at(app, step))
-        await pilot.press("r")
+        await press_and_go_on(pilot, "r")  # (as test_tui's press_ready_through)
     await until(pilot, lambda: app.outcome is not None and on_results(app))
     await pilot.pause()
 
