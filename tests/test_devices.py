@@ -149,3 +149,22 @@ def test_every_simulated_protocol_has_a_parser_and_an_encoder_and_unknown_names_
         make_parser("nmea")
     with pytest.raises(ValueError, match="needs a channel map"):
         make_encoder("delimited")
+
+
+def test_a_device_whose_station_quit_unread_stops_at_once():
+    """A station that closes its port leaves the bytes written since unread: the unit runs on
+    and what does not fit is lost, but its thread never waits on the station (at 25x a block,
+    0.5 s of Xsens frames, is 6.7 kB, more than a pty's 4 kB input buffer: the pty's blocking
+    write of it waited for a read that never came, and ``stop`` left the thread behind after
+    its 2 s join, 2 s a device of test_tui_resume's power cycles)."""
+    devices = SimulatedDevices(paper_mimu(), 9.8, LAT, imu_protocol="xsens", table_protocol=None, speed=25.0)
+    parser = make_parser("xsens")
+    with devices:
+        with SerialReader(PortSettings(devices.imu_url)) as reader:
+            chunks, _ = collect(reader, parser, lambda c, e: n_samples(c) >= 250)
+            assert n_samples(chunks) >= 250, "the station read nothing"
+        deadline = time.monotonic() + 60.0  # a hang guard: the unit fills the closed port's buffer
+        while devices.imu_link.unread() < 4000 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert devices.imu_link.unread() >= 4000, "the unit wrote nothing after the station quit"
+    assert not any(thread.is_alive() for thread in devices._threads), "a device thread outlived stop()"

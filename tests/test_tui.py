@@ -3,13 +3,14 @@
 same screens, and snapshots of the procedure and results screens at 80x24."""
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tui_pilot import (log_settled, run_async, show_hand_built_readings, show_hand_built_results, until,
+from tui_pilot import (log_settled, press_and_go_on, run_async, show_hand_built_readings, show_hand_built_results, until,
                         waiting_at)
 from fieldcal.procedure import events as ev
 from fieldcal.earth import Station
@@ -66,16 +67,21 @@ def on_results(app: FieldcalApp) -> bool:
 
 
 async def press_ready_through(pilot, app: FieldcalApp) -> None:
-    """Press r at every PlaceUnit until the run ends on the results screen."""
+    """Press r at every PlaceUnit until the run ends on the results screen. (Each r waited for
+    by what it does, the run at the next step, not by Pilot.press's waits for an idle process
+    while the run measures the step: 0.1-0.2 s a key, 18 keys a run.)"""
     for step in range(len(app.spec.procedure.positions)):
         await until(pilot, lambda step=step: waiting_at(app, step))
-        await pilot.press("r")
+        await press_and_go_on(pilot, "r")
     await until(pilot, lambda: app.outcome is not None and on_results(app))
 
 
 @pytest.fixture(scope="module")
 def headless_field18(tmp_path_factory):
-    spec = RunSpec(field18_short(), STATION, seed=5)
+    """The whole of field-18 (golden-mini: 3 s dwells at 20 Hz, every triad solved): what the
+    runs through the keys are compared with. (field18_short's 265,000 samples at 250 Hz, read
+    and shown at speed 0, took 2.7 s of CPU a run; the comparison is byte for byte either way.)"""
+    spec = _golden_mini_spec(5)
     return spec, run_headless(spec, tmp_path_factory.mktemp("headless") / "session")
 
 
@@ -84,10 +90,12 @@ def headless_classic12(tmp_path_factory):
     """classic-12 with 20 s dwells: solved by linear least squares, whose results agree across
     processors and BLAS builds to ~1e-15, far below the digits a screen shows (unlike Powell's
     search path), so a snapshot of its results is not numerically fragile."""
-    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 20")
+    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 3")
     # The noise drawn the old way ("bank"), whose stream stays as it is for the sessions it
-    # wrote: the snapshot's simulated digits do not move with the default generator.
-    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank")
+    # wrote: the snapshot's simulated digits do not move with the default generator. (3 s dwells
+    # at 20 Hz: the snapshot shows hand-built numbers, and no figure of the session's length.)
+    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank",
+                   rate_hz=20.0)
     return spec, run_headless(spec, tmp_path_factory.mktemp("classic") / "session")
 
 
@@ -131,10 +139,14 @@ async def run_until(pilot, clock: VirtualClock, predicate, step_s: float, timeou
 
 @run_async
 async def test_a_field18_run_with_a_wrong_position_and_a_bump_equals_the_headless_run(tmp_path):
-    """The whole of field-18 through the keys, at 10x virtual real time (one-second chunks, as
-    headless): position 4 first placed wrongly, position 8 bumped mid-dwell. A headless run of
-    the same seed whose operator does the same gives the same parameter file."""
-    spec = RunSpec(field18_short(), STATION, seed=6)
+    """The whole of field-18 through the keys (golden-mini's turns at 20 Hz, with 20 s dwells:
+    the engine says a dwell's progress every 10 s, and the bump waits for half of it), at 10x
+    virtual real time (one-second chunks, as headless): position 4 first placed wrongly,
+    position 8 bumped mid-dwell. A headless run of the same seed whose operator does the same
+    gives the same parameter file."""
+    text = _golden_mini_spec(6).procedure.text.replace("dwell_s: 3", "dwell_s: 20")
+    assert "dwell_s: 20" in text
+    spec = RunSpec(parse_procedure(text, "golden-mini-20s.yaml"), STATION, seed=6, rate_hz=20.0)
     clock = VirtualClock()
     app = FieldcalApp(spec, speed=10, session_dir=tmp_path / "session", clock=clock)
     wrong_step, bump_step = 3, 7
@@ -169,7 +181,8 @@ async def test_a_field18_run_with_a_wrong_position_and_a_bump_equals_the_headles
     assert len(motion) == 1 and motion[0].phase == "dwell" and motion[0].restarted
 
     script = OperatorScript(wrong_step=wrong_step, bump_at_s=tuple(app.source.bump_times))
-    headless = run_headless(RunSpec(spec.procedure, STATION, seed=6, script=script), tmp_path / "headless")
+    headless = run_headless(RunSpec(spec.procedure, STATION, seed=6, rate_hz=20.0, script=script),
+                            tmp_path / "headless")
     assert kinds == [e["event"] for e in SessionReader(headless.session).events()]
     for name, sol in outcome.unit.solutions.items():
         assert np.array_equal(sol.theta, headless.unit.solutions[name].theta), name
@@ -314,7 +327,7 @@ async def test_the_results_show_the_previous_calibration_of_the_same_unit(tmp_pa
     save(replace(first, provenance=replace(first.provenance, device_serial="PAPER-7")), earlier / "parameters.yaml")
     (sessions / "damaged").mkdir()
     (sessions / "damaged" / "parameters.yaml").write_text("schema: nonsense\n")
-    app = FieldcalApp(RunSpec(spec.procedure, STATION, seed=7, unit_serial="PAPER-7"), speed=0,
+    app = FieldcalApp(dataclasses.replace(spec, seed=7, unit_serial="PAPER-7"), speed=0,
                       session_dir=sessions / "today")
     async with app.run_test(size=(100, 40)) as pilot:
         await press_ready_through(pilot, app)
@@ -386,7 +399,7 @@ async def test_a_run_quit_half_way_resumes_in_the_tui_to_the_uninterrupted_run(t
     async with app.run_test(size=(80, 24)) as pilot:
         for step in range(7):
             await until(pilot, lambda step=step: waiting_at(app, step))
-            await pilot.press("r")
+            await press_and_go_on(pilot, "r")  # (as press_ready_through)
         await until(pilot, lambda: waiting_at(app, 7))
         await pilot.press("q", "y")
     assert app.source.done.wait(60.0), "the run's thread never ended"
@@ -408,7 +421,7 @@ async def test_a_run_quit_half_way_resumes_in_the_tui_to_the_uninterrupted_run(t
 async def press_ready_from(pilot, app: FieldcalApp, first: int) -> None:
     for step in range(first, len(app.spec.procedure.positions)):
         await until(pilot, lambda step=step: waiting_at(app, step))
-        await pilot.press("r")
+        await press_and_go_on(pilot, "r")  # (as press_ready_through)
     await until(pilot, lambda: app.outcome is not None and on_results(app))
 
 

@@ -10,7 +10,7 @@ from tui_pilot import ask, press_and_go_on, run_async, until, waiting_at
 from fieldcal.earth import Station
 from fieldcal.run.runner import RunSpec
 from fieldcal.tui import FieldcalApp
-from tests.test_tui import TWO_WITH_TURNS, field18_short, on_results, two_positions
+from tests.test_tui import TWO_WITH_TURNS, VirtualClock, field18_short, on_results, run_until, two_positions
 
 STATION = Station(40.0, 50.0)
 
@@ -56,17 +56,18 @@ async def test_the_job_the_tile_symbols_and_the_banners_instructions_on_screen()
 async def test_after_an_abort_mid_dwell_the_panel_holds_nothing_that_looks_current(tmp_path):
     from fieldcal.tui.widgets.live import rows
 
-    app = FieldcalApp(RunSpec(two_positions(tmp_path, TWO_WITH_TURNS), STATION, seed=2), speed=1,
-                      session_dir=None)
+    # 20x on a virtual clock (test_tui's): the run moves only as the test advances the clock, so
+    # the abort lands mid-dwell however slow the machine is (in real time it idled 5 s of its 6).
+    clock = VirtualClock()
+    app = FieldcalApp(RunSpec(two_positions(tmp_path, TWO_WITH_TURNS), STATION, seed=2), speed=20,
+                      session_dir=None, clock=clock)
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, 0))
-        # (keys posted, each waited for by what it does: a run in real time never lets Pilot.press
-        # see the process idle, 2 s a key: 4.8 of this test's 5.9 s were that wait)
         await press_and_go_on(pilot, "r")
-        await until(pilot, lambda: app.telemetry.phase == "dwell")
+        await run_until(pilot, clock, lambda: app.telemetry.phase == "dwell", step_s=0.05)
         await ask(pilot, "a")
         await press_and_go_on(pilot, "a")
-        await until(pilot, lambda: on_results(app))
+        await run_until(pilot, clock, lambda: on_results(app), step_s=0.05)
         await pilot.press("escape")  # back to the run (ended: the process goes idle)
         await until(pilot, lambda: not on_results(app))
         lines = {name: text.plain for name, text in rows(app.screen.view).items()}

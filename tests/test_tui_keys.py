@@ -125,20 +125,24 @@ async def test_a_skip_is_confirmed_and_undone_and_the_run_completes_all_position
 
 @run_async
 async def test_going_back_from_a_step_begun_asks_first(tmp_path):
-    app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=1,
-                      session_dir=None)  # real time: the dwell is still running when u comes
+    from tests.test_tui import VirtualClock, run_until
+
+    # 20x on a virtual clock (test_tui's): the run moves only as the test advances the clock, so
+    # the dwell is still running when u comes however slow the machine (in real time the test
+    # idled 4 s of its 6 for the carry and the settling).
+    clock = VirtualClock()
+    app = FieldcalApp(RunSpec(three_positions(), STATION, seed=4), speed=20, session_dir=None, clock=clock)
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: waiting_at(app, 0))
-        # (keys posted, each waited for by what it does: a run in real time never lets Pilot.press
-        # see the process idle, 2 s a key: 4.6 of this test's 6.1 s were that wait)
         await ask(pilot, "s")
         await press_and_go_on(pilot, "s")
-        await until(pilot, lambda: waiting_at(app, 1))
+        await run_until(pilot, clock, lambda: waiting_at(app, 1), step_s=0.05)
         await press_and_go_on(pilot, "r")
-        await until(pilot, lambda: app.telemetry.phase not in ("place", "settling"))
+        # begun (checked or dwelling: where the run stands when the clock does), never done
+        await run_until(pilot, clock, lambda: app.telemetry.phase not in ("place", "settling"), step_s=0.05)
         assert "Back to position 1? Position 2's progress is lost" in await ask(pilot, "u")
         await press_and_go_on(pilot, "u")
-        await until(pilot, lambda: waiting_at(app, 0))
+        await run_until(pilot, clock, lambda: waiting_at(app, 0), step_s=0.05)
         assert app.screen.view.tiles == ["active", "todo", "todo"]
 
 

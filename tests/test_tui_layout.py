@@ -77,16 +77,15 @@ async def test_the_results_say_the_verdicts_and_the_skipped_positions_first():
 
 @run_async
 async def test_the_results_summary_of_a_solved_run_names_the_worst_residual(tmp_path):
-    """field-18 (short dwells): each triad solved, with its worst position's residual. The run
-    headless, its results screen that of its replay: the same screen as at the end of the live
-    run (FieldcalApp.show_results), without the 18 steps' keys and frames."""
-    from fieldcal.procedure.positions import load_procedure
+    """field-18 (test_tui's golden-mini: 3 s dwells at 20 Hz): each triad solved, with its worst
+    position's residual. The run headless, its results screen that of its replay: the same
+    screen as at the end of the live run (FieldcalApp.show_results), without the 18 steps' keys
+    and frames. (20 s dwells at 250 Hz, run and replayed, took 2.1 s of CPU for the same screen.)"""
     from fieldcal.run.runner import open_run, run_headless
     from fieldcal.tui.widgets.residuals import per_position
+    from tests.test_tui import _golden_mini_spec
 
-    procedure = parse_procedure(load_procedure("field-18").text.replace("dwell_s: 200", "dwell_s: 20"),
-                                "field-18-short.yaml")
-    run = run_headless(RunSpec(procedure, STATION, seed=5), tmp_path / "session")
+    run = run_headless(_golden_mini_spec(5), tmp_path / "session")
     app = FieldcalApp(None, speed=0, replay=open_run(run.session))
     async with app.run_test(size=(120, 40)) as pilot:
         await until(pilot, lambda: isinstance(app.screen, ResultsScreen) and bool(app.screen.query("#verdicts")))

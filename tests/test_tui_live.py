@@ -23,9 +23,10 @@ from fieldcal.session.capture import SessionReader
 from fieldcal.tui import FieldcalApp
 from fieldcal.cli.tui import live_spec
 from tests.test_tui import TWO_POSITIONS, TWO_WITH_TURNS, on_results, run_async, two_positions, until, waiting_at
-from tests.tui_pilot import log_settled, placed_and_still, press_and_go_on, what_it_shows
+from tests.tui_pilot import ask, log_settled, placed_and_still, press_and_go_on, what_it_shows
 
 STATION = Station(40.0, 50.0)
+QUICK_RATE_DEG_S = 60.0  # QUICK_TURNS' table rate
 OPTIONS = types.SimpleNamespace(method="auto", on_motion="restart", thermal=None)
 
 
@@ -47,6 +48,7 @@ device:
 table:
   protocol: ascii
   port: {{url: {devices.table_url}}}
+  max_rate_deg_s: {QUICK_RATE_DEG_S}
 station: {{latitude_deg: 40.0, height_m: 50.0}}
 """)
     return load_config(path)
@@ -55,22 +57,22 @@ station: {{latitude_deg: 40.0, height_m: 50.0}}
 @pytest.fixture
 def devices():
     served = SimulatedDevices(paper_mimu(), STATION.gravity, STATION.latitude_rad, imu_protocol="xsens",
-                              table_protocol="ascii", speed=0, seed=3, rate_hz=250)
+                              table_protocol="ascii", speed=30, seed=3, rate_hz=250, waits_for_reader=True)
     served.start()
     yield served
     served.stop()
 
 
-# TWO_WITH_TURNS with 2 s dwells and 20 °/s turns (the table.max_rate_deg_s default): the same steps
-# in half the samples (each one read from the pty, parsed and fed; a loaded machine took 36 s over
-# TWO_WITH_TURNS' 200 s). The second position is upside down, not the first turned about the
+# TWO_WITH_TURNS with 2 s dwells and 60 °/s turns (live_config's table.max_rate_deg_s): the same
+# steps in a fraction of the samples (each one read from the pty, parsed and fed; a loaded machine
+# took 36 s over TWO_WITH_TURNS' 200 s). The second position is upside down, not the first turned about the
 # vertical: "placed and still" must tell the carry's samples from the last step's, and a turn about
 # gravity leaves the tilt as it was (then "ready" could be pressed before the station had read the
 # carry, which it then saw as motion: 1 run in 6, 2026-11-27).
 QUICK_TURNS = (TWO_POSITIONS.replace("20 s dwells", "2 s dwells").replace("dwell_s: 20", "dwell_s: 2")
                .replace('{id: 2, description: "z-upward, x-north, y-west", axes: {x: north, y: west, z: up}}',
                         '{id: 2, description: "z-downward, x-north, y-east", axes: {x: north, y: east, z: down}}')
-               + "rate_step: {rate_deg_s: 20, turns: 1, ramp_s: 2, settle_s: 1}\n")
+               + f"rate_step: {{rate_deg_s: {QUICK_RATE_DEG_S}, turns: 1, ramp_s: 2, settle_s: 1}}\n")
 assert "z: down" in QUICK_TURNS
 
 
@@ -94,16 +96,16 @@ async def test_a_live_device_is_read_the_table_turns_and_the_session_replays(tmp
     kinds = [e.kind for e in app.events]
     assert kinds.count("step_complete") == 2 and "motion_detected" not in kinds
     commands = [e.rate_deg_s for e in app.events if isinstance(e, ev.CommandTable)]
-    assert sorted(commands[:2]) == [-20.0, 20.0] and commands[2] == 0.0
+    assert sorted(commands[:2]) == [-QUICK_RATE_DEG_S, QUICK_RATE_DEG_S] and commands[2] == 0.0
     # The table really turned: half the difference of the two directions' gyro means (free of
     # the gyro bias) has the table's rate as its norm.
     reader = SessionReader(tmp_path / "session")
     for step in reader.steps():
         turns = {w["rate_deg_s"]: np.array(w["means"]["gyroscope"]) for w in step["windows"]
                  if w["rate_deg_s"]}
-        assert sorted(turns) == [-20.0, 20.0]
-        measured = math.degrees(float(np.linalg.norm(turns[20.0] - turns[-20.0]) / 2))
-        assert measured == pytest.approx(20.0, rel=1e-3)
+        assert sorted(turns) == [-QUICK_RATE_DEG_S, QUICK_RATE_DEG_S]
+        measured = math.degrees(float(np.linalg.norm(turns[QUICK_RATE_DEG_S] - turns[-QUICK_RATE_DEG_S]) / 2))
+        assert measured == pytest.approx(QUICK_RATE_DEG_S, rel=1e-3)
     assert reader.start["device"]["serial"] == "SN-42" and "simulation_truth" not in reader.start
     assert sum(1 for _ in reader.raw("imu")) > 0  # the bytes, as read
     # Replayed without the device or its config: the same events, the same verdicts.
@@ -180,7 +182,7 @@ async def test_a_table_whose_port_goes_away_is_said_and_the_run_waits_for_the_op
         path = Path(config.path)
         path.write_text(path.read_text().replace(devices.table_url, table.url))
         config = load_config(path)
-        procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+        procedure = two_positions(tmp_path, QUICK_TURNS)
         app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config)
         async with app.run_test(size=(80, 24)) as pilot:
             await until(pilot, lambda: waiting_at(app, 0))
@@ -191,7 +193,9 @@ async def test_a_table_whose_port_goes_away_is_said_and_the_run_waits_for_the_op
             assert app.outcome is None and not app.source.done.is_set()
             log = " ".join(" ".join(line.text.split()) for line in app.procedure_screen.query_one("#log").lines)
             assert f"its port {table.url} failed" in log and "skip this step (s) or abort (a)" in log
-            await pilot.press("a", "y")
+            # (the unit sends on: Pilot.press would wait 2 s a key for an idle that never comes)
+            assert "abort" in await ask(pilot, "a")
+            await press_and_go_on(pilot, "y")
             await until(pilot, lambda: app.outcome is not None)
         assert app.source.done.wait(60.0), "the run's thread never ended"
     finally:
@@ -207,7 +211,7 @@ async def test_devices_lost_as_the_table_command_goes_out_are_said_and_the_run_w
     on the results screen at the rate step's first command); the station says the table's port
     failed and that no samples come, and waits for the operator."""
     config = live_config(tmp_path, devices)
-    procedure = two_positions(tmp_path, TWO_WITH_TURNS)
+    procedure = two_positions(tmp_path, QUICK_TURNS)
     app = FieldcalApp(live_spec(config, procedure, OPTIONS), 0, tmp_path / "session", config=config)
     pulled = threading.Event()
     async with app.run_test(size=(80, 24)) as pilot:

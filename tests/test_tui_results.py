@@ -4,6 +4,7 @@ since the unit's previous calibration), as words and marks that read in monochro
 status 3 when a check fails; snapshots at 80×24 and 120×40."""
 from __future__ import annotations
 
+import dataclasses
 import re
 import shutil
 from pathlib import Path
@@ -11,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tui_pilot import run_async, show_hand_built_results, until, waiting_at
+from tui_pilot import press_and_go_on, run_async, show_hand_built_results, until, waiting_at
 from fieldcal.acceptance import spec_from_document
 from fieldcal.earth import Station
 from fieldcal.procedure.positions import load_procedure, parse_procedure
@@ -48,7 +49,7 @@ def on_results(app) -> bool:
 async def finish(pilot, app) -> None:
     for step in range(len(app.spec.procedure.positions)):
         await until(pilot, lambda step=step: waiting_at(app, step))
-        await pilot.press("r")
+        await press_and_go_on(pilot, "r")  # (as test_tui's press_ready_through)
     await until(pilot, lambda: app.outcome is not None and on_results(app))
     await pilot.pause()
 
@@ -118,14 +119,17 @@ async def test_results_flag_the_drift_since_the_units_previous_calibration(paper
     the difference of the two files, flagged where it exceeds the spec's max_drift."""
     from fieldcal.paramfile import load
 
-    procedure = field18_short()
-    # the same unit: the same serial (two serial-less runs are never compared: issue 23)
+    from tests.test_tui import _golden_mini_spec
+
+    # the same unit: the same serial (two serial-less runs are never compared: issue 23); the
+    # second calibration field-18 as golden-mini (3 s dwells at 20 Hz: a TUI run of a tenth of
+    # the CPU of field18_short's 265,000 samples; its noisier biases drift the more)
     first = paper5_first_calibration
     sessions = first.session.parent
     before = load(first.parameters)["accelerometer"]
     spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "paper MIMU", "triads": {
         "accelerometer": {"bias": {"unit": "mg", "max_drift": 0.001}}}}, "drift.yaml")
-    app = FieldcalApp(RunSpec(procedure, STATION, seed=7, unit_serial="PAPER-5"), speed=0,
+    app = FieldcalApp(dataclasses.replace(_golden_mini_spec(7), unit_serial="PAPER-5"), speed=0,
                       session_dir=sessions / "second", product_spec=spec)
     async with app.run_test(size=(120, 40)) as pilot:
         await finish(pilot, app)
@@ -146,8 +150,9 @@ async def test_a_spec_that_does_not_fit_the_unit_is_said_and_the_results_still_s
     exit status is the run's."""
     spec = spec_from_document({"schema": "fieldcal-spec/1", "product": "other", "triads": {
         "accelerometer": {"bias": {"unit": "m/s^2", "max": 1.0}}}}, "other.yaml")
-    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 20")
-    app = FieldcalApp(RunSpec(parse_procedure(text, "c.yaml"), STATION, seed=5), speed=0,
+    # (classic-12 with 3 s dwells at 20 Hz: what is checked is the spec, not the numbers)
+    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 3")
+    app = FieldcalApp(RunSpec(parse_procedure(text, "c.yaml"), STATION, seed=5, rate_hz=20.0), speed=0,
                       session_dir=None, product_spec=spec)
     async with app.run_test(size=(80, 24)) as pilot:
         await finish(pilot, app)
@@ -161,9 +166,11 @@ async def test_a_spec_that_does_not_fit_the_unit_is_said_and_the_results_still_s
 def classic12_session(tmp_path_factory):
     """classic-12, 20 s dwells: linear least squares, whose digits agree across machines far
     below what the screen shows (see tests/test_tui.py), so its results snapshot is not fragile."""
-    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 20")
+    text = load_procedure("classic-12").text.replace("dwell_s: 200", "dwell_s: 3")
     # sim_noise="bank": the noise stream the snapshots were drawn with (see tests/test_tui.py).
-    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank")
+    # (3 s dwells at 20 Hz: the snapshots show hand-built numbers, no figure of the session's length.)
+    spec = RunSpec(parse_procedure(text, "classic-12-short.yaml"), STATION, seed=5, sim_noise="bank",
+                   rate_hz=20.0)
     return run_headless(spec, tmp_path_factory.mktemp("classic") / "session").session
 
 

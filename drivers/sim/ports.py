@@ -12,6 +12,7 @@ import select
 import socket
 import tempfile
 import threading
+import time
 import tty
 from pathlib import Path
 
@@ -35,6 +36,7 @@ class PtyLink:
         master, slave = os.openpty()
         tty.setraw(master)  # no echo, no newline translation on the device side
         tty.setraw(slave)
+        os.set_blocking(master, False)  # (``write``: a blocking write waits past any timeout)
         tmp = self.link.with_name(self.link.name + ".new")
         if tmp.is_symlink() or tmp.exists():
             tmp.unlink()
@@ -58,19 +60,27 @@ class PtyLink:
             os.close(fd)
 
     def write(self, data: bytes, timeout_s: float = 1.0) -> int:
-        """Write what fits within the timeout (the station may be slow or absent); bytes written."""
+        """Write what the station takes, giving up once it has taken nothing for ``timeout_s``
+        (it may be slow, or absent: its port closed, or not read); bytes written. The device
+        end does not block: a blocking write of more than the room left waited, past any
+        timeout, until the station read it all, and a station that had quit never did (the
+        device's thread then held up its ``stop`` until the join's timeout, 2 s a device)."""
         with self._lock:
             fd = self._master
         if fd is None:
             return 0
         written = 0
         view = memoryview(data)
-        while written < len(data):
+        taken_by = time.monotonic() + timeout_s  # the station's next bytes, or it takes no more
+        while written < len(data) and time.monotonic() < taken_by:
             try:
-                _, ready, _ = select.select([], [fd], [], timeout_s)
+                _, ready, _ = select.select([], [fd], [], max(0.0, taken_by - time.monotonic()))
                 if not ready:
                     break
-                written += os.write(fd, view[written:])
+                written += os.write(fd, view[written:])  # what fits now
+                taken_by = time.monotonic() + timeout_s
+            except BlockingIOError:  # writable, yet no room for what is written at once
+                time.sleep(0.001)
             except OSError:
                 break
         return written
