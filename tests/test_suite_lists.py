@@ -38,24 +38,31 @@ def test_the_users_of_a_shared_fixture_run_as_one_xdist_group(tmp_path):
     """`make test` (--dist loadgroup) sends a shared module fixture's users to one worker, which
     builds it once, only if conftest.py's xdist_group marks are there when xdist's own collection
     hook turns them into node ids' "@group" suffixes (they were not, and test_plan's 66 s plan was
-    built on both workers). Run here on a two-test file with the real conftest.py."""
+    built on both workers). And a test the slow list names is dealt out before the short ones,
+    wherever its file puts it, so that no long test starts when the others are done. Run here on a
+    four-test file with the real conftest.py, in one worker that runs the tests in the order dealt."""
     import shutil
     import subprocess
     import sys
 
-    shutil.copy(TESTS / "conftest.py", tmp_path / "conftest.py")
-    (tmp_path / SLOW_LIST.name).write_text("# none\n", encoding="utf-8")
-    (tmp_path / "test_grouped.py").write_text(
+    # node ids from tmp_path (tests/...), as in the repository
+    (tmp_path / "pytest.ini").write_text("[pytest]\nmarkers =\n    slow: long\n", encoding="utf-8")
+    tests = tmp_path / "tests"
+    tests.mkdir()
+    shutil.copy(TESTS / "conftest.py", tests / "conftest.py")
+    (tests / SLOW_LIST.name).write_text("test_grouped.py::test_listed_slow\n", encoding="utf-8")
+    (tests / "test_grouped.py").write_text(
         "import pytest\n\n\n@pytest.fixture(scope='module')\ndef solved():\n    return 1\n\n\n"
-        "def test_one(solved):\n    pass\n\n\ndef test_two(solved):\n    pass\n\n\ndef test_alone():\n    pass\n",
-        encoding="utf-8")
+        "def test_one(solved):\n    pass\n\n\ndef test_two(solved):\n    pass\n\n\ndef test_alone():\n    pass\n\n\n"
+        "def test_listed_slow():\n    pass\n", encoding="utf-8")
     done = subprocess.run([sys.executable, "-m", "pytest", "-n", "1", "--dist", "loadgroup", "-vv",
-                           "-p", "no:cacheprovider", "test_grouped.py"], cwd=tmp_path, capture_output=True,
+                           "-p", "no:cacheprovider", "tests/test_grouped.py"], cwd=tmp_path, capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
-    for name in ("test_one", "test_two"):
-        assert f"PASSED test_grouped.py::{name}@test_grouped.py:solved" in done.stdout, done.stdout
-    assert "PASSED test_grouped.py::test_alone\n" in done.stdout.replace(" \n", "\n"), done.stdout
+    passed = [line.split("PASSED ")[1].strip() for line in done.stdout.splitlines() if "PASSED " in line]
+    group = "@tests/test_grouped.py:solved"
+    assert passed == [f"tests/test_grouped.py::test_one{group}", f"tests/test_grouped.py::test_two{group}",
+                      "tests/test_grouped.py::test_listed_slow", "tests/test_grouped.py::test_alone"], done.stdout
 
 
 def test_every_test_file_keeps_a_fast_test_unless_the_list_names_it_whole():
