@@ -204,7 +204,8 @@ def _group(item):
 
 
 def pytest_configure(config):
-    if hasattr(config, "workerinput"):  # an xdist worker
+    # an xdist worker, unless --failed-first asks for another order
+    if hasattr(config, "workerinput") and not getattr(config.option, "failedfirst", False):
         config.pluginmanager.register(SlowestFirst(), "fieldcal-slowest-first")
 
 
