@@ -85,3 +85,34 @@ def test_every_test_file_keeps_a_fast_test_unless_the_list_names_it_whole():
             without_fast.append(path)
     assert len(whole) >= 1 and every_case  # the list was read
     assert not without_fast, f"every test of these files is in {SLOW_LIST.name}: name the file alone, or keep one fast: {without_fast}"
+
+
+def test_the_controller_writes_a_test_modules_rewritten_code_once_and_again_when_it_changes(tmp_path, request):
+    """conftest.py's controller writes pytest's rewritten code of the test modules before the
+    xdist workers start, so that they do not each rewrite them all (a fresh clone's workers spent
+    6 s of CPU each on that). pytest's own reader of its cache is the judge: it takes the file,
+    and the code in it is the rewritten one (a failing assert explains its values)."""
+    from _pytest.assertion import rewrite
+
+    conftest = next(plugin for plugin in request.config.pluginmanager.get_plugins()
+                    if getattr(plugin, "__file__", None) == str(TESTS / "conftest.py"))
+    module = tmp_path / "test_sums.py"
+    module.write_text("def test_sum():\n    total = 1 + 1\n    assert total == 3\n", encoding="utf-8")
+    pyc = rewrite.get_cache_dir(module) / ("test_sums" + rewrite.PYC_TAIL)
+
+    assert conftest.rewrite_test_modules_once(request.config, [module]) == [module]
+    code = rewrite._read_pyc(module, pyc)
+    assert code is not None
+    namespace: dict = {}
+    exec(code, namespace)
+    try:
+        namespace["test_sum"]()
+    except AssertionError as failed:
+        assert "assert 2 == 3" in str(failed)  # pytest's explanation: the rewritten assert
+    else:
+        raise AssertionError("the module's assert did not fail")
+
+    assert conftest.rewrite_test_modules_once(request.config, [module]) == []  # still current
+    module.write_text("def test_sum():\n    assert 1 + 1 == 2\n", encoding="utf-8")
+    assert conftest.rewrite_test_modules_once(request.config, [module]) == [module]  # edited: again
+    assert rewrite._read_pyc(module, pyc) is not None
