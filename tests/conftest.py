@@ -208,7 +208,7 @@ def pytest_configure(config):
     # an xdist worker, unless --failed-first asks for another order
     if hasattr(config, "workerinput") and not getattr(config.option, "failedfirst", False):
         config.pluginmanager.register(SlowestFirst(), "fieldcal-slowest-first")
-    if _starts_workers(config) and not sys.dont_write_bytecode:
+    if _starts_workers(config) and not sys.dont_write_bytecode and config.getoption("assertmode") == "rewrite":
         rewrite_test_modules_once(config, sorted(_test_modules(config)))
 
 
@@ -218,6 +218,8 @@ def pytest_configure(config):
 # each for the whole suite (`pytest --collect-only`: 8.8 s cold, 3.0 s with the cache; at a load of
 # 11, 2026-11-28), and a fresh clone's `make test` spent 7.7 s of CPU per worker before its first
 # test. The controller writes the missing ones once, before the workers start; they then read them.
+# pytest's own (private) rewrite and cache writer do it, the version pinned in constraints.txt;
+# test_suite_lists judges the result with pytest's cache reader.
 def _starts_workers(config) -> bool:
     return (not hasattr(config, "workerinput") and bool(config.getoption("numprocesses", None))
             and config.getoption("dist", "no") != "no")
@@ -232,7 +234,7 @@ def _test_modules(config) -> set:
         path = Path(config.invocation_params.dir, arg.split("::")[0]).resolve()
         found = path.rglob("test_*.py") if path.is_dir() else [path]
         modules.update(module for module in found if module.name.startswith("test_") and module.suffix == ".py"
-                       and tests in module.parents)
+                       and tests in module.parents and module.is_file())
     return modules
 
 
