@@ -230,7 +230,10 @@ def test_a_stopped_run_says_where_its_session_is(capsys, monkeypatch, tmp_path, 
     assert threading.current_thread() is threading.main_thread()
     _signal_after_first_step(monkeypatch, signum)
     out = tmp_path / "out"
-    line = one_line(capsys, ["run", "--headless", "--quiet", "--procedure", str(short), "--out", str(out)], code)
+    # Ctrl-C as an interactive shell leaves it: a suite started in the background of a script
+    # inherits SIGINT ignored, which fieldcal rightly keeps (then this run would go on to its end)
+    with sigint_handled_by(signal.default_int_handler):
+        line = one_line(capsys, ["run", "--headless", "--quiet", "--procedure", str(short), "--out", str(out)], code)
     (session,) = out.iterdir()
     assert line == (f"fieldcal: {said}; the session in {session} is consistent up to its last "
                     f"completed step: continue it with: fieldcal resume {session}")
