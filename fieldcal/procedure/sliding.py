@@ -19,11 +19,7 @@ def sliding_std(values, n: int, ddof: int = 1) -> np.ndarray:
     inside the window, not with the offset nor the length of the input. Long inputs are worked in
     pieces of about 16k rows so that the temporaries stay small.
     """
-    x = np.asarray(values, dtype=float)
-    if x.ndim == 1:
-        x = x[:, None]
-    if n < 2:
-        raise ValueError(f"window of {n} samples: need at least 2")
+    x = _as_columns(values, n)
     m, c = x.shape
     if m < n:
         return np.empty((0, c))
@@ -38,16 +34,22 @@ def sliding_variance_by_column(values: np.ndarray, n: int, ddof: int = 1) -> np.
     as ``sliding_std`` squared, laid out a column's windows side by side (as they are made): a
     caller that combines the columns (the recording detector's norm over axes) reads each one
     contiguously, with no square root taken and squared again."""
-    x = np.asarray(values, dtype=float)
-    if x.ndim == 1:
-        x = x[:, None]
-    if n < 2:
-        raise ValueError(f"window of {n} samples: need at least 2")
+    x = _as_columns(values, n)
     m, c = x.shape
     out = np.empty((c, max(m - n + 1, 0)))
     for first, rows in _pieces(x, n):
         out[:, first:first + len(rows) - n + 1] = _window_var_by_column(rows, n, ddof)
     return out
+
+
+def _as_columns(values, n: int) -> np.ndarray:
+    """``values`` as float rows (m, c), a single series as one column; a window under 2 refused."""
+    x = np.asarray(values, dtype=float)
+    if x.ndim == 1:
+        x = x[:, None]
+    if n < 2:
+        raise ValueError(f"window of {n} samples: need at least 2")
+    return x
 
 
 def _pieces(x: np.ndarray, n: int):
