@@ -97,3 +97,23 @@ def test_the_diagnostics_say_the_search_its_end_and_whether_the_scatter_set_sigm
     chi2 = honest.calibration.diagnostics.chi2
     np.testing.assert_allclose(small.calibration.sigma, honest.calibration.sigma / 10 * np.sqrt(100 * chi2 / 3),
                                rtol=1e-3)
+
+
+def test_noise_free_averages_give_the_cramer_rao_bound_to_a_few_parts_in_ten_thousand():
+    # test_thermal_crb's peer, without the noise draw: on the true averages the joint fit's
+    # information is the bound's (orientations eliminated by the norm or estimated, the same
+    # linearised information), so σ agrees to 1.6e-4; a Jacobian differenced at the wrong step
+    # moves them by 5e-3.
+    import test_thermal_crb as crb
+
+    sigma = 7e-5
+    dt = crb.TEMPERATURES[:, None] - crb.REF_C
+    clean = crb.G * crb.UP @ crb.k_from_params(crb.THETA).T
+    u = clean * (1 + crb.S1 * dt) + crb.THETA[:3] + crb.B1 * dt
+    fit = solve_thermal_norm(StaticNormProblem(u, crb.G), crb.TEMPERATURES, np.full((18, 3), sigma), max_order=1)
+    model = fit.calibration.thermal
+    assert model.order == 1 and model.scale_drift is not None
+    bound = crb.specific_force_bound(crb.THETA, crb.UP, crb.G, np.eye(54) * sigma ** 2,
+                                     thermal=crb.ThermalTerms(crb.TEMPERATURES - crb.REF_C, crb.B1[None, :], crb.S1))
+    reported = np.r_[fit.calibration.sigma, model.bias_terms_sigma.ravel(), model.scale_drift_sigma]
+    np.testing.assert_allclose(reported, np.sqrt(np.diag(bound)), rtol=1e-3)
