@@ -66,3 +66,44 @@ def test_the_scan_integrates_with_the_bias_it_is_given_even_when_the_motions_hol
     at_bias = Motions.of(t, raw, spans, start, end)
     at_bias.steps(bias)
     assert scan_scale(t, raw, spans, start, end, bias, scales, motions=at_bias) == pytest.approx(1000.0)
+
+
+def _kink(at, offset, left, right):
+    """r(z) = offset + left·(at − z) below ``at``, offset + right·(z − at) above: its least cost
+    is offset², at the kink, where no Gauss-Newton step on either side's slope lowers it; and the
+    exact one-sided Jacobian (the right side's at the kink)."""
+    def residuals(z):
+        return np.array([offset + (left * (at - z[0]) if z[0] < at else right * (z[0] - at))])
+
+    def jacobian(z):
+        return np.array([[-left if z[0] < at else right]])
+
+    return residuals, jacobian
+
+
+def test_broydens_search_at_a_kink_ends_when_a_fresh_jacobian_fails_too():
+    # By hand, r = 1 + |z − 1| (slope 2 above 1) from z = 0 (Q = −1, the slope there): the step
+    # 2 fails, its half lands on the kink (accepted; Broyden keeps the slope −1); from there
+    # every halving of the stale step 1 fails, so the Jacobian is made afresh (2); every halving
+    # of its step −1/2 fails too, and the search ends at the kink in its third iteration.
+    residuals, jacobian = _kink(1.0, 1.0, 1.0, 2.0)
+    z, iterations = _broyden_gauss_newton(residuals, jacobian, 1, np.array([[-1.0]]))
+    assert z.tolist() == [1.0] and iterations == 3
+
+
+def test_a_polish_whose_stale_jacobian_fails_makes_it_afresh_in_natural_units():
+    # By hand, r = 0.01 + |θ − 0.01| (slope 0.5 above), natural unit 2, from θ = 0: the fresh
+    # Jacobian −1·2 steps to 0.02 (0.02 σ, short: accepted, the Jacobian kept), its next step
+    # raises the cost, so the Jacobian is made afresh at 0.02: 0.5·2 = 1 in natural units;
+    # its step also raises it, and the polish ends at 0.02 with r = 0.015 and that Jacobian.
+    residuals, slope = _kink(0.01, 0.01, 1.0, 0.5)
+    made = []
+
+    def jacobian(theta):
+        made.append(float(theta[0]))
+        return slope(theta)
+
+    theta, r, J = _polish(residuals, jacobian, np.array([0.0]), np.array([2.0]))
+    assert made == pytest.approx([0.0, 0.02], abs=1e-15)
+    assert theta == pytest.approx([0.02], abs=1e-15) and r == pytest.approx([0.015], abs=1e-15)
+    assert J.tolist() == [[1.0]]
