@@ -3,6 +3,7 @@ survivors): each against a hand-worked value, the simulated truth or the plain n
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fieldcal.solvers import StaticNormProblem
 from fieldcal.solvers.thermal import _SQRT_EPS, _forward_jacobian_of_lm, _residual_covariance_at, solve_thermal_norm
@@ -117,3 +118,32 @@ def test_noise_free_averages_give_the_cramer_rao_bound_to_a_few_parts_in_ten_tho
                                      thermal=crb.ThermalTerms(crb.TEMPERATURES - crb.REF_C, crb.B1[None, :], crb.S1))
     reported = np.r_[fit.calibration.sigma, model.bias_terms_sigma.ravel(), model.scale_drift_sigma]
     np.testing.assert_allclose(reported, np.sqrt(np.diag(bound)), rtol=1e-3)
+
+
+def _seed380_accelerometer():
+    """configs/sim-warmup.yaml seed 380's accelerometer as the conductor gave it to the solve
+    (tests/data/sim_warmup_seed380_accelerometer.json: the inputs at full precision and the
+    simulator's truth, so this fold is met in milliseconds instead of a run)."""
+    import json
+    from pathlib import Path
+
+    doc = json.loads((Path(__file__).parent / "data" / "sim_warmup_seed380_accelerometer.json").read_text())
+    problem = StaticNormProblem(np.array(doc["averages"]), doc["gravity"])
+    return problem, np.array(doc["temperatures_c"]), np.array(doc["covariance"]), doc
+
+
+def test_a_fold_akaike_prefers_is_kept_with_the_observed_informations_condition():
+    # Seed 380's accelerometer: order 2 with the drift is an exact fit of its 18 norms (9 + 6 + 3
+    # unknowns) that stops on a fold with χ² 0.15 left, 8.2 below order 1's: more
+    # than Akaike's 2·3 for its three coefficients, so the fold is kept (the truth has b₂). Its
+    # condition number is the observed information's, √(λmax/λmin), not JᵀJ's (singular there).
+    problem, temperatures, covariance, doc = _seed380_accelerometer()
+    fit = solve_thermal_norm(problem, temperatures, covariance)
+    chi2, calibration = fit.chi2_by_order, fit.calibration
+    assert calibration.thermal.order == 2 and calibration.diagnostics.chi2 > 1e-6  # a fold
+    assert 6.0 < chi2[1] - chi2[2] < 9.0
+    eig = np.linalg.eigvalsh(np.linalg.inv(fit.covariance))
+    assert calibration.diagnostics.condition_number == pytest.approx(np.sqrt(eig[-1] / eig[0]), rel=1e-6)
+    # and the fold's estimates hold the simulator's truth within 4σ
+    z = (calibration.theta - np.array(doc["truth_theta"])) / calibration.sigma
+    assert np.all(np.abs(z) < 4.0), z.round(2)
