@@ -107,3 +107,19 @@ def test_a_polish_whose_stale_jacobian_fails_makes_it_afresh_in_natural_units():
     assert made == pytest.approx([0.0, 0.02], abs=1e-15)
     assert theta == pytest.approx([0.02], abs=1e-15) and r == pytest.approx([0.015], abs=1e-15)
     assert J.tolist() == [[1.0]]
+
+
+def test_broydens_search_trusts_a_jacobian_made_where_a_long_step_landed():
+    # By hand, r = 40 + |z − 40| (slope 2 above 40) from z = 0: the step 80 fails, its half (40 σ,
+    # longer than _FAR) lands on the kink, the Jacobian made there (2) is fresh, and when every
+    # halving of its step −20 fails the search ends in its second iteration, asking for no other.
+    residuals, slope = _kink(40.0, 40.0, 1.0, 2.0)
+    made = []
+
+    def jacobian(z):
+        made.append(float(z[0]))
+        return slope(z)
+
+    z, iterations = _broyden_gauss_newton(residuals, jacobian, 1, np.array([[-1.0]]))
+    assert z.tolist() == [40.0] and iterations == 2
+    assert made == [80.0, 40.0]  # where the long steps would land, before their residuals
