@@ -1,0 +1,76 @@
+"""PX4's thermal compensation lines at their edges (issue 26's mutation survivors in
+fieldcal/export): a gyro with a thermal model after an accelerometer without one, a device
+reporting in mg and °/s, the parameter types QGroundControl's file declares, and the comment that
+names each model. Truth: hand-worked unit conversions and MAVLink's MAV_PARAM_TYPE numbering
+(6 = INT32, 9 = REAL32)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fieldcal.calibration import Calibration
+from fieldcal.earth import Station
+from fieldcal.export import export
+from fieldcal.paramfile import ParameterFile
+from fieldcal.thermal import ThermalModel
+
+REF, LOW, HIGH = 25.0, 15.0, 40.0
+MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32 = 6, 9
+
+
+def _cal(name, kind, unit, theta, terms=None):
+    model = None if terms is None else ThermalModel(
+        reference_c=REF, range_c=(LOW, HIGH), bias_terms=np.asarray(terms, dtype=float),
+        bias_terms_sigma=np.zeros_like(np.asarray(terms, dtype=float)))
+    return Calibration(name=name, kind=kind, output_unit=unit, method="powell", theta=theta,
+                       sigma=np.zeros(9), residual_rms=0.0, thermal=model)
+
+
+def _file(acc_terms, gyro_terms, acc_unit="m/s^2", gyro_unit="rad/s"):
+    acc = _cal("accelerometer", "specific_force", acc_unit, [0.01, -0.02, 0.03, 1.001, 0.999, 1.002, 0, 0, 0],
+               acc_terms)
+    gyro = _cal("gyroscope", "angular_rate", gyro_unit, [1e-3, -2e-3, 3e-3, 1.0, 1.0, 1.0, 0, 0, 0], gyro_terms)
+    return ParameterFile.build((acc, gyro), station=Station(48.0, 500.0), procedure="field-18",
+                               method="powell", input_sha256="0" * 64)
+
+
+def _rows(text: str) -> dict[str, tuple[float, int]]:
+    rows = [line.split("\t") for line in text.splitlines() if not line.startswith("#")]
+    return {name: (float(value), int(kind)) for _, _, name, value, kind in rows}
+
+
+def test_a_gyro_model_after_an_accelerometer_without_one_is_written():
+    rows = _rows(export(_file(None, [[2e-4, -3e-4, 5e-4]]), "px4"))
+    assert "TC_A_ENABLE" not in rows and not any(n.startswith("TC_A0_") for n in rows)
+    assert rows["TC_G_ENABLE"] == (1.0, MAV_PARAM_TYPE_INT32)
+    assert [rows[f"TC_G0_X1_{i}"][0] for i in range(3)] == [2e-4, -3e-4, 5e-4]
+    assert (rows["TC_G0_TREF"][0], rows["TC_G0_TMIN"][0], rows["TC_G0_TMAX"][0]) == (REF, LOW, HIGH)
+
+
+def test_every_value_but_the_enable_flags_is_a_float():
+    rows = _rows(export(_file([[1e-3, 0.0, 2e-3]], [[2e-4, -3e-4, 5e-4]]), "px4"))
+    assert {n for n, (_, kind) in rows.items() if kind == MAV_PARAM_TYPE_INT32} == {"TC_A_ENABLE", "TC_G_ENABLE"}
+    assert all(kind == MAV_PARAM_TYPE_REAL32 for n, (_, kind) in rows.items() if not n.endswith("_ENABLE"))
+
+
+def test_a_device_in_mg_and_degrees_per_second_gets_its_thermal_terms_in_si_units():
+    # 2 mg/K = 2 · 9.80665e-3 m/s²/K; 0.01 °/s per K = 0.01 · π/180 rad/s per K; second order 3 mg/K².
+    text = export(_file([[2.0, 0.0, -1.0], [3.0, 0.0, 0.0]], [[0.01, 0.0, 0.0]], "mg", "deg/s"), "px4")
+    rows = _rows(text)
+    assert rows["TC_A0_X1_0"][0] == pytest.approx(2 * 9.80665e-3, rel=1e-12)
+    assert rows["TC_A0_X1_2"][0] == pytest.approx(-9.80665e-3, rel=1e-12)
+    assert rows["TC_A0_X2_0"][0] == pytest.approx(3 * 9.80665e-3, rel=1e-12)
+    assert rows["TC_A0_X3_0"][0] == 0.0 and rows["TC_A0_X0_0"][0] == 0.0
+    assert rows["TC_G0_X1_0"][0] == pytest.approx(0.01 * np.pi / 180, rel=1e-12)
+
+
+def test_each_model_is_named_in_a_comment_with_the_id_to_set():
+    text = export(_file([[1e-3, 0.0, 2e-3], [1e-5, 0.0, 0.0]], [[2e-4, -3e-4, 5e-4]]), "px4")
+    comments = [line for line in text.splitlines() if line.startswith("# TC_")]
+    assert comments == [
+        "# TC_A0: accelerometer's thermal model, order 2, about 25.00 °C over 15.00 to 40.00 °C "
+        "(PX4 holds the offset of the nearer end outside it); set TC_A0_ID to the sensor's device id "
+        "(CAL_ACC0_ID)",
+        "# TC_G0: gyroscope's thermal model, order 1, about 25.00 °C over 15.00 to 40.00 °C "
+        "(PX4 holds the offset of the nearer end outside it); set TC_G0_ID to the sensor's device id "
+        "(CAL_GYRO0_ID)"]
