@@ -74,3 +74,16 @@ def test_a_session_whose_data_files_are_gone_still_verifies_its_parameters(tmp_p
     assert recorded_check(tmp_path / "s" / "parameters.yaml") == VERIFIED
     found, _ = previous_calibration(tmp_path, "imu", "A1")
     assert found.check == VERIFIED
+
+
+def test_the_callers_record_of_the_session_is_the_one_checked_against(tmp_path):
+    """A certificate reads its session once and hands its record over: the check uses that
+    record's checksum, not a second reading of the directory (here its log gone since)."""
+    from fieldcal.session.record import RunRecord
+
+    _session(tmp_path / "s", _parameters(0.01))
+    record = RunRecord.open(tmp_path / "s", log_only=True)
+    for log in (tmp_path / "s").glob("*.jsonl"):
+        log.unlink()
+    assert recorded_check(tmp_path / "s" / "parameters.yaml", record) == VERIFIED
+    assert recorded_check(tmp_path / "s" / "parameters.yaml") != VERIFIED  # read again: no log
