@@ -10,7 +10,7 @@ import pytest
 
 from fieldcal.calibration import Calibration
 from fieldcal.earth import Station
-from fieldcal.export import export
+from fieldcal.export import FORMATS, export, exporter
 from fieldcal.paramfile import ParameterFile
 from fieldcal.thermal import ThermalModel
 
@@ -18,18 +18,21 @@ REF, LOW, HIGH = 25.0, 15.0, 40.0
 MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32 = 6, 9
 
 
-def _cal(name, kind, unit, theta, terms=None):
+def _cal(name, kind, unit, theta, terms=None, drift=None):
     model = None if terms is None else ThermalModel(
         reference_c=REF, range_c=(LOW, HIGH), bias_terms=np.asarray(terms, dtype=float),
-        bias_terms_sigma=np.zeros_like(np.asarray(terms, dtype=float)))
+        bias_terms_sigma=np.zeros_like(np.asarray(terms, dtype=float)),
+        scale_drift=None if drift is None else np.asarray(drift, dtype=float),
+        scale_drift_sigma=None if drift is None else np.zeros(3))
     return Calibration(name=name, kind=kind, output_unit=unit, method="powell", theta=theta,
                        sigma=np.zeros(9), residual_rms=0.0, thermal=model)
 
 
-def _file(acc_terms, gyro_terms, acc_unit="m/s^2", gyro_unit="rad/s"):
+def _file(acc_terms, gyro_terms, acc_unit="m/s^2", gyro_unit="rad/s", gyro_drift=None):
     acc = _cal("accelerometer", "specific_force", acc_unit, [0.01, -0.02, 0.03, 1.001, 0.999, 1.002, 0, 0, 0],
                acc_terms)
-    gyro = _cal("gyroscope", "angular_rate", gyro_unit, [1e-3, -2e-3, 3e-3, 1.0, 1.0, 1.0, 0, 0, 0], gyro_terms)
+    gyro = _cal("gyroscope", "angular_rate", gyro_unit, [1e-3, -2e-3, 3e-3, 1.0, 1.0, 1.0, 0, 0, 0], gyro_terms,
+                gyro_drift)
     return ParameterFile.build((acc, gyro), station=Station(48.0, 500.0), procedure="field-18",
                                method="powell", input_sha256="0" * 64)
 
@@ -74,3 +77,18 @@ def test_each_model_is_named_in_a_comment_with_the_id_to_set():
         "# TC_G0: gyroscope's thermal model, order 1, about 25.00 °C over 15.00 to 40.00 °C "
         "(PX4 holds the offset of the nearer end outside it); set TC_G0_ID to the sensor's device id "
         "(CAL_GYRO0_ID)"]
+
+
+def test_a_gyros_scale_drift_is_costed_at_100_degrees_per_second_in_ppm_to_three_digits():
+    # The largest, 12.34999 ppm/K, over the 15 K from TREF to TMAX at 100 °/s:
+    # 1.852e-4 · 100 °/s · 3600 s/h = 66.69 °/h; 12.34999 ppm/K is 12.3 at three digits, not 12.4.
+    for fmt in ("px4", "ardupilot"):
+        text = export(_file(None, [[2e-4, -3e-4, 5e-4]], gyro_drift=[1e-5, -1.234999e-5, 0.0]), fmt)
+        line = next(t for t in text.splitlines() if "dropped: scale drift" in t)
+        assert line == "#   dropped: scale drift +10, -12.3, +0 ppm/K; worst error 66.7 °/h at 100 °/s over the range"
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_each_writer_called_alone_takes_the_triads_export_names_by_default(fmt):
+    pf = _file([[1e-3, 0.0, 2e-3]], [[2e-4, -3e-4, 5e-4]])
+    assert exporter(fmt)(pf) == export(pf, fmt)
