@@ -1,8 +1,9 @@
-"""PX4's thermal compensation lines at their edges (issue 26's mutation survivors in
-fieldcal/export): a gyro with a thermal model after an accelerometer without one, a device
-reporting in mg and °/s, the parameter types QGroundControl's file declares, and the comment that
-names each model. Truth: hand-worked unit conversions and MAVLink's MAV_PARAM_TYPE numbering
-(6 = INT32, 9 = REAL32)."""
+"""PX4's and ArduPilot's thermal compensation lines at their edges (issue 26's mutation survivors
+in fieldcal/export): one triad with a thermal model and the other without, a device reporting in
+mg and °/s, the parameter types QGroundControl's file declares, two ranges that share one
+temperature, and the comments that name each model. Truth: hand-worked unit conversions,
+MAVLink's MAV_PARAM_TYPE numbering (6 = INT32, 9 = REAL32) and ArduPilot's INS_TCAL1 scaling
+(SI units × 10⁶, AP_InertialSensor_tempcal.cpp SCALE_FACTOR)."""
 from __future__ import annotations
 
 import numpy as np
@@ -18,9 +19,9 @@ REF, LOW, HIGH = 25.0, 15.0, 40.0
 MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32 = 6, 9
 
 
-def _cal(name, kind, unit, theta, terms=None, drift=None):
+def _cal(name, kind, unit, theta, terms=None, drift=None, range_c=(LOW, HIGH)):
     model = None if terms is None else ThermalModel(
-        reference_c=REF, range_c=(LOW, HIGH), bias_terms=np.asarray(terms, dtype=float),
+        reference_c=REF, range_c=range_c, bias_terms=np.asarray(terms, dtype=float),
         bias_terms_sigma=np.zeros_like(np.asarray(terms, dtype=float)),
         scale_drift=None if drift is None else np.asarray(drift, dtype=float),
         scale_drift_sigma=None if drift is None else np.zeros(3))
@@ -28,11 +29,12 @@ def _cal(name, kind, unit, theta, terms=None, drift=None):
                        sigma=np.zeros(9), residual_rms=0.0, thermal=model)
 
 
-def _file(acc_terms, gyro_terms, acc_unit="m/s^2", gyro_unit="rad/s", gyro_drift=None):
+def _file(acc_terms, gyro_terms, acc_unit="m/s^2", gyro_unit="rad/s", gyro_drift=None,
+          acc_range=(LOW, HIGH), gyro_range=(LOW, HIGH)):
     acc = _cal("accelerometer", "specific_force", acc_unit, [0.01, -0.02, 0.03, 1.001, 0.999, 1.002, 0, 0, 0],
-               acc_terms)
+               acc_terms, range_c=acc_range)
     gyro = _cal("gyroscope", "angular_rate", gyro_unit, [1e-3, -2e-3, 3e-3, 1.0, 1.0, 1.0, 0, 0, 0], gyro_terms,
-                gyro_drift)
+                gyro_drift, gyro_range)
     return ParameterFile.build((acc, gyro), station=Station(48.0, 500.0), procedure="field-18",
                                method="powell", input_sha256="0" * 64)
 
@@ -92,3 +94,40 @@ def test_a_gyros_scale_drift_is_costed_at_100_degrees_per_second_in_ppm_to_three
 def test_each_writer_called_alone_takes_the_triads_export_names_by_default(fmt):
     pf = _file([[1e-3, 0.0, 2e-3]], [[2e-4, -3e-4, 5e-4]])
     assert exporter(fmt)(pf) == export(pf, fmt)
+
+
+def _ardupilot_rows(text: str) -> dict[str, float]:
+    return {name: float(value) for name, value in
+            (line.split(",") for line in text.splitlines() if line and not line.startswith("#"))}
+
+
+def test_ardupilot_gets_the_thermal_terms_of_a_device_in_mg_and_degrees_per_second_in_si_units_times_a_million():
+    # First order: re-centring on ArduPilot's 35 °C leaves the slope. 2 mg/K = 2 · 9.80665e-3 m/s²/K,
+    # ×10⁶ = 19613.3; 0.01 °/s per K = 1.745329e-4 rad/s per K, ×10⁶ = 174.5329.
+    rows = _ardupilot_rows(export(_file([[2.0, 0.0, -1.0]], [[0.01, 0.0, 0.0]], "mg", "deg/s"), "ardupilot"))
+    assert rows["INS_TCAL1_ACC1_X"] == pytest.approx(19613.3, rel=1e-12)
+    assert rows["INS_TCAL1_ACC1_Z"] == pytest.approx(-9806.65, rel=1e-12)
+    assert rows["INS_TCAL1_ACC2_X"] == 0.0 and rows["INS_TCAL1_ACC3_X"] == 0.0
+    assert rows["INS_TCAL1_GYR1_X"] == pytest.approx(0.01 * np.pi / 180 * 1e6, rel=1e-12)
+
+
+def test_ardupilot_takes_two_ranges_that_share_one_temperature():
+    rows = _ardupilot_rows(export(_file([[1e-3, 0.0, 2e-3]], [[2e-4, -3e-4, 5e-4]], acc_range=(LOW, REF),
+                                        gyro_range=(REF, HIGH)), "ardupilot"))
+    assert rows["INS_TCAL1_TMIN"] == rows["INS_TCAL1_TMAX"] == REF
+
+
+@pytest.mark.parametrize("with_model, without", [("gyroscope", "ACC"), ("accelerometer", "GYR")])
+def test_ardupilot_names_the_triad_without_a_thermal_model_it_leaves_to_the_vehicle(with_model, without):
+    terms = [[1e-3, 0.0, 2e-3]]
+    text = export(_file(terms if with_model == "accelerometer" else None,
+                        terms if with_model == "gyroscope" else None), "ardupilot")
+    comments = [line for line in text.splitlines() if line.startswith("# INS_TCAL1") or "no thermal model" in line]
+    written = "ACC" if without == "GYR" else "GYR"
+    assert comments == [
+        "# INS_TCAL1: ArduPilot's polynomial about 35 °C, valid 15.00 to 40.00 °C (held at the nearer end "
+        "outside it); no scale drift, one range per IMU (TCAL_* is the barometer's)",
+        f"# INS_TCAL1_{written}k: {with_model}'s thermal model, order 1, about 25.00 °C",
+        f"# not written, no thermal model (the vehicle keeps its own values): INS_TCAL1_{without}1..3_*"]
+    rows = _ardupilot_rows(text)
+    assert f"INS_TCAL1_{written}1_X" in rows and not any(n.startswith(f"INS_TCAL1_{without}") for n in rows)
