@@ -131,3 +131,21 @@ def test_ardupilot_names_the_triad_without_a_thermal_model_it_leaves_to_the_vehi
         f"# not written, no thermal model (the vehicle keeps its own values): INS_TCAL1_{without}1..3_*"]
     rows = _ardupilot_rows(text)
     assert f"INS_TCAL1_{written}1_X" in rows and not any(n.startswith(f"INS_TCAL1_{without}") for n in rows)
+
+
+@pytest.mark.parametrize("misnamed", ["accelerometer", "gyroscope"])
+def test_the_c_header_alone_refuses_a_triad_named_for_the_other_kind(misnamed):
+    """c_header writes every triad but checks that the ones named accelerometer and gyroscope
+    are of those kinds (firmware takes FIELDCAL_<NAME>_* by the name): called without names, it
+    checks those two, as export does."""
+    from fieldcal.export.c_header import c_header
+
+    # the misnamed triad, and one of the other kind under a neutral name
+    rate = _cal("accelerometer" if misnamed == "accelerometer" else "rate", "angular_rate", "rad/s",
+                [1e-3, -2e-3, 3e-3, 1.0, 1.0, 1.0, 0, 0, 0])
+    force = _cal("gyroscope" if misnamed == "gyroscope" else "force", "specific_force", "m/s^2",
+                 [0.01, -0.02, 0.03, 1.001, 0.999, 1.002, 0, 0, 0])
+    pf = ParameterFile.build((force, rate), station=Station(48.0, 500.0), procedure="field-18",
+                             method="powell", input_sha256="0" * 64)
+    with pytest.raises(ValueError, match=f"--{misnamed} {misnamed}: that triad is"):
+        c_header(pf)
