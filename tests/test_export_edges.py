@@ -149,3 +149,40 @@ def test_the_c_header_alone_refuses_a_triad_named_for_the_other_kind(misnamed):
                              method="powell", input_sha256="0" * 64)
     with pytest.raises(ValueError, match=f"--{misnamed} {misnamed}: that triad is"):
         c_header(pf)
+
+
+def test_px4_writes_the_thermal_model_of_a_file_with_nothing_else_calibrated():
+    """A PX4 thermal log's file: no offset or scale calibrated, only the thermal terms. The
+    export writes those (and says which CAL_* it leaves to the vehicle) rather than refusing a
+    file with nothing to write."""
+    from fieldcal.model import PARAM_NAMES
+
+    nominal = [0, 0, 0, 1, 1, 1, 0, 0, 0]
+    triads = []
+    for name, kind, unit, terms in (("accelerometer", "specific_force", "m/s^2", [[1e-3, 0.0, 2e-3]]),
+                                    ("gyroscope", "angular_rate", "rad/s", [[2e-4, -3e-4, 5e-4]])):
+        cal = _cal(name, kind, unit, nominal, terms)
+        triads.append(Calibration(name=name, kind=kind, output_unit=unit, method="lsq", theta=nominal,
+                                  sigma=np.zeros(9), residual_rms=0.0, thermal=cal.thermal,
+                                  not_calibrated=PARAM_NAMES))
+    pf = ParameterFile.build(triads, station=Station(0.0, 0.0), procedure="px4-thermal-log", method="lsq",
+                             input_sha256="0" * 64)
+    text = export(pf, "px4")
+    rows = _rows(text)
+    assert rows["TC_A_ENABLE"] == (1.0, MAV_PARAM_TYPE_INT32) and rows["TC_G0_X1_2"][0] == 5e-4
+    assert not any(n.startswith("CAL_") for n in rows)
+    assert "# not written, not calibrated (the vehicle keeps its own values): CAL_ACC0_XOFF" in text
+
+
+def test_only_calibrated_alone_refuses_values_none_of_which_is_calibrated():
+    """Called without ``more`` (nothing else written besides), a file whose every value is a
+    nominal is refused in one line: a flight stack would take them for calibrated ones."""
+    from fieldcal.export.autopilot import only_calibrated
+    from fieldcal.model import PARAM_NAMES
+
+    cal = Calibration(name="accelerometer", kind="specific_force", output_unit="m/s^2", method="lsq",
+                      theta=[0, 0, 0, 1, 1, 1, 0, 0, 0], sigma=np.zeros(9), residual_rms=0.0,
+                      not_calibrated=PARAM_NAMES, not_calibrated_why="a thermal log holds no offset")
+    with pytest.raises(ValueError, match="^export px4: none of what px4 holds is calibrated in this file "
+                                         r"\(accelerometer: a thermal log holds no offset\)$"):
+        only_calibrated("px4", [("CAL_ACC0_XOFF", 0.0, cal, "bias_x")])
