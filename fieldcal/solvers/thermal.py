@@ -93,19 +93,26 @@ def _observed_information(fun, x: np.ndarray, J: np.ndarray, steps: np.ndarray) 
     return J.T @ J + curvature
 
 
+def _condition_number(candidate) -> float:
+    """How well a candidate's parameters are determined: the largest over the least singular value
+    of J for a solution, of the observed information's square root for a fold (inf: singular)."""
+    J, information, fold = candidate[4], candidate[6], candidate[7]
+    if not fold:
+        sv = np.linalg.svd(J, compute_uv=False)
+        least, largest = sv[-1], sv[0]
+    else:
+        eig = np.linalg.eigvalsh(information)
+        least, largest = np.sqrt(max(eig[0], 0.0)), np.sqrt(eig[-1])
+    return float(largest / least) if least > 0 else np.inf
+
+
 def _undetermined(candidate) -> str | None:
     """Why the windows do not determine a candidate's parameters (None: they do): its information
     singular to within UNDETERMINED (on J itself for a solution, on the observed information for
     a fold)."""
-    J, information, fold = candidate[4], candidate[6], candidate[7]
-    if not fold:
-        sv = np.linalg.svd(J, compute_uv=False)
-        ratio = sv[-1] / sv[0]
-    else:
-        eig = np.linalg.eigvalsh(information)
-        ratio = np.sqrt(max(eig[0], 0.0) / eig[-1])
-    if not ratio > UNDETERMINED:
-        return f"condition number {np.inf if ratio == 0 else 1 / ratio:.3g}" + (", at a fold" if fold else "")
+    condition = _condition_number(candidate)
+    if not condition < 1 / UNDETERMINED:
+        return f"condition number {condition:.3g}" + (", at a fold" if candidate[7] else "")
     return None
 
 
@@ -314,12 +321,7 @@ def solve_thermal_norm(problem, temperatures_c, covariance, *, reference_c: floa
     if why:
         raise CalibrationError(f"{problem.name}: the thermal terms are not determined by these positions "
                                f"and temperatures ({why})")
-    if fold:
-        eig = np.linalg.eigvalsh(information)
-        condition = float(np.sqrt(eig[-1] / eig[0]))
-    else:
-        sv = np.linalg.svd(J, compute_uv=False)
-        condition = float(sv[0] / sv[-1])
+    condition = _condition_number(chosen)
     cov = np.linalg.inv(information)
     scaled = bool(dof > 0 and chdtrc(dof, chi2) < _BIRGE_P)  # (no residual freedom: nothing to test)
     if scaled:
